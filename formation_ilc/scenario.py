@@ -1,0 +1,444 @@
+"""Scenario files (YAML): strict loading with errors that name the file, the field and why.
+
+A scenario states every choice the paper leaves open: graph, formation frame, reference,
+gains, memory reading, uncertainty and delay model. Built-in scenarios live in
+``formation_ilc/scenarios`` and are named without their ``.yaml`` suffix.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field, replace
+from functools import cached_property
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from numpy.typing import NDArray
+
+from . import trajectory as tr
+from .delays import DelayModel
+from .law import HEADING_SOURCES, LAWS, MEMORY_MODES
+from .topology import Graph
+from .uncertainty import Harmonic, Uncertainty
+
+__all__ = ["ScenarioError", "Scenario", "LawSettings", "load_scenario", "builtin_scenarios",
+           "scenario_from_text"]
+
+
+class ScenarioError(ValueError):
+    """A scenario file is invalid. The message reads ``file: field: reason``."""
+
+
+def builtin_scenarios() -> list[str]:
+    files = resources.files("formation_ilc.scenarios").iterdir()
+    return sorted(p.name[:-5] for p in files if p.name.endswith(".yaml"))
+
+
+@dataclass(frozen=True)
+class LawSettings:
+    """Which law and memory reading, and the gains g (Gamma) and g' (Gamma') per robot."""
+
+    kind: int = 9
+    memory: str = "feedforward"
+    gain: tuple[float, ...] = ()
+    gain_prime: tuple[float, ...] = ()
+    gain_heading: str = "measured"
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    description: str
+    dt: float
+    samples: int
+    trials: int
+    seed: int
+    graph: Graph
+    reference: NDArray[np.float64]  # (T+2, 3)
+    frame: str
+    offsets: NDArray[np.float64]  # (n, 2) at scale 1
+    scales: tuple[tr.Sinusoid, ...]  # one per robot
+    law: LawSettings
+    uncertainty: Uncertainty
+    source: str = "<memory>"
+    text: str = field(default="", repr=False)
+
+    @property
+    def n(self) -> int:
+        return self.graph.n
+
+    @cached_property
+    def desired(self) -> tr.Desired:
+        pos = tr.formation_positions(self.reference, self.offsets, list(self.scales), self.dt,
+                                     self.frame)
+        return tr.desired_trajectories(pos, self.dt, self.reference)
+
+    def with_options(self, *, law: int | None = None, memory: str | None = None,
+                     noise: bool = True, delay: bool = True, seed: int | None = None,
+                     trials: int | None = None) -> Scenario:
+        """A copy with command-line overrides applied."""
+        unc = self.uncertainty
+        if not noise:
+            unc = unc.without_noise()
+        if not delay:
+            unc = unc.without_delay()
+        ls = self.law
+        if law is not None or memory is not None:
+            ls = replace(ls, kind=ls.kind if law is None else int(law),
+                         memory=ls.memory if memory is None else memory)
+        return replace(self, uncertainty=unc, law=ls,
+                       seed=self.seed if seed is None else int(seed),
+                       trials=self.trials if trials is None else int(trials))
+
+
+# --------------------------------------------------------------------------- validation
+
+_DEG = re.compile(r"^\s*([-+]?[0-9.eE+-]+)\s*deg\s*$")
+
+
+class _Fields:
+    """A mapping read once, field by field; unknown keys are an error."""
+
+    def __init__(self, data: Any, path: str, src: str):
+        if not isinstance(data, dict):
+            raise ScenarioError(f"{src}: {path or 'top level'}: expected a mapping, "
+                                f"got {type(data).__name__}")
+        self.data = data
+        self.path = path
+        self.src = src
+        self.used: set[str] = set()
+
+    def fail(self, key: str | None, why: str) -> ScenarioError:
+        where = self.path if key is None else (f"{self.path}.{key}" if self.path else key)
+        return ScenarioError(f"{self.src}: {where}: {why}")
+
+    def get(self, key: str, default: Any = ..., *, required: bool = False) -> Any:
+        self.used.add(key)
+        if key not in self.data:
+            if required or default is ...:
+                raise self.fail(key, "required field is missing")
+            return default
+        return self.data[key]
+
+    def sub(self, key: str, required: bool = True) -> _Fields:
+        val = self.get(key, required=required) if required else self.get(key, {})
+        return _Fields(val if val is not None else {}, f"{self.path}.{key}" if self.path else key,
+                       self.src)
+
+    def number(self, key: str, default: Any = ..., *, positive: bool = False,
+               nonneg: bool = False, angle: bool = False) -> float:
+        return self.as_number(self.get(key, default), key, positive=positive, nonneg=nonneg,
+                              angle=angle)
+
+    def as_number(self, v: Any, key: str, *, positive: bool = False, nonneg: bool = False,
+                  angle: bool = False) -> float:
+        if angle and isinstance(v, str) and (m := _DEG.match(v)):
+            try:
+                v = math.radians(float(m.group(1)))
+            except ValueError:
+                raise self.fail(key, f"cannot read {v!r} as an angle") from None
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            hint = " (a number, or a string like '0.05 deg')" if angle else ""
+            raise self.fail(key, f"expected a number{hint}, got {v!r}")
+        v = float(v)
+        if not math.isfinite(v):
+            raise self.fail(key, f"must be finite, got {v}")
+        if positive and v <= 0:
+            raise self.fail(key, f"must be > 0, got {v}")
+        if nonneg and v < 0:
+            raise self.fail(key, f"must be >= 0, got {v}")
+        return v
+
+    def integer(self, key: str, default: Any = ..., *, minimum: int | None = None) -> int:
+        v = self.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise self.fail(key, f"expected an integer, got {v!r}")
+        if minimum is not None and v < minimum:
+            raise self.fail(key, f"must be >= {minimum}, got {v}")
+        return v
+
+    def string(self, key: str, default: Any = ..., *, choices: tuple[str, ...] | None = None
+               ) -> str:
+        v = self.get(key, default)
+        if not isinstance(v, str):
+            raise self.fail(key, f"expected a string, got {v!r}")
+        if choices is not None and v not in choices:
+            raise self.fail(key, f"must be one of {', '.join(choices)}; got {v!r}")
+        return v
+
+    def numbers(self, key: str, length: int, default: Any = ..., *, nonneg: bool = False,
+                angle_index: tuple[int, ...] = ()) -> tuple[float, ...]:
+        v = self.get(key, default)
+        if not isinstance(v, (list, tuple)) or len(v) != length:
+            raise self.fail(key, f"expected a list of {length} numbers, got {v!r}")
+        return tuple(self.as_number(x, f"{key}[{i}]", nonneg=nonneg, angle=i in angle_index)
+                     for i, x in enumerate(v))
+
+    def robot(self, v: Any, key: str, n: int) -> int:
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise self.fail(key, f"expected a robot number, got {v!r}")
+        if not 1 <= v <= n:
+            raise self.fail(key, f"robot {v} does not exist (robots are 1..{n})")
+        return v
+
+    def finish(self) -> None:
+        extra = sorted(set(map(str, self.data)) - self.used)
+        if extra:
+            raise self.fail(extra[0], f"unknown field (known here: {', '.join(sorted(self.used))})")
+
+
+def _harmonics(f: _Fields, key: str, count: int, angle_index: tuple[int, ...]
+               ) -> tuple[Harmonic, ...]:
+    items = f.get(key, [{}] * count)
+    if not isinstance(items, list) or len(items) != count:
+        raise f.fail(key, f"expected a list of {count} harmonics {{amplitude, frequency, phase}}")
+    out = []
+    for i, item in enumerate(items):
+        h = _Fields(item, f"{f.path}.{key}[{i}]", f.src)
+        out.append(Harmonic(h.number("amplitude", 0.0, angle=i in angle_index),
+                            h.number("frequency", 0.0), h.number("phase", 0.0, angle=True)))
+        h.finish()
+    return tuple(out)
+
+
+def _constant(value: float) -> Any:
+    return lambda t: np.full(np.shape(t), value)
+
+
+def _reference(f: _Fields, n_samples: int, dt: float, base_dir: Path | None) -> NDArray:
+    kind = f.string("kind", choices=("lemniscate", "unicycle", "samples", "waypoints"))
+    m = n_samples + 2  # t = 0..T+1
+    if kind == "lemniscate":
+        ref = tr.paper_lemniscate(m, dt, f.number("x_amplitude", 7.5),
+                                  f.number("y_amplitude", 10.0), f.number("period", 45.0,
+                                                                          positive=True))
+    elif kind == "unicycle":
+        speed = f.get("speed", required=True)
+        if speed == "paper-ivb":
+            v = tr.paper_ivb_speed
+        elif isinstance(speed, (int, float)) and not isinstance(speed, bool):
+            v = _constant(float(speed))
+        else:
+            raise f.fail("speed", f"expected 'paper-ivb' or a number [m/s], got {speed!r}")
+        radius = f.number("turn_radius", 0.0)
+        w = (lambda t: v(t) / radius) if radius != 0 else _constant(0.0)
+        start = f.numbers("start", 3, [0.0, 0.0, 0.0], angle_index=(2,))
+        ref = tr.unicycle_reference(v, w, m, dt, (start[0], start[1], start[2]))
+    elif kind == "samples":
+        pts = f.get("points", None)
+        file = f.get("file", None)
+        if (pts is None) == (file is None):
+            raise f.fail(None, "give exactly one of 'points' (a list of [x, y]) or 'file' (CSV)")
+        if file is not None:
+            path = Path(file) if base_dir is None else base_dir / file
+            try:
+                pts = np.loadtxt(path, delimiter=",", ndmin=2, comments="#")[:, :2]
+            except (OSError, ValueError, IndexError) as exc:
+                raise f.fail("file", f"cannot read {path}: {exc}") from None
+        try:
+            arr = np.asarray(pts, dtype=float)
+        except (TypeError, ValueError):
+            raise f.fail("points", "expected a list of [x, y] pairs") from None
+        if arr.ndim != 2 or arr.shape[1] != 2:
+            raise f.fail("points", f"expected a list of [x, y] pairs, got shape {arr.shape}")
+        if len(arr) < m - 1:
+            raise f.fail("points", f"needs at least samples + 1 = {m - 1} points, got {len(arr)}")
+        ref = tr.sampled_reference(arr, m)
+    else:
+        times = f.get("times", required=True)
+        pts = f.get("points", required=True)
+        try:
+            ta = np.asarray(times, dtype=float)
+            pa = np.asarray(pts, dtype=float)
+        except (TypeError, ValueError):
+            raise f.fail("points", "times must be numbers and points [x, y] pairs") from None
+        if ta.ndim != 1 or pa.shape != (len(ta), 2) or len(ta) < 2:
+            raise f.fail("points", "needs as many [x, y] points as times, at least 2")
+        if np.any(np.diff(ta) <= 0):
+            raise f.fail("times", "must be strictly increasing")
+        ref = tr.waypoint_reference(ta, pa, m, dt)
+    f.finish()
+    return ref
+
+
+def _graph(f: _Fields, n: int) -> Graph:
+    leader_raw = f.get("leader", required=True)
+    if not isinstance(leader_raw, dict) or not leader_raw:
+        raise f.fail("leader", "expected a mapping {robot: weight} with at least one robot")
+    leader = {}
+    for k, v in leader_raw.items():
+        r = f.robot(k, f"leader.{k}", n)
+        leader[r] = f.as_number(v, f"leader.{k}", positive=True)
+    edges_raw = f.get("edges", [])
+    if not isinstance(edges_raw, list):
+        raise f.fail("edges", "expected a list of {from, to, weight}")
+    edges = []
+    seen = set()
+    for idx, e in enumerate(edges_raw):
+        ef = _Fields(e, f"{f.path}.edges[{idx}]", f.src)
+        src = ef.robot(ef.get("from", required=True), "from", n)
+        dst = ef.robot(ef.get("to", required=True), "to", n)
+        w = ef.number("weight", 1.0, positive=True)
+        ef.finish()
+        if src == dst:
+            raise ef.fail("to", f"robot {dst} cannot listen to itself")
+        if (dst, src) in seen:
+            raise ef.fail(None, f"duplicate edge {src} -> {dst}")
+        seen.add((dst, src))
+        edges.append((dst, src, w))
+    f.finish()
+    return Graph.from_edges(n, edges, leader)
+
+
+def _per_robot(f: _Fields, key: str, n: int, default: float) -> tuple[float, ...]:
+    v = f.get(key, default)
+    if isinstance(v, list):
+        if len(v) != n:
+            raise f.fail(key, f"expected one gain per robot ({n}), got {len(v)}")
+        return tuple(f.as_number(x, f"{key}[{i}]", nonneg=True) for i, x in enumerate(v))
+    return (f.as_number(v, key, nonneg=True),) * n
+
+
+def scenario_from_text(text: str, source: str = "<memory>", base_dir: Path | None = None
+                       ) -> Scenario:
+    """Parse and validate a scenario given as YAML text."""
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ScenarioError(f"{source}: not valid YAML: {exc}") from None
+    top = _Fields(data, "", source)
+    name = top.string("name")
+    description = top.string("description", "")
+    dt = top.number("dt")
+    if dt <= 0:
+        raise top.fail("dt", f"the sample time must be > 0 s, got {dt}")
+    n_samples = top.integer("samples", minimum=2)
+    trials = top.integer("trials", 100, minimum=1)
+    seed = top.integer("seed", 0, minimum=0)
+    n = top.integer("robots", minimum=1)
+
+    ref = _reference(top.sub("reference"), n_samples, dt, base_dir)
+
+    ff = top.sub("formation")
+    frame = ff.string("frame", choices=("world", "leader"))
+    scales_raw = ff.get("scales", {})
+    if not isinstance(scales_raw, dict):
+        raise ff.fail("scales", "expected a mapping name -> {mean, amplitude, period, phase}")
+    scales: dict[str, tr.Sinusoid] = {}
+    for key, val in scales_raw.items():
+        sf = _Fields(val, f"formation.scales.{key}", source)
+        scales[str(key)] = tr.Sinusoid(sf.number("mean", 1.0), sf.number("amplitude", 0.0),
+                                       sf.number("period", 0.0, nonneg=True),
+                                       sf.number("phase", 0.0, angle=True))
+        sf.finish()
+    off_raw = ff.get("offsets", required=True)
+    if not isinstance(off_raw, dict):
+        raise ff.fail("offsets", "expected a mapping robot -> {x, y, scale}")
+    offsets = np.full((n, 2), np.nan)
+    robot_scales: list[tr.Sinusoid] = [tr.Sinusoid()] * n
+    for key, val in off_raw.items():
+        r = ff.robot(key, f"offsets.{key}", n)
+        of = _Fields(val, f"formation.offsets.{key}", source)
+        offsets[r - 1] = (of.number("x"), of.number("y"))
+        sname = of.get("scale", None)
+        if sname is not None:
+            if sname not in scales:
+                raise of.fail("scale", f"no scale named {sname!r} in formation.scales "
+                                       f"(have: {', '.join(scales) or 'none'})")
+            robot_scales[r - 1] = scales[sname]
+        of.finish()
+    missing = [str(i + 1) for i in range(n) if np.isnan(offsets[i, 0])]
+    if missing:
+        raise ff.fail("offsets", f"no offset for robot(s) {', '.join(missing)}")
+    ff.finish()
+
+    graph = _graph(top.sub("graph"), n)
+
+    lf = top.sub("law", required=False)
+    law = LawSettings(
+        kind=int(lf.integer("kind", 9)),
+        memory=lf.string("memory", "feedforward", choices=MEMORY_MODES),
+        gain=_per_robot(lf, "gain", n, 0.08),
+        gain_prime=_per_robot(lf, "gain_prime", n, 0.08),
+        gain_heading=lf.string("gain_heading", "measured", choices=HEADING_SOURCES),
+    )
+    if law.kind not in LAWS:
+        raise lf.fail("kind", f"must be one of {', '.join(map(str, LAWS))}; got {law.kind}")
+    lf.finish()
+
+    uf = top.sub("uncertainty", required=False)
+    shift = uf.numbers("initial_shift", 3, [0, 0, 0], nonneg=True, angle_index=(2,))
+    df = uf.sub("disturbance", required=False)
+    dist_fixed = _harmonics(df, "fixed", 2, (1,))
+    dist_unif = df.numbers("uniform", 2, [0, 0], nonneg=True, angle_index=(1,))
+    df.finish()
+    nf = uf.sub("noise", required=False)
+    noise_fixed = _harmonics(nf, "fixed", 3, (2,))
+    noise_unif = nf.numbers("uniform", 3, [0, 0, 0], nonneg=True, angle_index=(2,))
+    nf.finish()
+    uf.finish()
+
+    dlf = top.sub("delay", required=False)
+    model = dlf.string("model", "none", choices=("none", "fixed", "uniform", "table", "paper"))
+    try:
+        if model == "paper":
+            dm = DelayModel.paper()
+        elif model == "fixed":
+            dm = DelayModel("fixed", samples=dlf.integer("samples", minimum=0))
+        elif model == "uniform":
+            dm = DelayModel("uniform", low=dlf.integer("low", minimum=0),
+                            high=dlf.integer("high", minimum=0))
+        elif model == "table":
+            vals = dlf.get("values", required=True)
+            probs = dlf.get("probabilities", required=True)
+            if not isinstance(vals, list) or not all(isinstance(v, int) for v in vals):
+                raise dlf.fail("values", "expected a list of delays in samples (integers)")
+            if not isinstance(probs, list) or len(probs) != len(vals):
+                raise dlf.fail("probabilities", "expected one probability per value")
+            dm = DelayModel("table", values=tuple(vals),
+                            probabilities=tuple(dlf.as_number(p, f"probabilities[{i}]",
+                                                              nonneg=True)
+                                                for i, p in enumerate(probs)))
+        else:
+            dm = DelayModel()
+    except ValueError as exc:
+        if isinstance(exc, ScenarioError):
+            raise
+        raise dlf.fail(None, str(exc)) from None
+    leader_link = dlf.get("leader_link", True)
+    if not isinstance(leader_link, bool):
+        raise dlf.fail("leader_link", f"expected true or false, got {leader_link!r}")
+    if dm.max_delay > n_samples:
+        raise dlf.fail(None, f"delays of up to {dm.max_delay} samples exceed the trial "
+                             f"({n_samples} samples)")
+    dlf.finish()
+    top.finish()
+
+    unc = Uncertainty(shift, (dist_fixed[0], dist_fixed[1]), (dist_unif[0], dist_unif[1]),
+                      (noise_fixed[0], noise_fixed[1], noise_fixed[2]),
+                      (noise_unif[0], noise_unif[1], noise_unif[2]), dm, leader_link)
+    return Scenario(name=name, description=description, dt=dt, samples=n_samples, trials=trials,
+                    seed=seed, graph=graph, reference=ref, frame=frame, offsets=offsets,
+                    scales=tuple(robot_scales), law=law, uncertainty=unc, source=source,
+                    text=text)
+
+
+def load_scenario(name_or_path: str | Path) -> Scenario:
+    """Load a built-in scenario by name, or a YAML file by path."""
+    p = Path(name_or_path)
+    if p.suffix in (".yaml", ".yml") or p.exists():
+        try:
+            text = p.read_text()
+        except OSError as exc:
+            raise ScenarioError(f"{p}: cannot read: {exc.strerror}") from None
+        return scenario_from_text(text, str(p), p.parent)
+    name = str(name_or_path)
+    if name in builtin_scenarios():
+        text = resources.files("formation_ilc.scenarios").joinpath(name + ".yaml").read_text()
+        return scenario_from_text(text, f"{name} (built-in)")
+    raise ScenarioError(f"{name}: no such scenario file, and not a built-in scenario "
+                        f"(built-in: {', '.join(builtin_scenarios())})")

@@ -1,0 +1,284 @@
+"""Batch simulator: all robots over all trials, with the uncertainty of Sec. IV.A.
+
+Each trial runs in one compiled loop over samples that calls the law's per-step function
+(``law.command``) for all robots at once, then ``law.learn`` for the next trial's memory.
+The robot node calls the same two functions for one robot.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+from .kinematics import step_into, wrap_angle
+from .law import command, heading_code, law_code, learn, memory_code
+from .scenario import Scenario
+
+__all__ = ["Problem", "TrialRecord", "SimResult", "simulate", "simulate_seeds", "trial_errors",
+           "METRIC_COLUMNS"]
+
+#: metrics.csv columns. Errors are measured-output errors unless marked true_ (true state);
+#: max over robots and t in [1, T]; trial 0 is the first run.
+METRIC_COLUMNS = (
+    "trial",
+    "max_position_error",
+    "max_heading_error",
+    "true_max_position_error",
+    "true_max_heading_error",
+    "rms_position_error",
+    "max_formation_error",
+)
+
+
+@dataclass(frozen=True)
+class Problem:
+    """A scenario compiled to the arrays the kernels take.
+
+    eta_d : shape (N, T+1, 3); src, weight : shape (N, L); leader, gain, gain_prime :
+    shape (N,).
+    """
+
+    dt: float
+    eta_d: NDArray[np.float64]
+    src: NDArray[np.int64]
+    weight: NDArray[np.float64]
+    leader: NDArray[np.float64]
+    gain: NDArray[np.float64]
+    gain_prime: NDArray[np.float64]
+    law: int
+    memory: int
+    heading: int
+
+    @property
+    def n(self) -> int:
+        return int(self.eta_d.shape[0])
+
+    @property
+    def samples(self) -> int:
+        return int(self.eta_d.shape[1] - 1)
+
+    @classmethod
+    def from_scenario(cls, sc: Scenario) -> Problem:
+        sc.graph.check_spanning_tree()
+        src, w = sc.graph.in_links()
+        return cls(dt=sc.dt, eta_d=np.ascontiguousarray(sc.desired.eta), src=src, weight=w,
+                   leader=sc.graph.leader.copy(), gain=np.asarray(sc.law.gain, dtype=float),
+                   gain_prime=np.asarray(sc.law.gain_prime, dtype=float),
+                   law=law_code(sc.law.kind), memory=memory_code(sc.law.memory),
+                   heading=heading_code(sc.law.gain_heading))
+
+    def tiled(self, copies: int) -> Problem:
+        """``copies`` independent teams stacked on the robot axis (for many seeds at once)."""
+        n = self.n
+        offs = (np.arange(copies) * n)[:, None, None]
+        src = np.where(self.src[None] >= 0, self.src[None] + offs, -1).reshape(-1,
+                                                                               self.src.shape[1])
+        rep = lambda a: np.tile(a, (copies,) + (1,) * (a.ndim - 1))  # noqa: E731
+        return Problem(self.dt, rep(self.eta_d), src, rep(self.weight), rep(self.leader),
+                       rep(self.gain), rep(self.gain_prime), self.law, self.memory, self.heading)
+
+
+@njit(cache=True)
+def run_trial(law: int, memory_mode: int, heading: int, dt: float,
+              memory: NDArray[np.float64], xi0: NDArray[np.float64],
+              dist: NDArray[np.float64], noise: NDArray[np.float64],
+              tau: NDArray[np.int64], tau0: NDArray[np.int64],
+              src: NDArray[np.int64], weight: NDArray[np.float64], leader: NDArray[np.float64],
+              eta_d: NDArray[np.float64], gain: NDArray[np.float64],
+              gain_prime: NDArray[np.float64],
+              xi: NDArray[np.float64], eta: NDArray[np.float64], u: NDArray[np.float64],
+              next_memory: NDArray[np.float64]) -> None:
+    """One trial of N robots; fills xi, eta (N, T+1, 3), u (N, T, 2) and next_memory.
+
+    tau : shape (N, L, T+1), delay of each in-link at each sample; tau0 : shape (N, T+1).
+    A link delivers at sample t the sender's output labelled t - tau (the network); the
+    law itself is ``command``.
+    """
+    n, n_links = src.shape
+    n_t = memory.shape[1]
+    nb_eta = np.zeros((n, n_links, 3))
+    nb_s = np.zeros((n, n_links), dtype=np.int64)
+    lead_s = np.zeros(n, dtype=np.int64)
+    xi[:, 0] = xi0
+    for t in range(n_t):
+        for r in range(n):
+            for c in range(3):
+                eta[r, t, c] = xi[r, t, c] + noise[r, t, c]
+        for r in range(n):
+            for ell in range(n_links):
+                j = src[r, ell]
+                s = t - tau[r, ell, t]
+                nb_s[r, ell] = s
+                if j >= 0 and s >= 0:
+                    for c in range(3):
+                        nb_eta[r, ell, c] = eta[j, s, c]
+            lead_s[r] = t - tau0[r, t]
+        command(t, law, memory[:, t], eta, eta_d, nb_eta, nb_s, src, weight, eta_d, lead_s,
+                leader, gain_prime, heading, u[:, t])
+        step_into(xi[:, t], u[:, t], dist[:, t], dt, xi[:, t + 1])
+    for r in range(n):
+        for c in range(3):
+            eta[r, n_t, c] = xi[r, n_t, c] + noise[r, n_t, c]
+    nb_full = np.zeros((n, n_links, n_t + 1, 3))
+    for r in range(n):
+        for ell in range(n_links):
+            j = src[r, ell]
+            if j >= 0:
+                nb_full[r, ell] = eta[j]
+    learn(law, memory_mode, memory, u, eta, eta_d, nb_full, src, weight, eta_d, leader, gain,
+          heading, next_memory)
+
+
+@njit(cache=True)
+def trial_errors(eta: NDArray[np.float64], xi: NDArray[np.float64],
+                 eta_d: NDArray[np.float64], src: NDArray[np.int64],
+                 weight: NDArray[np.float64], out: NDArray[np.float64]) -> None:
+    """Metrics of one trial over robots and t in [1, T] (the METRIC_COLUMNS after 'trial').
+
+    eta, xi, eta_d : shape (N, T+1, 3). out : shape (6,).
+    """
+    n, m, _ = eta.shape
+    mp = 0.0
+    mh = 0.0
+    tp = 0.0
+    th = 0.0
+    ss = 0.0
+    mf = 0.0
+    for r in range(n):
+        for t in range(1, m):
+            ex = eta_d[r, t, 0] - eta[r, t, 0]
+            ey = eta_d[r, t, 1] - eta[r, t, 1]
+            p = np.sqrt(ex * ex + ey * ey)
+            ss += p * p
+            mp = max(mp, p)
+            mh = max(mh, abs(wrap_angle(eta_d[r, t, 2] - eta[r, t, 2])))
+            ex = eta_d[r, t, 0] - xi[r, t, 0]
+            ey = eta_d[r, t, 1] - xi[r, t, 1]
+            tp = max(tp, np.sqrt(ex * ex + ey * ey))
+            th = max(th, abs(wrap_angle(eta_d[r, t, 2] - xi[r, t, 2])))
+            for ell in range(src.shape[1]):
+                j = src[r, ell]
+                if j < 0 or weight[r, ell] == 0.0:
+                    continue
+                fx = (eta_d[r, t, 0] - eta_d[j, t, 0]) - (eta[r, t, 0] - eta[j, t, 0])
+                fy = (eta_d[r, t, 1] - eta_d[j, t, 1]) - (eta[r, t, 1] - eta[j, t, 1])
+                mf = max(mf, np.sqrt(fx * fx + fy * fy))
+    out[0] = mp
+    out[1] = mh
+    out[2] = tp
+    out[3] = th
+    out[4] = np.sqrt(ss / (n * (m - 1)))
+    out[5] = mf
+
+
+@dataclass(frozen=True)
+class TrialRecord:
+    """One trial's trajectories: xi, eta (N, T+1, 3) true and measured, u (N, T, 2)."""
+
+    trial: int
+    xi: NDArray[np.float64]
+    eta: NDArray[np.float64]
+    u: NDArray[np.float64]
+
+
+@dataclass
+class SimResult:
+    """metrics : shape (K, len(METRIC_COLUMNS)); records : chosen trials; memory : the
+    memory for the trial after the last, shape (N, T, 2)."""
+
+    metrics: NDArray[np.float64]
+    records: dict[int, TrialRecord] = field(default_factory=dict)
+    memory: NDArray[np.float64] | None = None
+
+    def column(self, name: str) -> NDArray[np.float64]:
+        return self.metrics[:, METRIC_COLUMNS.index(name)]
+
+
+def simulate(
+    scenario: Scenario,
+    trials: int | None = None,
+    keep: Iterable[int] = (),
+    progress: Callable[[int, NDArray[np.float64]], None] | None = None,
+    initial_memory: NDArray[np.float64] | None = None,
+    first_trial: int = 0,
+) -> SimResult:
+    """Run ``trials`` trials (default: the scenario's) and return per-trial metrics.
+
+    keep : trial indices whose trajectories are returned. initial_memory : shape (N, T, 2),
+    default u_0 = 0 (the paper's). first_trial : index of the first trial (its random draws
+    are those of that index, so a run can continue another).
+    progress : called after each trial with (trial, metrics row).
+    """
+    pb = Problem.from_scenario(scenario)
+    k_total = scenario.trials if trials is None else int(trials)
+    n, n_t, n_links = pb.n, pb.samples, pb.src.shape[1]
+    unc = scenario.uncertainty
+    memory = (np.zeros((n, n_t, 2)) if initial_memory is None
+              else np.array(initial_memory, dtype=float))
+    if memory.shape != (n, n_t, 2):
+        raise ValueError(f"initial memory must have shape {(n, n_t, 2)}, got {memory.shape}")
+    nxt = np.empty_like(memory)
+    xi = np.empty((n, n_t + 1, 3))
+    eta = np.empty_like(xi)
+    u = np.empty((n, n_t, 2))
+    metrics = np.empty((k_total, len(METRIC_COLUMNS)))
+    keep = set(keep)
+    records: dict[int, TrialRecord] = {}
+    row = np.empty(len(METRIC_COLUMNS) - 1)
+    for i in range(k_total):
+        k = first_trial + i
+        shift, dist, noise = unc.draw_plant(scenario.seed, k, n, n_t)
+        tau, tau0 = unc.draw_delays(scenario.seed, k, n, n_links, n_t)
+        run_trial(pb.law, pb.memory, pb.heading, pb.dt, memory, pb.eta_d[:, 0] + shift, dist,
+                  noise, tau, tau0, pb.src, pb.weight, pb.leader, pb.eta_d, pb.gain,
+                  pb.gain_prime, xi, eta, u, nxt)
+        trial_errors(eta, xi, pb.eta_d, pb.src, pb.weight, row)
+        metrics[i, 0] = k
+        metrics[i, 1:] = row
+        if k in keep:
+            records[k] = TrialRecord(k, xi.copy(), eta.copy(), u.copy())
+        memory, nxt = nxt, memory
+        if progress is not None:
+            progress(k, metrics[i])
+    return SimResult(metrics=metrics, records=records, memory=memory)
+
+
+def simulate_seeds(scenario: Scenario, seeds: Iterable[int], trials: int) -> NDArray[np.float64]:
+    """Many independent runs at once: the teams are stacked on the robot axis.
+
+    Returns the max measured position error, shape (S, trials).
+    """
+    seeds = list(seeds)
+    base = Problem.from_scenario(scenario)
+    pb = base.tiled(len(seeds))
+    n1, n_t, n_links = base.n, base.samples, base.src.shape[1]
+    n = pb.n
+    unc = scenario.uncertainty
+    memory = np.zeros((n, n_t, 2))
+    nxt = np.empty_like(memory)
+    xi = np.empty((n, n_t + 1, 3))
+    eta = np.empty_like(xi)
+    u = np.empty((n, n_t, 2))
+    out = np.empty((len(seeds), trials))
+    row = np.empty(len(METRIC_COLUMNS) - 1)
+    for k in range(trials):
+        draws = [unc.draw_plant(s, k, n1, n_t) for s in seeds]
+        delays = [unc.draw_delays(s, k, n1, n_links, n_t) for s in seeds]
+        shift = np.concatenate([d[0] for d in draws])
+        dist = np.concatenate([d[1] for d in draws])
+        noise = np.concatenate([d[2] for d in draws])
+        tau = np.concatenate([d[0] for d in delays])
+        tau0 = np.concatenate([d[1] for d in delays])
+        run_trial(pb.law, pb.memory, pb.heading, pb.dt, memory, pb.eta_d[:, 0] + shift, dist,
+                  noise, tau, tau0, pb.src, pb.weight, pb.leader, pb.eta_d, pb.gain,
+                  pb.gain_prime, xi, eta, u, nxt)
+        for i in range(len(seeds)):
+            sl = slice(i * n1, (i + 1) * n1)
+            trial_errors(eta[sl], xi[sl], base.eta_d, base.src, base.weight, row)
+            out[i, k] = row[0]
+        memory, nxt = nxt, memory
+    return out
