@@ -1,0 +1,330 @@
+"""``formation-ilc``: simulate, compare, check and launch formation learning runs.
+
+Run ``formation-ilc COMMAND --help`` for each command.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+import time
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .scenario import Scenario, ScenarioError, builtin_scenarios, load_scenario
+from .topology import SpanningTreeError
+
+EXAMPLES = """\
+examples:
+  formation-ilc scenarios                              list the built-in scenarios
+  formation-ilc check paper-hexagon6                   Theorem 2, condition (20), lifted map
+  formation-ilc simulate paper-hexagon6 --trials 2000  the paper's study, law (9)
+  formation-ilc simulate paper-hexagon6 --law 22 --no-noise --out runs/hex22
+  formation-ilc compare paper-hexagon6 --trials 500    laws 9, 22, 23 in both memory readings
+  formation-ilc launch paper-triangle3 --trials 20     real ROS 2 processes, one per robot
+
+A SCENARIO is a built-in name or a YAML file (see formation_ilc/scenarios/*.yaml).
+"""
+
+
+def _scenario_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scenario", metavar="SCENARIO",
+                   help="built-in scenario name (formation-ilc scenarios) or a YAML file")
+
+
+def _run_options(p: argparse.ArgumentParser, law: bool = True) -> None:
+    p.add_argument("--trials", type=int, metavar="K",
+                   help="number of trials (default: the scenario's 'trials')")
+    if law:
+        p.add_argument("--law", type=int, choices=(9, 22, 23),
+                       help="9: predictive + delay-compensated current term (the paper's); "
+                            "22: predictive only; 23: current term ignores the delay")
+        p.add_argument("--memory", choices=("feedforward", "literal"),
+                       help="what the learning memory holds (paper-notes 12): feedforward "
+                            "(default; the current term is feedback on top) or literal "
+                            "(the applied input, current term included)")
+    p.add_argument("--seed", type=int, help="random seed (default: the scenario's)")
+    p.add_argument("--no-noise", action="store_true",
+                   help="no initial shifts, disturbances or measurement noise")
+    p.add_argument("--no-delay", action="store_true", help="no communication delays")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog="formation-ilc",
+        description="Distributed iterative learning control of differential-drive robot "
+                    "formations: robots repeat a trial, learn from it, and converge on a "
+                    "formation that follows a virtual leader, despite initial shifts, "
+                    "disturbances, noise and communication delays.",
+        epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="command", metavar="COMMAND")
+
+    sub.add_parser("scenarios", help="list the built-in scenarios")
+
+    p = sub.add_parser("simulate", help="batch-simulate all robots over all trials",
+                       description="Batch-simulate a scenario. Writes DIR/metrics.csv (one "
+                                   "row per trial, trial 0 = the first run), "
+                                   "DIR/summary.json and plots of error vs trial and of "
+                                   "chosen trials' trajectories.")
+    _scenario_arg(p)
+    _run_options(p)
+    p.add_argument("--no-plots", action="store_true", help="write no figures")
+    p.add_argument("--keep", metavar="K1,K2,...",
+                   help="trials whose trajectories are plotted and saved "
+                        "(default: first, about 10%%, 40%% and last)")
+    p.add_argument("--out", type=Path, metavar="DIR",
+                   help="output folder (default: runs/SCENARIO-LAW-MEMORY-TIME)")
+
+    p = sub.add_parser("compare", help="laws 9, 22, 23 in both memory readings, same draws",
+                       description="Run laws (9), (22) and (23), each with memory "
+                                   "'feedforward' and 'literal', on the same random draws, "
+                                   "and plot their errors in one figure (like Fig. 7).")
+    _scenario_arg(p)
+    _run_options(p, law=False)
+    p.add_argument("--out", type=Path, metavar="DIR", help="output folder")
+
+    p = sub.add_parser("check", help="Theorem 2, condition (20) and the lifted heading map",
+                       description="Check a scenario before running it. Exit status 2 if "
+                                   "the graph has no spanning tree (Theorem 2).")
+    _scenario_arg(p)
+    p.add_argument("--law", type=int, choices=(9, 22, 23))
+    p.add_argument("--memory", choices=("feedforward", "literal"))
+    p.add_argument("--trials", type=int, metavar="K",
+                   help="horizon for the transient-growth estimate (default: scenario's)")
+
+    try:
+        from . import launch
+    except ImportError:  # the distributed stack is not installed with this build
+        launch = None  # type: ignore[assignment]
+    if launch is not None:
+        p = sub.add_parser("launch", help="run the distributed ROS 2 stack on localhost",
+                           description=launch.__doc__,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
+        launch.add_arguments(p)
+    return ap
+
+
+class Progress:
+    """One line, rewritten on a terminal; a line every 10 % otherwise."""
+
+    def __init__(self, total: int, label: str):
+        self.total = total
+        self.label = label
+        self.t0 = time.perf_counter()
+        self.tty = sys.stderr.isatty()
+        self.last = -1.0
+
+    def __call__(self, k: int, row: Any) -> None:
+        done = k + 1
+        now = time.perf_counter()
+        frac = done / self.total
+        if self.tty:
+            if now - self.last < 0.1 and done != self.total:
+                return
+        elif int(frac * 10) == int(self.last) and done != self.total:
+            return
+        self.last = now if self.tty else int(frac * 10)
+        msg = (f"{self.label}: trial {done}/{self.total}  max position {row[1]:.4g} m  "
+               f"max heading {row[2]:.4g} rad  [{now - self.t0:.1f} s]")
+        if self.tty:
+            end = "\n" if done == self.total else ""
+            print("\r" + msg.ljust(100), end=end, file=sys.stderr, flush=True)
+        else:
+            print(msg, file=sys.stderr, flush=True)
+
+
+def _out_dir(arg: Path | None, sc: Scenario, tag: str) -> Path:
+    if arg is None:
+        stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+        arg = Path("runs") / f"{sc.name}-{tag}-{stamp}"
+    arg.mkdir(parents=True, exist_ok=True)
+    return arg
+
+
+def _scenario(args: argparse.Namespace, law: bool = True) -> Scenario:
+    sc = load_scenario(args.scenario)
+    return sc.with_options(
+        law=getattr(args, "law", None) if law else None,
+        memory=getattr(args, "memory", None) if law else None,
+        noise=not getattr(args, "no_noise", False), delay=not getattr(args, "no_delay", False),
+        seed=getattr(args, "seed", None), trials=getattr(args, "trials", None))
+
+
+def _default_keep(k: int) -> list[int]:
+    return sorted({0, max(0, k // 10 - 1), max(0, 2 * k // 5 - 1), k - 1})
+
+
+def write_metrics(path: Path, metrics: np.ndarray) -> None:
+    from .simulate import METRIC_COLUMNS
+
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(METRIC_COLUMNS)
+        for row in metrics:
+            w.writerow([int(row[0])] + [f"{x:.9g}" for x in row[1:]])
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from .checks import condition20
+    from .simulate import METRIC_COLUMNS, simulate
+
+    sc = _scenario(args)
+    k = sc.trials
+    if k < 1:
+        raise ScenarioError("--trials must be at least 1")
+    if args.keep:
+        try:
+            keep = sorted({int(x) for x in args.keep.split(",") if x.strip()})
+        except ValueError:
+            raise ScenarioError(f"--keep: expected trial numbers like 0,99,1999, got "
+                                f"{args.keep!r}") from None
+        bad = [x for x in keep if not 0 <= x < k]
+        if bad:
+            raise ScenarioError(f"--keep: trial {bad[0]} is outside 0..{k - 1}")
+    else:
+        keep = _default_keep(k)
+    out = _out_dir(args.out, sc, f"law{sc.law.kind}-{sc.law.memory}")
+    # metrics are written as they come, so a crash or Ctrl-C keeps every finished trial
+    fh = (out / "metrics.csv").open("w", newline="")
+    writer = csv.writer(fh)
+    writer.writerow(METRIC_COLUMNS)
+    bar = Progress(k, f"{sc.name} law ({sc.law.kind}) {sc.law.memory}")
+
+    def on_trial(trial: int, row: np.ndarray) -> None:
+        writer.writerow([int(row[0])] + [f"{x:.9g}" for x in row[1:]])
+        bar(trial, row)
+
+    t0 = time.perf_counter()
+    try:
+        res = simulate(sc, keep=keep, progress=on_trial)
+    finally:
+        fh.close()
+    elapsed = time.perf_counter() - t0
+    np.savez_compressed(out / "trajectories.npz", eta_d=sc.desired.eta,
+                        **{f"eta_{t}": r.eta for t, r in res.records.items()},
+                        **{f"xi_{t}": r.xi for t, r in res.records.items()},
+                        **{f"u_{t}": r.u for t, r in res.records.items()})
+    np.save(out / "memory.npy", res.memory)
+    pos, head = res.column("max_position_error"), res.column("max_heading_error")
+    summary = {
+        "scenario": sc.name, "source": sc.source, "law": sc.law.kind, "memory": sc.law.memory,
+        "seed": sc.seed, "trials": k, "noise": sc.uncertainty.noisy,
+        "delay": sc.uncertainty.delay.kind, "robots": sc.n, "samples": sc.samples, "dt": sc.dt,
+        "condition20": condition20(sc.graph, np.asarray(sc.law.gain), sc.dt),
+        "first": {"max_position_error": pos[0], "max_heading_error": head[0]},
+        "last": {"max_position_error": pos[-1], "max_heading_error": head[-1]},
+        "best": {"max_position_error": float(pos.min()), "trial": int(pos.argmin())},
+        "position_error_reduction": float(pos[0] / pos[-1]) if pos[-1] > 0 else None,
+        "seconds": elapsed, "ms_per_trial": 1000 * elapsed / k,
+    }
+    files = ["metrics.csv", "summary.json", "trajectories.npz", "memory.npy"]
+    if not args.no_plots:
+        from .plots import plot_errors, plot_trajectories
+
+        title = (f"{sc.name}: law ({sc.law.kind}), {sc.law.memory} memory, "
+                 f"{'noisy' if sc.uncertainty.noisy else 'noise-free'}, "
+                 f"delay {sc.uncertainty.delay.kind}")
+        plot_errors(res.metrics[:, 0], pos, head, out / "errors.png", title)
+        edges = [(i, j) for i in range(sc.n) for j in sc.graph.neighbours(i)]
+        plot_trajectories(sc.desired.eta, {t: r.eta for t, r in res.records.items()},
+                          out / "trajectories.png", title, edges=edges or _ring(sc.n))
+        files += ["errors.png", "trajectories.png"]
+    summary["files"] = files
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    print(f"{sc.name}: {k} trials in {elapsed:.2f} s ({summary['ms_per_trial']:.3f} ms/trial)")
+    print(f"  max position error: trial 0 {pos[0]:.4g} m -> trial {k - 1} {pos[-1]:.4g} m")
+    print(f"  max heading error:  trial 0 {head[0]:.4g} rad -> trial {k - 1} {head[-1]:.4g} rad")
+    print(f"  results in {out}/ ({', '.join(files)})")
+    return 0
+
+
+def _ring(n: int) -> list[tuple[int, int]]:
+    return [(i, (i + 1) % n) for i in range(n)] if n > 1 else []
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from .plots import plot_compare
+    from .simulate import simulate
+
+    base = _scenario(args, law=False)
+    out = _out_dir(args.out, base, "compare")
+    curves = {}
+    rows = []
+    for law in (9, 22, 23):
+        for mem in ("feedforward", "literal"):
+            if law == 22 and mem == "literal":
+                continue  # law (22) has no current term: both readings are the same law
+            sc = base.with_options(law=law, memory=mem)
+            res = simulate(sc, progress=Progress(sc.trials, f"law ({law}) {mem}"))
+            pos, head = res.column("max_position_error"), res.column("max_heading_error")
+            label = f"({law}) {mem}"
+            curves[label] = (res.metrics[:, 0], pos, head)
+            write_metrics(out / f"metrics_law{law}_{mem}.csv", res.metrics)
+            rows.append((label, pos[0], pos[-1], float(pos.max()), head[-1]))
+    title = (f"{base.name}: {base.trials} trials, "
+             f"{'noisy' if base.uncertainty.noisy else 'noise-free'}, "
+             f"delay {base.uncertainty.delay.kind}")
+    fig = plot_compare(curves, out / "compare.png", title)
+    print(f"{'law / memory':26s} {'first [m]':>10s} {'last [m]':>10s} {'peak [m]':>10s} "
+          f"{'last heading [rad]':>19s}")
+    for label, first, last, peak, lh in rows:
+        print(f"{label:26s} {first:10.4g} {last:10.4g} {peak:10.4g} {lh:19.4g}")
+    print(f"figure: {fig}")
+    return 0
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    from .checks import check_scenario
+
+    sc = load_scenario(args.scenario).with_options(law=args.law, memory=args.memory,
+                                                   trials=args.trials)
+    rep = check_scenario(sc)
+    for line in rep.lines(sc):
+        print(line)
+    if not rep.spanning_tree:
+        print("error: no gain can satisfy condition (20) on this graph (Theorem 2)",
+              file=sys.stderr)
+        return 2
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    if args.command is None:
+        ap.print_help()
+        return 1
+    try:
+        if args.command == "scenarios":
+            for name in builtin_scenarios():
+                sc = load_scenario(name)
+                print(f"{name:20s} {sc.n} robots, {sc.samples} samples of {sc.dt} s, "
+                      f"{sc.trials} trials: {sc.description.strip().splitlines()[0]}")
+            return 0
+        if args.command == "simulate":
+            return cmd_simulate(args)
+        if args.command == "compare":
+            return cmd_compare(args)
+        if args.command == "check":
+            return cmd_check(args)
+        if args.command == "launch":
+            from . import launch
+
+            return int(launch.run(args))
+    except (ScenarioError, SpanningTreeError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("\ninterrupted; finished trials are in metrics.csv", file=sys.stderr)
+        return 130
+    ap.error(f"unknown command {args.command}")
+    return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
