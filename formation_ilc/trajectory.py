@@ -241,11 +241,17 @@ def desired_trajectories(positions: NDArray[np.float64], dt: float,
     p = np.asarray(positions, dtype=float)
     n, m, _ = p.shape
     steps = np.diff(p, axis=1)  # (n, T+1, 2)
-    signed = [path_headings_signed(p[i], fallback=float(reference[0, 2])) for i in range(n)]
-    theta = np.stack([h for h, _ in signed])  # (n, T+1)
+    # headings of the steps inside the trial (t = 0..T-1); the heading at t = T is not
+    # tied to any step of the trial, so it continues the last turn rate: taking the tangent
+    # of a step past the trial would turn a robot sideways where the leader stops and only
+    # the formation's shape still changes (paper-triangle3, t = 140)
+    signed = [path_headings_signed(p[i, :-1], fallback=float(reference[0, 2]))
+              for i in range(n)]
+    theta = np.stack([h for h, _ in signed])  # (n, T)
+    theta = np.concatenate([theta, 2 * theta[:, -1:] - theta[:, -2:-1]], axis=1)  # (n, T+1)
     sign = np.stack([sg for _, sg in signed])
     eta = np.concatenate([p[:, :-1], theta[..., None]], axis=-1)  # (n, T+1, 3)
-    v = (sign * np.hypot(steps[..., 0], steps[..., 1]))[:, :-1] / dt
+    v = sign * np.hypot(steps[:, :-1, 0], steps[:, :-1, 1]) / dt
     w = np.diff(theta, axis=1) / dt
     u = np.stack([v, w], axis=-1)
     return Desired(eta=eta, u=u, reference=np.asarray(reference, dtype=float)[: m - 1])
