@@ -1,0 +1,77 @@
+import csv
+import json
+import subprocess
+import sys
+
+from formation_ilc.cli import main
+
+NO_TREE = """\
+name: broken
+dt: 0.1
+samples: 20
+robots: 3
+reference: {kind: lemniscate}
+formation:
+  frame: world
+  offsets: {1: {x: 1, y: 0}, 2: {x: -1, y: 0}, 3: {x: 0, y: 1}}
+graph:
+  leader: {1: 1.0}
+  edges: [{from: 3, to: 2}, {from: 2, to: 3}]
+"""
+
+
+def test_simulate_writes_metrics_summary_and_plots(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["simulate", "paper-triangle3", "--trials", "12", "--no-noise", "--no-delay",
+                 "--out", str(out)]) == 0
+    rows = list(csv.DictReader((out / "metrics.csv").open()))
+    assert len(rows) == 12 and rows[0]["trial"] == "0"
+    assert {"trial", "max_position_error", "max_heading_error"} <= set(rows[0])
+    assert float(rows[-1]["max_position_error"]) < float(rows[0]["max_position_error"])
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["trials"] == 12 and summary["law"] == 9 and summary["noise"] is False
+    assert (out / "errors.png").stat().st_size > 10_000
+    assert (out / "trajectories.png").stat().st_size > 10_000
+    assert "max position error" in capsys.readouterr().out
+
+
+def test_compare_runs_all_laws(tmp_path, capsys):
+    assert main(["compare", "paper-triangle3", "--trials", "5", "--out", str(tmp_path)]) == 0
+    text = capsys.readouterr().out
+    for label in ("(9) feedforward", "(9) literal", "(22) feedforward", "(23) literal"):
+        assert label in text
+    assert (tmp_path / "compare.png").exists()
+
+
+def test_check_refuses_graph_without_spanning_tree(tmp_path, capsys):
+    p = tmp_path / "broken.yaml"
+    p.write_text(NO_TREE)
+    assert main(["check", str(p)]) == 2
+    cap = capsys.readouterr()
+    assert "leader cannot reach robot(s) 2, 3" in cap.out
+    assert main(["simulate", str(p), "--out", str(tmp_path / "o")]) == 2
+    assert "no spanning tree" in capsys.readouterr().err
+
+
+def test_check_reports_condition20_and_verdict(capsys):
+    assert main(["check", "paper-triangle3", "--trials", "64"]) == 0
+    out = capsys.readouterr().out
+    assert "0.978306" in out and "verdict:" in out
+
+
+def test_bad_scenario_is_one_clear_error(tmp_path):
+    p = tmp_path / "bad.yaml"
+    p.write_text(NO_TREE.replace("dt: 0.1", "dt: -1"))
+    r = subprocess.run([sys.executable, "-m", "formation_ilc.cli", "simulate", str(p)],
+                       capture_output=True, text=True)
+    assert r.returncode == 2
+    assert r.stderr.strip() == f"error: {p}: dt: the sample time must be > 0 s, got -1.0"
+
+
+def test_help_teaches():
+    r = subprocess.run([sys.executable, "-m", "formation_ilc.cli", "--help"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0 and "examples:" in r.stdout
+    r = subprocess.run([sys.executable, "-m", "formation_ilc.cli", "simulate", "--help"],
+                       capture_output=True, text=True)
+    assert "--memory" in r.stdout and "paper-notes 12" in r.stdout
