@@ -39,16 +39,16 @@ def condition20(graph: Graph, gain: NDArray[np.float64], dt: float,
 
 def _norm2(m: NDArray[np.float64], iters: int = 60, seed: int = 0) -> float:
     """Largest singular value by power iteration on M^T M (cheaper than an SVD)."""
-    v = np.random.default_rng(seed).standard_normal(m.shape[1])
-    v /= np.linalg.norm(v)
+    v0 = np.random.default_rng(seed).standard_normal(m.shape[1])
+    v: NDArray[np.float64] = np.asarray(v0 / np.linalg.norm(v0), dtype=float)
     s = 0.0
     for _ in range(iters):
         w = m.T @ (m @ v)
         nw = float(np.linalg.norm(w))
         if nw == 0.0:
             return 0.0
-        s_new = np.sqrt(nw)
-        v = w / nw
+        s_new = float(np.sqrt(nw))
+        v = np.asarray(w / nw, dtype=float)
         if abs(s_new - s) <= 1e-10 * s_new:
             return float(s_new)
         s = s_new

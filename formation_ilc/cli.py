@@ -98,7 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="horizon for the transient-growth estimate (default: scenario's)")
 
     try:
-        from . import launch
+        from . import launch  # type: ignore[attr-defined,unused-ignore]
     except ImportError:  # the distributed stack is not installed with this build
         launch = None  # type: ignore[assignment]
     if launch is not None:
@@ -205,11 +205,12 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     finally:
         fh.close()
     elapsed = time.perf_counter() - t0
-    np.savez_compressed(out / "trajectories.npz", eta_d=sc.desired.eta,
-                        **{f"eta_{t}": r.eta for t, r in res.records.items()},
-                        **{f"xi_{t}": r.xi for t, r in res.records.items()},
-                        **{f"u_{t}": r.u for t, r in res.records.items()})
-    np.save(out / "memory.npy", res.memory)
+    arrays: dict[str, Any] = {"eta_d": sc.desired.eta}
+    for t, r in res.records.items():
+        arrays.update({f"eta_{t}": r.eta, f"xi_{t}": r.xi, f"u_{t}": r.u})
+    np.savez_compressed(out / "trajectories.npz", **arrays)
+    if res.memory is not None:
+        np.save(out / "memory.npy", res.memory)
     pos, head = res.column("max_position_error"), res.column("max_heading_error")
     summary = {
         "scenario": sc.name, "source": sc.source, "law": sc.law.kind, "memory": sc.law.memory,
@@ -313,7 +314,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "check":
             return cmd_check(args)
         if args.command == "launch":
-            from . import launch
+            from . import launch  # type: ignore[attr-defined,unused-ignore]
 
             return int(launch.run(args))
     except (ScenarioError, SpanningTreeError) as exc:

@@ -418,7 +418,8 @@ def scenario_from_text(text: str, source: str = "<memory>", base_dir: Path | Non
     dlf.finish()
     top.finish()
 
-    unc = Uncertainty(shift, (dist_fixed[0], dist_fixed[1]), (dist_unif[0], dist_unif[1]),
+    unc = Uncertainty((shift[0], shift[1], shift[2]), (dist_fixed[0], dist_fixed[1]),
+                      (dist_unif[0], dist_unif[1]),
                       (noise_fixed[0], noise_fixed[1], noise_fixed[2]),
                       (noise_unif[0], noise_unif[1], noise_unif[2]), dm, leader_link)
     return Scenario(name=name, description=description, dt=dt, samples=n_samples, trials=trials,

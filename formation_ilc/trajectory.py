@@ -202,7 +202,7 @@ def formation_positions(
     scales : one callable per robot, seconds -> scale factor (s(t), D1(t), ...).
     """
     m = reference.shape[0]
-    sec = np.arange(m) * dt
+    sec = np.arange(m, dtype=float) * dt
     s = np.stack([np.broadcast_to(f(sec), (m,)) for f in scales])  # (n, M)
     d = s[:, :, None] * np.asarray(base, dtype=float)[:, None, :]  # (n, M, 2)
     if frame == "leader":

@@ -77,8 +77,8 @@ class Uncertainty:
                    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """(shift (n, 3), disturbance (n, T, 2), noise (n, T+1, 3)) of one trial."""
         rng = trial_rng(seed, trial, PLANT_STREAM)
-        t_in = np.arange(n_samples)
-        t_out = np.arange(n_samples + 1)
+        t_in = np.arange(n_samples, dtype=float)
+        t_out = np.arange(n_samples + 1, dtype=float)
         shift = rng.uniform(-1.0, 1.0, (n, 3)) * np.asarray(self.initial_shift)
         dist = rng.uniform(-1.0, 1.0, (n, n_samples, 2)) * np.asarray(self.disturbance_uniform)
         noise = rng.uniform(-1.0, 1.0, (n, n_samples + 1, 3)) * np.asarray(self.noise_uniform)
