@@ -73,7 +73,7 @@ class HeadingMap:
     powers: tuple[int, ...]
     norms: tuple[float, ...]
 
-    def verdict(self) -> str:
+    def verdict(self, literal: bool = False, law: int = 9) -> str:
         if self.spectral_radius >= 1.0:
             return ("will not converge: the heading memory error grows from trial to trial "
                     f"(spectral radius {self.spectral_radius:.6f} >= 1)")
@@ -83,10 +83,16 @@ class HeadingMap:
         if self.growth < 10.0:
             return (f"converges, with a mild transient: errors may grow up to "
                     f"x{self.growth:.3g} before they shrink")
+        if literal:
+            advice = ("memory 'feedforward' (paper-notes 12), a smaller gain_prime, or a "
+                      "graph with shorter paths from the leader")
+        elif law == 22:
+            advice = "law 9 (its current term damps the transient), or shorter graph paths"
+        else:
+            advice = "a smaller gain_prime, or a graph with shorter paths from the leader"
         return (f"converges only in the long run: before it does, the heading error can grow "
                 f"up to x{self.growth:.3g} (around trial {self.growth_trial}); expect large, "
-                f"long transients. Consider memory 'feedforward', smaller gain_prime, or a "
-                f"graph with shorter paths (paper-notes 12)")
+                f"long transients. Consider {advice}")
 
 
 def heading_map(sc: Scenario, trials: int | None = None) -> HeadingMap | None:
@@ -185,7 +191,8 @@ class CheckReport:
             out.append(f"lifted heading map (expected delays): norm {h.norm:.6f}, spectral "
                        f"radius {h.spectral_radius:.6f}, max ||M^k|| = {h.growth:.4g} at "
                        f"k = {h.growth_trial}; growth of the start error x{h.initial_growth:.4g}")
-            out.append(f"verdict: {h.verdict()}")
+            literal = sc.law.memory == "literal" and sc.law.kind != 22
+            out.append(f"verdict: {h.verdict(literal, sc.law.kind)}")
         return out
 
 
