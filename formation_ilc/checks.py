@@ -193,6 +193,10 @@ class CheckReport:
                        f"k = {h.growth_trial}; growth of the start error x{h.initial_growth:.4g}")
             literal = sc.law.memory == "literal" and sc.law.kind != 22
             out.append(f"verdict: {h.verdict(literal, sc.law.kind)}")
+            out.append("         (linear analysis of the heading channel from the desired "
+                       "trajectory; errors near pi, e.g. a first trial from u = 0, can leave "
+                       "its range: the literal reading may then stall, see "
+                       "docs/reproduction.md)")
         return out
 
 
