@@ -79,6 +79,12 @@ def build_parser() -> argparse.ArgumentParser:
     _scenario_arg(p)
     _run_options(p)
     p.add_argument("--no-plots", action="store_true", help="write no figures")
+    p.add_argument("--init-memory", type=Path, metavar="MEMORY.npy",
+                   help="start from a learned memory (a run's memory.npy), e.g. learn "
+                        "noise-free first, then go on with noise (the paper's sim-to-real "
+                        "workflow, paper-notes 10)")
+    p.add_argument("--first-trial", type=int, default=0, metavar="K",
+                   help="number the trials from K (their random draws are trial K's, ...)")
     p.add_argument("--keep", metavar="K1,K2,...",
                    help="trials whose trajectories are plotted and saved "
                         "(default: first, about 10%%, 40%% and last)")
@@ -184,17 +190,30 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     k = sc.trials
     if k < 1:
         raise ScenarioError("--trials must be at least 1")
+    first = int(args.first_trial)
+    if first < 0:
+        raise ScenarioError("--first-trial must be >= 0")
     if args.keep:
         try:
             keep = sorted({int(x) for x in args.keep.split(",") if x.strip()})
         except ValueError:
             raise ScenarioError(f"--keep: expected trial numbers like 0,99,1999, got "
                                 f"{args.keep!r}") from None
-        bad = [x for x in keep if not 0 <= x < k]
+        bad = [x for x in keep if not first <= x < first + k]
         if bad:
-            raise ScenarioError(f"--keep: trial {bad[0]} is outside 0..{k - 1}")
+            raise ScenarioError(f"--keep: trial {bad[0]} is outside {first}..{first + k - 1}")
     else:
-        keep = _default_keep(k)
+        keep = [first + t for t in _default_keep(k)]
+    init = None
+    if args.init_memory is not None:
+        try:
+            init = np.load(args.init_memory)
+        except (OSError, ValueError) as exc:
+            raise ScenarioError(f"{args.init_memory}: cannot read a memory: {exc}") from None
+        want = (sc.n, sc.samples, 2)
+        if init.shape != want:
+            raise ScenarioError(f"{args.init_memory}: memory has shape {init.shape}, "
+                                f"{sc.name} needs {want} (robots, samples, [v, omega])")
     out = _out_dir(args.out, sc, f"law{sc.law.kind}-{sc.law.memory}")
     # metrics are written as they come, so a crash or Ctrl-C keeps every finished trial
     fh = (out / "metrics.csv").open("w", newline="")
@@ -204,11 +223,12 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
     def on_trial(trial: int, row: np.ndarray) -> None:
         writer.writerow([int(row[0])] + [f"{x:.9g}" for x in row[1:]])
-        bar(trial, row)
+        bar(trial - first, row)
 
     t0 = time.perf_counter()
     try:
-        res = simulate(sc, keep=keep, progress=on_trial)
+        res = simulate(sc, keep=keep, progress=on_trial, initial_memory=init,
+                       first_trial=first)
     finally:
         fh.close()
     elapsed = time.perf_counter() - t0
@@ -245,8 +265,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     summary["files"] = files
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     print(f"{sc.name}: {k} trials in {elapsed:.2f} s ({summary['ms_per_trial']:.3f} ms/trial)")
-    print(f"  max position error: trial 0 {pos[0]:.4g} m -> trial {k - 1} {pos[-1]:.4g} m")
-    print(f"  max heading error:  trial 0 {head[0]:.4g} rad -> trial {k - 1} {head[-1]:.4g} rad")
+    last = first + k - 1
+    print(f"  max position error: trial {first} {pos[0]:.4g} m -> trial {last} {pos[-1]:.4g} m")
+    print(f"  max heading error:  trial {first} {head[0]:.4g} rad -> trial {last} "
+          f"{head[-1]:.4g} rad")
     print(f"  results in {out}/ ({', '.join(files)})")
     return 0
 

@@ -75,3 +75,18 @@ def test_help_teaches():
     r = subprocess.run([sys.executable, "-m", "formation_ilc.cli", "simulate", "--help"],
                        capture_output=True, text=True)
     assert "--memory" in r.stdout and "paper-notes 12" in r.stdout
+
+
+def test_continue_from_a_learned_memory(tmp_path, capsys):
+    a, b, full = tmp_path / "a", tmp_path / "b", tmp_path / "full"
+    assert main(["simulate", "paper-triangle3", "--trials", "4", "--no-plots", "--out",
+                 str(a)]) == 0
+    assert main(["simulate", "paper-triangle3", "--trials", "3", "--no-plots", "--out", str(b),
+                 "--init-memory", str(a / "memory.npy"), "--first-trial", "4"]) == 0
+    assert main(["simulate", "paper-triangle3", "--trials", "7", "--no-plots", "--out",
+                 str(full)]) == 0
+    rows = lambda d: (d / "metrics.csv").read_text().splitlines()[1:]  # noqa: E731
+    assert rows(a) + rows(b) == rows(full)
+    assert main(["simulate", "paper-hexagon6", "--trials", "1", "--init-memory",
+                 str(a / "memory.npy"), "--out", str(tmp_path / "x")]) == 2
+    assert "needs (6, 300, 2)" in capsys.readouterr().err
