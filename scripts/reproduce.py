@@ -5,8 +5,8 @@
 
 Every simulation is a ``formation-ilc`` CLI call (printed before it runs). The one
 exception is the sim-to-real analogue of Fig. 14 (300 noise-free trials, then 25 noisy
-trials that start from the learned memory): the CLI cannot start a run from a saved
-memory, so that step calls ``formation_ilc.simulate.simulate(initial_memory=...)``.
+trials that start from the learned memory): that step calls
+``formation_ilc.simulate.simulate(initial_memory=...)`` (the CLI's ``--init-memory``).
 Figures go to docs/figures/, numbers to docs/figures/numbers.json. About a minute.
 """
 
@@ -398,7 +398,7 @@ def main() -> int:
     num["tri_noisy_seeds"] = {str(s): stats(read_metrics(d / "metrics.csv"), 25)
                               for s, d in tri_noisy.items()}
 
-    # sim-to-real analogue (library call: the CLI cannot start from a saved memory)
+    # sim-to-real analogue (library call; the CLI's --init-memory does the same)
     print("$ python: simulate(paper-triangle3 noisy + delays, trials 300..324, "
           "initial_memory = memory after 300 noise-free trials)")
     from formation_ilc.scenario import load_scenario
