@@ -1,0 +1,331 @@
+"""Run the distributed ROS 2 stack on this machine: one OS process per node.
+
+Starts the virtual leader, the kinematic simulator (with the link emulator), and one
+process per robot (or, with --container N, N robot nodes per process), all on localhost
+discovery and on a ROS_DOMAIN_ID of their own. Prints per-trial progress, writes
+DIR/metrics.csv (the columns of `formation-ilc simulate`), DIR/delays.csv (per-link delay
+histograms: measured by the robots with eq. 11, injected by the links, and the model's),
+DIR/diagnostics.json, DIR/summary.json, DIR/errors.png and one log per process in
+DIR/logs/. Stops every process on Ctrl-C or when one dies, and then exits non-zero naming it.
+
+Node entry points (also `ros2 run formation_ilc <exe>` on a full ROS 2 install):
+  formation-ilc-leader  virtual leader: --ros-args -p scenario:=NAME [-p trials:=K ...]
+  formation-ilc-sim     kinematic simulator + link emulator (config from /formation/config)
+  formation-ilc-robot   one robot: --ros-args -p robot_id:=I; container: --robots 1 2 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from datetime import datetime
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+__all__ = ["add_arguments", "run", "Stack", "node_commands"]
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scenario", metavar="SCENARIO",
+                   help="built-in scenario name (formation-ilc scenarios) or a YAML file")
+    p.add_argument("--trials", type=int, metavar="K", help="number of trials (default: 20)",
+                   default=20)
+    p.add_argument("--law", type=int, choices=(9, 22, 23))
+    p.add_argument("--memory", choices=("feedforward", "literal"))
+    p.add_argument("--seed", type=int, help="random seed (default: the scenario's)")
+    p.add_argument("--no-noise", action="store_true",
+                   help="no initial shifts, disturbances or measurement noise")
+    p.add_argument("--no-delay", action="store_true", help="no communication delays")
+    p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep",
+                   help="lockstep: the simulator waits for every robot (as fast as the "
+                        "processes allow, deterministic); realtime: wall clock at dT")
+    p.add_argument("--container", type=int, default=0, metavar="N",
+                   help="N robot nodes per process on one executor (0: one process per "
+                        "robot, the default)")
+    p.add_argument("--out", type=Path, metavar="DIR",
+                   help="output folder (default: runs/SCENARIO-launch-TIME)")
+    p.add_argument("--domain-id", type=int, metavar="ID",
+                   help="ROS_DOMAIN_ID (default: a free-looking one in 30..100)")
+    p.add_argument("--discovery", choices=("localhost", "inherit"), default="localhost",
+                   help="localhost (default): ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; "
+                        "inherit: keep the caller's discovery settings (multi-host runs)")
+    p.add_argument("--timeout", type=float, default=30.0, metavar="S",
+                   help="lockstep: give up when a robot has not commanded for S seconds")
+    p.add_argument("--no-plots", action="store_true", help="write no figures")
+
+
+def _pick_domain() -> int:
+    # distinct per launcher process; the shared-memory locks of Fast DDS name the domain
+    # port, so avoid ids whose port files are held (another run on this machine)
+    base = os.getpid() % 71
+    for off in range(71):
+        d = 30 + (base + off) % 71
+        port = 7400 + 250 * d
+        if not any(Path("/dev/shm").glob(f"fastrtps_port{port}*")):
+            return d
+    return 30 + base
+
+
+def node_commands(cfg_args: dict[str, Any], n: int, container: int
+                  ) -> list[tuple[str, list[str]]]:
+    """(name, argv) of every process of the stack (sys.executable -m ...)."""
+    py = sys.executable
+    leader = [py, "-m", "virtual_leader.node", "--ros-args"]
+    for k, v in cfg_args.items():
+        leader += ["-p", f"{k}:={v}"]
+    procs = [("virtual_leader", leader),
+             ("robot_sim", [py, "-m", "robot_sim.node", "--ros-args", "-p",
+                            f"timeout:={float(cfg_args['timeout'])}"])]
+    ids = list(range(1, n + 1))
+    if container > 0:
+        for c in range(0, n, container):
+            grp = ids[c:c + container]
+            procs.append((f"robots_{grp[0]}-{grp[-1]}", [py, "-m", "formation_ilc.nodes.robot",
+                                                         "--robots", *map(str, grp)]))
+    else:
+        for i in ids:
+            procs.append((f"robot_{i}", [py, "-m", "formation_ilc.nodes.robot", "--ros-args",
+                                         "-r", f"__node:=robot_{i}", "-p", f"robot_id:={i}"]))
+    return procs
+
+
+class Stack:
+    """The processes of one run; ``stop()`` ends them (SIGINT, then SIGTERM, SIGKILL)."""
+
+    def __init__(self, env: dict[str, str], log_dir: Path):
+        self.env = env
+        self.log_dir = log_dir
+        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+        self.logs: dict[str, IO[bytes]] = {}
+
+    def start(self, name: str, argv: list[str]) -> None:
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        fh = (self.log_dir / f"{name}.log").open("wb")
+        self.logs[name] = fh
+        self.procs[name] = subprocess.Popen(argv, env=self.env, stdout=fh,
+                                            stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+
+    def dead(self) -> list[tuple[str, int]]:
+        return [(n, p.returncode) for n, p in self.procs.items() if p.poll() is not None]
+
+    def log_tail(self, name: str, lines: int = 15) -> str:
+        try:
+            text = (self.log_dir / f"{name}.log").read_text(errors="replace")
+        except OSError:
+            return ""
+        return "\n".join(text.splitlines()[-lines:])
+
+    def stop(self, grace: float = 5.0) -> None:
+        for sig, wait in ((signal.SIGINT, grace), (signal.SIGTERM, 2.0), (signal.SIGKILL, 2.0)):
+            alive = [p for p in self.procs.values() if p.poll() is None]
+            if not alive:
+                break
+            for p in alive:
+                try:
+                    p.send_signal(sig)
+                except ProcessLookupError:
+                    pass
+            deadline = time.monotonic() + wait
+            for p in alive:
+                try:
+                    p.wait(timeout=max(0.0, deadline - time.monotonic()))
+                except subprocess.TimeoutExpired:
+                    pass
+        for fh in self.logs.values():
+            fh.close()
+
+
+def _write_csv(path: Path, header: list[str] | tuple[str, ...], rows: list[list[Any]]) -> None:
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(header)
+        w.writerows(rows)
+
+
+def delay_table(diagnostics: dict[str, dict[str, Any]], pmf: dict[int, float]
+                ) -> list[list[Any]]:
+    """Rows link, tau, measured, injected, measured_fraction, model_probability."""
+    injected = diagnostics.get("link_emulator", {}).get("injected", {})
+    rows = []
+    for node, d in sorted(diagnostics.items()):
+        for sender, hist in sorted(d.get("delays", {}).items()):
+            link = f"{sender}->{node}"
+            inj = injected.get(link, {})
+            total = sum(hist.values()) or 1
+            for tau in sorted({*map(int, hist), *map(int, inj), *pmf}):
+                m = int(hist.get(str(tau), 0))
+                rows.append([link, tau, m, int(inj.get(str(tau), 0)), m / total,
+                             pmf.get(tau, 0.0)])
+    return rows
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the stack; return the exit status (0 ok, 1 a node failed, 130 interrupted)."""
+    from formation_ilc.nodes.common import make_config, warm_up
+    from formation_ilc.simulate import METRIC_COLUMNS, Problem
+
+    cfg = make_config(args.scenario, seed=args.seed, noise=not args.no_noise,
+                      delay=not args.no_delay, trials=args.trials, law=args.law,
+                      memory=args.memory, mode=args.mode, monitored=True,
+                      timeout=args.timeout)
+    sc = cfg.scenario
+    if sc.trials < 1:
+        print("error: --trials must be at least 1", file=sys.stderr)
+        return 2
+    out = args.out or Path("runs") / f"{sc.name}-launch-{datetime.now():%Y%m%d-%H%M%S}"
+    out.mkdir(parents=True, exist_ok=True)
+    domain = args.domain_id if args.domain_id is not None else _pick_domain()
+    env = dict(os.environ)
+    env["ROS_DOMAIN_ID"] = str(domain)
+    if args.discovery == "localhost":
+        env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env["PYTHONUNBUFFERED"] = "1"
+    # our own monitor node joins the same domain: set before rclpy initialises
+    os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
+    if "ROS_AUTOMATIC_DISCOVERY_RANGE" in env:
+        os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env["ROS_AUTOMATIC_DISCOVERY_RANGE"]
+    pb = Problem.from_scenario(sc)
+    warm_up(pb)  # compile the kernels once, into the numba cache every node then loads
+
+    scen = args.scenario
+    if Path(scen).exists():
+        scen = str(Path(scen).resolve())
+    leader_params: dict[str, Any] = {
+        "scenario": scen, "seed": sc.seed, "trials": sc.trials, "law": sc.law.kind,
+        "memory": sc.law.memory, "noise": str(not args.no_noise).lower(),
+        "delay": str(not args.no_delay).lower(), "mode": args.mode, "monitored": "true",
+        "timeout": float(args.timeout)}
+    print(f"{sc.name}: {sc.n} robots, {sc.trials} trials of {sc.samples} samples "
+          f"(dT {sc.dt} s), {args.mode}, ROS_DOMAIN_ID={domain}, "
+          f"{'container ' + str(args.container) + ' robots/process' if args.container else 'one process per robot'}",
+          flush=True)
+
+    import rclpy
+    from rclpy.experimental import EventsExecutor
+    from rclpy.signals import SignalHandlerOptions
+
+    from formation_ilc.nodes.monitor import MonitorNode
+
+    metrics_fh = (out / "metrics.csv").open("w", newline="")
+    writer = csv.writer(metrics_fh)
+    writer.writerow(METRIC_COLUMNS)
+    t_start = time.monotonic()
+    trial_wall: list[float] = []
+
+    def on_trial(k: int, row: np.ndarray) -> None:
+        writer.writerow([int(row[0])] + [f"{x:.17g}" for x in row[1:]])
+        metrics_fh.flush()
+        now = time.monotonic()
+        trial_wall.append(now)
+        print(f"trial {k + 1}/{sc.trials}  max position {row[1]:.4g} m  max heading "
+              f"{row[2]:.4g} rad  [{now - t_start:.1f} s]", flush=True)
+
+    def on_term(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, on_term)
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    stack = Stack(env, out / "logs")
+    status = 0
+    monitor = None
+    try:
+        monitor = MonitorNode(cfg, on_trial)
+        ex = EventsExecutor()
+        ex.add_node(monitor)
+        for name, argv in node_commands(leader_params, sc.n, args.container):
+            stack.start(name, argv)
+        final_deadline: float | None = None
+        while True:
+            ex.spin_once(timeout_sec=0.05)
+            if len(monitor.rows) == sc.trials:
+                # the last diagnostics come right after the last trajectories
+                if final_deadline is None:
+                    final_deadline = time.monotonic() + 3.0
+                got = [d.get("trial", -1) for n, d in monitor.diagnostics.items()
+                       if n.startswith("robot_") and n != "robot_sim"]
+                if (len(got) == sc.n and min(got) >= sc.trials - 1) or \
+                        time.monotonic() > final_deadline:
+                    break
+            dead = stack.dead()
+            if dead:
+                name, code = dead[0]
+                print(f"error: node process {name} exited with status {code} "
+                      f"(log: {out / 'logs' / (name + '.log')})", file=sys.stderr)
+                tail = stack.log_tail(name)
+                if tail:
+                    print(tail, file=sys.stderr)
+                status = 1
+                break
+    except KeyboardInterrupt:
+        print("\ninterrupted: stopping every node; finished trials are in metrics.csv",
+              file=sys.stderr)
+        status = 130
+    finally:
+        stack.stop()
+        metrics_fh.close()
+        diagnostics = dict(monitor.diagnostics) if monitor is not None else {}
+        if monitor is not None:
+            monitor.destroy_node()
+        rclpy.try_shutdown()
+    elapsed = time.monotonic() - t_start
+    rows = [monitor.rows[k] for k in sorted(monitor.rows)] if monitor is not None else []
+    (out / "diagnostics.json").write_text(json.dumps(diagnostics, indent=2) + "\n")
+    pmf = sc.uncertainty.delay.pmf()
+    dtab = delay_table(diagnostics, pmf)
+    _write_csv(out / "delays.csv", ["link", "tau", "measured", "injected",
+                                    "measured_fraction", "model_probability"], dtab)
+    sim_diag = diagnostics.get("robot_sim", {})
+    summary = {"scenario": sc.name, "robots": sc.n, "trials_done": len(rows),
+               "trials": sc.trials, "mode": args.mode, "container": args.container,
+               "domain_id": domain, "seconds": elapsed,
+               "timing": sim_diag.get("timing", {}), "missed": sim_diag.get("missed", {}),
+               "dropped": {n: d.get("dropped", {}) for n, d in diagnostics.items()}}
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    if status:
+        return status
+    files = ["metrics.csv", "delays.csv", "diagnostics.json", "summary.json"]
+    m = np.array(rows)
+    if not args.no_plots and len(rows):
+        from formation_ilc.plots import plot_errors
+
+        plot_errors(m[:, 0], m[:, 1], m[:, 2], out / "errors.png",
+                    f"{sc.name}: distributed stack, {sc.n} robot nodes, {args.mode}")
+        files.append("errors.png")
+    _print_report(sc, m, dtab, summary)
+    print(f"results in {out}/ ({', '.join(files)}; logs/)")
+    return 0
+
+
+def _print_report(sc: Any, m: np.ndarray, dtab: list[list[Any]], summary: dict[str, Any]
+                  ) -> None:
+    k = len(m)
+    show = range(k) if k <= 20 else sorted({0, 1, 2, k // 4, k // 2, 3 * k // 4, k - 1})
+    print(f"{'trial':>6s} {'max pos [m]':>12s} {'max head [rad]':>15s} {'rms pos [m]':>12s}")
+    for i in show:
+        print(f"{int(m[i, 0]):6d} {m[i, 1]:12.4g} {m[i, 2]:15.4g} {m[i, 5]:12.4g}")
+    tim = summary.get("timing") or {}
+    if tim:
+        print(f"lockstep: {tim.get('samples_per_s', float('nan')):.0f} samples/s, per-sample "
+              f"latency p50 {tim.get('p50_ms', float('nan')):.2f} ms, "
+              f"p99 {tim.get('p99_ms', float('nan')):.2f} ms")
+    if dtab:
+        agg: dict[int, list[float]] = {}
+        for link, tau, meas, inj, _, p in dtab:
+            a = agg.setdefault(tau, [0, 0, p])
+            a[0] += meas
+            a[1] += inj
+        tot = sum(a[0] for a in agg.values()) or 1
+        print("delays (all links): tau  measured  injected  model")
+        for tau, (meas, inj, p) in sorted(agg.items()):
+            print(f"  {tau:4d} {meas / tot:9.3f} {inj / tot:9.3f} {p:6.3f}")
+    drops = {n: sum(d.values()) for n, d in summary["dropped"].items() if sum(d.values())}
+    if drops:
+        print(f"dropped messages: {drops}")

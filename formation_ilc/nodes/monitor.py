@@ -1,0 +1,83 @@
+"""Monitor node of the launcher: per-trial metrics from the wire, diagnostics, progress.
+
+It reads each robot's whole-trial measured trajectory (``trajectory``, the same message its
+neighbours learn from) and the simulator's true trajectories, and computes the metrics row
+with ``formation_ilc.simulate.trial_errors`` (metrics are defined once, in the core).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from nav_msgs.msg import Path
+from rclpy.node import Node
+from std_msgs.msg import String
+
+import msgs_schema as ms
+from formation_ilc.nodes.common import DropCounter, RunConfig
+from formation_ilc.simulate import METRIC_COLUMNS, Problem, trial_errors
+
+
+class MonitorNode(Node):
+    """Collects trial k's trajectories; calls ``on_trial(k, row)`` when all are in."""
+
+    def __init__(self, cfg: RunConfig, on_trial: Callable[[int, np.ndarray], None],
+                 **kwargs: Any):
+        super().__init__("monitor", namespace=ms.NAMESPACE, **kwargs)
+        self.cfg = cfg
+        self.pb = Problem.from_scenario(cfg.scenario)
+        self.clock = cfg.clock
+        self.on_trial = on_trial
+        self.drops = DropCounter(self)
+        n = self.pb.n
+        self.eta: dict[int, dict[int, np.ndarray]] = {}
+        self.xi: dict[int, dict[int, np.ndarray]] = {}
+        self.rows: dict[int, np.ndarray] = {}
+        self.diagnostics: dict[str, dict[str, Any]] = {}
+        self.events: list[dict[str, Any]] = []
+        for r in range(n):
+            self.create_subscription(Path, ms.trajectory_topic(r + 1),
+                                     lambda m, r=r: self._on_traj(m, r, self.eta),
+                                     ms.TRAJECTORY_QOS)
+            self.create_subscription(Path, ms.true_trajectory_topic(r + 1),
+                                     lambda m, r=r: self._on_traj(m, r, self.xi),
+                                     ms.TRAJECTORY_QOS)
+        self.create_subscription(String, ms.DIAGNOSTICS, self._on_diag, ms.LATCHED_READER_QOS)
+        self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
+
+    def _on_traj(self, msg: Path, r: int, store: dict[int, dict[int, np.ndarray]]) -> None:
+        try:
+            eta, stamps, frame = ms.path_to_trajectory(msg, self.pb.eta_d[r, :, 2])
+            k, _ = self.clock.decode(int(stamps[0]))
+        except (ms.MalformedMessage, IndexError) as exc:
+            self.drops.drop("malformed", f"robot_{r + 1}/trajectory", str(exc))
+            return
+        if k in self.rows:
+            return
+        store.setdefault(k, {})[r] = eta
+        n = self.pb.n
+        if len(self.eta.get(k, {})) == n and len(self.xi.get(k, {})) == n:
+            eta_all = np.stack([self.eta[k][i] for i in range(n)])
+            xi_all = np.stack([self.xi[k][i] for i in range(n)])
+            row = np.empty(len(METRIC_COLUMNS))
+            row[0] = k
+            trial_errors(eta_all, xi_all, self.pb.eta_d, self.pb.src, self.pb.weight, row[1:])
+            self.rows[k] = row
+            del self.eta[k], self.xi[k]
+            self.on_trial(k, row)
+
+    def _on_diag(self, msg: String) -> None:
+        try:
+            d = ms.msg_to_json(msg, ("node",))
+        except ms.MalformedMessage as exc:
+            self.drops.drop("malformed", "diagnostics", str(exc))
+            return
+        self.diagnostics[str(d["node"])] = d
+
+    def _on_event(self, msg: String) -> None:
+        try:
+            self.events.append(ms.msg_to_json(msg, ("event", "trial")))
+        except ms.MalformedMessage as exc:
+            self.drops.drop("malformed", "trial_events", str(exc))

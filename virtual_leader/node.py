@@ -1,0 +1,165 @@
+"""Virtual leader (``formation-ilc-leader``): the reference r(t), the trial schedule, the
+run configuration.
+
+Parameters
+----------
+scenario : str (required)
+    Scenario name or YAML file.
+seed : int, trials : int, law : int, memory : str
+    Overrides (-1 / 0 / "" keep the scenario's).
+noise, delay : bool
+    As ``--no-noise`` / ``--no-delay`` of ``formation-ilc simulate`` when false.
+mode : str
+    'lockstep' or 'realtime'.
+robots_expected : list of node names that must report ready before a trial starts
+    (default: every robot_i, robot_sim, link_emulator).
+monitored : bool
+    A monitor (the launcher) reads trajectories: nodes wait for it before trial 0.
+
+The leader publishes the configuration (latched), waits until every node has reported
+ready for trial k, publishes ``start`` k, then follows ``/clock``: at each sample t of the
+trial it broadcasts r(t) stamped with the sample's label, and at t = T ``end`` k. After the
+last trial it publishes ``done``.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Any
+
+from geometry_msgs.msg import PoseStamped
+from rclpy.exceptions import ParameterUninitializedException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import String
+
+import msgs_schema as ms
+from formation_ilc.nodes.common import DropCounter, make_config, matched, spin_main
+
+
+class LeaderNode(Node):
+    def __init__(self, **kwargs: Any):
+        super().__init__("virtual_leader", namespace=ms.NAMESPACE, **kwargs)
+        self.declare_parameter("scenario", "")
+        self.declare_parameter("seed", -1)
+        self.declare_parameter("trials", 0)
+        self.declare_parameter("law", 0)
+        self.declare_parameter("memory", "")
+        self.declare_parameter("noise", True)
+        self.declare_parameter("delay", True)
+        self.declare_parameter("mode", "lockstep")
+        self.declare_parameter("gap", 20)
+        self.declare_parameter("monitored", False)
+        self.declare_parameter("timeout", 30.0)
+        self.declare_parameter("nodes_expected", Parameter.Type.STRING_ARRAY)
+        g = lambda name: self.get_parameter(name).value  # noqa: E731
+        if not g("scenario"):
+            raise ValueError("parameter scenario: a scenario name or file is required")
+        self.cfg = make_config(
+            str(g("scenario")), seed=None if g("seed") < 0 else int(g("seed")),
+            noise=bool(g("noise")), delay=bool(g("delay")),
+            trials=int(g("trials")) or None, law=int(g("law")) or None,
+            memory=str(g("memory")) or None, mode=str(g("mode")), gap=int(g("gap")),
+            monitored=bool(g("monitored")), timeout=float(g("timeout")))
+        sc = self.cfg.scenario
+        self.clock = self.cfg.clock
+        self.T = sc.samples
+        self.trials = sc.trials
+        try:
+            expected = g("nodes_expected")
+        except ParameterUninitializedException:
+            expected = None
+        self.expected = list(expected) if expected else (
+            [ms.robot_name(i + 1) for i in range(sc.n)] + ["robot_sim", "link_emulator"])
+        self.ready: dict[str, int] = {}
+        self.drops = DropCounter(self)
+        self.k = -1          # last trial started
+        self.ended = -1      # last trial ended
+        self.ref_msg = PoseStamped()
+        self.config_pub = self.create_publisher(String, ms.CONFIG, ms.LATCHED_QOS)
+        self.ref_pub = self.create_publisher(PoseStamped, ms.REFERENCE, ms.SAMPLE_QOS)
+        self.event_pub = self.create_publisher(String, ms.TRIAL_EVENTS, ms.SAMPLE_QOS)
+        self.create_subscription(String, ms.READY, self._on_ready, ms.LATCHED_READER_QOS)
+        self.create_subscription(Clock, ms.CLOCK, self._on_clock, ms.CLOCK_QOS)
+        self.config_pub.publish(ms.json_to_msg(self.cfg.to_json()))
+        self._gate = self.create_timer(0.05, self._maybe_start)
+        self._last_change = time.monotonic()
+        self.create_timer(5.0, self._report_wait)
+        self.get_logger().info(f"{sc.name}: {sc.n} robots, {self.trials} trials of "
+                               f"{self.T} samples, {self.cfg.mode}; waiting for "
+                               f"{', '.join(self.expected)}")
+
+    def _on_ready(self, msg: String) -> None:
+        try:
+            d = ms.msg_to_json(msg, ("node", "trial"))
+            name, trial = str(d["node"]), int(d["trial"])
+        except (ms.MalformedMessage, TypeError, ValueError) as exc:
+            self.drops.drop("malformed", "ready", str(exc))
+            return
+        if name not in self.expected:
+            return
+        if trial < self.ready.get(name, -1):
+            self.drops.drop("stale", "ready", f"{name} ready for {trial}")
+            return
+        self.ready[name] = trial
+        self._last_change = time.monotonic()
+        self._maybe_start()
+
+    def _maybe_start(self) -> None:
+        nxt = self.k + 1
+        if self.ended != self.k or nxt > self.trials:
+            return
+        if any(self.ready.get(n, -1) < nxt for n in self.expected):
+            return
+        if not matched([(self.ref_pub, 1), (self.event_pub, 1)]):
+            return
+        if nxt == self.trials:
+            self.event_pub.publish(ms.json_to_msg({"event": ms.DONE, "trial": nxt}))
+            self.k = nxt
+            self.get_logger().info(f"done: {self.trials} trials")
+            return
+        self.k = nxt
+        self.event_pub.publish(ms.json_to_msg({"event": ms.START, "trial": nxt,
+                                               "stamp_ns": self.clock.stamp_ns(nxt, 0)}))
+
+    def _report_wait(self) -> None:
+        """Say whom the schedule waits for when it has not moved for a while."""
+        if time.monotonic() - self._last_change < 5.0 or self.k >= self.trials:
+            return
+        nxt = self.k + 1
+        if self.ended != self.k:
+            self.get_logger().warning(f"trial {self.k} has not ended (last clock: "
+                                      f"{getattr(self, '_last_t', None)})")
+            return
+        late = [n for n in self.expected if self.ready.get(n, -1) < nxt]
+        self.get_logger().warning(f"trial {nxt} waits for ready from {', '.join(late)}"
+                                  if late else f"trial {nxt}: waiting for readers")
+
+    def _on_clock(self, msg: Clock) -> None:
+        ns = ms.stamp_to_ns(msg.clock)  # not now(): see notes on /clock callbacks
+        try:
+            k, t = self.clock.decode(ns)
+        except ms.MalformedMessage as exc:
+            self.drops.drop("malformed", "clock", str(exc))
+            return
+        if k != self.k:
+            self.drops.drop("stale", "clock", f"time of trial {k} in trial {self.k}")
+            return
+        self._last_t = t
+        self._last_change = time.monotonic()
+        ref = self.cfg.scenario.reference[t]
+        self.ref_pub.publish(ms.pose_to_msg(ref, ns, ms.LEADER_FRAME, self.ref_msg))
+        if t == self.T and k > self.ended:
+            self.ended = k
+            self.event_pub.publish(ms.json_to_msg({"event": ms.END, "trial": k}))
+            self._maybe_start()
+
+
+def main(args: list[str] | None = None) -> int:
+    return spin_main(lambda argv: [LeaderNode()], args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
