@@ -1,0 +1,137 @@
+"""Wire contract: names, QoS and numpy <-> message converters, by round trip."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+ms = pytest.importorskip("msgs_schema")
+
+
+def test_topics_are_namespaced_per_robot():
+    assert ms.pose_topic(3) == "/formation/robot_3/pose"
+    assert ms.cmd_vel_topic(3) == "/formation/robot_3/cmd_vel"
+    assert ms.shared_pose_topic(1) == "/formation/robot_1/shared_pose"
+    assert ms.trajectory_topic(12) == "/formation/robot_12/trajectory"
+    assert ms.robot_index(ms.robot_name(7)) == 7
+    with pytest.raises(ms.MalformedMessage):
+        ms.robot_index("leader")
+    assert ms.CONFIG.startswith("/formation/")
+    from rclpy.qos import DurabilityPolicy
+    assert ms.LATCHED_QOS.durability == DurabilityPolicy.TRANSIENT_LOCAL
+
+
+def test_sample_clock_round_trip_and_labels():
+    clk = ms.SampleClock.for_run(0.2, 140, gap=20)
+    assert clk.dt_ns == 200_000_000
+    for k in (0, 1, 7, 1999):
+        for s in (0, 1, 70, 140):
+            ns = clk.stamp_ns(k, s)
+            assert clk.decode(ns) == (k, s)
+            t = ms.ns_to_stamp(ns)
+            assert ms.stamp_to_ns(t) == ns
+            # nearest sample: a label a bit off the grid still decodes
+            assert clk.decode(ns + clk.dt_ns // 3) == (k, s)
+    with pytest.raises(ms.MalformedMessage):
+        clk.decode(clk.stamp_ns(0, 141))  # between trials
+    with pytest.raises(ms.MalformedMessage):
+        clk.decode(-1)
+
+
+def test_pose_round_trip_with_unwrapped_heading():
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        eta = np.array([rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(-30, 30)])
+        ns = int(rng.integers(0, 10**12))
+        msg = ms.pose_to_msg(eta, ns, "robot_2")
+        back, st, frame = ms.msg_to_pose(msg, eta[2] + rng.uniform(-1, 1))
+        assert st == ns and frame == "robot_2"
+        assert back[:2].tolist() == eta[:2].tolist()  # positions are exact
+        assert abs(back[2] - eta[2]) < 1e-13          # heading through a quaternion
+        wrapped, _, _ = ms.msg_to_pose(msg)
+        assert -math.pi < wrapped[2] <= math.pi
+        assert abs(math.remainder(wrapped[2] - eta[2], 2 * math.pi)) < 1e-13
+
+
+@pytest.mark.parametrize("bad", ["nan_x", "inf_q", "tilted", "not_unit"])
+def test_malformed_pose_is_rejected(bad):
+    msg = ms.pose_to_msg([1.0, 2.0, 0.3], 0, "robot_1")
+    if bad == "nan_x":
+        msg.pose.position.x = float("nan")
+    elif bad == "inf_q":
+        msg.pose.orientation.w = float("inf")
+    elif bad == "tilted":
+        msg.pose.orientation.x = 0.3
+    else:
+        msg.pose.orientation.w = 3.0
+    with pytest.raises(ms.MalformedMessage):
+        ms.msg_to_pose(msg)
+
+
+def test_twist_round_trip():
+    u = np.array([0.35, -0.2])
+    assert ms.twist_to_u(ms.u_to_twist(u)).tolist() == u.tolist()
+    t = ms.u_to_twist(u)
+    t.linear.x = float("nan")
+    with pytest.raises(ms.MalformedMessage):
+        ms.twist_to_u(t)
+    t = ms.u_to_twist(u)
+    t.linear.y = 1.0
+    with pytest.raises(ms.MalformedMessage):
+        ms.twist_to_u(t)
+
+
+def test_trajectory_round_trip():
+    rng = np.random.default_rng(0)
+    clk = ms.SampleClock.for_run(0.1, 30)
+    eta = np.cumsum(rng.normal(size=(31, 3)) * 0.3, axis=0)
+    stamps = [clk.stamp_ns(4, s) for s in range(31)]
+    path = ms.trajectory_to_path(eta, stamps, "robot_5")
+    back, st, frame = ms.path_to_trajectory(path, eta[:, 2])
+    assert frame == "robot_5" and st.tolist() == stamps
+    np.testing.assert_array_equal(back[:, :2], eta[:, :2])
+    np.testing.assert_allclose(back[:, 2], eta[:, 2], atol=1e-13, rtol=0)
+    # unwrapped against the previous pose when no reference is given
+    back2, _, _ = ms.path_to_trajectory(path)
+    np.testing.assert_allclose(back2[:, 2] - back2[0, 2], eta[:, 2] - eta[0, 2], atol=1e-12)
+    with pytest.raises(ms.MalformedMessage):
+        ms.path_to_trajectory(path, eta[:-1, 2])  # wrong length
+    path.poses[3].header.frame_id = "robot_1"
+    with pytest.raises(ms.MalformedMessage):
+        ms.path_to_trajectory(path, eta[:, 2])
+
+
+def test_bundle_keeps_original_labels():
+    a = ms.pose_to_msg([1, 2, 3], 5_000, "robot_1")
+    b = ms.pose_to_msg([0, 0, 0], 3_000, ms.LEADER_FRAME)
+    tick, receiver, poses = ms.msg_to_bundle(ms.bundle_to_msg(9_000, "robot_2", [a, b]))
+    assert (tick, receiver) == (9_000, "robot_2")
+    assert [(p.header.frame_id, ms.stamp_to_ns(p.header.stamp)) for p in poses] == [
+        ("robot_1", 5_000), (ms.LEADER_FRAME, 3_000)]
+
+
+def test_json_messages():
+    d = {"event": ms.START, "trial": 3}
+    assert ms.msg_to_json(ms.json_to_msg(d), ("event", "trial")) == d
+    from std_msgs.msg import String
+    for bad in ("{", "[1, 2]", '"x"'):
+        with pytest.raises(ms.MalformedMessage):
+            ms.msg_to_json(String(data=bad))
+    with pytest.raises(ms.MalformedMessage):
+        ms.msg_to_json(ms.json_to_msg({"event": "start"}), ("event", "trial"))
+
+
+def test_messages_serialize():
+    """The converters build messages that survive CDR (what goes on the wire)."""
+    from geometry_msgs.msg import PoseStamped
+    from nav_msgs.msg import Path
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    m = ms.pose_to_msg([1.5, -2.0, 2.9], 123_456_789_012, "robot_4")
+    back = deserialize_message(serialize_message(m), PoseStamped)
+    eta, ns, frame = ms.msg_to_pose(back, 2.9)
+    assert ns == 123_456_789_012 and frame == "robot_4" and abs(eta[2] - 2.9) < 1e-15
+    p = ms.bundle_to_msg(1, "robot_1", [m])
+    assert len(deserialize_message(serialize_message(p), Path).poses) == 1
