@@ -1,0 +1,135 @@
+#!/usr/bin/env python3
+"""Benchmark of the distributed stack: lockstep samples/s and per-sample latency.
+
+Runs `formation-ilc launch` (real processes on localhost, own ROS_DOMAIN_ID each run) for
+teams of 3, 6, 12 and 24 robots, one process per robot and in container mode, and prints
+samples per second (simulated samples over the wall time inside trials) and the latency
+of one sample (simulator publishes the poses -> every robot's cmd_vel is in) p50/p90/p99.
+Teams larger than the built-in scenarios are made from paper-hexagon6 by tiling it
+(independent hexagons on one run, the same graph per copy).
+
+    python scripts/bench_stack.py                 # all sizes, 3 trials each
+    python scripts/bench_stack.py --sizes 6 24 --trials 2
+    python scripts/bench_stack.py --realtime 24   # realtime mode: missed samples
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import yaml
+
+from formation_ilc.scenario import load_scenario
+
+
+def team_scenario(n: int, tmp: Path, samples: int | None) -> str:
+    """A scenario file with n robots: paper-triangle3 for 3, hexagons tiled otherwise."""
+    base = "paper-triangle3" if n == 3 else "paper-hexagon6"
+    data = yaml.safe_load(load_scenario(base).text)
+    if samples:
+        data["samples"] = samples
+    if n not in (3, 6):
+        if n % 6:
+            raise SystemExit("sizes other than 3 must be multiples of 6")
+        copies = n // 6
+        g = data["graph"]
+        leader = {}
+        edges = []
+        offsets = {}
+        for c in range(copies):
+            for r, w in g["leader"].items():
+                leader[int(r) + 6 * c] = w
+            for e in g["edges"]:
+                ed = dict(e)
+                ed["from"] = int(e["from"]) + 6 * c
+                ed["to"] = int(e["to"]) + 6 * c
+                edges.append(ed)
+            for r, o in data["formation"]["offsets"].items():
+                o2 = dict(o)
+                if "x" in o2:
+                    o2["x"] = float(o2["x"]) + 4.0 * c
+                offsets[int(r) + 6 * c] = o2
+        data["robots"] = n
+        data["graph"] = dict(g, leader=leader, edges=edges)
+        data["formation"]["offsets"] = offsets
+        data["name"] = f"bench-{n}"
+    path = tmp / f"team{n}.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return str(path)
+
+
+def run(scenario: str, trials: int, domain: int, container: int, mode: str, out: Path,
+        timeout: float) -> dict:
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    argv = [sys.executable, "-m", "formation_ilc.cli", "launch", scenario, "--trials",
+            str(trials), "--out", str(out), "--domain-id", str(domain), "--no-plots",
+            "--mode", mode, "--container", str(container), "--timeout", "60"]
+    t0 = time.perf_counter()
+    res = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=timeout)
+    wall = time.perf_counter() - t0
+    if res.returncode:
+        return {"error": (res.stdout + res.stderr)[-800:]}
+    s = json.loads((out / "summary.json").read_text())
+    s["wall"] = wall
+    return s
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sizes", type=int, nargs="+", default=[3, 6, 12, 24])
+    ap.add_argument("--trials", type=int, default=3)
+    ap.add_argument("--container", type=int, default=6,
+                    help="robots per process in container mode (0: skip container runs)")
+    ap.add_argument("--realtime", type=int, nargs="*", default=[],
+                    help="team sizes to run in realtime mode too (1000 samples at dT 0.1)")
+    ap.add_argument("--domain", type=int, default=30 + os.getpid() % 60)
+    args = ap.parse_args()
+    rows = []
+    with tempfile.TemporaryDirectory() as td:
+        tmp = Path(td)
+        dom = args.domain
+        for n in args.sizes:
+            sc = team_scenario(n, tmp, None)
+            for cont in ([0, args.container] if args.container else [0]):
+                if cont and cont >= n:
+                    cont = n  # all robots in one process
+                out = tmp / f"lock-{n}-{cont}"
+                s = run(sc, args.trials, dom, cont, "lockstep", out, 900)
+                dom = 30 + (dom - 29) % 71
+                label = f"{n:3d} robots, " + (f"container {cont}/process" if cont
+                                              else "one process per robot")
+                if "error" in s:
+                    print(f"{label}: FAILED\n{s['error']}", flush=True)
+                    continue
+                t = s["timing"]
+                rows.append((n, cont, t))
+                print(f"{label:42s} {t['samples_per_s']:7.1f} samples/s  latency p50 "
+                      f"{t['p50_ms']:6.2f} p90 {t['p90_ms']:6.2f} p99 {t['p99_ms']:6.2f} "
+                      f"max {t['max_ms']:7.2f} ms  (wall {s['wall']:.1f} s incl. start-up)",
+                      flush=True)
+        for n in args.realtime:
+            # 1000 samples at dT = 0.1 s in realtime: 100 s of wall time
+            sc = team_scenario(n, tmp, 1000)
+            out = tmp / f"rt-{n}"
+            s = run(sc, 1, dom, 0, "realtime", out, 900)
+            dom = 30 + (dom - 29) % 71
+            if "error" in s:
+                print(f"realtime {n} robots: FAILED\n{s['error']}")
+                continue
+            missed = sum(s.get("missed", {}).values())
+            print(f"realtime {n} robots, 1000 samples at dT 0.1 s: missed {missed} "
+                  f"({s.get('missed')})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
