@@ -203,10 +203,10 @@ def run(args: argparse.Namespace) -> int:
         "memory": sc.law.memory, "noise": str(not args.no_noise).lower(),
         "delay": str(not args.no_delay).lower(), "mode": args.mode, "monitored": "true",
         "timeout": float(args.timeout)}
+    layout = (f"container: {args.container} robots/process" if args.container
+              else "one process per robot")
     print(f"{sc.name}: {sc.n} robots, {sc.trials} trials of {sc.samples} samples "
-          f"(dT {sc.dt} s), {args.mode}, ROS_DOMAIN_ID={domain}, "
-          f"{'container ' + str(args.container) + ' robots/process' if args.container else 'one process per robot'}",
-          flush=True)
+          f"(dT {sc.dt} s), {args.mode}, ROS_DOMAIN_ID={domain}, {layout}", flush=True)
 
     import rclpy
     from rclpy.experimental import EventsExecutor
@@ -318,7 +318,7 @@ def _print_report(sc: Any, m: np.ndarray, dtab: list[list[Any]], summary: dict[s
               f"p99 {tim.get('p99_ms', float('nan')):.2f} ms")
     if dtab:
         agg: dict[int, list[float]] = {}
-        for link, tau, meas, inj, _, p in dtab:
+        for _link, tau, meas, inj, _, p in dtab:
             a = agg.setdefault(tau, [0, 0, p])
             a[0] += meas
             a[1] += inj
