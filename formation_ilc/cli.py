@@ -85,6 +85,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "workflow, paper-notes 10)")
     p.add_argument("--first-trial", type=int, default=0, metavar="K",
                    help="number the trials from K (their random draws are trial K's, ...)")
+    p.add_argument("--record", type=Path, metavar="RUN.mcap",
+                   help="also write the run as ROS 2 MCAP, on the distributed stack's topics "
+                        "(analyse it with `formation-ilc analyze RUN.mcap`)")
     p.add_argument("--keep", metavar="K1,K2,...",
                    help="trials whose trajectories are plotted and saved "
                         "(default: first, about 10%%, 40%% and last)")
@@ -225,12 +228,21 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         writer.writerow([int(row[0])] + [f"{x:.9g}" for x in row[1:]])
         bar(trial - first, row)
 
+    recorder = None
+    if args.record is not None:
+        from .recording import SimRecorder
+
+        args.record.parent.mkdir(parents=True, exist_ok=True)
+        recorder = SimRecorder(args.record, sc, sample_trials=set(keep))
     t0 = time.perf_counter()
     try:
         res = simulate(sc, keep=keep, progress=on_trial, initial_memory=init,
-                       first_trial=first)
+                       first_trial=first,
+                       on_trial_data=None if recorder is None else recorder.trial)
     finally:
         fh.close()
+        if recorder is not None:
+            recorder.close()
     elapsed = time.perf_counter() - t0
     arrays: dict[str, Any] = {"eta_d": sc.desired.eta}
     for t, r in res.records.items():

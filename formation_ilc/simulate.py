@@ -205,6 +205,7 @@ def simulate(
     progress: Callable[[int, NDArray[np.float64]], None] | None = None,
     initial_memory: NDArray[np.float64] | None = None,
     first_trial: int = 0,
+    on_trial_data: Callable[..., None] | None = None,
 ) -> SimResult:
     """Run ``trials`` trials (default: the scenario's) and return per-trial metrics.
 
@@ -212,6 +213,8 @@ def simulate(
     default u_0 = 0 (the paper's). first_trial : index of the first trial (its random draws
     are those of that index, so a run can continue another).
     progress : called after each trial with (trial, metrics row).
+    on_trial_data : called after each trial with (trial, xi, eta, u, tau, tau0), e.g. to
+        record it; the arrays are reused, copy what you keep.
     """
     pb = Problem.from_scenario(scenario)
     k_total = scenario.trials if trials is None else int(trials)
@@ -241,6 +244,8 @@ def simulate(
         metrics[i, 1:] = row
         if k in keep:
             records[k] = TrialRecord(k, xi.copy(), eta.copy(), u.copy())
+        if on_trial_data is not None:
+            on_trial_data(k, xi, eta, u, tau, tau0)
         memory, nxt = nxt, memory
         if progress is not None:
             progress(k, metrics[i])

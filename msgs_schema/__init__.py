@@ -53,7 +53,8 @@ __all__ = [
     "NAMESPACE", "CONFIG", "REFERENCE", "TRIAL_EVENTS", "READY", "DIAGNOSTICS", "CLOCK",
     "LEADER_FRAME", "robot_name", "robot_index", "pose_topic", "cmd_vel_topic",
     "shared_pose_topic", "neighbour_poses_topic", "trajectory_topic", "true_trajectory_topic",
-    "SAMPLE_QOS", "LATCHED_QOS", "LATCHED_READER_QOS", "TRAJECTORY_QOS", "CLOCK_QOS", "MalformedMessage",
+    "SAMPLE_QOS", "LATCHED_QOS", "LATCHED_READER_QOS", "TRAJECTORY_QOS", "CLOCK_QOS",
+    "MalformedMessage", "topic_table",
     "SampleClock", "stamp_to_ns", "ns_to_stamp", "pose_to_msg", "msg_to_pose", "u_to_twist",
     "twist_to_u", "trajectory_to_path", "path_to_trajectory", "bundle_to_msg",
     "msg_to_bundle", "json_to_msg", "msg_to_json", "clock_msg", "Delivery",
@@ -349,3 +350,30 @@ def msg_to_json(msg: String, required: Sequence[str] = ()) -> dict[str, Any]:
     if missing:
         raise MalformedMessage(f"JSON lacks {missing}")
     return data
+
+
+# --------------------------------------------------------------------------- topic table
+
+def topic_table(n: int) -> list[tuple[str, str, QoSProfile]]:
+    """Every topic of a run of ``n`` robots: (name, ROS type name, offered QoS).
+
+    The recorder subscribes to exactly these; the batch simulator records on them too.
+    """
+    rows: list[tuple[str, str, QoSProfile]] = [
+        (CONFIG, "std_msgs/msg/String", LATCHED_QOS),
+        (REFERENCE, "geometry_msgs/msg/PoseStamped", SAMPLE_QOS),
+        (TRIAL_EVENTS, "std_msgs/msg/String", SAMPLE_QOS),
+        (READY, "std_msgs/msg/String", LATCHED_QOS),
+        (DIAGNOSTICS, "std_msgs/msg/String", LATCHED_QOS),
+        (CLOCK, "rosgraph_msgs/msg/Clock", CLOCK_QOS),
+    ]
+    for i in range(1, n + 1):
+        rows += [
+            (pose_topic(i), "geometry_msgs/msg/PoseStamped", SAMPLE_QOS),
+            (cmd_vel_topic(i), "geometry_msgs/msg/Twist", SAMPLE_QOS),
+            (shared_pose_topic(i), "geometry_msgs/msg/PoseStamped", SAMPLE_QOS),
+            (neighbour_poses_topic(i), "nav_msgs/msg/Path", SAMPLE_QOS),
+            (trajectory_topic(i), "nav_msgs/msg/Path", TRAJECTORY_QOS),
+            (true_trajectory_topic(i), "nav_msgs/msg/Path", TRAJECTORY_QOS),
+        ]
+    return rows

@@ -1,0 +1,252 @@
+"""Runs as MCAP files: what the batch simulator writes, and what analysis reads back.
+
+A recording is self-contained: it carries the run configuration (the scenario's YAML text
+and overrides) on ``/formation/config`` and in a metadata record, the trial events, every
+robot's whole-trial measured trajectory (``robot_i/trajectory``, the message its
+neighbours learn from) and true trajectory, and the robots' diagnostics with the delays
+they measured (eq. 11). The distributed stack's recorder node writes the same topics as
+received; ``SimRecorder`` writes them from the batch simulator.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+from collections import Counter
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from . import cdr
+from .mcap_io import RosMcapWriter, qos_yaml, read_messages
+from .scenario import Scenario
+from .simulate import METRIC_COLUMNS, Problem, trial_errors
+
+__all__ = ["qos_of", "SimRecorder", "Recording", "load_recording"]
+
+#: metadata record name holding the run configuration (same JSON as /formation/config)
+META_NAME = "formation_ilc"
+
+
+def qos_of(profile: Any) -> str:
+    """offered_qos_profiles YAML of an rclpy QoSProfile."""
+    return qos_yaml(reliability=profile.reliability.name.lower(),
+                    durability=profile.durability.name.lower(),
+                    history=profile.history.name.lower(), depth=int(profile.depth))
+
+
+class SimRecorder:
+    """Writes a batch simulation as the distributed stack's recorder would.
+
+    Per trial: trial events, each robot's measured and true trajectory, and each robot's
+    cumulative delay histogram (its diagnostics). For the trials in ``sample_trials`` also
+    the per-sample topics: /clock, each robot's pose and cmd_vel, and the reference.
+    Times are simulated time on the stack's sample grid (``SampleClock``).
+    """
+
+    def __init__(self, path: str | Path, sc: Scenario, sample_trials: Iterable[int] = (),
+                 gap: int = 20):
+        import msgs_schema as ms
+        from formation_ilc.nodes.common import RunConfig
+
+        self.ms = ms
+        self.sc = sc
+        self.pb = Problem.from_scenario(sc)
+        cfg = RunConfig(sc, mode="lockstep", gap=gap)
+        self.clock = cfg.clock
+        self.sample_trials = set(sample_trials)
+        self.w = RosMcapWriter(path, flush_period=1.0)
+        n = sc.n
+        self.specs = {t: (ty, q) for t, ty, q in ms.topic_table(n)}
+        for topic, (typ, qos) in self.specs.items():
+            self.w.channel(topic, typ, qos_of(qos))
+        conf = cfg.to_json() | {"recorded_by": "formation-ilc simulate"}
+        self._json(ms.CONFIG, conf, 0)
+        self.w.metadata(META_NAME, {"config": json.dumps(conf)})
+        self.delays: list[dict[str, Counter[int]]] = [{} for _ in range(n)]
+        self.names = [ms.robot_name(i + 1) for i in range(n)]
+
+    def _json(self, topic: str, data: dict[str, Any], ns: int) -> None:
+        self.w.write(topic, cdr.encode_string(json.dumps(data, separators=(",", ":"))), ns, ns)
+
+    def trial(self, k: int, xi: NDArray[np.float64], eta: NDArray[np.float64],
+              u: NDArray[np.float64], tau: NDArray[np.int64], tau0: NDArray[np.int64]) -> None:
+        ms, pb, clk = self.ms, self.pb, self.clock
+        n, n_t = pb.n, pb.samples
+        stamps = np.array([clk.stamp_ns(k, s) for s in range(n_t + 1)], dtype=np.int64)
+        t0, t_end = int(stamps[0]), int(stamps[-1])
+        self._json(ms.TRIAL_EVENTS, {"event": ms.START, "trial": k, "stamp_ns": t0}, t0)
+        if k in self.sample_trials:
+            ref = self.sc.reference
+            for t in range(n_t + 1):
+                ns = int(stamps[t])
+                self.w.write(ms.CLOCK, cdr.encode_clock(ns), ns, ns)
+                self.w.write(ms.REFERENCE, cdr.encode_pose_stamped(ref[t], ns, ms.LEADER_FRAME),
+                             ns, ns)
+                for r in range(n):
+                    self.w.write(ms.pose_topic(r + 1),
+                                 cdr.encode_pose_stamped(eta[r, t], ns, self.names[r]), ns, ns)
+                    if t < n_t:
+                        self.w.write(ms.cmd_vel_topic(r + 1),
+                                     cdr.encode_twist(u[r, t, 0], u[r, t, 1]), ns, ns)
+        self._json(ms.TRIAL_EVENTS, {"event": ms.END, "trial": k}, t_end)
+        # what each robot counts: the deliveries of ticks 0..T-1 that carry a sample >= 0
+        t_idx = np.arange(n_t)
+        for i in range(n):
+            for ell, j in enumerate(pb.src[i]):
+                if j < 0:
+                    continue
+                d = tau[i, ell, :n_t]
+                self.delays[i].setdefault(self.names[j], Counter()).update(
+                    d[t_idx - d >= 0].tolist())
+            if pb.leader[i] != 0.0:
+                d = tau0[i, :n_t]
+                self.delays[i].setdefault(ms.LEADER_FRAME, Counter()).update(
+                    d[t_idx - d >= 0].tolist())
+        for r in range(n):
+            self.w.write(ms.true_trajectory_topic(r + 1),
+                         cdr.encode_path(xi[r], stamps, self.names[r], t_end), t_end, t_end)
+            self.w.write(ms.trajectory_topic(r + 1),
+                         cdr.encode_path(eta[r], stamps, self.names[r], t_end), t_end, t_end)
+            hist = {sender: {str(a): b for a, b in sorted(c.items())}
+                    for sender, c in self.delays[r].items()}
+            self._json(ms.DIAGNOSTICS, {"node": self.names[r], "trial": k, "delays": hist,
+                                        "dropped": {}}, t_end)
+
+    def close(self) -> None:
+        self.w.close()
+
+
+# --------------------------------------------------------------------------- reading
+
+
+@dataclass
+class Recording:
+    """What an analysis needs, read from one MCAP file.
+
+    metrics : shape (K, len(METRIC_COLUMNS)), trials in order (from the trajectories).
+    eta, xi : {trial: shape (N, T+1, 3)} of the trials kept (``keep`` of load_recording).
+    delays : {"sender->robot_i": {tau: count}} measured by the robots (last diagnostics).
+    injected : the same as injected by the link emulator, when recorded.
+    events : trial events in file order. config : the run configuration (JSON).
+    """
+
+    scenario: Scenario
+    config: dict[str, Any]
+    metrics: NDArray[np.float64]
+    eta: dict[int, NDArray[np.float64]] = field(default_factory=dict)
+    xi: dict[int, NDArray[np.float64]] = field(default_factory=dict)
+    delays: dict[str, dict[int, int]] = field(default_factory=dict)
+    injected: dict[str, dict[int, int]] = field(default_factory=dict)
+    events: list[dict[str, Any]] = field(default_factory=list)
+    incomplete: list[int] = field(default_factory=list)
+    messages: int = 0
+
+
+def _path_outputs(data: bytes, ref_heading: NDArray[np.float64]
+                  ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """eta (S, 3) and stamps of a recorded trajectory, decoded as the monitor decodes it
+    (msgs_schema.path_to_trajectory: same heading function, unwrapped next to the desired
+    heading), with the bytes parsed by numpy when the layout allows it."""
+    import msgs_schema as ms
+
+    try:
+        f, stamps, _, _ = cdr.decode_path(data)
+    except (ValueError, struct.error):
+        from rclpy.serialization import deserialize_message
+
+        eta, stamps, _ = ms.path_to_trajectory(deserialize_message(data, ms.Path), ref_heading)
+        return eta, stamps
+    if len(f) != len(ref_heading):
+        raise ms.MalformedMessage(f"trajectory has {len(f)} poses, expected {len(ref_heading)}")
+    if not np.isfinite(f[:, :2]).all():
+        raise ms.MalformedMessage("non-finite position")
+    eta = np.empty((len(f), 3))
+    eta[:, :2] = f[:, :2]
+    hq = ms._heading_from_quaternion
+    for s, (qx, qy, qz, qw) in enumerate(f[:, 3:].tolist()):
+        eta[s, 2] = hq(qx, qy, qz, qw, float(ref_heading[s]))
+    return eta, stamps
+
+
+def load_recording(path: str | Path, keep: Callable[[int, int], bool] | None = None,
+                   progress: Callable[[int], None] | None = None) -> Recording:
+    """Read a recording and compute its per-trial metrics exactly as the launcher does.
+
+    keep : (trial, total trials) -> whether to keep the trial's trajectories.
+    progress : called with the number of messages read so far, now and then.
+    """
+    from rclpy.serialization import deserialize_message
+    from std_msgs.msg import String
+
+    import msgs_schema as ms
+    from formation_ilc.nodes.common import RunConfig
+
+    path = Path(path)
+    config: dict[str, Any] | None = None
+    cfg: RunConfig | None = None
+    pb: Problem | None = None
+    meas: dict[int, dict[int, NDArray[np.float64]]] = {}
+    true: dict[int, dict[int, NDArray[np.float64]]] = {}
+    rows: dict[int, NDArray[np.float64]] = {}
+    rec_eta: dict[int, NDArray[np.float64]] = {}
+    rec_xi: dict[int, NDArray[np.float64]] = {}
+    diags: dict[str, dict[str, Any]] = {}
+    events: list[dict[str, Any]] = []
+    count = 0
+    traj_topic: dict[str, tuple[int, bool]] = {}
+    for m in read_messages(path):
+        count += 1
+        if progress is not None and count % 5000 == 0:
+            progress(count)
+        if m.topic == ms.CONFIG and config is None:
+            config = json.loads(deserialize_message(m.data, String).data)
+            cfg = RunConfig.from_json(config)
+            pb = Problem.from_scenario(cfg.scenario)
+            for r in range(pb.n):
+                traj_topic[ms.trajectory_topic(r + 1)] = (r, False)
+                traj_topic[ms.true_trajectory_topic(r + 1)] = (r, True)
+            continue
+        if m.topic == ms.TRIAL_EVENTS:
+            events.append(json.loads(deserialize_message(m.data, String).data))
+        elif m.topic == ms.DIAGNOSTICS:
+            d = json.loads(deserialize_message(m.data, String).data)
+            diags[str(d.get("node", "?"))] = d
+        elif m.topic in traj_topic:
+            if pb is None or cfg is None:
+                continue
+            r, is_true = traj_topic[m.topic]
+            eta, stamps = _path_outputs(m.data, pb.eta_d[r, :, 2])
+            k, _ = cfg.clock.decode(int(stamps[0]))
+            if k in rows:
+                continue
+            (true if is_true else meas).setdefault(k, {})[r] = eta
+            if len(meas.get(k, {})) == pb.n and len(true.get(k, {})) == pb.n:
+                e = np.stack([meas[k][i] for i in range(pb.n)])
+                x = np.stack([true[k][i] for i in range(pb.n)])
+                row = np.empty(len(METRIC_COLUMNS))
+                row[0] = k
+                trial_errors(e, x, pb.eta_d, pb.src, pb.weight, row[1:])
+                rows[k] = row
+                if keep is None or keep(k, cfg.scenario.trials):
+                    rec_eta[k], rec_xi[k] = e, x
+                del meas[k], true[k]
+    if config is None or cfg is None:
+        raise ValueError(f"{path}: no run configuration on {ms.CONFIG}: not a formation-ilc "
+                         f"recording, or cut before it started")
+    metrics = (np.array([rows[k] for k in sorted(rows)]) if rows
+               else np.empty((0, len(METRIC_COLUMNS))))
+    delays: dict[str, dict[int, int]] = {}
+    injected: dict[str, dict[int, int]] = {}
+    for node, d in diags.items():
+        for sender, hist in (d.get("delays") or {}).items():
+            delays[f"{sender}->{node}"] = {int(a): int(b) for a, b in hist.items()}
+        for link, hist in (d.get("injected") or {}).items():
+            injected[link] = {int(a): int(b) for a, b in hist.items()}
+    return Recording(scenario=cfg.scenario, config=config, metrics=metrics, eta=rec_eta,
+                     xi=rec_xi, delays=delays, injected=injected, events=events,
+                     incomplete=sorted(set(meas) | set(true)), messages=count)
