@@ -32,6 +32,7 @@ examples:
   formation-ilc simulate paper-hexagon6 --law 22 --no-noise --out runs/hex22
   formation-ilc compare paper-hexagon6 --trials 500    laws 9, 22, 23 in both memory readings
   formation-ilc launch paper-triangle3 --trials 20     real ROS 2 processes, one per robot
+  formation-ilc launch paper-triangle3 --record run.mcap && formation-ilc analyze run.mcap
 
 A SCENARIO is a built-in name or a YAML file (see formation_ilc/scenarios/*.yaml).
 """
@@ -112,6 +113,28 @@ def build_parser() -> argparse.ArgumentParser:
                    help="horizon for the transient-growth estimate (default: scenario's)")
     p.add_argument("--no-delay", action="store_true",
                    help="check the delay-free configuration (as run with --no-delay)")
+
+    p = sub.add_parser("analyze", help="metrics, delays, plots and a report from a recording",
+                       description="Analyse a recorded run (formation-ilc launch --record, or "
+                                   "simulate --record) from the MCAP file alone. Writes "
+                                   "DIR/metrics.csv (the columns of simulate), delays.csv, "
+                                   "errors.png, trajectories.png, formation.png, delays.png "
+                                   "and report.html (one page to read at a glance). A file "
+                                   "cut short by a crash is read up to the cut.")
+    p.add_argument("recording", type=Path, metavar="RUN.mcap")
+    p.add_argument("--out", type=Path, metavar="DIR",
+                   help="output folder (default: RUN-analysis next to the file)")
+    p.add_argument("--no-plots", action="store_true", help="tables only")
+
+    p = sub.add_parser("mcap-repair", help="rewrite a recording cut short by a crash",
+                       description="A recorder killed mid-run leaves an MCAP file without "
+                                   "its summary and footer; everything flushed before the "
+                                   "kill still reads back (analyze reads such files as they "
+                                   "are). This writes a complete copy that every MCAP tool "
+                                   "opens, keeping every message that reads back.")
+    p.add_argument("recording", type=Path, metavar="RUN.mcap")
+    p.add_argument("-o", "--output", type=Path, metavar="FIXED.mcap",
+                   help="default: RUN.repaired.mcap")
 
     try:
         from . import launch  # type: ignore[attr-defined,unused-ignore]
@@ -355,6 +378,22 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_compare(args)
         if args.command == "check":
             return cmd_check(args)
+        if args.command == "analyze":
+            from .analyze import analyze
+
+            if not args.recording.is_file():
+                raise ScenarioError(f"{args.recording}: no such file")
+            out = args.out or args.recording.with_name(args.recording.stem + "-analysis")
+            return analyze(args.recording, out, plots=not args.no_plots)
+        if args.command == "mcap-repair":
+            from .mcap_io import repair
+
+            if not args.recording.is_file():
+                raise ScenarioError(f"{args.recording}: no such file")
+            dst = args.output or args.recording.with_suffix(".repaired.mcap")
+            n = repair(args.recording, dst)
+            print(f"{dst}: {n} messages kept")
+            return 0
         if args.command == "launch":
             from . import launch  # type: ignore[attr-defined,unused-ignore]
 

@@ -60,6 +60,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--timeout", type=float, default=30.0, metavar="S",
                    help="lockstep: give up when a robot has not commanded for S seconds")
     p.add_argument("--no-plots", action="store_true", help="write no figures")
+    p.add_argument("--record", type=Path, metavar="RUN.mcap",
+                   help="record every formation topic to this MCAP file (its own recorder "
+                        "process; the run starts once it listens); analyse it with "
+                        "`formation-ilc analyze RUN.mcap`")
 
 
 def _pick_domain() -> int:
@@ -203,6 +207,12 @@ def run(args: argparse.Namespace) -> int:
         "memory": sc.law.memory, "noise": str(not args.no_noise).lower(),
         "delay": str(not args.no_delay).lower(), "mode": args.mode, "monitored": "true",
         "timeout": float(args.timeout)}
+    if args.record is not None:
+        # the schedule also waits for the recorder, so it loses no sample
+        expected = [f"robot_{i + 1}" for i in range(sc.n)] + ["robot_sim", "link_emulator",
+                                                               "recorder"]
+        leader_params["nodes_expected"] = "[" + ",".join(expected) + "]"
+        args.record = args.record.resolve()
     layout = (f"container: {args.container} robots/process" if args.container
               else "one process per robot")
     print(f"{sc.name}: {sc.n} robots, {sc.trials} trials of {sc.samples} samples "
@@ -240,6 +250,9 @@ def run(args: argparse.Namespace) -> int:
         monitor = MonitorNode(cfg, on_trial)
         ex = EventsExecutor()
         ex.add_node(monitor)
+        if args.record is not None:
+            stack.start("recorder", [sys.executable, "-m", "formation_ilc.nodes.recorder",
+                                     "--output", str(args.record)])
         for name, argv in node_commands(leader_params, sc.n, args.container):
             stack.start(name, argv)
         final_deadline: float | None = None
@@ -251,7 +264,9 @@ def run(args: argparse.Namespace) -> int:
                     final_deadline = time.monotonic() + 3.0
                 got = [d.get("trial", -1) for n, d in monitor.diagnostics.items()
                        if n.startswith("robot_") and n != "robot_sim"]
-                if (len(got) == sc.n and min(got) >= sc.trials - 1) or \
+                recorded = (args.record is None or monitor.diagnostics.get(
+                    "recorder", {}).get("trial", -1) >= sc.trials - 1)
+                if (len(got) == sc.n and min(got) >= sc.trials - 1 and recorded) or \
                         time.monotonic() > final_deadline:
                     break
             dead = stack.dead()
@@ -301,6 +316,8 @@ def run(args: argparse.Namespace) -> int:
         files.append("errors.png")
     _print_report(sc, m, dtab, summary)
     print(f"results in {out}/ ({', '.join(files)}; logs/)")
+    if args.record is not None:
+        print(f"recording: {args.record} (formation-ilc analyze {args.record})")
     return 0
 
 

@@ -1,0 +1,226 @@
+"""``formation-ilc analyze RUN.mcap``: metrics, delay histograms, plots and a one-page report
+from a recording alone (no scenario file, no running ROS graph)."""
+
+from __future__ import annotations
+
+import base64
+import csv
+import html
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .recording import Recording, load_recording
+from .simulate import METRIC_COLUMNS
+
+__all__ = ["analyze", "delay_rows"]
+
+
+def delay_rows(rec: Recording) -> list[list[Any]]:
+    """link, tau, measured, injected, measured_fraction, model_probability."""
+    pmf = rec.scenario.uncertainty.delay.pmf()
+    rows = []
+    for link in sorted(rec.delays):
+        hist = rec.delays[link]
+        inj = rec.injected.get(link, {})
+        total = sum(hist.values()) or 1
+        for tau in sorted({*hist, *inj, *pmf}):
+            m = hist.get(tau, 0)
+            rows.append([link, tau, m, inj.get(tau, 0), m / total, pmf.get(tau, 0.0)])
+    return rows
+
+
+def _plot_delays(rec: Recording, path: Path) -> Path | None:
+    if not rec.delays:
+        return None
+    from .plots import _plt
+
+    plt = _plt()
+    links = sorted(rec.delays)
+    cols = min(3, len(links))
+    rows = int(np.ceil(len(links) / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(4 * cols, 2.8 * rows), squeeze=False)
+    pmf = rec.scenario.uncertainty.delay.pmf()
+    for ax, link in zip(axes.flat, links, strict=False):
+        hist = rec.delays[link]
+        total = sum(hist.values()) or 1
+        taus = sorted({*hist, *pmf})
+        ax.bar(taus, [hist.get(t, 0) / total for t in taus], width=0.6,
+               label="measured (eq. 11)")
+        ax.plot(taus, [pmf.get(t, 0.0) for t in taus], "o", color="k", label="model")
+        ax.set_title(f"{link}  (n = {total})", fontsize=9)
+        ax.set_xlabel("delay [samples]")
+        ax.set_xticks(taus)
+    for ax in list(axes.flat)[len(links):]:
+        ax.axis("off")
+    axes.flat[0].set_ylabel("fraction")
+    axes.flat[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def _plot_snapshots(rec: Recording, trials: list[int], path: Path,
+                    edges: list[tuple[int, int]]) -> Path:
+    """The formation at a few instants of the chosen trials, each panel centred on the
+    desired formation: the shape converging is visible at a glance."""
+    from .plots import _plt
+
+    plt = _plt()
+    eta_d = rec.scenario.desired.eta
+    m = eta_d.shape[1]
+    times = [0, m // 5, 2 * m // 5, 3 * m // 5, 4 * m // 5, m - 1]
+    fig, axes = plt.subplots(len(trials), len(times), figsize=(2.3 * len(times),
+                                                              2.4 * len(trials)),
+                             squeeze=False)
+    span = float(np.ptp(eta_d[:, :, :2] - eta_d[:, :, :2].mean(axis=0, keepdims=True),
+                        axis=0).max()) / 2 + 0.3
+    for row, k in enumerate(trials):
+        eta = rec.eta[k]
+        for col, t in enumerate(times):
+            ax = axes[row, col]
+            c = eta_d[:, t, :2].mean(axis=0)
+            for i, j in edges:
+                ax.plot(*zip(eta_d[i, t, :2], eta_d[j, t, :2], strict=True), ":",
+                        color="0.5", lw=1)
+                ax.plot(*zip(eta[i, t, :2], eta[j, t, :2], strict=True), "-", color="C0",
+                        lw=1)
+            ax.plot(eta_d[:, t, 0], eta_d[:, t, 1], "o", mfc="none", color="0.4", ms=5)
+            ax.plot(eta[:, t, 0], eta[:, t, 1], "o", color="C0", ms=4)
+            ax.quiver(eta[:, t, 0], eta[:, t, 1], np.cos(eta[:, t, 2]), np.sin(eta[:, t, 2]),
+                      color="C0", scale=12, width=0.01)
+            ax.set_xlim(c[0] - span, c[0] + span)
+            ax.set_ylim(c[1] - span, c[1] + span)
+            ax.set_aspect("equal")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if row == 0:
+                ax.set_title(f"t = {t * rec.scenario.dt:.1f} s", fontsize=9)
+            if col == 0:
+                ax.set_ylabel(f"trial {k}")
+    fig.suptitle("formation snapshots: desired (open, dotted) vs measured (filled)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def _img(path: Path | None) -> str:
+    if path is None:
+        return ""
+    data = base64.b64encode(path.read_bytes()).decode()
+    return f'<img src="data:image/png;base64,{data}" alt="{html.escape(path.name)}">'
+
+
+def _report(rec: Recording, src: Path, out: Path, figs: dict[str, Path | None],
+            drows: list[list[Any]]) -> Path:
+    sc, m = rec.scenario, rec.metrics
+    k = len(m)
+    first, last = (m[0], m[-1]) if k else (None, None)
+    pick = sorted({0, 1, k // 4, k // 2, 3 * k // 4, k - 1}) if k else []
+    rows = "".join(
+        f"<tr><td>{int(m[i, 0])}</td><td>{m[i, 1]:.4g}</td><td>{m[i, 2]:.4g}</td>"
+        f"<td>{m[i, 3]:.4g}</td><td>{m[i, 5]:.4g}</td><td>{m[i, 6]:.4g}</td></tr>"
+        for i in pick if 0 <= i < k)
+    verdict = ""
+    if k >= 2 and first is not None and last is not None:
+        ratio = first[1] / last[1] if last[1] > 0 else float("inf")
+        verdict = (f"Max position error {first[1]:.3g} m at trial {int(first[0])} &rarr; "
+                   f"{last[1]:.3g} m at trial {int(last[0])} (&times;{1 / ratio:.3g}); "
+                   f"heading {first[2]:.3g} &rarr; {last[2]:.3g} rad.")
+    links: dict[str, list[str]] = {}
+    for link, tau, meas, _inj, frac, prob in drows:
+        links.setdefault(link, []).append(f"{tau}: {frac:.3f} (model {prob:.2f}, n={meas})")
+    delay_html = "".join(f"<li><b>{html.escape(a)}</b> &mdash; {'; '.join(b)}</li>"
+                         for a, b in links.items())
+    cfg = rec.config
+    page = f"""<!doctype html><html><head><meta charset="utf-8">
+<title>formation-ilc: {html.escape(sc.name)}</title>
+<style>body{{font-family:sans-serif;max-width:1200px;margin:1em auto;color:#222}}
+table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:2px 8px;text-align:right}}
+img{{max-width:100%;border:1px solid #eee;margin:4px 0}}.k{{color:#555}}</style></head><body>
+<h1>{html.escape(sc.name)}: {k} trials</h1>
+<p class="k">recording {html.escape(str(src))}; {rec.messages} messages;
+{sc.n} robots, T = {sc.samples} samples of {sc.dt} s; law ({sc.law.kind}), memory
+{html.escape(sc.law.memory)}; seed {sc.seed}; noise {'on' if cfg.get('noise') else 'off'},
+delays {'on' if cfg.get('delay') else 'off'}; mode {html.escape(str(cfg.get('mode')))};
+{html.escape(str(cfg.get('recorded_by', 'distributed stack')))}</p>
+<p><b>{verdict}</b></p>
+{'<p style="color:#a00">incomplete trials at the end of the file: ' +
+ ', '.join(map(str, rec.incomplete)) + '</p>' if rec.incomplete else ''}
+{_img(figs.get('errors'))}
+<table><tr><th>trial</th><th>max pos [m]</th><th>max head [rad]</th><th>true max pos [m]</th>
+<th>rms pos [m]</th><th>max formation [m]</th></tr>{rows}</table>
+<h2>Formation</h2>{_img(figs.get('snapshots'))}{_img(figs.get('trajectories'))}
+<h2>Delays measured by the robots (eq. 11)</h2><ul>{delay_html or '<li>none</li>'}</ul>
+{_img(figs.get('delays'))}
+</body></html>"""
+    path = out / "report.html"
+    path.write_text(page)
+    return path
+
+
+def analyze(src: Path, out: Path, plots: bool = True) -> int:
+    t0 = time.perf_counter()
+    last = [0.0]
+
+    def progress(n: int) -> None:
+        now = time.perf_counter()
+        if now - last[0] > 0.5:
+            last[0] = now
+            print(f"\rreading {src.name}: {n} messages [{now - t0:.1f} s]", end="",
+                  file=sys.stderr, flush=True)
+
+    rec = load_recording(src, progress=progress)
+    print(f"\rread {src.name}: {rec.messages} messages, {len(rec.metrics)} complete trials "
+          f"[{time.perf_counter() - t0:.1f} s]".ljust(70), file=sys.stderr)
+    out.mkdir(parents=True, exist_ok=True)
+    with (out / "metrics.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(METRIC_COLUMNS)
+        for row in rec.metrics:
+            w.writerow([int(row[0])] + [f"{x:.17g}" for x in row[1:]])
+    drows = delay_rows(rec)
+    with (out / "delays.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["link", "tau", "measured", "injected", "measured_fraction",
+                    "model_probability"])
+        w.writerows(drows)
+    (out / "config.json").write_text(json.dumps(rec.config, indent=2) + "\n")
+    (out / "scenario.yaml").write_text(rec.scenario.text)
+    files = ["metrics.csv", "delays.csv", "config.json", "scenario.yaml"]
+    m = rec.metrics
+    if plots and len(m):
+        from .plots import plot_errors, plot_trajectories
+
+        sc = rec.scenario
+        title = f"{sc.name}: law ({sc.law.kind}), {sc.law.memory} memory (from {src.name})"
+        figs: dict[str, Path | None] = {}
+        figs["errors"] = plot_errors(m[:, 0], m[:, 1], m[:, 2], out / "errors.png", title)
+        trials = [int(x) for x in m[:, 0]]
+        n = len(trials)
+        chosen = sorted({trials[0], trials[max(0, n // 10 - 1)], trials[max(0, 2 * n // 5 - 1)],
+                         trials[-1]})
+        edges = [(i, j) for i in range(sc.n) for j in sc.graph.neighbours(i)]
+        figs["trajectories"] = plot_trajectories(
+            sc.desired.eta, {k: rec.eta[k] for k in chosen}, out / "trajectories.png", title,
+            edges=edges)
+        figs["snapshots"] = _plot_snapshots(rec, sorted({trials[0], trials[-1]}),
+                                            out / "formation.png", edges)
+        figs["delays"] = _plot_delays(rec, out / "delays.png")
+        rep = _report(rec, src, out, figs, drows)
+        files += [f.name for f in figs.values() if f is not None] + [rep.name]
+    k = len(m)
+    if k:
+        print(f"{rec.scenario.name}: {k} trials; max position error {m[0, 1]:.4g} m (trial "
+              f"{int(m[0, 0])}) -> {m[-1, 1]:.4g} m (trial {int(m[-1, 0])})")
+    if rec.incomplete:
+        print(f"note: trial(s) {', '.join(map(str, rec.incomplete))} not complete in the file "
+              f"(cut short?)")
+    print(f"results in {out}/ ({', '.join(files)})")
+    return 0

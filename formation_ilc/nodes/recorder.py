@@ -1,0 +1,180 @@
+"""Recorder: every formation topic of a run into one MCAP file, as ROS 2 data.
+
+The file is what rosbag2's MCAP storage writes (profile ``ros2``; schemas ``ros2msg`` with
+their full definitions; messages as the CDR bytes received, never re-encoded; each
+channel's offered QoS and type hash in its metadata), so ``ros2 bag`` and Foxglove open it.
+Log time is the receive time (system clock, as rosbag2); publish time is the send label
+(the header stamp) for stamped messages, else the receive time.
+
+It learns the run from ``/formation/config`` (latched, recorded too, and copied into a
+metadata record), subscribes to every topic of ``msgs_schema.topic_table``, and says ready
+on ``/formation/ready`` once every topic with a single writer is matched, so a launcher
+that waits for it loses no sample. When it holds a trial's every trajectory and every
+robot's diagnostics of that trial, it says so on ``/formation/diagnostics``
+(``{"node": "recorder", "trial": k}``), so a launcher knows when it may stop it. Chunks are
+flushed every 0.5 s: a SIGKILL loses at most that; ``formation-ilc mcap-repair`` then
+writes the summary.
+
+  formation-ilc-record --output RUN.mcap [--ros-args ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import struct
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from rclpy.node import Node
+from std_msgs.msg import String
+
+import msgs_schema as ms
+from formation_ilc.mcap_io import RosMcapWriter
+from formation_ilc.nodes.common import RunConfig, spin_main
+from formation_ilc.recording import META_NAME, qos_of
+
+#: types whose CDR starts with a header stamp (int32 sec, uint32 nanosec) right after the
+#: 4-byte encapsulation: their publish time is that send label
+_STAMPED = {"geometry_msgs/msg/PoseStamped", "nav_msgs/msg/Path", "rosgraph_msgs/msg/Clock"}
+#: topics written by many nodes (not waited for before saying ready)
+_MANY_WRITERS = {ms.READY, ms.DIAGNOSTICS}
+
+
+def _msg_class(type_name: str) -> Any:
+    pkg, _, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{pkg}.msg"), name)
+
+
+class RecorderNode(Node):
+    def __init__(self, output: Path, **kwargs: Any):
+        super().__init__("recorder", namespace=ms.NAMESPACE, **kwargs)
+        self.output = Path(output)
+        self.writer = RosMcapWriter(self.output, flush_period=0.5)
+        self.types: dict[str, str] = {}
+        self.qos: dict[str, Any] = {}
+        self.subs: dict[str, Any] = {}
+        self.cfg: RunConfig | None = None
+        self.path_topics: set[str] = set()
+        self.said_ready = False
+        self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
+        self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        self.paths: dict[int, int] = {}       # trial -> trajectories recorded
+        self.robot_diag: dict[str, int] = {}  # robot -> last trial of its diagnostics
+        self.complete = -1
+        self._subscribe(ms.CONFIG, "std_msgs/msg/String", ms.LATCHED_QOS)
+        self.create_timer(0.5, self.writer.flush)  # idle periods too
+        self._gate = self.create_timer(0.05, self._check_ready)
+        self.get_logger().info(f"recording to {self.output}")
+
+    def _subscribe(self, topic: str, type_name: str, qos: Any) -> None:
+        if topic in self.subs:
+            return
+        self.types[topic] = type_name
+        self.qos[topic] = qos
+        reader_qos = ms.LATCHED_READER_QOS if topic in _MANY_WRITERS else qos
+        self.subs[topic] = self.create_subscription(
+            _msg_class(type_name), topic, lambda data, t=topic: self._on(t, data), reader_qos,
+            raw=True)
+
+    def _channel(self, topic: str) -> None:
+        # the offered QoS and type hash of the writer, as rosbag2 records them
+        info = self.get_publishers_info_by_topic(topic)
+        qos = info[0].qos_profile if info else self.qos[topic]
+        type_hash = str(info[0].topic_type_hash) if info else ""
+        self.writer.channel(topic, self.types[topic], qos_of(qos), type_hash)
+
+    def _on(self, topic: str, data: bytes) -> None:
+        now = time.time_ns()
+        if not self.writer.has_channel(topic):
+            self._channel(topic)
+        sent = now
+        if self.types[topic] in _STAMPED and len(data) >= 12:
+            sec, nsec = struct.unpack_from("<iI", data, 4)
+            sent = sec * 1_000_000_000 + nsec
+        self.writer.write(topic, data, now, sent)
+        if topic == ms.CONFIG and self.cfg is None:
+            self._configure(data)
+        elif self.cfg is not None and (topic in self.path_topics or topic == ms.DIAGNOSTICS):
+            self._progress(topic, data, sent)
+
+    def _progress(self, topic: str, data: bytes, sent: int) -> None:
+        from rclpy.serialization import deserialize_message
+
+        assert self.cfg is not None
+        if topic == ms.DIAGNOSTICS:
+            try:
+                d = ms.msg_to_json(deserialize_message(data, String), ("node", "trial"))
+            except (ms.MalformedMessage, ValueError):
+                return
+            if str(d["node"]).startswith("robot_") and str(d["node"]) != "robot_sim":
+                self.robot_diag[str(d["node"])] = int(d["trial"])
+        else:
+            try:
+                k, _ = self.cfg.clock.decode(sent)
+            except ms.MalformedMessage:
+                return
+            self.paths[k] = self.paths.get(k, 0) + 1
+        n = self.cfg.scenario.n
+        k = self.complete + 1
+        while self.paths.get(k, 0) >= 2 * n and len(self.robot_diag) == n and \
+                min(self.robot_diag.values()) >= k:
+            self.complete = k
+            self.writer.flush()
+            self.diag_pub.publish(ms.json_to_msg({"node": "recorder", "trial": k,
+                                                  "messages": self.writer.count,
+                                                  "file": str(self.output)}))
+            k += 1
+
+    def _configure(self, data: bytes) -> None:
+        from rclpy.serialization import deserialize_message
+
+        try:
+            conf = json.loads(deserialize_message(data, String).data)
+            self.cfg = RunConfig.from_json(conf)
+        except (ValueError, ms.MalformedMessage) as exc:
+            self.get_logger().error(f"bad run configuration, recording it as is: {exc}")
+            return
+        self.writer.metadata(META_NAME, {"config": json.dumps(conf)})
+        n = self.cfg.scenario.n
+        for topic, type_name, qos in ms.topic_table(n):
+            self._subscribe(topic, type_name, qos)
+        self.path_topics = {f(i + 1) for i in range(n)
+                            for f in (ms.trajectory_topic, ms.true_trajectory_topic)}
+
+    def _check_ready(self) -> None:
+        if self.cfg is None or self.said_ready:
+            return
+        single = [t for t in self.subs if t not in _MANY_WRITERS and t != ms.CONFIG]
+        if all(self.subs[t].get_publisher_count() >= 1 for t in single) and \
+                self.ready_pub.get_subscription_count() >= 1:
+            self.said_ready = True
+            self._gate.cancel()
+            # ready for every trial of the run
+            self.ready_pub.publish(ms.json_to_msg({"node": "recorder",
+                                                   "trial": self.cfg.scenario.trials}))
+            self.get_logger().info(f"ready: {len(self.subs)} topics")
+
+    def destroy_node(self) -> None:
+        self.writer.close()
+        self.get_logger().info(f"closed {self.output}: {self.writer.count} messages")
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> int:
+    def build(argv: list[str]) -> list[Node]:
+        ap = argparse.ArgumentParser(prog="formation-ilc-record", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+        ap.add_argument("--output", "-o", type=Path, required=True, metavar="RUN.mcap")
+        ns = ap.parse_args(argv)
+        ns.output.parent.mkdir(parents=True, exist_ok=True)
+        return [RecorderNode(ns.output)]
+
+    return spin_main(build, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
