@@ -71,6 +71,20 @@ class Problem:
                    law=law_code(sc.law.kind), memory=memory_code(sc.law.memory),
                    heading=heading_code(sc.law.gain_heading))
 
+    def trial(self, memory: NDArray[np.float64], xi0: NDArray[np.float64],
+              dist: NDArray[np.float64], noise: NDArray[np.float64], tau: NDArray[np.int64],
+              tau0: NDArray[np.int64]) -> tuple[NDArray[np.float64], ...]:
+        """One trial into fresh arrays: (xi, eta, u, next memory). See ``run_trial``."""
+        n, n_t = self.n, self.samples
+        xi = np.empty((n, n_t + 1, 3))
+        eta = np.empty_like(xi)
+        u = np.empty((n, n_t, 2))
+        nxt = np.empty_like(memory)
+        run_trial(self.law, self.memory, self.heading, self.dt, memory, xi0, dist, noise, tau,
+                  tau0, self.src, self.weight, self.leader, self.eta_d, self.gain,
+                  self.gain_prime, xi, eta, u, nxt)
+        return xi, eta, u, nxt
+
     def tiled(self, copies: int) -> Problem:
         """``copies`` independent teams stacked on the robot axis (for many seeds at once)."""
         n = self.n

@@ -27,7 +27,7 @@ import numpy as np
 
 from formation_ilc.kinematics import step as kstep
 from formation_ilc.scenario import load_scenario
-from formation_ilc.simulate import Problem, run_trial, simulate, simulate_seeds
+from formation_ilc.simulate import Problem, simulate, simulate_seeds
 
 
 def wrap(a: np.ndarray) -> np.ndarray:
@@ -80,14 +80,7 @@ def numpy_trial(pb: Problem, memory, xi0, dist, noise, tau, tau0):
 
 
 def kernel_trial(pb: Problem, memory, xi0, dist, noise, tau, tau0):
-    n, n_t = pb.n, pb.samples
-    xi = np.empty((n, n_t + 1, 3))
-    eta = np.empty_like(xi)
-    u = np.empty((n, n_t, 2))
-    nxt = np.empty_like(memory)
-    run_trial(pb.law, pb.memory, pb.heading, pb.dt, memory, xi0, dist, noise, tau, tau0,
-              pb.src, pb.weight, pb.leader, pb.eta_d, pb.gain, pb.gain_prime, xi, eta, u, nxt)
-    return xi, eta, u, nxt
+    return pb.trial(memory, xi0, dist, noise, tau, tau0)
 
 
 def bench_baseline(trials: int) -> tuple[float, float]:

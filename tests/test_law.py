@@ -7,7 +7,7 @@ import pytest
 from formation_ilc.kinematics import step as kstep
 from formation_ilc.law import command, learn
 from formation_ilc.scenario import load_scenario
-from formation_ilc.simulate import Problem, run_trial
+from formation_ilc.simulate import Problem
 
 
 def per_robot_trial(pb: Problem, memory, xi0, dist, noise, tau, tau0, interpreted=False):
@@ -53,14 +53,7 @@ def per_robot_trial(pb: Problem, memory, xi0, dist, noise, tau, tau0, interprete
 
 
 def batch_trial(pb, memory, xi0, dist, noise, tau, tau0):
-    n, n_t = pb.n, pb.samples
-    xi = np.empty((n, n_t + 1, 3))
-    eta = np.empty_like(xi)
-    u = np.empty((n, n_t, 2))
-    nxt = np.empty_like(memory)
-    run_trial(pb.law, pb.memory, pb.heading, pb.dt, memory, xi0, dist, noise, tau, tau0,
-              pb.src, pb.weight, pb.leader, pb.eta_d, pb.gain, pb.gain_prime, xi, eta, u, nxt)
-    return xi, eta, u, nxt
+    return pb.trial(memory, xi0, dist, noise, tau, tau0)
 
 
 def draws(sc, pb, trial):
