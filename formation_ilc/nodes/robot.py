@@ -18,6 +18,18 @@ for its one robot and publishes ``cmd_vel``. At sample T it sends its whole traj
 for its next memory and reports ready for trial k+1. Malformed, stale and out-of-order
 messages are dropped and counted (``/formation/diagnostics``).
 
+Realtime mode (the simulator ticks on the wall clock): the robot waits for sample t's
+bundle at most ``BUNDLE_WAIT`` dT after its pose t arrived. If the bundle is late, it
+commands with nothing delivered at t (the law's eq. (10) case: on those links it uses no
+neighbour information this sample, as when the network delivers nothing) and counts it in
+``late['bundle']``; the bundle is dropped when it comes (``late['bundle_after_command']``).
+A bundle that comes before its pose is kept until the pose arrives. If the pose t+1 comes
+before the robot could command sample t (its process was starved), sample t is counted in
+``missed``, nothing is sent for it, and the robot records the previous command as applied
+(the simulator's zero-order hold) for its learning. ``cmd_vel`` has no label, so a command
+for t that reaches the simulator after its tick t+1 is applied at t+1 while this robot
+records it at t: the simulator's ``missed`` counter names the robot when that happens.
+
 Container mode: ``formation-ilc-robot --robots 1 2 3`` runs three robot nodes (each with
 its own memory) in one process on one executor.
 """
@@ -41,6 +53,9 @@ from formation_ilc.law import command, learn
 from formation_ilc.nodes.common import DropCounter, RunConfig, make_config, matched, spin_main
 from formation_ilc.nodes.common import warm_up as _warm_up
 from formation_ilc.simulate import Problem
+
+#: realtime: how long [dT] a robot waits for a sample's bundle after its pose
+BUNDLE_WAIT = 0.75
 
 
 class RobotNode(Node):
@@ -122,6 +137,9 @@ class RobotNode(Node):
             self.delays[ms.LEADER_FRAME] = Counter()
         self.missed = 0
         self.commands = 0
+        self.realtime = cfg.mode == "realtime"
+        self.late: Counter[str] = Counter({"bundle": 0, "bundle_after_command": 0})
+        self.early: Path | None = None  # realtime: a bundle that came before its pose
         _warm_up(pb)
 
         name = self.name
@@ -141,6 +159,9 @@ class RobotNode(Node):
                 Path, ms.trajectory_topic(self.link_src[ell] + 1),
                 lambda m, ell=ell, sender=sender: self._on_trajectory(m, ell, sender),
                 ms.TRAJECTORY_QOS)
+        if self.realtime:
+            self._deadline = self.create_timer(BUNDLE_WAIT * sc.dt, self._on_deadline)
+            self._deadline.cancel()
         self.configured = True
         self._gate = self.create_timer(0.02, self._check_ready)
         self.get_logger().info(f"{name}: {len(self.links)} in-links"
@@ -175,6 +196,9 @@ class RobotNode(Node):
         if k < self.k or (k == self.k and s <= self.t):
             self.drops.drop("stale", topic, f"sample ({k}, {s}) after ({self.k}, {self.t})")
             return
+        if self.realtime:
+            self._on_pose_realtime(msg, eta, ns, k, s)
+            return
         if k > self.k:
             if s != 0 and self.cfg.mode == "lockstep":
                 self.drops.drop("out_of_order", topic, f"trial {k} starts at sample {s}")
@@ -198,6 +222,45 @@ class RobotNode(Node):
             self.commanded = True
             self._finish_trial()
 
+    def _on_pose_realtime(self, msg: PoseStamped, eta: np.ndarray, ns: int, k: int,
+                          s: int) -> None:
+        if k > self.k:
+            self._new_trial(k)
+        elif not self.commanded:  # the pose t+1 overtook our command for t
+            self.missed += 1
+            self._hold(self.t)
+        for skipped in range(self.t + 1, s):  # poses that never came
+            self.missed += 1
+            self._hold(skipped)
+        self.t = s
+        self.rt_ns = ns
+        self.eta[0, s] = eta
+        self.own_msgs[s] = msg
+        if s == self.T:
+            self.commanded = True
+            self._deadline.cancel()
+            self._finish_trial()
+            return
+        self.commanded = False
+        self.shared_pub.publish(msg)
+        self._deadline.reset()
+        early, self.early = self.early, None
+        if early is not None:
+            self._on_bundle(early)
+
+    def _hold(self, t: int) -> None:
+        """Record what the simulator applied at a sample we did not command: the previous
+        command (zero-order hold; 0 at sample 0)."""
+        if t < self.T:
+            self.applied[0, t] = self.applied[0, t - 1] if t > 0 else 0.0
+
+    def _on_deadline(self) -> None:
+        self._deadline.cancel()
+        if self.commanded or self.t < 0:
+            return
+        self.late["bundle"] += 1
+        self._command(self.k, self.t, [])
+
     def _new_trial(self, k: int) -> None:
         self.k = k
         self.t = -1
@@ -214,10 +277,25 @@ class RobotNode(Node):
         except ms.MalformedMessage as exc:
             self.drops.drop("malformed", topic, str(exc))
             return
+        if self.realtime:
+            if (k, t) > (self.k, self.t):
+                self.early = msg  # its pose is on the way
+                return
+            if (k, t) == (self.k, self.t) and self.commanded:
+                self.late["bundle_after_command"] += 1
+                return
+            if (k, t) < (self.k, self.t):
+                self.late["bundle_after_command"] += 1
+                return
         if (k, t) != (self.k, self.t) or self.commanded:
             reason = "stale" if (k, t) <= (self.k, self.t) else "out_of_order"
             self.drops.drop(reason, topic, f"bundle for ({k}, {t}) at ({self.k}, {self.t})")
             return
+        self._command(k, t, poses)
+
+    def _command(self, k: int, t: int, poses: list[PoseStamped]) -> None:
+        """Sample t's command from this tick's deliveries ``poses`` (eq. 11 per pose)."""
+        topic = "neighbour_poses"
         # only this tick's deliveries count (as in simulate.run_trial)
         self.nb_s[0] = -1
         self.lead_s[0] = -1
@@ -268,6 +346,8 @@ class RobotNode(Node):
         self.commanded = True
         self.commands += 1
         self.cmd_pub.publish(ms.u_to_twist(self.u[0], self.twist))
+        if self.realtime:
+            self._deadline.cancel()
 
     # ------------------------------------------------------------------ trial end
     def _finish_trial(self) -> None:
@@ -323,6 +403,7 @@ class RobotNode(Node):
     def publish_diagnostics(self) -> None:
         d = {"node": self.name, "trial": self.learned, "commands": self.commands,
              "missed": self.missed,
+             **({"late": dict(self.late)} if self.realtime else {}),
              "delays": {s: {str(t): c for t, c in sorted(h.items())}
                         for s, h in self.delays.items()}}
         d.update(self.drops.as_dict())
