@@ -10,7 +10,12 @@ Teams larger than the built-in scenarios are made from paper-hexagon6 by tiling 
 
     python scripts/bench_stack.py                 # all sizes, 3 trials each
     python scripts/bench_stack.py --sizes 6 24 --trials 2
-    python scripts/bench_stack.py --realtime 24   # realtime mode: missed samples
+    python scripts/bench_stack.py --realtime 24   # only realtime: 24 robots, 1000 samples
+
+Realtime (``--realtime N``): one trial of 1000 samples at dT = 0.1 s (100 s of wall time),
+one process per robot (``--rt-container C``: C robot nodes per process). Prints the missed
+samples (a robot whose command was not in before the simulator's next tick), the command
+arrival after the tick p50/p99/max, and how late the simulator's timer fired.
 """
 
 from __future__ import annotations
@@ -29,12 +34,14 @@ import yaml
 from formation_ilc.scenario import load_scenario
 
 
-def team_scenario(n: int, tmp: Path, samples: int | None) -> str:
+def team_scenario(n: int, tmp: Path, samples: int | None, dt: float | None = None) -> str:
     """A scenario file with n robots: paper-triangle3 for 3, hexagons tiled otherwise."""
     base = "paper-triangle3" if n == 3 else "paper-hexagon6"
     data = yaml.safe_load(load_scenario(base).text)
     if samples:
         data["samples"] = samples
+    if dt:
+        data["dt"] = dt
     if n not in (3, 6):
         if n % 6:
             raise SystemExit("sizes other than 3 must be multiples of 6")
@@ -78,20 +85,28 @@ def run(scenario: str, trials: int, domain: int, container: int, mode: str, out:
         return {"error": (res.stdout + res.stderr)[-800:]}
     s = json.loads((out / "summary.json").read_text())
     s["wall"] = wall
+    s["diagnostics"] = json.loads((out / "diagnostics.json").read_text())
     return s
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--sizes", type=int, nargs="+", default=[3, 6, 12, 24])
+    ap.add_argument("--sizes", type=int, nargs="*", default=None,
+                    help="lockstep team sizes (default 3 6 12 24; none with --realtime)")
     ap.add_argument("--trials", type=int, default=3)
     ap.add_argument("--container", type=int, default=6,
                     help="robots per process in container mode (0: skip container runs)")
     ap.add_argument("--realtime", type=int, nargs="*", default=[],
-                    help="team sizes to run in realtime mode too (1000 samples at dT 0.1)")
+                    help="team sizes to run in realtime mode (1000 samples at dT 0.1)")
+    ap.add_argument("--rt-container", type=int, default=0, metavar="C",
+                    help="realtime runs: C robot nodes per process (0: one per robot)")
+    ap.add_argument("--rt-samples", type=int, default=1000)
+    ap.add_argument("--rt-dt", type=float, default=0.1)
     ap.add_argument("--domain", type=int, default=30 + os.getpid() % 60)
     args = ap.parse_args()
+    if args.sizes is None:
+        args.sizes = [] if args.realtime else [3, 6, 12, 24]
     rows = []
     with tempfile.TemporaryDirectory() as td:
         tmp = Path(td)
@@ -117,16 +132,31 @@ def main() -> int:
                       flush=True)
         for n in args.realtime:
             # 1000 samples at dT = 0.1 s in realtime: 100 s of wall time
-            sc = team_scenario(n, tmp, 1000)
+            sc = team_scenario(n, tmp, args.rt_samples, args.rt_dt)
             out = tmp / f"rt-{n}"
-            s = run(sc, 1, dom, 0, "realtime", out, 900)
+            s = run(sc, 1, dom, args.rt_container, "realtime", out, 900)
             dom = 30 + (dom - 29) % 71
+            layout = (f"container {args.rt_container}/process" if args.rt_container
+                      else "one process per robot")
             if "error" in s:
                 print(f"realtime {n} robots: FAILED\n{s['error']}")
                 continue
-            missed = sum(s.get("missed", {}).values())
-            print(f"realtime {n} robots, 1000 samples at dT 0.1 s: missed {missed} "
-                  f"({s.get('missed')})")
+            t = s["timing"]
+            missed = {r: c for r, c in s.get("missed", {}).items() if c}
+            print(f"realtime {n} robots ({layout}), {t['samples']} samples at dT "
+                  f"{args.rt_dt} s: missed {sum(missed.values())} of "
+                  f"{n * t['samples']} robot-samples {missed or ''}\n"
+                  f"  command arrival after the tick p50 {t['p50_ms']:.2f} p90 "
+                  f"{t['p90_ms']:.2f} p99 {t['p99_ms']:.2f} max {t['max_ms']:.2f} ms; "
+                  f"all {n} in p50 {t['all_in_p50_ms']:.2f} p99 {t['all_in_p99_ms']:.2f} ms; "
+                  f"timer lag p99 {t['tick_lag_p99_ms']:.2f} max {t['tick_lag_max_ms']:.2f} "
+                  f"ms; superseded {t['superseded']}", flush=True)
+            d = s["diagnostics"]
+            late_links = sum(d.get("link_emulator", {}).get("late", {}).values())
+            late_bundles = sum(v.get("late", {}).get("bundle", 0) for k, v in d.items()
+                               if k.startswith("robot_") and k != "robot_sim")
+            print(f"  deliveries late at the link emulator {late_links}, robots that "
+                  f"commanded without their bundle {late_bundles}", flush=True)
     return 0
 
 
