@@ -266,6 +266,11 @@ def run(args: argparse.Namespace) -> int:
                        if n.startswith("robot_") and n != "robot_sim"]
                 recorded = (args.record is None or monitor.diagnostics.get(
                     "recorder", {}).get("trial", -1) >= sc.trials - 1)
+                # the simulator's and link emulator's last reports (timing, missed
+                # samples, injected delays) too
+                recorded = recorded and all(
+                    monitor.diagnostics.get(node, {}).get("trial", -1) >= sc.trials - 1
+                    for node in ("robot_sim", "link_emulator"))
                 if (len(got) == sc.n and min(got) >= sc.trials - 1 and recorded) or \
                         time.monotonic() > final_deadline:
                     break
@@ -329,10 +334,16 @@ def _print_report(sc: Any, m: np.ndarray, dtab: list[list[Any]], summary: dict[s
     for i in show:
         print(f"{int(m[i, 0]):6d} {m[i, 1]:12.4g} {m[i, 2]:15.4g} {m[i, 5]:12.4g}")
     tim = summary.get("timing") or {}
-    if tim:
-        print(f"lockstep: {tim.get('samples_per_s', float('nan')):.0f} samples/s, per-sample "
-              f"latency p50 {tim.get('p50_ms', float('nan')):.2f} ms, "
-              f"p99 {tim.get('p99_ms', float('nan')):.2f} ms")
+    nan = float("nan")
+    if tim and summary.get("mode") == "realtime":
+        print(f"realtime: {tim.get('missed_total', 0)} missed of "
+              f"{tim.get('commands', 0) + tim.get('missed_total', 0)} robot-samples; command "
+              f"arrival after the tick p50 {tim.get('p50_ms', nan):.2f} ms, "
+              f"p99 {tim.get('p99_ms', nan):.2f} ms (dT {1000 * sc.dt:.0f} ms)")
+    elif tim:
+        print(f"lockstep: {tim.get('samples_per_s', nan):.0f} samples/s, per-sample "
+              f"latency p50 {tim.get('p50_ms', nan):.2f} ms, "
+              f"p99 {tim.get('p99_ms', nan):.2f} ms")
     if dtab:
         agg: dict[int, list[float]] = {}
         for _link, tau, meas, inj, _, p in dtab:
