@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import os
 import struct
 import sys
 import time
@@ -30,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile
 from std_msgs.msg import String
 
 import msgs_schema as ms
@@ -40,6 +42,10 @@ from formation_ilc.recording import META_NAME, qos_of
 #: types whose CDR starts with a header stamp (int32 sec, uint32 nanosec) right after the
 #: 4-byte encapsulation: their publish time is that send label
 _STAMPED = {"geometry_msgs/msg/PoseStamped", "nav_msgs/msg/Path", "rosgraph_msgs/msg/Clock"}
+#: reader queue depth of the recorder's subscriptions [messages per topic]
+_READER_DEPTH = 20000
+#: niceness of the recorder process: recording must not take CPU from the control loop
+NICENESS = 10
 #: topics written by many nodes (not waited for before saying ready)
 _MANY_WRITERS = {ms.READY, ms.DIAGNOSTICS}
 
@@ -75,7 +81,13 @@ class RecorderNode(Node):
             return
         self.types[topic] = type_name
         self.qos[topic] = qos
-        reader_qos = ms.LATCHED_READER_QOS if topic in _MANY_WRITERS else qos
+        if topic in _MANY_WRITERS:
+            reader_qos = ms.LATCHED_READER_QOS
+        else:
+            # a deep reader queue: the recorder runs at a lower CPU priority than the
+            # control loop (see main) and may fall behind for a moment, never lose a sample
+            reader_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=_READER_DEPTH,
+                                    reliability=qos.reliability, durability=qos.durability)
         self.subs[topic] = self.create_subscription(
             _msg_class(type_name), topic, lambda data, t=topic: self._on(t, data), reader_qos,
             raw=True)
@@ -169,8 +181,13 @@ def main(args: list[str] | None = None) -> int:
         ap = argparse.ArgumentParser(prog="formation-ilc-record", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
         ap.add_argument("--output", "-o", type=Path, required=True, metavar="RUN.mcap")
+        ap.add_argument("--niceness", type=int, default=NICENESS,
+                        help=f"CPU priority below the control loop (default {NICENESS}; "
+                             f"0 to record at the same priority)")
         ns = ap.parse_args(argv)
         ns.output.parent.mkdir(parents=True, exist_ok=True)
+        if ns.niceness:
+            os.nice(ns.niceness)
         return [RecorderNode(ns.output)]
 
     return spin_main(build, args)
