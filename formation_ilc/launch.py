@@ -207,12 +207,14 @@ def run(args: argparse.Namespace) -> int:
         "memory": sc.law.memory, "noise": str(not args.no_noise).lower(),
         "delay": str(not args.no_delay).lower(), "mode": args.mode, "monitored": "true",
         "timeout": float(args.timeout)}
+    # the schedule waits for every node, the launcher's monitor and the recorder included,
+    # so that none of them misses a trial
+    expected = [f"robot_{i + 1}" for i in range(sc.n)] + ["robot_sim", "link_emulator",
+                                                           "monitor"]
     if args.record is not None:
-        # the schedule also waits for the recorder, so it loses no sample
-        expected = [f"robot_{i + 1}" for i in range(sc.n)] + ["robot_sim", "link_emulator",
-                                                               "recorder"]
-        leader_params["nodes_expected"] = "[" + ",".join(expected) + "]"
+        expected.append("recorder")
         args.record = args.record.resolve()
+    leader_params["nodes_expected"] = "[" + ",".join(expected) + "]"
     layout = (f"container: {args.container} robots/process" if args.container
               else "one process per robot")
     print(f"{sc.name}: {sc.n} robots, {sc.trials} trials of {sc.samples} samples "

@@ -37,15 +37,28 @@ class MonitorNode(Node):
         self.rows: dict[int, np.ndarray] = {}
         self.diagnostics: dict[str, dict[str, Any]] = {}
         self.events: list[dict[str, Any]] = []
+        self.path_subs = []
         for r in range(n):
-            self.create_subscription(Path, ms.trajectory_topic(r + 1),
-                                     lambda m, r=r: self._on_traj(m, r, self.eta),
-                                     ms.TRAJECTORY_QOS)
-            self.create_subscription(Path, ms.true_trajectory_topic(r + 1),
-                                     lambda m, r=r: self._on_traj(m, r, self.xi),
-                                     ms.TRAJECTORY_QOS)
+            self.path_subs.append(self.create_subscription(
+                Path, ms.trajectory_topic(r + 1), lambda m, r=r: self._on_traj(m, r, self.eta),
+                ms.TRAJECTORY_QOS))
+            self.path_subs.append(self.create_subscription(
+                Path, ms.true_trajectory_topic(r + 1),
+                lambda m, r=r: self._on_traj(m, r, self.xi), ms.TRAJECTORY_QOS))
+        # the schedule waits for the monitor too ("monitor" in the leader's nodes_expected):
+        # a writer's match count cannot tell a monitor from a recorder, and a monitor matched
+        # after trial 1 would miss trial 0 (trajectories are latched 2 deep)
+        self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
+        self._gate = self.create_timer(0.05, self._check_ready)
         self.create_subscription(String, ms.DIAGNOSTICS, self._on_diag, ms.LATCHED_READER_QOS)
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
+
+    def _check_ready(self) -> None:
+        if all(s.get_publisher_count() >= 1 for s in self.path_subs) and \
+                self.ready_pub.get_subscription_count() >= 1:
+            self._gate.cancel()
+            self.ready_pub.publish(ms.json_to_msg({"node": "monitor",
+                                                   "trial": self.cfg.scenario.trials}))
 
     def _on_traj(self, msg: Path, r: int, store: dict[int, dict[int, np.ndarray]]) -> None:
         try:
