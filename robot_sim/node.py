@@ -46,7 +46,15 @@ from std_msgs.msg import String
 
 import msgs_schema as ms
 from formation_ilc.kinematics import step_into
-from formation_ilc.nodes.common import DropCounter, RunConfig, fail, matched, spin_main, warm_up
+from formation_ilc.nodes.common import (
+    DropCounter,
+    RunConfig,
+    config_from_msg,
+    fail,
+    matched,
+    spin_main,
+    warm_up,
+)
 from formation_ilc.simulate import Problem
 
 #: realtime: the link emulator sends a bundle at the latest this many dT after the tick
@@ -66,13 +74,10 @@ class _Configured(Node):
     def _on_config(self, msg: String) -> None:
         if self.configured:
             return
-        try:
-            cfg = RunConfig.from_json(ms.msg_to_json(msg))
-        except ms.MalformedMessage as exc:
-            self.drops.drop("malformed", ms.CONFIG, str(exc))
-            return
-        self.configured = True
-        self.configure(cfg)
+        cfg = config_from_msg(msg, self.drops)
+        if cfg is not None:
+            self.configured = True
+            self.configure(cfg)
 
     def configure(self, cfg: RunConfig) -> None:
         raise NotImplementedError

@@ -19,6 +19,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
+from std_msgs.msg import String
 
 import msgs_schema as ms
 from formation_ilc.scenario import Scenario, load_scenario, scenario_from_text
@@ -79,6 +80,15 @@ def make_config(scenario: str, *, seed: int | None = None, noise: bool = True,
     sc = load_scenario(scenario).with_options(law=law, memory=memory, noise=noise,
                                               delay=delay, seed=seed, trials=trials)
     return RunConfig(sc, mode, gap, monitored, timeout)
+
+
+def config_from_msg(msg: String, drops: DropCounter) -> RunConfig | None:
+    """The run configuration on /formation/config, or None (dropped and counted)."""
+    try:
+        return RunConfig.from_json(ms.msg_to_json(msg))
+    except ms.MalformedMessage as exc:
+        drops.drop("malformed", ms.CONFIG, str(exc))
+        return None
 
 
 class DropCounter:

@@ -50,7 +50,14 @@ from std_msgs.msg import String
 import msgs_schema as ms
 from formation_ilc.delays import measure_delay_ns
 from formation_ilc.law import command, learn
-from formation_ilc.nodes.common import DropCounter, RunConfig, make_config, matched, spin_main
+from formation_ilc.nodes.common import (
+    DropCounter,
+    RunConfig,
+    config_from_msg,
+    make_config,
+    matched,
+    spin_main,
+)
 from formation_ilc.nodes.common import warm_up as _warm_up
 from formation_ilc.simulate import Problem
 
@@ -92,12 +99,9 @@ class RobotNode(Node):
     def _on_config(self, msg: String) -> None:
         if self.configured:
             return
-        try:
-            cfg = RunConfig.from_json(ms.msg_to_json(msg))
-        except ms.MalformedMessage as exc:
-            self.drops.drop("malformed", ms.CONFIG, str(exc))
-            return
-        self._configure(cfg)
+        cfg = config_from_msg(msg, self.drops)
+        if cfg is not None:
+            self._configure(cfg)
 
     def _configure(self, cfg: RunConfig) -> None:
         sc = cfg.scenario
