@@ -26,6 +26,7 @@ from formation_ilc.recording import load_recording  # noqa: E402
 from formation_ilc.scenario import load_scenario  # noqa: E402
 from formation_ilc.simulate import simulate  # noqa: E402
 
+from .procs import find_child, stop_group  # noqa: E402
 from .test_stack import launch, read_metrics  # noqa: E402
 
 
@@ -115,14 +116,12 @@ def test_sigkill_of_the_recorder_keeps_what_was_written(ros_env, tmp_path):
             if line.startswith("trial 4/40"):
                 break
         assert lines[-1].startswith("trial 4/40"), "".join(lines)
-        pid = int(subprocess.run(["pgrep", "-f", f"formation_ilc.nodes.recorder --output {rec}"],
-                                 capture_output=True, text=True).stdout.split()[0])
+        pid = find_child(ros_env["ROS_DOMAIN_ID"], f"formation_ilc.nodes.recorder --output {rec}",
+                         time.monotonic() + 10)
         os.kill(pid, signal.SIGKILL)
         stdout, _ = proc.communicate(timeout=60)
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+        stop_group(proc, signal.SIGKILL)
     # the launcher noticed, named the recorder and stopped the rest
     assert proc.returncode == 1
     assert "recorder" in stdout

@@ -22,6 +22,8 @@ import pytest
 from formation_ilc.scenario import load_scenario
 from formation_ilc.simulate import simulate
 
+from .procs import find_child, stop_group
+
 pytestmark = [pytest.mark.ros, pytest.mark.multiprocess]
 
 # Where the stack and the batch simulator may differ: headings travel as quaternions
@@ -41,13 +43,7 @@ def launch(env: dict[str, str], out: Path, *args: str, timeout: float = 240.0,
     try:
         stdout, _ = proc.communicate(timeout=timeout)
     finally:
-        if proc.poll() is None:  # never leave a stack behind, even on failure
-            os.killpg(proc.pid, signal.SIGINT)
-            try:
-                proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
+        stop_group(proc)  # never leave a stack behind, even on failure
     return subprocess.CompletedProcess(argv, proc.returncode, stdout, "")
 
 
@@ -114,23 +110,6 @@ def check_delay_histograms(out: Path, sc) -> None:
         assert abs(total.get(tau, 0) / n - p) < 0.03, (tau, total, n)
 
 
-def _find_child(domain: str, needle: str, deadline: float) -> int:
-    """pid of a process of this test's domain whose command line contains ``needle``."""
-    while time.monotonic() < deadline:
-        for pid in os.listdir("/proc"):
-            if not pid.isdigit():
-                continue
-            try:
-                cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
-                envb = Path(f"/proc/{pid}/environ").read_bytes().split(b"\0")
-            except OSError:
-                continue
-            if needle in cmd and f"ROS_DOMAIN_ID={domain}".encode() in envb:
-                return int(pid)
-        time.sleep(0.1)  # polling the process table, bounded by the deadline
-    raise AssertionError(f"no process {needle!r} found")
-
-
 def test_dead_robot_is_named_and_stack_stops(ros_env, tmp_path):
     argv = [sys.executable, "-m", "formation_ilc.cli", "launch", "paper-triangle3",
             "--trials", "200", "--out", str(tmp_path), "--domain-id", ros_env["ROS_DOMAIN_ID"],
@@ -146,18 +125,16 @@ def test_dead_robot_is_named_and_stack_stops(ros_env, tmp_path):
                 break
             assert proc.poll() is None, proc.communicate()[0]
             time.sleep(0.1)
-        victim = _find_child(ros_env["ROS_DOMAIN_ID"], "robot_id:=2", deadline)
+        victim = find_child(ros_env["ROS_DOMAIN_ID"], "robot_id:=2", deadline)
         os.kill(victim, signal.SIGKILL)
         out, _ = proc.communicate(timeout=60)
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+        stop_group(proc, signal.SIGKILL)
     assert proc.returncode == 1, out
     assert "robot_2" in out and "exited" in out
     # every other node of the stack was stopped
     with pytest.raises(AssertionError):
-        _find_child(ros_env["ROS_DOMAIN_ID"], "-m robot_sim.node", time.monotonic() + 1)
+        find_child(ros_env["ROS_DOMAIN_ID"], "-m robot_sim.node", time.monotonic() + 1)
 
 
 def test_ament_layout_for_ros2_run(tmp_path):
@@ -278,13 +255,7 @@ def test_bad_messages_are_dropped_and_counted(ros_env, tmp_path):
     finally:
         node.destroy_node()
         rclpy.try_shutdown(context=ctx)
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGINT)
-            try:
-                proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
+        stop_group(proc)
     assert proc.returncode == 0, out
     diag = json.loads((tmp_path / "diagnostics.json").read_text())
     r2 = diag["robot_2"]["dropped"]

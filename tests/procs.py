@@ -1,0 +1,40 @@
+"""Process helpers of the multi-process tests: find a node process, stop a launcher's
+whole process group (also when a test fails)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+
+def stop_group(proc: subprocess.Popen, first: int = signal.SIGINT, grace: float = 15.0) -> None:
+    """Stop ``proc``'s process group (started with start_new_session=True) if it still
+    runs: ``first``, then SIGKILL after ``grace`` seconds."""
+    if proc.poll() is not None:
+        return
+    os.killpg(proc.pid, first)
+    try:
+        proc.wait(timeout=grace)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+
+
+def find_child(domain: str, needle: str, deadline: float) -> int:
+    """pid of a process of this test's domain whose command line contains ``needle``."""
+    while time.monotonic() < deadline:
+        for pid in os.listdir("/proc"):
+            if not pid.isdigit():
+                continue
+            try:
+                cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+                envb = Path(f"/proc/{pid}/environ").read_bytes().split(b"\0")
+            except OSError:
+                continue
+            if needle in cmd and f"ROS_DOMAIN_ID={domain}".encode() in envb:
+                return int(pid)
+        time.sleep(0.1)  # polling the process table, bounded by the deadline
+    raise AssertionError(f"no process {needle!r} found")
