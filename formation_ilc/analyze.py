@@ -4,7 +4,6 @@ from a recording alone (no scenario file, no running ROS graph)."""
 from __future__ import annotations
 
 import base64
-import csv
 import html
 import json
 import sys
@@ -14,24 +13,18 @@ from typing import Any
 
 import numpy as np
 
+from . import links
+from .metrics import write_metrics
 from .recording import Recording, load_recording
-from .simulate import METRIC_COLUMNS
 
 __all__ = ["analyze", "delay_rows"]
 
 
 def delay_rows(rec: Recording) -> list[list[Any]]:
-    """link, tau, measured, injected, measured_fraction, model_probability."""
-    pmf = rec.scenario.uncertainty.delay.pmf()
-    rows = []
-    for link in sorted(rec.delays):
-        hist = rec.delays[link]
-        inj = rec.injected.get(link, {})
-        total = sum(hist.values()) or 1
-        for tau in sorted({*hist, *inj, *pmf}):
-            m = hist.get(tau, 0)
-            rows.append([link, tau, m, inj.get(tau, 0), m / total, pmf.get(tau, 0.0)])
-    return rows
+    """The rows of delays.csv (``formation_ilc.links.DELAY_COLUMNS``) of a recording."""
+    direct = rec.config.get("links") == "direct"
+    return links.delay_rows(rec.delays, None if direct else rec.injected,
+                            rec.scenario.uncertainty.delay.pmf())
 
 
 def _plot_delays(rec: Recording, path: Path) -> Path | None:
@@ -40,12 +33,12 @@ def _plot_delays(rec: Recording, path: Path) -> Path | None:
     from .plots import _plt
 
     plt = _plt()
-    links = sorted(rec.delays)
-    cols = min(3, len(links))
-    rows = int(np.ceil(len(links) / cols))
+    names = sorted(rec.delays)
+    cols = min(3, len(names))
+    rows = int(np.ceil(len(names) / cols))
     fig, axes = plt.subplots(rows, cols, figsize=(4 * cols, 2.8 * rows), squeeze=False)
     pmf = rec.scenario.uncertainty.delay.pmf()
-    for ax, link in zip(axes.flat, links, strict=False):
+    for ax, link in zip(axes.flat, names, strict=False):
         hist = rec.delays[link]
         total = sum(hist.values()) or 1
         taus = sorted({*hist, *pmf})
@@ -55,7 +48,7 @@ def _plot_delays(rec: Recording, path: Path) -> Path | None:
         ax.set_title(f"{link}  (n = {total})", fontsize=9)
         ax.set_xlabel("delay [samples]")
         ax.set_xticks(taus)
-    for ax in list(axes.flat)[len(links):]:
+    for ax in list(axes.flat)[len(names):]:
         ax.axis("off")
     axes.flat[0].set_ylabel("fraction")
     axes.flat[0].legend(fontsize=7)
@@ -180,17 +173,9 @@ def analyze(src: Path, out: Path, plots: bool = True) -> int:
     print(f"\rread {src.name}: {rec.messages} messages, {len(rec.metrics)} complete trials "
           f"[{time.perf_counter() - t0:.1f} s]".ljust(70), file=sys.stderr)
     out.mkdir(parents=True, exist_ok=True)
-    with (out / "metrics.csv").open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(METRIC_COLUMNS)
-        for row in rec.metrics:
-            w.writerow([int(row[0])] + [f"{x:.17g}" for x in row[1:]])
+    write_metrics(out / "metrics.csv", rec.metrics)
     drows = delay_rows(rec)
-    with (out / "delays.csv").open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["link", "tau", "measured", "injected", "measured_fraction",
-                    "model_probability"])
-        w.writerows(drows)
+    links.write_delays(out / "delays.csv", drows)
     (out / "config.json").write_text(json.dumps(rec.config, indent=2) + "\n")
     (out / "scenario.yaml").write_text(rec.scenario.text)
     files = ["metrics.csv", "delays.csv", "config.json", "scenario.yaml"]

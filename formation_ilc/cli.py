@@ -6,7 +6,6 @@ Run ``formation-ilc COMMAND --help`` for each command.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import sys
@@ -198,19 +197,10 @@ def _default_keep(k: int) -> list[int]:
     return sorted({0, max(0, k // 10 - 1), max(0, 2 * k // 5 - 1), k - 1})
 
 
-def write_metrics(path: Path, metrics: np.ndarray) -> None:
-    from .simulate import METRIC_COLUMNS
-
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(METRIC_COLUMNS)
-        for row in metrics:
-            w.writerow([int(row[0])] + [f"{x:.9g}" for x in row[1:]])
-
-
 def cmd_simulate(args: argparse.Namespace) -> int:
     from .checks import condition20
-    from .simulate import METRIC_COLUMNS, simulate
+    from .metrics import MetricsWriter
+    from .simulate import simulate
 
     sc = _scenario(args)
     k = sc.trials
@@ -242,13 +232,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                                 f"{sc.name} needs {want} (robots, samples, [v, omega])")
     out = _out_dir(args.out, sc, f"law{sc.law.kind}-{sc.law.memory}")
     # metrics are written as they come, so a crash or Ctrl-C keeps every finished trial
-    fh = (out / "metrics.csv").open("w", newline="")
-    writer = csv.writer(fh)
-    writer.writerow(METRIC_COLUMNS)
+    writer = MetricsWriter(out / "metrics.csv")
     bar = Progress(k, f"{sc.name} law ({sc.law.kind}) {sc.law.memory}")
 
     def on_trial(trial: int, row: np.ndarray) -> None:
-        writer.writerow([int(row[0])] + [f"{x:.9g}" for x in row[1:]])
+        writer.write(row)
         bar(trial - first, row)
 
     recorder = None
@@ -263,7 +251,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                        first_trial=first,
                        on_trial_data=None if recorder is None else recorder.trial)
     finally:
-        fh.close()
+        writer.close()
         if recorder is not None:
             recorder.close()
     elapsed = time.perf_counter() - t0
@@ -313,6 +301,7 @@ def _ring(n: int) -> list[tuple[int, int]]:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
+    from .metrics import write_metrics
     from .plots import plot_compare
     from .simulate import simulate
 

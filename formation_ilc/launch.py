@@ -1,23 +1,25 @@
 """Run the distributed ROS 2 stack on this machine: one OS process per node.
 
-Starts the virtual leader, the kinematic simulator (with the link emulator), and one
-process per robot (or, with --container N, N robot nodes per process), all on localhost
-discovery and on a ROS_DOMAIN_ID of their own. Prints per-trial progress, writes
-DIR/metrics.csv (the columns of `formation-ilc simulate`), DIR/delays.csv (per-link delay
-histograms: measured by the robots with eq. 11, injected by the links, and the model's),
-DIR/diagnostics.json, DIR/summary.json, DIR/errors.png and one log per process in
-DIR/logs/. Stops every process on Ctrl-C or when one dies, and then exits non-zero naming it.
+Starts the virtual leader, the plant (the kinematic simulator, unless --plant external),
+the link emulator (with --links emulated), and one process per robot (or, with
+--container N, N robot nodes per process), all on localhost discovery and on a
+ROS_DOMAIN_ID of their own, in one namespace (--namespace). Prints per-trial progress,
+writes DIR/metrics.csv (the columns of `formation-ilc simulate`), DIR/delays.csv (per-link
+delay histograms: measured by the robots with eq. 11, injected by the emulated links, and
+the model's), DIR/diagnostics.json, DIR/summary.json, DIR/errors.png and one log per
+process in DIR/logs/. Stops every process on Ctrl-C or when one dies, and then exits
+non-zero naming it.
 
 Node entry points (also `ros2 run formation_ilc <exe>` on a full ROS 2 install):
   formation-ilc-leader  virtual leader: --ros-args -p scenario:=NAME [-p trials:=K ...]
-  formation-ilc-sim     kinematic simulator + link emulator (config from /formation/config)
+  formation-ilc-sim     kinematic simulator, the plant (config from the config topic)
+  formation-ilc-links   link emulator, for emulated links (config from the config topic)
   formation-ilc-robot   one robot: --ros-args -p robot_id:=I; container: --robots 1 2 3
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import signal
@@ -47,6 +49,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep",
                    help="lockstep: the simulator waits for every robot (as fast as the "
                         "processes allow, deterministic); realtime: wall clock at dT")
+    p.add_argument("--links", choices=("emulated", "direct"), default="emulated",
+                   help="emulated (default): a link emulator process puts the scenario's "
+                        "delays on the robot-to-robot links, in simulated time (a lockstep "
+                        "run equals `simulate`); direct: each robot subscribes to its "
+                        "neighbours, as on robots, and the delays are the network's (a "
+                        "lockstep run equals `simulate --no-delay`)")
+    p.add_argument("--plant", choices=("sim", "external"), default="sim",
+                   help="sim (default): start the kinematic simulator; external: another "
+                        "process speaks the plant contract (docs/distributed-stack.md) and "
+                        "says ready as one of --plant-nodes")
+    p.add_argument("--plant-nodes", nargs="+", default=["plant"], metavar="NAME",
+                   help="with --plant external: the node names the schedule waits for "
+                        "(default: plant)")
+    p.add_argument("--namespace", default=None, metavar="NS",
+                   help="ROS namespace of the whole formation (default /formation); two "
+                        "formations in different namespaces share a ROS domain without "
+                        "crosstalk (/clock is remapped into the namespace)")
     p.add_argument("--container", type=int, default=0, metavar="N",
                    help="N robot nodes per process on one executor (0: one process per "
                         "robot, the default)")
@@ -78,26 +97,42 @@ def _pick_domain() -> int:
     return 30 + base
 
 
-def node_commands(cfg_args: dict[str, Any], n: int, container: int
+def ros_args(namespace: str | None) -> list[str]:
+    """ROS arguments that put a node into ``namespace`` (nothing for the default one)."""
+    import msgs_schema as ms
+
+    if namespace is None or namespace == ms.NAMESPACE:
+        return []
+    return ["-r", f"__ns:={namespace}", "-r", f"{ms.CLOCK}:={namespace}{ms.CLOCK}"]
+
+
+def node_commands(cfg_args: dict[str, Any], n: int, container: int, *, links: str = "emulated",
+                  plant: str = "sim", namespace: str | None = None
                   ) -> list[tuple[str, list[str]]]:
     """(name, argv) of every process of the stack (sys.executable -m ...)."""
     py = sys.executable
-    leader = [py, "-m", "virtual_leader.node", "--ros-args"]
+    nsa = ros_args(namespace)
+    leader = [py, "-m", "virtual_leader.node", "--ros-args", *nsa]
     for k, v in cfg_args.items():
         leader += ["-p", f"{k}:={v}"]
-    procs = [("virtual_leader", leader),
-             ("robot_sim", [py, "-m", "robot_sim.node", "--ros-args", "-p",
-                            f"timeout:={float(cfg_args['timeout'])}"])]
+    procs = [("virtual_leader", leader)]
+    if plant == "sim":
+        procs.append(("robot_sim", [py, "-m", "robot_sim.node", "--ros-args", *nsa, "-p",
+                                    f"timeout:={float(cfg_args['timeout'])}"]))
+    if links == "emulated":
+        procs.append(("link_emulator", [py, "-m", "robot_sim.link_emulator", "--ros-args",
+                                        *nsa]))
     ids = list(range(1, n + 1))
     if container > 0:
         for c in range(0, n, container):
             grp = ids[c:c + container]
-            procs.append((f"robots_{grp[0]}-{grp[-1]}", [py, "-m", "formation_ilc.nodes.robot",
-                                                         "--robots", *map(str, grp)]))
+            procs.append((f"robots_{grp[0]}-{grp[-1]}",
+                          [py, "-m", "formation_ilc.nodes.robot", "--robots", *map(str, grp),
+                           *(["--ros-args", *nsa] if nsa else [])]))
     else:
         for i in ids:
             procs.append((f"robot_{i}", [py, "-m", "formation_ilc.nodes.robot", "--ros-args",
-                                         "-r", f"__node:=robot_{i}", "-p", f"robot_id:={i}"]))
+                                         *nsa, "-p", f"robot_id:={i}"]))
     return procs
 
 
@@ -147,39 +182,24 @@ class Stack:
             fh.close()
 
 
-def _write_csv(path: Path, header: list[str] | tuple[str, ...], rows: list[list[Any]]) -> None:
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(header)
-        w.writerows(rows)
-
-
-def delay_table(diagnostics: dict[str, dict[str, Any]], pmf: dict[int, float]
-                ) -> list[list[Any]]:
-    """Rows link, tau, measured, injected, measured_fraction, model_probability."""
-    injected = diagnostics.get("link_emulator", {}).get("injected", {})
-    rows = []
-    for node, d in sorted(diagnostics.items()):
-        for sender, hist in sorted(d.get("delays", {}).items()):
-            link = f"{sender}->{node}"
-            inj = injected.get(link, {})
-            total = sum(hist.values()) or 1
-            for tau in sorted({*map(int, hist), *map(int, inj), *pmf}):
-                m = int(hist.get(str(tau), 0))
-                rows.append([link, tau, m, int(inj.get(str(tau), 0)), m / total,
-                             pmf.get(tau, 0.0)])
-    return rows
-
-
 def run(args: argparse.Namespace) -> int:
     """Run the stack; return the exit status (0 ok, 1 a node failed, 130 interrupted)."""
-    from formation_ilc.nodes.common import make_config, warm_up
-    from formation_ilc.simulate import METRIC_COLUMNS, Problem
+    import msgs_schema as ms
+    from formation_ilc.links import delay_rows, link_histograms, write_delays
+    from formation_ilc.metrics import MetricsWriter
+    from formation_ilc.nodes.common import warm_up
+    from formation_ilc.runconfig import make_config
+    from formation_ilc.simulate import Problem
 
     cfg = make_config(args.scenario, seed=args.seed, noise=not args.no_noise,
                       delay=not args.no_delay, trials=args.trials, law=args.law,
                       memory=args.memory, mode=args.mode, monitored=True,
-                      timeout=args.timeout)
+                      timeout=args.timeout, links=args.links)
+    namespace = args.namespace or ms.NAMESPACE
+    if not namespace.startswith("/") or "//" in namespace:
+        print(f"error: --namespace {namespace!r}: an absolute ROS namespace like /team2 is "
+              f"required", file=sys.stderr)
+        return 2
     sc = cfg.scenario
     if sc.trials < 1:
         print("error: --trials must be at least 1", file=sys.stderr)
@@ -206,11 +226,12 @@ def run(args: argparse.Namespace) -> int:
         "scenario": scen, "seed": sc.seed, "trials": sc.trials, "law": sc.law.kind,
         "memory": sc.law.memory, "noise": str(not args.no_noise).lower(),
         "delay": str(not args.no_delay).lower(), "mode": args.mode, "monitored": "true",
-        "timeout": float(args.timeout)}
+        "timeout": float(args.timeout), "links": args.links}
     # the schedule waits for every node, the launcher's monitor and the recorder included,
     # so that none of them misses a trial
-    expected = [f"robot_{i + 1}" for i in range(sc.n)] + ["robot_sim", "link_emulator",
-                                                           "monitor"]
+    plants = ["robot_sim"] if args.plant == "sim" else list(args.plant_nodes)
+    support = (["link_emulator"] if args.links == "emulated" else [])
+    expected = [ms.robot_name(i + 1) for i in range(sc.n)] + plants + support + ["monitor"]
     if args.record is not None:
         expected.append("recorder")
         args.record = args.record.resolve()
@@ -218,7 +239,8 @@ def run(args: argparse.Namespace) -> int:
     layout = (f"container: {args.container} robots/process" if args.container
               else "one process per robot")
     print(f"{sc.name}: {sc.n} robots, {sc.trials} trials of {sc.samples} samples "
-          f"(dT {sc.dt} s), {args.mode}, ROS_DOMAIN_ID={domain}, {layout}", flush=True)
+          f"(dT {sc.dt} s), {args.mode}, {args.links} links, plant {', '.join(plants)}, "
+          f"ROS_DOMAIN_ID={domain}, namespace {namespace}, {layout}", flush=True)
 
     import rclpy
     from rclpy.experimental import EventsExecutor
@@ -226,15 +248,13 @@ def run(args: argparse.Namespace) -> int:
 
     from formation_ilc.nodes.monitor import MonitorNode
 
-    metrics_fh = (out / "metrics.csv").open("w", newline="")
-    writer = csv.writer(metrics_fh)
-    writer.writerow(METRIC_COLUMNS)
+    writer = MetricsWriter(out / "metrics.csv")
     t_start = time.monotonic()
     trial_wall: list[float] = []
+    true_state = args.plant == "sim"
 
     def on_trial(k: int, row: np.ndarray) -> None:
-        writer.writerow([int(row[0])] + [f"{x:.17g}" for x in row[1:]])
-        metrics_fh.flush()
+        writer.write(row)
         now = time.monotonic()
         trial_wall.append(now)
         print(f"trial {k + 1}/{sc.trials}  max position {row[1]:.4g} m  max heading "
@@ -249,13 +269,17 @@ def run(args: argparse.Namespace) -> int:
     status = 0
     monitor = None
     try:
-        monitor = MonitorNode(cfg, on_trial)
+        monitor = MonitorNode(cfg, on_trial, true_state=true_state, namespace=namespace)
         ex = EventsExecutor()
         ex.add_node(monitor)
         if args.record is not None:
             stack.start("recorder", [sys.executable, "-m", "formation_ilc.nodes.recorder",
-                                     "--output", str(args.record)])
-        for name, argv in node_commands(leader_params, sc.n, args.container):
+                                     "--output", str(args.record),
+                                     *(["--ros-args", *ros_args(namespace)]
+                                       if ros_args(namespace) else [])])
+        for name, argv in node_commands(leader_params, sc.n, args.container,
+                                        links=args.links, plant=args.plant,
+                                        namespace=namespace):
             stack.start(name, argv)
         final_deadline: float | None = None
         while True:
@@ -264,15 +288,16 @@ def run(args: argparse.Namespace) -> int:
                 # the last diagnostics come right after the last trajectories
                 if final_deadline is None:
                     final_deadline = time.monotonic() + 3.0
+                robots = {ms.robot_name(i + 1) for i in range(sc.n)}
                 got = [d.get("trial", -1) for n, d in monitor.diagnostics.items()
-                       if n.startswith("robot_") and n != "robot_sim"]
+                       if n in robots]
                 recorded = (args.record is None or monitor.diagnostics.get(
                     "recorder", {}).get("trial", -1) >= sc.trials - 1)
                 # the simulator's and link emulator's last reports (timing, missed
                 # samples, injected delays) too
                 recorded = recorded and all(
                     monitor.diagnostics.get(node, {}).get("trial", -1) >= sc.trials - 1
-                    for node in ("robot_sim", "link_emulator"))
+                    for node in (["robot_sim"] if true_state else []) + support)
                 if (len(got) == sc.n and min(got) >= sc.trials - 1 and recorded) or \
                         time.monotonic() > final_deadline:
                     break
@@ -292,7 +317,7 @@ def run(args: argparse.Namespace) -> int:
         status = 130
     finally:
         stack.stop()
-        metrics_fh.close()
+        writer.close()
         diagnostics = dict(monitor.diagnostics) if monitor is not None else {}
         if monitor is not None:
             monitor.destroy_node()
@@ -300,14 +325,15 @@ def run(args: argparse.Namespace) -> int:
     elapsed = time.monotonic() - t_start
     rows = [monitor.rows[k] for k in sorted(monitor.rows)] if monitor is not None else []
     (out / "diagnostics.json").write_text(json.dumps(diagnostics, indent=2) + "\n")
-    pmf = sc.uncertainty.delay.pmf()
-    dtab = delay_table(diagnostics, pmf)
-    _write_csv(out / "delays.csv", ["link", "tau", "measured", "injected",
-                                    "measured_fraction", "model_probability"], dtab)
+    measured, injected = link_histograms(diagnostics)
+    dtab = delay_rows(measured, injected if args.links == "emulated" else None,
+                      sc.uncertainty.delay.pmf())
+    write_delays(out / "delays.csv", dtab)
     sim_diag = diagnostics.get("robot_sim", {})
     summary = {"scenario": sc.name, "robots": sc.n, "trials_done": len(rows),
-               "trials": sc.trials, "mode": args.mode, "container": args.container,
-               "domain_id": domain, "seconds": elapsed,
+               "trials": sc.trials, "mode": args.mode, "links": args.links,
+               "plant": plants, "true_state": true_state, "namespace": namespace,
+               "container": args.container, "domain_id": domain, "seconds": elapsed,
                "timing": sim_diag.get("timing", {}), "missed": sim_diag.get("missed", {}),
                "dropped": {n: d.get("dropped", {}) for n, d in diagnostics.items()}}
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
@@ -346,16 +372,23 @@ def _print_report(sc: Any, m: np.ndarray, dtab: list[list[Any]], summary: dict[s
         print(f"lockstep: {tim.get('samples_per_s', nan):.0f} samples/s, per-sample "
               f"latency p50 {tim.get('p50_ms', nan):.2f} ms, "
               f"p99 {tim.get('p99_ms', nan):.2f} ms")
+    if not summary.get("true_state", True):
+        print("true state: the plant publishes none; the true_ columns of metrics.csv are nan")
     if dtab:
+        direct = summary.get("links") == "direct"
         agg: dict[int, list[float]] = {}
         for _link, tau, meas, inj, _, p in dtab:
             a = agg.setdefault(tau, [0, 0, p])
             a[0] += meas
-            a[1] += inj
+            a[1] += 0 if direct else inj
         tot = sum(a[0] for a in agg.values()) or 1
-        print("delays (all links): tau  measured  injected  model")
+        if direct:
+            print("delays measured by the robots (eq. 11, all links): tau  measured  model")
+        else:
+            print("delays (all links): tau  measured  injected  model")
         for tau, (meas, inj, p) in sorted(agg.items()):
-            print(f"  {tau:4d} {meas / tot:9.3f} {inj / tot:9.3f} {p:6.3f}")
+            mid = "" if direct else f" {inj / tot:9.3f}"
+            print(f"  {tau:4d} {meas / tot:9.3f}{mid} {p:6.3f}")
     drops = {n: sum(d.values()) for n, d in summary["dropped"].items() if sum(d.values())}
     if drops:
         print(f"dropped messages: {drops}")

@@ -22,9 +22,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import cdr
+from .links import delivered_label, link_histograms
 from .mcap_io import RosMcapWriter, qos_yaml, read_messages
+from .metrics import METRIC_COLUMNS, TRUE_COLUMNS
+from .runconfig import RunConfig
 from .scenario import Scenario
-from .simulate import METRIC_COLUMNS, Problem, trial_errors
+from .simulate import Problem, trial_errors
 
 __all__ = ["qos_of", "SimRecorder", "Recording", "load_recording"]
 
@@ -51,7 +54,6 @@ class SimRecorder:
     def __init__(self, path: str | Path, sc: Scenario, sample_trials: Iterable[int] = (),
                  gap: int = 20):
         import msgs_schema as ms
-        from formation_ilc.nodes.common import RunConfig
 
         self.ms = ms
         self.sc = sc
@@ -61,9 +63,10 @@ class SimRecorder:
         self.sample_trials = set(sample_trials)
         self.w = RosMcapWriter(path, flush_period=1.0)
         n = sc.n
-        self.specs = {t: (ty, q) for t, ty, q in ms.topic_table(n)}
-        for topic, (typ, qos) in self.specs.items():
-            self.w.channel(topic, typ, qos_of(qos))
+        # channels by full name, in the stack's default namespace
+        self.full = {t: ms.absolute(t) for t, _, _ in ms.topic_table(n)}
+        for topic, typ, qos in ms.topic_table(n):
+            self.w.channel(self.full[topic], typ, qos_of(qos))
         conf = cfg.to_json() | {"recorded_by": "formation-ilc simulate"}
         self._json(ms.CONFIG, conf, 0)
         self.w.metadata(META_NAME, {"config": json.dumps(conf)})
@@ -71,7 +74,10 @@ class SimRecorder:
         self.names = [ms.robot_name(i + 1) for i in range(n)]
 
     def _json(self, topic: str, data: dict[str, Any], ns: int) -> None:
-        self.w.write(topic, cdr.encode_string(json.dumps(data, separators=(",", ":"))), ns, ns)
+        self._write(topic, cdr.encode_string(json.dumps(data, separators=(",", ":"))), ns)
+
+    def _write(self, topic: str, data: bytes, ns: int) -> None:
+        self.w.write(self.full[topic], data, ns, ns)
 
     def trial(self, k: int, xi: NDArray[np.float64], eta: NDArray[np.float64],
               u: NDArray[np.float64], tau: NDArray[np.int64], tau0: NDArray[np.int64]) -> None:
@@ -82,17 +88,17 @@ class SimRecorder:
         self._json(ms.TRIAL_EVENTS, {"event": ms.START, "trial": k, "stamp_ns": t0}, t0)
         if k in self.sample_trials:
             ref = self.sc.reference
+            world = ms.WORLD_FRAME
             for t in range(n_t + 1):
                 ns = int(stamps[t])
-                self.w.write(ms.CLOCK, cdr.encode_clock(ns), ns, ns)
-                self.w.write(ms.REFERENCE, cdr.encode_pose_stamped(ref[t], ns, ms.LEADER_FRAME),
-                             ns, ns)
+                self._write(ms.CLOCK, cdr.encode_clock(ns), ns)
+                self._write(ms.REFERENCE, cdr.encode_pose_stamped(ref[t], ns, world), ns)
                 for r in range(n):
-                    self.w.write(ms.pose_topic(r + 1),
-                                 cdr.encode_pose_stamped(eta[r, t], ns, self.names[r]), ns, ns)
+                    self._write(ms.pose_topic(r + 1),
+                                cdr.encode_pose_stamped(eta[r, t], ns, world), ns)
                     if t < n_t:
-                        self.w.write(ms.cmd_vel_topic(r + 1),
-                                     cdr.encode_twist(u[r, t, 0], u[r, t, 1]), ns, ns)
+                        self._write(ms.cmd_vel_topic(r + 1),
+                                    cdr.encode_twist(u[r, t, 0], u[r, t, 1]), ns)
         self._json(ms.TRIAL_EVENTS, {"event": ms.END, "trial": k}, t_end)
         # what each robot counts: the deliveries of ticks 0..T-1 that carry a sample >= 0
         t_idx = np.arange(n_t)
@@ -102,16 +108,16 @@ class SimRecorder:
                     continue
                 d = tau[i, ell, :n_t]
                 self.delays[i].setdefault(self.names[j], Counter()).update(
-                    d[t_idx - d >= 0].tolist())
+                    d[delivered_label(t_idx, d) >= 0].tolist())
             if pb.leader[i] != 0.0:
                 d = tau0[i, :n_t]
-                self.delays[i].setdefault(ms.LEADER_FRAME, Counter()).update(
-                    d[t_idx - d >= 0].tolist())
+                self.delays[i].setdefault(ms.LEADER, Counter()).update(
+                    d[delivered_label(t_idx, d) >= 0].tolist())
         for r in range(n):
-            self.w.write(ms.true_trajectory_topic(r + 1),
-                         cdr.encode_path(xi[r], stamps, self.names[r], t_end), t_end, t_end)
-            self.w.write(ms.trajectory_topic(r + 1),
-                         cdr.encode_path(eta[r], stamps, self.names[r], t_end), t_end, t_end)
+            self._write(ms.true_trajectory_topic(r + 1),
+                        cdr.encode_path(xi[r], stamps, ms.WORLD_FRAME, t_end), t_end)
+            self._write(ms.trajectory_topic(r + 1),
+                        cdr.encode_path(eta[r], stamps, ms.WORLD_FRAME, t_end), t_end)
             hist = {sender: {str(a): b for a, b in sorted(c.items())}
                     for sender, c in self.delays[r].items()}
             self._json(ms.DIAGNOSTICS, {"node": self.names[r], "trial": k, "delays": hist,
@@ -184,7 +190,6 @@ def load_recording(path: str | Path, keep: Callable[[int, int], bool] | None = N
     from std_msgs.msg import String
 
     import msgs_schema as ms
-    from formation_ilc.nodes.common import RunConfig
 
     path = Path(path)
     config: dict[str, Any] | None = None
@@ -199,27 +204,34 @@ def load_recording(path: str | Path, keep: Callable[[int, int], bool] | None = N
     events: list[dict[str, Any]] = []
     count = 0
     traj_topic: dict[str, tuple[int, bool]] = {}
+    # the formation's namespace is where its config topic is
+    events_topic = diag_topic = ""
+    true_seen = False
     for m in read_messages(path):
         count += 1
         if progress is not None and count % 5000 == 0:
             progress(count)
-        if m.topic == ms.CONFIG and config is None:
+        if config is None and m.topic.endswith("/" + ms.CONFIG):
             config = json.loads(deserialize_message(m.data, String).data)
             cfg = RunConfig.from_json(config)
             pb = Problem.from_scenario(cfg.scenario)
+            namespace = m.topic[: -len(ms.CONFIG) - 1] or "/"
             for r in range(pb.n):
-                traj_topic[ms.trajectory_topic(r + 1)] = (r, False)
-                traj_topic[ms.true_trajectory_topic(r + 1)] = (r, True)
+                traj_topic[ms.absolute(ms.trajectory_topic(r + 1), namespace)] = (r, False)
+                traj_topic[ms.absolute(ms.true_trajectory_topic(r + 1), namespace)] = (r, True)
+            events_topic = ms.absolute(ms.TRIAL_EVENTS, namespace)
+            diag_topic = ms.absolute(ms.DIAGNOSTICS, namespace)
             continue
-        if m.topic == ms.TRIAL_EVENTS:
+        if m.topic == events_topic:
             events.append(json.loads(deserialize_message(m.data, String).data))
-        elif m.topic == ms.DIAGNOSTICS:
+        elif m.topic == diag_topic:
             d = json.loads(deserialize_message(m.data, String).data)
             diags[str(d.get("node", "?"))] = d
         elif m.topic in traj_topic:
             if pb is None or cfg is None:
                 continue
             r, is_true = traj_topic[m.topic]
+            true_seen = true_seen or is_true
             eta, stamps = _path_outputs(m.data, pb.eta_d[r, :, 2])
             k, _ = cfg.clock.decode(int(stamps[0]))
             if k in rows:
@@ -235,18 +247,25 @@ def load_recording(path: str | Path, keep: Callable[[int, int], bool] | None = N
                 if keep is None or keep(k, cfg.scenario.trials):
                     rec_eta[k], rec_xi[k] = e, x
                 del meas[k], true[k]
+    if pb is not None and cfg is not None and not true_seen:
+        # a plant without a true state (hardware): the true_ columns are nan
+        for k in sorted(k for k, d in meas.items() if len(d) == pb.n):
+            e = np.stack([meas[k][i] for i in range(pb.n)])
+            row = np.empty(len(METRIC_COLUMNS))
+            row[0] = k
+            trial_errors(e, e, pb.eta_d, pb.src, pb.weight, row[1:])
+            for c in TRUE_COLUMNS:
+                row[METRIC_COLUMNS.index(c)] = np.nan
+            rows[k] = row
+            if keep is None or keep(k, cfg.scenario.trials):
+                rec_eta[k] = e
+            del meas[k]
     if config is None or cfg is None:
-        raise ValueError(f"{path}: no run configuration on {ms.CONFIG}: not a formation-ilc "
-                         f"recording, or cut before it started")
+        raise ValueError(f"{path}: no run configuration on a .../{ms.CONFIG} topic: not a "
+                         f"formation-ilc recording, or cut before it started")
     metrics = (np.array([rows[k] for k in sorted(rows)]) if rows
                else np.empty((0, len(METRIC_COLUMNS))))
-    delays: dict[str, dict[int, int]] = {}
-    injected: dict[str, dict[int, int]] = {}
-    for node, d in diags.items():
-        for sender, hist in (d.get("delays") or {}).items():
-            delays[f"{sender}->{node}"] = {int(a): int(b) for a, b in hist.items()}
-        for link, hist in (d.get("injected") or {}).items():
-            injected[link] = {int(a): int(b) for a, b in hist.items()}
+    delays, injected = link_histograms(diags)
     return Recording(scenario=cfg.scenario, config=config, metrics=metrics, eta=rec_eta,
                      xi=rec_xi, delays=delays, injected=injected, events=events,
                      incomplete=sorted(set(meas) | set(true)), messages=count)

@@ -16,22 +16,12 @@ from numpy.typing import NDArray
 
 from .kinematics import step_into, wrap_angle
 from .law import command, heading_code, law_code, learn, memory_code
+from .links import delivered_label
+from .metrics import METRIC_COLUMNS
 from .scenario import Scenario
 
 __all__ = ["Problem", "TrialRecord", "SimResult", "simulate", "simulate_seeds", "trial_errors",
            "METRIC_COLUMNS"]
-
-#: metrics.csv columns. Errors are measured-output errors unless marked true_ (true state);
-#: max over robots and t in [1, T]; trial 0 is the first run.
-METRIC_COLUMNS = (
-    "trial",
-    "max_position_error",
-    "max_heading_error",
-    "true_max_position_error",
-    "true_max_heading_error",
-    "rms_position_error",
-    "max_formation_error",
-)
 
 
 @dataclass(frozen=True)
@@ -125,12 +115,12 @@ def run_trial(law: int, memory_mode: int, heading: int, dt: float,
         for r in range(n):
             for ell in range(n_links):
                 j = src[r, ell]
-                s = t - tau[r, ell, t]
+                s = delivered_label(t, tau[r, ell, t])
                 nb_s[r, ell] = s
                 if j >= 0 and s >= 0:
                     for c in range(3):
                         nb_eta[r, ell, c] = eta[j, s, c]
-            lead_s[r] = t - tau0[r, t]
+            lead_s[r] = delivered_label(t, tau0[r, t])
         command(t, law, memory[:, t], eta, eta_d, nb_eta, nb_s, src, weight, eta_d, lead_s,
                 leader, gain_prime, heading, u[:, t])
         step_into(xi[:, t], u[:, t], dist[:, t], dt, xi[:, t + 1])

@@ -4,32 +4,62 @@ This module is the one place that names a topic. Every node, the launcher and th
 import names and profiles from here; numpy <-> message converters live here too and are
 tested by round trip (tests/test_msgs_schema.py). Standard messages only.
 
-Topics (robot ``i`` is 1-based in names, index ``i - 1`` in arrays):
+Names are relative: a node resolves them in its namespace (``NAMESPACE`` by default;
+``--ros-args -r __ns:=/team2`` moves one node, ``formation-ilc launch --namespace /team2`` a
+whole formation), so several formations share a ROS domain. ``/clock`` is the ROS
+convention's absolute name; a namespaced launch remaps it into the namespace too.
 
-========================================  ===========================  =====================
-topic                                     type                         from -> to
-========================================  ===========================  =====================
-/formation/config                         std_msgs/String (JSON)       leader -> all (latched)
-/formation/leader/reference               geometry_msgs/PoseStamped    leader -> links
-/formation/leader/trial_events            std_msgs/String (JSON)       leader -> all
-/formation/ready                          std_msgs/String (JSON)       all -> leader (latched)
-/formation/diagnostics                    std_msgs/String (JSON)       all -> monitor (latched)
-/formation/robot_i/pose                   geometry_msgs/PoseStamped    sim/bridge -> robot i
-/formation/robot_i/cmd_vel                geometry_msgs/Twist          robot i -> sim/bridge
-/formation/robot_i/shared_pose            geometry_msgs/PoseStamped    robot i -> links
-/formation/robot_i/neighbour_poses        nav_msgs/Path                links -> robot i
-/formation/robot_i/trajectory             nav_msgs/Path (trial end)    robot i -> neighbours
-/formation/robot_i/true_trajectory        nav_msgs/Path (trial end)    sim -> monitor
-/clock                                    rosgraph_msgs/Clock          sim -> all
-========================================  ===========================  =====================
+Topics (robot ``i`` is 1-based in names, index ``i - 1`` in arrays; ``S`` a sender,
+``robot_j`` or ``leader``):
 
-Time labels. A stamp is ``(k * period + s) * dT`` [ns] for trial ``k`` and sample ``s``
-(``period`` samples per trial, longer than the trial so a trial's labels never mix with the
-next one's). The shared pose's stamp is the send label St of eq. (11); the robot measures
-each delay from it and its own clock Rt. ``neighbour_poses`` is one bundle per robot and
-tick: the poses the links deliver at that tick, each with its ORIGINAL stamp and
-``frame_id`` naming the sender (``robot_j`` or ``leader``); the bundle's own stamp is the
-tick. Malformed input raises :class:`MalformedMessage`, which nodes count and drop.
+=========================  ===========================  ==================================
+topic                      type                         from -> to
+=========================  ===========================  ==================================
+config                     std_msgs/String (JSON)       leader -> all (latched)
+leader/reference           geometry_msgs/PoseStamped    leader -> robots that see it, links
+leader/trial_events        std_msgs/String (JSON)       leader -> all
+ready                      std_msgs/String (JSON)       all -> leader (latched)
+diagnostics                std_msgs/String (JSON)       all -> monitor (latched)
+robot_i/pose               geometry_msgs/PoseStamped    plant -> robot i
+robot_i/cmd_vel            geometry_msgs/Twist          robot i -> plant
+robot_i/shared_pose        geometry_msgs/PoseStamped    robot i -> out-neighbours (direct),
+                                                        link emulator (emulated)
+robot_i/links/S            nav_msgs/Path (0 or 1 pose)  link emulator -> robot i (emulated)
+robot_i/trajectory         nav_msgs/Path (trial end)    robot i -> out-neighbours, monitor
+robot_i/true_trajectory    nav_msgs/Path (trial end)    simulator (optional) -> monitor
+/clock                     rosgraph_msgs/Clock          plant, in simulated time -> all
+=========================  ===========================  ==================================
+
+Frames (REP-105). Every pose and path is in the world-fixed frame ``WORLD_FRAME`` ("map");
+the topic names whose pose it is. Diagnostics and ready messages name their node in JSON.
+
+Time labels (``formation_ilc.clock.SampleClock``). A stamp is ``(k * period + s) * dT``
+[ns] for trial ``k`` and sample ``s``. The plant stamps robot i's pose with the label of
+its sample: the robot's clock Rt of eq. (11). The shared pose keeps that stamp as the send
+label St; the robot measures each delay from St and its own Rt. An emulated link's message
+for tick t is stamped t (the tick) and holds the pose delivered then, with its ORIGINAL
+stamp, or no pose when nothing is delivered at t. Malformed input raises
+:class:`MalformedMessage`, which nodes count and drop.
+
+The plant contract
+------------------
+A plant (the kinematic simulator, a hardware bridge, a test's stand-in) closes the loop for
+robots 1..N. It
+
+1. reads the run configuration on ``config`` (latched) and follows ``leader/trial_events``;
+2. publishes, for each robot i and each sample s = 0..T of trial k, the measured pose on
+   ``robot_i/pose`` (PoseStamped in ``WORLD_FRAME``, stamp ``stamp_ns(k, s)``); sample 0
+   after the ``start`` event of trial k, sample s+1 after it applied sample s's command;
+3. applies ``robot_i/cmd_vel`` (Twist: ``linear.x`` = v [m/s], ``angular.z`` = omega
+   [rad/s]) from its sample to the next; in lockstep it waits for every robot's command,
+   in realtime it holds the last command of a robot that is late;
+4. in simulated time owns ``/clock``: it publishes the sample's time before that sample's
+   poses, and the leader broadcasts the reference on it;
+5. says ``{"node": NAME, "trial": k}`` on ``ready`` (latched) when it can run trial k
+   (k = 0 once its publishers are matched; k+1 after sample T of trial k).
+
+It may publish ``robot_i/true_trajectory`` (its ground truth) at trial end and its own
+``diagnostics``; nothing in the stack needs them (metrics then lack the true-state columns).
 """
 
 from __future__ import annotations
@@ -37,7 +67,6 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -49,75 +78,81 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
+from formation_ilc.clock import Malformed, SampleClock
+from formation_ilc.links import LEADER, link_name, robot_name
+from formation_ilc.links import robot_number as robot_index
+
 __all__ = [
     "NAMESPACE", "CONFIG", "REFERENCE", "TRIAL_EVENTS", "READY", "DIAGNOSTICS", "CLOCK",
-    "LEADER_FRAME", "robot_name", "robot_index", "pose_topic", "cmd_vel_topic",
-    "shared_pose_topic", "neighbour_poses_topic", "trajectory_topic", "true_trajectory_topic",
+    "WORLD_FRAME", "LEADER", "LEADER_FRAME", "robot_name", "robot_index", "link_name",
+    "pose_topic", "cmd_vel_topic", "shared_pose_topic", "link_topic", "trajectory_topic",
+    "true_trajectory_topic", "absolute", "relative",
     "SAMPLE_QOS", "LATCHED_QOS", "LATCHED_READER_QOS", "TRAJECTORY_QOS", "CLOCK_QOS",
     "MalformedMessage", "topic_table",
     "SampleClock", "stamp_to_ns", "ns_to_stamp", "pose_to_msg", "msg_to_pose", "u_to_twist",
-    "twist_to_u", "trajectory_to_path", "path_to_trajectory", "bundle_to_msg",
-    "msg_to_bundle", "json_to_msg", "msg_to_json", "clock_msg", "Delivery",
+    "twist_to_u", "world_pose", "trajectory_to_path", "path_to_trajectory", "link_tick_to_msg",
+    "msg_to_link_tick", "json_to_msg", "msg_to_json", "clock_msg",
     "START", "END", "DONE",
 ]
 
+#: the default namespace of every node of a formation
 NAMESPACE = "/formation"
-CONFIG = f"{NAMESPACE}/config"
-REFERENCE = f"{NAMESPACE}/leader/reference"
-TRIAL_EVENTS = f"{NAMESPACE}/leader/trial_events"
-READY = f"{NAMESPACE}/ready"
-DIAGNOSTICS = f"{NAMESPACE}/diagnostics"
+CONFIG = "config"
+REFERENCE = "leader/reference"
+TRIAL_EVENTS = "leader/trial_events"
+READY = "ready"
+DIAGNOSTICS = "diagnostics"
 CLOCK = "/clock"
 
-#: frame_id of the leader's reference poses (sender name in bundles)
-LEADER_FRAME = "leader"
+#: REP-105 world-fixed frame of every pose and path
+WORLD_FRAME = "map"
+#: sender name of the leader's reference (link names ``leader->robot_i``)
+LEADER_FRAME = LEADER
 #: trial events (``event`` field of the JSON on TRIAL_EVENTS)
 START, END, DONE = "start", "end", "done"
 
 
-def robot_name(i: int) -> str:
-    """Name of robot ``i`` (1-based): ``robot_i``; also its frame_id and namespace leaf."""
-    return f"robot_{int(i)}"
-
-
-def robot_index(name: str) -> int:
-    """1-based robot number of ``robot_i``; MalformedMessage if ``name`` is not one."""
-    if not name.startswith("robot_") or not name[6:].isdigit():
-        raise MalformedMessage(f"not a robot name: {name!r}")
-    return int(name[6:])
-
-
-def _ns(i: int) -> str:
-    return f"{NAMESPACE}/{robot_name(i)}"
-
-
 def pose_topic(i: int) -> str:
-    """Measured pose of robot ``i`` (simulator or hardware bridge -> robot)."""
-    return f"{_ns(i)}/pose"
+    """Measured pose of robot ``i`` (plant -> robot)."""
+    return f"{robot_name(i)}/pose"
 
 
 def cmd_vel_topic(i: int) -> str:
-    return f"{_ns(i)}/cmd_vel"
+    return f"{robot_name(i)}/cmd_vel"
 
 
 def shared_pose_topic(i: int) -> str:
     """Robot ``i``'s labelled output, for its neighbours (stamp = send label St)."""
-    return f"{_ns(i)}/shared_pose"
+    return f"{robot_name(i)}/shared_pose"
 
 
-def neighbour_poses_topic(i: int) -> str:
-    """Per-tick bundle of the poses delivered to robot ``i`` by its in-links."""
-    return f"{_ns(i)}/neighbour_poses"
+def link_topic(i: int, sender: str) -> str:
+    """Emulated link ``sender -> robot_i``: one message per tick (0 or 1 pose)."""
+    return f"{robot_name(i)}/links/{sender}"
 
 
 def trajectory_topic(i: int) -> str:
     """Robot ``i``'s whole-trial measured output, sent at trial end."""
-    return f"{_ns(i)}/trajectory"
+    return f"{robot_name(i)}/trajectory"
 
 
 def true_trajectory_topic(i: int) -> str:
-    """Simulator ground truth (true state) of robot ``i`` for one trial, for metrics."""
-    return f"{_ns(i)}/true_trajectory"
+    """A simulator's ground truth (true state) of robot ``i`` for one trial, for metrics."""
+    return f"{robot_name(i)}/true_trajectory"
+
+
+def absolute(topic: str, namespace: str = NAMESPACE) -> str:
+    """The full name of a topic in ``namespace`` (absolute names stay as they are)."""
+    if topic.startswith("/"):
+        return topic
+    ns = namespace.rstrip("/")
+    return f"{ns}/{topic}"
+
+
+def relative(name: str, namespace: str = NAMESPACE) -> str:
+    """The schema's name of a full topic name in ``namespace`` (inverse of ``absolute``)."""
+    prefix = namespace.rstrip("/") + "/"
+    return name[len(prefix):] if name.startswith(prefix) else name
 
 
 # Lockstep must not lose a sample on localhost: reliable, and deep enough for a burst.
@@ -143,45 +178,12 @@ CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=64,
                        durability=DurabilityPolicy.VOLATILE)
 
 
-class MalformedMessage(ValueError):
-    """A message that cannot be decoded into valid data (dropped and counted by nodes)."""
+#: a message that cannot be decoded into valid data: dropped and counted by nodes as
+#: ``malformed`` (the core's ``Malformed``, a ``Rejected`` like every refused input)
+MalformedMessage = Malformed
 
 
 # --------------------------------------------------------------------------- time labels
-
-@dataclass(frozen=True)
-class SampleClock:
-    """Sample grid of a run: stamp(k, s) = (k * period + s) * dT, integer nanoseconds.
-
-    dt_ns : sample time [ns]; samples : T (a trial has samples 0..T); period : samples per
-    trial slot (> T, so labels of consecutive trials never overlap).
-    """
-
-    dt_ns: int
-    samples: int
-    period: int
-
-    @classmethod
-    def for_run(cls, dt: float, samples: int, gap: int = 20) -> SampleClock:
-        if dt <= 0 or samples < 1 or gap < 1:
-            raise ValueError("dt > 0, samples >= 1 and gap >= 1 are required")
-        return cls(int(round(dt * 1e9)), int(samples), int(samples) + 1 + int(gap))
-
-    def stamp_ns(self, trial: int, sample: int) -> int:
-        return (int(trial) * self.period + int(sample)) * self.dt_ns
-
-    def decode(self, ns: int) -> tuple[int, int]:
-        """(trial, sample) of the grid point nearest to ``ns``; MalformedMessage if off the
-        trial (a negative time or a sample outside 0..T)."""
-        if ns < 0:
-            raise MalformedMessage(f"negative stamp {ns} ns")
-        q = (ns + self.dt_ns // 2) // self.dt_ns
-        k, s = divmod(q, self.period)
-        if s > self.samples:
-            raise MalformedMessage(f"stamp {ns} ns is between trials (sample {s} of "
-                                   f"{self.samples})")
-        return int(k), int(s)
-
 
 def stamp_to_ns(stamp: Time) -> int:
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
@@ -248,6 +250,15 @@ def msg_to_pose(msg: PoseStamped, previous_heading: float | None = None
     return np.array((x, y, th)), stamp_to_ns(msg.header.stamp), str(msg.header.frame_id)
 
 
+def world_pose(msg: PoseStamped, previous_heading: float | None = None
+               ) -> tuple[NDArray[np.float64], int]:
+    """(eta (3,), stamp [ns]) of a pose that must be in ``WORLD_FRAME``; see msg_to_pose."""
+    eta, ns, frame = msg_to_pose(msg, previous_heading)
+    if frame != WORLD_FRAME:
+        raise MalformedMessage(f"pose in frame {frame!r}, expected {WORLD_FRAME!r}")
+    return eta, ns
+
+
 def u_to_twist(u: Sequence[float] | NDArray[np.float64], out: Twist | None = None) -> Twist:
     """u = (v [m/s], omega [rad/s]) as a Twist (linear.x, angular.z)."""
     m = Twist() if out is None else out
@@ -304,32 +315,24 @@ def path_to_trajectory(msg: Path, reference_heading: NDArray[np.float64] | None 
     return eta, stamps, frame
 
 
-# --------------------------------------------------------------------------- bundles
+# --------------------------------------------------------------------------- emulated links
 
-@dataclass(frozen=True)
-class Delivery:
-    """One pose a link delivered: sender (``robot_j`` or ``leader``), its original label
-    [ns], and the decoded output (heading wrapped; unwrap at the receiver)."""
-
-    sender: str
-    stamp_ns: int
-    eta: NDArray[np.float64]
-
-
-def bundle_to_msg(tick_ns: int, receiver: str, poses: Iterable[PoseStamped]) -> Path:
-    """A tick's deliveries for ``receiver``; the poses are forwarded unchanged (original
-    stamp and sender frame)."""
+def link_tick_to_msg(tick_ns: int, pose: PoseStamped | None) -> Path:
+    """What an emulated link delivers at the tick ``tick_ns``: the pose as it was sent
+    (original stamp St), or nothing."""
     m = Path()
     ns_to_stamp(tick_ns, m.header.stamp)
-    m.header.frame_id = receiver
-    m.poses = list(poses)
+    m.header.frame_id = WORLD_FRAME
+    m.poses = [] if pose is None else [pose]
     return m
 
 
-def msg_to_bundle(msg: Path) -> tuple[int, str, list[PoseStamped]]:
-    """(tick [ns], receiver, raw poses). Poses are decoded one by one by the receiver, so
-    one bad pose costs only itself."""
-    return stamp_to_ns(msg.header.stamp), str(msg.header.frame_id), list(msg.poses)
+def msg_to_link_tick(msg: Path) -> tuple[int, PoseStamped | None]:
+    """(tick [ns], the delivered pose or None); MalformedMessage if it holds more than one."""
+    if len(msg.poses) > 1:
+        raise MalformedMessage(f"a link delivers at most one pose per tick, got "
+                               f"{len(msg.poses)}")
+    return stamp_to_ns(msg.header.stamp), (msg.poses[0] if msg.poses else None)
 
 
 # --------------------------------------------------------------------------- JSON strings
@@ -355,9 +358,11 @@ def msg_to_json(msg: String, required: Sequence[str] = ()) -> dict[str, Any]:
 # --------------------------------------------------------------------------- topic table
 
 def topic_table(n: int) -> list[tuple[str, str, QoSProfile]]:
-    """Every topic of a run of ``n`` robots: (name, ROS type name, offered QoS).
+    """Every recorded topic of a run of ``n`` robots: (relative name, ROS type, offered QoS).
 
-    The recorder subscribes to exactly these; the batch simulator records on them too.
+    The recorder subscribes to exactly these; the batch simulator records on them too. The
+    emulated links' per-tick messages (``link_topic``) are not in it: they repeat the
+    shared poses, and the delays they carried are in each robot's diagnostics.
     """
     rows: list[tuple[str, str, QoSProfile]] = [
         (CONFIG, "std_msgs/msg/String", LATCHED_QOS),
@@ -372,7 +377,6 @@ def topic_table(n: int) -> list[tuple[str, str, QoSProfile]]:
             (pose_topic(i), "geometry_msgs/msg/PoseStamped", SAMPLE_QOS),
             (cmd_vel_topic(i), "geometry_msgs/msg/Twist", SAMPLE_QOS),
             (shared_pose_topic(i), "geometry_msgs/msg/PoseStamped", SAMPLE_QOS),
-            (neighbour_poses_topic(i), "nav_msgs/msg/Path", SAMPLE_QOS),
             (trajectory_topic(i), "nav_msgs/msg/Path", TRAJECTORY_QOS),
             (true_trajectory_topic(i), "nav_msgs/msg/Path", TRAJECTORY_QOS),
         ]

@@ -1,8 +1,11 @@
-"""Kinematic simulator and link emulator (``formation-ilc-sim``), one process, one executor.
+"""Kinematic simulator (``formation-ilc-sim``): the plant of every robot, in one process.
 
-``robot_sim`` integrates eq. (1) for every robot with the scenario's initial-state shifts,
-input disturbances and output noises (the plant stream of trial k, as the batch simulator
-draws it), publishes ``/clock`` and each robot's measured pose, and reads ``cmd_vel``.
+It speaks the plant contract of ``msgs_schema`` and nothing more: it integrates eq. (1) for
+every robot with the scenario's initial-state shifts, input disturbances and output noises
+(the plant stream of trial k, as the batch simulator draws it), publishes ``/clock`` and
+each robot's measured pose (in the world frame, stamped with the sample's label), and
+applies ``cmd_vel``. At each trial's end it also publishes the true trajectories (ground
+truth, for the metrics' ``true_`` columns) and its timing on ``diagnostics``.
 
 * lockstep: sample t+1 is computed when every robot has commanded sample t, so a run goes
   as fast as the processes allow; if a robot stays silent for ``timeout`` seconds the
@@ -17,17 +20,12 @@ draws it), publishes ``/clock`` and each robot's measured pose, and reads ``cmd_
   (p50/p90/p99/max over every command), the all-in latency per sample, and how late the
   timer itself fired.
 
-``link_emulator`` carries the scenario's delay model on the robot-to-robot links (the
-delay stream of trial k): at tick t it delivers to robot i, on each in-link, the sender's
-shared pose labelled t - tau, with its original label, and the leader's reference
-labelled t - tau0, as one bundle per robot and tick. It reports the injected delay
-histograms on ``/formation/diagnostics``. Lockstep: tick t's bundles go out when every
-robot's sample-t pose and the reference are in. Realtime: the tick is ``/clock``; robot
-i's bundle goes out as soon as the poses it needs are in, at the latest ``DELIVERY_WAIT``
-dT after the tick, without the ones still missing (counted as ``late`` per link; they are
-not in ``injected``, so the robots' eq. (11) measurements still equal ``injected``).
+The links between robots are not part of the plant: with ``links: emulated`` the link
+emulator (``formation-ilc-links``) is its own process; with ``links: direct`` the robots
+talk to each other.
 
-Parameters: ``timeout`` [s] (lockstep). The run configuration comes from /formation/config.
+Parameters: ``timeout`` [s] (lockstep; default: the run configuration's). The run
+configuration comes from the latched ``config`` topic.
 """
 
 from __future__ import annotations
@@ -40,54 +38,31 @@ from typing import Any
 import numpy as np
 from geometry_msgs.msg import PoseStamped, Twist
 from nav_msgs.msg import Path
-from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 import msgs_schema as ms
 from formation_ilc.kinematics import step_into
 from formation_ilc.nodes.common import (
-    DropCounter,
+    ConfiguredNode,
     RunConfig,
-    config_from_msg,
     fail,
     matched,
+    node_parser,
     spin_main,
     warm_up,
 )
 from formation_ilc.simulate import Problem
 
-#: realtime: the link emulator sends a bundle at the latest this many dT after the tick
-DELIVERY_WAIT = 0.5
+#: the plant's node name (what it says ready as)
+NAME = "robot_sim"
 
 
-class _Configured(Node):
-    """A node that builds itself from the latched run configuration."""
-
-    def __init__(self, name: str, **kwargs: Any):
-        super().__init__(name, namespace=ms.NAMESPACE, **kwargs)
-        self.drops = DropCounter(self)
-        self.configured = False
-        self._cfg_sub = self.create_subscription(String, ms.CONFIG, self._on_config,
-                                                 ms.LATCHED_QOS)
-
-    def _on_config(self, msg: String) -> None:
-        if self.configured:
-            return
-        cfg = config_from_msg(msg, self.drops)
-        if cfg is not None:
-            self.configured = True
-            self.configure(cfg)
-
-    def configure(self, cfg: RunConfig) -> None:
-        raise NotImplementedError
-
-
-class SimNode(_Configured):
+class SimNode(ConfiguredNode):
     """The kinematic simulator of all robots."""
 
     def __init__(self, **kwargs: Any):
-        super().__init__("robot_sim", **kwargs)
+        super().__init__(NAME, **kwargs)
         self.declare_parameter("timeout", 0.0)
 
     def configure(self, cfg: RunConfig) -> None:
@@ -146,7 +121,7 @@ class SimNode(_Configured):
         need += [(p, int(self.cfg.monitored)) for p in self.true_pubs]
         if matched(need):
             self._gate.cancel()
-            self.ready_pub.publish(ms.json_to_msg({"node": "robot_sim", "trial": 0}))
+            self.ready_pub.publish(ms.json_to_msg({"node": NAME, "trial": 0}))
 
     def _on_event(self, msg: String) -> None:
         try:
@@ -188,19 +163,19 @@ class SimNode(_Configured):
             stamps = [self.clock.stamp_ns(k, s) for s in range(self.T + 1)]
             for r in range(self.n):
                 self.true_pubs[r].publish(ms.trajectory_to_path(self.xi[r], stamps,
-                                                                ms.robot_name(r + 1)))
+                                                                ms.WORLD_FRAME))
             self.trial_time += time.perf_counter() - self.trial_t0
             self.samples_done += self.T
-            d = {"node": "robot_sim", "trial": k, "mode": self.cfg.mode,
+            d = {"node": NAME, "trial": k, "mode": self.cfg.mode,
                  "missed": dict(self.missed), "timing": self._timing()}
             d.update(self.drops.as_dict())
             self.diag_pub.publish(ms.json_to_msg(d))
         self.clock_pub.publish(ms.clock_msg(ns))
         for r in range(self.n):
-            self.pose_pubs[r].publish(ms.pose_to_msg(self.eta[r, t], ns, ms.robot_name(r + 1),
+            self.pose_pubs[r].publish(ms.pose_to_msg(self.eta[r, t], ns, ms.WORLD_FRAME,
                                                      self.pose_msgs[r]))
         if t == self.T:
-            self.ready_pub.publish(ms.json_to_msg({"node": "robot_sim", "trial": k + 1}))
+            self.ready_pub.publish(ms.json_to_msg({"node": NAME, "trial": k + 1}))
             return
         self.pending = set(range(self.n))
         self.wait_start = time.perf_counter()
@@ -233,7 +208,7 @@ class SimNode(_Configured):
         try:
             u = ms.twist_to_u(msg)
         except ms.MalformedMessage as exc:
-            self.drops.drop("malformed", f"robot_{r + 1}/cmd_vel", str(exc))
+            self.drops.reject(exc, ms.cmd_vel_topic(r + 1))
             return
         if self.realtime:
             self._on_cmd_realtime(u, r)
@@ -295,217 +270,9 @@ class SimNode(_Configured):
                        f"sample {self.t} for cmd_vel of {who}")
 
 
-class LinkEmulator(_Configured):
-    """The robot-to-robot links, with the scenario's delays in simulated time."""
-
-    def __init__(self, **kwargs: Any):
-        super().__init__("link_emulator", **kwargs)
-
-    def configure(self, cfg: RunConfig) -> None:
-        sc = cfg.scenario
-        pb = Problem.from_scenario(sc)
-        self.cfg, self.pb, self.clock = cfg, pb, cfg.clock
-        n, n_t = pb.n, pb.samples
-        self.n, self.T = n, n_t
-        self.k = -1
-        self.realtime = cfg.mode == "realtime"
-        self.injected: dict[str, Counter[int]] = {}
-        self.late: dict[str, int] = {}  # realtime: deliveries not in by the deadline
-        for i in range(n):
-            for j in pb.src[i]:
-                if j >= 0:
-                    self.injected[f"{ms.robot_name(j + 1)}->{ms.robot_name(i + 1)}"] = Counter()
-            if pb.leader[i] != 0.0:
-                self.injected[f"{ms.LEADER_FRAME}->{ms.robot_name(i + 1)}"] = Counter()
-        self.late = {link: 0 for link in self.injected}
-        self.waiting: dict[int, int] = {}  # realtime: receiver -> tick it still waits for
-        self.bundle_pubs = [self.create_publisher(Path, ms.neighbour_poses_topic(i + 1),
-                                                  ms.SAMPLE_QOS) for i in range(n)]
-        self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
-        for j in range(n):
-            self.create_subscription(PoseStamped, ms.shared_pose_topic(j + 1),
-                                     lambda m, j=j: self._on_shared(m, j), ms.SAMPLE_QOS)
-        self.create_subscription(PoseStamped, ms.REFERENCE, self._on_reference, ms.SAMPLE_QOS)
-        if self.realtime:
-            self.create_subscription(Clock, ms.CLOCK, self._on_clock, ms.CLOCK_QOS)
-            self._deadline = self.create_timer(DELIVERY_WAIT * sc.dt, self._on_deadline)
-            self._deadline.cancel()
-        self._gate = self.create_timer(0.02, self._check_ready)
-
-    def _check_ready(self) -> None:
-        if matched([(p, 1) for p in self.bundle_pubs] + [(self.ready_pub, 1)]):
-            self._gate.cancel()
-            self.ready_pub.publish(ms.json_to_msg({"node": "link_emulator", "trial": 0}))
-
-    def _start(self, k: int) -> None:
-        self.k = k
-        pb = self.pb
-        self.tau, self.tau0 = self.cfg.scenario.uncertainty.draw_delays(
-            self.cfg.scenario.seed, k, pb.n, pb.src.shape[1], pb.samples)
-        self.shared: list[list[PoseStamped | None]] = [[None] * (self.T + 1)
-                                                        for _ in range(self.n)]
-        self.ref: list[PoseStamped | None] = [None] * (self.T + 1)
-        self.count = np.zeros(self.T + 1, dtype=np.int64)
-        self.next_t = 0
-        self.waiting = {}
-        self.reported = False
-
-    def _label(self, msg: PoseStamped, frame: str, topic: str) -> tuple[int, int] | None:
-        try:
-            k, s = self.clock.decode(ms.stamp_to_ns(msg.header.stamp))
-            if msg.header.frame_id != frame:
-                raise ms.MalformedMessage(f"frame {msg.header.frame_id!r}, expected {frame}")
-            ms.msg_to_pose(msg)
-        except ms.MalformedMessage as exc:
-            self.drops.drop("malformed", topic, str(exc))
-            return None
-        if k < self.k:
-            self.drops.drop("stale", topic, f"label of trial {k} in trial {self.k}")
-            return None
-        if k > self.k:
-            self._start(k)
-        return k, s
-
-    def _on_shared(self, msg: PoseStamped, j: int) -> None:
-        name = ms.robot_name(j + 1)
-        lab = self._label(msg, name, f"{name}/shared_pose")
-        if lab is None:
-            return
-        s = lab[1]
-        if self.shared[j][s] is not None or (s < self.next_t and not self.realtime):
-            self.drops.drop("out_of_order", f"{name}/shared_pose", f"sample {s} again")
-            return
-        self.shared[j][s] = msg
-        self.count[s] += 1
-        if self.realtime:
-            self._deliver_waiting()
-        else:
-            self._deliver()
-
-    def _on_reference(self, msg: PoseStamped) -> None:
-        lab = self._label(msg, ms.LEADER_FRAME, "leader/reference")
-        if lab is None:
-            return
-        s = lab[1]
-        if self.ref[s] is not None or (s < self.next_t and not self.realtime):
-            self.drops.drop("out_of_order", "leader/reference", f"sample {s} again")
-            return
-        self.ref[s] = msg
-        if self.realtime:
-            self._deliver_waiting()
-        else:
-            self._deliver()
-
-    def _deliver(self) -> None:
-        pb = self.pb
-        while self.next_t < self.T and self.count[self.next_t] == self.n \
-                and self.ref[self.next_t] is not None:
-            t = self.next_t
-            tick = self.clock.stamp_ns(self.k, t)
-            for i in range(self.n):
-                poses = []
-                to = ms.robot_name(i + 1)
-                for ell in range(pb.src.shape[1]):
-                    j = pb.src[i, ell]
-                    if j < 0:
-                        continue
-                    tau = int(self.tau[i, ell, t])
-                    if t - tau >= 0:
-                        poses.append(self.shared[j][t - tau])
-                        self.injected[f"{ms.robot_name(j + 1)}->{to}"][tau] += 1
-                if pb.leader[i] != 0.0:
-                    tau = int(self.tau0[i, t])
-                    if t - tau >= 0:
-                        poses.append(self.ref[t - tau])
-                        self.injected[f"{ms.LEADER_FRAME}->{to}"][tau] += 1
-                self.bundle_pubs[i].publish(ms.bundle_to_msg(tick, to, poses))
-            self.next_t = t + 1
-            if self.next_t == self.T:
-                self._report()
-                self.ready_pub.publish(ms.json_to_msg({"node": "link_emulator",
-                                                       "trial": self.k + 1}))
-
-    # ------------------------------------------------------------------ realtime
-    def _on_clock(self, msg: Clock) -> None:
-        try:
-            k, t = self.clock.decode(ms.stamp_to_ns(msg.clock))
-        except ms.MalformedMessage as exc:
-            self.drops.drop("malformed", "clock", str(exc))
-            return
-        if k < self.k:
-            self.drops.drop("stale", "clock", f"time of trial {k} in trial {self.k}")
-            return
-        if k > self.k:
-            self._start(k)
-        if self.waiting:  # the previous tick's deadline has not fired: it is over now
-            self._on_deadline()
-        if t >= self.T:
-            return
-        self.next_t = t
-        self.waiting = {i: t for i in range(self.n)}
-        self._deadline.reset()
-        self._deliver_waiting()
-
-    def _needs(self, i: int, t: int) -> list[tuple[str, PoseStamped | None, int]]:
-        """(link, pose or None if not in yet, tau) of everything robot i gets at tick t."""
-        pb, to = self.pb, ms.robot_name(i + 1)
-        out: list[tuple[str, PoseStamped | None, int]] = []
-        for ell in range(pb.src.shape[1]):
-            j = pb.src[i, ell]
-            if j < 0:
-                continue
-            tau = int(self.tau[i, ell, t])
-            if t - tau >= 0:
-                out.append((f"{ms.robot_name(j + 1)}->{to}", self.shared[j][t - tau], tau))
-        if pb.leader[i] != 0.0:
-            tau = int(self.tau0[i, t])
-            if t - tau >= 0:
-                out.append((f"{ms.LEADER_FRAME}->{to}", self.ref[t - tau], tau))
-        return out
-
-    def _deliver_waiting(self, force: bool = False) -> None:
-        """Send every waiting bundle whose poses are in; with ``force``, the rest too,
-        without the missing poses (counted late)."""
-        for i, t in list(self.waiting.items()):
-            needs = self._needs(i, t)
-            if not force and any(m is None for _, m, _ in needs):
-                continue
-            poses = []
-            for link, m, tau in needs:
-                if m is None:
-                    self.late[link] += 1
-                else:
-                    poses.append(m)
-                    self.injected[link][tau] += 1
-            to = ms.robot_name(i + 1)
-            self.bundle_pubs[i].publish(ms.bundle_to_msg(self.clock.stamp_ns(self.k, t), to,
-                                                         poses))
-            del self.waiting[i]
-        if not self.waiting:
-            self._deadline.cancel()
-            if self.next_t == self.T - 1 and not self.reported:
-                # the trial's last bundles are out (as in lockstep, before sample T)
-                self.reported = True
-                self._report()
-                self.ready_pub.publish(ms.json_to_msg({"node": "link_emulator",
-                                                       "trial": self.k + 1}))
-
-    def _on_deadline(self) -> None:
-        self._deliver_waiting(force=True)
-
-    def _report(self) -> None:
-        d: dict[str, Any] = {"node": "link_emulator", "trial": self.k,
-                             "injected": {link: {str(t): c for t, c in sorted(h.items())}
-                                          for link, h in self.injected.items()}}
-        if self.realtime:
-            d["late"] = dict(self.late)
-        d.update(self.drops.as_dict())
-        self.diag_pub.publish(ms.json_to_msg(d))
-
-
 def main(args: list[str] | None = None) -> int:
-    return spin_main(lambda argv: [SimNode(), LinkEmulator()], args)
+    return spin_main(lambda ns, argv: [SimNode()], node_parser("formation-ilc-sim", __doc__),
+                     args)
 
 
 if __name__ == "__main__":

@@ -10,15 +10,22 @@ import pytest
 ms = pytest.importorskip("msgs_schema")
 
 
-def test_topics_are_namespaced_per_robot():
-    assert ms.pose_topic(3) == "/formation/robot_3/pose"
-    assert ms.cmd_vel_topic(3) == "/formation/robot_3/cmd_vel"
-    assert ms.shared_pose_topic(1) == "/formation/robot_1/shared_pose"
-    assert ms.trajectory_topic(12) == "/formation/robot_12/trajectory"
+def test_topics_are_relative_and_resolve_in_any_namespace():
+    assert ms.pose_topic(3) == "robot_3/pose"
+    assert ms.cmd_vel_topic(3) == "robot_3/cmd_vel"
+    assert ms.shared_pose_topic(1) == "robot_1/shared_pose"
+    assert ms.trajectory_topic(12) == "robot_12/trajectory"
+    assert ms.link_topic(2, "leader") == "robot_2/links/leader"
+    # every name but /clock is relative, so one formation runs under any namespace
+    for name, _, _ in ms.topic_table(4):
+        assert name.startswith("/") == (name == ms.CLOCK), name
+    assert ms.absolute(ms.pose_topic(3)) == "/formation/robot_3/pose"
+    assert ms.absolute(ms.CONFIG, "/team2") == "/team2/config"
+    assert ms.absolute(ms.CLOCK, "/team2") == "/clock"
+    assert ms.relative("/team2/robot_1/pose", "/team2") == "robot_1/pose"
     assert ms.robot_index(ms.robot_name(7)) == 7
     with pytest.raises(ms.MalformedMessage):
         ms.robot_index("leader")
-    assert ms.CONFIG.startswith("/formation/")
     from rclpy.qos import DurabilityPolicy
     assert ms.LATCHED_QOS.durability == DurabilityPolicy.TRANSIENT_LOCAL
 
@@ -103,13 +110,24 @@ def test_trajectory_round_trip():
         ms.path_to_trajectory(path, eta[:, 2])
 
 
-def test_bundle_keeps_original_labels():
-    a = ms.pose_to_msg([1, 2, 3], 5_000, "robot_1")
-    b = ms.pose_to_msg([0, 0, 0], 3_000, ms.LEADER_FRAME)
-    tick, receiver, poses = ms.msg_to_bundle(ms.bundle_to_msg(9_000, "robot_2", [a, b]))
-    assert (tick, receiver) == (9_000, "robot_2")
-    assert [(p.header.frame_id, ms.stamp_to_ns(p.header.stamp)) for p in poses] == [
-        ("robot_1", 5_000), (ms.LEADER_FRAME, 3_000)]
+def test_link_tick_keeps_the_original_label():
+    a = ms.pose_to_msg([1, 2, 3], 5_000, ms.WORLD_FRAME)
+    tick, pose = ms.msg_to_link_tick(ms.link_tick_to_msg(9_000, a))
+    assert tick == 9_000 and ms.stamp_to_ns(pose.header.stamp) == 5_000
+    assert pose.header.frame_id == ms.WORLD_FRAME
+    tick, pose = ms.msg_to_link_tick(ms.link_tick_to_msg(9_000, None))
+    assert tick == 9_000 and pose is None
+    two = ms.link_tick_to_msg(9_000, a)
+    two.poses.append(a)
+    with pytest.raises(ms.MalformedMessage):
+        ms.msg_to_link_tick(two)
+
+
+def test_world_pose_requires_the_world_frame():
+    eta, ns = ms.world_pose(ms.pose_to_msg([1, 2, 0.5], 7, ms.WORLD_FRAME))
+    assert ns == 7 and eta.tolist()[:2] == [1, 2]
+    with pytest.raises(ms.MalformedMessage, match="frame 'robot_1'"):
+        ms.world_pose(ms.pose_to_msg([1, 2, 0.5], 7, "robot_1"))
 
 
 def test_json_messages():
@@ -133,5 +151,5 @@ def test_messages_serialize():
     back = deserialize_message(serialize_message(m), PoseStamped)
     eta, ns, frame = ms.msg_to_pose(back, 2.9)
     assert ns == 123_456_789_012 and frame == "robot_4" and abs(eta[2] - 2.9) < 1e-15
-    p = ms.bundle_to_msg(1, "robot_1", [m])
+    p = ms.link_tick_to_msg(1, m)
     assert len(deserialize_message(serialize_message(p), Path).poses) == 1

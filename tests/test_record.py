@@ -22,12 +22,13 @@ pytest.importorskip("mcap_ros2")  # the [mcap] extra; CI installs it
 
 from formation_ilc.cli import main  # noqa: E402
 from formation_ilc.mcap_io import read_messages  # noqa: E402
+from formation_ilc.metrics import read_metrics  # noqa: E402
 from formation_ilc.recording import load_recording  # noqa: E402
 from formation_ilc.scenario import load_scenario  # noqa: E402
 from formation_ilc.simulate import simulate  # noqa: E402
 
 from .procs import find_child, stop_group  # noqa: E402
-from .test_stack import launch, read_metrics  # noqa: E402
+from .test_stack import launch  # noqa: E402
 
 
 @pytest.mark.ros
@@ -62,7 +63,7 @@ def test_launch_record_then_analyze_reproduces_the_launcher_exactly(ros_env, tmp
     for i in (1, 2, 3):
         assert counts[f"/formation/robot_{i}/pose"] == 4 * 141
         assert counts[f"/formation/robot_{i}/cmd_vel"] == 4 * 140
-        assert counts[f"/formation/robot_{i}/neighbour_poses"] == 4 * 140
+        assert counts[f"/formation/robot_{i}/shared_pose"] == 4 * 140  # samples 0..T-1
         assert counts[f"/formation/robot_{i}/trajectory"] == 4
     assert counts["/clock"] == 4 * 141
 
@@ -85,7 +86,7 @@ def test_launch_record_then_analyze_reproduces_the_launcher_exactly(ros_env, tmp
     m, msg = poses[5]
     stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
     assert m.publish_time == stamp  # publish time = send label
-    assert msg.header.frame_id == "robot_2"
+    assert msg.header.frame_id == "map"  # REP-105: the world frame; the topic names the robot
 
     # reader 2: rosbags
     from rosbags.highlevel import AnyReader

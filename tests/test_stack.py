@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from formation_ilc.metrics import read_metrics
 from formation_ilc.scenario import load_scenario
 from formation_ilc.simulate import simulate
 
@@ -45,12 +46,6 @@ def launch(env: dict[str, str], out: Path, *args: str, timeout: float = 240.0,
     finally:
         stop_group(proc)  # never leave a stack behind, even on failure
     return subprocess.CompletedProcess(argv, proc.returncode, stdout, "")
-
-
-def read_metrics(path: Path) -> np.ndarray:
-    with path.open() as fh:
-        rows = list(csv.reader(fh))[1:]
-    return np.array([[float(x) for x in r] for r in rows])
 
 
 CASES = [
@@ -205,14 +200,15 @@ def test_bad_messages_are_dropped_and_counted(ros_env, tmp_path):
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
     ctx = Context()
     rclpy.init(context=ctx)
-    node = rclpy.create_node("injector", context=ctx)
+    node = None
     try:
         sc = load_scenario("paper-triangle3")
         clk = ms.SampleClock.for_run(sc.dt, sc.samples)
+        node_ns = dict(namespace=ms.NAMESPACE)
+        node = rclpy.create_node("injector", context=ctx, **node_ns)
         pubs = {
             "pose": node.create_publisher(PoseStamped, ms.pose_topic(2), ms.SAMPLE_QOS),
-            "bundle": node.create_publisher(PathMsg, ms.neighbour_poses_topic(2),
-                                            ms.SAMPLE_QOS),
+            "link": node.create_publisher(PathMsg, ms.link_topic(2, "robot_1"), ms.SAMPLE_QOS),
             "traj": node.create_publisher(PathMsg, ms.trajectory_topic(1),
                                           ms.TRAJECTORY_QOS),
             "cmd": node.create_publisher(Twist, ms.cmd_vel_topic(3), ms.SAMPLE_QOS),
@@ -230,40 +226,139 @@ def test_bad_messages_are_dropped_and_counted(ros_env, tmp_path):
             time.sleep(0.05)
         else:
             raise AssertionError("the stack did not get to trial 3")
-        nan_pose = ms.pose_to_msg([float("nan"), 0.0, 0.0], clk.stamp_ns(5, 3), "robot_2")
-        stale_pose = ms.pose_to_msg([0.0, 0.0, 0.0], clk.stamp_ns(0, 5), "robot_2")
-        future_pose = ms.pose_to_msg([0.0, 0.0, 0.0], clk.stamp_ns(999, 5), "robot_2")
-        bad_q = ms.pose_to_msg([0.0, 0.0, 0.0], clk.stamp_ns(5, 3), "robot_2")
+        world = ms.WORLD_FRAME
+        nan_pose = ms.pose_to_msg([float("nan"), 0.0, 0.0], clk.stamp_ns(5, 3), world)
+        stale_pose = ms.pose_to_msg([0.0, 0.0, 0.0], clk.stamp_ns(0, 5), world)
+        future_pose = ms.pose_to_msg([0.0, 0.0, 0.0], clk.stamp_ns(999, 5), world)
+        bad_q = ms.pose_to_msg([0.0, 0.0, 0.0], clk.stamp_ns(5, 3), world)
         bad_q.pose.orientation.x = 0.7
         for m in (nan_pose, stale_pose, future_pose, bad_q):
             pubs["pose"].publish(m)
-        pubs["bundle"].publish(ms.bundle_to_msg(clk.stamp_ns(0, 1), "robot_3", []))
-        pubs["bundle"].publish(ms.bundle_to_msg(clk.stamp_ns(0, 1), "robot_2", []))
+        two = ms.link_tick_to_msg(clk.stamp_ns(0, 1), stale_pose)
+        two.poses.append(stale_pose)
+        pubs["link"].publish(two)  # two poses in one tick
+        pubs["link"].publish(ms.link_tick_to_msg(clk.stamp_ns(0, 1), None))  # trial 0
         short = ms.trajectory_to_path(np.zeros((3, 3)), [clk.stamp_ns(1, s) for s in range(3)],
-                                      "robot_1")
+                                      world)
         stale = ms.trajectory_to_path(np.zeros((sc.samples + 1, 3)),
                                       [clk.stamp_ns(0, s) for s in range(sc.samples + 1)],
-                                      "robot_1")
+                                      world)
         pubs["traj"].publish(short)
         pubs["traj"].publish(stale)
         t = Twist()
         t.linear.x = float("inf")
         pubs["cmd"].publish(t)
-        pubs["shared"].publish(ms.pose_to_msg([0, 0, 0], clk.stamp_ns(0, 2), "robot_9"))
+        pubs["shared"].publish(ms.pose_to_msg([0, 0, 0], clk.stamp_ns(0, 2), "robot_9"))  # frame
         pubs["ready"].publish(String(data="{not json"))
         out, _ = proc.communicate(timeout=180)
     finally:
-        node.destroy_node()
+        if node is not None:
+            node.destroy_node()
         rclpy.try_shutdown(context=ctx)
         stop_group(proc)
     assert proc.returncode == 0, out
     diag = json.loads((tmp_path / "diagnostics.json").read_text())
     r2 = diag["robot_2"]["dropped"]
-    assert r2["malformed"] >= 2 + 1 + 1  # NaN pose, tilted pose, wrong receiver, short path
-    assert r2["stale"] >= 3              # old pose, old bundle, trial-0 trajectory
+    assert r2["malformed"] >= 2 + 1 + 1  # NaN pose, tilted pose, two-pose tick, short path
+    assert r2["stale"] >= 3              # old pose, old tick, trial-0 trajectory
     assert r2["out_of_order"] >= 1       # a pose from a future trial in mid-trial
     assert diag["robot_sim"]["dropped"]["malformed"] >= 1
     assert diag["link_emulator"]["dropped"]["malformed"] >= 1
     got = read_metrics(tmp_path / "metrics.csv")
     ref = simulate(load_scenario("paper-triangle3"), trials=trials).metrics
     np.testing.assert_allclose(got[:, 1:], ref[:, 1:], rtol=0, atol=TOL)
+
+
+def start_launch(env: dict[str, str], out: Path, *args: str) -> subprocess.Popen[str]:
+    argv = [sys.executable, "-m", "formation_ilc.cli", "launch", *args, "--out", str(out),
+            "--domain-id", env["ROS_DOMAIN_ID"], "--no-plots", "--timeout", "20"]
+    return subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, start_new_session=True)
+
+
+DIRECT_CASES = [("paper-hexagon6", False), ("paper-hexagon6", True)]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("scenario", "noisy"), DIRECT_CASES,
+                         ids=[f"{s}-{'noisy' if u else 'clean'}" for s, u in DIRECT_CASES])
+def test_lockstep_direct_links_equal_batch_without_delay(ros_env, tmp_path, scenario, noisy):
+    """Robots subscribe to each other, no link emulator process: in lockstep every robot
+    waits for its neighbours' sample-t poses, so the run is `simulate --no-delay`."""
+    trials = 12
+    flags = [] if noisy else ["--no-noise"]
+    res = launch(ros_env, tmp_path, scenario, "--trials", str(trials), "--seed", "5",
+                 "--links", "direct", *flags)
+    assert res.returncode == 0, res.stdout
+    assert "link_emulator" not in {p.stem for p in (tmp_path / "logs").iterdir()}
+    got = read_metrics(tmp_path / "metrics.csv")
+    sc = load_scenario(scenario).with_options(noise=noisy, delay=False, seed=5)
+    ref = simulate(sc, trials=trials).metrics
+    np.testing.assert_array_equal(got[:, 0], ref[:, 0])
+    np.testing.assert_allclose(got[:, 1:], ref[:, 1:], rtol=0, atol=TOL)
+    # the robots measured every link's delay by eq. (11): 0 samples in lockstep
+    with (tmp_path / "delays.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    links = {r["link"] for r in rows}
+    assert links == {f"{s}->robot_{i + 1}" for i in range(sc.n)
+                     for s in ([f"robot_{j + 1}" for j in sc.graph.neighbours(i)]
+                               + (["leader"] if sc.graph.leader[i] > 0 else []))}
+    for r in rows:
+        assert r["injected"] == ""  # no emulator: the network's delays are only measured
+        assert int(r["measured"]) == (trials * sc.samples if r["tau"] == "0" else 0), r
+    diag = json.loads((tmp_path / "diagnostics.json").read_text())
+    for node, d in diag.items():
+        assert sum(d.get("dropped", {}).values()) == 0, (node, d["dropped"])
+
+
+def test_two_formations_share_a_domain_under_two_namespaces(ros_env, tmp_path):
+    """Two launches on one ROS_DOMAIN_ID at the same time, in /team_a (emulated links) and
+    /team_b (direct links): each equals its own batch run, so nothing crossed over."""
+    runs = {"/team_a": ("emulated", "3"), "/team_b": ("direct", "4")}
+    procs = {}
+    try:
+        for ns, (links, seed) in runs.items():
+            procs[ns] = start_launch(ros_env, tmp_path / ns[1:], "paper-triangle3", "--trials",
+                                     "8", "--seed", seed, "--links", links, "--namespace", ns)
+        outs = {ns: p.communicate(timeout=240)[0] for ns, p in procs.items()}
+    finally:
+        for p in procs.values():
+            stop_group(p)
+    for ns, (links, seed) in runs.items():
+        assert procs[ns].returncode == 0, outs[ns]
+        assert f"namespace {ns}" in outs[ns]
+        got = read_metrics(tmp_path / ns[1:] / "metrics.csv")
+        sc = load_scenario("paper-triangle3").with_options(seed=int(seed),
+                                                           delay=links == "emulated")
+        np.testing.assert_allclose(got[:, 1:], simulate(sc, trials=8).metrics[:, 1:],
+                                   rtol=0, atol=TOL)
+        diag = json.loads((tmp_path / ns[1:] / "diagnostics.json").read_text())
+        for node, d in diag.items():
+            assert sum(d.get("dropped", {}).values()) == 0, (ns, node, d["dropped"])
+
+
+def test_a_stand_in_plant_that_speaks_only_the_contract(ros_env, tmp_path):
+    """The simulator replaced by tests/standin_plant.py (no true state, no diagnostics):
+    the team still learns, and the true-state columns say they are absent (nan)."""
+    trials = 6
+    plant = subprocess.Popen([sys.executable, str(Path(__file__).with_name("standin_plant.py"))],
+                             env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                             text=True, start_new_session=True)
+    try:
+        res = launch(ros_env, tmp_path, "paper-triangle3", "--trials", str(trials),
+                     "--no-noise", "--links", "direct", "--plant", "external",
+                     "--plant-nodes", "standin_plant")
+    finally:
+        stop_group(plant)
+        plant_log = plant.communicate()[0]
+    assert res.returncode == 0, res.stdout + plant_log
+    assert "true state: the plant publishes none" in res.stdout
+    got = read_metrics(tmp_path / "metrics.csv")
+    assert got.shape == (trials, 7)
+    assert np.isnan(got[:, 3:5]).all()          # true_max_position/heading_error
+    assert np.isfinite(got[:, [1, 2, 5, 6]]).all()
+    assert got[-1, 1] < 0.5 * got[0, 1]         # it learns
+    # the same plant model as the batch simulator without noise: the same numbers
+    ref = simulate(load_scenario("paper-triangle3").with_options(noise=False, delay=False),
+                   trials=trials).metrics
+    np.testing.assert_allclose(got[:, [1, 2, 5, 6]], ref[:, [1, 2, 5, 6]], rtol=0, atol=1e-9)

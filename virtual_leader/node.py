@@ -11,15 +11,19 @@ noise, delay : bool
     As ``--no-noise`` / ``--no-delay`` of ``formation-ilc simulate`` when false.
 mode : str
     'lockstep' or 'realtime'.
-robots_expected : list of node names that must report ready before a trial starts
-    (default: every robot_i, robot_sim, link_emulator).
+links : str
+    'emulated' (the link emulator carries the scenario's delays) or 'direct' (the robots
+    subscribe to each other; the network's delays).
+nodes_expected : list of node names that must report ready before a trial starts
+    (default: every robot_i, robot_sim, and link_emulator with emulated links).
 monitored : bool
     A monitor (the launcher) reads trajectories: nodes wait for it before trial 0.
 
-The leader publishes the configuration (latched), waits until every node has reported
-ready for trial k, publishes ``start`` k, then follows ``/clock``: at each sample t of the
-trial it broadcasts r(t) stamped with the sample's label, and at t = T ``end`` k. After the
-last trial it publishes ``done``.
+The leader publishes the configuration on ``config`` (latched), waits until every node has
+reported ready for trial k, publishes ``start`` k on ``leader/trial_events``, then follows
+``/clock``: at each sample t of the trial it broadcasts r(t) on ``leader/reference`` (in the
+world frame, stamped with the sample's label), and at t = T ``end`` k. After the last trial
+it publishes ``done``.
 """
 
 from __future__ import annotations
@@ -36,12 +40,13 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 import msgs_schema as ms
-from formation_ilc.nodes.common import DropCounter, make_config, matched, spin_main
+from formation_ilc.nodes.common import DropCounter, make_config, matched, node_parser, spin_main
 
 
 class LeaderNode(Node):
     def __init__(self, **kwargs: Any):
-        super().__init__("virtual_leader", namespace=ms.NAMESPACE, **kwargs)
+        kwargs.setdefault("namespace", ms.NAMESPACE)
+        super().__init__("virtual_leader", **kwargs)
         self.declare_parameter("scenario", "")
         self.declare_parameter("seed", -1)
         self.declare_parameter("trials", 0)
@@ -50,6 +55,7 @@ class LeaderNode(Node):
         self.declare_parameter("noise", True)
         self.declare_parameter("delay", True)
         self.declare_parameter("mode", "lockstep")
+        self.declare_parameter("links", "emulated")
         self.declare_parameter("gap", 20)
         self.declare_parameter("monitored", False)
         self.declare_parameter("timeout", 30.0)
@@ -62,7 +68,8 @@ class LeaderNode(Node):
             noise=bool(g("noise")), delay=bool(g("delay")),
             trials=int(g("trials")) or None, law=int(g("law")) or None,
             memory=str(g("memory")) or None, mode=str(g("mode")), gap=int(g("gap")),
-            monitored=bool(g("monitored")), timeout=float(g("timeout")))
+            monitored=bool(g("monitored")), timeout=float(g("timeout")),
+            links=str(g("links")))
         sc = self.cfg.scenario
         self.clock = self.cfg.clock
         self.T = sc.samples
@@ -72,7 +79,11 @@ class LeaderNode(Node):
         except ParameterUninitializedException:
             expected = None
         self.expected = list(expected) if expected else (
-            [ms.robot_name(i + 1) for i in range(sc.n)] + ["robot_sim", "link_emulator"])
+            [ms.robot_name(i + 1) for i in range(sc.n)] + ["robot_sim"]
+            + (["link_emulator"] if self.cfg.links == "emulated" else []))
+        # who reads the reference: the link emulator, or each robot that sees the leader
+        self.ref_readers = (int(sum(sc.graph.leader > 0)) if self.cfg.links == "direct"
+                            else 1)
         self.ready: dict[str, int] = {}
         self.drops = DropCounter(self)
         self.k = -1          # last trial started
@@ -88,7 +99,8 @@ class LeaderNode(Node):
         self._last_change = time.monotonic()
         self.create_timer(5.0, self._report_wait)
         self.get_logger().info(f"{sc.name}: {sc.n} robots, {self.trials} trials of "
-                               f"{self.T} samples, {self.cfg.mode}; waiting for "
+                               f"{self.T} samples, {self.cfg.mode}, {self.cfg.links} links; "
+                               f"waiting for "
                                f"{', '.join(self.expected)}")
 
     def _on_ready(self, msg: String) -> None:
@@ -113,7 +125,7 @@ class LeaderNode(Node):
             return
         if any(self.ready.get(n, -1) < nxt for n in self.expected):
             return
-        if not matched([(self.ref_pub, 1), (self.event_pub, 1)]):
+        if not matched([(self.ref_pub, self.ref_readers), (self.event_pub, 1)]):
             return
         if nxt == self.trials:
             self.event_pub.publish(ms.json_to_msg({"event": ms.DONE, "trial": nxt}))
@@ -150,7 +162,7 @@ class LeaderNode(Node):
         self._last_t = t
         self._last_change = time.monotonic()
         ref = self.cfg.scenario.reference[t]
-        self.ref_pub.publish(ms.pose_to_msg(ref, ns, ms.LEADER_FRAME, self.ref_msg))
+        self.ref_pub.publish(ms.pose_to_msg(ref, ns, ms.WORLD_FRAME, self.ref_msg))
         if t == self.T and k > self.ended:
             self.ended = k
             self.event_pub.publish(ms.json_to_msg({"event": ms.END, "trial": k}))
@@ -158,7 +170,8 @@ class LeaderNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    return spin_main(lambda argv: [LeaderNode()], args)
+    return spin_main(lambda ns, argv: [LeaderNode()],
+                     node_parser("formation-ilc-leader", __doc__), args)
 
 
 if __name__ == "__main__":

@@ -1,16 +1,15 @@
-"""What every node of the stack shares: the run configuration, counters, spinning, warm-up.
+"""What every node of the stack shares: drop counters, the config topic, spinning, warm-up.
 
-The run configuration travels on ``/formation/config`` (latched) as JSON: the scenario's
-YAML text and the command-line overrides, so that no node needs the scenario file.
+The run configuration itself (``formation_ilc.runconfig.RunConfig``) is part of the core.
 """
 
 from __future__ import annotations
 
+import argparse
 import signal
 import sys
 from collections import Counter
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -22,72 +21,23 @@ from rclpy.task import Future
 from std_msgs.msg import String
 
 import msgs_schema as ms
-from formation_ilc.scenario import Scenario, load_scenario, scenario_from_text
+from formation_ilc.clock import REASONS, Rejected
+from formation_ilc.runconfig import RunConfig, make_config
 from formation_ilc.simulate import Problem
 
+__all__ = ["DROP_REASONS", "DropCounter", "RunConfig", "make_config", "config_from_msg",
+           "ConfiguredNode", "warm_up", "matched", "fail", "spin_main", "node_parser", "ros_param"]
+
 #: reasons a message is dropped (the diagnostics counters)
-DROP_REASONS = ("malformed", "stale", "out_of_order")
-
-
-@dataclass(frozen=True)
-class RunConfig:
-    """Everything a node needs to know about a run, from the config topic.
-
-    mode : 'lockstep' (the simulator waits for every robot) or 'realtime' (wall clock).
-    gap : samples between the end of one trial's labels and the next trial's (stamps).
-    monitored : a monitor (the launcher) reads trajectories and diagnostics.
-    """
-
-    scenario: Scenario
-    mode: str = "lockstep"
-    gap: int = 20
-    monitored: bool = False
-    timeout: float = 30.0
-
-    @property
-    def clock(self) -> ms.SampleClock:
-        return ms.SampleClock.for_run(self.scenario.dt, self.scenario.samples, self.gap)
-
-    def to_json(self) -> dict[str, Any]:
-        sc = self.scenario
-        return {"scenario_text": sc.text, "source": sc.source, "seed": sc.seed,
-                "noise": sc.uncertainty.noisy,
-                "delay": sc.uncertainty.delay.kind != "none", "trials": sc.trials,
-                "law": sc.law.kind, "memory": sc.law.memory, "mode": self.mode,
-                "gap": self.gap, "monitored": self.monitored, "timeout": self.timeout}
-
-    @classmethod
-    def from_json(cls, d: dict[str, Any]) -> RunConfig:
-        try:
-            sc = scenario_from_text(str(d["scenario_text"]), str(d.get("source", "<config>")))
-            sc = sc.with_options(law=int(d["law"]), memory=str(d["memory"]),
-                                 noise=bool(d["noise"]), delay=bool(d["delay"]),
-                                 seed=int(d["seed"]), trials=int(d["trials"]))
-            mode = str(d.get("mode", "lockstep"))
-            if mode not in ("lockstep", "realtime"):
-                raise ValueError(f"mode must be lockstep or realtime, got {mode!r}")
-            return cls(sc, mode, int(d.get("gap", 20)), bool(d.get("monitored", False)),
-                       float(d.get("timeout", 30.0)))
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ms.MalformedMessage(f"bad run configuration: {exc}") from None
-
-
-def make_config(scenario: str, *, seed: int | None = None, noise: bool = True,
-                delay: bool = True, trials: int | None = None, law: int | None = None,
-                memory: str | None = None, mode: str = "lockstep", gap: int = 20,
-                monitored: bool = False, timeout: float = 30.0) -> RunConfig:
-    """The run configuration of a scenario name or file with command-line overrides."""
-    sc = load_scenario(scenario).with_options(law=law, memory=memory, noise=noise,
-                                              delay=delay, seed=seed, trials=trials)
-    return RunConfig(sc, mode, gap, monitored, timeout)
+DROP_REASONS = REASONS
 
 
 def config_from_msg(msg: String, drops: DropCounter) -> RunConfig | None:
-    """The run configuration on /formation/config, or None (dropped and counted)."""
+    """The run configuration on the config topic, or None (dropped and counted)."""
     try:
         return RunConfig.from_json(ms.msg_to_json(msg))
-    except ms.MalformedMessage as exc:
-        drops.drop("malformed", ms.CONFIG, str(exc))
+    except Rejected as exc:
+        drops.reject(exc, ms.CONFIG)
         return None
 
 
@@ -106,8 +56,35 @@ class DropCounter:
         if self.by_topic[f"{reason}:{topic}"] <= 3:
             self._node.get_logger().warning(f"dropped {reason} message on {topic}: {why}")
 
+    def reject(self, exc: Rejected, topic: str) -> None:
+        """Count a refused input under its reason."""
+        self.drop(exc.reason, topic, str(exc))
+
     def as_dict(self) -> dict[str, Any]:
         return {"dropped": dict(self.counts), "dropped_by_topic": dict(self.by_topic)}
+
+
+class ConfiguredNode(Node):
+    """A node that builds itself from the latched run configuration (``configure``)."""
+
+    def __init__(self, name: str, **kwargs: Any):
+        kwargs.setdefault("namespace", ms.NAMESPACE)
+        super().__init__(name, **kwargs)
+        self.drops = DropCounter(self)
+        self.configured = False
+        self._cfg_sub = self.create_subscription(String, ms.CONFIG, self._on_config,
+                                                 ms.LATCHED_QOS)
+
+    def _on_config(self, msg: String) -> None:
+        if self.configured:
+            return
+        cfg = config_from_msg(msg, self.drops)
+        if cfg is not None:
+            self.configured = True
+            self.configure(cfg)
+
+    def configure(self, cfg: RunConfig) -> None:
+        raise NotImplementedError
 
 
 def warm_up(pb: Problem) -> None:
@@ -115,6 +92,7 @@ def warm_up(pb: Problem) -> None:
     shapes, so the first sample is not late by seconds."""
     from formation_ilc.kinematics import step_into
     from formation_ilc.law import command, learn
+    from formation_ilc.links import delivered_label
     from formation_ilc.simulate import trial_errors
 
     n, n_t, n_l = pb.n, pb.samples, pb.src.shape[1]
@@ -129,6 +107,7 @@ def warm_up(pb: Problem) -> None:
           pb.gain[i], pb.heading, np.zeros((1, n_t, 2)))
     step_into(np.zeros((n, 3)), np.zeros((n, 2)), np.zeros((n, 2)), pb.dt, np.zeros((n, 3)))
     trial_errors(pb.eta_d, pb.eta_d, pb.eta_d, pb.src, pb.weight, np.zeros(6))
+    delivered_label(0, 0)
 
 
 def matched(pairs: Iterable[tuple[Any, int]]) -> bool:
@@ -162,15 +141,38 @@ def make_executor(kind: str = "events") -> Any:
     return SingleThreadedExecutor()
 
 
-def spin_main(build: Callable[[list[str]], list[Node]], args: list[str] | None = None,
+def node_parser(prog: str, doc: str | None) -> argparse.ArgumentParser:
+    """The argument parser of a node's entry script: ``--help`` prints the node's docstring
+    (its parameters and topics) and exits before any ROS set-up."""
+    return argparse.ArgumentParser(
+        prog=prog, description=doc, formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="ROS arguments follow --ros-args, e.g. --ros-args -p NAME:=VALUE "
+               "-r __ns:=/team2")
+
+
+def ros_param(argv: list[str], name: str) -> str | None:
+    """The value of ``-p name:=VALUE`` (or ``--param``) among ROS arguments, before a node
+    exists: a node whose name depends on a parameter needs it at construction."""
+    value = None
+    for flag, arg in zip(argv, argv[1:], strict=False):
+        if flag in ("-p", "--param") and arg.startswith(f"{name}:="):
+            value = arg.split(":=", 1)[1]
+    return value
+
+
+def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
+              parser: argparse.ArgumentParser, args: list[str] | None = None,
               executor: str = "events") -> int:
     """The Jazzy main idiom for one process holding one or more nodes on one executor.
 
-    build : gets the non-ROS command-line arguments and returns the nodes.
+    parser : the entry script's own arguments (``--help`` exits here, before rclpy).
+    build : gets the parsed arguments and the raw argv, and returns the nodes.
     """
+    argv = list(args if args is not None else sys.argv)
+    ns = parser.parse_args(rclpy.utilities.remove_ros_args(argv)[1:])
     # rclpy's own SIGINT handling raises KeyboardInterrupt inside whatever callback runs,
     # which aborts the process from C++; a flag for the spin loop is enough
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     Exit.stop = Future()
 
     def on_signal(signum: int, frame: Any) -> None:
@@ -179,10 +181,9 @@ def spin_main(build: Callable[[list[str]], list[Node]], args: list[str] | None =
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
-    argv = rclpy.utilities.remove_ros_args(args if args is not None else sys.argv)[1:]
     nodes: list[Node] = []
     try:
-        nodes = build(argv)
+        nodes = build(ns, argv)
         ex = make_executor(executor)
         for n in nodes:
             ex.add_node(n)

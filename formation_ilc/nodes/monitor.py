@@ -1,8 +1,10 @@
 """Monitor node of the launcher: per-trial metrics from the wire, diagnostics, progress.
 
 It reads each robot's whole-trial measured trajectory (``trajectory``, the same message its
-neighbours learn from) and the simulator's true trajectories, and computes the metrics row
-with ``formation_ilc.simulate.trial_errors`` (metrics are defined once, in the core).
+neighbours learn from) and, when the plant publishes them (``true_state``), its true
+trajectories, and computes the metrics row with ``formation_ilc.simulate.trial_errors``
+(metrics are defined once, in the core). Without a true state the ``true_`` columns are
+nan: a hardware plant has no ground truth.
 """
 
 from __future__ import annotations
@@ -16,20 +18,23 @@ from rclpy.node import Node
 from std_msgs.msg import String
 
 import msgs_schema as ms
+from formation_ilc.metrics import METRIC_COLUMNS, TRUE_COLUMNS
 from formation_ilc.nodes.common import DropCounter, RunConfig
-from formation_ilc.simulate import METRIC_COLUMNS, Problem, trial_errors
+from formation_ilc.simulate import Problem, trial_errors
 
 
 class MonitorNode(Node):
     """Collects trial k's trajectories; calls ``on_trial(k, row)`` when all are in."""
 
     def __init__(self, cfg: RunConfig, on_trial: Callable[[int, np.ndarray], None],
-                 **kwargs: Any):
-        super().__init__("monitor", namespace=ms.NAMESPACE, **kwargs)
+                 true_state: bool = True, **kwargs: Any):
+        kwargs.setdefault("namespace", ms.NAMESPACE)
+        super().__init__("monitor", **kwargs)
         self.cfg = cfg
         self.pb = Problem.from_scenario(cfg.scenario)
         self.clock = cfg.clock
         self.on_trial = on_trial
+        self.true_state = true_state
         self.drops = DropCounter(self)
         n = self.pb.n
         self.eta: dict[int, dict[int, np.ndarray]] = {}
@@ -42,9 +47,10 @@ class MonitorNode(Node):
             self.path_subs.append(self.create_subscription(
                 Path, ms.trajectory_topic(r + 1), lambda m, r=r: self._on_traj(m, r, self.eta),
                 ms.TRAJECTORY_QOS))
-            self.path_subs.append(self.create_subscription(
-                Path, ms.true_trajectory_topic(r + 1),
-                lambda m, r=r: self._on_traj(m, r, self.xi), ms.TRAJECTORY_QOS))
+            if true_state:
+                self.path_subs.append(self.create_subscription(
+                    Path, ms.true_trajectory_topic(r + 1),
+                    lambda m, r=r: self._on_traj(m, r, self.xi), ms.TRAJECTORY_QOS))
         # the schedule waits for the monitor too ("monitor" in the leader's nodes_expected):
         # a writer's match count cannot tell a monitor from a recorder, and a monitor matched
         # after trial 1 would miss trial 0 (trajectories are latched 2 deep)
@@ -65,20 +71,26 @@ class MonitorNode(Node):
             eta, stamps, frame = ms.path_to_trajectory(msg, self.pb.eta_d[r, :, 2])
             k, _ = self.clock.decode(int(stamps[0]))
         except (ms.MalformedMessage, IndexError) as exc:
-            self.drops.drop("malformed", f"robot_{r + 1}/trajectory", str(exc))
+            self.drops.drop("malformed", ms.trajectory_topic(r + 1), str(exc))
             return
         if k in self.rows:
             return
         store.setdefault(k, {})[r] = eta
         n = self.pb.n
-        if len(self.eta.get(k, {})) == n and len(self.xi.get(k, {})) == n:
+        if len(self.eta.get(k, {})) == n and (not self.true_state
+                                              or len(self.xi.get(k, {})) == n):
             eta_all = np.stack([self.eta[k][i] for i in range(n)])
-            xi_all = np.stack([self.xi[k][i] for i in range(n)])
+            xi_all = (np.stack([self.xi[k][i] for i in range(n)]) if self.true_state
+                      else eta_all)
             row = np.empty(len(METRIC_COLUMNS))
             row[0] = k
             trial_errors(eta_all, xi_all, self.pb.eta_d, self.pb.src, self.pb.weight, row[1:])
+            if not self.true_state:
+                for c in TRUE_COLUMNS:
+                    row[METRIC_COLUMNS.index(c)] = np.nan
             self.rows[k] = row
-            del self.eta[k], self.xi[k]
+            self.eta.pop(k, None)
+            self.xi.pop(k, None)
             self.on_trial(k, row)
 
     def _on_diag(self, msg: String) -> None:

@@ -6,11 +6,11 @@ channel's offered QoS and type hash in its metadata), so ``ros2 bag`` and Foxglo
 Log time is the receive time (system clock, as rosbag2); publish time is the send label
 (the header stamp) for stamped messages, else the receive time.
 
-It learns the run from ``/formation/config`` (latched, recorded too, and copied into a
+It learns the run from the ``config`` topic (latched, recorded too, and copied into a
 metadata record), subscribes to every topic of ``msgs_schema.topic_table``, and says ready
-on ``/formation/ready`` once every topic with a single writer is matched, so a launcher
+on ``ready`` once every topic with a single writer is matched, so a launcher
 that waits for it loses no sample. When it holds a trial's every trajectory and every
-robot's diagnostics of that trial, it says so on ``/formation/diagnostics``
+robot's diagnostics of that trial, it says so on ``diagnostics``
 (``{"node": "recorder", "trial": k}``), so a launcher knows when it may stop it. Chunks are
 flushed every 0.5 s: a SIGKILL loses at most that; ``formation-ilc mcap-repair`` then
 writes the summary.
@@ -20,7 +20,6 @@ writes the summary.
 
 from __future__ import annotations
 
-import argparse
 import importlib
 import json
 import os
@@ -36,7 +35,7 @@ from std_msgs.msg import String
 
 import msgs_schema as ms
 from formation_ilc.mcap_io import RosMcapWriter
-from formation_ilc.nodes.common import RunConfig, spin_main
+from formation_ilc.nodes.common import RunConfig, node_parser, spin_main
 from formation_ilc.recording import META_NAME, qos_of
 
 #: types whose CDR starts with a header stamp (int32 sec, uint32 nanosec) right after the
@@ -57,12 +56,14 @@ def _msg_class(type_name: str) -> Any:
 
 class RecorderNode(Node):
     def __init__(self, output: Path, **kwargs: Any):
-        super().__init__("recorder", namespace=ms.NAMESPACE, **kwargs)
+        kwargs.setdefault("namespace", ms.NAMESPACE)
+        super().__init__("recorder", **kwargs)
         self.output = Path(output)
         self.writer = RosMcapWriter(self.output, flush_period=0.5)
         self.types: dict[str, str] = {}
         self.qos: dict[str, Any] = {}
         self.subs: dict[str, Any] = {}
+        self.names: dict[str, str] = {}      # schema name -> full channel name
         self.cfg: RunConfig | None = None
         self.path_topics: set[str] = set()
         self.said_ready = False
@@ -71,6 +72,8 @@ class RecorderNode(Node):
         self.paths: dict[int, int] = {}       # trial -> trajectories recorded
         self.robot_diag: dict[str, int] = {}  # robot -> last trial of its diagnostics
         self.complete = -1
+        self.truth = True
+        self.robots: set[str] = set()
         self._subscribe(ms.CONFIG, "std_msgs/msg/String", ms.LATCHED_QOS)
         self.create_timer(0.5, self.writer.flush)  # idle periods too
         self._gate = self.create_timer(0.05, self._check_ready)
@@ -92,22 +95,25 @@ class RecorderNode(Node):
             _msg_class(type_name), topic, lambda data, t=topic: self._on(t, data), reader_qos,
             raw=True)
 
-    def _channel(self, topic: str) -> None:
-        # the offered QoS and type hash of the writer, as rosbag2 records them
-        info = self.get_publishers_info_by_topic(topic)
+    def _channel(self, topic: str) -> str:
+        """The channel of a topic, by its full name (namespace and remappings resolved),
+        with the offered QoS and type hash of the writer, as rosbag2 records them."""
+        name = self.resolve_topic_name(topic)
+        info = self.get_publishers_info_by_topic(name)
         qos = info[0].qos_profile if info else self.qos[topic]
         type_hash = str(info[0].topic_type_hash) if info else ""
-        self.writer.channel(topic, self.types[topic], qos_of(qos), type_hash)
+        self.writer.channel(name, self.types[topic], qos_of(qos), type_hash)
+        self.names[topic] = name
+        return name
 
     def _on(self, topic: str, data: bytes) -> None:
         now = time.time_ns()
-        if not self.writer.has_channel(topic):
-            self._channel(topic)
+        name = self.names.get(topic) or self._channel(topic)
         sent = now
         if self.types[topic] in _STAMPED and len(data) >= 12:
             sec, nsec = struct.unpack_from("<iI", data, 4)
             sent = sec * 1_000_000_000 + nsec
-        self.writer.write(topic, data, now, sent)
+        self.writer.write(name, data, now, sent)
         if topic == ms.CONFIG and self.cfg is None:
             self._configure(data)
         elif self.cfg is not None and (topic in self.path_topics or topic == ms.DIAGNOSTICS):
@@ -122,7 +128,7 @@ class RecorderNode(Node):
                 d = ms.msg_to_json(deserialize_message(data, String), ("node", "trial"))
             except (ms.MalformedMessage, ValueError):
                 return
-            if str(d["node"]).startswith("robot_") and str(d["node"]) != "robot_sim":
+            if str(d["node"]) in self.robots:
                 self.robot_diag[str(d["node"])] = int(d["trial"])
         else:
             try:
@@ -132,7 +138,8 @@ class RecorderNode(Node):
             self.paths[k] = self.paths.get(k, 0) + 1
         n = self.cfg.scenario.n
         k = self.complete + 1
-        while self.paths.get(k, 0) >= 2 * n and len(self.robot_diag) == n and \
+        while self.paths.get(k, 0) >= n * (2 if self.truth else 1) and \
+                len(self.robot_diag) == n and \
                 min(self.robot_diag.values()) >= k:
             self.complete = k
             self.writer.flush()
@@ -154,16 +161,21 @@ class RecorderNode(Node):
         n = self.cfg.scenario.n
         for topic, type_name, qos in ms.topic_table(n):
             self._subscribe(topic, type_name, qos)
+        self.robots = {ms.robot_name(i + 1) for i in range(n)}
         self.path_topics = {f(i + 1) for i in range(n)
                             for f in (ms.trajectory_topic, ms.true_trajectory_topic)}
+        # a plant's true state is optional in its contract
+        self.optional = {ms.true_trajectory_topic(i + 1) for i in range(n)}
 
     def _check_ready(self) -> None:
         if self.cfg is None or self.said_ready:
             return
-        single = [t for t in self.subs if t not in _MANY_WRITERS and t != ms.CONFIG]
+        single = [t for t in self.subs
+                  if t not in _MANY_WRITERS and t != ms.CONFIG and t not in self.optional]
         if all(self.subs[t].get_publisher_count() >= 1 for t in single) and \
                 self.ready_pub.get_subscription_count() >= 1:
             self.said_ready = True
+            self.truth = all(self.subs[t].get_publisher_count() >= 1 for t in self.optional)
             self._gate.cancel()
             # ready for every trial of the run
             self.ready_pub.publish(ms.json_to_msg({"node": "recorder",
@@ -189,17 +201,15 @@ def _lower_priority() -> None:
 
 
 def main(args: list[str] | None = None) -> int:
+    parser = node_parser("formation-ilc-record", __doc__)
+    parser.add_argument("--output", "-o", type=Path, required=True, metavar="RUN.mcap")
     _lower_priority()
 
-    def build(argv: list[str]) -> list[Node]:
-        ap = argparse.ArgumentParser(prog="formation-ilc-record", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-        ap.add_argument("--output", "-o", type=Path, required=True, metavar="RUN.mcap")
-        ns = ap.parse_args(argv)
+    def build(ns: Any, argv: list[str]) -> list[Node]:
         ns.output.parent.mkdir(parents=True, exist_ok=True)
         return [RecorderNode(ns.output)]
 
-    return spin_main(build, args)
+    return spin_main(build, parser, args)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,89 @@
+"""metrics.csv: the one writer and reader of per-trial metrics, at full precision.
+
+``formation-ilc simulate``, ``launch`` and ``analyze`` all write their rows here, so their
+files agree to round-off when the runs do. Columns: METRIC_COLUMNS (metres and radians;
+max over robots and t in [1, T] of the measured-output error unless marked ``true_``, the
+true state; trial 0 is the first run). A plant that does not publish the true state leaves
+the ``true_`` columns empty (``nan``).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+from typing import IO
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["METRIC_COLUMNS", "TRUE_COLUMNS", "MetricsWriter", "write_metrics", "read_metrics",
+           "format_row"]
+
+#: metrics.csv columns
+METRIC_COLUMNS = (
+    "trial",
+    "max_position_error",
+    "max_heading_error",
+    "true_max_position_error",
+    "true_max_heading_error",
+    "rms_position_error",
+    "max_formation_error",
+)
+#: the columns that need the plant's true state
+TRUE_COLUMNS = ("true_max_position_error", "true_max_heading_error")
+
+
+def format_row(row: NDArray[np.float64]) -> list[str]:
+    """A metrics row as text: the trial as an integer, the rest with 17 significant digits
+    (a float64 round-trips exactly)."""
+    return [str(int(row[0]))] + ["nan" if math.isnan(x) else f"{x:.17g}" for x in row[1:]]
+
+
+class MetricsWriter:
+    """Writes rows as they come and flushes each one, so a crash keeps every finished
+    trial."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self._fh: IO[str] = self.path.open("w", newline="")
+        self._w = csv.writer(self._fh)
+        self._w.writerow(METRIC_COLUMNS)
+        self._fh.flush()
+
+    def write(self, row: NDArray[np.float64]) -> None:
+        self._w.writerow(format_row(row))
+        self._fh.flush()
+
+    def close(self) -> None:
+        self._fh.close()
+
+    def __enter__(self) -> MetricsWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def write_metrics(path: str | Path, metrics: NDArray[np.float64]) -> None:
+    """All rows at once, shape (K, len(METRIC_COLUMNS))."""
+    with MetricsWriter(path) as w:
+        for row in metrics:
+            w.write(row)
+
+
+def read_metrics(path: str | Path) -> NDArray[np.float64]:
+    """The rows of a metrics.csv, shape (K, len(METRIC_COLUMNS)); ValueError naming the file
+    and line if it is not one."""
+    path = Path(path)
+    with path.open(newline="") as fh:
+        rows = list(csv.reader(fh))
+    if not rows or tuple(rows[0]) != METRIC_COLUMNS:
+        raise ValueError(f"{path}: not a metrics.csv (header {rows[0] if rows else 'missing'})")
+    out = np.empty((len(rows) - 1, len(METRIC_COLUMNS)))
+    for i, r in enumerate(rows[1:]):
+        try:
+            out[i] = [float(x) for x in r]
+        except ValueError:
+            raise ValueError(f"{path}: line {i + 2}: not numbers: {r}") from None
+    return out
