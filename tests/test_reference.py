@@ -556,3 +556,23 @@ graph: {{leader: {{1: 1.0}}}}
     # u_d: unit steps in dT = 0.5 s -> 2 m/s; turn 0.3 rad per 0.5 s -> 0.6 rad/s, also on
     # the last step (t = 2), which ends at theta_d(T)
     np.testing.assert_allclose(d.u[0], [[2.0, 0.6], [2.0, 0.6], [2.0, 0.6]], rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("frame", ["world", "leader"])
+def test_desired_trajectories_of_random_cases_follow_assumption1(frame):
+    """The desired outputs the reference takes from the loader, checked against eq. (2)
+    and paper-notes 3: each heading theta_i^d(t), t < T, is the tangent of robot i's own
+    step t -> t+1 (either way along it), u_i^d replays it, and theta_i^d(T), where no step
+    of the trial starts, continues the last turn."""
+    sc, setup = make_case(500, 9, "feedforward", "measured", n=4, samples=30, frame=frame)
+    eta, u, dt = setup.eta_d, np.asarray(sc.desired.u), setup.dt
+    for i in range(setup.n):
+        for t in range(setup.samples):
+            dx, dy = eta[i, t + 1, :2] - eta[i, t, :2]
+            th = eta[i, t, 2]
+            assert dx * math.sin(th) - dy * math.cos(th) == pytest.approx(0.0, abs=1e-12)  # (2)
+            along = dx * math.cos(th) + dy * math.sin(th)
+            assert u[i, t, 0] == pytest.approx(along / dt, abs=1e-12)
+            assert u[i, t, 1] == pytest.approx((eta[i, t + 1, 2] - th) / dt, abs=1e-12)
+        assert eta[i, -1, 2] == pytest.approx(2 * eta[i, -2, 2] - eta[i, -3, 2], abs=1e-12)
+        assert abs(eta[i, -1, 2] - eta[i, -2, 2]) > 1e-3  # the leader turns: held would differ
