@@ -360,9 +360,11 @@ def msg_to_json(msg: String, required: Sequence[str] = ()) -> dict[str, Any]:
 def topic_table(n: int) -> list[tuple[str, str, QoSProfile]]:
     """Every recorded topic of a run of ``n`` robots: (relative name, ROS type, offered QoS).
 
-    The recorder subscribes to exactly these; the batch simulator records on them too. The
-    emulated links' per-tick messages (``link_topic``) are not in it: they repeat the
-    shared poses, and the delays they carried are in each robot's diagnostics.
+    The recorder subscribes to exactly these; the batch simulator records on them too. Two
+    kinds of message are left out because they repeat others bit for bit: the shared poses
+    (``shared_pose_topic``: a robot re-sends its measured pose unchanged, label included)
+    and the emulated links' per-tick messages (``link_topic``: shared poses and the
+    reference, forwarded). The delays the links carried are in each robot's diagnostics.
     """
     rows: list[tuple[str, str, QoSProfile]] = [
         (CONFIG, "std_msgs/msg/String", LATCHED_QOS),
@@ -376,7 +378,6 @@ def topic_table(n: int) -> list[tuple[str, str, QoSProfile]]:
         rows += [
             (pose_topic(i), "geometry_msgs/msg/PoseStamped", SAMPLE_QOS),
             (cmd_vel_topic(i), "geometry_msgs/msg/Twist", SAMPLE_QOS),
-            (shared_pose_topic(i), "geometry_msgs/msg/PoseStamped", SAMPLE_QOS),
             (trajectory_topic(i), "nav_msgs/msg/Path", TRAJECTORY_QOS),
             (true_trajectory_topic(i), "nav_msgs/msg/Path", TRAJECTORY_QOS),
         ]

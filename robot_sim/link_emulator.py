@@ -48,6 +48,7 @@ class LinkEmulator(ConfiguredNode):
 
     def __init__(self, **kwargs: Any):
         super().__init__(NAME, **kwargs)
+        self.follow_config()
 
     def configure(self, cfg: RunConfig) -> None:
         sc = cfg.scenario

@@ -64,6 +64,7 @@ class SimNode(ConfiguredNode):
     def __init__(self, **kwargs: Any):
         super().__init__(NAME, **kwargs)
         self.declare_parameter("timeout", 0.0)
+        self.follow_config()
 
     def configure(self, cfg: RunConfig) -> None:
         sc = cfg.scenario

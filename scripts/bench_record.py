@@ -1,12 +1,14 @@
 #!/usr/bin/env python3
 """What recording costs: lockstep throughput of paper-hexagon6 (6 robot processes) with and
-without `--record`, runs alternated so that drifts of the machine hit both alike.
+without `--record`, in each link mode, runs alternated so that drifts of the machine hit
+both alike.
 
 Prints samples per second (the simulator's own count over the time inside trials) and
 per-sample latency for each run, the medians, and the cost of recording (target: at most
 10 % of the throughput). Every run uses localhost discovery and its own ROS_DOMAIN_ID.
 
 Usage: python scripts/bench_record.py [--trials 3] [--repeats 3] [--scenario paper-hexagon6]
+                                      [--links emulated|direct|both]
 """
 
 from __future__ import annotations
@@ -21,9 +23,10 @@ import tempfile
 from pathlib import Path
 
 
-def run(scenario: str, trials: int, out: Path, domain: int, record: bool) -> dict:
+def run(scenario: str, trials: int, out: Path, domain: int, record: bool, links: str) -> dict:
     argv = [sys.executable, "-m", "formation_ilc.cli", "launch", scenario, "--trials",
-            str(trials), "--out", str(out), "--domain-id", str(domain), "--no-plots"]
+            str(trials), "--out", str(out), "--domain-id", str(domain), "--no-plots",
+            "--links", links]
     if record:
         argv += ["--record", str(out / "run.mcap")]
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
@@ -43,25 +46,32 @@ def main() -> int:
     ap.add_argument("--scenario", default="paper-hexagon6")
     ap.add_argument("--trials", type=int, default=3)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--links", choices=("emulated", "direct", "both"), default="both")
     args = ap.parse_args()
-    res: dict[bool, list[dict]] = {False: [], True: []}
+    modes = ["emulated", "direct"] if args.links == "both" else [args.links]
+    res: dict[tuple[str, bool], list[dict]] = {(m, r): [] for m in modes for r in (0, 1)}
+    dom = 40
     with tempfile.TemporaryDirectory() as tmp:
         for i in range(args.repeats):
-            for record in (False, True):
-                out = Path(tmp) / f"{i}-{int(record)}"
-                r = run(args.scenario, args.trials, out, 40 + 2 * i + int(record), record)
-                res[record].append(r)
-                tag = "record " if record else "plain  "
-                extra = f"  file {r['mcap_bytes'] / 1e6:.1f} MB" if record else ""
-                print(f"{tag} run {i + 1}: {r['samples_per_s']:7.1f} samples/s  p50 "
-                      f"{r['p50_ms']:.2f} ms  p99 {r['p99_ms']:.2f} ms{extra}", flush=True)
-    plain = statistics.median(r["samples_per_s"] for r in res[False])
-    rec = statistics.median(r["samples_per_s"] for r in res[True])
-    cost = 1 - rec / plain
-    print(f"{args.scenario}, {args.trials} trials per run, lockstep, one process per robot:")
-    print(f"  median without recording {plain:.1f} samples/s, with recording {rec:.1f} "
-          f"samples/s: recording costs {100 * cost:.1f} % (target <= 10 %) -> "
-          f"{'MET' if cost <= 0.10 else 'MISSED'}")
+            for links in modes:
+                for record in (False, True):
+                    out = Path(tmp) / f"{i}-{links}-{int(record)}"
+                    r = run(args.scenario, args.trials, out, dom, record, links)
+                    dom = 40 + (dom - 39) % 50
+                    res[(links, record)].append(r)
+                    tag = f"{links:8s} {'record' if record else 'plain '}"
+                    extra = f"  file {r['mcap_bytes'] / 1e6:.1f} MB" if record else ""
+                    print(f"{tag} run {i + 1}: {r['samples_per_s']:7.1f} samples/s  p50 "
+                          f"{r['p50_ms']:.2f} ms  p99 {r['p99_ms']:.2f} ms{extra}", flush=True)
+    print(f"{args.scenario}, {args.trials} trials per run, lockstep, one process per robot, "
+          f"median of {args.repeats}:")
+    for links in modes:
+        plain = statistics.median(r["samples_per_s"] for r in res[(links, False)])
+        rec = statistics.median(r["samples_per_s"] for r in res[(links, True)])
+        cost = 1 - rec / plain
+        print(f"  {links} links: without recording {plain:.1f} samples/s, with recording "
+              f"{rec:.1f} samples/s: recording costs {100 * cost:.1f} % (target <= 10 %) -> "
+              f"{'MET' if cost <= 0.10 else 'MISSED'}")
     return 0
 
 

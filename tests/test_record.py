@@ -63,7 +63,8 @@ def test_launch_record_then_analyze_reproduces_the_launcher_exactly(ros_env, tmp
     for i in (1, 2, 3):
         assert counts[f"/formation/robot_{i}/pose"] == 4 * 141
         assert counts[f"/formation/robot_{i}/cmd_vel"] == 4 * 140
-        assert counts[f"/formation/robot_{i}/shared_pose"] == 4 * 140  # samples 0..T-1
+        # a shared pose is the robot's pose re-sent bit for bit: recorded once, as the pose
+        assert counts[f"/formation/robot_{i}/shared_pose"] == 0
         assert counts[f"/formation/robot_{i}/trajectory"] == 4
     assert counts["/clock"] == 4 * 141
 

@@ -65,23 +65,33 @@ class DropCounter:
 
 
 class ConfiguredNode(Node):
-    """A node that builds itself from the latched run configuration (``configure``)."""
+    """A node that builds itself (``configure``) from a run configuration: one given at
+    start, or the latched one on the config topic (``follow_config``)."""
 
     def __init__(self, name: str, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(name, **kwargs)
         self.drops = DropCounter(self)
         self.configured = False
-        self._cfg_sub = self.create_subscription(String, ms.CONFIG, self._on_config,
-                                                 ms.LATCHED_QOS)
+
+    def follow_config(self, cfg: RunConfig | None = None) -> None:
+        """Configure now from ``cfg``, or when the config topic delivers one."""
+        if cfg is not None:
+            self.configured = True
+            try:
+                self.configure(cfg)
+            except ValueError as exc:  # a configuration this node cannot run
+                fail(self, str(exc), code=2)
+        else:
+            self._cfg_sub = self.create_subscription(String, ms.CONFIG, self._on_config,
+                                                     ms.LATCHED_QOS)
 
     def _on_config(self, msg: String) -> None:
         if self.configured:
             return
         cfg = config_from_msg(msg, self.drops)
         if cfg is not None:
-            self.configured = True
-            self.configure(cfg)
+            self.follow_config(cfg)
 
     def configure(self, cfg: RunConfig) -> None:
         raise NotImplementedError

@@ -50,9 +50,8 @@ from formation_ilc.clock import Rejected
 from formation_ilc.learner import RobotLearner
 from formation_ilc.links import LEADER
 from formation_ilc.nodes.common import (
-    DropCounter,
+    ConfiguredNode,
     RunConfig,
-    config_from_msg,
     make_config,
     matched,
     node_parser,
@@ -66,7 +65,7 @@ from formation_ilc.simulate import Problem
 LINK_WAIT = 0.75
 
 
-class RobotNode(Node):
+class RobotNode(ConfiguredNode):
     """One robot's controller. ``robot_id`` may be given here (container mode), else it is
     the ROS parameter of the same name, read before the node is named; ``**kwargs`` go to
     ``Node`` (context=, parameter_overrides=, ...)."""
@@ -82,7 +81,6 @@ class RobotNode(Node):
         if robot_id < 1:
             raise ValueError(f"parameter robot_id: a robot number >= 1 is required, "
                              f"got {robot_id}")
-        kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(ms.robot_name(robot_id), **kwargs)
         self.declare_parameter("robot_id", int(robot_id))
         self.declare_parameter("scenario", "")
@@ -93,28 +91,18 @@ class RobotNode(Node):
         self.declare_parameter("mode", "lockstep")
         self.id = int(robot_id)
         self.name = ms.robot_name(self.id)
-        self.drops = DropCounter(self)
-        self.configured = False
         self.ready_sent = -1
         g = lambda name: self.get_parameter(name).value  # noqa: E731
+        cfg = None
         if g("scenario"):
             seed = int(g("seed"))
-            self._configure(make_config(str(g("scenario")), seed=None if seed < 0 else seed,
-                                        noise=bool(g("noise")), delay=bool(g("delay")),
-                                        links=str(g("links")), mode=str(g("mode"))))
-        else:
-            self._config_sub = self.create_subscription(String, ms.CONFIG, self._on_config,
-                                                        ms.LATCHED_QOS)
+            cfg = make_config(str(g("scenario")), seed=None if seed < 0 else seed,
+                              noise=bool(g("noise")), delay=bool(g("delay")),
+                              links=str(g("links")), mode=str(g("mode")))
+        self.follow_config(cfg)
 
     # ------------------------------------------------------------------ set-up
-    def _on_config(self, msg: String) -> None:
-        if self.configured:
-            return
-        cfg = config_from_msg(msg, self.drops)
-        if cfg is not None:
-            self._configure(cfg)
-
-    def _configure(self, cfg: RunConfig) -> None:
+    def configure(self, cfg: RunConfig) -> None:
         pb = Problem.from_scenario(cfg.scenario)
         self.cfg, self.pb = cfg, pb
         self.realtime = cfg.mode == "realtime"
@@ -152,7 +140,6 @@ class RobotNode(Node):
         if self.realtime:
             self._deadline = self.create_timer(LINK_WAIT * cfg.scenario.dt, self._on_deadline)
             self._deadline.cancel()
-        self.configured = True
         self._gate = self.create_timer(0.02, self._check_ready)
         self.get_logger().info(f"{self.name}: {len(lrn.neighbours)} in-links"
                                f"{' + leader' if lrn.sees_leader else ''} ({cfg.links}), "
