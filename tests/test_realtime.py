@@ -130,25 +130,26 @@ def test_realtime_run_accounts_for_every_sample(ros_env, tmp_path):
         np.testing.assert_allclose(got[:, 1:], ref[:, 1:], rtol=0, atol=MISS_ATOL)
 
 
+@pytest.mark.slow
 def test_realtime_direct_links_learn_and_report_the_measured_delays(ros_env, tmp_path):
-    """Robots subscribe to each other on the wall clock: the delays are whatever the links
-    give (here DDS on one machine, under a sample), the robots measure them by eq. (11) and
-    report them, and the team learns."""
-    trials = 5
-    scen = short_scenario(tmp_path)
+    """paper-triangle3 as it is (dT = 0.2 s, 28 s a trial) on the wall clock, the robots
+    subscribing to each other: the delays are whatever the links give (here DDS on one
+    machine, under a sample), the robots measure them by eq. (11) and the report shows
+    them, and the team learns."""
+    trials = 3
     out = tmp_path / "run"
-    res = launch(ros_env, out, str(scen), "--trials", str(trials), "--seed", str(SEED),
-                 "--mode", "realtime", "--links", "direct", timeout=200)
+    res = launch(ros_env, out, "paper-triangle3", "--trials", str(trials), "--seed",
+                 str(SEED), "--mode", "realtime", "--links", "direct", timeout=300)
     assert res.returncode == 0, res.stdout
     assert "delays measured by the robots (eq. 11, all links)" in res.stdout
     got = read_metrics(out / "metrics.csv")
     assert got.shape == (trials, 7) and np.isfinite(got).all()
-    sc = load_scenario(str(scen)).with_options(seed=SEED)
-    # it learns: the error falls every trial, as in the batch simulator with (almost) no
-    # delay: DDS on one machine delivers within a sample, so eq. (11) measures 0 or 1
-    # (batch: 2.42 -> 1.46 m in 5 trials with no delay, 1.462 m with 1 sample everywhere)
-    assert (np.diff(got[:, 1]) < 0).all(), got[:, 1]
+    sc = load_scenario("paper-triangle3").with_options(seed=SEED)
+    # it learns as the batch simulator does with (almost) no delay: DDS on one machine
+    # delivers within a sample, so eq. (11) measures 0 or 1 (batch: 4.71 -> 3.45 m in 3
+    # trials with no delay)
     ref = simulate(sc.with_options(delay=False), trials=trials).metrics
+    assert got[-1, 1] < 0.8 * got[0, 1], got[:, 1]
     np.testing.assert_allclose(got[:, 1], ref[:, 1], rtol=0, atol=0.05)
     with (out / "delays.csv").open() as fh:
         rows = list(csv.DictReader(fh))
@@ -159,8 +160,7 @@ def test_realtime_direct_links_learn_and_report_the_measured_delays(ros_env, tmp
     assert set(per_link) == {"leader->robot_1", "robot_1->robot_2", "robot_1->robot_3"}
     diag = json.loads((out / "diagnostics.json").read_text())
     for name, count in per_link.items():
-        robot = name.split("->")[1]
-        commands = diag[robot]["commands"]
+        commands = diag[name.split("->")[1]]["commands"]
         # a link contributes at most one measurement per commanded sample; it has none only
         # when nothing usable had arrived by the command (e.g. sample 0 of a trial)
         assert 0.9 * commands <= count <= commands, (name, count, commands)
