@@ -118,3 +118,62 @@ def test_every_entry_script_prints_help_and_exits(module, words):
     for w in words:
         assert w in res.stdout, (w, res.stdout[:400])
     assert "--ros-args" in res.stdout
+
+
+def test_link_emulator_delivers_the_batch_simulators_delay_stream(context):
+    """Per link and tick, one message holding the pose labelled t - tau (tau from the delay
+    stream of the trial) with its original label, or no pose while t - tau < 0."""
+    from nav_msgs.msg import Path
+    from std_msgs.msg import String
+
+    from formation_ilc.runconfig import make_config
+    from robot_sim.link_emulator import LinkEmulator
+
+    cfg = make_config("paper-triangle3", seed=9)
+    sc, clock = cfg.scenario, cfg.clock
+    pb = Problem.from_scenario(sc)
+    emu = LinkEmulator(context=context)
+    tester = rclpy.create_node("tester", namespace=ms.NAMESPACE, context=context)
+    ex = SingleThreadedExecutor(context=context)
+    ex.add_node(emu)
+    ex.add_node(tester)
+    try:
+        got: dict[str, list[tuple[int, int | None]]] = {}
+
+        def on_tick(msg: Path, link: str) -> None:
+            tick, pose = ms.msg_to_link_tick(msg)
+            got.setdefault(link, []).append(
+                (tick, None if pose is None else ms.stamp_to_ns(pose.header.stamp)))
+
+        links = [(2, "robot_1"), (3, "robot_1"), (1, ms.LEADER)]
+        subs = [tester.create_subscription(Path, ms.link_topic(i, sender),
+                                           lambda m, k=f"{sender}->{i}": on_tick(m, k),
+                                           ms.SAMPLE_QOS) for i, sender in links]
+        cfg_pub = tester.create_publisher(String, ms.CONFIG, ms.LATCHED_QOS)
+        cfg_pub.publish(ms.json_to_msg(cfg.to_json()))
+        spin_until(ex, lambda: emu.configured)
+        shared = [tester.create_publisher(PoseStamped, ms.shared_pose_topic(j + 1),
+                                          ms.SAMPLE_QOS) for j in range(pb.n)]
+        ref = tester.create_publisher(PoseStamped, ms.REFERENCE, ms.SAMPLE_QOS)
+        spin_until(ex, lambda: all(p.get_subscription_count() >= 1 for p in [*shared, ref])
+                   and all(sub.get_publisher_count() >= 1 for sub in subs))
+        ticks = 8
+        for t in range(ticks):
+            ns = clock.stamp_ns(0, t)
+            for j in range(pb.n):
+                shared[j].publish(ms.pose_to_msg(pb.eta_d[j, t], ns, ms.WORLD_FRAME))
+            ref.publish(ms.pose_to_msg(sc.reference[t], ns, ms.WORLD_FRAME))
+        spin_until(ex, lambda: all(len(got.get(f"{s}->{i}", [])) == ticks for i, s in links))
+        tau, tau0 = sc.uncertainty.draw_delays(sc.seed, 0, pb.n, pb.src.shape[1], pb.samples)
+        for i, sender in links:
+            r = i - 1
+            d = tau0[r] if sender == ms.LEADER else tau[r, list(pb.src[r]).index(0)]
+            want = [(clock.stamp_ns(0, t),
+                     clock.stamp_ns(0, t - int(d[t])) if t - int(d[t]) >= 0 else None)
+                    for t in range(ticks)]
+            assert got[f"{sender}->{i}"] == want, sender
+        assert any(p is None for _, p in got["robot_1->2"])  # the early ticks carry nothing
+    finally:
+        ex.shutdown()
+        emu.destroy_node()
+        tester.destroy_node()
