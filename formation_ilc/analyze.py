@@ -22,9 +22,9 @@ __all__ = ["analyze", "delay_rows"]
 
 def delay_rows(rec: Recording) -> list[list[Any]]:
     """The rows of delays.csv (``formation_ilc.links.DELAY_COLUMNS``) of a recording."""
-    direct = rec.config.get("links") == "direct"
-    return links.delay_rows(rec.delays, None if direct else rec.injected,
-                            rec.scenario.uncertainty.delay.pmf())
+    if rec.config.get("links") == "direct":
+        return links.delay_rows(rec.delays, None, None)
+    return links.delay_rows(rec.delays, rec.injected, rec.scenario.uncertainty.delay.pmf())
 
 
 def _plot_delays(rec: Recording, path: Path) -> Path | None:
@@ -37,14 +37,16 @@ def _plot_delays(rec: Recording, path: Path) -> Path | None:
     cols = min(3, len(names))
     rows = int(np.ceil(len(names) / cols))
     fig, axes = plt.subplots(rows, cols, figsize=(4 * cols, 2.8 * rows), squeeze=False)
-    pmf = rec.scenario.uncertainty.delay.pmf()
+    # direct links have no delay model: only what the robots measured
+    pmf = {} if rec.config.get("links") == "direct" else rec.scenario.uncertainty.delay.pmf()
     for ax, link in zip(axes.flat, names, strict=False):
         hist = rec.delays[link]
         total = sum(hist.values()) or 1
         taus = sorted({*hist, *pmf})
         ax.bar(taus, [hist.get(t, 0) / total for t in taus], width=0.6,
                label="measured (eq. 11)")
-        ax.plot(taus, [pmf.get(t, 0.0) for t in taus], "o", color="k", label="model")
+        if pmf:
+            ax.plot(taus, [pmf.get(t, 0.0) for t in taus], "o", color="k", label="model")
         ax.set_title(f"{link}  (n = {total})", fontsize=9)
         ax.set_xlabel("delay [samples]")
         ax.set_xticks(taus)
@@ -126,11 +128,12 @@ def _report(rec: Recording, src: Path, out: Path, figs: dict[str, Path | None],
         verdict = (f"Max position error {first[1]:.3g} m at trial {int(first[0])} &rarr; "
                    f"{last[1]:.3g} m at trial {int(last[0])} (&times;{1 / ratio:.3g}); "
                    f"heading {first[2]:.3g} &rarr; {last[2]:.3g} rad.")
-    links: dict[str, list[str]] = {}
+    per_link: dict[str, list[str]] = {}
     for link, tau, meas, _inj, frac, prob in drows:
-        links.setdefault(link, []).append(f"{tau}: {frac:.3f} (model {prob:.2f}, n={meas})")
+        model = "" if prob == "" else f"model {prob:.2f}, "
+        per_link.setdefault(link, []).append(f"{tau}: {frac:.3f} ({model}n={meas})")
     delay_html = "".join(f"<li><b>{html.escape(a)}</b> &mdash; {'; '.join(b)}</li>"
-                         for a, b in links.items())
+                         for a, b in per_link.items())
     cfg = rec.config
     page = f"""<!doctype html><html><head><meta charset="utf-8">
 <title>formation-ilc: {html.escape(sc.name)}</title>

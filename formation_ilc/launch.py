@@ -326,8 +326,9 @@ def run(args: argparse.Namespace) -> int:
     rows = [monitor.rows[k] for k in sorted(monitor.rows)] if monitor is not None else []
     (out / "diagnostics.json").write_text(json.dumps(diagnostics, indent=2) + "\n")
     measured, injected = link_histograms(diagnostics)
-    dtab = delay_rows(measured, injected if args.links == "emulated" else None,
-                      sc.uncertainty.delay.pmf())
+    emulated = args.links == "emulated"
+    dtab = delay_rows(measured, injected if emulated else None,
+                      sc.uncertainty.delay.pmf() if emulated else None)
     write_delays(out / "delays.csv", dtab)
     sim_diag = diagnostics.get("robot_sim", {})
     summary = {"scenario": sc.name, "robots": sc.n, "trials_done": len(rows),
@@ -378,17 +379,17 @@ def _print_report(sc: Any, m: np.ndarray, dtab: list[list[Any]], summary: dict[s
         direct = summary.get("links") == "direct"
         agg: dict[int, list[float]] = {}
         for _link, tau, meas, inj, _, p in dtab:
-            a = agg.setdefault(tau, [0, 0, p])
+            a = agg.setdefault(tau, [0, 0, 0 if direct else p])
             a[0] += meas
             a[1] += 0 if direct else inj
         tot = sum(a[0] for a in agg.values()) or 1
         if direct:
-            print("delays measured by the robots (eq. 11, all links): tau  measured  model")
+            print("delays measured by the robots (eq. 11, all links): tau  measured")
         else:
             print("delays (all links): tau  measured  injected  model")
         for tau, (meas, inj, p) in sorted(agg.items()):
-            mid = "" if direct else f" {inj / tot:9.3f}"
-            print(f"  {tau:4d} {meas / tot:9.3f}{mid} {p:6.3f}")
+            rest = "" if direct else f" {inj / tot:9.3f} {p:6.3f}"
+            print(f"  {tau:4d} {meas / tot:9.3f}{rest}")
     drops = {n: sum(d.values()) for n, d in summary["dropped"].items() if sum(d.values())}
     if drops:
         print(f"dropped messages: {drops}")

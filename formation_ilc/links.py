@@ -181,18 +181,19 @@ def link_histograms(diagnostics: Mapping[str, Mapping[str, Any]]
 
 
 def delay_rows(measured: Histograms, injected: Histograms | None,
-               pmf: Mapping[int, float]) -> list[list[Any]]:
-    """Rows of DELAY_COLUMNS for every link a robot measured; ``injected`` None: no link
-    emulator (direct links), the column is left empty."""
+               pmf: Mapping[int, float] | None) -> list[list[Any]]:
+    """Rows of DELAY_COLUMNS for every link a robot measured. Direct links have no link
+    emulator and no delay model: pass None for ``injected`` and ``pmf``, and those columns
+    are left empty."""
     rows: list[list[Any]] = []
     for link in sorted(measured):
         hist = measured[link]
         inj = (injected or {}).get(link, {})
         total = sum(hist.values()) or 1
-        for tau in sorted({*hist, *inj, *pmf}):
+        for tau in sorted({*hist, *inj, *(pmf or {})}):
             m = hist.get(tau, 0)
             rows.append([link, tau, m, "" if injected is None else inj.get(tau, 0),
-                         m / total, pmf.get(tau, 0.0)])
+                         m / total, "" if pmf is None else pmf.get(tau, 0.0)])
     return rows
 
 

@@ -347,7 +347,7 @@ def test_a_stand_in_plant_that_speaks_only_the_contract(ros_env, tmp_path):
     try:
         res = launch(ros_env, tmp_path, "paper-triangle3", "--trials", str(trials),
                      "--no-noise", "--links", "direct", "--plant", "external",
-                     "--plant-nodes", "standin_plant")
+                     "--plant-nodes", "standin_plant", "--record", str(tmp_path / "run.mcap"))
     finally:
         stop_group(plant)
         plant_log = plant.communicate()[0]
@@ -362,3 +362,11 @@ def test_a_stand_in_plant_that_speaks_only_the_contract(ros_env, tmp_path):
     ref = simulate(load_scenario("paper-triangle3").with_options(noise=False, delay=False),
                    trials=trials).metrics
     np.testing.assert_allclose(got[:, [1, 2, 5, 6]], ref[:, [1, 2, 5, 6]], rtol=0, atol=1e-9)
+    # the recording of such a run (no true state, direct links) analyses to the same rows
+    from formation_ilc.cli import main
+
+    assert main(["analyze", str(tmp_path / "run.mcap"), "--out", str(tmp_path / "an")]) == 0
+    np.testing.assert_array_equal(read_metrics(tmp_path / "an" / "metrics.csv"), got)
+    with (tmp_path / "an" / "delays.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert rows and all(r["injected"] == r["model_probability"] == "" for r in rows)
