@@ -105,7 +105,7 @@ class RobotNode(ConfiguredNode):
     def configure(self, cfg: RunConfig) -> None:
         pb = Problem.from_scenario(cfg.scenario)
         self.cfg, self.pb = cfg, pb
-        self.realtime = cfg.mode == "realtime"
+        self.realtime = cfg.wall
         self.learner = lrn = RobotLearner(pb, self.id - 1, cfg.clock, realtime=self.realtime,
                                           direct=cfg.links == "direct")
         self.n_out = int(sum(1 for r in range(pb.n) if r != lrn.i and lrn.i in pb.src[r]))
