@@ -135,3 +135,14 @@ def test_wallclock_needs_direct_links():
         make_config("paper-triangle3", mode="wallclock", links="emulated")
     cfg = make_config("paper-triangle3", mode="wallclock", links="direct")
     assert cfg.wall and cfg.to_json()["mode"] == "wallclock"
+
+
+@pytest.mark.parametrize("module", ["formation_ilc.nodes.pioneer_bridge",
+                                    "robot_sim.fake_pioneer"])
+def test_help_of_the_new_entry_scripts(module):
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", module, "--help"], capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 0 and "cmd_vel" in r.stdout and "cmd_timeout" in r.stdout

@@ -1,0 +1,132 @@
+"""The Pioneer bridge node in process: commands clamped to the limits, a zero command once
+the robot node is silent longer than the timeout, TwistStamped for diff_drive_controller,
+and the fake driver's motors and watchdog (private rclpy Context, no sleeps)."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import pytest
+
+pytestmark = pytest.mark.ros
+
+rclpy = pytest.importorskip("rclpy")
+from geometry_msgs.msg import Twist, TwistStamped  # noqa: E402
+from nav_msgs.msg import Odometry  # noqa: E402
+from rclpy.context import Context  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+
+import msgs_schema as ms  # noqa: E402
+
+TIMEOUT = 0.4
+
+
+@pytest.fixture
+def context(ros_env):
+    ctx = Context()
+    rclpy.init(context=ctx)
+    yield ctx
+    rclpy.try_shutdown(context=ctx)
+
+
+def spin_until(ex, cond, timeout: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not cond():
+        assert time.monotonic() < deadline, "timed out"
+        ex.spin_once(timeout_sec=0.01)
+
+
+def make_bridge(context, cmd_type: str = "twist"):
+    from formation_ilc.nodes.pioneer_bridge import BridgeNode
+
+    params = [Parameter("robot_id", value=1), Parameter("scenario", value="paper-triangle3"),
+              Parameter("driver", value="rosaria"), Parameter("driver_ns", value="/pioneer_1"),
+              Parameter("cmd_timeout", value=TIMEOUT), Parameter("cmd_type", value=cmd_type),
+              Parameter("v_max", value=0.5), Parameter("omega_max", value=90.0)]
+    return BridgeNode(context=context, parameter_overrides=params)
+
+
+@pytest.mark.parametrize("cmd_type", ["twist", "twist_stamped"])
+def test_bridge_clamps_commands_and_zeroes_them_when_the_robot_is_silent(context, cmd_type):
+    bridge = make_bridge(context, cmd_type)
+    tester = rclpy.create_node("tester", namespace=ms.NAMESPACE, context=context)
+    ex = SingleThreadedExecutor(context=context)
+    ex.add_node(bridge)
+    ex.add_node(tester)
+    try:
+        assert bridge.get_fully_qualified_name() == "/formation/bridge_1"
+        got: list[tuple[float, float, float]] = []  # (arrival, v, omega)
+        stamped = cmd_type == "twist_stamped"
+
+        def on_twist(m):
+            t = m.twist if stamped else m
+            got.append((time.monotonic(), t.linear.x, t.angular.z))
+
+        tester.create_subscription(TwistStamped if stamped else Twist, "/pioneer_1/cmd_vel",
+                                   on_twist, ms.DRIVER_CMD_QOS)
+        pub = tester.create_publisher(Twist, ms.cmd_vel_topic(1), ms.SAMPLE_QOS)
+        spin_until(ex, lambda: pub.get_subscription_count() >= 1 and len(got) > 0)
+        # before any robot command: zero, republished at the bridge's rate (>= 10 Hz)
+        assert got[-1][1:] == (0.0, 0.0)
+        n0 = len(got)
+        t0 = time.monotonic()
+        spin_until(ex, lambda: len(got) >= n0 + 5)
+        assert (time.monotonic() - t0) / 5 <= 0.1
+
+        cmds = [(2.0, 3.0), (-1.0, -3.0), (0.3, 0.2)]
+        want = [(0.5, math.radians(90)), (-0.5, -math.radians(90)), (0.3, 0.2)]
+        for (v, w), (wv, ww) in zip(cmds, want, strict=True):
+            pub.publish(ms.u_to_twist((v, w)))
+            spin_until(ex, lambda wv=wv, ww=ww: got and got[-1][1:] == pytest.approx((wv, ww)))
+        assert bridge.counts["clipped"] == 2
+        # the robot node falls silent: the held command is republished, then zero within
+        # the timeout (plus one control tick and the delivery)
+        t_last = time.monotonic()
+        spin_until(ex, lambda: got[-1][1:] == (0.0, 0.0), timeout=5.0)
+        first_zero = next(a for a, v, w in got if a > t_last and (v, w) == (0.0, 0.0))
+        held = [a for a, v, w in got if a > t_last and (v, w) != (0.0, 0.0)]
+        assert TIMEOUT - 0.05 <= first_zero - t_last <= TIMEOUT + 0.1, first_zero - t_last
+        assert len(held) >= 3  # >= 10 Hz while the command holds
+        for _ in range(20):
+            ex.spin_once(timeout_sec=0.01)
+        assert all((v, w) == (0.0, 0.0) for a, v, w in got if a > first_zero)
+    finally:
+        bridge.destroy_node()
+        tester.destroy_node()
+
+
+def test_bridge_is_ready_once_odometry_and_motors_are_in_and_maps_odometry_to_world(context):
+    from robot_sim.fake_pioneer import FakePioneer
+
+    bridge = make_bridge(context)
+    fake = FakePioneer(context=context, namespace="/pioneer_1",
+                       parameter_overrides=[Parameter("odom_noise", value=0.0)])
+    tester = rclpy.create_node("tester", namespace=ms.NAMESPACE, context=context)
+    ex = SingleThreadedExecutor(context=context)
+    for n in (bridge, fake, tester):
+        ex.add_node(n)
+    try:
+        from geometry_msgs.msg import PoseStamped
+        from std_msgs.msg import String
+
+        ready: list[dict] = []
+        tester.create_subscription(String, ms.READY, lambda m: ready.append(ms.msg_to_json(m)),
+                                   ms.LATCHED_READER_QOS)
+        odom: list[Odometry] = []
+        tester.create_subscription(Odometry, "/pioneer_1/pose", odom.append, ms.ODOM_QOS)
+        # the robot node's reader of the pose (the bridge waits for one)
+        tester.create_subscription(PoseStamped, ms.pose_topic(1), lambda m: None,
+                                   ms.SAMPLE_QOS)
+        spin_until(ex, lambda: any(r["node"] == "bridge_1" for r in ready))
+        assert fake.motors  # the bridge enabled them through enable_motors
+        assert odom and odom[-1].header.frame_id == "odom"
+        r = next(r for r in ready if r["node"] == "bridge_1")
+        assert r["trial"] == 0 and r["return"] == "placed"
+        assert r["initial_shift"] == pytest.approx([0.0, 0.0, 0.0], abs=1e-9)
+        # the world pose is the scenario's desired start composed with the odometry
+        assert bridge.world() == pytest.approx(bridge.initial, abs=1e-9)
+    finally:
+        for n in (bridge, fake, tester):
+            n.destroy_node()
