@@ -340,6 +340,15 @@ class BridgeNode(ConfiguredNode):
                                                "initial_shift": list(shift), "return": how}))
         self.publish_diagnostics(trial - 1)
 
+    def destroy_node(self) -> None:
+        """Stop the robot on the way out (Ctrl-C, a failed run)."""
+        if self.configured and hasattr(self, "drv_pub"):
+            try:
+                self._send((0.0, 0.0), time.monotonic())
+            except Exception:  # noqa: BLE001 - the context may already be shut down
+                pass
+        super().destroy_node()
+
     def publish_diagnostics(self, trial: int) -> None:
         d: dict[str, Any] = {"node": self.name, "trial": trial, "driver": self.driver,
                              "initial_shifts": self.shifts, "returns": self.returns,
