@@ -49,12 +49,15 @@ robots 1..N. It
 1. reads the run configuration on ``config`` (latched) and follows ``leader/trial_events``;
 2. publishes, for each robot i and each sample s = 0..T of trial k, the measured pose on
    ``robot_i/pose`` (PoseStamped in ``WORLD_FRAME``, stamp ``stamp_ns(k, s)``); sample 0
-   after the ``start`` event of trial k, sample s+1 after it applied sample s's command;
+   after the ``start`` event of trial k, sample s+1 after it applied sample s's command
+   (``mode: wallclock``, real robots: sample s at the wall time
+   ``start_wall_ns + s * dT``, ``start_wall_ns`` being in the ``start`` event);
 3. applies ``robot_i/cmd_vel`` (Twist: ``linear.x`` = v [m/s], ``angular.z`` = omega
    [rad/s]) from its sample to the next; in lockstep it waits for every robot's command,
    in realtime it holds the last command of a robot that is late;
 4. in simulated time owns ``/clock``: it publishes the sample's time before that sample's
-   poses, and the leader broadcasts the reference on it;
+   poses, and the leader broadcasts the reference on it (not in ``wallclock``: nobody
+   publishes ``/clock``, the leader follows its own wall timer);
 5. says ``{"node": NAME, "trial": k}`` on ``ready`` (latched) when it can run trial k
    (k = 0 once its publishers are matched; k+1 after sample T of trial k).
 
