@@ -1,12 +1,13 @@
 """A fake Pioneer driver for tests (``python -m robot_sim.fake_pioneer``): a kinematic
-unicycle in wall time speaking the RosAria topics.
+unicycle in wall time speaking the RosAria (or ros2aria) topics.
 
 In its namespace (``-r __ns:=/pioneer_1``; default ``/RosAria``): subscribes ``cmd_vel``
 (Twist, or TwistStamped with ``cmd_type:=twist_stamped``), publishes ``pose``
 (nav_msgs/Odometry in ``odom``, starting at 0 where the robot was placed) at ``rate`` Hz
 (default 50), and offers the std_srvs/Empty service ``enable_motors``; commands are
-ignored until the motors are enabled. Like RosAria, it stops the robot when the newest
-``cmd_vel`` is older than ``cmd_timeout`` s (default 0.6).
+ignored until the motors are enabled. ``driver:=ros2aria``: odometry on ``odom``, motors
+engaged by the std_srvs/SetBool service ``clutch`` (msgs_schema.DRIVERS). Like RosAria,
+it stops the robot when the newest ``cmd_vel`` is older than ``cmd_timeout`` s (default 0.6).
 
 The true motion integrates the command exactly over each wall-clock step. The odometry
 is wrong like a real one: a scale error on the travelled distance (``odom_scale``,
@@ -30,19 +31,28 @@ from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from std_msgs.msg import String
-from std_srvs.srv import Empty
+from std_srvs.srv import Empty, SetBool
 
 import msgs_schema as ms
-from formation_ilc.nodes.common import node_parser, spin_main
+from formation_ilc.nodes.common import node_parser, ros_param, spin_main
 
-SPEC = ms.DRIVERS["rosaria"]
+FAKE_DRIVERS = ("rosaria", "ros2aria")
 
 
 class FakePioneer(Node):
     def __init__(self, **kwargs: Any):
-        kwargs.setdefault("namespace", SPEC.default_ns)
+        driver = "rosaria"
+        for p in kwargs.get("parameter_overrides") or ():
+            if p.name == "driver":
+                driver = str(p.value)
+        if driver not in FAKE_DRIVERS:
+            raise ValueError(f"parameter driver: one of {', '.join(FAKE_DRIVERS)}, "
+                             f"got {driver!r}")
+        spec = ms.DRIVERS[driver]
+        kwargs.setdefault("namespace", spec.default_ns)
         super().__init__("fake_pioneer", **kwargs)
-        for name, default in (("rate", 50.0), ("cmd_timeout", 0.6), ("odom_scale", 0.01),
+        for name, default in (("driver", driver), ("rate", 50.0), ("cmd_timeout", 0.6),
+                              ("odom_scale", 0.01),
                               ("odom_turn_scale", -0.01), ("odom_turn_bias", 0.002),
                               ("odom_noise", 0.002), ("seed", 0), ("cmd_type", "twist"),
                               ("truth_period", 0.0)):
@@ -61,10 +71,11 @@ class FakePioneer(Node):
         self.last = time.monotonic()
         self.odom_msg = Odometry()
         stamped = str(g("cmd_type")) == "twist_stamped"
-        self.create_subscription(TwistStamped if stamped else Twist, SPEC.cmd,
+        self.create_subscription(TwistStamped if stamped else Twist, spec.cmd,
                                  self._on_cmd, ms.DRIVER_CMD_QOS)
-        self.odom_pub = self.create_publisher(Odometry, SPEC.odom, ms.ODOM_QOS)
-        self.create_service(Empty, SPEC.motors, self._on_enable)
+        self.odom_pub = self.create_publisher(Odometry, spec.odom, ms.ODOM_QOS)
+        self.create_service(Empty if spec.motors_kind == "empty_service" else SetBool,
+                            spec.motors, self._on_enable)
         self.create_timer(1.0 / float(g("rate")), self._on_tick)
         if float(g("truth_period")) > 0:
             self.truth_pub = self.create_publisher(String, "fake_pioneer/truth",
@@ -72,7 +83,9 @@ class FakePioneer(Node):
             self.create_timer(float(g("truth_period")), self._publish_truth)
 
     def _on_enable(self, req: Any, res: Any) -> Any:
-        self.motors = True
+        self.motors = bool(getattr(req, "data", True))
+        if hasattr(res, "success"):
+            res.success = True
         self.get_logger().info("motors enabled")
         return res
 
@@ -119,7 +132,14 @@ class FakePioneer(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    return spin_main(lambda ns, argv: [FakePioneer()],
+    def build(ns: Any, argv: list[str]) -> list[Node]:
+        from rclpy.parameter import Parameter
+
+        drv = ros_param(argv, "driver")
+        return [FakePioneer(parameter_overrides=[Parameter("driver", value=drv)]
+                            if drv else None)]
+
+    return spin_main(build,
                      node_parser("fake_pioneer", __doc__), args)
 
 

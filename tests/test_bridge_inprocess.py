@@ -38,11 +38,11 @@ def spin_until(ex, cond, timeout: float = 10.0) -> None:
         ex.spin_once(timeout_sec=0.01)
 
 
-def make_bridge(context, cmd_type: str = "twist"):
+def make_bridge(context, cmd_type: str = "twist", driver: str = "rosaria"):
     from formation_ilc.nodes.pioneer_bridge import BridgeNode
 
     params = [Parameter("robot_id", value=1), Parameter("scenario", value="paper-triangle3"),
-              Parameter("driver", value="rosaria"), Parameter("driver_ns", value="/pioneer_1"),
+              Parameter("driver", value=driver), Parameter("driver_ns", value="/pioneer_1"),
               Parameter("cmd_timeout", value=TIMEOUT), Parameter("cmd_type", value=cmd_type),
               Parameter("v_max", value=0.5), Parameter("omega_max", value=90.0)]
     return BridgeNode(context=context, parameter_overrides=params)
@@ -97,12 +97,15 @@ def test_bridge_clamps_commands_and_zeroes_them_when_the_robot_is_silent(context
         tester.destroy_node()
 
 
-def test_bridge_is_ready_once_odometry_and_motors_are_in_and_maps_odometry_to_world(context):
+@pytest.mark.parametrize("driver", ["rosaria", "ros2aria"])
+def test_bridge_is_ready_once_odometry_and_motors_are_in_and_maps_odometry_to_world(context,
+                                                                                   driver):
     from robot_sim.fake_pioneer import FakePioneer
 
-    bridge = make_bridge(context)
+    bridge = make_bridge(context, driver=driver)
     fake = FakePioneer(context=context, namespace="/pioneer_1",
-                       parameter_overrides=[Parameter("odom_noise", value=0.0)])
+                       parameter_overrides=[Parameter("odom_noise", value=0.0),
+                                            Parameter("driver", value=driver)])
     tester = rclpy.create_node("tester", namespace=ms.NAMESPACE, context=context)
     ex = SingleThreadedExecutor(context=context)
     for n in (bridge, fake, tester):
@@ -115,7 +118,8 @@ def test_bridge_is_ready_once_odometry_and_motors_are_in_and_maps_odometry_to_wo
         tester.create_subscription(String, ms.READY, lambda m: ready.append(ms.msg_to_json(m)),
                                    ms.LATCHED_READER_QOS)
         odom: list[Odometry] = []
-        tester.create_subscription(Odometry, "/pioneer_1/pose", odom.append, ms.ODOM_QOS)
+        tester.create_subscription(Odometry, f"/pioneer_1/{ms.DRIVERS[driver].odom}",
+                                   odom.append, ms.ODOM_QOS)
         # the robot node's reader of the pose (the bridge waits for one)
         tester.create_subscription(PoseStamped, ms.pose_topic(1), lambda m: None,
                                    ms.SAMPLE_QOS)
@@ -130,3 +134,59 @@ def test_bridge_is_ready_once_odometry_and_motors_are_in_and_maps_odometry_to_wo
     finally:
         for n in (bridge, fake, tester):
             n.destroy_node()
+
+
+def test_fake_driver_needs_its_motors_enabled_and_stops_on_its_own_watchdog(context):
+    from std_srvs.srv import Empty
+
+    from robot_sim.fake_pioneer import FakePioneer
+
+    fake = FakePioneer(context=context, namespace="/pioneer_1",
+                       parameter_overrides=[Parameter("odom_noise", value=0.0)])
+    tester = rclpy.create_node("tester", context=context)
+    ex = SingleThreadedExecutor(context=context)
+    ex.add_node(fake)
+    ex.add_node(tester)
+    try:
+        odom: list[tuple[float, Odometry]] = []
+        tester.create_subscription(Odometry, "/pioneer_1/pose",
+                                   lambda m: odom.append((time.monotonic(), m)), ms.ODOM_QOS)
+        pub = tester.create_publisher(Twist, "/pioneer_1/cmd_vel", ms.DRIVER_CMD_QOS)
+        spin_until(ex, lambda: pub.get_subscription_count() >= 1 and len(odom) >= 3)
+        pub.publish(ms.u_to_twist((0.5, 0.0)))
+        n = len(odom)
+        spin_until(ex, lambda: len(odom) >= n + 10)
+        # motors off: the command is ignored
+        assert all(m.twist.twist.linear.x == 0.0 for _, m in odom)
+        assert odom[-1][1].pose.pose.position.x == 0.0
+        client = tester.create_client(Empty, "/pioneer_1/enable_motors")
+        spin_until(ex, client.service_is_ready)
+        fut = client.call_async(Empty.Request())
+        spin_until(ex, fut.done)
+        assert fake.motors
+        pub.publish(ms.u_to_twist((0.5, 0.0)))
+        t_cmd = time.monotonic()
+        spin_until(ex, lambda: odom[-1][1].twist.twist.linear.x == 0.5)
+        # no newer command: the driver's own watchdog stops the robot after 0.6 s
+        spin_until(ex, lambda: odom[-1][0] > t_cmd and odom[-1][1].twist.twist.linear.x == 0.0)
+        stop = next(t for t, m in odom if t > t_cmd + 0.05 and m.twist.twist.linear.x == 0.0)
+        assert 0.55 <= stop - t_cmd <= 0.8, stop - t_cmd
+        moved = odom[-1][1].pose.pose.position.x
+        # about 0.5 m/s for 0.6 s, the odometry 1 % long
+        assert 0.25 <= moved <= 0.4, moved
+    finally:
+        fake.destroy_node()
+        tester.destroy_node()
+
+
+@pytest.mark.multiprocess
+def test_p2os2_without_p2os_msgs_stops_with_a_clear_message(ros_env):
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "formation_ilc.nodes.pioneer_bridge",
+                        "--ros-args", "-p", "robot_id:=2", "-p", "scenario:=paper-triangle3",
+                        "-p", "driver:=p2os2"], capture_output=True, text=True, timeout=60,
+                       env=ros_env)
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    assert "p2os_msgs" in r.stderr and "not on PyPI" in r.stderr
