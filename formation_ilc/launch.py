@@ -15,6 +15,12 @@ Node entry points (also `ros2 run formation_ilc <exe>` on a full ROS 2 install):
   formation-ilc-sim     kinematic simulator, the plant (config from the config topic)
   formation-ilc-links   link emulator, for emulated links (config from the config topic)
   formation-ilc-robot   one robot: --ros-args -p robot_id:=I; container: --robots 1 2 3
+  formation-ilc-bridge  a Pioneer 3-DX behind the plant contract: --ros-args -p robot_id:=I
+                        -p driver:=rosaria (docs/real-robots.md)
+
+--plant pioneer: one bridge per robot instead of the simulator (with --fake-drivers one
+fake RosAria driver per robot too), wall-clock trials, direct links; --init-memory FILE:
+every robot starts from its row of a memory learned by `formation-ilc simulate`.
 """
 
 from __future__ import annotations
@@ -154,9 +160,11 @@ def node_commands(cfg_args: dict[str, Any], n: int, container: int, *, links: st
         for i in range(1, n + 1):
             dns = driver_ns.replace("{i}", str(i))
             if fake_drivers:
+                driver = (bridge_params or {}).get("driver", "rosaria")
                 procs.append((f"fake_pioneer_{i}", [py, "-m", "robot_sim.fake_pioneer",
                                                     "--ros-args", "-r", f"__ns:={dns}", "-p",
-                                                    f"seed:={i}", "-p", f"cmd_type:={cmd_type}"]))
+                                                    f"seed:={i}", "-p", f"cmd_type:={cmd_type}",
+                                                    "-p", f"driver:={driver}"]))
             bp = [f"robot_id:={i}", f"driver_ns:={dns}", f"cmd_type:={cmd_type}"]
             bp += [f"{k}:={v}" for k, v in (bridge_params or {}).items()]
             procs.append((f"bridge_{i}", [py, "-m", "formation_ilc.nodes.pioneer_bridge",
@@ -247,6 +255,10 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if args.fake_drivers and not pioneer:
         print("error: --fake-drivers goes with --plant pioneer", file=sys.stderr)
+        return 2
+    if args.fake_drivers and args.driver == "p2os2":
+        print("error: --fake-drivers speak rosaria or ros2aria, not p2os2 (its p2os_msgs "
+              "are not on PyPI)", file=sys.stderr)
         return 2
     args.mode = args.mode or ("wallclock" if pioneer else "lockstep")
     args.links = args.links or ("direct" if pioneer or args.mode == "wallclock" else "emulated")
@@ -351,7 +363,8 @@ def run(args: argparse.Namespace) -> int:
         for name, argv in node_commands(
                 leader_params, sc.n, args.container, links=args.links, plant=args.plant,
                 namespace=namespace, robot_params=robot_params,
-                bridge_params={"return_timeout": float(args.return_timeout)},
+                bridge_params={"driver": args.driver,
+                               "return_timeout": float(args.return_timeout)},
                 driver_ns=args.driver_ns, fake_drivers=args.fake_drivers,
                 cmd_type=args.cmd_type):
             stack.start(name, argv)

@@ -190,3 +190,55 @@ def test_p2os2_without_p2os_msgs_stops_with_a_clear_message(ros_env):
                        env=ros_env)
     assert r.returncode == 2, (r.stdout, r.stderr)
     assert "p2os_msgs" in r.stderr and "not on PyPI" in r.stderr
+
+
+def test_wallclock_leader_agrees_the_start_and_publishes_the_reference_on_its_wall_timer(
+        context, tmp_path):
+    import yaml
+    from geometry_msgs.msg import PoseStamped
+    from std_msgs.msg import String
+
+    from formation_ilc.scenario import load_scenario
+    from virtual_leader.node import LeaderNode
+
+    data = yaml.safe_load(load_scenario("paper-triangle3").text)
+    data.update(dt=0.05, samples=10, name="triangle3-wall")
+    scen = tmp_path / "s.yaml"
+    scen.write_text(yaml.safe_dump(data, sort_keys=False))
+    margin = 0.3
+    leader = LeaderNode(context=context, parameter_overrides=[
+        Parameter("scenario", value=str(scen)), Parameter("mode", value="wallclock"),
+        Parameter("links", value="direct"), Parameter("trials", value=1),
+        Parameter("start_margin", value=margin),
+        Parameter("nodes_expected", value=["tester"])])
+    tester = rclpy.create_node("tester", namespace=ms.NAMESPACE, context=context)
+    ex = SingleThreadedExecutor(context=context)
+    ex.add_node(leader)
+    ex.add_node(tester)
+    try:
+        events: list[tuple[int, dict]] = []
+        refs: list[tuple[int, int]] = []  # (arrival wall ns, label ns)
+        tester.create_subscription(String, ms.TRIAL_EVENTS, lambda m: events.append(
+            (time.time_ns(), ms.msg_to_json(m))), ms.SAMPLE_QOS)
+        tester.create_subscription(PoseStamped, ms.REFERENCE, lambda m: refs.append(
+            (time.time_ns(), ms.stamp_to_ns(m.header.stamp))), ms.SAMPLE_QOS)
+        ready = tester.create_publisher(String, ms.READY, ms.LATCHED_QOS)
+        spin_until(ex, lambda: ready.get_subscription_count() >= 1)
+        ready.publish(ms.json_to_msg({"node": "tester", "trial": 0}))
+        spin_until(ex, lambda: any(e["event"] == ms.END for _, e in events) and len(refs) >= 11,
+                   timeout=10)
+        sent, start = next((t, e) for t, e in events if e["event"] == ms.START)
+        t0 = start["start_wall_ns"]
+        # the agreed start is the margin ahead of the event
+        assert 0 < t0 - sent <= margin * 1e9 + 5e7
+        clock = leader.cfg.clock
+        assert [label for _, label in refs] == [clock.stamp_ns(0, s) for s in range(11)]
+        for s, (arrival, _) in enumerate(refs):
+            due = t0 + s * clock.dt_ns
+            # published on the wall timer at its due time (5 ms timer, a loaded machine)
+            assert due <= arrival <= due + 40_000_000, (s, (arrival - due) / 1e6)
+        # the leader neither follows nor needs /clock in wall-clock trials
+        assert leader.count_subscribers(ms.CLOCK) == 0
+    finally:
+        leader.destroy_node()
+        tester.destroy_node()

@@ -122,3 +122,15 @@ def test_memory_file_is_versioned_checked_and_an_old_npy_still_reads(tmp_path):
     (tmp_path / "junk.npz").write_bytes(b"not a file")
     with pytest.raises(MemoryFileError, match="cannot read"):
         load_memory(tmp_path / "junk.npz", sc)
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--plant", "pioneer", "--mode", "lockstep"], "--plant pioneer runs --mode wallclock"),
+    (["--plant", "pioneer", "--links", "emulated"], "with --links direct"),
+    (["--mode", "wallclock"], "--mode wallclock is for real robots"),
+    (["--fake-drivers"], "--fake-drivers goes with --plant pioneer"),
+    (["--plant", "pioneer", "--fake-drivers", "--driver", "p2os2"], "not p2os2"),
+])
+def test_launch_refuses_a_real_robot_run_it_cannot_do(tmp_path, capsys, args, message):
+    assert main(["launch", "paper-triangle3", "--out", str(tmp_path), *args]) == 2
+    assert message in capsys.readouterr().err
