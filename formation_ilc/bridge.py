@@ -149,7 +149,9 @@ class ReturnController:
         self.k_rho, self.k_alpha, self.k_beta, self.k_turn = k_rho, k_alpha, k_beta, k_turn
         self.t0: float | None = None
 
-    def step(self, pose: Pose, now: float) -> ReturnStatus:
+    def step(self, pose: Pose, now: float, stale: bool = False) -> ReturnStatus:
+        """The command at ``now`` [s] for the robot at ``pose``. ``stale``: the pose is
+        old (odometry stopped): stop and wait (the timeout still runs)."""
         if self.t0 is None:
             self.t0 = now
         gx, gy, gth = self.goal
@@ -161,6 +163,8 @@ class ReturnController:
             return ReturnStatus(0.0, 0.0, True, False, rho, dth)
         if now - self.t0 > self.timeout:
             return ReturnStatus(0.0, 0.0, False, True, rho, dth)
+        if stale:
+            return ReturnStatus(0.0, 0.0, False, False, rho, dth)
         if rho <= self.tol_pos:
             v, w = 0.0, self.k_turn * dth
         else:

@@ -106,6 +106,14 @@ def test_return_controller_reports_a_timeout():
     assert st.v == 0.0 and st.omega == 0.0
 
 
+def test_return_controller_stops_on_stale_odometry_and_its_timeout_still_runs():
+    ctrl = ReturnController((1.0, 0.0, 0.0), CommandLimits(), timeout=1.0)
+    assert ctrl.step((0.0, 0.0, 0.0), 0.0).v > 0
+    st = ctrl.step((0.0, 0.0, 0.0), 0.5, stale=True)
+    assert (st.v, st.omega, st.done) == (0.0, 0.0, False)
+    assert ctrl.step((0.0, 0.0, 0.0), 1.1, stale=True).timed_out
+
+
 def test_return_controller_gains_are_checked():
     with pytest.raises(ValueError, match="k_beta"):
         ReturnController((0, 0, 0), CommandLimits(), k_beta=0.5)

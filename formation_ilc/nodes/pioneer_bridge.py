@@ -22,9 +22,10 @@ usual namespace; remap further with ``-r``):
 ``cmd_type``: ``twist`` (default) or ``twist_stamped`` (Jazzy's diff_drive_controller).
 Odometry is read best effort (matches reliable and best-effort drivers). The command is
 republished at ``rate`` Hz (default 20) so the driver's own watchdog does not stop the
-robot mid-sample; once the robot node has been silent for ``cmd_timeout`` s (default 0.5)
-the command is zero. World pose = ``initial_pose`` (x, y, theta; default: the scenario's
-desired start of robot I, where the robot is placed) composed with the odometry.
+robot mid-sample; once the robot node has been silent for ``cmd_timeout`` s (default 0:
+2.5 dT, 0.5 s at dT = 0.2 s) the command is zero. World pose = ``initial_pose`` (x, y,
+theta; default: the scenario's desired start of robot I, where the robot is placed)
+composed with the odometry.
 
 Between trials (after sample T) it drives the robot back to ``initial_pose`` with a polar
 point-stabilisation law (formation_ilc.bridge.ReturnController): ``return_tol`` [m],
@@ -92,7 +93,7 @@ class BridgeNode(ConfiguredNode):
         self.name = ms.bridge_name(self.id)
         for name, default in (("robot_id", self.id), ("driver", "rosaria"), ("driver_ns", ""),
                               ("cmd_type", "twist"), ("v_max", 0.0), ("omega_max", 0.0),
-                              ("cmd_timeout", 0.5), ("rate", 20.0), ("return_tol", 0.02),
+                              ("cmd_timeout", 0.0), ("rate", 20.0), ("return_tol", 0.02),
                               ("return_tol_heading", 2.0), ("return_timeout", 60.0),
                               ("initial_pose", [0.0]), ("scenario", ""), ("mode", "wallclock")):
             self.declare_parameter(name, default)
@@ -109,7 +110,6 @@ class BridgeNode(ConfiguredNode):
         base = CommandLimits()
         self.limits = CommandLimits(v_max if v_max > 0 else base.v_max,
                                     math.radians(w_max) if w_max > 0 else base.omega_max)
-        self.watchdog = Watchdog(float(g("cmd_timeout")))
         self.period = 1.0 / float(g("rate"))
         ns = str(g("driver_ns")) or self.spec.default_ns
         self.driver_topics = (_join(ns, self.spec.cmd), _join(ns, self.spec.odom),
@@ -137,6 +137,10 @@ class BridgeNode(ConfiguredNode):
             x, y, th = (float(v) for v in pb.eta_d[self.id - 1, 0])
             self.initial = (x, y, th)
         self.cfg, self.clock, self.T = cfg, cfg.clock, pb.samples
+        timeout = float(g("cmd_timeout"))
+        self.watchdog = Watchdog(timeout if timeout > 0 else 2.5 * cfg.scenario.dt)
+        #: odometry older than this [s] is stale: counted in trials, a stop in returns
+        self.odom_limit = max(0.5, 2.0 * cfg.scenario.dt)
         self.tol = (float(g("return_tol")), math.radians(float(g("return_tol_heading"))),
                     float(g("return_timeout")))
         self.odom: tuple[float, float, float] | None = None
@@ -282,7 +286,9 @@ class BridgeNode(ConfiguredNode):
             if s is not None:
                 self._sample(s, now)
         if self.phase == "return" and self.returner is not None and self.odom is not None:
-            st = self.returner.step(self.world(), now)
+            stale = now - self.odom_time > self.odom_limit
+            self.counts["stale_odometry"] += int(stale)
+            st = self.returner.step(self.world(), now, stale)
             if st.done:
                 self._returned(st.reached, now)
                 self._send((0.0, 0.0), now)
@@ -305,7 +311,7 @@ class BridgeNode(ConfiguredNode):
     def _sample(self, s: int, now: float) -> None:
         if self.odom is None:
             return
-        if now - self.odom_time > 2 * self.clock.dt_ns * 1e-9:
+        if now - self.odom_time > self.odom_limit:
             self.counts["stale_odometry"] += 1
         ns = self.clock.stamp_ns(self.k, s)
         self.pose_pub.publish(ms.pose_to_msg(self.world(), ns, ms.WORLD_FRAME))
