@@ -242,3 +242,16 @@ def test_wallclock_leader_agrees_the_start_and_publishes_the_reference_on_its_wa
     finally:
         leader.destroy_node()
         tester.destroy_node()
+
+
+def test_wallclock_leader_waits_for_robots_and_bridges_by_default(context):
+    from virtual_leader.node import LeaderNode
+
+    leader = LeaderNode(context=context, parameter_overrides=[
+        Parameter("scenario", value="paper-triangle3"), Parameter("mode", value="wallclock"),
+        Parameter("links", value="direct")])
+    try:
+        assert leader.expected == ["robot_1", "robot_2", "robot_3", "bridge_1", "bridge_2",
+                                   "bridge_3"]
+    finally:
+        leader.destroy_node()

@@ -18,7 +18,8 @@ links : str
     'emulated' (the link emulator carries the scenario's delays) or 'direct' (the robots
     subscribe to each other; the network's delays).
 nodes_expected : list of node names that must report ready before a trial starts
-    (default: every robot_i, robot_sim, and link_emulator with emulated links).
+    (default: every robot_i, robot_sim, and link_emulator with emulated links; in
+    wallclock every robot_i and bridge_i).
 monitored : bool
     A monitor (the launcher) reads trajectories: nodes wait for it before trial 0.
 
@@ -90,7 +91,9 @@ class LeaderNode(Node):
         except ParameterUninitializedException:
             expected = None
         self.expected = list(expected) if expected else (
-            [ms.robot_name(i + 1) for i in range(sc.n)] + ["robot_sim"]
+            [ms.robot_name(i + 1) for i in range(sc.n)]
+            + ([ms.bridge_name(i + 1) for i in range(sc.n)] if self.cfg.mode == "wallclock"
+               else ["robot_sim"])
             + (["link_emulator"] if self.cfg.links == "emulated" else []))
         # who reads the reference: the link emulator, or each robot that sees the leader
         self.ref_readers = (int(sum(sc.graph.leader > 0)) if self.cfg.links == "direct"
