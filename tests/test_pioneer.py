@@ -69,6 +69,8 @@ def test_team_learns_through_bridges_and_fake_drivers(ros_env, tmp_path):
         assert (np.hypot(shifts[:, 0], shifts[:, 1]) <= 0.03).all()
         assert (np.abs(shifts[:, 2]) <= np.radians(2.5)).all()
         assert b["missed"] == 0 and b["clipped"] == 0
+        # the robot node never fell silent inside a trial, the odometry never stalled
+        assert b["watchdog_zero"] == 0 and b["stale_odometry"] == 0
         assert sum(b["dropped"].values()) == 0
         # every sample of every trial was commanded, on direct links measured by eq. (11)
         r = diag[f"robot_{i}"]
