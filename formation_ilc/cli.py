@@ -20,6 +20,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
+from .memoryfile import MemoryFileError, load_memory, save_memory  # noqa: E402
 from .scenario import Scenario, ScenarioError, builtin_scenarios, load_scenario  # noqa: E402
 from .topology import SpanningTreeError  # noqa: E402
 
@@ -79,9 +80,10 @@ def build_parser() -> argparse.ArgumentParser:
     _scenario_arg(p)
     _run_options(p)
     p.add_argument("--no-plots", action="store_true", help="write no figures")
-    p.add_argument("--init-memory", type=Path, metavar="MEMORY.npy",
-                   help="start from a learned memory (a run's memory.npy), e.g. learn "
-                        "noise-free first, then go on with noise (the paper's sim-to-real "
+    p.add_argument("--init-memory", type=Path, metavar="MEMORY.npz",
+                   help="start from a learned memory (a run's memory.npz, or an older "
+                        "memory.npy), e.g. learn noise-free first, then go on with noise or "
+                        "on the robots (`launch --init-memory`; the paper's sim-to-real "
                         "workflow, paper-notes 10)")
     p.add_argument("--first-trial", type=int, default=0, metavar="K",
                    help="number the trials from K (their random draws are trial K's, ...)")
@@ -223,13 +225,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     init = None
     if args.init_memory is not None:
         try:
-            init = np.load(args.init_memory)
-        except (OSError, ValueError) as exc:
-            raise ScenarioError(f"{args.init_memory}: cannot read a memory: {exc}") from None
-        want = (sc.n, sc.samples, 2)
-        if init.shape != want:
-            raise ScenarioError(f"{args.init_memory}: memory has shape {init.shape}, "
-                                f"{sc.name} needs {want} (robots, samples, [v, omega])")
+            init = load_memory(args.init_memory, sc)
+        except MemoryFileError as exc:
+            raise ScenarioError(str(exc)) from None
     out = _out_dir(args.out, sc, f"law{sc.law.kind}-{sc.law.memory}")
     # metrics are written as they come, so a crash or Ctrl-C keeps every finished trial
     writer = MetricsWriter(out / "metrics.csv")
@@ -260,7 +258,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         arrays.update({f"eta_{t}": r.eta, f"xi_{t}": r.xi, f"u_{t}": r.u})
     np.savez_compressed(out / "trajectories.npz", **arrays)
     if res.memory is not None:
-        np.save(out / "memory.npy", res.memory)
+        save_memory(out / "memory.npz", res.memory, sc, trials_learned=first + k)
     pos, head = res.column("max_position_error"), res.column("max_heading_error")
     summary = {
         "scenario": sc.name, "source": sc.source, "law": sc.law.kind, "memory": sc.law.memory,
@@ -273,7 +271,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         "position_error_reduction": float(pos[0] / pos[-1]) if pos[-1] > 0 else None,
         "seconds": elapsed, "ms_per_trial": 1000 * elapsed / k,
     }
-    files = ["metrics.csv", "summary.json", "trajectories.npz", "memory.npy"]
+    files = ["metrics.csv", "summary.json", "trajectories.npz", "memory.npz"]
     if not args.no_plots:
         from .plots import plot_errors, plot_trajectories
 

@@ -15,12 +15,19 @@ Node entry points (also `ros2 run formation_ilc <exe>` on a full ROS 2 install):
   formation-ilc-sim     kinematic simulator, the plant (config from the config topic)
   formation-ilc-links   link emulator, for emulated links (config from the config topic)
   formation-ilc-robot   one robot: --ros-args -p robot_id:=I; container: --robots 1 2 3
+  formation-ilc-bridge  a Pioneer 3-DX behind the plant contract: --ros-args -p robot_id:=I
+                        -p driver:=rosaria (docs/real-robots.md)
+
+--plant pioneer: one bridge per robot instead of the simulator (with --fake-drivers one
+fake RosAria driver per robot too), wall-clock trials, direct links; --init-memory FILE:
+every robot starts from its row of a memory learned by `formation-ilc simulate`.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import signal
 import subprocess
@@ -46,19 +53,43 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-noise", action="store_true",
                    help="no initial shifts, disturbances or measurement noise")
     p.add_argument("--no-delay", action="store_true", help="no communication delays")
-    p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep",
-                   help="lockstep: the simulator waits for every robot (as fast as the "
-                        "processes allow, deterministic); realtime: wall clock at dT")
-    p.add_argument("--links", choices=("emulated", "direct"), default="emulated",
+    p.add_argument("--mode", choices=("lockstep", "realtime", "wallclock"), default=None,
+                   help="lockstep (default with the simulator): the simulator waits for every "
+                        "robot (as fast as the processes allow, deterministic); realtime: the "
+                        "simulator ticks on the wall clock at dT; wallclock (default and "
+                        "required with --plant pioneer): no /clock, the trials run on the "
+                        "machines' synchronised wall clocks")
+    p.add_argument("--links", choices=("emulated", "direct"), default=None,
                    help="emulated (default): a link emulator process puts the scenario's "
                         "delays on the robot-to-robot links, in simulated time (a lockstep "
                         "run equals `simulate`); direct: each robot subscribes to its "
                         "neighbours, as on robots, and the delays are the network's (a "
-                        "lockstep run equals `simulate --no-delay`)")
-    p.add_argument("--plant", choices=("sim", "external"), default="sim",
+                        "lockstep run equals `simulate --no-delay`; the default and required "
+                        "with --plant pioneer)")
+    p.add_argument("--plant", choices=("sim", "external", "pioneer"), default="sim",
                    help="sim (default): start the kinematic simulator; external: another "
                         "process speaks the plant contract (docs/distributed-stack.md) and "
-                        "says ready as one of --plant-nodes")
+                        "says ready as one of --plant-nodes; pioneer: one Pioneer bridge per "
+                        "robot (formation-ilc-bridge, docs/real-robots.md) in front of a "
+                        "driver (--driver), wall-clock trials, direct links")
+    p.add_argument("--driver", choices=("rosaria", "p2os2", "ros2aria"), default="rosaria",
+                   help="with --plant pioneer: the robots' driver (default rosaria)")
+    p.add_argument("--driver-ns", default="/pioneer_{i}", metavar="PATTERN",
+                   help="with --plant pioneer: robot i's driver namespace, {i} replaced by "
+                        "the robot number (default /pioneer_{i})")
+    p.add_argument("--cmd-type", choices=("twist", "twist_stamped"), default="twist",
+                   help="with --plant pioneer: Twist (default) or TwistStamped "
+                        "(diff_drive_controller) on the driver's cmd_vel")
+    p.add_argument("--fake-drivers", action="store_true",
+                   help="with --plant pioneer: also start one fake RosAria driver per robot "
+                        "(robot_sim.fake_pioneer: a unicycle in wall time with odometry "
+                        "drift and noise), for a run without robots")
+    p.add_argument("--return-timeout", type=float, default=60.0, metavar="S",
+                   help="with --plant pioneer: how long a bridge drives its robot back to the "
+                        "initial pose between trials before it reports a timeout")
+    p.add_argument("--init-memory", type=Path, metavar="MEMORY.npz",
+                   help="every robot starts from its row of this memory file (written by "
+                        "`formation-ilc simulate`): the sim-to-real carry-over")
     p.add_argument("--plant-nodes", nargs="+", default=["plant"], metavar="NAME",
                    help="with --plant external: the node names the schedule waits for "
                         "(default: plant)")
@@ -107,11 +138,17 @@ def ros_args(namespace: str | None) -> list[str]:
 
 
 def node_commands(cfg_args: dict[str, Any], n: int, container: int, *, links: str = "emulated",
-                  plant: str = "sim", namespace: str | None = None
+                  plant: str = "sim", namespace: str | None = None,
+                  robot_params: dict[str, Any] | None = None,
+                  bridge_params: dict[str, Any] | None = None, driver_ns: str = "/pioneer_{i}",
+                  fake_drivers: bool = False, cmd_type: str = "twist"
                   ) -> list[tuple[str, list[str]]]:
     """(name, argv) of every process of the stack (sys.executable -m ...)."""
     py = sys.executable
     nsa = ros_args(namespace)
+    rp: list[str] = []
+    for k, v in (robot_params or {}).items():
+        rp += ["-p", f"{k}:={v}"]
     leader = [py, "-m", "virtual_leader.node", "--ros-args", *nsa]
     for k, v in cfg_args.items():
         leader += ["-p", f"{k}:={v}"]
@@ -119,6 +156,20 @@ def node_commands(cfg_args: dict[str, Any], n: int, container: int, *, links: st
     if plant == "sim":
         procs.append(("robot_sim", [py, "-m", "robot_sim.node", "--ros-args", *nsa, "-p",
                                     f"timeout:={float(cfg_args['timeout'])}"]))
+    if plant == "pioneer":
+        for i in range(1, n + 1):
+            dns = driver_ns.replace("{i}", str(i))
+            if fake_drivers:
+                driver = (bridge_params or {}).get("driver", "rosaria")
+                procs.append((f"fake_pioneer_{i}", [py, "-m", "robot_sim.fake_pioneer",
+                                                    "--ros-args", "-r", f"__ns:={dns}", "-p",
+                                                    f"seed:={i}", "-p", f"cmd_type:={cmd_type}",
+                                                    "-p", f"driver:={driver}"]))
+            bp = [f"robot_id:={i}", f"driver_ns:={dns}", f"cmd_type:={cmd_type}"]
+            bp += [f"{k}:={v}" for k, v in (bridge_params or {}).items()]
+            procs.append((f"bridge_{i}", [py, "-m", "formation_ilc.nodes.pioneer_bridge",
+                                          "--ros-args", *nsa,
+                                          *[a for b in bp for a in ("-p", b)]]))
     if links == "emulated":
         procs.append(("link_emulator", [py, "-m", "robot_sim.link_emulator", "--ros-args",
                                         *nsa]))
@@ -128,11 +179,11 @@ def node_commands(cfg_args: dict[str, Any], n: int, container: int, *, links: st
             grp = ids[c:c + container]
             procs.append((f"robots_{grp[0]}-{grp[-1]}",
                           [py, "-m", "formation_ilc.nodes.robot", "--robots", *map(str, grp),
-                           *(["--ros-args", *nsa] if nsa else [])]))
+                           *(["--ros-args", *nsa, *rp] if nsa or rp else [])]))
     else:
         for i in ids:
             procs.append((f"robot_{i}", [py, "-m", "formation_ilc.nodes.robot", "--ros-args",
-                                         *nsa, "-p", f"robot_id:={i}"]))
+                                         *nsa, "-p", f"robot_id:={i}", *rp]))
     return procs
 
 
@@ -191,6 +242,26 @@ def run(args: argparse.Namespace) -> int:
     from formation_ilc.runconfig import make_config
     from formation_ilc.simulate import Problem
 
+    pioneer = args.plant == "pioneer"
+    if pioneer and (args.mode not in (None, "wallclock") or args.links not in (None, "direct")):
+        print(f"error: --plant pioneer runs --mode wallclock with --links direct (real robots "
+              f"have no simulated clock and no link emulator), got --mode {args.mode} "
+              f"--links {args.links}", file=sys.stderr)
+        return 2
+    if args.mode == "wallclock" and not pioneer and args.plant != "external":
+        print("error: --mode wallclock is for real robots: use it with --plant pioneer (or an "
+              "external plant that samples on the wall clock); the simulator runs lockstep "
+              "or realtime", file=sys.stderr)
+        return 2
+    if args.fake_drivers and not pioneer:
+        print("error: --fake-drivers goes with --plant pioneer", file=sys.stderr)
+        return 2
+    if args.fake_drivers and args.driver == "p2os2":
+        print("error: --fake-drivers speak rosaria or ros2aria, not p2os2 (its p2os_msgs "
+              "are not on PyPI)", file=sys.stderr)
+        return 2
+    args.mode = args.mode or ("wallclock" if pioneer else "lockstep")
+    args.links = args.links or ("direct" if pioneer or args.mode == "wallclock" else "emulated")
     cfg = make_config(args.scenario, seed=args.seed, noise=not args.no_noise,
                       delay=not args.no_delay, trials=args.trials, law=args.law,
                       memory=args.memory, mode=args.mode, monitored=True,
@@ -201,6 +272,16 @@ def run(args: argparse.Namespace) -> int:
               f"required", file=sys.stderr)
         return 2
     sc = cfg.scenario
+    robot_params: dict[str, Any] = {}
+    if args.init_memory is not None:
+        from formation_ilc.memoryfile import MemoryFileError, load_memory
+
+        try:
+            load_memory(args.init_memory, sc)  # refuse before any process starts
+        except MemoryFileError as exc:
+            print(f"error: --init-memory {exc}", file=sys.stderr)
+            return 2
+        robot_params["init_memory"] = str(args.init_memory.resolve())
     if sc.trials < 1:
         print("error: --trials must be at least 1", file=sys.stderr)
         return 2
@@ -229,7 +310,9 @@ def run(args: argparse.Namespace) -> int:
         "timeout": float(args.timeout), "links": args.links}
     # the schedule waits for every node, the launcher's monitor and the recorder included,
     # so that none of them misses a trial
-    plants = ["robot_sim"] if args.plant == "sim" else list(args.plant_nodes)
+    plants = (["robot_sim"] if args.plant == "sim"
+              else [ms.bridge_name(i + 1) for i in range(sc.n)] if pioneer
+              else list(args.plant_nodes))
     support = (["link_emulator"] if args.links == "emulated" else [])
     expected = [ms.robot_name(i + 1) for i in range(sc.n)] + plants + support + ["monitor"]
     if args.record is not None:
@@ -277,9 +360,13 @@ def run(args: argparse.Namespace) -> int:
                                      "--output", str(args.record),
                                      *(["--ros-args", *ros_args(namespace)]
                                        if ros_args(namespace) else [])])
-        for name, argv in node_commands(leader_params, sc.n, args.container,
-                                        links=args.links, plant=args.plant,
-                                        namespace=namespace):
+        for name, argv in node_commands(
+                leader_params, sc.n, args.container, links=args.links, plant=args.plant,
+                namespace=namespace, robot_params=robot_params,
+                bridge_params={"driver": args.driver,
+                               "return_timeout": float(args.return_timeout)},
+                driver_ns=args.driver_ns, fake_drivers=args.fake_drivers,
+                cmd_type=args.cmd_type):
             stack.start(name, argv)
         final_deadline: float | None = None
         while True:
@@ -287,7 +374,9 @@ def run(args: argparse.Namespace) -> int:
             if len(monitor.rows) == sc.trials:
                 # the last diagnostics come right after the last trajectories
                 if final_deadline is None:
-                    final_deadline = time.monotonic() + 3.0
+                    # bridges drive their robots back after the last trial too
+                    final_deadline = time.monotonic() + 3.0 + (
+                        args.return_timeout + 2.0 if pioneer else 0.0)
                 robots = {ms.robot_name(i + 1) for i in range(sc.n)}
                 got = [d.get("trial", -1) for n, d in monitor.diagnostics.items()
                        if n in robots]
@@ -297,7 +386,8 @@ def run(args: argparse.Namespace) -> int:
                 # samples, injected delays) too
                 recorded = recorded and all(
                     monitor.diagnostics.get(node, {}).get("trial", -1) >= sc.trials - 1
-                    for node in (["robot_sim"] if true_state else []) + support)
+                    for node in (["robot_sim"] if true_state else []) + support
+                    + (plants if pioneer else []))
                 if (len(got) == sc.n and min(got) >= sc.trials - 1 and recorded) or \
                         time.monotonic() > final_deadline:
                     break
@@ -337,6 +427,13 @@ def run(args: argparse.Namespace) -> int:
                "container": args.container, "domain_id": domain, "seconds": elapsed,
                "timing": sim_diag.get("timing", {}), "missed": sim_diag.get("missed", {}),
                "dropped": {n: d.get("dropped", {}) for n, d in diagnostics.items()}}
+    if pioneer:
+        summary["bridges"] = {
+            b: {key: diagnostics.get(b, {}).get(key) for key in
+                ("initial_shifts", "returns", "return_timeouts", "missed", "clipped",
+                 "watchdog_zero", "stale_odometry")} for b in plants}
+    if args.init_memory is not None:
+        summary["init_memory"] = str(args.init_memory)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     if status:
         return status
@@ -373,6 +470,12 @@ def _print_report(sc: Any, m: np.ndarray, dtab: list[list[Any]], summary: dict[s
         print(f"lockstep: {tim.get('samples_per_s', nan):.0f} samples/s, per-sample "
               f"latency p50 {tim.get('p50_ms', nan):.2f} ms, "
               f"p99 {tim.get('p99_ms', nan):.2f} ms")
+    for b, d in (summary.get("bridges") or {}).items():
+        shifts = d.get("initial_shifts") or {}
+        worst = max((math.hypot(s[0], s[1]) for s in shifts.values()), default=float("nan"))
+        print(f"{b}: {len(shifts)} starts, largest initial shift {worst:.3f} m, return "
+              f"timeouts {d.get('return_timeouts')}, missed samples {d.get('missed')}, "
+              f"clipped commands {d.get('clipped')}")
     if not summary.get("true_state", True):
         print("true state: the plant publishes none; the true_ columns of metrics.csv are nan")
     if dtab:

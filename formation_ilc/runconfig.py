@@ -13,16 +13,22 @@ from .clock import Rejected, SampleClock
 from .links import LINK_MODES
 from .scenario import Scenario, load_scenario, scenario_from_text
 
-__all__ = ["RunConfig", "make_config", "MODES"]
+__all__ = ["RunConfig", "make_config", "MODES", "WALL_MODES"]
 
-MODES = ("lockstep", "realtime")
+MODES = ("lockstep", "realtime", "wallclock")
+#: modes in which the plant does not wait for commands (missed samples are held)
+WALL_MODES = ("realtime", "wallclock")
 
 
 @dataclass(frozen=True)
 class RunConfig:
     """Everything a node needs to know about a run.
 
-    mode : 'lockstep' (the plant waits for every robot) or 'realtime' (wall clock).
+    mode : 'lockstep' (the plant waits for every robot), 'realtime' (a simulator ticks on
+        the wall clock and owns /clock) or 'wallclock' (no /clock at all: the leader's
+        ``start`` event carries an agreed wall time ``start_wall_ns`` and every node samples
+        on its own wall clock at start_wall_ns + s * dT; real robots behind bridges).
+        Robots treat 'wallclock' as 'realtime' (missed samples held, bounded link waits).
     links : 'emulated' (the link emulator applies the scenario's delays in simulated time) or
         'direct' (robots subscribe to their neighbours; delays are the network's).
     gap : samples between the end of one trial's labels and the next trial's (stamps).
@@ -42,6 +48,14 @@ class RunConfig:
             raise ValueError(f"mode must be one of {', '.join(MODES)}, got {self.mode!r}")
         if self.links not in LINK_MODES:
             raise ValueError(f"links must be one of {', '.join(LINK_MODES)}, got {self.links!r}")
+        if self.mode == "wallclock" and self.links != "direct":
+            raise ValueError("mode wallclock needs links direct: the link emulator ticks on "
+                             "/clock, which no node publishes in wall-clock trials")
+
+    @property
+    def wall(self) -> bool:
+        """The plant does not wait for commands (realtime or wallclock)."""
+        return self.mode in WALL_MODES
 
     @property
     def clock(self) -> SampleClock:

@@ -49,12 +49,15 @@ robots 1..N. It
 1. reads the run configuration on ``config`` (latched) and follows ``leader/trial_events``;
 2. publishes, for each robot i and each sample s = 0..T of trial k, the measured pose on
    ``robot_i/pose`` (PoseStamped in ``WORLD_FRAME``, stamp ``stamp_ns(k, s)``); sample 0
-   after the ``start`` event of trial k, sample s+1 after it applied sample s's command;
+   after the ``start`` event of trial k, sample s+1 after it applied sample s's command
+   (``mode: wallclock``, real robots: sample s at the wall time
+   ``start_wall_ns + s * dT``, ``start_wall_ns`` being in the ``start`` event);
 3. applies ``robot_i/cmd_vel`` (Twist: ``linear.x`` = v [m/s], ``angular.z`` = omega
    [rad/s]) from its sample to the next; in lockstep it waits for every robot's command,
    in realtime it holds the last command of a robot that is late;
 4. in simulated time owns ``/clock``: it publishes the sample's time before that sample's
-   poses, and the leader broadcasts the reference on it;
+   poses, and the leader broadcasts the reference on it (not in ``wallclock``: nobody
+   publishes ``/clock``, the leader follows its own wall timer);
 5. says ``{"node": NAME, "trial": k}`` on ``ready`` (latched) when it can run trial k
    (k = 0 once its publishers are matched; k+1 after sample T of trial k).
 
@@ -67,12 +70,13 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import PoseStamped, Twist
-from nav_msgs.msg import Path
+from geometry_msgs.msg import PoseStamped, Twist, TwistStamped
+from nav_msgs.msg import Odometry, Path
 from numpy.typing import NDArray
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
@@ -93,6 +97,8 @@ __all__ = [
     "twist_to_u", "world_pose", "trajectory_to_path", "path_to_trajectory", "link_tick_to_msg",
     "msg_to_link_tick", "json_to_msg", "msg_to_json", "clock_msg",
     "START", "END", "DONE",
+    "DriverSpec", "DRIVERS", "DRIVER_CMD_QOS", "ODOM_QOS", "BRIDGE_PREFIX", "bridge_name",
+    "odometry_to_pose", "odometry_msg", "driver_twist",
 ]
 
 #: the default namespace of every node of a formation
@@ -181,6 +187,99 @@ CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=64,
 #: a message that cannot be decoded into valid data: dropped and counted by nodes as
 #: ``malformed`` (the core's ``Malformed``, a ``Rejected`` like every refused input)
 MalformedMessage = Malformed
+
+
+# --------------------------------------------------------------------------- Pioneer drivers
+
+#: a hardware bridge's node name is ``bridge_<id>`` (what it says ready as)
+BRIDGE_PREFIX = "bridge_"
+
+
+def bridge_name(i: int) -> str:
+    return f"{BRIDGE_PREFIX}{int(i)}"
+
+
+@dataclass(frozen=True)
+class DriverSpec:
+    """A Pioneer driver's side of the bridge: topic names relative to the driver's
+    namespace (the bridge's ``driver_ns`` parameter; remap further with ``-r``).
+
+    cmd : velocity command in (Twist, or TwistStamped with the bridge's ``cmd_type``);
+    odom : nav_msgs/Odometry out, starting at 0 where the robot was placed;
+    motors : how motors are enabled; motors_kind: 'empty_service' (std_srvs/Empty),
+        'setbool_service' (std_srvs/SetBool, data true) or 'p2os_motor_state'
+        (p2os_msgs/MotorState with state 1, a topic);
+    default_ns : the driver's usual namespace.
+    """
+
+    cmd: str
+    odom: str
+    motors: str
+    motors_kind: str
+    default_ns: str
+
+
+DRIVERS: dict[str, DriverSpec] = {
+    # RosAria (ROS 1 via ros1_bridge, or its ROS 2 ports): node RosAria
+    "rosaria": DriverSpec("cmd_vel", "pose", "enable_motors", "empty_service", "/RosAria"),
+    # p2os2 (p2os_driver): motors on by publishing p2os_msgs/MotorState{state: 1}
+    "p2os2": DriverSpec("cmd_vel", "pose", "cmd_motor_state", "p2os_motor_state", "/"),
+    # ros2aria: odometry on ``odom``; the motors are engaged through ``clutch``. Assumed a
+    # std_srvs/SetBool service (true = engaged); not verified against the driver's source:
+    # check ``ros2 interface`` on the robot, and remap or change motors_kind if it differs
+    "ros2aria": DriverSpec("cmd_vel", "odom", "clutch", "setbool_service", "/"),
+}
+
+# Drivers publish odometry best effort or reliable: a best-effort reader matches both.
+ODOM_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                      reliability=ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.VOLATILE)
+# A reliable, volatile writer matches both reliable and best-effort cmd_vel readers.
+DRIVER_CMD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                            reliability=ReliabilityPolicy.RELIABLE,
+                            durability=DurabilityPolicy.VOLATILE)
+
+
+def odometry_to_pose(msg: Odometry) -> tuple[float, float, float]:
+    """(x, y, yaw) of a driver's planar odometry; MalformedMessage if not planar/finite."""
+    p = msg.pose.pose.position
+    x, y = float(p.x), float(p.y)
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise MalformedMessage("non-finite odometry position")
+    q = msg.pose.pose.orientation
+    return x, y, _heading_from_quaternion(q.x, q.y, q.z, q.w, None)
+
+
+def odometry_msg(pose: Sequence[float], twist: Sequence[float], stamp_ns: int,
+                 frame_id: str = "odom", child: str = "base_link",
+                 out: Odometry | None = None) -> Odometry:
+    """A driver's odometry message (for fake drivers): pose (x, y, yaw), twist (v, omega)."""
+    m = Odometry() if out is None else out
+    ns_to_stamp(stamp_ns, m.header.stamp)
+    m.header.frame_id = frame_id
+    m.child_frame_id = child
+    m.pose.pose.position.x = float(pose[0])
+    m.pose.pose.position.y = float(pose[1])
+    m.pose.pose.orientation.z = math.sin(0.5 * float(pose[2]))
+    m.pose.pose.orientation.w = math.cos(0.5 * float(pose[2]))
+    m.twist.twist.linear.x = float(twist[0])
+    m.twist.twist.angular.z = float(twist[1])
+    return m
+
+
+def driver_twist(v: float, omega: float, stamped: bool, stamp_ns: int = 0,
+                 frame_id: str = "base_link") -> Twist | TwistStamped:
+    """The command to a driver: Twist, or TwistStamped (Jazzy's diff_drive_controller)."""
+    t = Twist()
+    t.linear.x = float(v)
+    t.angular.z = float(omega)
+    if not stamped:
+        return t
+    m = TwistStamped()
+    ns_to_stamp(stamp_ns, m.header.stamp)
+    m.header.frame_id = frame_id
+    m.twist = t
+    return m
 
 
 # --------------------------------------------------------------------------- time labels

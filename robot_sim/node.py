@@ -67,6 +67,9 @@ class SimNode(ConfiguredNode):
         self.follow_config()
 
     def configure(self, cfg: RunConfig) -> None:
+        if cfg.mode == "wallclock":
+            raise ValueError("mode wallclock is for real robots behind bridges (no /clock); "
+                             "the simulator runs lockstep or realtime")
         sc = cfg.scenario
         pb = Problem.from_scenario(sc)
         warm_up(pb)

@@ -405,7 +405,9 @@ def main() -> int:
     from formation_ilc.simulate import simulate
 
     base = load_scenario("paper-triangle3").with_options(seed=main_seed)
-    mem = np.load(tric / "memory.npy")
+    from formation_ilc.memoryfile import load_memory
+
+    mem = load_memory(tric / "memory.npz", base)
     cont = simulate(base, trials=25, initial_memory=mem, first_trial=300,
                     keep=[300, 302, 309, 324])
     num["tri_continuation"] = {

@@ -3,6 +3,8 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 from formation_ilc.cli import main
 
 NO_TREE = """\
@@ -82,11 +84,53 @@ def test_continue_from_a_learned_memory(tmp_path, capsys):
     assert main(["simulate", "paper-triangle3", "--trials", "4", "--no-plots", "--out",
                  str(a)]) == 0
     assert main(["simulate", "paper-triangle3", "--trials", "3", "--no-plots", "--out", str(b),
-                 "--init-memory", str(a / "memory.npy"), "--first-trial", "4"]) == 0
+                 "--init-memory", str(a / "memory.npz"), "--first-trial", "4"]) == 0
     assert main(["simulate", "paper-triangle3", "--trials", "7", "--no-plots", "--out",
                  str(full)]) == 0
     rows = lambda d: (d / "metrics.csv").read_text().splitlines()[1:]  # noqa: E731
     assert rows(a) + rows(b) == rows(full)
     assert main(["simulate", "paper-hexagon6", "--trials", "1", "--init-memory",
-                 str(a / "memory.npy"), "--out", str(tmp_path / "x")]) == 2
-    assert "needs (6, 300, 2)" in capsys.readouterr().err
+                 str(a / "memory.npz"), "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err
+    assert "memory.npz: learned for another run" in err
+    assert "scenario 'paper-triangle3', this run 'paper-hexagon6'" in err and "3 robots" in err
+
+
+def test_memory_file_is_versioned_checked_and_an_old_npy_still_reads(tmp_path):
+    import numpy as np
+
+    from formation_ilc.memoryfile import MemoryFileError, load_memory, save_memory
+    from formation_ilc.scenario import load_scenario, scenario_from_text
+
+    sc = load_scenario("paper-triangle3")
+    mem = np.random.default_rng(0).normal(size=(sc.n, sc.samples, 2))
+    path = save_memory(tmp_path / "m.npz", mem, sc, trials_learned=5)
+    assert [p.name for p in tmp_path.iterdir()] == ["m.npz"]  # no temporary file left
+    np.testing.assert_array_equal(load_memory(path, sc), mem)
+    # options do not change the scenario's text: a noise-free run's memory fits a noisy one
+    np.testing.assert_array_equal(load_memory(path, sc.with_options(noise=False, seed=3)), mem)
+    edited = scenario_from_text(sc.text.replace("gain: 0.08", "gain: 0.07"), "edited.yaml")
+    with pytest.raises(MemoryFileError, match=r"m\.npz: .*different text"):
+        load_memory(path, edited)
+    shorter = scenario_from_text(sc.text.replace("samples: 140", "samples: 100"), "s.yaml")
+    with pytest.raises(MemoryFileError, match="140 samples, this run 100"):
+        load_memory(path, shorter)
+    np.save(tmp_path / "old.npy", mem)
+    np.testing.assert_array_equal(load_memory(tmp_path / "old.npy", sc), mem)
+    with pytest.raises(MemoryFileError, match=r"old\.npy: memory has shape"):
+        load_memory(tmp_path / "old.npy", shorter)
+    (tmp_path / "junk.npz").write_bytes(b"not a file")
+    with pytest.raises(MemoryFileError, match="cannot read"):
+        load_memory(tmp_path / "junk.npz", sc)
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--plant", "pioneer", "--mode", "lockstep"], "--plant pioneer runs --mode wallclock"),
+    (["--plant", "pioneer", "--links", "emulated"], "with --links direct"),
+    (["--mode", "wallclock"], "--mode wallclock is for real robots"),
+    (["--fake-drivers"], "--fake-drivers goes with --plant pioneer"),
+    (["--plant", "pioneer", "--fake-drivers", "--driver", "p2os2"], "not p2os2"),
+])
+def test_launch_refuses_a_real_robot_run_it_cannot_do(tmp_path, capsys, args, message):
+    assert main(["launch", "paper-triangle3", "--out", str(tmp_path), *args]) == 2
+    assert message in capsys.readouterr().err

@@ -169,7 +169,8 @@ def test_ament_layout_for_ros2_run(tmp_path):
                          text=True, check=True, timeout=60).stdout.split()
     assert Path(out[0]) == prefix
     assert (Path(out[1]) / "package.xml").is_file()
-    for exe in ("robot", "robot_sim", "link_emulator", "virtual_leader", "recorder"):
+    for exe in ("robot", "robot_sim", "link_emulator", "virtual_leader", "recorder",
+                "pioneer_bridge"):
         f = prefix / "lib" / "formation_ilc" / exe
         assert f.is_file() and os.access(f, os.X_OK), f
     # an entry script starts (and documents its parameters)

@@ -10,12 +10,16 @@ seed : int, trials : int, law : int, memory : str
 noise, delay : bool
     As ``--no-noise`` / ``--no-delay`` of ``formation-ilc simulate`` when false.
 mode : str
-    'lockstep' or 'realtime'.
+    'lockstep', 'realtime' or 'wallclock'.
+start_margin : float
+    wallclock: [s] from the ``start`` event to the agreed start time (default 1.0): long
+    enough for the event to reach every node.
 links : str
     'emulated' (the link emulator carries the scenario's delays) or 'direct' (the robots
     subscribe to each other; the network's delays).
 nodes_expected : list of node names that must report ready before a trial starts
-    (default: every robot_i, robot_sim, and link_emulator with emulated links).
+    (default: every robot_i, robot_sim, and link_emulator with emulated links; in
+    wallclock every robot_i and bridge_i).
 monitored : bool
     A monitor (the launcher) reads trajectories: nodes wait for it before trial 0.
 
@@ -24,6 +28,12 @@ reported ready for trial k, publishes ``start`` k on ``leader/trial_events``, th
 ``/clock``: at each sample t of the trial it broadcasts r(t) on ``leader/reference`` (in the
 world frame, stamped with the sample's label), and at t = T ``end`` k. After the last trial
 it publishes ``done``.
+
+Wall-clock trials (``mode: wallclock``, real robots behind bridges; no node publishes
+``/clock``): the ``start`` event carries ``start_wall_ns``, the wall time (Unix epoch, ns)
+``start_margin`` seconds ahead at which sample 0 is due; the leader publishes r(t) from its
+own wall timer at start_wall_ns + t * dT, stamped with the grid label, and every plant
+samples its robot at the same instants (the machines' clocks synchronised, e.g. chrony).
 """
 
 from __future__ import annotations
@@ -41,6 +51,7 @@ from std_msgs.msg import String
 
 import msgs_schema as ms
 from formation_ilc.nodes.common import DropCounter, make_config, matched, node_parser, spin_main
+from formation_ilc.wallclock import WallSchedule
 
 
 class LeaderNode(Node):
@@ -59,6 +70,7 @@ class LeaderNode(Node):
         self.declare_parameter("gap", 20)
         self.declare_parameter("monitored", False)
         self.declare_parameter("timeout", 30.0)
+        self.declare_parameter("start_margin", 1.0)
         self.declare_parameter("nodes_expected", Parameter.Type.STRING_ARRAY)
         g = lambda name: self.get_parameter(name).value  # noqa: E731
         if not g("scenario"):
@@ -79,7 +91,9 @@ class LeaderNode(Node):
         except ParameterUninitializedException:
             expected = None
         self.expected = list(expected) if expected else (
-            [ms.robot_name(i + 1) for i in range(sc.n)] + ["robot_sim"]
+            [ms.robot_name(i + 1) for i in range(sc.n)]
+            + ([ms.bridge_name(i + 1) for i in range(sc.n)] if self.cfg.mode == "wallclock"
+               else ["robot_sim"])
             + (["link_emulator"] if self.cfg.links == "emulated" else []))
         # who reads the reference: the link emulator, or each robot that sees the leader
         self.ref_readers = (int(sum(sc.graph.leader > 0)) if self.cfg.links == "direct"
@@ -93,7 +107,12 @@ class LeaderNode(Node):
         self.ref_pub = self.create_publisher(PoseStamped, ms.REFERENCE, ms.SAMPLE_QOS)
         self.event_pub = self.create_publisher(String, ms.TRIAL_EVENTS, ms.SAMPLE_QOS)
         self.create_subscription(String, ms.READY, self._on_ready, ms.LATCHED_READER_QOS)
-        self.create_subscription(Clock, ms.CLOCK, self._on_clock, ms.CLOCK_QOS)
+        self.wall: WallSchedule | None = None
+        if self.cfg.mode == "wallclock":
+            self.margin_ns = int(float(g("start_margin")) * 1e9)
+            self._wall_timer = self.create_timer(0.005, self._on_wall_timer)
+        else:
+            self.create_subscription(Clock, ms.CLOCK, self._on_clock, ms.CLOCK_QOS)
         self.config_pub.publish(ms.json_to_msg(self.cfg.to_json()))
         self._gate = self.create_timer(0.05, self._maybe_start)
         self._last_change = time.monotonic()
@@ -133,8 +152,32 @@ class LeaderNode(Node):
             self.get_logger().info(f"done: {self.trials} trials")
             return
         self.k = nxt
-        self.event_pub.publish(ms.json_to_msg({"event": ms.START, "trial": nxt,
-                                               "stamp_ns": self.clock.stamp_ns(nxt, 0)}))
+        event = {"event": ms.START, "trial": nxt, "stamp_ns": self.clock.stamp_ns(nxt, 0)}
+        if self.cfg.mode == "wallclock":
+            self.wall = WallSchedule(time.time_ns() + self.margin_ns, self.clock.dt_ns,
+                                     self.T)
+            event["start_wall_ns"] = self.wall.start_ns
+        self.event_pub.publish(ms.json_to_msg(event))
+
+    def _on_wall_timer(self) -> None:
+        """wallclock: r(t) for each sample due on the wall clock (the newest one if the
+        timer fell behind; earlier ones are not sent late)."""
+        if self.wall is None:
+            return
+        t = self.wall.due(time.time_ns())
+        if t is None:
+            return
+        k = self.k
+        ns = self.clock.stamp_ns(k, t)
+        self._last_t = t
+        self._last_change = time.monotonic()
+        self.ref_pub.publish(ms.pose_to_msg(self.cfg.scenario.reference[t], ns,
+                                            ms.WORLD_FRAME, self.ref_msg))
+        if t == self.T:
+            self.wall = None
+            self.ended = k
+            self.event_pub.publish(ms.json_to_msg({"event": ms.END, "trial": k}))
+            self._maybe_start()
 
     def _report_wait(self) -> None:
         """Say whom the schedule waits for when it has not moved for a while."""

@@ -10,6 +10,10 @@ scenario : str
     latched ``config`` topic (published by the virtual leader).
 seed, noise, delay, links, mode : used only with ``scenario`` (as for ``formation-ilc
     launch``).
+init_memory : str
+    A memory file written by ``formation-ilc simulate`` (memory.npz): the robot starts from
+    its own row of the team's learned memory instead of u = 0 (sim-to-real). A file for
+    another scenario or team size stops the node (status 2) naming what differs.
 
 Per sample t of trial k: the measured pose arrives on ``robot_<id>/pose`` (its stamp is
 the robot's clock Rt), is shared on ``robot_<id>/shared_pose`` (stamp = send label St),
@@ -49,6 +53,7 @@ import msgs_schema as ms
 from formation_ilc.clock import Rejected
 from formation_ilc.learner import RobotLearner
 from formation_ilc.links import LEADER
+from formation_ilc.memoryfile import load_memory
 from formation_ilc.nodes.common import (
     ConfiguredNode,
     RunConfig,
@@ -89,6 +94,7 @@ class RobotNode(ConfiguredNode):
         self.declare_parameter("delay", True)
         self.declare_parameter("links", "emulated")
         self.declare_parameter("mode", "lockstep")
+        self.declare_parameter("init_memory", "")
         self.id = int(robot_id)
         self.name = ms.robot_name(self.id)
         self.ready_sent = -1
@@ -105,9 +111,14 @@ class RobotNode(ConfiguredNode):
     def configure(self, cfg: RunConfig) -> None:
         pb = Problem.from_scenario(cfg.scenario)
         self.cfg, self.pb = cfg, pb
-        self.realtime = cfg.mode == "realtime"
+        self.realtime = cfg.wall
+        memory = None
+        path = str(self.get_parameter("init_memory").value)
+        if path:
+            memory = load_memory(path, cfg.scenario)[self.id - 1]
+            self.get_logger().info(f"{self.name}: initial memory from {path}")
         self.learner = lrn = RobotLearner(pb, self.id - 1, cfg.clock, realtime=self.realtime,
-                                          direct=cfg.links == "direct")
+                                          direct=cfg.links == "direct", memory=memory)
         self.n_out = int(sum(1 for r in range(pb.n) if r != lrn.i and lrn.i in pb.src[r]))
         self.late: Counter[str] = Counter({"links": 0})
         self.twist = Twist()

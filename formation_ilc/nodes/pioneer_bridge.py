@@ -1,0 +1,381 @@
+"""Pioneer 3-DX bridge (``formation-ilc-bridge``): one real robot behind the plant contract.
+
+One bridge per robot, on that robot beside its robot node (``-p robot_id:=I``; the node is
+named ``bridge_I`` and says ready under that name). It needs ``mode: wallclock`` and
+``links: direct`` (``formation-ilc launch --plant pioneer`` sets both).
+
+Plant side (msgs_schema's plant contract, robot I): at each sample s of trial k, at the
+wall time start_wall_ns + s * dT agreed by the leader's ``start`` event, it publishes the
+robot's world pose on ``robot_I/pose`` stamped with the grid label stamp_ns(k, s); it
+forwards ``robot_I/cmd_vel`` to the driver, clamped to ``v_max``/``omega_max``.
+
+Driver side (parameter ``driver``; topics relative to ``driver_ns``, default the driver's
+usual namespace; remap further with ``-r``):
+
+* ``rosaria``: ``cmd_vel`` (Twist) in, ``pose`` (nav_msgs/Odometry) out, motors enabled
+  by the std_srvs/Empty service ``enable_motors``;
+* ``p2os2``: ``cmd_vel``, ``pose``, motors enabled by publishing p2os_msgs/MotorState
+  (state 1) on ``cmd_motor_state`` (p2os_msgs comes from p2os's ROS 2 workspace: source it);
+* ``ros2aria``: ``cmd_vel``, ``odom``, motors engaged by the service ``clutch`` (assumed
+  std_srvs/SetBool; see msgs_schema.DRIVERS).
+
+``cmd_type``: ``twist`` (default) or ``twist_stamped`` (Jazzy's diff_drive_controller).
+Odometry is read best effort (matches reliable and best-effort drivers). The command is
+republished at ``rate`` Hz (default 20) so the driver's own watchdog does not stop the
+robot mid-sample; once the robot node has been silent for ``cmd_timeout`` s (default 0:
+2.5 dT, 0.5 s at dT = 0.2 s) the command is zero. World pose = ``initial_pose`` (x, y,
+theta; default: the scenario's desired start of robot I, where the robot is placed)
+composed with the odometry.
+
+Between trials (after sample T) it drives the robot back to ``initial_pose`` with a polar
+point-stabilisation law (formation_ilc.bridge.ReturnController): ``return_tol`` [m],
+``return_tol_heading`` [deg], ``return_timeout`` [s]. A timeout is logged and counted
+(``return_timeouts`` in diagnostics); the achieved initial shift (b_xi0 of Assumption 2,
+odometry-measured) goes into its ready message and diagnostics (``initial_shifts``).
+Ready for trial 0 once the driver's odometry arrives, the motors are enabled and the
+publishers are matched.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from typing import Any
+
+from geometry_msgs.msg import PoseStamped, Twist, TwistStamped
+from nav_msgs.msg import Odometry
+from rclpy.node import Node
+from std_msgs.msg import String
+
+import msgs_schema as ms
+from formation_ilc.bridge import (
+    CommandLimits,
+    ReturnController,
+    Watchdog,
+    initial_shift,
+    odom_to_world,
+)
+from formation_ilc.clock import Rejected
+from formation_ilc.nodes.common import (
+    ConfiguredNode,
+    RunConfig,
+    make_config,
+    matched,
+    node_parser,
+    ros_param,
+    spin_main,
+)
+from formation_ilc.simulate import Problem
+from formation_ilc.wallclock import WallSchedule, start_wall_ns
+
+#: the bridge's control tick [s]: sampling, return controller, watchdog
+TICK = 0.01
+
+
+def _join(ns: str, name: str) -> str:
+    return f"{ns.rstrip('/')}/{name}" if ns not in ("", "/") else f"/{name}"
+
+
+class BridgeNode(ConfiguredNode):
+    """The bridge of robot ``robot_id`` (parameter; ``**kwargs`` go to ``Node``)."""
+
+    def __init__(self, robot_id: int | None = None, **kwargs: Any):
+        if robot_id is None:
+            for p in kwargs.get("parameter_overrides") or ():
+                if p.name == "robot_id":
+                    robot_id = int(p.value)
+        if robot_id is None or robot_id < 1:
+            raise ValueError("parameter robot_id: a robot number >= 1 is required "
+                             "(--ros-args -p robot_id:=I)")
+        super().__init__(ms.bridge_name(robot_id), **kwargs)
+        self.id = int(robot_id)
+        self.name = ms.bridge_name(self.id)
+        for name, default in (("robot_id", self.id), ("driver", "rosaria"), ("driver_ns", ""),
+                              ("cmd_type", "twist"), ("v_max", 0.0), ("omega_max", 0.0),
+                              ("cmd_timeout", 0.0), ("rate", 20.0), ("return_tol", 0.02),
+                              ("return_tol_heading", 2.0), ("return_timeout", 60.0),
+                              ("initial_pose", [0.0]), ("scenario", ""), ("mode", "wallclock")):
+            self.declare_parameter(name, default)
+        g = lambda name: self.get_parameter(name).value  # noqa: E731
+        driver = str(g("driver"))
+        if driver not in ms.DRIVERS:
+            raise ValueError(f"parameter driver: one of {', '.join(ms.DRIVERS)}, got {driver!r}")
+        self.spec = ms.DRIVERS[driver]
+        self.driver = driver
+        if str(g("cmd_type")) not in ("twist", "twist_stamped"):
+            raise ValueError(f"parameter cmd_type: twist or twist_stamped, got {g('cmd_type')!r}")
+        self.stamped = str(g("cmd_type")) == "twist_stamped"
+        v_max, w_max = float(g("v_max")), float(g("omega_max"))
+        base = CommandLimits()
+        self.limits = CommandLimits(v_max if v_max > 0 else base.v_max,
+                                    math.radians(w_max) if w_max > 0 else base.omega_max)
+        self.period = 1.0 / float(g("rate"))
+        ns = str(g("driver_ns")) or self.spec.default_ns
+        self.driver_topics = (_join(ns, self.spec.cmd), _join(ns, self.spec.odom),
+                              _join(ns, self.spec.motors))
+        cfg = None
+        if g("scenario"):
+            cfg = make_config(str(g("scenario")), noise=False, delay=False, links="direct",
+                              mode=str(g("mode")))
+        self.follow_config(cfg)
+
+    # ------------------------------------------------------------------ set-up
+    def configure(self, cfg: RunConfig) -> None:
+        if cfg.mode != "wallclock" or cfg.links != "direct":
+            raise ValueError(f"{self.name}: a real robot runs wall-clock trials with direct "
+                             f"links (mode wallclock, links direct), got mode {cfg.mode}, "
+                             f"links {cfg.links}")
+        pb = Problem.from_scenario(cfg.scenario)
+        if self.id > pb.n:
+            raise ValueError(f"{self.name}: the scenario has robots 1..{pb.n}")
+        g = lambda name: self.get_parameter(name).value  # noqa: E731
+        init = [float(x) for x in g("initial_pose")]
+        if len(init) == 3:
+            self.initial = (init[0], init[1], init[2])
+        else:
+            x, y, th = (float(v) for v in pb.eta_d[self.id - 1, 0])
+            self.initial = (x, y, th)
+        self.cfg, self.clock, self.T = cfg, cfg.clock, pb.samples
+        timeout = float(g("cmd_timeout"))
+        self.watchdog = Watchdog(timeout if timeout > 0 else 2.5 * cfg.scenario.dt)
+        #: odometry older than this [s] is stale: counted in trials, a stop in returns
+        self.odom_limit = max(0.5, 2.0 * cfg.scenario.dt)
+        self.tol = (float(g("return_tol")), math.radians(float(g("return_tol_heading"))),
+                    float(g("return_timeout")))
+        self.odom: tuple[float, float, float] | None = None
+        self.odom_time = 0.0
+        self.motors_on = False
+        self.phase = "idle"            # idle | trial | return
+        self.k = -1
+        self.schedule: WallSchedule | None = None
+        self.returner: ReturnController | None = None
+        self.robot_cmd = (0.0, 0.0)
+        self.out_cmd = (0.0, 0.0)
+        self.last_out = 0.0
+        self.counts = {"missed": 0, "clipped": 0, "watchdog_zero": 0, "return_timeouts": 0,
+                       "stale_odometry": 0}
+        self.shifts: dict[str, list[float]] = {}
+        self.returns: dict[str, dict[str, Any]] = {}
+        self.ready_sent = -1
+
+        self.pose_pub = self.create_publisher(PoseStamped, ms.pose_topic(self.id),
+                                              ms.SAMPLE_QOS)
+        self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
+        self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        self.create_subscription(Twist, ms.cmd_vel_topic(self.id), self._on_cmd, ms.SAMPLE_QOS)
+        self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
+        cmd_t, odom_t, motors_t = self.driver_topics
+        self.drv_pub = self.create_publisher(TwistStamped if self.stamped else Twist, cmd_t,
+                                             ms.DRIVER_CMD_QOS)
+        self.create_subscription(Odometry, odom_t, self._on_odom, ms.ODOM_QOS)
+        self._setup_motors(motors_t)
+        self._tick = self.create_timer(TICK, self._on_tick)
+        self._gate = self.create_timer(0.05, self._check_ready)
+        self.get_logger().info(f"{self.name}: driver {self.driver} ({cmd_t}, {odom_t}, "
+                               f"motors {motors_t}), initial pose {self.initial}, limits "
+                               f"{self.limits.v_max} m/s {math.degrees(self.limits.omega_max):.0f}"
+                               f" deg/s")
+
+    def _setup_motors(self, topic: str) -> None:
+        kind = self.spec.motors_kind
+        self.motor_future: Any = None
+        if kind == "p2os_motor_state":
+            try:
+                from p2os_msgs.msg import MotorState  # type: ignore[import-not-found]
+            except ImportError:
+                raise ValueError(
+                    f"{self.name}: driver p2os2 needs the p2os_msgs Python package, which is "
+                    f"not on PyPI: build p2os's ROS 2 workspace and source its setup file "
+                    f"before starting the bridge (or use driver rosaria / ros2aria)") from None
+            self.motor_msg = MotorState(state=1)
+            self.motor_pub = self.create_publisher(MotorState, topic, ms.DRIVER_CMD_QOS)
+        else:
+            from std_srvs.srv import Empty, SetBool
+
+            self.motor_srv = Empty if kind == "empty_service" else SetBool
+            self.motor_client = self.create_client(self.motor_srv, topic)
+        self._motor_timer = self.create_timer(0.2, self._enable_motors)
+        self._motor_wait = time.monotonic()
+
+    def _enable_motors(self) -> None:
+        if self.motors_on:
+            self._motor_timer.cancel()
+            return
+        if self.spec.motors_kind == "p2os_motor_state":
+            if self.motor_pub.get_subscription_count() > 0:
+                self.motor_pub.publish(self.motor_msg)
+                self.motors_on = True
+            return
+        if self.motor_future is None:
+            if self.motor_client.service_is_ready():
+                req = self.motor_srv.Request()
+                if hasattr(req, "data"):
+                    req.data = True
+                self.motor_future = self.motor_client.call_async(req)
+            elif time.monotonic() - self._motor_wait > 5.0:
+                self._motor_wait = time.monotonic()
+                self.get_logger().warning(f"waiting for the driver's motor service "
+                                          f"{self.driver_topics[2]}")
+            return
+        if self.motor_future.done():
+            res = self.motor_future.result()
+            if res is not None and getattr(res, "success", True) is False:
+                self.get_logger().error(f"{self.driver_topics[2]} refused: "
+                                        f"{getattr(res, 'message', '')}; retrying")
+                self.motor_future = None
+                return
+            self.motors_on = True
+            self.get_logger().info("motors enabled")
+
+    def _check_ready(self) -> None:
+        if self.odom is None or not self.motors_on:
+            return
+        if matched([(self.pose_pub, 1), (self.ready_pub, 1), (self.drv_pub, 1)]):
+            self._gate.cancel()
+            self._say_ready(0, "placed", initial_shift(self.world(), self.initial))
+
+    # ------------------------------------------------------------------ inputs
+    def world(self) -> tuple[float, float, float]:
+        assert self.odom is not None
+        return odom_to_world(self.initial, self.odom)
+
+    def _on_odom(self, msg: Odometry) -> None:
+        try:
+            self.odom = ms.odometry_to_pose(msg)
+        except Rejected as exc:
+            self.drops.reject(exc, self.driver_topics[1])
+            return
+        self.odom_time = time.monotonic()
+
+    def _on_cmd(self, msg: Twist) -> None:
+        try:
+            u = ms.twist_to_u(msg)
+        except Rejected as exc:
+            self.drops.reject(exc, ms.cmd_vel_topic(self.id))
+            return
+        v, w, clipped = self.limits.clamp(float(u[0]), float(u[1]))
+        self.counts["clipped"] += int(clipped)
+        self.robot_cmd = (v, w)
+        self.watchdog.feed(time.monotonic())
+        if self.phase != "return":
+            self._send(self.robot_cmd, time.monotonic())
+
+    def _on_event(self, msg: String) -> None:
+        try:
+            ev = ms.msg_to_json(msg, ("event", "trial"))
+            if ev["event"] != ms.START:
+                return
+            k = int(ev["trial"])
+            start = start_wall_ns(ev)
+        except (Rejected, TypeError, ValueError) as exc:
+            self.drops.drop("malformed", ms.TRIAL_EVENTS, str(exc))
+            return
+        if k <= self.k or self.phase != "idle":
+            self.drops.drop("stale", ms.TRIAL_EVENTS, f"start of trial {k} in trial {self.k}")
+            return
+        self.k = k
+        self.schedule = WallSchedule(start, self.clock.dt_ns, self.T)
+        self.phase = "trial"
+
+    # ------------------------------------------------------------------ the tick
+    def _on_tick(self) -> None:
+        now = time.monotonic()
+        if self.phase == "trial" and self.schedule is not None:
+            s = self.schedule.due(time.time_ns())
+            if s is not None:
+                self._sample(s, now)
+        if self.phase == "return" and self.returner is not None and self.odom is not None:
+            stale = now - self.odom_time > self.odom_limit
+            self.counts["stale_odometry"] += int(stale)
+            st = self.returner.step(self.world(), now, stale)
+            if st.done:
+                self._returned(st.reached, now)
+                self._send((0.0, 0.0), now)
+            else:
+                self._send((st.v, st.omega), now)
+            return
+        cmd = self.robot_cmd
+        if self.watchdog.expired(now):
+            if self.out_cmd != (0.0, 0.0) and self.phase == "trial":
+                self.counts["watchdog_zero"] += 1
+            cmd = (0.0, 0.0)
+        if cmd != self.out_cmd or now - self.last_out >= self.period:
+            self._send(cmd, now)
+
+    def _send(self, cmd: tuple[float, float], now: float) -> None:
+        self.out_cmd = cmd
+        self.last_out = now
+        self.drv_pub.publish(ms.driver_twist(cmd[0], cmd[1], self.stamped, time.time_ns()))
+
+    def _sample(self, s: int, now: float) -> None:
+        if self.odom is None:
+            return
+        if now - self.odom_time > self.odom_limit:
+            self.counts["stale_odometry"] += 1
+        ns = self.clock.stamp_ns(self.k, s)
+        self.pose_pub.publish(ms.pose_to_msg(self.world(), ns, ms.WORLD_FRAME))
+        if s == self.T:
+            assert self.schedule is not None
+            self.counts["missed"] += self.schedule.skipped
+            self.schedule = None
+            self.robot_cmd = (0.0, 0.0)
+            self.phase = "return"
+            self.returner = ReturnController(self.initial, self.limits, tol_pos=self.tol[0],
+                                             tol_heading=self.tol[1], timeout=self.tol[2])
+            self._return_t0 = now
+
+    def _returned(self, reached: bool, now: float) -> None:
+        self.phase = "idle"
+        self.returner = None
+        shift = initial_shift(self.world(), self.initial)
+        secs = now - self._return_t0
+        if not reached:
+            self.counts["return_timeouts"] += 1
+            self.get_logger().error(
+                f"return to the initial pose timed out after {secs:.1f} s: "
+                f"{math.hypot(shift[0], shift[1]):.3f} m, {math.degrees(shift[2]):.1f} deg "
+                f"off; trial {self.k + 1} starts from there (check the robot's path)")
+        self.returns[str(self.k + 1)] = {"reached": reached, "seconds": round(secs, 3)}
+        self._say_ready(self.k + 1, "reached" if reached else "timeout", shift)
+
+    def _say_ready(self, trial: int, how: str, shift: tuple[float, float, float]) -> None:
+        self.shifts[str(trial)] = [float(x) for x in shift]
+        self.ready_sent = trial
+        self.ready_pub.publish(ms.json_to_msg({"node": self.name, "trial": trial,
+                                               "initial_shift": list(shift), "return": how}))
+        self.publish_diagnostics(trial - 1)
+
+    def destroy_node(self) -> None:
+        """Stop the robot on the way out (Ctrl-C, a failed run)."""
+        if self.configured and hasattr(self, "drv_pub"):
+            try:
+                self._send((0.0, 0.0), time.monotonic())
+            except Exception:  # noqa: BLE001 - the context may already be shut down
+                pass
+        super().destroy_node()
+
+    def publish_diagnostics(self, trial: int) -> None:
+        d: dict[str, Any] = {"node": self.name, "trial": trial, "driver": self.driver,
+                             "initial_shifts": self.shifts, "returns": self.returns,
+                             **self.counts}
+        d.update(self.drops.as_dict())
+        self.diag_pub.publish(ms.json_to_msg(d))
+
+
+def main(args: list[str] | None = None) -> int:
+    parser = node_parser("formation-ilc-bridge", __doc__)
+
+    def build(ns: Any, argv: list[str]) -> list[Node]:
+        rid = ros_param(argv, "robot_id")
+        try:
+            return [BridgeNode(int(rid) if rid is not None else None)]
+        except ValueError as exc:
+            print(f"formation-ilc-bridge: {exc}", file=sys.stderr)
+            raise SystemExit(2) from None
+
+    return spin_main(build, parser, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
