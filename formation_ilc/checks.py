@@ -96,14 +96,16 @@ class HeadingMap:
 
 
 def heading_map(sc: Scenario, trials: int | None = None,
-                early_stop: bool = False) -> HeadingMap | None:
+                early_stop: bool = False, stop_above: float | None = None
+                ) -> HeadingMap | None:
     """Build the lifted heading map of a scenario, with delays at their expected value.
 
     The current term's delay enters as the mean operator sum_d P(tau = d) K ê(t - d).
     Returns None when robots x samples exceeds LIFTED_LIMIT.
     ``early_stop`` stops squaring once ||M^k|| < 1: then ||M^2k|| <= ||M^k||^2 < 1, so no
     later power of two can raise ``growth`` (what ``tune`` and ``sweep`` use; it saves the
-    large matrix products of a long horizon).
+    large matrix products of a long horizon). ``stop_above`` stops as soon as a norm exceeds
+    it: ``growth`` is then a lower bound, enough to reject a candidate.
     """
     n, n_t, dt = sc.n, sc.samples, sc.dt
     if n * n_t > LIFTED_LIMIT:
@@ -161,7 +163,7 @@ def heading_map(sc: Scenario, trials: int | None = None,
             best, best_k = nk, k
         if np.linalg.norm(mu0) > 0:
             init_best = max(init_best, float(np.linalg.norm(pk @ mu0) / np.linalg.norm(mu0)))
-        if early_stop and nk < 1.0:
+        if (early_stop and nk < 1.0) or (stop_above is not None and nk > stop_above):
             break
         pk = pk @ pk
         k *= 2

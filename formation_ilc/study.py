@@ -33,7 +33,7 @@ from .uncertainty import Harmonic, Uncertainty
 
 __all__ = ["FIELDS", "apply_fields", "point_id", "config_id", "settle_trial", "reduce_metrics",
            "run_sim_point", "run_check_point", "SIM_COLUMNS", "CHECK_COLUMNS",
-           "scale_uncertainty"]
+           "scale_uncertainty", "scenario_text_with"]
 
 #: fields a study may vary
 FIELDS = ("law.gain", "law.gain_prime", "law.kind", "law.memory", "graph", "delay",
@@ -93,6 +93,27 @@ def apply_fields(scenario_text: str, fields: dict[str, Any], source: str = "<stu
     if not isinstance(data, dict):
         raise ScenarioError(f"{source}: the scenario is not a mapping")
     data = copy.deepcopy(data)
+    scale = _set_fields(data, fields, source)
+    if seed is not None:
+        data["seed"] = int(seed)
+    if trials is not None:
+        data["trials"] = int(trials)
+    sc = scenario_from_text(yaml.safe_dump(data, sort_keys=False), source)
+    if scale != 1.0:
+        sc = replace(sc, uncertainty=scale_uncertainty(sc.uncertainty, scale))
+    return sc
+
+
+def scenario_text_with(scenario_text: str, fields: dict[str, Any]) -> str:
+    """The YAML text of the scenario with ``fields`` written in (not ``noise_scale``): what
+    ``apply_fields`` loads, so a file written from it loads to the same scenario."""
+    data = copy.deepcopy(yaml.safe_load(scenario_text))
+    if _set_fields(data, fields, "<fields>") != 1.0:
+        raise ValueError("noise_scale cannot be written into a scenario file")
+    return yaml.safe_dump(data, sort_keys=False)
+
+
+def _set_fields(data: dict[str, Any], fields: dict[str, Any], source: str) -> float:
     scale = 1.0
     for name, value in fields.items():
         if name in ("law.gain", "law.gain_prime", "law.kind", "law.memory"):
@@ -117,15 +138,7 @@ def apply_fields(scenario_text: str, fields: dict[str, Any], source: str = "<stu
         else:
             raise ScenarioError(f"{source}: {name}: not a field a study can vary "
                                 f"(known: {', '.join(FIELDS)})")
-    if seed is not None:
-        data["seed"] = int(seed)
-    if trials is not None:
-        data["trials"] = int(trials)
-    text = yaml.safe_dump(data, sort_keys=False)
-    sc = scenario_from_text(text, source)
-    if scale != 1.0:
-        sc = replace(sc, uncertainty=scale_uncertainty(sc.uncertainty, scale))
-    return sc
+    return scale
 
 
 def settle_trial(err: NDArray[np.float64], level: float) -> int | None:
@@ -183,8 +196,9 @@ def run_sim_point(task: dict[str, Any]) -> dict[str, Any]:
 def run_check_point(task: dict[str, Any]) -> dict[str, Any]:
     """Condition (20) and the lifted heading map of one configuration (what a worker runs).
 
-    task : {'id', 'scenario', 'fields', 'trials', 'source'}. The heading-map columns are
-    None when the map is too large to build (checks.LIFTED_LIMIT).
+    task : {'id', 'scenario', 'fields', 'trials', 'source'}, optional 'stop_above' (stop at
+    the first ||M^k|| above it: enough to reject). The heading-map columns are None when the
+    map is too large to build (checks.LIFTED_LIMIT).
     """
     import os
 
@@ -196,7 +210,7 @@ def run_check_point(task: dict[str, Any]) -> dict[str, Any]:
     g = np.asarray(sc.law.gain, dtype=float)
     row: dict[str, Any] = {"id": task["id"], "cond20": condition20(sc.graph, g, sc.dt),
                            "cond20_paper": condition20(sc.graph, g, sc.dt, include_dt=False)}
-    hm = heading_map(sc, early_stop=True)
+    hm = heading_map(sc, early_stop=True, stop_above=task.get("stop_above"))
     row.update({"heading_norm": None if hm is None else hm.norm,
                 "heading_rho": None if hm is None else hm.spectral_radius,
                 "heading_growth": None if hm is None else hm.growth,

@@ -58,8 +58,8 @@ from .study import (
     run_sim_point,
 )
 
-__all__ = ["SweepSpec", "load_spec", "spec_from_text", "run_sweep", "plot_table", "TABLE_COLUMNS",
-           "read_table"]
+__all__ = ["SweepSpec", "load_spec", "spec_from_text", "run_sweep", "plot_table", "map_tasks",
+           "TABLE_COLUMNS", "read_table"]
 
 #: results.csv columns: point index, ids, seed, one column per varied field, the row
 TABLE_HEAD = ("index", "point", "config", "seed")
@@ -182,8 +182,8 @@ def spec_from_text(text: str, source: str = "<spec>", base_dir: Path | None = No
         raise top.fail("check", f"expected true or false, got {check!r}")
     has_grid, has_random = "grid" in data, "random" in data
     if has_grid == has_random:
-        raise top.fail(None, "give exactly one of 'grid' (every combination) or 'random' "
-                             "(draws)")
+        raise ScenarioError(f"{source}: top level: give exactly one of 'grid' (every "
+                            f"combination) or 'random' (draws)")
     fields: list[str] = []
     columns: list[list[Any]] = []
     if has_grid:
@@ -397,6 +397,20 @@ def _dask_map(tasks: list[dict[str, Any]], address: str) -> Iterable[dict[str, A
             raise
 
 
+def map_tasks(tasks: list[dict[str, Any]], workers: int | None = None,
+              scheduler: str | None = None) -> Iterable[dict[str, Any]]:
+    """Run study tasks (sim or check), yielding rows as they finish, in any order: on a
+    Dask cluster if ``scheduler`` is given, else on ``workers`` local processes (default:
+    every core; 1 = in this process)."""
+    if not tasks:
+        return iter(())
+    if scheduler is not None:
+        return _dask_map(tasks, scheduler)
+    if (workers or os.cpu_count() or 1) == 1:
+        return map(_run_task, tasks)
+    return _local_map(tasks, workers or os.cpu_count() or 1)
+
+
 def run_sweep(spec: SweepSpec, out: Path, workers: int | None = None,
               scheduler: str | None = None, progress: bool = True,
               on_row: Callable[[dict[str, Any]], None] | None = None) -> Path:
@@ -417,13 +431,7 @@ def run_sweep(spec: SweepSpec, out: Path, workers: int | None = None,
     todo = [t for t in tasks if t["id"] not in done]
     bar = Bar(len(tasks), len(tasks) - len(todo)) if progress else None
     if todo:
-        if scheduler is not None:
-            results = _dask_map(todo, scheduler)
-        elif (workers or os.cpu_count() or 1) == 1:
-            results = map(_run_task, todo)
-        else:
-            results = _local_map(todo, workers or os.cpu_count() or 1)
-        for row in results:
+        for row in map_tasks(todo, workers, scheduler):
             _write_atomic(folder / f"{row['id']}.json", row)
             done[row["id"]] = row
             if bar is not None:
