@@ -154,6 +154,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-growth", type=float, metavar="G",
                    help="bound on max_k ||M^k|| of the lifted heading map, the transient "
                         "bound (default: the scenario's own gains' value, at most 10)")
+    p.add_argument("--gain-grid", metavar="C1,C2,...",
+                   help="values of g dT tried per graph depth (default "
+                        "0.04,0.08,0.12,0.16,0.2,0.25,0.3)")
+    p.add_argument("--prime-grid", metavar="A1,A2,...",
+                   help="values of g' dT tried per graph depth (default "
+                        "0.05,0.075,0.1,0.15,0.2,0.25)")
     p.add_argument("--uniform", action="store_true",
                    help="one gain pair for all robots instead of one per graph depth")
     p.add_argument("--workers", type=int, metavar="N", help="local processes (default: all "
@@ -446,7 +452,19 @@ def cmd_tune(args: argparse.Namespace) -> int:
             raise ScenarioError(f"--{name.replace('_', '-')} must be >= 1")
     if args.floor_window > args.verify_trials:
         raise ScenarioError("--floor-window must be <= --verify-trials")
-    opt = TuneOptions(position_level=args.position_level, heading_level=args.heading_level,
+    grids: dict[str, Any] = {}
+    for name in ("gain_grid", "prime_grid"):
+        val = getattr(args, name)
+        if val is None:
+            continue
+        try:
+            grids[name] = tuple(float(x) for x in val.split(",") if x.strip())
+        except ValueError:
+            raise ScenarioError(f"--{name.replace('_', '-')}: expected numbers like "
+                                f"0.08,0.16, got {val!r}") from None
+        if not grids[name] or min(grids[name]) <= 0:
+            raise ScenarioError(f"--{name.replace('_', '-')}: values must be > 0")
+    opt = TuneOptions(**grids, position_level=args.position_level, heading_level=args.heading_level,
                       seeds=tuple(range(1, args.seeds + 1)), screen_trials=args.screen_trials,
                       verify_trials=args.verify_trials, floor_window=args.floor_window,
                       floor_factor=args.floor_factor, max_growth=args.max_growth,

@@ -60,7 +60,7 @@ def graph_depths(sc: Scenario) -> NDArray[np.int64]:
     """Hops from the leader of each robot (1 = hears the leader), shape (n,)."""
     a = sc.graph.adjacency
     depth = np.full(sc.n, -1, dtype=np.int64)
-    q = deque()
+    q: deque[int] = deque()
     for i in np.flatnonzero(sc.graph.leader > 0):
         depth[i] = 1
         q.append(int(i))
@@ -94,7 +94,7 @@ class TuneOptions:
     floor_window: int = 100
     floor_factor: float = 1.5
     max_growth: float | None = None
-    finalists: int = 4
+    finalists: int = 6
     per_robot: bool = True
     gain_grid: tuple[float, ...] = GAIN_GRID
     prime_grid: tuple[float, ...] = PRIME_GRID
@@ -120,6 +120,10 @@ class Candidate:
     def worst(self, key: str) -> float:
         vals = [r[key] for r in self.rows]
         return math.inf if any(v is None for v in vals) else float(max(vals))
+
+    def median(self, key: str) -> float:
+        vals = [r[key] for r in self.rows]
+        return math.inf if any(v is None for v in vals) else float(np.median(vals))
 
     def summary(self) -> dict[str, Any]:
         def span(key: str) -> list[Any]:
@@ -173,11 +177,13 @@ def _check(sc_text: str, cand: Candidate, source: str) -> None:
 
 
 def _sim_tasks(sc_text: str, cand: Candidate, seeds: tuple[int, ...], trials: int,
-               opt: TuneOptions, source: str) -> list[dict[str, Any]]:
+               opt: TuneOptions, source: str, floor_window: int | None = None
+               ) -> list[dict[str, Any]]:
+    fw = min(opt.floor_window if floor_window is None else floor_window, trials)
     return [{"id": point_id(sc_text, cand.fields, trials, s), "scenario": sc_text,
              "fields": cand.fields, "seed": s, "trials": trials,
              "position_level": opt.position_level, "heading_level": opt.heading_level,
-             "floor_window": min(opt.floor_window, trials), "source": source}
+             "floor_window": fw, "source": source}
             for s in seeds]
 
 
@@ -189,7 +195,7 @@ def _score(row: dict[str, Any]) -> tuple[float, float]:
 
 
 def tune(sc: Scenario, opt: TuneOptions = TuneOptions(), workers: int | None = None,
-         scheduler: str | None = None, log: Any = print) -> TuneResult:
+         scheduler: str | None = None, log: Any = None) -> TuneResult:
     """Choose per-depth gains (g, g') for ``sc`` (its law and memory reading).
 
     Returns the baseline (the scenario's own gains) and the chosen candidate, both verified
@@ -211,6 +217,19 @@ def tune(sc: Scenario, opt: TuneOptions = TuneOptions(), workers: int | None = N
                   else opt.max_growth)
     log(f"tune: the scenario's gains: (20) {base.cond20:.4f}, rho {base.rho:.4f}, max ||M^k|| "
         f"{base.growth:.3g}; candidates must keep max ||M^k|| <= {max_growth:.3g}")
+    # 0. the scenario's own gains over the seeds: the floors to keep
+    base_trials = max(opt.verify_trials, sc.trials)
+    tasks = _sim_tasks(text, base, opt.seeds, base_trials, opt, source)
+    for row in _progress(map_tasks(tasks, workers, scheduler), len(tasks), "baseline", log):
+        row["seed"] = int(row["id"].rsplit("-s", 1)[1])
+        base.rows.append(row)
+    base.rows.sort(key=lambda r: r["seed"])
+    fp_max = base.median("floor_position") * opt.floor_factor
+    fh_max = base.median("floor_heading") * opt.floor_factor
+    log(f"tune: the scenario's gains over seeds {list(opt.seeds)} ({base_trials} trials): "
+        f"floors {base.median('floor_position'):.4g} m, {base.median('floor_heading'):.4g} rad "
+        f"(median over seeds); tuned floors must stay below {fp_max:.4g} m, {fh_max:.4g} rad "
+        f"on every seed")
     # 1. condition (20) (cheap, exact) filters the grid of g
     gain_sets = []
     for combo in itertools.product(opt.gain_grid, repeat=len(levels)):
@@ -229,15 +248,20 @@ def tune(sc: Scenario, opt: TuneOptions = TuneOptions(), workers: int | None = N
     tasks = []
     by_id: dict[str, Candidate] = {}
     for c in cands:
-        t = _sim_tasks(text, c, (sc.seed,), opt.screen_trials, opt, source)[0]
+        t = _sim_tasks(text, c, (sc.seed,), opt.screen_trials, opt, source,
+                       floor_window=max(1, opt.screen_trials // 3))[0]
         tasks.append(t)
         by_id[t["id"]] = c
     for row in _progress(map_tasks(tasks, workers, scheduler), len(tasks), "screen", log):
         by_id[row["id"]].screen = row
-    ranked = sorted((c for c in cands if c.screen is not None and
-                     _score(c.screen)[0] < math.inf), key=lambda c: _score(c.screen or {}))
-    log(f"tune: {len(ranked)} candidates reach both levels within {opt.screen_trials} trials "
-        f"without a trial above trial 0")
+    ranked = sorted((c for c in cands if c.screen is not None
+                     and _score(c.screen)[0] < math.inf
+                     and c.screen["floor_position"] <= fp_max
+                     and c.screen["floor_heading"] <= fh_max),
+                    key=lambda c: _score(c.screen or {}))
+    log(f"tune: {len(ranked)} candidates reach both levels within {opt.screen_trials} trials, "
+        f"without a trial above trial 0 and with floors (median of the last "
+        f"{max(1, opt.screen_trials // 3)}) within the bounds")
     # 3. guarantees, best first, a batch at a time on the workers
     finalists: list[Candidate] = []
     checked = 0
@@ -259,17 +283,15 @@ def tune(sc: Scenario, opt: TuneOptions = TuneOptions(), workers: int | None = N
                                     f"for its guarantee")
         checked += len(group)
         for c in group:
-            good = c.cond20 < 1.0 and c.rho < 1.0 and c.growth <= max_growth
+            kept = c.cond20 < 1.0 and c.rho < 1.0 and c.growth <= max_growth
             log(f"tune: check g = {_fmt(c.gain)}, g' = {_fmt(c.gain_prime)}: (20) "
                 f"{c.cond20:.4f}, rho {c.rho:.4f}, max ||M^k|| "
-                f"{'>' if not good and c.growth > max_growth else ''}{c.growth:.3g} -> "
-                f"{'kept' if good else 'rejected'}")
-            if good and len(finalists) < opt.finalists:
+                f"{'>' if not kept and c.growth > max_growth else ''}{c.growth:.3g} -> "
+                f"{'kept' if kept else 'rejected'}")
+            if kept and len(finalists) < opt.finalists:
                 finalists.append(c)
-    # 4. verify finalists and the baseline over the seeds
-    base_trials = max(opt.verify_trials, sc.trials)
-    tasks = _sim_tasks(text, base, opt.seeds, base_trials, opt, source)
-    owner = {t["id"]: base for t in tasks}
+    # 4. verify the finalists over the seeds
+    tasks, owner = [], {}
     for c in finalists:
         for t in _sim_tasks(text, c, opt.seeds, opt.verify_trials, opt, source):
             tasks.append(t)
@@ -277,10 +299,10 @@ def tune(sc: Scenario, opt: TuneOptions = TuneOptions(), workers: int | None = N
     for row in _progress(map_tasks(tasks, workers, scheduler), len(tasks), "verify", log):
         row["seed"] = int(row["id"].rsplit("-s", 1)[1])
         owner[row["id"]].rows.append(row)
-    for c in [base, *finalists]:
+    for c in finalists:
         c.rows.sort(key=lambda r: r["seed"])
-    fp_max = base.worst("floor_position") * opt.floor_factor
-    fh_max = base.worst("floor_heading") * opt.floor_factor
+    fp_max = base.median("floor_position") * opt.floor_factor
+    fh_max = base.median("floor_heading") * opt.floor_factor
     good = [c for c in finalists
             if c.worst("above_trial0") == 0 and c.worst("floor_position") <= fp_max
             and c.worst("floor_heading") <= fh_max and c.worst("trials_to_position") < math.inf
