@@ -178,9 +178,6 @@ def run_sim_point(task: dict[str, Any]) -> dict[str, Any]:
     'heading_level' [rad], 'floor_window', 'source'}. Returns {'id', **SIM_COLUMNS,
     'robot_samples'}.
     """
-    import os
-
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     from .simulate import simulate
 
     sc = apply_fields(task["scenario"], task["fields"], task.get("source", "<study point>"),
@@ -200,17 +197,20 @@ def run_check_point(task: dict[str, Any]) -> dict[str, Any]:
     the first ||M^k|| above it: enough to reject). The heading-map columns are None when the
     map is too large to build (checks.LIFTED_LIMIT).
     """
-    import os
+    from threadpoolctl import threadpool_limits
 
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     from .checks import condition20, heading_map
 
     sc = apply_fields(task["scenario"], task["fields"], task.get("source", "<study point>"),
                       trials=task["trials"])
     g = np.asarray(sc.law.gain, dtype=float)
-    row: dict[str, Any] = {"id": task["id"], "cond20": condition20(sc.graph, g, sc.dt),
-                           "cond20_paper": condition20(sc.graph, g, sc.dt, include_dt=False)}
-    hm = heading_map(sc, early_stop=True, stop_above=task.get("stop_above"))
+    # one BLAS thread, whatever the worker's environment: a threaded matrix product sums in
+    # another order, and the table must be the same on every machine and pool
+    with threadpool_limits(limits=1):
+        row: dict[str, Any] = {"id": task["id"], "cond20": condition20(sc.graph, g, sc.dt),
+                               "cond20_paper": condition20(sc.graph, g, sc.dt,
+                                                           include_dt=False)}
+        hm = heading_map(sc, early_stop=True, stop_above=task.get("stop_above"))
     row.update({"heading_norm": None if hm is None else hm.norm,
                 "heading_rho": None if hm is None else hm.spectral_radius,
                 "heading_growth": None if hm is None else hm.growth,

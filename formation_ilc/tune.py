@@ -374,7 +374,7 @@ def report_lines(res: TuneResult, sc: Scenario, opt: TuneOptions) -> list[str]:
         ("g' (Gamma')", lambda c: _fmt(c.gain_prime)),
         ("condition (20), B with dT", lambda c: f"{c.cond20:.6f}"),
         ("heading map spectral radius", lambda c: f"{c.rho:.4f}"),
-        ("heading map max ||M^k|| (k)", lambda c: f"{c.growth:.3g} ({c.growth_trial})"),
+        (r"heading map max_k \|\|M^k\|\| (at k)", lambda c: f"{c.growth:.3g} ({c.growth_trial})"),
         (f"trials to {opt.position_level:g} m", lambda c: rng(c, "trials_to_position", "d")),
         (f"trials to {opt.heading_level:g} rad", lambda c: rng(c, "trials_to_heading", "d")),
         ("trial 0 position [m]", lambda c: rng(c, "trial0_position", ".3f")),
