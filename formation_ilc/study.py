@@ -171,6 +171,21 @@ def reduce_metrics(metrics: NDArray[np.float64], position_level: float, heading_
     }
 
 
+_CACHE: dict[str, Scenario] = {}
+
+
+def _cached_scenario(scenario_text: str, fields: dict[str, Any], source: str) -> Scenario:
+    """apply_fields, remembered per (text, fields) in this process: the seeds of one
+    configuration share the parsed scenario and its desired trajectories."""
+    key = hashlib.sha256((scenario_text + _canonical(fields)).encode()).hexdigest()
+    sc = _CACHE.get(key)
+    if sc is None:
+        if len(_CACHE) >= 16:
+            _CACHE.pop(next(iter(_CACHE)))
+        sc = _CACHE[key] = apply_fields(scenario_text, fields, source)
+    return sc
+
+
 def run_sim_point(task: dict[str, Any]) -> dict[str, Any]:
     """Simulate one point and reduce it (what a worker runs).
 
@@ -180,8 +195,9 @@ def run_sim_point(task: dict[str, Any]) -> dict[str, Any]:
     """
     from .simulate import simulate
 
-    sc = apply_fields(task["scenario"], task["fields"], task.get("source", "<study point>"),
-                      seed=task["seed"], trials=task["trials"])
+    sc = _cached_scenario(task["scenario"], task["fields"],
+                          task.get("source", "<study point>")).with_options(
+        seed=task["seed"], trials=task["trials"])
     res = simulate(sc)
     row = reduce_metrics(res.metrics, task["position_level"], task["heading_level"],
                          task["floor_window"])

@@ -366,20 +366,44 @@ def _run_task(task: dict[str, Any]) -> dict[str, Any]:
     return run_check_point(task) if task["id"].startswith("check-") else run_sim_point(task)
 
 
-def _local_map(tasks: list[dict[str, Any]], workers: int) -> Iterable[dict[str, Any]]:
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+_POOLS: dict[int, Any] = {}
 
-    ctx = mp.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as ex:
-        futs = [ex.submit(_run_task, t) for t in tasks]
-        try:
-            for f in as_completed(futs):
-                yield f.result()
-        except BaseException:
-            for f in futs:
-                f.cancel()
-            raise
+
+def _pool(workers: int) -> Any:
+    """A process pool of ``workers`` processes, started once and reused by later calls (tune
+    maps several batches; starting a process costs imports and loading the compiled
+    kernels). Shut down at interpreter exit, or at once after an error."""
+    import atexit
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    ex = _POOLS.get(workers)
+    if ex is None:
+        ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"))
+        _POOLS[workers] = ex
+        atexit.register(_shutdown_pool, workers)
+    return ex
+
+
+def _shutdown_pool(workers: int) -> None:
+    ex = _POOLS.pop(workers, None)
+    if ex is not None:
+        ex.shutdown(wait=True, cancel_futures=True)
+
+
+def _local_map(tasks: list[dict[str, Any]], workers: int) -> Iterable[dict[str, Any]]:
+    from concurrent.futures import as_completed
+
+    ex = _pool(workers)
+    futs = [ex.submit(_run_task, t) for t in tasks]
+    try:
+        for f in as_completed(futs):
+            yield f.result()
+    except BaseException:
+        for f in futs:
+            f.cancel()
+        _shutdown_pool(workers)
+        raise
 
 
 def _dask_map(tasks: list[dict[str, Any]], address: str) -> Iterable[dict[str, Any]]:

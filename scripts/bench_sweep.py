@@ -86,13 +86,21 @@ def main() -> int:
         t0 = time.perf_counter()
         simulate(sc.with_options(trials=args.trials))
         t_one = time.perf_counter() - t0
+        unc = sc.uncertainty
+        t0 = time.perf_counter()
+        for k in range(args.trials):
+            unc.draw_plant(1, k, sc.n, sc.samples)
+            unc.draw_delays(1, k, sc.n, 1, sc.samples)
+        t_draw = time.perf_counter() - t0
         print(f"one run in this process:   {rs_point / t_one / 1e6:6.2f}M robot-samples/s "
-              f"({1000 * t_one / args.trials:.3f} ms/trial)")
+              f"({1000 * t_one / args.trials:.3f} ms/trial, of which drawing the trial's noise "
+              f"and delays {1000 * t_draw / args.trials:.3f} ms)")
         t1 = _sweep(spec_path, tmp / "w1", workers=1)
         r1 = total / t1
         print(f"sweep, 1 process:          {r1 / 1e6:6.2f}M robot-samples/s ({t1:.2f} s) "
               f"[target >= {TARGET_PER_CORE / 1e6:.0f}M per core: "
               f"{'met' if r1 >= TARGET_PER_CORE else 'NOT met'}]")
+        _sweep(spec_path, tmp / "wwarm", workers=cores)  # starts the pool (kept for reuse)
         tn = _sweep(spec_path, tmp / "wn", workers=cores)
         rn = total / tn
         eff = rn / (cores * r1)
@@ -100,8 +108,8 @@ def main() -> int:
               f"per core {rn / cores / 1e6:.2f}M; parallel efficiency {100 * eff:.0f} % "
               f"[target >= {100 * TARGET_EFF:.0f} %: {'met' if eff >= TARGET_EFF else 'NOT met'}]"
               )
-        print("  (the pool's time includes starting its processes: spawn, imports, numba "
-              "cache load)")
+        print("  (warm pool: its processes were started, and their kernels loaded, by a first "
+              "sweep)")
         if not args.no_dask:
             try:
                 from distributed import Client

@@ -24,7 +24,7 @@ def test_graph_depths():
 def _small() -> TuneOptions:
     return TuneOptions(seeds=(1, 2), screen_trials=25, verify_trials=40, floor_window=10,
                        floor_factor=3.0, finalists=2, gain_grid=(0.1, 0.2),
-                       prime_grid=(0.1, 0.2))
+                       prime_grid=(0.1, 0.2), max_growth=10.0)
 
 
 def test_tune_keeps_its_guarantees(tmp_path):
@@ -57,6 +57,7 @@ def test_cli_tune_file_reproduces_report(tmp_path):
     rc = main(["tune", "paper-triangle3", "--gain-grid", "0.1,0.2", "--prime-grid",
                "0.1,0.2", "--seeds", "2", "--verify-trials", "40",
                "--screen-trials", "25", "--floor-window", "10", "--floor-factor", "3",
+               "--max-growth", "10",
                "--workers", "1", "--out", str(out)])
     assert rc in (0, 1)
     report = json.loads((out / "tune.json").read_text())
