@@ -195,9 +195,11 @@ def run_sim_point(task: dict[str, Any]) -> dict[str, Any]:
     """
     from .simulate import simulate
 
-    sc = _cached_scenario(task["scenario"], task["fields"],
-                          task.get("source", "<study point>")).with_options(
-        seed=task["seed"], trials=task["trials"])
+    base = _cached_scenario(task["scenario"], task["fields"], task.get("source", "<study point>"))
+    sc = base.with_options(seed=task["seed"], trials=task["trials"])
+    # the desired trajectories do not depend on the seed or the trial count: share them
+    # (``desired`` is a cached_property, kept in the instance's __dict__)
+    sc.__dict__["desired"] = base.desired
     res = simulate(sc)
     row = reduce_metrics(res.metrics, task["position_level"], task["heading_level"],
                          task["floor_window"])

@@ -59,7 +59,7 @@ from .study import (
 )
 
 __all__ = ["SweepSpec", "load_spec", "spec_from_text", "run_sweep", "plot_table", "map_tasks",
-           "TABLE_COLUMNS", "read_table"]
+           "close_pools", "TABLE_COLUMNS", "read_table"]
 
 #: results.csv columns: point index, ids, seed, one column per varied field, the row
 TABLE_HEAD = ("index", "point", "config", "seed")
@@ -391,6 +391,12 @@ def _shutdown_pool(workers: int) -> None:
         ex.shutdown(wait=True, cancel_futures=True)
 
 
+def close_pools() -> None:
+    """Stop the local worker processes that map_tasks started."""
+    for w in list(_POOLS):
+        _shutdown_pool(w)
+
+
 def _local_map(tasks: list[dict[str, Any]], workers: int) -> Iterable[dict[str, Any]]:
     from concurrent.futures import as_completed
 
@@ -437,11 +443,13 @@ def map_tasks(tasks: list[dict[str, Any]], workers: int | None = None,
 
 def run_sweep(spec: SweepSpec, out: Path, workers: int | None = None,
               scheduler: str | None = None, progress: bool = True,
-              on_row: Callable[[dict[str, Any]], None] | None = None) -> Path:
+              on_row: Callable[[dict[str, Any]], None] | None = None,
+              keep_pool: bool = False) -> Path:
     """Run every point not yet in ``out/points`` and write ``out/results.csv``.
 
     workers : local processes (default: every core); scheduler : a Dask scheduler address
     ("tcp://127.0.0.1:8786"); the same tasks and the same function run there.
+    keep_pool : leave the local processes running for the next call (else stopped).
     Returns the table's path.
     """
     out.mkdir(parents=True, exist_ok=True)
@@ -454,7 +462,7 @@ def run_sweep(spec: SweepSpec, out: Path, workers: int | None = None,
     tasks = spec.check_tasks() + spec.sim_tasks()
     todo = [t for t in tasks if t["id"] not in done]
     bar = Bar(len(tasks), len(tasks) - len(todo)) if progress else None
-    if todo:
+    try:
         for row in map_tasks(todo, workers, scheduler):
             _write_atomic(folder / f"{row['id']}.json", row)
             done[row["id"]] = row
@@ -462,6 +470,9 @@ def run_sweep(spec: SweepSpec, out: Path, workers: int | None = None,
                 bar.step()
             if on_row is not None:
                 on_row(row)
+    finally:
+        if not keep_pool:
+            close_pools()
     return write_table(spec, out, done)
 
 

@@ -44,7 +44,7 @@ from numpy.typing import NDArray
 from .checks import condition20, heading_map
 from .scenario import Scenario, ScenarioError
 from .study import apply_fields, point_id, scenario_text_with
-from .sweep import map_tasks
+from .sweep import close_pools, map_tasks
 
 __all__ = ["graph_depths", "TuneOptions", "Candidate", "TuneResult", "tune"]
 
@@ -196,6 +196,16 @@ def _score(row: dict[str, Any]) -> tuple[float, float]:
 
 def tune(sc: Scenario, opt: TuneOptions = TuneOptions(), workers: int | None = None,
          scheduler: str | None = None, log: Any = None) -> TuneResult:
+    """Choose per-depth gains (g, g') for ``sc``; see ``_tune``. Local worker processes are
+    stopped on return."""
+    try:
+        return _tune(sc, opt, workers, scheduler, log)
+    finally:
+        close_pools()
+
+
+def _tune(sc: Scenario, opt: TuneOptions, workers: int | None, scheduler: str | None,
+          log: Any) -> TuneResult:
     """Choose per-depth gains (g, g') for ``sc`` (its law and memory reading).
 
     Returns the baseline (the scenario's own gains) and the chosen candidate, both verified

@@ -100,7 +100,7 @@ def main() -> int:
         print(f"sweep, 1 process:          {r1 / 1e6:6.2f}M robot-samples/s ({t1:.2f} s) "
               f"[target >= {TARGET_PER_CORE / 1e6:.0f}M per core: "
               f"{'met' if r1 >= TARGET_PER_CORE else 'NOT met'}]")
-        _sweep(spec_path, tmp / "wwarm", workers=cores)  # starts the pool (kept for reuse)
+        _sweep(spec_path, tmp / "wwarm", workers=cores, keep_pool=True)  # starts the pool
         tn = _sweep(spec_path, tmp / "wn", workers=cores)
         rn = total / tn
         eff = rn / (cores * r1)

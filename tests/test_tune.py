@@ -78,6 +78,7 @@ def test_cli_tune_file_reproduces_report(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.multiprocess  # a pool of worker processes, about 2 minutes on 2 cores
 def test_tune_hexagon_meets_issue_targets(tmp_path):
     """Issue 9: >= 30x fewer trials than gain 0.08 to 1 m and 0.1 rad (<= 14 and <= 24), no
     trial above trial 0, floors within 1.5x of the paper gain's, over seeds 1..5."""
