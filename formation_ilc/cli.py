@@ -39,6 +39,26 @@ A SCENARIO is a built-in name or a YAML file (see formation_ilc/scenarios/*.yaml
 """
 
 
+SWEEP_EXAMPLE = """\
+example spec (study.yaml):
+  scenario: paper-hexagon6        # built-in name or scenario file (relative to the spec)
+  trials: 300                     # per point
+  seeds: {first: 1, count: 5}     # or [1, 2, 3]
+  grid:                           # every combination; or random: {count, seed, fields}
+    law.gain: [0.08, 0.4, 0.8]    # a number, or one per robot: [0.4, 1.2, 1.2, 0.4, 1.2, 1.2]
+    law.kind: [9, 22, 23]
+    delay: [paper, none]
+then: formation-ilc sweep study.yaml --out runs/study   (again after Ctrl-C: resumes)
+"""
+
+
+def _paras(text: str) -> str:
+    """Paragraphs (separated by blank lines) wrapped to 88 columns, for raw help text."""
+    import textwrap
+
+    return "\n\n".join(textwrap.fill(" ".join(par.split()), 88) for par in text.split("\n\n"))
+
+
 def _scenario_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenario", metavar="SCENARIO",
                    help="built-in scenario name (formation-ilc scenarios) or a YAML file")
@@ -119,7 +139,8 @@ def build_parser() -> argparse.ArgumentParser:
         "tune", help="choose learning gains: fewest trials, under condition (20) and a "
                      "bounded heading map",
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        description="Choose g (Gamma, predictive term) and g' (Gamma', current term), one pair "
+        description=_paras(
+                    "Choose g (Gamma, predictive term) and g' (Gamma', current term), one pair "
                     "per graph depth (hops from the leader), for the fewest trials to the "
                     "target errors.\n\nGuarantee: every candidate satisfies condition (20) "
                     "and has a lifted heading map with spectral radius < 1 and max_k ||M^k|| "
@@ -129,7 +150,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "scenario's own gains. Writes DIR/SCENARIO-tuned.yaml (loads with the "
                     "strict loader and reproduces the report), DIR/report.md and "
                     "DIR/tune.json. Exit status 1 if no candidate met every requirement.\n\n"
-                    "Method and results: docs/tuning.md.")
+                    "Method and results: docs/tuning.md."))
     _scenario_arg(p)
     p.add_argument("--law", type=int, choices=(9, 22, 23), help="law to tune (default: the "
                    "scenario's)")
@@ -172,7 +193,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "sweep", help="run a parameter study from a spec file, resumable, locally or on Dask",
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        description="Run a study: a grid or random draws over scenario fields (law.gain, "
+        description=_paras(
+                    "Run a study: a grid or random draws over scenario fields (law.gain, "
                     "law.gain_prime, law.kind, law.memory, graph, delay, noise_scale) times "
                     "seeds. Each point is a batch simulation reduced to one row (trials to "
                     "the levels, floors, peak, and the check's predictions per "
@@ -181,8 +203,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "DIR/points/ID.json; run the same command again after a crash or Ctrl-C "
                     "and only the missing points run. The same spec gives the same table "
                     "locally and on a Dask cluster.\n\nSpec format: docs/tuning.md, "
-                    "'Sweeps'.")
-    p.add_argument("spec", type=Path, metavar="SPEC.yaml")
+                    "'sweep: parameter studies'."),
+        epilog=SWEEP_EXAMPLE)
+    p.add_argument("spec", type=Path, metavar="SPEC.yaml",
+                   help="the study (see the example below)")
     p.add_argument("--out", type=Path, metavar="DIR",
                    help="output folder (default: runs/SPEC-sweep)")
     p.add_argument("--workers", type=int, metavar="N",
@@ -556,7 +580,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("\ninterrupted; finished trials are in metrics.csv", file=sys.stderr)
+        if args.command == "sweep":
+            print("\ninterrupted; every finished point is kept in DIR/points: run the same "
+                  "command again to go on", file=sys.stderr)
+        else:
+            print("\ninterrupted; finished trials are in metrics.csv", file=sys.stderr)
         return 130
     ap.error(f"unknown command {args.command}")
     return 2
