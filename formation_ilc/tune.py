@@ -330,9 +330,15 @@ def _tune(sc: Scenario, opt: TuneOptions, workers: int | None, scheduler: str | 
         ok, reason = False, ("no candidate met every requirement over all seeds (no trial "
                              "above trial 0, floors within the factor); the best one that "
                              "met the guarantees is shown")
+    elif not ranked:
+        best, ok, reason = None, False, (
+            f"no candidate reached both levels within {opt.screen_trials} trials without a "
+            f"trial above trial 0 and with floors within the bounds; try more "
+            f"--screen-trials, a finer --gain-grid / --prime-grid or a larger --floor-factor")
     else:
-        best, ok, reason = None, False, ("no candidate met the guarantees; raise --max-growth "
-                                         "or give a finer grid")
+        best, ok, reason = None, False, (
+            f"none of the {len(ranked)} candidates that passed the screening met the "
+            f"guarantees; raise --max-growth or give a finer grid")
     return TuneResult(baseline=base, best=best, finalists=finalists, screened=len(cands),
                       checked=checked, ok=ok, reason=reason, scenario_text=text,
                       baseline_trials=base_trials, max_growth=max_growth)
@@ -377,7 +383,9 @@ def report_lines(res: TuneResult, sc: Scenario, opt: TuneOptions) -> list[str]:
            f"Verified over seeds {', '.join(map(str, opt.seeds))}; noise and delays as in the "
            f"scenario. Floor = median of the last {opt.floor_window} trials. Scenario gains "
            f"run {res.baseline_trials} trials, tuned gains {opt.verify_trials}.", "",
-           "| | scenario's gains | tuned |", "| --- | --- | --- |"]
+           "| | scenario's gains | tuned |" if res.best is not None else
+           "| | scenario's gains |",
+           "| --- | --- | --- |" if res.best is not None else "| --- | --- |"]
     cands = [res.baseline] + ([res.best] if res.best is not None else [])
     rows = [
         ("g (Gamma)", lambda c: _fmt(c.gain)),

@@ -93,3 +93,12 @@ def test_tune_hexagon_meets_issue_targets(tmp_path):
     assert b.worst("floor_heading") <= 1.5 * res.baseline.median("floor_heading")
     # not merely the scaled paper gain: per-depth pairs with g != g'
     assert len(set(b.gain)) > 1 or len(set(b.gain_prime)) > 1 or b.gain != b.gain_prime
+
+
+def test_tune_says_when_nothing_qualifies():
+    sc = load_scenario("paper-triangle3")
+    opt = TuneOptions(seeds=(1,), screen_trials=2, verify_trials=20, floor_window=5,
+                      gain_grid=(0.1,), prime_grid=(0.1,), max_growth=10.0)
+    res = tune(sc, opt, workers=1, log=lambda m: None)
+    assert not res.ok and res.best is None
+    assert "within 2 trials" in res.reason
