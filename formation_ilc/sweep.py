@@ -514,12 +514,13 @@ def plot_table(spec: SweepSpec, table: Path, out: Path,
     fig, ax = plt.subplots(figsize=(7, 5))
     im = ax.imshow(grid, origin="lower", aspect="auto", cmap="viridis")
     ax.set_xticks(range(len(xs)), [f"{v:.3g}" for v in xs])
-    ax.set_yticks(range(len(ys)), ys)
+    ax.set_yticks(range(len(ys)), [f"{float(v):.3g}" if _numeric(v) is not None else v
+                                   for v in ys])
     ax.set_xlabel(x)
     ax.set_ylabel(y or "")
     for (i, j), v in np.ndenumerate(grid):
         ax.text(j, i, "never" if np.isnan(v) else f"{v:.3g}", ha="center", va="center",
-                color="w", fontsize=8)
+                color="k" if np.isnan(v) else "w", fontsize=8)
     fig.colorbar(im, ax=ax, label=f"{metric} (median over seeds; blank = never)")
     ax.set_title(f"{Path(spec.source).name}: {metric}")
     fig.tight_layout()
@@ -528,7 +529,8 @@ def plot_table(spec: SweepSpec, table: Path, out: Path,
     plt.close(fig)
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for yv, line in zip(ys, grid, strict=True):
-        ax.plot(xs, line, "o-", label=f"{y} = {yv}" if y else metric)
+        lab = f"{float(yv):.3g}" if y and _numeric(yv) is not None else yv
+        ax.plot(xs, line, "o-", label=f"{y} = {lab}" if y else metric)
     ax.set_xlabel(x)
     ax.set_ylabel(f"{metric} (median over seeds)")
     ax.set_xscale("log" if min(xs) > 0 else "linear")
