@@ -15,8 +15,9 @@ from formation_ilc.scenario import ScenarioError
 from formation_ilc.study import apply_fields, point_id, reduce_metrics, settle_trial
 from formation_ilc.sweep import load_spec, read_table, run_sweep, spec_from_text
 
+# the hexagon loads in milliseconds (the triangle's unicycle reference takes 0.3 s)
 SPEC = """\
-scenario: paper-triangle3
+scenario: paper-hexagon6
 trials: 12
 seeds: [1, 2]
 floor_window: 5
@@ -34,23 +35,23 @@ def _spec(tmp_path: Path, text: str = SPEC, name: str = "spec.yaml") -> Path:
 
 
 @pytest.mark.parametrize("text, where", [
-    ("scenario: paper-triangle3\ngrid: {law.gains: [1]}\n", "grid.law.gains"),
-    ("scenario: paper-triangle3\ngrid: {law.gain: 1}\n", "grid.law.gain"),
-    ("scenario: paper-triangle3\ngrid: {law.kind: [9, 24]}\n", "law.kind"),
-    ("scenario: paper-triangle3\ngrid: {law.gain: [0.1, -1]}\n", "law.gain"),
-    ("scenario: paper-triangle3\ngrid: {law.gain: [[1, 2]]}\n", "law.gain"),
-    ("scenario: paper-triangle3\ngrid: {delay: [sometimes]}\n", "delay.model"),
-    ("scenario: paper-triangle3\ngrid: {noise_scale: [-1]}\n", "noise_scale"),
-    ("scenario: paper-triangle3\ngrid: {graph: [{leader: {4: 1}}]}\n", "graph.leader.4"),
-    ("scenario: paper-triangle3\nseeds: [1, 1]\ngrid: {law.gain: [1]}\n", "seeds"),
-    ("scenario: paper-triangle3\nseeds: [x]\ngrid: {law.gain: [1]}\n", "seeds[0]"),
-    ("scenario: paper-triangle3\ntrials: 0\ngrid: {law.gain: [1]}\n", "trials"),
-    ("scenario: paper-triangle3\ntrails: 3\ngrid: {law.gain: [1]}\n", "trails"),
-    ("scenario: paper-triangle3\n", "top level"),
+    ("scenario: paper-hexagon6\ngrid: {law.gains: [1]}\n", "grid.law.gains"),
+    ("scenario: paper-hexagon6\ngrid: {law.gain: 1}\n", "grid.law.gain"),
+    ("scenario: paper-hexagon6\ngrid: {law.kind: [9, 24]}\n", "law.kind"),
+    ("scenario: paper-hexagon6\ngrid: {law.gain: [0.1, -1]}\n", "law.gain"),
+    ("scenario: paper-hexagon6\ngrid: {law.gain: [[1, 2]]}\n", "law.gain"),
+    ("scenario: paper-hexagon6\ngrid: {delay: [sometimes]}\n", "delay.model"),
+    ("scenario: paper-hexagon6\ngrid: {noise_scale: [-1]}\n", "noise_scale"),
+    ("scenario: paper-hexagon6\ngrid: {graph: [{leader: {7: 1}}]}\n", "graph.leader.7"),
+    ("scenario: paper-hexagon6\nseeds: [1, 1]\ngrid: {law.gain: [1]}\n", "seeds"),
+    ("scenario: paper-hexagon6\nseeds: [x]\ngrid: {law.gain: [1]}\n", "seeds[0]"),
+    ("scenario: paper-hexagon6\ntrials: 0\ngrid: {law.gain: [1]}\n", "trials"),
+    ("scenario: paper-hexagon6\ntrails: 3\ngrid: {law.gain: [1]}\n", "trails"),
+    ("scenario: paper-hexagon6\n", "top level"),
     ("scenario: nowhere\ngrid: {law.gain: [1]}\n", "scenario"),
-    ("scenario: paper-triangle3\nrandom: {count: 2, fields: {law.gain: {uniform: [2, 1]}}}\n",
+    ("scenario: paper-hexagon6\nrandom: {count: 2, fields: {law.gain: {uniform: [2, 1]}}}\n",
      "random.fields.law.gain.uniform"),
-    ("scenario: paper-triangle3\nrandom: {count: 2, fields: {law.gain: {normal: [0, 1]}}}\n",
+    ("scenario: paper-hexagon6\nrandom: {count: 2, fields: {law.gain: {normal: [0, 1]}}}\n",
      "random.fields.law.gain"),
 ])
 def test_spec_errors_name_file_and_field(tmp_path, text, where):
@@ -63,7 +64,7 @@ def test_spec_errors_name_file_and_field(tmp_path, text, where):
 
 
 def test_random_spec_is_reproducible(tmp_path):
-    text = ("scenario: paper-triangle3\nrandom:\n  count: 4\n  seed: 3\n  fields:\n"
+    text = ("scenario: paper-hexagon6\nrandom:\n  count: 4\n  seed: 3\n  fields:\n"
             "    law.gain: {log_uniform: [0.05, 1]}\n    law.kind: {choice: [9, 22]}\n")
     a = spec_from_text(text, "a.yaml")
     b = spec_from_text(text, "b.yaml")
@@ -85,10 +86,10 @@ def test_point_ids_stable_and_distinct():
 def test_fields_change_the_scenario():
     from formation_ilc.scenario import load_scenario
 
-    base = load_scenario("paper-triangle3")
-    sc = apply_fields(base.text, {"law.gain": [0.1, 0.2, 0.3], "law.kind": 22,
+    base = load_scenario("paper-hexagon6")
+    sc = apply_fields(base.text, {"law.gain": [0.1, 0.2, 0.3, 0.4, 0.5, 0.6], "law.kind": 22,
                                   "delay": "none", "noise_scale": 0.0}, seed=4, trials=7)
-    assert sc.law.gain == (0.1, 0.2, 0.3) and sc.law.kind == 22
+    assert sc.law.gain == (0.1, 0.2, 0.3, 0.4, 0.5, 0.6) and sc.law.kind == 22
     assert sc.uncertainty.delay.kind == "none" and not sc.uncertainty.noisy
     assert (sc.seed, sc.trials) == (4, 7)
     half = apply_fields(base.text, {"noise_scale": 0.5})
@@ -141,7 +142,7 @@ def test_resume_skips_done_points(tmp_path):
 
 def test_sigkill_midway_then_resume_gives_the_same_table(tmp_path):
     # one process, enough points that the kill lands midway
-    text = SPEC.replace("trials: 12", "trials: 40").replace("seeds: [1, 2]",
+    text = SPEC.replace("trials: 12", "trials: 100").replace("seeds: [1, 2]",
                                                             "seeds: [1, 2, 3, 4, 5, 6]")
     spec_path = _spec(tmp_path, text)
     ref = run_sweep(load_spec(spec_path), tmp_path / "ref", workers=1, progress=False)
