@@ -95,11 +95,17 @@ class HeadingMap:
                 f"long transients. Consider {advice}")
 
 
-def heading_map(sc: Scenario, trials: int | None = None) -> HeadingMap | None:
+def heading_map(sc: Scenario, trials: int | None = None,
+                early_stop: bool = False, stop_above: float | None = None
+                ) -> HeadingMap | None:
     """Build the lifted heading map of a scenario, with delays at their expected value.
 
     The current term's delay enters as the mean operator sum_d P(tau = d) K ê(t - d).
     Returns None when robots x samples exceeds LIFTED_LIMIT.
+    ``early_stop`` stops squaring once ||M^k|| < 1: then ||M^2k|| <= ||M^k||^2 < 1, so no
+    later power of two can raise ``growth`` (what ``tune`` and ``sweep`` use; it saves the
+    large matrix products of a long horizon). ``stop_above`` stops as soon as a norm exceeds
+    it: ``growth`` is then a lower bound, enough to reject a candidate.
     """
     n, n_t, dt = sc.n, sc.samples, sc.dt
     if n * n_t > LIFTED_LIMIT:
@@ -157,6 +163,8 @@ def heading_map(sc: Scenario, trials: int | None = None) -> HeadingMap | None:
             best, best_k = nk, k
         if np.linalg.norm(mu0) > 0:
             init_best = max(init_best, float(np.linalg.norm(pk @ mu0) / np.linalg.norm(mu0)))
+        if (early_stop and nk < 1.0) or (stop_above is not None and nk > stop_above):
+            break
         pk = pk @ pk
         k *= 2
     return HeadingMap(norm=norms[0], spectral_radius=rho, growth=best, growth_trial=best_k,

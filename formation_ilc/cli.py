@@ -31,11 +31,33 @@ examples:
   formation-ilc simulate paper-hexagon6 --trials 2000  the paper's study, law (9)
   formation-ilc simulate paper-hexagon6 --law 22 --no-noise --out runs/hex22
   formation-ilc compare paper-hexagon6 --trials 500    laws 9, 22, 23 in both memory readings
+  formation-ilc tune paper-hexagon6 --out runs/tuned   gains that learn in tens of trials
+  formation-ilc sweep study.yaml --out runs/study      gains x graphs x laws x seeds
   formation-ilc launch paper-triangle3 --trials 20     real ROS 2 processes, one per robot
   formation-ilc launch paper-triangle3 --record run.mcap && formation-ilc analyze run.mcap
 
 A SCENARIO is a built-in name or a YAML file (see formation_ilc/scenarios/*.yaml).
 """
+
+
+SWEEP_EXAMPLE = """\
+example spec (study.yaml):
+  scenario: paper-hexagon6        # built-in name or scenario file (relative to the spec)
+  trials: 300                     # per point
+  seeds: {first: 1, count: 5}     # or [1, 2, 3]
+  grid:                           # every combination; or random: {count, seed, fields}
+    law.gain: [0.08, 0.4, 0.8]    # a number, or one per robot: [0.4, 1.2, 1.2, 0.4, 1.2, 1.2]
+    law.kind: [9, 22, 23]
+    delay: [paper, none]
+then: formation-ilc sweep study.yaml --out runs/study   (again after Ctrl-C: resumes)
+"""
+
+
+def _paras(text: str) -> str:
+    """Paragraphs (separated by blank lines) wrapped to 88 columns, for raw help text."""
+    import textwrap
+
+    return "\n\n".join(textwrap.fill(" ".join(par.split()), 88) for par in text.split("\n\n"))
 
 
 def _scenario_arg(p: argparse.ArgumentParser) -> None:
@@ -114,6 +136,89 @@ def build_parser() -> argparse.ArgumentParser:
                    help="horizon for the transient-growth estimate (default: scenario's)")
     p.add_argument("--no-delay", action="store_true",
                    help="check the delay-free configuration (as run with --no-delay)")
+
+    p = sub.add_parser(
+        "tune", help="choose learning gains: fewest trials, under condition (20) and a "
+                     "bounded heading map",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=_paras(
+                    "Choose g (Gamma, predictive term) and g' (Gamma', current term), one pair "
+                    "per graph depth (hops from the leader), for the fewest trials to the "
+                    "target errors.\n\nGuarantee: every candidate satisfies condition (20) "
+                    "and has a lifted heading map with spectral radius < 1 and max_k ||M^k|| "
+                    "<= --max-growth (the transient bound). Candidates are screened by short "
+                    "simulations, checked best first, and the finalists verified by full "
+                    "simulations over --seeds with noise and delays on, beside the "
+                    "scenario's own gains. Writes DIR/SCENARIO-tuned.yaml (loads with the "
+                    "strict loader and reproduces the report), DIR/report.md and "
+                    "DIR/tune.json. Exit status 1 if no candidate met every requirement.\n\n"
+                    "Method and results: docs/tuning.md."))
+    _scenario_arg(p)
+    p.add_argument("--law", type=int, choices=(9, 22, 23), help="law to tune (default: the "
+                   "scenario's)")
+    p.add_argument("--memory", choices=("feedforward", "literal"),
+                   help="memory reading to tune (default: the scenario's)")
+    p.add_argument("--position-level", type=float, default=1.0, metavar="M",
+                   help="target max position error [m] (default 1)")
+    p.add_argument("--heading-level", type=float, default=0.1, metavar="RAD",
+                   help="target max heading error [rad] (default 0.1)")
+    p.add_argument("--seeds", type=int, default=5, metavar="S",
+                   help="verify over seeds 1..S (default 5)")
+    p.add_argument("--verify-trials", type=int, default=300, metavar="K",
+                   help="trials of each verification run (default 300; the scenario's own "
+                        "gains run max(K, its trials))")
+    p.add_argument("--screen-trials", type=int, default=60, metavar="K",
+                   help="trials of each screening run (default 60): tune finds gains that "
+                        "reach the levels within K trials")
+    p.add_argument("--floor-window", type=int, default=100, metavar="N",
+                   help="floor = median of the last N trials (default 100)")
+    p.add_argument("--floor-factor", type=float, default=1.5, metavar="F",
+                   help="tuned floors may be at most F times the scenario's own (default 1.5)")
+    p.add_argument("--max-growth", type=float, metavar="G",
+                   help="bound on max_k ||M^k|| of the lifted heading map, the transient "
+                        "bound (default: the scenario's own gains' value, at most 10)")
+    p.add_argument("--gain-grid", metavar="C1,C2,...",
+                   help="values of g dT tried per graph depth (default "
+                        "0.04,0.08,0.12,0.16,0.2,0.25,0.3)")
+    p.add_argument("--prime-grid", metavar="A1,A2,...",
+                   help="values of g' dT tried per graph depth (default "
+                        "0.05,0.075,0.1,0.15,0.2,0.25)")
+    p.add_argument("--uniform", action="store_true",
+                   help="one gain pair for all robots instead of one per graph depth")
+    p.add_argument("--workers", type=int, metavar="N", help="local processes (default: all "
+                   "cores)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run the simulations on a Dask cluster (tcp://HOST:PORT)")
+    p.add_argument("--out", type=Path, metavar="DIR", help="output folder (default: "
+                   "runs/SCENARIO-tune-TIME)")
+
+    p = sub.add_parser(
+        "sweep", help="run a parameter study from a spec file, resumable, locally or on Dask",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=_paras(
+                    "Run a study: a grid or random draws over scenario fields (law.gain, "
+                    "law.gain_prime, law.kind, law.memory, graph, delay, noise_scale) times "
+                    "seeds. Each point is a batch simulation reduced to one row (trials to "
+                    "the levels, floors, peak, and the check's predictions per "
+                    "configuration). Writes DIR/results.csv, a heat map and a line plot.\n\n"
+                    "Resumable: each finished point is written at once to "
+                    "DIR/points/ID.json; run the same command again after a crash or Ctrl-C "
+                    "and only the missing points run. The same spec gives the same table "
+                    "locally and on a Dask cluster.\n\nSpec format: docs/tuning.md, "
+                    "'sweep: parameter studies'."),
+        epilog=SWEEP_EXAMPLE)
+    p.add_argument("spec", type=Path, metavar="SPEC.yaml",
+                   help="the study (see the example below)")
+    p.add_argument("--out", type=Path, metavar="DIR",
+                   help="output folder (default: runs/SPEC-sweep)")
+    p.add_argument("--workers", type=int, metavar="N",
+                   help="local processes (default: every core; 1 = in this process)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="Dask scheduler address, e.g. tcp://127.0.0.1:8786 (pip install -e "
+                        "'.[cluster]'); workers get the scenario text, no shared disk needed")
+    p.add_argument("--metric", default="trials_to_position",
+                   help="column the plots show (default trials_to_position)")
+    p.add_argument("--no-plots", action="store_true", help="table only")
 
     p = sub.add_parser("analyze", help="metrics, delays, plots and a report from a recording",
                        description="Analyse a recorded run (formation-ilc launch --record, or "
@@ -346,6 +451,86 @@ def cmd_check(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_tune(args: argparse.Namespace) -> int:
+    from dataclasses import replace as dc_replace
+
+    from .scenario import scenario_from_text
+    from .study import scenario_text_with
+    from .tune import TuneOptions, report_lines, result_json, tune, tuned_text
+
+    sc = load_scenario(args.scenario)
+    over: dict[str, Any] = {}
+    if args.law is not None:
+        over["law.kind"] = args.law
+    if args.memory is not None:
+        over["law.memory"] = args.memory
+    if over:
+        sc = scenario_from_text(scenario_text_with(sc.text, over), sc.source)
+    for name in ("position_level", "heading_level", "floor_factor", "max_growth"):
+        if getattr(args, name) is not None and not getattr(args, name) > 0:
+            raise ScenarioError(f"--{name.replace('_', '-')} must be > 0")
+    for name in ("seeds", "verify_trials", "screen_trials", "floor_window"):
+        if getattr(args, name) < 1:
+            raise ScenarioError(f"--{name.replace('_', '-')} must be >= 1")
+    if args.floor_window > args.verify_trials:
+        raise ScenarioError("--floor-window must be <= --verify-trials")
+    grids: dict[str, Any] = {}
+    for name in ("gain_grid", "prime_grid"):
+        val = getattr(args, name)
+        if val is None:
+            continue
+        try:
+            grids[name] = tuple(float(x) for x in val.split(",") if x.strip())
+        except ValueError:
+            raise ScenarioError(f"--{name.replace('_', '-')}: expected numbers like "
+                                f"0.08,0.16, got {val!r}") from None
+        if not grids[name] or min(grids[name]) <= 0:
+            raise ScenarioError(f"--{name.replace('_', '-')}: values must be > 0")
+    opt = TuneOptions(**grids, position_level=args.position_level, heading_level=args.heading_level,
+                      seeds=tuple(range(1, args.seeds + 1)), screen_trials=args.screen_trials,
+                      verify_trials=args.verify_trials, floor_window=args.floor_window,
+                      floor_factor=args.floor_factor, max_growth=args.max_growth,
+                      per_robot=not args.uniform)
+    out = _out_dir(args.out, sc, "tune")
+    res = tune(sc, opt, workers=args.workers, scheduler=args.scheduler)
+    lines = report_lines(res, sc, opt)
+    print("\n".join(lines))
+    (out / "report.md").write_text("\n".join(lines) + "\n")
+    (out / "tune.json").write_text(result_json(res))
+    files = ["report.md", "tune.json"]
+    if res.best is not None:
+        name = f"{sc.name}-tuned.yaml"
+        (out / name).write_text(tuned_text(res, dc_replace(sc)))
+        files.insert(0, name)
+    print(f"results in {out}/ ({', '.join(files)})")
+    return 0 if res.ok else 1
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from .sweep import load_spec, plot_table, run_sweep
+
+    spec = load_spec(args.spec)
+    out = args.out or Path("runs") / f"{args.spec.stem}-sweep"
+    if args.workers is not None and args.workers < 1:
+        raise ScenarioError("--workers must be >= 1")
+    n = len(spec.configs) * len(spec.seeds)
+    where = f"Dask scheduler {args.scheduler}" if args.scheduler else (
+        f"{args.workers or os.cpu_count()} local processes")
+    print(f"sweep {args.spec}: {len(spec.configs)} configurations x {len(spec.seeds)} seeds = "
+          f"{n} points of {spec.trials} trials, on {where}", file=sys.stderr)
+    table = run_sweep(spec, out, workers=args.workers, scheduler=args.scheduler)
+    files = [table.name]
+    if not args.no_plots:
+        from .study import CHECK_COLUMNS, SIM_COLUMNS
+
+        if args.metric not in SIM_COLUMNS + CHECK_COLUMNS:
+            raise ScenarioError(f"--metric: no column {args.metric!r} (columns: "
+                                f"{', '.join(SIM_COLUMNS + CHECK_COLUMNS)})")
+        files += [p.name for p in plot_table(spec, table, out, args.metric)]
+    print(f"results in {out}/ ({', '.join(files)})")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
@@ -365,6 +550,10 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_compare(args)
         if args.command == "check":
             return cmd_check(args)
+        if args.command == "tune":
+            return cmd_tune(args)
+        if args.command == "sweep":
+            return cmd_sweep(args)
         if args.command == "analyze":
             from .analyze import analyze
 
@@ -389,7 +578,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("\ninterrupted; finished trials are in metrics.csv", file=sys.stderr)
+        if args.command == "sweep":
+            print("\ninterrupted; every finished point is kept in DIR/points: run the same "
+                  "command again to go on", file=sys.stderr)
+        else:
+            print("\ninterrupted; finished trials are in metrics.csv", file=sys.stderr)
         return 130
     ap.error(f"unknown command {args.command}")
     return 2

@@ -9,6 +9,7 @@ same trial: the kinematic simulator draws the ``plant`` stream, the link emulato
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
@@ -36,6 +37,15 @@ class Harmonic:
 
     def __call__(self, t: NDArray[np.float64]) -> NDArray[np.float64]:
         return self.amplitude * np.sin(self.frequency * np.asarray(t, dtype=float) + self.phase)
+
+
+@lru_cache(maxsize=64)
+def _harmonic_values(h: Harmonic, length: int) -> NDArray[np.float64]:
+    """h at t = 0..length-1, computed once per (harmonic, length): the iteration-independent
+    part of every trial's draws (read-only)."""
+    v = h(np.arange(length, dtype=float))
+    v.setflags(write=False)
+    return v
 
 
 @dataclass(frozen=True)
@@ -77,15 +87,13 @@ class Uncertainty:
                    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """(shift (n, 3), disturbance (n, T, 2), noise (n, T+1, 3)) of one trial."""
         rng = trial_rng(seed, trial, PLANT_STREAM)
-        t_in = np.arange(n_samples, dtype=float)
-        t_out = np.arange(n_samples + 1, dtype=float)
         shift = rng.uniform(-1.0, 1.0, (n, 3)) * np.asarray(self.initial_shift)
         dist = rng.uniform(-1.0, 1.0, (n, n_samples, 2)) * np.asarray(self.disturbance_uniform)
         noise = rng.uniform(-1.0, 1.0, (n, n_samples + 1, 3)) * np.asarray(self.noise_uniform)
         for c, h in enumerate(self.disturbance_fixed):
-            dist[..., c] += h(t_in)
+            dist[..., c] += _harmonic_values(h, n_samples)
         for c, h in enumerate(self.noise_fixed):
-            noise[..., c] += h(t_out)
+            noise[..., c] += _harmonic_values(h, n_samples + 1)
         return shift, dist, noise
 
     def draw_delays(self, seed: int, trial: int, n: int, n_links: int, n_samples: int

@@ -1,0 +1,185 @@
+"""Sweeps: strict specs, stable point ids, the local pool, resuming after SIGKILL."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from formation_ilc.scenario import ScenarioError
+from formation_ilc.study import apply_fields, point_id, reduce_metrics, settle_trial
+from formation_ilc.sweep import load_spec, read_table, run_sweep, spec_from_text
+
+# the hexagon loads in milliseconds (the triangle's unicycle reference takes 0.3 s)
+SPEC = """\
+scenario: paper-hexagon6
+trials: 12
+seeds: [1, 2]
+floor_window: 5
+check: false
+grid:
+  law.gain: [0.08, 0.4]
+  law.gain_prime: [0.08, 0.4]
+"""
+
+
+def _spec(tmp_path: Path, text: str = SPEC, name: str = "spec.yaml") -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize("text, where", [
+    ("scenario: paper-hexagon6\ngrid: {law.gains: [1]}\n", "grid.law.gains"),
+    ("scenario: paper-hexagon6\ngrid: {law.gain: 1}\n", "grid.law.gain"),
+    ("scenario: paper-hexagon6\ngrid: {law.kind: [9, 24]}\n", "law.kind"),
+    ("scenario: paper-hexagon6\ngrid: {law.gain: [0.1, -1]}\n", "law.gain"),
+    ("scenario: paper-hexagon6\ngrid: {law.gain: [[1, 2]]}\n", "law.gain"),
+    ("scenario: paper-hexagon6\ngrid: {delay: [sometimes]}\n", "delay.model"),
+    ("scenario: paper-hexagon6\ngrid: {noise_scale: [-1]}\n", "noise_scale"),
+    ("scenario: paper-hexagon6\ngrid: {graph: [{leader: {7: 1}}]}\n", "graph.leader.7"),
+    ("scenario: paper-hexagon6\nseeds: [1, 1]\ngrid: {law.gain: [1]}\n", "seeds"),
+    ("scenario: paper-hexagon6\nseeds: [x]\ngrid: {law.gain: [1]}\n", "seeds[0]"),
+    ("scenario: paper-hexagon6\ntrials: 0\ngrid: {law.gain: [1]}\n", "trials"),
+    ("scenario: paper-hexagon6\ntrails: 3\ngrid: {law.gain: [1]}\n", "trails"),
+    ("scenario: paper-hexagon6\n", "top level"),
+    ("scenario: nowhere\ngrid: {law.gain: [1]}\n", "scenario"),
+    ("scenario: paper-hexagon6\nrandom: {count: 2, fields: {law.gain: {uniform: [2, 1]}}}\n",
+     "random.fields.law.gain.uniform"),
+    ("scenario: paper-hexagon6\nrandom: {count: 2, fields: {law.gain: {normal: [0, 1]}}}\n",
+     "random.fields.law.gain"),
+])
+def test_spec_errors_name_file_and_field(tmp_path, text, where):
+    p = _spec(tmp_path, text)
+    with pytest.raises(ScenarioError) as err:
+        load_spec(p)
+    msg = str(err.value)
+    assert msg.startswith(str(p)), msg
+    assert where in msg, msg
+
+
+def test_random_spec_is_reproducible(tmp_path):
+    text = ("scenario: paper-hexagon6\nrandom:\n  count: 4\n  seed: 3\n  fields:\n"
+            "    law.gain: {log_uniform: [0.05, 1]}\n    law.kind: {choice: [9, 22]}\n")
+    a = spec_from_text(text, "a.yaml")
+    b = spec_from_text(text, "b.yaml")
+    assert a.configs == b.configs and len(a.configs) == 4
+    assert all(0.05 <= c["law.gain"] <= 1 for c in a.configs)
+    assert {c["law.kind"] for c in a.configs} <= {9, 22}
+
+
+def test_point_ids_stable_and_distinct():
+    sc_text = "name: x\n"
+    a = point_id(sc_text, {"law.gain": 0.1}, 10, 1)
+    assert a == point_id(sc_text, {"law.gain": 0.1}, 10, 1)
+    assert len({a, point_id(sc_text, {"law.gain": 0.1}, 10, 2),
+                point_id(sc_text, {"law.gain": 0.2}, 10, 1),
+                point_id(sc_text, {"law.gain": 0.1}, 11, 1),
+                point_id(sc_text + " ", {"law.gain": 0.1}, 10, 1)}) == 5
+
+
+def test_fields_change_the_scenario():
+    from formation_ilc.scenario import load_scenario
+
+    base = load_scenario("paper-hexagon6")
+    sc = apply_fields(base.text, {"law.gain": [0.1, 0.2, 0.3, 0.4, 0.5, 0.6], "law.kind": 22,
+                                  "delay": "none", "noise_scale": 0.0}, seed=4, trials=7)
+    assert sc.law.gain == (0.1, 0.2, 0.3, 0.4, 0.5, 0.6) and sc.law.kind == 22
+    assert sc.uncertainty.delay.kind == "none" and not sc.uncertainty.noisy
+    assert (sc.seed, sc.trials) == (4, 7)
+    half = apply_fields(base.text, {"noise_scale": 0.5})
+    assert half.uncertainty.noise_uniform[0] == pytest.approx(
+        0.5 * base.uncertainty.noise_uniform[0])
+    assert half.uncertainty.delay == base.uncertainty.delay
+
+
+def test_reduce_and_settle():
+    import numpy as np
+
+    assert settle_trial(np.array([3.0, 0.5, 2.0, 0.5, 0.4]), 1.0) == 3
+    assert settle_trial(np.array([0.5, 0.4]), 1.0) == 0
+    assert settle_trial(np.array([0.5, 2.0]), 1.0) is None
+    m = np.zeros((4, 7))
+    m[:, 1] = [2.0, 3.0, 0.5, 0.4]
+    m[:, 2] = [1.0, 0.5, 0.05, 0.2]
+    row = reduce_metrics(m, 1.0, 0.1, 2)
+    assert row["peak_position"] == 3.0 and row["peak_trial"] == 1 and row["above_trial0"] == 1
+    assert row["trials_to_position"] == 2 and row["trials_to_heading"] is None
+    assert row["floor_position"] == pytest.approx(0.45)
+
+
+def test_pool_table_equals_serial_table(tmp_path):
+    spec = load_spec(_spec(tmp_path))
+    serial = run_sweep(spec, tmp_path / "serial", workers=1, progress=False)
+    pooled = run_sweep(spec, tmp_path / "pool", workers=2, progress=False)
+    assert serial.read_bytes() == pooled.read_bytes()
+    rows = read_table(serial)
+    assert len(rows) == 8
+    # the gain changes the result: the table is not a constant
+    assert len({r["trials_to_position"] + r["floor_position"] for r in rows}) > 2
+
+
+def test_resume_skips_done_points(tmp_path):
+    spec = load_spec(_spec(tmp_path))
+    out = tmp_path / "out"
+    ran: list[str] = []
+    run_sweep(spec, out, workers=1, progress=False, on_row=lambda r: ran.append(r["id"]))
+    assert len(ran) == 8
+    first = (out / "results.csv").read_bytes()
+    gone = sorted((out / "points").glob("*.json"))[:3]
+    for p in gone:
+        p.unlink()
+    ran.clear()
+    run_sweep(spec, out, workers=1, progress=False, on_row=lambda r: ran.append(r["id"]))
+    assert sorted(ran) == sorted(p.stem for p in gone)
+    assert (out / "results.csv").read_bytes() == first
+
+
+def test_sigkill_midway_then_resume_gives_the_same_table(tmp_path):
+    # one process, enough points that the kill lands midway
+    text = SPEC.replace("trials: 12", "trials: 100").replace("seeds: [1, 2]",
+                                                            "seeds: [1, 2, 3, 4, 5, 6]")
+    spec_path = _spec(tmp_path, text)
+    ref = run_sweep(load_spec(spec_path), tmp_path / "ref", workers=1, progress=False)
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "formation_ilc.cli", "sweep", str(spec_path), "--out", str(out),
+           "--workers", "1", "--no-plots"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            env={**os.environ, "MPLBACKEND": "Agg"})
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            if len(list((out / "points").glob("*.json"))) >= 5 or proc.poll() is not None:
+                break
+            time.sleep(0.01)
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait(timeout=30)
+    assert proc.returncode == -signal.SIGKILL, "the sweep finished before it was killed"
+    done = {p.name: p.stat().st_mtime_ns for p in (out / "points").glob("*.json")}
+    assert 5 <= len(done) < 24
+    assert not (out / "results.csv").exists()
+    rerun = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert rerun.returncode == 0, rerun.stderr
+    # points finished before the kill were kept, not recomputed
+    assert all((out / "points" / n).stat().st_mtime_ns == t for n, t in done.items())
+    assert (out / "results.csv").read_bytes() == ref.read_bytes()
+
+
+def test_cli_sweep_writes_table_and_plots(tmp_path):
+    from formation_ilc.cli import main
+
+    p = _spec(tmp_path)
+    assert main(["sweep", str(p), "--out", str(tmp_path / "o"), "--workers", "1"]) == 0
+    assert (tmp_path / "o" / "results.csv").is_file()
+    assert (tmp_path / "o" / "heatmap_trials_to_position.png").is_file()
+    assert (tmp_path / "o" / "lines_trials_to_position.png").is_file()
+    assert main(["sweep", str(_spec(tmp_path, "scenario: 3\n", "bad.yaml")), "--out",
+                 str(tmp_path / "b")]) == 2
