@@ -1,0 +1,157 @@
+"""checks.py on small cases with closed forms: condition (20), the lifted heading map and the
+report a user reads."""
+
+import numpy as np
+import pytest
+
+from formation_ilc import checks
+from formation_ilc.scenario import scenario_from_text
+from formation_ilc.topology import Graph
+
+
+def tiny(law=22, n=2, gain=0.5, gain_prime=0.3, memory="feedforward", delay="none",
+         samples=6, leader="{1: 2.0}", edges="[{from: 1, to: 2}]", trials=4):
+    offsets = "\n".join(f"    {i + 1}: {{x: {float(i)}, y: 0.0}}" for i in range(n))
+    text = f"""
+name: tiny
+dt: 0.5
+samples: {samples}
+trials: {trials}
+robots: {n}
+reference: {{kind: unicycle, speed: 0.4, turn_radius: 2.0}}
+formation:
+  frame: world
+  offsets:
+{offsets}
+graph:
+  leader: {leader}
+  edges: {edges}
+law: {{kind: {law}, memory: {memory}, gain: {gain}, gain_prime: {gain_prime}}}
+delay: {{model: {delay}}}
+"""
+    return scenario_from_text(text)
+
+
+def test_condition20_closed_form_on_a_chain():
+    # v0 -> 1 (a10 = 2) -> 2 (a21 = 1): L + Omega = [[2, 0], [-1, 1]]
+    g = Graph.from_edges(2, [(2, 1, 1.0)], {1: 2.0})
+    gain = np.array([0.5, 0.25])
+    m = np.eye(2) - np.array([[2.0, 0.0], [-1.0, 1.0]]) @ np.diag(gain * 0.2)
+    assert checks.condition20(g, gain, 0.2) == pytest.approx(np.linalg.norm(m, 2), abs=1e-15)
+    m1 = np.eye(2) - np.array([[2.0, 0.0], [-1.0, 1.0]]) @ np.diag(gain)
+    assert checks.condition20(g, gain, 0.2, include_dt=False) == pytest.approx(
+        np.linalg.norm(m1, 2), abs=1e-15)
+
+
+def test_norm2_is_the_largest_singular_value():
+    rng = np.random.default_rng(1)
+    for shape in ((5, 5), (7, 3)):
+        m = rng.normal(size=shape)
+        assert checks._norm2(m) == pytest.approx(np.linalg.norm(m, 2), rel=1e-8)
+    assert checks._norm2(np.zeros((3, 3))) == 0.0
+    m = np.diag([3.0, 0.5, 0.25])  # converges at once: the early stop returns the value
+    assert checks._norm2(m) == pytest.approx(3.0, rel=1e-12)
+
+
+def test_heading_map_of_the_predictive_law_has_the_diagonal_closed_form():
+    """Law 22, no current term: mu_{k+1}(t) = mu_k(t) - g (L+Omega) dt sum_{s<=t} mu_k(s),
+    block lower triangular with diagonal blocks I - diag(g) (L+Omega) dt."""
+    sc = tiny(law=22)
+    h = checks.heading_map(sc)
+    xi = np.array([[2.0, 0.0], [-1.0, 1.0]])
+    dt, g = 0.5, 0.5
+    blocks = np.eye(2) - g * dt * xi
+    assert h.spectral_radius == pytest.approx(np.max(np.abs(np.linalg.eigvals(blocks))),
+                                              abs=1e-12)
+    # the whole map, built here from its definition, and its norm
+    n_t = sc.samples
+    lower = np.tril(np.ones((n_t, n_t)))
+    m = np.eye(2 * n_t) - g * dt * np.kron(lower, xi)
+    assert h.norm == pytest.approx(np.linalg.norm(m, 2), rel=1e-8)
+    assert h.powers == (1, 2, 4)  # up to trials = 4
+    for k, nk in zip(h.powers, h.norms, strict=True):
+        assert nk == pytest.approx(np.linalg.norm(np.linalg.matrix_power(m, k), 2), rel=1e-6)
+    assert h.growth == max(h.norms)
+    assert h.growth_trial == h.powers[h.norms.index(h.growth)]
+    mu0 = sc.desired.u[:, :, 1].T.reshape(-1)
+    best = max(np.linalg.norm(np.linalg.matrix_power(m, k) @ mu0) / np.linalg.norm(mu0)
+               for k in h.powers)
+    assert h.initial_growth == pytest.approx(best, rel=1e-9)
+    assert len(checks.heading_map(sc, trials=16).powers) == 5
+
+
+def test_current_term_changes_the_map_and_literal_memory_adds_it():
+    law22 = checks.heading_map(tiny(law=22))
+    law9 = checks.heading_map(tiny(law=9))
+    law23 = checks.heading_map(tiny(law=23, delay="fixed, samples: 1"))
+    law9d = checks.heading_map(tiny(law=9, delay="fixed, samples: 1"))
+    lit9 = checks.heading_map(tiny(law=9, memory="literal"))
+    lit22 = checks.heading_map(tiny(law=22, memory="literal"))
+    assert law9.norm != pytest.approx(law22.norm, rel=1e-6)
+    assert law23.norm != pytest.approx(law9d.norm, rel=1e-6)  # they differ under delay
+    assert lit9.norm != pytest.approx(law9.norm, rel=1e-6)
+    assert lit22.norm == pytest.approx(law22.norm, rel=1e-12)  # law 22 has no current term
+    # gain_prime = 0: law 9 is law 22
+    assert checks.heading_map(tiny(law=9, gain_prime=0.0)).norm == pytest.approx(
+        law22.norm, rel=1e-12)
+
+
+def test_delayed_current_term_is_the_expected_operator():
+    fixed1 = checks.heading_map(tiny(law=9, delay="fixed, samples: 1"))
+    none = checks.heading_map(tiny(law=9))
+    assert fixed1.norm != pytest.approx(none.norm, rel=1e-6)
+    # a delay longer than the trial's usable samples leaves only the predictive term
+    late = checks.heading_map(tiny(law=9, delay="fixed, samples: 6"))
+    assert late.norm == pytest.approx(checks.heading_map(tiny(law=22)).norm, rel=1e-12)
+
+
+def test_too_large_a_lifted_map_is_skipped(monkeypatch):
+    assert checks.LIFTED_LIMIT == 3600
+    monkeypatch.setattr(checks, "LIFTED_LIMIT", 12)
+    assert checks.heading_map(tiny(n=2, samples=6)) is not None  # 2 x 6 = 12
+    assert checks.heading_map(tiny(n=2, samples=7)) is None
+
+
+def hm(norm, rho, growth):
+    return checks.HeadingMap(norm, rho, growth, 8, growth, (1,), (norm,))
+
+
+def test_verdicts():
+    assert hm(1.2, 1.0, 3).verdict().startswith("will not converge")
+    assert hm(0.999, 0.9, 1).verdict().startswith("converges monotonically")
+    assert hm(1.0, 0.9, 9.99).verdict().startswith("converges, with a mild transient")
+    long = hm(1.5, 0.9, 10.0)
+    assert long.verdict().startswith("converges only in the long run")
+    assert "trial 8" in long.verdict()
+    assert "memory 'feedforward'" in long.verdict(literal=True)
+    assert "law 9" in long.verdict(law=22)
+    assert "a smaller gain_prime" in long.verdict(law=9)
+    assert "a smaller gain_prime" in long.verdict(law=23)
+
+
+def test_report_of_a_graph_without_spanning_tree():
+    sc = tiny(n=3, edges="[{from: 1, to: 2}]")  # robot 3 hears nobody
+    rep = checks.check_scenario(sc)
+    assert not rep.spanning_tree and rep.unreachable == (2,)
+    assert rep.heading is None
+    text = "\n".join(rep.lines(sc))
+    assert "NO spanning tree: the leader cannot reach robot(s) 3" in text
+    assert "skipped" in text
+
+
+def test_report_of_a_good_graph():
+    sc = tiny()
+    rep = checks.check_scenario(sc, trials=4)
+    assert rep.spanning_tree and rep.unreachable == ()
+    assert rep.cond20 == pytest.approx(checks.condition20(sc.graph, np.full(2, 0.5), 0.5))
+    assert rep.cond20_paper == pytest.approx(
+        checks.condition20(sc.graph, np.full(2, 0.5), 0.5, include_dt=False))
+    lines = rep.lines(sc)
+    assert lines[0] == "scenario tiny: 2 robots, T = 6 samples of 0.5 s, law (22), memory " \
+                       "feedforward"
+    assert lines[1].endswith("spanning tree: ok")
+    assert ("holds" if rep.cond20 < 1 else "FAILS") in lines[2]
+    assert rep.heading is not None and rep.heading.powers == (1, 2, 4)
+    assert any(ln.startswith("verdict: " + rep.heading.verdict(False, 22)) for ln in lines)
+    bad = checks.check_scenario(tiny(gain=5.0))
+    assert bad.cond20 > 1 and "FAILS" in bad.lines(tiny(gain=5.0))[2]
