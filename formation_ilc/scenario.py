@@ -221,7 +221,7 @@ def _reference(f: _Fields, n_samples: int, dt: float, base_dir: Path | None) -> 
         if speed == "paper-ivb":
             v = tr.paper_ivb_speed
         elif isinstance(speed, (int, float)) and not isinstance(speed, bool):
-            v = _constant(float(speed))
+            v = _constant(f.as_number(speed, "speed"))
         else:
             raise f.fail("speed", f"expected 'paper-ivb' or a number [m/s], got {speed!r}")
         radius = f.number("turn_radius", 0.0)
@@ -245,6 +245,8 @@ def _reference(f: _Fields, n_samples: int, dt: float, base_dir: Path | None) -> 
             raise f.fail("points", "expected a list of [x, y] pairs") from None
         if arr.ndim != 2 or arr.shape[1] != 2:
             raise f.fail("points", f"expected a list of [x, y] pairs, got shape {arr.shape}")
+        if not np.isfinite(arr).all():
+            raise f.fail("points" if file is None else "file", "every point must be finite")
         if len(arr) < m - 1:
             raise f.fail("points", f"needs at least samples + 1 = {m - 1} points, got {len(arr)}")
         ref = tr.sampled_reference(arr, m)
@@ -258,6 +260,9 @@ def _reference(f: _Fields, n_samples: int, dt: float, base_dir: Path | None) -> 
             raise f.fail("points", "times must be numbers and points [x, y] pairs") from None
         if ta.ndim != 1 or pa.shape != (len(ta), 2) or len(ta) < 2:
             raise f.fail("points", "needs as many [x, y] points as times, at least 2")
+        for key, arr in (("times", ta), ("points", pa)):
+            if not np.isfinite(arr).all():
+                raise f.fail(key, "every value must be finite")
         if np.any(np.diff(ta) <= 0):
             raise f.fail("times", "must be strictly increasing")
         ref = tr.waypoint_reference(ta, pa, m, dt)
@@ -395,8 +400,13 @@ def scenario_from_text(text: str, source: str = "<memory>", base_dir: Path | Non
         elif model == "table":
             vals = dlf.get("values", required=True)
             probs = dlf.get("probabilities", required=True)
-            if not isinstance(vals, list) or not all(isinstance(v, int) for v in vals):
+            if not isinstance(vals, list) or not all(
+                    isinstance(v, int) and not isinstance(v, bool) for v in vals):
                 raise dlf.fail("values", "expected a list of delays in samples (integers)")
+            twice = sorted({v for v in vals if vals.count(v) > 1})
+            if twice:
+                # the pmf maps each delay to one probability: a repeat would lose its mass
+                raise dlf.fail("values", f"delay {twice[0]} is listed twice")
             if not isinstance(probs, list) or len(probs) != len(vals):
                 raise dlf.fail("probabilities", "expected one probability per value")
             dm = DelayModel("table", values=tuple(vals),
