@@ -153,3 +153,73 @@ def test_desired_trajectories_back_up_with_a_negative_speed():
     np.testing.assert_allclose(d.u[1, :, 1], np.diff(th) / 0.5)
     np.testing.assert_allclose(d.u[1, :, 0], [2.0, np.sqrt(0.5) / 0.5, 2.0])
     np.testing.assert_array_equal(d.xi0, d.eta[:, 0])
+
+
+def test_tangent_thresholds_and_leading_stand_stills():
+    # two stand-stills before the first move, which is along +y
+    p = np.array([[0, 0], [0, 0], [0, 0], [0, 1], [1, 1]], float)
+    np.testing.assert_allclose(tr.path_headings(p), [np.pi / 2] * 3 + [0.0], atol=1e-15)
+    # a step of exactly 1e-12 of the longest is a stand-still
+    q = np.array([[0, 0], [1, 0], [1, 1e-12]], float)
+    np.testing.assert_allclose(tr.path_headings(q), [0, 0], atol=1e-15)
+    # the threshold is relative: a path of 1e-13 m steps still has headings
+    r = np.array([[0, 0], [0, 1e-13], [-1e-13, 1e-13]])
+    np.testing.assert_allclose(tr.path_headings(r), [np.pi / 2, np.pi], atol=1e-12)
+    assert tr.path_headings(np.zeros((3, 2))).tolist() == [0.0, 0.0]
+    assert tr.path_headings_signed(np.zeros((3, 2)))[0].tolist() == [0.0, 0.0]
+
+
+def test_signed_headings_walk_both_ways_from_the_anchor():
+    # the step right after the anchor reverses
+    th, sign = tr.path_headings_signed(np.array([[0, 0], [2, 0], [1.5, 0]], float))
+    np.testing.assert_allclose(th, [0, 0], atol=1e-15)
+    np.testing.assert_array_equal(sign, [1, -1])
+    # two reversed steps before the anchor
+    th, sign = tr.path_headings_signed(np.array([[1, 0], [0.5, 0], [0, 0], [3, 0]], float))
+    np.testing.assert_allclose(th, [0, 0, 0], atol=1e-15)
+    np.testing.assert_array_equal(sign, [-1, -1, 1])
+    # a square turn is a tie: driven forwards
+    th, sign = tr.path_headings_signed(np.array([[0, 0], [2, 0], [2, 1]], float))
+    np.testing.assert_allclose(th, [0, np.pi / 2], atol=1e-15)
+    np.testing.assert_array_equal(sign, [1, 1])
+    # more than a full turn forwards: unwrapped like the tangent
+    ang = np.linspace(0, 2.5 * 2 * np.pi, 60)
+    circle = np.column_stack([np.cos(ang), np.sin(ang)])
+    th, sign = tr.path_headings_signed(circle)
+    np.testing.assert_allclose(th, tr.path_headings(circle), atol=1e-12)
+    assert (sign == 1).all()
+
+
+def test_ivb_speed_inside_the_ramps_near_their_ends():
+    v = tr.paper_ivb_speed(np.array([19.5, 120.5]))
+    np.testing.assert_allclose(v, [0.35 * (16 - 0.01) / 16] * 2, rtol=1e-12)
+
+
+def test_sinusoid_defaults_are_one_and_constant():
+    s = np.array([0.0, 0.3, 0.6])
+    assert tr.Sinusoid(period=2.0)(s).tolist() == [1.0] * 3
+    assert tr.Sinusoid(amplitude=0.5)(s).tolist() == [1.0] * 3
+
+
+def test_sampled_reference_extension_uses_the_last_step():
+    xy = np.array([[0, 0], [1, 0], [2, 0], [3, 0], [4, 1]], float)
+    r = tr.sampled_reference(xy, 6)  # one short: the last step repeated
+    np.testing.assert_allclose(r[-1, :2], [5, 2])
+    r3 = tr.sampled_reference(np.array([[0, 0], [2, 0], [4, 1]], float), 3)
+    assert r3[-1, 2] == pytest.approx(np.arctan2(1, 2))  # tangent of the extra step
+
+
+def test_robot_standing_still_takes_the_leaders_first_heading():
+    p = np.zeros((1, 5, 2))
+    ref = np.column_stack([np.zeros(5), np.zeros(5), [0.3, 0.5, 0.7, 0.9, 1.1]])
+    d = tr.desired_trajectories(p, 0.5, ref)
+    np.testing.assert_allclose(d.eta[0, :, 2], 0.3)
+    np.testing.assert_allclose(d.u, 0, atol=1e-15)
+
+
+def test_value_types_are_frozen():
+    import dataclasses
+
+    for obj in (tr.Sinusoid(), tr.Desired(np.zeros(1), np.zeros(1), np.zeros(1))):
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            obj.eta = 1  # type: ignore[union-attr]
