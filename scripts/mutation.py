@@ -58,7 +58,7 @@ REASONS = REPO / "scripts" / "mutation_reasons.json"
 T = "tests/"
 MODULES: dict[str, tuple[str, str, list[str]]] = {
     "law": ("formation_ilc/law.py", "formation_ilc.law",
-            [T + "test_reference.py", T + "test_law.py"]),
+            [T + "test_law_edges.py", T + "test_reference.py", T + "test_law.py"]),
     "delays": ("formation_ilc/delays.py", "formation_ilc.delays",
                [T + "test_delay_models.py", T + "test_delays.py", T + "test_reference.py"]),
     "topology": ("formation_ilc/topology.py", "formation_ilc.topology",

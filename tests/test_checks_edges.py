@@ -144,3 +144,118 @@ def test_report_of_a_good_graph():
     assert any(ln.startswith("verdict: " + rep.heading.verdict(False, 22)) for ln in lines)
     bad = checks.check_scenario(tiny(gain=5.0))
     assert bad.cond20 > 1 and "FAILS" in bad.lines(tiny(gain=5.0))[2]
+
+
+def reference_map(sc):
+    """The lifted heading map built column by column from its definition, one robot and
+    one sample at a time: a unit memory error at (t0, r0) is run through the heading
+    channel e(t+1) = e(t) + dT (mu(t) - g' C(t)) (C: the current term at the expected
+    delays, eq. 10: nothing before sample 1) and learned from,
+    mu'(t) = mu(t) - g (L + Omega) e(t+1) [- g' C(t), literal memory]."""
+    n, n_t, dt = sc.n, sc.samples, sc.dt
+    a, lead = sc.graph.adjacency, sc.graph.leader
+    g, gp = np.asarray(sc.law.gain), np.asarray(sc.law.gain_prime)
+    law = sc.law.kind
+    pmf = sc.uncertainty.delay.pmf()
+    pmf0 = pmf if sc.uncertainty.delay_leader else {0: 1.0}
+    xi = sc.graph.xi
+    m = np.zeros((n * n_t, n * n_t))
+    for t0 in range(n_t):
+        for r0 in range(n):
+            mu = np.zeros((n_t, n))
+            mu[t0, r0] = 1.0
+            e = np.zeros((n_t + 1, n))
+            cur = np.zeros((n_t, n))
+            for t in range(n_t):
+                for i in range(n):
+                    c = 0.0
+                    if law != 22:
+                        for d, p in pmf.items():
+                            if t - d >= 1:
+                                own = e[t - d, i] if law == 9 else e[t, i]
+                                c += p * sum(a[i, j] * (own - e[t - d, j]) for j in range(n))
+                        for d, p in pmf0.items():
+                            if t - d >= 1:
+                                c += p * lead[i] * (e[t - d, i] if law == 9 else e[t, i])
+                    cur[t, i] = c
+                e[t + 1] = e[t] + dt * (mu[t] - gp * cur[t])
+            new = mu - (g[None, :] * (e[1:] @ xi.T))
+            if sc.law.memory == "literal" and law != 22:
+                new -= gp[None, :] * cur
+            m[:, t0 * n + r0] = new.reshape(-1)
+    return m
+
+
+WAYPOINTS = "reference: {kind: waypoints, times: [0, 1, 3], points: [[0, 0], [1, 0], [1, 2]]}"
+
+
+@pytest.mark.parametrize("law, memory, delay, leader_link", [
+    (9, "feedforward", "fixed, samples: 1", "true"),
+    (23, "feedforward", "fixed, samples: 1", "true"),
+    (9, "literal", "uniform, low: 0, high: 2", "true"),
+    (23, "literal", "uniform, low: 0, high: 2", "false"),
+    (9, "feedforward", "uniform, low: 1, high: 2", "false"),
+])
+def test_heading_map_equals_its_definition(law, memory, delay, leader_link):
+    sc = tiny(law=law, memory=memory, delay=f"{delay}, leader_link: {leader_link}", n=3,
+              samples=5, edges="[{from: 1, to: 2}, {from: 2, to: 3}, {from: 1, to: 3}]")
+    m = reference_map(sc)
+    h = checks.heading_map(sc, trials=4)
+    # norms by power iteration (60 steps at most): a few 1e-6 off the SVD's
+    assert h.norm == pytest.approx(np.linalg.norm(m, 2), rel=1e-4)
+    for k, nk in zip(h.powers, h.norms, strict=True):
+        assert nk == pytest.approx(np.linalg.norm(np.linalg.matrix_power(m, k), 2), rel=1e-4)
+    blocks = [m[t * 3:(t + 1) * 3, t * 3:(t + 1) * 3] for t in range(5)]
+    assert np.allclose(np.triu(m, 3), 0)  # block lower triangular in time
+    assert h.spectral_radius == pytest.approx(
+        max(np.abs(np.linalg.eigvals(b)).max() for b in blocks), rel=1e-12)
+
+
+def test_initial_growth_is_that_of_the_desired_turn_rates():
+    text_sc = tiny(law=9)
+    sc = scenario_from_text(text_sc.text.replace(
+        "reference: {kind: unicycle, speed: 0.4, turn_radius: 2.0}", WAYPOINTS))
+    u = sc.desired.u
+    assert not np.allclose(u[..., 0] * u[0, 1, 1] / u[0, 1, 0], u[..., 1])  # not proportional
+    m = reference_map(sc)
+    mu0 = u[:, :, 1].T.reshape(-1)
+    h = checks.heading_map(sc, trials=4)
+    best = max(np.linalg.norm(np.linalg.matrix_power(m, k) @ mu0) / np.linalg.norm(mu0)
+               for k in h.powers)
+    assert h.initial_growth == pytest.approx(best, rel=1e-7)
+
+
+def test_powers_for_one_trial_or_none_and_ties():
+    assert checks.heading_map(tiny(), trials=1).powers == (1,)
+    assert checks.heading_map(tiny(), trials=0).powers == (1,)
+    still = checks.heading_map(tiny(gain=0.0), trials=8)  # M = I: every power has norm 1
+    assert still.norms == (1.0, 1.0, 1.0, 1.0)
+    assert (still.growth, still.growth_trial) == (1.0, 1)
+    shrinking = checks.heading_map(tiny(gain=0.5, samples=2), trials=8)
+    assert max(shrinking.norms) < 1 and shrinking.growth == max(shrinking.norms)
+
+
+def test_report_verdict_advice_follows_the_law_and_memory():
+    long = checks.HeadingMap(2.0, 0.9, 50.0, 16, 3.0, (1,), (2.0,))
+    for law, memory, advice in ((9, "literal", "memory 'feedforward'"),
+                                (22, "literal", "law 9 (its current term"),
+                                (22, "feedforward", "law 9 (its current term"),
+                                (23, "feedforward", "a smaller gain_prime")):
+        sc = tiny(law=law, memory=memory)
+        rep = checks.CheckReport(True, (), 1.0, 0.5, long)
+        text = "\n".join(rep.lines(sc))
+        assert advice in text, (law, memory)
+        assert "(FAILS," in text  # 1.0 is not < 1
+    ok = checks.CheckReport(True, (), 0.999, 0.5, long).lines(tiny())
+    assert "(holds," in ok[2]
+    bad = checks.CheckReport(True, (), 1.5, 0.5, long).lines(tiny())
+    assert "(FAILS," in bad[2]
+
+
+def test_value_types_are_frozen():
+    import dataclasses
+
+    h = checks.HeadingMap(1.0, 0.5, 1.0, 1, 1.0, (1,), (1.0,))
+    for obj in (h, checks.CheckReport(True, (), 0.5, 0.5, None)):
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            obj.norm = 2.0  # type: ignore[union-attr]

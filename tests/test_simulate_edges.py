@@ -143,3 +143,30 @@ def test_tiled_problem_offsets_the_senders_of_each_copy(sc):
         np.testing.assert_array_equal(t.gain_prime[rows], pb.gain_prime)
         np.testing.assert_array_equal(t.leader[rows], pb.leader)
     assert (t.law, t.memory, t.heading, t.dt) == (pb.law, pb.memory, pb.heading, pb.dt)
+
+
+def test_formation_error_counts_real_links_only():
+    """The largest formation error sits on a link of weight 0 (not a link) and on the
+    padding; the counted one is robot 2's link to robot 1 (index 0), weight 1."""
+    eta_d = np.zeros((3, 2, 3))
+    eta = np.zeros((3, 2, 3))
+    eta[1, 1, 0] = 0.5  # robot 2 off by 0.5 m: link 2 <- 1 sees 0.5
+    eta[2, 1, 0] = 9.0  # robot 3 off by 9 m, but its only link has weight 0
+    src = np.array([[-1], [0], [0]])
+    weight = np.array([[0.0], [1.0], [0.0]])
+    out = np.zeros(6)
+    trial_errors(eta, eta, eta_d, src, weight, out)
+    assert out[5] == pytest.approx(0.5)
+    weight[1, 0] = 0.0
+    trial_errors(eta, eta, eta_d, src, weight, out)
+    assert out[5] == 0.0
+
+
+def test_value_types_are_frozen(sc):
+    import dataclasses
+
+    from formation_ilc.simulate import TrialRecord
+
+    for obj in (Problem.from_scenario(sc), TrialRecord(0, np.zeros(1), np.zeros(1), np.zeros(1))):
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            obj.dt = 1.0  # type: ignore[union-attr]
