@@ -81,7 +81,8 @@ MODULES: dict[str, tuple[str, str, list[str]]] = {
                     [T + "test_uncertainty_draws.py", T + "test_simulate_edges.py",
                      T + "test_scenario.py", T + "test_delays.py"]),
     "msgs_schema": ("msgs_schema/__init__.py", "msgs_schema",
-                    [T + "test_msgs_schema.py", T + "test_msgs_rules.py"]),
+                    [T + "test_msgs_edges.py", T + "test_msgs_schema.py",
+                     T + "test_msgs_rules.py"]),
 }
 PYTEST_ARGS = ["-x", "-q", "-p", "no:cacheprovider", "-m", "not slow and not multiprocess",
                # compares compiled with interpreted: meaningless with the JIT disabled
