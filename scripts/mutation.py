@@ -322,17 +322,21 @@ def score_table(mutants: list[Mutant]) -> list[str]:
 
 
 def survivors_table(mutants: list[Mutant]) -> list[str]:
-    reasons = json.loads(REASONS.read_text()) if REASONS.exists() else {}
-    rows = ["| where | mutation | reason |", "| --- | --- | --- |"]
-    for m in mutants:
-        if m.outcome != "survived":
-            continue
-        key = f"{m.module}:{m.line}:{m.operator}"
-        reason = reasons.get(key) or reasons.get(f"{m.module}:{m.line}") or "**unexplained**"
+    """Every survivor with its reason: the first pattern of scripts/mutation_reasons.json
+    that matches "module:line:operator: diff", else a test still to write."""
+    reasons = json.loads(REASONS.read_text()) if REASONS.exists() else []
+    rows = ["| where | mutation | why it survives |", "| --- | --- | --- |"]
+    for m in sorted((m for m in mutants if m.outcome == "survived"),
+                    key=lambda m: (list(MODULES).index(m.module), m.line, m.operator)):
+        text = f"{m.module}:{m.line}:{m.operator}: {m.diff}"
+        reason = next((r["reason"] for r in reasons if re.search(r["match"], text)),
+                      "not equivalent: a test still to write")
         change = " / ".join(f"`{ln[1:].strip()}`" for ln in m.diff.splitlines()
-                            if ln.startswith("+"))[:160]
-        rows.append(f"| {m.module}:{m.line} ({m.definition}) | {m.operator}: {change} | "
-                    f"{reason} |")
+                            if ln.startswith("+"))
+        if len(change) > 120:
+            change = change[:117] + "...`"
+        rows.append(f"| {m.module}:{m.line} | {m.operator.replace('Operator_', ' ')}: "
+                    f"{change.replace('|', '&#124;')} | {reason} |")
     return rows
 
 

@@ -142,3 +142,10 @@ def test_with_options_changes_only_what_it_names():
     other = base.with_options(seed=11, trials=3)
     assert (other.seed, other.trials) == (11, 3) and other.law == base.law
     assert (same.seed, same.trials) == (0, 100)
+
+
+def test_scenario_and_law_settings_are_frozen():
+    sc = load()
+    for obj in (sc, sc.law):
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            obj.name = "x"  # type: ignore[union-attr]
