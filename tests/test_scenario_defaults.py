@@ -149,3 +149,28 @@ def test_scenario_and_law_settings_are_frozen():
     for obj in (sc, sc.law):
         with pytest.raises(dataclasses.FrozenInstanceError):
             obj.name = "x"  # type: ignore[union-attr]
+
+
+def test_degrees_only_where_an_angle_is_expected_and_negative_start_allowed():
+    with pytest.raises(ScenarioError, match=r"dt: expected a number, got '0\.1 deg'"):
+        scenario_from_text(MINIMAL.replace("REF", "{kind: unicycle, speed: 0.5}").replace(
+            "dt: 0.5", "dt: 0.1 deg"))
+    with pytest.raises(ScenarioError, match=r"graph.leader.1: expected a number, got '1 deg'"):
+        scenario_from_text(MINIMAL.replace("REF", "{kind: unicycle, speed: 0.5}").replace(
+            "leader: {1: 1.0}", "leader: {1: 1 deg}"))
+    sc = load("{kind: unicycle, speed: 0.5, start: [-1.0, -2.0, -10 deg]}")
+    np.testing.assert_allclose(sc.reference[0], [-1.0, -2.0, -np.pi / 18])
+    assert load().reference[0].tolist() == [0.0, 0.0, 0.0]
+
+
+def test_scale_with_only_a_mean_is_constant():
+    sc = scenario_from_text(MINIMAL.replace("REF", "{kind: unicycle, speed: 0.5}").replace(
+        "offsets: {1: {x: 1.0, y: 0.0}, 2: {x: 0.0, y: 1.0}}",
+        "scales: {D: {mean: 2.0}}\n  offsets: {1: {x: 1.0, y: 0.0, scale: D}, "
+        "2: {x: 0.0, y: 1.0}}"))
+    assert sc.scales[0] == tr.Sinusoid(2.0, 0.0, 0.0, 0.0)
+
+
+def test_negative_uniform_delay_bound_names_its_field():
+    with pytest.raises(ScenarioError, match=r"delay\.high: .*>= 0"):
+        load(extra="delay: {model: uniform, low: 0, high: -1}\n")

@@ -97,3 +97,9 @@ def test_value_types_are_frozen():
                        (TrialDraws(*[np.zeros(1)] * 5), "shift")):
         with pytest.raises(dataclasses.FrozenInstanceError):
             setattr(obj, field, 1)
+
+
+def test_harmonic_defaults_leave_only_the_amplitude():
+    t = np.arange(5.0)
+    assert Harmonic(2.0)(t).tolist() == [0.0] * 5  # 2 sin(0 t + 0)
+    np.testing.assert_allclose(Harmonic(2.0, phase=0.5)(t), 2 * np.sin(0.5))
