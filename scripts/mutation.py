@@ -329,7 +329,7 @@ def survivors_table(mutants: list[Mutant]) -> list[str]:
     for m in sorted((m for m in mutants if m.outcome == "survived"),
                     key=lambda m: (list(MODULES).index(m.module), m.line, m.operator)):
         text = f"{m.module}:{m.line}:{m.operator}: {m.diff}"
-        reason = next((r["reason"] for r in reasons if re.search(r["match"], text)),
+        reason = next((r["reason"] for r in reasons if re.search(r["match"], text, re.S)),
                       "not equivalent: a test still to write")
         change = " / ".join(f"`{ln[1:].strip()}`" for ln in m.diff.splitlines()
                             if ln.startswith("+"))
