@@ -16,6 +16,7 @@ def test_sample_clock_smallest_run_and_default_gap():
     assert (clk.samples, clk.period) == (1, 3)
     assert ms.SampleClock.for_run(0.1, 5).period == 5 + 1 + 20
     assert ms.SampleClock.for_run(0.123456789, 5).dt_ns == 123456789
+    assert ms.SampleClock.for_run(2.0, 5).dt_ns == 2_000_000_000
     with pytest.raises(dataclasses.FrozenInstanceError):
         clk.samples = 2  # type: ignore[misc]
 
