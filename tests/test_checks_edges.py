@@ -259,3 +259,10 @@ def test_value_types_are_frozen():
     for obj in (h, checks.CheckReport(True, (), 0.5, 0.5, None)):
         with pytest.raises(dataclasses.FrozenInstanceError):
             obj.norm = 2.0  # type: ignore[union-attr]
+
+
+def test_initial_growth_is_zero_when_no_robot_turns():
+    straight = scenario_from_text(tiny().text.replace(", turn_radius: 2.0", ""))
+    assert not straight.desired.u[..., 1].any()
+    with np.errstate(invalid="ignore", divide="ignore"):
+        assert checks.heading_map(straight, trials=2).initial_growth == 0.0
