@@ -6,8 +6,9 @@ State xi = (x, y, theta) [m, m, rad], input u = (v, omega) [m/s, rad/s].
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 from numpy.typing import NDArray
+
+from ._jit import njit
 
 __all__ = ["step", "rollout", "wrap_angle", "heading_from_quaternion", "quaternion_from_heading"]
 

@@ -30,9 +30,9 @@ Heading errors are wrapped to (-pi, pi] (paper-notes 4).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 from numpy.typing import NDArray
 
+from ._jit import njit
 from .kinematics import wrap_angle
 
 __all__ = [

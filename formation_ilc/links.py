@@ -25,9 +25,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numba import njit
 from numpy.typing import NDArray
 
+from ._jit import njit
 from .clock import Malformed, Rejected, SampleClock
 
 __all__ = ["LEADER", "LINK_MODES", "robot_name", "robot_number", "link_name",

@@ -11,9 +11,9 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
 from numpy.typing import NDArray
 
+from ._jit import njit
 from .kinematics import step_into, wrap_angle
 from .law import command, heading_code, law_code, learn, memory_code
 from .links import delivered_label

@@ -1,0 +1,26 @@
+"""The law's learning step with unit weights, by hand (weights of exactly 1, as in the
+paper's graphs; tests/test_reference.py covers random weights)."""
+
+import numpy as np
+
+from formation_ilc.law import MEASURED, learn
+
+
+def test_learn_with_unit_link_and_leader_weights_by_hand():
+    th0 = 0.4
+    eta_own = np.array([[[0.0, 0.0, th0], [1.0, 2.0, 0.3]]])  # (R=1, T+1=2, 3)
+    eta_d_own = np.array([[[0.0, 0.0, 0.0], [1.5, 2.5, 0.5]]])
+    nb_eta = np.array([[[[0.0, 0.0, 0.0], [0.2, 0.1, 0.1]]]])  # (R, L=1, T+1, 3)
+    eta_d_all = np.array([eta_d_own[0], [[0.0, 0.0, 0.0], [0.4, 0.3, 0.2]]])  # robot j = 1
+    memory = np.array([[[0.1, -0.2]]])
+    out = np.zeros_like(memory)
+    learn(9, 0, memory, np.zeros_like(memory), eta_own, eta_d_own, nb_eta,
+          np.array([[1]]), np.array([[1.0]]), eta_d_all, np.array([1.0]), np.array([0.5]),
+          MEASURED, out)
+    # link: (d_i - d_j) - (eta_i - eta_j); leader: d_i - eta_i; both with weight 1
+    link = (np.array([1.5, 2.5, 0.5]) - [0.4, 0.3, 0.2]) - (np.array([1.0, 2.0, 0.3])
+                                                           - [0.2, 0.1, 0.1])
+    p = link + (np.array([1.5, 2.5, 0.5]) - [1.0, 2.0, 0.3])
+    want = [0.1 + 0.5 * (np.cos(th0) * p[0] + np.sin(th0) * p[1]), -0.2 + 0.5 * p[2]]
+    np.testing.assert_allclose(out[0, 0], want, rtol=1e-14)
+
