@@ -83,6 +83,13 @@ MODULES: dict[str, tuple[str, str, list[str]]] = {
     "msgs_schema": ("msgs_schema/__init__.py", "msgs_schema",
                     [T + "test_msgs_edges.py", T + "test_msgs_schema.py",
                      T + "test_msgs_rules.py"]),
+    # the robot as a pure learner and the link rules it shares with the emulator
+    "clock": ("formation_ilc/clock.py", "formation_ilc.clock",
+              [T + "test_learner.py", T + "test_msgs_schema.py", T + "test_msgs_rules.py"]),
+    "links": ("formation_ilc/links.py", "formation_ilc.links",
+              [T + "test_learner.py", T + "test_msgs_rules.py"]),
+    "learner": ("formation_ilc/learner.py", "formation_ilc.learner",
+                [T + "test_learner.py"]),
 }
 PYTEST_ARGS = ["-x", "-q", "-p", "no:cacheprovider", "-m", "not slow and not multiprocess",
                # compares compiled with interpreted: meaningless with the JIT disabled
@@ -227,7 +234,7 @@ def _preload(names: list[str]) -> None:
     import pytest  # noqa: F401
     import yaml  # noqa: F401
 
-    if "msgs_schema" in names:
+    if {"msgs_schema", "clock", "links"} & set(names):  # their tests import msgs_schema
         import rclpy  # noqa: F401
         import rclpy.qos  # noqa: F401
 
