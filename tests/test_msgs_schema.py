@@ -153,3 +153,76 @@ def test_messages_serialize():
     assert ns == 123_456_789_012 and frame == "robot_4" and abs(eta[2] - 2.9) < 1e-15
     p = ms.link_tick_to_msg(1, m)
     assert len(deserialize_message(serialize_message(p), Path).poses) == 1
+
+
+def test_topic_table_covers_every_robot_once_and_no_other():
+    """What the recorder subscribes to: the run's topics, and per robot 1..n its pose,
+    command and trajectories; nothing for a robot 0 or n+1, nothing twice."""
+    for n in (1, 3, 6):
+        names = [name for name, _, _ in ms.topic_table(n)]
+        assert len(names) == len(set(names))
+        robots = sorted({int(x.split("/")[0][6:]) for x in names if x.startswith("robot_")})
+        assert robots == list(range(1, n + 1))
+        for i in range(1, n + 1):
+            for topic in (ms.pose_topic(i), ms.cmd_vel_topic(i), ms.trajectory_topic(i),
+                          ms.true_trajectory_topic(i)):
+                assert topic in names
+            # repeats of other messages, bit for bit: not recorded
+            assert ms.shared_pose_topic(i) not in names
+        for topic in (ms.CONFIG, ms.REFERENCE, ms.TRIAL_EVENTS, ms.READY, ms.DIAGNOSTICS,
+                      ms.CLOCK):
+            assert topic in names
+
+
+def test_driver_odometry_round_trip():
+    """A fake driver's odometry decodes to the pose it was made from, twist included;
+    a non-finite position is refused, whichever coordinate it is in."""
+    from nav_msgs.msg import Odometry
+
+    rng = np.random.default_rng(11)
+    reuse = Odometry()
+    for _ in range(50):
+        pose = (rng.uniform(-9, 9), rng.uniform(-9, 9), rng.uniform(-3.1, 3.1))
+        twist = (rng.uniform(-1, 1), rng.uniform(-2, 2))
+        for out in (None, reuse):
+            m = ms.odometry_msg(pose, twist, 123_000, out=out)
+            assert (out is None) == (m is not reuse)
+            x, y, yaw = ms.odometry_to_pose(m)
+            assert (x, y) == (pose[0], pose[1])
+            assert yaw == pytest.approx(pose[2], abs=1e-12)
+            assert (m.twist.twist.linear.x, m.twist.twist.angular.z) == twist
+            assert (m.header.frame_id, m.child_frame_id) == ("odom", "base_link")
+            assert ms.stamp_to_ns(m.header.stamp) == 123_000
+    for bad in ("x", "y"):
+        m = ms.odometry_msg((1.0, 2.0, 0.3), (0.0, 0.0), 0)
+        setattr(m.pose.pose.position, bad, float("nan"))
+        with pytest.raises(ms.MalformedMessage, match="odometry"):
+            ms.odometry_to_pose(m)
+
+
+def test_driver_twist_plain_and_stamped():
+    from geometry_msgs.msg import Twist, TwistStamped
+
+    t = ms.driver_twist(0.3, -0.7, stamped=False)
+    assert isinstance(t, Twist) and (t.linear.x, t.angular.z) == (0.3, -0.7)
+    s = ms.driver_twist(0.3, -0.7, stamped=True, stamp_ns=5_000_000_001)
+    assert isinstance(s, TwistStamped)
+    assert (s.twist.linear.x, s.twist.angular.z) == (0.3, -0.7)
+    assert ms.stamp_to_ns(s.header.stamp) == 5_000_000_001
+    assert s.header.frame_id == "base_link"
+    assert ms.stamp_to_ns(ms.driver_twist(0, 0, stamped=True).header.stamp) == 0
+
+
+def test_link_tick_takes_the_one_pose_it_holds():
+    a = ms.pose_to_msg([1, 2, 3], 5_000, ms.WORLD_FRAME)
+    m = ms.link_tick_to_msg(9_000, a)
+    assert ms.msg_to_link_tick(m)[1] is m.poses[0]
+
+
+def test_driver_specs_cannot_be_changed_by_a_caller():
+    import dataclasses
+
+    spec = ms.DRIVERS["rosaria"]
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        spec.cmd = "other"  # type: ignore[misc]
+    assert ms.DRIVERS["rosaria"].cmd == "cmd_vel"
