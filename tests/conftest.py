@@ -70,3 +70,15 @@ def ros_env(monkeypatch: pytest.MonkeyPatch) -> Iterator[dict[str, str]]:
     env = dict(os.environ)
     yield env
     clean_shm(before)
+
+
+@pytest.fixture
+def context(ros_env):
+    """A private rclpy Context for an in-process node test, shut down afterwards."""
+    import rclpy
+    from rclpy.context import Context
+
+    ctx = Context()
+    rclpy.init(context=ctx)
+    yield ctx
+    rclpy.try_shutdown(context=ctx)

@@ -38,3 +38,11 @@ def find_child(domain: str, needle: str, deadline: float) -> int:
                 return int(pid)
         time.sleep(0.1)  # polling the process table, bounded by the deadline
     raise AssertionError(f"no process {needle!r} found")
+
+
+def spin_until(ex, cond, timeout: float = 10.0, step: float = 0.01) -> None:
+    """Spin executor ``ex`` until ``cond()`` holds; fail after ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while not cond():
+        assert time.monotonic() < deadline, "timed out"
+        ex.spin_once(timeout_sec=step)

@@ -14,28 +14,14 @@ pytestmark = pytest.mark.ros
 rclpy = pytest.importorskip("rclpy")
 from geometry_msgs.msg import Twist, TwistStamped  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
-from rclpy.context import Context  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
 import msgs_schema as ms  # noqa: E402
 
+from .procs import spin_until  # noqa: E402
+
 TIMEOUT = 0.4
-
-
-@pytest.fixture
-def context(ros_env):
-    ctx = Context()
-    rclpy.init(context=ctx)
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
-
-
-def spin_until(ex, cond, timeout: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not cond():
-        assert time.monotonic() < deadline, "timed out"
-        ex.spin_once(timeout_sec=0.01)
 
 
 def make_bridge(context, cmd_type: str = "twist", driver: str = "rosaria"):

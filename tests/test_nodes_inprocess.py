@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -15,7 +14,6 @@ pytestmark = pytest.mark.ros
 
 rclpy = pytest.importorskip("rclpy")
 from geometry_msgs.msg import PoseStamped, Twist  # noqa: E402
-from rclpy.context import Context  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
@@ -25,20 +23,7 @@ from formation_ilc.learner import RobotLearner  # noqa: E402
 from formation_ilc.scenario import load_scenario  # noqa: E402
 from formation_ilc.simulate import Problem  # noqa: E402
 
-
-@pytest.fixture
-def context(ros_env):
-    ctx = Context()
-    rclpy.init(context=ctx)
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
-
-
-def spin_until(ex, cond, timeout: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not cond():
-        assert time.monotonic() < deadline, "timed out"
-        ex.spin_once(timeout_sec=0.05)
+from .procs import spin_until  # noqa: E402
 
 
 def test_robot_node_commands_what_the_core_computes(context):

@@ -26,7 +26,8 @@ from formation_ilc.runconfig import RunConfig, make_config
 from formation_ilc.simulate import Problem
 
 __all__ = ["DROP_REASONS", "DropCounter", "RunConfig", "make_config", "config_from_msg",
-           "ConfiguredNode", "warm_up", "matched", "fail", "spin_main", "node_parser", "ros_param"]
+           "ConfiguredNode", "warm_up", "matched", "fail", "spin_main", "node_parser", "ros_param",
+           "robot_node_from_args"]
 
 #: reasons a message is dropped (the diagnostics counters)
 DROP_REASONS = REASONS
@@ -168,6 +169,19 @@ def ros_param(argv: list[str], name: str) -> str | None:
         if flag in ("-p", "--param") and arg.startswith(f"{name}:="):
             value = arg.split(":=", 1)[1]
     return value
+
+
+def robot_node_from_args(cls: Callable[[int | None], Node], argv: list[str], prog: str
+                         ) -> Node:
+    """The node of one robot whose ``robot_id`` is given as a ROS parameter (``-p
+    robot_id:=I``): read before the node exists, since its name follows it. A missing or
+    invalid id ends the process with one line and status 2."""
+    rid = ros_param(argv, "robot_id")
+    try:
+        return cls(int(rid) if rid is not None else None)
+    except ValueError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
 
 
 def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],

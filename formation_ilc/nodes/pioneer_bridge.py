@@ -63,7 +63,7 @@ from formation_ilc.nodes.common import (
     make_config,
     matched,
     node_parser,
-    ros_param,
+    robot_node_from_args,
     spin_main,
 )
 from formation_ilc.simulate import Problem
@@ -367,12 +367,7 @@ def main(args: list[str] | None = None) -> int:
     parser = node_parser("formation-ilc-bridge", __doc__)
 
     def build(ns: Any, argv: list[str]) -> list[Node]:
-        rid = ros_param(argv, "robot_id")
-        try:
-            return [BridgeNode(int(rid) if rid is not None else None)]
-        except ValueError as exc:
-            print(f"formation-ilc-bridge: {exc}", file=sys.stderr)
-            raise SystemExit(2) from None
+        return [robot_node_from_args(BridgeNode, argv, "formation-ilc-bridge")]
 
     return spin_main(build, parser, args)
 

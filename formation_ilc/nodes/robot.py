@@ -60,7 +60,7 @@ from formation_ilc.nodes.common import (
     make_config,
     matched,
     node_parser,
-    ros_param,
+    robot_node_from_args,
     spin_main,
     warm_up,
 )
@@ -276,12 +276,7 @@ def main(args: list[str] | None = None) -> int:
     def build(ns: Any, argv: list[str]) -> list[Node]:
         if ns.robots:
             return [RobotNode(r) for r in ns.robots]
-        rid = ros_param(argv, "robot_id")
-        try:
-            return [RobotNode(int(rid) if rid is not None else None)]
-        except ValueError as exc:
-            print(f"formation-ilc-robot: {exc}", file=sys.stderr)
-            raise SystemExit(2) from None
+        return [robot_node_from_args(RobotNode, argv, "formation-ilc-robot")]
 
     return spin_main(build, parser, args)
 
