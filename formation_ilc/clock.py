@@ -14,11 +14,12 @@ from dataclasses import dataclass
 __all__ = ["Rejected", "Malformed", "SampleClock", "REASONS"]
 
 #: why an input is refused (the drop counters of every node)
-REASONS = ("malformed", "stale", "out_of_order", "duplicate", "future")
+REASONS = ("malformed", "stale", "out_of_order", "duplicate", "future", "foreign")
 
 
 class Rejected(ValueError):
-    """An input that is refused, with the ``reason`` it is counted under (one of REASONS).
+    """An input that is refused, with the ``reason`` it is counted under (one of REASONS;
+    ``foreign``: it belongs to another run on the same domain and namespace).
 
     Nodes drop such an input and count it; they never crash on one.
     """

@@ -16,6 +16,12 @@ is its clock Rt); link inputs (``on_link_pose`` or ``on_link_tick``) in any orde
 ``can_command()`` (or at a realtime deadline) ``command()``; after sample T,
 ``finish_trial()`` gives the trajectory to share; ``on_trajectory`` per neighbour; when
 ``learned`` reaches k the robot is ready for trial k+1.
+
+Trials are named by their slot on the label grid (``formation_ilc.schedule``): ``k``,
+``finished`` and ``learned`` are slots, ``iterations`` counts the trials learned. A slot the
+leader aborts (``abort``) is forgotten, and undone if this robot already learned from it;
+every label of it is refused afterwards (stale). ``state()`` / ``restore()`` carry the
+learning state through a crash (``formation_ilc.robotstate``).
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ from .clock import Malformed, Rejected, SampleClock
 from .delays import measure_delay_ns
 from .law import command, learn
 from .links import LEADER, Delivery, LinkInbox, link_name, robot_name
+from .robotstate import RobotState
 from .simulate import Problem
 
 __all__ = ["PoseEvent", "RobotLearner"]
@@ -80,6 +87,11 @@ class RobotLearner:
                                  f"got {m.shape}")
             self.memory[0] = m
         self.next_memory = np.zeros_like(self.memory)
+        self.prev_memory = self.memory.copy()   # before the last learning step (rollback)
+        self.iterations = 0     # trials learned
+        self.prev_iterations = 0
+        self.prev_learned = -1
+        self.floor = -1         # labels of slots <= floor are refused (aborted or learned)
         self.applied = np.zeros((1, n_t, 2))
         self.eta = np.zeros((1, n_t + 1, 3))
         self.have = np.zeros(n_t + 1, dtype=bool)
@@ -122,7 +134,7 @@ class RobotLearner:
         (out_of_order). In realtime a skipped or uncommanded sample is counted in
         ``missed`` and recorded as held (what the plant applied)."""
         k, s = self.clock.decode(label_ns)
-        if k < self.k or (k == self.k and s <= self.t):
+        if k <= self.floor or k < self.k or (k == self.k and s <= self.t):
             raise Rejected("stale", f"sample ({k}, {s}) after ({self.k}, {self.t})")
         new = k > self.k
         if not self.realtime:
@@ -162,12 +174,19 @@ class RobotLearner:
     # ------------------------------------------------------------------ links
     def on_link_pose(self, sender: str, label_ns: int, eta: NDArray[np.float64]) -> None:
         """Direct link: ``sender``'s shared pose (or the leader's reference) arrived."""
+        self._fresh(label_ns)
         self._inbox(sender).offer(label_ns, eta, max(self.k, 0))
+
+    def _fresh(self, label_ns: int) -> None:
+        k, _ = self.clock.decode(label_ns)
+        if k <= self.floor:
+            raise Rejected("stale", f"label of slot {k}, aborted or learned (<= {self.floor})")
 
     def on_link_tick(self, sender: str, tick_ns: int,
                      pose: tuple[int, NDArray[np.float64]] | None) -> None:
         """Emulated link: at tick ``tick_ns`` the link from ``sender`` delivered ``pose``
         (label, output), or nothing."""
+        self._fresh(tick_ns)
         d = None if pose is None else Delivery(sender, pose[0], pose[1])
         self._inbox(sender).offer_tick(tick_ns, d, max(self.k, 0))
 
@@ -237,7 +256,7 @@ class RobotLearner:
         k, s0 = self.clock.decode(int(stamps[0]))
         if s0 != 0 or any(int(x) != self.clock.stamp_ns(k, s) for s, x in enumerate(stamps)):
             raise Malformed("trajectory stamps are not samples 0..T of one trial")
-        if k <= self.learned or k < self.k:
+        if k <= self.learned or k < self.k or k <= self.floor:
             raise Rejected("stale", f"trajectory of trial {k} in trial {self.k}")
         self.trajs.setdefault(k, {})[self.slots[sender]] = np.array(eta, dtype=float)
         return self.try_learn()
@@ -251,21 +270,61 @@ class RobotLearner:
         pb, sl = self.pb, self.sl
         for ell, eta in have.items():
             self.nb_full[0, ell] = eta
+        self.prev_memory[:] = self.memory
+        self.prev_iterations, self.prev_learned = self.iterations, self.learned
         learn(pb.law, pb.memory, self.memory, self.applied, self.eta, pb.eta_d[sl],
               self.nb_full, pb.src[sl], pb.weight[sl], pb.eta_d, pb.leader[sl], pb.gain[sl],
               pb.heading, self.next_memory)
         self.memory, self.next_memory = self.next_memory, self.memory
         self.learned = k
+        self.iterations += 1
         for old in [x for x in self.trajs if x <= k]:
             del self.trajs[old]
         return True
+
+    # ------------------------------------------------------------------ faults
+    def abort(self, slot: int) -> bool:
+        """The leader aborted ``slot``: forget it (and undo the learning step if this robot
+        already learned from it). Returns True if the memory was rolled back."""
+        if slot <= self.floor and slot != self.learned:
+            return False
+        rolled = False
+        if self.learned == slot:
+            self.memory[:] = self.prev_memory
+            self.iterations, self.learned = self.prev_iterations, self.prev_learned
+            rolled = True
+        self.floor = max(self.floor, slot)
+        if self.k <= slot:
+            self.k, self.t, self.commanded = slot, self.T, True
+        if self.finished >= slot:
+            self.finished = self.learned
+        self.trajs = {k: v for k, v in self.trajs.items() if k > slot}
+        for box in self.inbox.values():
+            box.clear()
+        return rolled
+
+    def state(self) -> RobotState:
+        """What a restarted robot needs (``formation_ilc.robotstate``)."""
+        return RobotState(self.memory[0].copy(), self.iterations, self.learned,
+                          self.prev_memory[0].copy(), self.prev_iterations, self.prev_learned)
+
+    def restore(self, st: RobotState) -> None:
+        """Continue from a saved state: every label of a slot up to the learned one is
+        stale; the next trial the leader starts is the robot's next."""
+        self.memory[0] = st.memory
+        self.prev_memory[0] = st.prev_memory
+        self.iterations, self.learned = st.iterations, st.slot
+        self.prev_iterations, self.prev_learned = st.prev_iterations, st.prev_slot
+        self.floor = self.finished = st.slot
+        self.k, self.t, self.commanded = st.slot, self.T, True
 
     def diagnostics(self) -> dict[str, object]:
         """Counters for the diagnostics topic: commands, missed samples, per link the
         histogram of measured delays (eq. 11) keyed by the sender, and (emulated links) how
         many deliveries came after their sample was commanded (``unused``)."""
         d: dict[str, object] = {
-            "node": self.name, "trial": self.learned, "commands": self.commands,
+            "node": self.name, "trial": self.iterations - 1, "slot": self.learned,
+            "commands": self.commands,
             "missed": self.missed,
             "delays": {s: {str(t): c for t, c in sorted(h.items())}
                        for s, h in self.delays.items()}}

@@ -62,6 +62,12 @@ def link_name(sender: str, receiver: str) -> str:
 Samples = int | NDArray[np.int64]
 
 
+#: the delay of a sample the link loses: ``delivered_label`` is negative for any tick, so
+#: nothing is delivered and the link drops out of the current term for that sample (the
+#: trial-end exchange still carries the whole trajectory to the predictive term)
+LOST = 1 << 40
+
+
 @njit(cache=True)
 def delivered_label(t: Samples, tau: Samples) -> Samples:
     """Sample label an emulated link delivers at tick t when its delay is tau samples
@@ -146,6 +152,11 @@ class LinkInbox:
             return None
         self.poses.appendleft(best)  # still the newest usable one at the next sample
         return Delivery(self.sender, best[0], best[1])
+
+    def clear(self) -> None:
+        """Forget everything held (an aborted trial); labels must still grow."""
+        self.poses.clear()
+        self.ticks.clear()
 
     def forget(self, until_ns: int) -> None:
         """Emulated: drop the ticks up to ``until_ns`` (their samples are commanded),

@@ -419,6 +419,9 @@ def scenario_from_text(text: str, source: str = "<memory>", base_dir: Path | Non
         if isinstance(exc, ScenarioError):
             raise
         raise dlf.fail(None, str(exc)) from None
+    loss = dlf.number("loss", 0.0, nonneg=True)
+    if loss >= 1.0:
+        raise dlf.fail("loss", f"a probability below 1 is required, got {loss}")
     leader_link = dlf.get("leader_link", True)
     if not isinstance(leader_link, bool):
         raise dlf.fail("leader_link", f"expected true or false, got {leader_link!r}")
@@ -431,7 +434,7 @@ def scenario_from_text(text: str, source: str = "<memory>", base_dir: Path | Non
     unc = Uncertainty((shift[0], shift[1], shift[2]), (dist_fixed[0], dist_fixed[1]),
                       (dist_unif[0], dist_unif[1]),
                       (noise_fixed[0], noise_fixed[1], noise_fixed[2]),
-                      (noise_unif[0], noise_unif[1], noise_unif[2]), dm, leader_link)
+                      (noise_unif[0], noise_unif[1], noise_unif[2]), dm, leader_link, loss)
     return Scenario(name=name, description=description, dt=dt, samples=n_samples, trials=trials,
                     seed=seed, graph=graph, reference=ref, frame=frame, offsets=offsets,
                     scales=tuple(robot_scales), law=law, uncertainty=unc, source=source,

@@ -15,11 +15,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .delays import DelayModel
+from .links import LOST
 
 __all__ = ["Harmonic", "Uncertainty", "TrialDraws", "trial_rng", "PLANT_STREAM", "DELAY_STREAM"]
 
 PLANT_STREAM = 0
 DELAY_STREAM = 1
+#: lost samples come from a stream of their own: a lossless scenario draws what it always did
+LOSS_STREAM = 2
 
 
 def trial_rng(seed: int, trial: int, stream: int) -> np.random.Generator:
@@ -57,6 +60,8 @@ class Uncertainty:
         half-widths of (Dv, Domega) [m/s, rad/s].
     noise_fixed / noise_uniform : the same for (Nx, Ny, Ntheta) [m, m, rad].
     delay : model of every link's delay; ``delay_leader`` whether the leader link is delayed.
+    link_loss : probability that a link loses a sample (it then delivers nothing at that
+        tick, ``links.LOST``); the leader link too when ``delay_leader``.
     """
 
     initial_shift: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -66,10 +71,16 @@ class Uncertainty:
     noise_uniform: tuple[float, float, float] = (0.0, 0.0, 0.0)
     delay: DelayModel = field(default_factory=DelayModel)
     delay_leader: bool = True
+    link_loss: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.link_loss < 1.0:
+            raise ValueError(f"link loss must be in [0, 1), got {self.link_loss}")
 
     def without_noise(self) -> Uncertainty:
         """No initial shift, disturbance or noise; delays kept."""
-        return Uncertainty(delay=self.delay, delay_leader=self.delay_leader)
+        return Uncertainty(delay=self.delay, delay_leader=self.delay_leader,
+                           link_loss=self.link_loss)
 
     def without_delay(self) -> Uncertainty:
         return Uncertainty(self.initial_shift, self.disturbance_fixed, self.disturbance_uniform,
@@ -98,13 +109,19 @@ class Uncertainty:
 
     def draw_delays(self, seed: int, trial: int, n: int, n_links: int, n_samples: int
                     ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-        """(tau of each in-link (n, L, T+1), tau of each leader link (n, T+1)) in samples."""
+        """(tau of each in-link (n, L, T+1), tau of each leader link (n, T+1)) in samples;
+        a lost sample's tau is ``links.LOST``."""
         rng = trial_rng(seed, trial, DELAY_STREAM)
         tau = self.delay.draw(rng, (n, n_links, n_samples + 1))
         if self.delay_leader:
             tau0 = self.delay.draw(rng, (n, n_samples + 1))
         else:
             tau0 = np.zeros((n, n_samples + 1), dtype=np.int64)
+        if self.link_loss > 0.0:
+            lrng = trial_rng(seed, trial, LOSS_STREAM)
+            tau[lrng.random(tau.shape) < self.link_loss] = LOST
+            if self.delay_leader:
+                tau0[lrng.random(tau0.shape) < self.link_loss] = LOST
         return tau, tau0
 
 

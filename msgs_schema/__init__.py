@@ -85,6 +85,7 @@ from std_msgs.msg import String
 from formation_ilc.clock import Malformed, SampleClock
 from formation_ilc.links import LEADER, link_name, robot_name
 from formation_ilc.links import robot_number as robot_index
+from formation_ilc.schedule import ABORT, DONE, END, START
 
 __all__ = [
     "NAMESPACE", "CONFIG", "REFERENCE", "TRIAL_EVENTS", "READY", "DIAGNOSTICS", "CLOCK",
@@ -96,7 +97,7 @@ __all__ = [
     "SampleClock", "stamp_to_ns", "ns_to_stamp", "pose_to_msg", "msg_to_pose", "u_to_twist",
     "twist_to_u", "world_pose", "trajectory_to_path", "path_to_trajectory", "link_tick_to_msg",
     "msg_to_link_tick", "json_to_msg", "msg_to_json", "clock_msg",
-    "START", "END", "DONE",
+    "START", "END", "ABORT", "DONE",
     "DriverSpec", "DRIVERS", "DRIVER_CMD_QOS", "ODOM_QOS", "BRIDGE_PREFIX", "bridge_name",
     "odometry_to_pose", "odometry_msg", "driver_twist",
 ]
@@ -114,8 +115,8 @@ CLOCK = "/clock"
 WORLD_FRAME = "map"
 #: sender name of the leader's reference (link names ``leader->robot_i``)
 LEADER_FRAME = LEADER
-#: trial events (``event`` field of the JSON on TRIAL_EVENTS)
-START, END, DONE = "start", "end", "done"
+#: trial events (``event`` field of the JSON on TRIAL_EVENTS): START, END, ABORT, DONE,
+#: defined with the protocol (slots, aborts, ready) in ``formation_ilc.schedule``
 
 
 def pose_topic(i: int) -> str:

@@ -6,8 +6,10 @@ The run configuration itself (``formation_ilc.runconfig.RunConfig``) is part of 
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
+import uuid
 from collections import Counter
 from collections.abc import Callable, Iterable
 from typing import Any
@@ -23,6 +25,7 @@ from std_msgs.msg import String
 import msgs_schema as ms
 from formation_ilc.clock import REASONS, Rejected
 from formation_ilc.runconfig import RunConfig, make_config
+from formation_ilc.schedule import Ready, TrialEvent
 from formation_ilc.simulate import Problem
 
 __all__ = ["DROP_REASONS", "DropCounter", "RunConfig", "make_config", "config_from_msg",
@@ -74,6 +77,23 @@ class ConfiguredNode(Node):
         super().__init__(name, **kwargs)
         self.drops = DropCounter(self)
         self.configured = False
+        #: this process's identity in ``ready`` (a new one tells the leader it restarted)
+        self.boot = uuid.uuid4().hex[:12]
+        #: ``seq`` of the last start or abort event handled
+        self.seen = -1
+
+    def ready_msg(self, trial: int, passive: bool = False) -> String:
+        """The ``ready`` message of this node (``formation_ilc.schedule``)."""
+        return ms.json_to_msg(Ready(self.get_name(), trial, self.boot, self.seen,
+                                    passive).to_json())
+
+    def trial_event(self, msg: String) -> TrialEvent | None:
+        """The event on ``leader/trial_events``, or None (dropped and counted)."""
+        try:
+            return TrialEvent.from_json(ms.msg_to_json(msg))
+        except Rejected as exc:
+            self.drops.reject(exc, ms.TRIAL_EVENTS)
+            return None
 
     def follow_config(self, cfg: RunConfig | None = None) -> None:
         """Configure now from ``cfg``, or when the config topic delivers one."""
@@ -88,11 +108,17 @@ class ConfiguredNode(Node):
                                                      ms.LATCHED_QOS)
 
     def _on_config(self, msg: String) -> None:
-        if self.configured:
-            return
         cfg = config_from_msg(msg, self.drops)
-        if cfg is not None:
-            self.follow_config(cfg)
+        if cfg is None:
+            return
+        if self.configured:
+            mine = getattr(getattr(self, "cfg", None), "run_id", None)
+            if mine is not None and cfg.run_id != mine:
+                self.drops.drop("foreign", ms.CONFIG,
+                                f"run {cfg.run_id or '?'} on this domain and namespace; this "
+                                f"node belongs to run {mine or '?'}")
+            return
+        self.follow_config(cfg)
 
     def configure(self, cfg: RunConfig) -> None:
         raise NotImplementedError
@@ -184,6 +210,29 @@ def robot_node_from_args(cls: Callable[[int | None], Node], argv: list[str], pro
         raise SystemExit(2) from None
 
 
+#: environment variable naming the pid of the launcher that supervises this node
+PARENT_ENV = "FORMATION_ILC_PARENT"
+
+
+def die_with_parent() -> None:
+    """A node started by a launcher ends with it, whatever signal ended the launcher
+    (SIGKILL included): the kernel sends SIGTERM when the parent dies (Linux
+    PR_SET_PDEATHSIG), and a node whose launcher is already gone exits at once."""
+    parent = os.environ.get(PARENT_ENV)
+    if not parent:
+        return
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+    if str(os.getppid()) != parent:
+        print(f"launcher {parent} is gone: not starting", file=sys.stderr)
+        raise SystemExit(1)
+
+
 def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
               parser: argparse.ArgumentParser, args: list[str] | None = None,
               executor: str = "events") -> int:
@@ -194,6 +243,7 @@ def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
     """
     argv = list(args if args is not None else sys.argv)
     ns = parser.parse_args(rclpy.utilities.remove_ros_args(argv)[1:])
+    die_with_parent()
     # rclpy's own SIGINT handling raises KeyboardInterrupt inside whatever callback runs,
     # which aborts the process from C++; a flag for the spin loop is enough
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)

@@ -1,5 +1,10 @@
 """Monitor node of the launcher: per-trial metrics from the wire, diagnostics, progress.
 
+Trajectories are labelled with their slot; the leader's ``start`` events say which
+iteration a slot runs, and an ``abort`` drops a slot (``formation_ilc.schedule``). Rows are
+keyed by iteration; iterations below ``first`` (already in a resumed run's metrics.csv) are
+not reported again.
+
 It reads each robot's whole-trial measured trajectory (``trajectory``, the same message its
 neighbours learn from) and, when the plant publishes them (``true_state``), its true
 trajectories, and computes the metrics row with ``formation_ilc.simulate.trial_errors``
@@ -9,6 +14,7 @@ nan: a hardware plant has no ground truth.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from typing import Any
 
@@ -20,6 +26,7 @@ from std_msgs.msg import String
 import msgs_schema as ms
 from formation_ilc.metrics import METRIC_COLUMNS, TRUE_COLUMNS
 from formation_ilc.nodes.common import DropCounter, RunConfig
+from formation_ilc.schedule import TrialEvent
 from formation_ilc.simulate import Problem, trial_errors
 
 
@@ -27,7 +34,7 @@ class MonitorNode(Node):
     """Collects trial k's trajectories; calls ``on_trial(k, row)`` when all are in."""
 
     def __init__(self, cfg: RunConfig, on_trial: Callable[[int, np.ndarray], None],
-                 true_state: bool = True, **kwargs: Any):
+                 true_state: bool = True, first: int = 0, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__("monitor", **kwargs)
         self.cfg = cfg
@@ -42,6 +49,9 @@ class MonitorNode(Node):
         self.rows: dict[int, np.ndarray] = {}
         self.diagnostics: dict[str, dict[str, Any]] = {}
         self.events: list[dict[str, Any]] = []
+        self.first = first
+        self.iteration_of: dict[int, int] = {}   # slot -> iteration (start events)
+        self.aborted: set[int] = set()
         self.path_subs = []
         for r in range(n):
             self.path_subs.append(self.create_subscription(
@@ -63,8 +73,9 @@ class MonitorNode(Node):
         if all(s.get_publisher_count() >= 1 for s in self.path_subs) and \
                 self.ready_pub.get_subscription_count() >= 1:
             self._gate.cancel()
-            self.ready_pub.publish(ms.json_to_msg({"node": "monitor",
-                                                   "trial": self.cfg.scenario.trials}))
+            self.ready_pub.publish(ms.json_to_msg({"node": "monitor", "passive": True,
+                                                   "trial": self.cfg.scenario.trials,
+                                                   "boot": f"{os.getpid()}"}))
 
     def _on_traj(self, msg: Path, r: int, store: dict[int, dict[int, np.ndarray]]) -> None:
         try:
@@ -73,25 +84,35 @@ class MonitorNode(Node):
         except (ms.MalformedMessage, IndexError) as exc:
             self.drops.drop("malformed", ms.trajectory_topic(r + 1), str(exc))
             return
-        if k in self.rows:
+        i = self.iteration_of.get(k)
+        if k in self.aborted or (i is not None and i in self.rows):
             return
         store.setdefault(k, {})[r] = eta
+        self._complete(k)
+
+    def _complete(self, k: int) -> None:
+        """Report slot k's row once its trajectories and its iteration are known."""
         n = self.pb.n
+        i = self.iteration_of.get(k)
+        if i is None or k in self.aborted:
+            return
         if len(self.eta.get(k, {})) == n and (not self.true_state
                                               or len(self.xi.get(k, {})) == n):
             eta_all = np.stack([self.eta[k][i] for i in range(n)])
             xi_all = (np.stack([self.xi[k][i] for i in range(n)]) if self.true_state
                       else eta_all)
             row = np.empty(len(METRIC_COLUMNS))
-            row[0] = k
+            row[0] = i
             trial_errors(eta_all, xi_all, self.pb.eta_d, self.pb.src, self.pb.weight, row[1:])
             if not self.true_state:
                 for c in TRUE_COLUMNS:
                     row[METRIC_COLUMNS.index(c)] = np.nan
-            self.rows[k] = row
             self.eta.pop(k, None)
             self.xi.pop(k, None)
-            self.on_trial(k, row)
+            if i < self.first or i in self.rows:
+                return
+            self.rows[i] = row
+            self.on_trial(i, row)
 
     def _on_diag(self, msg: String) -> None:
         try:
@@ -103,6 +124,16 @@ class MonitorNode(Node):
 
     def _on_event(self, msg: String) -> None:
         try:
-            self.events.append(ms.msg_to_json(msg, ("event", "trial")))
+            d = ms.msg_to_json(msg)
+            ev = TrialEvent.from_json(d)
         except ms.MalformedMessage as exc:
             self.drops.drop("malformed", "trial_events", str(exc))
+            return
+        self.events.append(d)
+        if ev.event == ms.START:
+            self.iteration_of[ev.slot] = ev.trial
+            self._complete(ev.slot)
+        elif ev.event == ms.ABORT:
+            self.aborted.add(ev.slot)
+            self.eta.pop(ev.slot, None)
+            self.xi.pop(ev.slot, None)

@@ -177,9 +177,10 @@ class RecorderNode(Node):
             self.said_ready = True
             self.truth = all(self.subs[t].get_publisher_count() >= 1 for t in self.optional)
             self._gate.cancel()
-            # ready for every trial of the run
-            self.ready_pub.publish(ms.json_to_msg({"node": "recorder",
-                                                   "trial": self.cfg.scenario.trials}))
+            # ready for every trial of the run: it only watches (formation_ilc.schedule)
+            self.ready_pub.publish(ms.json_to_msg({"node": "recorder", "passive": True,
+                                                   "trial": self.cfg.scenario.trials,
+                                                   "boot": f"{os.getpid()}"}))
             self.get_logger().info(f"ready: {len(self.subs)} topics")
 
     def destroy_node(self) -> None:
