@@ -130,6 +130,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="record every formation topic to this MCAP file (its own recorder "
                         "process; the run starts once it listens); analyse it with "
                         "`formation-ilc analyze RUN.mcap`")
+    add_host_arguments(p)
 
 
 def _pick_domain() -> int:
@@ -273,7 +274,7 @@ def _save_run(out: Path, args: argparse.Namespace) -> None:
     from formation_ilc.schedule import atomic_write_text
 
     d = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()
-         if k not in ("func", "command", "resume")}
+         if k not in ("func", "command", "resume") and not k.endswith("_")}
     atomic_write_text(out / RUN_FILE, json.dumps(d, indent=2) + "\n")
 
 
@@ -336,12 +337,13 @@ def run(args: argparse.Namespace) -> int:
     from formation_ilc.shm import clean_leftovers, fastdds_files
     from formation_ilc.simulate import Problem
 
-    if getattr(args, "resume", None) is not None:
+    if getattr(args, "resume", None) is not None and not getattr(args, "resumed_", False):
         resumed = _resume_args(args)
         if isinstance(resumed, str):
             print(f"error: {resumed}", file=sys.stderr)
             return 2
         args = resumed
+        args.resumed_ = True
     elif args.scenario is None:
         print("error: a SCENARIO is required (or --resume DIR)", file=sys.stderr)
         return 2
@@ -350,6 +352,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if getattr(args, "run_id", None) is None:
         args.run_id = uuid.uuid4().hex[:12]
+    if getattr(args, "hosts_", None) is None and (args.hosts == "netns" or _net_options(args)):
+        return run_on_hosts(args)
     pioneer = args.plant == "pioneer"
     if pioneer and (args.mode not in (None, "wallclock") or args.links not in (None, "direct")):
         print(f"error: --plant pioneer runs --mode wallclock with --links direct (real robots "
@@ -419,7 +423,7 @@ def run(args: argparse.Namespace) -> int:
     if args.discovery == "localhost":
         env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     env["PYTHONUNBUFFERED"] = "1"
-    from formation_ilc.nodes.common import PARENT_ENV
+    from formation_ilc.lifetime import PARENT_ENV
 
     env[PARENT_ENV] = str(os.getpid())  # every node ends with this launcher
     # Fast DDS files that nodes killed earlier left behind (held by no process)
@@ -529,7 +533,7 @@ def run(args: argparse.Namespace) -> int:
                                "return_timeout": float(args.return_timeout)},
                 driver_ns=args.driver_ns, fake_drivers=args.fake_drivers,
                 cmd_type=args.cmd_type):
-            stack.start(name, argv)
+            stack.start(name, host_argv(args, name, argv))
         final_deadline: float | None = None
         while True:
             ex.spin_once(timeout_sec=0.05)
@@ -705,3 +709,117 @@ def _print_report(sc: Any, m: np.ndarray, dtab: list[list[Any]], summary: dict[s
     drops = {n: sum(d.values()) for n, d in summary["dropped"].items() if sum(d.values())}
     if drops:
         print(f"dropped messages: {drops}")
+
+
+# --------------------------------------------------------------------------- separate hosts
+def add_host_arguments(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("robots on separate hosts, one machine (root; "
+                             "docs/lossy-links.md)")
+    g.add_argument("--hosts", choices=("local", "netns"), default="local",
+                   help="local (default): every process on this machine's network; netns: "
+                        "each robot process in a network namespace of its own, joined by "
+                        "veth links to a hub namespace (leader, simulator, this launcher), "
+                        "DDS over UDP, unicast discovery; direct links. Needs root, iproute2 "
+                        "and iptables with NFQUEUE")
+    g.add_argument("--net-delay-ms", type=float, default=0.0, metavar="MS",
+                   help="with --hosts netns: mean delay of every link between robots, per "
+                        "direction (default 0)")
+    g.add_argument("--net-jitter-ms", type=float, default=0.0, metavar="MS",
+                   help="with --hosts netns: delays uniform in delay +- jitter (default 0)")
+    g.add_argument("--net-loss", type=float, default=0.0, metavar="P",
+                   help="with --hosts netns: fraction of the packets between robots "
+                        "dropped, per direction (default 0)")
+    g.add_argument("--dds-profile", choices=("lossy", "none"), default=None,
+                   help="with --hosts netns: lossy (default): the package's Fast DDS profile "
+                        "for lossy links (50 ms writer heartbeat: a lost sample is repaired "
+                        "within about a round trip); none: Fast DDS defaults (3 s)")
+
+
+def host_argv(args: argparse.Namespace, name: str, argv: list[str]) -> list[str]:
+    """``argv`` of process ``name``, inside its robot's namespace with --hosts netns."""
+    import re
+
+    hosts = getattr(args, "hosts_", None)
+    m = re.fullmatch(r"robot_(\d+)", name)
+    if hosts is None or m is None:
+        return argv
+    return hosts.exec_argv(hosts.robot_ns(int(m.group(1))), argv)
+
+
+def _net_options(args: argparse.Namespace) -> bool:
+    return bool(args.net_delay_ms or args.net_jitter_ms or args.net_loss
+                or args.dds_profile is not None)
+
+
+def run_on_hosts(args: argparse.Namespace) -> int:
+    """``run`` with each robot process in a network namespace of its own (--hosts netns);
+    the namespaces, rules and delayers are removed whatever happens."""
+    from formation_ilc import netns
+    from formation_ilc.links import robot_name
+    from formation_ilc.scenario import load_scenario
+
+    def usage(msg: str) -> int:
+        print(f"error: {msg}", file=sys.stderr)
+        return 2
+
+    if args.hosts != "netns":
+        return usage("--net-delay-ms, --net-jitter-ms, --net-loss and --dds-profile go with "
+                     "--hosts netns")
+    try:
+        faults = netns.LinkFaults(args.net_delay_ms, args.net_jitter_ms, args.net_loss)
+    except netns.NetnsError as exc:
+        return usage(str(exc))
+    if args.container or args.plant != "sim" or args.links == "emulated":
+        return usage("--hosts netns runs one process per robot (no --container), the "
+                     "simulator as plant (--plant sim) and direct links (the links between "
+                     "robots are the network's; no --links emulated)")
+    problem = netns.support_problem()
+    if problem:
+        return usage(f"--hosts netns: {problem}")
+    orphans = netns.remove_orphans()
+    if orphans:
+        print(f"removed {len(orphans)} network namespaces of dead launchers", flush=True)
+    args.links = "direct"
+    sc = load_scenario(args.scenario)
+    args.out = args.out or Path("runs") / f"{sc.name}-launch-{datetime.now():%Y%m%d-%H%M%S}"
+    profile = args.dds_profile or "lossy"
+    hosts = netns.Hosts(sc.n, faults, seed=sc.seed if args.seed is None else args.seed,
+                        log_dir=args.out / "hosts")
+    saved = dict(os.environ)
+    status = 1
+    try:
+        with hosts:
+            os.environ.update(hosts.ros_env())
+            os.environ.pop("FASTRTPS_DEFAULT_PROFILES_FILE", None)
+            if profile == "lossy":
+                os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(netns.lossy_profile())
+            print(f"hosts: robot i in network namespace {hosts.robot_ns(1)[:-1]}i "
+                  f"({netns.SUBNET}.{netns.ROBOT_HOST0}+i), the rest in {hosts.hub} "
+                  f"({hosts.hub_address}); links between robots: {faults.describe()}; "
+                  f"Fast DDS profile {profile}", flush=True)
+            args.hosts_ = hosts
+            with hosts.entered_hub():
+                status = run(args)
+            stats = hosts.stop_delayers()
+    except netns.NetnsError as exc:
+        print(f"error: --hosts netns: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        args.hosts_ = None
+        os.environ.clear()
+        os.environ.update(saved)
+    report: dict[str, Any] = {"namespaces": hosts.namespaces(), "hub": hosts.hub_address,
+                              "faults": vars(faults), "dds_profile": profile,
+                              "delayers": {robot_name(i): s for i, s in stats.items()}}
+    for robot, s in report["delayers"].items():
+        lo, p50, p99, hi = netns.hold_quantiles(s.get("hold_ms", {}))
+        n = s.get("packets", 0)
+        print(f"{robot} -> other robots: {n} packets, {s.get('dropped', 0)} dropped "
+              f"({100 * s.get('dropped', 0) / max(n, 1):.1f} %), held {lo:.0f} / {p50:.0f} / "
+              f"{p99:.0f} / {hi:.0f} ms (min / p50 / p99 / max)")
+    path = args.out / "summary.json"
+    if path.exists():
+        summary = json.loads(path.read_text())
+        summary["hosts"] = report
+        path.write_text(json.dumps(summary, indent=2) + "\n")
+    return status

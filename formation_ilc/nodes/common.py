@@ -6,7 +6,6 @@ The run configuration itself (``formation_ilc.runconfig.RunConfig``) is part of 
 from __future__ import annotations
 
 import argparse
-import os
 import signal
 import sys
 import uuid
@@ -24,13 +23,14 @@ from std_msgs.msg import String
 
 import msgs_schema as ms
 from formation_ilc.clock import REASONS, Rejected
+from formation_ilc.lifetime import PARENT_ENV, die_with_parent
 from formation_ilc.runconfig import RunConfig, make_config
 from formation_ilc.schedule import Ready, TrialEvent
 from formation_ilc.simulate import Problem
 
-__all__ = ["DROP_REASONS", "DropCounter", "RunConfig", "make_config", "config_from_msg",
-           "ConfiguredNode", "warm_up", "matched", "fail", "spin_main", "node_parser", "ros_param",
-           "robot_node_from_args"]
+__all__ = ["PARENT_ENV", "DROP_REASONS", "DropCounter", "RunConfig", "make_config",
+           "config_from_msg", "ConfiguredNode", "warm_up", "matched", "fail", "spin_main",
+           "node_parser", "ros_param", "robot_node_from_args"]
 
 #: reasons a message is dropped (the diagnostics counters)
 DROP_REASONS = REASONS
@@ -208,29 +208,6 @@ def robot_node_from_args(cls: Callable[[int | None], Node], argv: list[str], pro
     except ValueError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         raise SystemExit(2) from None
-
-
-#: environment variable naming the pid of the launcher that supervises this node
-PARENT_ENV = "FORMATION_ILC_PARENT"
-
-
-def die_with_parent() -> None:
-    """A node started by a launcher ends with it, whatever signal ended the launcher
-    (SIGKILL included): the kernel sends SIGTERM when the parent dies (Linux
-    PR_SET_PDEATHSIG), and a node whose launcher is already gone exits at once."""
-    parent = os.environ.get(PARENT_ENV)
-    if not parent:
-        return
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
-    if str(os.getppid()) != parent:
-        print(f"launcher {parent} is gone: not starting", file=sys.stderr)
-        raise SystemExit(1)
 
 
 def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
