@@ -229,10 +229,21 @@ class Stack:
         self.procs[name] = subprocess.Popen(argv, env=self.env, stdout=fh,
                                             stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
 
-    def restart(self, name: str) -> None:
-        """Start ``name`` again with the same command line."""
-        self.restarts[name] = self.restarts.get(name, 0) + 1
-        self.start(name, self.argv[name])
+    def restart(self, name: str) -> str:
+        """Start ``name`` again with the same command line (a recorder into a new file
+        part, ``RUN.partN.mcap``: the first part stays as it was written). Returns a note
+        for the user."""
+        n = self.restarts[name] = self.restarts.get(name, 0) + 1
+        argv = list(self.argv[name])
+        note = ""
+        if "--output" in argv:
+            i = argv.index("--output") + 1
+            first = Path(self.argv.get(f"{name}#first", argv)[i])
+            argv[i] = str(first.with_suffix(f".part{n}.mcap"))
+            self.argv.setdefault(f"{name}#first", self.argv[name])
+            note = f"; the recording goes on in {argv[i]}"
+        self.start(name, argv)
+        return note
 
     def dead(self) -> list[tuple[str, int]]:
         return [(n, p.returncode) for n, p in self.procs.items() if p.poll() is not None]
@@ -309,16 +320,16 @@ def _resume_args(args: argparse.Namespace) -> argparse.Namespace | str:
     return ns
 
 
-def _foreign(node: Any, namespace: str, wait: float) -> list[str]:
-    """Nodes of another formation in ``namespace`` on this domain, after giving discovery
-    ``wait`` seconds (counted from the node's creation)."""
+def _foreign(node: Any, namespace: str, wait: float, allowed: set[str]) -> list[str]:
+    """Nodes of another formation in ``namespace`` on this domain (other than ``allowed``:
+    an external plant's), after giving discovery ``wait`` seconds."""
     import msgs_schema as ms
 
     deadline = time.monotonic() + wait
     while time.monotonic() < deadline:
         time.sleep(0.05)
     found = [f"{ns.rstrip('/')}/{name}" for name, ns in node.get_node_names_and_namespaces()
-             if ns == namespace and name != node.get_name()]
+             if ns == namespace and name != node.get_name() and name not in allowed]
     if node.count_publishers(ms.absolute(ms.CONFIG, namespace)) and not found:
         found.append(ms.absolute(ms.CONFIG, namespace))
     return found
@@ -426,6 +437,9 @@ def run(args: argparse.Namespace) -> int:
     from formation_ilc.lifetime import PARENT_ENV
 
     env[PARENT_ENV] = str(os.getpid())  # every node ends with this launcher
+    from formation_ilc.nodes.common import RUN_ENV
+
+    env[RUN_ENV] = args.run_id  # and takes only this run's configuration
     # Fast DDS files that nodes killed earlier left behind (held by no process)
     stale = clean_leftovers(min_age=2.0)
     if stale:
@@ -512,7 +526,8 @@ def run(args: argparse.Namespace) -> int:
         # discovery runs while the kernels compile; then look for another formation here
         t_node = time.monotonic()
         warm_up(pb)  # compile the kernels once, into the numba cache every node then loads
-        others = _foreign(monitor, namespace, max(0.0, 1.0 - (time.monotonic() - t_node)))
+        others = _foreign(monitor, namespace, max(0.0, 1.5 - (time.monotonic() - t_node)),
+                          set(plants) if args.plant == "external" else set())
         if others:
             print(f"error: another formation runs on ROS_DOMAIN_ID={domain} in namespace "
                   f"{namespace} ({', '.join(sorted(others)[:6])}"
@@ -565,10 +580,11 @@ def run(args: argparse.Namespace) -> int:
                 if code == NO_RESTART or n >= args.max_restarts:
                     failed = (name, code)
                     break
+                note = stack.restart(name)
+                what = ("" if name in ("recorder",)
+                        else "; the trial it interrupted runs again")
                 print(f"{name} exited with {_status(code)}: starting it again "
-                      f"({n + 1}/{args.max_restarts}); the trial it interrupted runs again",
-                      flush=True)
-                stack.restart(name)
+                      f"({n + 1}/{args.max_restarts}){what}{note}", flush=True)
             if failed is not None:
                 name, code = failed
                 again = ("" if code == NO_RESTART or not args.max_restarts
@@ -594,13 +610,13 @@ def run(args: argparse.Namespace) -> int:
     finally:
         stack.stop()
         writer.close()
-        # the shared-memory files of nodes killed during the run, and older leftovers
-        clean_leftovers(fastdds_files() - shm_before)
-        clean_leftovers(min_age=2.0)
         diagnostics = dict(monitor.diagnostics) if monitor is not None else {}
         if monitor is not None:
             monitor.destroy_node()
         rclpy.try_shutdown()
+        # the shared-memory files of nodes killed during the run, and older leftovers
+        clean_leftovers(fastdds_files() - shm_before)
+        clean_leftovers(min_age=2.0)
     elapsed = time.monotonic() - t_start
     rows = ([r for r in kept] if done else []) + (
         [monitor.rows[k] for k in sorted(monitor.rows)] if monitor is not None else [])

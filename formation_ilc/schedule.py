@@ -17,6 +17,10 @@ Protocol (JSON on ``leader/trial_events``; ``ready`` from every node):
   rolls back to the memory it had before (every robot keeps one step of history), so an
   aborted slot leaves no trace. The leader repeats the event until every node has
   answered it with a ``ready``.
+Every event and ready also carries the run's identity (``run``, the configuration's
+``run_id``): a node drops (``foreign``) those of another run on the same domain and
+namespace.
+
 * ``ready``  {node, trial, boot, seen[, passive]} from a node that is idle: ``trial`` is, for
   a robot, the iteration it is ready to run (the number of iterations it has learned);
   ``boot`` identifies the process (a new value: the node restarted); ``seen`` is the
@@ -71,6 +75,7 @@ class TrialEvent:
     stamp_ns: int | None = None
     start_wall_ns: int | None = None
     why: str = ""
+    run: str = ""
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> TrialEvent:
@@ -86,7 +91,8 @@ class TrialEvent:
         wall = d.get("start_wall_ns")
         return cls(str(ev), trial, slot, _int(d, "seq", -1),
                    None if stamp is None else _int(d, "stamp_ns"),
-                   None if wall is None else _int(d, "start_wall_ns"), str(d.get("why", "")))
+                   None if wall is None else _int(d, "start_wall_ns"), str(d.get("why", "")),
+                   str(d.get("run", "")))
 
     def to_json(self) -> dict[str, Any]:
         d: dict[str, Any] = {"event": self.event, "trial": self.trial, "slot": self.slot,
@@ -97,6 +103,8 @@ class TrialEvent:
             d["start_wall_ns"] = self.start_wall_ns
         if self.why:
             d["why"] = self.why
+        if self.run:
+            d["run"] = self.run
         return d
 
 
@@ -109,6 +117,7 @@ class Ready:
     boot: str = ""
     seen: int = -1
     passive: bool = False
+    run: str = ""
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> Ready:
@@ -116,13 +125,15 @@ class Ready:
         if not isinstance(node, str) or not node:
             raise Malformed(f"ready: node must be a name, got {node!r}")
         return cls(node, _int(d, "trial"), str(d.get("boot", "")), _int(d, "seen", -1),
-                   bool(d.get("passive", False)))
+                   bool(d.get("passive", False)), str(d.get("run", "")))
 
     def to_json(self) -> dict[str, Any]:
         d: dict[str, Any] = {"node": self.node, "trial": self.trial, "boot": self.boot,
                              "seen": self.seen}
         if self.passive:
             d["passive"] = True
+        if self.run:
+            d["run"] = self.run
         return d
 
 
@@ -216,7 +227,8 @@ class Schedule:
             self.answered.add(r.node)
         if old is not None and old != r.boot:
             self.restarted[r.node] = self.restarted.get(r.node, 0) + 1
-            if self.open and self.abort_pending is None:
+            # a passive node (monitor, recorder) holds nothing of the trial
+            if self.open and self.abort_pending is None and not r.passive:
                 abort = f"{r.node} restarted during slot {self.slot}"
                 self.begin_abort(abort)
                 if r.seen < 0:  # the new process holds nothing of the aborted slot

@@ -227,3 +227,26 @@ def test_a_robot_restored_with_the_aborted_slots_learning_must_roll_it_back(tmp_
     assert s2.next_start() is None
     ready_all(s2, 1, s2.seq, boots={n: "new" for n in NODES})  # rolled back
     assert s2.next_start() == (1, 2)
+
+
+def test_a_restarted_recorder_writes_a_new_part_and_leaves_the_first_alone(tmp_path):
+    import sys
+
+    from formation_ilc.launch import Stack
+
+    st = Stack(dict(__import__("os").environ), tmp_path / "logs")
+    argv = [sys.executable, "-c", "pass", "--output", str(tmp_path / "run.mcap")]
+    st.start("recorder", argv)
+    assert "run.part1.mcap" in st.restart("recorder")
+    assert "run.part2.mcap" in st.restart("recorder")
+    assert st.argv["recorder"][-1] == str(tmp_path / "run.part2.mcap")
+    st.stop()
+    assert (tmp_path / "logs" / "recorder.log").read_text().count("--- restarted") == 2
+
+
+def test_a_passive_node_restarting_aborts_nothing():
+    s = sched()
+    ready_all(s, 0, -1)
+    s.started(0)
+    assert s.on_ready(Ready("monitor", 3, "new", -1, passive=True)) is None
+    assert s.abort_pending is None

@@ -139,6 +139,7 @@ class LeaderNode(Node):
         self.ref_pub = self.create_publisher(PoseStamped, ms.REFERENCE, ms.SAMPLE_QOS)
         self.event_pub = self.create_publisher(String, ms.TRIAL_EVENTS, ms.SAMPLE_QOS)
         self.create_subscription(String, ms.READY, self._on_ready, ms.LATCHED_READER_QOS)
+        self.create_subscription(String, ms.CONFIG, self._on_config, ms.LATCHED_QOS)
         self.wall: WallSchedule | None = None
         if self.cfg.mode == "wallclock":
             self.margin_ns = int(float(g("start_margin")) * 1e9)
@@ -162,6 +163,9 @@ class LeaderNode(Node):
             return
         if r.node not in self.expected:
             return
+        if r.run and r.run != self.cfg.run_id:
+            self.drops.drop("foreign", ms.READY, f"{r.node} of run {r.run}")
+            return
         why = self.sched.on_ready(r)
         self._last_change = time.monotonic()
         if why is not None:
@@ -172,6 +176,25 @@ class LeaderNode(Node):
         self._save()
         self._maybe_start()
 
+    def _on_config(self, msg: String) -> None:
+        """Another leader's configuration here: a second formation on this domain and
+        namespace. Refuse to start (before trial 0); an established run goes on."""
+        try:
+            d = ms.msg_to_json(msg)
+        except Rejected as exc:
+            self.drops.reject(exc, ms.CONFIG)
+            return
+        other = str(d.get("run_id", ""))
+        if other == self.cfg.run_id:
+            return
+        if self.sched.slot < 0:
+            fail(self, f"another formation (run {other or '?'}) publishes its configuration "
+                       f"on {self.get_namespace()}/{ms.CONFIG} in this ROS domain: refusing "
+                       f"to start a second one here (use another namespace or domain)",
+                 code=2)
+            return
+        self.drops.drop("foreign", ms.CONFIG, f"configuration of run {other or '?'}")
+
     def _save(self) -> None:
         self.sched.save(self.state_file)
 
@@ -180,7 +203,8 @@ class LeaderNode(Node):
         assert s.abort_pending is not None
         self._abort_sent = time.monotonic()
         self.event_pub.publish(ms.json_to_msg(TrialEvent(
-            ms.ABORT, s.committed, s.abort_pending, s.seq, why=s.why).to_json()))
+            ms.ABORT, s.committed, s.abort_pending, s.seq, why=s.why,
+            run=self.cfg.run_id).to_json()))
 
     def _maybe_start(self) -> None:
         s = self.sched
@@ -194,8 +218,8 @@ class LeaderNode(Node):
         if s.done:
             if not self.done_sent:
                 self.done_sent = True
-                self.event_pub.publish(ms.json_to_msg({"event": ms.DONE, "trial": s.committed,
-                                                       "slot": s.slot, "seq": s.seq}))
+                self.event_pub.publish(ms.json_to_msg(TrialEvent(
+                    ms.DONE, s.committed, s.slot + 1, s.seq, run=self.cfg.run_id).to_json()))
                 self.get_logger().info(f"done: {self.trials} trials")
             return
         try:
@@ -216,7 +240,8 @@ class LeaderNode(Node):
                                      self.T)
             wall_ns = self.wall.start_ns
         self.event_pub.publish(ms.json_to_msg(TrialEvent(
-            ms.START, i, q, seq, self.clock.stamp_ns(q, 0), wall_ns).to_json()))
+            ms.START, i, q, seq, self.clock.stamp_ns(q, 0), wall_ns,
+            run=self.cfg.run_id).to_json()))
 
     def _on_wall_timer(self) -> None:
         """wallclock: r(t) for each sample due on the wall clock (the newest one if the
@@ -238,8 +263,8 @@ class LeaderNode(Node):
 
     def _end(self, slot: int) -> None:
         s = self.sched
-        self.event_pub.publish(ms.json_to_msg(TrialEvent(ms.END, s.committed, slot,
-                                                         s.seq).to_json()))
+        self.event_pub.publish(ms.json_to_msg(TrialEvent(ms.END, s.committed, slot, s.seq,
+                                                         run=self.cfg.run_id).to_json()))
         s.ended(slot)
         self._save()
         self._maybe_start()

@@ -6,6 +6,7 @@ The run configuration itself (``formation_ilc.runconfig.RunConfig``) is part of 
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import uuid
@@ -31,6 +32,9 @@ from formation_ilc.simulate import Problem
 __all__ = ["PARENT_ENV", "DROP_REASONS", "DropCounter", "RunConfig", "make_config",
            "config_from_msg", "ConfiguredNode", "warm_up", "matched", "fail", "spin_main",
            "node_parser", "ros_param", "robot_node_from_args"]
+
+#: environment variable with the run a launcher started this node for (its run_id)
+RUN_ENV = "FORMATION_ILC_RUN_ID"
 
 #: reasons a message is dropped (the diagnostics counters)
 DROP_REASONS = REASONS
@@ -85,15 +89,24 @@ class ConfiguredNode(Node):
     def ready_msg(self, trial: int, passive: bool = False) -> String:
         """The ``ready`` message of this node (``formation_ilc.schedule``)."""
         return ms.json_to_msg(Ready(self.get_name(), trial, self.boot, self.seen,
-                                    passive).to_json())
+                                    passive, self.run_id).to_json())
+
+    @property
+    def run_id(self) -> str:
+        cfg = getattr(self, "cfg", None)
+        return cfg.run_id if cfg is not None else os.environ.get(RUN_ENV, "")
 
     def trial_event(self, msg: String) -> TrialEvent | None:
         """The event on ``leader/trial_events``, or None (dropped and counted)."""
         try:
-            return TrialEvent.from_json(ms.msg_to_json(msg))
+            ev = TrialEvent.from_json(ms.msg_to_json(msg))
         except Rejected as exc:
             self.drops.reject(exc, ms.TRIAL_EVENTS)
             return None
+        if ev.run and self.run_id and ev.run != self.run_id:
+            self.drops.drop("foreign", ms.TRIAL_EVENTS, f"event of run {ev.run}")
+            return None
+        return ev
 
     def follow_config(self, cfg: RunConfig | None = None) -> None:
         """Configure now from ``cfg``, or when the config topic delivers one."""
@@ -111,14 +124,14 @@ class ConfiguredNode(Node):
         cfg = config_from_msg(msg, self.drops)
         if cfg is None:
             return
-        if self.configured:
-            mine = getattr(getattr(self, "cfg", None), "run_id", None)
-            if mine is not None and cfg.run_id != mine:
-                self.drops.drop("foreign", ms.CONFIG,
-                                f"run {cfg.run_id or '?'} on this domain and namespace; this "
-                                f"node belongs to run {mine or '?'}")
+        mine = self.run_id  # the adopted config's, or the launcher's (environment)
+        if mine and cfg.run_id != mine:
+            self.drops.drop("foreign", ms.CONFIG,
+                            f"run {cfg.run_id or '?'} on this domain and namespace; this "
+                            f"node belongs to run {mine}")
             return
-        self.follow_config(cfg)
+        if not self.configured:
+            self.follow_config(cfg)
 
     def configure(self, cfg: RunConfig) -> None:
         raise NotImplementedError

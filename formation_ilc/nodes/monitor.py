@@ -75,7 +75,8 @@ class MonitorNode(Node):
             self._gate.cancel()
             self.ready_pub.publish(ms.json_to_msg({"node": "monitor", "passive": True,
                                                    "trial": self.cfg.scenario.trials,
-                                                   "boot": f"{os.getpid()}"}))
+                                                   "boot": f"{os.getpid()}",
+                                                   "run": self.cfg.run_id}))
 
     def _on_traj(self, msg: Path, r: int, store: dict[int, dict[int, np.ndarray]]) -> None:
         try:
@@ -128,6 +129,9 @@ class MonitorNode(Node):
             ev = TrialEvent.from_json(d)
         except ms.MalformedMessage as exc:
             self.drops.drop("malformed", "trial_events", str(exc))
+            return
+        if ev.run and ev.run != self.cfg.run_id:
+            self.drops.drop("foreign", "trial_events", f"event of run {ev.run}")
             return
         self.events.append(d)
         if ev.event == ms.START:

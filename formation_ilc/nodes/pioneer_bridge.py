@@ -360,7 +360,7 @@ class BridgeNode(ConfiguredNode):
     def _say_ready(self, trial: int, how: str, shift: tuple[float, float, float]) -> None:
         self.shifts[str(trial)] = [float(x) for x in shift]
         self.ready_sent = trial
-        d = Ready(self.name, trial, self.boot, self.seen).to_json()
+        d = Ready(self.name, trial, self.boot, self.seen, run=self.run_id).to_json()
         d.update({"initial_shift": list(shift), "return": how})
         self.ready_pub.publish(ms.json_to_msg(d))
         self.publish_diagnostics(trial - 1)

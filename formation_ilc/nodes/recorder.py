@@ -180,7 +180,8 @@ class RecorderNode(Node):
             # ready for every trial of the run: it only watches (formation_ilc.schedule)
             self.ready_pub.publish(ms.json_to_msg({"node": "recorder", "passive": True,
                                                    "trial": self.cfg.scenario.trials,
-                                                   "boot": f"{os.getpid()}"}))
+                                                   "boot": f"{os.getpid()}",
+                                                   "run": self.cfg.run_id}))
             self.get_logger().info(f"ready: {len(self.subs)} topics")
 
     def destroy_node(self) -> None:
