@@ -16,6 +16,13 @@ is its clock Rt); link inputs (``on_link_pose`` or ``on_link_tick``) in any orde
 ``can_command()`` (or at a realtime deadline) ``command()``; after sample T,
 ``finish_trial()`` gives the trajectory to share; ``on_trajectory`` per neighbour; when
 ``learned`` reaches k the robot is ready for trial k+1.
+
+The window of what a robot accepts (every other input is Rejected with its reason, and
+moves nothing): its own poses of the current trial, and of the next trial once it has
+learned the current one (it is then ready for it: the leader cannot have started a later
+one); link inputs of those trials labelled at most ``LINK_LOOKAHEAD`` samples after its own
+current sample (a neighbour's pose t+1 may overtake the robot's own pose t+1, no more in
+lockstep); whole-trial trajectories of those trials.
 """
 
 from __future__ import annotations
@@ -26,13 +33,17 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .clock import Malformed, Rejected, SampleClock
+from .clock import Malformed, Rejected, SampleClock, TrialWindow
 from .delays import measure_delay_ns
 from .law import command, learn
 from .links import LEADER, Delivery, LinkInbox, link_name, robot_name
 from .simulate import Problem
 
-__all__ = ["PoseEvent", "RobotLearner"]
+__all__ = ["PoseEvent", "RobotLearner", "LINK_LOOKAHEAD"]
+
+#: how many samples after its own current sample a link input may be labelled: lockstep,
+#: realtime (a neighbour's pose may come a little early: clock offsets, scheduling)
+LINK_LOOKAHEAD = {False: 1, True: 2}
 
 
 @dataclass(frozen=True)
@@ -122,9 +133,9 @@ class RobotLearner:
         (out_of_order). In realtime a skipped or uncommanded sample is counted in
         ``missed`` and recorded as held (what the plant applied)."""
         k, s = self.clock.decode(label_ns)
-        if k < self.k or (k == self.k and s <= self.t):
+        if k == self.k and s <= self.t:
             raise Rejected("stale", f"sample ({k}, {s}) after ({self.k}, {self.t})")
-        new = k > self.k
+        new = self._window(k, "own pose")
         if not self.realtime:
             if new and s != 0:
                 raise Rejected("out_of_order", f"trial {k} starts at sample {s}")
@@ -147,6 +158,24 @@ class RobotLearner:
         self.commanded = last
         return PoseEvent(k, s, new, last)
 
+    def _window(self, k: int, what: str) -> bool:
+        """Whether trial ``k`` is the next trial (True) or the current one; Rejected
+        outside the window: the next trial is open once the current one is learned."""
+        return TrialWindow(self.k, self.learned >= self.k).check(k, what)
+
+    def _lookahead(self, label_ns: int, what: str) -> None:
+        """Rejected (future) if a link input is labelled beyond the robot's own next
+        sample(s), or its trial is outside the window."""
+        k, _ = self.clock.decode(label_ns)
+        self._window(k, what)
+        if self.k >= 0 and k == self.k:
+            limit = self.clock.stamp_ns(self.k, self.t + LINK_LOOKAHEAD[self.realtime])
+        else:  # the next trial (open): from its start
+            limit = self.clock.stamp_ns(k, LINK_LOOKAHEAD[self.realtime] - 1)
+        if label_ns > limit:
+            raise Rejected("future", f"{what} labelled {label_ns} ns, beyond {limit} ns "
+                                     f"(the robot is at sample ({self.k}, {self.t}))")
+
     def _new_trial(self, k: int) -> None:
         self.k = k
         self.t = -1
@@ -162,14 +191,18 @@ class RobotLearner:
     # ------------------------------------------------------------------ links
     def on_link_pose(self, sender: str, label_ns: int, eta: NDArray[np.float64]) -> None:
         """Direct link: ``sender``'s shared pose (or the leader's reference) arrived."""
-        self._inbox(sender).offer(label_ns, eta, max(self.k, 0))
+        box = self._inbox(sender)
+        self._lookahead(label_ns, f"{sender}'s pose")
+        box.offer(label_ns, eta, max(self.k, 0))
 
     def on_link_tick(self, sender: str, tick_ns: int,
                      pose: tuple[int, NDArray[np.float64]] | None) -> None:
         """Emulated link: at tick ``tick_ns`` the link from ``sender`` delivered ``pose``
         (label, output), or nothing."""
         d = None if pose is None else Delivery(sender, pose[0], pose[1])
-        self._inbox(sender).offer_tick(tick_ns, d, max(self.k, 0))
+        box = self._inbox(sender)
+        self._lookahead(tick_ns, f"{sender}'s link tick")
+        box.offer_tick(tick_ns, d, max(self.k, 0))
 
     def _inbox(self, sender: str) -> LinkInbox:
         self._slot(sender)
@@ -237,8 +270,9 @@ class RobotLearner:
         k, s0 = self.clock.decode(int(stamps[0]))
         if s0 != 0 or any(int(x) != self.clock.stamp_ns(k, s) for s, x in enumerate(stamps)):
             raise Malformed("trajectory stamps are not samples 0..T of one trial")
-        if k <= self.learned or k < self.k:
-            raise Rejected("stale", f"trajectory of trial {k} in trial {self.k}")
+        if k <= self.learned:
+            raise Rejected("stale", f"trajectory of trial {k}, already learned")
+        self._window(k, f"{sender}'s trajectory")
         self.trajs.setdefault(k, {})[self.slots[sender]] = np.array(eta, dtype=float)
         return self.try_learn()
 

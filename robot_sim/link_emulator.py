@@ -16,6 +16,13 @@ on ``diagnostics`` (``injected``).
   still missing (counted as ``late`` per link; not in ``injected``, so the robots' eq. (11)
   measurements still equal ``injected``).
 
+What it accepts (everything else is dropped and counted in its diagnostics, with the
+reason): poses and ``/clock`` of the current trial, and of the next trial only once it has
+delivered the current one's last tick and said ready for the next (the leader cannot have
+started it before); within a trial, each sample once, at most the sample being collected
+(lockstep) or ``LOOKAHEAD`` samples past the last ``/clock`` tick (realtime), and ``/clock``
+ticks in order.
+
 The run configuration comes from the latched ``config`` topic; no parameters.
 """
 
@@ -32,7 +39,7 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 import msgs_schema as ms
-from formation_ilc.clock import Rejected
+from formation_ilc.clock import Rejected, TrialWindow
 from formation_ilc.links import LEADER, delivered_label, link_name
 from formation_ilc.nodes.common import ConfiguredNode, RunConfig, matched, node_parser, spin_main
 from formation_ilc.simulate import Problem
@@ -41,6 +48,8 @@ from formation_ilc.simulate import Problem
 DELIVERY_WAIT = 0.5
 #: the emulator's node name (what it says ready as)
 NAME = "link_emulator"
+#: realtime: how many samples past the last /clock tick a pose may be labelled
+LOOKAHEAD = 2
 
 
 class LinkEmulator(ConfiguredNode):
@@ -57,6 +66,9 @@ class LinkEmulator(ConfiguredNode):
         n, n_t = pb.n, pb.samples
         self.n, self.T = n, n_t
         self.k = -1
+        self.window = TrialWindow()
+        self.clock_t = -1
+        self.next_t = 0
         self.realtime = cfg.mode == "realtime"
         # per receiver: (sender, link slot ell or -1 for the leader, publisher)
         self.out: list[list[tuple[str, int, Any]]] = []
@@ -94,6 +106,8 @@ class LinkEmulator(ConfiguredNode):
 
     def _start(self, k: int) -> None:
         self.k = k
+        self.window.enter(k)
+        self.clock_t = -1
         pb = self.pb
         self.tau, self.tau0 = self.cfg.scenario.uncertainty.draw_delays(
             self.cfg.scenario.seed, k, pb.n, pb.src.shape[1], pb.samples)
@@ -106,16 +120,19 @@ class LinkEmulator(ConfiguredNode):
         self.reported = False
 
     def _label(self, msg: PoseStamped, topic: str) -> int | None:
-        """Sample of a pose of the current trial (a later trial starts it), else None."""
+        """Sample of a pose in the window (the next trial, once open, starts it), else None
+        (dropped and counted)."""
         try:
             ms.world_pose(msg)
             k, s = self.clock.decode(ms.stamp_to_ns(msg.header.stamp))
-            if k < self.k:
-                raise Rejected("stale", f"label of trial {k} in trial {self.k}")
+            new = self.window.check(k, "pose")
+            newest = (0 if new else self.next_t) + (LOOKAHEAD if self.realtime else 0)
+            if s > newest:
+                raise Rejected("future", f"sample {s} while {self.next_t} is due")
         except Rejected as exc:
             self.drops.reject(exc, topic)
             return None
-        if k > self.k:
+        if new:
             self._start(k)
         return s
 
@@ -184,13 +201,17 @@ class LinkEmulator(ConfiguredNode):
     def _on_clock(self, msg: Clock) -> None:
         try:
             k, t = self.clock.decode(ms.stamp_to_ns(msg.clock))
-            if k < self.k:
-                raise Rejected("stale", f"time of trial {k} in trial {self.k}")
+            new = self.window.check(k, "time")
+            if not new and t == self.clock_t:
+                raise Rejected("duplicate", f"tick {t} again")
+            if not new and t < self.clock_t:
+                raise Rejected("out_of_order", f"tick {t} after {self.clock_t}")
         except Rejected as exc:
             self.drops.reject(exc, "clock")
             return
-        if k > self.k:
+        if new:
             self._start(k)
+        self.clock_t = t
         if self.waiting:  # the previous tick's deadline has not fired: it is over now
             self._on_deadline()
         if t >= self.T:
@@ -215,6 +236,7 @@ class LinkEmulator(ConfiguredNode):
 
     def _trial_done(self) -> None:
         self.reported = True
+        self.window.open_next()
         d: dict[str, Any] = {"node": NAME, "trial": self.k,
                              "injected": {link: {str(t): c for t, c in sorted(h.items())}
                                           for link, h in self.injected.items()}}

@@ -24,6 +24,10 @@ The links between robots are not part of the plant: with ``links: emulated`` the
 emulator (``formation-ilc-links``) is its own process; with ``links: direct`` the robots
 talk to each other.
 
+A ``start`` event is obeyed only for the trial after the current one, once the simulator
+has said ready for it and is not inside a trial; any other (a replay, a later trial, a
+second start) is dropped and counted (``dropped`` in its diagnostics).
+
 Parameters: ``timeout`` [s] (lockstep; default: the run configuration's). The run
 configuration comes from the latched ``config`` topic.
 """
@@ -42,6 +46,7 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 import msgs_schema as ms
+from formation_ilc.clock import Rejected, TrialWindow
 from formation_ilc.kinematics import step_into
 from formation_ilc.nodes.common import (
     ConfiguredNode,
@@ -84,6 +89,7 @@ class SimNode(ConfiguredNode):
         self.u = np.zeros((n, n_t, 2))
         self.k = -1
         self.t = -1
+        self.ready_for = -1               # the trial this node last said ready for
         self.pending: set[int] = set()
         self.in_trial = False
         self.wait_start = 0.0
@@ -125,19 +131,26 @@ class SimNode(ConfiguredNode):
         need += [(p, int(self.cfg.monitored)) for p in self.true_pubs]
         if matched(need):
             self._gate.cancel()
-            self.ready_pub.publish(ms.json_to_msg({"node": NAME, "trial": 0}))
+            self._say_ready(0)
+
+    def _say_ready(self, trial: int) -> None:
+        self.ready_for = trial
+        self.ready_pub.publish(ms.json_to_msg({"node": NAME, "trial": trial}))
 
     def _on_event(self, msg: String) -> None:
         try:
             ev = ms.msg_to_json(msg, ("event", "trial"))
-            k = int(ev["trial"])
-        except (ms.MalformedMessage, TypeError, ValueError) as exc:
-            self.drops.drop("malformed", "trial_events", str(exc))
-            return
-        if ev["event"] != ms.START:
-            return
-        if k <= self.k or self.in_trial:
-            self.drops.drop("stale", "trial_events", f"start of trial {k} in trial {self.k}")
+            k = ms.json_int(ev, "trial")
+            if ev["event"] not in (ms.START, ms.END, ms.DONE):
+                raise ms.MalformedMessage(f"unknown event {ev['event']!r}"[:100])
+            if ev["event"] != ms.START:
+                return
+            # the next trial, once this node said ready for it and is between trials
+            window = TrialWindow(self.k, not self.in_trial and self.ready_for > self.k)
+            if not window.check(k, "start"):
+                raise Rejected("duplicate", f"start of trial {k} again")
+        except Rejected as exc:
+            self.drops.reject(exc, ms.TRIAL_EVENTS)
             return
         self.k = k
         pb = self.pb
@@ -179,7 +192,7 @@ class SimNode(ConfiguredNode):
             self.pose_pubs[r].publish(ms.pose_to_msg(self.eta[r, t], ns, ms.WORLD_FRAME,
                                                      self.pose_msgs[r]))
         if t == self.T:
-            self.ready_pub.publish(ms.json_to_msg({"node": NAME, "trial": k + 1}))
+            self._say_ready(k + 1)
             return
         self.pending = set(range(self.n))
         self.wait_start = time.perf_counter()

@@ -29,6 +29,11 @@ reported ready for trial k, publishes ``start`` k on ``leader/trial_events``, th
 world frame, stamped with the sample's label), and at t = T ``end`` k. After the last trial
 it publishes ``done``.
 
+What it accepts (the rest is dropped and counted, with the reason, in its own
+``diagnostics`` at each trial's end): ready messages from the nodes it waits for, for a
+trial no later than the next one (the monitor and the recorder say ready once for the whole
+run); ``/clock`` of the trial it started, in order (lockstep: sample by sample).
+
 Wall-clock trials (``mode: wallclock``, real robots behind bridges; no node publishes
 ``/clock``): the ``start`` event carries ``start_wall_ns``, the wall time (Unix epoch, ns)
 ``start_margin`` seconds ahead at which sample 0 is due; the leader publishes r(t) from its
@@ -50,14 +55,20 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 import msgs_schema as ms
+from formation_ilc.clock import Rejected
 from formation_ilc.nodes.common import DropCounter, make_config, matched, node_parser, spin_main
 from formation_ilc.wallclock import WallSchedule
+
+#: the leader's node name (its diagnostics name it)
+NAME = "virtual_leader"
+#: observers that say ready once for the whole run (trial = the number of trials)
+WHOLE_RUN = ("monitor", "recorder")
 
 
 class LeaderNode(Node):
     def __init__(self, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
-        super().__init__("virtual_leader", **kwargs)
+        super().__init__(NAME, **kwargs)
         self.declare_parameter("scenario", "")
         self.declare_parameter("seed", -1)
         self.declare_parameter("trials", 0)
@@ -101,11 +112,13 @@ class LeaderNode(Node):
         self.ready: dict[str, int] = {}
         self.drops = DropCounter(self)
         self.k = -1          # last trial started
+        self.t = -1          # last sample of trial k whose reference went out
         self.ended = -1      # last trial ended
         self.ref_msg = PoseStamped()
         self.config_pub = self.create_publisher(String, ms.CONFIG, ms.LATCHED_QOS)
         self.ref_pub = self.create_publisher(PoseStamped, ms.REFERENCE, ms.SAMPLE_QOS)
         self.event_pub = self.create_publisher(String, ms.TRIAL_EVENTS, ms.SAMPLE_QOS)
+        self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         self.create_subscription(String, ms.READY, self._on_ready, ms.LATCHED_READER_QOS)
         self.wall: WallSchedule | None = None
         if self.cfg.mode == "wallclock":
@@ -125,14 +138,17 @@ class LeaderNode(Node):
     def _on_ready(self, msg: String) -> None:
         try:
             d = ms.msg_to_json(msg, ("node", "trial"))
-            name, trial = str(d["node"]), int(d["trial"])
-        except (ms.MalformedMessage, TypeError, ValueError) as exc:
-            self.drops.drop("malformed", "ready", str(exc))
-            return
-        if name not in self.expected:
-            return
-        if trial < self.ready.get(name, -1):
-            self.drops.drop("stale", "ready", f"{name} ready for {trial}")
+            name, trial = str(d["node"])[:100], ms.json_int(d, "trial")
+            if name not in self.expected:
+                raise Rejected("unexpected", f"ready from {name}, not waited for")
+            if trial < self.ready.get(name, -1):
+                raise Rejected("stale", f"{name} ready for {trial} after "
+                                        f"{self.ready[name]}")
+            # nobody can be ready for a trial after the next one (trial k+1 needs trial k)
+            if trial > self.k + 1 and not (name in WHOLE_RUN and trial == self.trials):
+                raise Rejected("future", f"{name} ready for {trial} in trial {self.k}")
+        except Rejected as exc:
+            self.drops.reject(exc, ms.READY)
             return
         self.ready[name] = trial
         self._last_change = time.monotonic()
@@ -149,9 +165,11 @@ class LeaderNode(Node):
         if nxt == self.trials:
             self.event_pub.publish(ms.json_to_msg({"event": ms.DONE, "trial": nxt}))
             self.k = nxt
+            self._publish_diagnostics()
             self.get_logger().info(f"done: {self.trials} trials")
             return
         self.k = nxt
+        self.t = -1
         event = {"event": ms.START, "trial": nxt, "stamp_ns": self.clock.stamp_ns(nxt, 0)}
         if self.cfg.mode == "wallclock":
             self.wall = WallSchedule(time.time_ns() + self.margin_ns, self.clock.dt_ns,
@@ -177,6 +195,7 @@ class LeaderNode(Node):
             self.wall = None
             self.ended = k
             self.event_pub.publish(ms.json_to_msg({"event": ms.END, "trial": k}))
+            self._publish_diagnostics()
             self._maybe_start()
 
     def _report_wait(self) -> None:
@@ -192,16 +211,29 @@ class LeaderNode(Node):
         self.get_logger().warning(f"trial {nxt} waits for ready from {', '.join(late)}"
                                   if late else f"trial {nxt}: waiting for readers")
 
+    def _publish_diagnostics(self) -> None:
+        d = {"node": NAME, "trial": self.ended}
+        d.update(self.drops.as_dict())
+        self.diag_pub.publish(ms.json_to_msg(d))
+
     def _on_clock(self, msg: Clock) -> None:
-        ns = ms.stamp_to_ns(msg.clock)  # not now(): see notes on /clock callbacks
         try:
+            ns = ms.stamp_to_ns(msg.clock)  # not now(): see notes on /clock callbacks
             k, t = self.clock.decode(ns)
-        except ms.MalformedMessage as exc:
-            self.drops.drop("malformed", "clock", str(exc))
+            if k < self.k or (k == self.k and self.ended == k):
+                raise Rejected("stale", f"time of trial {k} in trial {self.k}")
+            if k > self.k:
+                raise Rejected("future", f"time of trial {k} in trial {self.k}")
+            if t == self.t:
+                raise Rejected("duplicate", f"time of sample {t} again")
+            if t < self.t:
+                raise Rejected("out_of_order", f"sample {t} after {self.t}")
+            if self.cfg.mode == "lockstep" and t > self.t + 1:
+                raise Rejected("future", f"sample {t} while {self.t + 1} is due")
+        except Rejected as exc:
+            self.drops.reject(exc, "clock")
             return
-        if k != self.k:
-            self.drops.drop("stale", "clock", f"time of trial {k} in trial {self.k}")
-            return
+        self.t = t
         self._last_t = t
         self._last_change = time.monotonic()
         ref = self.cfg.scenario.reference[t]
@@ -209,6 +241,7 @@ class LeaderNode(Node):
         if t == self.T and k > self.ended:
             self.ended = k
             self.event_pub.publish(ms.json_to_msg({"event": ms.END, "trial": k}))
+            self._publish_diagnostics()
             self._maybe_start()
 
 

@@ -5,6 +5,13 @@ neighbours learn from) and, when the plant publishes them (``true_state``), its 
 trajectories, and computes the metrics row with ``formation_ilc.simulate.trial_errors``
 (metrics are defined once, in the core). Without a true state the ``true_`` columns are
 nan: a hardware plant has no ground truth.
+
+What it takes (the rest is dropped and counted, with the reason, in ``drops``): trial
+events in the leader's order (start k+1 after start k, end of the trial started, done);
+trajectories of a trial the leader has started and whose row is not complete, once per
+robot; diagnostics whose fields are what the launcher reads
+(``formation_ilc.links.check_diagnostics``), of a trial started, never older than the
+node's last.
 """
 
 from __future__ import annotations
@@ -18,6 +25,8 @@ from rclpy.node import Node
 from std_msgs.msg import String
 
 import msgs_schema as ms
+from formation_ilc.clock import Rejected
+from formation_ilc.links import check_diagnostics
 from formation_ilc.metrics import METRIC_COLUMNS, TRUE_COLUMNS
 from formation_ilc.nodes.common import DropCounter, RunConfig
 from formation_ilc.simulate import Problem, trial_errors
@@ -42,6 +51,8 @@ class MonitorNode(Node):
         self.rows: dict[int, np.ndarray] = {}
         self.diagnostics: dict[str, dict[str, Any]] = {}
         self.events: list[dict[str, Any]] = []
+        self.started = -1   # the last trial the leader started
+        self.ended = -1     # the last trial it ended
         self.path_subs = []
         for r in range(n):
             self.path_subs.append(self.create_subscription(
@@ -67,13 +78,24 @@ class MonitorNode(Node):
                                                    "trial": self.cfg.scenario.trials}))
 
     def _on_traj(self, msg: Path, r: int, store: dict[int, dict[int, np.ndarray]]) -> None:
+        topic = (ms.trajectory_topic if store is self.eta else ms.true_trajectory_topic)(r + 1)
         try:
             eta, stamps, frame = ms.path_to_trajectory(msg, self.pb.eta_d[r, :, 2])
-            k, _ = self.clock.decode(int(stamps[0]))
-        except (ms.MalformedMessage, IndexError) as exc:
-            self.drops.drop("malformed", ms.trajectory_topic(r + 1), str(exc))
-            return
-        if k in self.rows:
+            if frame != ms.WORLD_FRAME:
+                raise ms.MalformedMessage(f"trajectory in frame {frame[:50]!r}")
+            k, s0 = self.clock.decode(int(stamps[0]))
+            if s0 != 0 or any(int(x) != self.clock.stamp_ns(k, s)
+                              for s, x in enumerate(stamps)):
+                raise ms.MalformedMessage("stamps are not samples 0..T of one trial")
+            if k in self.rows:
+                raise Rejected("duplicate", f"trial {k} is complete")
+            if k > self.started:
+                raise Rejected("future", f"trajectory of trial {k}, trial {self.started} "
+                                         f"started")
+            if r in store.get(k, {}):
+                raise Rejected("duplicate", f"trial {k} again")
+        except Rejected as exc:
+            self.drops.reject(exc, topic)
             return
         store.setdefault(k, {})[r] = eta
         n = self.pb.n
@@ -95,14 +117,40 @@ class MonitorNode(Node):
 
     def _on_diag(self, msg: String) -> None:
         try:
-            d = ms.msg_to_json(msg, ("node",))
-        except ms.MalformedMessage as exc:
-            self.drops.drop("malformed", "diagnostics", str(exc))
+            d = check_diagnostics(ms.msg_to_json(msg, ("node", "trial")))
+            name, k = d["node"], d["trial"]
+            if k > self.started:
+                raise Rejected("future", f"{name[:100]} diagnostics of trial {k}, trial "
+                                         f"{self.started} started")
+            if k < self.diagnostics.get(name, {}).get("trial", k):
+                raise Rejected("stale", f"{name[:100]} diagnostics of trial {k} after "
+                                        f"{self.diagnostics[name]['trial']}")
+        except Rejected as exc:
+            self.drops.reject(exc, ms.DIAGNOSTICS)
             return
-        self.diagnostics[str(d["node"])] = d
+        self.diagnostics[name] = d
 
     def _on_event(self, msg: String) -> None:
         try:
-            self.events.append(ms.msg_to_json(msg, ("event", "trial")))
-        except ms.MalformedMessage as exc:
-            self.drops.drop("malformed", "trial_events", str(exc))
+            ev = ms.msg_to_json(msg, ("event", "trial"))
+            k, kind = ms.json_int(ev, "trial"), ev["event"]
+            if kind == ms.START:
+                want = self.started + 1 if self.ended == self.started else None
+            elif kind == ms.END:
+                want = self.started if self.ended < self.started else None
+            elif kind == ms.DONE:
+                want = self.cfg.scenario.trials if self.ended == self.started else None
+            else:
+                raise ms.MalformedMessage(f"unknown event {kind!r}"[:100])
+            if k != want:
+                raise Rejected("stale" if want is not None and k < want else "unexpected",
+                               f"{kind} of trial {k} (trial {self.started} started, "
+                               f"{self.ended} ended)")
+        except Rejected as exc:
+            self.drops.reject(exc, ms.TRIAL_EVENTS)
+            return
+        if kind == ms.START:
+            self.started = k
+        elif kind == ms.END:
+            self.ended = k
+        self.events.append(ev)

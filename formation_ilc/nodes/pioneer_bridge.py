@@ -34,6 +34,12 @@ point-stabilisation law (formation_ilc.bridge.ReturnController): ``return_tol`` 
 odometry-measured) goes into its ready message and diagnostics (``initial_shifts``).
 Ready for trial 0 once the driver's odometry arrives, the motors are enabled and the
 publishers are matched.
+
+What it obeys (the rest is dropped and counted in its diagnostics, with the reason): a
+``start`` event only for the trial after the current one, once it said ready for it and is
+idle, with an agreed start no more than ``START_AHEAD_MAX`` s ahead and not past the trial's
+end; ``cmd_vel`` only inside a trial (a command before a start or during the return would
+move the robot outside the protocol).
 """
 
 from __future__ import annotations
@@ -56,7 +62,7 @@ from formation_ilc.bridge import (
     initial_shift,
     odom_to_world,
 )
-from formation_ilc.clock import Rejected
+from formation_ilc.clock import Rejected, TrialWindow
 from formation_ilc.nodes.common import (
     ConfiguredNode,
     RunConfig,
@@ -71,6 +77,8 @@ from formation_ilc.wallclock import WallSchedule, start_wall_ns
 
 #: the bridge's control tick [s]: sampling, return controller, watchdog
 TICK = 0.01
+#: [s] the latest a start event's agreed start time may be ahead of this robot's clock
+START_AHEAD_MAX = 60.0
 
 
 def _join(ns: str, name: str) -> str:
@@ -251,6 +259,8 @@ class BridgeNode(ConfiguredNode):
     def _on_cmd(self, msg: Twist) -> None:
         try:
             u = ms.twist_to_u(msg)
+            if self.phase != "trial":
+                raise Rejected("unexpected", f"a command while {self.phase}")
         except Rejected as exc:
             self.drops.reject(exc, ms.cmd_vel_topic(self.id))
             return
@@ -258,21 +268,29 @@ class BridgeNode(ConfiguredNode):
         self.counts["clipped"] += int(clipped)
         self.robot_cmd = (v, w)
         self.watchdog.feed(time.monotonic())
-        if self.phase != "return":
-            self._send(self.robot_cmd, time.monotonic())
+        self._send(self.robot_cmd, time.monotonic())
 
     def _on_event(self, msg: String) -> None:
         try:
             ev = ms.msg_to_json(msg, ("event", "trial"))
+            k = ms.json_int(ev, "trial")
+            if ev["event"] not in (ms.START, ms.END, ms.DONE):
+                raise ms.MalformedMessage(f"unknown event {ev['event']!r}"[:100])
             if ev["event"] != ms.START:
                 return
-            k = int(ev["trial"])
             start = start_wall_ns(ev)
-        except (Rejected, TypeError, ValueError) as exc:
-            self.drops.drop("malformed", ms.TRIAL_EVENTS, str(exc))
-            return
-        if k <= self.k or self.phase != "idle":
-            self.drops.drop("stale", ms.TRIAL_EVENTS, f"start of trial {k} in trial {self.k}")
+            # the next trial, once this bridge said ready for it and is idle
+            window = TrialWindow(self.k, self.phase == "idle" and self.ready_sent > self.k)
+            if not window.check(k, "start"):
+                raise Rejected("duplicate", f"start of trial {k} again")
+            now = time.time_ns()
+            if start > now + int(START_AHEAD_MAX * 1e9):
+                raise Rejected("future", f"start {(start - now) / 1e9:.3g} s ahead")
+            if start + self.T * self.clock.dt_ns < now:
+                raise Rejected("stale", f"start {(now - start) / 1e9:.3g} s ago: the trial "
+                                        f"would be over")
+        except Rejected as exc:
+            self.drops.reject(exc, ms.TRIAL_EVENTS)
             return
         self.k = k
         self.schedule = WallSchedule(start, self.clock.dt_ns, self.T)
