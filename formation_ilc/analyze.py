@@ -47,9 +47,9 @@ def findings(rec: Recording) -> tuple[list[str], list[str]]:
         (warn if rep.damaged else note).append(
             f"trial(s) {', '.join(map(str, rec.incomplete))} not complete in the file")
     if rep.cut_short:
-        note.append(f"the file ends cut short (its writer stopped without closing it): "
-                    f"read up to the last complete chunk; {rep.tail_bytes} bytes after it "
-                    f"are lost")
+        note.append("the file ends cut short (its writer stopped without closing it): read "
+                    "up to the last complete chunk" + (f"; {rep.tail_bytes} bytes after it "
+                                                       f"are lost" if rep.tail_bytes else ""))
     if rec.undecodable:
         note.append("skipped messages that do not decode: " + ", ".join(
             f"{t} {n}" for t, n in sorted(rec.undecodable.items())))

@@ -293,9 +293,9 @@ class ReadReport:
         if self.orphans:
             out.append(f"{self.orphans} messages of channels whose definition was lost")
         if self.cut_short:
-            out.append(f"the file ends cut short (no footer: the writer stopped before "
-                       f"closing it); the last {self.tail_bytes} bytes are an incomplete "
-                       f"record")
+            out.append("the file ends cut short (no footer: the writer stopped before "
+                       "closing it)" + (f"; the last {self.tail_bytes} bytes are an "
+                                        f"incomplete record" if self.tail_bytes else ""))
         return out
 
 
@@ -479,6 +479,7 @@ def _walk(buf: Any, rep: ReadReport, summary: list[Any], ChunkIndex: Any,
     if bytes(buf[:8]) != _MAGIC:
         pos = 0
     damage: Damage | None = None
+    footer = False
     while pos < n:
         try:
             end, recs = _parse_at(buf, pos, exact=False)
@@ -510,7 +511,9 @@ def _walk(buf: Any, rep: ReadReport, summary: list[Any], ChunkIndex: Any,
             yield rec
         pos = end
         if recs and type(recs[0]).__name__ == "Footer":
+            footer = True
             break
+    rep.cut_short = rep.cut_short or not footer
     if index:  # the file's own chunk index names the chunks the damage took exactly
         read = set(chunk_starts)
         for d in rep.damage:

@@ -88,10 +88,17 @@ class ConfiguredNode(Node):
                                                      ms.LATCHED_QOS)
 
     def _on_config(self, msg: String) -> None:
-        if self.configured:
+        if self.configured:  # the same one again is no news; another one is not followed
+            try:
+                if ms.msg_to_json(msg) != getattr(self, "_config_json", None):
+                    self.drops.drop("unexpected", ms.CONFIG, "a second, different run "
+                                                             "configuration")
+            except Rejected as exc:
+                self.drops.reject(exc, ms.CONFIG)
             return
         cfg = config_from_msg(msg, self.drops)
         if cfg is not None:
+            self._config_json = ms.msg_to_json(msg)
             self.follow_config(cfg)
 
     def configure(self, cfg: RunConfig) -> None:
