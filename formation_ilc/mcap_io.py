@@ -557,8 +557,9 @@ def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
             if isinstance(rec, Metadata)}
 
 
-def repair(src: str | Path, dst: str | Path) -> int:
-    """Copy everything that reads back from ``src`` into a complete file ``dst``.
+def repair(src: str | Path, dst: str | Path, report: ReadReport | None = None) -> int:
+    """Copy everything that reads back from ``src`` into a complete file ``dst``
+    (``report`` gets what did not).
 
     Returns the number of messages kept. ``src`` is not changed.
     """
@@ -574,7 +575,7 @@ def repair(src: str | Path, dst: str | Path) -> int:
         w.start(profile="ros2", library="formation-ilc repair")
         sid: dict[int, int] = {}
         cid: dict[int, int] = {}
-        for rec in _records(src):
+        for rec in _records(src, report):
             if isinstance(rec, Schema) and rec.id not in sid:
                 sid[rec.id] = w.register_schema(rec.name, rec.encoding, rec.data)
             elif isinstance(rec, Channel) and rec.id not in cid:

@@ -600,7 +600,7 @@ def test_fuzz_monitor_handlers(context):
                 mon._on_traj(msg, 0, mon.xi if true else mon.eta)
                 taken = bool(mon.eta or mon.xi)
                 if taken:  # a trajectory of the trial in progress
-                    assert list((mon.xi if true else mon.eta)) == [1]
+                    assert list(mon.xi if true else mon.eta) == [1]
             else:
                 diag = mon.diagnostics["robot_1"]
                 n_events = len(mon.events)
