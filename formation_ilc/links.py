@@ -185,8 +185,8 @@ def check_diagnostics(d: Mapping[str, Any]) -> dict[str, Any]:
     """A node's diagnostics (a JSON object), checked where its readers rely on it: ``node``
     a name, ``trial`` an integer, the delay histograms (``delays``, ``injected``) integer
     counts by integer delay, ``dropped`` integer counts, ``timing`` numbers, ``missed`` an
-    integer or integer counts. Malformed naming the first field that is not; other fields
-    pass as they are."""
+    integer or integer counts, ``initial_shifts`` (x, y, theta) triples. Malformed naming
+    the first field that is not; other fields pass as they are."""
     if not isinstance(d.get("node"), str):
         raise Malformed("diagnostics without a node name")
     if not _is_int(d.get("trial")):
@@ -197,6 +197,9 @@ def check_diagnostics(d: Mapping[str, Any]) -> dict[str, Any]:
         "timing": lambda v: isinstance(v, dict) and all(_is_number(x) for x in v.values()),
         "missed": lambda v: _is_int(v) or (isinstance(v, dict)
                                            and all(_is_int(x) for x in v.values())),
+        "initial_shifts": lambda v: isinstance(v, dict) and all(
+            isinstance(x, list) and len(x) == 3 and all(map(_is_number, x))
+            for x in v.values()),
     }
     for key, ok in checks.items():
         if key in d and not ok(d[key]):
