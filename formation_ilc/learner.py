@@ -20,9 +20,11 @@ is its clock Rt); link inputs (``on_link_pose`` or ``on_link_tick``) in any orde
 The window of what a robot accepts (every other input is Rejected with its reason, and
 moves nothing): its own poses of the current trial, and of the next trial once it has
 learned the current one (it is then ready for it: the leader cannot have started a later
-one); link inputs of those trials labelled at most ``LINK_LOOKAHEAD`` samples after its own
-current sample (a neighbour's pose t+1 may overtake the robot's own pose t+1, no more in
-lockstep); whole-trial trajectories of those trials.
+one); link inputs of those trials, in lockstep labelled at most ``LINK_LOOKAHEAD`` sample
+after its own current sample (a neighbour's pose t+1 may overtake the robot's own pose
+t+1; t+2 cannot exist before the robot commanded t+1); whole-trial trajectories of those
+trials. In realtime a robot whose process stalled may see its links run any number of
+samples ahead of its own poses, so there only the trial window applies.
 """
 
 from __future__ import annotations
@@ -41,9 +43,8 @@ from .simulate import Problem
 
 __all__ = ["PoseEvent", "RobotLearner", "LINK_LOOKAHEAD"]
 
-#: how many samples after its own current sample a link input may be labelled: lockstep,
-#: realtime (a neighbour's pose may come a little early: clock offsets, scheduling)
-LINK_LOOKAHEAD = {False: 1, True: 2}
+#: lockstep: how many samples after its own current sample a link input may be labelled
+LINK_LOOKAHEAD = 1
 
 
 @dataclass(frozen=True)
@@ -164,14 +165,16 @@ class RobotLearner:
         return TrialWindow(self.k, self.learned >= self.k).check(k, what)
 
     def _lookahead(self, label_ns: int, what: str) -> None:
-        """Rejected (future) if a link input is labelled beyond the robot's own next
-        sample(s), or its trial is outside the window."""
+        """Rejected if a link input's trial is outside the window, or (lockstep, future)
+        it is labelled beyond the robot's own next sample."""
         k, _ = self.clock.decode(label_ns)
         self._window(k, what)
+        if self.realtime:
+            return
         if self.k >= 0 and k == self.k:
-            limit = self.clock.stamp_ns(self.k, self.t + LINK_LOOKAHEAD[self.realtime])
+            limit = self.clock.stamp_ns(self.k, self.t + LINK_LOOKAHEAD)
         else:  # the next trial (open): from its start
-            limit = self.clock.stamp_ns(k, LINK_LOOKAHEAD[self.realtime] - 1)
+            limit = self.clock.stamp_ns(k, LINK_LOOKAHEAD - 1)
         if label_ns > limit:
             raise Rejected("future", f"{what} labelled {label_ns} ns, beyond {limit} ns "
                                      f"(the robot is at sample ({self.k}, {self.t}))")

@@ -19,9 +19,9 @@ on ``diagnostics`` (``injected``).
 What it accepts (everything else is dropped and counted in its diagnostics, with the
 reason): poses and ``/clock`` of the current trial, and of the next trial only once it has
 delivered the current one's last tick and said ready for the next (the leader cannot have
-started it before); within a trial, each sample once, at most the sample being collected
-(lockstep) or ``LOOKAHEAD`` samples past the last ``/clock`` tick (realtime), and ``/clock``
-ticks in order.
+started it before); within a trial, each sample once (lockstep: at most the sample being
+collected; realtime: any, since a stalled emulator may find poses ahead of its ``/clock``),
+and ``/clock`` ticks in order.
 
 The run configuration comes from the latched ``config`` topic; no parameters.
 """
@@ -48,8 +48,6 @@ from formation_ilc.simulate import Problem
 DELIVERY_WAIT = 0.5
 #: the emulator's node name (what it says ready as)
 NAME = "link_emulator"
-#: realtime: how many samples past the last /clock tick a pose may be labelled
-LOOKAHEAD = 2
 
 
 class LinkEmulator(ConfiguredNode):
@@ -126,8 +124,7 @@ class LinkEmulator(ConfiguredNode):
             ms.world_pose(msg)
             k, s = self.clock.decode(ms.stamp_to_ns(msg.header.stamp))
             new = self.window.check(k, "pose")
-            newest = (0 if new else self.next_t) + (LOOKAHEAD if self.realtime else 0)
-            if s > newest:
+            if not self.realtime and s > (0 if new else self.next_t):
                 raise Rejected("future", f"sample {s} while {self.next_t} is due")
         except Rejected as exc:
             self.drops.reject(exc, topic)
