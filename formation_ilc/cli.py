@@ -226,7 +226,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "DIR/metrics.csv (the columns of simulate), delays.csv, "
                                    "errors.png, trajectories.png, formation.png, delays.png "
                                    "and report.html (one page to read at a glance). A file "
-                                   "cut short by a crash is read up to the cut.")
+                                   "cut short by a crash is read up to the cut. A file "
+                                   "damaged in the middle is read past the damage; what was "
+                                   "lost is reported and the exit status is 1.")
     p.add_argument("recording", type=Path, metavar="RUN.mcap")
     p.add_argument("--out", type=Path, metavar="DIR",
                    help="output folder (default: RUN-analysis next to the file)")
@@ -562,12 +564,15 @@ def main(argv: list[str] | None = None) -> int:
             out = args.out or args.recording.with_name(args.recording.stem + "-analysis")
             return analyze(args.recording, out, plots=not args.no_plots)
         if args.command == "mcap-repair":
-            from .mcap_io import repair
+            from .mcap_io import ReadReport, repair
 
             if not args.recording.is_file():
                 raise ScenarioError(f"{args.recording}: no such file")
             dst = args.output or args.recording.with_suffix(".repaired.mcap")
-            n = repair(args.recording, dst)
+            rep = ReadReport()
+            n = repair(args.recording, dst, rep)
+            for line in rep.lines():
+                print(f"note: {args.recording}: {line}")
             print(f"{dst}: {n} messages kept")
             return 0
         if args.command == "launch":

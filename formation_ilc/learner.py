@@ -22,6 +22,15 @@ Trials are named by their slot on the label grid (``formation_ilc.schedule``): `
 leader aborts (``abort``) is forgotten, and undone if this robot already learned from it;
 every label of it is refused afterwards (stale). ``state()`` / ``restore()`` carry the
 learning state through a crash (``formation_ilc.robotstate``).
+
+The window of what a robot accepts (every other input is Rejected with its reason, and
+moves nothing): its own poses of the current trial, and of the next trial once it has
+learned the current one (it is then ready for it: the leader cannot have started a later
+one); link inputs of those trials, in lockstep labelled at most ``LINK_LOOKAHEAD`` sample
+after its own current sample (a neighbour's pose t+1 may overtake the robot's own pose
+t+1; t+2 cannot exist before the robot commanded t+1); whole-trial trajectories of those
+trials. In realtime a robot whose process stalled may see its links run any number of
+samples ahead of its own poses, so there only the trial window applies.
 """
 
 from __future__ import annotations
@@ -32,14 +41,17 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .clock import Malformed, Rejected, SampleClock
+from .clock import Malformed, Rejected, SampleClock, TrialWindow
 from .delays import measure_delay_ns
 from .law import command, learn
 from .links import LEADER, Delivery, LinkInbox, link_name, robot_name
 from .robotstate import RobotState
 from .simulate import Problem
 
-__all__ = ["PoseEvent", "RobotLearner"]
+__all__ = ["PoseEvent", "RobotLearner", "LINK_LOOKAHEAD"]
+
+#: lockstep: how many samples after its own current sample a link input may be labelled
+LINK_LOOKAHEAD = 1
 
 
 @dataclass(frozen=True)
@@ -92,6 +104,7 @@ class RobotLearner:
         self.prev_iterations = 0
         self.prev_learned = -1
         self.floor = -1         # labels of slots <= floor are refused (aborted or learned)
+        self.restored = False   # restored from a state file, no trial entered since
         self.applied = np.zeros((1, n_t, 2))
         self.eta = np.zeros((1, n_t + 1, 3))
         self.have = np.zeros(n_t + 1, dtype=bool)
@@ -134,9 +147,9 @@ class RobotLearner:
         (out_of_order). In realtime a skipped or uncommanded sample is counted in
         ``missed`` and recorded as held (what the plant applied)."""
         k, s = self.clock.decode(label_ns)
-        if k <= self.floor or k < self.k or (k == self.k and s <= self.t):
+        if k <= self.floor or (k == self.k and s <= self.t):
             raise Rejected("stale", f"sample ({k}, {s}) after ({self.k}, {self.t})")
-        new = k > self.k
+        new = self._window(k, "own pose")
         if not self.realtime:
             if new and s != 0:
                 raise Rejected("out_of_order", f"trial {k} starts at sample {s}")
@@ -159,7 +172,34 @@ class RobotLearner:
         self.commanded = last
         return PoseEvent(k, s, new, last)
 
+    def _window(self, k: int, what: str) -> bool:
+        """Whether trial ``k`` is the next trial (True) or the current one; Rejected
+        outside the window: the next trial is open once the current one is learned or
+        aborted. A robot just restored from its state file cannot know which slot the
+        leader runs next (it may have aborted one meanwhile): it takes the first later
+        trial it sees."""
+        if self.restored and k > self.k:
+            return True
+        return TrialWindow(self.k, self.learned >= self.k or self.floor >= self.k).check(
+            k, what)
+
+    def _lookahead(self, label_ns: int, what: str) -> None:
+        """Rejected if a link input's trial is outside the window, or (lockstep, future)
+        it is labelled beyond the robot's own next sample."""
+        k, _ = self.clock.decode(label_ns)
+        self._window(k, what)
+        if self.realtime:
+            return
+        if self.k >= 0 and k == self.k:
+            limit = self.clock.stamp_ns(self.k, self.t + LINK_LOOKAHEAD)
+        else:  # the next trial (open): from its start
+            limit = self.clock.stamp_ns(k, LINK_LOOKAHEAD - 1)
+        if label_ns > limit:
+            raise Rejected("future", f"{what} labelled {label_ns} ns, beyond {limit} ns "
+                                     f"(the robot is at sample ({self.k}, {self.t}))")
+
     def _new_trial(self, k: int) -> None:
+        self.restored = False
         self.k = k
         self.t = -1
         self.have[:] = False
@@ -175,7 +215,9 @@ class RobotLearner:
     def on_link_pose(self, sender: str, label_ns: int, eta: NDArray[np.float64]) -> None:
         """Direct link: ``sender``'s shared pose (or the leader's reference) arrived."""
         self._fresh(label_ns)
-        self._inbox(sender).offer(label_ns, eta, max(self.k, 0))
+        box = self._inbox(sender)
+        self._lookahead(label_ns, f"{sender}'s pose")
+        box.offer(label_ns, eta, max(self.k, 0))
 
     def _fresh(self, label_ns: int) -> None:
         k, _ = self.clock.decode(label_ns)
@@ -188,7 +230,9 @@ class RobotLearner:
         (label, output), or nothing."""
         self._fresh(tick_ns)
         d = None if pose is None else Delivery(sender, pose[0], pose[1])
-        self._inbox(sender).offer_tick(tick_ns, d, max(self.k, 0))
+        box = self._inbox(sender)
+        self._lookahead(tick_ns, f"{sender}'s link tick")
+        box.offer_tick(tick_ns, d, max(self.k, 0))
 
     def _inbox(self, sender: str) -> LinkInbox:
         self._slot(sender)
@@ -256,8 +300,9 @@ class RobotLearner:
         k, s0 = self.clock.decode(int(stamps[0]))
         if s0 != 0 or any(int(x) != self.clock.stamp_ns(k, s) for s, x in enumerate(stamps)):
             raise Malformed("trajectory stamps are not samples 0..T of one trial")
-        if k <= self.learned or k < self.k or k <= self.floor:
-            raise Rejected("stale", f"trajectory of trial {k} in trial {self.k}")
+        if k <= self.learned or k <= self.floor:
+            raise Rejected("stale", f"trajectory of trial {k}, already learned or aborted")
+        self._window(k, f"{sender}'s trajectory")
         self.trajs.setdefault(k, {})[self.slots[sender]] = np.array(eta, dtype=float)
         return self.try_learn()
 
@@ -317,6 +362,7 @@ class RobotLearner:
         self.prev_iterations, self.prev_learned = st.prev_iterations, st.prev_slot
         self.floor = self.finished = st.slot
         self.k, self.t, self.commanded = st.slot, self.T, True
+        self.restored = True
 
     def diagnostics(self) -> dict[str, object]:
         """Counters for the diagnostics topic: commands, missed samples, per link the

@@ -23,6 +23,9 @@ iteration (whose delay stream is drawn) and the slot (whose labels are accepted)
 ticks of the next slot that come before its start event are held (at most one trial's
 worth) and replayed when it comes; any other label is dropped and counted, so no message
 can move the emulator to another trial. On ``abort`` it drops the trial and reports ready.
+Within a trial it takes each sample once (lockstep: at most the sample being collected;
+realtime: any, since a stalled emulator may find poses ahead of its ``/clock``), and
+``/clock`` ticks in order.
 
 The run configuration comes from the latched ``config`` topic; no parameters.
 """
@@ -70,6 +73,8 @@ class LinkEmulator(ConfiguredNode):
         # messages of a slot whose start event has not come yet: (slot, handler, msg)
         self.early: list[tuple[int, Any, Any]] = []
         self.early_max = (n + 2) * (n_t + 1)
+        self.clock_t = -1
+        self.next_t = 0
         self.realtime = cfg.mode == "realtime"
         # per receiver: (sender, link slot ell or -1 for the leader, publisher)
         self.out: list[list[tuple[str, int, Any]]] = []
@@ -88,6 +93,7 @@ class LinkEmulator(ConfiguredNode):
         self.late = {link: 0 for link in self.injected}
         self.lost = {link: 0 for link in self.injected}  # samples the links lost (loss)
         self.waiting: dict[int, int] = {}  # realtime: receiver -> tick it still waits for
+        self.reported = False
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
         self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         for j in range(n):
@@ -137,6 +143,7 @@ class LinkEmulator(ConfiguredNode):
         self.k = k
         self.iteration = iteration
         self.active = True
+        self.clock_t = -1
         pb = self.pb
         # the delay stream of the iteration, as the batch simulator draws it
         self.tau, self.tau0 = self.cfg.scenario.uncertainty.draw_delays(
@@ -154,7 +161,9 @@ class LinkEmulator(ConfiguredNode):
         event (bounded), anything else dropped and counted. None: not for now."""
         try:
             k, s = self.clock.decode(ns)
-            if k > self.k + 1:
+            # the next slot opens once this one is delivered (or aborted): before that no
+            # real message of it can exist
+            if k > self.k + 1 or (k == self.k + 1 and self.active and not self.reported):
                 raise Rejected("future", f"label of slot {k} in slot {self.k}")
             if k > self.k:
                 if len(self.early) >= self.early_max:
@@ -167,6 +176,9 @@ class LinkEmulator(ConfiguredNode):
                                         f"{'' if self.active else ' (over)'}")
         except Rejected as exc:
             self.drops.reject(exc, topic)
+            return None
+        if not self.realtime and topic != "clock" and s > self.next_t:
+            self.drops.drop("future", topic, f"sample {s} while {self.next_t} is due")
             return None
         return s
 
@@ -252,6 +264,11 @@ class LinkEmulator(ConfiguredNode):
         t = self._slot_of(ns, msg, self._on_clock, "clock")
         if t is None:
             return
+        if t <= self.clock_t:
+            self.drops.drop("duplicate" if t == self.clock_t else "out_of_order", "clock",
+                            f"tick {t} after {self.clock_t}")
+            return
+        self.clock_t = t
         if self.waiting:  # the previous tick's deadline has not fired: it is over now
             self._on_deadline()
         if t >= self.T:

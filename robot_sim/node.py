@@ -28,6 +28,10 @@ The links between robots are not part of the plant: with ``links: emulated`` the
 emulator (``formation-ilc-links``) is its own process; with ``links: direct`` the robots
 talk to each other.
 
+A ``start`` event is obeyed only for the trial after the current one, once the simulator
+has said ready for it and is not inside a trial; any other (a replay, a later trial, a
+second start) is dropped and counted (``dropped`` in its diagnostics).
+
 Parameters: ``timeout`` [s] (lockstep; default: the run configuration's). The run
 configuration comes from the latched ``config`` topic.
 """
@@ -89,6 +93,7 @@ class SimNode(ConfiguredNode):
         self.k = -1            # slot of the current (or last) trial
         self.iteration = -1    # its iteration
         self.t = -1
+        self.ready_for = -1               # the trial this node last said ready for
         self.pending: set[int] = set()
         self.in_trial = False
         self.wait_start = 0.0
@@ -148,9 +153,11 @@ class SimNode(ConfiguredNode):
             if self._gate.is_canceled():
                 self.ready_pub.publish(self.ready_msg(self.iteration + 1))
             return
-        if ev.slot <= self.k or self.in_trial:
-            self.drops.drop("stale", ms.TRIAL_EVENTS,
-                            f"start of slot {ev.slot} in slot {self.k}")
+        # a later slot, between trials, once this node said ready
+        if ev.slot <= self.k or self.in_trial or not self._gate.is_canceled():
+            self.drops.drop("stale" if ev.slot <= self.k else "unexpected", ms.TRIAL_EVENTS,
+                            f"start of slot {ev.slot} in slot {self.k}"
+                            f"{' (running)' if self.in_trial else ''}")
             return
         self.seen = ev.seq
         self.k = ev.slot

@@ -264,7 +264,7 @@ def test_bad_messages_are_dropped_and_counted(ros_env, tmp_path):
     r2 = diag["robot_2"]["dropped"]
     assert r2["malformed"] >= 2 + 1 + 1  # NaN pose, tilted pose, two-pose tick, short path
     assert r2["stale"] >= 3              # old pose, old tick, trial-0 trajectory
-    assert r2["out_of_order"] >= 1       # a pose from a future trial in mid-trial
+    assert r2["future"] >= 1             # a pose of trial 999 mid-trial: outside the window
     assert diag["robot_sim"]["dropped"]["malformed"] >= 1
     assert diag["link_emulator"]["dropped"]["malformed"] >= 1
     got = read_metrics(tmp_path / "metrics.csv")

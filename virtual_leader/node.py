@@ -38,6 +38,11 @@ it publishes ``done``. When a node restarts during a trial, the leader aborts th
 and runs it again in the next slot of the label grid (``formation_ilc.schedule``: the
 protocol, slots and aborts).
 
+What it accepts (the rest is dropped and counted, with the reason, in its own
+``diagnostics`` at each trial's end): ready messages from the nodes it waits for, for a
+trial no later than the next one (the monitor and the recorder say ready once for the whole
+run); ``/clock`` of the trial it started, in order (lockstep: sample by sample).
+
 Wall-clock trials (``mode: wallclock``, real robots behind bridges; no node publishes
 ``/clock``): the ``start`` event carries ``start_wall_ns``, the wall time (Unix epoch, ns)
 ``start_margin`` seconds ahead at which sample 0 is due; the leader publishes r(t) from its
@@ -74,12 +79,14 @@ from formation_ilc.wallclock import WallSchedule
 
 #: [s] how often an abort is repeated until every node has answered it
 ABORT_REPEAT = 1.0
+#: the leader's node name (its diagnostics name it)
+NAME = "virtual_leader"
 
 
 class LeaderNode(Node):
     def __init__(self, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
-        super().__init__("virtual_leader", **kwargs)
+        super().__init__(NAME, **kwargs)
         self.declare_parameter("scenario", "")
         self.declare_parameter("seed", -1)
         self.declare_parameter("trials", 0)
@@ -134,10 +141,12 @@ class LeaderNode(Node):
         self.drops = DropCounter(self)
         self.done_sent = False
         self._abort_sent = 0.0
+        self.t = -1          # last sample of the running slot whose reference went out
         self.ref_msg = PoseStamped()
         self.config_pub = self.create_publisher(String, ms.CONFIG, ms.LATCHED_QOS)
         self.ref_pub = self.create_publisher(PoseStamped, ms.REFERENCE, ms.SAMPLE_QOS)
         self.event_pub = self.create_publisher(String, ms.TRIAL_EVENTS, ms.SAMPLE_QOS)
+        self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         self.create_subscription(String, ms.READY, self._on_ready, ms.LATCHED_READER_QOS)
         self.create_subscription(String, ms.CONFIG, self._on_config, ms.LATCHED_QOS)
         self.wall: WallSchedule | None = None
@@ -158,13 +167,17 @@ class LeaderNode(Node):
     def _on_ready(self, msg: String) -> None:
         try:
             r = Ready.from_json(ms.msg_to_json(msg))
+            if r.node not in self.expected:
+                raise Rejected("unexpected", f"ready from {r.node[:100]}, not waited for")
+            if r.run and r.run != self.cfg.run_id:
+                raise Rejected("foreign", f"{r.node} of run {r.run}")
+            # nobody can be ready for a trial after the next one (trial k+1 needs trial k);
+            # the monitor and the recorder say ready once for the whole run
+            if r.trial > self.sched.committed + 1 and not r.passive:
+                raise Rejected("future", f"{r.node} ready for {r.trial}, "
+                                         f"{self.sched.committed} trials learned")
         except Rejected as exc:
             self.drops.reject(exc, ms.READY)
-            return
-        if r.node not in self.expected:
-            return
-        if r.run and r.run != self.cfg.run_id:
-            self.drops.drop("foreign", ms.READY, f"{r.node} of run {r.run}")
             return
         why = self.sched.on_ready(r)
         self._last_change = time.monotonic()
@@ -220,6 +233,7 @@ class LeaderNode(Node):
                 self.done_sent = True
                 self.event_pub.publish(ms.json_to_msg(TrialEvent(
                     ms.DONE, s.committed, s.slot + 1, s.seq, run=self.cfg.run_id).to_json()))
+                self._publish_diagnostics()
                 self.get_logger().info(f"done: {self.trials} trials")
             return
         try:
@@ -233,6 +247,7 @@ class LeaderNode(Node):
             return
         i, q = nxt
         seq = s.started(q)
+        self.t = -1
         self._save()
         wall_ns = None
         if self.cfg.mode == "wallclock":
@@ -267,6 +282,7 @@ class LeaderNode(Node):
                                                          run=self.cfg.run_id).to_json()))
         s.ended(slot)
         self._save()
+        self._publish_diagnostics()
         self._maybe_start()
 
     def _report_wait(self) -> None:
@@ -284,17 +300,30 @@ class LeaderNode(Node):
                                   f"{', '.join(late)}" if late
                                   else f"trial {s.committed}: waiting for readers")
 
+    def _publish_diagnostics(self) -> None:
+        d: dict[str, Any] = {"node": NAME, "trial": self.sched.committed,
+                             "slot": self.sched.slot}
+        d.update(self.drops.as_dict())
+        self.diag_pub.publish(ms.json_to_msg(d))
+
     def _on_clock(self, msg: Clock) -> None:
-        ns = ms.stamp_to_ns(msg.clock)  # not now(): see notes on /clock callbacks
         try:
+            ns = ms.stamp_to_ns(msg.clock)  # not now(): see notes on /clock callbacks
             k, t = self.clock.decode(ns)
-        except ms.MalformedMessage as exc:
-            self.drops.drop("malformed", "clock", str(exc))
+            if k != self.sched.slot or not self.sched.running:
+                raise Rejected("stale" if k <= self.sched.slot else "future",
+                               f"time of slot {k}, slot {self.sched.slot} "
+                               f"{'runs' if self.sched.running else 'is over'}")
+            if t == self.t:
+                raise Rejected("duplicate", f"time of sample {t} again")
+            if t < self.t:
+                raise Rejected("out_of_order", f"sample {t} after {self.t}")
+            if self.cfg.mode == "lockstep" and t > self.t + 1:
+                raise Rejected("future", f"sample {t} while {self.t + 1} is due")
+        except Rejected as exc:
+            self.drops.reject(exc, "clock")
             return
-        if k != self.sched.slot or not self.sched.running:
-            self.drops.drop("stale", "clock", f"time of slot {k}, slot {self.sched.slot} "
-                                              f"{'runs' if self.sched.running else 'is over'}")
-            return
+        self.t = t
         self._last_t = t
         self._last_change = time.monotonic()
         ref = self.cfg.scenario.reference[t]

@@ -121,17 +121,33 @@ class ConfiguredNode(Node):
                                                      ms.LATCHED_QOS)
 
     def _on_config(self, msg: String) -> None:
+        if self.configured:  # the same one again is no news; another one is not followed
+            try:
+                d = ms.msg_to_json(msg)
+            except Rejected as exc:
+                self.drops.reject(exc, ms.CONFIG)
+                return
+            if d != getattr(self, "_config_json", None):
+                other = str(d.get("run_id", ""))
+                if other != self.run_id:
+                    self.drops.drop("foreign", ms.CONFIG,
+                                    f"run {other or '?'} on this domain and namespace; this "
+                                    f"node belongs to run {self.run_id or '?'}")
+                else:
+                    self.drops.drop("unexpected", ms.CONFIG,
+                                    "a second, different run configuration")
+            return
         cfg = config_from_msg(msg, self.drops)
         if cfg is None:
             return
-        mine = self.run_id  # the adopted config's, or the launcher's (environment)
+        mine = self.run_id  # the launcher's (environment), if it started this node
         if mine and cfg.run_id != mine:
             self.drops.drop("foreign", ms.CONFIG,
                             f"run {cfg.run_id or '?'} on this domain and namespace; this "
                             f"node belongs to run {mine}")
             return
-        if not self.configured:
-            self.follow_config(cfg)
+        self._config_json = ms.msg_to_json(msg)
+        self.follow_config(cfg)
 
     def configure(self, cfg: RunConfig) -> None:
         raise NotImplementedError

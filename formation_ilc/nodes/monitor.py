@@ -10,6 +10,13 @@ neighbours learn from) and, when the plant publishes them (``true_state``), its 
 trajectories, and computes the metrics row with ``formation_ilc.simulate.trial_errors``
 (metrics are defined once, in the core). Without a true state the ``true_`` columns are
 nan: a hardware plant has no ground truth.
+
+What it takes (the rest is dropped and counted, with the reason, in ``drops``): trial
+events in the leader's order (start k+1 after start k, end of the trial started, done);
+trajectories of a trial the leader has started and whose row is not complete, once per
+robot; diagnostics whose fields are what the launcher reads
+(``formation_ilc.links.check_diagnostics``), of a trial started, never older than the
+node's last.
 """
 
 from __future__ import annotations
@@ -24,6 +31,8 @@ from rclpy.node import Node
 from std_msgs.msg import String
 
 import msgs_schema as ms
+from formation_ilc.clock import Rejected
+from formation_ilc.links import check_diagnostics
 from formation_ilc.metrics import METRIC_COLUMNS, TRUE_COLUMNS
 from formation_ilc.nodes.common import DropCounter, RunConfig
 from formation_ilc.schedule import TrialEvent
@@ -52,6 +61,7 @@ class MonitorNode(Node):
         self.first = first
         self.iteration_of: dict[int, int] = {}   # slot -> iteration (start events)
         self.aborted: set[int] = set()
+        self.started = -1   # the last slot the leader started
         self.path_subs = []
         for r in range(n):
             self.path_subs.append(self.create_subscription(
@@ -79,14 +89,27 @@ class MonitorNode(Node):
                                                    "run": self.cfg.run_id}))
 
     def _on_traj(self, msg: Path, r: int, store: dict[int, dict[int, np.ndarray]]) -> None:
+        topic = (ms.trajectory_topic if store is self.eta else ms.true_trajectory_topic)(r + 1)
         try:
             eta, stamps, frame = ms.path_to_trajectory(msg, self.pb.eta_d[r, :, 2])
-            k, _ = self.clock.decode(int(stamps[0]))
-        except (ms.MalformedMessage, IndexError) as exc:
-            self.drops.drop("malformed", ms.trajectory_topic(r + 1), str(exc))
-            return
-        i = self.iteration_of.get(k)
-        if k in self.aborted or (i is not None and i in self.rows):
+            if frame != ms.WORLD_FRAME:
+                raise ms.MalformedMessage(f"trajectory in frame {frame[:50]!r}")
+            k, s0 = self.clock.decode(int(stamps[0]))
+            if s0 != 0 or any(int(x) != self.clock.stamp_ns(k, s)
+                              for s, x in enumerate(stamps)):
+                raise ms.MalformedMessage("stamps are not samples 0..T of one trial")
+            i = self.iteration_of.get(k)
+            if k in self.aborted:
+                raise Rejected("stale", f"trajectory of slot {k}, aborted")
+            if i is not None and i in self.rows:
+                raise Rejected("duplicate", f"trial {i} is complete")
+            if k > self.started:
+                raise Rejected("future", f"trajectory of slot {k}, slot {self.started} "
+                                         f"started")
+            if r in store.get(k, {}):
+                raise Rejected("duplicate", f"slot {k} again")
+        except Rejected as exc:
+            self.drops.reject(exc, topic)
             return
         store.setdefault(k, {})[r] = eta
         self._complete(k)
@@ -117,24 +140,37 @@ class MonitorNode(Node):
 
     def _on_diag(self, msg: String) -> None:
         try:
-            d = ms.msg_to_json(msg, ("node",))
-        except ms.MalformedMessage as exc:
-            self.drops.drop("malformed", "diagnostics", str(exc))
+            d = check_diagnostics(ms.msg_to_json(msg, ("node", "trial")))
+            name, k = d["node"], d["trial"]
+            if k > self.started:
+                raise Rejected("future", f"{name[:100]} diagnostics of trial {k}, trial "
+                                         f"{self.started} started")
+            if k < self.diagnostics.get(name, {}).get("trial", k):
+                raise Rejected("stale", f"{name[:100]} diagnostics of trial {k} after "
+                                        f"{self.diagnostics[name]['trial']}")
+        except Rejected as exc:
+            self.drops.reject(exc, ms.DIAGNOSTICS)
             return
-        self.diagnostics[str(d["node"])] = d
+        self.diagnostics[name] = d
 
     def _on_event(self, msg: String) -> None:
         try:
             d = ms.msg_to_json(msg)
             ev = TrialEvent.from_json(d)
-        except ms.MalformedMessage as exc:
-            self.drops.drop("malformed", "trial_events", str(exc))
-            return
-        if ev.run and ev.run != self.cfg.run_id:
-            self.drops.drop("foreign", "trial_events", f"event of run {ev.run}")
+            if ev.run and ev.run != self.cfg.run_id:
+                raise Rejected("foreign", f"event of run {ev.run}")
+            if ev.event == ms.START and ev.slot <= self.started:
+                raise Rejected("stale", f"start of slot {ev.slot}, slot {self.started} "
+                                        f"started")
+            if ev.event in (ms.END, ms.ABORT) and ev.slot > self.started:
+                raise Rejected("unexpected", f"{ev.event} of slot {ev.slot}, slot "
+                                             f"{self.started} started")
+        except Rejected as exc:
+            self.drops.reject(exc, ms.TRIAL_EVENTS)
             return
         self.events.append(d)
         if ev.event == ms.START:
+            self.started = ev.slot
             self.iteration_of[ev.slot] = ev.trial
             self._complete(ev.slot)
         elif ev.event == ms.ABORT:

@@ -34,6 +34,12 @@ point-stabilisation law (formation_ilc.bridge.ReturnController): ``return_tol`` 
 odometry-measured) goes into its ready message and diagnostics (``initial_shifts``).
 Ready for trial 0 once the driver's odometry arrives, the motors are enabled and the
 publishers are matched.
+
+What it obeys (the rest is dropped and counted in its diagnostics, with the reason): a
+``start`` event only for the trial after the current one, once it said ready for it and is
+idle, with an agreed start no more than ``START_AHEAD_MAX`` s ahead and not past the trial's
+end; ``cmd_vel`` only inside a trial (a command before a start or during the return would
+move the robot outside the protocol).
 """
 
 from __future__ import annotations
@@ -72,6 +78,8 @@ from formation_ilc.wallclock import WallSchedule, start_wall_ns
 
 #: the bridge's control tick [s]: sampling, return controller, watchdog
 TICK = 0.01
+#: [s] the latest a start event's agreed start time may be ahead of this robot's clock
+START_AHEAD_MAX = 60.0
 
 
 def _join(ns: str, name: str) -> str:
@@ -253,6 +261,8 @@ class BridgeNode(ConfiguredNode):
     def _on_cmd(self, msg: Twist) -> None:
         try:
             u = ms.twist_to_u(msg)
+            if self.phase != "trial":
+                raise Rejected("unexpected", f"a command while {self.phase}")
         except Rejected as exc:
             self.drops.reject(exc, ms.cmd_vel_topic(self.id))
             return
@@ -260,18 +270,27 @@ class BridgeNode(ConfiguredNode):
         self.counts["clipped"] += int(clipped)
         self.robot_cmd = (v, w)
         self.watchdog.feed(time.monotonic())
-        if self.phase != "return":
-            self._send(self.robot_cmd, time.monotonic())
+        self._send(self.robot_cmd, time.monotonic())
 
     def _on_event(self, msg: String) -> None:
         try:
             d = ms.msg_to_json(msg)
             ev = TrialEvent.from_json(d)
+            if ev.run and self.run_id and ev.run != self.run_id:
+                raise Rejected("foreign", f"event of run {ev.run}")
             if ev.event not in (ms.START, ms.ABORT) or ev.seq <= self.seen:
                 return
-            start = start_wall_ns(d) if ev.event == ms.START else 0
-        except (Rejected, TypeError, ValueError) as exc:
-            self.drops.drop("malformed", ms.TRIAL_EVENTS, str(exc))
+            start = 0
+            if ev.event == ms.START:
+                start = start_wall_ns(d)
+                now = time.time_ns()
+                if start > now + int(START_AHEAD_MAX * 1e9):
+                    raise Rejected("future", f"start {(start - now) / 1e9:.3g} s ahead")
+                if start + self.T * self.clock.dt_ns < now:
+                    raise Rejected("stale", f"start {(now - start) / 1e9:.3g} s ago: the "
+                                            f"trial would be over")
+        except Rejected as exc:
+            self.drops.reject(exc, ms.TRIAL_EVENTS)
             return
         if ev.event == ms.ABORT:
             # the trial is dropped: stop sampling, drive back, then say ready
@@ -284,8 +303,8 @@ class BridgeNode(ConfiguredNode):
                                 initial_shift(self.world(), self.initial))
             return
         if ev.slot <= self.k or self.phase != "idle":
-            self.drops.drop("stale", ms.TRIAL_EVENTS,
-                            f"start of slot {ev.slot} in slot {self.k}")
+            self.drops.drop("stale" if ev.slot <= self.k else "unexpected", ms.TRIAL_EVENTS,
+                            f"start of slot {ev.slot} in slot {self.k} ({self.phase})")
             return
         self.seen = ev.seq
         self.k = ev.slot

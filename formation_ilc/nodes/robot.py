@@ -38,8 +38,9 @@ It measures every delay by eq. (11) from Rt and St, calls the core's ``law.comma
 one robot (``formation_ilc.learner.RobotLearner``) and publishes ``cmd_vel``. At sample T it
 sends its whole trajectory on ``trajectory``; when it has its in-neighbours' trajectories of
 trial k it calls ``law.learn`` and reports ready for trial k+1. Malformed, stale,
-out-of-order, duplicate and future-labelled messages are dropped and counted
-(``diagnostics``).
+out-of-order, duplicate and future-labelled messages, and any label outside the robot's
+window (its current trial; the next one once it has learned the current one: see
+``formation_ilc.learner``), are dropped and counted (``diagnostics``).
 
 Container mode: ``formation-ilc-robot --robots 1 2 3`` runs three robot nodes (each with
 its own memory) in one process on one executor.
