@@ -533,6 +533,14 @@ def read_messages(path: str | Path, topics: set[str] | None = None,
     rep = report if report is not None else ReadReport()
     schemas: dict[int, str] = {}
     channels: dict[int, tuple[str, str]] = {}
+    # every readable schema and channel first: a channel whose chunk is damaged has its
+    # copy outside the chunks, which may come after messages of later, intact chunks
+    for rec in _records(Path(path), ReadReport()):
+        if isinstance(rec, Schema):
+            schemas[rec.id] = rec.name
+    for rec in _records(Path(path), ReadReport()):
+        if isinstance(rec, Channel):
+            channels[rec.id] = (rec.topic, schemas.get(rec.schema_id, ""))
     for rec in _records(Path(path), rep):
         if isinstance(rec, Schema):
             schemas[rec.id] = rec.name

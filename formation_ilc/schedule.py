@@ -298,7 +298,7 @@ class Schedule:
                 + f", but the team has learned {self.committed} trials: a robot came back "
                   f"without its memory (give every robot the run's state_dir)")
         ahead = set(robots.values())
-        if ahead != {self.committed}:
+        if robots and ahead != {self.committed}:
             if len(ahead) == 1 and self.slot < 0:
                 # a leader started afresh next to robots that have learned (no leader state)
                 self.committed = ahead.pop()

@@ -115,8 +115,12 @@ class LinkEmulator(ConfiguredNode):
 
     def _on_event(self, msg: String) -> None:
         ev = self.trial_event(msg)
-        if ev is None or ev.event not in (ms.START, ms.ABORT) or ev.seq <= self.seen:
+        if ev is None or ev.event not in (ms.START, ms.ABORT):
             return
+        if ev.seq <= self.seen:
+            if ev.event == ms.START:
+                self.drops.drop("stale", ms.TRIAL_EVENTS, f"start seq {ev.seq} again")
+            return  # a repeated abort, already answered
         self.seen = ev.seq
         if ev.event == ms.ABORT:
             if ev.slot == self.k:
@@ -128,8 +132,9 @@ class LinkEmulator(ConfiguredNode):
             if self._gate.is_canceled():
                 self.ready_pub.publish(self.ready_msg(self.iteration + 1))
             return
-        if ev.slot <= self.k:
-            self.drops.drop("stale", ms.TRIAL_EVENTS, f"start of slot {ev.slot} in {self.k}")
+        if ev.slot <= self.k or (ev.slot > self.k + 1 and self.k >= 0):
+            self.drops.drop("stale" if ev.slot <= self.k else "future", ms.TRIAL_EVENTS,
+                            f"start of slot {ev.slot} in {self.k}")
             return
         self._start(ev.trial, ev.slot)
         early, self.early = self.early, []

@@ -135,13 +135,19 @@ class SimNode(ConfiguredNode):
         need += [(p, int(self.cfg.monitored)) for p in self.true_pubs]
         if matched(need):
             self._gate.cancel()
-            self.ready_pub.publish(self.ready_msg(0))
+            self._say_ready(0)
+
+    def _say_ready(self, trial: int) -> None:
+        self.ready_for = trial
+        self.ready_pub.publish(self.ready_msg(trial))
 
     def _on_event(self, msg: String) -> None:
         ev = self.trial_event(msg)
         if ev is None or ev.event not in (ms.START, ms.ABORT):
             return
         if ev.seq <= self.seen:
+            if ev.event == ms.START:
+                self.drops.drop("stale", ms.TRIAL_EVENTS, f"start seq {ev.seq} again")
             return  # a repeated abort, already answered
         if ev.event == ms.ABORT:
             self.seen = ev.seq
@@ -151,10 +157,14 @@ class SimNode(ConfiguredNode):
                 if self.realtime:
                     self._tick.cancel()
             if self._gate.is_canceled():
-                self.ready_pub.publish(self.ready_msg(self.iteration + 1))
+                self._say_ready(self.iteration + 1)
             return
-        # a later slot, between trials, once this node said ready
-        if ev.slot <= self.k or self.in_trial or not self._gate.is_canceled():
+        # the next slot (any, for a process that has just started: the leader may have
+        # aborted slots meanwhile), between trials, once this node said ready
+        if ev.slot > self.k + 1 and self.k >= 0:
+            self.drops.drop("future", ms.TRIAL_EVENTS, f"start of slot {ev.slot} in {self.k}")
+            return
+        if ev.slot <= self.k or self.in_trial or self.ready_for <= self.iteration:
             self.drops.drop("stale" if ev.slot <= self.k else "unexpected", ms.TRIAL_EVENTS,
                             f"start of slot {ev.slot} in slot {self.k}"
                             f"{' (running)' if self.in_trial else ''}")
@@ -202,7 +212,7 @@ class SimNode(ConfiguredNode):
             self.pose_pubs[r].publish(ms.pose_to_msg(self.eta[r, t], ns, ms.WORLD_FRAME,
                                                      self.pose_msgs[r]))
         if t == self.T:
-            self.ready_pub.publish(self.ready_msg(self.iteration + 1))
+            self._say_ready(self.iteration + 1)
             return
         self.pending = set(range(self.n))
         self.wait_start = time.perf_counter()

@@ -166,8 +166,8 @@ def jsons(fields: st.SearchStrategy) -> st.SearchStrategy:
 
 
 events = jsons(st.fixed_dictionaries(
-    {"event": st.sampled_from(["start", "start", "end", "done", "halt", 1]),
-     "trial": trial_values},
+    {"event": st.sampled_from(["start", "start", "end", "done", "abort", "halt", 1]),
+     "trial": trial_values, "seq": st.one_of(st.integers(-1, 3), st.just("1"))},
     optional={"start_wall_ns": st.one_of(st.integers(-1, 2**63),
                                          st.just(time.time_ns() + 10**9)),
               "stamp_ns": st.integers()}))
@@ -290,9 +290,12 @@ def test_a_forged_later_trial_pose_does_not_hijack_the_link_emulator(context, ex
     shared = [tester.create_publisher(PoseStamped, ms.shared_pose_topic(j + 1), ms.SAMPLE_QOS)
               for j in range(3)]
     ref = tester.create_publisher(PoseStamped, ms.REFERENCE, ms.SAMPLE_QOS)
-    spin_until(ex, lambda: all(p.get_subscription_count() >= 1 for p in [*shared, ref])
+    events = tester.create_publisher(String, ms.TRIAL_EVENTS, ms.SAMPLE_QOS)
+    spin_until(ex, lambda: all(p.get_subscription_count() >= 1 for p in [*shared, ref, events])
                and sub.get_publisher_count() >= 1)
     pb = Problem.from_scenario(cfg.scenario)
+    events.publish(ms.json_to_msg({"event": "start", "trial": 0, "slot": 0, "seq": 0}))
+    spin_until(ex, lambda: emu.active)
 
     def sample(t: int) -> None:
         ns = cfg.clock.stamp_ns(0, t)
@@ -465,15 +468,16 @@ def test_fuzz_link_emulator_handlers(context):
         @given(msg=st.one_of(poses(), clocks(), st.builds(String, data=st.text(max_size=20))),
                to=st.sampled_from(["shared", "reference"]), done=st.booleans())
         def prop(msg, to, done):
-            emu._start(0)
-            emu.window.next_open = done
+            emu._start(0, 0)
+            emu.reported = done  # the trial delivered: the next slot may come (held)
+            emu.early = []
             emu.clock_t = 2
             emu.next_t = 2
             before = (emu.k, dropped(emu))
             if isinstance(msg, Clock):
                 emu._on_clock(msg)
                 label = in_grid(msg.clock)
-                taken = emu.clock_t != 2 or emu.k != 0
+                taken = emu.clock_t != 2 or emu.k != 0 or bool(emu.early)
             elif isinstance(msg, String):
                 emu._on_config(msg)  # a second configuration: counted, nothing moves
                 label, taken = None, False
@@ -481,7 +485,8 @@ def test_fuzz_link_emulator_handlers(context):
                 snap = [list(x) for x in emu.shared] + [list(emu.ref)]
                 (emu._on_reference(msg) if to == "reference" else emu._on_shared(msg, 1))
                 label = in_grid(msg.header.stamp)
-                taken = emu.k != 0 or [list(x) for x in emu.shared] + [list(emu.ref)] != snap
+                taken = (emu.k != 0 or bool(emu.early)
+                         or [list(x) for x in emu.shared] + [list(emu.ref)] != snap)
             assert taken != (dropped(emu) == before[1] + 1)
             allowed = {0, 1} if done else {0}
             if label is None or label[0] not in allowed:
@@ -503,14 +508,17 @@ def test_fuzz_simulator_handlers(context):
         @FUZZ
         @example(msg=ms.u_to_twist((0.2, 0.1)), r=1, state="in_trial")
         @example(msg=ms.u_to_twist((0.2, 0.1)), r=1, state="between")
-        @example(msg=ms.json_to_msg({"event": "start", "trial": 1}), r=0, state="between")
-        @example(msg=ms.json_to_msg({"event": "start", "trial": 1}), r=0, state="not_ready")
-        @example(msg=ms.json_to_msg({"event": "start", "trial": 2}), r=0, state="between")
+        @example(msg=ms.json_to_msg({"event": "start", "trial": 1, "seq": 1}), r=0,
+                 state="between")
+        @example(msg=ms.json_to_msg({"event": "start", "trial": 1, "seq": 1}), r=0,
+                 state="not_ready")
+        @example(msg=ms.json_to_msg({"event": "start", "trial": 2, "seq": 1}), r=0,
+                 state="between")
         @given(msg=st.one_of(events, twists), r=st.integers(0, 2),
                state=st.sampled_from(["between", "in_trial", "not_ready"]))
         def prop(msg, r, state):
-            sim.k, sim.in_trial, sim.ready_for = 0, state == "in_trial", (
-                0 if state == "not_ready" else 1)
+            sim.k, sim.iteration, sim.seen = 0, 0, 0
+            sim.in_trial, sim.ready_for = state == "in_trial", 0 if state == "not_ready" else 1
             sim.pending = {0, 1, 2} if sim.in_trial else set()
             sim.t = 5
             before = dropped(sim)
@@ -524,12 +532,13 @@ def test_fuzz_simulator_handlers(context):
                 seen(dropped(sim) == before)
                 return
             sim._on_event(msg)
-            if sim.k != 0:  # only the start of trial 1, between trials, once ready for it
+            if sim.k != 0:  # only the start of the next slot, between trials, once ready
                 ev = json.loads(msg.data)
                 assert (ev["event"], ev["trial"], state) == ("start", 1, "between")
+                assert ev["seq"] > 0
                 assert dropped(sim) == before
-            elif dropped(sim) == before:  # not counted: a well-formed end or done event
-                assert json.loads(msg.data)["event"] in ("end", "done")
+            elif dropped(sim) == before:  # not counted: end, done, or an abort (answered)
+                assert json.loads(msg.data)["event"] in ("end", "done", "abort")
             else:
                 assert dropped(sim) == before + 1
             seen(sim.k != 0)
@@ -593,7 +602,8 @@ def test_fuzz_monitor_handlers(context):
         @example(msg=ms.json_to_msg({"event": "end", "trial": 1}), true=False)
         @given(msg=st.one_of(paths(robot=0), diags, events), true=st.booleans())
         def prop(msg, true):
-            mon.started, mon.ended, mon.rows, mon.eta, mon.xi = 1, 0, {0: None}, {}, {}
+            mon.started, mon.rows, mon.eta, mon.xi = 1, {0: None}, {}, {}
+            mon.iteration_of, mon.aborted = {0: 0, 1: 1}, set()
             mon.diagnostics = {"robot_1": {"node": "robot_1", "trial": 0}}
             before = dropped(mon)
             if isinstance(msg, Path):
@@ -607,7 +617,7 @@ def test_fuzz_monitor_handlers(context):
                 (mon._on_diag if "node" in msg.data else mon._on_event)(msg)
                 taken = (len(mon.events) != n_events or mon.diagnostics["robot_1"] is not diag
                          or len(mon.diagnostics) > 1)
-                assert mon.started in (1, 2) and mon.ended in (0, 1)
+                assert mon.started in (1, 2)
                 for d in mon.diagnostics.values():  # what the launcher reads is sound
                     assert isinstance(d["trial"], int) and d["trial"] <= mon.started
             assert taken != (dropped(mon) == before + 1)

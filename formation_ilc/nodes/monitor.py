@@ -162,6 +162,9 @@ class MonitorNode(Node):
             if ev.event == ms.START and ev.slot <= self.started:
                 raise Rejected("stale", f"start of slot {ev.slot}, slot {self.started} "
                                         f"started")
+            if ev.event == ms.START and ev.slot > self.started + 1:
+                raise Rejected("future", f"start of slot {ev.slot}, slot {self.started} "
+                                         f"started")
             if ev.event in (ms.END, ms.ABORT) and ev.slot > self.started:
                 raise Rejected("unexpected", f"{ev.event} of slot {ev.slot}, slot "
                                              f"{self.started} started")

@@ -302,7 +302,7 @@ class BridgeNode(ConfiguredNode):
                 self._say_ready(self.iteration + 1, "idle",
                                 initial_shift(self.world(), self.initial))
             return
-        if ev.slot <= self.k or self.phase != "idle":
+        if ev.slot <= self.k or self.phase != "idle" or (ev.slot > self.k + 1 and self.k >= 0):
             self.drops.drop("stale" if ev.slot <= self.k else "unexpected", ms.TRIAL_EVENTS,
                             f"start of slot {ev.slot} in slot {self.k} ({self.phase})")
             return
