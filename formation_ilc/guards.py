@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -112,8 +113,11 @@ class DivergedError(ArithmeticError):
     """A trial's errors stopped being finite: the learning diverged.
 
     trial : the trial's index; robot : 1-based, or None when unknown; what : the quantity
-    (e.g. 'output', 'input', 'learned memory', 'errors').
+    (e.g. 'output', 'input', 'learned memory', 'errors'). result : what the caller kept
+    (``simulate`` puts the finished trials' SimResult there).
     """
+
+    result: Any = None
 
     def __init__(self, trial: int, what: str, robot: int | None = None):
         self.trial = int(trial)
@@ -133,14 +137,9 @@ def check_finite(trial: int, row: NDArray[np.float64] | None = None,
         only the measured ones are checked here.
     arrays : named arrays with the robot axis first, e.g. ``output=eta`` (N, T+1, 3),
         ``input=u`` (N, T, 2), ``learned_memory=memory`` (N, T, 2); the first robot with a
-        non-finite value is named. Cost: one pass over each array.
+        non-finite value is named. Cost: one pass over each array. The arrays are checked
+        before the row.
     """
-    if row is not None:
-        from .metrics import METRIC_COLUMNS, TRUE_COLUMNS
-
-        for name, value in zip(METRIC_COLUMNS[1:], np.asarray(row)[1:], strict=False):
-            if name not in TRUE_COLUMNS and not math.isfinite(float(value)):
-                raise DivergedError(trial, f"{name.replace('_', ' ')}")
     for name, a in arrays.items():
         a = np.asarray(a)
         if np.isfinite(a).all():
@@ -150,3 +149,9 @@ def check_finite(trial: int, row: NDArray[np.float64] | None = None,
             finite_rows = np.isfinite(a.reshape(a.shape[0], -1)).all(axis=1)
             robot = int(np.flatnonzero(np.logical_not(finite_rows))[0]) + 1
         raise DivergedError(trial, name.replace("_", " "), robot)
+    if row is not None:
+        from .metrics import METRIC_COLUMNS, TRUE_COLUMNS
+
+        for name, value in zip(METRIC_COLUMNS[1:], np.asarray(row)[1:], strict=False):
+            if name not in TRUE_COLUMNS and not math.isfinite(float(value)):
+                raise DivergedError(trial, f"{name.replace('_', ' ')}")

@@ -88,7 +88,16 @@ def read_text_file(path: Path, limit: int = MAX_FILE_BYTES, what: str = "a scena
     return text.removeprefix("\ufeff")
 
 
-_Loader: Any = yaml.CSafeLoader if getattr(yaml, "__with_libyaml__", False) else yaml.SafeLoader
+class _Loader(yaml.CSafeLoader if getattr(yaml, "__with_libyaml__", False)  # type: ignore[misc]
+              else yaml.SafeLoader):
+    """The safe loader (libyaml's when installed), which also reads 1e300 and 5E-3 as
+    numbers, as YAML 1.2 does (YAML 1.1 wants a dot: 1.0e300)."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"))
 
 
 def _yaml_where(exc: yaml.YAMLError) -> str:
