@@ -341,13 +341,14 @@ class TrialLog:
     needs no more memory than one of 10^5)."""
 
     def __init__(self, path: Path | None, cap: int = 100_000):
-        from .metrics import MetricsWriter
+        from .metrics import METRIC_COLUMNS, MetricsWriter
 
         self.writer = None if path is None else MetricsWriter(path)
-        self.cap = cap
+        self.cap = cap - cap % 2
         self.stride = 1
         self.seen = 0
-        self.series: list[np.ndarray] = []
+        self.series = np.empty((self.cap, len(METRIC_COLUMNS)))
+        self.count = 0
         self.first: np.ndarray | None = None
         self.last: np.ndarray | None = None
         self.best: np.ndarray | None = None
@@ -362,20 +363,22 @@ class TrialLog:
         if self.best is None or row[1] < self.best[1]:
             self.best = row
         if self.seen % self.stride == 0:
-            self.series.append(row)
-            if len(self.series) >= self.cap:
-                self.series = self.series[::2]
+            if self.count == self.cap:  # full: keep every other row, take every 2nd from now
+                half = self.cap // 2
+                self.series[:half] = self.series[0:self.cap:2]
+                self.count = half
                 self.stride *= 2
+            if self.seen % self.stride == 0:
+                self.series[self.count] = row
+                self.count += 1
         self.seen += 1
 
     def rows(self) -> np.ndarray:
         """The plot series, shape (rows, len(METRIC_COLUMNS)), the last row included."""
-        from .metrics import METRIC_COLUMNS
-
-        rows = list(self.series)
-        if self.last is not None and (not rows or rows[-1][0] != self.last[0]):
-            rows.append(self.last)
-        return np.array(rows).reshape(-1, len(METRIC_COLUMNS))
+        rows = self.series[:self.count]
+        if self.last is not None and (not len(rows) or rows[-1, 0] != self.last[0]):
+            rows = np.vstack([rows, self.last])
+        return rows
 
     def close(self) -> None:
         if self.writer is not None:
@@ -561,12 +564,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                   file=sys.stderr)
             return status
         last = int(log.last[0])
-        left = first + k - (last + 1)
+        learned = keeper.saved_trials if keeper.saved_trials is not None else first
         print(f"interrupted after trial {last}: {out}/metrics.csv holds trials {first}..{last}, "
-              f"{saved} the memory learned from them", file=sys.stderr)
+              f"{saved} the memory for trial {learned} (learned from the trials before it)",
+              file=sys.stderr)
+        left = first + k - learned
         if left > 0 and saved is not None:
             print(f"go on with: formation-ilc simulate {args.scenario} --init-memory {saved} "
-                  f"--first-trial {last + 1} --trials {left} --out {out}-cont "
+                  f"--first-trial {learned} --trials {left} --out {out}-cont "
                   f"(and the same options)", file=sys.stderr)
         return status
     finally:

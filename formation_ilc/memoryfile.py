@@ -84,7 +84,7 @@ def _header(fh: IO[bytes], where: str) -> tuple[tuple[int, ...], np.dtype[Any]]:
     return tuple(int(x) for x in shape), dtype
 
 
-def _check_headers(path: Path) -> None:
+def _check_headers(path: Path) -> dict[str, tuple[tuple[int, ...], np.dtype[Any]]]:
     """Refuse a file whose arrays are not the small scalars and the one (N, T, 2) float
     array of a memory file, from the headers alone: a hostile or corrupt file (a
     compressed 'memory' of terabytes, a string 'scenario' of gigabytes) is never loaded."""
@@ -116,6 +116,7 @@ def _check_headers(path: Path) -> None:
         if not ok:
             raise MemoryFileError(f"{path}: {key}: expected {why}, got {dtype} of shape "
                                   f"{shape}")
+    return shapes
 
 
 def load_memory(path: Path | str, sc: Scenario) -> NDArray[np.float64]:
@@ -135,8 +136,7 @@ def load_memory(path: Path | str, sc: Scenario) -> NDArray[np.float64]:
                                           f"needs {want} (robots, samples, [v, omega])")
     except OSError as exc:
         raise MemoryFileError(f"{path}: cannot read a memory file: {exc}") from None
-    if magic != b"\x93NUMPY":
-        _check_headers(path)
+    shapes = _check_headers(path) if magic != b"\x93NUMPY" else {}
     try:
         data = np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
@@ -173,6 +173,9 @@ def load_memory(path: Path | str, sc: Scenario) -> NDArray[np.float64]:
                 diffs.append(f"{n_t} samples, this run {sc.samples}")
             if diffs:
                 raise MemoryFileError(f"{path}: learned for another run: " + "; ".join(diffs))
+            if shapes["memory"][0] != want:  # checked before the array is read
+                raise MemoryFileError(f"{path}: memory has shape {shapes['memory'][0]}, "
+                                      f"{sc.name} needs {want}")
             memory = np.array(data["memory"], dtype=float)
         except (OSError, ValueError, EOFError, OverflowError, zipfile.BadZipFile) as exc:
             if isinstance(exc, MemoryFileError):

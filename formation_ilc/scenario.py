@@ -105,6 +105,13 @@ def _yaml_where(exc: yaml.YAMLError) -> str:
     return "" if mark is None else f"line {mark.line + 1}, column {mark.column + 1}: "
 
 
+def _printable(text: str, limit: int = 120) -> str:
+    """A field path for a message: control characters escaped, cut short."""
+    if not text.isprintable():
+        text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 def _one_line(text: str, limit: int = 200) -> str:
     text = " ".join(str(text).split())
     return text if len(text) <= limit else text[: limit - 3] + "..."
@@ -233,9 +240,19 @@ class Scenario:
 
     @cached_property
     def desired(self) -> tr.Desired:
-        pos = tr.formation_positions(self.reference, self.offsets, list(self.scales), self.dt,
-                                     self.frame)
-        return tr.desired_trajectories(pos, self.dt, self.reference)
+        """Desired outputs and inputs of every robot (built on first use: the costly part);
+        ScenarioError if they are not finite (offsets, scales or reference too extreme)."""
+        with np.errstate(all="ignore"):
+            pos = tr.formation_positions(self.reference, self.offsets, list(self.scales),
+                                         self.dt, self.frame)
+            d = tr.desired_trajectories(pos, self.dt, self.reference)
+        for what, a in (("outputs", d.eta), ("inputs", d.u)):
+            if not np.isfinite(a).all():
+                robot = int(np.flatnonzero(~np.isfinite(a.reshape(len(a), -1)).all(axis=1))[0])
+                raise ScenarioError(f"{self.source}: formation: robot {robot + 1}'s desired "
+                                    f"{what} are not finite (offsets, scales or reference "
+                                    f"too extreme for float64)")
+        return d
 
     def with_options(self, *, law: int | None = None, memory: str | None = None,
                      noise: bool = True, delay: bool = True, seed: int | None = None,
@@ -274,7 +291,7 @@ class _Fields:
 
     def fail(self, key: str | None, why: str) -> ScenarioError:
         where = self.path if key is None else (f"{self.path}.{key}" if self.path else key)
-        return ScenarioError(f"{self.src}: {where}: {why}")
+        return ScenarioError(f"{self.src}: {_printable(str(where))}: {why}")
 
     def get(self, key: str, default: Any = ..., *, required: bool = False) -> Any:
         self.used.add(key)
@@ -426,6 +443,10 @@ def _reference(f: _Fields, n_samples: int, dt: float, base_dir: Path | None) -> 
             raise f.fail("times", "must be strictly increasing")
         ref = tr.waypoint_reference(ta, pa, m, dt)
     f.finish()
+    if not np.isfinite(ref).all():
+        bad = int(np.flatnonzero(~np.isfinite(ref).all(axis=1))[0])
+        raise f.fail(None, f"the {kind} reference is not finite from sample {bad} on (a value "
+                           f"too large or too small for float64?)")
     return ref
 
 
@@ -550,7 +571,7 @@ def _scenario(data: Any, text: str, source: str, base_dir: Path | None) -> Scena
         big = "samples" if 160 * n_samples >= 64 * n * n else "robots"
         raise top.fail(big, f"{n} robots x {n_samples} samples: loading them {why}")
 
-    with _section(source, "reference"):
+    with _section(source, "reference"), np.errstate(all="ignore"):
         ref = _reference(top.sub("reference"), n_samples, dt, base_dir)
 
     with _section(source, "formation"):
