@@ -772,9 +772,19 @@ def _fits_points(sc: Scenario, trials: int, workers: int | None) -> None:
     _fits(sc, per * (workers or os.cpu_count() or 1), "a study point per worker")
 
 
+def _regular_file(path: Path) -> None:
+    if not path.is_file():
+        why = "not a regular file" if path.exists() else "no such file"
+        raise ScenarioError(f"{path}: {why}")
+
+
 def cmd_sweep(args: argparse.Namespace) -> int:
+    from .study import CHECK_COLUMNS, SIM_COLUMNS
     from .sweep import load_spec, plot_table, run_sweep
 
+    if args.metric not in SIM_COLUMNS + CHECK_COLUMNS:  # before the study runs, not after
+        raise OptionError(f"--metric: no column {args.metric[:60]!r} (columns: "
+                          f"{', '.join(SIM_COLUMNS + CHECK_COLUMNS)})")
     spec = load_spec(args.spec)
     out = make_out_dir(args.out or Path("runs") / f"{args.spec.stem}-sweep")
     if args.scheduler is None:
@@ -794,11 +804,6 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     table = run_sweep(spec, out, workers=args.workers, scheduler=args.scheduler)
     files = [table.name]
     if not args.no_plots:
-        from .study import CHECK_COLUMNS, SIM_COLUMNS
-
-        if args.metric not in SIM_COLUMNS + CHECK_COLUMNS:
-            raise ScenarioError(f"--metric: no column {args.metric!r} (columns: "
-                                f"{', '.join(SIM_COLUMNS + CHECK_COLUMNS)})")
         files += [p.name for p in plot_table(spec, table, out, args.metric)]
     print(f"results in {out}/ ({', '.join(files)})")
     return 0
@@ -830,8 +835,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "analyze":
             from .analyze import analyze
 
-            if not args.recording.is_file():
-                raise ScenarioError(f"{args.recording}: no such file")
+            _regular_file(args.recording)
             out = make_out_dir(args.out or args.recording.with_name(args.recording.stem
                                                                     + "-analysis"))
             try:
@@ -841,8 +845,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "mcap-repair":
             from .mcap_io import repair
 
-            if not args.recording.is_file():
-                raise ScenarioError(f"{args.recording}: no such file")
+            _regular_file(args.recording)
             dst = args.output or args.recording.with_suffix(".repaired.mcap")
             try:
                 n = repair(args.recording, dst)

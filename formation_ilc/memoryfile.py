@@ -125,7 +125,16 @@ def load_memory(path: Path | str, sc: Scenario) -> NDArray[np.float64]:
     shape is checked from its header before any is loaded."""
     path = Path(path)
     want = (sc.n, sc.samples, 2)
+    # the file holds one (N, T, 2) float64 array and a few scalars: refuse anything else
+    # (a device, a pipe, a file of gigabytes) before reading it
+    limit = 2 * 16 * sc.n * sc.samples + (1 << 20)
     try:
+        if not path.is_file():
+            why = "not a regular file" if path.exists() else "no such file"
+            raise MemoryFileError(f"{path}: cannot read a memory file: {why}")
+        if path.stat().st_size > limit:
+            raise MemoryFileError(f"{path}: {path.stat().st_size} bytes, more than a memory "
+                                  f"file of {sc.name} can be ({limit})")
         with open(path, "rb") as fh:
             magic = fh.read(6)
             if magic == b"\x93NUMPY":  # a bare .npy (before format version 1)

@@ -717,7 +717,7 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
     try:
         is_file_arg = p.suffix in (".yaml", ".yml") or p.exists()
     except (OSError, ValueError) as exc:  # e.g. a name too long for the file system
-        raise ScenarioError(f"{_one_line(name, 80)}: cannot read: "
+        raise ScenarioError(f"{_printable(name, 80)}: cannot read: "
                             f"{getattr(exc, 'strerror', None) or exc}") from None
     if is_file_arg:
         text = read_text_file(p)
@@ -725,5 +725,5 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
     if name in builtin_scenarios():
         text = resources.files("formation_ilc.scenarios").joinpath(name + ".yaml").read_text()
         return scenario_from_text(text, f"{name} (built-in)")
-    raise ScenarioError(f"{_one_line(name, 80)}: no such scenario file, and not a built-in "
+    raise ScenarioError(f"{_printable(name, 80)}: no such scenario file, and not a built-in "
                         f"scenario (built-in: {', '.join(builtin_scenarios())})")

@@ -191,6 +191,11 @@ def test_unicycle_reference_is_the_loop_bit_for_bit():
     (["tune", "paper-triangle3", "--workers", "0"],
      "error: argument --workers: must be an integer in 1..4096, got 0 (see formation-ilc tune "
      "--help)"),
+    (["launch", "paper-triangle3", "--seed", "-1"],
+     "error: argument --seed: must be an integer >= 0, got -1 (see formation-ilc launch --help)"),
+    (["launch", "paper-triangle3", "--domain-id", "300"],
+     "error: argument --domain-id: must be an integer <= 232, got 300 (see formation-ilc "
+     "launch --help)"),
     (["tune", "paper-triangle3", "--position-level", "nan"],
      "error: argument --position-level: must be a finite number > 0, got nan (see "
      "formation-ilc tune --help)"),
@@ -225,6 +230,22 @@ def test_gain_grid_nan_is_refused(capsys):
     assert main(["tune", "paper-triangle3", "--gain-grid", "nan", "--out", "/tmp"]) == 2
     assert capsys.readouterr().err == ("error: --gain-grid: values must be finite and > 0, got "
                                        "'nan'\n")
+
+
+def test_sweep_metric_is_checked_before_the_study_runs(tmp_path, capsys):
+    spec = tmp_path / "s.yaml"
+    spec.write_text("scenario: paper-triangle3\ntrials: 2\ngrid: {law.gain: [0.08]}\n")
+    assert main(["sweep", str(spec), "--metric", "nope", "--out", str(tmp_path / "o")]) == 2
+    assert capsys.readouterr().err.startswith("error: --metric: no column 'nope' (columns: ")
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_memory_file_that_is_a_device(tmp_path, capsys):
+    """Before: /dev/zero as --init-memory ran out of memory."""
+    assert main(["simulate", "paper-triangle3", "--init-memory", "/dev/zero", "--out",
+                 str(tmp_path)]) == 2
+    assert capsys.readouterr().err == ("error: /dev/zero: cannot read a memory file: not a "
+                                       "regular file\n")
 
 
 def test_a_file_that_is_not_a_recording(tmp_path, capsys):
