@@ -47,6 +47,15 @@ from typing import IO, Any
 
 import numpy as np
 
+from formation_ilc.options import (
+    int_range,
+    nonneg_int,
+    out_dir_arg,
+    output_file_arg,
+    positive_float,
+    positive_int,
+)
+
 __all__ = ["add_arguments", "run", "Stack", "node_commands"]
 
 
@@ -54,11 +63,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenario", metavar="SCENARIO", nargs="?",
                    help="built-in scenario name (formation-ilc scenarios) or a YAML file "
                         "(not with --resume)")
-    p.add_argument("--trials", type=int, metavar="K", help="number of trials (default: 20)",
-                   default=20)
+    p.add_argument("--trials", type=positive_int, metavar="K",
+                   help="number of trials (default: 20)", default=20)
     p.add_argument("--law", type=int, choices=(9, 22, 23))
     p.add_argument("--memory", choices=("feedforward", "literal"))
-    p.add_argument("--seed", type=int, help="random seed (default: the scenario's)")
+    p.add_argument("--seed", type=nonneg_int, help="random seed, >= 0 (default: the "
+                   "scenario's)")
     p.add_argument("--no-noise", action="store_true",
                    help="no initial shifts, disturbances or measurement noise")
     p.add_argument("--no-delay", action="store_true", help="no communication delays")
@@ -93,7 +103,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="with --plant pioneer: also start one fake RosAria driver per robot "
                         "(robot_sim.fake_pioneer: a unicycle in wall time with odometry "
                         "drift and noise), for a run without robots")
-    p.add_argument("--return-timeout", type=float, default=60.0, metavar="S",
+    p.add_argument("--return-timeout", type=positive_float, default=60.0, metavar="S",
                    help="with --plant pioneer: how long a bridge drives its robot back to the "
                         "initial pose between trials before it reports a timeout")
     p.add_argument("--init-memory", type=Path, metavar="MEMORY.npz",
@@ -106,17 +116,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="ROS namespace of the whole formation (default /formation); two "
                         "formations in different namespaces share a ROS domain without "
                         "crosstalk (/clock is remapped into the namespace)")
-    p.add_argument("--container", type=int, default=0, metavar="N",
+    p.add_argument("--container", type=int_range(0, 1024), default=0, metavar="N",
                    help="N robot nodes per process on one executor (0: one process per "
                         "robot, the default)")
-    p.add_argument("--out", type=Path, metavar="DIR",
+    p.add_argument("--out", type=out_dir_arg, metavar="DIR",
                    help="output folder (default: runs/SCENARIO-launch-TIME)")
-    p.add_argument("--domain-id", type=int, metavar="ID",
+    p.add_argument("--domain-id", type=int_range(0, 232), metavar="ID",
                    help="ROS_DOMAIN_ID (default: a free-looking one in 30..100)")
     p.add_argument("--discovery", choices=("localhost", "inherit"), default="localhost",
                    help="localhost (default): ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; "
                         "inherit: keep the caller's discovery settings (multi-host runs)")
-    p.add_argument("--timeout", type=float, default=30.0, metavar="S",
+    p.add_argument("--timeout", type=positive_float, default=30.0, metavar="S",
                    help="lockstep: give up when a robot has not commanded for S seconds")
     p.add_argument("--no-plots", action="store_true", help="write no figures")
     p.add_argument("--resume", type=Path, metavar="DIR",
@@ -126,7 +136,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-restarts", type=int, default=3, metavar="N",
                    help="restart a node process that dies at most N times (default 3; 0: "
                         "a dead node ends the run)")
-    p.add_argument("--record", type=Path, metavar="RUN.mcap",
+    p.add_argument("--record", type=output_file_arg, metavar="RUN.mcap",
                    help="record every formation topic to this MCAP file (its own recorder "
                         "process; the run starts once it listens); analyse it with "
                         "`formation-ilc analyze RUN.mcap`")
@@ -409,7 +419,11 @@ def run(args: argparse.Namespace) -> int:
         print("error: --trials must be at least 1", file=sys.stderr)
         return 2
     out = args.out or Path("runs") / f"{sc.name}-launch-{datetime.now():%Y%m%d-%H%M%S}"
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        print(f"error: --out {out}: cannot create the folder: {exc.strerror}", file=sys.stderr)
+        return 2
     out = out.resolve()
     args.out = out
     state_dir = out / "state"
