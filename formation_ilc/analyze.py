@@ -202,18 +202,22 @@ delays {'on' if cfg.get('delay') else 'off'}; mode {html.escape(str(cfg.get('mod
 def analyze(src: Path, out: Path, plots: bool = True) -> int:
     t0 = time.perf_counter()
     last = [0.0]
+    shown = [0]  # width of the progress line on screen (0: none)
 
     def progress(n: int) -> None:
         now = time.perf_counter()
         if now - last[0] > 0.5:
             last[0] = now
-            print(f"\rreading {src.name}: {n} messages [{now - t0:.1f} s]", end="",
-                  file=sys.stderr, flush=True)
+            line = f"reading {src.name}: {n} messages [{now - t0:.1f} s]"
+            print("\r" + line.ljust(shown[0]), end="", file=sys.stderr, flush=True)
+            shown[0] = len(line)
 
     try:
         rec = load_recording(src, progress=progress)
     except RecordingError as exc:
-        print(f"\rerror: {exc}", file=sys.stderr)
+        # one line: over the progress line if there is one
+        print(("\r" + " " * shown[0] + "\r" if shown[0] else "") + f"error: {exc}",
+              file=sys.stderr)
         return 2
     print(f"\rread {src.name}: {rec.messages} messages, {len(rec.metrics)} complete trials "
           f"[{time.perf_counter() - t0:.1f} s]".ljust(70), file=sys.stderr)
