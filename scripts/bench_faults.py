@@ -88,7 +88,10 @@ def run(kind: str | None, trials: int, domain: int, out: Path, after: int) -> di
             t_kill = time.monotonic()
             if kind == "launcher":
                 proc.wait()
-                time.sleep(1.0)
+                while find(domain, "--ros-args") is not None and \
+                        time.monotonic() - t_kill < 30:
+                    time.sleep(0.02)
+                res["nodes_gone_s"] = time.monotonic() - t_kill
                 res["left"] = find(domain, "--ros-args") is not None
                 proc = subprocess.Popen(
                     [sys.executable, "-m", "formation_ilc.cli", "launch", "--resume", str(out),
@@ -131,7 +134,9 @@ def main() -> int:
             rec = f"{r['recover_s']:11.2f}" if "recover_s" in r else f"{'-':>11s}"
             print(f"{r['kind']:>14s} {r['status']:6d} {r['trials']:6d} {r['restarts']:8d} "
                   f"{rec} {r['wall_s']:8.1f} {r['max_diff']:18.3g}"
-                  + ("  (nodes outlived the launcher!)" if r.get("left") else ""),
+                  + ("  (nodes outlived the launcher!)" if r.get("left") else "")
+                  + (f"  (its nodes ended {r['nodes_gone_s']:.2f} s after it)"
+                     if "nodes_gone_s" in r and not r.get("left") else ""),
                   flush=True)
     return 0
 
