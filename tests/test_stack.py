@@ -208,6 +208,14 @@ def test_bad_messages_are_dropped_and_counted(ros_env, tmp_path):
         sc = load_scenario("paper-triangle3")
         clk = ms.SampleClock.for_run(sc.dt, sc.samples)
         node_ns = dict(namespace=ms.NAMESPACE)
+        # the injector joins once the run is under way (a node in the namespace before the
+        # launch would be taken for another formation, and the launch refused)
+        deadline = time.monotonic() + 120
+        metrics = tmp_path / "metrics.csv"
+        while not (metrics.exists() and len(metrics.read_text().splitlines()) >= 2):
+            assert proc.poll() is None, proc.communicate()[0]
+            assert time.monotonic() < deadline, "the stack did not get to trial 1"
+            time.sleep(0.05)
         node = rclpy.create_node("injector", context=ctx, **node_ns)
         pubs = {
             "pose": node.create_publisher(PoseStamped, ms.pose_topic(2), ms.SAMPLE_QOS),

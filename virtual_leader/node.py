@@ -79,6 +79,8 @@ from formation_ilc.wallclock import WallSchedule
 
 #: [s] how often an abort is repeated until every node has answered it
 ABORT_REPEAT = 1.0
+#: [s] the least time between the leader's start and the first trial (discovery)
+FIRST_START_WAIT = 2.0
 #: the leader's node name (its diagnostics name it)
 NAME = "virtual_leader"
 
@@ -141,6 +143,7 @@ class LeaderNode(Node):
         self.drops = DropCounter(self)
         self.done_sent = False
         self._abort_sent = 0.0
+        self._born = time.monotonic()
         self.t = -1          # last sample of the running slot whose reference went out
         self.ref_msg = PoseStamped()
         self.config_pub = self.create_publisher(String, ms.CONFIG, ms.LATCHED_QOS)
@@ -243,6 +246,17 @@ class LeaderNode(Node):
             return
         if nxt is None:
             return
+        if s.slot < 0:
+            # before the first trial: give discovery time to show another formation's
+            # leader here (its configuration may not have reached us, its writer has)
+            if time.monotonic() - self._born < FIRST_START_WAIT:
+                return
+            if self.count_publishers(ms.CONFIG) > 1:
+                fail(self, f"another formation's leader publishes on "
+                           f"{self.get_namespace()}/{ms.CONFIG} in this ROS domain: refusing "
+                           f"to start a second one here (use another namespace or domain)",
+                     code=2)
+                return
         if not matched([(self.ref_pub, self.ref_readers), (self.event_pub, 1)]):
             return
         i, q = nxt

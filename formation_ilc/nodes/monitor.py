@@ -162,7 +162,8 @@ class MonitorNode(Node):
             if ev.event == ms.START and ev.slot <= self.started:
                 raise Rejected("stale", f"start of slot {ev.slot}, slot {self.started} "
                                         f"started")
-            if ev.event == ms.START and ev.slot > self.started + 1:
+            # the next slot; any for a monitor that has just started (a resumed run)
+            if ev.event == ms.START and ev.slot > self.started + 1 and self.started >= 0:
                 raise Rejected("future", f"start of slot {ev.slot}, slot {self.started} "
                                          f"started")
             if ev.event in (ms.END, ms.ABORT) and ev.slot > self.started:
