@@ -372,7 +372,8 @@ def run(args: argparse.Namespace) -> int:
         print("error: --max-restarts must be >= 0", file=sys.stderr)
         return 2
     if getattr(args, "run_id", None) is None:
-        args.run_id = uuid.uuid4().hex[:12]
+        # a letter first: an all-digit id would reach the leader as an integer parameter
+        args.run_id = "r" + uuid.uuid4().hex[:12]
     if getattr(args, "hosts_", None) is None and (args.hosts == "netns" or _net_options(args)):
         return run_on_hosts(args)
     pioneer = args.plant == "pioneer"
