@@ -134,7 +134,10 @@ def command(
         out[r, 1] = memory_t[r, 1]
         if law == 22:
             continue
-        acc = np.zeros(3)
+        # three scalars, not an array: no allocation per robot and sample
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
         for ell in range(n_links):
             j = nb_src[r, ell]
             s = nb_sample[r, ell]
@@ -142,18 +145,21 @@ def command(
             if j < 0 or w == 0.0 or s < 1:
                 continue
             own_at = s if law == 9 else t
-            for c in range(3):
-                acc[c] += w * link_error(eta_d_own[r, own_at], eta_d_all[j, own_at],
-                                         eta_own[r, own_at], nb_eta[r, ell], c)
+            a0 += w * link_error(eta_d_own[r, own_at], eta_d_all[j, own_at],
+                                 eta_own[r, own_at], nb_eta[r, ell], 0)
+            a1 += w * link_error(eta_d_own[r, own_at], eta_d_all[j, own_at],
+                                 eta_own[r, own_at], nb_eta[r, ell], 1)
+            a2 += w * link_error(eta_d_own[r, own_at], eta_d_all[j, own_at],
+                                 eta_own[r, own_at], nb_eta[r, ell], 2)
         s0 = lead_sample[r]
         w0 = lead_weight[r]
         if w0 != 0.0 and s0 >= 1:
             own_at = s0 if law == 9 else t
-            for c in range(3):
-                e = eta_d_own[r, s0, c] - eta_own[r, own_at, c]
-                acc[c] += w0 * (wrap_angle(e) if c == 2 else e)
+            a0 += w0 * (eta_d_own[r, s0, 0] - eta_own[r, own_at, 0])
+            a1 += w0 * (eta_d_own[r, s0, 1] - eta_own[r, own_at, 1])
+            a2 += w0 * wrap_angle(eta_d_own[r, s0, 2] - eta_own[r, own_at, 2])
         th = eta_own[r, t, 2] if heading_source == MEASURED else eta_d_own[r, t, 2]
-        _apply_gain(gain_prime[r], th, acc[0], acc[1], acc[2], out[r])
+        _apply_gain(gain_prime[r], th, a0, a1, a2, out[r])
 
 
 @njit(cache=True)
