@@ -44,6 +44,9 @@ __all__ = [
     "heading_code",
     "command",
     "learn",
+    "command_trig",
+    "learn_trig",
+    "heading_trig",
     "link_error",
 ]
 
@@ -84,11 +87,29 @@ def link_error(des_own: NDArray[np.float64], des_src: NDArray[np.float64],
 
 
 @njit(cache=True)
-def _apply_gain(g: float, theta: float, e0: float, e1: float, e2: float,
+def _apply_gain(g: float, cos_th: float, sin_th: float, e0: float, e1: float, e2: float,
                 out: NDArray[np.float64]) -> None:
     """out += g [[cos th, sin th, 0], [0, 0, 1]] e."""
-    out[0] += g * (np.cos(theta) * e0 + np.sin(theta) * e1)
+    out[0] += g * (cos_th * e0 + sin_th * e1)
     out[1] += g * e2
+
+
+@njit(cache=True)
+def heading_trig(heading_source: int, eta_own: NDArray[np.float64],
+                 eta_d_own: NDArray[np.float64], t0: int, t1: int,
+                 out: NDArray[np.float64]) -> None:
+    """cos and sin of the heading in the gains (th of Gamma, Gamma') at samples t0..t1-1:
+    out[r, t - t0] = (cos th, sin th), th = eta_own[r, t, 2] (measured) or eta_d_own[r, t, 2].
+
+    out : shape (R, >= t1 - t0, 2). The batch simulator computes them once per sample for
+    ``command_trig`` and keeps them for ``learn_trig`` (the same th at the same t): one
+    cos/sin pair fewer per robot and sample.
+    """
+    for r in range(eta_own.shape[0]):
+        for t in range(t0, t1):
+            th = eta_own[r, t, 2] if heading_source == MEASURED else eta_d_own[r, t, 2]
+            out[r, t - t0, 0] = np.cos(th)
+            out[r, t - t0, 1] = np.sin(th)
 
 
 @njit(cache=True)
@@ -128,6 +149,32 @@ def command(
     heading_source : 0 measured heading eta_i(t) in Gamma', 1 desired heading.
     out : shape (R, 2) [m/s, rad/s].
     """
+    trig = np.empty((memory_t.shape[0], 1, 2))
+    heading_trig(heading_source, eta_own, eta_d_own, t, t + 1, trig)
+    command_trig(t, law, memory_t, eta_own, eta_d_own, nb_eta, nb_sample, nb_src, nb_weight,
+                 eta_d_all, lead_sample, lead_weight, gain_prime, trig[:, 0], out)
+
+
+@njit(cache=True)
+def command_trig(
+    t: int,
+    law: int,
+    memory_t: NDArray[np.float64],
+    eta_own: NDArray[np.float64],
+    eta_d_own: NDArray[np.float64],
+    nb_eta: NDArray[np.float64],
+    nb_sample: NDArray[np.int64],
+    nb_src: NDArray[np.int64],
+    nb_weight: NDArray[np.float64],
+    eta_d_all: NDArray[np.float64],
+    lead_sample: NDArray[np.int64],
+    lead_weight: NDArray[np.float64],
+    gain_prime: NDArray[np.float64],
+    trig_t: NDArray[np.float64],
+    out: NDArray[np.float64],
+) -> None:
+    """``command`` with the gain heading's cos and sin given: trig_t, shape (R, 2), as
+    ``heading_trig`` computes them at t. Arguments otherwise as ``command``."""
     n_links = nb_src.shape[1]
     for r in range(memory_t.shape[0]):
         out[r, 0] = memory_t[r, 0]
@@ -158,8 +205,7 @@ def command(
             a0 += w0 * (eta_d_own[r, s0, 0] - eta_own[r, own_at, 0])
             a1 += w0 * (eta_d_own[r, s0, 1] - eta_own[r, own_at, 1])
             a2 += w0 * wrap_angle(eta_d_own[r, s0, 2] - eta_own[r, own_at, 2])
-        th = eta_own[r, t, 2] if heading_source == MEASURED else eta_d_own[r, t, 2]
-        _apply_gain(gain_prime[r], th, a0, a1, a2, out[r])
+        _apply_gain(gain_prime[r], trig_t[r, 0], trig_t[r, 1], a0, a1, a2, out[r])
 
 
 @njit(cache=True)
@@ -191,6 +237,32 @@ def learn(
     Other arguments as in ``command``.
     """
     n_t = memory.shape[1]
+    trig = np.empty((memory.shape[0], n_t, 2))
+    heading_trig(heading_source, eta_own, eta_d_own, 0, n_t, trig)
+    learn_trig(law, memory_mode, memory, applied, eta_own, eta_d_own, nb_eta, nb_src, nb_weight,
+               eta_d_all, lead_weight, gain, trig, out)
+
+
+@njit(cache=True)
+def learn_trig(
+    law: int,
+    memory_mode: int,
+    memory: NDArray[np.float64],
+    applied: NDArray[np.float64],
+    eta_own: NDArray[np.float64],
+    eta_d_own: NDArray[np.float64],
+    nb_eta: NDArray[np.float64],
+    nb_src: NDArray[np.int64],
+    nb_weight: NDArray[np.float64],
+    eta_d_all: NDArray[np.float64],
+    lead_weight: NDArray[np.float64],
+    gain: NDArray[np.float64],
+    trig: NDArray[np.float64],
+    out: NDArray[np.float64],
+) -> None:
+    """``learn`` with the gain heading's cos and sin given: trig, shape (R, >= T, 2), as
+    ``heading_trig`` computes them. Arguments otherwise as ``learn``."""
+    n_t = memory.shape[1]
     n_links = nb_src.shape[1]
     for r in range(memory.shape[0]):
         for t in range(n_t):
@@ -213,7 +285,6 @@ def learn(
                 p0 += w0 * (eta_d_own[r, t + 1, 0] - eta_own[r, t + 1, 0])
                 p1 += w0 * (eta_d_own[r, t + 1, 1] - eta_own[r, t + 1, 1])
                 p2 += w0 * wrap_angle(eta_d_own[r, t + 1, 2] - eta_own[r, t + 1, 2])
-            th = eta_own[r, t, 2] if heading_source == MEASURED else eta_d_own[r, t, 2]
             if memory_mode == LITERAL and law != 22:
                 b0 = applied[r, t, 0]
                 b1 = applied[r, t, 1]
@@ -221,5 +292,5 @@ def learn(
                 b0 = memory[r, t, 0]
                 b1 = memory[r, t, 1]
             g = gain[r]
-            out[r, t, 0] = b0 + g * (np.cos(th) * p0 + np.sin(th) * p1)
+            out[r, t, 0] = b0 + g * (trig[r, t, 0] * p0 + trig[r, t, 1] * p1)
             out[r, t, 1] = b1 + g * p2

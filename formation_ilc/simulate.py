@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 from ._jit import njit
 from .kinematics import step_into, wrap_angle
-from .law import command, heading_code, law_code, learn, memory_code
+from .law import command_trig, heading_code, heading_trig, law_code, learn_trig, memory_code
 from .links import delivered_label
 from .metrics import METRIC_COLUMNS
 from .pcg import STATE_SIZE
@@ -115,16 +115,20 @@ def run_trial(law: int, memory_mode: int, heading: int, dt: float,
     n, n_links = src.shape
     ws = _workspace(n, n_links, memory.shape[1])
     _trial(law, memory_mode, heading, dt, memory, xi0, dist, noise, tau, tau0, src, weight,
-           leader, eta_d, gain, gain_prime, xi, eta, u, next_memory, ws[0], ws[1], ws[2], ws[3])
+           leader, eta_d, gain, gain_prime, xi, eta, u, next_memory, ws[0], ws[1], ws[2], ws[3],
+           ws[4])
 
 
 @njit(cache=True)
-def _workspace(n: int, n_links: int, n_t: int) -> tuple[NDArray[np.float64], NDArray[np.int64],
-                                                        NDArray[np.int64], NDArray[np.float64]]:
+def _workspace(n: int, n_links: int, n_t: int) -> tuple[
+        NDArray[np.float64], NDArray[np.int64], NDArray[np.int64], NDArray[np.float64],
+        NDArray[np.float64]]:
     """Scratch of one trial: neighbour outputs as received (N, L, 3), their labels (N, L),
-    the leader's labels (N,), neighbours' whole trajectories (N, L, T+1, 3)."""
+    the leader's labels (N,), neighbours' whole trajectories (N, L, T+1, 3), cos and sin of
+    the gain heading (N, T, 2)."""
     return (np.zeros((n, n_links, 3)), np.zeros((n, n_links), dtype=np.int64),
-            np.zeros(n, dtype=np.int64), np.zeros((n, n_links, n_t + 1, 3)))
+            np.zeros(n, dtype=np.int64), np.zeros((n, n_links, n_t + 1, 3)),
+            np.zeros((n, n_t, 2)))
 
 
 @njit(cache=True)
@@ -138,7 +142,7 @@ def _trial(law: int, memory_mode: int, heading: int, dt: float,
            xi: NDArray[np.float64], eta: NDArray[np.float64], u: NDArray[np.float64],
            next_memory: NDArray[np.float64], nb_eta: NDArray[np.float64],
            nb_s: NDArray[np.int64], lead_s: NDArray[np.int64],
-           nb_full: NDArray[np.float64]) -> None:
+           nb_full: NDArray[np.float64], trig: NDArray[np.float64]) -> None:
     """``run_trial`` on the scratch of :func:`_workspace` (reused from trial to trial)."""
     n, n_links = src.shape
     n_t = memory.shape[1]
@@ -159,8 +163,9 @@ def _trial(law: int, memory_mode: int, heading: int, dt: float,
                     for c in range(3):
                         nb_eta[r, ell, c] = eta[j, s, c]
             lead_s[r] = delivered_label(t, tau0[r, t])
-        command(t, law, memory[:, t], eta, eta_d, nb_eta, nb_s, src, weight, eta_d, lead_s,
-                leader, gain_prime, heading, u[:, t])
+        heading_trig(heading, eta, eta_d, t, t + 1, trig[:, t:])
+        command_trig(t, law, memory[:, t], eta, eta_d, nb_eta, nb_s, src, weight, eta_d,
+                     lead_s, leader, gain_prime, trig[:, t], u[:, t])
         step_into(xi[:, t], u[:, t], dist[:, t], dt, xi[:, t + 1])
     for r in range(n):
         for c in range(3):
@@ -170,8 +175,8 @@ def _trial(law: int, memory_mode: int, heading: int, dt: float,
             j = src[r, ell]
             if j >= 0:
                 nb_full[r, ell] = eta[j]
-    learn(law, memory_mode, memory, u, eta, eta_d, nb_full, src, weight, eta_d, leader, gain,
-          heading, next_memory)
+    learn_trig(law, memory_mode, memory, u, eta, eta_d, nb_full, src, weight, eta_d, leader,
+               gain, trig, next_memory)
 
 
 @njit(cache=True)
@@ -199,7 +204,7 @@ def run_trials(seed: NDArray[np.uint32], first_trial: int, plant: PlantArrays,
     noise = np.empty((n, n_t + 1, 3))
     xi0 = np.empty((n, 3))
     row = np.empty(6)
-    nb_eta, nb_s, lead_s, nb_full = _workspace(n, n_links, n_t)
+    nb_eta, nb_s, lead_s, nb_full, trig = _workspace(n, n_links, n_t)
     cur = memory
     nxt = spare
     swapped = False
@@ -213,7 +218,8 @@ def run_trials(seed: NDArray[np.uint32], first_trial: int, plant: PlantArrays,
             for c in range(3):
                 xi0[r, c] = eta_d[r, 0, c] + shift[r, c]
         _trial(law, memory_mode, heading, dt, cur, xi0, dist, noise, tau, tau0, src, weight,
-               leader, eta_d, gain, gain_prime, xi, eta, u, nxt, nb_eta, nb_s, lead_s, nb_full)
+               leader, eta_d, gain, gain_prime, xi, eta, u, nxt, nb_eta, nb_s, lead_s, nb_full,
+               trig)
         trial_errors(eta, xi, eta_d, src, weight, row)
         metrics[i, 0] = k
         for c in range(6):
