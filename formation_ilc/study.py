@@ -22,18 +22,19 @@ import hashlib
 import json
 import math
 from dataclasses import replace
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
 import yaml
 from numpy.typing import NDArray
 
-from .scenario import Scenario, ScenarioError, scenario_from_text
+from .scenario import Scenario, ScenarioError, scenario_from_data
 from .uncertainty import Harmonic, Uncertainty
 
 __all__ = ["FIELDS", "apply_fields", "point_id", "config_id", "settle_trial", "reduce_metrics",
            "run_sim_point", "run_check_point", "SIM_COLUMNS", "CHECK_COLUMNS",
-           "scale_uncertainty", "scenario_text_with"]
+           "scale_uncertainty", "scenario_text_with", "scenario_data"]
 
 #: fields a study may vary
 FIELDS = ("law.gain", "law.gain_prime", "law.kind", "law.memory", "graph", "delay",
@@ -89,7 +90,7 @@ def apply_fields(scenario_text: str, fields: dict[str, Any], source: str = "<stu
 
     Raises ScenarioError naming ``source`` and the scenario field if a value is invalid.
     """
-    data = yaml.safe_load(scenario_text)
+    data = scenario_data(scenario_text)
     if not isinstance(data, dict):
         raise ScenarioError(f"{source}: the scenario is not a mapping")
     data = copy.deepcopy(data)
@@ -98,10 +99,20 @@ def apply_fields(scenario_text: str, fields: dict[str, Any], source: str = "<stu
         data["seed"] = int(seed)
     if trials is not None:
         data["trials"] = int(trials)
-    sc = scenario_from_text(yaml.safe_dump(data, sort_keys=False), source)
+    # validated from the edited data as scenario_from_text would after parsing the text
+    # written here: the fields are JSON-like (point ids hash them), which YAML writes and
+    # reads back unchanged (tests/test_sweep.py compares both ways)
+    sc = scenario_from_data(data, yaml.safe_dump(data, sort_keys=False), source)
     if scale != 1.0:
         sc = replace(sc, uncertainty=scale_uncertainty(sc.uncertainty, scale))
     return sc
+
+
+@lru_cache(maxsize=8)
+def scenario_data(scenario_text: str) -> Any:
+    """``yaml.safe_load`` of a study's scenario text, once per process (a study parses its
+    one scenario for every configuration). Shared: callers copy before editing."""
+    return yaml.safe_load(scenario_text)
 
 
 def scenario_text_with(scenario_text: str, fields: dict[str, Any]) -> str:
@@ -172,17 +183,36 @@ def reduce_metrics(metrics: NDArray[np.float64], position_level: float, heading_
 
 
 _CACHE: dict[str, Scenario] = {}
+_DESIRED: dict[str, Any] = {}
+
+
+def _desired_key(sc: Scenario) -> str:
+    """A hash of what ``Scenario.desired`` is computed from."""
+    h = hashlib.sha256()
+    for a in (sc.reference, sc.offsets):
+        arr = np.ascontiguousarray(a, dtype=float)
+        h.update(repr(arr.shape).encode())
+        h.update(arr.tobytes())
+    h.update(repr((sc.scales, sc.dt, sc.frame)).encode())
+    return h.hexdigest()
 
 
 def _cached_scenario(scenario_text: str, fields: dict[str, Any], source: str) -> Scenario:
     """apply_fields, remembered per (text, fields) in this process: the seeds of one
-    configuration share the parsed scenario and its desired trajectories."""
+    configuration share the parsed scenario; configurations with the same reference,
+    formation and dt (no study field changes them) share the desired trajectories."""
     key = hashlib.sha256((scenario_text + _canonical(fields)).encode()).hexdigest()
     sc = _CACHE.get(key)
     if sc is None:
         if len(_CACHE) >= 16:
             _CACHE.pop(next(iter(_CACHE)))
         sc = _CACHE[key] = apply_fields(scenario_text, fields, source)
+        dkey = _desired_key(sc)
+        if dkey not in _DESIRED:
+            if len(_DESIRED) >= 8:
+                _DESIRED.pop(next(iter(_DESIRED)))
+            _DESIRED[dkey] = sc.desired
+        sc.__dict__["desired"] = _DESIRED[dkey]  # a cached_property's slot
     return sc
 
 
