@@ -302,6 +302,7 @@ def simulate(
     initial_memory: NDArray[np.float64] | None = None,
     first_trial: int = 0,
     on_trial_data: Callable[..., None] | None = None,
+    problem: Problem | None = None,
 ) -> SimResult:
     """Run ``trials`` trials (default: the scenario's) and return per-trial metrics.
 
@@ -311,8 +312,10 @@ def simulate(
     progress : called after each trial with (trial, metrics row).
     on_trial_data : called after each trial with (trial, xi, eta, u, tau, tau0), e.g. to
         record it; the arrays are reused, copy what you keep.
+    problem : ``Problem.from_scenario(scenario)`` when the caller has it already (a study
+        runs many seeds of one configuration); it does not depend on the seed or trials.
     """
-    pb = Problem.from_scenario(scenario)
+    pb = Problem.from_scenario(scenario) if problem is None else problem
     k_total = scenario.trials if trials is None else int(trials)
     n, n_t, n_links = pb.n, pb.samples, pb.src.shape[1]
     unc = scenario.uncertainty
