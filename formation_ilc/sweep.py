@@ -367,20 +367,22 @@ def _run_task(task: dict[str, Any]) -> dict[str, Any]:
     return run_check_point(task) if task["id"].startswith("check-") else run_sim_point(task)
 
 
-_LIMITED: list[Any] = []
-
-
 def _run_chunk(tasks: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """What a worker process (local or Dask) runs: a few tasks, their rows in order.
-
-    The first call in a process limits BLAS/OpenMP to one thread: the worker processes are
-    the parallelism, and a library's own threads would compete with them for the cores.
-    """
-    if not _LIMITED:
-        from threadpoolctl import threadpool_limits
-
-        _LIMITED.append(threadpool_limits(limits=1))  # kept: the limit lasts while it lives
+    """What a worker process (local or Dask) runs: a few tasks, their rows in order."""
     return [_run_task(t) for t in tasks]
+
+
+_LIMITS: list[Any] = []
+
+
+def _worker_init() -> None:
+    """A local pool's worker: BLAS and OpenMP on one thread. The worker processes are the
+    parallelism; a library's own threads would compete with them for the cores. (A Dask
+    worker is not ours to change: start it with --nthreads 1; check tasks limit BLAS
+    themselves.)"""
+    from threadpoolctl import threadpool_limits
+
+    _LIMITS.append(threadpool_limits(limits=1))  # kept: the limit lasts while it lives
 
 
 #: a task sent to a worker holds points up to about this many robot-samples (about 0.1 s on
@@ -435,7 +437,8 @@ def _pool(workers: int) -> Any:
 
     ex = _POOLS.get(workers)
     if ex is None:
-        ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"))
+        ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
+                                 initializer=_worker_init)
         _POOLS[workers] = ex
         atexit.register(_shutdown_pool, workers)
     return ex

@@ -304,3 +304,20 @@ def test_a_write_error_stops_the_sweep(tmp_path, monkeypatch):
         run_sweep(spec, tmp_path / "out", workers=1, progress=False)
     assert not (tmp_path / "out" / "results.csv").exists()
     assert len(list((tmp_path / "out" / "points").glob("*.json"))) == 1
+
+
+def _blas_threads() -> list[int]:
+    from threadpoolctl import threadpool_info
+
+    return [lib["num_threads"] for lib in threadpool_info()]
+
+
+def test_pool_workers_run_blas_on_one_thread():
+    """The workers are the parallelism: a BLAS thread pool in each would oversubscribe."""
+    from formation_ilc.sweep import _pool, close_pools
+
+    try:
+        threads = _pool(2).submit(_blas_threads).result(timeout=120)
+    finally:
+        close_pools()
+    assert threads and set(threads) == {1}
