@@ -96,20 +96,21 @@ def _apply_gain(g: float, cos_th: float, sin_th: float, e0: float, e1: float, e2
 
 @njit(cache=True)
 def heading_trig(heading_source: int, eta_own: NDArray[np.float64],
-                 eta_d_own: NDArray[np.float64], t0: int, t1: int,
-                 out: NDArray[np.float64]) -> None:
+                 eta_d_own: NDArray[np.float64], t0: int, t1: int, out: NDArray[np.float64],
+                 first: int) -> None:
     """cos and sin of the heading in the gains (th of Gamma, Gamma') at samples t0..t1-1:
-    out[r, t - t0] = (cos th, sin th), th = eta_own[r, t, 2] (measured) or eta_d_own[r, t, 2].
+    out[r, t - first] = (cos th, sin th), th = eta_own[r, t, 2] (measured) or
+    eta_d_own[r, t, 2].
 
-    out : shape (R, >= t1 - t0, 2). The batch simulator computes them once per sample for
-    ``command_trig`` and keeps them for ``learn_trig`` (the same th at the same t): one
-    cos/sin pair fewer per robot and sample.
+    The batch simulator computes them once per sample (first = 0) for ``command_trig`` and
+    keeps them for ``learn_trig`` (the same th at the same t): one cos/sin pair fewer per
+    robot and sample.
     """
     for r in range(eta_own.shape[0]):
         for t in range(t0, t1):
             th = eta_own[r, t, 2] if heading_source == MEASURED else eta_d_own[r, t, 2]
-            out[r, t - t0, 0] = np.cos(th)
-            out[r, t - t0, 1] = np.sin(th)
+            out[r, t - first, 0] = np.cos(th)
+            out[r, t - first, 1] = np.sin(th)
 
 
 @njit(cache=True)
@@ -150,7 +151,7 @@ def command(
     out : shape (R, 2) [m/s, rad/s].
     """
     trig = np.empty((memory_t.shape[0], 1, 2))
-    heading_trig(heading_source, eta_own, eta_d_own, t, t + 1, trig)
+    heading_trig(heading_source, eta_own, eta_d_own, t, t + 1, trig, t)
     command_trig(t, law, memory_t, eta_own, eta_d_own, nb_eta, nb_sample, nb_src, nb_weight,
                  eta_d_all, lead_sample, lead_weight, gain_prime, trig[:, 0], out)
 
@@ -238,7 +239,7 @@ def learn(
     """
     n_t = memory.shape[1]
     trig = np.empty((memory.shape[0], n_t, 2))
-    heading_trig(heading_source, eta_own, eta_d_own, 0, n_t, trig)
+    heading_trig(heading_source, eta_own, eta_d_own, 0, n_t, trig, 0)
     learn_trig(law, memory_mode, memory, applied, eta_own, eta_d_own, nb_eta, nb_src, nb_weight,
                eta_d_all, lead_weight, gain, trig, out)
 
