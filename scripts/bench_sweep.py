@@ -25,7 +25,8 @@ Only wall figures taken with that near 0 say what the machine can do; the script
 Phases (each sweep warm: its processes started and its kernels loaded by an untimed first
 run; the median of --repeats timed runs is printed, and the best in brackets):
 
-1. the kernel: `simulate()` of one point in this process (draws, trials, metrics);
+1. the kernel: `simulate()` of the sweep's points one after the other in this process
+   (draws, trials, metrics; the scenarios loaded before), without the sweep around them;
 2. a sweep of --points points (paper-hexagon6, two gains x points/2 seeds) in this process;
 3. the same sweep on a pool of one process per core;
 4. the same sweep on a local Dask cluster (one scheduler, one single-threaded worker per
@@ -51,6 +52,7 @@ from pathlib import Path
 
 from formation_ilc.scenario import load_scenario
 from formation_ilc.simulate import simulate
+from formation_ilc.study import apply_fields
 from formation_ilc.sweep import close_pools, load_spec, run_sweep
 
 SPEC = """\
@@ -186,9 +188,18 @@ def main() -> int:
               f"{total / 1e6:.1f}M robot-samples; median of {args.repeats} warm runs [best]")
         print(f"{'robot-samples/s':<27s}{'  wall':<17s}{'      CPU time':<30s}  others used")
 
-        point = sc.with_options(trials=args.trials)
-        kern = _runs(lambda: simulate(point), args.repeats)
-        print(_line("kernel (simulate, 1 point)", rs_point, kern))
+        # the sweep's points simulated one after the other, without the sweep around them
+        points = [apply_fields(spec.scenario_text, t["fields"], seed=t["seed"],
+                               trials=t["trials"]) for t in spec.sim_tasks()]
+        for p in points:
+            p.desired  # noqa: B018 - computed before timing, as a sweep's worker keeps it
+
+        def kernel() -> None:
+            for p in points:
+                simulate(p)
+
+        kern = _runs(kernel, args.repeats)
+        print(_line("simulate() of the points", total, kern))
 
         def sweep(name: str, **kw: object) -> Callable[[], object]:
             def go() -> object:
