@@ -87,14 +87,6 @@ def link_error(des_own: NDArray[np.float64], des_src: NDArray[np.float64],
 
 
 @njit(cache=True)
-def _apply_gain(g: float, cos_th: float, sin_th: float, e0: float, e1: float, e2: float,
-                out: NDArray[np.float64]) -> None:
-    """out += g [[cos th, sin th, 0], [0, 0, 1]] e."""
-    out[0] += g * (cos_th * e0 + sin_th * e1)
-    out[1] += g * e2
-
-
-@njit(cache=True)
 def heading_trig(heading_source: int, eta_own: NDArray[np.float64],
                  eta_d_own: NDArray[np.float64], t0: int, t1: int, out: NDArray[np.float64],
                  first: int) -> None:
@@ -152,15 +144,17 @@ def command(
     """
     trig = np.empty((memory_t.shape[0], 1, 2))
     heading_trig(heading_source, eta_own, eta_d_own, t, t + 1, trig, t)
-    command_trig(t, law, memory_t, eta_own, eta_d_own, nb_eta, nb_sample, nb_src, nb_weight,
-                 eta_d_all, lead_sample, lead_weight, gain_prime, trig[:, 0], out)
+    command_trig(t, 0, law, memory_t[:, None, :], eta_own, eta_d_own, nb_eta, nb_sample,
+                 nb_src, nb_weight, eta_d_all, lead_sample, lead_weight, gain_prime, trig,
+                 out[:, None, :])
 
 
 @njit(cache=True)
 def command_trig(
     t: int,
+    k: int,
     law: int,
-    memory_t: NDArray[np.float64],
+    memory: NDArray[np.float64],
     eta_own: NDArray[np.float64],
     eta_d_own: NDArray[np.float64],
     nb_eta: NDArray[np.float64],
@@ -171,15 +165,17 @@ def command_trig(
     lead_sample: NDArray[np.int64],
     lead_weight: NDArray[np.float64],
     gain_prime: NDArray[np.float64],
-    trig_t: NDArray[np.float64],
+    trig: NDArray[np.float64],
     out: NDArray[np.float64],
 ) -> None:
-    """``command`` with the gain heading's cos and sin given: trig_t, shape (R, 2), as
-    ``heading_trig`` computes them at t. Arguments otherwise as ``command``."""
+    """``command`` with the gain heading's cos and sin given, every per-sample array read
+    or written at column k: memory[:, k] is ``command``'s memory_t, trig[:, k] the cos and
+    sin of the heading at t (``heading_trig``), out[:, k] its out. The simulator passes its
+    whole arrays and k = t (no views per sample). Arguments otherwise as ``command``."""
     n_links = nb_src.shape[1]
-    for r in range(memory_t.shape[0]):
-        out[r, 0] = memory_t[r, 0]
-        out[r, 1] = memory_t[r, 1]
+    for r in range(memory.shape[0]):
+        out[r, k, 0] = memory[r, k, 0]
+        out[r, k, 1] = memory[r, k, 1]
         if law == 22:
             continue
         # three scalars, not an array: no allocation per robot and sample
@@ -206,7 +202,9 @@ def command_trig(
             a0 += w0 * (eta_d_own[r, s0, 0] - eta_own[r, own_at, 0])
             a1 += w0 * (eta_d_own[r, s0, 1] - eta_own[r, own_at, 1])
             a2 += w0 * wrap_angle(eta_d_own[r, s0, 2] - eta_own[r, own_at, 2])
-        _apply_gain(gain_prime[r], trig_t[r, 0], trig_t[r, 1], a0, a1, a2, out[r])
+        # out += g' [[cos th, sin th, 0], [0, 0, 1]] (a0, a1, a2)
+        out[r, k, 0] += gain_prime[r] * (trig[r, k, 0] * a0 + trig[r, k, 1] * a1)
+        out[r, k, 1] += gain_prime[r] * a2
 
 
 @njit(cache=True)

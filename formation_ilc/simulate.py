@@ -164,8 +164,8 @@ def _trial(law: int, memory_mode: int, heading: int, dt: float,
                         nb_eta[r, ell, c] = eta[j, s, c]
             lead_s[r] = delivered_label(t, tau0[r, t])
         heading_trig(heading, eta, eta_d, t, t + 1, trig, 0)
-        command_trig(t, law, memory[:, t], eta, eta_d, nb_eta, nb_s, src, weight, eta_d,
-                     lead_s, leader, gain_prime, trig[:, t], u[:, t])
+        command_trig(t, t, law, memory, eta, eta_d, nb_eta, nb_s, src, weight, eta_d,
+                     lead_s, leader, gain_prime, trig, u)
         # step_into's arithmetic, by index (views of xi, u, dist per sample cost ~5 %)
         for r in range(n):
             xi[r, t + 1, 0], xi[r, t + 1, 1], xi[r, t + 1, 2] = unicycle_step(
