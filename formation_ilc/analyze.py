@@ -1,5 +1,13 @@
 """``formation-ilc analyze RUN.mcap``: metrics, delay histograms, plots and a one-page report
-from a recording alone (no scenario file, no running ROS graph)."""
+from a recording alone (no scenario file, no running ROS graph).
+
+A damaged recording (bytes that do not read back in the middle of the file: a chunk whose
+CRC fails, a record that does not parse) is analysed from everything that reads back, and
+the command says what was lost (byte ranges, chunks, messages, their log times, the trials
+left incomplete) on stderr and in report.html, then exits with status 1 (``DAMAGED``). A
+file cut short at its end (a recorder that crashed or was killed) is read up to the cut
+and exits 0 with a note; messages that do not decode are skipped and counted per topic.
+"""
 
 from __future__ import annotations
 
@@ -15,9 +23,37 @@ import numpy as np
 
 from . import links
 from .metrics import write_metrics
-from .recording import Recording, load_recording
+from .recording import Recording, RecordingError, load_recording
 
-__all__ = ["analyze", "delay_rows"]
+__all__ = ["analyze", "delay_rows", "findings", "DAMAGED"]
+
+#: exit status of ``analyze`` on a damaged recording (its results are still written)
+DAMAGED = 1
+
+
+def findings(rec: Recording) -> tuple[list[str], list[str]]:
+    """(warnings, notes) about a recording for a user: damage and what it cost are
+    warnings; a file cut short at its end and skipped messages are notes."""
+    rep = rec.report
+    warn: list[str] = []
+    note: list[str] = []
+    if rep.damaged:
+        lost = rep.lost_messages
+        warn.append(f"damaged recording: {rep.messages} messages read back"
+                    + (f", {lost} lost" if lost else "") + "; everything after the damage "
+                    "that reads back was used")
+        warn += [f"  {line}" for line in rep.lines() if not line.startswith("the file ends")]
+    if rec.incomplete:
+        (warn if rep.damaged else note).append(
+            f"trial(s) {', '.join(map(str, rec.incomplete))} not complete in the file")
+    if rep.cut_short:
+        note.append("the file ends cut short (its writer stopped without closing it): read "
+                    "up to the last complete chunk" + (f"; {rep.tail_bytes} bytes after it "
+                                                       f"are lost" if rep.tail_bytes else ""))
+    if rec.undecodable:
+        note.append("skipped messages that do not decode: " + ", ".join(
+            f"{t} {n}" for t, n in sorted(rec.undecodable.items())))
+    return warn, note
 
 
 def delay_rows(rec: Recording) -> list[list[Any]]:
@@ -114,6 +150,9 @@ def _img(path: Path | None) -> str:
 
 def _report(rec: Recording, src: Path, out: Path, figs: dict[str, Path | None],
             drows: list[list[Any]]) -> Path:
+    warn, note = findings(rec)
+    alerts = "".join(f'<p style="color:#a00"><b>{html.escape(w)}</b></p>' for w in warn)
+    alerts += "".join(f'<p style="color:#a60">{html.escape(x)}</p>' for x in note)
     sc, m = rec.scenario, rec.metrics
     k = len(m)
     first, last = (m[0], m[-1]) if k else (None, None)
@@ -147,8 +186,7 @@ img{{max-width:100%;border:1px solid #eee;margin:4px 0}}.k{{color:#555}}</style>
 delays {'on' if cfg.get('delay') else 'off'}; mode {html.escape(str(cfg.get('mode')))};
 {html.escape(str(cfg.get('recorded_by', 'distributed stack')))}</p>
 <p><b>{verdict}</b></p>
-{'<p style="color:#a00">incomplete trials at the end of the file: ' +
- ', '.join(map(str, rec.incomplete)) + '</p>' if rec.incomplete else ''}
+{alerts}
 {_img(figs.get('errors'))}
 <table><tr><th>trial</th><th>max pos [m]</th><th>max head [rad]</th><th>true max pos [m]</th>
 <th>rms pos [m]</th><th>max formation [m]</th></tr>{rows}</table>
@@ -164,15 +202,23 @@ delays {'on' if cfg.get('delay') else 'off'}; mode {html.escape(str(cfg.get('mod
 def analyze(src: Path, out: Path, plots: bool = True) -> int:
     t0 = time.perf_counter()
     last = [0.0]
+    shown = [0]  # width of the progress line on screen (0: none)
 
     def progress(n: int) -> None:
         now = time.perf_counter()
         if now - last[0] > 0.5:
             last[0] = now
-            print(f"\rreading {src.name}: {n} messages [{now - t0:.1f} s]", end="",
-                  file=sys.stderr, flush=True)
+            line = f"reading {src.name}: {n} messages [{now - t0:.1f} s]"
+            print("\r" + line.ljust(shown[0]), end="", file=sys.stderr, flush=True)
+            shown[0] = len(line)
 
-    rec = load_recording(src, progress=progress)
+    try:
+        rec = load_recording(src, progress=progress)
+    except RecordingError as exc:
+        # one line: over the progress line if there is one
+        print(("\r" + " " * shown[0] + "\r" if shown[0] else "") + f"error: {exc}",
+              file=sys.stderr)
+        return 2
     print(f"\rread {src.name}: {rec.messages} messages, {len(rec.metrics)} complete trials "
           f"[{time.perf_counter() - t0:.1f} s]".ljust(70), file=sys.stderr)
     out.mkdir(parents=True, exist_ok=True)
@@ -207,8 +253,10 @@ def analyze(src: Path, out: Path, plots: bool = True) -> int:
     if k:
         print(f"{rec.scenario.name}: {k} trials; max position error {m[0, 1]:.4g} m (trial "
               f"{int(m[0, 0])}) -> {m[-1, 1]:.4g} m (trial {int(m[-1, 0])})")
-    if rec.incomplete:
-        print(f"note: trial(s) {', '.join(map(str, rec.incomplete))} not complete in the file "
-              f"(cut short?)")
+    warn, note = findings(rec)
+    for line in note:
+        print(f"note: {line}")
     print(f"results in {out}/ ({', '.join(files)})")
-    return 0
+    for line in warn:
+        print(f"warning: {line}", file=sys.stderr)
+    return DAMAGED if rec.report.damaged else 0

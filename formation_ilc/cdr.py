@@ -136,10 +136,14 @@ def decode_path(data: bytes) -> tuple[NDArray[np.float64], NDArray[np.int64], st
     pos += (-pos) % 4
     (n,) = struct.unpack_from("<I", mv, pos)
     pos += 4
+    if n * 68 > len(mv) - pos:  # a pose takes at least a header and 7 float64s
+        raise ValueError(f"{n} poses cannot fit in {len(mv) - pos} bytes")
     fields = np.empty((n, 7))
     stamps = np.empty(n, dtype=np.int64)
     if n:
         s0, ns0, l0 = struct.unpack_from("<iII", mv, pos)
+        if ns0 >= 1_000_000_000:
+            raise ValueError("stamp nanosec outside [0, 1e9)")
         if bytes(mv[pos + 12:pos + 12 + l0]) != raw:
             raise ValueError("pose frame differs from the path's")
         p = pos + 12 + l0
@@ -159,6 +163,8 @@ def decode_path(data: bytes) -> tuple[NDArray[np.float64], NDArray[np.int64], st
             rest = np.frombuffer(mv, dtype, n - 1, p)
             if (rest["len"] != flen).any() or (rest["frame"] != raw.rstrip(b"\x00")).any():
                 raise ValueError("pose frame differs from the path's")
+            if (rest["nsec"] >= 1_000_000_000).any():
+                raise ValueError("stamp nanosec outside [0, 1e9)")
             fields[1:] = rest["pose"]
             stamps[1:] = rest["sec"].astype(np.int64) * 1_000_000_000 + rest["nsec"]
     return fields, stamps, raw[:-1].decode(), sec * 1_000_000_000 + nsec

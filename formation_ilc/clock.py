@@ -11,14 +11,22 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["Rejected", "Malformed", "SampleClock", "REASONS"]
+__all__ = ["Rejected", "Malformed", "SampleClock", "REASONS", "TrialWindow"]
 
-#: why an input is refused (the drop counters of every node)
-REASONS = ("malformed", "stale", "out_of_order", "duplicate", "future")
+#: why an input is refused (the drop counters of every node):
+#: malformed (cannot be decoded into valid data), stale (of a trial or sample already past),
+#: out_of_order (older than one already taken), duplicate (the same label again), future
+#: (beyond the window the node accepts now: a later trial, or too far ahead in this one),
+#: unexpected (well formed, but not what the node's protocol allows now: a command outside
+#: a trial, a ready from a node nobody waits for), foreign (of another run on the same
+#: domain and namespace: its configuration, events or readies)
+REASONS = ("malformed", "stale", "out_of_order", "duplicate", "future", "unexpected",
+           "foreign")
 
 
 class Rejected(ValueError):
-    """An input that is refused, with the ``reason`` it is counted under (one of REASONS).
+    """An input that is refused, with the ``reason`` it is counted under (one of REASONS;
+    ``foreign``: it belongs to another run on the same domain and namespace).
 
     Nodes drop such an input and count it; they never crash on one.
     """
@@ -68,3 +76,41 @@ class SampleClock:
         if s > self.samples:
             raise Malformed(f"stamp {ns} ns is between trials (sample {s} of {self.samples})")
         return int(k), int(s)
+
+
+@dataclass
+class TrialWindow:
+    """Which trial's messages a node accepts now: the current trial, and the next one only
+    once the protocol has opened it (``open_next``: this node finished the current trial
+    and said ready for the next, or the leader started it).
+
+    Every handler checks a label's trial here before it may move the node's state, so that
+    one message of a later trial (a stray, a replay, a forgery) cannot make a node jump
+    ahead and then refuse all real traffic as stale.
+    """
+
+    current: int = -1
+    #: the next trial (current + 1) is open; trial 0 is open from the start
+    next_open: bool = True
+
+    def check(self, k: int, what: str = "label") -> bool:
+        """Whether trial ``k`` is the next trial (True) or the current one (False);
+        Rejected: an earlier trial (stale), or a later one than the window allows
+        (future)."""
+        if k < self.current:
+            raise Rejected("stale", f"{what} of trial {k} in trial {self.current}")
+        if k == self.current:
+            return False
+        if k == self.current + 1 and self.next_open:
+            return True
+        raise Rejected("future", f"{what} of trial {k} in trial {self.current}"
+                                 f"{'' if self.next_open else ' (next trial not open)'}")
+
+    def enter(self, k: int) -> None:
+        """Trial ``k`` (the current or the next one) is now the current trial."""
+        if k != self.current:
+            self.current = k
+            self.next_open = False
+
+    def open_next(self) -> None:
+        self.next_open = True

@@ -7,8 +7,16 @@ ROS_DOMAIN_ID of their own, in one namespace (--namespace). Prints per-trial pro
 writes DIR/metrics.csv (the columns of `formation-ilc simulate`), DIR/delays.csv (per-link
 delay histograms: measured by the robots with eq. 11, injected by the emulated links, and
 the model's), DIR/diagnostics.json, DIR/summary.json, DIR/errors.png and one log per
-process in DIR/logs/. Stops every process on Ctrl-C or when one dies, and then exits
-non-zero naming it.
+process in DIR/logs/. Stops every process on Ctrl-C, or when a node fails for good, and
+then exits non-zero naming it.
+
+Faults: a node process that dies during the run is started again with the same
+parameters (at most --max-restarts times each); the robots and the leader keep their state
+in DIR/state/ (written atomically at every trial), the interrupted trial is aborted and run
+again, and no learned trial is lost. No node outlives the launcher, whatever signal ends
+it; `launch --resume DIR` continues an interrupted run. Before anything starts, the
+launcher refuses to join a ROS domain and namespace where another formation already runs
+(docs/reliability.md).
 
 Node entry points (also `ros2 run formation_ilc <exe>` on a full ROS 2 install):
   formation-ilc-leader  virtual leader: --ros-args -p scenario:=NAME [-p trials:=K ...]
@@ -39,17 +47,28 @@ from typing import IO, Any
 
 import numpy as np
 
+from formation_ilc.options import (
+    int_range,
+    nonneg_int,
+    out_dir_arg,
+    output_file_arg,
+    positive_float,
+    positive_int,
+)
+
 __all__ = ["add_arguments", "run", "Stack", "node_commands"]
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scenario", metavar="SCENARIO",
-                   help="built-in scenario name (formation-ilc scenarios) or a YAML file")
-    p.add_argument("--trials", type=int, metavar="K", help="number of trials (default: 20)",
-                   default=20)
+    p.add_argument("scenario", metavar="SCENARIO", nargs="?",
+                   help="built-in scenario name (formation-ilc scenarios) or a YAML file "
+                        "(not with --resume)")
+    p.add_argument("--trials", type=positive_int, metavar="K",
+                   help="number of trials (default: 20)", default=20)
     p.add_argument("--law", type=int, choices=(9, 22, 23))
     p.add_argument("--memory", choices=("feedforward", "literal"))
-    p.add_argument("--seed", type=int, help="random seed (default: the scenario's)")
+    p.add_argument("--seed", type=nonneg_int, help="random seed, >= 0 (default: the "
+                   "scenario's)")
     p.add_argument("--no-noise", action="store_true",
                    help="no initial shifts, disturbances or measurement noise")
     p.add_argument("--no-delay", action="store_true", help="no communication delays")
@@ -84,7 +103,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="with --plant pioneer: also start one fake RosAria driver per robot "
                         "(robot_sim.fake_pioneer: a unicycle in wall time with odometry "
                         "drift and noise), for a run without robots")
-    p.add_argument("--return-timeout", type=float, default=60.0, metavar="S",
+    p.add_argument("--return-timeout", type=positive_float, default=60.0, metavar="S",
                    help="with --plant pioneer: how long a bridge drives its robot back to the "
                         "initial pose between trials before it reports a timeout")
     p.add_argument("--init-memory", type=Path, metavar="MEMORY.npz",
@@ -97,23 +116,31 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="ROS namespace of the whole formation (default /formation); two "
                         "formations in different namespaces share a ROS domain without "
                         "crosstalk (/clock is remapped into the namespace)")
-    p.add_argument("--container", type=int, default=0, metavar="N",
+    p.add_argument("--container", type=int_range(0, 1024), default=0, metavar="N",
                    help="N robot nodes per process on one executor (0: one process per "
                         "robot, the default)")
-    p.add_argument("--out", type=Path, metavar="DIR",
+    p.add_argument("--out", type=out_dir_arg, metavar="DIR",
                    help="output folder (default: runs/SCENARIO-launch-TIME)")
-    p.add_argument("--domain-id", type=int, metavar="ID",
+    p.add_argument("--domain-id", type=int_range(0, 232), metavar="ID",
                    help="ROS_DOMAIN_ID (default: a free-looking one in 30..100)")
     p.add_argument("--discovery", choices=("localhost", "inherit"), default="localhost",
                    help="localhost (default): ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; "
                         "inherit: keep the caller's discovery settings (multi-host runs)")
-    p.add_argument("--timeout", type=float, default=30.0, metavar="S",
+    p.add_argument("--timeout", type=positive_float, default=30.0, metavar="S",
                    help="lockstep: give up when a robot has not commanded for S seconds")
     p.add_argument("--no-plots", action="store_true", help="write no figures")
-    p.add_argument("--record", type=Path, metavar="RUN.mcap",
+    p.add_argument("--resume", type=Path, metavar="DIR",
+                   help="continue the interrupted run whose output folder is DIR, with its "
+                        "options: the robots reload their memory from DIR/state/, the trial "
+                        "that was running is run again, and metrics.csv goes on")
+    p.add_argument("--max-restarts", type=int, default=3, metavar="N",
+                   help="restart a node process that dies at most N times (default 3; 0: "
+                        "a dead node ends the run)")
+    p.add_argument("--record", type=output_file_arg, metavar="RUN.mcap",
                    help="record every formation topic to this MCAP file (its own recorder "
                         "process; the run starts once it listens); analyse it with "
                         "`formation-ilc analyze RUN.mcap`")
+    add_host_arguments(p)
 
 
 def _pick_domain() -> int:
@@ -195,13 +222,38 @@ class Stack:
         self.log_dir = log_dir
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
         self.logs: dict[str, IO[bytes]] = {}
+        self.argv: dict[str, list[str]] = {}
+        self.restarts: dict[str, int] = {}
 
     def start(self, name: str, argv: list[str]) -> None:
         self.log_dir.mkdir(parents=True, exist_ok=True)
-        fh = (self.log_dir / f"{name}.log").open("wb")
+        again = name in self.logs
+        if again:
+            self.logs[name].close()
+        fh = (self.log_dir / f"{name}.log").open("ab" if again else "wb")
+        if again:
+            fh.write(f"\n--- restarted ({self.restarts.get(name, 0)}) ---\n".encode())
+            fh.flush()
         self.logs[name] = fh
+        self.argv[name] = argv
         self.procs[name] = subprocess.Popen(argv, env=self.env, stdout=fh,
                                             stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+
+    def restart(self, name: str) -> str:
+        """Start ``name`` again with the same command line (a recorder into a new file
+        part, ``RUN.partN.mcap``: the first part stays as it was written). Returns a note
+        for the user."""
+        n = self.restarts[name] = self.restarts.get(name, 0) + 1
+        argv = list(self.argv[name])
+        note = ""
+        if "--output" in argv:
+            i = argv.index("--output") + 1
+            first = Path(self.argv.get(f"{name}#first", argv)[i])
+            argv[i] = str(first.with_suffix(f".part{n}.mcap"))
+            self.argv.setdefault(f"{name}#first", self.argv[name])
+            note = f"; the recording goes on in {argv[i]}"
+        self.start(name, argv)
+        return note
 
     def dead(self) -> list[tuple[str, int]]:
         return [(n, p.returncode) for n, p in self.procs.items() if p.poll() is not None]
@@ -233,15 +285,96 @@ class Stack:
             fh.close()
 
 
+#: the launch options a run is resumed with (DIR/run.json)
+RUN_FILE = "run.json"
+#: exit status of a node that refuses its configuration: restarting it cannot help
+NO_RESTART = 2
+
+
+def _save_run(out: Path, args: argparse.Namespace) -> None:
+    from formation_ilc.schedule import atomic_write_text
+
+    d = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()
+         if k not in ("func", "command", "resume") and not k.endswith("_")}
+    atomic_write_text(out / RUN_FILE, json.dumps(d, indent=2) + "\n")
+
+
+def _resume_args(args: argparse.Namespace) -> argparse.Namespace | str:
+    """The options of the run in ``args.resume`` (an error message if there is none)."""
+    out = args.resume
+    try:
+        d = json.loads((out / RUN_FILE).read_text())
+    except FileNotFoundError:
+        return (f"--resume {out}: no {RUN_FILE} there (not the output folder of a "
+                f"`formation-ilc launch` run)")
+    except (OSError, ValueError) as exc:
+        return f"--resume {out}/{RUN_FILE}: unreadable: {exc}"
+    if args.scenario is not None:
+        return "--resume takes the run's own scenario and options: give no SCENARIO"
+    ns = argparse.Namespace(**vars(args))
+    for k, v in d.items():
+        setattr(ns, k, v)
+    for k in ("out", "init_memory", "record"):
+        if getattr(ns, k, None) is not None:
+            setattr(ns, k, Path(getattr(ns, k)))
+    ns.out = out
+    ns.resume = out
+    ns.max_restarts = args.max_restarts
+    if ns.record is not None:
+        # the first recording is closed; the resumed part goes next to it
+        stem = ns.record.with_suffix("")
+        n = 1
+        while Path(f"{stem}.resumed{n}.mcap").exists():
+            n += 1
+        ns.record = Path(f"{stem}.resumed{n}.mcap")
+    return ns
+
+
+def _foreign(node: Any, namespace: str, wait: float, allowed: set[str]) -> list[str]:
+    """Nodes of another formation in ``namespace`` on this domain (other than ``allowed``:
+    an external plant's), after giving discovery ``wait`` seconds."""
+    import msgs_schema as ms
+
+    deadline = time.monotonic() + wait
+    while time.monotonic() < deadline:
+        time.sleep(0.05)
+    found = [f"{ns.rstrip('/')}/{name}" for name, ns in node.get_node_names_and_namespaces()
+             if ns == namespace and name != node.get_name() and name not in allowed]
+    if node.count_publishers(ms.absolute(ms.CONFIG, namespace)) and not found:
+        found.append(ms.absolute(ms.CONFIG, namespace))
+    return found
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the stack; return the exit status (0 ok, 1 a node failed, 130 interrupted)."""
+    import uuid
+
     import msgs_schema as ms
     from formation_ilc.links import delay_rows, link_histograms, write_delays
     from formation_ilc.metrics import MetricsWriter
     from formation_ilc.nodes.common import warm_up
     from formation_ilc.runconfig import make_config
+    from formation_ilc.schedule import Schedule
+    from formation_ilc.shm import clean_leftovers, fastdds_files
     from formation_ilc.simulate import Problem
 
+    if getattr(args, "resume", None) is not None and not getattr(args, "resumed_", False):
+        resumed = _resume_args(args)
+        if isinstance(resumed, str):
+            print(f"error: {resumed}", file=sys.stderr)
+            return 2
+        args = resumed
+        args.resumed_ = True
+    elif args.scenario is None:
+        print("error: a SCENARIO is required (or --resume DIR)", file=sys.stderr)
+        return 2
+    if args.max_restarts < 0:
+        print("error: --max-restarts must be >= 0", file=sys.stderr)
+        return 2
+    if getattr(args, "run_id", None) is None:
+        args.run_id = uuid.uuid4().hex[:12]
+    if getattr(args, "hosts_", None) is None and (args.hosts == "netns" or _net_options(args)):
+        return run_on_hosts(args)
     pioneer = args.plant == "pioneer"
     if pioneer and (args.mode not in (None, "wallclock") or args.links not in (None, "direct")):
         print(f"error: --plant pioneer runs --mode wallclock with --links direct (real robots "
@@ -265,7 +398,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = make_config(args.scenario, seed=args.seed, noise=not args.no_noise,
                       delay=not args.no_delay, trials=args.trials, law=args.law,
                       memory=args.memory, mode=args.mode, monitored=True,
-                      timeout=args.timeout, links=args.links)
+                      timeout=args.timeout, links=args.links, run_id=args.run_id)
     namespace = args.namespace or ms.NAMESPACE
     if not namespace.startswith("/") or "//" in namespace:
         print(f"error: --namespace {namespace!r}: an absolute ROS namespace like /team2 is "
@@ -286,19 +419,51 @@ def run(args: argparse.Namespace) -> int:
         print("error: --trials must be at least 1", file=sys.stderr)
         return 2
     out = args.out or Path("runs") / f"{sc.name}-launch-{datetime.now():%Y%m%d-%H%M%S}"
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        print(f"error: --out {out}: cannot create the folder: {exc.strerror}", file=sys.stderr)
+        return 2
+    out = out.resolve()
+    args.out = out
+    state_dir = out / "state"
+    done = 0   # iterations every robot has learned (a resumed run)
+    if args.resume is not None:
+        probe = Schedule([], set(), sc.trials)
+        try:
+            probe.restore(state_dir / "leader.json")
+        except Exception as exc:  # noqa: BLE001 - a ScheduleError naming the file
+            print(f"error: --resume: {exc}", file=sys.stderr)
+            return 2
+        done = probe.committed
+        if done >= sc.trials:
+            print(f"{out}: all {sc.trials} trials are done; nothing to resume")
+            return 0
+    else:
+        _save_run(out, args)
+    robot_params["state_dir"] = str(state_dir)
     domain = args.domain_id if args.domain_id is not None else _pick_domain()
     env = dict(os.environ)
     env["ROS_DOMAIN_ID"] = str(domain)
     if args.discovery == "localhost":
         env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     env["PYTHONUNBUFFERED"] = "1"
+    from formation_ilc.lifetime import PARENT_ENV
+
+    env[PARENT_ENV] = str(os.getpid())  # every node ends with this launcher
+    from formation_ilc.nodes.common import RUN_ENV
+
+    env[RUN_ENV] = args.run_id  # and takes only this run's configuration
+    # Fast DDS files that nodes killed earlier left behind (held by no process)
+    stale = clean_leftovers(min_age=2.0)
+    if stale:
+        print(f"removed {len(stale)} Fast DDS shared-memory files of dead processes")
+    shm_before = fastdds_files()
     # our own monitor node joins the same domain: set before rclpy initialises
     os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
     if "ROS_AUTOMATIC_DISCOVERY_RANGE" in env:
         os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env["ROS_AUTOMATIC_DISCOVERY_RANGE"]
     pb = Problem.from_scenario(sc)
-    warm_up(pb)  # compile the kernels once, into the numba cache every node then loads
 
     scen = args.scenario
     if Path(scen).exists():
@@ -307,7 +472,8 @@ def run(args: argparse.Namespace) -> int:
         "scenario": scen, "seed": sc.seed, "trials": sc.trials, "law": sc.law.kind,
         "memory": sc.law.memory, "noise": str(not args.no_noise).lower(),
         "delay": str(not args.no_delay).lower(), "mode": args.mode, "monitored": "true",
-        "timeout": float(args.timeout), "links": args.links}
+        "timeout": float(args.timeout), "links": args.links, "state_dir": str(state_dir),
+        "run_id": args.run_id}
     # the schedule waits for every node, the launcher's monitor and the recorder included,
     # so that none of them misses a trial
     plants = (["robot_sim"] if args.plant == "sim"
@@ -331,15 +497,36 @@ def run(args: argparse.Namespace) -> int:
 
     from formation_ilc.nodes.monitor import MonitorNode
 
-    writer = MetricsWriter(out / "metrics.csv")
+    if done:
+        from formation_ilc.metrics import read_metrics
+
+        try:
+            kept = [r for r in read_metrics(out / "metrics.csv") if int(r[0]) < done]
+        except (OSError, ValueError):
+            kept = []
+        writer = MetricsWriter(out / "metrics.csv")
+        for r in kept:
+            writer.write(np.asarray(r, dtype=float))
+        print(f"resuming {out}: {done} of {sc.trials} trials learned; run {args.run_id}",
+              flush=True)
+    else:
+        writer = MetricsWriter(out / "metrics.csv")
     t_start = time.monotonic()
     trial_wall: list[float] = []
     true_state = args.plant == "sim"
+
+    from formation_ilc.metrics import METRIC_COLUMNS, TRUE_COLUMNS
+
+    # without a true state the true_ columns are nan by design
+    finite_cols = [i for i, c in enumerate(METRIC_COLUMNS)
+                   if i > 0 and (true_state or c not in TRUE_COLUMNS)]
 
     def on_trial(k: int, row: np.ndarray) -> None:
         writer.write(row)
         now = time.monotonic()
         trial_wall.append(now)
+        if not np.isfinite(row[finite_cols]).all():
+            raise Diverged(k)
         print(f"trial {k + 1}/{sc.trials}  max position {row[1]:.4g} m  max heading "
               f"{row[2]:.4g} rad  [{now - t_start:.1f} s]", flush=True)
 
@@ -352,9 +539,23 @@ def run(args: argparse.Namespace) -> int:
     status = 0
     monitor = None
     try:
-        monitor = MonitorNode(cfg, on_trial, true_state=true_state, namespace=namespace)
+        monitor = MonitorNode(cfg, on_trial, true_state=true_state, namespace=namespace,
+                              first=done)
         ex = EventsExecutor()
         ex.add_node(monitor)
+        # discovery runs while the kernels compile; then look for another formation here
+        t_node = time.monotonic()
+        warm_up(pb)  # compile the kernels once, into the numba cache every node then loads
+        others = _foreign(monitor, namespace, max(0.0, 1.5 - (time.monotonic() - t_node)),
+                          set(plants) if args.plant == "external" else set())
+        if others:
+            print(f"error: another formation runs on ROS_DOMAIN_ID={domain} in namespace "
+                  f"{namespace} ({', '.join(sorted(others)[:6])}"
+                  f"{', ...' if len(others) > 6 else ''}): refusing to start a second one "
+                  f"there (it would corrupt both); use --namespace or --domain-id",
+                  file=sys.stderr)
+            status = 2
+            raise _Refused
         if args.record is not None:
             stack.start("recorder", [sys.executable, "-m", "formation_ilc.nodes.recorder",
                                      "--output", str(args.record),
@@ -367,11 +568,11 @@ def run(args: argparse.Namespace) -> int:
                                "return_timeout": float(args.return_timeout)},
                 driver_ns=args.driver_ns, fake_drivers=args.fake_drivers,
                 cmd_type=args.cmd_type):
-            stack.start(name, argv)
+            stack.start(name, host_argv(args, name, argv))
         final_deadline: float | None = None
         while True:
             ex.spin_once(timeout_sec=0.05)
-            if len(monitor.rows) == sc.trials:
+            if len(monitor.rows) == sc.trials - done:
                 # the last diagnostics come right after the last trajectories
                 if final_deadline is None:
                     # bridges drive their robots back after the last trial too
@@ -388,19 +589,40 @@ def run(args: argparse.Namespace) -> int:
                     monitor.diagnostics.get(node, {}).get("trial", -1) >= sc.trials - 1
                     for node in (["robot_sim"] if true_state else []) + support
                     + (plants if pioneer else []))
-                if (len(got) == sc.n and min(got) >= sc.trials - 1 and recorded) or \
-                        time.monotonic() > final_deadline:
+                # and the leader's "done": it has saved the last trial as learned by all
+                done_seen = any(e.get("event") == ms.DONE for e in monitor.events)
+                if (len(got) == sc.n and min(got) >= sc.trials - 1 and recorded
+                        and done_seen) or time.monotonic() > final_deadline:
                     break
-            dead = stack.dead()
-            if dead:
-                name, code = dead[0]
-                print(f"error: node process {name} exited with status {code} "
+            failed = None
+            for name, code in stack.dead():
+                n = stack.restarts.get(name, 0)
+                if code == NO_RESTART or n >= args.max_restarts:
+                    failed = (name, code)
+                    break
+                note = stack.restart(name)
+                what = ("" if name in ("recorder",)
+                        else "; the trial it interrupted runs again")
+                print(f"{name} exited with {_status(code)}: starting it again "
+                      f"({n + 1}/{args.max_restarts}){what}{note}", flush=True)
+            if failed is not None:
+                name, code = failed
+                again = ("" if code == NO_RESTART or not args.max_restarts
+                         else f" after {args.max_restarts} restarts")
+                print(f"error: node process {name} exited with {_status(code)}{again} "
                       f"(log: {out / 'logs' / (name + '.log')})", file=sys.stderr)
                 tail = stack.log_tail(name)
                 if tail:
                     print(tail, file=sys.stderr)
                 status = 1
                 break
+    except _Refused:
+        pass
+    except Diverged as exc:
+        print(f"error: trial {exc.trial + 1}: the errors are no longer finite (the learning "
+              f"diverged; check the gains with `formation-ilc check`): stopping; the finished "
+              f"trials are in metrics.csv", file=sys.stderr)
+        status = 1
     except KeyboardInterrupt:
         print("\ninterrupted: stopping every node; finished trials are in metrics.csv",
               file=sys.stderr)
@@ -412,8 +634,12 @@ def run(args: argparse.Namespace) -> int:
         if monitor is not None:
             monitor.destroy_node()
         rclpy.try_shutdown()
+        # the shared-memory files of nodes killed during the run, and older leftovers
+        clean_leftovers(fastdds_files() - shm_before)
+        clean_leftovers(min_age=2.0)
     elapsed = time.monotonic() - t_start
-    rows = [monitor.rows[k] for k in sorted(monitor.rows)] if monitor is not None else []
+    rows = ([r for r in kept] if done else []) + (
+        [monitor.rows[k] for k in sorted(monitor.rows)] if monitor is not None else [])
     (out / "diagnostics.json").write_text(json.dumps(diagnostics, indent=2) + "\n")
     measured, injected = link_histograms(diagnostics)
     emulated = args.links == "emulated"
@@ -425,6 +651,8 @@ def run(args: argparse.Namespace) -> int:
                "trials": sc.trials, "mode": args.mode, "links": args.links,
                "plant": plants, "true_state": true_state, "namespace": namespace,
                "container": args.container, "domain_id": domain, "seconds": elapsed,
+               "run_id": args.run_id, "resumed_at": done if args.resume is not None else None,
+               "restarts": dict(stack.restarts),
                "timing": sim_diag.get("timing", {}), "missed": sim_diag.get("missed", {}),
                "dropped": {n: d.get("dropped", {}) for n, d in diagnostics.items()}}
     if pioneer:
@@ -450,6 +678,27 @@ def run(args: argparse.Namespace) -> int:
     if args.record is not None:
         print(f"recording: {args.record} (formation-ilc analyze {args.record})")
     return 0
+
+
+class _Refused(Exception):
+    """The run was refused before any node started (the message is printed)."""
+
+
+class Diverged(Exception):
+    """A trial's errors are not finite."""
+
+    def __init__(self, trial: int):
+        super().__init__(trial)
+        self.trial = trial
+
+
+def _status(code: int) -> str:
+    if code < 0:
+        try:
+            return f"signal {signal.Signals(-code).name}"
+        except ValueError:
+            return f"signal {-code}"
+    return f"status {code}"
 
 
 def _print_report(sc: Any, m: np.ndarray, dtab: list[list[Any]], summary: dict[str, Any]
@@ -496,3 +745,117 @@ def _print_report(sc: Any, m: np.ndarray, dtab: list[list[Any]], summary: dict[s
     drops = {n: sum(d.values()) for n, d in summary["dropped"].items() if sum(d.values())}
     if drops:
         print(f"dropped messages: {drops}")
+
+
+# --------------------------------------------------------------------------- separate hosts
+def add_host_arguments(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("robots on separate hosts, one machine (root; "
+                             "docs/lossy-links.md)")
+    g.add_argument("--hosts", choices=("local", "netns"), default="local",
+                   help="local (default): every process on this machine's network; netns: "
+                        "each robot process in a network namespace of its own, joined by "
+                        "veth links to a hub namespace (leader, simulator, this launcher), "
+                        "DDS over UDP, unicast discovery; direct links. Needs root, iproute2 "
+                        "and iptables with NFQUEUE")
+    g.add_argument("--net-delay-ms", type=float, default=0.0, metavar="MS",
+                   help="with --hosts netns: mean delay of every link between robots, per "
+                        "direction (default 0)")
+    g.add_argument("--net-jitter-ms", type=float, default=0.0, metavar="MS",
+                   help="with --hosts netns: delays uniform in delay +- jitter (default 0)")
+    g.add_argument("--net-loss", type=float, default=0.0, metavar="P",
+                   help="with --hosts netns: fraction of the packets between robots "
+                        "dropped, per direction (default 0)")
+    g.add_argument("--dds-profile", choices=("lossy", "none"), default=None,
+                   help="with --hosts netns: lossy (default): the package's Fast DDS profile "
+                        "for lossy links (50 ms writer heartbeat: a lost sample is repaired "
+                        "within about a round trip); none: Fast DDS defaults (3 s)")
+
+
+def host_argv(args: argparse.Namespace, name: str, argv: list[str]) -> list[str]:
+    """``argv`` of process ``name``, inside its robot's namespace with --hosts netns."""
+    import re
+
+    hosts = getattr(args, "hosts_", None)
+    m = re.fullmatch(r"robot_(\d+)", name)
+    if hosts is None or m is None:
+        return argv
+    return hosts.exec_argv(hosts.robot_ns(int(m.group(1))), argv)
+
+
+def _net_options(args: argparse.Namespace) -> bool:
+    return bool(args.net_delay_ms or args.net_jitter_ms or args.net_loss
+                or args.dds_profile is not None)
+
+
+def run_on_hosts(args: argparse.Namespace) -> int:
+    """``run`` with each robot process in a network namespace of its own (--hosts netns);
+    the namespaces, rules and delayers are removed whatever happens."""
+    from formation_ilc import netns
+    from formation_ilc.links import robot_name
+    from formation_ilc.scenario import load_scenario
+
+    def usage(msg: str) -> int:
+        print(f"error: {msg}", file=sys.stderr)
+        return 2
+
+    if args.hosts != "netns":
+        return usage("--net-delay-ms, --net-jitter-ms, --net-loss and --dds-profile go with "
+                     "--hosts netns")
+    try:
+        faults = netns.LinkFaults(args.net_delay_ms, args.net_jitter_ms, args.net_loss)
+    except netns.NetnsError as exc:
+        return usage(str(exc))
+    if args.container or args.plant != "sim" or args.links == "emulated":
+        return usage("--hosts netns runs one process per robot (no --container), the "
+                     "simulator as plant (--plant sim) and direct links (the links between "
+                     "robots are the network's; no --links emulated)")
+    problem = netns.support_problem()
+    if problem:
+        return usage(f"--hosts netns: {problem}")
+    orphans = netns.remove_orphans()
+    if orphans:
+        print(f"removed {len(orphans)} network namespaces of dead launchers", flush=True)
+    args.links = "direct"
+    sc = load_scenario(args.scenario)
+    args.out = args.out or Path("runs") / f"{sc.name}-launch-{datetime.now():%Y%m%d-%H%M%S}"
+    profile = args.dds_profile or "lossy"
+    hosts = netns.Hosts(sc.n, faults, seed=sc.seed if args.seed is None else args.seed,
+                        log_dir=args.out / "hosts")
+    saved = dict(os.environ)
+    status = 1
+    try:
+        with hosts:
+            os.environ.update(hosts.ros_env())
+            os.environ.pop("FASTRTPS_DEFAULT_PROFILES_FILE", None)
+            if profile == "lossy":
+                os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(netns.lossy_profile())
+            print(f"hosts: robot i in network namespace {hosts.robot_ns(1)[:-1]}i "
+                  f"({netns.SUBNET}.{netns.ROBOT_HOST0}+i), the rest in {hosts.hub} "
+                  f"({hosts.hub_address}); links between robots: {faults.describe()}; "
+                  f"Fast DDS profile {profile}", flush=True)
+            args.hosts_ = hosts
+            with hosts.entered_hub():
+                status = run(args)
+            stats = hosts.stop_delayers()
+    except netns.NetnsError as exc:
+        print(f"error: --hosts netns: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        args.hosts_ = None
+        os.environ.clear()
+        os.environ.update(saved)
+    report: dict[str, Any] = {"namespaces": hosts.namespaces(), "hub": hosts.hub_address,
+                              "faults": vars(faults), "dds_profile": profile,
+                              "delayers": {robot_name(i): s for i, s in stats.items()}}
+    for robot, s in report["delayers"].items():
+        lo, p50, p99, hi = netns.hold_quantiles(s.get("hold_ms", {}))
+        n = s.get("packets", 0)
+        print(f"{robot} -> other robots: {n} packets, {s.get('dropped', 0)} dropped "
+              f"({100 * s.get('dropped', 0) / max(n, 1):.1f} %), held {lo:.0f} / {p50:.0f} / "
+              f"{p99:.0f} / {hi:.0f} ms (min / p50 / p99 / max)")
+    path = args.out / "summary.json"
+    if path.exists():
+        summary = json.loads(path.read_text())
+        summary["hosts"] = report
+        path.write_text(json.dumps(summary, indent=2) + "\n")
+    return status

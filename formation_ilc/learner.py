@@ -16,6 +16,21 @@ is its clock Rt); link inputs (``on_link_pose`` or ``on_link_tick``) in any orde
 ``can_command()`` (or at a realtime deadline) ``command()``; after sample T,
 ``finish_trial()`` gives the trajectory to share; ``on_trajectory`` per neighbour; when
 ``learned`` reaches k the robot is ready for trial k+1.
+
+Trials are named by their slot on the label grid (``formation_ilc.schedule``): ``k``,
+``finished`` and ``learned`` are slots, ``iterations`` counts the trials learned. A slot the
+leader aborts (``abort``) is forgotten, and undone if this robot already learned from it;
+every label of it is refused afterwards (stale). ``state()`` / ``restore()`` carry the
+learning state through a crash (``formation_ilc.robotstate``).
+
+The window of what a robot accepts (every other input is Rejected with its reason, and
+moves nothing): its own poses of the current trial, and of the next trial once it has
+learned the current one (it is then ready for it: the leader cannot have started a later
+one); link inputs of those trials, in lockstep labelled at most ``LINK_LOOKAHEAD`` sample
+after its own current sample (a neighbour's pose t+1 may overtake the robot's own pose
+t+1; t+2 cannot exist before the robot commanded t+1); whole-trial trajectories of those
+trials. In realtime a robot whose process stalled may see its links run any number of
+samples ahead of its own poses, so there only the trial window applies.
 """
 
 from __future__ import annotations
@@ -26,13 +41,17 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .clock import Malformed, Rejected, SampleClock
+from .clock import Malformed, Rejected, SampleClock, TrialWindow
 from .delays import measure_delay_ns
 from .law import command, learn
 from .links import LEADER, Delivery, LinkInbox, link_name, robot_name
+from .robotstate import RobotState
 from .simulate import Problem
 
-__all__ = ["PoseEvent", "RobotLearner"]
+__all__ = ["PoseEvent", "RobotLearner", "LINK_LOOKAHEAD"]
+
+#: lockstep: how many samples after its own current sample a link input may be labelled
+LINK_LOOKAHEAD = 1
 
 
 @dataclass(frozen=True)
@@ -80,6 +99,12 @@ class RobotLearner:
                                  f"got {m.shape}")
             self.memory[0] = m
         self.next_memory = np.zeros_like(self.memory)
+        self.prev_memory = self.memory.copy()   # before the last learning step (rollback)
+        self.iterations = 0     # trials learned
+        self.prev_iterations = 0
+        self.prev_learned = -1
+        self.floor = -1         # labels of slots <= floor are refused (aborted or learned)
+        self.restored = False   # restored from a state file, no trial entered since
         self.applied = np.zeros((1, n_t, 2))
         self.eta = np.zeros((1, n_t + 1, 3))
         self.have = np.zeros(n_t + 1, dtype=bool)
@@ -122,9 +147,9 @@ class RobotLearner:
         (out_of_order). In realtime a skipped or uncommanded sample is counted in
         ``missed`` and recorded as held (what the plant applied)."""
         k, s = self.clock.decode(label_ns)
-        if k < self.k or (k == self.k and s <= self.t):
+        if k <= self.floor or (k == self.k and s <= self.t):
             raise Rejected("stale", f"sample ({k}, {s}) after ({self.k}, {self.t})")
-        new = k > self.k
+        new = self._window(k, "own pose")
         if not self.realtime:
             if new and s != 0:
                 raise Rejected("out_of_order", f"trial {k} starts at sample {s}")
@@ -147,7 +172,34 @@ class RobotLearner:
         self.commanded = last
         return PoseEvent(k, s, new, last)
 
+    def _window(self, k: int, what: str) -> bool:
+        """Whether trial ``k`` is the next trial (True) or the current one; Rejected
+        outside the window: the next trial is open once the current one is learned or
+        aborted. A robot just restored from its state file cannot know which slot the
+        leader runs next (it may have aborted one meanwhile): it takes the first later
+        trial it sees."""
+        if self.restored and k > self.k:
+            return True
+        return TrialWindow(self.k, self.learned >= self.k or self.floor >= self.k).check(
+            k, what)
+
+    def _lookahead(self, label_ns: int, what: str) -> None:
+        """Rejected if a link input's trial is outside the window, or (lockstep, future)
+        it is labelled beyond the robot's own next sample."""
+        k, _ = self.clock.decode(label_ns)
+        self._window(k, what)
+        if self.realtime:
+            return
+        if self.k >= 0 and k == self.k:
+            limit = self.clock.stamp_ns(self.k, self.t + LINK_LOOKAHEAD)
+        else:  # the next trial (open): from its start
+            limit = self.clock.stamp_ns(k, LINK_LOOKAHEAD - 1)
+        if label_ns > limit:
+            raise Rejected("future", f"{what} labelled {label_ns} ns, beyond {limit} ns "
+                                     f"(the robot is at sample ({self.k}, {self.t}))")
+
     def _new_trial(self, k: int) -> None:
+        self.restored = False
         self.k = k
         self.t = -1
         self.have[:] = False
@@ -162,14 +214,25 @@ class RobotLearner:
     # ------------------------------------------------------------------ links
     def on_link_pose(self, sender: str, label_ns: int, eta: NDArray[np.float64]) -> None:
         """Direct link: ``sender``'s shared pose (or the leader's reference) arrived."""
-        self._inbox(sender).offer(label_ns, eta, max(self.k, 0))
+        self._fresh(label_ns)
+        box = self._inbox(sender)
+        self._lookahead(label_ns, f"{sender}'s pose")
+        box.offer(label_ns, eta, max(self.k, 0))
+
+    def _fresh(self, label_ns: int) -> None:
+        k, _ = self.clock.decode(label_ns)
+        if k <= self.floor:
+            raise Rejected("stale", f"label of slot {k}, aborted or learned (<= {self.floor})")
 
     def on_link_tick(self, sender: str, tick_ns: int,
                      pose: tuple[int, NDArray[np.float64]] | None) -> None:
         """Emulated link: at tick ``tick_ns`` the link from ``sender`` delivered ``pose``
         (label, output), or nothing."""
+        self._fresh(tick_ns)
         d = None if pose is None else Delivery(sender, pose[0], pose[1])
-        self._inbox(sender).offer_tick(tick_ns, d, max(self.k, 0))
+        box = self._inbox(sender)
+        self._lookahead(tick_ns, f"{sender}'s link tick")
+        box.offer_tick(tick_ns, d, max(self.k, 0))
 
     def _inbox(self, sender: str) -> LinkInbox:
         self._slot(sender)
@@ -237,8 +300,9 @@ class RobotLearner:
         k, s0 = self.clock.decode(int(stamps[0]))
         if s0 != 0 or any(int(x) != self.clock.stamp_ns(k, s) for s, x in enumerate(stamps)):
             raise Malformed("trajectory stamps are not samples 0..T of one trial")
-        if k <= self.learned or k < self.k:
-            raise Rejected("stale", f"trajectory of trial {k} in trial {self.k}")
+        if k <= self.learned or k <= self.floor:
+            raise Rejected("stale", f"trajectory of trial {k}, already learned or aborted")
+        self._window(k, f"{sender}'s trajectory")
         self.trajs.setdefault(k, {})[self.slots[sender]] = np.array(eta, dtype=float)
         return self.try_learn()
 
@@ -251,21 +315,62 @@ class RobotLearner:
         pb, sl = self.pb, self.sl
         for ell, eta in have.items():
             self.nb_full[0, ell] = eta
+        self.prev_memory[:] = self.memory
+        self.prev_iterations, self.prev_learned = self.iterations, self.learned
         learn(pb.law, pb.memory, self.memory, self.applied, self.eta, pb.eta_d[sl],
               self.nb_full, pb.src[sl], pb.weight[sl], pb.eta_d, pb.leader[sl], pb.gain[sl],
               pb.heading, self.next_memory)
         self.memory, self.next_memory = self.next_memory, self.memory
         self.learned = k
+        self.iterations += 1
         for old in [x for x in self.trajs if x <= k]:
             del self.trajs[old]
         return True
+
+    # ------------------------------------------------------------------ faults
+    def abort(self, slot: int) -> bool:
+        """The leader aborted ``slot``: forget it (and undo the learning step if this robot
+        already learned from it). Returns True if the memory was rolled back."""
+        if slot <= self.floor and slot != self.learned:
+            return False
+        rolled = False
+        if self.learned == slot:
+            self.memory[:] = self.prev_memory
+            self.iterations, self.learned = self.prev_iterations, self.prev_learned
+            rolled = True
+        self.floor = max(self.floor, slot)
+        if self.k <= slot:
+            self.k, self.t, self.commanded = slot, self.T, True
+        if self.finished >= slot:
+            self.finished = self.learned
+        self.trajs = {k: v for k, v in self.trajs.items() if k > slot}
+        for box in self.inbox.values():
+            box.clear()
+        return rolled
+
+    def state(self) -> RobotState:
+        """What a restarted robot needs (``formation_ilc.robotstate``)."""
+        return RobotState(self.memory[0].copy(), self.iterations, self.learned,
+                          self.prev_memory[0].copy(), self.prev_iterations, self.prev_learned)
+
+    def restore(self, st: RobotState) -> None:
+        """Continue from a saved state: every label of a slot up to the learned one is
+        stale; the next trial the leader starts is the robot's next."""
+        self.memory[0] = st.memory
+        self.prev_memory[0] = st.prev_memory
+        self.iterations, self.learned = st.iterations, st.slot
+        self.prev_iterations, self.prev_learned = st.prev_iterations, st.prev_slot
+        self.floor = self.finished = st.slot
+        self.k, self.t, self.commanded = st.slot, self.T, True
+        self.restored = True
 
     def diagnostics(self) -> dict[str, object]:
         """Counters for the diagnostics topic: commands, missed samples, per link the
         histogram of measured delays (eq. 11) keyed by the sender, and (emulated links) how
         many deliveries came after their sample was commanded (``unused``)."""
         d: dict[str, object] = {
-            "node": self.name, "trial": self.learned, "commands": self.commands,
+            "node": self.name, "trial": self.iterations - 1, "slot": self.learned,
+            "commands": self.commands,
             "missed": self.missed,
             "delays": {s: {str(t): c for t, c in sorted(h.items())}
                        for s, h in self.delays.items()}}

@@ -32,7 +32,7 @@ from .clock import Malformed, Rejected, SampleClock
 
 __all__ = ["LEADER", "LINK_MODES", "robot_name", "robot_number", "link_name",
            "delivered_label", "Delivery", "LinkInbox", "DELAY_COLUMNS", "link_histograms",
-           "delay_rows", "write_delays"]
+           "delay_rows", "write_delays", "check_diagnostics"]
 
 #: sender name of the virtual leader's reference
 LEADER = "leader"
@@ -60,6 +60,12 @@ def link_name(sender: str, receiver: str) -> str:
 
 
 Samples = int | NDArray[np.int64]
+
+
+#: the delay of a sample the link loses: ``delivered_label`` is negative for any tick, so
+#: nothing is delivered and the link drops out of the current term for that sample (the
+#: trial-end exchange still carries the whole trajectory to the predictive term)
+LOST = 1 << 40
 
 
 @njit(cache=True)
@@ -147,6 +153,11 @@ class LinkInbox:
         self.poses.appendleft(best)  # still the newest usable one at the next sample
         return Delivery(self.sender, best[0], best[1])
 
+    def clear(self) -> None:
+        """Forget everything held (an aborted trial); labels must still grow."""
+        self.poses.clear()
+        self.ticks.clear()
+
     def forget(self, until_ns: int) -> None:
         """Emulated: drop the ticks up to ``until_ns`` (their samples are commanded),
         counting each pose among them in ``unused``."""
@@ -163,6 +174,48 @@ DELAY_COLUMNS = ("link", "tau", "measured", "injected", "measured_fraction",
                  "model_probability")
 
 Histograms = dict[str, dict[int, int]]
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_number(v: Any) -> bool:
+    return (_is_int(v) or isinstance(v, float)) and not isinstance(v, bool)
+
+
+def _histograms(v: Any) -> bool:
+    """{name: {"tau": count}} with integer taus and counts >= 0."""
+    return isinstance(v, dict) and all(
+        isinstance(h, dict) and all(isinstance(a, str) and a.isascii() and a.lstrip("-").isdigit()
+                                    and _is_int(b) and b >= 0 for a, b in h.items())
+        for h in v.values())
+
+
+def check_diagnostics(d: Mapping[str, Any]) -> dict[str, Any]:
+    """A node's diagnostics (a JSON object), checked where its readers rely on it: ``node``
+    a name, ``trial`` an integer, the delay histograms (``delays``, ``injected``) integer
+    counts by integer delay, ``dropped`` integer counts, ``timing`` numbers, ``missed`` an
+    integer or integer counts, ``initial_shifts`` (x, y, theta) triples. Malformed naming
+    the first field that is not; other fields pass as they are."""
+    if not isinstance(d.get("node"), str):
+        raise Malformed("diagnostics without a node name")
+    if not _is_int(d.get("trial")):
+        raise Malformed(f"diagnostics of {d['node'][:100]!r}: trial is not an integer")
+    checks = {
+        "delays": _histograms, "injected": _histograms,
+        "dropped": lambda v: isinstance(v, dict) and all(_is_int(x) for x in v.values()),
+        "timing": lambda v: isinstance(v, dict) and all(_is_number(x) for x in v.values()),
+        "missed": lambda v: _is_int(v) or (isinstance(v, dict)
+                                           and all(_is_int(x) for x in v.values())),
+        "initial_shifts": lambda v: isinstance(v, dict) and all(
+            isinstance(x, list) and len(x) == 3 and all(map(_is_number, x))
+            for x in v.values()),
+    }
+    for key, ok in checks.items():
+        if key in d and not ok(d[key]):
+            raise Malformed(f"diagnostics of {d['node'][:100]!r}: bad {key!r}")
+    return dict(d)
 
 
 def link_histograms(diagnostics: Mapping[str, Mapping[str, Any]]

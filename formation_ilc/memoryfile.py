@@ -15,14 +15,17 @@ from __future__ import annotations
 import hashlib
 import os
 import tempfile
+import zipfile
 from pathlib import Path
+from typing import IO, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from .scenario import Scenario
 
-__all__ = ["FORMAT_VERSION", "MemoryFileError", "save_memory", "load_memory", "scenario_hash"]
+__all__ = ["FORMAT_VERSION", "MemoryFileError", "save_memory", "load_memory", "scenario_hash",
+           "trials_learned"]
 
 FORMAT_VERSION = 1
 
@@ -36,12 +39,16 @@ def scenario_hash(sc: Scenario) -> str:
 
 
 def save_memory(path: Path, memory: NDArray[np.float64], sc: Scenario,
-                trials_learned: int = 0) -> Path:
-    """Write ``memory`` (N, T, 2) learned on ``sc`` to ``path`` (.npz), atomically."""
+                trials_learned: int = 0, durable: bool = True) -> Path:
+    """Write ``memory`` (N, T, 2) learned on ``sc`` to ``path`` (.npz), atomically: a reader
+    (or a crash) sees the old file or the new one, never a part. ``durable`` also flushes
+    it to the disk before the rename (fsync), so a power cut keeps one of the two."""
     m = np.asarray(memory, dtype=float)
     if m.shape != (sc.n, sc.samples, 2):
         raise ValueError(f"memory has shape {m.shape}, {sc.name} needs "
                          f"{(sc.n, sc.samples, 2)}")
+    if not np.isfinite(m).all():
+        raise ValueError("memory holds inf or nan: a diverged run's memory is not saved")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".npz")
@@ -51,6 +58,9 @@ def save_memory(path: Path, memory: NDArray[np.float64], sc: Scenario,
                      scenario=np.str_(sc.name), scenario_sha256=np.str_(scenario_hash(sc)),
                      n=np.int64(sc.n), samples=np.int64(sc.samples),
                      dt=np.float64(sc.dt), trials_learned=np.int64(trials_learned))
+            if durable:
+                fh.flush()
+                os.fsync(fh.fileno())
         os.replace(tmp, path)
     except BaseException:
         try:
@@ -61,19 +71,91 @@ def save_memory(path: Path, memory: NDArray[np.float64], sc: Scenario,
     return path
 
 
+def _header(fh: IO[bytes], where: str) -> tuple[tuple[int, ...], np.dtype[Any]]:
+    """(shape, dtype) of the .npy stream ``fh``, read from its header alone."""
+    try:
+        version = np.lib.format.read_magic(fh)
+        if version == (1, 0):
+            shape, _, dtype = np.lib.format.read_array_header_1_0(fh)
+        else:
+            shape, _, dtype = np.lib.format.read_array_header_2_0(fh)
+    except (ValueError, OSError, EOFError, SyntaxError) as exc:
+        raise MemoryFileError(f"{where}: not a numpy array ({exc})") from None
+    return tuple(int(x) for x in shape), dtype
+
+
+def _check_headers(path: Path) -> dict[str, tuple[tuple[int, ...], np.dtype[Any]]]:
+    """Refuse a file whose arrays are not the small scalars and the one (N, T, 2) float
+    array of a memory file, from the headers alone: a hostile or corrupt file (a
+    compressed 'memory' of terabytes, a string 'scenario' of gigabytes) is never loaded."""
+    try:
+        zf = zipfile.ZipFile(path)
+    except (zipfile.BadZipFile, OSError, ValueError) as exc:
+        raise MemoryFileError(f"{path}: cannot read a memory file: {exc}") from None
+    with zf:
+        shapes: dict[str, tuple[tuple[int, ...], np.dtype[Any]]] = {}
+        for info in zf.infolist():
+            if not info.filename.endswith(".npy"):
+                continue
+            key = info.filename[:-4]
+            try:
+                with zf.open(info) as fh:
+                    shapes[key] = _header(fh, f"{path}: {key}")
+            except (zipfile.BadZipFile, OSError, RuntimeError, NotImplementedError) as exc:
+                raise MemoryFileError(f"{path}: {key}: cannot read: {exc}") from None
+    for key, (shape, dtype) in shapes.items():
+        if key == "memory":
+            ok = len(shape) == 3 and dtype.kind == "f" and shape[2] == 2
+            why = "(robots, samples, 2) floats"
+        elif key in ("scenario", "scenario_sha256"):
+            ok = shape == () and dtype.kind == "U" and dtype.itemsize <= 4 * 1024
+            why = "a short string"
+        else:
+            ok = shape == () and dtype.kind in "iuf"
+            why = "a number"
+        if not ok:
+            raise MemoryFileError(f"{path}: {key}: expected {why}, got {dtype} of shape "
+                                  f"{shape}")
+    return shapes
+
+
 def load_memory(path: Path | str, sc: Scenario) -> NDArray[np.float64]:
     """The memory (N, T, 2) in ``path`` for scenario ``sc``; MemoryFileError naming the file
-    and what differs (scenario, its text, N, T, format) when it does not fit."""
+    and what differs (scenario, its text, N, T, format) when it does not fit. Every array's
+    shape is checked from its header before any is loaded."""
     path = Path(path)
+    want = (sc.n, sc.samples, 2)
+    # the file holds one (N, T, 2) float64 array and a few scalars: refuse anything else
+    # (a device, a pipe, a file of gigabytes) before reading it
+    limit = 2 * 16 * sc.n * sc.samples + (1 << 20)
+    try:
+        if not path.is_file():
+            why = "not a regular file" if path.exists() else "no such file"
+            raise MemoryFileError(f"{path}: cannot read a memory file: {why}")
+        if path.stat().st_size > limit:
+            raise MemoryFileError(f"{path}: {path.stat().st_size} bytes, more than a memory "
+                                  f"file of {sc.name} can be ({limit})")
+        with open(path, "rb") as fh:
+            magic = fh.read(6)
+            if magic == b"\x93NUMPY":  # a bare .npy (before format version 1)
+                fh.seek(0)
+                shape, dtype = _header(fh, str(path))
+                if shape != want or dtype.kind != "f":
+                    raise MemoryFileError(f"{path}: memory has shape {shape}, {sc.name} "
+                                          f"needs {want} (robots, samples, [v, omega])")
+    except OSError as exc:
+        raise MemoryFileError(f"{path}: cannot read a memory file: {exc}") from None
+    shapes = _check_headers(path) if magic != b"\x93NUMPY" else {}
     try:
         data = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise MemoryFileError(f"{path}: cannot read a memory file: {exc}") from None
-    want = (sc.n, sc.samples, 2)
     if isinstance(data, np.ndarray):  # a bare .npy (before format version 1)
         if data.shape != want:
             raise MemoryFileError(f"{path}: memory has shape {data.shape}, {sc.name} needs "
                                   f"{want} (robots, samples, [v, omega])")
+        if not np.isfinite(data).all():
+            raise MemoryFileError(f"{path}: memory holds non-finite values")
         return np.asarray(data, dtype=float)
     with data:
         keys = set(data.files)
@@ -81,26 +163,44 @@ def load_memory(path: Path | str, sc: Scenario) -> NDArray[np.float64]:
         if not need <= keys:
             raise MemoryFileError(f"{path}: not a formation-ilc memory file (lacks "
                                   f"{sorted(need - keys)})")
-        version = int(data["format_version"])
-        if version != FORMAT_VERSION:
-            raise MemoryFileError(f"{path}: memory file format {version}, this version reads "
-                                  f"format {FORMAT_VERSION}")
-        name, digest = str(data["scenario"]), str(data["scenario_sha256"])
-        n, n_t = int(data["n"]), int(data["samples"])
-        memory = np.array(data["memory"], dtype=float)
-    diffs = []
-    if name != sc.name:
-        diffs.append(f"scenario {name!r}, this run {sc.name!r}")
-    elif digest != scenario_hash(sc):
-        diffs.append(f"scenario {name!r} with a different text (SHA-256 {digest[:12]}..., "
-                     f"this run's {scenario_hash(sc)[:12]}...)")
-    if n != sc.n:
-        diffs.append(f"{n} robots, this run {sc.n}")
-    if n_t != sc.samples:
-        diffs.append(f"{n_t} samples, this run {sc.samples}")
-    if diffs:
-        raise MemoryFileError(f"{path}: learned for another run: " + "; ".join(diffs))
+        try:
+            version = int(data["format_version"])
+            if version != FORMAT_VERSION:
+                raise MemoryFileError(f"{path}: memory file format {version}, this version "
+                                      f"reads format {FORMAT_VERSION}")
+            name, digest = str(data["scenario"]), str(data["scenario_sha256"])
+            n, n_t = int(data["n"]), int(data["samples"])
+            diffs = []
+            if name != sc.name:
+                diffs.append(f"scenario {name!r}, this run {sc.name!r}")
+            elif digest != scenario_hash(sc):
+                diffs.append(f"scenario {name!r} with a different text (SHA-256 "
+                             f"{digest[:12]}..., this run's {scenario_hash(sc)[:12]}...)")
+            if n != sc.n:
+                diffs.append(f"{n} robots, this run {sc.n}")
+            if n_t != sc.samples:
+                diffs.append(f"{n_t} samples, this run {sc.samples}")
+            if diffs:
+                raise MemoryFileError(f"{path}: learned for another run: " + "; ".join(diffs))
+            if shapes["memory"][0] != want:  # checked before the array is read
+                raise MemoryFileError(f"{path}: memory has shape {shapes['memory'][0]}, "
+                                      f"{sc.name} needs {want}")
+            memory = np.array(data["memory"], dtype=float)
+        except (OSError, ValueError, EOFError, OverflowError, zipfile.BadZipFile) as exc:
+            if isinstance(exc, MemoryFileError):
+                raise
+            raise MemoryFileError(f"{path}: cannot read a memory file: {exc}") from None
     if memory.shape != want or not np.isfinite(memory).all():
         raise MemoryFileError(f"{path}: memory has shape {memory.shape} or non-finite values, "
                               f"{sc.name} needs finite {want}")
     return memory
+
+
+def trials_learned(path: Path | str) -> int | None:
+    """How many trials the memory in ``path`` learned from (the index of the trial it is
+    for), or None if the file does not say."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return int(data["trials_learned"]) if "trials_learned" in data.files else None
+    except (OSError, ValueError, KeyError, EOFError, AttributeError, zipfile.BadZipFile):
+        return None

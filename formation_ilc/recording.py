@@ -11,7 +11,9 @@ received; ``SimRecorder`` writes them from the batch simulator.
 from __future__ import annotations
 
 import json
+import os
 import struct
+import sys
 from collections import Counter
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -22,14 +24,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import cdr
-from .links import delivered_label, link_histograms
-from .mcap_io import RosMcapWriter, qos_yaml, read_messages
+from .links import check_diagnostics, delivered_label, link_histograms
+from .mcap_io import RawMessage, ReadReport, RosMcapWriter, qos_yaml, read_messages
 from .metrics import METRIC_COLUMNS, TRUE_COLUMNS
 from .runconfig import RunConfig
 from .scenario import Scenario
 from .simulate import Problem, trial_errors
 
-__all__ = ["qos_of", "SimRecorder", "Recording", "load_recording"]
+__all__ = ["qos_of", "SimRecorder", "Recording", "RecordingError", "load_recording"]
 
 #: metadata record name holding the run configuration (same JSON as /formation/config)
 META_NAME = "formation_ilc"
@@ -130,6 +132,10 @@ class SimRecorder:
 # --------------------------------------------------------------------------- reading
 
 
+class RecordingError(ValueError):
+    """A file that holds no formation-ilc run (no readable run configuration)."""
+
+
 @dataclass
 class Recording:
     """What an analysis needs, read from one MCAP file.
@@ -139,6 +145,11 @@ class Recording:
     delays : {"sender->robot_i": {tau: count}} measured by the robots (last diagnostics).
     injected : the same as injected by the link emulator, when recorded.
     events : trial events in file order. config : the run configuration (JSON).
+    incomplete : trials of the run up to the last one seen whose data is not all in the
+        file (cut short, damaged, or never sent).
+    undecodable : per topic, messages skipped because they do not decode (junk JSON, a
+        malformed trajectory, a label off the run's grid).
+    report : what reading the file found (``mcap_io.ReadReport``: damage, cut short).
     """
 
     scenario: Scenario
@@ -151,21 +162,26 @@ class Recording:
     events: list[dict[str, Any]] = field(default_factory=list)
     incomplete: list[int] = field(default_factory=list)
     messages: int = 0
+    undecodable: dict[str, int] = field(default_factory=dict)
+    report: ReadReport = field(default_factory=ReadReport)
 
 
 def _path_outputs(data: bytes, ref_heading: NDArray[np.float64]
                   ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """eta (S, 3) and stamps of a recorded trajectory, decoded as the monitor decodes it
     (msgs_schema.path_to_trajectory: same heading function, unwrapped next to the desired
-    heading), with the bytes parsed by numpy when the layout allows it."""
+    heading), with the bytes parsed by numpy when the layout allows it. MalformedMessage
+    if it is not a valid trajectory of ``len(ref_heading)`` poses."""
     import msgs_schema as ms
 
     try:
-        f, stamps, _, _ = cdr.decode_path(data)
-    except (ValueError, struct.error):
-        from rclpy.serialization import deserialize_message
-
-        eta, stamps, _ = ms.path_to_trajectory(deserialize_message(data, ms.Path), ref_heading)
+        f, stamps, frame, _ = cdr.decode_path(data)
+    except (ValueError, struct.error, IndexError):
+        eta, stamps, frame = ms.path_to_trajectory(ms.deserialize(data, ms.Path), ref_heading)
+        f = None
+    if frame != ms.WORLD_FRAME:
+        raise ms.MalformedMessage(f"trajectory in frame {frame[:50]!r}")
+    if f is None:
         return eta, stamps
     if len(f) != len(ref_heading):
         raise ms.MalformedMessage(f"trajectory has {len(f)} poses, expected {len(ref_heading)}")
@@ -179,19 +195,28 @@ def _path_outputs(data: bytes, ref_heading: NDArray[np.float64]
     return eta, stamps
 
 
+#: topics (by their last part) that an analysis reads; the per-sample ones it skips
+_ANALYSED = ("/trajectory", "/true_trajectory", "/diagnostics", "/trial_events")
+
+
 def load_recording(path: str | Path, keep: Callable[[int, int], bool] | None = None,
                    progress: Callable[[int], None] | None = None) -> Recording:
     """Read a recording and compute its per-trial metrics exactly as the launcher does.
 
+    Nothing in the file stops the reading: a message that does not decode is skipped and
+    counted per topic (``undecodable``), damaged bytes are skipped up to the next readable
+    chunk (``report``), and trials whose data is not all there are listed (``incomplete``).
+    RecordingError if no run configuration reads back.
+
     keep : (trial, total trials) -> whether to keep the trial's trajectories.
     progress : called with the number of messages read so far, now and then.
     """
-    from rclpy.serialization import deserialize_message
     from std_msgs.msg import String
 
     import msgs_schema as ms
 
     path = Path(path)
+    report = ReadReport()
     config: dict[str, Any] | None = None
     cfg: RunConfig | None = None
     pb: Problem | None = None
@@ -202,40 +227,52 @@ def load_recording(path: str | Path, keep: Callable[[int, int], bool] | None = N
     rec_xi: dict[int, NDArray[np.float64]] = {}
     diags: dict[str, dict[str, Any]] = {}
     events: list[dict[str, Any]] = []
+    bad: Counter[str] = Counter()
     count = 0
     traj_topic: dict[str, tuple[int, bool]] = {}
     # the formation's namespace is where its config topic is
     events_topic = diag_topic = ""
     true_seen = False
-    for m in read_messages(path):
-        count += 1
-        if progress is not None and count % 5000 == 0:
-            progress(count)
-        if config is None and m.topic.endswith("/" + ms.CONFIG):
-            config = json.loads(deserialize_message(m.data, String).data)
-            cfg = RunConfig.from_json(config)
-            pb = Problem.from_scenario(cfg.scenario)
-            namespace = m.topic[: -len(ms.CONFIG) - 1] or "/"
-            for r in range(pb.n):
-                traj_topic[ms.absolute(ms.trajectory_topic(r + 1), namespace)] = (r, False)
-                traj_topic[ms.absolute(ms.true_trajectory_topic(r + 1), namespace)] = (r, True)
-            events_topic = ms.absolute(ms.TRIAL_EVENTS, namespace)
-            diag_topic = ms.absolute(ms.DIAGNOSTICS, namespace)
-            continue
+    early: list[RawMessage] = []  # what came before the configuration (damage, a late one)
+    last_seen = -1                # the latest trial with any data in the file
+
+    def text(m: RawMessage, required: tuple[str, ...]) -> dict[str, Any]:
+        return ms.msg_to_json(ms.deserialize(m.data, String), required)
+
+    def configure(m: RawMessage) -> None:
+        nonlocal config, cfg, pb, events_topic, diag_topic
+        conf = text(m, ())
+        c = RunConfig.from_json(conf)
+        config, cfg, pb = conf, c, Problem.from_scenario(c.scenario)
+        namespace = m.topic[: -len(ms.CONFIG) - 1] or "/"
+        for r in range(pb.n):
+            traj_topic[ms.absolute(ms.trajectory_topic(r + 1), namespace)] = (r, False)
+            traj_topic[ms.absolute(ms.true_trajectory_topic(r + 1), namespace)] = (r, True)
+        events_topic = ms.absolute(ms.TRIAL_EVENTS, namespace)
+        diag_topic = ms.absolute(ms.DIAGNOSTICS, namespace)
+
+    def handle(m: RawMessage) -> None:
+        nonlocal true_seen, last_seen
         if m.topic == events_topic:
-            events.append(json.loads(deserialize_message(m.data, String).data))
+            ev = text(m, ("event", "trial"))
+            if ev.get("event") == ms.START:
+                last_seen = max(last_seen, ms.json_int(ev, "trial"))
+            events.append(ev)
         elif m.topic == diag_topic:
-            d = json.loads(deserialize_message(m.data, String).data)
-            diags[str(d.get("node", "?"))] = d
+            d = check_diagnostics(text(m, ("node", "trial")))
+            diags[d["node"]] = d
         elif m.topic in traj_topic:
-            if pb is None or cfg is None:
-                continue
+            assert pb is not None and cfg is not None
             r, is_true = traj_topic[m.topic]
-            true_seen = true_seen or is_true
             eta, stamps = _path_outputs(m.data, pb.eta_d[r, :, 2])
-            k, _ = cfg.clock.decode(int(stamps[0]))
+            k, s0 = cfg.clock.decode(int(stamps[0]))
+            if s0 != 0 or not 0 <= k < cfg.scenario.trials:
+                raise ms.MalformedMessage(f"trajectory of trial {k} sample {s0}: not a "
+                                          f"trial of this run")
+            true_seen = true_seen or is_true
+            last_seen = max(last_seen, k)
             if k in rows:
-                continue
+                return
             (true if is_true else meas).setdefault(k, {})[r] = eta
             if len(meas.get(k, {})) == pb.n and len(true.get(k, {})) == pb.n:
                 e = np.stack([meas[k][i] for i in range(pb.n)])
@@ -247,6 +284,33 @@ def load_recording(path: str | Path, keep: Callable[[int, int], bool] | None = N
                 if keep is None or keep(k, cfg.scenario.trials):
                     rec_eta[k], rec_xi[k] = e, x
                 del meas[k], true[k]
+
+    def dispatch(m: RawMessage) -> None:
+        try:
+            handle(m)
+        except (ms.MalformedMessage, ValueError) as exc:
+            bad[m.topic] += 1
+            if os.environ.get("FORMATION_ILC_DEBUG"):
+                print(f"{path}: skipped a message on {m.topic}: {exc}", file=sys.stderr)
+
+    for msg in read_messages(path, report=report):
+        count += 1
+        if progress is not None and count % 5000 == 0:
+            progress(count)
+        if config is None:
+            if msg.topic.endswith("/" + ms.CONFIG):
+                try:
+                    configure(msg)
+                except ValueError:  # junk, or a configuration that does not load
+                    bad[msg.topic] += 1
+                    continue
+                for held in early:
+                    dispatch(held)
+                early = []
+            elif msg.topic.endswith(_ANALYSED):
+                early.append(msg)
+            continue
+        dispatch(msg)
     if pb is not None and cfg is not None and not true_seen:
         # a plant without a true state (hardware): the true_ columns are nan
         for k in sorted(k for k, d in meas.items() if len(d) == pb.n):
@@ -261,11 +325,15 @@ def load_recording(path: str | Path, keep: Callable[[int, int], bool] | None = N
                 rec_eta[k] = e
             del meas[k]
     if config is None or cfg is None:
-        raise ValueError(f"{path}: no run configuration on a .../{ms.CONFIG} topic: not a "
-                         f"formation-ilc recording, or cut before it started")
+        found = (f"{report.messages} messages read" if report.messages
+                 else "no MCAP record read back")
+        raise RecordingError(f"{path}: no readable run configuration on a .../{ms.CONFIG} "
+                             f"topic ({found}): not a formation-ilc recording, or cut or "
+                             f"damaged before the run started")
     metrics = (np.array([rows[k] for k in sorted(rows)]) if rows
                else np.empty((0, len(METRIC_COLUMNS))))
     delays, injected = link_histograms(diags)
     return Recording(scenario=cfg.scenario, config=config, metrics=metrics, eta=rec_eta,
                      xi=rec_xi, delays=delays, injected=injected, events=events,
-                     incomplete=sorted(set(meas) | set(true)), messages=count)
+                     incomplete=[k for k in range(last_seen + 1) if k not in rows],
+                     messages=count, undecodable=dict(bad), report=report)

@@ -34,6 +34,8 @@ class RunConfig:
     gap : samples between the end of one trial's labels and the next trial's (stamps).
     monitored : a monitor (the launcher) reads trajectories and diagnostics.
     timeout : [s] lockstep: how long the plant waits for a robot's command.
+    run_id : identity of the run (set by the launcher): a node that has taken this
+        configuration refuses another run's on the same domain and namespace.
     """
 
     scenario: Scenario
@@ -42,6 +44,7 @@ class RunConfig:
     monitored: bool = False
     timeout: float = 30.0
     links: str = "emulated"
+    run_id: str = ""
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -68,7 +71,7 @@ class RunConfig:
                 "delay": sc.uncertainty.delay.kind != "none", "trials": sc.trials,
                 "law": sc.law.kind, "memory": sc.law.memory, "mode": self.mode,
                 "links": self.links, "gap": self.gap, "monitored": self.monitored,
-                "timeout": self.timeout}
+                "timeout": self.timeout, "run_id": self.run_id}
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> RunConfig:
@@ -80,7 +83,7 @@ class RunConfig:
                                  seed=int(d["seed"]), trials=int(d["trials"]))
             return cls(sc, str(d.get("mode", "lockstep")), int(d.get("gap", 20)),
                        bool(d.get("monitored", False)), float(d.get("timeout", 30.0)),
-                       str(d.get("links", "emulated")))
+                       str(d.get("links", "emulated")), str(d.get("run_id", "")))
         except (KeyError, TypeError, ValueError) as exc:
             raise Rejected("malformed", f"bad run configuration: {exc}") from None
 
@@ -89,8 +92,8 @@ def make_config(scenario: str, *, seed: int | None = None, noise: bool = True,
                 delay: bool = True, trials: int | None = None, law: int | None = None,
                 memory: str | None = None, mode: str = "lockstep", gap: int = 20,
                 monitored: bool = False, timeout: float = 30.0,
-                links: str = "emulated") -> RunConfig:
+                links: str = "emulated", run_id: str = "") -> RunConfig:
     """The run configuration of a scenario name or file with command-line overrides."""
     sc = load_scenario(scenario).with_options(law=law, memory=memory, noise=noise,
                                               delay=delay, seed=seed, trials=trials)
-    return RunConfig(sc, mode, gap, monitored, timeout, links)
+    return RunConfig(sc, mode, gap, monitored, timeout, links, run_id)

@@ -29,7 +29,7 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
-from .scenario import Scenario, ScenarioError, scenario_from_data
+from .scenario import Scenario, ScenarioError, parse_yaml, scenario_from_data
 from .uncertainty import Harmonic, Uncertainty
 
 if TYPE_CHECKING:
@@ -99,7 +99,10 @@ def apply_fields(scenario_text: str, fields: dict[str, Any], source: str = "<stu
 
     Raises ScenarioError naming ``source`` and the scenario field if a value is invalid.
     """
-    data = scenario_data(scenario_text)
+    try:
+        data = scenario_data(scenario_text)
+    except ScenarioError as exc:
+        raise ScenarioError(str(exc).replace("<study scenario>", source, 1)) from None
     if not isinstance(data, dict):
         raise ScenarioError(f"{source}: the scenario is not a mapping")
     data = copy.deepcopy(data)
@@ -119,9 +122,10 @@ def apply_fields(scenario_text: str, fields: dict[str, Any], source: str = "<stu
 
 @lru_cache(maxsize=8)
 def scenario_data(scenario_text: str) -> Any:
-    """``yaml.safe_load`` of a study's scenario text, once per process (a study parses its
-    one scenario for every configuration). Shared: callers copy before editing."""
-    return yaml.safe_load(scenario_text)
+    """The data of a study's scenario text as the scenario loader reads it
+    (``scenario.parse_yaml``), once per process (a study parses its one scenario for every
+    configuration). Shared: callers copy before editing."""
+    return parse_yaml(scenario_text, "<study scenario>")
 
 
 def scenario_text_with(scenario_text: str, fields: dict[str, Any]) -> str:

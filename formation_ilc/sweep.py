@@ -46,7 +46,15 @@ from typing import Any
 import numpy as np
 import yaml
 
-from .scenario import ScenarioError, _Fields, builtin_scenarios, load_scenario
+from .scenario import (
+    ScenarioError,
+    _Fields,
+    builtin_scenarios,
+    load_scenario,
+    parse_yaml,
+    read_text_file,
+    show,
+)
 from .study import (
     CHECK_COLUMNS,
     FIELDS,
@@ -105,9 +113,13 @@ class SweepSpec:
                 for ci, cfg in enumerate(self.configs)]
 
 
+#: most points (configurations x seeds) a spec may expand to: its table is built in memory
+MAX_POINTS = 1_000_000
+
+
 def _value_list(f: _Fields, key: str, v: Any) -> list[Any]:
     if not isinstance(v, list) or not v:
-        raise f.fail(key, f"expected a non-empty list of values, got {v!r}")
+        raise f.fail(key, f"expected a non-empty list of values, got {show(v)}")
     return v
 
 
@@ -139,10 +151,7 @@ def _draw(f: _Fields, key: str, dist: Any, rng: np.random.Generator, count: int)
 def spec_from_text(text: str, source: str = "<spec>", base_dir: Path | None = None
                    ) -> SweepSpec:
     """Parse and validate a sweep spec; ScenarioError names the file, the field and why."""
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ScenarioError(f"{source}: not valid YAML: {exc}") from None
+    data = parse_yaml(text, source)
     top = _Fields(data, "", source)
     scen = top.string("scenario")
     path = Path(scen) if base_dir is None or Path(scen).is_absolute() else base_dir / scen
@@ -162,6 +171,8 @@ def spec_from_text(text: str, source: str = "<spec>", base_dir: Path | None = No
         sf = top.sub("seeds")
         first = sf.integer("first", 1, minimum=0)
         count = sf.integer("count", minimum=1)
+        if count > MAX_POINTS:
+            raise sf.fail("count", f"at most {MAX_POINTS} seeds, got {count}")
         sf.finish()
         seeds = tuple(range(first, first + count))
     elif isinstance(seeds_raw, list) and seeds_raw:
@@ -172,7 +183,8 @@ def spec_from_text(text: str, source: str = "<spec>", base_dir: Path | None = No
             raise top.fail("seeds", "a seed is listed twice")
         seeds = tuple(seeds_raw)
     else:
-        raise top.fail("seeds", f"expected a list of seeds or {{first, count}}, got {seeds_raw!r}")
+        raise top.fail("seeds", f"expected a list of seeds or {{first, count}}, got "
+                                f"{show(seeds_raw)}")
     pos_level = top.number("position_level", 1.0, positive=True)
     head_level = top.number("heading_level", 0.1, positive=True, angle=True)
     floor_window = top.integer("floor_window", min(100, trials), minimum=1)
@@ -198,10 +210,17 @@ def spec_from_text(text: str, source: str = "<spec>", base_dir: Path | None = No
         gf.finish()
         if not fields:
             raise top.fail("grid", "vary at least one field")
+        size = math.prod(len(c) for c in columns) * len(seeds)
+        if size > MAX_POINTS:
+            raise top.fail("grid", f"{size} points (every combination x {len(seeds)} seeds) "
+                                   f"is more than the {MAX_POINTS} a sweep may have")
         configs = [dict(zip(fields, combo, strict=True)) for combo in itertools.product(*columns)]
     else:
         rf = top.sub("random")
         count = rf.integer("count", minimum=1)
+        if count * len(seeds) > MAX_POINTS:
+            raise rf.fail("count", f"{count} draws x {len(seeds)} seeds is more than the "
+                                   f"{MAX_POINTS} points a sweep may have")
         rng = np.random.default_rng(rf.integer("seed", 0, minimum=0))
         ff = rf.sub("fields")
         draws = []
@@ -255,11 +274,7 @@ def _describe(cfg: dict[str, Any]) -> str:
 
 def load_spec(path: str | Path) -> SweepSpec:
     p = Path(path)
-    try:
-        text = p.read_text()
-    except OSError as exc:
-        raise ScenarioError(f"{p}: cannot read: {exc.strerror}") from None
-    return spec_from_text(text, str(p), p.parent)
+    return spec_from_text(read_text_file(p, what="a sweep spec"), str(p), p.parent)
 
 
 # --------------------------------------------------------------------------- storage

@@ -129,12 +129,63 @@ def unicycle_reference(v: Callable[[NDArray[np.float64]], NDArray[np.float64]],
                        substeps: int = 32) -> NDArray[np.float64]:
     """The path of a continuous-time unicycle driven by v(t), w(t), sampled at t = 0..M-1.
 
-    v, w : callables of the (fractional) sample index t, [m/s] and [rad/s]. The leader is
-    virtual, so it moves in continuous time: integrating it with one Euler step per sample
-    would keep it still for a whole sample after a standing start (v(0) = 0) and the
-    formation's first step would then be pure shape change, sideways or backwards.
-    Returns r, shape (M, 3).
+    v, w : callables of the (fractional) sample index t, [m/s] and [rad/s], elementwise on
+    arrays. The leader is virtual, so it moves in continuous time: integrating it with one
+    Euler step per sample would keep it still for a whole sample after a standing start
+    (v(0) = 0) and the formation's first step would then be pure shape change, sideways or
+    backwards. Classical RK4 with ``substeps`` steps per sample. Returns r, shape (M, 3).
+
+    Since v and w depend on time only, every RK4 stage of the heading is known in advance
+    and the position's stages follow from the headings: the steps are computed as arrays
+    and summed in order (``np.add.accumulate``), the same floating-point operations as a
+    step-by-step loop (``_unicycle_reference_loop``, which the tests compare bit for bit),
+    in chunks of bounded memory, about 1000 times faster.
     """
+    r = np.empty((n_samples, 3))
+    r[0] = start
+    h = 1.0 / substeps
+    s_ = np.array(r[0], dtype=float)
+    j = np.arange(substeps)
+    per_chunk = max(1, 65536 // substeps)
+
+    def at(f: Callable[[NDArray[np.float64]], NDArray[np.float64]],
+           t: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.broadcast_to(np.asarray(f(t), dtype=float), t.shape)
+
+    for k0 in range(0, n_samples - 1, per_chunk):
+        k = np.arange(k0, min(n_samples - 1, k0 + per_chunk))
+        t = (k[:, None] + j[None, :] * h).ravel()  # as the loop: k + j * h
+        v1, v2, v4 = at(v, t), at(v, t + h / 2), at(v, t + h)
+        w1, w2, w4 = dt * at(w, t), dt * at(w, t + h / 2), dt * at(w, t + h)
+        # heading: its stages depend on t only
+        inc = h / 6 * (w1 + 2 * w2 + 2 * w2 + w4)
+        th = np.add.accumulate(np.concatenate([[s_[2]], inc]))
+        th0 = th[:-1]
+        th2 = th0 + h / 2 * w1
+        th3 = th0 + h / 2 * w2
+        th4 = th0 + h * w2
+        out = [th[substeps::substeps]]
+        for c, fn in ((0, np.cos), (1, np.sin)):
+            k1 = dt * (fn(th0) * v1)
+            k2 = dt * (fn(th2) * v2)
+            k3 = dt * (fn(th3) * v2)
+            k4 = dt * (fn(th4) * v4)
+            pos = np.add.accumulate(np.concatenate([[s_[c]], h / 6 * (k1 + 2 * k2 + 2 * k3
+                                                                       + k4)]))
+            out.insert(c, pos[substeps::substeps])
+            s_[c] = pos[-1]
+        s_[2] = th[-1]
+        r[k + 1, 0], r[k + 1, 1], r[k + 1, 2] = out
+    return r
+
+
+def _unicycle_reference_loop(v: Callable[[NDArray[np.float64]], NDArray[np.float64]],
+                             w: Callable[[NDArray[np.float64]], NDArray[np.float64]],
+                             n_samples: int, dt: float,
+                             start: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                             substeps: int = 32) -> NDArray[np.float64]:
+    """``unicycle_reference`` step by step (the reference implementation it is tested
+    against; 1.5 ms per sample)."""
     r = np.empty((n_samples, 3))
     r[0] = start
     h = 1.0 / substeps

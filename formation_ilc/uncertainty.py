@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 
 from ._jit import njit
 from .delays import DelayModel
+from .links import LOST
 from .pcg import STATE_SIZE, next_double, seed_state, seed_words
 
 __all__ = ["Harmonic", "Uncertainty", "TrialDraws", "trial_rng", "PLANT_STREAM", "DELAY_STREAM",
@@ -38,6 +39,8 @@ __all__ = ["Harmonic", "Uncertainty", "TrialDraws", "trial_rng", "PLANT_STREAM",
 
 PLANT_STREAM = 0
 DELAY_STREAM = 1
+#: lost samples come from a stream of their own: a lossless scenario draws what it always did
+LOSS_STREAM = 2
 
 
 def trial_rng(seed: int, trial: int, stream: int) -> np.random.Generator:
@@ -75,6 +78,8 @@ class Uncertainty:
         half-widths of (Dv, Domega) [m/s, rad/s].
     noise_fixed / noise_uniform : the same for (Nx, Ny, Ntheta) [m, m, rad].
     delay : model of every link's delay; ``delay_leader`` whether the leader link is delayed.
+    link_loss : probability that a link loses a sample (it then delivers nothing at that
+        tick, ``links.LOST``); the leader link too when ``delay_leader``.
     """
 
     initial_shift: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -84,10 +89,16 @@ class Uncertainty:
     noise_uniform: tuple[float, float, float] = (0.0, 0.0, 0.0)
     delay: DelayModel = field(default_factory=DelayModel)
     delay_leader: bool = True
+    link_loss: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.link_loss < 1.0:
+            raise ValueError(f"link loss must be in [0, 1), got {self.link_loss}")
 
     def without_noise(self) -> Uncertainty:
         """No initial shift, disturbance or noise; delays kept."""
-        return Uncertainty(delay=self.delay, delay_leader=self.delay_leader)
+        return Uncertainty(delay=self.delay, delay_leader=self.delay_leader,
+                           link_loss=self.link_loss)
 
     def without_delay(self) -> Uncertainty:
         return Uncertainty(self.initial_shift, self.disturbance_fixed, self.disturbance_uniform,
@@ -113,7 +124,8 @@ class Uncertainty:
 
     def draw_delays(self, seed: int, trial: int, n: int, n_links: int, n_samples: int
                     ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-        """(tau of each in-link (n, L, T+1), tau of each leader link (n, T+1)) in samples."""
+        """(tau of each in-link (n, L, T+1), tau of each leader link (n, T+1)) in samples;
+        a lost sample's tau is ``links.LOST``."""
         tau = np.empty((n, n_links, n_samples + 1), dtype=np.int64)
         tau0 = np.empty((n, n_samples + 1), dtype=np.int64)
         fill_delays(seed_words(seed), _trial_index(trial), *delay_arrays(self),
@@ -133,8 +145,9 @@ def _trial_index(trial: int) -> int:
 PlantArrays = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
                     NDArray[np.float64], NDArray[np.float64]]
 #: (kind: 0 none, 1 fixed, 2 uniform, 3 table; the fixed delay; uniform low; uniform
-#: count high - low + 1; table values; table edges cumsum(probabilities)[:-1]; delay_leader)
-DelayArrays = tuple[int, int, int, int, NDArray[np.int64], NDArray[np.float64], bool]
+#: count high - low + 1; table values; table edges cumsum(probabilities)[:-1]; delay_leader;
+#: link_loss)
+DelayArrays = tuple[int, int, int, int, NDArray[np.int64], NDArray[np.float64], bool, float]
 
 
 @lru_cache(maxsize=64)
@@ -161,7 +174,8 @@ def delay_arrays(unc: Uncertainty) -> DelayArrays:
              ).astype(float)
     values.setflags(write=False)
     edges.setflags(write=False)
-    return (kind, d.samples, d.low, d.high - d.low + 1, values, edges, unc.delay_leader)
+    return (kind, d.samples, d.low, d.high - d.low + 1, values, edges, unc.delay_leader,
+            float(unc.link_loss))
 
 
 @njit(cache=True)
@@ -192,37 +206,42 @@ def fill_plant(seed: NDArray[np.uint32], trial: int, shift_w: NDArray[np.float64
 @njit(cache=True)
 def fill_delays(seed: NDArray[np.uint32], trial: int, kind: int, fixed: int, low: int,
                 count: int, values: NDArray[np.int64], edges: NDArray[np.float64],
-                leader: bool, state: NDArray[np.uint64], tau: NDArray[np.int64],
+                leader: bool, loss: float, state: NDArray[np.uint64], tau: NDArray[np.int64],
                 tau0: NDArray[np.int64]) -> None:
-    """The delay stream of one trial into tau (n, L, T+1) and tau0 (n, T+1), exactly as
-    ``Uncertainty.draw_delays``. Arguments after the trial: :func:`delay_arrays`."""
+    """The delay stream of one trial into tau (n, L, T+1) and tau0 (n, T+1), then the loss
+    stream, exactly as ``Uncertainty.draw_delays``. Arguments after the trial:
+    :func:`delay_arrays`."""
     if kind <= 1:  # none, fixed: nothing drawn
         tau[:] = 0 if kind == 0 else fixed
         tau0[:] = fixed if kind == 1 and leader else 0
-        return
-    seed_state(seed, trial, DELAY_STREAM, state)
-    # one number per delay, tau first, then tau0 (C order), as DelayModel.draw; the loops
-    # are written out per kind (a call per delay with the arrays costs 20 ns each)
-    flat = tau.reshape(-1)
-    for target in range(2):
-        if target == 1:
-            if not leader:
-                tau0[:] = 0
-                return
-            flat = tau0.reshape(-1)
-        if kind == 2:
+    else:
+        seed_state(seed, trial, DELAY_STREAM, state)
+        # one number per delay, tau first, then tau0 (C order), as DelayModel.draw; the
+        # loops are written out per kind (a call per delay with the arrays costs 20 ns each)
+        for target in range(2 if leader else 1):
+            flat = tau.reshape(-1) if target == 0 else tau0.reshape(-1)
+            if kind == 2:
+                for i in range(flat.shape[0]):
+                    flat[i] = low + min(int(next_double(state) * count), count - 1)
+            else:
+                n_edges = edges.shape[0]
+                for i in range(flat.shape[0]):
+                    kappa = next_double(state)
+                    # np.searchsorted(edges, kappa, side="right") on sorted edges: how many
+                    # are <= kappa; counted without branches (a random branch mispredicts)
+                    idx = 0
+                    for e in range(n_edges):
+                        idx += edges[e] <= kappa
+                    flat[i] = values[idx]
+        if not leader:
+            tau0[:] = 0
+    if loss > 0.0:  # tau[random < loss] = LOST, then tau0 likewise if the leader link is
+        seed_state(seed, trial, LOSS_STREAM, state)
+        for target in range(2 if leader else 1):
+            flat = tau.reshape(-1) if target == 0 else tau0.reshape(-1)
             for i in range(flat.shape[0]):
-                flat[i] = low + min(int(next_double(state) * count), count - 1)
-        else:
-            n_edges = edges.shape[0]
-            for i in range(flat.shape[0]):
-                kappa = next_double(state)
-                # np.searchsorted(edges, kappa, side="right") on sorted edges: how many are
-                # <= kappa; counted without branches (a random branch mispredicts)
-                idx = 0
-                for e in range(n_edges):
-                    idx += edges[e] <= kappa
-                flat[i] = values[idx]
+                if next_double(state) < loss:
+                    flat[i] = LOST
 
 
 @dataclass(frozen=True)

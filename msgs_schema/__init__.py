@@ -85,6 +85,7 @@ from std_msgs.msg import String
 from formation_ilc.clock import Malformed, SampleClock
 from formation_ilc.links import LEADER, link_name, robot_name
 from formation_ilc.links import robot_number as robot_index
+from formation_ilc.schedule import ABORT, DONE, END, START
 
 __all__ = [
     "NAMESPACE", "CONFIG", "REFERENCE", "TRIAL_EVENTS", "READY", "DIAGNOSTICS", "CLOCK",
@@ -95,8 +96,8 @@ __all__ = [
     "MalformedMessage", "topic_table",
     "SampleClock", "stamp_to_ns", "ns_to_stamp", "pose_to_msg", "msg_to_pose", "u_to_twist",
     "twist_to_u", "world_pose", "trajectory_to_path", "path_to_trajectory", "link_tick_to_msg",
-    "msg_to_link_tick", "json_to_msg", "msg_to_json", "clock_msg",
-    "START", "END", "DONE",
+    "msg_to_link_tick", "json_to_msg", "msg_to_json", "json_int", "deserialize", "clock_msg",
+    "START", "END", "ABORT", "DONE",
     "DriverSpec", "DRIVERS", "DRIVER_CMD_QOS", "ODOM_QOS", "BRIDGE_PREFIX", "bridge_name",
     "odometry_to_pose", "odometry_msg", "driver_twist",
 ]
@@ -114,8 +115,8 @@ CLOCK = "/clock"
 WORLD_FRAME = "map"
 #: sender name of the leader's reference (link names ``leader->robot_i``)
 LEADER_FRAME = LEADER
-#: trial events (``event`` field of the JSON on TRIAL_EVENTS)
-START, END, DONE = "start", "end", "done"
+#: trial events (``event`` field of the JSON on TRIAL_EVENTS): START, END, ABORT, DONE,
+#: defined with the protocol (slots, aborts, ready) in ``formation_ilc.schedule``
 
 
 def pose_topic(i: int) -> str:
@@ -285,7 +286,12 @@ def driver_twist(v: float, omega: float, stamped: bool, stamp_ns: int = 0,
 # --------------------------------------------------------------------------- time labels
 
 def stamp_to_ns(stamp: Time) -> int:
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    """[ns] of a stamp; MalformedMessage if ``nanosec`` is outside [0, 1e9) (a stamp from
+    raw bytes). A negative ``sec`` gives a negative time, which every label check refuses."""
+    nsec = int(stamp.nanosec)
+    if not 0 <= nsec < 1_000_000_000:
+        raise MalformedMessage(f"stamp nanosec {nsec} outside [0, 1e9)")
+    return int(stamp.sec) * 1_000_000_000 + nsec
 
 
 def ns_to_stamp(ns: int, out: Time | None = None) -> Time:
@@ -436,6 +442,26 @@ def msg_to_link_tick(msg: Path) -> tuple[int, PoseStamped | None]:
 
 # --------------------------------------------------------------------------- JSON strings
 
+def deserialize(data: bytes, cls: Any) -> Any:
+    """The message of type ``cls`` in CDR bytes (a raw subscription, a recording);
+    MalformedMessage if they do not decode."""
+    from rclpy.serialization import deserialize_message
+
+    try:
+        return deserialize_message(bytes(data), cls)
+    except (RuntimeError, ValueError, TypeError) as exc:  # rclpy's RMWError is a RuntimeError
+        raise MalformedMessage(f"undecodable {cls.__name__}: {exc}"[:200]) from None
+
+
+def json_int(data: dict[str, Any], key: str) -> int:
+    """The integer ``data[key]``; MalformedMessage if absent or not an integer (JSON
+    ``true``, ``1.5`` and ``"3"`` are not trial numbers)."""
+    v = data.get(key)
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise MalformedMessage(f"{key!r} is not an integer: {v!r}"[:200])
+    return v
+
+
 def json_to_msg(data: dict[str, Any]) -> String:
     return String(data=json.dumps(data, separators=(",", ":")))
 
@@ -444,8 +470,8 @@ def msg_to_json(msg: String, required: Sequence[str] = ()) -> dict[str, Any]:
     """The JSON object in a String; MalformedMessage if it is not one or lacks a key."""
     try:
         data = json.loads(msg.data)
-    except (ValueError, TypeError) as exc:
-        raise MalformedMessage(f"not JSON: {exc}") from None
+    except (ValueError, TypeError, RecursionError) as exc:  # nesting beyond the parser's
+        raise MalformedMessage(f"not JSON: {exc}"[:200]) from None
     if not isinstance(data, dict):
         raise MalformedMessage("JSON is not an object")
     missing = [k for k in required if k not in data]

@@ -20,9 +20,17 @@ truth, for the metrics' ``true_`` columns) and its timing on ``diagnostics``.
   (p50/p90/p99/max over every command), the all-in latency per sample, and how late the
   timer itself fired.
 
+Trials follow the leader's events (``formation_ilc.schedule``): ``start`` names the
+iteration (whose plant stream is drawn) and the slot (whose labels the poses carry); on
+``abort`` the simulator drops the trial and reports ready.
+
 The links between robots are not part of the plant: with ``links: emulated`` the link
 emulator (``formation-ilc-links``) is its own process; with ``links: direct`` the robots
 talk to each other.
+
+A ``start`` event is obeyed only for the trial after the current one, once the simulator
+has said ready for it and is not inside a trial; any other (a replay, a later trial, a
+second start) is dropped and counted (``dropped`` in its diagnostics).
 
 Parameters: ``timeout`` [s] (lockstep; default: the run configuration's). The run
 configuration comes from the latched ``config`` topic.
@@ -82,8 +90,10 @@ class SimNode(ConfiguredNode):
         self.xi = np.zeros((n, n_t + 1, 3))
         self.eta = np.zeros((n, n_t + 1, 3))
         self.u = np.zeros((n, n_t, 2))
-        self.k = -1
+        self.k = -1            # slot of the current (or last) trial
+        self.iteration = -1    # its iteration
         self.t = -1
+        self.ready_for = -1               # the trial this node last said ready for
         self.pending: set[int] = set()
         self.in_trial = False
         self.wait_start = 0.0
@@ -125,24 +135,47 @@ class SimNode(ConfiguredNode):
         need += [(p, int(self.cfg.monitored)) for p in self.true_pubs]
         if matched(need):
             self._gate.cancel()
-            self.ready_pub.publish(ms.json_to_msg({"node": NAME, "trial": 0}))
+            self._say_ready(0)
+
+    def _say_ready(self, trial: int) -> None:
+        self.ready_for = trial
+        self.ready_pub.publish(self.ready_msg(trial))
 
     def _on_event(self, msg: String) -> None:
-        try:
-            ev = ms.msg_to_json(msg, ("event", "trial"))
-            k = int(ev["trial"])
-        except (ms.MalformedMessage, TypeError, ValueError) as exc:
-            self.drops.drop("malformed", "trial_events", str(exc))
+        ev = self.trial_event(msg)
+        if ev is None or ev.event not in (ms.START, ms.ABORT):
             return
-        if ev["event"] != ms.START:
+        if ev.seq <= self.seen:
+            if ev.event == ms.START:
+                self.drops.drop("stale", ms.TRIAL_EVENTS, f"start seq {ev.seq} again")
+            return  # a repeated abort, already answered
+        if ev.event == ms.ABORT:
+            self.seen = ev.seq
+            if ev.slot == self.k:
+                self.in_trial = False
+                self.pending = set()
+                if self.realtime:
+                    self._tick.cancel()
+            if self._gate.is_canceled():
+                self._say_ready(self.iteration + 1)
             return
-        if k <= self.k or self.in_trial:
-            self.drops.drop("stale", "trial_events", f"start of trial {k} in trial {self.k}")
+        # the next slot (any, for a process that has just started: the leader may have
+        # aborted slots meanwhile), between trials, once this node said ready
+        if ev.slot > self.k + 1 and self.k >= 0:
+            self.drops.drop("future", ms.TRIAL_EVENTS, f"start of slot {ev.slot} in {self.k}")
             return
-        self.k = k
+        if ev.slot <= self.k or self.in_trial or self.ready_for <= self.iteration:
+            self.drops.drop("stale" if ev.slot <= self.k else "unexpected", ms.TRIAL_EVENTS,
+                            f"start of slot {ev.slot} in slot {self.k}"
+                            f"{' (running)' if self.in_trial else ''}")
+            return
+        self.seen = ev.seq
+        self.k = ev.slot
+        self.iteration = ev.trial
         pb = self.pb
-        shift, self.dist, self.noise = self.unc.draw_plant(self.cfg.scenario.seed, k, pb.n,
-                                                           pb.samples)
+        # the plant stream of the iteration, as the batch simulator draws it
+        shift, self.dist, self.noise = self.unc.draw_plant(self.cfg.scenario.seed, ev.trial,
+                                                           pb.n, pb.samples)
         self.xi[:, 0] = pb.eta_d[:, 0] + shift
         self.u[:] = 0.0
         self.t = 0
@@ -170,7 +203,7 @@ class SimNode(ConfiguredNode):
                                                                 ms.WORLD_FRAME))
             self.trial_time += time.perf_counter() - self.trial_t0
             self.samples_done += self.T
-            d = {"node": NAME, "trial": k, "mode": self.cfg.mode,
+            d = {"node": NAME, "trial": self.iteration, "slot": k, "mode": self.cfg.mode,
                  "missed": dict(self.missed), "timing": self._timing()}
             d.update(self.drops.as_dict())
             self.diag_pub.publish(ms.json_to_msg(d))
@@ -179,7 +212,7 @@ class SimNode(ConfiguredNode):
             self.pose_pubs[r].publish(ms.pose_to_msg(self.eta[r, t], ns, ms.WORLD_FRAME,
                                                      self.pose_msgs[r]))
         if t == self.T:
-            self.ready_pub.publish(ms.json_to_msg({"node": NAME, "trial": k + 1}))
+            self._say_ready(self.iteration + 1)
             return
         self.pending = set(range(self.n))
         self.wait_start = time.perf_counter()

@@ -6,12 +6,12 @@ from __future__ import annotations
 import itertools
 import os
 from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 
+from formation_ilc.shm import clean_leftovers, fastdds_files
+
 _counter = itertools.count()
-SHM = Path("/dev/shm")
 
 
 def next_domain_id() -> int:
@@ -19,41 +19,9 @@ def next_domain_id() -> int:
     return 30 + (os.getpid() * 13 + next(_counter)) % 71
 
 
-def _in_use() -> set[str]:
-    """Shared-memory paths some live process has mapped or open."""
-    used: set[str] = set()
-    for pid in os.listdir("/proc"):
-        if not pid.isdigit():
-            continue
-        try:
-            with open(f"/proc/{pid}/maps") as fh:
-                used.update(line.split()[-1] for line in fh if "/dev/shm/" in line)
-            for fd in os.listdir(f"/proc/{pid}/fd"):
-                try:
-                    target = os.readlink(f"/proc/{pid}/fd/{fd}")
-                except OSError:
-                    continue
-                if target.startswith("/dev/shm/"):
-                    used.add(target)
-        except OSError:
-            continue
-    return used
-
-
 def clean_shm(before: set[str]) -> list[str]:
     """Remove fastrtps_* files created since ``before`` that no live process holds."""
-    new = {str(p) for p in SHM.glob("*fastrtps_*")} - before
-    if not new:
-        return []
-    used = _in_use()
-    removed = []
-    for p in sorted(new - used):
-        try:
-            os.unlink(p)
-            removed.append(p)
-        except OSError:
-            pass
-    return removed
+    return clean_leftovers(fastdds_files() - before)
 
 
 @pytest.fixture
@@ -66,7 +34,7 @@ def ros_env(monkeypatch: pytest.MonkeyPatch) -> Iterator[dict[str, str]]:
     domain = next_domain_id()
     monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    before = {str(p) for p in SHM.glob("*fastrtps_*")}
+    before = fastdds_files()
     env = dict(os.environ)
     yield env
     clean_shm(before)

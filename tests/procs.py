@@ -23,8 +23,18 @@ def stop_group(proc: subprocess.Popen, first: int = signal.SIGINT, grace: float 
         proc.wait()
 
 
+def same_netns(pid: int | str) -> bool:
+    """Whether process ``pid`` is in this process's network namespace: a domain id names a
+    run only within one (other sessions may run the same id in namespaces of their own)."""
+    try:
+        return os.readlink(f"/proc/{pid}/ns/net") == os.readlink("/proc/self/ns/net")
+    except OSError:
+        return False
+
+
 def find_child(domain: str, needle: str, deadline: float) -> int:
-    """pid of a process of this test's domain whose command line contains ``needle``."""
+    """pid of a process of this test's domain (and network namespace) whose command line
+    contains ``needle``."""
     while time.monotonic() < deadline:
         for pid in os.listdir("/proc"):
             if not pid.isdigit():
@@ -34,7 +44,8 @@ def find_child(domain: str, needle: str, deadline: float) -> int:
                 envb = Path(f"/proc/{pid}/environ").read_bytes().split(b"\0")
             except OSError:
                 continue
-            if needle in cmd and f"ROS_DOMAIN_ID={domain}".encode() in envb:
+            if needle in cmd and f"ROS_DOMAIN_ID={domain}".encode() in envb \
+                    and same_netns(pid):
                 return int(pid)
         time.sleep(0.1)  # polling the process table, bounded by the deadline
     raise AssertionError(f"no process {needle!r} found")

@@ -61,6 +61,12 @@ def test_bridge_clamps_commands_and_zeroes_them_when_the_robot_is_silent(context
         spin_until(ex, lambda: len(got) >= n0 + 5)
         assert (time.monotonic() - t0) / 5 <= 0.1
 
+        # outside a trial a command is refused and counted: it would move the robot
+        # outside the protocol
+        pub.publish(ms.u_to_twist((0.3, 0.2)))
+        spin_until(ex, lambda: bridge.drops.counts["unexpected"] == 1)
+        assert got[-1][1:] == (0.0, 0.0)
+        bridge.phase = "trial"  # inside a trial (its start is tested with the fake driver)
         cmds = [(2.0, 3.0), (-1.0, -3.0), (0.3, 0.2)]
         want = [(0.5, math.radians(90)), (-0.5, -math.radians(90)), (0.3, 0.2)]
         for (v, w), (wv, ww) in zip(cmds, want, strict=True):

@@ -4,7 +4,8 @@ import subprocess
 import sys
 
 CORE = ["topology", "kinematics", "trajectory", "delays", "law", "uncertainty", "scenario",
-        "simulate", "checks", "plots", "cli", "study", "sweep", "tune"]
+        "simulate", "checks", "plots", "cli", "study", "sweep", "tune", "netns", "schedule",
+        "robotstate", "lifetime", "shm"]
 
 
 def test_core_imports_without_rclpy():

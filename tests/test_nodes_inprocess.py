@@ -140,15 +140,22 @@ def test_link_emulator_delivers_the_batch_simulators_delay_stream(context):
         shared = [tester.create_publisher(PoseStamped, ms.shared_pose_topic(j + 1),
                                           ms.SAMPLE_QOS) for j in range(pb.n)]
         ref = tester.create_publisher(PoseStamped, ms.REFERENCE, ms.SAMPLE_QOS)
-        spin_until(ex, lambda: all(p.get_subscription_count() >= 1 for p in [*shared, ref])
+        events = tester.create_publisher(String, ms.TRIAL_EVENTS, ms.SAMPLE_QOS)
+        spin_until(ex, lambda: all(p.get_subscription_count() >= 1
+                                   for p in [*shared, ref, events])
                    and all(sub.get_publisher_count() >= 1 for sub in subs))
         ticks = 8
-        for t in range(ticks):
+        # a hostile pose labelled with a later trial: dropped, it moves nothing
+        shared[1].publish(ms.pose_to_msg(pb.eta_d[1, 0], clock.stamp_ns(5, 0),
+                                         ms.WORLD_FRAME))
+        events.publish(ms.json_to_msg({"event": ms.START, "trial": 0, "slot": 0, "seq": 0}))
+        for t in range(ticks):  # lockstep: sample t+1 exists once tick t is delivered
             ns = clock.stamp_ns(0, t)
             for j in range(pb.n):
                 shared[j].publish(ms.pose_to_msg(pb.eta_d[j, t], ns, ms.WORLD_FRAME))
             ref.publish(ms.pose_to_msg(sc.reference[t], ns, ms.WORLD_FRAME))
-        spin_until(ex, lambda: all(len(got.get(f"{s}->{i}", [])) == ticks for i, s in links))
+            spin_until(ex, lambda t=t: all(len(got.get(f"{s}->{i}", [])) == t + 1
+                                           for i, s in links))
         tau, tau0 = sc.uncertainty.draw_delays(sc.seed, 0, pb.n, pb.src.shape[1], pb.samples)
         for i, sender in links:
             r = i - 1
@@ -158,6 +165,7 @@ def test_link_emulator_delivers_the_batch_simulators_delay_stream(context):
                     for t in range(ticks)]
             assert got[f"{sender}->{i}"] == want, sender
         assert any(p is None for _, p in got["robot_1->2"])  # the early ticks carry nothing
+        assert emu.k == 0 and emu.drops.counts["future"] == 1
     finally:
         ex.shutdown()
         emu.destroy_node()

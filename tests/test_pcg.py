@@ -12,10 +12,17 @@ import pytest
 from numba import njit
 
 from formation_ilc.delays import DelayModel
+from formation_ilc.links import LOST
 from formation_ilc.pcg import STATE_SIZE, next_double, next_uint64, seed_state, seed_words
 from formation_ilc.scenario import load_scenario
 from formation_ilc.simulate import METRIC_COLUMNS, Problem, run_trial, simulate, trial_errors
-from formation_ilc.uncertainty import DELAY_STREAM, PLANT_STREAM, Harmonic, Uncertainty
+from formation_ilc.uncertainty import (
+    DELAY_STREAM,
+    LOSS_STREAM,
+    PLANT_STREAM,
+    Harmonic,
+    Uncertainty,
+)
 
 SEEDS = (0, 1, 7, 2**31 + 5, 2**32 - 1, 2**32, 2**40 + 3, 2**63 - 1, 2**64 + 17, 2**100 + 9)
 
@@ -86,6 +93,11 @@ def _numpy_delays(u: Uncertainty, seed: int, trial: int, n: int, n_links: int, n
     tau = u.delay.draw(rng, (n, n_links, n_t + 1))
     tau0 = (u.delay.draw(rng, (n, n_t + 1)) if u.delay_leader
             else np.zeros((n, n_t + 1), dtype=np.int64))
+    if u.link_loss > 0.0:
+        lrng = np.random.default_rng([seed, trial, LOSS_STREAM])
+        tau[lrng.random(tau.shape) < u.link_loss] = LOST
+        if u.delay_leader:
+            tau0[lrng.random(tau0.shape) < u.link_loss] = LOST
     return tau, tau0
 
 
@@ -100,8 +112,9 @@ MODELS = [DelayModel(), DelayModel("fixed", samples=3), DelayModel("uniform", lo
 
 @pytest.mark.parametrize("model", MODELS, ids=lambda m: f"{m.kind}-{m.values or m.high}")
 @pytest.mark.parametrize("leader", [True, False])
-def test_compiled_draws_follow_the_numpy_contract(model, leader):
-    u = dataclasses.replace(BASE, delay=model, delay_leader=leader)
+@pytest.mark.parametrize("loss", [0.0, 0.3])
+def test_compiled_draws_follow_the_numpy_contract(model, leader, loss):
+    u = dataclasses.replace(BASE, delay=model, delay_leader=leader, link_loss=loss)
     for seed, trial, n, n_links, n_t in ((3, 0, 2, 4, 5), (2**40 + 3, 17, 6, 1, 300),
                                          (0, 2**33, 3, 0, 7)):
         for got, ref in zip(u.draw_plant(seed, trial, n, n_t),
@@ -110,10 +123,12 @@ def test_compiled_draws_follow_the_numpy_contract(model, leader):
             np.testing.assert_array_equal(got, ref)
             # bit for bit, signed zeros too (0 * a negative draw)
             assert got.tobytes() == ref.tobytes()
-        for got, ref in zip(u.draw_delays(seed, trial, n, n_links, n_t),
-                            _numpy_delays(u, seed, trial, n, n_links, n_t), strict=True):
+        refs = _numpy_delays(u, seed, trial, n, n_links, n_t)
+        for got, ref in zip(u.draw_delays(seed, trial, n, n_links, n_t), refs, strict=True):
             assert got.shape == ref.shape and got.dtype == ref.dtype == np.int64
             np.testing.assert_array_equal(got, ref)
+        if loss and refs[0].size > 100:
+            assert (refs[0] == LOST).any()  # the loss stream was drawn
     with pytest.raises(ValueError):
         u.draw_plant(1, -1, 2, 3)
 
@@ -141,11 +156,14 @@ def _reference_run(sc, trials: int, first: int = 0):
     return metrics, memory, xi
 
 
-@pytest.mark.parametrize("name, law, memory, seed", [
-    ("paper-hexagon6", 9, "feedforward", 1), ("paper-hexagon6", 23, "literal", 2**40 + 3),
-    ("paper-triangle3", 22, "feedforward", 0), ("paper-triangle3", 9, "literal", 5)])
-def test_simulate_equals_numpy_draws_and_single_trials(name, law, memory, seed):
+@pytest.mark.parametrize("name, law, memory, seed, loss", [
+    ("paper-hexagon6", 9, "feedforward", 1, 0.0), ("paper-hexagon6", 23, "literal", 2**40 + 3, 0.0),
+    ("paper-triangle3", 22, "feedforward", 0, 0.0), ("paper-triangle3", 9, "literal", 5, 0.0),
+    ("paper-hexagon6", 9, "feedforward", 2, 0.2)])
+def test_simulate_equals_numpy_draws_and_single_trials(name, law, memory, seed, loss):
     sc = load_scenario(name).with_options(law=law, memory=memory, seed=seed)
+    sc = dataclasses.replace(sc, uncertainty=dataclasses.replace(sc.uncertainty,
+                                                                 link_loss=loss))
     ref_m, ref_mem, ref_xi = _reference_run(sc, 7, first=3)
     fast = simulate(sc, trials=7, first_trial=3)  # every trial in one compiled call
     assert fast.metrics.tobytes() == ref_m.tobytes()

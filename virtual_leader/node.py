@@ -22,12 +22,26 @@ nodes_expected : list of node names that must report ready before a trial starts
     wallclock every robot_i and bridge_i).
 monitored : bool
     A monitor (the launcher) reads trajectories: nodes wait for it before trial 0.
+state_dir : str
+    Where the leader keeps its schedule (``leader.json``, written atomically at each
+    change). A leader restarted with the same parameters aborts the trial it left open and
+    goes on from the last one every robot learned. Empty: no state file.
+run_id : str
+    Identity of the run, carried in the configuration: nodes of another run on the same
+    domain and namespace are refused (see ``formation-ilc launch``).
 
 The leader publishes the configuration on ``config`` (latched), waits until every node has
 reported ready for trial k, publishes ``start`` k on ``leader/trial_events``, then follows
 ``/clock``: at each sample t of the trial it broadcasts r(t) on ``leader/reference`` (in the
 world frame, stamped with the sample's label), and at t = T ``end`` k. After the last trial
-it publishes ``done``.
+it publishes ``done``. When a node restarts during a trial, the leader aborts that trial
+and runs it again in the next slot of the label grid (``formation_ilc.schedule``: the
+protocol, slots and aborts).
+
+What it accepts (the rest is dropped and counted, with the reason, in its own
+``diagnostics`` at each trial's end): ready messages from the nodes it waits for, for a
+trial no later than the next one (the monitor and the recorder say ready once for the whole
+run); ``/clock`` of the trial it started, in order (lockstep: sample by sample).
 
 Wall-clock trials (``mode: wallclock``, real robots behind bridges; no node publishes
 ``/clock``): the ``start`` event carries ``start_wall_ns``, the wall time (Unix epoch, ns)
@@ -40,6 +54,7 @@ from __future__ import annotations
 
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 from geometry_msgs.msg import PoseStamped
@@ -50,14 +65,30 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 import msgs_schema as ms
-from formation_ilc.nodes.common import DropCounter, make_config, matched, node_parser, spin_main
+from formation_ilc.clock import Rejected
+from formation_ilc.nodes.common import (
+    DropCounter,
+    fail,
+    make_config,
+    matched,
+    node_parser,
+    spin_main,
+)
+from formation_ilc.schedule import Ready, Schedule, ScheduleError, TrialEvent
 from formation_ilc.wallclock import WallSchedule
+
+#: [s] how often an abort is repeated until every node has answered it
+ABORT_REPEAT = 1.0
+#: [s] the least time between the leader's start and the first trial (discovery)
+FIRST_START_WAIT = 2.0
+#: the leader's node name (its diagnostics name it)
+NAME = "virtual_leader"
 
 
 class LeaderNode(Node):
     def __init__(self, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
-        super().__init__("virtual_leader", **kwargs)
+        super().__init__(NAME, **kwargs)
         self.declare_parameter("scenario", "")
         self.declare_parameter("seed", -1)
         self.declare_parameter("trials", 0)
@@ -72,6 +103,8 @@ class LeaderNode(Node):
         self.declare_parameter("timeout", 30.0)
         self.declare_parameter("start_margin", 1.0)
         self.declare_parameter("nodes_expected", Parameter.Type.STRING_ARRAY)
+        self.declare_parameter("state_dir", "")
+        self.declare_parameter("run_id", "")
         g = lambda name: self.get_parameter(name).value  # noqa: E731
         if not g("scenario"):
             raise ValueError("parameter scenario: a scenario name or file is required")
@@ -81,7 +114,7 @@ class LeaderNode(Node):
             trials=int(g("trials")) or None, law=int(g("law")) or None,
             memory=str(g("memory")) or None, mode=str(g("mode")), gap=int(g("gap")),
             monitored=bool(g("monitored")), timeout=float(g("timeout")),
-            links=str(g("links")))
+            links=str(g("links")), run_id=str(g("run_id")))
         sc = self.cfg.scenario
         self.clock = self.cfg.clock
         self.T = sc.samples
@@ -98,15 +131,27 @@ class LeaderNode(Node):
         # who reads the reference: the link emulator, or each robot that sees the leader
         self.ref_readers = (int(sum(sc.graph.leader > 0)) if self.cfg.links == "direct"
                             else 1)
-        self.ready: dict[str, int] = {}
+        robots = {ms.robot_name(i + 1) for i in range(sc.n)}
+        self.sched = Schedule(self.expected, robots & set(self.expected), self.trials)
+        sdir = str(g("state_dir"))
+        self.state_file = Path(sdir) / "leader.json" if sdir else None
+        if self.state_file is not None and self.sched.restore(self.state_file):
+            self.get_logger().info(
+                f"continues from {self.state_file}: {self.sched.committed} trials learned"
+                + (f"; slot {self.sched.slot} was open and is aborted"
+                   if self.sched.abort_pending is not None else ""))
         self.drops = DropCounter(self)
-        self.k = -1          # last trial started
-        self.ended = -1      # last trial ended
+        self.done_sent = False
+        self._abort_sent = 0.0
+        self._born = time.monotonic()
+        self.t = -1          # last sample of the running slot whose reference went out
         self.ref_msg = PoseStamped()
         self.config_pub = self.create_publisher(String, ms.CONFIG, ms.LATCHED_QOS)
         self.ref_pub = self.create_publisher(PoseStamped, ms.REFERENCE, ms.SAMPLE_QOS)
         self.event_pub = self.create_publisher(String, ms.TRIAL_EVENTS, ms.SAMPLE_QOS)
+        self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         self.create_subscription(String, ms.READY, self._on_ready, ms.LATCHED_READER_QOS)
+        self.create_subscription(String, ms.CONFIG, self._on_config, ms.LATCHED_QOS)
         self.wall: WallSchedule | None = None
         if self.cfg.mode == "wallclock":
             self.margin_ns = int(float(g("start_margin")) * 1e9)
@@ -124,40 +169,108 @@ class LeaderNode(Node):
 
     def _on_ready(self, msg: String) -> None:
         try:
-            d = ms.msg_to_json(msg, ("node", "trial"))
-            name, trial = str(d["node"]), int(d["trial"])
-        except (ms.MalformedMessage, TypeError, ValueError) as exc:
-            self.drops.drop("malformed", "ready", str(exc))
+            r = Ready.from_json(ms.msg_to_json(msg))
+            if r.node not in self.expected:
+                raise Rejected("unexpected", f"ready from {r.node[:100]}, not waited for")
+            if r.run and r.run != self.cfg.run_id:
+                raise Rejected("foreign", f"{r.node} of run {r.run}")
+            # nobody can be ready for a trial after the next one (trial k+1 needs trial k);
+            # the monitor and the recorder say ready once for the whole run
+            if r.trial > self.sched.committed + 1 and not r.passive:
+                raise Rejected("future", f"{r.node} ready for {r.trial}, "
+                                         f"{self.sched.committed} trials learned")
+        except Rejected as exc:
+            self.drops.reject(exc, ms.READY)
             return
-        if name not in self.expected:
-            return
-        if trial < self.ready.get(name, -1):
-            self.drops.drop("stale", "ready", f"{name} ready for {trial}")
-            return
-        self.ready[name] = trial
+        why = self.sched.on_ready(r)
         self._last_change = time.monotonic()
+        if why is not None:
+            self.wall = None
+            self.get_logger().warning(f"trial {self.sched.committed} (slot "
+                                      f"{self.sched.slot}) aborted: {why}; it runs again")
+            self._publish_abort()
+        self._save()
         self._maybe_start()
 
+    def _on_config(self, msg: String) -> None:
+        """Another leader's configuration here: a second formation on this domain and
+        namespace. Refuse to start (before trial 0); an established run goes on."""
+        try:
+            d = ms.msg_to_json(msg)
+        except Rejected as exc:
+            self.drops.reject(exc, ms.CONFIG)
+            return
+        other = str(d.get("run_id", ""))
+        if other == self.cfg.run_id:
+            return
+        if self.sched.slot < 0:
+            fail(self, f"another formation (run {other or '?'}) publishes its configuration "
+                       f"on {self.get_namespace()}/{ms.CONFIG} in this ROS domain: refusing "
+                       f"to start a second one here (use another namespace or domain)",
+                 code=2)
+            return
+        self.drops.drop("foreign", ms.CONFIG, f"configuration of run {other or '?'}")
+
+    def _save(self) -> None:
+        self.sched.save(self.state_file)
+
+    def _publish_abort(self) -> None:
+        s = self.sched
+        assert s.abort_pending is not None
+        self._abort_sent = time.monotonic()
+        self.event_pub.publish(ms.json_to_msg(TrialEvent(
+            ms.ABORT, s.committed, s.abort_pending, s.seq, why=s.why,
+            run=self.cfg.run_id).to_json()))
+
     def _maybe_start(self) -> None:
-        nxt = self.k + 1
-        if self.ended != self.k or nxt > self.trials:
+        s = self.sched
+        if s.abort_pending is not None:
+            if not s.abort_done():
+                if time.monotonic() - self._abort_sent > ABORT_REPEAT and matched(
+                        [(self.event_pub, 1)]):
+                    self._publish_abort()  # a node that came back after it was sent
+                return
+            self._save()
+        if s.done:
+            if not self.done_sent:
+                self.done_sent = True
+                self.event_pub.publish(ms.json_to_msg(TrialEvent(
+                    ms.DONE, s.committed, s.slot + 1, s.seq, run=self.cfg.run_id).to_json()))
+                self._publish_diagnostics()
+                self.get_logger().info(f"done: {self.trials} trials")
             return
-        if any(self.ready.get(n, -1) < nxt for n in self.expected):
+        try:
+            nxt = s.next_start()
+        except ScheduleError as exc:
+            fail(self, str(exc))
             return
+        if nxt is None:
+            return
+        if s.slot < 0:
+            # before the first trial: give discovery time to show another formation's
+            # leader here (its configuration may not have reached us, its writer has)
+            if time.monotonic() - self._born < FIRST_START_WAIT:
+                return
+            if self.count_publishers(ms.CONFIG) > 1:
+                fail(self, f"another formation's leader publishes on "
+                           f"{self.get_namespace()}/{ms.CONFIG} in this ROS domain: refusing "
+                           f"to start a second one here (use another namespace or domain)",
+                     code=2)
+                return
         if not matched([(self.ref_pub, self.ref_readers), (self.event_pub, 1)]):
             return
-        if nxt == self.trials:
-            self.event_pub.publish(ms.json_to_msg({"event": ms.DONE, "trial": nxt}))
-            self.k = nxt
-            self.get_logger().info(f"done: {self.trials} trials")
-            return
-        self.k = nxt
-        event = {"event": ms.START, "trial": nxt, "stamp_ns": self.clock.stamp_ns(nxt, 0)}
+        i, q = nxt
+        seq = s.started(q)
+        self.t = -1
+        self._save()
+        wall_ns = None
         if self.cfg.mode == "wallclock":
             self.wall = WallSchedule(time.time_ns() + self.margin_ns, self.clock.dt_ns,
                                      self.T)
-            event["start_wall_ns"] = self.wall.start_ns
-        self.event_pub.publish(ms.json_to_msg(event))
+            wall_ns = self.wall.start_ns
+        self.event_pub.publish(ms.json_to_msg(TrialEvent(
+            ms.START, i, q, seq, self.clock.stamp_ns(q, 0), wall_ns,
+            run=self.cfg.run_id).to_json()))
 
     def _on_wall_timer(self) -> None:
         """wallclock: r(t) for each sample due on the wall clock (the newest one if the
@@ -167,7 +280,7 @@ class LeaderNode(Node):
         t = self.wall.due(time.time_ns())
         if t is None:
             return
-        k = self.k
+        k = self.sched.slot
         ns = self.clock.stamp_ns(k, t)
         self._last_t = t
         self._last_change = time.monotonic()
@@ -175,41 +288,62 @@ class LeaderNode(Node):
                                             ms.WORLD_FRAME, self.ref_msg))
         if t == self.T:
             self.wall = None
-            self.ended = k
-            self.event_pub.publish(ms.json_to_msg({"event": ms.END, "trial": k}))
-            self._maybe_start()
+            self._end(k)
+
+    def _end(self, slot: int) -> None:
+        s = self.sched
+        self.event_pub.publish(ms.json_to_msg(TrialEvent(ms.END, s.committed, slot, s.seq,
+                                                         run=self.cfg.run_id).to_json()))
+        s.ended(slot)
+        self._save()
+        self._publish_diagnostics()
+        self._maybe_start()
 
     def _report_wait(self) -> None:
         """Say whom the schedule waits for when it has not moved for a while."""
-        if time.monotonic() - self._last_change < 5.0 or self.k >= self.trials:
+        s = self.sched
+        if time.monotonic() - self._last_change < 5.0 or s.done:
             return
-        nxt = self.k + 1
-        if self.ended != self.k:
-            self.get_logger().warning(f"trial {self.k} has not ended (last clock: "
-                                      f"{getattr(self, '_last_t', None)})")
+        if s.running:
+            self.get_logger().warning(f"trial {s.committed} (slot {s.slot}) has not ended "
+                                      f"(last clock: {getattr(self, '_last_t', None)})")
             return
-        late = [n for n in self.expected if self.ready.get(n, -1) < nxt]
-        self.get_logger().warning(f"trial {nxt} waits for ready from {', '.join(late)}"
-                                  if late else f"trial {nxt}: waiting for readers")
+        late = s.waiting_for()
+        what = "the abort's answer" if s.abort_pending is not None else "ready"
+        self.get_logger().warning(f"trial {s.committed} waits for {what} from "
+                                  f"{', '.join(late)}" if late
+                                  else f"trial {s.committed}: waiting for readers")
+
+    def _publish_diagnostics(self) -> None:
+        d: dict[str, Any] = {"node": NAME, "trial": self.sched.committed,
+                             "slot": self.sched.slot}
+        d.update(self.drops.as_dict())
+        self.diag_pub.publish(ms.json_to_msg(d))
 
     def _on_clock(self, msg: Clock) -> None:
-        ns = ms.stamp_to_ns(msg.clock)  # not now(): see notes on /clock callbacks
         try:
+            ns = ms.stamp_to_ns(msg.clock)  # not now(): see notes on /clock callbacks
             k, t = self.clock.decode(ns)
-        except ms.MalformedMessage as exc:
-            self.drops.drop("malformed", "clock", str(exc))
+            if k != self.sched.slot or not self.sched.running:
+                raise Rejected("stale" if k <= self.sched.slot else "future",
+                               f"time of slot {k}, slot {self.sched.slot} "
+                               f"{'runs' if self.sched.running else 'is over'}")
+            if t == self.t:
+                raise Rejected("duplicate", f"time of sample {t} again")
+            if t < self.t:
+                raise Rejected("out_of_order", f"sample {t} after {self.t}")
+            if self.cfg.mode == "lockstep" and t > self.t + 1:
+                raise Rejected("future", f"sample {t} while {self.t + 1} is due")
+        except Rejected as exc:
+            self.drops.reject(exc, "clock")
             return
-        if k != self.k:
-            self.drops.drop("stale", "clock", f"time of trial {k} in trial {self.k}")
-            return
+        self.t = t
         self._last_t = t
         self._last_change = time.monotonic()
         ref = self.cfg.scenario.reference[t]
         self.ref_pub.publish(ms.pose_to_msg(ref, ns, ms.WORLD_FRAME, self.ref_msg))
-        if t == self.T and k > self.ended:
-            self.ended = k
-            self.event_pub.publish(ms.json_to_msg({"event": ms.END, "trial": k}))
-            self._maybe_start()
+        if t == self.T:
+            self._end(k)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -6,8 +6,10 @@ The run configuration itself (``formation_ilc.runconfig.RunConfig``) is part of 
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
+import uuid
 from collections import Counter
 from collections.abc import Callable, Iterable
 from typing import Any
@@ -22,12 +24,17 @@ from std_msgs.msg import String
 
 import msgs_schema as ms
 from formation_ilc.clock import REASONS, Rejected
+from formation_ilc.lifetime import PARENT_ENV, die_with_parent
 from formation_ilc.runconfig import RunConfig, make_config
+from formation_ilc.schedule import Ready, TrialEvent
 from formation_ilc.simulate import Problem
 
-__all__ = ["DROP_REASONS", "DropCounter", "RunConfig", "make_config", "config_from_msg",
-           "ConfiguredNode", "warm_up", "matched", "fail", "spin_main", "node_parser", "ros_param",
-           "robot_node_from_args"]
+__all__ = ["PARENT_ENV", "DROP_REASONS", "DropCounter", "RunConfig", "make_config",
+           "config_from_msg", "ConfiguredNode", "warm_up", "matched", "fail", "spin_main",
+           "node_parser", "ros_param", "robot_node_from_args"]
+
+#: environment variable with the run a launcher started this node for (its run_id)
+RUN_ENV = "FORMATION_ILC_RUN_ID"
 
 #: reasons a message is dropped (the diagnostics counters)
 DROP_REASONS = REASONS
@@ -74,6 +81,32 @@ class ConfiguredNode(Node):
         super().__init__(name, **kwargs)
         self.drops = DropCounter(self)
         self.configured = False
+        #: this process's identity in ``ready`` (a new one tells the leader it restarted)
+        self.boot = uuid.uuid4().hex[:12]
+        #: ``seq`` of the last start or abort event handled
+        self.seen = -1
+
+    def ready_msg(self, trial: int, passive: bool = False) -> String:
+        """The ``ready`` message of this node (``formation_ilc.schedule``)."""
+        return ms.json_to_msg(Ready(self.get_name(), trial, self.boot, self.seen,
+                                    passive, self.run_id).to_json())
+
+    @property
+    def run_id(self) -> str:
+        cfg = getattr(self, "cfg", None)
+        return cfg.run_id if cfg is not None else os.environ.get(RUN_ENV, "")
+
+    def trial_event(self, msg: String) -> TrialEvent | None:
+        """The event on ``leader/trial_events``, or None (dropped and counted)."""
+        try:
+            ev = TrialEvent.from_json(ms.msg_to_json(msg))
+        except Rejected as exc:
+            self.drops.reject(exc, ms.TRIAL_EVENTS)
+            return None
+        if ev.run and self.run_id and ev.run != self.run_id:
+            self.drops.drop("foreign", ms.TRIAL_EVENTS, f"event of run {ev.run}")
+            return None
+        return ev
 
     def follow_config(self, cfg: RunConfig | None = None) -> None:
         """Configure now from ``cfg``, or when the config topic delivers one."""
@@ -88,11 +121,33 @@ class ConfiguredNode(Node):
                                                      ms.LATCHED_QOS)
 
     def _on_config(self, msg: String) -> None:
-        if self.configured:
+        if self.configured:  # the same one again is no news; another one is not followed
+            try:
+                d = ms.msg_to_json(msg)
+            except Rejected as exc:
+                self.drops.reject(exc, ms.CONFIG)
+                return
+            if d != getattr(self, "_config_json", None):
+                other = str(d.get("run_id", ""))
+                if other != self.run_id:
+                    self.drops.drop("foreign", ms.CONFIG,
+                                    f"run {other or '?'} on this domain and namespace; this "
+                                    f"node belongs to run {self.run_id or '?'}")
+                else:
+                    self.drops.drop("unexpected", ms.CONFIG,
+                                    "a second, different run configuration")
             return
         cfg = config_from_msg(msg, self.drops)
-        if cfg is not None:
-            self.follow_config(cfg)
+        if cfg is None:
+            return
+        mine = self.run_id  # the launcher's (environment), if it started this node
+        if mine and cfg.run_id != mine:
+            self.drops.drop("foreign", ms.CONFIG,
+                            f"run {cfg.run_id or '?'} on this domain and namespace; this "
+                            f"node belongs to run {mine}")
+            return
+        self._config_json = ms.msg_to_json(msg)
+        self.follow_config(cfg)
 
     def configure(self, cfg: RunConfig) -> None:
         raise NotImplementedError
@@ -194,6 +249,7 @@ def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
     """
     argv = list(args if args is not None else sys.argv)
     ns = parser.parse_args(rclpy.utilities.remove_ros_args(argv)[1:])
+    die_with_parent()
     # rclpy's own SIGINT handling raises KeyboardInterrupt inside whatever callback runs,
     # which aborts the process from C++; a flag for the spin loop is enough
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)

@@ -34,6 +34,12 @@ point-stabilisation law (formation_ilc.bridge.ReturnController): ``return_tol`` 
 odometry-measured) goes into its ready message and diagnostics (``initial_shifts``).
 Ready for trial 0 once the driver's odometry arrives, the motors are enabled and the
 publishers are matched.
+
+What it obeys (the rest is dropped and counted in its diagnostics, with the reason): a
+``start`` event only for the trial after the current one, once it said ready for it and is
+idle, with an agreed start no more than ``START_AHEAD_MAX`` s ahead and not past the trial's
+end; ``cmd_vel`` only inside a trial (a command before a start or during the return would
+move the robot outside the protocol).
 """
 
 from __future__ import annotations
@@ -66,11 +72,14 @@ from formation_ilc.nodes.common import (
     robot_node_from_args,
     spin_main,
 )
+from formation_ilc.schedule import Ready, TrialEvent
 from formation_ilc.simulate import Problem
 from formation_ilc.wallclock import WallSchedule, start_wall_ns
 
 #: the bridge's control tick [s]: sampling, return controller, watchdog
 TICK = 0.01
+#: [s] the latest a start event's agreed start time may be ahead of this robot's clock
+START_AHEAD_MAX = 60.0
 
 
 def _join(ns: str, name: str) -> str:
@@ -147,7 +156,8 @@ class BridgeNode(ConfiguredNode):
         self.odom_time = 0.0
         self.motors_on = False
         self.phase = "idle"            # idle | trial | return
-        self.k = -1
+        self.k = -1            # slot of the current (or last) trial
+        self.iteration = -1
         self.schedule: WallSchedule | None = None
         self.returner: ReturnController | None = None
         self.robot_cmd = (0.0, 0.0)
@@ -251,6 +261,8 @@ class BridgeNode(ConfiguredNode):
     def _on_cmd(self, msg: Twist) -> None:
         try:
             u = ms.twist_to_u(msg)
+            if self.phase != "trial":
+                raise Rejected("unexpected", f"a command while {self.phase}")
         except Rejected as exc:
             self.drops.reject(exc, ms.cmd_vel_topic(self.id))
             return
@@ -258,23 +270,45 @@ class BridgeNode(ConfiguredNode):
         self.counts["clipped"] += int(clipped)
         self.robot_cmd = (v, w)
         self.watchdog.feed(time.monotonic())
-        if self.phase != "return":
-            self._send(self.robot_cmd, time.monotonic())
+        self._send(self.robot_cmd, time.monotonic())
 
     def _on_event(self, msg: String) -> None:
         try:
-            ev = ms.msg_to_json(msg, ("event", "trial"))
-            if ev["event"] != ms.START:
+            d = ms.msg_to_json(msg)
+            ev = TrialEvent.from_json(d)
+            if ev.run and self.run_id and ev.run != self.run_id:
+                raise Rejected("foreign", f"event of run {ev.run}")
+            if ev.event not in (ms.START, ms.ABORT) or ev.seq <= self.seen:
                 return
-            k = int(ev["trial"])
-            start = start_wall_ns(ev)
-        except (Rejected, TypeError, ValueError) as exc:
-            self.drops.drop("malformed", ms.TRIAL_EVENTS, str(exc))
+            start = 0
+            if ev.event == ms.START:
+                start = start_wall_ns(d)
+                now = time.time_ns()
+                if start > now + int(START_AHEAD_MAX * 1e9):
+                    raise Rejected("future", f"start {(start - now) / 1e9:.3g} s ahead")
+                if start + self.T * self.clock.dt_ns < now:
+                    raise Rejected("stale", f"start {(now - start) / 1e9:.3g} s ago: the "
+                                            f"trial would be over")
+        except Rejected as exc:
+            self.drops.reject(exc, ms.TRIAL_EVENTS)
             return
-        if k <= self.k or self.phase != "idle":
-            self.drops.drop("stale", ms.TRIAL_EVENTS, f"start of trial {k} in trial {self.k}")
+        if ev.event == ms.ABORT:
+            # the trial is dropped: stop sampling, drive back, then say ready
+            self.seen = ev.seq
+            if self.phase == "trial" and ev.slot == self.k:
+                self.schedule = None
+                self._begin_return(time.monotonic())
+            elif self.phase == "idle" and self.ready_sent >= 0:
+                self._say_ready(self.iteration + 1, "idle",
+                                initial_shift(self.world(), self.initial))
             return
-        self.k = k
+        if ev.slot <= self.k or self.phase != "idle" or (ev.slot > self.k + 1 and self.k >= 0):
+            self.drops.drop("stale" if ev.slot <= self.k else "unexpected", ms.TRIAL_EVENTS,
+                            f"start of slot {ev.slot} in slot {self.k} ({self.phase})")
+            return
+        self.seen = ev.seq
+        self.k = ev.slot
+        self.iteration = ev.trial
         self.schedule = WallSchedule(start, self.clock.dt_ns, self.T)
         self.phase = "trial"
 
@@ -319,11 +353,14 @@ class BridgeNode(ConfiguredNode):
             assert self.schedule is not None
             self.counts["missed"] += self.schedule.skipped
             self.schedule = None
-            self.robot_cmd = (0.0, 0.0)
-            self.phase = "return"
-            self.returner = ReturnController(self.initial, self.limits, tol_pos=self.tol[0],
-                                             tol_heading=self.tol[1], timeout=self.tol[2])
-            self._return_t0 = now
+            self._begin_return(now)
+
+    def _begin_return(self, now: float) -> None:
+        self.robot_cmd = (0.0, 0.0)
+        self.phase = "return"
+        self.returner = ReturnController(self.initial, self.limits, tol_pos=self.tol[0],
+                                         tol_heading=self.tol[1], timeout=self.tol[2])
+        self._return_t0 = now
 
     def _returned(self, reached: bool, now: float) -> None:
         self.phase = "idle"
@@ -335,15 +372,16 @@ class BridgeNode(ConfiguredNode):
             self.get_logger().error(
                 f"return to the initial pose timed out after {secs:.1f} s: "
                 f"{math.hypot(shift[0], shift[1]):.3f} m, {math.degrees(shift[2]):.1f} deg "
-                f"off; trial {self.k + 1} starts from there (check the robot's path)")
-        self.returns[str(self.k + 1)] = {"reached": reached, "seconds": round(secs, 3)}
-        self._say_ready(self.k + 1, "reached" if reached else "timeout", shift)
+                f"off; trial {self.iteration + 1} starts from there (check the robot's path)")
+        self.returns[str(self.iteration + 1)] = {"reached": reached, "seconds": round(secs, 3)}
+        self._say_ready(self.iteration + 1, "reached" if reached else "timeout", shift)
 
     def _say_ready(self, trial: int, how: str, shift: tuple[float, float, float]) -> None:
         self.shifts[str(trial)] = [float(x) for x in shift]
         self.ready_sent = trial
-        self.ready_pub.publish(ms.json_to_msg({"node": self.name, "trial": trial,
-                                               "initial_shift": list(shift), "return": how}))
+        d = Ready(self.name, trial, self.boot, self.seen, run=self.run_id).to_json()
+        d.update({"initial_shift": list(shift), "return": how})
+        self.ready_pub.publish(ms.json_to_msg(d))
         self.publish_diagnostics(trial - 1)
 
     def destroy_node(self) -> None:

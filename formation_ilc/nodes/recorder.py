@@ -4,16 +4,22 @@ The file is what rosbag2's MCAP storage writes (profile ``ros2``; schemas ``ros2
 their full definitions; messages as the CDR bytes received, never re-encoded; each
 channel's offered QoS and type hash in its metadata), so ``ros2 bag`` and Foxglove open it.
 Log time is the receive time (system clock, as rosbag2); publish time is the send label
-(the header stamp) for stamped messages, else the receive time.
+(the header stamp) for stamped messages, else the receive time, and the receive time too
+where the stamp is not a valid time (negative, or nanoseconds past 1e9): such messages are
+recorded as they are and counted (``invalid_stamps`` in its diagnostics). The recorder
+never stops on a message: one it cannot write is counted (``unwritable``) and logged.
 
 It learns the run from the ``config`` topic (latched, recorded too, and copied into a
 metadata record), subscribes to every topic of ``msgs_schema.topic_table``, and says ready
 on ``ready`` once every topic with a single writer is matched, so a launcher
 that waits for it loses no sample. When it holds a trial's every trajectory and every
 robot's diagnostics of that trial, it says so on ``diagnostics``
-(``{"node": "recorder", "trial": k}``), so a launcher knows when it may stop it. Chunks are
-flushed every 0.5 s: a SIGKILL loses at most that; ``formation-ilc mcap-repair`` then
-writes the summary.
+(``{"node": "recorder", "trial": k}``), so a launcher knows when it may stop it. Only
+trajectories and diagnostics of a trial the leader has started count toward that, each
+once (everything is recorded all the same). Chunks are flushed every 0.5 s and at most
+``CHUNK_BYTES`` long: a SIGKILL loses at most the chunk in progress, and damage to the
+file loses the chunks it hits (``formation-ilc analyze`` reads on past them);
+``formation-ilc mcap-repair`` writes a complete copy.
 
   formation-ilc-record --output RUN.mcap [--ros-args ...]
 """
@@ -26,6 +32,7 @@ import os
 import struct
 import sys
 import time
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -34,8 +41,10 @@ from rclpy.qos import HistoryPolicy, QoSProfile
 from std_msgs.msg import String
 
 import msgs_schema as ms
-from formation_ilc.mcap_io import RosMcapWriter
-from formation_ilc.nodes.common import RunConfig, node_parser, spin_main
+from formation_ilc.clock import Rejected
+from formation_ilc.links import check_diagnostics
+from formation_ilc.mcap_io import CHUNK_BYTES, RosMcapWriter
+from formation_ilc.nodes.common import DropCounter, RunConfig, node_parser, spin_main
 from formation_ilc.recording import META_NAME, qos_of
 
 #: types whose CDR starts with a header stamp (int32 sec, uint32 nanosec) right after the
@@ -59,17 +68,23 @@ class RecorderNode(Node):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__("recorder", **kwargs)
         self.output = Path(output)
-        self.writer = RosMcapWriter(self.output, flush_period=0.5)
+        self.writer = RosMcapWriter(self.output, flush_period=0.5, chunk_size=int(
+            os.environ.get("FORMATION_ILC_RECORDER_CHUNK_BYTES", CHUNK_BYTES)))
+        self.drops = DropCounter(self)      # not counted toward progress (still recorded)
+        self.invalid_stamps: Counter[str] = Counter()
+        self.unwritable: Counter[str] = Counter()
+        self.started = -1                   # the last trial the leader started
         self.types: dict[str, str] = {}
         self.qos: dict[str, Any] = {}
         self.subs: dict[str, Any] = {}
         self.names: dict[str, str] = {}      # schema name -> full channel name
         self.cfg: RunConfig | None = None
         self.path_topics: set[str] = set()
+        self.progress_topics: set[str] = set()  # what _progress reads (once configured)
         self.said_ready = False
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
         self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
-        self.paths: dict[int, int] = {}       # trial -> trajectories recorded
+        self.paths: dict[int, set[str]] = {}  # trial -> topics of its trajectories recorded
         self.robot_diag: dict[str, int] = {}  # robot -> last trial of its diagnostics
         self.complete = -1
         self.truth = True
@@ -108,53 +123,85 @@ class RecorderNode(Node):
 
     def _on(self, topic: str, data: bytes) -> None:
         now = time.time_ns()
-        name = self.names.get(topic) or self._channel(topic)
-        sent = now
-        if self.types[topic] in _STAMPED and len(data) >= 12:
-            sec, nsec = struct.unpack_from("<iI", data, 4)
-            sent = sec * 1_000_000_000 + nsec
-        self.writer.write(name, data, now, sent)
+        try:
+            sent = self._publish_time(topic, data, now)
+            self.writer.write(self.names.get(topic) or self._channel(topic), data, now, sent)
+        except Exception as exc:  # noqa: BLE001 - a recorder must outlive any one message
+            self.unwritable[topic] += 1
+            if self.unwritable[topic] <= 3:
+                self.get_logger().error(f"could not record a message on {topic}: {exc!r}")
+            return
         if topic == ms.CONFIG and self.cfg is None:
             self._configure(data)
-        elif self.cfg is not None and (topic in self.path_topics or topic == ms.DIAGNOSTICS):
-            self._progress(topic, data, sent)
+        elif topic in self.progress_topics:
+            try:
+                self._progress(topic, data, sent)
+            except Rejected as exc:
+                self.drops.reject(exc, topic)
+
+    def _publish_time(self, topic: str, data: bytes, now: int) -> int:
+        """The send label of a stamped message, else (or if it is no valid time) ``now``."""
+        if self.types[topic] not in _STAMPED:
+            return now
+        if len(data) < 12:
+            self.invalid_stamps[topic] += 1
+            return now
+        sec, nsec = struct.unpack_from("<iI", data, 4)
+        if sec < 0 or nsec >= 1_000_000_000:
+            self.invalid_stamps[topic] += 1
+            if self.invalid_stamps[topic] <= 3:
+                self.get_logger().warning(f"{topic}: invalid stamp ({sec} s, {nsec} ns): "
+                                          f"recorded with the receive time")
+            return now
+        return sec * 1_000_000_000 + nsec
 
     def _progress(self, topic: str, data: bytes, sent: int) -> None:
-        from rclpy.serialization import deserialize_message
-
+        """Count a trial's trajectories and robot diagnostics toward its completion (only
+        of a trial the leader started, each once); Rejected otherwise."""
         assert self.cfg is not None
+        if topic == ms.TRIAL_EVENTS:
+            ev = ms.msg_to_json(ms.deserialize(data, String), ("event", "trial"))
+            if ev["event"] == ms.START and ms.json_int(ev, "trial") == self.started + 1:
+                self.started += 1
+            return
         if topic == ms.DIAGNOSTICS:
-            try:
-                d = ms.msg_to_json(deserialize_message(data, String), ("node", "trial"))
-            except (ms.MalformedMessage, ValueError):
+            d = check_diagnostics(ms.msg_to_json(ms.deserialize(data, String),
+                                                 ("node", "trial")))
+            name, k = d["node"], d["trial"]
+            if name not in self.robots:
                 return
-            if str(d["node"]) in self.robots:
-                self.robot_diag[str(d["node"])] = int(d["trial"])
+            if k > self.started:
+                raise Rejected("future", f"{name} diagnostics of trial {k}, trial "
+                                         f"{self.started} started")
+            self.robot_diag[name] = max(k, self.robot_diag.get(name, -1))
         else:
-            try:
-                k, _ = self.cfg.clock.decode(sent)
-            except ms.MalformedMessage:
-                return
-            self.paths[k] = self.paths.get(k, 0) + 1
+            k, _ = self.cfg.clock.decode(sent)
+            if k > self.started:
+                raise Rejected("future", f"trajectory of trial {k}, trial {self.started} "
+                                         f"started")
+            if topic in self.paths.get(k, set()):
+                raise Rejected("duplicate", f"trajectory of trial {k} again")
+            self.paths.setdefault(k, set()).add(topic)
         n = self.cfg.scenario.n
         k = self.complete + 1
-        while self.paths.get(k, 0) >= n * (2 if self.truth else 1) and \
+        while len(self.paths.get(k, ())) >= n * (2 if self.truth else 1) and \
                 len(self.robot_diag) == n and \
                 min(self.robot_diag.values()) >= k:
             self.complete = k
             self.writer.flush()
-            self.diag_pub.publish(ms.json_to_msg({"node": "recorder", "trial": k,
-                                                  "messages": self.writer.count,
-                                                  "file": str(self.output)}))
+            d = {"node": "recorder", "trial": k, "messages": self.writer.count,
+                 "file": str(self.output), "invalid_stamps": dict(self.invalid_stamps),
+                 "unwritable": dict(self.unwritable)}
+            d.update(self.drops.as_dict())
+            self.diag_pub.publish(ms.json_to_msg(d))
             k += 1
 
     def _configure(self, data: bytes) -> None:
-        from rclpy.serialization import deserialize_message
-
         try:
-            conf = json.loads(deserialize_message(data, String).data)
+            conf = ms.msg_to_json(ms.deserialize(data, String))
             self.cfg = RunConfig.from_json(conf)
-        except (ValueError, ms.MalformedMessage) as exc:
+        except Rejected as exc:
+            self.drops.reject(exc, ms.CONFIG)
             self.get_logger().error(f"bad run configuration, recording it as is: {exc}")
             return
         self.writer.metadata(META_NAME, {"config": json.dumps(conf)})
@@ -164,6 +211,7 @@ class RecorderNode(Node):
         self.robots = {ms.robot_name(i + 1) for i in range(n)}
         self.path_topics = {f(i + 1) for i in range(n)
                             for f in (ms.trajectory_topic, ms.true_trajectory_topic)}
+        self.progress_topics = self.path_topics | {ms.DIAGNOSTICS, ms.TRIAL_EVENTS}
         # a plant's true state is optional in its contract
         self.optional = {ms.true_trajectory_topic(i + 1) for i in range(n)}
 
@@ -177,9 +225,11 @@ class RecorderNode(Node):
             self.said_ready = True
             self.truth = all(self.subs[t].get_publisher_count() >= 1 for t in self.optional)
             self._gate.cancel()
-            # ready for every trial of the run
-            self.ready_pub.publish(ms.json_to_msg({"node": "recorder",
-                                                   "trial": self.cfg.scenario.trials}))
+            # ready for every trial of the run: it only watches (formation_ilc.schedule)
+            self.ready_pub.publish(ms.json_to_msg({"node": "recorder", "passive": True,
+                                                   "trial": self.cfg.scenario.trials,
+                                                   "boot": f"{os.getpid()}",
+                                                   "run": self.cfg.run_id}))
             self.get_logger().info(f"ready: {len(self.subs)} topics")
 
     def destroy_node(self) -> None:

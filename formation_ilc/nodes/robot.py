@@ -14,6 +14,10 @@ init_memory : str
     A memory file written by ``formation-ilc simulate`` (memory.npz): the robot starts from
     its own row of the team's learned memory instead of u = 0 (sim-to-real). A file for
     another scenario or team size stops the node (status 2) naming what differs.
+state_dir : str
+    Where the robot keeps its learning state (``robot_<id>.npz``, written atomically each
+    time it learns). A robot restarted with the same parameters after a crash continues
+    from it: no learned trial is lost (``formation_ilc.schedule``). Empty: no state file.
 
 Per sample t of trial k: the measured pose arrives on ``robot_<id>/pose`` (its stamp is
 the robot's clock Rt), is shared on ``robot_<id>/shared_pose`` (stamp = send label St),
@@ -27,12 +31,16 @@ and the links deliver the neighbours' poses:
   ``robot_<id>/links/<sender>``; the node commands when every link reported the tick
   (realtime: at most ``LINK_WAIT`` dT after its pose).
 
+A trial the leader aborts (``abort`` on ``leader/trial_events``: a node restarted during
+it) is forgotten, and the learning step undone if it was already taken.
+
 It measures every delay by eq. (11) from Rt and St, calls the core's ``law.command`` for its
 one robot (``formation_ilc.learner.RobotLearner``) and publishes ``cmd_vel``. At sample T it
 sends its whole trajectory on ``trajectory``; when it has its in-neighbours' trajectories of
 trial k it calls ``law.learn`` and reports ready for trial k+1. Malformed, stale,
-out-of-order, duplicate and future-labelled messages are dropped and counted
-(``diagnostics``).
+out-of-order, duplicate and future-labelled messages, and any label outside the robot's
+window (its current trial; the next one once it has learned the current one: see
+``formation_ilc.learner``), are dropped and counted (``diagnostics``).
 
 Container mode: ``formation-ilc-robot --robots 1 2 3`` runs three robot nodes (each with
 its own memory) in one process on one executor.
@@ -53,7 +61,7 @@ import msgs_schema as ms
 from formation_ilc.clock import Rejected
 from formation_ilc.learner import RobotLearner
 from formation_ilc.links import LEADER
-from formation_ilc.memoryfile import load_memory
+from formation_ilc.memoryfile import MemoryFileError, load_memory
 from formation_ilc.nodes.common import (
     ConfiguredNode,
     RunConfig,
@@ -64,6 +72,7 @@ from formation_ilc.nodes.common import (
     spin_main,
     warm_up,
 )
+from formation_ilc.robotstate import load_state, save_state, state_path
 from formation_ilc.simulate import Problem
 
 #: realtime: how long [dT] a robot waits for its links after its pose
@@ -95,6 +104,7 @@ class RobotNode(ConfiguredNode):
         self.declare_parameter("links", "emulated")
         self.declare_parameter("mode", "lockstep")
         self.declare_parameter("init_memory", "")
+        self.declare_parameter("state_dir", "")
         self.id = int(robot_id)
         self.name = ms.robot_name(self.id)
         self.ready_sent = -1
@@ -119,6 +129,17 @@ class RobotNode(ConfiguredNode):
             self.get_logger().info(f"{self.name}: initial memory from {path}")
         self.learner = lrn = RobotLearner(pb, self.id - 1, cfg.clock, realtime=self.realtime,
                                           direct=cfg.links == "direct", memory=memory)
+        sdir = str(self.get_parameter("state_dir").value)
+        self.state_file = state_path(sdir, self.id) if sdir else None
+        if self.state_file is not None:
+            try:
+                st = load_state(self.state_file, cfg.scenario, self.id)
+            except MemoryFileError as exc:
+                raise ValueError(str(exc)) from None
+            if st is not None:
+                lrn.restore(st)
+                self.get_logger().info(f"{self.name}: continues from {self.state_file}: "
+                                       f"{st.iterations} trials learned")
         self.n_out = int(sum(1 for r in range(pb.n) if r != lrn.i and lrn.i in pb.src[r]))
         self.late: Counter[str] = Counter({"links": 0})
         self.twist = Twist()
@@ -151,6 +172,7 @@ class RobotNode(ConfiguredNode):
         if self.realtime:
             self._deadline = self.create_timer(LINK_WAIT * cfg.scenario.dt, self._on_deadline)
             self._deadline.cancel()
+        self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
         self._gate = self.create_timer(0.02, self._check_ready)
         self.get_logger().info(f"{self.name}: {len(lrn.neighbours)} in-links"
                                f"{' + leader' if lrn.sees_leader else ''} ({cfg.links}), "
@@ -164,11 +186,32 @@ class RobotNode(ConfiguredNode):
                 (self.traj_pub, self.n_out + int(self.cfg.monitored))]
         if matched(need):
             self._gate.cancel()
-            self._send_ready(0)
+            self._send_ready()
 
-    def _send_ready(self, trial: int) -> None:
-        self.ready_sent = trial
-        self.ready_pub.publish(ms.json_to_msg({"node": self.name, "trial": trial}))
+    def _send_ready(self) -> None:
+        """Idle: ready for the next iteration (the number of trials learned)."""
+        self.ready_sent = self.learner.iterations
+        self.ready_pub.publish(self.ready_msg(self.learner.iterations))
+
+    def _on_event(self, msg: String) -> None:
+        ev = self.trial_event(msg)
+        if ev is None or ev.event not in (ms.START, ms.ABORT) or ev.seq <= self.seen:
+            return
+        self.seen = ev.seq
+        if ev.event == ms.ABORT:
+            rolled = self.learner.abort(ev.slot)
+            if rolled:
+                self._save_state()
+            self.get_logger().warning(f"{self.name}: trial {ev.trial} (slot {ev.slot}) "
+                                      f"aborted: {ev.why}"
+                                      f"{'; learning step undone' if rolled else ''}")
+            if not self._gate.is_canceled():
+                return  # not yet ready at all: the gate says ready once it is
+            self._send_ready()
+
+    def _save_state(self) -> None:
+        if self.state_file is not None:
+            save_state(self.state_file, self.learner.state(), self.cfg.scenario, self.id)
 
     # ------------------------------------------------------------------ per sample
     def _on_pose(self, msg: PoseStamped) -> None:
@@ -257,8 +300,9 @@ class RobotNode(ConfiguredNode):
             self._learned()
 
     def _learned(self) -> None:
+        self._save_state()  # before ready: what the leader commits is on disk
         self.publish_diagnostics()
-        self._send_ready(self.learner.learned + 1)
+        self._send_ready()
 
     def publish_diagnostics(self) -> None:
         d = self.learner.diagnostics()

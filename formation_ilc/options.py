@@ -1,0 +1,138 @@
+"""Command-line option types and checks shared by ``formation-ilc`` and its ``launch``.
+
+Each type refuses a bad value while the arguments are parsed, so the user gets one line
+(``error: argument --seed: must be an integer >= 0, got -1 (...)``) and exit status 2, not
+a traceback from deep inside a run. ``OneLineParser`` prints argparse's errors that way.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import NoReturn
+
+__all__ = ["OneLineParser", "int_range", "nonneg_int", "positive_int", "positive_float",
+           "out_dir_arg", "output_file_arg", "make_out_dir", "OptionError", "MAX_TRIAL"]
+
+#: trial indices are stored as float64 in metrics rows: exact up to 2^53
+MAX_TRIAL = 2 ** 53
+#: seeds go to ROS parameters (int64)
+MAX_SEED = 2 ** 63 - 1
+
+
+class OptionError(ValueError):
+    """A command-line option that cannot be used; the message names the option and why."""
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse with its usage errors on one line: 'error: <why> (see PROG --help)'."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"error: {message} (see {self.prog} --help)\n")
+
+
+def int_range(lo: int, hi: int | None = None) -> Callable[[str], int]:
+    """An argparse type: an integer in [lo, hi]."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text, 10)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < lo or (hi is not None and value > hi):
+            bound = f">= {lo}" if hi is None or hi >= MAX_TRIAL else f"in {lo}..{hi}"
+            if hi is not None and value > hi:
+                bound = f"<= {hi}"
+            raise argparse.ArgumentTypeError(f"must be an integer {bound}, got {value}")
+        return value
+
+    parse.__name__ = "integer"
+    return parse
+
+
+nonneg_int = int_range(0, MAX_SEED)
+positive_int = int_range(1, MAX_TRIAL)
+
+
+def positive_float(text: str) -> float:
+    """An argparse type: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+    return value
+
+
+positive_float.__name__ = "number"
+
+
+def _writable_ancestor(path: Path) -> str | None:
+    """Why a folder cannot be made at ``path``, judged without creating anything."""
+    p = path.absolute()
+    if p.exists() and not p.is_dir():
+        return "exists and is not a folder"
+    probe = p
+    while not probe.exists():
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if not probe.is_dir():
+        return f"{probe} is not a folder"
+    if not os.access(probe, os.W_OK | os.X_OK):
+        return f"{probe} is not writable"
+    return None
+
+
+def out_dir_arg(text: str) -> Path:
+    """An argparse type: a folder that exists or can be created (not a file)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("empty folder name")
+    path = Path(text)
+    why = _writable_ancestor(path)
+    if why is not None:
+        raise argparse.ArgumentTypeError(f"{text}: {why}")
+    return path
+
+
+def output_file_arg(text: str) -> Path:
+    """An argparse type: a file to write, in a folder that exists or can be created."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("empty file name")
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text}: is a folder, expected a file name")
+    why = _writable_ancestor(path.parent)
+    if why is not None:
+        raise argparse.ArgumentTypeError(f"{text}: {why}")
+    return path
+
+
+out_dir_arg.__name__ = "folder"
+output_file_arg.__name__ = "file"
+
+
+def make_out_dir(path: Path, option: str = "--out") -> Path:
+    """Create the output folder ``path`` and prove it writable; OptionError naming the
+    option and the reason (a file in the way, no permission, a read-only file system)."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as exc:
+        why = "exists and is not a folder" if isinstance(exc, FileExistsError) else (
+            exc.strerror or str(exc))
+        raise OptionError(f"{option} {path}: cannot write there: {why}") from None
+    return path
+
+
+def fail(message: str, status: int = 2) -> int:
+    """Print 'error: message' on stderr and return ``status`` (for a command's return)."""
+    print(f"error: {message}", file=sys.stderr)
+    return status
