@@ -10,7 +10,8 @@ from numpy.typing import NDArray
 
 from ._jit import njit
 
-__all__ = ["step", "rollout", "wrap_angle", "heading_from_quaternion", "quaternion_from_heading"]
+__all__ = ["step", "step_into", "unicycle_step", "rollout", "wrap_angle",
+           "heading_from_quaternion", "quaternion_from_heading"]
 
 
 @njit(cache=True)
@@ -18,6 +19,13 @@ def wrap_angle(a: float) -> float:
     """Wrap an angle to (-pi, pi]."""
     two_pi = 2.0 * np.pi
     return a - two_pi * np.ceil((a - np.pi) / two_pi)
+
+
+@njit(cache=True)
+def unicycle_step(x: float, y: float, th: float, v: float, w: float, dt: float
+                  ) -> tuple[float, float, float]:
+    """One sample of eq. (1) for one robot: v, w the input plus its disturbance."""
+    return x + dt * np.cos(th) * v, y + dt * np.sin(th) * v, th + dt * w
 
 
 @njit(cache=True)
@@ -33,11 +41,8 @@ def step_into(
     xi : shape (R, 3); u, dist : shape (R, 2) [m/s, rad/s]; out : shape (R, 3).
     """
     for r in range(xi.shape[0]):
-        v = u[r, 0] + dist[r, 0]
-        th = xi[r, 2]
-        out[r, 0] = xi[r, 0] + dt * np.cos(th) * v
-        out[r, 1] = xi[r, 1] + dt * np.sin(th) * v
-        out[r, 2] = th + dt * (u[r, 1] + dist[r, 1])
+        out[r, 0], out[r, 1], out[r, 2] = unicycle_step(
+            xi[r, 0], xi[r, 1], xi[r, 2], u[r, 0] + dist[r, 0], u[r, 1] + dist[r, 1], dt)
 
 
 def step(

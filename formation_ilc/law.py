@@ -44,6 +44,9 @@ __all__ = [
     "heading_code",
     "command",
     "learn",
+    "command_trig",
+    "learn_trig",
+    "heading_trig",
     "link_error",
 ]
 
@@ -84,11 +87,22 @@ def link_error(des_own: NDArray[np.float64], des_src: NDArray[np.float64],
 
 
 @njit(cache=True)
-def _apply_gain(g: float, theta: float, e0: float, e1: float, e2: float,
-                out: NDArray[np.float64]) -> None:
-    """out += g [[cos th, sin th, 0], [0, 0, 1]] e."""
-    out[0] += g * (np.cos(theta) * e0 + np.sin(theta) * e1)
-    out[1] += g * e2
+def heading_trig(heading_source: int, eta_own: NDArray[np.float64],
+                 eta_d_own: NDArray[np.float64], t0: int, t1: int, out: NDArray[np.float64],
+                 first: int) -> None:
+    """cos and sin of the heading in the gains (th of Gamma, Gamma') at samples t0..t1-1:
+    out[r, t - first] = (cos th, sin th), th = eta_own[r, t, 2] (measured) or
+    eta_d_own[r, t, 2].
+
+    The batch simulator computes them once per sample (first = 0) for ``command_trig`` and
+    keeps them for ``learn_trig`` (the same th at the same t): one cos/sin pair fewer per
+    robot and sample.
+    """
+    for r in range(eta_own.shape[0]):
+        for t in range(t0, t1):
+            th = eta_own[r, t, 2] if heading_source == MEASURED else eta_d_own[r, t, 2]
+            out[r, t - first, 0] = np.cos(th)
+            out[r, t - first, 1] = np.sin(th)
 
 
 @njit(cache=True)
@@ -128,13 +142,46 @@ def command(
     heading_source : 0 measured heading eta_i(t) in Gamma', 1 desired heading.
     out : shape (R, 2) [m/s, rad/s].
     """
+    trig = np.empty((memory_t.shape[0], 1, 2))
+    heading_trig(heading_source, eta_own, eta_d_own, t, t + 1, trig, t)
+    command_trig(t, 0, law, memory_t[:, None, :], eta_own, eta_d_own, nb_eta, nb_sample,
+                 nb_src, nb_weight, eta_d_all, lead_sample, lead_weight, gain_prime, trig,
+                 out[:, None, :])
+
+
+@njit(cache=True)
+def command_trig(
+    t: int,
+    k: int,
+    law: int,
+    memory: NDArray[np.float64],
+    eta_own: NDArray[np.float64],
+    eta_d_own: NDArray[np.float64],
+    nb_eta: NDArray[np.float64],
+    nb_sample: NDArray[np.int64],
+    nb_src: NDArray[np.int64],
+    nb_weight: NDArray[np.float64],
+    eta_d_all: NDArray[np.float64],
+    lead_sample: NDArray[np.int64],
+    lead_weight: NDArray[np.float64],
+    gain_prime: NDArray[np.float64],
+    trig: NDArray[np.float64],
+    out: NDArray[np.float64],
+) -> None:
+    """``command`` with the gain heading's cos and sin given, every per-sample array read
+    or written at column k: memory[:, k] is ``command``'s memory_t, trig[:, k] the cos and
+    sin of the heading at t (``heading_trig``), out[:, k] its out. The simulator passes its
+    whole arrays and k = t (no views per sample). Arguments otherwise as ``command``."""
     n_links = nb_src.shape[1]
-    for r in range(memory_t.shape[0]):
-        out[r, 0] = memory_t[r, 0]
-        out[r, 1] = memory_t[r, 1]
+    for r in range(memory.shape[0]):
+        out[r, k, 0] = memory[r, k, 0]
+        out[r, k, 1] = memory[r, k, 1]
         if law == 22:
             continue
-        acc = np.zeros(3)
+        # three scalars, not an array: no allocation per robot and sample
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
         for ell in range(n_links):
             j = nb_src[r, ell]
             s = nb_sample[r, ell]
@@ -142,18 +189,22 @@ def command(
             if j < 0 or w == 0.0 or s < 1:
                 continue
             own_at = s if law == 9 else t
-            for c in range(3):
-                acc[c] += w * link_error(eta_d_own[r, own_at], eta_d_all[j, own_at],
-                                         eta_own[r, own_at], nb_eta[r, ell], c)
+            a0 += w * link_error(eta_d_own[r, own_at], eta_d_all[j, own_at],
+                                 eta_own[r, own_at], nb_eta[r, ell], 0)
+            a1 += w * link_error(eta_d_own[r, own_at], eta_d_all[j, own_at],
+                                 eta_own[r, own_at], nb_eta[r, ell], 1)
+            a2 += w * link_error(eta_d_own[r, own_at], eta_d_all[j, own_at],
+                                 eta_own[r, own_at], nb_eta[r, ell], 2)
         s0 = lead_sample[r]
         w0 = lead_weight[r]
         if w0 != 0.0 and s0 >= 1:
             own_at = s0 if law == 9 else t
-            for c in range(3):
-                e = eta_d_own[r, s0, c] - eta_own[r, own_at, c]
-                acc[c] += w0 * (wrap_angle(e) if c == 2 else e)
-        th = eta_own[r, t, 2] if heading_source == MEASURED else eta_d_own[r, t, 2]
-        _apply_gain(gain_prime[r], th, acc[0], acc[1], acc[2], out[r])
+            a0 += w0 * (eta_d_own[r, s0, 0] - eta_own[r, own_at, 0])
+            a1 += w0 * (eta_d_own[r, s0, 1] - eta_own[r, own_at, 1])
+            a2 += w0 * wrap_angle(eta_d_own[r, s0, 2] - eta_own[r, own_at, 2])
+        # out += g' [[cos th, sin th, 0], [0, 0, 1]] (a0, a1, a2)
+        out[r, k, 0] += gain_prime[r] * (trig[r, k, 0] * a0 + trig[r, k, 1] * a1)
+        out[r, k, 1] += gain_prime[r] * a2
 
 
 @njit(cache=True)
@@ -185,6 +236,32 @@ def learn(
     Other arguments as in ``command``.
     """
     n_t = memory.shape[1]
+    trig = np.empty((memory.shape[0], n_t, 2))
+    heading_trig(heading_source, eta_own, eta_d_own, 0, n_t, trig, 0)
+    learn_trig(law, memory_mode, memory, applied, eta_own, eta_d_own, nb_eta, nb_src, nb_weight,
+               eta_d_all, lead_weight, gain, trig, out)
+
+
+@njit(cache=True)
+def learn_trig(
+    law: int,
+    memory_mode: int,
+    memory: NDArray[np.float64],
+    applied: NDArray[np.float64],
+    eta_own: NDArray[np.float64],
+    eta_d_own: NDArray[np.float64],
+    nb_eta: NDArray[np.float64],
+    nb_src: NDArray[np.int64],
+    nb_weight: NDArray[np.float64],
+    eta_d_all: NDArray[np.float64],
+    lead_weight: NDArray[np.float64],
+    gain: NDArray[np.float64],
+    trig: NDArray[np.float64],
+    out: NDArray[np.float64],
+) -> None:
+    """``learn`` with the gain heading's cos and sin given: trig, shape (R, >= T, 2), as
+    ``heading_trig`` computes them. Arguments otherwise as ``learn``."""
+    n_t = memory.shape[1]
     n_links = nb_src.shape[1]
     for r in range(memory.shape[0]):
         for t in range(n_t):
@@ -207,7 +284,6 @@ def learn(
                 p0 += w0 * (eta_d_own[r, t + 1, 0] - eta_own[r, t + 1, 0])
                 p1 += w0 * (eta_d_own[r, t + 1, 1] - eta_own[r, t + 1, 1])
                 p2 += w0 * wrap_angle(eta_d_own[r, t + 1, 2] - eta_own[r, t + 1, 2])
-            th = eta_own[r, t, 2] if heading_source == MEASURED else eta_d_own[r, t, 2]
             if memory_mode == LITERAL and law != 22:
                 b0 = applied[r, t, 0]
                 b1 = applied[r, t, 1]
@@ -215,5 +291,5 @@ def learn(
                 b0 = memory[r, t, 0]
                 b1 = memory[r, t, 1]
             g = gain[r]
-            out[r, t, 0] = b0 + g * (np.cos(th) * p0 + np.sin(th) * p1)
+            out[r, t, 0] = b0 + g * (trig[r, t, 0] * p0 + trig[r, t, 1] * p1)
             out[r, t, 1] = b1 + g * p2

@@ -7,6 +7,7 @@ gains, memory reading, uncertainty and delay model. Built-in scenarios live in
 
 from __future__ import annotations
 
+import json
 import math
 import re
 import reprlib
@@ -32,8 +33,8 @@ from .topology import Graph
 from .uncertainty import Harmonic, Uncertainty
 
 __all__ = ["ScenarioError", "Scenario", "LawSettings", "load_scenario", "builtin_scenarios",
-           "scenario_from_text", "read_text_file", "parse_yaml", "load_bytes", "show",
-           "MAX_FILE_BYTES", "MAX_YAML_DEPTH", "MAX_YAML_SIZE"]
+           "scenario_from_text", "scenario_from_data", "read_text_file", "parse_yaml",
+           "load_bytes", "show", "MAX_FILE_BYTES", "MAX_YAML_DEPTH", "MAX_YAML_SIZE"]
 
 #: a scenario (or sweep spec) file larger than this is refused before it is read: parsing
 #: YAML costs seconds per MiB. Long sampled references belong in a CSV file
@@ -386,7 +387,30 @@ def _constant(value: float) -> Any:
     return lambda t: np.full(np.shape(t), value)
 
 
+#: references built, by their mapping, samples and dt: the configurations of a study share
+#: one (a unicycle reference takes about 0.4 s to integrate)
+_REFERENCES: dict[str, NDArray] = {}
+
+
 def _reference(f: _Fields, n_samples: int, dt: float, base_dir: Path | None) -> NDArray:
+    key = None
+    if "file" not in f.data:  # a file's contents may change: read it every time
+        try:
+            key = json.dumps([f.data, n_samples, dt], sort_keys=True)
+        except (TypeError, ValueError):
+            key = None
+    if key is not None and key in _REFERENCES:
+        return _REFERENCES[key].copy()  # the same mapping validated and built before
+    ref = _build_reference(f, n_samples, dt, base_dir)
+    if key is not None:
+        if len(_REFERENCES) >= 16:
+            _REFERENCES.pop(next(iter(_REFERENCES)))
+        _REFERENCES[key] = ref.copy()
+    return ref
+
+
+def _build_reference(f: _Fields, n_samples: int, dt: float, base_dir: Path | None
+                     ) -> NDArray:
     kind = f.string("kind", choices=("lemniscate", "unicycle", "samples", "waypoints"))
     m = n_samples + 2  # t = 0..T+1
     if kind == "lemniscate":
@@ -522,6 +546,15 @@ def scenario_from_text(text: str, source: str = "<memory>", base_dir: Path | Non
     is refused before they are allocated (``load_bytes``).
     """
     data = parse_yaml(text, source)
+    return scenario_from_data(data, text, source, base_dir)
+
+
+def scenario_from_data(data: Any, text: str, source: str = "<memory>",
+                       base_dir: Path | None = None) -> Scenario:
+    """Validate a scenario given as the data ``parse_yaml`` makes of ``text`` (mappings,
+    lists, strings, numbers; not modified); ``text`` is kept as the scenario's text. What
+    ``scenario_from_text`` does after parsing: a study that edits the parsed data of one
+    scenario need not write it out and parse it again."""
     with _section(source, "top level"):
         return _scenario(data, text, source, base_dir)
 

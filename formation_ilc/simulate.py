@@ -15,11 +15,21 @@ from numpy.typing import NDArray
 
 from ._jit import njit
 from .guards import DivergedError, check_finite
-from .kinematics import step_into, wrap_angle
-from .law import command, heading_code, law_code, learn, memory_code
+from .kinematics import unicycle_step, wrap_angle
+from .law import command_trig, heading_code, heading_trig, law_code, learn_trig, memory_code
 from .links import delivered_label
 from .metrics import METRIC_COLUMNS
+from .pcg import STATE_SIZE
 from .scenario import Scenario
+from .uncertainty import (
+    DelayArrays,
+    PlantArrays,
+    delay_arrays,
+    fill_delays,
+    fill_plant,
+    plant_arrays,
+    seed_words,
+)
 
 __all__ = ["Problem", "TrialRecord", "SimResult", "simulate", "simulate_seeds", "trial_errors",
            "simulate_bytes", "METRIC_COLUMNS", "DivergedError"]
@@ -104,10 +114,42 @@ def run_trial(law: int, memory_mode: int, heading: int, dt: float,
     law itself is ``command``.
     """
     n, n_links = src.shape
+    ws = _workspace(n, n_links, memory.shape[1])
+    _trial(law, memory_mode, heading, dt, memory, xi0, dist, noise, tau, tau0, src, weight,
+           leader, eta_d, gain, gain_prime, xi, eta, u, next_memory, ws[0], ws[1], ws[2], ws[3],
+           ws[4])
+
+
+@njit(cache=True)
+def _workspace(n: int, n_links: int, n_t: int) -> tuple[
+        NDArray[np.float64], NDArray[np.int64], NDArray[np.int64], NDArray[np.float64],
+        NDArray[np.float64]]:
+    """Scratch of one trial: neighbour outputs as received (N, L, 3), their labels (N, L),
+    the leader's labels (N,), neighbours' whole trajectories (N, L, T+1, 3), cos and sin of
+    the gain heading (N, T, 2)."""
+    return (np.zeros((n, n_links, 3)), np.zeros((n, n_links), dtype=np.int64),
+            np.zeros(n, dtype=np.int64), np.zeros((n, n_links, n_t + 1, 3)),
+            np.zeros((n, n_t, 2)))
+
+
+@njit(cache=True)
+def _trial(law: int, memory_mode: int, heading: int, dt: float,
+           memory: NDArray[np.float64], xi0: NDArray[np.float64],
+           dist: NDArray[np.float64], noise: NDArray[np.float64],
+           tau: NDArray[np.int64], tau0: NDArray[np.int64],
+           src: NDArray[np.int64], weight: NDArray[np.float64], leader: NDArray[np.float64],
+           eta_d: NDArray[np.float64], gain: NDArray[np.float64],
+           gain_prime: NDArray[np.float64],
+           xi: NDArray[np.float64], eta: NDArray[np.float64], u: NDArray[np.float64],
+           next_memory: NDArray[np.float64], nb_eta: NDArray[np.float64],
+           nb_s: NDArray[np.int64], lead_s: NDArray[np.int64],
+           nb_full: NDArray[np.float64], trig: NDArray[np.float64]) -> None:
+    """``run_trial`` on the scratch of :func:`_workspace` (reused from trial to trial)."""
+    n, n_links = src.shape
     n_t = memory.shape[1]
-    nb_eta = np.zeros((n, n_links, 3))
-    nb_s = np.zeros((n, n_links), dtype=np.int64)
-    lead_s = np.zeros(n, dtype=np.int64)
+    nb_eta[:] = 0.0
+    nb_s[:] = 0
+    lead_s[:] = 0
     xi[:, 0] = xi0
     for t in range(n_t):
         for r in range(n):
@@ -122,20 +164,74 @@ def run_trial(law: int, memory_mode: int, heading: int, dt: float,
                     for c in range(3):
                         nb_eta[r, ell, c] = eta[j, s, c]
             lead_s[r] = delivered_label(t, tau0[r, t])
-        command(t, law, memory[:, t], eta, eta_d, nb_eta, nb_s, src, weight, eta_d, lead_s,
-                leader, gain_prime, heading, u[:, t])
-        step_into(xi[:, t], u[:, t], dist[:, t], dt, xi[:, t + 1])
+        heading_trig(heading, eta, eta_d, t, t + 1, trig, 0)
+        command_trig(t, t, law, memory, eta, eta_d, nb_eta, nb_s, src, weight, eta_d,
+                     lead_s, leader, gain_prime, trig, u)
+        # step_into's arithmetic, by index (views of xi, u, dist per sample cost ~5 %)
+        for r in range(n):
+            xi[r, t + 1, 0], xi[r, t + 1, 1], xi[r, t + 1, 2] = unicycle_step(
+                xi[r, t, 0], xi[r, t, 1], xi[r, t, 2], u[r, t, 0] + dist[r, t, 0],
+                u[r, t, 1] + dist[r, t, 1], dt)
     for r in range(n):
         for c in range(3):
             eta[r, n_t, c] = xi[r, n_t, c] + noise[r, n_t, c]
-    nb_full = np.zeros((n, n_links, n_t + 1, 3))
     for r in range(n):
         for ell in range(n_links):
             j = src[r, ell]
             if j >= 0:
                 nb_full[r, ell] = eta[j]
-    learn(law, memory_mode, memory, u, eta, eta_d, nb_full, src, weight, eta_d, leader, gain,
-          heading, next_memory)
+    learn_trig(law, memory_mode, memory, u, eta, eta_d, nb_full, src, weight, eta_d, leader,
+               gain, trig, next_memory)
+
+
+@njit(cache=True)
+def run_trials(seed: NDArray[np.uint32], first_trial: int, plant: PlantArrays,
+               delays: DelayArrays, law: int, memory_mode: int, heading: int, dt: float,
+               src: NDArray[np.int64], weight: NDArray[np.float64], leader: NDArray[np.float64],
+               eta_d: NDArray[np.float64], gain: NDArray[np.float64],
+               gain_prime: NDArray[np.float64], memory: NDArray[np.float64],
+               spare: NDArray[np.float64], metrics: NDArray[np.float64],
+               xi: NDArray[np.float64], eta: NDArray[np.float64], u: NDArray[np.float64],
+               tau: NDArray[np.int64], tau0: NDArray[np.int64]) -> bool:
+    """Trials first_trial, first_trial + 1, ... (one per row of ``metrics``), compiled end to
+    end: each trial's draws (``uncertainty.fill_plant`` / ``fill_delays``), ``_trial`` and
+    ``trial_errors`` into its metrics row (METRIC_COLUMNS).
+
+    memory : the first trial's memory (N, T, 2); spare : an array like it. They alternate
+    as this and the next trial's memory. Returns True when the memory after the last trial
+    is in ``spare``, False when in ``memory``. xi, eta, u, tau, tau0 : the last trial's.
+    """
+    n, n_links = src.shape
+    n_t = memory.shape[1]
+    state = np.empty(STATE_SIZE, dtype=np.uint64)
+    shift = np.empty((n, 3))
+    dist = np.empty((n, n_t, 2))
+    noise = np.empty((n, n_t + 1, 3))
+    xi0 = np.empty((n, 3))
+    row = np.empty(6)
+    nb_eta, nb_s, lead_s, nb_full, trig = _workspace(n, n_links, n_t)
+    cur = memory
+    nxt = spare
+    swapped = False
+    for i in range(metrics.shape[0]):
+        k = first_trial + i
+        fill_plant(seed, k, plant[0], plant[1], plant[2], plant[3], plant[4], state, shift,
+                   dist, noise)
+        fill_delays(seed, k, delays[0], delays[1], delays[2], delays[3], delays[4], delays[5],
+                    delays[6], delays[7], state, tau, tau0)
+        for r in range(n):
+            for c in range(3):
+                xi0[r, c] = eta_d[r, 0, c] + shift[r, c]
+        _trial(law, memory_mode, heading, dt, cur, xi0, dist, noise, tau, tau0, src, weight,
+               leader, eta_d, gain, gain_prime, xi, eta, u, nxt, nb_eta, nb_s, lead_s, nb_full,
+               trig)
+        trial_errors(eta, xi, eta_d, src, weight, row)
+        metrics[i, 0] = k
+        for c in range(6):
+            metrics[i, c + 1] = row[c]
+        cur, nxt = nxt, cur
+        swapped = not swapped
+    return swapped
 
 
 @njit(cache=True)
@@ -232,6 +328,7 @@ def simulate(
     stop_on_divergence: bool = False,
     on_memory: Callable[[int, NDArray[np.float64]], None] | None = None,
     store_metrics: bool = True,
+    problem: Problem | None = None,
 ) -> SimResult:
     """Run ``trials`` trials (default: the scenario's) and return per-trial metrics.
 
@@ -250,8 +347,10 @@ def simulate(
     store_metrics : keep every trial's metrics row in ``SimResult.metrics``; False keeps
         none (shape (0, 7)), for a run of any length in bounded memory whose rows go to
         ``progress``.
+    problem : ``Problem.from_scenario(scenario)`` when the caller has it already (a study
+        runs many seeds of one configuration); it does not depend on the seed or trials.
     """
-    pb = Problem.from_scenario(scenario)
+    pb = Problem.from_scenario(scenario) if problem is None else problem
     k_total = scenario.trials if trials is None else int(trials)
     n, n_t, n_links = pb.n, pb.samples, pb.src.shape[1]
     unc = scenario.uncertainty
@@ -259,15 +358,28 @@ def simulate(
               else np.array(initial_memory, dtype=float))
     if memory.shape != (n, n_t, 2):
         raise ValueError(f"initial memory must have shape {(n, n_t, 2)}, got {memory.shape}")
+    if first_trial < 0:
+        raise ValueError(f"first_trial must be >= 0, got {first_trial}")
     nxt = np.empty_like(memory)
     xi = np.empty((n, n_t + 1, 3))
     eta = np.empty_like(xi)
     u = np.empty((n, n_t, 2))
+    tau = np.empty((n, n_links, n_t + 1), dtype=np.int64)
+    tau0 = np.empty((n, n_t + 1), dtype=np.int64)
     metrics = np.empty((k_total if store_metrics else 0, len(METRIC_COLUMNS)))
     keep = set(keep)
     records: dict[int, TrialRecord] = {}
-    row = np.empty(len(METRIC_COLUMNS))
-    errs = np.empty(len(METRIC_COLUMNS) - 1)
+    args = (seed_words(scenario.seed), first_trial, plant_arrays(unc, n_t), delay_arrays(unc),
+            pb.law, pb.memory, pb.heading, pb.dt, pb.src, pb.weight, pb.leader, pb.eta_d,
+            pb.gain, pb.gain_prime)
+    if (not keep and progress is None and on_trial_data is None and not stop_on_divergence
+            and on_memory is None and store_metrics):
+        # every trial in one compiled call: nothing to do in Python between trials
+        if run_trials(*args, memory, nxt, metrics, xi, eta, u, tau, tau0):
+            memory = nxt
+        return SimResult(metrics=metrics, records=records, memory=memory)
+    rows = np.empty((1, len(METRIC_COLUMNS)))
+    row = rows[0]
 
     def diverged(exc: DivergedError, done: int) -> DivergedError:
         exc.result = SimResult(metrics=metrics[:done].copy(), records=records,
@@ -276,14 +388,8 @@ def simulate(
 
     for i in range(k_total):
         k = first_trial + i
-        shift, dist, noise = unc.draw_plant(scenario.seed, k, n, n_t)
-        tau, tau0 = unc.draw_delays(scenario.seed, k, n, n_links, n_t)
-        run_trial(pb.law, pb.memory, pb.heading, pb.dt, memory, pb.eta_d[:, 0] + shift, dist,
-                  noise, tau, tau0, pb.src, pb.weight, pb.leader, pb.eta_d, pb.gain,
-                  pb.gain_prime, xi, eta, u, nxt)
-        trial_errors(eta, xi, pb.eta_d, pb.src, pb.weight, errs)
-        row[0] = k
-        row[1:] = errs
+        # the same compiled code, one trial per call
+        run_trials(*args[:1], k, *args[2:], memory, nxt, rows, xi, eta, u, tau, tau0)
         done = i if store_metrics else 0
         if stop_on_divergence:
             try:

@@ -22,18 +22,22 @@ import hashlib
 import json
 import math
 from dataclasses import replace
-from typing import Any
+from functools import lru_cache
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
 from numpy.typing import NDArray
 
-from .scenario import Scenario, ScenarioError, scenario_from_text
+from .scenario import Scenario, ScenarioError, parse_yaml, scenario_from_data
 from .uncertainty import Harmonic, Uncertainty
+
+if TYPE_CHECKING:
+    from .simulate import Problem
 
 __all__ = ["FIELDS", "apply_fields", "point_id", "config_id", "settle_trial", "reduce_metrics",
            "run_sim_point", "run_check_point", "SIM_COLUMNS", "CHECK_COLUMNS",
-           "scale_uncertainty", "scenario_text_with"]
+           "scale_uncertainty", "scenario_text_with", "scenario_data"]
 
 #: fields a study may vary
 FIELDS = ("law.gain", "law.gain_prime", "law.kind", "law.memory", "graph", "delay",
@@ -52,10 +56,16 @@ def _canonical(obj: Any) -> str:
     return json.dumps(obj, sort_keys=True, separators=(",", ":"))
 
 
+@lru_cache(maxsize=16)
+def _digest(text: str) -> str:
+    """SHA-256 of a scenario text, once per text (a sweep asks for it per point)."""
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
 def config_id(scenario_text: str, fields: dict[str, Any], trials: int) -> str:
     """Stable id of a configuration (scenario text, changed fields, trials), 16 hex digits."""
-    key = _canonical({"scenario": hashlib.sha256(scenario_text.encode()).hexdigest(),
-                      "fields": fields, "trials": int(trials)})
+    key = _canonical({"scenario": _digest(scenario_text), "fields": fields,
+                      "trials": int(trials)})
     return hashlib.sha256(key.encode()).hexdigest()[:16]
 
 
@@ -89,7 +99,10 @@ def apply_fields(scenario_text: str, fields: dict[str, Any], source: str = "<stu
 
     Raises ScenarioError naming ``source`` and the scenario field if a value is invalid.
     """
-    data = yaml.safe_load(scenario_text)
+    try:
+        data = scenario_data(scenario_text)
+    except ScenarioError as exc:
+        raise ScenarioError(str(exc).replace("<study scenario>", source, 1)) from None
     if not isinstance(data, dict):
         raise ScenarioError(f"{source}: the scenario is not a mapping")
     data = copy.deepcopy(data)
@@ -98,10 +111,21 @@ def apply_fields(scenario_text: str, fields: dict[str, Any], source: str = "<stu
         data["seed"] = int(seed)
     if trials is not None:
         data["trials"] = int(trials)
-    sc = scenario_from_text(yaml.safe_dump(data, sort_keys=False), source)
+    # validated from the edited data as scenario_from_text would after parsing the text
+    # written here: the fields are JSON-like (point ids hash them), which YAML writes and
+    # reads back unchanged (tests/test_sweep.py compares both ways)
+    sc = scenario_from_data(data, yaml.safe_dump(data, sort_keys=False), source)
     if scale != 1.0:
         sc = replace(sc, uncertainty=scale_uncertainty(sc.uncertainty, scale))
     return sc
+
+
+@lru_cache(maxsize=8)
+def scenario_data(scenario_text: str) -> Any:
+    """The data of a study's scenario text as the scenario loader reads it
+    (``scenario.parse_yaml``), once per process (a study parses its one scenario for every
+    configuration). Shared: callers copy before editing."""
+    return parse_yaml(scenario_text, "<study scenario>")
 
 
 def scenario_text_with(scenario_text: str, fields: dict[str, Any]) -> str:
@@ -171,19 +195,43 @@ def reduce_metrics(metrics: NDArray[np.float64], position_level: float, heading_
     }
 
 
-_CACHE: dict[str, Scenario] = {}
+_CACHE: dict[str, tuple[Scenario, Problem]] = {}
+_DESIRED: dict[str, Any] = {}
 
 
-def _cached_scenario(scenario_text: str, fields: dict[str, Any], source: str) -> Scenario:
-    """apply_fields, remembered per (text, fields) in this process: the seeds of one
-    configuration share the parsed scenario and its desired trajectories."""
-    key = hashlib.sha256((scenario_text + _canonical(fields)).encode()).hexdigest()
-    sc = _CACHE.get(key)
-    if sc is None:
+def _desired_key(sc: Scenario) -> str:
+    """A hash of what ``Scenario.desired`` is computed from."""
+    h = hashlib.sha256()
+    for a in (sc.reference, sc.offsets):
+        arr = np.ascontiguousarray(a, dtype=float)
+        h.update(repr(arr.shape).encode())
+        h.update(arr.tobytes())
+    h.update(repr((sc.scales, sc.dt, sc.frame)).encode())
+    return h.hexdigest()
+
+
+def _cached_scenario(scenario_text: str, fields: dict[str, Any], source: str
+                     ) -> tuple[Scenario, Problem]:
+    """apply_fields and the simulator's Problem, remembered per (text, fields) in this
+    process: the seeds of one configuration share them; configurations with the same
+    reference, formation and dt (no study field changes them) share the desired
+    trajectories."""
+    from .simulate import Problem
+
+    key = _digest(scenario_text) + _canonical(fields)
+    hit = _CACHE.get(key)
+    if hit is None:
         if len(_CACHE) >= 16:
             _CACHE.pop(next(iter(_CACHE)))
-        sc = _CACHE[key] = apply_fields(scenario_text, fields, source)
-    return sc
+        sc = apply_fields(scenario_text, fields, source)
+        dkey = _desired_key(sc)
+        if dkey not in _DESIRED:
+            if len(_DESIRED) >= 8:
+                _DESIRED.pop(next(iter(_DESIRED)))
+            _DESIRED[dkey] = sc.desired
+        sc.__dict__["desired"] = _DESIRED[dkey]  # a cached_property's slot
+        hit = _CACHE[key] = (sc, Problem.from_scenario(sc))
+    return hit
 
 
 def run_sim_point(task: dict[str, Any]) -> dict[str, Any]:
@@ -195,12 +243,13 @@ def run_sim_point(task: dict[str, Any]) -> dict[str, Any]:
     """
     from .simulate import simulate
 
-    base = _cached_scenario(task["scenario"], task["fields"], task.get("source", "<study point>"))
+    base, problem = _cached_scenario(task["scenario"], task["fields"],
+                                     task.get("source", "<study point>"))
     sc = base.with_options(seed=task["seed"], trials=task["trials"])
     # the desired trajectories do not depend on the seed or the trial count: share them
-    # (``desired`` is a cached_property, kept in the instance's __dict__)
+    # (``desired`` is a cached_property, kept in the instance's __dict__), and the Problem
     sc.__dict__["desired"] = base.desired
-    res = simulate(sc)
+    res = simulate(sc, problem=problem)
     row = reduce_metrics(res.metrics, task["position_level"], task["heading_level"],
                          task["floor_window"])
     row["id"] = task["id"]

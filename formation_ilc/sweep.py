@@ -64,6 +64,7 @@ from .study import (
     point_id,
     run_check_point,
     run_sim_point,
+    scenario_data,
 )
 
 __all__ = ["SweepSpec", "load_spec", "spec_from_text", "run_sweep", "plot_table", "map_tasks",
@@ -381,6 +382,63 @@ def _run_task(task: dict[str, Any]) -> dict[str, Any]:
     return run_check_point(task) if task["id"].startswith("check-") else run_sim_point(task)
 
 
+def _run_chunk(tasks: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """What a worker process (local or Dask) runs: a few tasks, their rows in order."""
+    return [_run_task(t) for t in tasks]
+
+
+_LIMITS: list[Any] = []
+
+
+def _worker_init() -> None:
+    """A local pool's worker: BLAS and OpenMP on one thread. The worker processes are the
+    parallelism; a library's own threads would compete with them for the cores. (A Dask
+    worker is not ours to change: start it with --nthreads 1; check tasks limit BLAS
+    themselves.)"""
+    from threadpoolctl import threadpool_limits
+
+    _LIMITS.append(threadpool_limits(limits=1))  # kept: the limit lasts while it lives
+
+
+#: a task sent to a worker holds points up to about this many robot-samples (about 0.1 s on
+#: one core), so that the cost of a task to the pool or the cluster stays small against its
+#: work when points are small; never fewer than CHUNKS_PER_WORKER tasks per worker, for an
+#: even finish
+CHUNK_ROBOT_SAMPLES = 1_000_000
+CHUNKS_PER_WORKER = 8
+
+
+def _robot_samples(task: dict[str, Any]) -> float:
+    """A sim task's size (robots x samples x trials); inf for a check task or when unknown."""
+    if task["id"].startswith("check-"):
+        return math.inf
+    try:
+        data = scenario_data(task["scenario"])
+        return float(int(data["robots"]) * int(data["samples"]) * int(task["trials"]))
+    except (KeyError, TypeError, ValueError):
+        return math.inf
+
+
+def chunk_tasks(tasks: list[dict[str, Any]], workers: int) -> list[list[dict[str, Any]]]:
+    """Consecutive tasks grouped into chunks (one per worker task), in order: a check task
+    alone, sim points together up to CHUNK_ROBOT_SAMPLES and at most len / (workers x
+    CHUNKS_PER_WORKER) points per chunk."""
+    most = max(1, math.ceil(len(tasks) / (max(1, workers) * CHUNKS_PER_WORKER)))
+    chunks: list[list[dict[str, Any]]] = []
+    cur: list[dict[str, Any]] = []
+    size = 0.0
+    for t in tasks:
+        c = _robot_samples(t)
+        if cur and (len(cur) >= most or size + c > CHUNK_ROBOT_SAMPLES):
+            chunks.append(cur)
+            cur, size = [], 0.0
+        cur.append(t)
+        size += c
+    if cur:
+        chunks.append(cur)
+    return chunks
+
+
 _POOLS: dict[int, Any] = {}
 
 
@@ -394,7 +452,8 @@ def _pool(workers: int) -> Any:
 
     ex = _POOLS.get(workers)
     if ex is None:
-        ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"))
+        ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
+                                 initializer=_worker_init)
         _POOLS[workers] = ex
         atexit.register(_shutdown_pool, workers)
     return ex
@@ -416,10 +475,10 @@ def _local_map(tasks: list[dict[str, Any]], workers: int) -> Iterable[dict[str, 
     from concurrent.futures import as_completed
 
     ex = _pool(workers)
-    futs = [ex.submit(_run_task, t) for t in tasks]
+    futs = [ex.submit(_run_chunk, c) for c in chunk_tasks(tasks, workers)]
     try:
         for f in as_completed(futs):
-            yield f.result()
+            yield from f.result()
     except BaseException:
         for f in futs:
             f.cancel()
@@ -433,10 +492,11 @@ def _dask_map(tasks: list[dict[str, Any]], address: str) -> Iterable[dict[str, A
     except ImportError:
         raise ScenarioError("--scheduler needs Dask: pip install -e '.[cluster]'") from None
     with Client(address, timeout=30) as client:
-        futs = client.map(_run_task, tasks, pure=False)
+        workers = sum(client.nthreads().values())
+        futs = client.map(_run_chunk, chunk_tasks(tasks, workers), pure=False)
         try:
             for f in as_completed(futs):
-                yield f.result()
+                yield from f.result()
         except BaseException:
             client.cancel(futs)
             raise
@@ -477,18 +537,63 @@ def run_sweep(spec: SweepSpec, out: Path, workers: int | None = None,
     tasks = spec.check_tasks() + spec.sim_tasks()
     todo = [t for t in tasks if t["id"] not in done]
     bar = Bar(len(tasks), len(tasks) - len(todo)) if progress else None
+    writer = _PointWriter(folder)
+    finished = False
     try:
         for row in map_tasks(todo, workers, scheduler):
-            _write_atomic(folder / f"{row['id']}.json", row)
+            writer.put(row)
             done[row["id"]] = row
             if bar is not None:
                 bar.step()
             if on_row is not None:
                 on_row(row)
+        finished = True
     finally:
-        if not keep_pool:
-            close_pools()
+        try:
+            writer.close()  # every point finished so far reaches the disk, Ctrl-C or not
+        except Exception:
+            if finished:
+                raise  # else the error in flight says more
+        finally:
+            if not keep_pool:
+                close_pools()
     return write_table(spec, out, done)
+
+
+class _PointWriter:
+    """Writes finished points with ``_write_atomic`` on a thread of its own: the fsyncs (a
+    few ms each) overlap the next point's computation instead of adding to it. A write
+    error is raised by the next ``put`` or by ``close``."""
+
+    def __init__(self, folder: Path):
+        import queue
+        import threading
+
+        self.folder = folder
+        self.queue: queue.SimpleQueue[dict[str, Any] | None] = queue.SimpleQueue()
+        self.error: BaseException | None = None
+        self.thread = threading.Thread(target=self._run, name="sweep-writer", daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while (row := self.queue.get()) is not None:
+            if self.error is None:
+                try:
+                    _write_atomic(self.folder / f"{row['id']}.json", row)
+                except BaseException as exc:  # handed to the caller by put or close
+                    self.error = exc
+
+    def put(self, row: dict[str, Any]) -> None:
+        if self.error is not None:
+            raise self.error
+        self.queue.put(row)
+
+    def close(self) -> None:
+        """Wait until every row put has been written."""
+        self.queue.put(None)
+        self.thread.join()
+        if self.error is not None:
+            raise self.error
 
 
 # --------------------------------------------------------------------------- plots

@@ -97,3 +97,31 @@ def test_unknown_scenario_lists_builtins():
 def test_bad_yaml(tmp_path):
     with pytest.raises(ScenarioError, match="not valid YAML"):
         load_scenario(write(tmp_path, "name: [unclosed"))
+
+
+def test_a_reference_built_once_is_reused_and_not_shared(tmp_path):
+    """Scenarios with the same reference mapping, samples and dt get the reference built
+    for the first (a unicycle reference takes 0.4 s); each its own copy. A reference file is
+    read every time: its contents may change."""
+    from formation_ilc import scenario as scenario_mod
+
+    a = load_scenario("paper-triangle3")
+    b = load_scenario("paper-triangle3")
+    assert a.reference.tobytes() == b.reference.tobytes()
+    assert not np.shares_memory(a.reference, b.reference)
+    a.reference[:] = 0.0
+    c = load_scenario("paper-triangle3")
+    assert c.reference.tobytes() == b.reference.tobytes()
+    assert any('"kind": "unicycle"' in k for k in scenario_mod._REFERENCES)
+    # samples from a file: rebuilt from the file each time
+    pts = tmp_path / "p.csv"
+    n = 40
+    pts.write_text("\n".join(f"{i * 0.1},{0.0}" for i in range(n)))
+    doc = (f"name: f\ndt: 0.1\nsamples: {n - 2}\nrobots: 1\nreference: {{kind: samples, "
+           f"file: p.csv}}\nformation: {{frame: world, offsets: {{1: {{x: 0, y: 0}}}}}}\n"
+           f"graph: {{leader: {{1: 1}}}}\n")
+    (tmp_path / "f.yaml").write_text(doc)
+    first = load_scenario(tmp_path / "f.yaml").reference.copy()
+    pts.write_text("\n".join(f"{i * 0.2},{0.0}" for i in range(n)))
+    second = load_scenario(tmp_path / "f.yaml").reference
+    assert not np.array_equal(first, second)

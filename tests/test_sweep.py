@@ -116,12 +116,23 @@ def test_reduce_and_settle():
 def test_pool_table_equals_serial_table(tmp_path):
     spec = load_spec(_spec(tmp_path))
     serial = run_sweep(spec, tmp_path / "serial", workers=1, progress=False)
-    pooled = run_sweep(spec, tmp_path / "pool", workers=2, progress=False)
+    pooled = run_sweep(spec, tmp_path / "pool", workers=2, progress=False, keep_pool=True)
     assert serial.read_bytes() == pooled.read_bytes()
     rows = read_table(serial)
     assert len(rows) == 8
     # the gain changes the result: the table is not a constant
     assert len({r["trials_to_position"] + r["floor_position"] for r in rows}) > 2
+    # small points travel several to a task (chunk_tasks): the same table
+    many = load_spec(_spec(tmp_path, SPEC.replace("seeds: [1, 2]", "seeds: {first: 1, "
+                                                  "count: 10}").replace("trials: 12",
+                                                                        "trials: 6"), "m.yaml"))
+    from formation_ilc.sweep import chunk_tasks
+
+    assert max(len(c) for c in chunk_tasks(many.sim_tasks(), 2)) == 3
+    serial = run_sweep(many, tmp_path / "serial-m", workers=1, progress=False)
+    pooled = run_sweep(many, tmp_path / "pool-m", workers=2, progress=False)
+    assert serial.read_bytes() == pooled.read_bytes()
+    assert len(read_table(serial)) == 40
 
 
 def test_resume_skips_done_points(tmp_path):
@@ -183,3 +194,130 @@ def test_cli_sweep_writes_table_and_plots(tmp_path):
     assert (tmp_path / "o" / "lines_trials_to_position.png").is_file()
     assert main(["sweep", str(_spec(tmp_path, "scenario: 3\n", "bad.yaml")), "--out",
                  str(tmp_path / "b")]) == 2
+
+
+FIELD_CASES = [
+    {"law.gain": 0.4},
+    {"law.gain": [0.1, 0.2, 0.3, 0.4, 0.5, 0.6], "law.gain_prime": 1.5, "law.kind": 23},
+    {"law.memory": "literal", "delay": "none"},
+    {"delay": {"model": "uniform", "low": 1, "high": 3}, "graph": {
+        "leader": {1: 1.0}, "edges": [{"from": 1, "to": k} for k in range(2, 7)]}},
+    {"law.gain": 1e-05, "law.gain_prime": 2.0},
+]
+
+
+@pytest.mark.parametrize("fields", FIELD_CASES)
+def test_fields_applied_to_the_data_equal_the_written_scenario(fields):
+    """apply_fields validates the edited data without writing it out and parsing it again:
+    the same scenario as loading the text scenario_text_with writes."""
+    import numpy as np
+
+    from formation_ilc.scenario import load_scenario, scenario_from_text
+    from formation_ilc.study import scenario_text_with
+
+    base = load_scenario("paper-hexagon6")
+    got = apply_fields(base.text, fields, "p.yaml", seed=3, trials=5)
+    ref = scenario_from_text(scenario_text_with(base.text, fields), "p.yaml").with_options(
+        seed=3, trials=5)
+    for f in ("name", "dt", "samples", "trials", "seed", "frame", "scales", "law",
+              "uncertainty", "source"):
+        assert getattr(got, f) == getattr(ref, f), f
+    for f in ("reference", "offsets"):
+        assert getattr(got, f).tobytes() == getattr(ref, f).tobytes()
+    assert got.graph.adjacency.tobytes() == ref.graph.adjacency.tobytes()
+    assert got.graph.leader.tobytes() == ref.graph.leader.tobytes()
+    if "graph" in fields:
+        assert np.count_nonzero(got.graph.adjacency) == 5  # the field was applied
+    assert got.desired.eta.tobytes() == ref.desired.eta.tobytes()
+
+
+def test_a_sweep_row_is_the_simulate_commands_run(tmp_path):
+    """A point's row reduces exactly what `formation-ilc simulate` computes for the scenario
+    with the point's fields and seed (its metrics.csv, read back)."""
+    from formation_ilc.cli import main
+    from formation_ilc.metrics import read_metrics
+    from formation_ilc.scenario import load_scenario
+    from formation_ilc.study import run_sim_point, scenario_text_with
+
+    spec = load_spec(_spec(tmp_path))
+    task = spec.sim_tasks()[5]
+    row = run_sim_point(task)
+    sc_file = tmp_path / "point.yaml"
+    sc_file.write_text(scenario_text_with(load_scenario("paper-hexagon6").text, task["fields"]))
+    assert main(["simulate", str(sc_file), "--trials", str(task["trials"]), "--seed",
+                 str(task["seed"]), "--no-plots", "--out", str(tmp_path / "sim")]) == 0
+    metrics = read_metrics(tmp_path / "sim" / "metrics.csv")
+    ref = reduce_metrics(metrics, task["position_level"], task["heading_level"],
+                         task["floor_window"])
+    assert {k: row[k] for k in ref} == ref
+    assert row["robot_samples"] == 6 * 300 * task["trials"]
+
+
+def test_chunks_keep_the_order_and_bound_the_work():
+    from formation_ilc.sweep import CHUNK_ROBOT_SAMPLES, chunk_tasks
+
+    base = SPEC.replace("check: false", "check: true")
+    spec = spec_from_text(base.replace("seeds: [1, 2]", "seeds: {first: 1, count: 30}"))
+    tasks = spec.check_tasks() + spec.sim_tasks()
+    chunks = chunk_tasks(tasks, workers=2)
+    assert [t["id"] for c in chunks for t in c] == [t["id"] for t in tasks]
+    assert all(len(c) == 1 for c in chunks if c[0]["id"].startswith("check-"))
+    assert not any(t["id"].startswith("check-") for c in chunks if len(c) > 1 for t in c)
+    # 120 small points (6 x 300 x 12 robot-samples): as many per chunk as leaves 8 per worker
+    sims = [c for c in chunks if not c[0]["id"].startswith("check-")]
+    assert max(len(c) for c in sims) == 8 and len(sims) == 15
+    big = spec_from_text(base.replace("trials: 12", "trials: 300"))
+    assert all(len(c) == 1 for c in chunk_tasks(big.sim_tasks(), 1))  # 540k robot-samples
+    assert 2 * 6 * 300 * 300 > CHUNK_ROBOT_SAMPLES
+
+
+def test_points_finished_before_an_interrupt_are_written(tmp_path, monkeypatch):
+    spec = load_spec(_spec(tmp_path))
+    out = tmp_path / "out"
+    seen: list[str] = []
+
+    def stop(row):
+        seen.append(row["id"])
+        if len(seen) == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(spec, out, workers=1, progress=False, on_row=stop)
+    assert sorted(p.stem for p in (out / "points").glob("*.json")) == sorted(seen)
+
+
+def test_a_write_error_stops_the_sweep(tmp_path, monkeypatch):
+    from formation_ilc import sweep
+
+    spec = load_spec(_spec(tmp_path))
+    calls: list[str] = []
+    real = sweep._write_atomic
+
+    def failing(path, row):
+        calls.append(row["id"])
+        if len(calls) == 2:
+            raise OSError(28, "No space left on device")
+        real(path, row)
+
+    monkeypatch.setattr(sweep, "_write_atomic", failing)
+    with pytest.raises(OSError, match="No space"):
+        run_sweep(spec, tmp_path / "out", workers=1, progress=False)
+    assert not (tmp_path / "out" / "results.csv").exists()
+    assert len(list((tmp_path / "out" / "points").glob("*.json"))) == 1
+
+
+def _blas_threads() -> list[int]:
+    from threadpoolctl import threadpool_info
+
+    return [lib["num_threads"] for lib in threadpool_info()]
+
+
+def test_pool_workers_run_blas_on_one_thread():
+    """The workers are the parallelism: a BLAS thread pool in each would oversubscribe."""
+    from formation_ilc.sweep import _pool, close_pools
+
+    try:
+        threads = _pool(2).submit(_blas_threads).result(timeout=120)
+    finally:
+        close_pools()
+    assert threads and set(threads) == {1}
