@@ -131,7 +131,7 @@ def scenario_data(scenario_text: str) -> Any:
 def scenario_text_with(scenario_text: str, fields: dict[str, Any]) -> str:
     """The YAML text of the scenario with ``fields`` written in (not ``noise_scale``): what
     ``apply_fields`` loads, so a file written from it loads to the same scenario."""
-    data = copy.deepcopy(yaml.safe_load(scenario_text))
+    data = copy.deepcopy(parse_yaml(scenario_text, "<study scenario>"))
     if _set_fields(data, fields, "<fields>") != 1.0:
         raise ValueError("noise_scale cannot be written into a scenario file")
     return yaml.safe_dump(data, sort_keys=False)

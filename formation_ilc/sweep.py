@@ -256,7 +256,7 @@ def spec_from_text(text: str, source: str = "<spec>", base_dir: Path | None = No
 def _self_contained(text: str, source: str, base: Path) -> str:
     """The scenario text with a ``reference.file`` inlined as points, so that workers need
     no shared disk."""
-    data = yaml.safe_load(text)
+    data = parse_yaml(text, source)  # as the scenario loader reads it (1e-3 is a number)
     ref = data.get("reference") if isinstance(data, dict) else None
     if isinstance(ref, dict) and ref.get("kind") == "samples" and "file" in ref:
         pts = np.loadtxt(base / ref["file"], delimiter=",", ndmin=2, comments="#")[:, :2]

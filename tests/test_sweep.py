@@ -321,3 +321,15 @@ def test_pool_workers_run_blas_on_one_thread():
     finally:
         close_pools()
     assert threads and set(threads) == {1}
+
+
+def test_exponent_numbers_survive_writing_a_configuration_into_a_scenario():
+    """``1e-3`` is a number for the scenario loader (YAML 1.2); the study's own rewriting of
+    the text must read it the same way, not as a string."""
+    from formation_ilc.scenario import load_scenario, scenario_from_text
+    from formation_ilc.study import scenario_text_with
+
+    text = load_scenario("paper-triangle3").text.replace("dt: 0.2", "dt: 2e-1")
+    assert "2e-1" in text
+    out = scenario_text_with(text, {"law.gain": 0.5})
+    assert scenario_from_text(out, "x").dt == 0.2
