@@ -160,6 +160,7 @@ class Hosts:
         self._logs: list[IO[bytes]] = []
         self.stats: dict[int, dict[str, Any]] = {}
         self._old_handlers: dict[int, Any] = {}
+        self._closing = False
 
     # ------------------------------------------------------------------ names
     @property
@@ -208,13 +209,19 @@ class Hosts:
         return self
 
     def __exit__(self, *exc: object) -> None:
+        self._closing = True
+        for sig in self._old_handlers:  # the run may have put its own handlers in meanwhile
+            signal.signal(sig, self._on_signal)
         try:
             self.down()
         finally:
             self._restore_handlers()
 
     def _on_signal(self, signum: int, frame: Any) -> None:
-        raise SystemExit(128 + signum)
+        # once the namespaces are being removed a second signal must not cut that short
+        if not self._closing:
+            self._closing = True
+            raise SystemExit(128 + signum)
 
     def _restore_handlers(self) -> None:
         for sig, old in self._old_handlers.items():
@@ -248,8 +255,10 @@ class Hosts:
                 self._fault_links(i)
 
     def _add(self, ns: str) -> None:
-        _run(["ip", "netns", "add", ns], "network namespace")
+        # recorded before it exists: a signal during `ip netns add` may leave it created, and
+        # down() deletes whatever is recorded (deleting one that never came is harmless)
         self.created.append(ns)
+        _run(["ip", "netns", "add", ns], "network namespace")
         _run(["ip", "-n", ns, "link", "set", "lo", "up"], "loopback")
 
     def _fault_links(self, i: int) -> None:
@@ -334,6 +343,7 @@ class Hosts:
 
     def down(self) -> None:
         """Stop the delayers, end what still runs inside our namespaces, delete them."""
+        self._closing = True
         self.stop_delayers()
         for ns in reversed(self.created):
             pids = subprocess.run(["ip", "netns", "pids", ns], capture_output=True,
