@@ -292,7 +292,7 @@ NO_RESTART = 2
 
 
 def _save_run(out: Path, args: argparse.Namespace) -> None:
-    from formation_ilc.schedule import atomic_write_text
+    from formation_ilc.atomic import atomic_write_text
 
     d = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()
          if k not in ("func", "command", "resume") and not k.endswith("_")}

@@ -13,8 +13,6 @@ Written atomically: a temporary file in the same folder, then ``os.replace``.
 from __future__ import annotations
 
 import hashlib
-import os
-import tempfile
 import zipfile
 from pathlib import Path
 from typing import IO, Any
@@ -22,6 +20,7 @@ from typing import IO, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .atomic import atomic_open
 from .scenario import Scenario
 
 __all__ = ["FORMAT_VERSION", "MemoryFileError", "save_memory", "load_memory", "scenario_hash",
@@ -50,24 +49,11 @@ def save_memory(path: Path, memory: NDArray[np.float64], sc: Scenario,
     if not np.isfinite(m).all():
         raise ValueError("memory holds inf or nan: a diverged run's memory is not saved")
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".npz")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, format_version=np.int64(FORMAT_VERSION), memory=m,
-                     scenario=np.str_(sc.name), scenario_sha256=np.str_(scenario_hash(sc)),
-                     n=np.int64(sc.n), samples=np.int64(sc.samples),
-                     dt=np.float64(sc.dt), trials_learned=np.int64(trials_learned))
-            if durable:
-                fh.flush()
-                os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    with atomic_open(path, durable=durable) as fh:
+        np.savez(fh, format_version=np.int64(FORMAT_VERSION), memory=m,
+                 scenario=np.str_(sc.name), scenario_sha256=np.str_(scenario_hash(sc)),
+                 n=np.int64(sc.n), samples=np.int64(sc.samples),
+                 dt=np.float64(sc.dt), trials_learned=np.int64(trials_learned))
     return path
 
 

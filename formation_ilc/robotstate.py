@@ -11,14 +11,13 @@ run is refused, naming what differs.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
+from .atomic import atomic_open
 from .memoryfile import MemoryFileError, scenario_hash
 from .scenario import Scenario
 
@@ -44,25 +43,13 @@ def state_path(state_dir: Path | str, robot_id: int) -> Path:
 
 
 def save_state(path: Path, st: RobotState, sc: Scenario, robot_id: int) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".npz")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, format=np.int64(FORMAT), robot=np.int64(robot_id),
-                     scenario_sha256=np.str_(scenario_hash(sc)), n=np.int64(sc.n),
-                     samples=np.int64(sc.samples), memory=st.memory,
-                     iterations=np.int64(st.iterations), slot=np.int64(st.slot),
-                     prev_memory=st.prev_memory, prev_iterations=np.int64(st.prev_iterations),
-                     prev_slot=np.int64(st.prev_slot))
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    with atomic_open(path) as fh:
+        np.savez(fh, format=np.int64(FORMAT), robot=np.int64(robot_id),
+                 scenario_sha256=np.str_(scenario_hash(sc)), n=np.int64(sc.n),
+                 samples=np.int64(sc.samples), memory=st.memory,
+                 iterations=np.int64(st.iterations), slot=np.int64(st.slot),
+                 prev_memory=st.prev_memory, prev_iterations=np.int64(st.prev_iterations),
+                 prev_slot=np.int64(st.prev_slot))
 
 
 def load_state(path: Path, sc: Scenario, robot_id: int) -> RobotState | None:

@@ -42,16 +42,15 @@ write their memory at each learning step (``formation_ilc.robotstate``).
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .atomic import atomic_write_text
 from .clock import Malformed
 
 __all__ = ["START", "END", "ABORT", "DONE", "TrialEvent", "Ready", "Schedule",
-           "ScheduleError", "atomic_write_text"]
+           "ScheduleError"]
 
 START, END, ABORT, DONE = "start", "end", "abort", "done"
 EVENTS = (START, END, ABORT, DONE)
@@ -139,24 +138,6 @@ class Ready:
 
 class ScheduleError(RuntimeError):
     """The team cannot go on (a robot came back without its memory, say)."""
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` so that a crash leaves the old or the new file, whole."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
 
 
 @dataclass

@@ -46,6 +46,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from .atomic import atomic_open
 from .scenario import (
     ScenarioError,
     _Fields,
@@ -281,17 +282,8 @@ def load_spec(path: str | Path) -> SweepSpec:
 
 def _write_atomic(path: Path, data: dict[str, Any]) -> None:
     """Write JSON so that ``path`` is either complete or absent, also after a power cut."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with tmp.open("w") as fh:
+    with atomic_open(path, "w") as fh:
         json.dump(data, fh, sort_keys=True)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
-    dfd = os.open(path.parent, os.O_RDONLY)
-    try:
-        os.fsync(dfd)
-    finally:
-        os.close(dfd)
 
 
 def _read_done(folder: Path) -> dict[str, dict[str, Any]]:
@@ -324,8 +316,7 @@ def write_table(spec: SweepSpec, out: Path, rows: dict[str, dict[str, Any]]) -> 
     never (trials_to_*) or not computed.
     """
     path = out / "results.csv"
-    tmp = path.with_name(".results.csv.tmp")
-    with tmp.open("w", newline="") as fh:
+    with atomic_open(path, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(TABLE_HEAD + spec.fields + SIM_COLUMNS + CHECK_COLUMNS)
         for task in spec.sim_tasks():
@@ -335,7 +326,6 @@ def write_table(spec: SweepSpec, out: Path, rows: dict[str, dict[str, Any]]) -> 
                        + [_cell(task["fields"][f]) for f in spec.fields]
                        + [_cell(row.get(c)) for c in SIM_COLUMNS]
                        + [_cell(chk.get(c)) for c in CHECK_COLUMNS])
-    os.replace(tmp, path)
     return path
 
 

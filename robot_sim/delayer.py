@@ -301,7 +301,8 @@ def run(args: argparse.Namespace) -> int:
         while not stopping:
             due = d.next_due()
             timeout = None if due is None else max(0.0, due - time.monotonic())
-            ready, _, _ = select.select([q.sock, stop_r], [], [], timeout)
+            waits: list[Any] = [q.sock, stop_r]  # a socket and a pipe's fd
+            ready, _, _ = select.select(waits, [], [], timeout)
             now = time.monotonic()
             if q.sock in ready:
                 d.take(now)

@@ -114,13 +114,9 @@ class LinkEmulator(ConfiguredNode):
             self.ready_pub.publish(self.ready_msg(0))
 
     def _on_event(self, msg: String) -> None:
-        ev = self.trial_event(msg)
-        if ev is None or ev.event not in (ms.START, ms.ABORT):
+        ev = self.new_start_or_abort(msg)
+        if ev is None:
             return
-        if ev.seq <= self.seen:
-            if ev.event == ms.START:
-                self.drops.drop("stale", ms.TRIAL_EVENTS, f"start seq {ev.seq} again")
-            return  # a repeated abort, already answered
         self.seen = ev.seq
         if ev.event == ms.ABORT:
             if ev.slot == self.k:

@@ -108,6 +108,20 @@ class ConfiguredNode(Node):
             return None
         return ev
 
+    def new_start_or_abort(self, msg: String) -> TrialEvent | None:
+        """The start or abort on ``leader/trial_events`` that this node (its last answered
+        ``seq`` in ``self.seen``) has not seen yet, or None: other events are not a
+        follower's business, a repeated abort was answered already, a repeated start is
+        counted stale."""
+        ev = self.trial_event(msg)
+        if ev is None or ev.event not in (ms.START, ms.ABORT):
+            return None
+        if ev.seq <= self.seen:
+            if ev.event == ms.START:
+                self.drops.drop("stale", ms.TRIAL_EVENTS, f"start seq {ev.seq} again")
+            return None
+        return ev
+
     def follow_config(self, cfg: RunConfig | None = None) -> None:
         """Configure now from ``cfg``, or when the config topic delivers one."""
         if cfg is not None:
