@@ -33,23 +33,33 @@ DAMAGED = 1
 
 def findings(rec: Recording) -> tuple[list[str], list[str]]:
     """(warnings, notes) about a recording for a user: damage and what it cost are
-    warnings; a file cut short at its end and skipped messages are notes."""
-    rep = rec.report
+    warnings; a file cut short at its end and skipped messages are notes. With several
+    parts each finding names its file."""
     warn: list[str] = []
     note: list[str] = []
-    if rep.damaged:
-        lost = rep.lost_messages
-        warn.append(f"damaged recording: {rep.messages} messages read back"
-                    + (f", {lost} lost" if lost else "") + "; everything after the damage "
-                    "that reads back was used")
-        warn += [f"  {line}" for line in rep.lines() if not line.startswith("the file ends")]
+    parts = rec.parts or [(Path(""), rec.report)]
+    many = len(parts) > 1
+    for path, rep in parts:
+        where = f"{path.name}: " if many else ""
+        if rep.damaged:
+            lost = rep.lost_messages
+            warn.append(f"{where}damaged recording: {rep.messages} messages read back"
+                        + (f", {lost} lost" if lost else "") + "; everything after the "
+                        "damage that reads back was used")
+            warn += [f"  {line}" for line in rep.lines() if not line.startswith("the file ends")]
+        if rep.cut_short:
+            note.append(f"{where}the file ends cut short (its writer stopped without closing "
+                        "it): read up to the last complete chunk"
+                        + (f"; {rep.tail_bytes} bytes after it are lost" if rep.tail_bytes
+                           else ""))
+    damaged = any(rep.damaged for _, rep in parts)
     if rec.incomplete:
-        (warn if rep.damaged else note).append(
-            f"trial(s) {', '.join(map(str, rec.incomplete))} not complete in the file")
-    if rep.cut_short:
-        note.append("the file ends cut short (its writer stopped without closing it): read "
-                    "up to the last complete chunk" + (f"; {rep.tail_bytes} bytes after it "
-                                                       f"are lost" if rep.tail_bytes else ""))
+        (warn if damaged else note).append(
+            f"trial(s) {', '.join(map(str, rec.incomplete))} not complete in the "
+            f"file{'s' * many}")
+    if rec.superseded:
+        note.append(f"{rec.superseded} trajectories of aborted slots or of trials run again "
+                    f"after an abort were set aside (the first complete copy counts)")
     if rec.undecodable:
         note.append("skipped messages that do not decode: " + ", ".join(
             f"{t} {n}" for t, n in sorted(rec.undecodable.items())))
@@ -199,7 +209,11 @@ delays {'on' if cfg.get('delay') else 'off'}; mode {html.escape(str(cfg.get('mod
     return path
 
 
-def analyze(src: Path, out: Path, plots: bool = True) -> int:
+def analyze(src: Path | list[Path], out: Path, plots: bool = True) -> int:
+    """Analyse the recording ``src`` (one file, or the parts of one run in order) into
+    ``out``; returns the exit status (0, DAMAGED, 2 when it is no recording)."""
+    files = [src] if isinstance(src, Path) else list(src)
+    src = files[0]
     t0 = time.perf_counter()
     last = [0.0]
     shown = [0]  # width of the progress line on screen (0: none)
@@ -213,13 +227,15 @@ def analyze(src: Path, out: Path, plots: bool = True) -> int:
             shown[0] = len(line)
 
     try:
-        rec = load_recording(src, progress=progress)
+        rec = load_recording(files, progress=progress)
     except RecordingError as exc:
         # one line: over the progress line if there is one
         print(("\r" + " " * shown[0] + "\r" if shown[0] else "") + f"error: {exc}",
               file=sys.stderr)
         return 2
-    print(f"\rread {src.name}: {rec.messages} messages, {len(rec.metrics)} complete trials "
+    names = src.name + (f" and {len(files) - 1} more part{'s' * (len(files) > 2)} "
+                        f"({', '.join(f.name for f in files[1:])})" if len(files) > 1 else "")
+    print(f"\rread {names}: {rec.messages} messages, {len(rec.metrics)} complete trials "
           f"[{time.perf_counter() - t0:.1f} s]".ljust(70), file=sys.stderr)
     out.mkdir(parents=True, exist_ok=True)
     write_metrics(out / "metrics.csv", rec.metrics)
@@ -227,7 +243,7 @@ def analyze(src: Path, out: Path, plots: bool = True) -> int:
     links.write_delays(out / "delays.csv", drows)
     (out / "config.json").write_text(json.dumps(rec.config, indent=2) + "\n")
     (out / "scenario.yaml").write_text(rec.scenario.text)
-    files = ["metrics.csv", "delays.csv", "config.json", "scenario.yaml"]
+    written = ["metrics.csv", "delays.csv", "config.json", "scenario.yaml"]
     m = rec.metrics
     if plots and len(m):
         from .plots import plot_errors, plot_trajectories
@@ -248,7 +264,7 @@ def analyze(src: Path, out: Path, plots: bool = True) -> int:
                                             out / "formation.png", edges)
         figs["delays"] = _plot_delays(rec, out / "delays.png")
         rep = _report(rec, src, out, figs, drows)
-        files += [f.name for f in figs.values() if f is not None] + [rep.name]
+        written += [f.name for f in figs.values() if f is not None] + [rep.name]
     k = len(m)
     if k:
         print(f"{rec.scenario.name}: {k} trials; max position error {m[0, 1]:.4g} m (trial "
@@ -256,7 +272,7 @@ def analyze(src: Path, out: Path, plots: bool = True) -> int:
     warn, note = findings(rec)
     for line in note:
         print(f"note: {line}")
-    print(f"results in {out}/ ({', '.join(files)})")
+    print(f"results in {out}/ ({', '.join(written)})")
     for line in warn:
         print(f"warning: {line}", file=sys.stderr)
-    return DAMAGED if rec.report.damaged else 0
+    return DAMAGED if any(rep.damaged for _, rep in rec.parts) else 0

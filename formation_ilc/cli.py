@@ -275,11 +275,17 @@ def build_parser() -> argparse.ArgumentParser:
                                    "and report.html (one page to read at a glance). A file "
                                    "cut short by a crash is read up to the cut. A file "
                                    "damaged in the middle is read past the damage; what was "
-                                   "lost is reported and the exit status is 1.")
+                                   "lost is reported and the exit status is 1. A run "
+                                   "whose recorder was restarted, or that was resumed, "
+                                   "left more files next to RUN.mcap (RUN.part1.mcap, "
+                                   "RUN.resumed1.mcap, ...): they are read with it, in "
+                                   "order, as one run.")
     p.add_argument("recording", type=Path, metavar="RUN.mcap")
     p.add_argument("--out", type=out_dir_arg, metavar="DIR",
                    help="output folder (default: RUN-analysis next to the file)")
     p.add_argument("--no-plots", action="store_true", help="tables only")
+    p.add_argument("--only-this-file", action="store_true",
+                   help="read RUN.mcap alone, not the parts written after it")
 
     p = sub.add_parser("mcap-repair", help="rewrite a recording cut short by a crash",
                        description="A recorder killed mid-run leaves an MCAP file without "
@@ -836,12 +842,17 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_sweep(args)
         if args.command == "analyze":
             from .analyze import analyze
+            from .recording import recording_parts
 
             _regular_file(args.recording)
             out = make_out_dir(args.out or args.recording.with_name(args.recording.stem
                                                                     + "-analysis"))
+            files = ([args.recording] if args.only_this_file
+                     else recording_parts(args.recording))
+            for f in files[1:]:
+                _regular_file(f)
             try:
-                return analyze(args.recording, out, plots=not args.no_plots)
+                return analyze(files, out, plots=not args.no_plots)
             except ValueError as exc:  # not a recording, or not one of ours
                 raise ScenarioError(" ".join(str(exc).split())) from None
         if args.command == "mcap-repair":

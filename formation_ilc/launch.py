@@ -354,7 +354,7 @@ def run(args: argparse.Namespace) -> int:
     from formation_ilc.metrics import MetricsWriter
     from formation_ilc.nodes.common import warm_up
     from formation_ilc.runconfig import make_config
-    from formation_ilc.schedule import Schedule
+    from formation_ilc.schedule import Ready, Schedule
     from formation_ilc.shm import clean_leftovers, fastdds_files
     from formation_ilc.simulate import Problem
 
@@ -495,6 +495,7 @@ def run(args: argparse.Namespace) -> int:
     import rclpy
     from rclpy.experimental import EventsExecutor
     from rclpy.signals import SignalHandlerOptions
+    from std_msgs.msg import String
 
     from formation_ilc.nodes.monitor import MonitorNode
 
@@ -542,6 +543,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         monitor = MonitorNode(cfg, on_trial, true_state=true_state, namespace=namespace,
                               first=done)
+        down_pub = monitor.create_publisher(String, ms.READY, ms.LATCHED_QOS)
         ex = EventsExecutor()
         ex.add_node(monitor)
         # discovery runs while the kernels compile; then look for another formation here
@@ -601,6 +603,12 @@ def run(args: argparse.Namespace) -> int:
                 if code == NO_RESTART or n >= args.max_restarts:
                     failed = (name, code)
                     break
+                if name == "recorder":
+                    # tell the leader at once, so that no trial starts without a recorder
+                    # (a passive node's death is not seen otherwise until it is back)
+                    down_pub.publish(ms.json_to_msg(Ready(
+                        name, sc.trials, str(stack.procs[name].pid), passive=True,
+                        run=args.run_id, down=True).to_json()))
                 note = stack.restart(name)
                 what = ("" if name in ("recorder",)
                         else "; the trial it interrupted runs again")

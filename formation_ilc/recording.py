@@ -10,12 +10,14 @@ received; ``SimRecorder`` writes them from the batch simulator.
 
 from __future__ import annotations
 
+import glob
 import json
 import os
+import re
 import struct
 import sys
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -26,12 +28,15 @@ from numpy.typing import NDArray
 from . import cdr
 from .links import check_diagnostics, delivered_label, link_histograms
 from .mcap_io import RawMessage, ReadReport, RosMcapWriter, qos_yaml, read_messages
-from .metrics import METRIC_COLUMNS, TRUE_COLUMNS
+from .metrics import METRIC_COLUMNS
 from .runconfig import RunConfig
 from .scenario import Scenario
-from .simulate import Problem, trial_errors
+from .schedule import TrialEvent
+from .simulate import Problem
+from .trialrows import SlotRows
 
-__all__ = ["qos_of", "SimRecorder", "Recording", "RecordingError", "load_recording"]
+__all__ = ["qos_of", "SimRecorder", "Recording", "RecordingError", "load_recording",
+           "recording_parts"]
 
 #: metadata record name holding the run configuration (same JSON as /formation/config)
 META_NAME = "formation_ilc"
@@ -147,6 +152,8 @@ class Recording:
     events : trial events in file order. config : the run configuration (JSON).
     incomplete : trials of the run up to the last one seen whose data is not all in the
         file (cut short, damaged, or never sent).
+    Trials are iterations: a slot the leader aborted (a node restarted, docs/reliability.md)
+    is dropped and its iteration counted where it ran again.
     undecodable : per topic, messages skipped because they do not decode (junk JSON, a
         malformed trajectory, a label off the run's grid).
     report : what reading the file found (``mcap_io.ReadReport``: damage, cut short).
@@ -164,6 +171,10 @@ class Recording:
     messages: int = 0
     undecodable: dict[str, int] = field(default_factory=dict)
     report: ReadReport = field(default_factory=ReadReport)
+    #: every file read, with what reading it found (``report`` is the first one's)
+    parts: list[tuple[Path, ReadReport]] = field(default_factory=list)
+    #: messages of aborted slots, or repeating a trial already complete (not errors)
+    superseded: int = 0
 
 
 def _path_outputs(data: bytes, ref_heading: NDArray[np.float64]
@@ -199,9 +210,40 @@ def _path_outputs(data: bytes, ref_heading: NDArray[np.float64]
 _ANALYSED = ("/trajectory", "/true_trajectory", "/diagnostics", "/trial_events")
 
 
-def load_recording(path: str | Path, keep: Callable[[int, int], bool] | None = None,
+def recording_parts(first: str | Path) -> list[Path]:
+    """The files of the run recorded in ``first`` (``RUN.mcap``), in the order they were
+    written: ``first``, the parts of its restarted recorder (``RUN.part1.mcap``, ...), then
+    each resumed launch's file (``RUN.resumed1.mcap``) and its parts
+    (``RUN.resumed1.part1.mcap``, ...). Only ``first`` when it is itself a part."""
+    first = Path(first)
+    stem = first.name[: -len(".mcap")] if first.name.endswith(".mcap") else None
+    if stem is None or re.search(r"\.(part|resumed)\d+$", stem):
+        return [first]
+
+    def numbered(prefix: str, kind: str) -> list[tuple[int, Path]]:
+        pat = re.compile(re.escape(prefix) + rf"\.{kind}(\d+)\.mcap$")
+        found = []
+        for p in first.parent.glob(f"{glob.escape(prefix)}.{kind}*.mcap"):
+            m = pat.fullmatch(p.name)
+            if m:
+                found.append((int(m.group(1)), p))
+        return sorted(found)
+
+    out = [first] + [p for _, p in numbered(stem, "part")]
+    for n, resumed in numbered(stem, "resumed"):
+        out += [resumed] + [p for _, p in numbered(f"{stem}.resumed{n}", "part")]
+    return out
+
+
+def load_recording(path: str | Path | Sequence[str | Path],
+                   keep: Callable[[int, int], bool] | None = None,
                    progress: Callable[[int], None] | None = None) -> Recording:
     """Read a recording and compute its per-trial metrics exactly as the launcher does.
+
+    ``path``: one file, or the files of one run in the order they were written
+    (``recording_parts``): they are read as one stream, so a trial whose data spans two
+    parts is complete. Every part must hold the same run (its run id); RecordingError names
+    the one that does not.
 
     Nothing in the file stops the reading: a message that does not decode is skipped and
     counted per topic (``undecodable``), damaged bytes are skipped up to the next readable
@@ -215,20 +257,22 @@ def load_recording(path: str | Path, keep: Callable[[int, int], bool] | None = N
 
     import msgs_schema as ms
 
-    path = Path(path)
-    report = ReadReport()
+    from .clock import Rejected
+
+    paths = [Path(path)] if isinstance(path, (str, Path)) else [Path(p) for p in path]
+    if not paths:
+        raise ValueError("load_recording: no file given")
+    parts: list[tuple[Path, ReadReport]] = []
     config: dict[str, Any] | None = None
     cfg: RunConfig | None = None
-    pb: Problem | None = None
-    meas: dict[int, dict[int, NDArray[np.float64]]] = {}
-    true: dict[int, dict[int, NDArray[np.float64]]] = {}
-    rows: dict[int, NDArray[np.float64]] = {}
+    slots: SlotRows | None = None
     rec_eta: dict[int, NDArray[np.float64]] = {}
     rec_xi: dict[int, NDArray[np.float64]] = {}
     diags: dict[str, dict[str, Any]] = {}
     events: list[dict[str, Any]] = []
     bad: Counter[str] = Counter()
     count = 0
+    superseded = 0
     traj_topic: dict[str, tuple[int, bool]] = {}
     # the formation's namespace is where its config topic is
     events_topic = diag_topic = ""
@@ -240,10 +284,11 @@ def load_recording(path: str | Path, keep: Callable[[int, int], bool] | None = N
         return ms.msg_to_json(ms.deserialize(m.data, String), required)
 
     def configure(m: RawMessage) -> None:
-        nonlocal config, cfg, pb, events_topic, diag_topic
+        nonlocal config, cfg, slots, events_topic, diag_topic
         conf = text(m, ())
         c = RunConfig.from_json(conf)
-        config, cfg, pb = conf, c, Problem.from_scenario(c.scenario)
+        pb = Problem.from_scenario(c.scenario)
+        config, cfg, slots = conf, c, SlotRows(pb, strict=False)
         namespace = m.topic[: -len(ms.CONFIG) - 1] or "/"
         for r in range(pb.n):
             traj_topic[ms.absolute(ms.trajectory_topic(r + 1), namespace)] = (r, False)
@@ -251,54 +296,64 @@ def load_recording(path: str | Path, keep: Callable[[int, int], bool] | None = N
         events_topic = ms.absolute(ms.TRIAL_EVENTS, namespace)
         diag_topic = ms.absolute(ms.DIAGNOSTICS, namespace)
 
+    def kept(done: list[Any]) -> None:
+        assert cfg is not None
+        for d in done:
+            if keep is None or keep(d.trial, cfg.scenario.trials):
+                rec_eta[d.trial] = d.eta
+                if d.xi is not None:
+                    rec_xi[d.trial] = d.xi
+
     def handle(m: RawMessage) -> None:
         nonlocal true_seen, last_seen
+        assert slots is not None and cfg is not None
         if m.topic == events_topic:
-            ev = text(m, ("event", "trial"))
-            if ev.get("event") == ms.START:
-                last_seen = max(last_seen, ms.json_int(ev, "trial"))
-            events.append(ev)
+            d = text(m, ("event", "trial"))
+            ev = TrialEvent.from_json(d)
+            if ev.run and cfg.run_id and ev.run != cfg.run_id:
+                raise Rejected("foreign", f"event of run {ev.run}")
+            if ev.event == ms.START:
+                last_seen = max(last_seen, ev.trial)
+            events.append(d)
+            kept(slots.event(ev))
         elif m.topic == diag_topic:
-            d = check_diagnostics(text(m, ("node", "trial")))
-            diags[d["node"]] = d
+            dg = check_diagnostics(text(m, ("node", "trial")))
+            diags[dg["node"]] = dg
         elif m.topic in traj_topic:
-            assert pb is not None and cfg is not None
             r, is_true = traj_topic[m.topic]
-            eta, stamps = _path_outputs(m.data, pb.eta_d[r, :, 2])
+            eta, stamps = _path_outputs(m.data, slots.pb.eta_d[r, :, 2])
             k, s0 = cfg.clock.decode(int(stamps[0]))
-            if s0 != 0 or not 0 <= k < cfg.scenario.trials:
-                raise ms.MalformedMessage(f"trajectory of trial {k} sample {s0}: not a "
+            if s0 != 0 or k < 0:
+                raise ms.MalformedMessage(f"trajectory of slot {k} sample {s0}: not a "
                                           f"trial of this run")
             true_seen = true_seen or is_true
-            last_seen = max(last_seen, k)
-            if k in rows:
-                return
-            (true if is_true else meas).setdefault(k, {})[r] = eta
-            if len(meas.get(k, {})) == pb.n and len(true.get(k, {})) == pb.n:
-                e = np.stack([meas[k][i] for i in range(pb.n)])
-                x = np.stack([true[k][i] for i in range(pb.n)])
-                row = np.empty(len(METRIC_COLUMNS))
-                row[0] = k
-                trial_errors(e, x, pb.eta_d, pb.src, pb.weight, row[1:])
-                rows[k] = row
-                if keep is None or keep(k, cfg.scenario.trials):
-                    rec_eta[k], rec_xi[k] = e, x
-                del meas[k], true[k]
+            kept(slots.trajectory(k, r, is_true, eta))
 
     def dispatch(m: RawMessage) -> None:
+        nonlocal superseded
         try:
             handle(m)
+        except Rejected as exc:
+            if exc.reason in ("stale", "duplicate"):
+                superseded += 1  # an aborted slot's, or a trial run again
+            else:
+                bad[m.topic] += 1
         except (ms.MalformedMessage, ValueError) as exc:
             bad[m.topic] += 1
             if os.environ.get("FORMATION_ILC_DEBUG"):
-                print(f"{path}: skipped a message on {m.topic}: {exc}", file=sys.stderr)
+                print(f"{m.topic}: skipped a message: {exc}", file=sys.stderr)
 
-    for msg in read_messages(path, report=report):
-        count += 1
-        if progress is not None and count % 5000 == 0:
-            progress(count)
-        if config is None:
+    for part in paths:
+        report = ReadReport()
+        parts.append((part, report))
+        for msg in read_messages(part, report=report):
+            count += 1
+            if progress is not None and count % 5000 == 0:
+                progress(count)
             if msg.topic.endswith("/" + ms.CONFIG):
+                if config is not None:
+                    _same_run(part, config, msg, text)
+                    continue
                 try:
                     configure(msg)
                 except ValueError:  # junk, or a configuration that does not load
@@ -307,33 +362,49 @@ def load_recording(path: str | Path, keep: Callable[[int, int], bool] | None = N
                 for held in early:
                     dispatch(held)
                 early = []
-            elif msg.topic.endswith(_ANALYSED):
-                early.append(msg)
-            continue
-        dispatch(msg)
-    if pb is not None and cfg is not None and not true_seen:
+                continue
+            if config is None:
+                if msg.topic.endswith(_ANALYSED):
+                    early.append(msg)
+                continue
+            dispatch(msg)
+    if slots is not None:
+        kept(slots.infer())  # slots whose start was lost with a killed recorder
+    if slots is not None and cfg is not None and not true_seen:
         # a plant without a true state (hardware): the true_ columns are nan
-        for k in sorted(k for k, d in meas.items() if len(d) == pb.n):
-            e = np.stack([meas[k][i] for i in range(pb.n)])
-            row = np.empty(len(METRIC_COLUMNS))
-            row[0] = k
-            trial_errors(e, e, pb.eta_d, pb.src, pb.weight, row[1:])
-            for c in TRUE_COLUMNS:
-                row[METRIC_COLUMNS.index(c)] = np.nan
-            rows[k] = row
-            if keep is None or keep(k, cfg.scenario.trials):
-                rec_eta[k] = e
-            del meas[k]
-    if config is None or cfg is None:
+        kept(slots.measured_only())
+    if config is None or cfg is None or slots is None:
+        report = parts[0][1]
         found = (f"{report.messages} messages read" if report.messages
                  else "no MCAP record read back")
-        raise RecordingError(f"{path}: no readable run configuration on a .../{ms.CONFIG} "
+        where = paths[0] if len(paths) == 1 else f"{paths[0]} (and {len(paths) - 1} parts)"
+        raise RecordingError(f"{where}: no readable run configuration on a .../{ms.CONFIG} "
                              f"topic ({found}): not a formation-ilc recording, or cut or "
                              f"damaged before the run started")
+    topic_of = {v: t for t, v in traj_topic.items()}
+    for _, r, is_true in slots.unstarted():  # of no trial the run started
+        bad[topic_of[(r, is_true)]] += 1
+    rows = slots.rows
+    last_seen = max([last_seen, *rows, *slots.iteration_of.values()])
     metrics = (np.array([rows[k] for k in sorted(rows)]) if rows
                else np.empty((0, len(METRIC_COLUMNS))))
     delays, injected = link_histograms(diags)
     return Recording(scenario=cfg.scenario, config=config, metrics=metrics, eta=rec_eta,
                      xi=rec_xi, delays=delays, injected=injected, events=events,
-                     incomplete=[k for k in range(last_seen + 1) if k not in rows],
-                     messages=count, undecodable=dict(bad), report=report)
+                     incomplete=[k for k in range(min(last_seen + 1, cfg.scenario.trials))
+                                 if k not in rows],
+                     messages=count, undecodable=dict(bad), report=parts[0][1], parts=parts,
+                     superseded=superseded)
+
+
+def _same_run(part: Path, config: dict[str, Any], msg: RawMessage,
+              text: Callable[[RawMessage, tuple[str, ...]], dict[str, Any]]) -> None:
+    """RecordingError if ``msg`` (a configuration in a later part) is another run's."""
+    try:
+        other = text(msg, ())
+    except ValueError:
+        return  # junk: counted nowhere, the first configuration stands
+    mine, theirs = config.get("run_id", ""), other.get("run_id", "")
+    if mine != theirs or other.get("scenario") != config.get("scenario"):
+        raise RecordingError(f"{part}: another run's recording (run {theirs or '?'}, the "
+                             f"first part's is {mine or '?'}): give the parts of one run")

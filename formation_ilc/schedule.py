@@ -117,6 +117,8 @@ class Ready:
     seen: int = -1
     passive: bool = False
     run: str = ""
+    #: said by a supervisor (the launcher), not the node: process ``boot`` of ``node`` died
+    down: bool = False
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> Ready:
@@ -124,7 +126,8 @@ class Ready:
         if not isinstance(node, str) or not node:
             raise Malformed(f"ready: node must be a name, got {node!r}")
         return cls(node, _int(d, "trial"), str(d.get("boot", "")), _int(d, "seen", -1),
-                   bool(d.get("passive", False)), str(d.get("run", "")))
+                   bool(d.get("passive", False)), str(d.get("run", "")),
+                   bool(d.get("down", False)))
 
     def to_json(self) -> dict[str, Any]:
         d: dict[str, Any] = {"node": self.node, "trial": self.trial, "boot": self.boot,
@@ -133,6 +136,8 @@ class Ready:
             d["passive"] = True
         if self.run:
             d["run"] = self.run
+        if self.down:
+            d["down"] = True
         return d
 
 
@@ -199,6 +204,13 @@ class Schedule:
         """Take a node's ready. Returns why the open slot must be aborted (a node
         restarted while it was open), else None."""
         if r.node not in self.expected:
+            return None
+        if r.down:
+            # the process that said ready is gone: wait for the one that replaces it (a
+            # recorder restarted before the next start loses nothing of the trials after)
+            if self.boots.get(r.node) == r.boot:
+                self.ready.pop(r.node, None)
+                self.answered.discard(r.node)
             return None
         old = self.boots.get(r.node)
         self.boots[r.node] = r.boot

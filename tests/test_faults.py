@@ -109,6 +109,56 @@ def test_a_killed_node_is_restarted_and_nothing_is_lost(ros_env, tmp_path, kind)
             assert int(st["iterations"]) == TRIALS
 
 
+def test_a_recording_of_a_faulted_run_analyses_to_the_batch_metrics(ros_env, tmp_path):
+    """The simulator is killed (its slot is aborted and the iteration runs again in a later
+    slot), then the recorder (the run goes on into RUN.part1.mcap): `analyze RUN.mcap`
+    reads both parts as one run and gets every trial, numbered by iteration, equal to
+    batch; the restarted recorder still confirms the last trial to the launcher."""
+    rec = tmp_path / "run.mcap"
+    proc = start(ros_env, tmp_path, "paper-triangle3", "--trials", str(TRIALS),
+                 "--seed", str(SEED), "--record", str(rec))
+    try:
+        wait_rows(proc, tmp_path / "metrics.csv", 2)
+        os.kill(find_child(ros_env["ROS_DOMAIN_ID"], VICTIMS["simulator"],
+                           time.monotonic() + 10), signal.SIGKILL)
+        wait_rows(proc, tmp_path / "metrics.csv", 4)
+        os.kill(find_child(ros_env["ROS_DOMAIN_ID"], "-m formation_ilc.nodes.recorder",
+                           time.monotonic() + 10), signal.SIGKILL)
+        out, _ = proc.communicate(timeout=180)
+    finally:
+        stop_group(proc)
+    assert proc.returncode == 0, out
+    assert "recorder exited with signal SIGKILL" in out and "run.part1.mcap" in out, out
+    from formation_ilc.recording import load_recording, recording_parts
+
+    parts = recording_parts(rec)
+    assert [p.name for p in parts] == ["run.mcap", "run.part1.mcap"]
+    r = load_recording(parts)
+    ref = batch()
+    np.testing.assert_array_equal(r.metrics[:, 0], np.arange(TRIALS))
+    np.testing.assert_allclose(r.metrics[:, 1:], ref[:, 1:], rtol=0, atol=TOL)
+    assert r.incomplete == []
+    # the run had an aborted slot: iterations and slots differ from it on
+    starts = [(e["trial"], e.get("slot", e["trial"])) for e in r.events
+              if e["event"] == "start"]
+    assert any(e["event"] == "abort" for e in r.events)
+    assert max(slot for _, slot in starts) > TRIALS - 1
+    # read alone, the first part misses the trials recorded after the kill
+    alone = load_recording(rec)
+    assert len(alone.metrics) < TRIALS
+    res = subprocess.run([sys.executable, "-m", "formation_ilc.cli", "analyze", str(rec),
+                          "--no-plots", "--out", str(tmp_path / "analysis")],
+                         env=ros_env, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert "and 1 more part (run.part1.mcap)" in res.stderr
+    np.testing.assert_allclose(read_metrics(tmp_path / "analysis" / "metrics.csv"),
+                               r.metrics, rtol=0, atol=0)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["restarts"] == {"robot_sim": 1, "recorder": 1}
+    diagnostics = json.loads((tmp_path / "diagnostics.json").read_text())
+    assert diagnostics["recorder"]["trial"] == TRIALS - 1
+
+
 def test_launcher_killed_leaves_no_node_and_resume_finishes_the_run(ros_env, tmp_path):
     shm_before = fastdds_files()
     proc = start(ros_env, tmp_path, "paper-triangle3", "--trials", str(TRIALS),

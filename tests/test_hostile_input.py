@@ -602,24 +602,27 @@ def test_fuzz_monitor_handlers(context):
         @example(msg=ms.json_to_msg({"event": "end", "trial": 1}), true=False)
         @given(msg=st.one_of(paths(robot=0), diags, events), true=st.booleans())
         def prop(msg, true):
-            mon.started, mon.rows, mon.eta, mon.xi = 1, {0: None}, {}, {}
-            mon.iteration_of, mon.aborted = {0: 0, 1: 1}, set()
+            sl = mon.slots
+            sl.started, sl.eta, sl.xi = 1, {}, {}
+            sl.rows.clear()
+            sl.rows[0] = np.zeros(1)
+            sl.iteration_of, sl.aborted = {0: 0, 1: 1}, set()
             mon.diagnostics = {"robot_1": {"node": "robot_1", "trial": 0}}
             before = dropped(mon)
             if isinstance(msg, Path):
-                mon._on_traj(msg, 0, mon.xi if true else mon.eta)
-                taken = bool(mon.eta or mon.xi)
+                mon._on_traj(msg, 0, true)
+                taken = bool(sl.eta or sl.xi)
                 if taken:  # a trajectory of the trial in progress
-                    assert list(mon.xi if true else mon.eta) == [1]
+                    assert list(sl.xi if true else sl.eta) == [1]
             else:
                 diag = mon.diagnostics["robot_1"]
                 n_events = len(mon.events)
                 (mon._on_diag if "node" in msg.data else mon._on_event)(msg)
                 taken = (len(mon.events) != n_events or mon.diagnostics["robot_1"] is not diag
                          or len(mon.diagnostics) > 1)
-                assert mon.started in (1, 2)
+                assert sl.started in (1, 2)
                 for d in mon.diagnostics.values():  # what the launcher reads is sound
-                    assert isinstance(d["trial"], int) and d["trial"] <= mon.started
+                    assert isinstance(d["trial"], int) and d["trial"] <= sl.started
             assert taken != (dropped(mon) == before + 1)
             seen(taken)
         prop()

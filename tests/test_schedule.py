@@ -250,3 +250,22 @@ def test_a_passive_node_restarting_aborts_nothing():
     s.started(0)
     assert s.on_ready(Ready("monitor", 3, "new", -1, passive=True)) is None
     assert s.abort_pending is None
+
+
+def test_a_supervisors_down_notice_makes_the_leader_wait_for_the_restarted_recorder():
+    """The launcher says a recorder process died (its pid as boot): no slot starts until
+    the restarted recorder says ready; a notice about an older process changes nothing."""
+    s = Schedule(["robot_1", "recorder"], {"robot_1"}, trials=3)
+    s.on_ready(Ready("robot_1", 0, "a"))
+    s.on_ready(Ready("recorder", 3, "100", passive=True))
+    assert s.next_start() == (0, 0)
+    s.started(0)
+    s.ended(0)
+    s.on_ready(Ready("recorder", 3, "99", passive=True, down=True))  # not its process
+    s.on_ready(Ready("robot_1", 1, "a", seen=s.seq))
+    assert s.waiting_for() == [] and s.committed == 1
+    s.on_ready(Ready("recorder", 3, "100", passive=True, down=True))
+    assert s.waiting_for() == ["recorder"] and s.next_start() is None
+    assert s.on_ready(Ready("recorder", 3, "101", passive=True)) is None  # no abort
+    assert s.next_start() == (1, 1)
+    assert Ready.from_json(Ready("recorder", 3, "1", down=True).to_json()).down

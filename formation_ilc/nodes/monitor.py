@@ -33,10 +33,10 @@ from std_msgs.msg import String
 import msgs_schema as ms
 from formation_ilc.clock import Rejected
 from formation_ilc.links import check_diagnostics
-from formation_ilc.metrics import METRIC_COLUMNS, TRUE_COLUMNS
 from formation_ilc.nodes.common import DropCounter, RunConfig
 from formation_ilc.schedule import TrialEvent
-from formation_ilc.simulate import Problem, trial_errors
+from formation_ilc.simulate import Problem
+from formation_ilc.trialrows import Row, SlotRows
 
 
 class MonitorNode(Node):
@@ -53,24 +53,19 @@ class MonitorNode(Node):
         self.true_state = true_state
         self.drops = DropCounter(self)
         n = self.pb.n
-        self.eta: dict[int, dict[int, np.ndarray]] = {}
-        self.xi: dict[int, dict[int, np.ndarray]] = {}
-        self.rows: dict[int, np.ndarray] = {}
+        self.slots = SlotRows(self.pb, true_state, first)  # the rows, by iteration
+        self.rows = self.slots.rows
         self.diagnostics: dict[str, dict[str, Any]] = {}
         self.events: list[dict[str, Any]] = []
-        self.first = first
-        self.iteration_of: dict[int, int] = {}   # slot -> iteration (start events)
-        self.aborted: set[int] = set()
-        self.started = -1   # the last slot the leader started
         self.path_subs = []
         for r in range(n):
             self.path_subs.append(self.create_subscription(
-                Path, ms.trajectory_topic(r + 1), lambda m, r=r: self._on_traj(m, r, self.eta),
+                Path, ms.trajectory_topic(r + 1), lambda m, r=r: self._on_traj(m, r, False),
                 ms.TRAJECTORY_QOS))
             if true_state:
                 self.path_subs.append(self.create_subscription(
                     Path, ms.true_trajectory_topic(r + 1),
-                    lambda m, r=r: self._on_traj(m, r, self.xi), ms.TRAJECTORY_QOS))
+                    lambda m, r=r: self._on_traj(m, r, True), ms.TRAJECTORY_QOS))
         # the schedule waits for the monitor too ("monitor" in the leader's nodes_expected):
         # a writer's match count cannot tell a monitor from a recorder, and a monitor matched
         # after trial 1 would miss trial 0 (trajectories are latched 2 deep)
@@ -88,8 +83,8 @@ class MonitorNode(Node):
                                                    "boot": f"{os.getpid()}",
                                                    "run": self.cfg.run_id}))
 
-    def _on_traj(self, msg: Path, r: int, store: dict[int, dict[int, np.ndarray]]) -> None:
-        topic = (ms.trajectory_topic if store is self.eta else ms.true_trajectory_topic)(r + 1)
+    def _on_traj(self, msg: Path, r: int, true: bool) -> None:
+        topic = (ms.true_trajectory_topic if true else ms.trajectory_topic)(r + 1)
         try:
             eta, stamps, frame = ms.path_to_trajectory(msg, self.pb.eta_d[r, :, 2])
             if frame != ms.WORLD_FRAME:
@@ -98,53 +93,23 @@ class MonitorNode(Node):
             if s0 != 0 or any(int(x) != self.clock.stamp_ns(k, s)
                               for s, x in enumerate(stamps)):
                 raise ms.MalformedMessage("stamps are not samples 0..T of one trial")
-            i = self.iteration_of.get(k)
-            if k in self.aborted:
-                raise Rejected("stale", f"trajectory of slot {k}, aborted")
-            if i is not None and i in self.rows:
-                raise Rejected("duplicate", f"trial {i} is complete")
-            if k > self.started:
-                raise Rejected("future", f"trajectory of slot {k}, slot {self.started} "
-                                         f"started")
-            if r in store.get(k, {}):
-                raise Rejected("duplicate", f"slot {k} again")
+            done = self.slots.trajectory(k, r, true, eta)
         except Rejected as exc:
             self.drops.reject(exc, topic)
             return
-        store.setdefault(k, {})[r] = eta
-        self._complete(k)
+        self._report(done)
 
-    def _complete(self, k: int) -> None:
-        """Report slot k's row once its trajectories and its iteration are known."""
-        n = self.pb.n
-        i = self.iteration_of.get(k)
-        if i is None or k in self.aborted:
-            return
-        if len(self.eta.get(k, {})) == n and (not self.true_state
-                                              or len(self.xi.get(k, {})) == n):
-            eta_all = np.stack([self.eta[k][i] for i in range(n)])
-            xi_all = (np.stack([self.xi[k][i] for i in range(n)]) if self.true_state
-                      else eta_all)
-            row = np.empty(len(METRIC_COLUMNS))
-            row[0] = i
-            trial_errors(eta_all, xi_all, self.pb.eta_d, self.pb.src, self.pb.weight, row[1:])
-            if not self.true_state:
-                for c in TRUE_COLUMNS:
-                    row[METRIC_COLUMNS.index(c)] = np.nan
-            self.eta.pop(k, None)
-            self.xi.pop(k, None)
-            if i < self.first or i in self.rows:
-                return
-            self.rows[i] = row
-            self.on_trial(i, row)
+    def _report(self, done: list[Row]) -> None:
+        for d in done:
+            self.on_trial(d.trial, d.row)
 
     def _on_diag(self, msg: String) -> None:
         try:
             d = check_diagnostics(ms.msg_to_json(msg, ("node", "trial")))
             name, k = d["node"], d["trial"]
-            if k > self.started:
-                raise Rejected("future", f"{name[:100]} diagnostics of trial {k}, trial "
-                                         f"{self.started} started")
+            if k > self.slots.started:
+                raise Rejected("future", f"{name[:100]} diagnostics of trial {k}, slot "
+                                         f"{self.slots.started} started")
             if k < self.diagnostics.get(name, {}).get("trial", k):
                 raise Rejected("stale", f"{name[:100]} diagnostics of trial {k} after "
                                         f"{self.diagnostics[name]['trial']}")
@@ -159,25 +124,9 @@ class MonitorNode(Node):
             ev = TrialEvent.from_json(d)
             if ev.run and ev.run != self.cfg.run_id:
                 raise Rejected("foreign", f"event of run {ev.run}")
-            if ev.event == ms.START and ev.slot <= self.started:
-                raise Rejected("stale", f"start of slot {ev.slot}, slot {self.started} "
-                                        f"started")
-            # the next slot; any for a monitor that has just started (a resumed run)
-            if ev.event == ms.START and ev.slot > self.started + 1 and self.started >= 0:
-                raise Rejected("future", f"start of slot {ev.slot}, slot {self.started} "
-                                         f"started")
-            if ev.event in (ms.END, ms.ABORT) and ev.slot > self.started:
-                raise Rejected("unexpected", f"{ev.event} of slot {ev.slot}, slot "
-                                             f"{self.started} started")
+            done = self.slots.event(ev)
         except Rejected as exc:
             self.drops.reject(exc, ms.TRIAL_EVENTS)
             return
         self.events.append(d)
-        if ev.event == ms.START:
-            self.started = ev.slot
-            self.iteration_of[ev.slot] = ev.trial
-            self._complete(ev.slot)
-        elif ev.event == ms.ABORT:
-            self.aborted.add(ev.slot)
-            self.eta.pop(ev.slot, None)
-            self.xi.pop(ev.slot, None)
+        self._report(done)

@@ -46,6 +46,7 @@ from formation_ilc.links import check_diagnostics
 from formation_ilc.mcap_io import CHUNK_BYTES, RosMcapWriter
 from formation_ilc.nodes.common import DropCounter, RunConfig, node_parser, spin_main
 from formation_ilc.recording import META_NAME, qos_of
+from formation_ilc.schedule import TrialEvent
 
 #: types whose CDR starts with a header stamp (int32 sec, uint32 nanosec) right after the
 #: 4-byte encapsulation: their publish time is that send label
@@ -73,7 +74,7 @@ class RecorderNode(Node):
         self.drops = DropCounter(self)      # not counted toward progress (still recorded)
         self.invalid_stamps: Counter[str] = Counter()
         self.unwritable: Counter[str] = Counter()
-        self.started = -1                   # the last trial the leader started
+        self.started = -1                   # the last slot the leader started
         self.types: dict[str, str] = {}
         self.qos: dict[str, Any] = {}
         self.subs: dict[str, Any] = {}
@@ -84,7 +85,10 @@ class RecorderNode(Node):
         self.said_ready = False
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
         self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
-        self.paths: dict[int, set[str]] = {}  # trial -> topics of its trajectories recorded
+        self.paths: dict[int, set[str]] = {}  # slot -> topics of its trajectories recorded
+        self.iteration_of: dict[int, int] = {}  # slot -> iteration (start events)
+        self.aborted: set[int] = set()
+        self.recorded: set[int] = set()  # iterations whose trajectories are all in the file
         self.robot_diag: dict[str, int] = {}  # robot -> last trial of its diagnostics
         self.complete = -1
         self.truth = True
@@ -160,9 +164,21 @@ class RecorderNode(Node):
         of a trial the leader started, each once); Rejected otherwise."""
         assert self.cfg is not None
         if topic == ms.TRIAL_EVENTS:
-            ev = ms.msg_to_json(ms.deserialize(data, String), ("event", "trial"))
-            if ev["event"] == ms.START and ms.json_int(ev, "trial") == self.started + 1:
-                self.started += 1
+            ev = TrialEvent.from_json(ms.msg_to_json(ms.deserialize(data, String),
+                                                     ("event", "trial")))
+            if ev.run and self.cfg.run_id and ev.run != self.cfg.run_id:
+                raise Rejected("foreign", f"event of run {ev.run}")
+            if ev.event == ms.START:
+                self.started = max(self.started, ev.slot)
+                self.iteration_of[ev.slot] = ev.trial
+                self._slot_done(ev.slot)
+            elif ev.event == ms.ABORT:
+                self.aborted.add(ev.slot)
+            if ev.event in (ms.START, ms.ABORT):
+                # into the file at once: without its start, a killed recorder's next part
+                # cannot tell which trial a slot ran (formation_ilc.trialrows)
+                self.writer.flush()
+            self._advance()
             return
         if topic == ms.DIAGNOSTICS:
             d = check_diagnostics(ms.msg_to_json(ms.deserialize(data, String),
@@ -175,17 +191,40 @@ class RecorderNode(Node):
                                          f"{self.started} started")
             self.robot_diag[name] = max(k, self.robot_diag.get(name, -1))
         else:
-            k, _ = self.cfg.clock.decode(sent)
+            k, _ = self.cfg.clock.decode(sent)  # the slot
             if k > self.started:
-                raise Rejected("future", f"trajectory of trial {k}, trial {self.started} "
+                raise Rejected("future", f"trajectory of slot {k}, slot {self.started} "
                                          f"started")
+            if k in self.aborted:
+                raise Rejected("stale", f"trajectory of slot {k}, aborted")
             if topic in self.paths.get(k, set()):
-                raise Rejected("duplicate", f"trajectory of trial {k} again")
+                raise Rejected("duplicate", f"trajectory of slot {k} again")
             self.paths.setdefault(k, set()).add(topic)
+            self._slot_done(k)
+        self._advance()
+
+    def _slot_done(self, k: int) -> None:
+        """Count slot k's iteration as recorded once all its trajectories are (an abort
+        that comes later does not take them back: an analysis keeps the first complete
+        copy, formation_ilc.trialrows)."""
+        assert self.cfg is not None
+        full = self.cfg.scenario.n * (2 if self.truth else 1)
+        if k in self.iteration_of and k not in self.aborted and \
+                len(self.paths.get(k, ())) >= full:
+            self.recorded.add(self.iteration_of[k])
+            self.paths.pop(k, None)
+
+    def _advance(self) -> None:
+        """Publish the recorder's progress: the last trial k such that every trial up to it
+        (from the first this recorder saw) has its trajectories and robot diagnostics in
+        the file."""
+        assert self.cfg is not None
         n = self.cfg.scenario.n
+        if self.complete < 0 and self.recorded:
+            # a restarted recorder (or a resumed run's) starts where its first trial is
+            self.complete = min(self.recorded) - 1
         k = self.complete + 1
-        while len(self.paths.get(k, ())) >= n * (2 if self.truth else 1) and \
-                len(self.robot_diag) == n and \
+        while k in self.recorded and len(self.robot_diag) == n and \
                 min(self.robot_diag.values()) >= k:
             self.complete = k
             self.writer.flush()
