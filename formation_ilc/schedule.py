@@ -42,6 +42,7 @@ write their memory at each learning step (``formation_ilc.robotstate``).
 from __future__ import annotations
 
 import json
+from collections.abc import Container
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -139,6 +140,14 @@ class Ready:
         if self.down:
             d["down"] = True
         return d
+
+
+def unexplained_gap(k: int, slot: int, aborted: Container[int]) -> bool:
+    """Whether a follower at slot ``k`` (-1: none yet, it takes any) must refuse the start of
+    ``slot`` as too far ahead: a later slot than the next one is taken only when every slot
+    between was aborted (their starts lost with a leader that was killed as it sent them;
+    the restarted leader aborts the slot it left open)."""
+    return k >= 0 and slot > k + 1 and not all(s in aborted for s in range(k + 1, slot))
 
 
 class ScheduleError(RuntimeError):

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from .clock import Rejected
 from .metrics import METRIC_COLUMNS, TRUE_COLUMNS
-from .schedule import ABORT, DONE, END, START, TrialEvent
+from .schedule import ABORT, DONE, END, START, TrialEvent, unexplained_gap
 from .simulate import Problem, trial_errors
 
 __all__ = ["Row", "SlotRows"]
@@ -68,10 +68,12 @@ class SlotRows:
                 raise Rejected("stale", f"start of slot {ev.slot}, slot {self.started} "
                                         f"started")
             # the next slot; any for one that has just started (a resumed run)
-            if ev.event == START and ev.slot > self.started + 1 and self.started >= 0:
+            if ev.event == START and unexplained_gap(self.started, ev.slot, self.aborted):
                 raise Rejected("future", f"start of slot {ev.slot}, slot {self.started} "
                                          f"started")
-            if ev.event in (END, ABORT) and ev.slot > self.started:
+            # an abort of the next slot: its start was lost with a leader that was killed
+            if ev.event == END and ev.slot > self.started or \
+                    ev.event == ABORT and ev.slot > self.started + 1:
                 raise Rejected("unexpected", f"{ev.event} of slot {ev.slot}, slot "
                                              f"{self.started} started")
         if ev.event == START:

@@ -46,6 +46,7 @@ import msgs_schema as ms
 from formation_ilc.clock import Rejected
 from formation_ilc.links import LEADER, LOST, delivered_label, link_name
 from formation_ilc.nodes.common import ConfiguredNode, RunConfig, matched, node_parser, spin_main
+from formation_ilc.schedule import unexplained_gap
 from formation_ilc.simulate import Problem
 
 #: realtime: the emulator delivers at the latest this many dT after the tick
@@ -128,7 +129,7 @@ class LinkEmulator(ConfiguredNode):
             if self._gate.is_canceled():
                 self.ready_pub.publish(self.ready_msg(self.iteration + 1))
             return
-        if ev.slot <= self.k or (ev.slot > self.k + 1 and self.k >= 0):
+        if ev.slot <= self.k or unexplained_gap(self.k, ev.slot, self.aborted_slots):
             self.drops.drop("stale" if ev.slot <= self.k else "future", ms.TRIAL_EVENTS,
                             f"start of slot {ev.slot} in {self.k}")
             return

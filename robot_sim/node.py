@@ -60,6 +60,7 @@ from formation_ilc.nodes.common import (
     spin_main,
     warm_up,
 )
+from formation_ilc.schedule import unexplained_gap
 from formation_ilc.simulate import Problem
 
 #: the plant's node name (what it says ready as)
@@ -157,7 +158,7 @@ class SimNode(ConfiguredNode):
             return
         # the next slot (any, for a process that has just started: the leader may have
         # aborted slots meanwhile), between trials, once this node said ready
-        if ev.slot > self.k + 1 and self.k >= 0:
+        if unexplained_gap(self.k, ev.slot, self.aborted_slots):
             self.drops.drop("future", ms.TRIAL_EVENTS, f"start of slot {ev.slot} in {self.k}")
             return
         if ev.slot <= self.k or self.in_trial or self.ready_for <= self.iteration:

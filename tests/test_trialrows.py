@@ -99,7 +99,7 @@ def test_strict_refuses_events_out_of_order_and_trajectories_of_slots_not_starte
     assert exc.value.reason == "future"
     rows.event(start(0, 0))
     for ev, reason in ((start(0, 0), "stale"), (start(2, 2), "future"),
-                       (abort(1, 1), "unexpected"), (TrialEvent("end", 1, 1), "unexpected")):
+                       (abort(2, 2), "unexpected"), (TrialEvent("end", 1, 1), "unexpected")):
         with pytest.raises(Rejected) as exc:
             rows.event(ev)
         assert exc.value.reason == reason, ev
@@ -186,3 +186,28 @@ def test_a_lost_start_is_inferred_only_when_the_next_slot_confirms_it():
     rows.event(start(0, 0))
     feed(rows, 1, 1)
     assert rows.infer() == [] and {s for s, _, _ in rows.unstarted()} == {1}
+
+
+def test_a_start_lost_with_a_killed_leader_is_explained_by_the_abort_that_follows():
+    """The leader sent slot 1's start and died; its successor aborts slot 1 and starts
+    slot 2: a follower at slot 0 takes both (before, it refused slot 2 and the run hung)."""
+    rows = SlotRows(PB, strict=True)
+    rows.event(start(0, 0))
+    feed(rows, 0, 0)
+    rows.event(abort(1, 1))
+    rows.event(start(1, 2))
+    assert [d.trial for d in feed(rows, 2, 1)] == [1]
+    # a gap that no abort explains is still refused
+    with pytest.raises(Rejected) as exc:
+        rows.event(start(2, 4))
+    assert exc.value.reason == "future"
+
+
+def test_unexplained_gap():
+    from formation_ilc.schedule import unexplained_gap
+
+    assert not unexplained_gap(-1, 7, set())      # a follower that just started takes any
+    assert not unexplained_gap(3, 4, set())
+    assert unexplained_gap(3, 5, set())
+    assert not unexplained_gap(3, 6, {4, 5})
+    assert unexplained_gap(3, 6, {5})

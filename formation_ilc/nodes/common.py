@@ -85,6 +85,7 @@ class ConfiguredNode(Node):
         self.boot = uuid.uuid4().hex[:12]
         #: ``seq`` of the last start or abort event handled
         self.seen = -1
+        self.aborted_slots: set[int] = set()  # slots the leader aborted (unexplained_gap)
 
     def ready_msg(self, trial: int, passive: bool = False) -> String:
         """The ``ready`` message of this node (``formation_ilc.schedule``)."""
@@ -120,6 +121,8 @@ class ConfiguredNode(Node):
             if ev.event == ms.START:
                 self.drops.drop("stale", ms.TRIAL_EVENTS, f"start seq {ev.seq} again")
             return None
+        if ev.event == ms.ABORT:
+            self.aborted_slots.add(ev.slot)
         return ev
 
     def follow_config(self, cfg: RunConfig | None = None) -> None:

@@ -72,7 +72,7 @@ from formation_ilc.nodes.common import (
     robot_node_from_args,
     spin_main,
 )
-from formation_ilc.schedule import Ready, TrialEvent
+from formation_ilc.schedule import Ready, TrialEvent, unexplained_gap
 from formation_ilc.simulate import Problem
 from formation_ilc.wallclock import WallSchedule, start_wall_ns
 
@@ -295,6 +295,7 @@ class BridgeNode(ConfiguredNode):
         if ev.event == ms.ABORT:
             # the trial is dropped: stop sampling, drive back, then say ready
             self.seen = ev.seq
+            self.aborted_slots.add(ev.slot)
             if self.phase == "trial" and ev.slot == self.k:
                 self.schedule = None
                 self._begin_return(time.monotonic())
@@ -302,7 +303,8 @@ class BridgeNode(ConfiguredNode):
                 self._say_ready(self.iteration + 1, "idle",
                                 initial_shift(self.world(), self.initial))
             return
-        if ev.slot <= self.k or self.phase != "idle" or (ev.slot > self.k + 1 and self.k >= 0):
+        if ev.slot <= self.k or self.phase != "idle" or \
+                unexplained_gap(self.k, ev.slot, self.aborted_slots):
             self.drops.drop("stale" if ev.slot <= self.k else "unexpected", ms.TRIAL_EVENTS,
                             f"start of slot {ev.slot} in slot {self.k} ({self.phase})")
             return
