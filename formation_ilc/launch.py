@@ -623,7 +623,8 @@ def run(args: argparse.Namespace) -> int:
                 tail = stack.log_tail(name)
                 if tail:
                     print(tail, file=sys.stderr)
-                status = 1
+                # status 2: the node refused (bad input, or another formation here)
+                status = 2 if code == NO_RESTART else 1
                 break
     except _Refused:
         pass

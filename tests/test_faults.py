@@ -227,16 +227,24 @@ def test_a_second_formation_on_the_same_domain_and_namespace_is_refused(ros_env,
     finally:
         stop_group(first)
     assert second.returncode == 2, second.stdout + second.stderr
-    assert "another formation runs on ROS_DOMAIN_ID" in second.stderr
-    # it names what it saw of the first one (discovery within the probe may be partial)
-    seen = re.search(r"in namespace /formation \(([^)]*)\)", second.stderr)
-    assert seen, second.stderr
-    names = seen.group(1).split(", ")
-    assert names and all(n.startswith("/formation/") for n in names), names
+    probe = "another formation runs on ROS_DOMAIN_ID" in second.stderr
+    if probe:
+        # it names what it saw of the first one (discovery within the probe may be partial)
+        seen = re.search(r"in namespace /formation \(([^)]*)\)", second.stderr)
+        assert seen, second.stderr
+        names = seen.group(1).split(", ")
+        assert names and all(n.startswith("/formation/") for n in names), names
+    else:
+        # discovery took longer than the launcher's probe (a loaded machine): the second
+        # leader, which waits longer before trial 0, refuses instead
+        assert "another formation's leader publishes on /formation/config" in second.stderr, \
+            second.stderr
     # the first run was not disturbed
     assert first.returncode == 0, out
     got = read_metrics(tmp_path / "a" / "metrics.csv")
     ref = simulate(load_scenario("paper-triangle3").with_options(seed=SEED), trials=trials)
     np.testing.assert_allclose(got[:, 1:], ref.metrics[:, 1:], rtol=0, atol=TOL)
     diag = json.loads((tmp_path / "a" / "diagnostics.json").read_text())
-    assert all(sum(d.get("dropped", {}).values()) == 0 for d in diag.values()), diag
+    if probe:  # it never saw the second one (else its nodes ran a moment: other runs'
+        # events and readies were dropped as foreign, their poses as stale)
+        assert all(sum(d.get("dropped", {}).values()) == 0 for d in diag.values()), diag
