@@ -73,13 +73,13 @@ MODULES: dict[str, tuple[str, str, list[str]]] = {
                    [T + "test_kinematics_edges.py", T + "test_reference.py",
                     T + "test_trajectory.py"]),
     "simulate": ("formation_ilc/simulate.py", "formation_ilc.simulate",
-                 [T + "test_simulate_edges.py", T + "test_reference.py"]),
+                 [T + "test_simulate_edges.py", T + "test_reference.py", T + "test_pcg.py"]),
     "scenario": ("formation_ilc/scenario.py", "formation_ilc.scenario",
                  [T + "test_scenario_defaults.py", T + "test_scenario.py",
                   T + "test_scenario_rules.py"]),
     "uncertainty": ("formation_ilc/uncertainty.py", "formation_ilc.uncertainty",
                     [T + "test_uncertainty_draws.py", T + "test_simulate_edges.py",
-                     T + "test_scenario.py", T + "test_delays.py"]),
+                     T + "test_scenario.py", T + "test_delays.py", T + "test_pcg.py"]),
     # numpy's SeedSequence/PCG64/random() in numba (run interpreted here: test_pcg takes
     # about 12 s unmutated, most mutants die in its first seconds)
     "pcg": ("formation_ilc/pcg.py", "formation_ilc.pcg",
