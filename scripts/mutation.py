@@ -73,13 +73,17 @@ MODULES: dict[str, tuple[str, str, list[str]]] = {
                    [T + "test_kinematics_edges.py", T + "test_reference.py",
                     T + "test_trajectory.py"]),
     "simulate": ("formation_ilc/simulate.py", "formation_ilc.simulate",
-                 [T + "test_simulate_edges.py", T + "test_reference.py"]),
+                 [T + "test_simulate_edges.py", T + "test_reference.py", T + "test_pcg.py"]),
     "scenario": ("formation_ilc/scenario.py", "formation_ilc.scenario",
                  [T + "test_scenario_defaults.py", T + "test_scenario.py",
                   T + "test_scenario_rules.py"]),
     "uncertainty": ("formation_ilc/uncertainty.py", "formation_ilc.uncertainty",
                     [T + "test_uncertainty_draws.py", T + "test_simulate_edges.py",
-                     T + "test_scenario.py", T + "test_delays.py"]),
+                     T + "test_scenario.py", T + "test_delays.py", T + "test_pcg.py"]),
+    # numpy's SeedSequence/PCG64/random() in numba (run interpreted here: test_pcg takes
+    # about 12 s unmutated, most mutants die in its first seconds)
+    "pcg": ("formation_ilc/pcg.py", "formation_ilc.pcg",
+            [T + "test_pcg.py", T + "test_uncertainty_draws.py"]),
     "msgs_schema": ("msgs_schema/__init__.py", "msgs_schema",
                     [T + "test_msgs_edges.py", T + "test_msgs_schema.py",
                      T + "test_msgs_rules.py"]),
@@ -90,6 +94,10 @@ MODULES: dict[str, tuple[str, str, list[str]]] = {
               [T + "test_learner.py", T + "test_msgs_rules.py"]),
     "learner": ("formation_ilc/learner.py", "formation_ilc.learner",
                 [T + "test_learner.py"]),
+    # the leader's trial protocol (tests/test_faults.py drives it across processes: not
+    # run per mutant)
+    "schedule": ("formation_ilc/schedule.py", "formation_ilc.schedule",
+                 [T + "test_schedule.py"]),
 }
 PYTEST_ARGS = ["-x", "-q", "-p", "no:cacheprovider", "-m", "not slow and not multiprocess",
                # compares compiled with interpreted: meaningless with the JIT disabled

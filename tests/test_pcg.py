@@ -75,6 +75,17 @@ def test_compiled_generator_is_default_rng(seed):
                 np.random.default_rng([seed, trial, stream]).uniform(-1.0, 1.0, 50))
 
 
+def test_two_words_each_of_trial_and_stream():
+    """Trial and stream of 2**32 and more both at once: four entropy words past the seed's
+    (up to 2**63 - 1: the kernels take int64)."""
+    for seed in (0, 2**64 + 17):
+        for trial, stream in ((2**32, 2**32), (2**40 + 1, 2**33 + 5), (2**63 - 1, 2**62 + 3)):
+            np.testing.assert_array_equal(
+                _uint64s(seed_words(seed), trial, stream, 8),
+                np.random.default_rng([seed, trial, stream]).integers(
+                    0, 2**64, 8, dtype=np.uint64, endpoint=False))
+
+
 def _numpy_plant(u: Uncertainty, seed: int, trial: int, n: int, n_t: int):
     """uncertainty.py's contract, in numpy."""
     rng = np.random.default_rng([seed, trial, PLANT_STREAM])

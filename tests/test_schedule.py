@@ -269,3 +269,207 @@ def test_a_supervisors_down_notice_makes_the_leader_wait_for_the_restarted_recor
     assert s.on_ready(Ready("recorder", 3, "101", passive=True)) is None  # no abort
     assert s.next_start() == (1, 1)
     assert Ready.from_json(Ready("recorder", 3, "1", down=True).to_json()).down
+
+# --------------------------------------------------------------------------- edges
+# (what the protocol tests above leave open: the exact wire form, defaults, refusals, the
+# state file's failures and the schedule's corner decisions)
+
+def test_events_carry_only_the_fields_they_have_and_default_the_rest():
+    bare = TrialEvent("end", 4, 4)
+    assert bare.to_json() == {"event": "end", "trial": 4, "slot": 4, "seq": -1}
+    full = TrialEvent("start", 0, 2, 7, stamp_ns=0, start_wall_ns=0, why="w", run="r1")
+    assert full.to_json() == {"event": "start", "trial": 0, "slot": 2, "seq": 7,
+                              "stamp_ns": 0, "start_wall_ns": 0, "why": "w", "run": "r1"}
+    assert TrialEvent.from_json(full.to_json()) == full
+    got = TrialEvent.from_json({"event": "done", "trial": 0})
+    assert (got.slot, got.seq, got.stamp_ns, got.start_wall_ns, got.why, got.run) == (
+        0, -1, None, None, "", "")
+    # trial == slot and trial < slot are both fine
+    assert TrialEvent.from_json({"event": "abort", "trial": 1, "slot": 1}).slot == 1
+    assert TrialEvent.from_json({"event": "abort", "trial": 0, "slot": 3}).slot == 3
+
+
+def test_readies_carry_only_the_fields_they_have_and_default_the_rest():
+    assert Ready("robot_1", 0).to_json() == {"node": "robot_1", "trial": 0, "boot": "",
+                                             "seen": -1}
+    r = Ready("monitor", 2, "b", 5, passive=True, run="r1")
+    assert r.to_json() == {"node": "monitor", "trial": 2, "boot": "b", "seen": 5,
+                           "passive": True, "run": "r1"}
+    got = Ready.from_json({"node": "robot_2", "trial": 3})
+    assert got == Ready("robot_2", 3, "", -1, False, "")
+
+
+@pytest.mark.parametrize("d", [{"event": "start", "trial": -1, "slot": 0},
+                               {"event": "start", "trial": 0, "stamp_ns": "5"},
+                               {"event": "start", "trial": 0, "start_wall_ns": 1.5},
+                               {"event": "start", "trial": 0, "seq": None},
+                               {"event": "start", "trial": 0, "slot": False}])
+def test_events_with_a_bad_field_are_refused_naming_it(d):
+    with pytest.raises(Malformed):
+        TrialEvent.from_json(d)
+
+
+@pytest.mark.parametrize("d, field", [({"node": 5, "trial": 1}, "node"),
+                                      ({"trial": 1}, "node"),
+                                      ({"node": "a"}, "'trial'"),
+                                      ({"node": "a", "trial": 1, "seen": "0"}, "'seen'")])
+def test_readies_with_a_bad_field_are_refused_naming_it(d, field):
+    with pytest.raises(Malformed, match=field):
+        Ready.from_json(d)
+
+
+def test_a_damaged_leader_state_file_is_one_clear_error(tmp_path):
+    path = tmp_path / "leader.json"
+    path.write_text("{not json")
+    with pytest.raises(ScheduleError, match="unreadable schedule state"):
+        sched().restore(path)
+    path.write_text(json.dumps({"committed": 1, "slot": 1, "open": False}))
+    with pytest.raises(ScheduleError, match="bad schedule state: 'seq'"):
+        sched().restore(path)
+    path.write_text(json.dumps({"committed": "x", "slot": 1, "seq": 1, "open": False}))
+    with pytest.raises(ScheduleError, match="bad schedule state"):
+        sched().restore(path)
+    path.write_text("[]")
+    with pytest.raises(ScheduleError, match="bad schedule state"):
+        sched().restore(path)
+
+
+def test_a_leader_restored_between_trials_goes_on_without_an_abort(tmp_path):
+    path = tmp_path / "leader.json"
+    s = sched()
+    ready_all(s, 0, -1)
+    run_slot(s)
+    s.save(path)
+    assert json.loads(path.read_text()) == {"committed": 1, "slot": 0, "seq": 0,
+                                            "open": False}
+    s2 = sched()
+    assert s2.restore(path)
+    assert (s2.committed, s2.slot, s2.seq, s2.abort_pending, s2.open, s2.running) == (
+        1, 0, 0, None, False, False)
+    ready_all(s2, 1, -1)
+    assert s2.next_start() == (1, 1)
+    sched().save(None)  # no state directory: nothing written, no error
+
+
+def test_the_state_stays_open_while_an_abort_awaits_its_answers(tmp_path):
+    s = sched()
+    ready_all(s, 0, -1)
+    s.started(0)
+    s.begin_abort("test")
+    assert not s.open and s.abort_pending == 0
+    assert s.state() == {"committed": 0, "slot": 0, "seq": 1, "open": True}
+    assert not s.abort_done()
+    ready_all(s, 0, s.seq)
+    assert s.acks_missing() == [] and s.abort_done() and s.abort_pending is None
+    assert s.state()["open"] is False
+    assert s.abort_done()  # nothing pending: done at once
+
+
+def test_readies_of_unknown_nodes_are_ignored_and_restarts_are_counted():
+    s = sched()
+    assert s.on_ready(Ready("stranger", 0, "b0", -1)) is None
+    assert s.ready == {} and s.boots == {} and s.answered == set()
+    ready_all(s, 0, -1)
+    for boot in ("b1", "b2", "b2"):  # the same boot twice is one restart
+        s.on_ready(Ready("robot_sim", 0, boot, -1))
+    assert s.restarted == {"robot_sim": 2}
+
+
+def test_a_ready_answers_the_last_event_only_if_it_has_seen_it():
+    s = sched()
+    ready_all(s, 0, -1)
+    seq = s.started(0)
+    s.ended(0)
+    assert s.waiting_for() == ["robot_1", "robot_2", "robot_sim"]  # the monitor is passive
+    s.on_ready(Ready("robot_sim", 1, "b0", seq))
+    s.on_ready(Ready("robot_1", 1, "b0", seq + 1))  # seen a later event: also an answer
+    assert s.waiting_for() == ["robot_2"]
+
+
+def test_a_slot_that_has_not_ended_is_not_committed_and_other_slots_do_not_end_it():
+    s = sched()
+    ready_all(s, 0, -1)
+    seq = s.started(0)
+    ready_all(s, 1, seq)  # every robot reports it learned, but the reference still runs
+    assert s.committed == 0 and s.open and not s.done
+    s.ended(5)
+    assert s.running and s.committed == 0
+    s.ended(0)
+    assert s.committed == 1 and not s.open
+
+
+def test_done_needs_every_trial_committed_and_no_open_slot():
+    s = Schedule(list(NODES), set(ROBOTS), trials=1)
+    assert not s.done
+    ready_all(s, 0, -1)
+    nxt = s.next_start()
+    assert nxt == (0, 0)
+    seq = s.started(0)
+    s.ended(0)
+    assert not s.done
+    ready_all(s, 1, seq)
+    assert s.done and s.committed == 1
+    s2 = Schedule(list(NODES), set(ROBOTS), trials=1, committed=1, open=True)
+    assert not s2.done
+
+
+def test_a_fresh_leader_next_to_robots_that_learned_takes_their_count():
+    s = sched()
+    ready_all(s, 2, -1)  # no leader state, robots learned 2 trials
+    assert s.next_start() == (2, 0) and s.committed == 2
+    s = sched()
+    s.on_ready(Ready("robot_1", 2, "b0", -1))
+    s.on_ready(Ready("robot_2", 1, "b0", -1))
+    s.on_ready(Ready("robot_sim", 0, "b0", -1))
+    s.on_ready(Ready("monitor", 0, "b0", -1, passive=True))
+    with pytest.raises(ScheduleError, match="the robots' learned trials disagree"):
+        s.next_start()
+    # once a slot has run, robots that are ahead of the schedule are an error too
+    s = sched()
+    ready_all(s, 0, -1)
+    run_slot(s)
+    ready_all(s, 2, s.seq)
+    with pytest.raises(ScheduleError, match="disagree"):
+        s.next_start()
+
+
+def test_events_and_readies_are_values():
+    """Frozen dataclasses: a decoded event or ready cannot be changed by a handler it is
+    passed to, and equal ones hash alike (they can key a dict or a set)."""
+    ev = TrialEvent("start", 1, 2, 3, stamp_ns=10, run="r")
+    assert {ev, TrialEvent.from_json(ev.to_json())} == {ev}
+    r = Ready("robot_1", 1, "b", 2)
+    assert {r, Ready.from_json(r.to_json())} == {r}
+    with pytest.raises(AttributeError):
+        ev.trial = 0  # type: ignore[misc]
+    with pytest.raises(AttributeError):
+        r.trial = 0  # type: ignore[misc]
+
+
+def test_a_ready_that_saw_an_earlier_event_is_no_answer_even_the_first_one():
+    s = sched()
+    ready_all(s, 0, -1)
+    run_slot(s)  # slot 0: seq 0
+    assert s.started(1) == 1
+    s.ended(1)
+    s.on_ready(Ready("robot_sim", 2, "b0", 0))  # answers slot 0's start, not slot 1's
+    assert "robot_sim" in s.waiting_for()
+    s.on_ready(Ready("robot_sim", 2, "b0", 1))
+    assert "robot_sim" not in s.waiting_for()
+
+
+def test_a_restarted_node_that_saw_an_event_must_still_answer_the_abort():
+    """A node whose new process reports seen = 0 (it restored the seq of slot 0's start)
+    has not answered the abort of slot 1; one that reports -1 holds nothing and has."""
+    s = sched()
+    ready_all(s, 0, -1)
+    run_slot(s)  # seq 0
+    s.started(1)  # seq 1
+    assert s.on_ready(Ready("robot_sim", 1, "new", 0)) is not None
+    assert "robot_sim" in s.acks_missing()
+    s = sched()
+    ready_all(s, 0, -1)
+    run_slot(s)
+    s.started(1)
+    assert s.on_ready(Ready("robot_sim", 1, "new", -1)) is not None
+    assert "robot_sim" not in s.acks_missing()

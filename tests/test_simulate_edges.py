@@ -8,7 +8,14 @@ import pytest
 
 from formation_ilc.kinematics import wrap_angle
 from formation_ilc.scenario import scenario_from_text
-from formation_ilc.simulate import METRIC_COLUMNS, Problem, simulate, simulate_seeds, trial_errors
+from formation_ilc.simulate import (
+    METRIC_COLUMNS,
+    Problem,
+    simulate,
+    simulate_bytes,
+    simulate_seeds,
+    trial_errors,
+)
 
 TEXT = """
 name: tiny-sim
@@ -170,3 +177,19 @@ def test_value_types_are_frozen(sc):
     for obj in (Problem.from_scenario(sc), TrialRecord(0, np.zeros(1), np.zeros(1), np.zeros(1))):
         with pytest.raises(dataclasses.FrozenInstanceError):
             obj.dt = 1.0  # type: ignore[union-attr]
+
+
+def test_simulate_bytes_by_hand(sc):
+    """The estimate's formula on the tiny team: 3 robots, 6 samples, robot 3 has two
+    in-links (L = 2), 7 metric columns of 8 bytes per trial."""
+    assert len(METRIC_COLUMNS) == 7
+    per = 3 * (6 + 2)  # robots x (samples + 2)
+    assert simulate_bytes(sc) == 8 * (32 + 4 * 2) * per + 3 * 8 * 7
+    assert simulate_bytes(sc, 10, keep=2) == 8 * (32 + 8 + 16) * per + 10 * 8 * 7
+    assert simulate_bytes(sc, 10, keep=1, store_metrics=False) == 8 * (32 + 8 + 8) * per
+    # a team where nobody has a neighbour still counts one link per robot
+    alone = scenario_from_text(TEXT.replace(
+        "leader: {1: 1.0}", "leader: {1: 1.0, 2: 1.0, 3: 1.0}").replace(
+        "edges: [{from: 1, to: 2}, {from: 1, to: 3}, {from: 2, to: 3, weight: 0.5}]",
+        "edges: []"))
+    assert simulate_bytes(alone, 1) == 8 * (32 + 4) * per + 8 * 7

@@ -103,3 +103,36 @@ def test_harmonic_defaults_leave_only_the_amplitude():
     t = np.arange(5.0)
     assert Harmonic(2.0)(t).tolist() == [0.0] * 5  # 2 sin(0 t + 0)
     np.testing.assert_allclose(Harmonic(2.0, phase=0.5)(t), 2 * np.sin(0.5))
+
+
+def test_link_loss_must_be_a_probability_below_one():
+    Uncertainty(link_loss=0.0)
+    Uncertainty(link_loss=0.999)
+    for bad in (-0.1, 1.0, 1.5):
+        with pytest.raises(ValueError, match="link loss must be in"):
+            Uncertainty(link_loss=bad)
+
+
+def test_losses_come_from_stream_two_of_the_trial():
+    """The loss stream is default_rng([seed, trial, 2]), apart from the plant (0) and delay
+    (1) streams: a lossless scenario keeps the numbers it always drew."""
+    from formation_ilc.links import LOST
+
+    u = Uncertainty(delay=DelayModel("fixed", samples=1), link_loss=0.4)
+    tau, _ = u.draw_delays(11, 3, 2, 2, 20)
+    lost = np.random.default_rng([11, 3, 2]).random(tau.shape) < 0.4
+    np.testing.assert_array_equal(tau == LOST, lost)
+    np.testing.assert_array_equal(tau[~lost], 1)
+
+
+def test_the_cached_draw_arguments_are_read_only():
+    """plant_arrays / delay_arrays are cached per scenario: a caller must not be able to
+    change what the next run gets."""
+    from formation_ilc.uncertainty import delay_arrays, plant_arrays
+
+    u = Uncertainty(initial_shift=(0.1, 0.2, 0.3), disturbance_fixed=H[:2], noise_fixed=H,
+                    delay=DelayModel("table", values=(1, 2), probabilities=(0.5, 0.5)))
+    for a in plant_arrays(u, 5):
+        assert not a.flags.writeable
+    d = delay_arrays(u)
+    assert not d[4].flags.writeable and not d[5].flags.writeable
