@@ -7,6 +7,7 @@ import os
 import signal
 import subprocess
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 
@@ -32,21 +33,28 @@ def same_netns(pid: int | str) -> bool:
         return False
 
 
+def processes() -> Iterator[tuple[int, str, list[bytes]]]:
+    """(pid, command line with spaces, environment entries) of every live process but this
+    one that can be read."""
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit() or int(pid) == os.getpid():
+            continue
+        try:
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+            env = Path(f"/proc/{pid}/environ").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        yield int(pid), cmd, env
+
+
 def find_child(domain: str, needle: str, deadline: float) -> int:
     """pid of a process of this test's domain (and network namespace) whose command line
     contains ``needle``."""
     while time.monotonic() < deadline:
-        for pid in os.listdir("/proc"):
-            if not pid.isdigit():
-                continue
-            try:
-                cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
-                envb = Path(f"/proc/{pid}/environ").read_bytes().split(b"\0")
-            except OSError:
-                continue
-            if needle in cmd and f"ROS_DOMAIN_ID={domain}".encode() in envb \
+        for pid, cmd, env in processes():
+            if needle in cmd and f"ROS_DOMAIN_ID={domain}".encode() in env \
                     and same_netns(pid):
-                return int(pid)
+                return pid
         time.sleep(0.1)  # polling the process table, bounded by the deadline
     raise AssertionError(f"no process {needle!r} found")
 

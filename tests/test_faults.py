@@ -26,7 +26,7 @@ from formation_ilc.scenario import load_scenario
 from formation_ilc.shm import fastdds_files, in_use
 from formation_ilc.simulate import simulate
 
-from .procs import find_child, same_netns, stop_group
+from .procs import find_child, processes, same_netns, stop_group
 
 pytestmark = [pytest.mark.ros, pytest.mark.multiprocess]
 
@@ -61,19 +61,9 @@ def batch() -> np.ndarray:
 
 def domain_procs(domain: str) -> list[int]:
     """Processes whose environment has this test's ROS_DOMAIN_ID (besides this one)."""
-    found = []
-    for pid in os.listdir("/proc"):
-        if not pid.isdigit() or int(pid) == os.getpid():
-            continue
-        try:
-            envb = Path(f"/proc/{pid}/environ").read_bytes().split(b"\0")
-            cmd = Path(f"/proc/{pid}/cmdline").read_bytes()
-        except OSError:
-            continue
-        if f"ROS_DOMAIN_ID={domain}".encode() in envb and b"python" in cmd \
-                and same_netns(pid):
-            found.append(int(pid))
-    return found
+    return [pid for pid, cmd, env in processes()
+            if f"ROS_DOMAIN_ID={domain}".encode() in env and "python" in cmd
+            and same_netns(pid)]
 
 
 VICTIMS = {"robot": "robot_id:=2", "simulator": "-m robot_sim.node",

@@ -33,7 +33,7 @@ from formation_ilc.scenario import load_scenario
 from formation_ilc.simulate import simulate
 from robot_sim import delayer as dl
 
-from .procs import stop_group
+from .procs import processes, stop_group
 from .test_realtime import SEED, short_scenario
 from .test_stack import launch
 
@@ -137,18 +137,8 @@ def _namespaces() -> set[str]:
 
 def _ours(domain: str, out: Path) -> list[str]:
     """Command lines of live processes of this test: its ROS domain, or its run folder."""
-    found = []
-    for pid in os.listdir("/proc"):
-        if not pid.isdigit() or int(pid) == os.getpid():
-            continue
-        try:
-            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
-            env = Path(f"/proc/{pid}/environ").read_bytes().split(b"\0")
-        except OSError:
-            continue
-        if f"ROS_DOMAIN_ID={domain}".encode() in env or str(out) in cmd:
-            found.append(f"{pid}: {cmd}")
-    return found
+    return [f"{pid}: {cmd}" for pid, cmd, env in processes()
+            if f"ROS_DOMAIN_ID={domain}".encode() in env or str(out) in cmd]
 
 
 @pytest.fixture
