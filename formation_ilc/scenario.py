@@ -182,12 +182,66 @@ def _measure(text: str, source: str) -> None:
         loader.dispose()
 
 
+_FLOW_MARKS = re.compile(r"""[\[\]{}'"#\n\\]""")
+
+
+def _deep_flow_end(text: str) -> int | None:
+    """Where flow nesting could first pass MAX_YAML_DEPTH: the end of the bracket that opens
+    level MAX_YAML_DEPTH + 1, counting ``[`` and ``{`` outside quotes and comments; None
+    where no such bracket exists.
+
+    The count is an upper bound (a bracket inside a plain scalar counts too), read from the
+    text before any parser sees it: libyaml's scanner reads a run of flow openers ahead of
+    its events and, from PyYAML 6.0.4 on, refuses 1000 of them with a message of its own,
+    before ``_measure`` sees the event that is one level too deep."""
+    depth = 0
+    quote = ""
+    comment = False
+    skip = -1  # the character after a backslash in a double-quoted scalar
+    for m in _FLOW_MARKS.finditer(text):
+        i, c = m.start(), m.group()
+        if i == skip:
+            continue
+        if comment:
+            comment = c != "\n"
+        elif quote:
+            if quote == '"' and c == "\\":
+                skip = i + 1
+            elif c == quote:
+                quote = ""
+        elif c == "#" and (i == 0 or text[i - 1] in " \t\n"):
+            comment = True
+        elif c in "'\"" and (i == 0 or text[i - 1] in " \t\n[{,:-?"):
+            quote = c  # a quote that starts a scalar (an apostrophe in a word does not)
+        elif c in "[{":
+            depth += 1
+            if depth > MAX_YAML_DEPTH:
+                return m.end()
+        elif c in "]}":
+            depth = max(depth - 1, 0)
+    return None
+
+
+def _measure_bounded(text: str, source: str) -> None:
+    """``_measure``, with the depth bound applied before libyaml's own: where the text could
+    nest deeper than MAX_YAML_DEPTH, the events of the text up to that bracket are measured
+    first (a prefix has the same events as the whole, up to where it ends), so the same
+    file gets the same message whatever libyaml is installed."""
+    end = _deep_flow_end(text)
+    if end is not None:
+        try:
+            _measure(text[:end], source)
+        except yaml.YAMLError:
+            pass  # the cut text ends early: the whole text is measured next
+    _measure(text, source)
+
+
 def parse_yaml(text: str, source: str) -> Any:
     """The YAML document in ``text``, with its cost bounded before it is built (depth,
     recursive aliases, alias expansion); one-line ScenarioError naming ``source`` (and the
     line) otherwise."""
     try:
-        _measure(text, source)
+        _measure_bounded(text, source)
         return yaml.load(text, Loader=_Loader)  # noqa: S506 - a safe loader
     except yaml.YAMLError as exc:
         problem = getattr(exc, "problem", None) or str(exc)

@@ -575,3 +575,31 @@ def test_fuzz_loader_on_random_bytes(tmp_path_factory, little_memory, data):
     except ScenarioError as exc:
         msg = str(exc)
         assert msg.startswith(f"{p}: ") and "\n" not in msg, msg
+
+
+@pytest.mark.parametrize("levels", [33, 999, 1000, 5000])
+def test_deep_flow_nesting_gets_the_loaders_message_whatever_libyaml_allows(levels):
+    # libyaml (PyYAML >= 6.0.4) refuses 1000 flow levels with a message of its own while
+    # it scans ahead; the loader's bound is applied before it gets there
+    deep = "dt: 0.1\nname: " + "[" * levels + "]" * levels + "\n"
+    with pytest.raises(ScenarioError, match=rf"^d\.yaml: line 2: name[\[\]0]+\.\.\.: nested "
+                                            rf"deeper than {MAX_YAML_DEPTH} levels; refused$"):
+        scenario_from_text(deep, "d.yaml")
+
+
+def test_brackets_in_quotes_comments_and_words_do_not_count_as_nesting():
+    from formation_ilc.scenario import _deep_flow_end
+
+    many = "[" * 40
+    assert _deep_flow_end(f"description: '{many}'\n") is None
+    assert _deep_flow_end(f'description: "\\"{many}"\n') is None  # an escaped quote
+    assert _deep_flow_end(f"dt: 0.1  # {many}\n") is None
+    # an apostrophe inside a word starts no quoted scalar: the brackets after it count
+    assert _deep_flow_end(f"description: don't\nname: {many}\n") is not None
+    # brackets inside a plain scalar do count (an upper bound), and the events then decide:
+    # a plain scalar is accepted as what it is
+    from formation_ilc.scenario import parse_yaml
+
+    text = f"description: a{many}\n"
+    assert _deep_flow_end(text) is not None
+    assert parse_yaml(text, "p.yaml") == {"description": f"a{many}"}
