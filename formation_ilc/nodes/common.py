@@ -24,7 +24,7 @@ from std_msgs.msg import String
 
 import msgs_schema as ms
 from formation_ilc.clock import REASONS, Rejected
-from formation_ilc.lifetime import PARENT_ENV, die_with_parent
+from formation_ilc.lifetime import PARENT_ENV, bound_the_stop, die_with_parent, parent_gone
 from formation_ilc.runconfig import RunConfig, make_config
 from formation_ilc.schedule import Ready, TrialEvent
 from formation_ilc.simulate import Problem
@@ -273,6 +273,7 @@ def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
     Exit.stop = Future()
 
     def on_signal(signum: int, frame: Any) -> None:
+        bound_the_stop()
         if Exit.stop is not None and not Exit.stop.done():
             Exit.stop.set_result(0)
 
@@ -288,9 +289,12 @@ def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
         # slices, which costs one return to the interpreter every 0.25 s
         while rclpy.ok() and not Exit.stop.done():
             ex.spin_until_future_complete(Exit.stop, timeout_sec=0.25)
+            if parent_gone():  # its SIGTERM was missed: the launcher is gone all the same
+                break
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        bound_the_stop()  # the teardown below, and the interpreter's exit after it
         for n in nodes:
             n.destroy_node()
         rclpy.try_shutdown()
