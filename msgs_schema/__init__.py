@@ -2,7 +2,7 @@
 
 This module is the one place that names a topic. Every node, the launcher and the tests
 import names and profiles from here; numpy <-> message converters live here too and are
-tested by round trip (tests/test_msgs_schema.py). Standard messages only.
+tested by round trip (tests/nodes/test_msgs_schema.py). Standard messages only.
 
 Names are relative: a node resolves them in its namespace (``NAMESPACE`` by default;
 ``--ros-args -r __ns:=/team2`` moves one node, ``formation-ilc launch --namespace /team2`` a
@@ -33,7 +33,7 @@ robot_i/true_trajectory    nav_msgs/Path (trial end)    simulator (optional) -> 
 Frames (REP-105). Every pose and path is in the world-fixed frame ``WORLD_FRAME`` ("map");
 the topic names whose pose it is. Diagnostics and ready messages name their node in JSON.
 
-Time labels (``formation_ilc.clock.SampleClock``). A stamp is ``(k * period + s) * dT``
+Time labels (``formation_ilc.core.clock.SampleClock``). A stamp is ``(k * period + s) * dT``
 [ns] for trial ``k`` and sample ``s``. The plant stamps robot i's pose with the label of
 its sample: the robot's clock Rt of eq. (11). The shared pose keeps that stamp as the send
 label St; the robot measures each delay from St and its own Rt. An emulated link's message
@@ -82,10 +82,10 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
-from formation_ilc.clock import Malformed, SampleClock
-from formation_ilc.links import LEADER, link_name, robot_name
-from formation_ilc.links import robot_number as robot_index
-from formation_ilc.schedule import ABORT, DONE, END, START
+from formation_ilc.core.clock import Malformed, SampleClock
+from formation_ilc.core.links import LEADER, link_name, robot_name
+from formation_ilc.core.links import robot_number as robot_index
+from formation_ilc.protocol.schedule import ABORT, DONE, END, START
 
 __all__ = [
     "NAMESPACE", "CONFIG", "REFERENCE", "TRIAL_EVENTS", "READY", "DIAGNOSTICS", "CLOCK",
@@ -116,7 +116,7 @@ WORLD_FRAME = "map"
 #: sender name of the leader's reference (link names ``leader->robot_i``)
 LEADER_FRAME = LEADER
 #: trial events (``event`` field of the JSON on TRIAL_EVENTS): START, END, ABORT, DONE,
-#: defined with the protocol (slots, aborts, ready) in ``formation_ilc.schedule``
+#: defined with the protocol (slots, aborts, ready) in ``formation_ilc.protocol.schedule``
 
 
 def pose_topic(i: int) -> str:
@@ -311,7 +311,7 @@ def clock_msg(ns: int) -> Clock:
 def _heading_from_quaternion(x: float, y: float, z: float, w: float,
                              previous: float | None) -> float:
     """Yaw of a planar quaternion, unwrapped next to ``previous`` (same formula as
-    formation_ilc.kinematics.heading_from_quaternion, inlined: this is the hot path)."""
+    formation_ilc.core.kinematics.heading_from_quaternion, inlined: this is the hot path)."""
     if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z) and math.isfinite(w)):
         raise MalformedMessage("non-finite orientation")
     norm = math.sqrt(x * x + y * y + z * z + w * w)

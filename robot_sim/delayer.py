@@ -350,7 +350,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if not 0 <= args.queue <= 65535:
         p.error(f"--queue: 0..65535, got {args.queue}")
-    from formation_ilc.lifetime import die_with_parent
+    from formation_ilc.system.lifetime import die_with_parent
 
     die_with_parent()  # started by a launcher: end with it
     return run(args)

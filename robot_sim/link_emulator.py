@@ -18,7 +18,7 @@ delivers nothing, and the robot leaves the link out of that sample's term (``los
   still missing (counted as ``late`` per link; not in ``injected``, so the robots' eq. (11)
   measurements still equal ``injected``).
 
-Trials follow the leader's events (``formation_ilc.schedule``): ``start`` names the
+Trials follow the leader's events (``formation_ilc.protocol.schedule``): ``start`` names the
 iteration (whose delay stream is drawn) and the slot (whose labels are accepted). Poses and
 ticks of the next slot that come before its start event are held (at most one trial's
 worth) and replayed when it comes; any other label is dropped and counted, so no message
@@ -43,11 +43,11 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 import msgs_schema as ms
-from formation_ilc.clock import Rejected
-from formation_ilc.links import LEADER, LOST, delivered_label, link_name
+from formation_ilc.core.clock import Rejected
+from formation_ilc.core.links import LEADER, LOST, delivered_label, link_name
+from formation_ilc.model.simulate import Problem
 from formation_ilc.nodes.common import ConfiguredNode, RunConfig, matched, node_parser, spin_main
-from formation_ilc.schedule import unexplained_gap
-from formation_ilc.simulate import Problem
+from formation_ilc.protocol.schedule import unexplained_gap
 
 #: realtime: the emulator delivers at the latest this many dT after the tick
 DELIVERY_WAIT = 0.5

@@ -20,7 +20,7 @@ truth, for the metrics' ``true_`` columns) and its timing on ``diagnostics``.
   (p50/p90/p99/max over every command), the all-in latency per sample, and how late the
   timer itself fired.
 
-Trials follow the leader's events (``formation_ilc.schedule``): ``start`` names the
+Trials follow the leader's events (``formation_ilc.protocol.schedule``): ``start`` names the
 iteration (whose plant stream is drawn) and the slot (whose labels the poses carry); on
 ``abort`` the simulator drops the trial and reports ready.
 
@@ -50,7 +50,8 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 import msgs_schema as ms
-from formation_ilc.kinematics import step_into
+from formation_ilc.core.kinematics import step_into
+from formation_ilc.model.simulate import Problem
 from formation_ilc.nodes.common import (
     ConfiguredNode,
     RunConfig,
@@ -60,8 +61,7 @@ from formation_ilc.nodes.common import (
     spin_main,
     warm_up,
 )
-from formation_ilc.schedule import unexplained_gap
-from formation_ilc.simulate import Problem
+from formation_ilc.protocol.schedule import unexplained_gap
 
 #: the plant's node name (what it says ready as)
 NAME = "robot_sim"

@@ -28,10 +28,10 @@ from pathlib import Path
 
 import numpy as np
 
-from formation_ilc import trajectory as tr
-from formation_ilc.memoryfile import save_memory
-from formation_ilc.scenario import load_scenario
-from formation_ilc.simulate import simulate
+from formation_ilc.config.scenario import load_scenario
+from formation_ilc.core import trajectory as tr
+from formation_ilc.model.simulate import simulate
+from formation_ilc.store.memoryfile import save_memory
 
 BOMB = "".join(f"{c}: &{c} [{', '.join([f'*{p}'] * 9)}]\n" for p, c in zip("abcdefgh", "bcdefghi",
                                                                              strict=True))

@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from formation_ilc.kinematics import step as kstep
-from formation_ilc.scenario import load_scenario
-from formation_ilc.simulate import Problem, simulate, simulate_seeds
+from formation_ilc.config.scenario import load_scenario
+from formation_ilc.core.kinematics import step as kstep
+from formation_ilc.model.simulate import Problem, simulate, simulate_seeds
 
 
 def wrap(a: np.ndarray) -> np.ndarray:

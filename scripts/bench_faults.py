@@ -29,9 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
-from formation_ilc.metrics import read_metrics
-from formation_ilc.scenario import load_scenario
-from formation_ilc.simulate import simulate
+from formation_ilc.config.scenario import load_scenario
+from formation_ilc.core.metrics import read_metrics
+from formation_ilc.model.simulate import simulate
 
 KINDS = {"robot": "robot_id:=2", "simulator": "-m robot_sim.node",
          "leader": "-m virtual_leader.node", "link_emulator": "-m robot_sim.link_emulator",

@@ -2,7 +2,7 @@
 """Latency of one robot-to-robot topic over a lossy link: Fast DDS defaults against the
 package's lossy-links profile (a 50 ms writer heartbeat).
 
-Two robot namespaces (formation_ilc.netns.Hosts, root needed), a delayer on robot 1's
+Two robot namespaces (formation_ilc.system.netns.Hosts, root needed), a delayer on robot 1's
 outgoing link (default 100 +- 50 ms, 5 % loss, as the realtime test), robot 1 publishing
 PoseStamped at 20 Hz (dT = 0.05 s) with the QoS of the shared poses (msgs_schema.SAMPLE_QOS:
 reliable, keep last 64), robot 2 timing each arrival against the stamp (both namespaces
@@ -74,7 +74,7 @@ def pct(xs: list[float], q: float) -> float:
 
 
 def one(profile: bool, args: argparse.Namespace, tmp: Path, domain: int) -> dict:
-    from formation_ilc.netns import Hosts, LinkFaults, lossy_profile
+    from formation_ilc.system.netns import Hosts, LinkFaults, lossy_profile
 
     faults = LinkFaults(args.delay_ms, args.jitter_ms, args.loss)
     with Hosts(2, faults, seed=args.seed, log_dir=tmp / "hosts") as hosts:
@@ -108,7 +108,7 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
-    from formation_ilc.netns import support_problem
+    from formation_ilc.system.netns import support_problem
 
     problem = support_problem()
     if problem:

@@ -57,7 +57,7 @@ def rewrite(src: Path, dst: Path, chunk: int, period_ns: int = 500_000_000) -> d
 
     from mcap.reader import make_reader
 
-    from formation_ilc.mcap_io import RosMcapWriter, read_messages
+    from formation_ilc.recordings.mcap_io import RosMcapWriter, read_messages
 
     with src.open("rb") as fh:
         summary = make_reader(fh).get_summary()

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import yaml
 
-from formation_ilc.scenario import load_scenario
+from formation_ilc.config.scenario import load_scenario
 
 
 def team_scenario(n: int, tmp: Path, samples: int | None, dt: float | None = None) -> str:

@@ -50,10 +50,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from formation_ilc.scenario import load_scenario
-from formation_ilc.simulate import simulate
-from formation_ilc.study import apply_fields
-from formation_ilc.sweep import close_pools, load_spec, run_sweep
+from formation_ilc.config.scenario import load_scenario
+from formation_ilc.model.simulate import simulate
+from formation_ilc.studies.study import apply_fields
+from formation_ilc.studies.sweep import close_pools, load_spec, run_sweep
 
 SPEC = """\
 scenario: paper-hexagon6

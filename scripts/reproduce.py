@@ -6,7 +6,7 @@
 Every simulation is a ``formation-ilc`` CLI call (printed before it runs). The one
 exception is the sim-to-real analogue of Fig. 14 (300 noise-free trials, then 25 noisy
 trials that start from the learned memory): that step calls
-``formation_ilc.simulate.simulate(initial_memory=...)`` (the CLI's ``--init-memory``).
+``formation_ilc.model.simulate.simulate(initial_memory=...)`` (the CLI's ``--init-memory``).
 Figures go to docs/figures/, numbers to docs/figures/numbers.json. About a minute.
 """
 
@@ -401,11 +401,11 @@ def main() -> int:
     # sim-to-real analogue (library call; the CLI's --init-memory does the same)
     print("$ python: simulate(paper-triangle3 noisy + delays, trials 300..324, "
           "initial_memory = memory after 300 noise-free trials)")
-    from formation_ilc.scenario import load_scenario
-    from formation_ilc.simulate import simulate
+    from formation_ilc.config.scenario import load_scenario
+    from formation_ilc.model.simulate import simulate
 
     base = load_scenario("paper-triangle3").with_options(seed=main_seed)
-    from formation_ilc.memoryfile import load_memory
+    from formation_ilc.store.memoryfile import load_memory
 
     mem = load_memory(tric / "memory.npz", base)
     cont = simulate(base, trials=25, initial_memory=mem, first_trial=300,

@@ -9,7 +9,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from formation_ilc.shm import clean_leftovers, fastdds_files
+from formation_ilc.system.shm import clean_leftovers, fastdds_files
 
 _counter = itertools.count()
 

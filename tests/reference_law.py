@@ -1,7 +1,7 @@
 """An independent, per-sample reference of the formation law, for testing the core against.
 
 Written straight from the paper (``/work/shared/reference/paper.md``) and the project's
-documented choices (module docstring of ``formation_ilc/law.py``, README "Two readings of
+documented choices (module docstring of ``formation_ilc/core/law.py``, README "Two readings of
 the learning memory", ``docs/reproduction.md``, paper-notes 3, 4, 9, 11, 12). It shares no
 code with ``formation_ilc`` (no kinematics, law, delay or simulator import): everything is
 a plain loop over robots, links and samples, slow and readable on purpose, so that an error

@@ -21,7 +21,7 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 import msgs_schema as ms
-from formation_ilc.runconfig import RunConfig
+from formation_ilc.config.runconfig import RunConfig
 
 NAME = "standin_plant"
 

@@ -35,7 +35,7 @@ reported ready for trial k, publishes ``start`` k on ``leader/trial_events``, th
 ``/clock``: at each sample t of the trial it broadcasts r(t) on ``leader/reference`` (in the
 world frame, stamped with the sample's label), and at t = T ``end`` k. After the last trial
 it publishes ``done``. When a node restarts during a trial, the leader aborts that trial
-and runs it again in the next slot of the label grid (``formation_ilc.schedule``: the
+and runs it again in the next slot of the label grid (``formation_ilc.protocol.schedule``: the
 protocol, slots and aborts).
 
 What it accepts (the rest is dropped and counted, with the reason, in its own
@@ -65,7 +65,7 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 import msgs_schema as ms
-from formation_ilc.clock import Rejected
+from formation_ilc.core.clock import Rejected
 from formation_ilc.nodes.common import (
     DropCounter,
     fail,
@@ -74,8 +74,8 @@ from formation_ilc.nodes.common import (
     node_parser,
     spin_main,
 )
-from formation_ilc.schedule import Ready, Schedule, ScheduleError, TrialEvent
-from formation_ilc.wallclock import WallSchedule
+from formation_ilc.protocol.schedule import Ready, Schedule, ScheduleError, TrialEvent
+from formation_ilc.protocol.wallclock import WallSchedule
 
 #: [s] how often an abort is repeated until every node has answered it
 ABORT_REPEAT = 1.0

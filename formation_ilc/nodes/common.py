@@ -1,6 +1,6 @@
 """What every node of the stack shares: drop counters, the config topic, spinning, warm-up.
 
-The run configuration itself (``formation_ilc.runconfig.RunConfig``) is part of the core.
+The run configuration itself (``formation_ilc.config.runconfig.RunConfig``) is part of the core.
 """
 
 from __future__ import annotations
@@ -23,11 +23,11 @@ from rclpy.task import Future
 from std_msgs.msg import String
 
 import msgs_schema as ms
-from formation_ilc.clock import REASONS, Rejected
-from formation_ilc.lifetime import PARENT_ENV, bound_the_stop, die_with_parent, parent_gone
-from formation_ilc.runconfig import RunConfig, make_config
-from formation_ilc.schedule import Ready, TrialEvent
-from formation_ilc.simulate import Problem
+from formation_ilc.config.runconfig import RunConfig, make_config
+from formation_ilc.core.clock import REASONS, Rejected
+from formation_ilc.model.simulate import Problem
+from formation_ilc.protocol.schedule import Ready, TrialEvent
+from formation_ilc.system.lifetime import PARENT_ENV, bound_the_stop, die_with_parent, parent_gone
 
 __all__ = ["PARENT_ENV", "DROP_REASONS", "DropCounter", "RunConfig", "make_config",
            "config_from_msg", "ConfiguredNode", "warm_up", "matched", "fail", "spin_main",
@@ -88,7 +88,7 @@ class ConfiguredNode(Node):
         self.aborted_slots: set[int] = set()  # slots the leader aborted (unexplained_gap)
 
     def ready_msg(self, trial: int, passive: bool = False) -> String:
-        """The ``ready`` message of this node (``formation_ilc.schedule``)."""
+        """The ``ready`` message of this node (``formation_ilc.protocol.schedule``)."""
         return ms.json_to_msg(Ready(self.get_name(), trial, self.boot, self.seen,
                                     passive, self.run_id).to_json())
 
@@ -173,10 +173,10 @@ class ConfiguredNode(Node):
 def warm_up(pb: Problem) -> None:
     """Compile (or load from the numba cache) every kernel a node calls, with the node's
     shapes, so the first sample is not late by seconds."""
-    from formation_ilc.kinematics import step_into
-    from formation_ilc.law import command, learn
-    from formation_ilc.links import delivered_label
-    from formation_ilc.simulate import trial_errors
+    from formation_ilc.core.kinematics import step_into
+    from formation_ilc.core.law import command, learn
+    from formation_ilc.core.links import delivered_label
+    from formation_ilc.model.simulate import trial_errors
 
     n, n_t, n_l = pb.n, pb.samples, pb.src.shape[1]
     i = slice(0, 1)

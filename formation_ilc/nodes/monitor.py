@@ -1,13 +1,13 @@
 """Monitor node of the launcher: per-trial metrics from the wire, diagnostics, progress.
 
 Trajectories are labelled with their slot; the leader's ``start`` events say which
-iteration a slot runs, and an ``abort`` drops a slot (``formation_ilc.schedule``). Rows are
+iteration a slot runs, and an ``abort`` drops a slot (``formation_ilc.protocol.schedule``). Rows are
 keyed by iteration; iterations below ``first`` (already in a resumed run's metrics.csv) are
 not reported again.
 
 It reads each robot's whole-trial measured trajectory (``trajectory``, the same message its
 neighbours learn from) and, when the plant publishes them (``true_state``), its true
-trajectories, and computes the metrics row with ``formation_ilc.simulate.trial_errors``
+trajectories, and computes the metrics row with ``formation_ilc.model.simulate.trial_errors``
 (metrics are defined once, in the core). Without a true state the ``true_`` columns are
 nan: a hardware plant has no ground truth.
 
@@ -15,7 +15,7 @@ What it takes (the rest is dropped and counted, with the reason, in ``drops``): 
 events in the leader's order (start k+1 after start k, end of the trial started, done);
 trajectories of a trial the leader has started and whose row is not complete, once per
 robot; diagnostics whose fields are what the launcher reads
-(``formation_ilc.links.check_diagnostics``), of a trial started, never older than the
+(``formation_ilc.core.links.check_diagnostics``), of a trial started, never older than the
 node's last.
 """
 
@@ -31,12 +31,12 @@ from rclpy.node import Node
 from std_msgs.msg import String
 
 import msgs_schema as ms
-from formation_ilc.clock import Rejected
-from formation_ilc.links import check_diagnostics
+from formation_ilc.core.clock import Rejected
+from formation_ilc.core.links import check_diagnostics
+from formation_ilc.model.simulate import Problem
 from formation_ilc.nodes.common import DropCounter, RunConfig
-from formation_ilc.schedule import TrialEvent
-from formation_ilc.simulate import Problem
-from formation_ilc.trialrows import Row, SlotRows
+from formation_ilc.protocol.schedule import TrialEvent
+from formation_ilc.protocol.trialrows import Row, SlotRows
 
 
 class MonitorNode(Node):

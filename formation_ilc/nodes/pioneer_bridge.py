@@ -28,7 +28,7 @@ theta; default: the scenario's desired start of robot I, where the robot is plac
 composed with the odometry.
 
 Between trials (after sample T) it drives the robot back to ``initial_pose`` with a polar
-point-stabilisation law (formation_ilc.bridge.ReturnController): ``return_tol`` [m],
+point-stabilisation law (formation_ilc.protocol.bridge.ReturnController): ``return_tol`` [m],
 ``return_tol_heading`` [deg], ``return_timeout`` [s]. A timeout is logged and counted
 (``return_timeouts`` in diagnostics); the achieved initial shift (b_xi0 of Assumption 2,
 odometry-measured) goes into its ready message and diagnostics (``initial_shifts``).
@@ -55,14 +55,8 @@ from rclpy.node import Node
 from std_msgs.msg import String
 
 import msgs_schema as ms
-from formation_ilc.bridge import (
-    CommandLimits,
-    ReturnController,
-    Watchdog,
-    initial_shift,
-    odom_to_world,
-)
-from formation_ilc.clock import Rejected
+from formation_ilc.core.clock import Rejected
+from formation_ilc.model.simulate import Problem
 from formation_ilc.nodes.common import (
     ConfiguredNode,
     RunConfig,
@@ -72,9 +66,15 @@ from formation_ilc.nodes.common import (
     robot_node_from_args,
     spin_main,
 )
-from formation_ilc.schedule import Ready, TrialEvent, unexplained_gap
-from formation_ilc.simulate import Problem
-from formation_ilc.wallclock import WallSchedule, start_wall_ns
+from formation_ilc.protocol.bridge import (
+    CommandLimits,
+    ReturnController,
+    Watchdog,
+    initial_shift,
+    odom_to_world,
+)
+from formation_ilc.protocol.schedule import Ready, TrialEvent, unexplained_gap
+from formation_ilc.protocol.wallclock import WallSchedule, start_wall_ns
 
 #: the bridge's control tick [s]: sampling, return controller, watchdog
 TICK = 0.01

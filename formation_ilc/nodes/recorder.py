@@ -41,12 +41,12 @@ from rclpy.qos import HistoryPolicy, QoSProfile
 from std_msgs.msg import String
 
 import msgs_schema as ms
-from formation_ilc.clock import Rejected
-from formation_ilc.links import check_diagnostics
-from formation_ilc.mcap_io import CHUNK_BYTES, RosMcapWriter
+from formation_ilc.core.clock import Rejected
+from formation_ilc.core.links import check_diagnostics
 from formation_ilc.nodes.common import DropCounter, RunConfig, node_parser, spin_main
-from formation_ilc.recording import META_NAME, qos_of
-from formation_ilc.schedule import TrialEvent
+from formation_ilc.protocol.schedule import TrialEvent
+from formation_ilc.recordings.mcap_io import CHUNK_BYTES, RosMcapWriter
+from formation_ilc.recordings.recording import META_NAME, qos_of
 
 #: types whose CDR starts with a header stamp (int32 sec, uint32 nanosec) right after the
 #: 4-byte encapsulation: their publish time is that send label
@@ -176,7 +176,7 @@ class RecorderNode(Node):
                 self.aborted.add(ev.slot)
             if ev.event in (ms.START, ms.ABORT):
                 # into the file at once: without its start, a killed recorder's next part
-                # cannot tell which trial a slot ran (formation_ilc.trialrows)
+                # cannot tell which trial a slot ran (formation_ilc.protocol.trialrows)
                 self.writer.flush()
             self._advance()
             return
@@ -206,7 +206,7 @@ class RecorderNode(Node):
     def _slot_done(self, k: int) -> None:
         """Count slot k's iteration as recorded once all its trajectories are (an abort
         that comes later does not take them back: an analysis keeps the first complete
-        copy, formation_ilc.trialrows)."""
+        copy, formation_ilc.protocol.trialrows)."""
         assert self.cfg is not None
         full = self.cfg.scenario.n * (2 if self.truth else 1)
         if k in self.iteration_of and k not in self.aborted and \
@@ -264,7 +264,7 @@ class RecorderNode(Node):
             self.said_ready = True
             self.truth = all(self.subs[t].get_publisher_count() >= 1 for t in self.optional)
             self._gate.cancel()
-            # ready for every trial of the run: it only watches (formation_ilc.schedule)
+            # ready for every trial of the run: it only watches (formation_ilc.protocol.schedule)
             self.ready_pub.publish(ms.json_to_msg({"node": "recorder", "passive": True,
                                                    "trial": self.cfg.scenario.trials,
                                                    "boot": f"{os.getpid()}",

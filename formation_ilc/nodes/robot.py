@@ -17,7 +17,7 @@ init_memory : str
 state_dir : str
     Where the robot keeps its learning state (``robot_<id>.npz``, written atomically each
     time it learns). A robot restarted with the same parameters after a crash continues
-    from it: no learned trial is lost (``formation_ilc.schedule``). Empty: no state file.
+    from it: no learned trial is lost (``formation_ilc.protocol.schedule``). Empty: no state file.
 
 Per sample t of trial k: the measured pose arrives on ``robot_<id>/pose`` (its stamp is
 the robot's clock Rt), is shared on ``robot_<id>/shared_pose`` (stamp = send label St),
@@ -35,12 +35,12 @@ A trial the leader aborts (``abort`` on ``leader/trial_events``: a node restarte
 it) is forgotten, and the learning step undone if it was already taken.
 
 It measures every delay by eq. (11) from Rt and St, calls the core's ``law.command`` for its
-one robot (``formation_ilc.learner.RobotLearner``) and publishes ``cmd_vel``. At sample T it
-sends its whole trajectory on ``trajectory``; when it has its in-neighbours' trajectories of
-trial k it calls ``law.learn`` and reports ready for trial k+1. Malformed, stale,
+one robot (``formation_ilc.protocol.learner.RobotLearner``) and publishes ``cmd_vel``. At
+sample T it sends its whole trajectory on ``trajectory``; when it has its in-neighbours'
+trajectories of trial k it calls ``law.learn`` and reports ready for trial k+1. Malformed, stale,
 out-of-order, duplicate and future-labelled messages, and any label outside the robot's
 window (its current trial; the next one once it has learned the current one: see
-``formation_ilc.learner``), are dropped and counted (``diagnostics``).
+``formation_ilc.protocol.learner``), are dropped and counted (``diagnostics``).
 
 Container mode: ``formation-ilc-robot --robots 1 2 3`` runs three robot nodes (each with
 its own memory) in one process on one executor.
@@ -58,10 +58,9 @@ from rclpy.node import Node
 from std_msgs.msg import String
 
 import msgs_schema as ms
-from formation_ilc.clock import Rejected
-from formation_ilc.learner import RobotLearner
-from formation_ilc.links import LEADER
-from formation_ilc.memoryfile import MemoryFileError, load_memory
+from formation_ilc.core.clock import Rejected
+from formation_ilc.core.links import LEADER
+from formation_ilc.model.simulate import Problem
 from formation_ilc.nodes.common import (
     ConfiguredNode,
     RunConfig,
@@ -72,8 +71,9 @@ from formation_ilc.nodes.common import (
     spin_main,
     warm_up,
 )
-from formation_ilc.robotstate import load_state, save_state, state_path
-from formation_ilc.simulate import Problem
+from formation_ilc.protocol.learner import RobotLearner
+from formation_ilc.store.memoryfile import MemoryFileError, load_memory
+from formation_ilc.store.robotstate import load_state, save_state, state_path
 
 #: realtime: how long [dT] a robot waits for its links after its pose
 LINK_WAIT = 0.75

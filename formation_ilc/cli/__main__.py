@@ -1,0 +1,5 @@
+import sys
+
+from formation_ilc.cli.commands import main
+
+sys.exit(main())

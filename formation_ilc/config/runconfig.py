@@ -1,0 +1,99 @@
+"""The run configuration every node of the stack shares.
+
+It travels on the ``config`` topic (latched) as JSON: the scenario's YAML text and the
+command-line overrides, so that no node needs the scenario file, and a recording carries it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from formation_ilc.config.scenario import Scenario, load_scenario, scenario_from_text
+from formation_ilc.core.clock import Rejected, SampleClock
+from formation_ilc.core.links import LINK_MODES
+
+__all__ = ["RunConfig", "make_config", "MODES", "WALL_MODES"]
+
+MODES = ("lockstep", "realtime", "wallclock")
+#: modes in which the plant does not wait for commands (missed samples are held)
+WALL_MODES = ("realtime", "wallclock")
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything a node needs to know about a run.
+
+    mode : 'lockstep' (the plant waits for every robot), 'realtime' (a simulator ticks on
+        the wall clock and owns /clock) or 'wallclock' (no /clock at all: the leader's
+        ``start`` event carries an agreed wall time ``start_wall_ns`` and every node samples
+        on its own wall clock at start_wall_ns + s * dT; real robots behind bridges).
+        Robots treat 'wallclock' as 'realtime' (missed samples held, bounded link waits).
+    links : 'emulated' (the link emulator applies the scenario's delays in simulated time) or
+        'direct' (robots subscribe to their neighbours; delays are the network's).
+    gap : samples between the end of one trial's labels and the next trial's (stamps).
+    monitored : a monitor (the launcher) reads trajectories and diagnostics.
+    timeout : [s] lockstep: how long the plant waits for a robot's command.
+    run_id : identity of the run (set by the launcher): a node that has taken this
+        configuration refuses another run's on the same domain and namespace.
+    """
+
+    scenario: Scenario
+    mode: str = "lockstep"
+    gap: int = 20
+    monitored: bool = False
+    timeout: float = 30.0
+    links: str = "emulated"
+    run_id: str = ""
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"mode must be one of {', '.join(MODES)}, got {self.mode!r}")
+        if self.links not in LINK_MODES:
+            raise ValueError(f"links must be one of {', '.join(LINK_MODES)}, got {self.links!r}")
+        if self.mode == "wallclock" and self.links != "direct":
+            raise ValueError("mode wallclock needs links direct: the link emulator ticks on "
+                             "/clock, which no node publishes in wall-clock trials")
+
+    @property
+    def wall(self) -> bool:
+        """The plant does not wait for commands (realtime or wallclock)."""
+        return self.mode in WALL_MODES
+
+    @property
+    def clock(self) -> SampleClock:
+        return SampleClock.for_run(self.scenario.dt, self.scenario.samples, self.gap)
+
+    def to_json(self) -> dict[str, Any]:
+        sc = self.scenario
+        return {"scenario_text": sc.text, "source": sc.source, "seed": sc.seed,
+                "noise": sc.uncertainty.noisy,
+                "delay": sc.uncertainty.delay.kind != "none", "trials": sc.trials,
+                "law": sc.law.kind, "memory": sc.law.memory, "mode": self.mode,
+                "links": self.links, "gap": self.gap, "monitored": self.monitored,
+                "timeout": self.timeout, "run_id": self.run_id}
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> RunConfig:
+        """The configuration of a JSON object; Rejected (malformed) naming what is wrong."""
+        try:
+            sc = scenario_from_text(str(d["scenario_text"]), str(d.get("source", "<config>")))
+            sc = sc.with_options(law=int(d["law"]), memory=str(d["memory"]),
+                                 noise=bool(d["noise"]), delay=bool(d["delay"]),
+                                 seed=int(d["seed"]), trials=int(d["trials"]))
+            return cls(sc, str(d.get("mode", "lockstep")), int(d.get("gap", 20)),
+                       bool(d.get("monitored", False)), float(d.get("timeout", 30.0)),
+                       str(d.get("links", "emulated")), str(d.get("run_id", "")))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise Rejected("malformed", f"bad run configuration: {exc}") from None
+
+
+def make_config(scenario: str, *, seed: int | None = None, noise: bool = True,
+                delay: bool = True, trials: int | None = None, law: int | None = None,
+                memory: str | None = None, mode: str = "lockstep", gap: int = 20,
+                monitored: bool = False, timeout: float = 30.0,
+                links: str = "emulated", run_id: str = "") -> RunConfig:
+    """The run configuration of a scenario name or file with command-line overrides."""
+    sc = load_scenario(scenario).with_options(law=law, memory=memory, noise=noise,
+                                              delay=delay, seed=seed, trials=trials)
+    return RunConfig(sc, mode, gap, monitored, timeout, links, run_id)

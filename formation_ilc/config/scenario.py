@@ -1,0 +1,821 @@
+"""Scenario files (YAML): strict loading with errors that name the file, the field and why.
+
+A scenario states every choice the paper leaves open: graph, formation frame, reference,
+gains, memory reading, uncertainty and delay model. Built-in scenarios live in
+``formation_ilc/scenarios`` and are named without their ``.yaml`` suffix.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import reprlib
+import warnings
+from collections import Counter
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace
+from functools import cached_property
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from numpy.typing import NDArray
+
+from formation_ilc.core import trajectory as tr
+from formation_ilc.core.delays import DelayModel
+from formation_ilc.core.guards import format_bytes, memory_shortfall
+from formation_ilc.core.law import HEADING_SOURCES, LAWS, MEMORY_MODES
+from formation_ilc.core.topology import Graph
+from formation_ilc.core.uncertainty import Harmonic, Uncertainty
+
+__all__ = ["ScenarioError", "Scenario", "LawSettings", "load_scenario", "builtin_scenarios",
+           "scenario_from_text", "scenario_from_data", "read_text_file", "parse_yaml",
+           "load_bytes", "show", "MAX_FILE_BYTES", "MAX_YAML_DEPTH", "MAX_YAML_SIZE"]
+
+#: a scenario (or sweep spec) file larger than this is refused before it is read: parsing
+#: YAML costs seconds per MiB. Long sampled references belong in a CSV file
+#: (reference.file), which is read at C speed.
+MAX_FILE_BYTES = 1 << 20
+#: deepest nesting of YAML collections (a scenario needs 5)
+MAX_YAML_DEPTH = 32
+#: most nodes plus characters a YAML document may expand to through its aliases (*name):
+#: a "billion laughs" expands a few hundred bytes to gigabytes, a scenario file to about
+#: its own size
+MAX_YAML_SIZE = 16 << 20
+#: where the built-in scenarios are
+SCENARIO_PACKAGE = "formation_ilc.config.scenarios"
+#: a scenario's name names the output folder: a file name, not a path
+_MAX_NAME = 100
+
+
+class ScenarioError(ValueError):
+    """A scenario file is invalid. The message reads ``file: field: reason``."""
+
+
+_repr = reprlib.Repr()
+_repr.maxstring = 60
+_repr.maxother = 60
+_repr.maxlist = _repr.maxtuple = _repr.maxdict = _repr.maxset = 6
+_repr.maxlevel = 3
+
+
+def show(value: Any) -> str:
+    """A value for an error message: its repr, cut short (a field may hold megabytes)."""
+    return _repr.repr(value)
+
+
+def read_text_file(path: Path, limit: int = MAX_FILE_BYTES, what: str = "a scenario") -> str:
+    """The text of a YAML file, read at most ``limit`` bytes; ScenarioError naming the file
+    if it cannot be read, is larger than ``limit``, or is not UTF-8 text."""
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read(limit + 1)
+    except OSError as exc:
+        raise ScenarioError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    if len(data) > limit:
+        raise ScenarioError(f"{path}: larger than {format_bytes(limit)}, the most {what} file "
+                            f"may be (a long sampled reference belongs in a CSV file: "
+                            f"reference.file)")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(f"{path}: not a text file: byte 0x{data[exc.start]:02x} at offset "
+                            f"{exc.start} is not UTF-8 ({what} file is YAML text)") from None
+    if "\x00" in text:
+        raise ScenarioError(f"{path}: not a text file: it holds NUL bytes at offset "
+                            f"{text.index(chr(0))} ({what} file is YAML text)")
+    return text.removeprefix("\ufeff")
+
+
+class _Loader(yaml.CSafeLoader if getattr(yaml, "__with_libyaml__", False)  # type: ignore[misc]
+              else yaml.SafeLoader):
+    """The safe loader (libyaml's when installed), which also reads 1e300 and 5E-3 as
+    numbers, as YAML 1.2 does (YAML 1.1 wants a dot: 1.0e300)."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"))
+
+
+def _yaml_where(exc: yaml.YAMLError) -> str:
+    mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
+    return "" if mark is None else f"line {mark.line + 1}, column {mark.column + 1}: "
+
+
+def _printable(text: str, limit: int = 120) -> str:
+    """A field path for a message: control characters escaped, cut short."""
+    if not text.isprintable():
+        text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _one_line(text: str, limit: int = 200) -> str:
+    text = " ".join(str(text).split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _measure(text: str, source: str) -> None:
+    """Refuse YAML nested deeper than MAX_YAML_DEPTH, with a recursive alias, or whose
+    aliases expand it beyond MAX_YAML_SIZE, from its events alone (nothing is built; the C
+    composer, which recurses on the C stack, only ever sees bounded nesting)."""
+    loader = _Loader(text)
+    sizes: dict[str, int] = {}
+    # one frame per open collection: [anchor, size, is_mapping, position, expect_key]
+    stack: list[list[Any]] = []
+
+    def where() -> str:
+        parts = ""
+        for fr in stack:
+            if fr[2]:
+                parts += ("." if parts else "") + str(fr[3])
+            else:
+                parts += f"[{fr[3]}]"
+        return _one_line(parts, 60) or "top level"
+
+    def add(size: int, key: str | None = None) -> None:
+        if not stack:
+            return
+        fr = stack[-1]
+        fr[1] += size
+        if fr[1] > MAX_YAML_SIZE:
+            raise ScenarioError(
+                f"{source}: {where()}: the aliases (*name) expand the document beyond "
+                f"{MAX_YAML_SIZE / 1e6:.3g} million nodes and characters (a 'billion "
+                f"laughs'?); refused")
+        if fr[2]:
+            if fr[4]:
+                fr[3] = key if key is not None else "?"
+            fr[4] = not fr[4]
+        else:
+            fr[3] += 1
+
+    try:
+        while loader.check_event():
+            ev = loader.get_event()
+            if isinstance(ev, yaml.ScalarEvent):
+                size = 1 + len(ev.value)
+                if ev.anchor is not None:
+                    sizes[ev.anchor] = size
+                add(size, _one_line(ev.value, 40))
+            elif isinstance(ev, yaml.AliasEvent):
+                if any(fr[0] == ev.anchor for fr in stack):
+                    raise ScenarioError(f"{source}: {where()}: alias *{ev.anchor} refers to a "
+                                        f"collection that contains it (recursive); refused")
+                add(sizes.get(ev.anchor, 1))
+            elif isinstance(ev, yaml.CollectionStartEvent):
+                if len(stack) >= MAX_YAML_DEPTH:
+                    mark = ev.start_mark
+                    raise ScenarioError(f"{source}: line {mark.line + 1}: {where()}: nested "
+                                        f"deeper than {MAX_YAML_DEPTH} levels; refused")
+                stack.append([ev.anchor, 1, isinstance(ev, yaml.MappingStartEvent),
+                              None if isinstance(ev, yaml.MappingStartEvent) else 0, True])
+            elif isinstance(ev, yaml.CollectionEndEvent):
+                anchor, size = stack.pop()[:2]
+                if anchor is not None:
+                    sizes[anchor] = size
+                add(size)
+    finally:
+        loader.dispose()
+
+
+_FLOW_MARKS = re.compile(r"""[\[\]{}'"#\n\\]""")
+
+
+def _deep_flow_end(text: str) -> int | None:
+    """Where flow nesting could first pass MAX_YAML_DEPTH: the end of the bracket that opens
+    level MAX_YAML_DEPTH + 1, counting ``[`` and ``{`` outside quotes and comments; None
+    where no such bracket exists.
+
+    The count is an upper bound (a bracket inside a plain scalar counts too), read from the
+    text before any parser sees it: libyaml's scanner reads a run of flow openers ahead of
+    its events and, from PyYAML 6.0.4 on, refuses 1000 of them with a message of its own,
+    before ``_measure`` sees the event that is one level too deep."""
+    depth = 0
+    quote = ""
+    comment = False
+    skip = -1  # the character after a backslash in a double-quoted scalar
+    for m in _FLOW_MARKS.finditer(text):
+        i, c = m.start(), m.group()
+        if i == skip:
+            continue
+        if comment:
+            comment = c != "\n"
+        elif quote:
+            if quote == '"' and c == "\\":
+                skip = i + 1
+            elif c == quote:
+                quote = ""
+        elif c == "#" and (i == 0 or text[i - 1] in " \t\n"):
+            comment = True
+        elif c in "'\"" and (i == 0 or text[i - 1] in " \t\n[{,:-?"):
+            quote = c  # a quote that starts a scalar (an apostrophe in a word does not)
+        elif c in "[{":
+            depth += 1
+            if depth > MAX_YAML_DEPTH:
+                return m.end()
+        elif c in "]}":
+            depth = max(depth - 1, 0)
+    return None
+
+
+def _measure_bounded(text: str, source: str) -> None:
+    """``_measure``, with the depth bound applied before libyaml's own: where the text could
+    nest deeper than MAX_YAML_DEPTH, the events of the text up to that bracket are measured
+    first (a prefix has the same events as the whole, up to where it ends), so the same
+    file gets the same message whatever libyaml is installed."""
+    end = _deep_flow_end(text)
+    if end is not None:
+        try:
+            _measure(text[:end], source)
+        except yaml.YAMLError:
+            pass  # the cut text ends early: the whole text is measured next
+    _measure(text, source)
+
+
+def parse_yaml(text: str, source: str) -> Any:
+    """The YAML document in ``text``, with its cost bounded before it is built (depth,
+    recursive aliases, alias expansion); one-line ScenarioError naming ``source`` (and the
+    line) otherwise."""
+    try:
+        _measure_bounded(text, source)
+        return yaml.load(text, Loader=_Loader)  # noqa: S506 - a safe loader
+    except yaml.YAMLError as exc:
+        problem = getattr(exc, "problem", None) or str(exc)
+        context = getattr(exc, "context", None)
+        why = _one_line(f"{problem} ({context})" if context else problem)
+        raise ScenarioError(f"{source}: not valid YAML: {_yaml_where(exc)}{why}") from None
+    except (ValueError, OverflowError, RecursionError) as exc:
+        if isinstance(exc, ScenarioError):
+            raise
+        # e.g. a date like 2024-13-45, an integer of 5000 digits
+        raise ScenarioError(f"{source}: not valid YAML: {_one_line(str(exc))}") from None
+
+
+def builtin_scenarios() -> list[str]:
+    files = resources.files(SCENARIO_PACKAGE).iterdir()
+    return sorted(p.name[:-5] for p in files if p.name.endswith(".yaml"))
+
+
+@dataclass(frozen=True)
+class LawSettings:
+    """Which law and memory reading, and the gains g (Gamma) and g' (Gamma') per robot."""
+
+    kind: int = 9
+    memory: str = "feedforward"
+    gain: tuple[float, ...] = ()
+    gain_prime: tuple[float, ...] = ()
+    gain_heading: str = "measured"
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    description: str
+    dt: float
+    samples: int
+    trials: int
+    seed: int
+    graph: Graph
+    reference: NDArray[np.float64]  # (T+2, 3)
+    frame: str
+    offsets: NDArray[np.float64]  # (n, 2) at scale 1
+    scales: tuple[tr.Sinusoid, ...]  # one per robot
+    law: LawSettings
+    uncertainty: Uncertainty
+    source: str = "<memory>"
+    text: str = field(default="", repr=False)
+
+    @property
+    def n(self) -> int:
+        return self.graph.n
+
+    @cached_property
+    def desired(self) -> tr.Desired:
+        """Desired outputs and inputs of every robot (built on first use: the costly part);
+        ScenarioError if they are not finite (offsets, scales or reference too extreme)."""
+        with np.errstate(all="ignore"):
+            pos = tr.formation_positions(self.reference, self.offsets, list(self.scales),
+                                         self.dt, self.frame)
+            d = tr.desired_trajectories(pos, self.dt, self.reference)
+        for what, a in (("outputs", d.eta), ("inputs", d.u)):
+            if not np.isfinite(a).all():
+                robot = int(np.flatnonzero(~np.isfinite(a.reshape(len(a), -1)).all(axis=1))[0])
+                raise ScenarioError(f"{self.source}: formation: robot {robot + 1}'s desired "
+                                    f"{what} are not finite (offsets, scales or reference "
+                                    f"too extreme for float64)")
+        return d
+
+    def with_options(self, *, law: int | None = None, memory: str | None = None,
+                     noise: bool = True, delay: bool = True, seed: int | None = None,
+                     trials: int | None = None) -> Scenario:
+        """A copy with command-line overrides applied."""
+        unc = self.uncertainty
+        if not noise:
+            unc = unc.without_noise()
+        if not delay:
+            unc = unc.without_delay()
+        ls = self.law
+        if law is not None or memory is not None:
+            ls = replace(ls, kind=ls.kind if law is None else int(law),
+                         memory=ls.memory if memory is None else memory)
+        return replace(self, uncertainty=unc, law=ls,
+                       seed=self.seed if seed is None else int(seed),
+                       trials=self.trials if trials is None else int(trials))
+
+
+# --------------------------------------------------------------------------- validation
+
+_DEG = re.compile(r"^\s*([-+]?[0-9.eE+-]+)\s*deg\s*$")
+
+
+class _Fields:
+    """A mapping read once, field by field; unknown keys are an error."""
+
+    def __init__(self, data: Any, path: str, src: str):
+        if not isinstance(data, dict):
+            raise ScenarioError(f"{src}: {path or 'top level'}: expected a mapping, "
+                                f"got {show(data) if data is None else type(data).__name__}")
+        self.data = data
+        self.path = path
+        self.src = src
+        self.used: set[str] = set()
+
+    def fail(self, key: str | None, why: str) -> ScenarioError:
+        where = self.path if key is None else (f"{self.path}.{key}" if self.path else key)
+        return ScenarioError(f"{self.src}: {_printable(str(where))}: {why}")
+
+    def get(self, key: str, default: Any = ..., *, required: bool = False) -> Any:
+        self.used.add(key)
+        if key not in self.data:
+            if required or default is ...:
+                raise self.fail(key, "required field is missing")
+            return default
+        return self.data[key]
+
+    def sub(self, key: str, required: bool = True) -> _Fields:
+        val = self.get(key, required=required) if required else self.get(key, {})
+        return _Fields(val if val is not None else {}, f"{self.path}.{key}" if self.path else key,
+                       self.src)
+
+    def number(self, key: str, default: Any = ..., *, positive: bool = False,
+               nonneg: bool = False, angle: bool = False) -> float:
+        return self.as_number(self.get(key, default), key, positive=positive, nonneg=nonneg,
+                              angle=angle)
+
+    def as_number(self, v: Any, key: str, *, positive: bool = False, nonneg: bool = False,
+                  angle: bool = False) -> float:
+        if angle and isinstance(v, str) and (m := _DEG.match(v)):
+            try:
+                v = math.radians(float(m.group(1)))
+            except ValueError:
+                raise self.fail(key, f"cannot read {show(v)} as an angle") from None
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            hint = " (a number, or a string like '0.05 deg')" if angle else ""
+            raise self.fail(key, f"expected a number{hint}, got {show(v)}")
+        v = float(v)
+        if not math.isfinite(v):
+            raise self.fail(key, f"must be finite, got {v}")
+        if positive and v <= 0:
+            raise self.fail(key, f"must be > 0, got {v}")
+        if nonneg and v < 0:
+            raise self.fail(key, f"must be >= 0, got {v}")
+        return v
+
+    def integer(self, key: str, default: Any = ..., *, minimum: int | None = None) -> int:
+        v = self.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise self.fail(key, f"expected an integer, got {show(v)}")
+        if minimum is not None and v < minimum:
+            raise self.fail(key, f"must be >= {minimum}, got {v}")
+        return v
+
+    def string(self, key: str, default: Any = ..., *, choices: tuple[str, ...] | None = None
+               ) -> str:
+        v = self.get(key, default)
+        if not isinstance(v, str):
+            raise self.fail(key, f"expected a string, got {show(v)}")
+        if choices is not None and v not in choices:
+            raise self.fail(key, f"must be one of {', '.join(choices)}; got {show(v)}")
+        return v
+
+    def numbers(self, key: str, length: int, default: Any = ..., *, nonneg: bool = False,
+                angle_index: tuple[int, ...] = ()) -> tuple[float, ...]:
+        v = self.get(key, default)
+        if not isinstance(v, (list, tuple)) or len(v) != length:
+            raise self.fail(key, f"expected a list of {length} numbers, got {show(v)}")
+        return tuple(self.as_number(x, f"{key}[{i}]", nonneg=nonneg, angle=i in angle_index)
+                     for i, x in enumerate(v))
+
+    def robot(self, v: Any, key: str, n: int) -> int:
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise self.fail(key, f"expected a robot number, got {show(v)}")
+        if not 1 <= v <= n:
+            raise self.fail(key, f"robot {v} does not exist (robots are 1..{n})")
+        return v
+
+    def finish(self) -> None:
+        extra = sorted(set(map(str, self.data)) - self.used)
+        if extra:
+            raise self.fail(extra[0], f"unknown field (known here: {', '.join(sorted(self.used))})")
+
+
+def _harmonics(f: _Fields, key: str, count: int, angle_index: tuple[int, ...]
+               ) -> tuple[Harmonic, ...]:
+    items = f.get(key, [{}] * count)
+    if not isinstance(items, list) or len(items) != count:
+        raise f.fail(key, f"expected a list of {count} harmonics {{amplitude, frequency, phase}}")
+    out = []
+    for i, item in enumerate(items):
+        h = _Fields(item, f"{f.path}.{key}[{i}]", f.src)
+        out.append(Harmonic(h.number("amplitude", 0.0, angle=i in angle_index),
+                            h.number("frequency", 0.0), h.number("phase", 0.0, angle=True)))
+        h.finish()
+    return tuple(out)
+
+
+def _constant(value: float) -> Any:
+    return lambda t: np.full(np.shape(t), value)
+
+
+#: references built, by their mapping, samples and dt: the configurations of a study share
+#: one (a unicycle reference takes about 0.4 s to integrate)
+_REFERENCES: dict[str, NDArray] = {}
+
+
+def _reference(f: _Fields, n_samples: int, dt: float, base_dir: Path | None) -> NDArray:
+    key = None
+    if "file" not in f.data:  # a file's contents may change: read it every time
+        try:
+            key = json.dumps([f.data, n_samples, dt], sort_keys=True)
+        except (TypeError, ValueError):
+            key = None
+    if key is not None and key in _REFERENCES:
+        return _REFERENCES[key].copy()  # the same mapping validated and built before
+    ref = _build_reference(f, n_samples, dt, base_dir)
+    if key is not None:
+        if len(_REFERENCES) >= 16:
+            _REFERENCES.pop(next(iter(_REFERENCES)))
+        _REFERENCES[key] = ref.copy()
+    return ref
+
+
+def _build_reference(f: _Fields, n_samples: int, dt: float, base_dir: Path | None
+                     ) -> NDArray:
+    kind = f.string("kind", choices=("lemniscate", "unicycle", "samples", "waypoints"))
+    m = n_samples + 2  # t = 0..T+1
+    if kind == "lemniscate":
+        ref = tr.paper_lemniscate(m, dt, f.number("x_amplitude", 7.5),
+                                  f.number("y_amplitude", 10.0), f.number("period", 45.0,
+                                                                          positive=True))
+    elif kind == "unicycle":
+        speed = f.get("speed", required=True)
+        if speed == "paper-ivb":
+            v = tr.paper_ivb_speed
+        elif isinstance(speed, (int, float)) and not isinstance(speed, bool):
+            v = _constant(f.as_number(speed, "speed"))
+        else:
+            raise f.fail("speed", f"expected 'paper-ivb' or a number [m/s], got {show(speed)}")
+        radius = f.number("turn_radius", 0.0)
+        w = (lambda t: v(t) / radius) if radius != 0 else _constant(0.0)
+        start = f.numbers("start", 3, [0.0, 0.0, 0.0], angle_index=(2,))
+        ref = tr.unicycle_reference(v, w, m, dt, (start[0], start[1], start[2]))
+    elif kind == "samples":
+        pts = f.get("points", None)
+        file = f.get("file", None)
+        if (pts is None) == (file is None):
+            raise f.fail(None, "give exactly one of 'points' (a list of [x, y]) or 'file' (CSV)")
+        if file is not None:
+            if not isinstance(file, str):
+                raise f.fail("file", f"expected a file name, got {show(file)}")
+            path = Path(file) if base_dir is None else base_dir / file
+            pts = _read_points(f, path, m)
+        try:
+            arr = np.asarray(pts, dtype=float)
+        except (TypeError, ValueError):
+            raise f.fail("points", "expected a list of [x, y] pairs") from None
+        if arr.ndim != 2 or arr.shape[1] != 2:
+            raise f.fail("points", f"expected a list of [x, y] pairs, got shape {arr.shape}")
+        if not np.isfinite(arr).all():
+            raise f.fail("points" if file is None else "file", "every point must be finite")
+        if len(arr) < m - 1:
+            raise f.fail("points", f"needs at least samples + 1 = {m - 1} points, got {len(arr)}")
+        ref = tr.sampled_reference(arr, m)
+    else:
+        times = f.get("times", required=True)
+        pts = f.get("points", required=True)
+        try:
+            ta = np.asarray(times, dtype=float)
+            pa = np.asarray(pts, dtype=float)
+        except (TypeError, ValueError):
+            raise f.fail("points", "times must be numbers and points [x, y] pairs") from None
+        if ta.ndim != 1 or pa.shape != (len(ta), 2) or len(ta) < 2:
+            raise f.fail("points", "needs as many [x, y] points as times, at least 2")
+        for key, arr in (("times", ta), ("points", pa)):
+            if not np.isfinite(arr).all():
+                raise f.fail(key, "every value must be finite")
+        if np.any(np.diff(ta) <= 0):
+            raise f.fail("times", "must be strictly increasing")
+        ref = tr.waypoint_reference(ta, pa, m, dt)
+    f.finish()
+    if not np.isfinite(ref).all():
+        bad = int(np.flatnonzero(~np.isfinite(ref).all(axis=1))[0])
+        raise f.fail(None, f"the {kind} reference is not finite from sample {bad} on (a value "
+                           f"too large or too small for float64?)")
+    return ref
+
+
+def _read_points(f: _Fields, path: Path, rows: int) -> NDArray[np.float64]:
+    """The first ``rows`` points (x, y) of a CSV file, its size bounded before it is read."""
+    limit = MAX_FILE_BYTES + 256 * rows
+    try:
+        if not path.is_file():
+            raise f.fail("file", f"cannot read {path}: " + (
+                "not a regular file" if path.exists() else "no such file"))
+        size = path.stat().st_size
+        if size > limit:
+            raise f.fail("file", f"cannot read {path}: {format_bytes(size)} is more than "
+                                 f"{rows} points need (at most {format_bytes(limit)})")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # blank lines do not count: fine
+            pts = np.loadtxt(path, delimiter=",", ndmin=2, comments="#", max_rows=rows,
+                             encoding="utf-8")
+        if pts.shape[1] < 2:
+            raise f.fail("file", f"cannot read {path}: expected rows x,y, got one column")
+        return np.asarray(pts[:, :2], dtype=float)
+    except (OSError, ValueError, IndexError, UnicodeDecodeError) as exc:
+        if isinstance(exc, ScenarioError):
+            raise
+        raise f.fail("file", f"cannot read {path}: {_one_line(str(exc))}") from None
+
+
+def _graph(f: _Fields, n: int) -> Graph:
+    leader_raw = f.get("leader", required=True)
+    if not isinstance(leader_raw, dict) or not leader_raw:
+        raise f.fail("leader", "expected a mapping {robot: weight} with at least one robot")
+    leader = {}
+    for k, v in leader_raw.items():
+        r = f.robot(k, f"leader.{k}", n)
+        leader[r] = f.as_number(v, f"leader.{k}", positive=True)
+    edges_raw = f.get("edges", [])
+    if not isinstance(edges_raw, list):
+        raise f.fail("edges", "expected a list of {from, to, weight}")
+    edges = []
+    seen = set()
+    for idx, e in enumerate(edges_raw):
+        ef = _Fields(e, f"{f.path}.edges[{idx}]", f.src)
+        src = ef.robot(ef.get("from", required=True), "from", n)
+        dst = ef.robot(ef.get("to", required=True), "to", n)
+        w = ef.number("weight", 1.0, positive=True)
+        ef.finish()
+        if src == dst:
+            raise ef.fail("to", f"robot {dst} cannot listen to itself")
+        if (dst, src) in seen:
+            raise ef.fail(None, f"duplicate edge {src} -> {dst}")
+        seen.add((dst, src))
+        edges.append((dst, src, w))
+    f.finish()
+    return Graph.from_edges(n, edges, leader)
+
+
+def _per_robot(f: _Fields, key: str, n: int, default: float) -> tuple[float, ...]:
+    v = f.get(key, default)
+    if isinstance(v, list):
+        if len(v) != n:
+            raise f.fail(key, f"expected one gain per robot ({n}), got {len(v)}")
+        return tuple(f.as_number(x, f"{key}[{i}]", nonneg=True) for i, x in enumerate(v))
+    return (f.as_number(v, key, nonneg=True),) * n
+
+
+def scenario_from_text(text: str, source: str = "<memory>", base_dir: Path | None = None
+                       ) -> Scenario:
+    """Parse and validate a scenario given as YAML text.
+
+    Every failure is a ScenarioError reading ``source: field: reason``, raised before the
+    memory is spent: a document whose aliases or nesting would cost too much is refused
+    unbuilt (``parse_yaml``), and one whose arrays would not fit in the memory available
+    is refused before they are allocated (``load_bytes``).
+    """
+    data = parse_yaml(text, source)
+    return scenario_from_data(data, text, source, base_dir)
+
+
+def scenario_from_data(data: Any, text: str, source: str = "<memory>",
+                       base_dir: Path | None = None) -> Scenario:
+    """Validate a scenario given as the data ``parse_yaml`` makes of ``text`` (mappings,
+    lists, strings, numbers; not modified); ``text`` is kept as the scenario's text. What
+    ``scenario_from_text`` does after parsing: a study that edits the parsed data of one
+    scenario need not write it out and parse it again."""
+    with _section(source, "top level"):
+        return _scenario(data, text, source, base_dir)
+
+
+@contextmanager
+def _section(source: str, name: str) -> Iterator[None]:
+    """Any error the field checks did not foresee still names the file and the part."""
+    try:
+        yield
+    except ScenarioError:
+        raise
+    except (ValueError, TypeError, ArithmeticError, LookupError) as exc:
+        raise ScenarioError(f"{source}: {name}: {_one_line(str(exc)) or type(exc).__name__}"
+                            ) from None
+
+
+def load_bytes(samples: int, robots: int) -> int:
+    """Peak memory [bytes] of loading a scenario of ``robots`` x ``samples``: the reference
+    and its headings (measured: 1.29 GB at 10^7 samples, 6 robots) and the graph's dense
+    robots x robots matrices."""
+    return 160 * (samples + 2) + 64 * robots * robots + 512 * robots
+
+
+def _name(f: _Fields) -> str:
+    name = f.string("name")
+    if not name.strip() or len(name) > _MAX_NAME:
+        raise f.fail("name", f"must be 1 to {_MAX_NAME} characters, got {len(name)}")
+    if name in (".", "..") or any(c in name for c in "/\\") or not name.isprintable():
+        raise f.fail("name", f"names the output folder: no '/', '\\' or control characters, "
+                             f"got {show(name)}")
+    return name
+
+
+def _scenario(data: Any, text: str, source: str, base_dir: Path | None) -> Scenario:
+    top = _Fields(data, "", source)
+    name = _name(top)
+    description = top.string("description", "")
+    dt = top.number("dt")
+    if dt <= 0:
+        raise top.fail("dt", f"the sample time must be > 0 s, got {dt}")
+    n_samples = top.integer("samples", minimum=2)
+    trials = top.integer("trials", 100, minimum=1)
+    seed = top.integer("seed", 0, minimum=0)
+    n = top.integer("robots", minimum=1)
+    why = memory_shortfall(load_bytes(n_samples, n))
+    if why is not None:
+        big = "samples" if 160 * n_samples >= 64 * n * n else "robots"
+        raise top.fail(big, f"{n} robots x {n_samples} samples: loading them {why}")
+
+    with _section(source, "reference"), np.errstate(all="ignore"):
+        ref = _reference(top.sub("reference"), n_samples, dt, base_dir)
+
+    with _section(source, "formation"):
+        frame, offsets, robot_scales = _formation(top.sub("formation"), n, source)
+    with _section(source, "graph"):
+        graph = _graph(top.sub("graph"), n)
+    with _section(source, "law"):
+        law = _law(top, n)
+    with _section(source, "uncertainty"):
+        unc_parts = _uncertainty(top)
+    with _section(source, "delay"):
+        dm, leader_link, loss = _delay(top, n_samples)
+    top.finish()
+
+    shift, dist_fixed, dist_unif, noise_fixed, noise_unif = unc_parts
+    unc = Uncertainty((shift[0], shift[1], shift[2]), (dist_fixed[0], dist_fixed[1]),
+                      (dist_unif[0], dist_unif[1]),
+                      (noise_fixed[0], noise_fixed[1], noise_fixed[2]),
+                      (noise_unif[0], noise_unif[1], noise_unif[2]), dm, leader_link, loss)
+    return Scenario(name=name, description=description, dt=dt, samples=n_samples, trials=trials,
+                    seed=seed, graph=graph, reference=ref, frame=frame, offsets=offsets,
+                    scales=tuple(robot_scales), law=law, uncertainty=unc, source=source,
+                    text=text)
+
+
+def _formation(ff: _Fields, n: int, source: str
+               ) -> tuple[str, NDArray[np.float64], list[tr.Sinusoid]]:
+    frame = ff.string("frame", choices=("world", "leader"))
+    scales_raw = ff.get("scales", {})
+    if not isinstance(scales_raw, dict):
+        raise ff.fail("scales", "expected a mapping name -> {mean, amplitude, period, phase}")
+    scales: dict[str, tr.Sinusoid] = {}
+    for key, val in scales_raw.items():
+        sf = _Fields(val, f"formation.scales.{key}", source)
+        scales[str(key)] = tr.Sinusoid(sf.number("mean", 1.0), sf.number("amplitude", 0.0),
+                                       sf.number("period", 0.0, nonneg=True),
+                                       sf.number("phase", 0.0, angle=True))
+        sf.finish()
+    off_raw = ff.get("offsets", required=True)
+    if not isinstance(off_raw, dict):
+        raise ff.fail("offsets", "expected a mapping robot -> {x, y, scale}")
+    offsets = np.full((n, 2), np.nan)
+    robot_scales: list[tr.Sinusoid] = [tr.Sinusoid()] * n
+    for key, val in off_raw.items():
+        r = ff.robot(key, f"offsets.{key}", n)
+        of = _Fields(val, f"formation.offsets.{key}", source)
+        offsets[r - 1] = (of.number("x"), of.number("y"))
+        sname = of.get("scale", None)
+        if sname is not None:
+            if not isinstance(sname, str) or sname not in scales:
+                raise of.fail("scale", f"no scale named {show(sname)} in formation.scales "
+                                       f"(have: {_one_line(', '.join(scales), 80) or 'none'})")
+            robot_scales[r - 1] = scales[sname]
+        of.finish()
+    missing = [str(i + 1) for i in range(n) if np.isnan(offsets[i, 0])]
+    if missing:
+        more = f" and {len(missing) - 10} more" if len(missing) > 10 else ""
+        raise ff.fail("offsets", f"no offset for robot(s) {', '.join(missing[:10])}{more}")
+    ff.finish()
+    return frame, offsets, robot_scales
+
+
+def _law(top: _Fields, n: int) -> LawSettings:
+    lf = top.sub("law", required=False)
+    law = LawSettings(
+        kind=int(lf.integer("kind", 9)),
+        memory=lf.string("memory", "feedforward", choices=MEMORY_MODES),
+        gain=_per_robot(lf, "gain", n, 0.08),
+        gain_prime=_per_robot(lf, "gain_prime", n, 0.08),
+        gain_heading=lf.string("gain_heading", "measured", choices=HEADING_SOURCES),
+    )
+    if law.kind not in LAWS:
+        raise lf.fail("kind", f"must be one of {', '.join(map(str, LAWS))}; got {law.kind}")
+    lf.finish()
+    return law
+
+
+def _uncertainty(top: _Fields) -> tuple[Any, ...]:
+    uf = top.sub("uncertainty", required=False)
+    shift = uf.numbers("initial_shift", 3, [0, 0, 0], nonneg=True, angle_index=(2,))
+    df = uf.sub("disturbance", required=False)
+    dist_fixed = _harmonics(df, "fixed", 2, (1,))
+    dist_unif = df.numbers("uniform", 2, [0, 0], nonneg=True, angle_index=(1,))
+    df.finish()
+    nf = uf.sub("noise", required=False)
+    noise_fixed = _harmonics(nf, "fixed", 3, (2,))
+    noise_unif = nf.numbers("uniform", 3, [0, 0, 0], nonneg=True, angle_index=(2,))
+    nf.finish()
+    uf.finish()
+    return shift, dist_fixed, dist_unif, noise_fixed, noise_unif
+
+
+def _delay(top: _Fields, n_samples: int) -> tuple[DelayModel, bool, float]:
+    dlf = top.sub("delay", required=False)
+    model = dlf.string("model", "none", choices=("none", "fixed", "uniform", "table", "paper"))
+    try:
+        if model == "paper":
+            dm = DelayModel.paper()
+        elif model == "fixed":
+            dm = DelayModel("fixed", samples=dlf.integer("samples", minimum=0))
+        elif model == "uniform":
+            dm = DelayModel("uniform", low=dlf.integer("low", minimum=0),
+                            high=dlf.integer("high", minimum=0))
+        elif model == "table":
+            vals = dlf.get("values", required=True)
+            probs = dlf.get("probabilities", required=True)
+            if not isinstance(vals, list) or not all(
+                    isinstance(v, int) and not isinstance(v, bool) for v in vals):
+                raise dlf.fail("values", "expected a list of delays in samples (integers)")
+            twice = sorted(v for v, c in Counter(vals).items() if c > 1)
+            if twice:
+                # the pmf maps each delay to one probability: a repeat would lose its mass
+                raise dlf.fail("values", f"delay {twice[0]} is listed twice")
+            if not isinstance(probs, list) or len(probs) != len(vals):
+                raise dlf.fail("probabilities", "expected one probability per value")
+            dm = DelayModel("table", values=tuple(vals),
+                            probabilities=tuple(dlf.as_number(p, f"probabilities[{i}]",
+                                                              nonneg=True)
+                                                for i, p in enumerate(probs)))
+        else:
+            dm = DelayModel()
+    except ValueError as exc:
+        if isinstance(exc, ScenarioError):
+            raise
+        raise dlf.fail(None, _one_line(str(exc))) from None
+    loss = dlf.number("loss", 0.0, nonneg=True)
+    if loss >= 1.0:
+        raise dlf.fail("loss", f"a probability below 1 is required, got {loss}")
+    leader_link = dlf.get("leader_link", True)
+    if not isinstance(leader_link, bool):
+        raise dlf.fail("leader_link", f"expected true or false, got {show(leader_link)}")
+    if dm.max_delay > n_samples:
+        raise dlf.fail(None, f"delays of up to {dm.max_delay} samples exceed the trial "
+                             f"({n_samples} samples)")
+    dlf.finish()
+    return dm, leader_link, loss
+
+
+def load_scenario(name_or_path: str | Path) -> Scenario:
+    """Load a built-in scenario by name, or a YAML file by path (at most MAX_FILE_BYTES)."""
+    name = str(name_or_path)
+    if not name.strip():
+        raise ScenarioError("SCENARIO: empty; give a built-in name "
+                            f"({', '.join(builtin_scenarios())}) or a YAML file")
+    p = Path(name_or_path)
+    try:
+        is_file_arg = p.suffix in (".yaml", ".yml") or p.exists()
+    except (OSError, ValueError) as exc:  # e.g. a name too long for the file system
+        raise ScenarioError(f"{_printable(name, 80)}: cannot read: "
+                            f"{getattr(exc, 'strerror', None) or exc}") from None
+    if is_file_arg:
+        text = read_text_file(p)
+        return scenario_from_text(text, str(p), p.parent)
+    if name in builtin_scenarios():
+        text = resources.files(SCENARIO_PACKAGE).joinpath(name + ".yaml").read_text()
+        return scenario_from_text(text, f"{name} (built-in)")
+    raise ScenarioError(f"{_printable(name, 80)}: no such scenario file, and not a built-in "
+                        f"scenario (built-in: {', '.join(builtin_scenarios())})")

@@ -1,0 +1,161 @@
+"""numba's on-disk cache, keyed on the sources of the whole core package.
+
+numba's ``cache=True`` checks only the source file of the cached function itself: after an
+edit of ``law.py``, ``simulate.run_trial`` (whose cached machine code has ``law.command``
+and ``law.learn`` inlined) would still be loaded from the cache, stale. So every kernel of
+this package is decorated with :func:`njit` from here, which points numba's cache at a
+directory named by a hash of all ``formation_ilc/**/*.py``: any edit of any module of the
+package, new modules included, names a new, empty directory and the next run compiles
+afresh; an unchanged tree finds its directory and loads the cache (compile once).
+
+Where the directories live (the first writable of):
+
+1. ``$NUMBA_CACHE_DIR/formation-ilc/`` when the user set ``NUMBA_CACHE_DIR``;
+2. ``formation_ilc/__pycache__/numba/`` beside the sources (numba's own default place);
+3. ``$XDG_CACHE_HOME/formation-ilc/numba/`` (default ``~/.cache``), for a read-only install;
+4. ``<temp dir>/formation-ilc-numba-<uid>/``.
+
+Old directories (another hash) not used for :data:`PRUNE_AGE_S` are removed when the
+package's kernels are next loaded. Processes of the stack start at once and share the
+cache, so removal is race-free: a directory is first renamed away (atomic; one process wins,
+the others skip it), then deleted. A process still running old code whose directory is
+removed loses nothing but speed: numba finds no index, compiles, and recreates the
+directory to save into. numba's own writes are atomic (write to a temporary name, then
+rename), so concurrent readers and writers of one directory are safe.
+
+The setting is scoped to the decoration of this package's kernels (numba fixes a function's
+cache directory when it is decorated): other numba users in the same process are unaffected.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import os
+import re
+import shutil
+import tempfile
+import time
+import uuid
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import Any
+
+import numba
+from numba.core import config as _config
+
+__all__ = ["njit", "cache_dir", "source_hash", "PRUNE_AGE_S"]
+
+PACKAGE = Path(__file__).resolve().parents[1]  # the whole formation_ilc package
+#: seconds a cache directory of other sources is kept after its last use
+PRUNE_AGE_S = 24 * 3600.0
+_HASH_NAME = re.compile(r"^[0-9a-f]{16}$")
+_TRASH = ".trash-"
+
+
+def source_hash(root: Path = PACKAGE) -> str:
+    """16 hex digits of SHA-256 over the relative paths and contents of ``root/**/*.py``."""
+    h = hashlib.sha256()
+    files: list[Path] = []
+    for here, dirs, names in os.walk(root):
+        dirs[:] = sorted(d for d in dirs if d != "__pycache__")
+        files.extend(Path(here, n) for n in names if n.endswith(".py"))
+    for path in sorted(files):
+        h.update(path.relative_to(root).as_posix().encode())
+        h.update(b"\0")
+        h.update(path.read_bytes())
+        h.update(b"\0")
+    return h.hexdigest()[:16]
+
+
+def candidate_parents() -> list[Path]:
+    """Parent directories of the hash directories, in order of preference."""
+    out = []
+    user = os.environ.get("NUMBA_CACHE_DIR")
+    if user:
+        out.append(Path(user) / "formation-ilc")
+    out.append(PACKAGE / "__pycache__" / "numba")
+    xdg = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    out.append(Path(xdg) / "formation-ilc" / "numba")
+    uid = os.getuid() if hasattr(os, "getuid") else 0
+    out.append(Path(tempfile.gettempdir()) / f"formation-ilc-numba-{uid}")
+    return out
+
+
+def first_writable(dirs: Iterable[Path]) -> Path | None:
+    """The first directory that can be created and written to (numba's own test)."""
+    for d in dirs:
+        try:
+            d.mkdir(parents=True, exist_ok=True)
+            tempfile.TemporaryFile(dir=d).close()
+        except OSError:
+            continue
+        return d
+    return None
+
+
+def prune(parent: Path, keep: str, max_age_s: float = PRUNE_AGE_S,
+          now: float | None = None) -> list[str]:
+    """Remove hash directories in ``parent`` other than ``keep`` unused for ``max_age_s``.
+
+    Returns the names removed by this call. Safe against concurrent callers: a directory is
+    renamed to a unique trash name first (exactly one caller's rename succeeds).
+    """
+    now = time.time() if now is None else now
+    removed: list[str] = []
+    try:
+        entries = list(parent.iterdir())
+    except OSError:
+        return removed
+    for entry in entries:
+        name = entry.name
+        try:
+            age = now - entry.stat().st_mtime
+        except OSError:
+            continue  # removed meanwhile by another process
+        if name.startswith(_TRASH):
+            if age > 3600:  # left by a process that died while deleting it
+                shutil.rmtree(entry, ignore_errors=True)
+            continue
+        if name == keep or not _HASH_NAME.match(name) or age < max_age_s:
+            continue
+        trash = parent / f"{_TRASH}{name}-{uuid.uuid4().hex[:8]}"
+        try:
+            os.rename(entry, trash)
+        except OSError:
+            continue  # another process got there first
+        shutil.rmtree(trash, ignore_errors=True)
+        removed.append(name)
+    return removed
+
+
+@functools.cache
+def cache_dir() -> str:
+    """This tree's numba cache directory (created; marked used now; old ones pruned)."""
+    key = source_hash()
+    parent = first_writable(candidate_parents())
+    if parent is None:  # nowhere writable: numba will not cache either
+        return ""
+    path = parent / key
+    path.mkdir(exist_ok=True)
+    os.utime(path)  # last use, for prune() of other processes
+    prune(parent, keep=key)
+    return str(path)
+
+
+def njit(**options: Any) -> Callable[[Callable[..., Any]], Any]:
+    """``numba.njit(cache=True, **options)`` with the cache in :func:`cache_dir`."""
+    options.setdefault("cache", True)
+
+    def decorate(fn: Callable[..., Any]) -> Any:
+        if not options["cache"] or not cache_dir():
+            return numba.njit(**{**options, "cache": False})(fn)
+        config: Any = _config  # numba's settings module (attributes set at run time)
+        saved = config.CACHE_DIR
+        config.CACHE_DIR = cache_dir()
+        try:
+            return numba.njit(**options)(fn)
+        finally:
+            config.CACHE_DIR = saved
+
+    return decorate

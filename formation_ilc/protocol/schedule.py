@@ -1,0 +1,322 @@
+"""The trial schedule of a distributed run, and how it survives a process that dies.
+
+Two numbers name a trial on the wire. The **iteration** ``i`` counts learning trials: the
+plant draws its shifts, disturbances and noise, and the link emulator its delays, for
+iteration ``i`` exactly as the batch simulator does. The **slot** ``q`` places a trial on the
+sample grid (``SampleClock.stamp_ns(q, s)``): every label of the run belongs to one slot, and
+slots only grow. Without faults ``q == i``. When a trial is interrupted (a node died and came
+back), its slot is *aborted* and the same iteration runs again in the next slot: every label
+of the broken attempt is then older than anything the new attempt sends, so no late message
+of it can be mistaken for a new one.
+
+Protocol (JSON on ``leader/trial_events``; ``ready`` from every node):
+
+* ``start``  {trial: i, slot: q, seq, stamp_ns}: slot q runs iteration i.
+* ``end``    {trial: i, slot: q, seq}: the leader's reference reached sample T.
+* ``abort``  {trial: i, slot: q, seq, why}: forget slot q. A robot that already learned from it
+  rolls back to the memory it had before (every robot keeps one step of history), so an
+  aborted slot leaves no trace. The leader repeats the event until every node has
+  answered it with a ``ready``.
+Every event and ready also carries the run's identity (``run``, the configuration's
+``run_id``): a node drops (``foreign``) those of another run on the same domain and
+namespace.
+
+* ``ready``  {node, trial, boot, seen[, passive]} from a node that is idle: ``trial`` is, for
+  a robot, the iteration it is ready to run (the number of iterations it has learned);
+  ``boot`` identifies the process (a new value: the node restarted); ``seen`` is the
+  ``seq`` of the last start or abort it has handled (every start and abort gets the next
+  ``seq``, which survives a leader restart, so a ready sent before an event never counts as
+  its answer); ``passive`` nodes (monitor, recorder) only watch and never hold the
+  schedule. A ready counts once it arrives after the leader's last start or abort and
+  answers it (``seen`` = its ``seq``), or comes from a process that has not seen any event
+  (``seen`` = -1: it has just started and holds no trial).
+
+A slot is **committed** once every robot has learned from it (all report ``trial = i+1``).
+Until then it can be aborted: a node that restarts while a slot is open (running, or ended
+but not yet learned from by every robot) makes the leader abort it. The leader writes its
+state (``committed``, last ``slot``, whether it is open) atomically at each change, and a
+restarted leader aborts the slot it left open. No committed iteration is ever lost: robots
+write their memory at each learning step (``formation_ilc.store.robotstate``).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Container
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from formation_ilc.core.clock import Malformed
+from formation_ilc.store.atomic import atomic_write_text
+
+__all__ = ["START", "END", "ABORT", "DONE", "TrialEvent", "Ready", "Schedule",
+           "ScheduleError"]
+
+START, END, ABORT, DONE = "start", "end", "abort", "done"
+EVENTS = (START, END, ABORT, DONE)
+
+
+def _int(d: dict[str, Any], key: str, default: int | None = None) -> int:
+    v = d.get(key, default)
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise Malformed(f"{key!r} must be an integer, got {v!r}")
+    return v
+
+
+@dataclass(frozen=True)
+class TrialEvent:
+    """One event of the schedule; ``slot`` defaults to ``trial`` (a run without faults)."""
+
+    event: str
+    trial: int
+    slot: int
+    seq: int = -1
+    stamp_ns: int | None = None
+    start_wall_ns: int | None = None
+    why: str = ""
+    run: str = ""
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> TrialEvent:
+        """The event of a decoded JSON object; Malformed naming the field."""
+        ev = d.get("event")
+        if ev not in EVENTS:
+            raise Malformed(f"unknown trial event {ev!r}")
+        trial = _int(d, "trial")
+        slot = _int(d, "slot", trial)
+        if trial < 0 or slot < trial:
+            raise Malformed(f"trial {trial}, slot {slot}: need 0 <= trial <= slot")
+        stamp = d.get("stamp_ns")
+        wall = d.get("start_wall_ns")
+        return cls(str(ev), trial, slot, _int(d, "seq", -1),
+                   None if stamp is None else _int(d, "stamp_ns"),
+                   None if wall is None else _int(d, "start_wall_ns"), str(d.get("why", "")),
+                   str(d.get("run", "")))
+
+    def to_json(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"event": self.event, "trial": self.trial, "slot": self.slot,
+                             "seq": self.seq}
+        if self.stamp_ns is not None:
+            d["stamp_ns"] = self.stamp_ns
+        if self.start_wall_ns is not None:
+            d["start_wall_ns"] = self.start_wall_ns
+        if self.why:
+            d["why"] = self.why
+        if self.run:
+            d["run"] = self.run
+        return d
+
+
+@dataclass(frozen=True)
+class Ready:
+    """A node's ``ready`` message."""
+
+    node: str
+    trial: int
+    boot: str = ""
+    seen: int = -1
+    passive: bool = False
+    run: str = ""
+    #: said by a supervisor (the launcher), not the node: process ``boot`` of ``node`` died
+    down: bool = False
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> Ready:
+        node = d.get("node")
+        if not isinstance(node, str) or not node:
+            raise Malformed(f"ready: node must be a name, got {node!r}")
+        return cls(node, _int(d, "trial"), str(d.get("boot", "")), _int(d, "seen", -1),
+                   bool(d.get("passive", False)), str(d.get("run", "")),
+                   bool(d.get("down", False)))
+
+    def to_json(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"node": self.node, "trial": self.trial, "boot": self.boot,
+                             "seen": self.seen}
+        if self.passive:
+            d["passive"] = True
+        if self.run:
+            d["run"] = self.run
+        if self.down:
+            d["down"] = True
+        return d
+
+
+def unexplained_gap(k: int, slot: int, aborted: Container[int]) -> bool:
+    """Whether a follower at slot ``k`` (-1: none yet, it takes any) must refuse the start of
+    ``slot`` as too far ahead: a later slot than the next one is taken only when every slot
+    between was aborted (their starts lost with a leader that was killed as it sent them;
+    the restarted leader aborts the slot it left open)."""
+    return k >= 0 and slot > k + 1 and not all(s in aborted for s in range(k + 1, slot))
+
+
+class ScheduleError(RuntimeError):
+    """The team cannot go on (a robot came back without its memory, say)."""
+
+
+@dataclass
+class Schedule:
+    """The leader's bookkeeping, without ROS: who is ready, which slot is open, when the
+    next trial may start, and when a slot must be aborted.
+
+    expected : every node whose ``ready`` the schedule waits for.
+    robots : the robot nodes among them (they carry the learning state).
+    trials : iterations of the run.
+    """
+
+    expected: list[str]
+    robots: set[str]
+    trials: int
+    committed: int = 0       # iterations every robot has learned
+    slot: int = -1           # last slot started
+    seq: int = -1            # sequence number of the last start or abort
+    open: bool = False       # slot started and not committed (or aborted)
+    running: bool = False    # slot started and its reference not at sample T
+    abort_pending: int | None = None  # slot aborted, acks still awaited
+    why: str = ""
+    boots: dict[str, str] = field(default_factory=dict)
+    ready: dict[str, Ready] = field(default_factory=dict)
+    restarted: dict[str, int] = field(default_factory=dict)
+    answered: set[str] = field(default_factory=set)  # idle since the last start or abort
+
+    # ------------------------------------------------------------------ persistence
+    def state(self) -> dict[str, Any]:
+        return {"committed": self.committed, "slot": self.slot, "seq": self.seq,
+                "open": self.open or self.abort_pending is not None}
+
+    def save(self, path: Path | None) -> None:
+        if path is not None:
+            atomic_write_text(path, json.dumps(self.state()) + "\n")
+
+    def restore(self, path: Path) -> bool:
+        """Continue from a state file (a restarted leader, ``launch --resume``): a slot
+        left open is aborted first. False if there is no file."""
+        try:
+            d = json.loads(path.read_text())
+        except FileNotFoundError:
+            return False
+        except (OSError, ValueError) as exc:
+            raise ScheduleError(f"{path}: unreadable schedule state: {exc}") from None
+        try:
+            self.committed, self.slot = int(d["committed"]), int(d["slot"])
+            self.seq = int(d["seq"])
+            was_open = bool(d["open"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ScheduleError(f"{path}: bad schedule state: {exc}") from None
+        self.open = self.running = False
+        if was_open:
+            self.begin_abort("the leader restarted")
+        return True
+
+    # ------------------------------------------------------------------ events
+    def on_ready(self, r: Ready) -> str | None:
+        """Take a node's ready. Returns why the open slot must be aborted (a node
+        restarted while it was open), else None."""
+        if r.node not in self.expected:
+            return None
+        if r.down:
+            # the process that said ready is gone: wait for the one that replaces it (a
+            # recorder restarted before the next start loses nothing of the trials after)
+            if self.boots.get(r.node) == r.boot:
+                self.ready.pop(r.node, None)
+                self.answered.discard(r.node)
+            return None
+        old = self.boots.get(r.node)
+        self.boots[r.node] = r.boot
+        self.ready[r.node] = r
+        abort = None
+        if r.seen < 0 or r.seen >= self.seq:
+            self.answered.add(r.node)
+        if old is not None and old != r.boot:
+            self.restarted[r.node] = self.restarted.get(r.node, 0) + 1
+            # a passive node (monitor, recorder) holds nothing of the trial
+            if self.open and self.abort_pending is None and not r.passive:
+                abort = f"{r.node} restarted during slot {self.slot}"
+                self.begin_abort(abort)
+                if r.seen < 0:  # the new process holds nothing of the aborted slot
+                    self.answered.add(r.node)
+        self._maybe_commit()
+        return abort
+
+    def begin_abort(self, why: str) -> None:
+        """Abort the open slot: it gets the next ``seq``; every node must answer."""
+        self.abort_pending = self.slot
+        self.why = why
+        self.open = self.running = False
+        self.seq += 1
+        self.answered.clear()
+
+    def _idle(self, name: str) -> bool:
+        r = self.ready.get(name)
+        if r is None:
+            return False
+        return r.passive or name in self.answered
+
+    def _maybe_commit(self) -> None:
+        if not self.open or self.running:
+            return
+        i = self.committed
+        if all(name in self.ready and self.ready[name].trial >= i + 1
+               and self._idle(name) for name in self.robots):
+            self.committed = i + 1
+            self.open = False
+
+    def acks_missing(self) -> list[str]:
+        """Nodes that have not answered the pending abort. A robot has answered once it is
+        idle and no longer holds a learning step of the aborted slot (``trial`` back at
+        ``committed``): a robot process restarted from a state file written after it
+        learned from that slot must still roll it back."""
+        return [n for n in self.expected if not self._idle(n)
+                or (n in self.robots and self.ready[n].trial > self.committed)]
+
+    def abort_done(self) -> bool:
+        """Every node answered the pending abort: the slot is gone."""
+        if self.abort_pending is None:
+            return True
+        if self.acks_missing():
+            return False
+        self.abort_pending = None
+        return True
+
+    def ended(self, slot: int) -> None:
+        if slot == self.slot:
+            self.running = False
+            self._maybe_commit()
+
+    def waiting_for(self) -> list[str]:
+        """Expected nodes that are not (yet) idle for the next start."""
+        return [n for n in self.expected if not self._idle(n)]
+
+    def next_start(self) -> tuple[int, int] | None:
+        """(iteration, slot) of the trial to start now, or None (not everybody is ready).
+        ScheduleError when the robots' learning states disagree with the schedule."""
+        if self.open or self.running or not self.abort_done() or self.waiting_for():
+            return None
+        robots = {n: self.ready[n].trial for n in self.robots}
+        behind = {n: t for n, t in robots.items() if t < self.committed}
+        if behind:
+            raise ScheduleError(
+                "; ".join(f"{n} is ready for trial {t}" for n, t in sorted(behind.items()))
+                + f", but the team has learned {self.committed} trials: a robot came back "
+                  f"without its memory (give every robot the run's state_dir)")
+        ahead = set(robots.values())
+        if robots and ahead != {self.committed}:
+            if len(ahead) == 1 and self.slot < 0:
+                # a leader started afresh next to robots that have learned (no leader state)
+                self.committed = ahead.pop()
+            else:
+                raise ScheduleError(f"the robots' learned trials disagree: {robots}, "
+                                    f"schedule at {self.committed}")
+        return self.committed, self.slot + 1
+
+    def started(self, slot: int) -> int:
+        """Slot ``slot`` starts now; returns its ``seq``."""
+        self.slot = slot
+        self.open = self.running = True
+        self.seq += 1
+        self.answered.clear()
+        return self.seq
+
+    @property
+    def done(self) -> bool:
+        return self.committed >= self.trials and not self.open

@@ -1,0 +1,175 @@
+"""Per-trial metric rows from trajectories labelled with slots: one bookkeeping for the
+launcher's monitor (live, from the wire) and for the analysis of a recording (from a file).
+
+Trajectories carry the *slot* of the trial they belong to (their stamps sit on the slot's
+grid); the leader's ``start`` events say which *iteration* a slot runs, and an ``abort``
+drops a slot (``formation_ilc.protocol.schedule``). A slot's row is made once all its measured
+trajectories are in (and its true ones, with ``true_state``) and its iteration is known;
+rows are keyed by iteration. When a slot is aborted after its trajectories were all in,
+the row made from it stays: the iteration runs again in a later slot with the same draws
+and the same memory, and its repetition is dropped as a duplicate.
+
+``strict`` (the monitor) also refuses events out of the leader's order and trajectories of
+a slot not started yet; a recording (``strict=False``) is taken as the file gives it, and
+a trajectory that comes before its slot's start waits for it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from formation_ilc.core.clock import Rejected
+from formation_ilc.core.metrics import METRIC_COLUMNS, TRUE_COLUMNS
+from formation_ilc.model.simulate import Problem, trial_errors
+from formation_ilc.protocol.schedule import ABORT, DONE, END, START, TrialEvent, unexplained_gap
+
+__all__ = ["Row", "SlotRows"]
+
+
+@dataclass
+class Row:
+    """A complete trial: its iteration, metrics row (METRIC_COLUMNS) and trajectories
+    (N, T+1, 3); ``xi`` is None without a true state."""
+
+    trial: int
+    row: NDArray[np.float64]
+    eta: NDArray[np.float64]
+    xi: NDArray[np.float64] | None
+
+
+class SlotRows:
+    """The slots of one run and the rows they completed (``rows``: iteration -> row).
+
+    ``first``: iterations below it are not reported (a resumed run has their rows already).
+    """
+
+    def __init__(self, pb: Problem, true_state: bool = True, first: int = 0,
+                 strict: bool = True):
+        self.pb = pb
+        self.true_state = true_state
+        self.first = first
+        self.strict = strict
+        self.iteration_of: dict[int, int] = {}  # slot -> iteration (start events)
+        self.aborted: set[int] = set()
+        self.started = -1                      # the last slot started
+        self.done_at: tuple[int, int] | None = None  # (slot, trials) of the done event
+        self.rows: dict[int, NDArray[np.float64]] = {}
+        self.eta: dict[int, dict[int, NDArray[np.float64]]] = {}
+        self.xi: dict[int, dict[int, NDArray[np.float64]]] = {}
+
+    def event(self, ev: TrialEvent) -> list[Row]:
+        """Take a trial event; returns the rows it completes. Rejected (strict) if it is
+        out of the leader's order."""
+        if self.strict:
+            if ev.event == START and ev.slot <= self.started:
+                raise Rejected("stale", f"start of slot {ev.slot}, slot {self.started} "
+                                        f"started")
+            # the next slot; any for one that has just started (a resumed run)
+            if ev.event == START and unexplained_gap(self.started, ev.slot, self.aborted):
+                raise Rejected("future", f"start of slot {ev.slot}, slot {self.started} "
+                                         f"started")
+            # an abort of the next slot: its start was lost with a leader that was killed
+            if ev.event == END and ev.slot > self.started or \
+                    ev.event == ABORT and ev.slot > self.started + 1:
+                raise Rejected("unexpected", f"{ev.event} of slot {ev.slot}, slot "
+                                             f"{self.started} started")
+        if ev.event == START:
+            if ev.slot in self.iteration_of and self.iteration_of[ev.slot] != ev.trial:
+                raise Rejected("unexpected", f"slot {ev.slot} started as trial {ev.trial}, "
+                                             f"it runs trial {self.iteration_of[ev.slot]}")
+            self.started = max(self.started, ev.slot)
+            self.iteration_of[ev.slot] = ev.trial
+            return self._complete(ev.slot)
+        if ev.event == ABORT:
+            self.aborted.add(ev.slot)
+            self.eta.pop(ev.slot, None)
+            self.xi.pop(ev.slot, None)
+        if ev.event == DONE:  # the slot after the last, and the trials learned
+            self.done_at = (ev.slot, ev.trial)
+        return []
+
+    def infer(self) -> list[Row]:
+        """For a recording: the iteration of a slot whose start event is not in the file (a
+        recorder killed just as it began), from its neighbours. Slots run one after the
+        other and each either commits or is aborted, so slot s runs the iteration of slot
+        s-1, plus one unless s-1 was aborted. That is taken only when the slot after s (or
+        the run's ``done``) confirms it by running the next iteration; when it runs the
+        same one, s was aborted and its trajectories are dropped. Returns the rows made."""
+        known = dict(self.iteration_of)
+        if self.done_at is not None:
+            known.setdefault(*self.done_at)
+        done: list[Row] = []
+        for s in sorted(set(self.eta) | set(self.xi)):
+            if s in self.iteration_of or s - 1 not in self.iteration_of or s + 1 not in known:
+                continue
+            guess = self.iteration_of[s - 1] + (0 if s - 1 in self.aborted else 1)
+            if known[s + 1] == guess + 1:
+                self.iteration_of[s] = guess
+                done += self._complete(s)
+            elif known[s + 1] == guess:
+                self.aborted.add(s)
+                self.eta.pop(s, None)
+                self.xi.pop(s, None)
+        return done
+
+    def trajectory(self, slot: int, robot: int, true: bool,
+                   eta: NDArray[np.float64]) -> list[Row]:
+        """Take robot ``robot``'s (0-based) measured (or ``true``) trajectory of ``slot``;
+        returns the rows it completes. Rejected if its slot was aborted, its trial is
+        complete, it came already, or (strict) its slot has not started."""
+        i = self.iteration_of.get(slot)
+        if slot in self.aborted:
+            raise Rejected("stale", f"trajectory of slot {slot}, aborted")
+        if i is not None and i in self.rows:
+            raise Rejected("duplicate", f"trial {i} is complete")
+        if self.strict and slot > self.started:
+            raise Rejected("future", f"trajectory of slot {slot}, slot {self.started} "
+                                     f"started")
+        store = self.xi if true else self.eta
+        if robot in store.get(slot, {}):
+            raise Rejected("duplicate", f"slot {slot} again")
+        store.setdefault(slot, {})[robot] = eta
+        return self._complete(slot)
+
+    def measured_only(self) -> list[Row]:
+        """Rows of the slots whose measured trajectories are all in, with nan true columns:
+        for a recording whose plant published no true state."""
+        self.true_state = False
+        done: list[Row] = []
+        for slot in sorted(self.eta):
+            done += self._complete(slot)
+        return done
+
+    def unstarted(self) -> list[tuple[int, int, bool]]:
+        """(slot, robot, true) of the trajectories held for a slot no start event named:
+        at the end of a recording, trajectories of no trial of the run."""
+        return [(slot, r, true) for true, store in ((False, self.eta), (True, self.xi))
+                for slot, got in sorted(store.items()) if slot not in self.iteration_of
+                for r in sorted(got)]
+
+    def _complete(self, slot: int) -> list[Row]:
+        n = self.pb.n
+        i = self.iteration_of.get(slot)
+        if i is None or slot in self.aborted:
+            return []
+        if len(self.eta.get(slot, {})) < n or (self.true_state
+                                               and len(self.xi.get(slot, {})) < n):
+            return []
+        eta = np.stack([self.eta[slot][r] for r in range(n)])
+        xi = np.stack([self.xi[slot][r] for r in range(n)]) if self.true_state else None
+        row = np.empty(len(METRIC_COLUMNS))
+        row[0] = i
+        trial_errors(eta, eta if xi is None else xi, self.pb.eta_d, self.pb.src,
+                     self.pb.weight, row[1:])
+        if xi is None:
+            for c in TRUE_COLUMNS:
+                row[METRIC_COLUMNS.index(c)] = np.nan
+        self.eta.pop(slot, None)
+        self.xi.pop(slot, None)
+        if i < self.first or i in self.rows:
+            return []
+        self.rows[i] = row
+        return [Row(i, row, eta, xi)]

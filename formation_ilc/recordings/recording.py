@@ -1,0 +1,415 @@
+"""Runs as MCAP files: what the batch simulator writes, and what analysis reads back.
+
+A recording is self-contained: it carries the run configuration (the scenario's YAML text
+and overrides) on ``/formation/config`` and in a metadata record, the trial events, every
+robot's whole-trial measured trajectory (``robot_i/trajectory``, the message its
+neighbours learn from) and true trajectory, and the robots' diagnostics with the delays
+they measured (eq. 11). The distributed stack's recorder node writes the same topics as
+received; ``SimRecorder`` writes them from the batch simulator.
+"""
+
+from __future__ import annotations
+
+import glob
+import json
+import os
+import re
+import struct
+import sys
+from collections import Counter
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from formation_ilc.config.runconfig import RunConfig
+from formation_ilc.config.scenario import Scenario
+from formation_ilc.core.links import check_diagnostics, delivered_label, link_histograms
+from formation_ilc.core.metrics import METRIC_COLUMNS
+from formation_ilc.model.simulate import Problem
+from formation_ilc.protocol.schedule import TrialEvent
+from formation_ilc.protocol.trialrows import SlotRows
+from formation_ilc.recordings import cdr
+from formation_ilc.recordings.mcap_io import (
+    RawMessage,
+    ReadReport,
+    RosMcapWriter,
+    qos_yaml,
+    read_messages,
+)
+
+__all__ = ["qos_of", "SimRecorder", "Recording", "RecordingError", "load_recording",
+           "recording_parts"]
+
+#: metadata record name holding the run configuration (same JSON as /formation/config)
+META_NAME = "formation_ilc"
+
+
+def qos_of(profile: Any) -> str:
+    """offered_qos_profiles YAML of an rclpy QoSProfile."""
+    return qos_yaml(reliability=profile.reliability.name.lower(),
+                    durability=profile.durability.name.lower(),
+                    history=profile.history.name.lower(), depth=int(profile.depth))
+
+
+class SimRecorder:
+    """Writes a batch simulation as the distributed stack's recorder would.
+
+    Per trial: trial events, each robot's measured and true trajectory, and each robot's
+    cumulative delay histogram (its diagnostics). For the trials in ``sample_trials`` also
+    the per-sample topics: /clock, each robot's pose and cmd_vel, and the reference.
+    Times are simulated time on the stack's sample grid (``SampleClock``).
+    """
+
+    def __init__(self, path: str | Path, sc: Scenario, sample_trials: Iterable[int] = (),
+                 gap: int = 20):
+        import msgs_schema as ms
+
+        self.ms = ms
+        self.sc = sc
+        self.pb = Problem.from_scenario(sc)
+        cfg = RunConfig(sc, mode="lockstep", gap=gap)
+        self.clock = cfg.clock
+        self.sample_trials = set(sample_trials)
+        self.w = RosMcapWriter(path, flush_period=1.0)
+        n = sc.n
+        # channels by full name, in the stack's default namespace
+        self.full = {t: ms.absolute(t) for t, _, _ in ms.topic_table(n)}
+        for topic, typ, qos in ms.topic_table(n):
+            self.w.channel(self.full[topic], typ, qos_of(qos))
+        conf = cfg.to_json() | {"recorded_by": "formation-ilc simulate"}
+        self._json(ms.CONFIG, conf, 0)
+        self.w.metadata(META_NAME, {"config": json.dumps(conf)})
+        self.delays: list[dict[str, Counter[int]]] = [{} for _ in range(n)]
+        self.names = [ms.robot_name(i + 1) for i in range(n)]
+
+    def _json(self, topic: str, data: dict[str, Any], ns: int) -> None:
+        self._write(topic, cdr.encode_string(json.dumps(data, separators=(",", ":"))), ns)
+
+    def _write(self, topic: str, data: bytes, ns: int) -> None:
+        self.w.write(self.full[topic], data, ns, ns)
+
+    def trial(self, k: int, xi: NDArray[np.float64], eta: NDArray[np.float64],
+              u: NDArray[np.float64], tau: NDArray[np.int64], tau0: NDArray[np.int64]) -> None:
+        ms, pb, clk = self.ms, self.pb, self.clock
+        n, n_t = pb.n, pb.samples
+        stamps = np.array([clk.stamp_ns(k, s) for s in range(n_t + 1)], dtype=np.int64)
+        t0, t_end = int(stamps[0]), int(stamps[-1])
+        self._json(ms.TRIAL_EVENTS, {"event": ms.START, "trial": k, "stamp_ns": t0}, t0)
+        if k in self.sample_trials:
+            ref = self.sc.reference
+            world = ms.WORLD_FRAME
+            for t in range(n_t + 1):
+                ns = int(stamps[t])
+                self._write(ms.CLOCK, cdr.encode_clock(ns), ns)
+                self._write(ms.REFERENCE, cdr.encode_pose_stamped(ref[t], ns, world), ns)
+                for r in range(n):
+                    self._write(ms.pose_topic(r + 1),
+                                cdr.encode_pose_stamped(eta[r, t], ns, world), ns)
+                    if t < n_t:
+                        self._write(ms.cmd_vel_topic(r + 1),
+                                    cdr.encode_twist(u[r, t, 0], u[r, t, 1]), ns)
+        self._json(ms.TRIAL_EVENTS, {"event": ms.END, "trial": k}, t_end)
+        # what each robot counts: the deliveries of ticks 0..T-1 that carry a sample >= 0
+        t_idx = np.arange(n_t)
+        for i in range(n):
+            for ell, j in enumerate(pb.src[i]):
+                if j < 0:
+                    continue
+                d = tau[i, ell, :n_t]
+                self.delays[i].setdefault(self.names[j], Counter()).update(
+                    d[delivered_label(t_idx, d) >= 0].tolist())
+            if pb.leader[i] != 0.0:
+                d = tau0[i, :n_t]
+                self.delays[i].setdefault(ms.LEADER, Counter()).update(
+                    d[delivered_label(t_idx, d) >= 0].tolist())
+        for r in range(n):
+            self._write(ms.true_trajectory_topic(r + 1),
+                        cdr.encode_path(xi[r], stamps, ms.WORLD_FRAME, t_end), t_end)
+            self._write(ms.trajectory_topic(r + 1),
+                        cdr.encode_path(eta[r], stamps, ms.WORLD_FRAME, t_end), t_end)
+            hist = {sender: {str(a): b for a, b in sorted(c.items())}
+                    for sender, c in self.delays[r].items()}
+            self._json(ms.DIAGNOSTICS, {"node": self.names[r], "trial": k, "delays": hist,
+                                        "dropped": {}}, t_end)
+
+    def close(self) -> None:
+        self.w.close()
+
+
+# --------------------------------------------------------------------------- reading
+
+
+class RecordingError(ValueError):
+    """A file that holds no formation-ilc run (no readable run configuration)."""
+
+
+@dataclass
+class Recording:
+    """What an analysis needs, read from one MCAP file.
+
+    metrics : shape (K, len(METRIC_COLUMNS)), trials in order (from the trajectories).
+    eta, xi : {trial: shape (N, T+1, 3)} of the trials kept (``keep`` of load_recording).
+    delays : {"sender->robot_i": {tau: count}} measured by the robots (last diagnostics).
+    injected : the same as injected by the link emulator, when recorded.
+    events : trial events in file order. config : the run configuration (JSON).
+    incomplete : trials of the run up to the last one seen whose data is not all in the
+        file (cut short, damaged, or never sent).
+    Trials are iterations: a slot the leader aborted (a node restarted, docs/reliability.md)
+    is dropped and its iteration counted where it ran again.
+    undecodable : per topic, messages skipped because they do not decode (junk JSON, a
+        malformed trajectory, a label off the run's grid).
+    report : what reading the file found (``mcap_io.ReadReport``: damage, cut short).
+    """
+
+    scenario: Scenario
+    config: dict[str, Any]
+    metrics: NDArray[np.float64]
+    eta: dict[int, NDArray[np.float64]] = field(default_factory=dict)
+    xi: dict[int, NDArray[np.float64]] = field(default_factory=dict)
+    delays: dict[str, dict[int, int]] = field(default_factory=dict)
+    injected: dict[str, dict[int, int]] = field(default_factory=dict)
+    events: list[dict[str, Any]] = field(default_factory=list)
+    incomplete: list[int] = field(default_factory=list)
+    messages: int = 0
+    undecodable: dict[str, int] = field(default_factory=dict)
+    report: ReadReport = field(default_factory=ReadReport)
+    #: every file read, with what reading it found (``report`` is the first one's)
+    parts: list[tuple[Path, ReadReport]] = field(default_factory=list)
+    #: messages of aborted slots, or repeating a trial already complete (not errors)
+    superseded: int = 0
+
+
+def _path_outputs(data: bytes, ref_heading: NDArray[np.float64]
+                  ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """eta (S, 3) and stamps of a recorded trajectory, decoded as the monitor decodes it
+    (msgs_schema.path_to_trajectory: same heading function, unwrapped next to the desired
+    heading), with the bytes parsed by numpy when the layout allows it. MalformedMessage
+    if it is not a valid trajectory of ``len(ref_heading)`` poses."""
+    import msgs_schema as ms
+
+    try:
+        f, stamps, frame, _ = cdr.decode_path(data)
+    except (ValueError, struct.error, IndexError):
+        eta, stamps, frame = ms.path_to_trajectory(ms.deserialize(data, ms.Path), ref_heading)
+        f = None
+    if frame != ms.WORLD_FRAME:
+        raise ms.MalformedMessage(f"trajectory in frame {frame[:50]!r}")
+    if f is None:
+        return eta, stamps
+    if len(f) != len(ref_heading):
+        raise ms.MalformedMessage(f"trajectory has {len(f)} poses, expected {len(ref_heading)}")
+    if not np.isfinite(f[:, :2]).all():
+        raise ms.MalformedMessage("non-finite position")
+    eta = np.empty((len(f), 3))
+    eta[:, :2] = f[:, :2]
+    hq = ms._heading_from_quaternion
+    for s, (qx, qy, qz, qw) in enumerate(f[:, 3:].tolist()):
+        eta[s, 2] = hq(qx, qy, qz, qw, float(ref_heading[s]))
+    return eta, stamps
+
+
+#: topics (by their last part) that an analysis reads; the per-sample ones it skips
+_ANALYSED = ("/trajectory", "/true_trajectory", "/diagnostics", "/trial_events")
+
+
+def recording_parts(first: str | Path) -> list[Path]:
+    """The files of the run recorded in ``first`` (``RUN.mcap``), in the order they were
+    written: ``first``, the parts of its restarted recorder (``RUN.part1.mcap``, ...), then
+    each resumed launch's file (``RUN.resumed1.mcap``) and its parts
+    (``RUN.resumed1.part1.mcap``, ...). Only ``first`` when it is itself a part."""
+    first = Path(first)
+    stem = first.name[: -len(".mcap")] if first.name.endswith(".mcap") else None
+    if stem is None or re.search(r"\.(part|resumed)\d+$", stem):
+        return [first]
+
+    def numbered(prefix: str, kind: str) -> list[tuple[int, Path]]:
+        pat = re.compile(re.escape(prefix) + rf"\.{kind}(\d+)\.mcap$")
+        found = []
+        for p in first.parent.glob(f"{glob.escape(prefix)}.{kind}*.mcap"):
+            m = pat.fullmatch(p.name)
+            if m:
+                found.append((int(m.group(1)), p))
+        return sorted(found)
+
+    out = [first] + [p for _, p in numbered(stem, "part")]
+    for n, resumed in numbered(stem, "resumed"):
+        out += [resumed] + [p for _, p in numbered(f"{stem}.resumed{n}", "part")]
+    return out
+
+
+def load_recording(path: str | Path | Sequence[str | Path],
+                   keep: Callable[[int, int], bool] | None = None,
+                   progress: Callable[[int], None] | None = None) -> Recording:
+    """Read a recording and compute its per-trial metrics exactly as the launcher does.
+
+    ``path``: one file, or the files of one run in the order they were written
+    (``recording_parts``): they are read as one stream, so a trial whose data spans two
+    parts is complete. Every part must hold the same run (its run id); RecordingError names
+    the one that does not.
+
+    Nothing in the file stops the reading: a message that does not decode is skipped and
+    counted per topic (``undecodable``), damaged bytes are skipped up to the next readable
+    chunk (``report``), and trials whose data is not all there are listed (``incomplete``).
+    RecordingError if no run configuration reads back.
+
+    keep : (trial, total trials) -> whether to keep the trial's trajectories.
+    progress : called with the number of messages read so far, now and then.
+    """
+    from std_msgs.msg import String
+
+    import msgs_schema as ms
+    from formation_ilc.core.clock import Rejected
+
+    paths = [Path(path)] if isinstance(path, (str, Path)) else [Path(p) for p in path]
+    if not paths:
+        raise ValueError("load_recording: no file given")
+    parts: list[tuple[Path, ReadReport]] = []
+    config: dict[str, Any] | None = None
+    cfg: RunConfig | None = None
+    slots: SlotRows | None = None
+    rec_eta: dict[int, NDArray[np.float64]] = {}
+    rec_xi: dict[int, NDArray[np.float64]] = {}
+    diags: dict[str, dict[str, Any]] = {}
+    events: list[dict[str, Any]] = []
+    bad: Counter[str] = Counter()
+    count = 0
+    superseded = 0
+    traj_topic: dict[str, tuple[int, bool]] = {}
+    # the formation's namespace is where its config topic is
+    events_topic = diag_topic = ""
+    true_seen = False
+    early: list[RawMessage] = []  # what came before the configuration (damage, a late one)
+    last_seen = -1                # the latest trial with any data in the file
+
+    def text(m: RawMessage, required: tuple[str, ...]) -> dict[str, Any]:
+        return ms.msg_to_json(ms.deserialize(m.data, String), required)
+
+    def configure(m: RawMessage) -> None:
+        nonlocal config, cfg, slots, events_topic, diag_topic
+        conf = text(m, ())
+        c = RunConfig.from_json(conf)
+        pb = Problem.from_scenario(c.scenario)
+        config, cfg, slots = conf, c, SlotRows(pb, strict=False)
+        namespace = m.topic[: -len(ms.CONFIG) - 1] or "/"
+        for r in range(pb.n):
+            traj_topic[ms.absolute(ms.trajectory_topic(r + 1), namespace)] = (r, False)
+            traj_topic[ms.absolute(ms.true_trajectory_topic(r + 1), namespace)] = (r, True)
+        events_topic = ms.absolute(ms.TRIAL_EVENTS, namespace)
+        diag_topic = ms.absolute(ms.DIAGNOSTICS, namespace)
+
+    def kept(done: list[Any]) -> None:
+        assert cfg is not None
+        for d in done:
+            if keep is None or keep(d.trial, cfg.scenario.trials):
+                rec_eta[d.trial] = d.eta
+                if d.xi is not None:
+                    rec_xi[d.trial] = d.xi
+
+    def handle(m: RawMessage) -> None:
+        nonlocal true_seen, last_seen
+        assert slots is not None and cfg is not None
+        if m.topic == events_topic:
+            d = text(m, ("event", "trial"))
+            ev = TrialEvent.from_json(d)
+            if ev.run and cfg.run_id and ev.run != cfg.run_id:
+                raise Rejected("foreign", f"event of run {ev.run}")
+            if ev.event == ms.START:
+                last_seen = max(last_seen, ev.trial)
+            events.append(d)
+            kept(slots.event(ev))
+        elif m.topic == diag_topic:
+            dg = check_diagnostics(text(m, ("node", "trial")))
+            diags[dg["node"]] = dg
+        elif m.topic in traj_topic:
+            r, is_true = traj_topic[m.topic]
+            eta, stamps = _path_outputs(m.data, slots.pb.eta_d[r, :, 2])
+            k, s0 = cfg.clock.decode(int(stamps[0]))
+            if s0 != 0 or k < 0:
+                raise ms.MalformedMessage(f"trajectory of slot {k} sample {s0}: not a "
+                                          f"trial of this run")
+            true_seen = true_seen or is_true
+            kept(slots.trajectory(k, r, is_true, eta))
+
+    def dispatch(m: RawMessage) -> None:
+        nonlocal superseded
+        try:
+            handle(m)
+        except Rejected as exc:
+            if exc.reason in ("stale", "duplicate"):
+                superseded += 1  # an aborted slot's, or a trial run again
+            else:
+                bad[m.topic] += 1
+        except (ms.MalformedMessage, ValueError) as exc:
+            bad[m.topic] += 1
+            if os.environ.get("FORMATION_ILC_DEBUG"):
+                print(f"{m.topic}: skipped a message: {exc}", file=sys.stderr)
+
+    for part in paths:
+        report = ReadReport()
+        parts.append((part, report))
+        for msg in read_messages(part, report=report):
+            count += 1
+            if progress is not None and count % 5000 == 0:
+                progress(count)
+            if msg.topic.endswith("/" + ms.CONFIG):
+                if config is not None:
+                    _same_run(part, config, msg, text)
+                    continue
+                try:
+                    configure(msg)
+                except ValueError:  # junk, or a configuration that does not load
+                    bad[msg.topic] += 1
+                    continue
+                for held in early:
+                    dispatch(held)
+                early = []
+                continue
+            if config is None:
+                if msg.topic.endswith(_ANALYSED):
+                    early.append(msg)
+                continue
+            dispatch(msg)
+    if slots is not None:
+        kept(slots.infer())  # slots whose start was lost with a killed recorder
+    if slots is not None and cfg is not None and not true_seen:
+        # a plant without a true state (hardware): the true_ columns are nan
+        kept(slots.measured_only())
+    if config is None or cfg is None or slots is None:
+        report = parts[0][1]
+        found = (f"{report.messages} messages read" if report.messages
+                 else "no MCAP record read back")
+        where = paths[0] if len(paths) == 1 else f"{paths[0]} (and {len(paths) - 1} parts)"
+        raise RecordingError(f"{where}: no readable run configuration on a .../{ms.CONFIG} "
+                             f"topic ({found}): not a formation-ilc recording, or cut or "
+                             f"damaged before the run started")
+    topic_of = {v: t for t, v in traj_topic.items()}
+    for _, r, is_true in slots.unstarted():  # of no trial the run started
+        bad[topic_of[(r, is_true)]] += 1
+    rows = slots.rows
+    last_seen = max([last_seen, *rows, *slots.iteration_of.values()])
+    metrics = (np.array([rows[k] for k in sorted(rows)]) if rows
+               else np.empty((0, len(METRIC_COLUMNS))))
+    delays, injected = link_histograms(diags)
+    return Recording(scenario=cfg.scenario, config=config, metrics=metrics, eta=rec_eta,
+                     xi=rec_xi, delays=delays, injected=injected, events=events,
+                     incomplete=[k for k in range(min(last_seen + 1, cfg.scenario.trials))
+                                 if k not in rows],
+                     messages=count, undecodable=dict(bad), report=parts[0][1], parts=parts,
+                     superseded=superseded)
+
+
+def _same_run(part: Path, config: dict[str, Any], msg: RawMessage,
+              text: Callable[[RawMessage, tuple[str, ...]], dict[str, Any]]) -> None:
+    """RecordingError if ``msg`` (a configuration in a later part) is another run's."""
+    try:
+        other = text(msg, ())
+    except ValueError:
+        return  # junk: counted nowhere, the first configuration stands
+    mine, theirs = config.get("run_id", ""), other.get("run_id", "")
+    if mine != theirs or other.get("scenario") != config.get("scenario"):
+        raise RecordingError(f"{part}: another run's recording (run {theirs or '?'}, the "
+                             f"first part's is {mine or '?'}): give the parts of one run")

@@ -1,0 +1,249 @@
+"""The Pioneer bridge node in process: commands clamped to the limits, a zero command once
+the robot node is silent longer than the timeout, TwistStamped for diff_drive_controller,
+and the fake driver's motors and watchdog (private rclpy Context, no sleeps)."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import pytest
+
+pytestmark = pytest.mark.ros
+
+rclpy = pytest.importorskip("rclpy")
+from geometry_msgs.msg import Twist, TwistStamped  # noqa: E402
+from nav_msgs.msg import Odometry  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+
+import msgs_schema as ms  # noqa: E402
+
+from ..procs import spin_until  # noqa: E402
+
+TIMEOUT = 0.4
+
+
+def make_bridge(context, cmd_type: str = "twist", driver: str = "rosaria"):
+    from formation_ilc.nodes.pioneer_bridge import BridgeNode
+
+    params = [Parameter("robot_id", value=1), Parameter("scenario", value="paper-triangle3"),
+              Parameter("driver", value=driver), Parameter("driver_ns", value="/pioneer_1"),
+              Parameter("cmd_timeout", value=TIMEOUT), Parameter("cmd_type", value=cmd_type),
+              Parameter("v_max", value=0.5), Parameter("omega_max", value=90.0)]
+    return BridgeNode(context=context, parameter_overrides=params)
+
+
+@pytest.mark.parametrize("cmd_type", ["twist", "twist_stamped"])
+def test_bridge_clamps_commands_and_zeroes_them_when_the_robot_is_silent(context, cmd_type):
+    bridge = make_bridge(context, cmd_type)
+    tester = rclpy.create_node("tester", namespace=ms.NAMESPACE, context=context)
+    ex = SingleThreadedExecutor(context=context)
+    ex.add_node(bridge)
+    ex.add_node(tester)
+    try:
+        assert bridge.get_fully_qualified_name() == "/formation/bridge_1"
+        got: list[tuple[float, float, float]] = []  # (arrival, v, omega)
+        stamped = cmd_type == "twist_stamped"
+
+        def on_twist(m):
+            t = m.twist if stamped else m
+            got.append((time.monotonic(), t.linear.x, t.angular.z))
+
+        tester.create_subscription(TwistStamped if stamped else Twist, "/pioneer_1/cmd_vel",
+                                   on_twist, ms.DRIVER_CMD_QOS)
+        pub = tester.create_publisher(Twist, ms.cmd_vel_topic(1), ms.SAMPLE_QOS)
+        spin_until(ex, lambda: pub.get_subscription_count() >= 1 and len(got) > 0)
+        # before any robot command: zero, republished at the bridge's rate (>= 10 Hz)
+        assert got[-1][1:] == (0.0, 0.0)
+        n0 = len(got)
+        t0 = time.monotonic()
+        spin_until(ex, lambda: len(got) >= n0 + 5)
+        assert (time.monotonic() - t0) / 5 <= 0.1
+
+        # outside a trial a command is refused and counted: it would move the robot
+        # outside the protocol
+        pub.publish(ms.u_to_twist((0.3, 0.2)))
+        spin_until(ex, lambda: bridge.drops.counts["unexpected"] == 1)
+        assert got[-1][1:] == (0.0, 0.0)
+        bridge.phase = "trial"  # inside a trial (its start is tested with the fake driver)
+        cmds = [(2.0, 3.0), (-1.0, -3.0), (0.3, 0.2)]
+        want = [(0.5, math.radians(90)), (-0.5, -math.radians(90)), (0.3, 0.2)]
+        for (v, w), (wv, ww) in zip(cmds, want, strict=True):
+            pub.publish(ms.u_to_twist((v, w)))
+            spin_until(ex, lambda wv=wv, ww=ww: got and got[-1][1:] == pytest.approx((wv, ww)))
+        assert bridge.counts["clipped"] == 2
+        # the robot node falls silent: the held command is republished, then zero within
+        # the timeout (plus one control tick and the delivery)
+        t_last = time.monotonic()
+        spin_until(ex, lambda: got[-1][1:] == (0.0, 0.0), timeout=5.0)
+        first_zero = next(a for a, v, w in got if a > t_last and (v, w) == (0.0, 0.0))
+        held = [a for a, v, w in got if a > t_last and (v, w) != (0.0, 0.0)]
+        assert TIMEOUT - 0.05 <= first_zero - t_last <= TIMEOUT + 0.1, first_zero - t_last
+        assert len(held) >= 3  # >= 10 Hz while the command holds
+        for _ in range(20):
+            ex.spin_once(timeout_sec=0.01)
+        assert all((v, w) == (0.0, 0.0) for a, v, w in got if a > first_zero)
+    finally:
+        bridge.destroy_node()
+        tester.destroy_node()
+
+
+@pytest.mark.parametrize("driver", ["rosaria", "ros2aria"])
+def test_bridge_is_ready_once_odometry_and_motors_are_in_and_maps_odometry_to_world(context,
+                                                                                   driver):
+    from robot_sim.fake_pioneer import FakePioneer
+
+    bridge = make_bridge(context, driver=driver)
+    fake = FakePioneer(context=context, namespace="/pioneer_1",
+                       parameter_overrides=[Parameter("odom_noise", value=0.0),
+                                            Parameter("driver", value=driver)])
+    tester = rclpy.create_node("tester", namespace=ms.NAMESPACE, context=context)
+    ex = SingleThreadedExecutor(context=context)
+    for n in (bridge, fake, tester):
+        ex.add_node(n)
+    try:
+        from geometry_msgs.msg import PoseStamped
+        from std_msgs.msg import String
+
+        ready: list[dict] = []
+        tester.create_subscription(String, ms.READY, lambda m: ready.append(ms.msg_to_json(m)),
+                                   ms.LATCHED_READER_QOS)
+        odom: list[Odometry] = []
+        tester.create_subscription(Odometry, f"/pioneer_1/{ms.DRIVERS[driver].odom}",
+                                   odom.append, ms.ODOM_QOS)
+        # the robot node's reader of the pose (the bridge waits for one)
+        tester.create_subscription(PoseStamped, ms.pose_topic(1), lambda m: None,
+                                   ms.SAMPLE_QOS)
+        spin_until(ex, lambda: any(r["node"] == "bridge_1" for r in ready))
+        assert fake.motors  # the bridge enabled them through enable_motors
+        assert odom and odom[-1].header.frame_id == "odom"
+        r = next(r for r in ready if r["node"] == "bridge_1")
+        assert r["trial"] == 0 and r["return"] == "placed"
+        assert r["initial_shift"] == pytest.approx([0.0, 0.0, 0.0], abs=1e-9)
+        # the world pose is the scenario's desired start composed with the odometry
+        assert bridge.world() == pytest.approx(bridge.initial, abs=1e-9)
+    finally:
+        for n in (bridge, fake, tester):
+            n.destroy_node()
+
+
+def test_fake_driver_needs_its_motors_enabled_and_stops_on_its_own_watchdog(context):
+    from std_srvs.srv import Empty
+
+    from robot_sim.fake_pioneer import FakePioneer
+
+    fake = FakePioneer(context=context, namespace="/pioneer_1",
+                       parameter_overrides=[Parameter("odom_noise", value=0.0)])
+    tester = rclpy.create_node("tester", context=context)
+    ex = SingleThreadedExecutor(context=context)
+    ex.add_node(fake)
+    ex.add_node(tester)
+    try:
+        odom: list[tuple[float, Odometry]] = []
+        tester.create_subscription(Odometry, "/pioneer_1/pose",
+                                   lambda m: odom.append((time.monotonic(), m)), ms.ODOM_QOS)
+        pub = tester.create_publisher(Twist, "/pioneer_1/cmd_vel", ms.DRIVER_CMD_QOS)
+        spin_until(ex, lambda: pub.get_subscription_count() >= 1 and len(odom) >= 3)
+        pub.publish(ms.u_to_twist((0.5, 0.0)))
+        n = len(odom)
+        spin_until(ex, lambda: len(odom) >= n + 10)
+        # motors off: the command is ignored
+        assert all(m.twist.twist.linear.x == 0.0 for _, m in odom)
+        assert odom[-1][1].pose.pose.position.x == 0.0
+        client = tester.create_client(Empty, "/pioneer_1/enable_motors")
+        spin_until(ex, client.service_is_ready)
+        fut = client.call_async(Empty.Request())
+        spin_until(ex, fut.done)
+        assert fake.motors
+        pub.publish(ms.u_to_twist((0.5, 0.0)))
+        t_cmd = time.monotonic()
+        spin_until(ex, lambda: odom[-1][1].twist.twist.linear.x == 0.5)
+        # no newer command: the driver's own watchdog stops the robot after 0.6 s
+        spin_until(ex, lambda: odom[-1][0] > t_cmd and odom[-1][1].twist.twist.linear.x == 0.0)
+        stop = next(t for t, m in odom if t > t_cmd + 0.05 and m.twist.twist.linear.x == 0.0)
+        assert 0.55 <= stop - t_cmd <= 0.8, stop - t_cmd
+        moved = odom[-1][1].pose.pose.position.x
+        # about 0.5 m/s for 0.6 s, the odometry 1 % long
+        assert 0.25 <= moved <= 0.4, moved
+    finally:
+        fake.destroy_node()
+        tester.destroy_node()
+
+
+@pytest.mark.multiprocess
+def test_p2os2_without_p2os_msgs_stops_with_a_clear_message(ros_env):
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "formation_ilc.nodes.pioneer_bridge",
+                        "--ros-args", "-p", "robot_id:=2", "-p", "scenario:=paper-triangle3",
+                        "-p", "driver:=p2os2"], capture_output=True, text=True, timeout=60,
+                       env=ros_env)
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    assert "p2os_msgs" in r.stderr and "not on PyPI" in r.stderr
+
+
+def test_wallclock_leader_agrees_the_start_and_publishes_the_reference_on_its_wall_timer(
+        context, tmp_path):
+    import yaml
+    from geometry_msgs.msg import PoseStamped
+    from std_msgs.msg import String
+
+    from formation_ilc.config.scenario import load_scenario
+    from virtual_leader.node import LeaderNode
+
+    data = yaml.safe_load(load_scenario("paper-triangle3").text)
+    data.update(dt=0.05, samples=10, name="triangle3-wall")
+    scen = tmp_path / "s.yaml"
+    scen.write_text(yaml.safe_dump(data, sort_keys=False))
+    margin = 0.3
+    leader = LeaderNode(context=context, parameter_overrides=[
+        Parameter("scenario", value=str(scen)), Parameter("mode", value="wallclock"),
+        Parameter("links", value="direct"), Parameter("trials", value=1),
+        Parameter("start_margin", value=margin),
+        Parameter("nodes_expected", value=["tester"])])
+    tester = rclpy.create_node("tester", namespace=ms.NAMESPACE, context=context)
+    ex = SingleThreadedExecutor(context=context)
+    ex.add_node(leader)
+    ex.add_node(tester)
+    try:
+        events: list[tuple[int, dict]] = []
+        refs: list[tuple[int, int]] = []  # (arrival wall ns, label ns)
+        tester.create_subscription(String, ms.TRIAL_EVENTS, lambda m: events.append(
+            (time.time_ns(), ms.msg_to_json(m))), ms.SAMPLE_QOS)
+        tester.create_subscription(PoseStamped, ms.REFERENCE, lambda m: refs.append(
+            (time.time_ns(), ms.stamp_to_ns(m.header.stamp))), ms.SAMPLE_QOS)
+        ready = tester.create_publisher(String, ms.READY, ms.LATCHED_QOS)
+        spin_until(ex, lambda: ready.get_subscription_count() >= 1)
+        ready.publish(ms.json_to_msg({"node": "tester", "trial": 0}))
+        spin_until(ex, lambda: any(e["event"] == ms.END for _, e in events) and len(refs) >= 11,
+                   timeout=10)
+        sent, start = next((t, e) for t, e in events if e["event"] == ms.START)
+        t0 = start["start_wall_ns"]
+        # the agreed start is the margin ahead of the event
+        assert 0 < t0 - sent <= margin * 1e9 + 5e7
+        clock = leader.cfg.clock
+        assert [label for _, label in refs] == [clock.stamp_ns(0, s) for s in range(11)]
+        for s, (arrival, _) in enumerate(refs):
+            due = t0 + s * clock.dt_ns
+            # published on the wall timer at its due time (5 ms timer, a loaded machine)
+            assert due <= arrival <= due + 40_000_000, (s, (arrival - due) / 1e6)
+        # the leader neither follows nor needs /clock in wall-clock trials
+        assert leader.count_subscribers(ms.CLOCK) == 0
+    finally:
+        leader.destroy_node()
+        tester.destroy_node()
+
+
+def test_wallclock_leader_waits_for_robots_and_bridges_by_default(context):
+    from virtual_leader.node import LeaderNode
+
+    leader = LeaderNode(context=context, parameter_overrides=[
+        Parameter("scenario", value="paper-triangle3"), Parameter("mode", value="wallclock"),
+        Parameter("links", value="direct")])
+    try:
+        assert leader.expected == ["robot_1", "robot_2", "robot_3", "bridge_1", "bridge_2",
+                                   "bridge_3"]
+    finally:
+        leader.destroy_node()

@@ -1,0 +1,204 @@
+"""The robot as a pure learner (no ROS): links, labels, eq. (11), zero-order hold, learning.
+
+A team of ``RobotLearner`` objects fed event by event, as the robot nodes are fed by
+messages, must command and learn exactly what the batch simulator computes, in both link
+modes; refused inputs carry the reason they are counted under.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from formation_ilc.config.scenario import load_scenario
+from formation_ilc.core.clock import Rejected, SampleClock
+from formation_ilc.core.links import LEADER, Delivery, LinkInbox, delivered_label, robot_name
+from formation_ilc.model.simulate import Problem
+from formation_ilc.protocol.learner import RobotLearner
+
+CLOCK = SampleClock.for_run(0.1, 10, gap=5)
+
+
+def stamp(k: int, s: int) -> int:
+    return CLOCK.stamp_ns(k, s)
+
+
+# --------------------------------------------------------------------------- inboxes
+
+def test_direct_inbox_uses_the_newest_label_not_after_rt():
+    box = LinkInbox("robot_1", CLOCK, direct=True)
+    for s in (1, 2, 4):
+        box.offer(stamp(0, s), np.full(3, float(s)), trial=0)
+    assert not box.has(stamp(0, 5)) and box.has(stamp(0, 4))
+    d = box.take(stamp(0, 3))
+    assert d is not None and d.label_ns == stamp(0, 2) and d.eta[0] == 2.0
+    # the same pose is still the newest usable one a sample later
+    assert box.take(stamp(0, 3)).label_ns == stamp(0, 2)
+    assert box.take(stamp(0, 6)).label_ns == stamp(0, 4)
+    # nothing of an earlier trial is used in a new one
+    assert box.take(stamp(1, 2)) is None
+
+
+@pytest.mark.parametrize(("label", "trial", "reason"), [
+    (stamp(0, 4), 0, "duplicate"),
+    (stamp(0, 3), 0, "out_of_order"),
+    (stamp(2, 1), 3, "stale"),
+    (stamp(5, 1), 3, "future"),
+    (-5, 0, "malformed"),
+    (stamp(0, 10) + 3 * CLOCK.dt_ns, 0, "malformed"),  # between trials
+])
+def test_direct_inbox_refuses_with_a_reason(label, trial, reason):
+    box = LinkInbox("robot_1", CLOCK, direct=True)
+    box.offer(stamp(0, 4), np.zeros(3), trial=0)
+    with pytest.raises(Rejected) as exc:
+        box.offer(label, np.zeros(3), trial=trial)
+    assert exc.value.reason == reason
+
+
+def test_emulated_inbox_delivers_per_tick_and_counts_late_deliveries():
+    box = LinkInbox("leader", CLOCK, direct=False)
+    d = Delivery("leader", stamp(0, 1), np.zeros(3))
+    box.offer_tick(stamp(0, 3), d, trial=0)
+    assert box.has(stamp(0, 3)) and not box.has(stamp(0, 4))
+    box.offer_tick(stamp(0, 2), Delivery("leader", stamp(0, 0), np.zeros(3)), trial=0)
+    assert box.take(stamp(0, 3)) is d
+    assert box.unused == 1  # tick 2 came after sample 2 was commanded
+    box.offer_tick(stamp(0, 4), None, trial=0)
+    assert box.take(stamp(0, 4)) is None and box.unused == 1
+    with pytest.raises(Rejected) as exc:
+        box.offer_tick(stamp(0, 6), Delivery("leader", stamp(0, 7), np.zeros(3)), trial=0)
+    assert exc.value.reason == "future"
+    box.offer_tick(stamp(0, 6), None, trial=0)
+    with pytest.raises(Rejected) as exc:
+        box.offer_tick(stamp(0, 6), None, trial=0)
+    assert exc.value.reason == "duplicate"
+
+
+def test_delivered_label():
+    assert delivered_label(7, 3) == 4
+    assert delivered_label(2, 3) == -1
+
+
+# --------------------------------------------------------------------------- a team
+
+def run_team(pb: Problem, clock: SampleClock, memory, draws, direct: bool):
+    """Feed one learner per robot with the batch trial's outputs, event by event; return
+    (commands (N, T, 2), learned memory (N, T, 2))."""
+    xi0, dist, noise, tau, tau0 = draws
+    _, eta, u_ref, _ = pb.trial(memory, xi0, dist, noise, tau, tau0)
+    team = [RobotLearner(pb, r, clock, direct=direct, memory=memory[r]) for r in range(pb.n)]
+    k = 0
+    u = np.zeros((pb.n, pb.samples, 2))
+    ref_label = lambda s: clock.stamp_ns(k, s)  # noqa: E731
+    for t in range(pb.samples + 1):
+        for r, lrn in enumerate(team):
+            ev = lrn.on_pose(clock.stamp_ns(k, t), eta[r, t])
+            assert (ev.trial, ev.sample, ev.last) == (k, t, t == pb.samples)
+        if t == pb.samples:
+            break
+        for r, lrn in enumerate(team):
+            for ell, j in enumerate(pb.src[r]):
+                if j < 0:
+                    continue
+                sender = robot_name(j + 1)
+                if direct:
+                    lrn.on_link_pose(sender, clock.stamp_ns(k, t), eta[j, t])
+                else:
+                    s = delivered_label(t, int(tau[r, ell, t]))
+                    lrn.on_link_tick(sender, clock.stamp_ns(k, t),
+                                     None if s < 0 else (clock.stamp_ns(k, s), eta[j, s]))
+            if lrn.sees_leader:
+                if direct:
+                    lrn.on_link_pose(LEADER, ref_label(t), np.zeros(3))
+                else:
+                    s = delivered_label(t, int(tau0[r, t]))
+                    lrn.on_link_tick(LEADER, clock.stamp_ns(k, t),
+                                     None if s < 0 else (ref_label(s), np.zeros(3)))
+            assert lrn.can_command()
+            u[r, t] = lrn.command()
+    trajs = [lrn.finish_trial()[1].copy() for lrn in team]
+    for r, lrn in enumerate(team):
+        learned = lrn.try_learn()  # a robot with no in-neighbour learns at once
+        assert learned == (pb.src[r] < 0).all()
+        for j in pb.src[r]:
+            if j >= 0:
+                learned = lrn.on_trajectory(robot_name(j + 1), np.array(
+                    lrn.trajectory_stamps(k)), trajs[j])
+        assert learned and lrn.learned == k
+    np.testing.assert_allclose(u, u_ref, rtol=0, atol=0)
+    return u, np.stack([lrn.memory[0] for lrn in team]), team
+
+
+@pytest.mark.parametrize("scenario", ["paper-triangle3", "paper-hexagon6"])
+@pytest.mark.parametrize("law", [9, 22, 23])
+@pytest.mark.parametrize("direct", [False, True], ids=["emulated", "direct"])
+def test_a_team_of_learners_equals_the_batch_trial(scenario, law, direct):
+    sc = load_scenario(scenario).with_options(law=law, delay=not direct)
+    pb = Problem.from_scenario(sc)
+    clock = SampleClock.for_run(sc.dt, sc.samples)
+    mem = np.random.default_rng(law).normal(scale=0.1, size=(pb.n, pb.samples, 2))
+    shift, dist, noise = sc.uncertainty.draw_plant(sc.seed, 0, pb.n, pb.samples)
+    tau, tau0 = sc.uncertainty.draw_delays(sc.seed, 0, pb.n, pb.src.shape[1], pb.samples)
+    draws = (pb.eta_d[:, 0] + shift, dist, noise, tau, tau0)
+    _, nxt_ref = pb.trial(mem, *draws)[2:]
+    _, nxt, team = run_team(pb, clock, mem, draws, direct)
+    np.testing.assert_allclose(nxt, nxt_ref, rtol=0, atol=1e-15)
+    # eq. (11) from the labels: every robot measured the delays the links had
+    for r, lrn in enumerate(team):
+        for ell, j in enumerate(pb.src[r]):
+            if j < 0:
+                continue
+            hist = lrn.delays[robot_name(j + 1)]
+            if direct:
+                assert hist == {0: pb.samples}
+            else:
+                d = tau[r, ell, :pb.samples]
+                assert sum(hist.values()) == int((np.arange(pb.samples) - d >= 0).sum())
+
+
+def test_realtime_missed_samples_are_held():
+    sc = load_scenario("paper-triangle3").with_options(delay=False)
+    pb = Problem.from_scenario(sc)
+    clock = SampleClock.for_run(sc.dt, sc.samples)
+    lrn = RobotLearner(pb, 1, clock, realtime=True, direct=True)
+    lrn.on_pose(clock.stamp_ns(0, 0), pb.eta_d[1, 0])
+    lrn.on_link_pose("robot_1", clock.stamp_ns(0, 0), pb.eta_d[0, 0])
+    u0 = lrn.command().copy()
+    lrn.on_pose(clock.stamp_ns(0, 1), pb.eta_d[1, 1])  # sample 1 never commanded
+    lrn.on_pose(clock.stamp_ns(0, 3), pb.eta_d[1, 3])  # sample 2 never came
+    assert lrn.missed == 2
+    np.testing.assert_array_equal(lrn.applied[0, 1], u0)  # zero-order hold
+    np.testing.assert_array_equal(lrn.applied[0, 2], u0)
+    # lockstep refuses what realtime holds
+    strict = RobotLearner(pb, 1, clock, direct=True)
+    strict.on_pose(clock.stamp_ns(0, 0), pb.eta_d[1, 0])
+    with pytest.raises(Rejected) as exc:
+        strict.on_pose(clock.stamp_ns(0, 2), pb.eta_d[1, 2])
+    assert exc.value.reason == "out_of_order"
+    with pytest.raises(Rejected) as exc:
+        strict.on_pose(clock.stamp_ns(0, 0), pb.eta_d[1, 0])
+    assert exc.value.reason == "stale"
+    with pytest.raises(Rejected) as exc:
+        strict.on_link_pose("robot_3", clock.stamp_ns(0, 0), pb.eta_d[2, 0])
+    assert exc.value.reason == "malformed"  # robot 3 is no in-link of robot 2
+
+
+def test_trajectories_of_a_neighbour_are_checked():
+    sc = load_scenario("paper-triangle3")
+    pb = Problem.from_scenario(sc)
+    clock = SampleClock.for_run(sc.dt, sc.samples)
+    lrn = RobotLearner(pb, 1, clock)
+    good = np.array(lrn.trajectory_stamps(0))
+    eta = pb.eta_d[0]
+    for stamps, reason in ((good[:-1], "malformed"), (good + clock.dt_ns, "malformed"),
+                           (good, None)):
+        if reason is None:
+            assert lrn.on_trajectory("robot_1", stamps, eta) is False  # not finished yet
+        else:
+            with pytest.raises(Rejected) as exc:
+                lrn.on_trajectory("robot_1", stamps, eta)
+            assert exc.value.reason == reason
+    lrn.learned = 0
+    with pytest.raises(Rejected) as exc:
+        lrn.on_trajectory("robot_1", good, eta)
+    assert exc.value.reason == "stale"

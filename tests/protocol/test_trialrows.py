@@ -1,0 +1,213 @@
+"""formation_ilc.protocol.trialrows: rows by iteration from trajectories labelled with slots, as the
+monitor (strict) and the analysis of a recording (not strict) make them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from formation_ilc.config.scenario import load_scenario
+from formation_ilc.core.clock import Rejected
+from formation_ilc.core.metrics import METRIC_COLUMNS, TRUE_COLUMNS
+from formation_ilc.model.simulate import Problem, simulate
+from formation_ilc.protocol.schedule import TrialEvent
+from formation_ilc.protocol.trialrows import SlotRows
+from formation_ilc.recordings.recording import recording_parts
+
+SC = load_scenario("paper-triangle3")
+PB = Problem.from_scenario(SC)
+_SIM = simulate(SC, trials=3, keep=range(3))
+
+
+class RUN:  # the batch run's trials, as the wire carries them
+    metrics = _SIM.metrics
+    eta = {k: r.eta for k, r in _SIM.records.items()}
+    xi = {k: r.xi for k, r in _SIM.records.items()}
+
+
+def start(trial: int, slot: int) -> TrialEvent:
+    return TrialEvent("start", trial, slot)
+
+
+def abort(trial: int, slot: int) -> TrialEvent:
+    return TrialEvent("abort", trial, slot)
+
+
+def feed(rows: SlotRows, slot: int, trial: int, true: bool = True) -> list:
+    """Every robot's measured (and true) trajectory of batch trial ``trial`` in ``slot``."""
+    done = []
+    for r in range(PB.n):
+        done += rows.trajectory(slot, r, False, RUN.eta[trial][r])
+        if true:
+            done += rows.trajectory(slot, r, True, RUN.xi[trial][r])
+    return done
+
+
+def test_rows_equal_the_batch_metrics_and_come_once_all_trajectories_are_in():
+    rows = SlotRows(PB)
+    rows.event(start(0, 0))
+    partial = []
+    for r in range(PB.n):
+        partial += rows.trajectory(0, r, False, RUN.eta[0][r])
+    assert partial == []  # the true trajectories are missing
+    done = feed_true_only(rows, 0, 0)
+    assert [d.trial for d in done] == [0]
+    np.testing.assert_allclose(done[0].row, RUN.metrics[0], rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(done[0].eta, RUN.eta[0])
+
+
+def feed_true_only(rows: SlotRows, slot: int, trial: int) -> list:
+    done = []
+    for r in range(PB.n):
+        done += rows.trajectory(slot, r, True, RUN.xi[trial][r])
+    return done
+
+
+def test_an_aborted_slot_is_dropped_and_its_iteration_counted_where_it_runs_again():
+    rows = SlotRows(PB)
+    rows.event(start(0, 0))
+    assert [d.trial for d in feed(rows, 0, 0)] == [0]
+    rows.event(start(1, 1))
+    rows.trajectory(1, 0, False, RUN.eta[1][0])   # a robot finished, then a node died
+    rows.event(abort(1, 1))
+    with pytest.raises(Rejected) as exc:
+        rows.trajectory(1, 1, False, RUN.eta[1][1])
+    assert exc.value.reason == "stale"
+    rows.event(start(1, 2))                        # iteration 1 again, in slot 2
+    done = feed(rows, 2, 1)
+    assert [d.trial for d in done] == [1]
+    np.testing.assert_allclose(done[0].row, RUN.metrics[1], rtol=0, atol=1e-12)
+    assert sorted(rows.rows) == [0, 1]
+
+
+def test_a_slot_aborted_after_it_was_complete_keeps_its_row_and_the_repeat_is_a_duplicate():
+    rows = SlotRows(PB)
+    rows.event(start(0, 0))
+    first = feed(rows, 0, 0)
+    rows.event(abort(0, 0))
+    rows.event(start(0, 1))
+    with pytest.raises(Rejected) as exc:
+        feed(rows, 1, 0)
+    assert exc.value.reason == "duplicate"
+    assert list(rows.rows) == [0] and rows.rows[0] is first[0].row
+
+
+def test_strict_refuses_events_out_of_order_and_trajectories_of_slots_not_started():
+    rows = SlotRows(PB, strict=True)
+    with pytest.raises(Rejected, match="slot 0") as exc:
+        rows.trajectory(0, 0, False, RUN.eta[0][0])
+    assert exc.value.reason == "future"
+    rows.event(start(0, 0))
+    for ev, reason in ((start(0, 0), "stale"), (start(2, 2), "future"),
+                       (abort(2, 2), "unexpected"), (TrialEvent("end", 1, 1), "unexpected")):
+        with pytest.raises(Rejected) as exc:
+            rows.event(ev)
+        assert exc.value.reason == reason, ev
+    with pytest.raises(Rejected) as exc:  # the same robot twice in one slot
+        rows.trajectory(0, 0, False, RUN.eta[0][0])
+        rows.trajectory(0, 0, False, RUN.eta[0][0])
+    assert exc.value.reason == "duplicate"
+
+
+def test_a_recording_takes_a_trajectory_before_its_start_and_names_the_unstarted():
+    rows = SlotRows(PB, strict=False)
+    assert feed(rows, 0, 0) == []                 # held: no start seen yet
+    rows.trajectory(7, 1, True, RUN.xi[0][1])     # a slot no start ever names
+    done = rows.event(start(0, 0))
+    assert [d.trial for d in done] == [0]
+    assert rows.unstarted() == [(7, 1, True)]
+    # a start naming a slot that runs another iteration is refused, even here
+    with pytest.raises(Rejected):
+        rows.event(start(1, 0))
+
+
+def test_without_a_true_state_the_true_columns_are_nan():
+    rows = SlotRows(PB, strict=False)
+    rows.event(start(0, 0))
+    assert feed(rows, 0, 0, true=False) == []     # waits for true trajectories...
+    done = rows.measured_only()                   # ...until the file says there are none
+    assert [d.trial for d in done] == [0] and done[0].xi is None
+    true_cols = [METRIC_COLUMNS.index(c) for c in TRUE_COLUMNS]
+    assert np.isnan(done[0].row[true_cols]).all()
+    other = [i for i in range(1, len(METRIC_COLUMNS)) if i not in true_cols]
+    assert np.isfinite(done[0].row[other]).all()
+
+
+def test_iterations_before_first_are_not_reported_again():
+    rows = SlotRows(PB, first=1)
+    rows.event(start(0, 0))
+    assert feed(rows, 0, 0) == [] and rows.rows == {}
+    rows.event(start(1, 1))
+    assert [d.trial for d in feed(rows, 1, 1)] == [1]
+
+
+def test_recording_parts_come_in_the_order_they_were_written(tmp_path):
+    names = ["run.mcap", "run.part2.mcap", "run.part10.mcap", "run.part1.mcap",
+             "run.resumed1.mcap", "run.resumed1.part1.mcap", "run.resumed2.mcap",
+             "other.part1.mcap", "run.partx.mcap", "run.mcap.bak"]
+    for n in names:
+        (tmp_path / n).write_bytes(b"")
+    got = [p.name for p in recording_parts(tmp_path / "run.mcap")]
+    assert got == ["run.mcap", "run.part1.mcap", "run.part2.mcap", "run.part10.mcap",
+                   "run.resumed1.mcap", "run.resumed1.part1.mcap", "run.resumed2.mcap"]
+    # a part given by itself is read alone
+    assert recording_parts(tmp_path / "run.part1.mcap") == [tmp_path / "run.part1.mcap"]
+
+
+def test_a_slot_whose_start_was_lost_gets_its_iteration_from_its_neighbours():
+    """A recorder killed as slot 1 began: its trajectories (latched) are in the next part,
+    its start is nowhere. Slot 0 committed trial 0, slot 2 runs trial 2: slot 1 ran 1."""
+    rows = SlotRows(PB, strict=False)
+    rows.event(start(0, 0))
+    feed(rows, 0, 0)
+    feed(rows, 1, 1)                       # no start for slot 1
+    rows.event(start(2, 2))
+    assert rows.infer() and sorted(rows.rows) == [0, 1]
+    np.testing.assert_allclose(rows.rows[1], RUN.metrics[1], rtol=0, atol=1e-12)
+
+
+def test_a_lost_start_is_inferred_only_when_the_next_slot_confirms_it():
+    # slot 1 was aborted (slot 2 runs the same trial again): its trajectories are dropped
+    rows = SlotRows(PB, strict=False)
+    rows.event(start(0, 0))
+    feed(rows, 0, 0)
+    feed(rows, 1, 1)
+    rows.event(start(1, 2))
+    assert rows.infer() == [] and 1 in rows.aborted and rows.unstarted() == []
+    # the slot before was aborted: slot 1 ran its trial again; the run's done confirms it
+    rows = SlotRows(PB, strict=False)
+    rows.event(start(0, 0))
+    rows.event(abort(0, 0))
+    feed(rows, 1, 0)
+    rows.event(TrialEvent("done", 1, 2))
+    assert [d.trial for d in rows.infer()] == [0]
+    # nothing after it: left unknown
+    rows = SlotRows(PB, strict=False)
+    rows.event(start(0, 0))
+    feed(rows, 1, 1)
+    assert rows.infer() == [] and {s for s, _, _ in rows.unstarted()} == {1}
+
+
+def test_a_start_lost_with_a_killed_leader_is_explained_by_the_abort_that_follows():
+    """The leader sent slot 1's start and died; its successor aborts slot 1 and starts
+    slot 2: a follower at slot 0 takes both (before, it refused slot 2 and the run hung)."""
+    rows = SlotRows(PB, strict=True)
+    rows.event(start(0, 0))
+    feed(rows, 0, 0)
+    rows.event(abort(1, 1))
+    rows.event(start(1, 2))
+    assert [d.trial for d in feed(rows, 2, 1)] == [1]
+    # a gap that no abort explains is still refused
+    with pytest.raises(Rejected) as exc:
+        rows.event(start(2, 4))
+    assert exc.value.reason == "future"
+
+
+def test_unexplained_gap():
+    from formation_ilc.protocol.schedule import unexplained_gap
+
+    assert not unexplained_gap(-1, 7, set())      # a follower that just started takes any
+    assert not unexplained_gap(3, 4, set())
+    assert unexplained_gap(3, 5, set())
+    assert not unexplained_gap(3, 6, {4, 5})
+    assert unexplained_gap(3, 6, {5})

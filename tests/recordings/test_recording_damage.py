@@ -1,0 +1,266 @@
+"""Recordings that are damaged, cut short or hold junk: ``read_messages`` resynchronises on
+the next valid record and says what it lost; ``load_recording`` and ``analyze`` skip and
+count what does not decode, recover every trial whose data reads back, and say which are
+incomplete; a writer killed with SIGKILL leaves a file that reads back up to its last
+flushed chunk."""
+
+from __future__ import annotations
+
+import random
+import signal
+import subprocess
+import sys
+import textwrap
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mcap")
+pytest.importorskip("rclpy")
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+import msgs_schema as ms  # noqa: E402
+from formation_ilc.cli import main  # noqa: E402
+from formation_ilc.config.scenario import load_scenario  # noqa: E402
+from formation_ilc.model.simulate import simulate  # noqa: E402
+from formation_ilc.recordings import cdr  # noqa: E402
+from formation_ilc.recordings.mcap_io import ReadReport, read_messages  # noqa: E402
+from formation_ilc.recordings.recording import SimRecorder, load_recording  # noqa: E402
+
+SCENARIO = "paper-triangle3"
+
+
+def record(path: Path, trials: int, extra=None) -> Path:
+    """A batch run recorded as the stack's recorder would (``extra(rec)`` adds messages)."""
+    sc = load_scenario(SCENARIO)
+    rec = SimRecorder(path, sc)
+    simulate(sc, trials=trials, on_trial_data=rec.trial)
+    if extra is not None:
+        extra(rec)
+    rec.close()
+    return path
+
+
+@pytest.fixture(scope="module")
+def run40(tmp_path_factory) -> tuple[Path, np.ndarray]:
+    """40 trials recorded, and the metrics that read back from the intact file."""
+    path = record(tmp_path_factory.mktemp("rec") / "run.mcap", 40)
+    return path, load_recording(path).metrics
+
+
+def chunks_of(path: Path) -> list[tuple[int, int, Counter]]:
+    """(offset, length, messages by (topic, data)) of each chunk of an intact file."""
+    from io import BytesIO
+
+    from mcap.data_stream import ReadDataStream
+    from mcap.reader import make_reader
+    from mcap.records import Chunk, Message
+    from mcap.stream_reader import breakup_chunk
+
+    data = path.read_bytes()
+    with path.open("rb") as fh:
+        summary = make_reader(fh).get_summary()
+    topics = {c.id: c.topic for c in summary.channels.values()}
+    out = []
+    for ci in summary.chunk_indexes:
+        body = data[ci.chunk_start_offset + 9: ci.chunk_start_offset + ci.chunk_length]
+        chunk = Chunk.read(ReadDataStream(BytesIO(body)))
+        msgs = Counter((topics[r.channel_id], bytes(r.data))
+                       for r in breakup_chunk(chunk) if isinstance(r, Message))
+        out.append((ci.chunk_start_offset, ci.chunk_length, msgs))
+    return out
+
+
+def corrupt(src: Path, dst: Path, at: int, size: int = 64, seed: int = 1) -> None:
+    b = bytearray(src.read_bytes())
+    rng = random.Random(seed)
+    for i in range(at, min(at + size, len(b))):
+        b[i] = rng.randrange(256)
+    dst.write_bytes(bytes(b))
+
+
+# --------------------------------------------------------------------------- junk inside
+
+def test_junk_messages_are_skipped_and_counted_not_fatal(tmp_path, capsys):
+    """Reported: one junk JSON string on /formation/diagnostics made analyze fail with a
+    traceback. Junk of every analysed kind is now skipped and counted per topic."""
+    def junk(rec: SimRecorder) -> None:
+        t = 10**12
+        rec.w.write(rec.full[ms.DIAGNOSTICS], cdr.encode_string("{junk"), t, t)
+        rec.w.write(rec.full[ms.DIAGNOSTICS], cdr.encode_string(
+            '{"node": "robot_1", "trial": 0, "delays": {"leader": {"x": "y"}}}'), t, t)
+        rec.w.write(rec.full[ms.TRIAL_EVENTS], cdr.encode_string("[1, 2"), t, t)
+        rec.w.write(rec.full[ms.TRIAL_EVENTS], b"\x00\x01\x00\x00\xff\xff", t, t)
+        pb = rec.pb
+        k = rec.sc.trials + 5
+        stamps = np.array([rec.clock.stamp_ns(k, s) for s in range(pb.samples + 1)])
+        # a trajectory of a trial the run never had, and one that is not one
+        rec.w.write(rec.full[ms.trajectory_topic(1)],
+                    cdr.encode_path(pb.eta_d[0], stamps, ms.WORLD_FRAME, 0), t, t)
+        rec.w.write(rec.full[ms.trajectory_topic(2)], b"\x00\x01\x00\x00" + b"\xff" * 40,
+                    t, t)
+
+    path = record(tmp_path / "junk.mcap", 3, junk)
+    ref = simulate(load_scenario(SCENARIO), trials=3).metrics
+    r = load_recording(path)
+    np.testing.assert_allclose(r.metrics, ref, rtol=1e-13, atol=1e-13)
+    assert r.undecodable == {"/formation/diagnostics": 2, "/formation/leader/trial_events": 2,
+                             "/formation/robot_1/trajectory": 1,
+                             "/formation/robot_2/trajectory": 1}
+    assert r.delays["robot_1->robot_2"]  # the valid diagnostics still count
+    assert not r.report.damaged and r.incomplete == []
+    assert main(["analyze", str(path), "--out", str(tmp_path / "an"), "--no-plots"]) == 0
+    out = capsys.readouterr().out
+    assert "skipped messages that do not decode: /formation/diagnostics 2" in out
+
+
+def test_a_file_with_no_run_configuration_is_one_error_line(tmp_path, capsys):
+    bad = tmp_path / "noise.mcap"
+    bad.write_bytes(random.Random(0).randbytes(5000))
+    assert main(["analyze", str(bad), "--out", str(tmp_path / "an")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no readable run configuration" in err[0]
+
+
+# --------------------------------------------------------------------------- damage
+
+def test_64_corrupted_bytes_lose_one_chunk_and_say_so(run40, tmp_path, capsys):
+    """Reported: 64 corrupted bytes in the middle made analyze report 5 of 40 trials with
+    no warning. Now every chunk after the damage is read, the lost chunk is named with its
+    messages, the trials it held are listed, and analyze exits 1."""
+    path, ref = run40
+    bad = tmp_path / "bad.mcap"
+    size = path.stat().st_size
+    corrupt(path, bad, size // 2)
+    rep = ReadReport()
+    msgs = list(read_messages(bad, report=rep))
+    intact = list(read_messages(path))
+    lost_chunks = [c for c in chunks_of(path) if c[0] < size // 2 + 64
+                   and size // 2 < c[0] + c[1]]
+    assert len(lost_chunks) == 1
+    lost = lost_chunks[0][2]
+    # exactly the damaged chunk's messages are missing, everything else reads back
+    assert Counter((m.topic, bytes(m.data)) for m in msgs) == \
+        Counter((m.topic, bytes(m.data)) for m in intact) - lost
+    assert rep.damaged and len(rep.damage) == 1
+    d = rep.damage[0]
+    assert d.start <= size // 2 < d.end and d.chunks == 1
+    assert rep.lost_messages == sum(lost.values()) == len(intact) - len(msgs)
+    r = load_recording(bad)
+    kept = [k for k in range(40) if k not in r.incomplete]
+    assert 1 <= len(r.incomplete) <= 2 and len(r.metrics) == len(kept) == 40 - len(r.incomplete)
+    np.testing.assert_array_equal(r.metrics, ref[kept])
+    assert main(["analyze", str(bad), "--out", str(tmp_path / "an"), "--no-plots"]) == 1
+    err = capsys.readouterr().err
+    assert "damaged recording" in err and f"{rep.lost_messages} lost" in err
+    assert f"trial(s) {', '.join(map(str, r.incomplete))} not complete" in err
+
+
+def test_losing_the_chunk_that_defined_the_channels_orphans_nothing(run40, tmp_path):
+    """Every schema and channel is written a second time outside its chunk: the messages
+    of later chunks keep their topics when the first chunk is lost."""
+    path, _ = run40
+    first = chunks_of(path)[0]
+    bad = tmp_path / "bad.mcap"
+    corrupt(path, bad, first[0] + first[1] // 2)
+    rep = ReadReport()
+    got = Counter((m.topic, bytes(m.data)) for m in read_messages(bad, report=rep))
+    whole = Counter((m.topic, bytes(m.data)) for m in read_messages(path))
+    assert rep.orphans == 0 and got == whole - first[2]
+
+
+def test_damage_in_a_file_cut_short_is_read_past_and_counted(run40, tmp_path):
+    """No summary to consult (a killed recorder): the lost chunk's own message index, which
+    follows it, still says how many messages it held."""
+    path, ref = run40
+    data = path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: int(len(data) * 0.8)])
+    bad = tmp_path / "cut-bad.mcap"
+    corrupt(cut, bad, len(data) // 3)
+    rep = ReadReport()
+    n = sum(1 for _ in read_messages(bad, report=rep))
+    n_cut = sum(1 for _ in read_messages(cut))
+    assert rep.cut_short and len(rep.damage) == 1 and rep.total_messages is None
+    assert rep.damage[0].messages == n_cut - n > 0
+    r = load_recording(bad)
+    assert len(r.metrics) >= 25  # about 80 % of 40 trials, minus the lost chunk's
+    np.testing.assert_array_equal(r.metrics, ref[r.metrics[:, 0].astype(int)])
+
+
+@settings(max_examples=25, deadline=None, database=None)
+@given(data=st.data())
+def test_any_damage_loses_only_the_chunks_it_hits(tmp_path_factory, data):
+    """Random corruption (a burst anywhere, or scattered bytes): reading never fails, and
+    every chunk the damage did not touch reads back whole."""
+    base = tmp_path_factory.getbasetemp() / "small.mcap"
+    if not base.exists():
+        record(base, 4)
+    size = base.stat().st_size
+    b = bytearray(base.read_bytes())
+    hit: list[int] = []
+    for _ in range(data.draw(st.integers(1, 3))):
+        at = data.draw(st.integers(0, size - 1))
+        n = data.draw(st.sampled_from([1, 8, 64, 700]))
+        rng = random.Random(at)
+        for i in range(at, min(at + n, size)):
+            b[i] ^= rng.randrange(1, 256)  # every byte of the burst changes
+            hit.append(i)
+    bad = tmp_path_factory.getbasetemp() / "small-bad.mcap"
+    bad.write_bytes(bytes(b))
+    rep = ReadReport()
+    got = Counter((m.topic, bytes(m.data)) for m in read_messages(bad, report=rep))
+    whole = Counter((m.topic, bytes(m.data)) for m in read_messages(base))
+    assert not got - whole  # nothing read back that was not written
+    for off, length, msgs in chunks_of(base):
+        if not any(off <= i < off + length for i in hit):
+            assert not msgs - got, f"untouched chunk at {off} lost messages"
+    if sum(got.values()) < sum(whole.values()):
+        assert rep.damaged or rep.cut_short
+
+
+# --------------------------------------------------------------------------- SIGKILL
+
+_WRITER = textwrap.dedent("""
+    import sys, time
+    from formation_ilc.recordings.mcap_io import RosMcapWriter
+    from formation_ilc.recordings.recording import qos_of
+    import msgs_schema as ms
+    from formation_ilc.recordings import cdr
+    w = RosMcapWriter(sys.argv[1], flush_period=0)
+    w.channel("/formation/robot_1/pose", "geometry_msgs/msg/PoseStamped", qos_of(ms.SAMPLE_QOS))
+    i = 0
+    while True:
+        for _ in range(500):
+            w.write("/formation/robot_1/pose", cdr.encode_pose_stamped((i, 0.0, 0.0), i, "map"),
+                    i, i)
+            i += 1
+        w.flush()
+        print(i, flush=True)
+""")
+
+
+def test_a_writer_killed_with_sigkill_loses_only_its_last_chunk(tmp_path):
+    """What the recorder relies on: a SIGKILL at any moment leaves a file that reads back,
+    without damage, every message flushed before it (the chunk in progress is all that is
+    lost)."""
+    path = tmp_path / "killed.mcap"
+    proc = subprocess.Popen([sys.executable, "-c", _WRITER, str(path)],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        flushed = 0
+        while flushed < 20000:
+            line = proc.stdout.readline()
+            assert line, "the writer died"
+            flushed = int(line)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    rep = ReadReport()
+    xs = [m.publish_time for m in read_messages(path, report=rep)]
+    assert rep.cut_short and not rep.damaged
+    assert len(xs) >= flushed
+    assert xs == list(range(len(xs)))  # every message up to the last flush, in order
