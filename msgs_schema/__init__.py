@@ -41,6 +41,11 @@ for tick t is stamped t (the tick) and holds the pose delivered then, with its O
 stamp, or no pose when nothing is delivered at t. Malformed input raises
 :class:`MalformedMessage`, which nodes count and drop.
 
+The per-sample messages (poses, shared poses, references, link ticks, ``cmd_vel``,
+``/clock``) travel as CDR bytes that ``msgs_schema.wire`` packs and reads without rclpy's
+message objects (the same bytes, the same checks); the converters below remain for
+everything else and for tests.
+
 The plant contract
 ------------------
 A plant (the kinematic simulator, a hardware bridge, a test's stand-in) closes the loop for
@@ -86,6 +91,8 @@ from formation_ilc.core.clock import Malformed, SampleClock
 from formation_ilc.core.links import LEADER, link_name, robot_name
 from formation_ilc.core.links import robot_number as robot_index
 from formation_ilc.protocol.schedule import ABORT, DONE, END, START
+from msgs_schema import wire
+from msgs_schema.wire import check_nanosec, check_twist, heading_from_quaternion
 
 __all__ = [
     "NAMESPACE", "CONFIG", "REFERENCE", "TRIAL_EVENTS", "READY", "DIAGNOSTICS", "CLOCK",
@@ -99,7 +106,7 @@ __all__ = [
     "msg_to_link_tick", "json_to_msg", "msg_to_json", "json_int", "deserialize", "clock_msg",
     "START", "END", "ABORT", "DONE",
     "DriverSpec", "DRIVERS", "DRIVER_CMD_QOS", "ODOM_QOS", "BRIDGE_PREFIX", "bridge_name",
-    "odometry_to_pose", "odometry_msg", "driver_twist",
+    "odometry_to_pose", "odometry_msg", "driver_twist", "wire",
 ]
 
 #: the default namespace of every node of a formation
@@ -289,8 +296,7 @@ def stamp_to_ns(stamp: Time) -> int:
     """[ns] of a stamp; MalformedMessage if ``nanosec`` is outside [0, 1e9) (a stamp from
     raw bytes). A negative ``sec`` gives a negative time, which every label check refuses."""
     nsec = int(stamp.nanosec)
-    if not 0 <= nsec < 1_000_000_000:
-        raise MalformedMessage(f"stamp nanosec {nsec} outside [0, 1e9)")
+    check_nanosec(nsec)
     return int(stamp.sec) * 1_000_000_000 + nsec
 
 
@@ -308,19 +314,8 @@ def clock_msg(ns: int) -> Clock:
 
 # --------------------------------------------------------------------------- poses
 
-def _heading_from_quaternion(x: float, y: float, z: float, w: float,
-                             previous: float | None) -> float:
-    """Yaw of a planar quaternion, unwrapped next to ``previous`` (same formula as
-    formation_ilc.core.kinematics.heading_from_quaternion, inlined: this is the hot path)."""
-    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z) and math.isfinite(w)):
-        raise MalformedMessage("non-finite orientation")
-    norm = math.sqrt(x * x + y * y + z * z + w * w)
-    if abs(norm - 1.0) > 1e-6 or abs(x) > 1e-6 or abs(y) > 1e-6:
-        raise MalformedMessage("orientation is not a unit rotation about z")
-    th = 2.0 * math.atan2(z, w)
-    ref = 0.0 if previous is None else previous
-    d = th - ref
-    return ref + (d - 2.0 * math.pi * math.ceil((d - math.pi) / (2.0 * math.pi)))
+#: yaw of a planar quaternion (the check and formula shared with the bytes converters)
+_heading_from_quaternion = heading_from_quaternion
 
 
 def pose_to_msg(eta: Sequence[float] | NDArray[np.float64], stamp_ns: int, frame_id: str,
@@ -374,11 +369,8 @@ def u_to_twist(u: Sequence[float] | NDArray[np.float64], out: Twist | None = Non
 
 def twist_to_u(msg: Twist) -> NDArray[np.float64]:
     """(v, omega); MalformedMessage if non-finite or not planar."""
-    v, w = float(msg.linear.x), float(msg.angular.z)
-    other = (msg.linear.y, msg.linear.z, msg.angular.x, msg.angular.y)
-    if not (math.isfinite(v) and math.isfinite(w)) or any(o != 0.0 for o in other):
-        raise MalformedMessage("cmd_vel is not a finite planar (v, omega) command")
-    return np.array((v, w))
+    return check_twist(float(msg.linear.x), float(msg.angular.z),
+                       (msg.linear.y, msg.linear.z, msg.angular.x, msg.angular.y))
 
 
 # --------------------------------------------------------------------------- trajectories

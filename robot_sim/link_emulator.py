@@ -46,8 +46,16 @@ import msgs_schema as ms
 from formation_ilc.core.clock import Rejected
 from formation_ilc.core.links import LEADER, LOST, delivered_label, link_name
 from formation_ilc.model.simulate import Problem
-from formation_ilc.nodes.common import ConfiguredNode, RunConfig, matched, node_parser, spin_main
+from formation_ilc.nodes.common import (
+    ConfiguredNode,
+    RunConfig,
+    matched,
+    node_parser,
+    spin_main,
+    warm_up_draws,
+)
 from formation_ilc.protocol.schedule import unexplained_gap
+from msgs_schema.wire import RawPose
 
 #: realtime: the emulator delivers at the latest this many dT after the tick
 DELIVERY_WAIT = 0.5
@@ -65,6 +73,7 @@ class LinkEmulator(ConfiguredNode):
     def configure(self, cfg: RunConfig) -> None:
         sc = cfg.scenario
         pb = Problem.from_scenario(sc)
+        warm_up_draws(pb, sc.uncertainty)  # no first sample held by a compile
         self.cfg, self.pb, self.clock = cfg, pb, cfg.clock
         n, n_t = pb.n, pb.samples
         self.n, self.T = n, n_t
@@ -97,20 +106,24 @@ class LinkEmulator(ConfiguredNode):
         self.reported = False
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
         self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
-        for j in range(n):
+        # the per-sample messages as bytes (msgs_schema.wire: no message objects)
+        self.pose_subs = [
             self.create_subscription(PoseStamped, ms.shared_pose_topic(j + 1),
-                                     lambda m, j=j: self._on_shared(m, j), ms.SAMPLE_QOS)
-        self.create_subscription(PoseStamped, ms.REFERENCE, self._on_reference, ms.SAMPLE_QOS)
+                                     lambda m, j=j: self._on_shared(m, j), ms.SAMPLE_QOS,
+                                     raw=True) for j in range(n)]
+        self.pose_subs.append(self.create_subscription(
+            PoseStamped, ms.REFERENCE, self._on_reference, ms.SAMPLE_QOS, raw=True))
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
         if self.realtime:
-            self.create_subscription(Clock, ms.CLOCK, self._on_clock, ms.CLOCK_QOS)
+            self.create_subscription(Clock, ms.CLOCK, self._on_clock, ms.CLOCK_QOS, raw=True)
             self._deadline = self.create_timer(DELIVERY_WAIT * sc.dt, self._on_deadline)
             self._deadline.cancel()
         self._gate = self.create_timer(0.02, self._check_ready)
 
     def _check_ready(self) -> None:
         pubs = [(p, 1) for links in self.out for _, _, p in links]
-        if matched(pubs + [(self.ready_pub, 1)]):
+        subs = [(s, 1) for s in self.pose_subs]  # both ends matched: no first pose lost
+        if matched(pubs + subs + [(self.ready_pub, 1)]):
             self._gate.cancel()
             self.ready_pub.publish(self.ready_msg(0))
 
@@ -150,9 +163,9 @@ class LinkEmulator(ConfiguredNode):
         # the delay stream of the iteration, as the batch simulator draws it
         self.tau, self.tau0 = self.cfg.scenario.uncertainty.draw_delays(
             self.cfg.scenario.seed, iteration, pb.n, pb.src.shape[1], pb.samples)
-        self.shared: list[list[PoseStamped | None]] = [[None] * (self.T + 1)
-                                                        for _ in range(self.n)]
-        self.ref: list[PoseStamped | None] = [None] * (self.T + 1)
+        self.shared: list[list[RawPose | None]] = [[None] * (self.T + 1)
+                                                    for _ in range(self.n)]
+        self.ref: list[RawPose | None] = [None] * (self.T + 1)
         self.count = np.zeros(self.T + 1, dtype=np.int64)
         self.next_t = 0
         self.waiting = {}
@@ -184,38 +197,43 @@ class LinkEmulator(ConfiguredNode):
             return None
         return s
 
-    def _label(self, msg: PoseStamped, topic: str, handler: Any) -> int | None:
+    def _label(self, msg: PoseStamped | bytes, topic: str, handler: Any
+               ) -> tuple[int, RawPose] | None:
+        """(sample, the pose as received) of a valid pose for now (see _slot_of)."""
         try:
-            ms.world_pose(msg)
-            ns = ms.stamp_to_ns(msg.header.stamp)
+            p = ms.wire.read_pose(ms.wire.as_bytes(msg))
+            ms.wire.world_eta(p)
         except Rejected as exc:
             self.drops.reject(exc, topic)
             return None
-        return self._slot_of(ns, msg, handler, topic)
+        s = self._slot_of(p.label_ns, msg, handler, topic)
+        return None if s is None else (s, p)
 
-    def _on_shared(self, msg: PoseStamped, j: int) -> None:
+    def _on_shared(self, msg: PoseStamped | bytes, j: int) -> None:
         topic = ms.shared_pose_topic(j + 1)
-        s = self._label(msg, topic, lambda m, j=j: self._on_shared(m, j))
-        if s is None:
+        got = self._label(msg, topic, lambda m, j=j: self._on_shared(m, j))
+        if got is None:
             return
+        s, pose = got
         if self.shared[j][s] is not None or (s < self.next_t and not self.realtime):
             self.drops.drop("duplicate", topic, f"sample {s} again")
             return
-        self.shared[j][s] = msg
+        self.shared[j][s] = pose
         self.count[s] += 1
         self._deliver_waiting() if self.realtime else self._deliver()
 
-    def _on_reference(self, msg: PoseStamped) -> None:
-        s = self._label(msg, ms.REFERENCE, self._on_reference)
-        if s is None:
+    def _on_reference(self, msg: PoseStamped | bytes) -> None:
+        got = self._label(msg, ms.REFERENCE, self._on_reference)
+        if got is None:
             return
+        s, pose = got
         if self.ref[s] is not None or (s < self.next_t and not self.realtime):
             self.drops.drop("duplicate", ms.REFERENCE, f"sample {s} again")
             return
-        self.ref[s] = msg
+        self.ref[s] = pose
         self._deliver_waiting() if self.realtime else self._deliver()
 
-    def _needs(self, i: int, t: int) -> list[tuple[str, Any, PoseStamped | None, int, bool]]:
+    def _needs(self, i: int, t: int) -> list[tuple[str, Any, RawPose | None, int, bool]]:
         """(sender, publisher, pose or None if not in yet, tau, whether anything is due) of
         each link of robot i at tick t."""
         out = []
@@ -242,7 +260,7 @@ class LinkEmulator(ConfiguredNode):
                 self.late[link_name(sender, to)] += 1
             elif due:
                 self.injected[link_name(sender, to)][tau] += 1
-            pub.publish(ms.link_tick_to_msg(tick, m))
+            pub.publish(ms.wire.link_tick_bytes(tick, m))
         return True
 
     def _deliver(self) -> None:
@@ -257,9 +275,9 @@ class LinkEmulator(ConfiguredNode):
                 self._trial_done()
 
     # ------------------------------------------------------------------ realtime
-    def _on_clock(self, msg: Clock) -> None:
+    def _on_clock(self, msg: Clock | bytes) -> None:
         try:
-            ns = ms.stamp_to_ns(msg.clock)
+            ns = ms.wire.read_clock(ms.wire.as_bytes(msg))
         except Rejected as exc:
             self.drops.reject(exc, "clock")
             return

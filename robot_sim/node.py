@@ -81,7 +81,7 @@ class SimNode(ConfiguredNode):
                              "the simulator runs lockstep or realtime")
         sc = cfg.scenario
         pb = Problem.from_scenario(sc)
-        warm_up(pb)
+        warm_up(pb, sc.uncertainty)
         self.cfg, self.pb, self.clock = cfg, pb, cfg.clock
         self.unc = sc.uncertainty
         n, n_t = pb.n, pb.samples
@@ -111,7 +111,6 @@ class SimNode(ConfiguredNode):
         self.superseded = 0               # realtime: commands replaced before their tick
         if self.realtime:
             self.missed.update({ms.robot_name(r + 1): 0 for r in range(n)})
-        self.pose_msgs = [PoseStamped() for _ in range(n)]
         self.pose_pubs = [self.create_publisher(PoseStamped, ms.pose_topic(r + 1), ms.SAMPLE_QOS)
                           for r in range(n)]
         self.true_pubs = [self.create_publisher(Path, ms.true_trajectory_topic(r + 1),
@@ -119,9 +118,10 @@ class SimNode(ConfiguredNode):
         self.clock_pub = self.create_publisher(Clock, ms.CLOCK, ms.CLOCK_QOS)
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
         self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
-        for r in range(n):
+        self.cmd_subs = [  # bytes: msgs_schema.wire
             self.create_subscription(Twist, ms.cmd_vel_topic(r + 1),
-                                     lambda m, r=r: self._on_cmd(m, r), ms.SAMPLE_QOS)
+                                     lambda m, r=r: self._on_cmd(m, r), ms.SAMPLE_QOS, raw=True)
+            for r in range(n)]
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
         self._gate = self.create_timer(0.02, self._check_ready)
         if self.realtime:
@@ -133,6 +133,7 @@ class SimNode(ConfiguredNode):
 
     def _check_ready(self) -> None:
         need = [(p, 1) for p in self.pose_pubs] + [(self.clock_pub, 1), (self.ready_pub, 1)]
+        need += [(s, 1) for s in self.cmd_subs]  # both ends matched: no first command lost
         need += [(p, int(self.cfg.monitored)) for p in self.true_pubs]
         if matched(need):
             self._gate.cancel()
@@ -204,10 +205,9 @@ class SimNode(ConfiguredNode):
                  "missed": dict(self.missed), "timing": self._timing()}
             d.update(self.drops.as_dict())
             self.diag_pub.publish(ms.json_to_msg(d))
-        self.clock_pub.publish(ms.clock_msg(ns))
+        self.clock_pub.publish(ms.wire.clock_bytes(ns))
         for r in range(self.n):
-            self.pose_pubs[r].publish(ms.pose_to_msg(self.eta[r, t], ns, ms.WORLD_FRAME,
-                                                     self.pose_msgs[r]))
+            self.pose_pubs[r].publish(ms.wire.pose_bytes(self.eta[r, t], ns, ms.WORLD_FRAME))
         if t == self.T:
             self._say_ready(self.iteration + 1)
             return
@@ -238,9 +238,9 @@ class SimNode(ConfiguredNode):
                         "late_commands": self.late_cmds, "superseded": self.superseded})
         return tim
 
-    def _on_cmd(self, msg: Twist, r: int) -> None:
+    def _on_cmd(self, msg: Twist | bytes, r: int) -> None:
         try:
-            u = ms.twist_to_u(msg)
+            u = ms.wire.read_twist(ms.wire.as_bytes(msg))
         except ms.MalformedMessage as exc:
             self.drops.reject(exc, ms.cmd_vel_topic(r + 1))
             return

@@ -157,7 +157,8 @@ class LeaderNode(Node):
             self.margin_ns = int(float(g("start_margin")) * 1e9)
             self._wall_timer = self.create_timer(0.005, self._on_wall_timer)
         else:
-            self.create_subscription(Clock, ms.CLOCK, self._on_clock, ms.CLOCK_QOS)
+            self.clock_sub = self.create_subscription(Clock, ms.CLOCK, self._on_clock,
+                                                      ms.CLOCK_QOS, raw=True)
         self.config_pub.publish(ms.json_to_msg(self.cfg.to_json()))
         self._gate = self.create_timer(0.05, self._maybe_start)
         self._last_change = time.monotonic()
@@ -257,7 +258,10 @@ class LeaderNode(Node):
                            f"to start a second one here (use another namespace or domain)",
                      code=2)
                 return
-        if not matched([(self.ref_pub, self.ref_readers), (self.event_pub, 1)]):
+        need: list[tuple[Any, int]] = [(self.ref_pub, self.ref_readers), (self.event_pub, 1)]
+        if self.cfg.mode != "wallclock":  # its /clock reader matched the plant's writer too
+            need.append((self.clock_sub, 1))
+        if not matched(need):
             return
         i, q = nxt
         seq = s.started(q)
@@ -320,9 +324,11 @@ class LeaderNode(Node):
         d.update(self.drops.as_dict())
         self.diag_pub.publish(ms.json_to_msg(d))
 
-    def _on_clock(self, msg: Clock) -> None:
+    def _on_clock(self, msg: Clock | bytes) -> None:
         try:
-            ns = ms.stamp_to_ns(msg.clock)  # not now(): see notes on /clock callbacks
+            # bytes, as the per-sample messages are (msgs_schema.wire); the stamp, not
+            # now(): see notes on /clock callbacks
+            ns = ms.wire.read_clock(ms.wire.as_bytes(msg))
             k, t = self.clock.decode(ns)
             if k != self.sched.slot or not self.sched.running:
                 raise Rejected("stale" if k <= self.sched.slot else "future",
@@ -341,7 +347,7 @@ class LeaderNode(Node):
         self._last_t = t
         self._last_change = time.monotonic()
         ref = self.cfg.scenario.reference[t]
-        self.ref_pub.publish(ms.pose_to_msg(ref, ns, ms.WORLD_FRAME, self.ref_msg))
+        self.ref_pub.publish(ms.wire.pose_bytes(ref, ns, ms.WORLD_FRAME))
         if t == self.T:
             self._end(k)
 

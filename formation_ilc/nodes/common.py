@@ -19,19 +19,21 @@ import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
+from rclpy.subscription import Subscription
 from rclpy.task import Future
 from std_msgs.msg import String
 
 import msgs_schema as ms
 from formation_ilc.config.runconfig import RunConfig, make_config
 from formation_ilc.core.clock import REASONS, Rejected
+from formation_ilc.core.uncertainty import Uncertainty
 from formation_ilc.model.simulate import Problem
 from formation_ilc.protocol.schedule import Ready, TrialEvent
 from formation_ilc.system.lifetime import PARENT_ENV, bound_the_stop, die_with_parent, parent_gone
 
 __all__ = ["PARENT_ENV", "DROP_REASONS", "DropCounter", "RunConfig", "make_config",
-           "config_from_msg", "ConfiguredNode", "warm_up", "matched", "fail", "spin_main",
-           "node_parser", "ros_param", "robot_node_from_args"]
+           "config_from_msg", "ConfiguredNode", "warm_up", "warm_up_draws", "matched", "fail",
+           "spin_main", "node_parser", "ros_param", "robot_node_from_args"]
 
 #: environment variable with the run a launcher started this node for (its run_id)
 RUN_ENV = "FORMATION_ILC_RUN_ID"
@@ -170,9 +172,11 @@ class ConfiguredNode(Node):
         raise NotImplementedError
 
 
-def warm_up(pb: Problem) -> None:
+def warm_up(pb: Problem, unc: Uncertainty | None = None) -> None:
     """Compile (or load from the numba cache) every kernel a node calls, with the node's
-    shapes, so the first sample is not late by seconds."""
+    shapes, so the first sample is not late by seconds; with ``unc``, the plant's and the
+    links' draws too (the simulator and the link emulator draw at each trial's start: a
+    first draw there held the first sample of a run for 2-18 s on a loaded machine)."""
     from formation_ilc.core.kinematics import step_into
     from formation_ilc.core.law import command, learn
     from formation_ilc.core.links import delivered_label
@@ -191,11 +195,28 @@ def warm_up(pb: Problem) -> None:
     step_into(np.zeros((n, 3)), np.zeros((n, 2)), np.zeros((n, 2)), pb.dt, np.zeros((n, 3)))
     trial_errors(pb.eta_d, pb.eta_d, pb.eta_d, pb.src, pb.weight, np.zeros(6))
     delivered_label(0, 0)
+    if unc is not None:
+        warm_up_draws(pb, unc)
+
+
+def warm_up_draws(pb: Problem, unc: Uncertainty) -> None:
+    """Compile (or load) the plant's and the links' draws of ``unc`` with ``pb``'s shapes:
+    a draw of trial 0, which nothing keeps."""
+    unc.draw_plant(0, 0, pb.n, pb.samples)
+    unc.draw_delays(0, 0, pb.n, pb.src.shape[1], pb.samples)
 
 
 def matched(pairs: Iterable[tuple[Any, int]]) -> bool:
-    """True when every publisher has at least ``count`` matched subscriptions."""
-    return all(pub.get_subscription_count() >= count for pub, count in pairs)
+    """True when every publisher has at least ``count`` matched subscriptions and every
+    subscription at least ``count`` matched publishers.
+
+    DDS matches each side on its own: a writer may see its reader before the reader has
+    seen the writer, and a reliable reader drops what an unmatched writer sends; the
+    sample then waits for the writer's next heartbeat (seconds). A node that says ready
+    only once both sides of its per-sample topics are matched loses no first sample.
+    """
+    return all((e.get_publisher_count() if isinstance(e, Subscription)
+                else e.get_subscription_count()) >= count for e, count in pairs)
 
 
 class Exit:

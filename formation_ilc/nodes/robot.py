@@ -74,6 +74,7 @@ from formation_ilc.nodes.common import (
 from formation_ilc.protocol.learner import RobotLearner
 from formation_ilc.store.memoryfile import MemoryFileError, load_memory
 from formation_ilc.store.robotstate import load_state, save_state, state_path
+from msgs_schema import wire
 
 #: realtime: how long [dT] a robot waits for its links after its pose
 LINK_WAIT = 0.75
@@ -142,7 +143,6 @@ class RobotNode(ConfiguredNode):
                                        f"{st.iterations} trials learned")
         self.n_out = int(sum(1 for r in range(pb.n) if r != lrn.i and lrn.i in pb.src[r]))
         self.late: Counter[str] = Counter({"links": 0})
-        self.twist = Twist()
         warm_up(pb)
 
         self.cmd_pub = self.create_publisher(Twist, ms.cmd_vel_topic(self.id), ms.SAMPLE_QOS)
@@ -152,19 +152,20 @@ class RobotNode(ConfiguredNode):
                                               ms.TRAJECTORY_QOS)
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
         self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
-        self.create_subscription(PoseStamped, ms.pose_topic(self.id), self._on_pose,
-                                 ms.SAMPLE_QOS)
+        # the per-sample messages as bytes (msgs_schema.wire: no message objects)
+        self.sample_subs = [self.create_subscription(
+            PoseStamped, ms.pose_topic(self.id), self._on_pose, ms.SAMPLE_QOS, raw=True)]
         for sender in lrn.slots:
             if cfg.links == "emulated":
-                self.create_subscription(Path, ms.link_topic(self.id, sender),
-                                         lambda m, s=sender: self._on_link_tick(m, s),
-                                         ms.SAMPLE_QOS)
+                self.sample_subs.append(self.create_subscription(
+                    Path, ms.link_topic(self.id, sender),
+                    lambda m, s=sender: self._on_link_tick(m, s), ms.SAMPLE_QOS, raw=True))
             else:
                 topic = (ms.REFERENCE if sender == LEADER
                          else ms.shared_pose_topic(ms.robot_index(sender)))
-                self.create_subscription(PoseStamped, topic,
-                                         lambda m, s=sender: self._on_link_pose(m, s),
-                                         ms.SAMPLE_QOS)
+                self.sample_subs.append(self.create_subscription(
+                    PoseStamped, topic, lambda m, s=sender: self._on_link_pose(m, s),
+                    ms.SAMPLE_QOS, raw=True))
         for sender in lrn.neighbours:
             self.create_subscription(Path, ms.trajectory_topic(ms.robot_index(sender)),
                                      lambda m, s=sender: self._on_trajectory(m, s),
@@ -179,11 +180,13 @@ class RobotNode(ConfiguredNode):
                                f"{self.n_out} out-neighbours, {pb.samples} samples")
 
     def _check_ready(self) -> None:
-        """Ready for trial 0 once every publisher has its readers (nothing published before
-        a reader is matched can be lost)."""
+        """Ready for trial 0 once every publisher has its readers and every per-sample
+        subscription its writer (nothing published before both ends are matched can be
+        lost)."""
         shared_readers = self.n_out if self.cfg.links == "direct" else 1
         need = [(self.cmd_pub, 1), (self.shared_pub, shared_readers), (self.ready_pub, 1),
                 (self.traj_pub, self.n_out + int(self.cfg.monitored))]
+        need += [(sub, 1) for sub in self.sample_subs]
         if matched(need):
             self._gate.cancel()
             self._send_ready()
@@ -214,11 +217,13 @@ class RobotNode(ConfiguredNode):
             save_state(self.state_file, self.learner.state(), self.cfg.scenario, self.id)
 
     # ------------------------------------------------------------------ per sample
-    def _on_pose(self, msg: PoseStamped) -> None:
+    def _on_pose(self, msg: PoseStamped | bytes) -> None:
         lrn = self.learner
+        data = wire.as_bytes(msg)
         try:
-            ns = ms.stamp_to_ns(msg.header.stamp)
-            eta, _ = ms.world_pose(msg, lrn.expected_heading(self.name, ns))
+            p = wire.read_pose(data)
+            ns = p.label_ns
+            eta = wire.world_eta(p, lrn.expected_heading(self.name, ns))
             ev = lrn.on_pose(ns, eta)
         except Rejected as exc:
             self.drops.reject(exc, "pose")
@@ -228,29 +233,33 @@ class RobotNode(ConfiguredNode):
                 self._deadline.cancel()
             self._finish_trial()
             return
-        self.shared_pub.publish(msg)  # the same bits, the same label St
+        # the same bits, the same label St; with direct links a robot without out-neighbours
+        # has no reader, and a publish costs more CPU than the rest of the sample
+        if self.shared_pub.get_subscription_count():
+            self.shared_pub.publish(data)
         if self.realtime:
             self._deadline.reset()
         self._maybe_command()
 
-    def _on_link_pose(self, msg: PoseStamped, sender: str) -> None:
+    def _on_link_pose(self, msg: PoseStamped | bytes, sender: str) -> None:
         topic = f"{sender}/shared_pose" if sender != LEADER else ms.REFERENCE
         try:
-            st = ms.stamp_to_ns(msg.header.stamp)
-            eta, _ = ms.world_pose(msg, self.learner.expected_heading(sender, st))
+            p = wire.read_pose(wire.as_bytes(msg))
+            st = p.label_ns
+            eta = wire.world_eta(p, self.learner.expected_heading(sender, st))
             self.learner.on_link_pose(sender, st, eta)
         except Rejected as exc:
             self.drops.reject(exc, topic)
             return
         self._maybe_command()
 
-    def _on_link_tick(self, msg: Path, sender: str) -> None:
+    def _on_link_tick(self, msg: Path | bytes, sender: str) -> None:
         try:
-            tick, ps = ms.msg_to_link_tick(msg)
+            tick, ps = wire.read_link_tick(wire.as_bytes(msg))
             pose = None
             if ps is not None:
-                st = ms.stamp_to_ns(ps.header.stamp)
-                eta, _ = ms.world_pose(ps, self.learner.expected_heading(sender, st))
+                st = ps.label_ns
+                eta = wire.world_eta(ps, self.learner.expected_heading(sender, st))
                 pose = (st, eta)
             self.learner.on_link_tick(sender, tick, pose)
         except Rejected as exc:
@@ -270,7 +279,7 @@ class RobotNode(ConfiguredNode):
 
     def _command(self) -> None:
         u = self.learner.command()
-        self.cmd_pub.publish(ms.u_to_twist(u, self.twist))
+        self.cmd_pub.publish(wire.twist_bytes(u))
         if self.realtime:
             self._deadline.cancel()
 
