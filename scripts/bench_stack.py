@@ -9,14 +9,15 @@ robot's cmd_vel is in) p50/p90/p99.
 Teams larger than the built-in scenarios are made from paper-hexagon6 by tiling it
 (independent hexagons on one run, the same graph per copy).
 
-The floor (``--floor``, on by default): before each team's runs, a trivial lockstep of the
+The floor (on by default; ``--no-floor``): around each lockstep run, a trivial lockstep of the
 same size on the same DDS, executor, QoS and discovery: a ticker process publishes a
 PoseStamped to each of N responder processes, each answers with a Twist at once, and the
 next tick goes out when all N answers are in (one round trip per tick, nothing else). Its
-ticks/s, measured in the same run, is what the machine's load allows a lockstep at that
-moment; the stack's samples/s is printed as a ratio to it (direct / trivial, emulated /
-trivial). ``--repeat R`` runs the floor and every configuration R times, alternated, and
-prints medians and ranges: runs of one configuration spread by +-20 % on a loaded machine.
+ticks/s, measured just before and just after each stack run, is what the machine's load
+allows a lockstep at that moment; the stack's samples/s is printed as a ratio to the mean of
+the two (direct / trivial, emulated / trivial). ``--repeat R`` runs every configuration R
+times, alternated, and prints medians and ranges: on a machine shared with other work the
+floor alone moved between 100 and 520 ticks/s within an hour.
 
     python scripts/bench_stack.py                 # all sizes, 3 trials each
     python scripts/bench_stack.py --sizes 6 24 --trials 2
@@ -237,36 +238,43 @@ def lockstep(n: int, args: argparse.Namespace, modes: list[str], tmp: Path, dom:
     rates: dict[tuple[int, str], list[float]] = {}
     ratios: dict[tuple[int, str], list[float]] = {}
     floors: list[float] = []
+    def run_floor() -> float | None:
+        nonlocal dom
+        f = floor(n, dom, args.floor_ticks)
+        dom = 30 + (dom - 29) % 71
+        if "error" in f:
+            print(f"{n:3d} processes, trivial lockstep: FAILED\n{f['error']}", flush=True)
+            return None
+        floors.append(f["ticks_per_s"])
+        print(f"{n:3d} responders, trivial lockstep{'':19s} {f['ticks_per_s']:7.1f} ticks/s"
+              f"    latency p50 {f['p50_ms']:6.2f} p90 {f['p90_ms']:6.2f} p99 "
+              f"{f['p99_ms']:6.2f} ms", flush=True)
+        return float(f["ticks_per_s"])
+
+    # the machine's load moves within minutes: each run is bracketed by floor runs, and its
+    # ratio is to the mean of the two
+    before = run_floor() if args.floor else None
     for rnd in range(args.repeat):
-        trivial = None
-        if args.floor:
-            f = floor(n, dom, args.floor_ticks)
-            dom = 30 + (dom - 29) % 71
-            if "error" in f:
-                print(f"{n:3d} processes, trivial lockstep: FAILED\n{f['error']}", flush=True)
-            else:
-                trivial = f["ticks_per_s"]
-                floors.append(trivial)
-                print(f"{n:3d} responders, trivial lockstep{'':19s} {trivial:7.1f} ticks/s"
-                      f"    latency p50 {f['p50_ms']:6.2f} p90 {f['p90_ms']:6.2f} p99 "
-                      f"{f['p99_ms']:6.2f} ms", flush=True)
         for cont in layouts:
             for links in modes:
                 out = tmp / f"lock-{n}-{cont}-{links}-{rnd}"
                 s = run(sc, args.trials, dom, cont, "lockstep", out, 900, links)
                 dom = 30 + (dom - 29) % 71
+                after = run_floor() if args.floor else None
                 label = f"{n:3d} robots, {links:8s} " + (
                     f"container {cont}/process" if cont else "one process per robot")
                 if "error" in s:
                     print(f"{label}: FAILED\n{s['error']}", flush=True)
+                    before = after
                     continue
                 t = s["timing"]
                 rates.setdefault((cont, links), []).append(t["samples_per_s"])
                 ratio = ""
-                if trivial:
-                    r = t["samples_per_s"] / trivial
+                if before and after:
+                    r = t["samples_per_s"] / (0.5 * (before + after))
                     ratios.setdefault((cont, links), []).append(r)
                     ratio = f"  {links} / trivial {r:.2f}"
+                before = after
                 print(f"{label:51s} {t['samples_per_s']:7.1f} samples/s  latency p50 "
                       f"{t['p50_ms']:6.2f} p90 {t['p90_ms']:6.2f} p99 {t['p99_ms']:6.2f} "
                       f"max {t['max_ms']:7.2f} ms  (wall {s['wall']:.1f} s incl. "
