@@ -39,6 +39,7 @@ from formation_ilc.recordings.mcap_io import (
     RosMcapWriter,
     qos_yaml,
     read_messages,
+    type_hash,
 )
 
 __all__ = ["qos_of", "SimRecorder", "Recording", "RecordingError", "load_recording",
@@ -79,7 +80,8 @@ class SimRecorder:
         # channels by full name, in the stack's default namespace
         self.full = {t: ms.absolute(t) for t, _, _ in ms.topic_table(n)}
         for topic, typ, qos in ms.topic_table(n):
-            self.w.channel(self.full[topic], typ, qos_of(qos))
+            # the type hash a ROS writer of the type offers, as the stack's recorder records it
+            self.w.channel(self.full[topic], typ, qos_of(qos), type_hash(typ))
         conf = cfg.to_json() | {"recorded_by": "formation-ilc simulate"}
         self._json(ms.CONFIG, conf, 0)
         self.w.metadata(META_NAME, {"config": json.dumps(conf)})
