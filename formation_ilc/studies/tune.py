@@ -44,7 +44,7 @@ from numpy.typing import NDArray
 from formation_ilc.config.scenario import Scenario, ScenarioError
 from formation_ilc.model.checks import condition20, heading_map
 from formation_ilc.studies.study import apply_fields, point_id, scenario_text_with
-from formation_ilc.studies.sweep import close_pools, map_tasks
+from formation_ilc.studies.sweep import close_pools, map_tasks, points_progress
 
 __all__ = ["graph_depths", "TuneOptions", "Candidate", "TuneResult", "tune"]
 
@@ -345,12 +345,10 @@ def _tune(sc: Scenario, opt: TuneOptions, workers: int | None, scheduler: str | 
 
 
 def _progress(rows: Any, total: int, label: str, log: Any) -> Any:
-    from formation_ilc.studies.sweep import Bar
-
-    bar = Bar(total, 0, f"tune {label}")
-    for row in rows:
-        bar.step()
-        yield row
+    with points_progress(total, 0, f"tune {label}") as bar:
+        for row in rows:
+            bar.step()
+            yield row
 
 
 def _fmt(v: tuple[float, ...]) -> str:
