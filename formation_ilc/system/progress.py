@@ -38,7 +38,8 @@ class Progress:
 
     unit : what a step is ("trials", "points", "messages").
     initial : steps done before this session (a resumed sweep): counted in the position,
-        not in the rate nor in the time left.
+        not in the rate nor in the time left (in a log, the rate counts from the first
+        step: the time before it, compiling or starting workers, is not a step's).
     interval : seconds between redraws on a terminal.
     every : seconds between lines elsewhere; tenths : a line also at each tenth of
         ``total`` there.
@@ -58,6 +59,7 @@ class Progress:
         self.t0 = time.monotonic()
         self.last, self.last_tenth = -math.inf, -1  # the first step writes a line
         self.status = ""
+        self.first: tuple[float, int] | None = None  # (time, steps) of the first line
         self.closed = total is not None and initial >= total  # nothing left to show
         self.bar: _Bar | None = None
         if not self.closed and _is_terminal(self.file):
@@ -100,9 +102,15 @@ class Progress:
             self.close()
 
     def _line(self, now: float) -> None:
+        if self.first is None:
+            self.first = (now, self.n)
+        t1, n1 = self.first
+        # the rate since the first step: what came before it (compiling the kernels,
+        # starting the workers) says nothing of the steps left; 0 shows the time left as ?
+        rate = (self.n - n1) / (now - t1) if self.n > n1 and now > t1 else 0.0
         text = tqdm.format_meter(self.n, self.total, now - self.t0, prefix=self.label,
                                  ascii=True, unit=self.unit, postfix=self.status or None,
-                                 initial=self.initial, bar_format=self._format())
+                                 rate=rate, bar_format=self._format())
         print(text, file=self.file, flush=True)
 
     def close(self, clear: bool = False) -> None:
