@@ -4,8 +4,8 @@
 On a terminal, a tqdm bar rewritten in place. In a log file or a pipe tqdm's carriage
 returns would pile up into one garbled line, so the same text (tqdm's ``format_meter``,
 with an ASCII bar) is written there as whole lines, now and then: every ``every`` seconds,
-at each tenth of the total when asked (``tenths``), and at the end. Nothing is written
-before the first step, nor for a job that has nothing left to do.
+at each tenth of the total when asked (``tenths``), and at the end; nothing before the
+first step. A job that has nothing left to do shows nothing anywhere.
 """
 
 from __future__ import annotations
