@@ -24,6 +24,7 @@ import numpy as np
 from formation_ilc.core import links
 from formation_ilc.core.metrics import write_metrics
 from formation_ilc.recordings.recording import Recording, RecordingError, load_recording
+from formation_ilc.system.progress import Progress
 
 __all__ = ["analyze", "delay_rows", "findings", "DAMAGED"]
 
@@ -215,28 +216,18 @@ def analyze(src: Path | list[Path], out: Path, plots: bool = True) -> int:
     files = [src] if isinstance(src, Path) else list(src)
     src = files[0]
     t0 = time.perf_counter()
-    last = [0.0]
-    shown = [0]  # width of the progress line on screen (0: none)
-
-    def progress(n: int) -> None:
-        now = time.perf_counter()
-        if now - last[0] > 0.5:
-            last[0] = now
-            line = f"reading {src.name}: {n} messages [{now - t0:.1f} s]"
-            print("\r" + line.ljust(shown[0]), end="", file=sys.stderr, flush=True)
-            shown[0] = len(line)
-
+    bar = Progress(None, f"reading {src.name}", "messages", interval=0.5)
     try:
-        rec = load_recording(files, progress=progress)
+        rec = load_recording(files, progress=bar.to)
     except RecordingError as exc:
-        # one line: over the progress line if there is one
-        print(("\r" + " " * shown[0] + "\r" if shown[0] else "") + f"error: {exc}",
-              file=sys.stderr)
+        bar.close(clear=True)  # one line: in place of the progress bar if there is one
+        print(f"error: {exc}", file=sys.stderr)
         return 2
+    bar.close(clear=True)
     names = src.name + (f" and {len(files) - 1} more part{'s' * (len(files) > 2)} "
                         f"({', '.join(f.name for f in files[1:])})" if len(files) > 1 else "")
-    print(f"\rread {names}: {rec.messages} messages, {len(rec.metrics)} complete trials "
-          f"[{time.perf_counter() - t0:.1f} s]".ljust(70), file=sys.stderr)
+    print(f"read {names}: {rec.messages} messages, {len(rec.metrics)} complete trials "
+          f"[{time.perf_counter() - t0:.1f} s]", file=sys.stderr)
     out.mkdir(parents=True, exist_ok=True)
     write_metrics(out / "metrics.csv", rec.metrics)
     drows = delay_rows(rec)

@@ -310,36 +310,19 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 class Progress:
-    """One line, rewritten on a terminal; otherwise a line every 10 % or every 30 s."""
+    """simulate's and compare's progress: trials done, with the last trial's errors
+    (``formation_ilc.system.progress``: a bar on a terminal, a line every 10 % or 30 s in a
+    log)."""
 
     def __init__(self, total: int, label: str, first: int = 0):
-        self.total = total
-        self.label = label
+        from formation_ilc.system.progress import Progress as Bar
+
         self.first = first
-        self.t0 = time.perf_counter()
-        self.tty = sys.stderr.isatty()
-        self.last = -1.0
-        self.last_time = self.t0
+        self.bar = Bar(total, label, "trials", tenths=True)
 
     def __call__(self, k: int, row: Any) -> None:
-        done = k - self.first + 1
-        now = time.perf_counter()
-        frac = done / self.total
-        if self.tty:
-            if now - self.last < 0.1 and done != self.total:
-                return
-        elif (int(frac * 10) == int(self.last) and done != self.total
-              and now - self.last_time < 30.0):
-            return
-        self.last = now if self.tty else int(frac * 10)
-        self.last_time = now
-        msg = (f"{self.label}: trial {done}/{self.total}  max position {row[1]:.4g} m  "
-               f"max heading {row[2]:.4g} rad  [{now - self.t0:.1f} s]")
-        if self.tty:
-            end = "\n" if done == self.total else ""
-            print("\r" + msg.ljust(100), end=end, file=sys.stderr, flush=True)
-        else:
-            print(msg, file=sys.stderr, flush=True)
+        self.bar.to(k - self.first + 1,
+                    f"max position {row[1]:.4g} m  max heading {row[2]:.4g} rad")
 
 
 class TrialLog:
