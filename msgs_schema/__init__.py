@@ -83,8 +83,21 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 from formation_ilc.core.clock import Malformed, SampleClock
-from formation_ilc.core.links import LEADER, link_name, robot_name
-from formation_ilc.core.links import robot_number as robot_index
+from formation_ilc.core.links import LEADER, link_name
+from formation_ilc.core.names import (
+    BRIDGE_PREFIX,
+    CLOCK,
+    FAKE_DRIVER_NODE,
+    LEADER_NODE,
+    LINKS_NODE,
+    MONITOR_NODE,
+    NAMESPACE,
+    RECORDER_NODE,
+    SIM_NODE,
+    bridge_name,
+    robot_name,
+)
+from formation_ilc.core.names import robot_number as robot_index
 from formation_ilc.protocol.schedule import ABORT, DONE, END, START
 
 __all__ = [
@@ -100,16 +113,17 @@ __all__ = [
     "START", "END", "ABORT", "DONE",
     "DriverSpec", "DRIVERS", "DRIVER_CMD_QOS", "ODOM_QOS", "BRIDGE_PREFIX", "bridge_name",
     "odometry_to_pose", "odometry_msg", "driver_twist",
+    "LEADER_NODE", "SIM_NODE", "LINKS_NODE", "MONITOR_NODE", "RECORDER_NODE",
+    "FAKE_DRIVER_NODE",
 ]
 
-#: the default namespace of every node of a formation
-NAMESPACE = "/formation"
+# NAMESPACE (the default namespace of every node of a formation), CLOCK and the node names
+# (LEADER_NODE, SIM_NODE, ..., robot_name, bridge_name) are formation_ilc.core.names', re-exported
 CONFIG = "config"
 REFERENCE = "leader/reference"
 TRIAL_EVENTS = "leader/trial_events"
 READY = "ready"
 DIAGNOSTICS = "diagnostics"
-CLOCK = "/clock"
 
 #: REP-105 world-fixed frame of every pose and path
 WORLD_FRAME = "map"
@@ -191,14 +205,6 @@ MalformedMessage = Malformed
 
 
 # --------------------------------------------------------------------------- Pioneer drivers
-
-#: a hardware bridge's node name is ``bridge_<id>`` (what it says ready as)
-BRIDGE_PREFIX = "bridge_"
-
-
-def bridge_name(i: int) -> str:
-    return f"{BRIDGE_PREFIX}{int(i)}"
-
 
 @dataclass(frozen=True)
 class DriverSpec:

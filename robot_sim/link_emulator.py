@@ -52,7 +52,7 @@ from formation_ilc.protocol.schedule import unexplained_gap
 #: realtime: the emulator delivers at the latest this many dT after the tick
 DELIVERY_WAIT = 0.5
 #: the emulator's node name (what it says ready as)
-NAME = "link_emulator"
+NAME = ms.LINKS_NODE
 
 
 class LinkEmulator(ConfiguredNode):

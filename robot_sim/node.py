@@ -64,7 +64,7 @@ from formation_ilc.nodes.common import (
 from formation_ilc.protocol.schedule import unexplained_gap
 
 #: the plant's node name (what it says ready as)
-NAME = "robot_sim"
+NAME = ms.SIM_NODE
 
 
 class SimNode(ConfiguredNode):

@@ -19,7 +19,7 @@ links : str
     subscribe to each other; the network's delays).
 nodes_expected : list of node names that must report ready before a trial starts
     (default: every robot_i, robot_sim, and link_emulator with emulated links; in
-    wallclock every robot_i and bridge_i).
+    wallclock every robot_i and bridge_i: ``formation_ilc.config.team``).
 monitored : bool
     A monitor (the launcher) reads trajectories: nodes wait for it before trial 0.
 state_dir : str
@@ -65,11 +65,13 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 import msgs_schema as ms
+from formation_ilc.config.runconfig import PARAMS, RunConfig
+from formation_ilc.config.team import Team, default_plant
 from formation_ilc.core.clock import Rejected
+from formation_ilc.core.names import LEADER_NODE
 from formation_ilc.nodes.common import (
     DropCounter,
     fail,
-    make_config,
     matched,
     node_parser,
     spin_main,
@@ -82,39 +84,20 @@ ABORT_REPEAT = 1.0
 #: [s] the least time between the leader's start and the first trial (discovery)
 FIRST_START_WAIT = 2.0
 #: the leader's node name (its diagnostics name it)
-NAME = "virtual_leader"
+NAME = LEADER_NODE
 
 
 class LeaderNode(Node):
     def __init__(self, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(NAME, **kwargs)
-        self.declare_parameter("scenario", "")
-        self.declare_parameter("seed", -1)
-        self.declare_parameter("trials", 0)
-        self.declare_parameter("law", 0)
-        self.declare_parameter("memory", "")
-        self.declare_parameter("noise", True)
-        self.declare_parameter("delay", True)
-        self.declare_parameter("mode", "lockstep")
-        self.declare_parameter("links", "emulated")
-        self.declare_parameter("gap", 20)
-        self.declare_parameter("monitored", False)
-        self.declare_parameter("timeout", 30.0)
+        for name, default in PARAMS.items():  # the run configuration's (runconfig)
+            self.declare_parameter(name, default)
         self.declare_parameter("start_margin", 1.0)
         self.declare_parameter("nodes_expected", Parameter.Type.STRING_ARRAY)
         self.declare_parameter("state_dir", "")
-        self.declare_parameter("run_id", "")
         g = lambda name: self.get_parameter(name).value  # noqa: E731
-        if not g("scenario"):
-            raise ValueError("parameter scenario: a scenario name or file is required")
-        self.cfg = make_config(
-            str(g("scenario")), seed=None if g("seed") < 0 else int(g("seed")),
-            noise=bool(g("noise")), delay=bool(g("delay")),
-            trials=int(g("trials")) or None, law=int(g("law")) or None,
-            memory=str(g("memory")) or None, mode=str(g("mode")), gap=int(g("gap")),
-            monitored=bool(g("monitored")), timeout=float(g("timeout")),
-            links=str(g("links")), run_id=str(g("run_id")))
+        self.cfg = RunConfig.from_params({name: g(name) for name in PARAMS})
         sc = self.cfg.scenario
         self.clock = self.cfg.clock
         self.T = sc.samples
@@ -123,11 +106,8 @@ class LeaderNode(Node):
             expected = g("nodes_expected")
         except ParameterUninitializedException:
             expected = None
-        self.expected = list(expected) if expected else (
-            [ms.robot_name(i + 1) for i in range(sc.n)]
-            + ([ms.bridge_name(i + 1) for i in range(sc.n)] if self.cfg.mode == "wallclock"
-               else ["robot_sim"])
-            + (["link_emulator"] if self.cfg.links == "emulated" else []))
+        self.expected = list(expected) if expected else Team.of(
+            sc.n, plant=default_plant(self.cfg.mode), links=self.cfg.links).expected
         # who reads the reference: the link emulator, or each robot that sees the leader
         self.ref_readers = (int(sum(sc.graph.leader > 0)) if self.cfg.links == "direct"
                             else 1)

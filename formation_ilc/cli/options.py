@@ -17,7 +17,8 @@ from pathlib import Path
 from typing import NoReturn
 
 __all__ = ["OneLineParser", "int_range", "nonneg_int", "positive_int", "positive_float",
-           "out_dir_arg", "output_file_arg", "make_out_dir", "OptionError", "MAX_TRIAL"]
+           "out_dir_arg", "output_file_arg", "make_out_dir", "OptionError", "MAX_TRIAL",
+           "add_run_options"]
 
 #: trial indices are stored as float64 in metrics rows: exact up to 2^53
 MAX_TRIAL = 2 ** 53
@@ -116,6 +117,29 @@ def output_file_arg(text: str) -> Path:
 
 out_dir_arg.__name__ = "folder"
 output_file_arg.__name__ = "file"
+
+
+def add_run_options(p: argparse.ArgumentParser, *, law: bool = True,
+                    trials: int | None = None) -> None:
+    """The options of a run that ``simulate``, ``compare`` and ``launch`` share: --trials
+    (default ``trials``, else the scenario's), --law and --memory (with ``law``), --seed,
+    --no-noise, --no-delay."""
+    p.add_argument("--trials", type=positive_int, metavar="K", default=trials,
+                   help="number of trials (default: "
+                        + ("the scenario's 'trials')" if trials is None else f"{trials})"))
+    if law:
+        p.add_argument("--law", type=int, choices=(9, 22, 23),
+                       help="9: predictive + delay-compensated current term (the paper's); "
+                            "22: predictive only; 23: current term ignores the delay")
+        p.add_argument("--memory", choices=("feedforward", "literal"),
+                       help="what the learning memory holds (paper-notes 12): feedforward "
+                            "(default; the current term is feedback on top) or literal "
+                            "(the applied input, current term included)")
+    p.add_argument("--seed", type=nonneg_int, help="random seed, >= 0 (default: the "
+                   "scenario's)")
+    p.add_argument("--no-noise", action="store_true",
+                   help="no initial shifts, disturbances or measurement noise")
+    p.add_argument("--no-delay", action="store_true", help="no communication delays")
 
 
 def make_out_dir(path: Path, option: str = "--out") -> Path:

@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 
 from formation_ilc.core._jit import njit
 from formation_ilc.core.clock import Malformed, Rejected, SampleClock
+from formation_ilc.core.names import robot_name, robot_number  # re-exported: their owner
 
 __all__ = ["LEADER", "LINK_MODES", "robot_name", "robot_number", "link_name",
            "delivered_label", "Delivery", "LinkInbox", "DELAY_COLUMNS", "link_histograms",
@@ -37,21 +38,6 @@ __all__ = ["LEADER", "LINK_MODES", "robot_name", "robot_number", "link_name",
 #: sender name of the virtual leader's reference
 LEADER = "leader"
 LINK_MODES = ("emulated", "direct")
-
-
-def robot_name(i: int) -> str:
-    """Name of robot ``i`` (1-based): ``robot_i``; also its node name and topic prefix."""
-    return f"robot_{int(i)}"
-
-
-def robot_number(name: str) -> int:
-    """1-based robot number of ``robot_i``; Malformed if ``name`` is not one (ASCII digits,
-    no leading zero, at least 1)."""
-    digits = name[6:]
-    if not (name.startswith("robot_") and digits.isascii() and digits.isdigit()
-            and digits[0] != "0"):
-        raise Malformed(f"not a robot name: {name!r}")
-    return int(digits)
 
 
 def link_name(sender: str, receiver: str) -> str:

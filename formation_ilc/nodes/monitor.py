@@ -45,7 +45,7 @@ class MonitorNode(Node):
     def __init__(self, cfg: RunConfig, on_trial: Callable[[int, np.ndarray], None],
                  true_state: bool = True, first: int = 0, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
-        super().__init__("monitor", **kwargs)
+        super().__init__(ms.MONITOR_NODE, **kwargs)
         self.cfg = cfg
         self.pb = Problem.from_scenario(cfg.scenario)
         self.clock = cfg.clock
@@ -78,7 +78,7 @@ class MonitorNode(Node):
         if all(s.get_publisher_count() >= 1 for s in self.path_subs) and \
                 self.ready_pub.get_subscription_count() >= 1:
             self._gate.cancel()
-            self.ready_pub.publish(ms.json_to_msg({"node": "monitor", "passive": True,
+            self.ready_pub.publish(ms.json_to_msg({"node": ms.MONITOR_NODE, "passive": True,
                                                    "trial": self.cfg.scenario.trials,
                                                    "boot": f"{os.getpid()}",
                                                    "run": self.cfg.run_id}))

@@ -67,7 +67,7 @@ def _msg_class(type_name: str) -> Any:
 class RecorderNode(Node):
     def __init__(self, output: Path, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
-        super().__init__("recorder", **kwargs)
+        super().__init__(ms.RECORDER_NODE, **kwargs)
         self.output = Path(output)
         self.writer = RosMcapWriter(self.output, flush_period=0.5, chunk_size=int(
             os.environ.get("FORMATION_ILC_RECORDER_CHUNK_BYTES", CHUNK_BYTES)))
@@ -228,7 +228,7 @@ class RecorderNode(Node):
                 min(self.robot_diag.values()) >= k:
             self.complete = k
             self.writer.flush()
-            d = {"node": "recorder", "trial": k, "messages": self.writer.count,
+            d = {"node": ms.RECORDER_NODE, "trial": k, "messages": self.writer.count,
                  "file": str(self.output), "invalid_stamps": dict(self.invalid_stamps),
                  "unwritable": dict(self.unwritable)}
             d.update(self.drops.as_dict())
@@ -265,7 +265,7 @@ class RecorderNode(Node):
             self.truth = all(self.subs[t].get_publisher_count() >= 1 for t in self.optional)
             self._gate.cancel()
             # ready for every trial of the run: it only watches (formation_ilc.protocol.schedule)
-            self.ready_pub.publish(ms.json_to_msg({"node": "recorder", "passive": True,
+            self.ready_pub.publish(ms.json_to_msg({"node": ms.RECORDER_NODE, "passive": True,
                                                    "trial": self.cfg.scenario.trials,
                                                    "boot": f"{os.getpid()}",
                                                    "run": self.cfg.run_id}))
