@@ -32,7 +32,10 @@ and the links deliver the neighbours' poses:
   (realtime: at most ``LINK_WAIT`` dT after its pose).
 
 A trial the leader aborts (``abort`` on ``leader/trial_events``: a node restarted during
-it) is forgotten, and the learning step undone if it was already taken.
+it) is forgotten, and the learning step undone if it was already taken. Starts and aborts
+are taken by the rule every follower of the schedule applies
+(``formation_ilc.protocol.schedule.Follower``; a start only moves the ``seen`` of the
+robot's next ready: its trials follow its own poses).
 
 It measures every delay by eq. (11) from Rt and St, calls the core's ``law.command`` for its
 one robot (``formation_ilc.protocol.learner.RobotLearner``) and publishes ``cmd_vel``. At
@@ -72,6 +75,7 @@ from formation_ilc.nodes.common import (
     warm_up,
 )
 from formation_ilc.protocol.learner import RobotLearner
+from formation_ilc.protocol.schedule import Follower
 from formation_ilc.store.memoryfile import MemoryFileError, load_memory
 from formation_ilc.store.robotstate import load_state, save_state, state_path
 
@@ -129,6 +133,7 @@ class RobotNode(ConfiguredNode):
             self.get_logger().info(f"{self.name}: initial memory from {path}")
         self.learner = lrn = RobotLearner(pb, self.id - 1, cfg.clock, realtime=self.realtime,
                                           direct=cfg.links == "direct", memory=memory)
+        self.follower = Follower(cfg.run_id)
         sdir = str(self.get_parameter("state_dir").value)
         self.state_file = state_path(sdir, self.id) if sdir else None
         if self.state_file is not None:
@@ -194,10 +199,13 @@ class RobotNode(ConfiguredNode):
         self.ready_pub.publish(self.ready_msg(self.learner.iterations))
 
     def _on_event(self, msg: String) -> None:
-        ev = self.trial_event(msg)
-        if ev is None or ev.event not in (ms.START, ms.ABORT) or ev.seq <= self.seen:
+        lrn = self.learner
+        # the robot's trials follow its own poses: a start taken only moves the ``seen``
+        # its next ready carries; it is idle once done with the slot started last
+        ev = self.take_event(msg, lambda ev: self.follower.take(
+            ev, idle=lrn.done_with(self.follower.slot)))
+        if ev is None:
             return
-        self.seen = ev.seq
         if ev.event == ms.ABORT:
             rolled = self.learner.abort(ev.slot)
             if rolled:

@@ -348,6 +348,12 @@ class RobotLearner:
             box.clear()
         return rolled
 
+    def done_with(self, slot: int) -> bool:
+        """Whether the robot holds nothing more of ``slot`` (-1: none): it has learned from
+        it, or the slot was aborted. Until then a start of a later slot is not the leader's
+        (``schedule.Follower``: the robot is not idle)."""
+        return slot <= self.learned or slot <= self.floor
+
     def state(self) -> RobotState:
         """What a restarted robot needs (``formation_ilc.store.robotstate``)."""
         return RobotState(self.memory[0].copy(), self.iterations, self.learned,

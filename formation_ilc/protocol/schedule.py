@@ -31,6 +31,11 @@ namespace.
   answers it (``seen`` = its ``seq``), or comes from a process that has not seen any event
   (``seen`` = -1: it has just started and holds no trial).
 
+Every node that follows the schedule (a plant, the link emulator, a bridge, a robot) takes
+the leader's starts and aborts by one rule, ``Follower``: a start only of the slot after
+the last one it started (a later one when every slot between was aborted), between trials,
+once it has said ready since; each refusal is counted under one reason.
+
 A slot is **committed** once every robot has learned from it (all report ``trial = i+1``).
 Until then it can be aborted: a node that restarts while a slot is open (running, or ended
 but not yet learned from by every robot) makes the leader abort it. The leader writes its
@@ -47,11 +52,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from formation_ilc.core.clock import Malformed
+from formation_ilc.core.clock import Malformed, Rejected
+from formation_ilc.protocol.wallclock import check_start_wall
 from formation_ilc.store.atomic import atomic_write_text
 
 __all__ = ["START", "END", "ABORT", "DONE", "TrialEvent", "Ready", "Schedule",
-           "ScheduleError"]
+           "ScheduleError", "Follower", "unexplained_gap"]
 
 START, END, ABORT, DONE = "start", "end", "abort", "done"
 EVENTS = (START, END, ABORT, DONE)
@@ -148,6 +154,76 @@ def unexplained_gap(k: int, slot: int, aborted: Container[int]) -> bool:
     between was aborted (their starts lost with a leader that was killed as it sent them;
     the restarted leader aborts the slot it left open)."""
     return k >= 0 and slot > k + 1 and not all(s in aborted for s in range(k + 1, slot))
+
+
+@dataclass
+class Follower:
+    """What a node that follows the schedule (a plant, the link emulator, a bridge, a robot)
+    makes of the leader's events: the one rule for taking a ``start`` or an ``abort``.
+
+    ``take`` returns the start or abort to act on, None for an event that needs nothing (an
+    ``end`` or ``done``, or an abort already answered: the leader repeats an abort until
+    every node has answered it), and raises Rejected, with the reason it is counted under,
+    for an event the node must not obey:
+
+    * ``foreign``: of another run (``run``) on the same domain and namespace;
+    * ``stale``: a start whose ``seq`` was handled already, or of a slot not after the last
+      one started here;
+    * ``future``: a start beyond the next slot while a slot between was not aborted
+      (``unexplained_gap``);
+    * ``unexpected``: a start while the node is inside a trial (``idle`` False) or has not
+      said ready since the last start it took;
+    * wall-clock followers (``wall_trial_ns``, the length of a trial [ns]) also check the
+      agreed start (``check_start_wall``): ``malformed`` without one, ``future`` too far
+      ahead, ``stale`` if the trial would be over.
+
+    A start taken names the slot the node runs (``slot``) and its iteration (``trial``);
+    ``seen`` is the ``seq`` of the last start or abort taken, which the node's ready
+    carries. ``said_ready`` must be called with every ready the node sends.
+    """
+
+    run: str = ""
+    wall_trial_ns: int | None = None
+    seen: int = -1           # seq of the last start or abort taken
+    slot: int = -1           # the last slot started here (-1: none, any slot is next)
+    trial: int = -1          # its iteration
+    ready: bool = False      # a ready was said since the last start taken
+    aborted: set[int] = field(default_factory=set)
+
+    def take(self, ev: TrialEvent, idle: bool = True,
+             now_wall_ns: int | None = None) -> TrialEvent | None:
+        """The start or abort ``ev`` if the node acts on it (its state moves), else None or
+        Rejected (see the class). ``idle``: the node is between trials; ``now_wall_ns``:
+        the wall clock [ns], for wall-clock followers."""
+        if ev.run and self.run and ev.run != self.run:
+            raise Rejected("foreign", f"event of run {ev.run}")
+        if ev.event not in (START, ABORT):
+            return None
+        if ev.seq <= self.seen:
+            if ev.event == START:
+                raise Rejected("stale", f"start seq {ev.seq} again")
+            return None
+        if ev.event == ABORT:
+            self.seen = ev.seq
+            self.aborted.add(ev.slot)
+            return ev
+        if self.wall_trial_ns is not None:
+            if now_wall_ns is None:
+                raise ValueError("a wall-clock follower needs the wall clock")
+            check_start_wall(ev.start_wall_ns, now_wall_ns, self.wall_trial_ns)
+        where = f"start of slot {ev.slot} in slot {self.slot}"
+        if ev.slot <= self.slot:
+            raise Rejected("stale", where)
+        if unexplained_gap(self.slot, ev.slot, self.aborted):
+            raise Rejected("future", where)
+        if not idle or not self.ready:
+            raise Rejected("unexpected", f"{where} ({'running' if not idle else 'not ready'})")
+        self.seen, self.slot, self.trial, self.ready = ev.seq, ev.slot, ev.trial, False
+        return ev
+
+    def said_ready(self) -> None:
+        """The node sent a ready (it may take the next start once it is idle)."""
+        self.ready = True
 
 
 class ScheduleError(RuntimeError):
