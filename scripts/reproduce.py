@@ -314,7 +314,7 @@ def main() -> int:
         jobs.append((["check", name, "--law", str(law), "--memory", mem],
                      R / f"check-{tag}-{law}-{mem}.txt"))
     # the paper's effective gain (paper-notes 11): dT left out of B = gain 0.8 with B as printed
-    src = (ROOT / "formation_ilc" / "scenarios" / "paper-hexagon6.yaml").read_text()
+    src = (ROOT / "formation_ilc" / "config" / "scenarios" / "paper-hexagon6.yaml").read_text()
     g08 = re.sub(r"(?m)^  gain: 0\.08 .*$", "  gain: 0.8", src)
     g08 = re.sub(r"(?m)^  gain_prime: 0\.08 .*$", "  gain_prime: 0.8", g08)
     g08 = g08.replace("name: paper-hexagon6", "name: paper-hexagon6-gain0.8")
