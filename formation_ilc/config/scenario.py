@@ -2,7 +2,7 @@
 
 A scenario states every choice the paper leaves open: graph, formation frame, reference,
 gains, memory reading, uncertainty and delay model. Built-in scenarios live in
-``formation_ilc/scenarios`` and are named without their ``.yaml`` suffix.
+``formation_ilc/config/scenarios`` and are named without their ``.yaml`` suffix.
 """
 
 from __future__ import annotations
