@@ -35,7 +35,7 @@ from formation_ilc.core.clock import Rejected
 from formation_ilc.core.links import check_diagnostics
 from formation_ilc.model.simulate import Problem
 from formation_ilc.nodes.common import DropCounter, RunConfig
-from formation_ilc.protocol.schedule import TrialEvent
+from formation_ilc.protocol.schedule import Ready, TrialEvent
 from formation_ilc.protocol.trialrows import Row, SlotRows
 
 
@@ -70,18 +70,44 @@ class MonitorNode(Node):
         # a writer's match count cannot tell a monitor from a recorder, and a monitor matched
         # after trial 1 would miss trial 0 (trajectories are latched 2 deep)
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
+        self.boot = f"{os.getpid()}"
+        self.said_ready = False
+        #: the last ready of each node (the launcher names whom a stuck run waits for)
+        self.readies: dict[str, Ready] = {}
         self._gate = self.create_timer(0.05, self._check_ready)
         self.create_subscription(String, ms.DIAGNOSTICS, self._on_diag, ms.LATCHED_READER_QOS)
+        self.create_subscription(String, ms.READY, self._on_ready, ms.LATCHED_READER_QOS)
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
 
     def _check_ready(self) -> None:
         if all(s.get_publisher_count() >= 1 for s in self.path_subs) and \
                 self.ready_pub.get_subscription_count() >= 1:
             self._gate.cancel()
-            self.ready_pub.publish(ms.json_to_msg({"node": ms.MONITOR_NODE, "passive": True,
-                                                   "trial": self.cfg.scenario.trials,
-                                                   "boot": f"{os.getpid()}",
-                                                   "run": self.cfg.run_id}))
+            self.said_ready = True
+            self.ready_pub.publish(self._ready_msg())
+
+    def _ready_msg(self) -> String:
+        return ms.json_to_msg({"node": ms.MONITOR_NODE, "passive": True,
+                               "trial": self.cfg.scenario.trials, "boot": self.boot,
+                               "run": self.cfg.run_id})
+
+    def _on_ready(self, msg: String) -> None:
+        """Readies of every node: who is there (``readies``, for the launcher's watchdog);
+        a ``down`` naming this live monitor is refuted by saying ready again (the leader
+        would otherwise wait for a monitor that has said all it will say)."""
+        try:
+            r = Ready.from_json(ms.msg_to_json(msg))
+        except Rejected as exc:
+            self.drops.reject(exc, ms.READY)
+            return
+        if r.run and r.run != self.cfg.run_id:
+            return
+        if r.down and r.node == ms.MONITOR_NODE and r.boot == self.boot and self.said_ready:
+            self.drops.drop("unexpected", ms.READY, f"'down' of this live monitor ({r.boot})")
+            self.ready_pub.publish(self._ready_msg())
+            return
+        if r.node in self.readies or len(self.readies) < 256:  # a flood of names: bounded
+            self.readies[r.node] = r
 
     def _on_traj(self, msg: Path, r: int, true: bool) -> None:
         topic = (ms.true_trajectory_topic if true else ms.trajectory_topic)(r + 1)
