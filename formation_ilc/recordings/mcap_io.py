@@ -247,8 +247,12 @@ _MAGIC = b"\x89MCAP0\r\n"
 #: record opcodes of the MCAP format (0x01 header ... 0x0F data end)
 _OPCODES = range(0x01, 0x10)
 _CHUNK, _MESSAGE_INDEX, _FOOTER = 0x06, 0x07, 0x02
-#: a chunk claiming more than this many bytes uncompressed per compressed byte is damaged
-_MAX_RATIO = 1000
+#: the most bytes one chunk may hold uncompressed for this reader: what it holds in memory
+#: at once (a chunk is read whole). The mcap writers' chunks are 64 KiB to a few MiB; a
+#: larger claim is read only as far as its data really inflates, and refused past this
+MAX_CHUNK_BYTES = 256 << 20
+#: [bytes] decompression proceeds in pieces of this size: memory follows the real output
+_PIECE = 1 << 20
 
 
 class _Bad(Exception):
@@ -336,6 +340,38 @@ def _stream(content: bytes | memoryview) -> Any:
     return ReadDataStream(BytesIO(content))
 
 
+def _inflate(compression: str, data: bytes | memoryview, size: int) -> bytes | bytearray:
+    """A chunk's records, decompressed in pieces up to one byte past its claimed ``size``:
+    memory follows what the data really inflates to, never the claim (a damaged size field
+    of terabytes allocates nothing), and never more than MAX_CHUNK_BYTES. _Bad when the
+    chunk cannot be read (the caller compares the length with ``size``)."""
+    if size > MAX_CHUNK_BYTES:
+        raise _Bad(f"a chunk of {size} bytes uncompressed, more than this reader holds in "
+                   f"memory ({MAX_CHUNK_BYTES})")
+    if compression == "":
+        return bytes(data)
+    if compression == "zstd":
+        import zstandard
+
+        if zstandard.frame_content_size(bytes(data[:18])) not in (-1, size):
+            raise _Bad("zstd frame size mismatch")
+        out = bytearray()
+        with zstandard.ZstdDecompressor().stream_reader(bytes(data)) as rd:
+            while len(out) <= size:
+                piece = rd.read(min(_PIECE, size + 1 - len(out)))
+                if not piece:
+                    break
+                out += piece
+        return out
+    if compression == "lz4":
+        import lz4.frame  # type: ignore[import-not-found,unused-ignore]
+
+        lz: bytes = lz4.frame.LZ4FrameDecompressor().decompress(bytes(data),
+                                                              max_length=size + 1)
+        return lz
+    raise _Bad(f"unknown compression {compression[:20]!r}")
+
+
 def _chunk_records(content: bytes | memoryview) -> list[Any]:
     """The records inside a chunk record's content; _Bad if it does not decompress, fails
     its CRC or does not parse."""
@@ -345,23 +381,7 @@ def _chunk_records(content: bytes | memoryview) -> list[Any]:
     ch = Chunk.read(st)
     if st.count != len(content):
         raise _Bad("chunk length mismatch")
-    if ch.uncompressed_size > _MAX_RATIO * len(ch.data) + (1 << 20):
-        raise _Bad("implausible uncompressed size")
-    if ch.compression == "zstd":
-        import zstandard
-
-        if zstandard.frame_content_size(ch.data) not in (-1, ch.uncompressed_size):
-            raise _Bad("zstd frame size mismatch")
-        data = zstandard.ZstdDecompressor().decompress(
-            ch.data, max_output_size=ch.uncompressed_size)
-    elif ch.compression == "lz4":
-        import lz4.frame  # type: ignore[import-not-found,unused-ignore]
-
-        data = lz4.frame.decompress(ch.data)
-    elif ch.compression == "":
-        data = ch.data
-    else:
-        raise _Bad(f"unknown compression {ch.compression[:20]!r}")
+    data = _inflate(ch.compression, ch.data, ch.uncompressed_size)
     if len(data) != ch.uncompressed_size:
         raise _Bad("uncompressed size mismatch")
     if ch.uncompressed_crc != 0 and zlib.crc32(data) != ch.uncompressed_crc:
