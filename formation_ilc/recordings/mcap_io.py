@@ -334,7 +334,7 @@ class ReadReport:
         return out
 
 
-def _stream(content: bytes | memoryview) -> Any:
+def _stream(content: bytes | bytearray | memoryview) -> Any:
     from mcap.data_stream import ReadDataStream
 
     return ReadDataStream(BytesIO(content))
