@@ -47,6 +47,7 @@ from formation_ilc.nodes.common import DropCounter, RunConfig, node_parser, spin
 from formation_ilc.protocol.schedule import Ready, TrialEvent
 from formation_ilc.recordings.mcap_io import CHUNK_BYTES, RosMcapWriter
 from formation_ilc.recordings.recording import META_NAME, qos_of
+from formation_ilc.system.exits import is_disk_full
 
 #: types whose CDR starts with a header stamp (int32 sec, uint32 nanosec) right after the
 #: 4-byte encapsulation: their publish time is that send label
@@ -133,6 +134,8 @@ class RecorderNode(Node):
             sent = self._publish_time(topic, data, now)
             self.writer.write(self.names.get(topic) or self._channel(topic), data, now, sent)
         except Exception as exc:  # noqa: BLE001 - a recorder must outlive any one message
+            if is_disk_full(exc):
+                raise  # not one message: nothing more can be recorded (spin_main says so)
             self.unwritable[topic] += 1
             if self.unwritable[topic] <= 3:
                 self.get_logger().error(f"could not record a message on {topic}: {exc!r}")
@@ -291,8 +294,12 @@ class RecorderNode(Node):
             self.get_logger().info(f"ready: {len(self.subs)} topics")
 
     def destroy_node(self) -> None:
-        self.writer.close()
-        self.get_logger().info(f"closed {self.output}: {self.writer.count} messages")
+        try:
+            self.writer.close()
+            self.get_logger().info(f"closed {self.output}: {self.writer.count} messages")
+        except OSError as exc:  # a full disk: what was flushed before reads back
+            self.get_logger().error(f"could not close {self.output}: {exc.strerror}; the "
+                                    f"chunks written before read back")
         super().destroy_node()
 
 

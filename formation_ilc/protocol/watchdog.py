@@ -16,21 +16,22 @@ This module holds, without ROS, the bounds of every phase and the decision the l
   time-out plus ``SAMPLE_MARGIN_S`` (the plant names a silent robot first); realtime and
   wallclock, ``SAMPLE_DTS`` samples of dT, at least ``SAMPLE_MIN_S``.
 
-Past a bound the leader says whom it waits for and why, then re-runs: a running slot is
-aborted and its iteration runs again; a wait for readies is asked again (the latched readies
-read anew, a pending abort re-sent). Each bound passes at most ``RETRIES`` times in a row
-without progress; then the run stops (exit status ``STUCK``) naming the cause, and
-``launch --resume`` can continue it.
+Past a bound the leader says whom it waits for and why; past it again, it re-runs: a
+running slot is aborted and its iteration runs again; a wait for readies is asked again (the
+latched readies read anew, a pending abort re-sent). After ``RETRIES`` re-runs in a row
+without progress the run stops (exit status ``STUCK``) naming the cause, and ``launch
+--resume`` can continue it. A bound grows with the run's own pace (``SLACK`` times the
+longest wait of its phase so far), so a loaded machine does not look stuck.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+
+from formation_ilc.system.exits import STUCK
 
 __all__ = ["Bounds", "Watchdog", "STUCK", "RETRIES", "STARTUP", "READY", "SAMPLE"]
 
-#: exit status of a node (the leader) that gave up waiting: restarting it cannot help
-STUCK = 4
 #: how many times in a row a phase may pass its bound before the run stops
 RETRIES = 3
 
@@ -73,14 +74,20 @@ class Bounds:
         return {STARTUP: self.startup, READY: self.ready, SAMPLE: self.sample}[phase]
 
 
+#: a phase's bound is at least this many times the longest it took in this run when
+#: nothing was wrong: a loaded machine (every wait long) does not look stuck
+SLACK = 4.0
+
+
 @dataclass
 class Watchdog:
     """Tracks the time since the run last moved, per phase.
 
     ``moved(now, phase)`` when something advances the run (a ready taken, a sample, a
     trial committed); ``expired(now, phase)`` says whether the phase has now waited past
-    its bound, and counts the expiry: ``gave_up`` once it has passed ``retries`` times in a
-    row without progress in between.
+    its bound (:meth:`bound`), and counts the expiry as a strike. The first strike only
+    reports (``acting`` is False: a slow machine is not a stuck run); later ones act;
+    ``gave_up`` once ``retries`` acts passed without progress in between.
     """
 
     bounds: Bounds
@@ -88,11 +95,20 @@ class Watchdog:
     since: float = 0.0
     phase: str = STARTUP
     strikes: int = 0
+    longest: dict[str, float] = field(default_factory=dict)
+
+    def bound(self, phase: str) -> float:
+        """[s] the bound of ``phase``: its static bound, or SLACK times the longest wait
+        of that phase this run has seen go by without a strike."""
+        return max(self.bounds.of(phase), SLACK * self.longest.get(phase, 0.0))
 
     def moved(self, now: float, phase: str, progress: bool = True) -> None:
         """The run moved at ``now`` and is in ``phase``. ``progress``: a real step (a
         sample, a commit) that also clears the strikes; a retry of the watchdog's own
         making is not one."""
+        if self.strikes == 0:
+            self.longest[self.phase] = max(self.longest.get(self.phase, 0.0),
+                                           now - self.since)
         self.since = now
         self.phase = phase
         if progress:
@@ -107,12 +123,17 @@ class Watchdog:
         if phase != self.phase:
             self.moved(now, phase, progress=False)
             return False
-        if now - self.since <= self.bounds.of(phase):
+        if now - self.since <= self.bound(phase):
             return False
         self.strikes += 1
         self.since = now
         return True
 
     @property
+    def acting(self) -> bool:
+        """Past the first strike: the watchdog re-runs (the first one only reports)."""
+        return self.strikes >= 2
+
+    @property
     def gave_up(self) -> bool:
-        return self.strikes > self.retries
+        return self.strikes > self.retries + 1

@@ -196,11 +196,20 @@ class RosMcapWriter:
 
     def write(self, topic: str, data: bytes, log_time: int, publish_time: int,
               sequence: int = 0) -> None:
-        self._w.add_message(self._channels[topic], log_time=int(log_time), data=bytes(data),
-                            publish_time=int(publish_time), sequence=sequence)
+        try:
+            self._w.add_message(self._channels[topic], log_time=int(log_time),
+                                data=bytes(data), publish_time=int(publish_time),
+                                sequence=sequence)
+        except OSError as exc:
+            raise self._named(exc) from exc
         self.count += 1
         if self._period > 0 and time.monotonic() - self._last_flush >= self._period:
             self.flush()
+
+    def _named(self, exc: OSError) -> OSError:
+        """``exc`` naming this file (a full disk's message names what could not be
+        written)."""
+        return OSError(exc.errno, exc.strerror, str(self.path))
 
     def metadata(self, name: str, data: dict[str, str]) -> None:
         self._w.add_metadata(name, {k: str(v) for k, v in data.items()})
@@ -210,14 +219,17 @@ class RosMcapWriter:
         any chunk) of the schemas and channels registered since the last flush."""
         from mcap.data_stream import RecordBuilder
 
-        self._w.flush()
-        if self._copies:
-            b = RecordBuilder()
-            for rec in self._copies:
-                rec.write(b)
-            self._fh.write(b.end())
-            self._copies = []
-        self._fh.flush()
+        try:
+            self._w.flush()
+            if self._copies:
+                b = RecordBuilder()
+                for rec in self._copies:
+                    rec.write(b)
+                self._fh.write(b.end())
+                self._copies = []
+            self._fh.flush()
+        except OSError as exc:
+            raise self._named(exc) from exc
         self._last_flush = time.monotonic()
 
     def close(self) -> None:
