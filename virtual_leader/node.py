@@ -125,6 +125,7 @@ class LeaderNode(Node):
         self.drops = DropCounter(self)
         #: the last ready refused from each node, with why (named when the schedule waits)
         self.refused: dict[str, str] = {}
+        self.watch_reports = 0
         self.watchdog = Watchdog(Bounds.for_run(sc.dt, len(self.expected), self.cfg.mode,
                                                self.cfg.timeout))
         self.done_sent = False
@@ -334,8 +335,9 @@ class LeaderNode(Node):
 
     def _phase(self) -> str:
         s = self.sched
-        if s.running:
+        if s.running and self.t >= 0:
             return SAMPLE
+        # until the plant's first sample of a slot, it is starting the trial: like a ready
         return STARTUP if s.slot < 0 and s.abort_pending is None else READY
 
     def _on_watchdog(self) -> None:
@@ -349,27 +351,29 @@ class LeaderNode(Node):
         phase = self._phase()
         if not self.watchdog.expired(now, phase):
             return
-        bound = self.watchdog.bounds.of(phase)
+        wd = self.watchdog
+        bound = wd.bound(phase)
         if phase == SAMPLE:
-            last = getattr(self, "_last_t", None)
             who = ("the plant's /clock" if self.cfg.mode != "wallclock"
                    else "the leader's wall timer")
             what = (f"trial {s.committed} (slot {s.slot}) has had no sample for "
-                    f"{bound:.0f} s (last sample {last}): waiting for {who}")
+                    f"{bound:.0f} s (last sample {self.t}): waiting for {who}")
         else:
-            late = s.explain_wait(self.refused) or ["nobody (waiting for readers)"]
+            late = s.explain_wait(self.refused)
+            if s.running:
+                late = [f"the plant's first sample of slot {s.slot}"]
             what = (f"trial {s.committed} has waited {bound:.0f} s in {phase} for: "
-                    + "; ".join(late))
-        if self.watchdog.gave_up:
-            fail(self, f"stuck: {what} ({self.watchdog.retries} retries without progress)",
-                 code=STUCK)
+                    + "; ".join(late or ["nobody (its readers: the monitor, recorder)"]))
+        if wd.gave_up:
+            self._report(what, "giving up")
+            fail(self, f"stuck: {what} ({wd.retries} retries without progress)", code=STUCK)
             return
-        self.get_logger().error(f"{what}: retry {self.watchdog.strikes} of "
-                                f"{self.watchdog.retries}")
-        print(f"{NAME}: {what}: retry {self.watchdog.strikes} of {self.watchdog.retries}",
-              file=sys.stderr, flush=True)
-        if phase == SAMPLE:
-            s.begin_abort(f"no sample for {bound:.0f} s")
+        if not wd.acting:
+            self._report(what, f"retries follow after {bound:.0f} s more")
+            return
+        self._report(what, f"retry {wd.strikes - 1} of {wd.retries}")
+        if s.running:
+            s.begin_abort(f"no progress for {bound:.0f} s")
             self._aborted(s.why)
             return
         # read every node's latched ready again, and repeat a pending abort
@@ -378,6 +382,14 @@ class LeaderNode(Node):
                                                   ms.LATCHED_READER_QOS)
         if s.abort_pending is not None:
             self._publish_abort()
+
+    def _report(self, what: str, then: str) -> None:
+        """A watchdog finding: in the log, on stderr, and in the leader's diagnostics (the
+        launcher prints it on its console)."""
+        self.get_logger().error(f"{what}: {then}")
+        print(f"{NAME}: {what}: {then}", file=sys.stderr, flush=True)
+        self.watch_reports += 1
+        self._publish_diagnostics({"count": self.watch_reports, "what": f"{what}: {then}"})
 
     def _report_wait(self) -> None:
         """Say whom the schedule waits for when it has not moved for a while."""
@@ -394,9 +406,12 @@ class LeaderNode(Node):
                                   f"{', '.join(late)}" if late
                                   else f"trial {s.committed}: waiting for readers")
 
-    def _publish_diagnostics(self) -> None:
+    def _publish_diagnostics(self, watchdog: dict[str, Any] | None = None) -> None:
         d: dict[str, Any] = {"node": NAME, "trial": self.sched.committed,
-                             "slot": self.sched.slot}
+                             "slot": self.sched.slot,
+                             "foreign_events": self.sched.foreign_events}
+        if watchdog is not None:
+            d["watchdog"] = watchdog
         d.update(self.drops.as_dict())
         self.diag_pub.publish(ms.json_to_msg(d))
 

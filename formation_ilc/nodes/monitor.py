@@ -133,6 +133,11 @@ class MonitorNode(Node):
         try:
             d = check_diagnostics(ms.msg_to_json(msg, ("node", "trial")))
             name, k = d["node"], d["trial"]
+            if name == "virtual_leader":
+                # the leader's own word (its watchdog's findings too, before trial 0 and
+                # after it un-commits a trial): the launcher prints it
+                self.diagnostics[name] = d
+                return
             if k > self.slots.started:
                 raise Rejected("future", f"{name[:100]} diagnostics of trial {k}, slot "
                                          f"{self.slots.started} started")

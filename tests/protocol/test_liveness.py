@@ -105,7 +105,7 @@ def test_the_wait_is_explained_node_by_node():
     assert s.explain_wait()[0] == "robot_2 has not answered seq 1 (its last ready saw seq -1)"
 
 
-def test_the_watchdog_bounds_each_phase_and_gives_up_after_its_retries():
+def test_the_watchdog_reports_first_then_acts_then_gives_up():
     b = Bounds.for_run(dt=0.1, nodes=7, mode="lockstep", timeout=30.0)
     assert (b.startup, b.ready, b.sample) == (74.0, 33.5, 40.0)
     assert Bounds.for_run(0.5, 7, "realtime", 30.0).sample == 10.0
@@ -113,13 +113,25 @@ def test_the_watchdog_bounds_each_phase_and_gives_up_after_its_retries():
     w = Watchdog(b, retries=2)
     w.moved(0.0, SAMPLE, progress=False)
     assert not w.expired(40.0, SAMPLE)
-    assert w.expired(40.5, SAMPLE) and w.strikes == 1 and not w.gave_up
-    w.moved(41.0, READY, progress=False)  # the watchdog's own abort is no progress
-    assert w.expired(75.0, READY) and w.strikes == 2 and not w.gave_up
-    assert not w.expired(75.5, STARTUP)       # another phase starts its own clock
-    assert w.expired(150.0, STARTUP) and w.gave_up
-    w.moved(151.0, SAMPLE)                    # a real sample clears the strikes
+    assert w.expired(40.5, SAMPLE) and w.strikes == 1 and not w.acting  # reports only
+    assert w.expired(81.0, SAMPLE) and w.acting and not w.gave_up     # re-runs
+    w.moved(81.5, READY, progress=False)  # the watchdog's own abort is no progress
+    assert w.expired(115.5, READY) and w.strikes == 3 and not w.gave_up
+    assert not w.expired(116.0, STARTUP)      # another phase starts its own clock
+    assert w.expired(191.0, STARTUP) and w.gave_up
+    w.moved(192.0, SAMPLE)                    # a real sample clears the strikes
     assert w.strikes == 0 and not w.gave_up
+
+
+def test_a_bound_grows_with_the_runs_own_pace():
+    """On a loaded machine every wait is long: a phase that once took 20 s without a strike
+    gets 4 x 20 s before the next wait of it counts as stuck."""
+    w = Watchdog(Bounds.for_run(dt=0.1, nodes=3, mode="lockstep", timeout=5.0))
+    assert w.bound(SAMPLE) == 15.0
+    w.moved(0.0, SAMPLE)
+    w.moved(12.0, SAMPLE)     # a slow sample, no strike: 12 s
+    assert w.bound(SAMPLE) == 48.0
+    assert not w.expired(12.0 + 40.0, SAMPLE)
 
 
 # --------------------------------------------------------------------------- resume
