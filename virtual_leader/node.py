@@ -29,6 +29,8 @@ state_dir : str
 run_id : str
     Identity of the run, carried in the configuration: nodes of another run on the same
     domain and namespace are refused (see ``formation-ilc launch``).
+watchdog_scale : float
+    Every bound of the leader's watchdog times this (default 1.0; see below).
 
 The leader publishes the configuration on ``config`` (latched), waits until every node has
 reported ready for trial k, publishes ``start`` k on ``leader/trial_events``, then follows
@@ -42,6 +44,15 @@ What it accepts (the rest is dropped and counted, with the reason, in its own
 ``diagnostics`` at each trial's end): ready messages from the nodes it waits for, for a
 trial no later than the next one (the monitor and the recorder say ready once for the whole
 run); ``/clock`` of the trial it started, in order (lockstep: sample by sample).
+
+Liveness (``formation_ilc.protocol.watchdog``): each phase (start-up, readies between
+trials, the plant's samples) has a bound derived from dT, the number of nodes and the
+lockstep ``timeout``. Past it the leader names whom it waits for and why (log, stderr, and
+its diagnostics, which the launcher prints); past it again it re-runs (aborts a slot
+without samples, reads the readies anew); after 3 re-runs without progress it stops with
+status 4. A start or abort on its topic that it did not send, or a ready that saw a ``seq``
+it never gave out, makes it re-assert its schedule with a newer ``seq`` (the slot is
+aborted and its iteration runs again).
 
 Wall-clock trials (``mode: wallclock``, real robots behind bridges; no node publishes
 ``/clock``): the ``start`` event carries ``start_wall_ns``, the wall time (Unix epoch, ns)
@@ -97,6 +108,7 @@ class LeaderNode(Node):
         self.declare_parameter("start_margin", 1.0)
         self.declare_parameter("nodes_expected", Parameter.Type.STRING_ARRAY)
         self.declare_parameter("state_dir", "")
+        self.declare_parameter("watchdog_scale", 1.0)
         g = lambda name: self.get_parameter(name).value  # noqa: E731
         _check_parameters(g)
         self.cfg = RunConfig.from_params({name: g(name) for name in PARAMS})
@@ -127,7 +139,8 @@ class LeaderNode(Node):
         self.refused: dict[str, str] = {}
         self.watch_reports = 0
         self.watchdog = Watchdog(Bounds.for_run(sc.dt, len(self.expected), self.cfg.mode,
-                                               self.cfg.timeout))
+                                               self.cfg.timeout,
+                                               float(g("watchdog_scale"))))
         self.done_sent = False
         self._abort_sent = 0.0
         self._born = time.monotonic()
@@ -335,9 +348,10 @@ class LeaderNode(Node):
 
     def _phase(self) -> str:
         s = self.sched
-        if s.running and self.t >= 0:
-            return SAMPLE
-        # until the plant's first sample of a slot, it is starting the trial: like a ready
+        if s.running:
+            # until the plant's first sample of a slot it is starting the trial, which
+            # may load its kernels first (measured: 76 s under a load of 33 on 2 cores)
+            return SAMPLE if self.t >= 0 else STARTUP
         return STARTUP if s.slot < 0 and s.abort_pending is None else READY
 
     def _on_watchdog(self) -> None:
@@ -450,7 +464,7 @@ def _check_parameters(g: Any) -> None:
                          f"1 (0 keeps the scenario's)")
     if int(g("gap")) < 1:
         raise ValueError(f"parameter gap: {g('gap')}: at least 1 sample between trials")
-    for name in ("timeout", "start_margin"):
+    for name in ("timeout", "start_margin", "watchdog_scale"):
         v = float(g(name))
         if not (v > 0 and v < 1e6):
             raise ValueError(f"parameter {name}: {v}: a time in seconds > 0 is required")

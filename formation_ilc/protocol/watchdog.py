@@ -8,7 +8,8 @@ This module holds, without ROS, the bounds of every phase and the decision the l
 (and, as a backstop, the launcher) takes when a bound passes:
 
 * **start-up** (before the first trial: processes start, load the compiled kernels, and
-  discover each other): ``STARTUP_S + STARTUP_PER_NODE_S`` per node;
+  discover each other; and from a slot's start to the plant's first sample of it, which
+  may load kernels too): ``STARTUP_S + STARTUP_PER_NODE_S`` per node;
 * **ready** (between trials: a trial's trajectories exchanged, every robot learned, every
   node said ready; or an abort answered; a restarted node comes back): ``READY_S +
   READY_PER_NODE_S`` per node;
@@ -61,14 +62,17 @@ class Bounds:
     sample: float
 
     @classmethod
-    def for_run(cls, dt: float, nodes: int, mode: str, timeout: float) -> Bounds:
+    def for_run(cls, dt: float, nodes: int, mode: str, timeout: float,
+                scale: float = 1.0) -> Bounds:
         """Bounds of a run with ``nodes`` nodes waited for, sample time ``dt`` [s], in
         ``mode`` ('lockstep', 'realtime', 'wallclock'), whose plant waits ``timeout`` [s]
-        for a robot's command in lockstep."""
+        for a robot's command in lockstep; every bound times ``scale`` (``launch
+        --watchdog-scale``: larger on a machine known to be slow, smaller to detect a
+        stuck run sooner)."""
         sample = (timeout + SAMPLE_MARGIN_S if mode == "lockstep"
                   else max(SAMPLE_MIN_S, SAMPLE_DTS * dt))
-        return cls(STARTUP_S + STARTUP_PER_NODE_S * nodes,
-                   READY_S + READY_PER_NODE_S * nodes, sample)
+        return cls(scale * (STARTUP_S + STARTUP_PER_NODE_S * nodes),
+                   scale * (READY_S + READY_PER_NODE_S * nodes), scale * sample)
 
     def of(self, phase: str) -> float:
         return {STARTUP: self.startup, READY: self.ready, SAMPLE: self.sample}[phase]
