@@ -367,16 +367,19 @@ class LeaderNode(Node):
             return
         wd = self.watchdog
         bound = wd.bound(phase)
+        waited = wd.waited(now)
         if phase == SAMPLE:
             who = ("the plant's /clock" if self.cfg.mode != "wallclock"
                    else "the leader's wall timer")
-            what = (f"trial {s.committed} (slot {s.slot}) has had no sample for "
-                    f"{bound:.0f} s (last sample {self.t}): waiting for {who}")
+            what = (f"trial {s.committed} (slot {s.slot}) has had no new sample for "
+                    f"{bound:.0f} s (last sample {self.t}; no progress for {waited:.0f} s): "
+                    f"waiting for {who}")
         else:
             late = s.explain_wait(self.refused)
             if s.running:
                 late = [f"the plant's first sample of slot {s.slot}"]
-            what = (f"trial {s.committed} has waited {bound:.0f} s in {phase} for: "
+            what = (f"trial {s.committed} has waited {waited:.0f} s in {phase} (bound "
+                    f"{bound:.0f} s) for: "
                     + "; ".join(late or ["nobody (its readers: the monitor, recorder)"]))
         if wd.gave_up:
             self._report(what, "giving up")

@@ -77,7 +77,8 @@ class MonitorNode(Node):
         self._gate = self.create_timer(0.05, self._check_ready)
         self.create_subscription(String, ms.DIAGNOSTICS, self._on_diag, ms.LATCHED_READER_QOS)
         self.create_subscription(String, ms.READY, self._on_ready, ms.LATCHED_READER_QOS)
-        self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
+        self.events_sub = self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event,
+                                                   ms.SAMPLE_QOS)
 
     def _check_ready(self) -> None:
         if all(s.get_publisher_count() >= 1 for s in self.path_subs) and \
@@ -108,6 +109,10 @@ class MonitorNode(Node):
             return
         if r.node in self.readies or len(self.readies) < 256:  # a flood of names: bounded
             self.readies[r.node] = r
+
+    def leader_present(self) -> bool:
+        """Whether a writer of the trial events (the leader) has been discovered."""
+        return bool(self.events_sub.get_publisher_count() >= 1)
 
     def _on_traj(self, msg: Path, r: int, true: bool) -> None:
         topic = (ms.true_trajectory_topic if true else ms.trajectory_topic)(r + 1)

@@ -100,6 +100,10 @@ class Watchdog:
     phase: str = STARTUP
     strikes: int = 0
     longest: dict[str, float] = field(default_factory=dict)
+    #: moved() has been called: ``since`` is a time of this run
+    running: bool = False
+    #: when the run last made progress (a sample, a commit), or None before the first call
+    progress_at: float | None = None
 
     def bound(self, phase: str) -> float:
         """[s] the bound of ``phase``: its static bound, or SLACK times the longest wait
@@ -110,16 +114,19 @@ class Watchdog:
         """The run moved at ``now`` and is in ``phase``. ``progress``: a real step (a
         sample, a commit) that also clears the strikes; a retry of the watchdog's own
         making is not one."""
-        if self.strikes == 0:
+        if self.strikes == 0 and self.running:
             self.longest[self.phase] = max(self.longest.get(self.phase, 0.0),
                                            now - self.since)
+        self.running = True
         self.since = now
         self.phase = phase
-        if progress:
+        if progress or self.progress_at is None:
             self.strikes = 0
+            self.progress_at = now
 
     def waited(self, now: float) -> float:
-        return now - self.since
+        """[s] since the run last made progress."""
+        return now - (self.since if self.progress_at is None else self.progress_at)
 
     def expired(self, now: float, phase: str) -> bool:
         """Whether ``phase`` has waited past its bound (then counted as one strike and the

@@ -128,6 +128,8 @@ def test_a_bound_grows_with_the_runs_own_pace():
     gets 4 x 20 s before the next wait of it counts as stuck."""
     w = Watchdog(Bounds.for_run(dt=0.1, nodes=3, mode="lockstep", timeout=5.0))
     assert w.bound(SAMPLE) == 15.0
+    w.moved(5000.0, SAMPLE)   # the first call starts the clock (a monotonic time)
+    assert w.bound(SAMPLE) == 15.0
     w.moved(0.0, SAMPLE)
     w.moved(12.0, SAMPLE)     # a slow sample, no strike: 12 s
     assert w.bound(SAMPLE) == 48.0
