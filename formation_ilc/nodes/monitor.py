@@ -59,13 +59,14 @@ class MonitorNode(Node):
         self.events: list[dict[str, Any]] = []
         self.path_subs = []
         for r in range(n):
+            # raw: a trajectory longer than a trial is refused before it is deserialized
             self.path_subs.append(self.create_subscription(
                 Path, ms.trajectory_topic(r + 1), lambda m, r=r: self._on_traj(m, r, False),
-                ms.TRAJECTORY_QOS))
+                ms.TRAJECTORY_QOS, raw=True))
             if true_state:
                 self.path_subs.append(self.create_subscription(
                     Path, ms.true_trajectory_topic(r + 1),
-                    lambda m, r=r: self._on_traj(m, r, True), ms.TRAJECTORY_QOS))
+                    lambda m, r=r: self._on_traj(m, r, True), ms.TRAJECTORY_QOS, raw=True))
         # the schedule waits for the monitor too ("monitor" in the leader's nodes_expected):
         # a writer's match count cannot tell a monitor from a recorder, and a monitor matched
         # after trial 1 would miss trial 0 (trajectories are latched 2 deep)
@@ -114,9 +115,10 @@ class MonitorNode(Node):
         """Whether a writer of the trial events (the leader) has been discovered."""
         return bool(self.events_sub.get_publisher_count() >= 1)
 
-    def _on_traj(self, msg: Path, r: int, true: bool) -> None:
+    def _on_traj(self, data: bytes | Path, r: int, true: bool) -> None:
         topic = (ms.true_trajectory_topic if true else ms.trajectory_topic)(r + 1)
         try:
+            msg = ms.path_from_raw(data, self.pb.samples + 1, "trajectory")
             eta, stamps, frame = ms.path_to_trajectory(msg, self.pb.eta_d[r, :, 2])
             if frame != ms.WORLD_FRAME:
                 raise ms.MalformedMessage(f"trajectory in frame {frame[:50]!r}")
