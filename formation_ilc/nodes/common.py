@@ -27,7 +27,7 @@ from formation_ilc.config.runconfig import RunConfig, make_config
 from formation_ilc.core.clock import REASONS, Rejected
 from formation_ilc.model.simulate import Problem
 from formation_ilc.protocol.schedule import Follower, Ready, TrialEvent
-from formation_ilc.system.exits import DISK_FULL, is_disk_full
+from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, is_disk_full
 from formation_ilc.system.lifetime import PARENT_ENV, bound_the_stop, die_with_parent, parent_gone
 
 __all__ = ["PARENT_ENV", "DROP_REASONS", "DropCounter", "RunConfig", "make_config",
@@ -41,8 +41,6 @@ RUN_ENV = "FORMATION_ILC_RUN_ID"
 
 #: reasons a message is dropped (the diagnostics counters)
 DROP_REASONS = REASONS
-#: what a node's last line says when the disk is full (the launcher looks for it)
-DISK_FULL_TAG = "disk full"
 
 
 def config_from_msg(msg: String, drops: DropCounter) -> RunConfig | None:

@@ -9,7 +9,8 @@ row of ``metrics.csv`` is rewritten or a node started, :func:`resume_point` read
 
 * every robot has learned ``committed`` iterations, or one more from the slot the leader
   left open (that step is rolled back by the abort the restarted leader sends);
-* no robot is missing its file once the team has learned anything;
+* no robot is missing its file once the team has learned anything (and the run is not
+  over: a finished run resumes to nothing, but the files that are there must agree);
 * robot files without a leader file: refused (the leader's file is written before any
   robot learns).
 
@@ -75,7 +76,7 @@ def resume_point(state_dir: Path, sc: Scenario) -> ResumePoint:
         path = state_path(state_dir, i)
         r = robots.get(i)
         if r is None:
-            if c > 0:
+            if 0 < c < sc.trials:  # a finished run needs no robot to resume
                 raise ResumeError(f"{path}: missing, but {leader} says the team has learned "
                                   f"{c} trials: this robot's memory is gone")
             continue

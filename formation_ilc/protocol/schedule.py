@@ -245,8 +245,8 @@ def read_state(path: Path, trials: int) -> dict[str, Any] | None:
     ScheduleError naming the file and the cause when it is not a regular file of at most
     STATE_LIMIT bytes (read without waiting on a FIFO, never a device read whole), not the
     JSON object the leader writes, or holds counters no run of ``trials`` trials can have
-    written: ``0 <= committed <= trials``, ``committed <= slot + 1`` (every learned
-    iteration ran in a slot), ``seq >= slot`` (every slot's start took a seq)."""
+    written: ``0 <= committed <= trials``, ``seq >= slot`` (every slot's start took a
+    seq)."""
     try:
         raw = read_bounded(path, STATE_LIMIT, "a leader state file")
     except StateFileError as exc:
@@ -274,8 +274,6 @@ def read_state(path: Path, trials: int) -> dict[str, Any] | None:
            if not 0 <= c <= trials else
            f"slot {q} is out of range" if not -1 <= q < MAX_COUNT else
            f"seq {seq} is out of range" if not -1 <= seq < (1 << 63) else
-           f"committed {c} trials but slot {q}: every learned trial ran in a slot"
-           if c > q + 1 else
            f"seq {seq} below slot {q}: every slot's start took a seq" if seq < q else "")
     if why:
         raise ScheduleError(f"{path}: impossible schedule state: {why}")

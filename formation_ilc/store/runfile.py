@@ -19,7 +19,7 @@ from formation_ilc.store.atomic import atomic_write_text
 from formation_ilc.store.bounded import StateFileError, read_bounded
 
 __all__ = ["RUN_FILE", "RUN_LIMIT", "RunFileError", "save_run", "load_run", "reroot",
-           "PATH_KEYS"]
+           "require", "PATH_KEYS"]
 
 RUN_FILE = "run.json"
 #: a run's options are a few dozen short values
@@ -75,18 +75,22 @@ def load_run(folder: Path) -> dict[str, Any] | None:
     try:
         d = json.loads(raw)
     except (ValueError, RecursionError) as exc:
-        raise RunFileError(f"{path}: not JSON: {str(exc)[:100]}") from None
+        raise RunFileError(f"{path}: unreadable: not JSON: {str(exc)[:100]}") from None
     if not isinstance(d, dict):
         raise RunFileError(f"{path}: expected a JSON object, got {type(d).__name__}")
     for key, types in _TYPES.items():
         if key in d and (not isinstance(d[key], types) or isinstance(d[key], bool)):
             raise RunFileError(f"{path}: {key}: {str(d[key])[:60]!r} is not a valid value")
-    for key in ("scenario", "out", "run_id"):
-        if key not in d:
-            raise RunFileError(f"{path}: {key} is missing")
     if d["trials"] < 1 if "trials" in d else False:
         raise RunFileError(f"{path}: trials: {d['trials']} (at least 1)")
     return reroot(d, Path(folder))
+
+
+def require(d: dict[str, Any], folder: Path) -> None:
+    """RunFileError naming the first option a run.json must hold and ``d`` lacks."""
+    for key in ("scenario", "run_id"):
+        if key not in d:
+            raise RunFileError(f"{Path(folder) / RUN_FILE}: {key} is missing")
 
 
 def reroot(d: dict[str, Any], folder: Path) -> dict[str, Any]:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import errno
 
 __all__ = ["OK", "CRASHED", "REFUSED", "FAILED", "STUCK", "DISK_FULL", "NO_RESTART",
-           "is_disk_full"]
+           "DISK_FULL_TAG", "is_disk_full"]
 
 OK = 0
 #: an exception escaped (Python's own status): restartable
@@ -25,6 +25,8 @@ STUCK = 4
 DISK_FULL = 5
 #: statuses a supervisor does not restart
 NO_RESTART = frozenset({REFUSED, STUCK, DISK_FULL})
+#: what a node's last line says when the disk is full (a supervisor looks for it)
+DISK_FULL_TAG = "disk full"
 
 
 def is_disk_full(exc: BaseException) -> bool:

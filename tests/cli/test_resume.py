@@ -5,7 +5,6 @@ metrics.csv untouched and no node started; a copied run folder resumes into itse
 
 from __future__ import annotations
 
-import argparse
 import json
 import resource
 import subprocess
@@ -106,20 +105,23 @@ def test_a_state_file_linked_to_dev_zero_is_never_read_whole(tmp_path, name):
 
 
 def test_a_copied_run_folder_resumes_into_itself(tmp_path):
-    from formation_ilc.cli.launch import _resume_args
+    """run.json keeps the recording's path relative to its folder: a copy of the folder
+    records (and keeps its state) in the copy, never in the original."""
+    import shutil
+
+    from formation_ilc.cli.commands import build_parser
+    from formation_ilc.cli.plan import build_plan
 
     out = run_folder(tmp_path, record=True)
     (out / "run.mcap").write_bytes(b"x")
     copy = tmp_path / "copy"
-    import shutil
-
     shutil.copytree(out, copy)
-    args = argparse.Namespace(resume=copy, scenario=None, max_restarts=3)
-    ns = _resume_args(args)
-    assert not isinstance(ns, str), ns
-    assert ns.out == copy and ns.record == copy / "run.resumed1.mcap"
-    assert ns.record_root_ == copy / "run.mcap"
+    plan = build_plan(build_parser().parse_args(["launch", "--resume", str(copy)]))
+    assert plan.out == copy.resolve() and plan.resumed_at == 3
+    assert plan.record == (copy / "run.resumed1.mcap").resolve()
+    assert plan.record_root == (copy / "run.mcap").resolve()
+    assert all(str(out) not in " ".join(spec.command) for spec in plan.nodes)
     # a run whose first recording was never written records into it on resume
     (copy / "run.mcap").unlink()
-    ns = _resume_args(args)
-    assert ns.record == copy / "run.mcap"
+    plan = build_plan(build_parser().parse_args(["launch", "--resume", str(copy)]))
+    assert plan.record == (copy / "run.mcap").resolve()

@@ -164,7 +164,8 @@ def test_a_consistent_state_resumes_at_its_committed_trial(tmp_path):
 @pytest.mark.parametrize("leader, robots, why", [
     ({"committed": 999, "slot": 999, "seq": 999, "open": False}, {},
      "committed 999 is not in 0..10"),
-    ({"committed": 3, "slot": 1, "seq": 4, "open": False}, {}, "every learned trial ran"),
+    ({"committed": 10, "slot": 9, "seq": 9, "open": False},
+     {1: robot(3, 2), 2: robot(3, 2), 3: robot(3, 2)}, "3 trials learned .* says 10"),
     ({"committed": 3, "slot": 3, "seq": 2, "open": False}, {}, "seq 2 below slot 3"),
     ({"committed": 3, "slot": 3, "seq": 4, "open": 1}, {}, "'open' must be true or false"),
     ({"committed": 1, "slot": 1, "seq": 1, "open": False},

@@ -16,7 +16,7 @@ from formation_ilc.config.scenario import load_scenario
 from formation_ilc.store.bounded import StateFileError, read_bounded
 from formation_ilc.store.memoryfile import MemoryFileError
 from formation_ilc.store.robotstate import RobotState, load_state, save_state
-from formation_ilc.store.runfile import RunFileError, load_run, reroot, save_run
+from formation_ilc.store.runfile import RunFileError, load_run, require, reroot, save_run
 
 SC = load_scenario("paper-triangle3")
 
@@ -128,7 +128,7 @@ def test_run_json_paths_into_the_folder_follow_the_folder(tmp_path):
 
 
 @pytest.mark.parametrize("text, why", [("[1]", "expected a JSON object"),
-                                       ("{", "not JSON"),
+                                       ("{", "unreadable: not JSON"),
                                        ('{"scenario": 5, "out": "x", "run_id": "r"}',
                                         "scenario: "),
                                        ('{"scenario": "s", "out": "x", "run_id": "r", '
@@ -139,5 +139,5 @@ def test_run_json_paths_into_the_folder_follow_the_folder(tmp_path):
 def test_a_bad_run_json_is_one_error_naming_the_field(tmp_path, text, why):
     (tmp_path / "run.json").write_text(text)
     with pytest.raises(RunFileError, match=why) as err:
-        load_run(tmp_path)
+        require(load_run(tmp_path), tmp_path)
     assert str(err.value).startswith(str(tmp_path / "run.json"))
