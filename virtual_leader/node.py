@@ -441,6 +441,11 @@ class LeaderNode(Node):
                                f"time of slot {k}, slot {self.sched.slot} "
                                f"{'runs' if self.sched.running else 'is over'}")
             if t == self.t:
+                if self.cfg.mode == "lockstep" and t < self.T:
+                    # the plant sent the sample again (a command still due after
+                    # RESEND_S): the reference of it again too, for a reader that lost it
+                    self.ref_pub.publish(ms.pose_to_msg(self.cfg.scenario.reference[t], ns,
+                                                        ms.WORLD_FRAME, self.ref_msg))
                 raise Rejected("duplicate", f"time of sample {t} again")
             if t < self.t:
                 raise Rejected("out_of_order", f"sample {t} after {self.t}")

@@ -226,12 +226,15 @@ class RobotNode(ConfiguredNode):
     # ------------------------------------------------------------------ per sample
     def _on_pose(self, msg: PoseStamped) -> None:
         lrn = self.learner
+        ns = -1
         try:
             ns = ms.stamp_to_ns(msg.header.stamp)
             eta, _ = ms.world_pose(msg, lrn.expected_heading(self.name, ns))
             ev = lrn.on_pose(ns, eta)
         except Rejected as exc:
             self.drops.reject(exc, "pose")
+            if lrn.is_repeat(ns):
+                self._repeat(msg)
             return
         if ev.last:
             if self.realtime:
@@ -242,6 +245,16 @@ class RobotNode(ConfiguredNode):
         if self.realtime:
             self._deadline.reset()
         self._maybe_command()
+
+    def _repeat(self, msg: PoseStamped) -> None:
+        """The plant sent the current sample again (lockstep; a command of it is still due):
+        send again what this robot sent for it, the same bits: its command if it has
+        commanded (the plant may have lost it), else its shared pose (the links may have
+        lost it)."""
+        if self.learner.commanded:
+            self.cmd_pub.publish(self.twist)
+        else:
+            self.shared_pub.publish(msg)
 
     def _on_link_pose(self, msg: PoseStamped, sender: str) -> None:
         topic = f"{sender}/shared_pose" if sender != LEADER else ms.REFERENCE
