@@ -248,12 +248,11 @@ class RobotNode(ConfiguredNode):
 
     def _repeat(self, msg: PoseStamped) -> None:
         """The plant sent the current sample again (lockstep; a command of it is still due):
-        send again what this robot sent for it, the same bits: its command if it has
-        commanded (the plant may have lost it), else its shared pose (the links may have
-        lost it)."""
-        if self.learner.commanded:
-            self.cmd_pub.publish(self.twist)
-        else:
+        while this robot has not commanded it, its shared pose goes out again, the same
+        bits (the links may have lost it). A command is never sent twice: ``cmd_vel`` carries
+        no label, and a second copy reaching the plant after it moved on would be taken as
+        the next sample's command."""
+        if not self.learner.commanded:
             self.shared_pub.publish(msg)
 
     def _on_link_pose(self, msg: PoseStamped, sender: str) -> None:

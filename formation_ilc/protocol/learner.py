@@ -144,8 +144,9 @@ class RobotLearner:
     def is_repeat(self, label_ns: int) -> bool:
         """Lockstep: whether a pose labelled ``label_ns`` is the current sample again (not
         the trial's last): the plant re-sent it because a command of it is still due, so
-        what this robot sent for it may have been lost (``protocol.plant.RESEND_S``). The
-        pose itself is refused all the same (``on_pose``: stale)."""
+        the shared pose this robot sent for it may have been lost
+        (``protocol.plant.RESEND_S``). The pose itself is refused all the same (``on_pose``:
+        stale)."""
         if self.realtime or self.t < 0 or self.t >= self.T:
             return False
         try:

@@ -44,9 +44,10 @@ from formation_ilc.protocol.schedule import ABORT, Follower, TrialEvent
 __all__ = ["Sample", "KinematicPlant", "RESEND_S"]
 
 #: [s] lockstep: a sample whose commands are not all in this long after it went out goes
-#: out again (its /clock and every pose, bit for bit), and again every RESEND_S: a pose, a
-#: shared pose or a command lost (a flood that overran a reader's queue, a reader that
-#: matched after the sample went out) is recovered in seconds, well inside the time-out.
+#: out again (its /clock and every pose, bit for bit), and again every RESEND_S: a pose or
+#: a shared pose lost (a flood that overran a reader's queue, a reader that matched after
+#: the sample went out) is recovered in seconds, well inside the time-out. A lost command
+#: is not (cmd_vel carries no label: a robot never sends one twice) and still waits for it.
 #: Longer than a sample takes on a loaded machine (p99 120 ms at a load of 30 on 2 cores)
 RESEND_S = 2.0
 
