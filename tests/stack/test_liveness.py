@@ -6,6 +6,7 @@ run with one line naming the file and the resume command (status 5, no restarts)
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import time
@@ -225,3 +226,43 @@ def _rows(path: Path) -> int:
         return max(0, len(path.read_text().splitlines()) - 1)
     except OSError:
         return 0
+
+
+def test_a_stalled_robot_makes_the_plant_resend_and_the_run_stays_equal_to_batch(ros_env,
+                                                                              tmp_path):
+    """robot_2 is stopped (SIGSTOP) for longer than the plant's re-send interval in the
+    middle of a trial: the plant sends the sample again (more than once), the robot, once it
+    runs again, finds copies of its current sample in its queue and commands once; the run
+    is equal to batch (a re-sent sample never changes what a robot learns)."""
+    import signal
+
+    from formation_ilc.protocol.plant import RESEND_S
+
+    from ..procs import find_child
+
+    proc = launch(ros_env, tmp_path, "paper-triangle3", "--trials", str(TRIALS), "--seed",
+                  str(SEED))
+    try:
+        deadline = time.monotonic() + 600
+        while _rows(tmp_path / "metrics.csv") < 2:
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.05)  # polling a file, bounded by the deadline
+        victim = find_child(ros_env["ROS_DOMAIN_ID"], "robot_id:=2", time.monotonic() + 10)
+        os.kill(victim, signal.SIGSTOP)
+        stopped = time.monotonic()
+        try:
+            # the plant's re-sends come every RESEND_S while the robot is stopped
+            while time.monotonic() - stopped < 3 * RESEND_S:
+                time.sleep(0.1)  # a stop of a known length, not a wait for a result
+        finally:
+            os.kill(victim, signal.SIGCONT)
+        out, err = proc.communicate(timeout=600)
+    finally:
+        stop_group(proc)
+    assert proc.returncode == 0, out + err
+    got = read_metrics(tmp_path / "metrics.csv")
+    np.testing.assert_allclose(got[:, 1:], batch()[:, 1:], rtol=0, atol=TOL)
+    diag = json.loads((tmp_path / "diagnostics.json").read_text())
+    assert diag["robot_sim"]["resends"] >= 2, diag["robot_sim"]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["restarts"] == {}
