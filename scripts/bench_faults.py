@@ -170,16 +170,24 @@ def stuck(trials: int, domain: int, out: Path, after: int, scale: float) -> dict
         pid = None
         while pid is None:
             pid = find(domain, "-m robot_sim.node")
-        time.sleep(0.5)  # inside the next trial
+        time.sleep(0.5)  # inside the next trial, most often
         os.kill(pid, signal.SIGSTOP)
         t_stop = time.monotonic()
-        while not any(t > t_stop and "no new sample" in ln for t, ln in lines):
+
+        def findings() -> list[tuple[float, str]]:
+            return [(t, ln) for t, ln in lines if t > t_stop and ln.startswith("virtual_leader:")]
+
+        while not findings():
             if proc.poll() is not None or time.monotonic() - t_stop > 600:
                 break
             time.sleep(0.05)
-        found = [t for t, ln in lines if t > t_stop and "no new sample" in ln]
-        res["detect_s"] = found[0] - t_stop if found else float("nan")
-        os.kill(pid, signal.SIGCONT)
+        found = findings()
+        res["detect_s"] = found[0][0] - t_stop if found else float("nan")
+        res["finding"] = found[0][1] if found else ""
+        try:
+            os.kill(pid, signal.SIGCONT)
+        except ProcessLookupError:
+            pass  # the run stopped it already
         proc.wait(timeout=900)
     finally:
         if proc.poll() is None:
@@ -284,7 +292,7 @@ def liveness(a: argparse.Namespace, domain: int) -> None:
         r = stuck(a.trials, domain, Path(tmp) / "stuck", a.after, a.scale)
         print(f"{r['case']}: first finding {r['detect_s']:.1f} s after SIGSTOP; after SIGCONT "
               f"status {r['status']}, {r['trials']} trials, max |run - batch| "
-              f"{r['max_diff']:.3g}", flush=True)
+              f"{r['max_diff']:.3g}\n  {r['finding']}", flush=True)
         r = forged_abort(a.trials, domain + 1, Path(tmp) / "forged", a.after)
         print(f"{r['case']}: next trial row {r['recover_s']:.2f} s after it; status "
               f"{r['status']}, {r['trials']} trials, max |run - batch| {r['max_diff']:.3g}",
