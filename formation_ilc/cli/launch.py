@@ -18,6 +18,13 @@ it; `launch --resume DIR` continues an interrupted run. Before anything starts, 
 launcher refuses to join a ROS domain and namespace where another formation already runs
 (docs/reliability.md).
 
+Liveness and honest outcomes: the leader's watchdog names a phase that waits past its bound
+on this console, re-runs, then stops the run (status 4, with the resume command); a run
+whose recording lacks a trial fails (status 3); a full disk stops it (status 5, the file
+named, with the resume command); a resume is decided from validated state files before
+anything changes. Statuses: 0 whole, 1 a node failed, 2 refused, 3 recording incomplete,
+4 stuck, 5 disk full, 130 interrupted.
+
 Node entry points (also `ros2 run formation_ilc <exe>` on a full ROS 2 install):
   formation-ilc-leader  virtual leader: --ros-args -p scenario:=NAME [-p trials:=K ...]
   formation-ilc-sim     kinematic simulator, the plant (config from the config topic)
