@@ -62,7 +62,7 @@ from formation_ilc.nodes.common import (
     spin_main,
     warm_up,
 )
-from formation_ilc.protocol.plant import KinematicPlant
+from formation_ilc.protocol.plant import RESEND_S, KinematicPlant
 
 #: the plant's node name (what it says ready as)
 NAME = ms.SIM_NODE
@@ -104,6 +104,7 @@ class SimNode(ConfiguredNode):
             self._tick.cancel()
         else:
             self.create_timer(min(1.0, self.timeout / 4), self._watchdog)
+            self.create_timer(RESEND_S / 4, self._resend)
 
     def _check_ready(self) -> None:
         need = [(p, 1) for p in self.pose_pubs] + [(self.clock_pub, 1), (self.ready_pub, 1)]
@@ -172,6 +173,18 @@ class SimNode(ConfiguredNode):
             self._tick.cancel()
             return
         self._publish_sample()
+
+    def _resend(self) -> None:
+        """Lockstep: the current sample again (its /clock, every pose) when a command is
+        still due RESEND_S after it went out (protocol.plant): what a lost message held
+        comes back without waiting for the time-out."""
+        if not self.plant.resend_due(time.perf_counter()):
+            return
+        s = self.plant.sample()
+        self.clock_pub.publish(ms.clock_msg(s.stamp_ns))
+        for r in range(self.plant.n):
+            self.pose_pubs[r].publish(ms.pose_to_msg(s.eta[r], s.stamp_ns, ms.WORLD_FRAME,
+                                                     self.pose_msgs[r]))
 
     def _watchdog(self) -> None:
         late = self.plant.overdue(time.perf_counter(), self.timeout)

@@ -278,7 +278,10 @@ def _add_analyze(sub: Any) -> None:
                                    "and report.html (one page to read at a glance). A file "
                                    "cut short by a crash is read up to the cut. A file "
                                    "damaged in the middle is read past the damage; what was "
-                                   "lost is reported and the exit status is 1. A run "
+                                   "lost is reported and the exit status is 1. When a "
+                                   "trial of the run is not complete in the files, the "
+                                   "run is not whole: the trials are named and the exit "
+                                   "status is 3 (1 if also damaged). A run "
                                    "whose recorder was restarted, or that was resumed, "
                                    "left more files next to RUN.mcap (RUN.part1.mcap, "
                                    "RUN.resumed1.mcap, ...): they are read with it, in "
@@ -519,7 +522,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
         try:
             args.record.parent.mkdir(parents=True, exist_ok=True)
-            recorder = SimRecorder(args.record, sc, sample_trials=set(keep))
+            recorder = SimRecorder(args.record, sc, sample_trials=set(keep), first_trial=first)
         except OSError as exc:
             log.close()
             raise OptionError(f"--record {args.record}: cannot write: "
@@ -849,15 +852,22 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_sweep(args)
         if args.command == "analyze":
             from formation_ilc.cli.analyze import analyze
-            from formation_ilc.recordings.recording import recording_parts
+            from formation_ilc.recordings.recording import recording_parts, root_of
 
-            _regular_file(args.recording)
-            out = make_out_dir(args.out or args.recording.with_name(args.recording.stem
-                                                                    + "-analysis"))
             files = ([args.recording] if args.only_this_file
                      else recording_parts(args.recording))
-            for f in files[1:]:
+            for f in files:
                 _regular_file(f)
+            if files[0] != args.recording:
+                print(f"note: {args.recording} does not exist; the run's files are "
+                      f"{', '.join(f.name for f in files)}", file=sys.stderr)
+            root = root_of(args.recording)
+            if root != args.recording and not args.only_this_file:
+                print(f"note: {args.recording.name} is one part of the run recorded in "
+                      f"{root.name}: `formation-ilc analyze {root}` reads every part",
+                      file=sys.stderr)
+            out = make_out_dir(args.out or args.recording.with_name(args.recording.stem
+                                                                    + "-analysis"))
             try:
                 return analyze(files, out, plots=not args.no_plots)
             except ValueError as exc:  # not a recording, or not one of ours

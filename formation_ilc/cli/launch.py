@@ -18,6 +18,13 @@ it; `launch --resume DIR` continues an interrupted run. Before anything starts, 
 launcher refuses to join a ROS domain and namespace where another formation already runs
 (docs/reliability.md).
 
+Liveness and honest outcomes: the leader's watchdog names a phase that waits past its bound
+on this console, re-runs, then stops the run (status 4, with the resume command); a run
+whose recording lacks a trial fails (status 3); a full disk stops it (status 5, the file
+named, with the resume command); a resume is decided from validated state files before
+anything changes. Statuses: 0 whole, 1 a node failed, 2 refused, 3 recording incomplete,
+4 stuck, 5 disk full, 130 interrupted.
+
 Node entry points (also `ros2 run formation_ilc <exe>` on a full ROS 2 install):
   formation-ilc-leader  virtual leader: --ros-args -p scenario:=NAME [-p trials:=K ...]
   formation-ilc-sim     kinematic simulator, the plant (config from the config topic)
@@ -34,7 +41,6 @@ every robot starts from its row of a memory learned by `formation-ilc simulate`.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import signal
 import sys
@@ -52,11 +58,19 @@ from formation_ilc.cli.options import (
     output_file_arg,
     positive_float,
 )
-from formation_ilc.cli.plan import RUN_FILE, NodeSpec, NoRun, RunPlan, build_plan, finished
-from formation_ilc.cli.supervisor import Stack, Supervisor
+from formation_ilc.cli.plan import NodeSpec, NoRun, RunPlan, build_plan, finished
+from formation_ilc.cli.supervisor import (
+    Stack,
+    Supervisor,
+    disk_full_line,
+    metrics_rows,
+    resume_hint,
+)
 from formation_ilc.config.runconfig import MODES
 from formation_ilc.config.team import PLANTS
 from formation_ilc.core.links import LINK_MODES
+from formation_ilc.protocol.watchdog import Bounds
+from formation_ilc.system.exits import DISK_FULL, STUCK, is_disk_full
 
 __all__ = ["add_arguments", "run", "execute", "Stack"]
 
@@ -122,6 +136,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "inherit: keep the caller's discovery settings (multi-host runs)")
     p.add_argument("--timeout", type=positive_float, default=30.0, metavar="S",
                    help="lockstep: give up when a robot has not commanded for S seconds")
+    p.add_argument("--watchdog-scale", type=positive_float, default=1.0, metavar="F",
+                   help="every bound of the liveness watchdog times F (default 1): a phase "
+                        "that waits past its bound (start-up, readies, samples; derived from "
+                        "dT and the team size) is reported, then re-run, then the run stops "
+                        "naming the cause (docs/reliability.md)")
     p.add_argument("--no-plots", action="store_true", help="write no figures")
     p.add_argument("--resume", type=Path, metavar="DIR",
                    help="continue the interrupted run whose output folder is DIR, with its "
@@ -206,15 +225,56 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
         # the shared-memory files of nodes killed during the run, and older leftovers
         clean_leftovers(fastdds_files() - shm_before)
         clean_leftovers(min_age=2.0)
+    if status == 0 and plan.record_root is not None:
+        status = check_recording(plan.record_root, plan.scenario.trials)
     return write_report(plan, session.rows(), session.diagnostics,
                         session.supervisor.restarts, time.monotonic() - session.t_start,
                         status)
 
 
-def _save_run(out: Path, options: Any) -> None:
-    from formation_ilc.store.atomic import atomic_write_text
+def check_recording(root: Path, trials: int) -> int:
+    """0 when every trial of the run is complete in its recording (every part of it, read
+    as ``analyze`` reads it); else say which trials are missing and why, and return 3: a
+    run whose recording lost a trial has not succeeded."""
+    from formation_ilc.recordings.recording import (
+        RecordingError,
+        load_recording,
+        recording_parts,
+    )
 
-    atomic_write_text(out / RUN_FILE, json.dumps(dict(options), indent=2) + "\n")
+    parts = [p for p in recording_parts(root) if p.exists()]
+    try:
+        rec = load_recording(parts, keep=lambda k, n: False) if parts else None
+    except (RecordingError, OSError, ValueError) as exc:
+        print(f"error: the recording cannot be read back: {exc}", file=sys.stderr)
+        return INCOMPLETE
+    missing = list(range(trials)) if rec is None else rec.missing
+    if not missing:
+        return 0
+    names = ", ".join(p.name for p in parts) or f"{root.name} (never written)"
+    damaged = rec is not None and any(r.damaged for _, r in rec.parts)
+    why = ("the files are damaged" if damaged else
+           "no recorder had them: it was restarted or killed while they ran")
+    shown = ", ".join(map(str, missing[:20])) + (", ..." if len(missing) > 20 else "")
+    print(f"error: the run finished, but its recording lacks {len(missing)} of its {trials} "
+          f"trials ({shown}) in {names}: {why}; metrics.csv has them all "
+          f"(formation-ilc analyze {root} says the same)", file=sys.stderr)
+    return INCOMPLETE
+
+
+#: exit status of a run that finished but whose recording lacks trials
+INCOMPLETE = 3
+
+
+def _save_run(out: Path, options: Any) -> None:
+    """DIR/run.json: paths into the run's folder relative to it (a copied folder resumes
+    into itself), a scenario file by its absolute path (resumable from any folder)."""
+    from formation_ilc.store.runfile import save_run
+
+    d = dict(options)
+    if isinstance(d.get("scenario"), str) and Path(d["scenario"]).is_file():
+        d["scenario"] = str(Path(d["scenario"]).resolve())
+    save_run(out, d)
 
 
 def _node_env(plan: RunPlan) -> dict[str, str]:
@@ -230,6 +290,68 @@ def _node_env(plan: RunPlan) -> dict[str, str]:
     env[PARENT_ENV] = str(os.getpid())  # every node ends with this launcher
     env[RUN_ENV] = plan.config.run_id  # and takes only this run's configuration
     return env
+
+
+def _rewrite_metrics(path: Path, kept: list[Any]) -> None:
+    """metrics.csv with only the rows ``kept``, written atomically."""
+    import csv
+
+    from formation_ilc.core.metrics import METRIC_COLUMNS, format_row
+    from formation_ilc.store.atomic import atomic_open
+
+    with atomic_open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(METRIC_COLUMNS)
+        for r in kept:
+            w.writerow(format_row(np.asarray(r, dtype=float)))
+
+
+class Watch:
+    """The launcher's side of liveness: it prints the leader's watchdog findings on the
+    console (they arrive in the leader's diagnostics), and, as a backstop for a leader
+    that cannot report (it never started, hung, or went silent), gives up when nothing at
+    all has moved (no trial event, row, or report) for the longest bound times
+    (RETRIES + 3): by then the leader's own watchdog has reported, retried and stopped
+    (``formation_ilc.protocol.watchdog``). Until the leader's events writer shows up, the
+    bound is twice the unscaled start-up bound (starting processes is as slow as the
+    machine, whatever the scale)."""
+
+    def __init__(self, bounds: Any, out: Path, nodes: int):
+        from formation_ilc.protocol.watchdog import RETRIES, STARTUP_PER_NODE_S, STARTUP_S
+
+        self.limit = max(bounds.startup, bounds.ready, bounds.sample) * (RETRIES + 3)
+        self.first = 2 * (STARTUP_S + STARTUP_PER_NODE_S * nodes)
+        self.out = out
+        self.seen = 0
+        self.mark: tuple[int, int, int] = (-1, -1, -1)
+        self.since = time.monotonic()
+        self.leader = False
+
+    def tick(self, monitor: Any, now: float) -> str | None:
+        """Print a new finding of the leader's; why the run is given up, or None."""
+        from formation_ilc.core.names import LEADER_NODE
+
+        report = monitor.diagnostics.get(LEADER_NODE, {}).get("watchdog") or {}
+        count = report.get("count", 0)
+        if count > self.seen:
+            self.seen = count
+            text = "".join(c if c.isprintable() else "?" for c in str(report.get("what")))
+            print(f"{LEADER_NODE}: {text[:1000]}", flush=True)
+        if not self.leader and monitor.leader_present():
+            self.leader, self.since = True, now  # its own watchdog runs from here
+        mark = (len(monitor.events), len(monitor.rows), count)
+        if mark != self.mark:
+            self.mark, self.since = mark, now
+            return None
+        limit = self.limit if self.leader else self.first
+        if now - self.since <= limit:
+            return None
+        who = ("no word from the leader's watchdog" if self.leader
+               else "the leader has not started")
+        return (f"no progress for {limit:.0f} s and {who} (last events: "
+                f"{[e.get('event') for e in monitor.events[-3:]]}); "
+                f"{len(metrics_rows(self.out))} trials are in metrics.csv; to go on: "
+                f"{resume_hint(self.out)}")
 
 
 class _Refused(Exception):
@@ -270,16 +392,18 @@ class _Session:
         out, done = self.plan.out, self.done
         if not done:
             return [], MetricsWriter(out / "metrics.csv")
-        try:
-            kept = [r for r in read_metrics(out / "metrics.csv") if int(r[0]) < done]
-        except (OSError, ValueError):
-            kept = []
-        writer = MetricsWriter(out / "metrics.csv")
-        for r in kept:
-            writer.write(np.asarray(r, dtype=float))
+        path = out / "metrics.csv"
+        # the plan read it already (a damaged file refuses the resume): keep the learned
+        # trials' rows, rewritten atomically (a crash leaves the old file or the new one)
+        kept = [r for r in read_metrics(path) if int(r[0]) < done] if path.exists() else []
+        _rewrite_metrics(path, kept)
+        lost = sorted(set(range(done)) - {int(r[0]) for r in kept})
         print(f"resuming {out}: {done} of {self.plan.scenario.trials} trials learned; run "
-              f"{self.plan.config.run_id}", flush=True)
-        return kept, writer
+              f"{self.plan.config.run_id}"
+              + (f" (metrics.csv lacks the rows of learned trial(s) "
+                 f"{', '.join(map(str, lost))}: the launcher stopped before it wrote them)"
+                 if lost else ""), flush=True)
+        return kept, MetricsWriter(path, append=True)
 
     def rows(self) -> list[Any]:
         """Every finished trial's metrics row, by iteration (a resumed run's first)."""
@@ -330,6 +454,12 @@ class _Session:
             print("\ninterrupted: stopping every node; finished trials are in metrics.csv",
                   file=sys.stderr)
             status = 130
+        except OSError as exc:
+            if not is_disk_full(exc):
+                raise
+            print(f"error: {disk_full_line('the launcher', exc.filename, self.plan.out)}",
+                  file=sys.stderr)
+            status = DISK_FULL
         finally:
             self.supervisor.stop()
             self.writer.close()
@@ -362,8 +492,15 @@ class _Session:
         self._refuse_foreign(max(0.0, 1.5 - (time.monotonic() - t_node)))
         self.supervisor.start()
         final_deadline: float | None = None
+        watch = Watch(Bounds.for_run(plan.scenario.dt, len(plan.team.expected),
+                                     plan.config.mode, plan.config.timeout,
+                                     plan.watchdog_scale), plan.out, len(plan.team.expected))
         while True:
             ex.spin_once(timeout_sec=0.05)
+            stuck = watch.tick(monitor, time.monotonic())
+            if stuck is not None:
+                print(f"error: {stuck}", file=sys.stderr)
+                return STUCK
             if len(monitor.rows) == plan.scenario.trials - self.done:
                 # the last diagnostics come right after the last trajectories (bridges
                 # drive their robots back after the last trial too)

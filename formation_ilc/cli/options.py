@@ -18,7 +18,7 @@ from typing import NoReturn
 
 __all__ = ["OneLineParser", "int_range", "nonneg_int", "positive_int", "positive_float",
            "out_dir_arg", "output_file_arg", "make_out_dir", "OptionError", "MAX_TRIAL",
-           "add_run_options"]
+           "add_run_options", "special_path", "fs_type"]
 
 #: trial indices are stored as float64 in metrics rows: exact up to 2^53
 MAX_TRIAL = 2 ** 53
@@ -91,11 +91,61 @@ def _writable_ancestor(path: Path) -> str | None:
     return None
 
 
+#: kernel file systems: what is written there is no file on a disk (/dev/full fails every
+#: write, /proc and /sys hold the kernel's own controls)
+PSEUDO_FS = frozenset({"proc", "sysfs", "devtmpfs", "devpts", "cgroup", "cgroup2", "debugfs",
+                       "tracefs", "securityfs", "pstore", "bpf", "configfs", "fusectl",
+                       "mqueue", "efivarfs", "binfmt_misc", "autofs", "nsfs", "rpc_pipefs"})
+
+
+def fs_type(path: Path) -> str | None:
+    """The file system type that ``path`` (resolved; or its nearest existing ancestor) is
+    on, from /proc/self/mountinfo; None when that cannot be read."""
+    try:
+        with open("/proc/self/mountinfo", encoding="utf-8", errors="replace") as fh:
+            lines = fh.read(4 << 20).splitlines()
+    except OSError:
+        return None
+    p = Path(os.path.realpath(path))
+    best, kind = "", None
+    for line in lines:
+        left, _, right = line.partition(" - ")
+        fields, rest = left.split(), right.split()
+        if len(fields) < 5 or not rest:
+            continue
+        mount = fields[4].replace("\\040", " ")
+        if (p == Path(mount) or Path(mount) in p.parents) and len(mount) >= len(best):
+            best, kind = mount, rest[0]
+    return kind
+
+
+def special_path(path: Path, want: str) -> str | None:
+    """Why ``path`` cannot be an output (``want``: 'file' or 'folder'): an existing device,
+    FIFO or socket, or a place on a kernel file system (/proc, /sys, /dev); None if it
+    can be one."""
+    import stat
+
+    from formation_ilc.store.bounded import kind_of
+
+    try:
+        st = os.stat(path)
+    except OSError:
+        st = None
+    if st is not None and not (stat.S_ISREG(st.st_mode) or stat.S_ISDIR(st.st_mode)):
+        return f"is {kind_of(st.st_mode)}, not a regular {want}"
+    kind = fs_type(path)
+    if kind in PSEUDO_FS:
+        return (f"is on {kind}, a kernel file system, not a disk (nothing written there is "
+                f"kept as a {want})")
+    return None
+
+
 def out_dir_arg(text: str) -> Path:
     """An argparse type: a folder that exists or can be created (not a file)."""
     if not text.strip():
         raise argparse.ArgumentTypeError("empty folder name")
     path = Path(text)
+    # a folder on /proc or /sys cannot be made: make_out_dir says so when it tries
     why = _writable_ancestor(path)
     if why is not None:
         raise argparse.ArgumentTypeError(f"{text}: {why}")
@@ -103,13 +153,14 @@ def out_dir_arg(text: str) -> Path:
 
 
 def output_file_arg(text: str) -> Path:
-    """An argparse type: a file to write, in a folder that exists or can be created."""
+    """An argparse type: a regular file to write (not a device, a FIFO, a file of /proc),
+    in a folder that exists or can be created."""
     if not text.strip():
         raise argparse.ArgumentTypeError("empty file name")
     path = Path(text)
     if path.is_dir():
         raise argparse.ArgumentTypeError(f"{text}: is a folder, expected a file name")
-    why = _writable_ancestor(path.parent)
+    why = special_path(path, "file") or _writable_ancestor(path.parent)
     if why is not None:
         raise argparse.ArgumentTypeError(f"{text}: {why}")
     return path

@@ -13,7 +13,6 @@ execution (``formation_ilc.cli.hosts``). Nothing here needs ROS.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import uuid
@@ -39,11 +38,12 @@ from formation_ilc.core.names import (
     robots_process_name,
 )
 from formation_ilc.protocol.schedule import DONE
+from formation_ilc.system.exits import NO_RESTART as EXIT_NO_RESTART
 from formation_ilc.system.netns import LinkFaults
 
 __all__ = ["RUN_FILE", "NO_RESTART", "NoRun", "BridgeOptions", "RestartPolicy", "NodeSpec",
            "HostsPlan", "RunPlan", "build_plan", "effective_options", "node_specs",
-           "finished", "pick_domain"]
+           "finished", "pick_domain", "resumed_part"]
 
 #: the launch options a run is resumed with (DIR/run.json)
 RUN_FILE = "run.json"
@@ -99,7 +99,8 @@ class BridgeOptions:
 @dataclass(frozen=True)
 class RestartPolicy:
     """A node process that dies is started again at most ``max_restarts`` times, unless it
-    exited with ``refused`` (it refused its input: starting it again cannot help)."""
+    exited with ``refused`` (it refused its input) or another status a restart cannot help
+    (``formation_ilc.system.exits.NO_RESTART``: the run is stuck, the disk is full)."""
 
     max_restarts: int = 3
     refused: int = NO_RESTART
@@ -107,7 +108,8 @@ class RestartPolicy:
     def allows(self, code: int, restarts: int) -> bool:
         """Whether a process that exited with ``code`` after ``restarts`` restarts is
         started again."""
-        return code != self.refused and restarts < self.max_restarts
+        return (code != self.refused and code not in EXIT_NO_RESTART
+                and restarts < self.max_restarts)
 
 
 @dataclass(frozen=True)
@@ -161,7 +163,8 @@ class RunPlan:
     run_json : the options to write to ``out/run.json`` (None when resuming).
     final_wait : [s] after the last trial, the longest wait for the last reports.
     init_memory : ``--init-memory`` as given (the robots get its absolute path).
-    record : the recording (absolute), or None.
+    record : the recording this launch writes (absolute), or None; ``record_root``: the
+        run's first file (``analyze`` reads every part from it).
     bridge : how the Pioneer bridges reach their drivers (``--plant pioneer``), or None.
     """
 
@@ -183,6 +186,10 @@ class RunPlan:
     record: Path | None = None
     bridge: BridgeOptions | None = None
     hosts: HostsPlan | None = None
+    #: the run's first recording file (``record`` is the part this launch writes)
+    record_root: Path | None = None
+    #: every bound of the leader's liveness watchdog times this (``--watchdog-scale``)
+    watchdog_scale: float = 1.0
 
     @property
     def scenario(self) -> Scenario:
@@ -254,6 +261,7 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
     team = Team.of(sc.n, plant=opts.plant, links=links, external=opts.plant_nodes,
                    monitor=True, recorder=opts.record is not None)
     record = opts.record.resolve() if opts.record is not None else None
+    root = getattr(opts, "record_root_", None) or record
     domain = opts.domain_id if opts.domain_id is not None else pick_domain()
     bridge = BridgeOptions.of(opts) if opts.plant == "pioneer" else None
     plan = RunPlan(
@@ -265,6 +273,8 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
         plots=not opts.no_plots, resumed_at=resumed_at,
         run_json=None if resumed_at is not None else _run_json(opts, mode, links, out),
         init_memory=opts.init_memory, record=record, bridge=bridge,
+        record_root=root.resolve() if root is not None else None,
+        watchdog_scale=float(getattr(opts, "watchdog_scale", 1.0)),
         hosts=None if faults is None else HostsPlan(faults, opts.dds_profile or "lossy",
                                                     sc.seed))
     # the processes follow from the rest of the plan
@@ -289,18 +299,26 @@ def effective_options(args: argparse.Namespace) -> argparse.Namespace:
 
 
 def _resume_options(args: argparse.Namespace) -> argparse.Namespace:
-    """The options of the run in ``args.resume``: its run.json, with this call's output
-    folder and --max-restarts, and a new recording part next to the first."""
+    """The options of the run in ``args.resume``: its run.json (read bounded and checked;
+    every path that pointed into the run's folder re-rooted in the folder being resumed,
+    so a copied folder resumes into itself: ``formation_ilc.store.runfile``), with this
+    call's output folder and --max-restarts, and where the resumed launch records."""
+    from formation_ilc.store.runfile import RunFileError, load_run, require
+
     out = args.resume
     try:
-        d = json.loads((out / RUN_FILE).read_text())
-    except FileNotFoundError:
+        d = load_run(out)
+    except RunFileError as exc:
+        raise NoRun(f"--resume {exc}") from None
+    if d is None:
         raise NoRun(f"--resume {out}: no {RUN_FILE} there (not the output folder of a "
-                    f"`formation-ilc launch` run)") from None
-    except (OSError, ValueError) as exc:
-        raise NoRun(f"--resume {out}/{RUN_FILE}: unreadable: {exc}") from None
+                    f"`formation-ilc launch` run)")
     if args.scenario is not None:
         raise NoRun("--resume takes the run's own scenario and options: give no SCENARIO")
+    try:
+        require(d, out)
+    except RunFileError as exc:
+        raise NoRun(f"--resume {exc}") from None
     ns = argparse.Namespace(**vars(args))
     for k, v in d.items():
         setattr(ns, k, v)
@@ -310,14 +328,27 @@ def _resume_options(args: argparse.Namespace) -> argparse.Namespace:
     ns.out = out
     ns.resume = out
     ns.max_restarts = args.max_restarts
+    ns.watchdog_scale = getattr(args, "watchdog_scale", 1.0)
     if ns.record is not None:
-        # the first recording is closed; the resumed part goes next to it
-        stem = ns.record.with_suffix("")
-        n = 1
-        while Path(f"{stem}.resumed{n}.mcap").exists():
-            n += 1
-        ns.record = Path(f"{stem}.resumed{n}.mcap")
+        ns.record_root_ = ns.record
+        ns.record = resumed_part(ns.record)
     return ns
+
+
+def resumed_part(root: Path) -> Path:
+    """Where a resumed launch records: the run's first file when no part of its recording
+    exists yet (a launch killed before its recorder wrote it), else the next free
+    ``RUN.resumedN.mcap`` (every part stays as it was written)."""
+    from formation_ilc.recordings.recording import recording_parts
+
+    if not any(p.exists() for p in recording_parts(root)):
+        return root
+    stem = root.with_suffix("")
+    n = 1
+    while Path(f"{stem}.resumed{n}.mcap").exists() or any(
+            stem.parent.glob(f"{stem.name}.resumed{n}.part*.mcap")):
+        n += 1
+    return Path(f"{stem}.resumed{n}.mcap")
 
 
 def _hosts_faults(opts: argparse.Namespace) -> LinkFaults | None:
@@ -388,18 +419,32 @@ def _out_folder(out: Path | None, sc: Scenario) -> Path:
 
 
 def _resumed_at(out: Path, sc: Scenario) -> int:
-    """Iterations every robot has learned in the run in ``out`` (its leader's state);
-    NoRun with status 0 when they are all done."""
-    from formation_ilc.protocol.schedule import Schedule
+    """Iterations every robot has learned in the run in ``out``, decided before anything
+    of it changes: the leader's state and every robot's, read bounded, validated and
+    cross-checked (``formation_ilc.protocol.resume``), and its metrics.csv readable. NoRun
+    naming the file when they are damaged or disagree; with status 0 when every trial is
+    done."""
+    from formation_ilc.core.metrics import read_metrics
+    from formation_ilc.protocol.resume import ResumeError, resume_point
+    from formation_ilc.store.bounded import StateFileError, open_regular
 
-    probe = Schedule([], set(), sc.trials)
     try:
-        probe.restore(out / "state" / "leader.json")
-    except Exception as exc:  # noqa: BLE001 - a ScheduleError naming the file
+        done = resume_point(out / "state", sc).committed
+    except ResumeError as exc:
         raise NoRun(f"--resume: {exc}") from None
-    if probe.committed >= sc.trials:
+    if done >= sc.trials:
         raise NoRun(f"{out}: all {sc.trials} trials are done; nothing to resume", status=0)
-    return probe.committed
+    path = out / "metrics.csv"
+    try:
+        # a few hundred bytes a row; a FIFO or a device is refused unread
+        with open_regular(path, 1024 * sc.trials + (1 << 20), "a metrics.csv") as fh:
+            present = fh is not None
+        if present:
+            read_metrics(path)
+    except (StateFileError, OSError, ValueError) as exc:
+        raise NoRun(f"--resume: {exc} (the run's metrics rows: restore the file, or move it "
+                    f"away to resume without them)") from None
+    return done
 
 
 def _run_json(opts: argparse.Namespace, mode: str, links: str, out: Path) -> dict[str, Any]:
@@ -441,6 +486,8 @@ def node_specs(plan: RunPlan, scenario: str) -> tuple[NodeSpec, ...]:
                           args=("--output", str(plan.record)), remaps=nsa, passive=True))
     leader = {**cfg.to_params(scenario), "state_dir": state_dir,
               "nodes_expected": plan.team.expected}
+    if plan.watchdog_scale != 1.0:
+        leader["watchdog_scale"] = float(plan.watchdog_scale)
     specs.append(spec(LEADER_NODE, "virtual_leader.node", remaps=nsa,
                       params=tuple(leader.items())))
     if plan.plant == "sim":

@@ -11,15 +11,18 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
 from formation_ilc.cli.plan import RunPlan
+from formation_ilc.cli.supervisor import disk_full_line
 from formation_ilc.config.scenario import Scenario
 from formation_ilc.core.links import delay_rows, link_histograms, write_delays
 from formation_ilc.core.names import SIM_NODE
+from formation_ilc.system.exits import DISK_FULL, is_disk_full
 
 __all__ = ["write_report", "summary_of", "print_report"]
 
@@ -55,14 +58,22 @@ def write_report(plan: RunPlan, rows: Sequence[Sequence[float]],
     """Write the run's outputs into ``plan.out``; after a successful run (``status`` 0)
     also the figure and the printed report. Returns ``status``."""
     out = plan.out
-    (out / "diagnostics.json").write_text(json.dumps(diagnostics, indent=2) + "\n")
     measured, injected = link_histograms(diagnostics)
     emulated = plan.config.links == "emulated"
     dtab = delay_rows(measured, injected if emulated else None,
                       plan.scenario.uncertainty.delay.pmf() if emulated else None)
-    write_delays(out / "delays.csv", dtab)
     summary = summary_of(plan, len(rows), diagnostics, restarts, seconds)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    try:
+        (out / "diagnostics.json").write_text(json.dumps(diagnostics, indent=2) + "\n")
+        write_delays(out / "delays.csv", dtab)
+        (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    except OSError as exc:
+        if not is_disk_full(exc):
+            raise
+        if status == 0:  # else the run's own error line has said it all
+            print(f"error: {disk_full_line('the launcher', exc.filename, out)}",
+                  file=sys.stderr)
+            status = DISK_FULL
     if status:
         return status
     files = ["metrics.csv", "delays.csv", "diagnostics.json", "summary.json"]
@@ -76,8 +87,9 @@ def write_report(plan: RunPlan, rows: Sequence[Sequence[float]],
         files.append("errors.png")
     print_report(sc, m, dtab, summary)
     print(f"results in {out}/ ({', '.join(files)}; logs/)")
-    if plan.record is not None:
-        print(f"recording: {plan.record} (formation-ilc analyze {plan.record})")
+    root = plan.record_root or plan.record
+    if root is not None:
+        print(f"recording: {root} (formation-ilc analyze {root})")
     return 0
 
 

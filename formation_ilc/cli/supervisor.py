@@ -19,8 +19,10 @@ from pathlib import Path
 from typing import IO
 
 from formation_ilc.cli.plan import NodeSpec, RunPlan
+from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, NO_RESTART, STUCK
 
-__all__ = ["Stack", "Supervisor", "Failure", "exit_status"]
+__all__ = ["Stack", "Supervisor", "Failure", "exit_status", "metrics_rows", "resume_hint",
+           "disk_full_line"]
 
 
 class Stack:
@@ -114,8 +116,11 @@ class Failure:
     @property
     def status(self) -> int:
         """The launcher's exit status: 2 when the node refused (bad input, or another
-        formation here), else 1."""
-        return 2 if self.code == self.spec.restart.refused else 1
+        formation here), the node's own when it is one a restart cannot help (4 stuck, 5
+        disk full: ``formation_ilc.system.exits``), else 1."""
+        if self.code == self.spec.restart.refused:
+            return 2
+        return self.code if self.code in NO_RESTART else 1
 
 
 class Supervisor:
@@ -162,9 +167,24 @@ class Supervisor:
         return None
 
     def report(self, failure: Failure) -> int:
-        """Say which process failed and why (its log's tail); the exit status."""
+        """Say which process failed and why: the one line the node said, when it stopped on
+        purpose (bad input, a stuck run, a full disk, with what to do next), else its
+        log's tail; the exit status."""
         name, code, policy = failure.spec.name, failure.code, failure.spec.restart
-        again = ("" if code == policy.refused or not policy.max_restarts
+        log = self.stack.log_dir / (name + ".log")
+        said = self.last_word(name)
+        out = self.plan.out
+        if code == DISK_FULL:
+            file = (said.split(f"{DISK_FULL_TAG}: cannot write ", 1)[-1].split(" (")[0]
+                    if said and DISK_FULL_TAG in said else None)
+            print(f"error: {disk_full_line(name, file, out)}", file=sys.stderr)
+            return failure.status
+        if (code == policy.refused or code in NO_RESTART) and said is not None:
+            hint = (f"; {len(metrics_rows(out))} trials are in metrics.csv; after fixing the "
+                    f"cause: {resume_hint(out)}" if code == STUCK else "")
+            print(f"error: {said} (log: {log}){hint}", file=sys.stderr)
+            return failure.status
+        again = ("" if code == policy.refused or code in NO_RESTART or not policy.max_restarts
                  else f" after {policy.max_restarts} restarts")
         print(f"error: node process {name} exited with {exit_status(code)}{again} "
               f"(log: {self.stack.log_dir / (name + '.log')})", file=sys.stderr)
@@ -173,5 +193,34 @@ class Supervisor:
             print(tail, file=sys.stderr)
         return failure.status
 
+    def last_word(self, name: str) -> str | None:
+        """The one line a node said last about why it stopped (``NAME: ...`` on stderr,
+        or its entry script's ``formation-ilc-...: ...``), from its log."""
+        for line in reversed(self.stack.log_tail(name, 40).splitlines()):
+            if line.startswith((f"{name}:", "formation-ilc-")):
+                return line
+        return None
+
     def stop(self) -> None:
         self.stack.stop()
+
+
+def metrics_rows(out: Path) -> list[str]:
+    """The trial rows in ``out``/metrics.csv, as text (what the user has of the run)."""
+    try:
+        lines = (out / "metrics.csv").read_text().splitlines()[1:]
+    except OSError:
+        return []
+    return [ln for ln in lines if ln.strip()]
+
+
+def resume_hint(out: Path) -> str:
+    return f"formation-ilc launch --resume {out}"
+
+
+def disk_full_line(who: str, filename: str | None, out: Path) -> str:
+    """The one line of a run stopped by a full disk: the file, what was kept, what next."""
+    return (f"the disk is full: {who} could not write {filename or 'its file'}; kept: "
+            f"{out / 'metrics.csv'} with {len(metrics_rows(out))} trials and the state of "
+            f"every trial learned ({out / 'state'}); free some space, then: "
+            f"{resume_hint(out)}")

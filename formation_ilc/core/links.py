@@ -182,7 +182,8 @@ def check_diagnostics(d: Mapping[str, Any]) -> dict[str, Any]:
     """A node's diagnostics (a JSON object), checked where its readers rely on it: ``node``
     a name, ``trial`` an integer, the delay histograms (``delays``, ``injected``) integer
     counts by integer delay, ``dropped`` integer counts, ``timing`` numbers, ``missed`` an
-    integer or integer counts, ``initial_shifts`` (x, y, theta) triples. Malformed naming
+    integer or integer counts, ``initial_shifts`` (x, y, theta) triples, ``watchdog`` (the
+    leader's) an integer ``count`` and a text ``what``. Malformed naming
     the first field that is not; other fields pass as they are."""
     if not isinstance(d.get("node"), str):
         raise Malformed("diagnostics without a node name")
@@ -194,6 +195,8 @@ def check_diagnostics(d: Mapping[str, Any]) -> dict[str, Any]:
         "timing": lambda v: isinstance(v, dict) and all(_is_number(x) for x in v.values()),
         "missed": lambda v: _is_int(v) or (isinstance(v, dict)
                                            and all(_is_int(x) for x in v.values())),
+        "watchdog": lambda v: isinstance(v, dict) and _is_int(v.get("count"))
+        and isinstance(v.get("what"), str) and len(v["what"]) <= 2000,
         "initial_shifts": lambda v: isinstance(v, dict) and all(
             isinstance(x, list) and len(x) == 3 and all(map(_is_number, x))
             for x in v.values()),

@@ -27,6 +27,7 @@ from formation_ilc.config.runconfig import RunConfig, make_config
 from formation_ilc.core.clock import REASONS, Rejected
 from formation_ilc.model.simulate import Problem
 from formation_ilc.protocol.schedule import Follower, Ready, TrialEvent
+from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, is_disk_full
 from formation_ilc.system.lifetime import PARENT_ENV, bound_the_stop, die_with_parent, parent_gone
 
 __all__ = ["PARENT_ENV", "DROP_REASONS", "DropCounter", "RunConfig", "make_config",
@@ -278,6 +279,16 @@ def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
                 break
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except OSError as exc:
+        if not is_disk_full(exc):
+            raise
+        # one line naming the file; a supervisor does not restart this status (a new
+        # process would hit the same full disk)
+        name = nodes[0].get_name() if nodes else parser.prog
+        print(f"{name}: {DISK_FULL_TAG}: cannot write {exc.filename or '?'} "
+              f"({exc.strerror}); what was written before is kept", file=sys.stderr,
+              flush=True)
+        Exit.code = DISK_FULL
     finally:
         bound_the_stop()  # the teardown below, and the interpreter's exit after it
         for n in nodes:

@@ -196,11 +196,20 @@ class RosMcapWriter:
 
     def write(self, topic: str, data: bytes, log_time: int, publish_time: int,
               sequence: int = 0) -> None:
-        self._w.add_message(self._channels[topic], log_time=int(log_time), data=bytes(data),
-                            publish_time=int(publish_time), sequence=sequence)
+        try:
+            self._w.add_message(self._channels[topic], log_time=int(log_time),
+                                data=bytes(data), publish_time=int(publish_time),
+                                sequence=sequence)
+        except OSError as exc:
+            raise self._named(exc) from exc
         self.count += 1
         if self._period > 0 and time.monotonic() - self._last_flush >= self._period:
             self.flush()
+
+    def _named(self, exc: OSError) -> OSError:
+        """``exc`` naming this file (a full disk's message names what could not be
+        written)."""
+        return OSError(exc.errno, exc.strerror, str(self.path))
 
     def metadata(self, name: str, data: dict[str, str]) -> None:
         self._w.add_metadata(name, {k: str(v) for k, v in data.items()})
@@ -210,14 +219,17 @@ class RosMcapWriter:
         any chunk) of the schemas and channels registered since the last flush."""
         from mcap.data_stream import RecordBuilder
 
-        self._w.flush()
-        if self._copies:
-            b = RecordBuilder()
-            for rec in self._copies:
-                rec.write(b)
-            self._fh.write(b.end())
-            self._copies = []
-        self._fh.flush()
+        try:
+            self._w.flush()
+            if self._copies:
+                b = RecordBuilder()
+                for rec in self._copies:
+                    rec.write(b)
+                self._fh.write(b.end())
+                self._copies = []
+            self._fh.flush()
+        except OSError as exc:
+            raise self._named(exc) from exc
         self._last_flush = time.monotonic()
 
     def close(self) -> None:
@@ -247,8 +259,12 @@ _MAGIC = b"\x89MCAP0\r\n"
 #: record opcodes of the MCAP format (0x01 header ... 0x0F data end)
 _OPCODES = range(0x01, 0x10)
 _CHUNK, _MESSAGE_INDEX, _FOOTER = 0x06, 0x07, 0x02
-#: a chunk claiming more than this many bytes uncompressed per compressed byte is damaged
-_MAX_RATIO = 1000
+#: the most bytes one chunk may hold uncompressed for this reader: what it holds in memory
+#: at once (a chunk is read whole). The mcap writers' chunks are 64 KiB to a few MiB; a
+#: larger claim is read only as far as its data really inflates, and refused past this
+MAX_CHUNK_BYTES = 256 << 20
+#: [bytes] decompression proceeds in pieces of this size: memory follows the real output
+_PIECE = 1 << 20
 
 
 class _Bad(Exception):
@@ -330,10 +346,42 @@ class ReadReport:
         return out
 
 
-def _stream(content: bytes | memoryview) -> Any:
+def _stream(content: bytes | bytearray | memoryview) -> Any:
     from mcap.data_stream import ReadDataStream
 
     return ReadDataStream(BytesIO(content))
+
+
+def _inflate(compression: str, data: bytes | memoryview, size: int) -> bytes | bytearray:
+    """A chunk's records, decompressed in pieces up to one byte past its claimed ``size``:
+    memory follows what the data really inflates to, never the claim (a damaged size field
+    of terabytes allocates nothing), and never more than MAX_CHUNK_BYTES. _Bad when the
+    chunk cannot be read (the caller compares the length with ``size``)."""
+    if size > MAX_CHUNK_BYTES:
+        raise _Bad(f"a chunk of {size} bytes uncompressed, more than this reader holds in "
+                   f"memory ({MAX_CHUNK_BYTES})")
+    if compression == "":
+        return bytes(data)
+    if compression == "zstd":
+        import zstandard
+
+        if zstandard.frame_content_size(bytes(data[:18])) not in (-1, size):
+            raise _Bad("zstd frame size mismatch")
+        out = bytearray()
+        with zstandard.ZstdDecompressor().stream_reader(bytes(data)) as rd:
+            while len(out) <= size:
+                piece = rd.read(min(_PIECE, size + 1 - len(out)))
+                if not piece:
+                    break
+                out += piece
+        return out
+    if compression == "lz4":
+        import lz4.frame  # type: ignore[import-not-found,unused-ignore]
+
+        lz: bytes = lz4.frame.LZ4FrameDecompressor().decompress(bytes(data),
+                                                              max_length=size + 1)
+        return lz
+    raise _Bad(f"unknown compression {compression[:20]!r}")
 
 
 def _chunk_records(content: bytes | memoryview) -> list[Any]:
@@ -345,23 +393,7 @@ def _chunk_records(content: bytes | memoryview) -> list[Any]:
     ch = Chunk.read(st)
     if st.count != len(content):
         raise _Bad("chunk length mismatch")
-    if ch.uncompressed_size > _MAX_RATIO * len(ch.data) + (1 << 20):
-        raise _Bad("implausible uncompressed size")
-    if ch.compression == "zstd":
-        import zstandard
-
-        if zstandard.frame_content_size(ch.data) not in (-1, ch.uncompressed_size):
-            raise _Bad("zstd frame size mismatch")
-        data = zstandard.ZstdDecompressor().decompress(
-            ch.data, max_output_size=ch.uncompressed_size)
-    elif ch.compression == "lz4":
-        import lz4.frame  # type: ignore[import-not-found,unused-ignore]
-
-        data = lz4.frame.decompress(ch.data)
-    elif ch.compression == "":
-        data = ch.data
-    else:
-        raise _Bad(f"unknown compression {ch.compression[:20]!r}")
+    data = _inflate(ch.compression, ch.data, ch.uncompressed_size)
     if len(data) != ch.uncompressed_size:
         raise _Bad("uncompressed size mismatch")
     if ch.uncompressed_crc != 0 and zlib.crc32(data) != ch.uncompressed_crc:

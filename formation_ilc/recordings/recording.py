@@ -44,7 +44,7 @@ from formation_ilc.recordings.mcap_io import (
 )
 
 __all__ = ["qos_of", "SimRecorder", "Recording", "RecordingError", "load_recording",
-           "recording_parts"]
+           "recording_parts", "root_of"]
 
 #: metadata record name holding the run configuration (same JSON as /formation/config)
 META_NAME = "formation_ilc"
@@ -67,7 +67,7 @@ class SimRecorder:
     """
 
     def __init__(self, path: str | Path, sc: Scenario, sample_trials: Iterable[int] = (),
-                 gap: int = 20):
+                 gap: int = 20, first_trial: int = 0):
         import msgs_schema as ms
 
         self.ms = ms
@@ -83,7 +83,9 @@ class SimRecorder:
         for topic, typ, qos in ms.topic_table(n):
             # the type hash a ROS writer of the type offers, as the stack's recorder records it
             self.w.channel(self.full[topic], typ, qos_of(qos), type_hash(typ))
-        conf = cfg.to_json() | {"recorded_by": "formation-ilc simulate"}
+        # its trials are first_trial .. first_trial + trials - 1 (simulate --first-trial)
+        conf = cfg.to_json() | {"recorded_by": "formation-ilc simulate",
+                                "first_trial": int(first_trial)}
         self._json(ms.CONFIG, conf, 0)
         self.w.metadata(META_NAME, {"config": json.dumps(conf)})
         self.delays: list[dict[str, Counter[int]]] = [{} for _ in range(n)]
@@ -161,6 +163,10 @@ class Recording:
     events : trial events in file order. config : the run configuration (JSON).
     incomplete : trials of the run up to the last one seen whose data is not all in the
         file (cut short, damaged, or never sent).
+    missing : every trial of the run (its configuration's ``trials``, from its
+        ``first_trial``) that is not complete in the files: ``incomplete`` and the trials
+        after the last one seen. A run is whole only when this is empty.
+    ended : the leader's ``done`` event is in the files (the run reached its end).
     Trials are iterations: a slot the leader aborted (a node restarted, docs/reliability.md)
     is dropped and its iteration counted where it ran again.
     undecodable : per topic, messages skipped because they do not decode (junk JSON, a
@@ -184,6 +190,8 @@ class Recording:
     parts: list[tuple[Path, ReadReport]] = field(default_factory=list)
     #: messages of aborted slots, or repeating a trial already complete (not errors)
     superseded: int = 0
+    missing: list[int] = field(default_factory=list)
+    ended: bool = False
 
 
 def _path_outputs(data: bytes, ref_heading: NDArray[np.float64]
@@ -223,7 +231,9 @@ def recording_parts(first: str | Path) -> list[Path]:
     """The files of the run recorded in ``first`` (``RUN.mcap``), in the order they were
     written: ``first``, the parts of its restarted recorder (``RUN.part1.mcap``, ...), then
     each resumed launch's file (``RUN.resumed1.mcap``) and its parts
-    (``RUN.resumed1.part1.mcap``, ...). Only ``first`` when it is itself a part."""
+    (``RUN.resumed1.part1.mcap``, ...). ``first`` itself may be missing (a launch killed
+    before its recorder wrote it, then resumed): the parts that exist are the run. Only
+    ``first`` when it is itself a part (``root_of`` names the run's first file)."""
     first = Path(first)
     stem = first.name[: -len(".mcap")] if first.name.endswith(".mcap") else None
     if stem is None or re.search(r"\.(part|resumed)\d+$", stem):
@@ -238,10 +248,21 @@ def recording_parts(first: str | Path) -> list[Path]:
                 found.append((int(m.group(1)), p))
         return sorted(found)
 
-    out = [first] + [p for _, p in numbered(stem, "part")]
+    # the first file may be missing (a run resumed before its first recording existed)
+    out = ([first] if first.exists() else []) + [p for _, p in numbered(stem, "part")]
     for n, resumed in numbered(stem, "resumed"):
         out += [resumed] + [p for _, p in numbered(f"{stem}.resumed{n}", "part")]
-    return out
+    return out or [first]
+
+
+def root_of(part: str | Path) -> Path:
+    """The first file of the run a recording part belongs to: ``RUN.mcap`` for
+    ``RUN.part2.mcap``, ``RUN.resumed1.mcap`` or ``RUN.resumed1.part1.mcap``."""
+    part = Path(part)
+    m = re.fullmatch(r"(.+?)(\.resumed\d+)?(\.part\d+)?\.mcap", part.name)
+    if m is None or not (m.group(2) or m.group(3)):
+        return part
+    return part.with_name(m.group(1) + ".mcap")
 
 
 def load_recording(path: str | Path | Sequence[str | Path],
@@ -422,7 +443,12 @@ class _RunReader:
         metrics = (np.array([rows[k] for k in sorted(rows)]) if rows
                    else np.empty((0, len(METRIC_COLUMNS))))
         delays, injected = link_histograms(self.diags)
-        return Recording(scenario=cfg.scenario, config=config, metrics=metrics, eta=self.eta,
+        first = config.get("first_trial", 0)
+        first = first if isinstance(first, int) and not isinstance(first, bool) else 0
+        return Recording(missing=[k for k in range(first, first + cfg.scenario.trials)
+                                  if k not in rows],
+                         ended=any(e.get("event") == self.ms.DONE for e in self.events),
+                         scenario=cfg.scenario, config=config, metrics=metrics, eta=self.eta,
                          xi=self.xi, delays=delays, injected=injected, events=self.events,
                          incomplete=[k for k in range(min(last_seen + 1, cfg.scenario.trials))
                                      if k not in rows],
