@@ -179,6 +179,10 @@ def warm_up(pb: Problem, unc: Uncertainty | None = None) -> None:
           np.zeros((1, n_l, n_t + 1, 3)), pb.src[i], pb.weight[i], pb.eta_d, pb.leader[i],
           pb.gain[i], pb.heading, np.zeros((1, n_t, 2)))
     step_into(np.zeros((n, 3)), np.zeros((n, 2)), np.zeros((n, 2)), pb.dt, np.zeros((n, 3)))
+    # and as the plant calls it, on views of its (N, T+1, 3) arrays (numba's layout "A", a
+    # second specialisation: compiled at a run's first sample it held that sample 1-3 s)
+    xi, u = np.zeros((n, 2, 3)), np.zeros((n, 1, 2))
+    step_into(xi[:, 0], u[:, 0], u[:, 0], pb.dt, xi[:, 1])
     trial_errors(pb.eta_d, pb.eta_d, pb.eta_d, pb.src, pb.weight, np.zeros(6))
     delivered_label(0, 0)
     if unc is not None:
