@@ -117,7 +117,7 @@ __all__ = [
     "SampleClock", "stamp_to_ns", "ns_to_stamp", "pose_to_msg", "msg_to_pose", "u_to_twist",
     "twist_to_u", "world_pose", "trajectory_to_path", "path_to_trajectory", "link_tick_to_msg",
     "msg_to_link_tick", "json_to_msg", "msg_to_json", "json_int", "deserialize", "clock_msg",
-    "path_limit", "path_from_raw", "within_path_limit", "FRAME_ID_MAX",
+    "path_limit", "path_from_raw", "within_path_limit", "trajectory_from_raw", "FRAME_ID_MAX",
     "START", "END", "ABORT", "DONE",
     "DriverSpec", "DRIVERS", "DRIVER_CMD_QOS", "ODOM_QOS", "BRIDGE_PREFIX", "bridge_name",
     "odometry_to_pose", "odometry_msg", "driver_twist", "wire",
@@ -441,6 +441,20 @@ def path_from_raw(data: bytes | Path, poses: int, what: str = "Path") -> Path:
         return data
     msg: Path = deserialize(within_path_limit(data, poses, what), Path)
     return msg
+
+
+def trajectory_from_raw(data: bytes | Path, poses: int,
+                        reference_heading: NDArray[np.float64] | None = None,
+                        what: str = "trajectory"
+                        ) -> tuple[NDArray[np.float64], NDArray[np.int64], str]:
+    """``path_to_trajectory`` of the Path in the CDR bytes of a raw subscription, refused
+    first by its size (``path_from_raw``) and read without message objects
+    (``wire.read_trajectory``: the same values and checks); a Path already built (an
+    in-process caller) goes through ``path_to_trajectory``."""
+    if isinstance(data, Path):
+        return path_to_trajectory(data, reference_heading)
+    return wire.read_trajectory(within_path_limit(wire.as_bytes(data), poses, what),
+                                reference_heading)
 
 
 def within_path_limit(data: bytes, poses: int, what: str = "Path") -> bytes:

@@ -35,8 +35,8 @@ from formation_ilc.core.clock import Malformed
 
 __all__ = ["RawPose", "as_bytes", "pose_bytes", "read_pose", "raw_pose_bytes", "pose_eta",
            "world_eta", "twist_bytes", "read_twist", "clock_bytes", "read_clock",
-           "link_tick_bytes", "read_link_tick", "check_nanosec", "heading_from_quaternion",
-           "check_twist"]
+           "link_tick_bytes", "read_link_tick", "path_bytes", "read_trajectory",
+           "check_nanosec", "heading_from_quaternion", "check_twist"]
 
 _LE = b"\x00\x01\x00\x00"  # CDR_LE encapsulation, no options
 #: a PoseStamped in frame "map", little-endian XCDR1: sec, nanosec, frame length, frame,
@@ -194,6 +194,42 @@ def read_clock(data: bytes) -> int:
     return sec * _NS + nsec
 
 
+def read_trajectory(data: bytes, reference_heading: NDArray[np.float64] | None = None
+                    ) -> tuple[NDArray[np.float64], NDArray[np.int64], str]:
+    """(eta (S, 3), stamps (S,) [ns], frame_id) of a whole-trial nav_msgs/Path: what
+    ``msgs_schema.path_to_trajectory`` gives for the message of these bytes, with its
+    checks (the same values, bit for bit), and MalformedMessage for bytes that do not
+    decode. Headings are unwrapped next to ``reference_heading`` (S,) when given, else
+    against the previous pose."""
+    r = _Reader(data)
+    r.take("iI", 8, 4)  # the path's stamp: not checked (as path_to_trajectory)
+    frame = r.string()
+    (n,) = r.take("I", 4, 4)
+    if reference_heading is not None and n != len(reference_heading):
+        raise Malformed(f"trajectory has {n} poses, expected {len(reference_heading)}")
+    if n > (len(data) - r.pos) // 64:  # a pose takes at least 64 bytes
+        raise Malformed("message cut short")
+    eta = np.empty((n, 3))
+    stamps = np.empty(n, dtype=np.int64)
+    prev: float | None = None
+    for s in range(n):
+        sec, nsec = r.take("iI", 8, 4)
+        f = r.string()
+        x, y, _, qx, qy, qz, qw = r.take("7d", 56, 8)
+        # msg_to_pose's checks, in its order
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise Malformed("non-finite position")
+        ref = prev if reference_heading is None else float(reference_heading[s])
+        th = heading_from_quaternion(qx, qy, qz, qw, ref)
+        check_nanosec(nsec)
+        if f != frame:
+            raise Malformed(f"pose {s} of a {frame!r} trajectory is in frame {f!r}")
+        eta[s] = (x, y, th)
+        stamps[s] = sec * _NS + nsec
+        prev = th
+    return eta, stamps, frame
+
+
 def read_link_tick(data: bytes) -> tuple[int, RawPose | None]:
     """(tick [ns], the delivered pose or None) of an emulated link's nav_msgs/Path;
     MalformedMessage if it holds more than one pose (as ``msg_to_link_tick``)."""
@@ -244,6 +280,28 @@ def link_tick_bytes(tick_ns: int, pose: RawPose | None) -> bytes:
     sec, nsec = _stamp(tick_ns)
     head = _LE + struct.pack("<iII4sI", sec, nsec, 4, b"map\x00", 0 if pose is None else 1)
     return head if pose is None else head + _pose_body(pose, len(head) - 4)
+
+
+def path_bytes(eta: NDArray[np.float64], stamps_ns: Sequence[int], frame_id: str) -> bytes:
+    """The bytes of ``trajectory_to_path(eta, stamps_ns, frame_id)``: whole-trial output
+    eta (T+1, 3) as a Path, pose s stamped with its label, the path with the last."""
+    stamps = list(stamps_ns)
+    if len(stamps) != len(eta):
+        raise ValueError("one stamp per sample is required")
+    sec, nsec = _stamp(stamps[-1]) if stamps else (0, 0)
+    frame = frame_id.encode() + b"\x00"
+    head = struct.pack("<iII", sec, nsec, len(frame)) + frame
+    head += b"\x00" * ((-len(head)) % 4) + struct.pack("<I", len(stamps))
+    parts = [_LE, head]
+    at = len(head)
+    sin, cos = math.sin, math.cos
+    for e, ns in zip(eta.tolist(), stamps, strict=True):
+        x, y, th = e
+        body = _pose_body(RawPose(int(ns), frame_id, (
+            x, y, 0.0, 0.0, 0.0, sin(0.5 * th), cos(0.5 * th))), at)
+        parts.append(body)
+        at += len(body)
+    return b"".join(parts)
 
 
 def twist_bytes(u: Sequence[float] | NDArray[np.float64]) -> bytes:

@@ -141,8 +141,8 @@ class SimNode(ConfiguredNode):
             # must already have this node's
             stamps = plant.stamps()
             for r in range(plant.n):
-                self.true_pubs[r].publish(ms.trajectory_to_path(plant.xi[r], stamps,
-                                                                ms.WORLD_FRAME))
+                self.true_pubs[r].publish(ms.wire.path_bytes(plant.xi[r], stamps,
+                                                             ms.WORLD_FRAME))
             d = {"node": NAME, **plant.report()}
             d.update(self.drops.as_dict())
             self.diag_pub.publish(ms.json_to_msg(d))

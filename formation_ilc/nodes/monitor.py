@@ -118,8 +118,8 @@ class MonitorNode(Node):
     def _on_traj(self, data: bytes | Path, r: int, true: bool) -> None:
         topic = (ms.true_trajectory_topic if true else ms.trajectory_topic)(r + 1)
         try:
-            msg = ms.path_from_raw(data, self.pb.samples + 1, "trajectory")
-            eta, stamps, frame = ms.path_to_trajectory(msg, self.pb.eta_d[r, :, 2])
+            eta, stamps, frame = ms.trajectory_from_raw(data, self.pb.samples + 1,
+                                                        self.pb.eta_d[r, :, 2])
             if frame != ms.WORLD_FRAME:
                 raise ms.MalformedMessage(f"trajectory in frame {frame[:50]!r}")
             k, s0 = self.clock.decode(int(stamps[0]))

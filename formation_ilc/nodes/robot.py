@@ -310,8 +310,8 @@ class RobotNode(ConfiguredNode):
     def _finish_trial(self) -> None:
         lrn = self.learner
         k, eta = lrn.finish_trial()
-        self.traj_pub.publish(ms.trajectory_to_path(eta, lrn.trajectory_stamps(k),
-                                                    ms.WORLD_FRAME))
+        # bytes (msgs_schema.wire): no T+1 message objects to build
+        self.traj_pub.publish(wire.path_bytes(eta, lrn.trajectory_stamps(k), ms.WORLD_FRAME))
         if lrn.try_learn():
             self._learned()
 
@@ -321,8 +321,8 @@ class RobotNode(ConfiguredNode):
         lrn = self.learner
         try:
             j = ms.robot_index(sender) - 1
-            msg = ms.path_from_raw(data, self.pb.samples + 1, "trajectory")
-            eta, stamps, frame = ms.path_to_trajectory(msg, self.pb.eta_d[j, :, 2])
+            eta, stamps, frame = ms.trajectory_from_raw(data, self.pb.samples + 1,
+                                                        self.pb.eta_d[j, :, 2])
             if frame != ms.WORLD_FRAME:
                 raise ms.MalformedMessage(f"trajectory in frame {frame!r}")
             learned = lrn.on_trajectory(sender, stamps, eta)

@@ -180,3 +180,71 @@ def test_as_bytes_serialises_message_objects_only():
     assert w.as_bytes(msg) == data
     assert w.as_bytes(data) is data
     assert w.as_bytes(bytearray(data)) == data
+
+
+# --------------------------------------------------------------------------- trajectories
+
+def _trajectory(n: int, seed: int = 6) -> tuple[np.ndarray, list[int]]:
+    rng = np.random.default_rng(seed)
+    eta = np.column_stack([rng.uniform(-50, 50, n), rng.uniform(-50, 50, n),
+                           np.cumsum(rng.uniform(-1, 1, n)) * 3])
+    stamps = [int(s) for s in np.sort(rng.integers(0, 10**13, n))]
+    return eta, stamps
+
+
+@pytest.mark.parametrize("n", [0, 1, 2, 301])
+def test_a_trajectory_packs_to_rclpys_bytes(n):
+    eta, stamps = _trajectory(n)
+    for frame in ("map", "", "a", "robot_10", "x" * 64):
+        assert _same(w.path_bytes(eta, stamps, frame), ms.trajectory_to_path(eta, stamps, frame))
+    with pytest.raises(ValueError):
+        w.path_bytes(eta, stamps + [1], "map")
+
+
+@pytest.mark.parametrize("n", [0, 1, 301])
+def test_a_trajectory_reads_to_the_converters_values(n):
+    eta, stamps = _trajectory(n)
+    for frame in ("map", "robot_2"):
+        msg = ms.trajectory_to_path(eta, stamps, frame)
+        data = serialize_message(msg)
+        for ref in (None, eta[:, 2] + 0.2):
+            got = w.read_trajectory(data, ref)
+            want = ms.path_to_trajectory(msg, ref)
+            assert got[0].tobytes() == want[0].tobytes()
+            assert got[1].tobytes() == want[1].tobytes() and got[2] == want[2] == frame
+            assert ms.trajectory_from_raw(data, n, ref)[0].tobytes() == want[0].tobytes()
+            assert ms.trajectory_from_raw(msg, n, ref)[0].tobytes() == want[0].tobytes()
+
+
+@pytest.mark.parametrize("bad", ["nan_x", "inf_y", "inf_q", "tilted", "not_unit", "nanosec",
+                                 "frame", "count", "cut", "huge_count"])
+def test_a_trajectory_is_refused_where_the_converters_refuse_it(bad):
+    eta, stamps = _trajectory(5)
+    msg = ms.trajectory_to_path(eta, stamps, "map")
+    ref = eta[:, 2]
+    if bad == "count":
+        ref = ref[:4]
+    elif bad not in ("cut", "huge_count"):
+        pose = _bad_pose(bad)
+        pose.header.stamp = msg.poses[3].header.stamp if bad != "nanosec" else pose.header.stamp
+        msg.poses[3] = pose
+    data = serialize_message(msg)
+    if bad == "cut":
+        data = data[:-9]
+    elif bad == "huge_count":
+        data = data[:20] + struct.pack("<I", 2**32 - 1) + data[24:]
+    if bad not in ("cut", "huge_count"):
+        with pytest.raises(ms.MalformedMessage):
+            ms.path_to_trajectory(msg, ref)
+    with pytest.raises(ms.MalformedMessage):
+        w.read_trajectory(data, ref)
+    with pytest.raises(ms.MalformedMessage):
+        ms.trajectory_from_raw(data, 5, ref)
+
+
+def test_a_trajectory_longer_than_a_trial_is_refused_by_its_size():
+    eta, stamps = _trajectory(40)
+    data = w.path_bytes(eta, stamps, "map")
+    with pytest.raises(ms.MalformedMessage, match="longer than"):
+        ms.trajectory_from_raw(data, 10)
+    assert len(ms.trajectory_from_raw(data, 40)[0]) == 40
