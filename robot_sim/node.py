@@ -183,7 +183,7 @@ class SimNode(ConfiguredNode):
     def _send(self, s: Sample) -> None:
         """A sample's /clock and every pose, as bytes (msgs_schema.wire)."""
         self.clock_pub.publish(ms.wire.clock_bytes(s.stamp_ns))
-        for r in range(self.plant.n):
+        for r in self.plant.send_order:
             self.pose_pubs[r].publish(ms.wire.pose_bytes(s.eta[r], s.stamp_ns, ms.WORLD_FRAME))
 
     def _watchdog(self) -> None:
