@@ -190,10 +190,14 @@ def warm_up(pb: Problem, unc: Uncertainty | None = None) -> None:
 
 
 def warm_up_draws(pb: Problem, unc: Uncertainty) -> None:
-    """Compile (or load) the plant's and the links' draws of ``unc`` with ``pb``'s shapes:
-    a draw of trial 0, which nothing keeps."""
+    """Compile (or load) the plant's and the links' draws of ``unc`` with ``pb``'s shapes
+    (a draw of trial 0, which nothing keeps), and the links' delivered label (the link
+    emulator's first tick compiled it inside the first trial)."""
+    from formation_ilc.core.links import delivered_label
+
     unc.draw_plant(0, 0, pb.n, pb.samples)
     unc.draw_delays(0, 0, pb.n, pb.src.shape[1], pb.samples)
+    delivered_label(0, 0)
 
 
 def matched(pairs: Iterable[tuple[Any, int]]) -> bool:
