@@ -542,3 +542,113 @@ def topic_table(n: int) -> list[tuple[str, str, QoSProfile]]:
             (true_trajectory_topic(i), "nav_msgs/msg/Path", TRAJECTORY_QOS),
         ]
     return rows
+
+
+# =========================================================================== view topics
+# What the formation should be, for the live view and the recording (issue 18, part B).
+# Published by one observer (``formation_ilc.nodes.observer``: in the recorder, or in the
+# live view's bridge when nothing records); the robots are untouched.
+#
+# =========================  ===============================  ================================
+# topic                      type                             content
+# =========================  ===============================  ================================
+# robot_i/desired_pose       geometry_msgs/PoseStamped        eta_d of each sample (its label)
+# robot_i/desired_path       nav_msgs/Path (latched)          eta_d of a whole trial, at start
+# robot_i/tracking_error     geometry_msgs/Vector3Stamped     per sample: x position error
+#                                                             |p_d - p| [m], y heading error
+#                                                             wrap(th_d - th) [rad], z 0
+# robot_i/trial_error        geometry_msgs/Vector3Stamped     per trial: x max position error,
+#                                                             y max |heading error|, z trial
+# markers                    visualization_msgs/MarkerArray   outline, links, labels, errors
+# =========================  ===============================  ================================
+
+from geometry_msgs.msg import Point, Vector3Stamped  # noqa: E402
+from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
+
+__all__ += ["MARKERS", "desired_pose_topic", "desired_path_topic", "tracking_error_topic",
+            "trial_error_topic", "VIEW_QOS", "view_topic_table", "vector_msg", "markers_msg"]
+
+MARKERS = "markers"
+#: per-sample view messages: reliable to the recorder, never held for a viewer (depth-bound)
+VIEW_QOS = SAMPLE_QOS
+
+
+def desired_pose_topic(i: int) -> str:
+    return f"{robot_name(i)}/desired_pose"
+
+
+def desired_path_topic(i: int) -> str:
+    return f"{robot_name(i)}/desired_path"
+
+
+def tracking_error_topic(i: int) -> str:
+    return f"{robot_name(i)}/tracking_error"
+
+
+def trial_error_topic(i: int) -> str:
+    return f"{robot_name(i)}/trial_error"
+
+
+def view_topic_table(n: int) -> list[tuple[str, str, QoSProfile]]:
+    """The observer's topics for ``n`` robots: (relative name, ROS type, offered QoS)."""
+    rows: list[tuple[str, str, QoSProfile]] = [
+        (MARKERS, "visualization_msgs/msg/MarkerArray", VIEW_QOS)]
+    for i in range(1, n + 1):
+        rows += [
+            (desired_pose_topic(i), "geometry_msgs/msg/PoseStamped", VIEW_QOS),
+            (desired_path_topic(i), "nav_msgs/msg/Path", TRAJECTORY_QOS),
+            (tracking_error_topic(i), "geometry_msgs/msg/Vector3Stamped", VIEW_QOS),
+            (trial_error_topic(i), "geometry_msgs/msg/Vector3Stamped", TRAJECTORY_QOS),
+        ]
+    return rows
+
+
+def vector_msg(stamp_ns: int, x: float, y: float, z: float = 0.0,
+               frame_id: str = WORLD_FRAME) -> Vector3Stamped:
+    m = Vector3Stamped()
+    ns_to_stamp(stamp_ns, m.header.stamp)
+    m.header.frame_id = frame_id
+    m.vector.x, m.vector.y, m.vector.z = float(x), float(y), float(z)
+    return m
+
+
+def _marker(stamp_ns: int, ns: str, mid: int, kind: int, rgba: tuple[float, ...],
+            width: float) -> Marker:
+    m = Marker()
+    ns_to_stamp(stamp_ns, m.header.stamp)
+    m.header.frame_id = WORLD_FRAME
+    m.ns, m.id, m.type, m.action = ns, mid, kind, Marker.ADD
+    m.pose.orientation.w = 1.0
+    m.scale.x = m.scale.y = m.scale.z = width
+    m.color.r, m.color.g, m.color.b, m.color.a = rgba
+    m.frame_locked = False
+    return m
+
+
+def _point(xy: Sequence[float]) -> Point:
+    return Point(x=float(xy[0]), y=float(xy[1]), z=0.0)
+
+
+def markers_msg(stamp_ns: int, desired: Sequence[Sequence[float]], outline: Sequence[int],
+                links: Sequence[tuple[int, int]],
+                positions: dict[int, tuple[float, float]]) -> MarkerArray:
+    """The 3D view's markers at one sample (robot index r is ``robot_{r+1}``):
+    ``formation`` the desired positions (N, >=2) joined in ``outline`` order (closed);
+    ``links`` the graph's links (sender, receiver) between measured ``positions``;
+    ``errors`` each measured position to its desired one; ``labels`` the robots' names."""
+    out = MarkerArray()
+    shape = _marker(stamp_ns, "formation", 0, Marker.LINE_STRIP, (0.6, 0.6, 0.6, 1.0), 0.03)
+    shape.points = [_point(desired[r]) for r in (*outline, outline[0])]
+    lk = _marker(stamp_ns, "links", 0, Marker.LINE_LIST, (0.2, 0.4, 1.0, 0.8), 0.02)
+    lk.points = [_point(positions[r]) for j, i in links for r in (j, i)]
+    err = _marker(stamp_ns, "errors", 0, Marker.LINE_LIST, (1.0, 0.2, 0.2, 1.0), 0.02)
+    err.points = [_point(xy) for r in sorted(positions) for xy in (positions[r], desired[r])]
+    out.markers = [shape, lk, err]
+    for r in sorted(positions):
+        label = _marker(stamp_ns, "labels", r + 1, Marker.TEXT_VIEW_FACING,
+                        (1.0, 1.0, 1.0, 1.0), 0.25)
+        label.pose.position = _point(positions[r])
+        label.pose.position.z = 0.3
+        label.text = robot_name(r + 1)
+        out.markers.append(label)
+    return out

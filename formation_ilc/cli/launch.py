@@ -153,6 +153,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="record every formation topic to this MCAP file (its own recorder "
                         "process; the run starts once it listens); analyse it with "
                         "`formation-ilc analyze RUN.mcap`")
+    p.add_argument("--live", type=int_range(1, 65535), nargs="?", const=8765, default=None,
+                   metavar="PORT",
+                   help="serve the running formation to Foxglove over its WebSocket protocol "
+                        "on PORT (default 8765), with the recording's topics and schemas "
+                        "(its own process; a slow or absent viewer never holds the run back; "
+                        "docs/ros-tools.md)")
+    p.add_argument("--live-host", default="127.0.0.1", metavar="ADDR",
+                   help="with --live: the address to serve on (default 127.0.0.1, this "
+                        "machine only; 0.0.0.0 serves every network)")
     add_host_arguments(p)
 
 

@@ -28,6 +28,7 @@ from formation_ilc.config.team import Team
 from formation_ilc.core.names import (
     LEADER_NODE,
     LINKS_NODE,
+    LIVEVIEW_NODE,
     NAMESPACE,
     RECORDER_NODE,
     SIM_NODE,
@@ -190,6 +191,8 @@ class RunPlan:
     record_root: Path | None = None
     #: every bound of the leader's liveness watchdog times this (``--watchdog-scale``)
     watchdog_scale: float = 1.0
+    #: ``--live``: the live view's (host, port), or None
+    live: tuple[str, int] | None = None
 
     @property
     def scenario(self) -> Scenario:
@@ -275,6 +278,7 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
         init_memory=opts.init_memory, record=record, bridge=bridge,
         record_root=root.resolve() if root is not None else None,
         watchdog_scale=float(getattr(opts, "watchdog_scale", 1.0)),
+        live=_live(opts),
         hosts=None if faults is None else HostsPlan(faults, opts.dds_profile or "lossy",
                                                     sc.seed))
     # the processes follow from the rest of the plan
@@ -455,6 +459,22 @@ def _run_json(opts: argparse.Namespace, mode: str, links: str, out: Path) -> dic
     return d
 
 
+def _live(opts: argparse.Namespace) -> tuple[str, int] | None:
+    """``--live [PORT]`` on ``--live-host``: refused (NoRun) when the port is taken."""
+    import socket
+
+    port = getattr(opts, "live", None)
+    if port is None:
+        return None
+    host = getattr(opts, "live_host", None) or "127.0.0.1"
+    try:
+        with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as s:
+            s.bind((host, int(port)))
+    except OSError as exc:
+        raise NoRun(f"--live {port}: cannot serve on {host}:{port}: {exc.strerror}") from None
+    return host, int(port)
+
+
 def pick_domain() -> int:
     """A ROS_DOMAIN_ID in 30..100, distinct per launcher process. The shared-memory locks
     of Fast DDS name the domain port, so ids whose port files are held (another run on
@@ -484,6 +504,12 @@ def node_specs(plan: RunPlan, scenario: str) -> tuple[NodeSpec, ...]:
     if plan.record is not None:
         specs.append(spec(RECORDER_NODE, "formation_ilc.nodes.recorder",
                           args=("--output", str(plan.record)), remaps=nsa, passive=True))
+    if plan.live is not None:
+        # the view topics come from the recorder; without one the bridge makes them
+        specs.append(spec(LIVEVIEW_NODE, "formation_ilc.nodes.liveview",
+                          args=("--host", plan.live[0], "--port", str(plan.live[1]),
+                                *(("--observe",) if plan.record is None else ())),
+                          remaps=nsa))
     leader = {**cfg.to_params(scenario), "state_dir": state_dir,
               "nodes_expected": plan.team.expected}
     if plan.watchdog_scale != 1.0:
