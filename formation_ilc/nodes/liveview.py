@@ -31,6 +31,7 @@ from std_msgs.msg import String
 
 import msgs_schema as ms
 from formation_ilc.core.clock import Rejected
+from formation_ilc.core.names import LIVEVIEW_NODE
 from formation_ilc.nodes.common import DropCounter, RunConfig, node_parser, spin_main
 from formation_ilc.nodes.observer import Observer, msg_class
 from formation_ilc.protocol.schedule import TrialEvent
@@ -57,7 +58,7 @@ def _reader_qos(offered: QoSProfile) -> QoSProfile:
 class LiveViewNode(Node):
     def __init__(self, server: Any, observe: bool = False, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
-        super().__init__(ms.LIVEVIEW_NODE, **kwargs)
+        super().__init__(LIVEVIEW_NODE, **kwargs)
         import foxglove
 
         self.foxglove = foxglove

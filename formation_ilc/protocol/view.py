@@ -6,8 +6,9 @@ Per robot i and sample s: the desired pose eta_d[i, s] (known before the run), t
 tracking error |p_d - p| [m] and the heading error wrap(theta_d - theta) [rad] of the
 measured pose (the quantities of ``formation_ilc.model.simulate.trial_errors``, per sample,
 computed the same way); per robot and trial their largest magnitudes over samples 1..T, as
-the metrics take them (the largest over robots is the metrics row's). For the 3D view, the formation's outline (the
-desired positions joined around their centre) and the graph's links, at a marker sample.
+the metrics take them (the largest over robots is the metrics row's). For the 3D view, the
+formation's outline (the desired positions joined around their centre) and the graph's
+links, at a marker sample.
 """
 
 from __future__ import annotations

@@ -138,7 +138,8 @@ def _client_modules(tmp_path: Path) -> Path:
         cache.mkdir(parents=True, exist_ok=True)
         for f in ("package.json", "package-lock.json"):
             shutil.copy(CLIENT / f, cache / f)
-        res = subprocess.run([npm, "ci", "--no-audit", "--no-fund", "--ignore-scripts"],
+        res = subprocess.run([npm, "ci", "--prefer-offline", "--no-audit", "--no-fund",
+                              "--ignore-scripts"],
                              cwd=cache, capture_output=True, text=True, timeout=600)
         assert res.returncode == 0, res.stdout + res.stderr
         (cache / "node_modules" / ".done").write_text("")
@@ -184,7 +185,9 @@ def test_live_view_serves_a_foxglove_client_during_a_lockstep_run(ros_env, tmp_p
             if c.returncode == 0 or "ECONNREFUSED" not in str(result.get("error")):
                 break
             time.sleep(0.5)  # the server is not up yet
-        assert result is not None and result.get("ok"), result
+        if result is None or not result.get("ok"):
+            stop_group(stack)
+            pytest.fail(f"{result}\n{_log(out)}\n{stack.communicate()[0][-3000:]}")
         stdout, _ = stack.communicate(timeout=240)
     finally:
         stop_group(stack)
@@ -200,3 +203,8 @@ def test_live_view_serves_a_foxglove_client_during_a_lockstep_run(ros_env, tmp_p
     ref = simulate(sc, trials=trials).metrics
     np.testing.assert_array_equal(got[:, 0], ref[:, 0])
     np.testing.assert_allclose(got[:, 1:], ref[:, 1:], rtol=0, atol=TOL)
+
+
+def _log(out: Path) -> str:
+    log = out / "logs" / "liveview.log"
+    return log.read_text()[-2000:] if log.exists() else "(no liveview log)"

@@ -39,8 +39,10 @@ function numbers(schemaName, m) {
   }
 }
 
+// foxglove-sdk servers speak the ws-protocol spec under the subprotocol name
+// "foxglove.sdk.v1" (the Foxglove app's); this client's own is "foxglove.websocket.v1"
 const client = new FoxgloveClient({
-  ws: new WebSocket(url, [FoxgloveClient.SUPPORTED_SUBPROTOCOL]),
+  ws: new WebSocket(url, ["foxglove.sdk.v1", FoxgloveClient.SUPPORTED_SUBPROTOCOL]),
 });
 client.on("error", (e) => fail(`websocket: ${e && e.message}`));
 client.on("close", () => fail("the server closed the connection"));
