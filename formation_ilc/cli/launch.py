@@ -33,6 +33,9 @@ Node entry points (also `ros2 run formation_ilc <exe>` on a full ROS 2 install):
   formation-ilc-bridge  a Pioneer 3-DX behind the plant contract: --ros-args -p robot_id:=I
                         -p driver:=rosaria (docs/real-robots.md)
 
+--live [PORT]: serve the running formation to Foxglove on ws://127.0.0.1:PORT (its own
+process, formation-ilc-liveview; docs/ros-tools.md).
+
 --plant pioneer: one bridge per robot instead of the simulator (with --fake-drivers one
 fake RosAria driver per robot too), wall-clock trials, direct links; --init-memory FILE:
 every robot starts from its row of a memory learned by `formation-ilc simulate`.

@@ -21,6 +21,11 @@ once (everything is recorded all the same). Chunks are flushed every 0.5 s and a
 file loses the chunks it hits (``formation-ilc analyze`` reads on past them);
 ``formation-ilc mcap-repair`` writes a complete copy.
 
+It hosts the observer (``formation_ilc.nodes.observer``): from each measured pose it
+publishes and records the robot's desired pose, its tracking error and the markers, per
+trial the desired paths and the largest errors (``msgs_schema.view_topic_table``);
+``--no-view`` records without them.
+
   formation-ilc-record --output RUN.mcap [--ros-args ...]
 """
 
