@@ -350,7 +350,9 @@ def test_a_negative_stamp_is_recorded_and_counted_not_fatal(context, executor, t
     t0 = time.time_ns()
     for m in (good, neg, bytes(raw), good):
         pose.publish(m)
-    spin_until(ex, lambda: rec.writer.count >= 5)  # the config and the four poses
+    # the config, the four poses, and the observer's desired pose and error of the two
+    # valid ones (the invalid stamps are no sample: nothing observed)
+    spin_until(ex, lambda: rec.writer.count >= 9)
     assert rec.invalid_stamps[ms.pose_topic(1)] == 2
     rec.destroy_node()
     report = ReadReport()
@@ -360,6 +362,8 @@ def test_a_negative_stamp_is_recorded_and_counted_not_fatal(context, executor, t
     for m in msgs[1:3]:  # invalid stamps: logged with the receive time
         assert m.publish_time == m.log_time >= t0
     assert bytes(msgs[2].data) == bytes(raw)  # recorded as received
+    errors = [m for m in read_messages(out) if m.topic.endswith("robot_1/tracking_error")]
+    assert [m.publish_time for m in errors] == [CLOCK.stamp_ns(0, 3)] * 2
 
 
 # --------------------------------------------------------------------------- properties
