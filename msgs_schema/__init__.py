@@ -652,3 +652,65 @@ def markers_msg(stamp_ns: int, desired: Sequence[Sequence[float]], outline: Sequ
         label.text = robot_name(r + 1)
         out.markers.append(label)
     return out
+
+
+# Per-sample view messages are built from CDR templates: a message serialized once, whose
+# stamp (and vector) are then written in place. The observer's cost per pose is then a few
+# struct calls, not rclpy's (de)serialization (about 0.5 ms a pose on a loaded 2-core box).
+
+import struct as _struct  # noqa: E402
+
+_STAMP = _struct.Struct("<iI")
+_VEC = _struct.Struct("<3d")
+_POSE7 = _struct.Struct("<7d")
+
+
+def _little_endian(data: bytes) -> bool:
+    return len(data) >= 16 and data[0] == 0 and data[1] == 1  # CDR_LE encapsulation
+
+
+def stamped_cdr(template: bytes | bytearray, stamp_ns: int) -> bytes:
+    """A serialized stamped message (little-endian CDR, header first) with its stamp set."""
+    out = bytearray(template)
+    _STAMP.pack_into(out, 4, *divmod(int(stamp_ns), 1_000_000_000))
+    return bytes(out)
+
+
+def _body_offset(data: bytes | bytearray) -> int:
+    """Where the body after a Header starts in little-endian CDR (aligned to 8 bytes,
+    alignment counted from after the 4-byte encapsulation)."""
+    n = _struct.unpack_from("<I", data, 12)[0]
+    end = 16 + n
+    return 4 + ((end - 4 + 7) // 8) * 8
+
+
+def vector_cdr(template: bytes | bytearray, stamp_ns: int, x: float, y: float,
+               z: float) -> bytes:
+    """A Vector3Stamped's CDR (``template`` from ``vector_msg``) with stamp and vector set."""
+    out = bytearray(template)
+    _STAMP.pack_into(out, 4, *divmod(int(stamp_ns), 1_000_000_000))
+    _VEC.pack_into(out, _body_offset(out), float(x), float(y), float(z))
+    return bytes(out)
+
+
+def world_pose_cdr(data: bytes) -> tuple[NDArray[np.float64], int]:
+    """(eta, stamp [ns]) of a PoseStamped's CDR bytes, checked as ``world_pose`` checks the
+    message (heading wrapped); MalformedMessage otherwise."""
+    if not _little_endian(data):
+        return world_pose(deserialize(data, PoseStamped))
+    try:
+        sec, nsec = _STAMP.unpack_from(data, 4)
+        n = _struct.unpack_from("<I", data, 12)[0]
+        frame = bytes(data[16:16 + n]).rstrip(b"\0")
+        px, py, _pz, qx, qy, qz, qw = _POSE7.unpack_from(data, _body_offset(data))
+    except _struct.error:
+        raise MalformedMessage("truncated PoseStamped") from None
+    if frame != WORLD_FRAME.encode():
+        raise MalformedMessage(f"pose in frame {frame[:50]!r}, expected {WORLD_FRAME!r}")
+    if not 0 <= nsec < 1_000_000_000 or not (math.isfinite(px) and math.isfinite(py)):
+        raise MalformedMessage("invalid stamp or non-finite position")
+    th = _heading_from_quaternion(qx, qy, qz, qw, None)
+    return np.array((px, py, th)), sec * 1_000_000_000 + nsec
+
+
+__all__ += ["stamped_cdr", "vector_cdr", "world_pose_cdr"]

@@ -18,7 +18,6 @@ import importlib
 from collections.abc import Callable
 from typing import Any
 
-from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from rclpy.serialization import serialize_message
 
@@ -52,13 +51,18 @@ class Observer:
         for topic, type_name, qos in ms.view_topic_table(sc.n):
             self.pubs[topic] = node.create_publisher(msg_class(type_name), topic, qos)
         self.iteration_of: dict[int, int] = {}
-        self._pose = PoseStamped()
+        # CDR templates: the desired pose of every robot and sample, an error message
+        self._desired = [[serialize_message(ms.pose_to_msg(eta_d[r, s], 0, ms.WORLD_FRAME))
+                          for s in range(eta_d.shape[1])] for r in range(sc.n)]
+        self._error = serialize_message(ms.vector_msg(0, 0.0, 0.0))
 
-    def _emit(self, topic: str, msg: Any, stamp_ns: int) -> None:
-        data = serialize_message(msg)
+    def _send(self, topic: str, data: bytes, stamp_ns: int) -> None:
         self.pubs[topic].publish(data)
         if self.sink is not None:
             self.sink(topic, data, stamp_ns)
+
+    def _emit(self, topic: str, msg: Any, stamp_ns: int) -> None:
+        self._send(topic, serialize_message(msg), stamp_ns)
 
     def on_event(self, ev: TrialEvent) -> None:
         """A trial event: a start publishes the desired paths; an abort forgets the slot."""
@@ -74,15 +78,13 @@ class Observer:
     def on_pose(self, r: int, data: bytes) -> None:
         """Robot r's (0-based) measured pose, as received (CDR); MalformedMessage (a
         Rejected) if it is not a world pose of a sample."""
-        msg: PoseStamped = ms.deserialize(data, PoseStamped)
-        eta, stamp = ms.world_pose(msg)
+        eta, stamp = ms.world_pose_cdr(bytes(data))
         slot, s = self.clock.decode(stamp)
         pos, head = self.view.observe(slot, r, s, eta)
         i = r + 1
-        self._emit(ms.desired_pose_topic(i),
-                   ms.pose_to_msg(self.view.eta_d[r, s], stamp, ms.WORLD_FRAME, self._pose),
+        self._send(ms.desired_pose_topic(i), ms.stamped_cdr(self._desired[r][s], stamp), stamp)
+        self._send(ms.tracking_error_topic(i), ms.vector_cdr(self._error, stamp, pos, head, 0.0),
                    stamp)
-        self._emit(ms.tracking_error_topic(i), ms.vector_msg(stamp, pos, head), stamp)
         team = self.view.position(slot, r, s, eta)
         if team is not None:
             self._emit(ms.MARKERS, ms.markers_msg(stamp, self.view.eta_d[:, s, :2],

@@ -37,7 +37,7 @@ def graph_links(src: NDArray[np.int64]) -> list[tuple[int, int]]:
     return [(int(j), i) for i in range(src.shape[0]) for j in src[i] if j >= 0]
 
 
-def marker_every(dt: float, period: float = 0.1) -> int:
+def marker_every(dt: float, period: float = 0.5) -> int:
     """Markers every this many samples: about every ``period`` seconds of run time (a
     sample's every marker would cost more than it shows)."""
     return max(1, round(period / dt)) if dt > 0 else 1

@@ -71,4 +71,4 @@ def test_outline_links_and_marker_period():
     angles = [math.atan2(ring[i, 1], ring[i, 0]) for i in order]
     assert angles == sorted(angles) and sorted(order) == list(range(6))
     assert graph_links(np.array([[-1, -1], [0, -1], [0, 1]])) == [(0, 1), (0, 2), (1, 2)]
-    assert marker_every(0.1) == 1 and marker_every(0.01) == 10 and marker_every(0.0) == 1
+    assert marker_every(0.5) == 1 and marker_every(0.1) == 5 and marker_every(0.0) == 1
