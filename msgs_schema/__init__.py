@@ -19,7 +19,8 @@ config                     std_msgs/String (JSON)       leader -> all (latched)
 leader/reference           geometry_msgs/PoseStamped    leader -> robots that see it, links
 leader/trial_events        std_msgs/String (JSON)       leader -> all
 ready                      std_msgs/String (JSON)       all -> leader (latched)
-diagnostics                std_msgs/String (JSON)       all -> monitor (latched)
+diagnostics                diagnostic_msgs/             all -> monitor, recorder,
+                           DiagnosticArray              ROS tools (latched)
 robot_i/pose               geometry_msgs/PoseStamped    plant -> robot i
 robot_i/cmd_vel            geometry_msgs/Twist          robot i -> plant
 robot_i/shared_pose        geometry_msgs/PoseStamped    robot i -> out-neighbours (direct),
@@ -531,7 +532,7 @@ def topic_table(n: int) -> list[tuple[str, str, QoSProfile]]:
         (REFERENCE, "geometry_msgs/msg/PoseStamped", SAMPLE_QOS),
         (TRIAL_EVENTS, "std_msgs/msg/String", SAMPLE_QOS),
         (READY, "std_msgs/msg/String", LATCHED_QOS),
-        (DIAGNOSTICS, "std_msgs/msg/String", LATCHED_QOS),
+        (DIAGNOSTICS, DIAGNOSTICS_TYPE, LATCHED_QOS),
         (CLOCK, "rosgraph_msgs/msg/Clock", CLOCK_QOS),
     ]
     for i in range(1, n + 1):
@@ -542,3 +543,64 @@ def topic_table(n: int) -> list[tuple[str, str, QoSProfile]]:
             (true_trajectory_topic(i), "nav_msgs/msg/Path", TRAJECTORY_QOS),
         ]
     return rows
+
+
+# =========================================================================== diagnostics
+# Standard diagnostics (diagnostic_msgs/DiagnosticArray on ``diagnostics``): a node's report
+# as statuses with levels and key/value pairs (formation_ilc.protocol.health), which the
+# monitor, the recorder and analyze read back without loss, and ROS tools show.
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
+
+from formation_ilc.protocol.health import Status, flatten, statuses, unflatten  # noqa: E402
+
+__all__ += ["DIAGNOSTICS_TYPE", "diagnostics_to_msg", "msg_to_statuses", "msg_to_report"]
+
+DIAGNOSTICS_TYPE = "diagnostic_msgs/msg/DiagnosticArray"
+#: the most statuses and key/value pairs a diagnostics message may carry to be read
+DIAG_STATUS_MAX = 1024
+DIAG_VALUES_MAX = 100_000
+
+
+def diagnostics_to_msg(report: dict[str, Any], stamp_ns: int, dt: float | None = None,
+                       samples: int | None = None, hardware_id: str = "") -> DiagnosticArray:
+    """The DiagnosticArray of one node's report (``health.statuses``: levels by the
+    documented thresholds; ``dt`` [s] and ``samples`` per trial make the relative ones)."""
+    msg = DiagnosticArray()
+    msg.header.stamp = ns_to_stamp(stamp_ns)
+    for st in statuses(report, dt, samples, hardware_id):
+        msg.status.append(DiagnosticStatus(
+            level=bytes([st.level]), name=st.name, message=st.message,
+            hardware_id=st.hardware_id,
+            values=[KeyValue(key=k, value=v) for k, v in flatten(st.values)]))
+    return msg
+
+
+def msg_to_statuses(msg: DiagnosticArray) -> list[Status]:
+    """Every status of a DiagnosticArray with its fields back (MalformedMessage if one's
+    values are not the pairs ``diagnostics_to_msg`` writes, or there are too many)."""
+    if len(msg.status) > DIAG_STATUS_MAX:
+        raise MalformedMessage(f"{len(msg.status)} statuses in one diagnostics message")
+    out = []
+    for st in msg.status:
+        if len(st.values) > DIAG_VALUES_MAX:
+            raise MalformedMessage(f"{len(st.values)} values in one status")
+        try:
+            values = unflatten((kv.key, kv.value) for kv in st.values)
+        except (ValueError, RecursionError) as exc:
+            raise MalformedMessage(f"status {st.name[:100]!r}: {exc}"[:200]) from None
+        level = st.level[0] if isinstance(st.level, (bytes, bytearray)) else int(st.level)
+        out.append(Status(level, st.name, st.message, st.hardware_id, values))
+    return out
+
+
+def msg_to_report(msg: DiagnosticArray, required: Sequence[str] = ()) -> dict[str, Any]:
+    """The node's own report in a DiagnosticArray (the status that names its ``node``);
+    MalformedMessage if there is none or it lacks a key of ``required``."""
+    for st in msg_to_statuses(msg):
+        if "node" in st.values:
+            missing = [k for k in required if k not in st.values]
+            if missing:
+                raise MalformedMessage(f"diagnostics lack {missing}")
+            return st.values
+    raise MalformedMessage("diagnostics without a node's report")

@@ -46,12 +46,14 @@ import sys
 import time
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist
 from nav_msgs.msg import Path
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 import msgs_schema as ms
+from formation_ilc.config import params
 from formation_ilc.core.clock import Rejected
 from formation_ilc.nodes.common import (
     ConfiguredNode,
@@ -62,6 +64,7 @@ from formation_ilc.nodes.common import (
     spin_main,
     warm_up,
 )
+from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.plant import RESEND_S, KinematicPlant
 
 #: the plant's node name (what it says ready as)
@@ -73,7 +76,7 @@ class SimNode(ConfiguredNode):
 
     def __init__(self, **kwargs: Any):
         super().__init__(NAME, **kwargs)
-        self.declare_parameter("timeout", 0.0)
+        declare(self, params.SIM)
         self.follow_config()
 
     def configure(self, cfg: RunConfig) -> None:
@@ -92,7 +95,7 @@ class SimNode(ConfiguredNode):
                                                 ms.TRAJECTORY_QOS) for r in range(n)]
         self.clock_pub = self.create_publisher(Clock, ms.CLOCK, ms.CLOCK_QOS)
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         for r in range(n):
             self.create_subscription(Twist, ms.cmd_vel_topic(r + 1),
                                      lambda m, r=r: self._on_cmd(m, r), ms.SAMPLE_QOS)
@@ -144,7 +147,9 @@ class SimNode(ConfiguredNode):
                                                                 ms.WORLD_FRAME))
             d = {"node": NAME, **plant.report()}
             d.update(self.drops.as_dict())
-            self.diag_pub.publish(ms.json_to_msg(d))
+            self.diag_pub.publish(ms.diagnostics_to_msg(
+                d, self.get_clock().now().nanoseconds, self.cfg.scenario.dt,
+                self.cfg.scenario.samples))
         self.clock_pub.publish(ms.clock_msg(s.stamp_ns))
         for r in range(plant.n):
             self.pose_pubs[r].publish(ms.pose_to_msg(s.eta[r], s.stamp_ns, ms.WORLD_FRAME,

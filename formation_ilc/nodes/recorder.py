@@ -36,6 +36,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile
 from std_msgs.msg import String
@@ -44,6 +45,7 @@ import msgs_schema as ms
 from formation_ilc.core.clock import Rejected
 from formation_ilc.core.links import check_diagnostics
 from formation_ilc.nodes.common import DropCounter, RunConfig, node_parser, spin_main
+from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.schedule import Ready, TrialEvent
 from formation_ilc.recordings.mcap_io import CHUNK_BYTES, RosMcapWriter
 from formation_ilc.recordings.recording import META_NAME, qos_of
@@ -69,6 +71,7 @@ class RecorderNode(Node):
     def __init__(self, output: Path, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(ms.RECORDER_NODE, **kwargs)
+        declare(self, ())  # no parameters of its own; use_sim_time refused
         self.output = Path(output)
         #: this process in its ready (the launcher's ``down`` names it by its pid)
         self.boot = f"{os.getpid()}"
@@ -87,7 +90,7 @@ class RecorderNode(Node):
         self.progress_topics: set[str] = set()  # what _progress reads (once configured)
         self.said_ready = False
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         self.paths: dict[int, set[str]] = {}  # slot -> topics of its trajectories recorded
         self.iteration_of: dict[int, int] = {}  # slot -> iteration (start events)
         self.aborted: set[int] = set()
@@ -207,8 +210,8 @@ class RecorderNode(Node):
             self._advance()
             return
         if topic == ms.DIAGNOSTICS:
-            d = check_diagnostics(ms.msg_to_json(ms.deserialize(data, String),
-                                                 ("node", "trial")))
+            d = check_diagnostics(ms.msg_to_report(ms.deserialize(data, DiagnosticArray),
+                                                   ("node", "trial")))
             name, k = d["node"], d["trial"]
             if name not in self.robots:
                 return
@@ -258,7 +261,7 @@ class RecorderNode(Node):
                  "file": str(self.output), "invalid_stamps": dict(self.invalid_stamps),
                  "unwritable": dict(self.unwritable)}
             d.update(self.drops.as_dict())
-            self.diag_pub.publish(ms.json_to_msg(d))
+            self.diag_pub.publish(ms.diagnostics_to_msg(d, self.get_clock().now().nanoseconds))
             k += 1
 
     def _configure(self, data: bytes) -> None:
