@@ -155,3 +155,28 @@ def test_the_recorder_refuses_sim_time_before_it_writes_anything(ros_env, tmp_pa
     assert res.returncode == 2, res.stderr
     assert len(res.stderr.strip().splitlines()) == 1 and "use_sim_time" in res.stderr
     assert not out.exists()
+
+
+def test_the_fake_driver_starts_from_its_example_file(params_context):
+    import msgs_schema as ms
+    from formation_ilc.nodes.params import probe_overrides
+    from robot_sim.fake_pioneer import FakePioneer
+
+    ctx = params_context("--params-file", str(PARAMS / "fake_pioneer.yaml"))
+    found = probe_overrides(ms.FAKE_DRIVER_NODE, ms.DRIVERS["rosaria"].default_ns, context=ctx)
+    fake = FakePioneer(found["driver"], context=ctx)
+    try:
+        assert fake.get_parameter("cmd_timeout").value == 0.6
+        assert fake.describe_parameter("rate").read_only
+    finally:
+        fake.destroy_node()
+
+
+def test_every_example_file_is_installed_and_every_node_has_one():
+    import tomllib
+
+    data = tomllib.loads((PARAMS.parent / "pyproject.toml").read_text())
+    shipped = data["tool"]["setuptools"]["data-files"]["share/formation_ilc/params"]
+    assert sorted(shipped) == sorted(f"params/{p.name}" for p in PARAMS.glob("*.yaml"))
+    for node in ("robot", "bridge", "virtual_leader", "robot_sim", "fake_pioneer"):
+        assert (PARAMS / f"{node}.yaml").is_file()
