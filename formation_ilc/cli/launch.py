@@ -130,7 +130,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=out_dir_arg, metavar="DIR",
                    help="output folder (default: runs/SCENARIO-launch-TIME)")
     p.add_argument("--domain-id", type=int_range(0, 232), metavar="ID",
-                   help="ROS_DOMAIN_ID (default: a free-looking one in 30..100)")
+                   help="ROS_DOMAIN_ID (default: the caller's ROS_DOMAIN_ID if set, else a "
+                        "free-looking one in 30..100)")
     p.add_argument("--discovery", choices=("localhost", "inherit"), default="localhost",
                    help="localhost (default): ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; "
                         "inherit: keep the caller's discovery settings (multi-host runs)")

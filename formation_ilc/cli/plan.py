@@ -262,7 +262,9 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
                    monitor=True, recorder=opts.record is not None)
     record = opts.record.resolve() if opts.record is not None else None
     root = getattr(opts, "record_root_", None) or record
-    domain = opts.domain_id if opts.domain_id is not None else pick_domain()
+    domain = opts.domain_id if opts.domain_id is not None else caller_domain()
+    if domain is None:
+        domain = pick_domain()
     bridge = BridgeOptions.of(opts) if opts.plant == "pioneer" else None
     plan = RunPlan(
         config=cfg, team=team, nodes=(), out=out, namespace=namespace, domain=domain,
@@ -453,6 +455,17 @@ def _run_json(opts: argparse.Namespace, mode: str, links: str, out: Path) -> dic
          if k not in ("func", "command", "resume") and not k.endswith("_")}
     d.update(mode=mode, links=links, out=str(out))
     return d
+
+
+def caller_domain() -> int | None:
+    """The caller's ``ROS_DOMAIN_ID`` (the launcher honours it), None when it is not set;
+    NoRun when it is not a domain id."""
+    text = os.environ.get("ROS_DOMAIN_ID", "").strip()
+    if not text:
+        return None
+    if not text.isdigit() or int(text) > 232:
+        raise NoRun(f"ROS_DOMAIN_ID={text[:20]!r}: a domain id 0..232 is required")
+    return int(text)
 
 
 def pick_domain() -> int:

@@ -310,3 +310,16 @@ def test_a_node_that_refuses_is_not_started_again(tmp_path, capsys):
     finally:
         sup.stop()
     assert "error: node process p1 exited with status 2 (log: " in capsys.readouterr().err
+
+
+def test_the_callers_ros_domain_id_is_honoured(tmp_path, monkeypatch):
+    monkeypatch.setenv("ROS_DOMAIN_ID", "7")
+    assert plan_of(tmp_path, "paper-triangle3", "--trials", "2", out="a").domain == 7
+    # --domain-id still wins; without either a free-looking one is picked
+    assert plan_of(tmp_path, "paper-triangle3", "--trials", "2",
+                   "--domain-id", "42", out="b").domain == 42
+    monkeypatch.delenv("ROS_DOMAIN_ID")
+    assert 30 <= plan_of(tmp_path, "paper-triangle3", "--trials", "2", out="c").domain <= 100
+    monkeypatch.setenv("ROS_DOMAIN_ID", "abc")
+    with pytest.raises(NoRun, match="ROS_DOMAIN_ID='abc': a domain id 0..232 is required"):
+        plan_of(tmp_path, "paper-triangle3", "--trials", "2", out="d")
