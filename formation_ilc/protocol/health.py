@@ -116,8 +116,9 @@ def assess(d: Mapping[str, Any], dt: float | None = None, samples: int | None = 
         hit = _missed(_num(missed), None, "")
         if hit is not None:
             found.append(hit)
+    dropped = d.get("dropped")
     for reason in WARN_DROPS:
-        n = _num((d.get("dropped") or {}).get(reason))
+        n = _num(dropped.get(reason)) if isinstance(dropped, Mapping) else 0.0
         if n > 0:
             found.append((WARN, f"{n:g} {reason} messages dropped"))
     late = d.get("late")
