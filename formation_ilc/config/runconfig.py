@@ -71,7 +71,8 @@ class RunConfig:
                 "delay": sc.uncertainty.delay.kind != "none", "trials": sc.trials,
                 "law": sc.law.kind, "memory": sc.law.memory, "mode": self.mode,
                 "links": self.links, "gap": self.gap, "monitored": self.monitored,
-                "timeout": self.timeout, "run_id": self.run_id}
+                "timeout": self.timeout, "run_id": self.run_id,
+                "headings": sc.headings, "time_scale": sc.time_scale}
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> RunConfig:
@@ -80,7 +81,9 @@ class RunConfig:
             sc = scenario_from_text(str(d["scenario_text"]), str(d.get("source", "<config>")))
             sc = sc.with_options(law=int(d["law"]), memory=str(d["memory"]),
                                  noise=bool(d["noise"]), delay=bool(d["delay"]),
-                                 seed=int(d["seed"]), trials=int(d["trials"]))
+                                 seed=int(d["seed"]), trials=int(d["trials"]),
+                                 headings=str(d.get("headings", sc.headings)),
+                                 time_scale=float(d.get("time_scale", sc.time_scale)))
             return cls(sc, str(d.get("mode", "lockstep")), int(d.get("gap", 20)),
                        bool(d.get("monitored", False)), float(d.get("timeout", 30.0)),
                        str(d.get("links", "emulated")), str(d.get("run_id", "")))
@@ -92,8 +95,10 @@ def make_config(scenario: str, *, seed: int | None = None, noise: bool = True,
                 delay: bool = True, trials: int | None = None, law: int | None = None,
                 memory: str | None = None, mode: str = "lockstep", gap: int = 20,
                 monitored: bool = False, timeout: float = 30.0,
-                links: str = "emulated", run_id: str = "") -> RunConfig:
+                links: str = "emulated", run_id: str = "", headings: str | None = None,
+                time_scale: float | None = None) -> RunConfig:
     """The run configuration of a scenario name or file with command-line overrides."""
     sc = load_scenario(scenario).with_options(law=law, memory=memory, noise=noise,
-                                              delay=delay, seed=seed, trials=trials)
+                                              delay=delay, seed=seed, trials=trials,
+                                              headings=headings, time_scale=time_scale)
     return RunConfig(sc, mode, gap, monitored, timeout, links, run_id)

@@ -10,8 +10,8 @@ from numpy.typing import NDArray
 
 from formation_ilc.core._jit import njit
 
-__all__ = ["step", "step_into", "unicycle_step", "rollout", "wrap_angle",
-           "heading_from_quaternion", "quaternion_from_heading"]
+__all__ = ["step", "step_into", "unicycle_step", "arc_step", "PLANT_MODELS", "rollout",
+           "wrap_angle", "heading_from_quaternion", "quaternion_from_heading"]
 
 
 @njit(cache=True)
@@ -26,6 +26,27 @@ def unicycle_step(x: float, y: float, th: float, v: float, w: float, dt: float
                   ) -> tuple[float, float, float]:
     """One sample of eq. (1) for one robot: v, w the input plus its disturbance."""
     return x + dt * np.cos(th) * v, y + dt * np.sin(th) * v, th + dt * w
+
+
+#: the batch simulator's plant models: 'euler' (eq. 1 as the paper writes it: the robot
+#: drives straight along its heading for a whole sample, then turns) and 'arc' (a unicycle
+#: that holds v and omega for the sample: it drives an arc, as a real base does)
+PLANT_MODELS = ("euler", "arc")
+
+
+@njit(cache=True)
+def arc_step(x: float, y: float, th: float, v: float, w: float, dt: float
+             ) -> tuple[float, float, float]:
+    """One sample of the continuous unicycle under constant (v, w): the exact arc.
+
+    Moves by the arc's chord, v dt sin(w dt / 2) / (w dt / 2), along th + w dt / 2 (the
+    chord's direction); a turn below 1e-9 rad is a straight step.
+    """
+    half = 0.5 * w * dt
+    scale = np.sin(half) / half if abs(half) > 1e-9 else 1.0
+    d = v * dt * scale
+    mid = th + half
+    return x + d * np.cos(mid), y + d * np.sin(mid), th + w * dt
 
 
 @njit(cache=True)
