@@ -1,0 +1,86 @@
+"""Robot bases the stack can drive, and whether a scenario fits their limits.
+
+A preset names a base's ROS interface (its velocity topic and message type, its odometry
+topic, both relative to the base's namespace) and its published speed and acceleration
+limits, with where they come from. ``formation-ilc launch --base NAME`` and the generic
+bridge (``driver: base``) read them; every value can be overridden per robot
+(``--v-max`` ..., or a params file).
+
+Sources of the limits (check them against your robot's own configuration):
+
+* turtlebot3 (Burger): ROBOTIS e-Manual, TurtleBot3 specifications: 0.22 m/s, 2.84 rad/s;
+  accelerations: turtlebot3_navigation2's burger parameters (acc_lim_x 2.5, acc_lim_theta
+  3.2).
+* turtlebot4 (iRobot Create 3 base): Create 3 specifications, 0.306 m/s; 1.9 rad/s, the
+  turtlebot4 teleop limit; accelerations as turtlebot3 (Nav2's defaults for this class).
+* jackal: Clearpath jackal_control control.yaml: 2.0 m/s, 4.0 rad/s, 20 m/s^2, 25 rad/s^2.
+* husky: Clearpath husky_control control.yaml: 1.0 m/s, 2.0 rad/s, 3.0 m/s^2, 6.0 rad/s^2.
+* p3dx (Pioneer 3-DX through this package's RosAria bridge): the bridge's defaults
+  0.75 m/s and 100 deg/s (inside the robot's 1.2 m/s and 300 deg/s); ARIA's default
+  accelerations 0.3 m/s^2 and 100 deg/s^2.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from formation_ilc.config.scenario import MAX_TIME_SCALE, Scenario
+from formation_ilc.core.limits import Limits, check_inputs, scale_needed
+
+__all__ = ["BasePreset", "BASES", "base_preset", "fit_limits"]
+
+
+@dataclass(frozen=True)
+class BasePreset:
+    """A base's ROS interface and limits. cmd_type: 'twist' or 'twist_stamped'."""
+
+    name: str
+    limits: Limits
+    cmd_topic: str = "cmd_vel"
+    cmd_type: str = "twist"
+    odom_topic: str = "odom"
+    source: str = ""
+
+
+BASES: dict[str, BasePreset] = {
+    "turtlebot3": BasePreset("turtlebot3", Limits(0.22, 2.84, 2.5, 3.2),
+                             source="ROBOTIS e-Manual; turtlebot3_navigation2"),
+    # Jazzy's TurtleBot 4 takes TwistStamped on cmd_vel
+    "turtlebot4": BasePreset("turtlebot4", Limits(0.306, 1.9, 2.5, 3.2),
+                             cmd_type="twist_stamped",
+                             source="Create 3 specifications; turtlebot4 teleop"),
+    # Clearpath's ROS 2 platforms: TwistStamped on cmd_vel, wheel odometry on platform/odom
+    "jackal": BasePreset("jackal", Limits(2.0, 4.0, 20.0, 25.0), cmd_type="twist_stamped",
+                         odom_topic="platform/odom", source="jackal_control control.yaml"),
+    "husky": BasePreset("husky", Limits(1.0, 2.0, 3.0, 6.0), cmd_type="twist_stamped",
+                        odom_topic="platform/odom", source="husky_control control.yaml"),
+    "p3dx": BasePreset("p3dx", Limits(0.75, math.radians(100), 0.3, math.radians(100)),
+                       odom_topic="pose", source="this package's Pioneer bridge; ARIA"),
+}
+
+
+def base_preset(name: str) -> BasePreset:
+    try:
+        return BASES[name]
+    except KeyError:
+        raise ValueError(f"no base preset {name!r} (have: {', '.join(BASES)})") from None
+
+
+def fit_limits(sc: Scenario, limits: list[Limits]) -> str | None:
+    """None if the scenario's desired inputs stay inside every robot's limits; otherwise
+    one line naming the robot, the time and the value exceeded, and the ``--time-scale``
+    that makes it fit (checked on the stretched scenario) or why none does."""
+    d = sc.desired
+    v = check_inputs(d.u, sc.dt, limits)
+    if v is None:
+        return None
+    guess = scale_needed(d.u, sc.dt, limits) * sc.time_scale
+    # the estimate is exact for speeds; round up and check on the stretched plan
+    s = math.ceil(guess * 20) / 20
+    while s <= MAX_TIME_SCALE:
+        stretched = sc.with_options(time_scale=s)
+        if check_inputs(stretched.desired.u, stretched.dt, limits) is None:
+            return f"{v.line(sc.dt)}; --time-scale {s:g} fits"
+        s = math.ceil(s * 1.1 * 20) / 20
+    return f"{v.line(sc.dt)}; no time scale up to {MAX_TIME_SCALE:g} fits"
