@@ -68,10 +68,16 @@ NAME = "robot_sim"
 
 
 class SimNode(ConfiguredNode):
-    """The kinematic simulator of all robots."""
+    """The kinematic simulator of all robots.
 
-    def __init__(self, **kwargs: Any):
-        super().__init__(NAME, **kwargs)
+    Another plant that keeps this node's schedule, timing and publishing (the physics plant,
+    ``robot_sim.physics_node``) subclasses it and replaces the plant's three steps:
+    ``_place`` (a trial starts at xi[:, 0]), ``_plant_step`` (sample t to t+1 under
+    u[:, t]) and ``_measure`` (the measured pose of sample t).
+    """
+
+    def __init__(self, name: str = NAME, **kwargs: Any):
+        super().__init__(name, **kwargs)
         self.declare_parameter("timeout", 0.0)
         self.follow_config()
 
@@ -174,6 +180,7 @@ class SimNode(ConfiguredNode):
         shift, self.dist, self.noise = self.unc.draw_plant(self.cfg.scenario.seed, ev.trial,
                                                            pb.n, pb.samples)
         self.xi[:, 0] = pb.eta_d[:, 0] + shift
+        self._place()
         self.u[:] = 0.0
         self.t = 0
         self.in_trial = True
@@ -188,7 +195,7 @@ class SimNode(ConfiguredNode):
     def _publish_sample(self) -> None:
         t, k = self.t, self.k
         ns = self.clock.stamp_ns(k, t)
-        self.eta[:, t] = self.xi[:, t] + self.noise[:, t]
+        self._measure(t)
         if t == self.T:
             # ground truth and diagnostics before the last poses: the robots finish the trial
             # on those poses, and a monitor that stops the run after the robots' last word
@@ -200,8 +207,9 @@ class SimNode(ConfiguredNode):
                                                                 ms.WORLD_FRAME))
             self.trial_time += time.perf_counter() - self.trial_t0
             self.samples_done += self.T
-            d = {"node": NAME, "trial": self.iteration, "slot": k, "mode": self.cfg.mode,
-                 "missed": dict(self.missed), "timing": self._timing()}
+            d = {"node": self.get_name(), "trial": self.iteration, "slot": k,
+                 "mode": self.cfg.mode, "missed": dict(self.missed), "timing": self._timing()}
+            d.update(self._trial_report())
             d.update(self.drops.as_dict())
             self.diag_pub.publish(ms.json_to_msg(d))
         self.clock_pub.publish(ms.clock_msg(ns))
@@ -259,7 +267,7 @@ class SimNode(ConfiguredNode):
     def _advance(self) -> None:
         t = self.t
         self.latency.append(time.perf_counter() - self.wait_start)
-        step_into(self.xi[:, t], self.u[:, t], self.dist[:, t], self.pb.dt, self.xi[:, t + 1])
+        self._plant_step(t)
         self.t = t + 1
         self._publish_sample()
 
@@ -292,9 +300,25 @@ class SimNode(ConfiguredNode):
         self.fresh[:] = False
         if not self.pending:
             self.latency.append(self.last_in)
-        step_into(self.xi[:, t], self.u[:, t], self.dist[:, t], self.pb.dt, self.xi[:, t + 1])
+        self._plant_step(t)
         self.t = t + 1
         self._publish_sample()
+
+    # ------------------------------------------------------------------ the plant itself
+    def _place(self) -> None:
+        """A trial starts at xi[:, 0] (the kinematic state is xi itself)."""
+
+    def _plant_step(self, t: int) -> None:
+        """xi[:, t + 1] from xi[:, t] under u[:, t] and the input disturbance (eq. 1)."""
+        step_into(self.xi[:, t], self.u[:, t], self.dist[:, t], self.pb.dt, self.xi[:, t + 1])
+
+    def _measure(self, t: int) -> None:
+        """The measured pose of sample t: the true state plus the output noise."""
+        self.eta[:, t] = self.xi[:, t] + self.noise[:, t]
+
+    def _trial_report(self) -> dict[str, Any]:
+        """More diagnostics at a trial's end (a subclass's)."""
+        return {}
 
     def _watchdog(self) -> None:
         if self.in_trial and self.pending and \

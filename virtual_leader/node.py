@@ -105,6 +105,9 @@ class LeaderNode(Node):
         self.declare_parameter("nodes_expected", Parameter.Type.STRING_ARRAY)
         self.declare_parameter("state_dir", "")
         self.declare_parameter("run_id", "")
+        # desired headings (auto, chord, arc) and time scale (1: as the scenario says)
+        self.declare_parameter("headings", "")
+        self.declare_parameter("time_scale", 0.0)
         g = lambda name: self.get_parameter(name).value  # noqa: E731
         if not g("scenario"):
             raise ValueError("parameter scenario: a scenario name or file is required")
@@ -114,7 +117,9 @@ class LeaderNode(Node):
             trials=int(g("trials")) or None, law=int(g("law")) or None,
             memory=str(g("memory")) or None, mode=str(g("mode")), gap=int(g("gap")),
             monitored=bool(g("monitored")), timeout=float(g("timeout")),
-            links=str(g("links")), run_id=str(g("run_id")))
+            links=str(g("links")), run_id=str(g("run_id")),
+            headings=str(g("headings")) or None,
+            time_scale=float(g("time_scale")) or None)
         sc = self.cfg.scenario
         self.clock = self.cfg.clock
         self.T = sc.samples

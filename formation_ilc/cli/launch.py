@@ -34,6 +34,7 @@ every robot starts from its row of a memory learned by `formation-ilc simulate`.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -85,8 +86,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "neighbours, as on robots, and the delays are the network's (a "
                         "lockstep run equals `simulate --no-delay`; the default and required "
                         "with --plant pioneer)")
-    p.add_argument("--plant", choices=("sim", "external", "pioneer"), default="sim",
-                   help="sim (default): start the kinematic simulator; external: another "
+    p.add_argument("--plant", choices=("sim", "physics", "external", "pioneer"), default="sim",
+                   help="sim (default): start the kinematic simulator; physics: the PyBullet "
+                        "rigid-body plant (docs/physics.md); external: another "
                         "process speaks the plant contract (docs/distributed-stack.md) and "
                         "says ready as one of --plant-nodes; pioneer: one Pioneer bridge per "
                         "robot (formation-ilc-bridge, docs/real-robots.md) in front of a "
@@ -106,6 +108,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--return-timeout", type=positive_float, default=60.0, metavar="S",
                    help="with --plant pioneer: how long a bridge drives its robot back to the "
                         "initial pose between trials before it reports a timeout")
+    p.add_argument("--robot-model", choices=("p3dx", "husky"), default="p3dx",
+                   help="with --plant physics: P3-DX-size two-wheel drive (default) or the "
+                        "Husky of pybullet_data")
+    p.add_argument("--pose", choices=("truth", "odometry"), default="truth",
+                   help="with --plant physics: the robots' measured pose, the engine's ground "
+                        "truth (a motion-capture stand-in, default) or wheel odometry")
+    p.add_argument("--pass-through", action="store_true",
+                   help="with --plant physics: robots pass through each other instead of "
+                        "colliding (contacts are then not reported)")
+    p.add_argument("--physics-rate", type=positive_float, default=240.0, metavar="HZ",
+                   help="with --plant physics: engine steps per second (default 240)")
+    p.add_argument("--allow-contact", action="store_true",
+                   help="run on a plant with bodies although the batch simulator predicts "
+                        "that the robots' footprints overlap")
+    p.add_argument("--headings", choices=("auto", "chord", "arc"), default=None,
+                   help="desired headings (default: the scenario's, auto: chord for the "
+                        "kinematic simulator, arc for plants that drive arcs)")
+    p.add_argument("--time-scale", type=positive_float, default=None, metavar="S",
+                   help="stretch the reference in time by S >= 1 (S times slower: speeds / S, "
+                        "accelerations / S^2), so that a fast scenario fits the robots' limits")
     p.add_argument("--init-memory", type=Path, metavar="MEMORY.npz",
                    help="every robot starts from its row of this memory file (written by "
                         "`formation-ilc simulate`): the sim-to-real carry-over")
@@ -168,7 +190,8 @@ def node_commands(cfg_args: dict[str, Any], n: int, container: int, *, links: st
                   plant: str = "sim", namespace: str | None = None,
                   robot_params: dict[str, Any] | None = None,
                   bridge_params: dict[str, Any] | None = None, driver_ns: str = "/pioneer_{i}",
-                  fake_drivers: bool = False, cmd_type: str = "twist"
+                  fake_drivers: bool = False, cmd_type: str = "twist",
+                  physics_params: dict[str, Any] | None = None
                   ) -> list[tuple[str, list[str]]]:
     """(name, argv) of every process of the stack (sys.executable -m ...)."""
     py = sys.executable
@@ -183,6 +206,11 @@ def node_commands(cfg_args: dict[str, Any], n: int, container: int, *, links: st
     if plant == "sim":
         procs.append(("robot_sim", [py, "-m", "robot_sim.node", "--ros-args", *nsa, "-p",
                                     f"timeout:={float(cfg_args['timeout'])}"]))
+    if plant == "physics":
+        pp = [f"timeout:={float(cfg_args['timeout'])}"]
+        pp += [f"{k}:={v}" for k, v in (physics_params or {}).items()]
+        procs.append(("physics_sim", [py, "-m", "robot_sim.physics_node", "--ros-args", *nsa,
+                                      *[a for b in pp for a in ("-p", b)]]))
     if plant == "pioneer":
         for i in range(1, n + 1):
             dns = driver_ns.replace("{i}", str(i))
@@ -382,6 +410,14 @@ def run(args: argparse.Namespace) -> int:
               f"have no simulated clock and no link emulator), got --mode {args.mode} "
               f"--links {args.links}", file=sys.stderr)
         return 2
+    physics = args.plant == "physics"
+    if physics:
+        try:
+            import pybullet  # noqa: F401
+        except ImportError:
+            print("error: --plant physics needs PyBullet: pip install -c requirements.lock -e "
+                  "'.[physics]'", file=sys.stderr)
+            return 2
     if args.mode == "wallclock" and not pioneer and args.plant != "external":
         print("error: --mode wallclock is for real robots: use it with --plant pioneer (or an "
               "external plant that samples on the wall clock); the simulator runs lockstep "
@@ -396,10 +432,24 @@ def run(args: argparse.Namespace) -> int:
         return 2
     args.mode = args.mode or ("wallclock" if pioneer else "lockstep")
     args.links = args.links or ("direct" if pioneer or args.mode == "wallclock" else "emulated")
-    cfg = make_config(args.scenario, seed=args.seed, noise=not args.no_noise,
-                      delay=not args.no_delay, trials=args.trials, law=args.law,
-                      memory=args.memory, mode=args.mode, monitored=True,
-                      timeout=args.timeout, links=args.links, run_id=args.run_id)
+    from formation_ilc.config.scenario import ScenarioError
+
+    try:
+        cfg = make_config(args.scenario, seed=args.seed, noise=not args.no_noise,
+                          delay=not args.no_delay, trials=args.trials, law=args.law,
+                          memory=args.memory, mode=args.mode, monitored=True,
+                          timeout=args.timeout, links=args.links, run_id=args.run_id,
+                          time_scale=args.time_scale)
+    except ScenarioError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if args.headings is not None or cfg.scenario.headings == "auto":
+        # 'auto': chord for the kinematic simulator, arc for any plant that drives arcs
+        headings = args.headings or "auto"
+        sc0 = cfg.scenario.with_options(headings=headings)
+        sc0 = sc0.for_plant("euler" if args.plant == "sim" else "arc")
+        cfg = dataclasses.replace(cfg, scenario=sc0)
+    args.headings = cfg.scenario.headings
     namespace = args.namespace or ms.NAMESPACE
     if not namespace.startswith("/") or "//" in namespace:
         print(f"error: --namespace {namespace!r}: an absolute ROS namespace like /team2 is "
@@ -465,6 +515,8 @@ def run(args: argparse.Namespace) -> int:
     if "ROS_AUTOMATIC_DISCOVERY_RANGE" in env:
         os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env["ROS_AUTOMATIC_DISCOVERY_RANGE"]
     pb = Problem.from_scenario(sc)
+    if (physics or pioneer) and not _clear_of_contact(args, sc):
+        return 2
 
     scen = args.scenario
     if Path(scen).exists():
@@ -474,10 +526,10 @@ def run(args: argparse.Namespace) -> int:
         "memory": sc.law.memory, "noise": str(not args.no_noise).lower(),
         "delay": str(not args.no_delay).lower(), "mode": args.mode, "monitored": "true",
         "timeout": float(args.timeout), "links": args.links, "state_dir": str(state_dir),
-        "run_id": args.run_id}
+        "run_id": args.run_id, "headings": sc.headings, "time_scale": float(sc.time_scale)}
     # the schedule waits for every node, the launcher's monitor and the recorder included,
     # so that none of them misses a trial
-    plants = (["robot_sim"] if args.plant == "sim"
+    plants = (["robot_sim"] if args.plant == "sim" else ["physics_sim"] if physics
               else [ms.bridge_name(i + 1) for i in range(sc.n)] if pioneer
               else list(args.plant_nodes))
     support = (["link_emulator"] if args.links == "emulated" else [])
@@ -515,7 +567,7 @@ def run(args: argparse.Namespace) -> int:
         writer = MetricsWriter(out / "metrics.csv")
     t_start = time.monotonic()
     trial_wall: list[float] = []
-    true_state = args.plant == "sim"
+    true_state = args.plant in ("sim", "physics")
 
     from formation_ilc.core.metrics import METRIC_COLUMNS, TRUE_COLUMNS
 
@@ -570,7 +622,10 @@ def run(args: argparse.Namespace) -> int:
                 bridge_params={"driver": args.driver,
                                "return_timeout": float(args.return_timeout)},
                 driver_ns=args.driver_ns, fake_drivers=args.fake_drivers,
-                cmd_type=args.cmd_type):
+                cmd_type=args.cmd_type, physics_params={
+                    "model": args.robot_model, "pose": args.pose,
+                    "collide": str(not args.pass_through).lower(),
+                    "rate": float(args.physics_rate)}):
             stack.start(name, host_argv(args, name, argv))
         final_deadline: float | None = None
         while True:
@@ -590,8 +645,7 @@ def run(args: argparse.Namespace) -> int:
                 # samples, injected delays) too
                 recorded = recorded and all(
                     monitor.diagnostics.get(node, {}).get("trial", -1) >= sc.trials - 1
-                    for node in (["robot_sim"] if true_state else []) + support
-                    + (plants if pioneer else []))
+                    for node in (plants if true_state or pioneer else []) + support)
                 # and the leader's "done": it has saved the last trial as learned by all
                 done_seen = any(e.get("event") == ms.DONE for e in monitor.events)
                 if (len(got) == sc.n and min(got) >= sc.trials - 1 and recorded
@@ -656,7 +710,7 @@ def run(args: argparse.Namespace) -> int:
     dtab = delay_rows(measured, injected if emulated else None,
                       sc.uncertainty.delay.pmf() if emulated else None)
     write_delays(out / "delays.csv", dtab)
-    sim_diag = diagnostics.get("robot_sim", {})
+    sim_diag = diagnostics.get(plants[0] if true_state else "robot_sim", {})
     summary = {"scenario": sc.name, "robots": sc.n, "trials_done": len(rows),
                "trials": sc.trials, "mode": args.mode, "links": args.links,
                "plant": plants, "true_state": true_state, "namespace": namespace,
@@ -670,6 +724,10 @@ def run(args: argparse.Namespace) -> int:
             b: {key: diagnostics.get(b, {}).get(key) for key in
                 ("initial_shifts", "returns", "return_timeouts", "missed", "clipped",
                  "watchdog_zero", "stale_odometry")} for b in plants}
+    if physics:
+        summary["physics"] = {key: sim_diag.get(key) for key in (
+            "model", "pose_source", "substeps", "contacts_by_trial", "tilt_by_trial",
+            "odometry_drift_by_trial")}
     if args.init_memory is not None:
         summary["init_memory"] = str(args.init_memory)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
@@ -688,6 +746,35 @@ def run(args: argparse.Namespace) -> int:
     if args.record is not None:
         print(f"recording: {args.record} (formation-ilc analyze {args.record})")
     return 0
+
+
+def _clear_of_contact(args: argparse.Namespace, sc: Any) -> bool:
+    """A run on robots with bodies: the batch simulator predicts the run (noise-free, the
+    arc plant, from the initial memory); if two footprints overlap, say where and how to
+    avoid it, and refuse unless --allow-contact. Returns whether to go on."""
+    from formation_ilc.model.footprint import Footprint, first_overlap, predict_clearance
+    from formation_ilc.store.memoryfile import load_memory
+
+    if args.plant == "physics":
+        from formation_ilc.model.physics import robot_model
+
+        fp = robot_model(args.robot_model).footprint
+    else:
+        fp = Footprint(0.455, 0.381, -0.045)  # a Pioneer 3-DX
+    memory = None if args.init_memory is None else load_memory(args.init_memory, sc)
+    hit = first_overlap(predict_clearance(sc, fp, sc.trials, memory=memory))
+    if hit is None:
+        return True
+    start = "warm start" if memory is not None else "cold start (u_0 = 0)"
+    line = (f"the batch simulator predicts contact from this {start}: {hit.line(sc.dt)} "
+            f"(footprint {fp.length} x {fp.width} m)")
+    if args.allow_contact:
+        print(f"warning: {line}; running anyway (--allow-contact)", flush=True)
+        return True
+    print(f"error: {line}; start from a learned memory (--init-memory, see "
+          f"docs/physics.md), widen the formation's offsets, or --allow-contact",
+          file=sys.stderr)
+    return False
 
 
 class _Refused(Exception):
