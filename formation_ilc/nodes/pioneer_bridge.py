@@ -18,6 +18,18 @@ usual namespace; remap further with ``-r``):
   (state 1) on ``cmd_motor_state`` (p2os_msgs comes from p2os's ROS 2 workspace: source it);
 * ``ros2aria``: ``cmd_vel``, ``odom``, motors engaged by the service ``clutch`` (assumed
   std_srvs/SetBool; see msgs_schema.DRIVERS).
+* ``base``: any differential-drive base with the common interface (TurtleBot 3/4, Jackal,
+  Husky): ``cmd_vel`` in, ``odom`` out, no motor service. ``base:=NAME`` picks a preset of
+  ``formation_ilc.config.bases`` (topic names, cmd_type, limits; driver ``base`` implied).
+  Yaw comes from the full quaternion; odometry tilted by more than ``max_tilt`` [deg]
+  (default 10) is refused (counted as malformed, with the reason), the largest accepted
+  tilt is reported (``tilt_max_deg``).
+
+Limits: ``v_max`` [m/s], ``omega_max`` [deg/s], ``a_max`` [m/s^2], ``alpha_max``
+[deg/s^2] (0: the preset's, or for Pioneer drivers 0.75 m/s, 100 deg/s and no acceleration
+limit). Every command sent to the driver, in trials and returns alike, goes through them
+(formation_ilc.core.limits.RateLimiter); ``clipped`` counts robot commands clamped in
+speed, ``clipped_accel`` commands held back by the acceleration limits.
 
 ``cmd_type``: ``twist`` (default) or ``twist_stamped`` (Jazzy's diff_drive_controller).
 Odometry is read best effort (matches reliable and best-effort drivers). The command is
@@ -44,6 +56,7 @@ move the robot outside the protocol).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import time
@@ -55,7 +68,9 @@ from rclpy.node import Node
 from std_msgs.msg import String
 
 import msgs_schema as ms
+from formation_ilc.config.bases import base_preset
 from formation_ilc.core.clock import Rejected
+from formation_ilc.core.limits import Limits, RateLimiter
 from formation_ilc.model.simulate import Problem
 from formation_ilc.nodes.common import (
     ConfiguredNode,
@@ -104,21 +119,34 @@ class BridgeNode(ConfiguredNode):
                               ("cmd_type", "twist"), ("v_max", 0.0), ("omega_max", 0.0),
                               ("cmd_timeout", 0.0), ("rate", 20.0), ("return_tol", 0.02),
                               ("return_tol_heading", 2.0), ("return_timeout", 60.0),
-                              ("initial_pose", [0.0]), ("scenario", ""), ("mode", "wallclock")):
+                              ("initial_pose", [0.0]), ("scenario", ""), ("mode", "wallclock"),
+                              ("base", ""), ("a_max", 0.0), ("alpha_max", 0.0),
+                              ("max_tilt", 10.0)):
             self.declare_parameter(name, default)
         g = lambda name: self.get_parameter(name).value  # noqa: E731
-        driver = str(g("driver"))
+        preset = base_preset(str(g("base"))) if g("base") else None
+        driver = "base" if preset is not None else str(g("driver"))
         if driver not in ms.DRIVERS:
             raise ValueError(f"parameter driver: one of {', '.join(ms.DRIVERS)}, got {driver!r}")
         self.spec = ms.DRIVERS[driver]
-        self.driver = driver
-        if str(g("cmd_type")) not in ("twist", "twist_stamped"):
-            raise ValueError(f"parameter cmd_type: twist or twist_stamped, got {g('cmd_type')!r}")
-        self.stamped = str(g("cmd_type")) == "twist_stamped"
-        v_max, w_max = float(g("v_max")), float(g("omega_max"))
-        base = CommandLimits()
-        self.limits = CommandLimits(v_max if v_max > 0 else base.v_max,
-                                    math.radians(w_max) if w_max > 0 else base.omega_max)
+        if preset is not None:
+            self.spec = dataclasses.replace(self.spec, cmd=preset.cmd_topic,
+                                            odom=preset.odom_topic)
+        self.driver = driver if preset is None else f"base ({preset.name})"
+        cmd_type = str(g("cmd_type"))
+        if cmd_type not in ("twist", "twist_stamped"):
+            raise ValueError(f"parameter cmd_type: twist or twist_stamped, got {cmd_type!r}")
+        self.stamped = (cmd_type if preset is None or cmd_type != "twist"
+                        else preset.cmd_type) == "twist_stamped"
+        self.max_tilt = math.radians(float(g("max_tilt")))
+        default = (preset.limits if preset is not None else
+                   Limits(CommandLimits().v_max, CommandLimits().omega_max))
+        given = (float(g("v_max")), math.radians(float(g("omega_max"))), float(g("a_max")),
+                 math.radians(float(g("alpha_max"))))
+        lim = Limits(*(x if x > 0 else d for x, d in zip(given, default.as_tuple(),
+                                                          strict=True)))
+        self.rate_limiter = RateLimiter(lim)
+        self.limits = CommandLimits(lim.v_max, lim.omega_max)
         self.period = 1.0 / float(g("rate"))
         ns = str(g("driver_ns")) or self.spec.default_ns
         self.driver_topics = (_join(ns, self.spec.cmd), _join(ns, self.spec.odom),
@@ -163,8 +191,9 @@ class BridgeNode(ConfiguredNode):
         self.robot_cmd = (0.0, 0.0)
         self.out_cmd = (0.0, 0.0)
         self.last_out = 0.0
-        self.counts = {"missed": 0, "clipped": 0, "watchdog_zero": 0, "return_timeouts": 0,
-                       "stale_odometry": 0}
+        self.counts = {"missed": 0, "clipped": 0, "clipped_accel": 0, "watchdog_zero": 0,
+                       "return_timeouts": 0, "stale_odometry": 0}
+        self.tilt_max = 0.0
         self.shifts: dict[str, list[float]] = {}
         self.returns: dict[str, dict[str, Any]] = {}
         self.ready_sent = -1
@@ -190,6 +219,9 @@ class BridgeNode(ConfiguredNode):
     def _setup_motors(self, topic: str) -> None:
         kind = self.spec.motors_kind
         self.motor_future: Any = None
+        if kind == "none":  # a base whose motors are always on
+            self.motors_on = True
+            return
         if kind == "p2os_motor_state":
             try:
                 from p2os_msgs.msg import MotorState  # type: ignore[import-not-found]
@@ -252,7 +284,12 @@ class BridgeNode(ConfiguredNode):
 
     def _on_odom(self, msg: Odometry) -> None:
         try:
-            self.odom = ms.odometry_to_pose(msg)
+            if self.spec.motors_kind == "none":
+                x, y, yaw, tilt = ms.base_odometry_to_pose(msg, self.max_tilt)
+                self.odom = (x, y, yaw)
+                self.tilt_max = max(self.tilt_max, tilt)
+            else:
+                self.odom = ms.odometry_to_pose(msg)
         except Rejected as exc:
             self.drops.reject(exc, self.driver_topics[1])
             return
@@ -340,9 +377,13 @@ class BridgeNode(ConfiguredNode):
             self._send(cmd, now)
 
     def _send(self, cmd: tuple[float, float], now: float) -> None:
-        self.out_cmd = cmd
+        before = self.rate_limiter.clipped_accel
+        v, w, _ = self.rate_limiter.limit(cmd[0], cmd[1], now)
+        if self.phase == "trial":  # a return starts from the trial's last speed: not counted
+            self.counts["clipped_accel"] += self.rate_limiter.clipped_accel - before
+        self.out_cmd = (v, w)
         self.last_out = now
-        self.drv_pub.publish(ms.driver_twist(cmd[0], cmd[1], self.stamped, time.time_ns()))
+        self.drv_pub.publish(ms.driver_twist(v, w, self.stamped, time.time_ns()))
 
     def _sample(self, s: int, now: float) -> None:
         if self.odom is None:
@@ -398,7 +439,8 @@ class BridgeNode(ConfiguredNode):
     def publish_diagnostics(self, trial: int) -> None:
         d: dict[str, Any] = {"node": self.name, "trial": trial, "driver": self.driver,
                              "initial_shifts": self.shifts, "returns": self.returns,
-                             **self.counts}
+                             "limits": list(self.rate_limiter.limits.as_tuple()),
+                             "tilt_max_deg": math.degrees(self.tilt_max), **self.counts}
         d.update(self.drops.as_dict())
         self.diag_pub.publish(ms.json_to_msg(d))
 
