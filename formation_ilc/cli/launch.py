@@ -86,13 +86,32 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "neighbours, as on robots, and the delays are the network's (a "
                         "lockstep run equals `simulate --no-delay`; the default and required "
                         "with --plant pioneer)")
-    p.add_argument("--plant", choices=("sim", "physics", "external", "pioneer"), default="sim",
+    p.add_argument("--plant", choices=("sim", "physics", "external", "pioneer", "base"),
+                   default="sim",
                    help="sim (default): start the kinematic simulator; physics: the PyBullet "
                         "rigid-body plant (docs/physics.md); external: another "
                         "process speaks the plant contract (docs/distributed-stack.md) and "
                         "says ready as one of --plant-nodes; pioneer: one Pioneer bridge per "
                         "robot (formation-ilc-bridge, docs/real-robots.md) in front of a "
-                        "driver (--driver), wall-clock trials, direct links")
+                        "driver (--driver), wall-clock trials, direct links; base: the same "
+                        "bridges in front of any differential-drive base (--base)")
+    p.add_argument("--base", choices=("turtlebot3", "turtlebot4", "jackal", "husky", "p3dx"),
+                   default="turtlebot4",
+                   help="with --plant base: the base's preset (topics, message type, limits; "
+                        "formation_ilc/config/bases.py), default turtlebot4")
+    p.add_argument("--physics-bases", action="store_true",
+                   help="with --plant base: also start physics robots that speak the base's "
+                        "interface (robot_sim.physics_base, --robot-model), for a run without "
+                        "robots")
+    for name, unit in (("v-max", "m/s"), ("omega-max", "deg/s"), ("a-max", "m/s^2"),
+                       ("alpha-max", "deg/s^2")):
+        p.add_argument(f"--{name}", type=float, default=0.0, metavar=unit.upper().replace(
+                           "/", "_").replace("^", ""),
+                       help=f"with --plant pioneer or base: every bridge's {name.split('-')[0]}"
+                            f" limit [{unit}] (default: the preset's or the bridge's)")
+    p.add_argument("--params-file", type=Path, metavar="FILE",
+                   help="with --plant pioneer or base: a ROS 2 parameters file for the "
+                        "bridges (e.g. per-robot limits under /formation/bridge_I)")
     p.add_argument("--driver", choices=("rosaria", "p2os2", "ros2aria"), default="rosaria",
                    help="with --plant pioneer: the robots' driver (default rosaria)")
     p.add_argument("--driver-ns", default="/pioneer_{i}", metavar="PATTERN",
@@ -191,7 +210,8 @@ def node_commands(cfg_args: dict[str, Any], n: int, container: int, *, links: st
                   robot_params: dict[str, Any] | None = None,
                   bridge_params: dict[str, Any] | None = None, driver_ns: str = "/pioneer_{i}",
                   fake_drivers: bool = False, cmd_type: str = "twist",
-                  physics_params: dict[str, Any] | None = None
+                  physics_params: dict[str, Any] | None = None,
+                  base_poses: list[float] | None = None
                   ) -> list[tuple[str, list[str]]]:
     """(name, argv) of every process of the stack (sys.executable -m ...)."""
     py = sys.executable
@@ -211,7 +231,20 @@ def node_commands(cfg_args: dict[str, Any], n: int, container: int, *, links: st
         pp += [f"{k}:={v}" for k, v in (physics_params or {}).items()]
         procs.append(("physics_sim", [py, "-m", "robot_sim.physics_node", "--ros-args", *nsa,
                                       *[a for b in pp for a in ("-p", b)]]))
-    if plant == "pioneer":
+    bp_all = dict(bridge_params or {})
+    params_file = bp_all.pop("params_file", None)
+    if plant == "base" and base_poses is not None:
+        from formation_ilc.config.bases import base_preset
+
+        preset = base_preset(str(bp_all.get("base")))
+        pp = [f"robots:={n}", "poses:=[" + ",".join(repr(x) for x in base_poses) + "]",
+              f"ns_pattern:={driver_ns}", f"cmd_type:={preset.cmd_type}",
+              f"odom_topic:={preset.odom_topic}"]
+        pp += [f"{k}:={v}" for k, v in (physics_params or {}).items()
+               if k in ("model", "collide")]
+        procs.append(("physics_bases", [py, "-m", "robot_sim.physics_base", "--ros-args",
+                                        *nsa, *[a for b in pp for a in ("-p", b)]]))
+    if plant in ("pioneer", "base"):
         for i in range(1, n + 1):
             dns = driver_ns.replace("{i}", str(i))
             if fake_drivers:
@@ -220,10 +253,12 @@ def node_commands(cfg_args: dict[str, Any], n: int, container: int, *, links: st
                                                     "--ros-args", "-r", f"__ns:={dns}", "-p",
                                                     f"seed:={i}", "-p", f"cmd_type:={cmd_type}",
                                                     "-p", f"driver:={driver}"]))
-            bp = [f"robot_id:={i}", f"driver_ns:={dns}", f"cmd_type:={cmd_type}"]
-            bp += [f"{k}:={v}" for k, v in (bridge_params or {}).items()]
+            bp = [f"robot_id:={i}", f"driver_ns:={dns}"]
+            bp += [] if plant == "base" else [f"cmd_type:={cmd_type}"]
+            bp += [f"{k}:={v}" for k, v in bp_all.items()]
+            pf = [] if params_file is None else ["--params-file", str(params_file)]
             procs.append((f"bridge_{i}", [py, "-m", "formation_ilc.nodes.pioneer_bridge",
-                                          "--ros-args", *nsa,
+                                          "--ros-args", *nsa, *pf,
                                           *[a for b in bp for a in ("-p", b)]]))
     if links == "emulated":
         procs.append(("link_emulator", [py, "-m", "robot_sim.link_emulator", "--ros-args",
@@ -342,7 +377,7 @@ def _resume_args(args: argparse.Namespace) -> argparse.Namespace | str:
     ns = argparse.Namespace(**vars(args))
     for k, v in d.items():
         setattr(ns, k, v)
-    for k in ("out", "init_memory", "record"):
+    for k in ("out", "init_memory", "record", "params_file"):
         if getattr(ns, k, None) is not None:
             setattr(ns, k, Path(getattr(ns, k)))
     ns.out = out
@@ -404,9 +439,10 @@ def run(args: argparse.Namespace) -> int:
         args.run_id = "r" + uuid.uuid4().hex[:12]
     if getattr(args, "hosts_", None) is None and (args.hosts == "netns" or _net_options(args)):
         return run_on_hosts(args)
-    pioneer = args.plant == "pioneer"
+    # robots behind bridges: a Pioneer driver or any base
+    pioneer = args.plant in ("pioneer", "base")
     if pioneer and (args.mode not in (None, "wallclock") or args.links not in (None, "direct")):
-        print(f"error: --plant pioneer runs --mode wallclock with --links direct (real robots "
+        print(f"error: --plant {args.plant} runs --mode wallclock with --links direct (real robots "
               f"have no simulated clock and no link emulator), got --mode {args.mode} "
               f"--links {args.links}", file=sys.stderr)
         return 2
@@ -423,12 +459,17 @@ def run(args: argparse.Namespace) -> int:
               "external plant that samples on the wall clock); the simulator runs lockstep "
               "or realtime", file=sys.stderr)
         return 2
-    if args.fake_drivers and not pioneer:
+    if args.fake_drivers and args.plant != "pioneer":
         print("error: --fake-drivers goes with --plant pioneer", file=sys.stderr)
         return 2
     if args.fake_drivers and args.driver == "p2os2":
         print("error: --fake-drivers speak rosaria or ros2aria, not p2os2 (its p2os_msgs "
               "are not on PyPI)", file=sys.stderr)
+        return 2
+    if args.plant == "base" and args.driver_ns == "/pioneer_{i}":
+        args.driver_ns = "/base_{i}"
+    if args.physics_bases and args.plant != "base":
+        print("error: --physics-bases goes with --plant base", file=sys.stderr)
         return 2
     args.mode = args.mode or ("wallclock" if pioneer else "lockstep")
     args.links = args.links or ("direct" if pioneer or args.mode == "wallclock" else "emulated")
@@ -515,6 +556,11 @@ def run(args: argparse.Namespace) -> int:
     if "ROS_AUTOMATIC_DISCOVERY_RANGE" in env:
         os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env["ROS_AUTOMATIC_DISCOVERY_RANGE"]
     pb = Problem.from_scenario(sc)
+    if pioneer:
+        line = _limits_line(args, sc)
+        if line is not None:
+            print(f"error: {line}", file=sys.stderr)
+            return 2
     if (physics or pioneer) and not _clear_of_contact(args, sc):
         return 2
 
@@ -619,8 +665,9 @@ def run(args: argparse.Namespace) -> int:
         for name, argv in node_commands(
                 leader_params, sc.n, args.container, links=args.links, plant=args.plant,
                 namespace=namespace, robot_params=robot_params,
-                bridge_params={"driver": args.driver,
-                               "return_timeout": float(args.return_timeout)},
+                bridge_params=_bridge_params(args), base_poses=(
+                    [float(x) for x in pb.eta_d[:, 0].ravel()] if args.physics_bases
+                    else None),
                 driver_ns=args.driver_ns, fake_drivers=args.fake_drivers,
                 cmd_type=args.cmd_type, physics_params={
                     "model": args.robot_model, "pose": args.pose,
@@ -723,7 +770,8 @@ def run(args: argparse.Namespace) -> int:
         summary["bridges"] = {
             b: {key: diagnostics.get(b, {}).get(key) for key in
                 ("initial_shifts", "returns", "return_timeouts", "missed", "clipped",
-                 "watchdog_zero", "stale_odometry")} for b in plants}
+                 "clipped_accel", "tilt_max_deg", "limits", "watchdog_zero",
+                 "stale_odometry")} for b in plants}
     if physics:
         summary["physics"] = {key: sim_diag.get(key) for key in (
             "model", "pose_source", "substeps", "contacts_by_trial", "tilt_by_trial",
@@ -748,6 +796,51 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+_LIMIT_ARGS = ("v_max", "omega_max", "a_max", "alpha_max")
+
+
+def _bridge_params(args: argparse.Namespace) -> dict[str, Any]:
+    """The bridges' parameters from the command line (limits only where given)."""
+    bp: dict[str, Any] = {"return_timeout": float(args.return_timeout)}
+    if args.plant == "base":
+        bp["base"] = args.base
+    else:
+        bp["driver"] = args.driver
+    for name in _LIMIT_ARGS:
+        if getattr(args, name) > 0:
+            bp[name] = float(getattr(args, name))
+    if args.params_file is not None:
+        bp["params_file"] = str(args.params_file.resolve())
+    return bp
+
+
+def _limits_line(args: argparse.Namespace, sc: Any) -> str | None:
+    """None if the scenario's desired speeds and accelerations fit every bridge's limits;
+    else the one line that says where they do not, and the time scale that fits."""
+    import yaml
+
+    from formation_ilc.config.bases import base_preset, fit_limits, limits_from_params
+    from formation_ilc.core.limits import Limits
+
+    base = (base_preset(args.base).limits if args.plant == "base"
+            else Limits(0.75, math.radians(100)))  # the Pioneer bridge's defaults
+    params = None
+    if args.params_file is not None:
+        try:
+            params = yaml.safe_load(args.params_file.read_text())
+        except (OSError, yaml.YAMLError) as exc:
+            return f"--params-file {args.params_file}: cannot read: {exc}"
+        if not isinstance(params, dict):
+            return f"--params-file {args.params_file}: expected a mapping of node names"
+    overrides = {n: float(getattr(args, n)) for n in _LIMIT_ARGS if getattr(args, n) > 0}
+    try:
+        limits = limits_from_params(base, sc.n, params, overrides,
+                                    args.namespace or "/formation")
+    except ValueError as exc:
+        return str(exc)
+    return fit_limits(sc, limits)
+
+
 def _clear_of_contact(args: argparse.Namespace, sc: Any) -> bool:
     """A run on robots with bodies: the batch simulator predicts the run (noise-free, the
     arc plant, from the initial memory); if two footprints overlap, say where and how to
@@ -755,10 +848,14 @@ def _clear_of_contact(args: argparse.Namespace, sc: Any) -> bool:
     from formation_ilc.model.footprint import Footprint, first_overlap, predict_clearance
     from formation_ilc.store.memoryfile import load_memory
 
-    if args.plant == "physics":
+    if args.plant == "physics" or args.physics_bases:
         from formation_ilc.model.physics import robot_model
 
         fp = robot_model(args.robot_model).footprint
+    elif args.plant == "base":
+        from formation_ilc.config.bases import base_preset
+
+        fp = Footprint(*base_preset(args.base).size)
     else:
         fp = Footprint(0.455, 0.381, -0.045)  # a Pioneer 3-DX
     memory = None if args.init_memory is None else load_memory(args.init_memory, sc)

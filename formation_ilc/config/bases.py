@@ -15,6 +15,8 @@ Sources of the limits (check them against your robot's own configuration):
   turtlebot4 teleop limit; accelerations as turtlebot3 (Nav2's defaults for this class).
 * jackal: Clearpath jackal_control control.yaml: 2.0 m/s, 4.0 rad/s, 20 m/s^2, 25 rad/s^2.
 * husky: Clearpath husky_control control.yaml: 1.0 m/s, 2.0 rad/s, 3.0 m/s^2, 6.0 rad/s^2.
+Sizes (length x width): the same manufacturers' specifications.
+
 * p3dx (Pioneer 3-DX through this package's RosAria bridge): the bridge's defaults
   0.75 m/s and 100 deg/s (inside the robot's 1.2 m/s and 300 deg/s); ARIA's default
   accelerations 0.3 m/s^2 and 100 deg/s^2.
@@ -24,11 +26,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 from formation_ilc.config.scenario import MAX_TIME_SCALE, Scenario
 from formation_ilc.core.limits import Limits, check_inputs, scale_needed
 
-__all__ = ["BasePreset", "BASES", "base_preset", "fit_limits"]
+__all__ = ["BasePreset", "BASES", "base_preset", "fit_limits", "limits_from_params"]
 
 
 @dataclass(frozen=True)
@@ -37,6 +40,8 @@ class BasePreset:
 
     name: str
     limits: Limits
+    #: length x width [m] of the body, about the odometry's origin (the clearance check)
+    size: tuple[float, float] = (0.5, 0.5)
     cmd_topic: str = "cmd_vel"
     cmd_type: str = "twist"
     odom_topic: str = "odom"
@@ -44,18 +49,21 @@ class BasePreset:
 
 
 BASES: dict[str, BasePreset] = {
-    "turtlebot3": BasePreset("turtlebot3", Limits(0.22, 2.84, 2.5, 3.2),
+    "turtlebot3": BasePreset("turtlebot3", Limits(0.22, 2.84, 2.5, 3.2), (0.138, 0.178),
                              source="ROBOTIS e-Manual; turtlebot3_navigation2"),
     # Jazzy's TurtleBot 4 takes TwistStamped on cmd_vel
-    "turtlebot4": BasePreset("turtlebot4", Limits(0.306, 1.9, 2.5, 3.2),
+    "turtlebot4": BasePreset("turtlebot4", Limits(0.306, 1.9, 2.5, 3.2), (0.342, 0.339),
                              cmd_type="twist_stamped",
                              source="Create 3 specifications; turtlebot4 teleop"),
     # Clearpath's ROS 2 platforms: TwistStamped on cmd_vel, wheel odometry on platform/odom
-    "jackal": BasePreset("jackal", Limits(2.0, 4.0, 20.0, 25.0), cmd_type="twist_stamped",
+    "jackal": BasePreset("jackal", Limits(2.0, 4.0, 20.0, 25.0), (0.508, 0.430),
+                         cmd_type="twist_stamped",
                          odom_topic="platform/odom", source="jackal_control control.yaml"),
-    "husky": BasePreset("husky", Limits(1.0, 2.0, 3.0, 6.0), cmd_type="twist_stamped",
+    "husky": BasePreset("husky", Limits(1.0, 2.0, 3.0, 6.0), (0.990, 0.670),
+                        cmd_type="twist_stamped",
                         odom_topic="platform/odom", source="husky_control control.yaml"),
     "p3dx": BasePreset("p3dx", Limits(0.75, math.radians(100), 0.3, math.radians(100)),
+                       (0.455, 0.381),
                        odom_topic="pose", source="this package's Pioneer bridge; ARIA"),
 }
 
@@ -84,3 +92,37 @@ def fit_limits(sc: Scenario, limits: list[Limits]) -> str | None:
             return f"{v.line(sc.dt)}; --time-scale {s:g} fits"
         s = math.ceil(s * 1.1 * 20) / 20
     return f"{v.line(sc.dt)}; no time scale up to {MAX_TIME_SCALE:g} fits"
+
+
+LIMIT_KEYS = ("v_max", "omega_max", "a_max", "alpha_max")
+
+
+def limits_from_params(base: Limits, n: int, params: dict[str, Any] | None,
+                       overrides: dict[str, float], namespace: str = "/formation"
+                       ) -> list[Limits]:
+    """Each robot's limits as its bridge will hold them: ``base`` (a preset's or the
+    bridge's defaults), then a ROS 2 parameters file's entries for ``/**``, ``bridge_I``
+    or ``NAMESPACE/bridge_I`` (``ros__parameters``: v_max [m/s], omega_max [deg/s], a_max
+    [m/s^2], alpha_max [deg/s^2]; 0 keeps the default), then the command line's
+    ``overrides`` (same units). ValueError naming the entry that is not a number."""
+    out = []
+    for i in range(1, n + 1):
+        vals = dict(zip(LIMIT_KEYS, base.as_tuple(), strict=True))
+        for key in ("/**", f"bridge_{i}", f"{namespace.rstrip('/')}/bridge_{i}"):
+            entry = (params or {}).get(key) or {}
+            rp = entry.get("ros__parameters", {}) if isinstance(entry, dict) else {}
+            for name in LIMIT_KEYS:
+                if name in rp:
+                    vals[name] = _limit_value(name, rp[name], vals[name], f"{key}: {name}")
+        for name, x in overrides.items():
+            vals[name] = _limit_value(name, x, vals[name], f"--{name.replace('_', '-')}")
+        out.append(Limits(**vals))
+    return out
+
+
+def _limit_value(name: str, x: Any, default: float, where: str) -> float:
+    if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) or x < 0:
+        raise ValueError(f"{where}: a limit >= 0 is required (0 keeps the default), got {x!r}")
+    if x == 0:
+        return default
+    return math.radians(x) if name in ("omega_max", "alpha_max") else float(x)
