@@ -158,6 +158,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--keep", metavar="K1,K2,...",
                    help="trials whose trajectories are plotted and saved "
                         "(default: first, about 10%%, 40%% and last)")
+    p.add_argument("--plant-model", choices=("euler", "arc"), default="euler",
+                   help="euler (default): eq. (1) as the paper steps it; arc: a unicycle that "
+                        "drives an arc each sample, as real robots and the physics plant do "
+                        "(the scenario's auto headings then read as arc)")
+    p.add_argument("--headings", choices=("auto", "chord", "arc"), default=None,
+                   help="desired headings (default: the scenario's)")
+    p.add_argument("--time-scale", type=float, default=None, metavar="S",
+                   help="stretch the reference in time by S >= 1")
+    p.add_argument("--footprint", choices=FOOTPRINTS, default=None,
+                   help="write clearance.csv: each trial's least clearance between the "
+                        "robots' footprints (this model's body; < 0: they overlap), and say "
+                        "how many trials overlap")
     p.add_argument("--out", type=out_dir_arg, metavar="DIR",
                    help="output folder (default: runs/SCENARIO-LAW-MEMORY-TIME)")
 
@@ -492,11 +504,29 @@ def _thin(a: np.ndarray, limit: int = 20_000) -> np.ndarray:
     return a[:, ::step]
 
 
+#: bodies the clearance of ``simulate --footprint`` is measured for
+FOOTPRINTS = ("p3dx", "husky", "turtlebot3", "turtlebot4", "jackal")
+
+
+def _footprint(name: str) -> Any:
+    from formation_ilc.config.bases import base_preset
+    from formation_ilc.model.footprint import Footprint
+
+    if name == "p3dx":
+        return Footprint(0.455, 0.381, -0.045)
+    if name == "husky":
+        return Footprint(0.99, 0.67, 0.17)  # about the Husky's turning point
+    return Footprint(*base_preset(name).size)
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
     from formation_ilc.model.checks import condition20
     from formation_ilc.model.simulate import simulate, simulate_bytes
 
-    sc = _scenario(args)
+    sc = _scenario(args).with_options(headings=getattr(args, "headings", None),
+                                      time_scale=getattr(args, "time_scale", None))
+    plant = getattr(args, "plant_model", "euler")
+    sc = sc.for_plant(plant)
     k = sc.trials
     first = int(args.first_trial)
     if first + k > MAX_TRIAL:
@@ -546,12 +576,26 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             log.close()
             raise OptionError(f"--record {args.record}: cannot write: "
                               f"{exc.strerror or exc}") from None
+    on_data: Any = None if recorder is None else recorder.trial
+    clear_rows: list[Any] = []
+    if getattr(args, "footprint", None) is not None:
+        from formation_ilc.model.footprint import trial_clearance
+
+        fp = _footprint(args.footprint)
+        rec_trial = on_data
+
+        def with_clearance(k: int, xi: np.ndarray, *rest: Any) -> None:
+            clear_rows.append(trial_clearance(k, xi, fp))
+            if rec_trial is not None:
+                rec_trial(k, xi, *rest)
+
+        on_data = with_clearance
+
     t0 = time.perf_counter()
     previous = _sigterm_as_interrupt()
     try:
         res = simulate(sc, keep=keep, progress=on_trial, initial_memory=init,
-                       first_trial=first,
-                       on_trial_data=None if recorder is None else recorder.trial,
+                       first_trial=first, on_trial_data=on_data, plant=plant,
                        stop_on_divergence=True, on_memory=keeper.update, store_metrics=False)
         keeper.save()
     except DivergedError as exc:
@@ -609,6 +653,16 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         "memory_writes": keeper.writes,
     }
     files = ["metrics.csv", "summary.json", "trajectories.npz", "memory.npz"]
+    if clear_rows:
+        with (out / "clearance.csv").open("w") as fh:
+            fh.write("trial,least_clearance,robot_i,robot_j,time,overlapping_samples\n")
+            for c in clear_rows:
+                fh.write(f"{c.trial},{c.value:.6f},{c.robots[0]},{c.robots[1]},"
+                         f"{c.sample * sc.dt:.6g},{c.overlapping}\n")
+        files.append("clearance.csv")
+        hits = [c for c in clear_rows if c.value < 0]
+        summary["footprint"] = {"model": args.footprint, "overlapping_trials": len(hits),
+                                "least_clearance": min(c.value for c in clear_rows)}
     if not args.no_plots:
         from formation_ilc.recordings.plots import plot_errors, plot_trajectories
 
@@ -628,6 +682,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     print(f"  max position error: trial {first} {pos0:.4g} m -> trial {last} {pos1:.4g} m")
     print(f"  max heading error:  trial {first} {head0:.4g} rad -> trial {last} "
           f"{head1:.4g} rad")
+    if clear_rows:
+        n_hit = sum(c.value < 0 for c in clear_rows)
+        first_hit = next((c for c in clear_rows if c.value < 0), None)
+        print(f"  footprints ({args.footprint}): {n_hit} of {k} trials overlap"
+              + (f", first {first_hit.line(sc.dt)}" if first_hit is not None else ""))
     print(f"  results in {out}/ ({', '.join(files)})")
     return 0
 
