@@ -378,12 +378,15 @@ class BridgeNode(ConfiguredNode):
 
     def _send(self, cmd: tuple[float, float], now: float) -> None:
         before = self.rate_limiter.clipped_accel
-        v, w, _ = self.rate_limiter.limit(cmd[0], cmd[1], now)
+        # the limits hold on the message's own stamp, so that a reader of TwistStamped sees
+        # every change within a_max * (stamp difference), whatever this callback's jitter
+        stamp = time.time_ns()
+        v, w, _ = self.rate_limiter.limit(cmd[0], cmd[1], stamp * 1e-9)
         if self.phase == "trial":  # a return starts from the trial's last speed: not counted
             self.counts["clipped_accel"] += self.rate_limiter.clipped_accel - before
         self.out_cmd = (v, w)
         self.last_out = now
-        self.drv_pub.publish(ms.driver_twist(v, w, self.stamped, time.time_ns()))
+        self.drv_pub.publish(ms.driver_twist(v, w, self.stamped, stamp))
 
     def _sample(self, s: int, now: float) -> None:
         if self.odom is None:

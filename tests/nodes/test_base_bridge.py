@@ -76,9 +76,10 @@ def test_base_bridge_needs_no_motor_service_reads_tilt_and_limits_acceleration(c
     try:
         assert bridge.driver == "base (turtlebot4)" and bridge.stamped  # the preset's
         assert bridge.rate_limiter.limits.v_max == 0.306
-        sent: list[tuple[float, float]] = []
+        sent: list[tuple[float, float, float]] = []  # (stamp [s], v, omega)
         tester.create_subscription(TwistStamped, "/tb_1/cmd_vel",
-                                   lambda m: sent.append((m.twist.linear.x,
+                                   lambda m: sent.append((ms.stamp_to_ns(m.header.stamp) * 1e-9,
+                                                          m.twist.linear.x,
                                                           m.twist.angular.z)),
                                    ms.DRIVER_CMD_QOS)
         pub = tester.create_publisher(Odometry, "/tb_1/odom", ms.ODOM_QOS)
@@ -92,11 +93,14 @@ def test_base_bridge_needs_no_motor_service_reads_tilt_and_limits_acceleration(c
         spin_until(ex, lambda: bridge.drops.counts["malformed"] == 1)
         assert bridge.odom[2] == pytest.approx(0.25)  # the tilted pose was not taken
         # every command to the base goes through the limits: from standing, 0.3 m/s is
-        # reached no faster than the preset's 2.5 m/s^2 allows
-        t0 = bridge.rate_limiter.last_time
-        bridge._send((0.3, 0.0), t0 + 0.01)
-        assert sent and bridge.out_cmd[0] == pytest.approx(0.025)
-        assert bridge.rate_limiter.clipped_accel >= 1
+        # reached no faster than the preset's 2.5 m/s^2 allows, on the messages' stamps
+        n0 = len(sent)
+        for _ in range(5):
+            bridge._send((0.3, 0.0), 0.0)
+        spin_until(ex, lambda: len(sent) >= n0 + 5)
+        assert bridge.out_cmd[0] < 0.3 and bridge.rate_limiter.clipped_accel >= 5
+        for (t1, v1, _), (t2, v2, _) in zip(sent[n0 - 1:], sent[n0:], strict=False):
+            assert v2 - v1 <= 2.5 * (t2 - t1) + 1e-12
     finally:
         ex.shutdown()
         bridge.destroy_node()
