@@ -84,8 +84,21 @@ from std_msgs.msg import String
 
 from formation_ilc.core.clock import Malformed, SampleClock
 from formation_ilc.core.kinematics import yaw_and_tilt
-from formation_ilc.core.links import LEADER, link_name, robot_name
-from formation_ilc.core.links import robot_number as robot_index
+from formation_ilc.core.links import LEADER, link_name
+from formation_ilc.core.names import (
+    BRIDGE_PREFIX,
+    CLOCK,
+    FAKE_DRIVER_NODE,
+    LEADER_NODE,
+    LINKS_NODE,
+    MONITOR_NODE,
+    NAMESPACE,
+    RECORDER_NODE,
+    SIM_NODE,
+    bridge_name,
+    robot_name,
+)
+from formation_ilc.core.names import robot_number as robot_index
 from formation_ilc.protocol.schedule import ABORT, DONE, END, START
 
 __all__ = [
@@ -98,19 +111,21 @@ __all__ = [
     "SampleClock", "stamp_to_ns", "ns_to_stamp", "pose_to_msg", "msg_to_pose", "u_to_twist",
     "twist_to_u", "world_pose", "trajectory_to_path", "path_to_trajectory", "link_tick_to_msg",
     "msg_to_link_tick", "json_to_msg", "msg_to_json", "json_int", "deserialize", "clock_msg",
+    "path_limit", "path_from_raw", "FRAME_ID_MAX",
     "START", "END", "ABORT", "DONE",
     "DriverSpec", "DRIVERS", "DRIVER_CMD_QOS", "ODOM_QOS", "BRIDGE_PREFIX", "bridge_name",
     "odometry_to_pose", "base_odometry_to_pose", "odometry_msg", "driver_twist",
+    "LEADER_NODE", "SIM_NODE", "LINKS_NODE", "MONITOR_NODE", "RECORDER_NODE",
+    "FAKE_DRIVER_NODE",
 ]
 
-#: the default namespace of every node of a formation
-NAMESPACE = "/formation"
+# NAMESPACE (the default namespace of every node of a formation), CLOCK and the node names
+# (LEADER_NODE, SIM_NODE, ..., robot_name, bridge_name) are formation_ilc.core.names', re-exported
 CONFIG = "config"
 REFERENCE = "leader/reference"
 TRIAL_EVENTS = "leader/trial_events"
 READY = "ready"
 DIAGNOSTICS = "diagnostics"
-CLOCK = "/clock"
 
 #: REP-105 world-fixed frame of every pose and path
 WORLD_FRAME = "map"
@@ -193,14 +208,6 @@ MalformedMessage = Malformed
 
 # --------------------------------------------------------------------------- Pioneer drivers
 
-#: a hardware bridge's node name is ``bridge_<id>`` (what it says ready as)
-BRIDGE_PREFIX = "bridge_"
-
-
-def bridge_name(i: int) -> str:
-    return f"{BRIDGE_PREFIX}{int(i)}"
-
-
 @dataclass(frozen=True)
 class DriverSpec:
     """A Pioneer driver's side of the bridge: topic names relative to the driver's
@@ -279,16 +286,23 @@ def base_odometry_to_pose(msg: Odometry, max_tilt: float
 
 def odometry_msg(pose: Sequence[float], twist: Sequence[float], stamp_ns: int,
                  frame_id: str = "odom", child: str = "base_link",
-                 out: Odometry | None = None) -> Odometry:
-    """A driver's odometry message (for fake drivers): pose (x, y, yaw), twist (v, omega)."""
+                 out: Odometry | None = None,
+                 quat: Sequence[float] | None = None) -> Odometry:
+    """A driver's odometry message (for fake drivers and physics bases): pose (x, y, yaw),
+    twist (v, omega); ``quat`` (x, y, z, w): the orientation with roll and pitch (default:
+    the yaw alone)."""
     m = Odometry() if out is None else out
     ns_to_stamp(stamp_ns, m.header.stamp)
     m.header.frame_id = frame_id
     m.child_frame_id = child
     m.pose.pose.position.x = float(pose[0])
     m.pose.pose.position.y = float(pose[1])
-    m.pose.pose.orientation.z = math.sin(0.5 * float(pose[2]))
-    m.pose.pose.orientation.w = math.cos(0.5 * float(pose[2]))
+    o = m.pose.pose.orientation
+    if quat is None:
+        o.x, o.y = 0.0, 0.0
+        o.z, o.w = math.sin(0.5 * float(pose[2])), math.cos(0.5 * float(pose[2]))
+    else:
+        o.x, o.y, o.z, o.w = (float(c) for c in quat)
     m.twist.twist.linear.x = float(twist[0])
     m.twist.twist.angular.z = float(twist[1])
     return m
@@ -444,6 +458,34 @@ def path_to_trajectory(msg: Path, reference_heading: NDArray[np.float64] | None 
         stamps[s] = ns
         prev = float(e[2])
     return eta, stamps, frame
+
+
+#: [bytes] a frame id of at most this many characters fits the size bound of a Path
+FRAME_ID_MAX = 64
+
+
+def path_limit(poses: int) -> int:
+    """[bytes] the most a CDR ``nav_msgs/Path`` of at most ``poses`` PoseStamped can take
+    when every frame id has at most FRAME_ID_MAX characters: encapsulation, header and
+    sequence length, then per pose its header (stamp, frame id) and pose (7 float64),
+    alignment included."""
+    header = 8 + 4 + FRAME_ID_MAX + 1 + 7  # stamp, string length, text, NUL, padding
+    return 4 + header + 4 + int(poses) * (header + 7 * 8)
+
+
+def path_from_raw(data: bytes | Path, poses: int, what: str = "Path") -> Path:
+    """The Path in the CDR bytes of a raw subscription, refused (MalformedMessage) before
+    it is deserialized when it is longer than a Path of ``poses`` poses can be: a forged
+    trajectory of megabytes costs a length check, not a minute of building Python
+    objects. A Path already built (an in-process caller) is returned as it is."""
+    if isinstance(data, Path):
+        return data
+    limit = path_limit(poses)
+    if len(data) > limit:
+        raise MalformedMessage(f"{what} of {len(data)} bytes: longer than {poses} poses can "
+                               f"be ({limit} bytes)")
+    msg: Path = deserialize(data, Path)
+    return msg
 
 
 # --------------------------------------------------------------------------- emulated links

@@ -16,15 +16,15 @@ watchdog) and each robot's odometry is published.
 It also publishes, on ``diagnostics`` in its own namespace (the launcher puts it in the
 formation's, so the recorder keeps it), what the robots were asked: per robot the largest
 |v|, |omega| and, between consecutive commands (by their header stamps when stamped),
-|dv/dt| and |domega/dt|, and the true poses' drift from the odometry. Parameters:
+|dv/dt| and |domega/dt|, and the true poses' drift from the odometry. Everything it
+decides is in ``formation_ilc.protocol.physics_plant.BaseRobots``. Parameters:
 ``robots``, ``poses`` (x, y, theta per robot, flat: where each robot is placed), ``model``,
-``rate`` [Hz], ``collide``, ``seed``-free: the engine is deterministic.
+``rate`` [Hz], ``collide``; the engine is deterministic.
 """
 
 from __future__ import annotations
 
 import functools
-import math
 import sys
 import time
 from typing import Any
@@ -36,10 +36,11 @@ from rclpy.node import Node
 from std_msgs.msg import String
 
 import msgs_schema as ms
-from formation_ilc.model.physics import PhysicsWorld, robot_model
+from formation_ilc.core.names import BASES_NODE
 from formation_ilc.nodes.common import node_parser, spin_main
+from formation_ilc.protocol.physics_plant import BaseRobots
 
-NAME = "physics_bases"
+NAME = BASES_NODE
 
 
 class PhysicsBases(Node):
@@ -61,18 +62,9 @@ class PhysicsBases(Node):
         if n < 1 or poses.size != 3 * n:
             raise ValueError(f"parameters robots, poses: {n} robots need 3 numbers each "
                              f"(x, y, theta), got {poses.size}")
-        self.start = poses.reshape(n, 3)
-        self.tick = float(g("tick"))
-        self.cmd_timeout = float(g("cmd_timeout"))
-        self.world = PhysicsWorld(robot_model(str(g("model"))), n, self.tick,
-                                  rate=float(g("rate")), collide=bool(g("collide")))
-        self.world.place(self.start)
-        self.n = n
-        self.cmd = np.zeros((n, 2))
-        self.cmd_at = np.full(n, -math.inf)
-        self.last: list[tuple[float, float, float] | None] = [None] * n
-        self.stats = np.zeros((n, 4))  # max |v|, |omega|, |dv/dt|, |domega/dt|
-        self.drift = np.zeros(n)
+        self.core = BaseRobots(str(g("model")), poses.reshape(n, 3), float(g("tick")),
+                               rate=float(g("rate")), collide=bool(g("collide")),
+                               cmd_timeout=float(g("cmd_timeout")))
         stamped = str(g("cmd_type")) == "twist_stamped"
         self.odom_pubs = []
         self.msgs = [Odometry() for _ in range(n)]
@@ -83,65 +75,32 @@ class PhysicsBases(Node):
             self.odom_pubs.append(self.create_publisher(Odometry, f"{ns}/{g('odom_topic')}",
                                                         ms.ODOM_QOS))
         self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
-        self.create_timer(self.tick, self._on_tick)
+        self.create_timer(self.core.tick, self._on_tick)
         self.create_timer(1.0, self._report)
-        self.get_logger().info(f"{n} physics bases ({self.world.model.name}), "
-                               f"{self.world.substeps} engine steps per {self.tick} s tick")
+        world = self.core.world
+        self.get_logger().info(f"{n} physics bases ({world.model.name}), "
+                               f"{world.substeps} engine steps per {self.core.tick} s tick")
 
     def _on_cmd(self, msg: Twist | TwistStamped, i: int) -> None:
+        now = time.monotonic()
         stamped = isinstance(msg, TwistStamped)
         t = msg.twist if stamped else msg
-        v, w = float(t.linear.x), float(t.angular.z)
-        if not (math.isfinite(v) and math.isfinite(w)):
-            return
-        when = (ms.stamp_to_ns(msg.header.stamp) * 1e-9 if stamped else time.monotonic())
-        prev = self.last[i]
-        st = self.stats[i]
-        st[0], st[1] = max(st[0], abs(v)), max(st[1], abs(w))
-        if prev is not None and when - prev[0] > 1e-4:
-            st[2] = max(st[2], abs(v - prev[1]) / (when - prev[0]))
-            st[3] = max(st[3], abs(w - prev[2]) / (when - prev[0]))
-        self.last[i] = (when, v, w)
-        self.cmd[i] = (v, w)
-        self.cmd_at[i] = time.monotonic()
+        stamp = ms.stamp_to_ns(msg.header.stamp) * 1e-9 if stamped else now
+        self.core.command(i, float(t.linear.x), float(t.angular.z), stamp, now)
 
     def _on_tick(self) -> None:
-        now = time.monotonic()
-        stale = now - self.cmd_at > self.cmd_timeout
-        self.cmd[stale] = 0.0
-        world = self.world
-        world.step(self.cmd)
-        truth = world.truth()
-        self.drift = np.maximum(self.drift, np.hypot(*(truth[:, :2] - world.odom[:, :2]).T))
+        odoms = self.core.step(time.monotonic())
         stamp = time.time_ns()
-        pb = world.pb
-        for i in range(self.n):
-            # odometry in the frame of the start pose, as a base's driver reports it
-            x0, y0, th0 = self.start[i]
-            dx, dy = world.odom[i, 0] - x0, world.odom[i, 1] - y0
-            c, s = math.cos(th0), math.sin(th0)
-            pose = (c * dx + s * dy, -s * dx + c * dy, world.odom[i, 2] - th0)
-            m = ms.odometry_msg(pose, self.cmd[i], stamp, out=self.msgs[i])
-            # the body's roll and pitch, as an IMU-fused odometry carries them
-            q_body = world._root(world.bodies[i])[1]
-            roll, pitch, _ = pb.getEulerFromQuaternion(q_body)
-            q = pb.getQuaternionFromEuler([roll, pitch, pose[2]])
-            o = m.pose.pose.orientation
-            o.x, o.y, o.z, o.w = (float(v) for v in q)
-            self.odom_pubs[i].publish(m)
+        for i, (pose, twist, quat) in enumerate(odoms):
+            self.odom_pubs[i].publish(ms.odometry_msg(pose, twist, stamp, out=self.msgs[i],
+                                                      quat=quat))
 
     def _report(self) -> None:
-        d = {"node": NAME, "trial": -1,
-             "commands_max": {ms.robot_name(i + 1): {
-                 "v": float(s[0]), "omega": float(s[1]), "a": float(s[2]),
-                 "alpha": float(s[3])} for i, s in enumerate(self.stats)},
-             "odometry_drift": {ms.robot_name(i + 1): float(x)
-                                for i, x in enumerate(self.drift)},
-             "contacts": self.world.contacts()}
-        self.diag_pub.publish(ms.json_to_msg(d))
+        self.diag_pub.publish(ms.json_to_msg({"node": NAME, "trial": -1,
+                                              **self.core.report()}))
 
     def destroy_node(self) -> None:
-        self.world.close()
+        self.core.close()
         super().destroy_node()
 
 

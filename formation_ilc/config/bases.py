@@ -25,13 +25,16 @@ Sizes (length x width): the same manufacturers' specifications.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 from formation_ilc.config.scenario import MAX_TIME_SCALE, Scenario
 from formation_ilc.core.limits import Limits, check_inputs, scale_needed
+from formation_ilc.core.names import bridge_name
 
-__all__ = ["BasePreset", "BASES", "base_preset", "fit_limits", "limits_from_params"]
+__all__ = ["BasePreset", "BASES", "base_preset", "fit_limits", "limits_from_params",
+           "with_given", "LIMIT_KEYS"]
 
 
 @dataclass(frozen=True)
@@ -94,7 +97,21 @@ def fit_limits(sc: Scenario, limits: list[Limits]) -> str | None:
     return f"{v.line(sc.dt)}; no time scale up to {MAX_TIME_SCALE:g} fits"
 
 
+#: a bridge's limit parameters: v_max [m/s], omega_max [deg/s], a_max [m/s^2], alpha_max
+#: [deg/s^2] (``--v-max`` ... on the command line); 0 keeps the default
 LIMIT_KEYS = ("v_max", "omega_max", "a_max", "alpha_max")
+
+
+def with_given(base: Limits, given: Mapping[str, Any], where: str = "") -> Limits:
+    """``base`` with each value of ``given`` (LIMIT_KEYS, in the bridge's units; 0 keeps
+    ``base``'s) in its place: the one rule by which a bridge reads its limit parameters and
+    the launcher predicts them. ValueError naming ``where`` and the entry that is not a
+    limit."""
+    vals = dict(zip(LIMIT_KEYS, base.as_tuple(), strict=True))
+    for name, x in given.items():
+        if name in LIMIT_KEYS:
+            vals[name] = _limit_value(name, x, vals[name], f"{where}{name}")
+    return Limits(**vals)
 
 
 def limits_from_params(base: Limits, n: int, params: dict[str, Any] | None,
@@ -102,26 +119,25 @@ def limits_from_params(base: Limits, n: int, params: dict[str, Any] | None,
                        ) -> list[Limits]:
     """Each robot's limits as its bridge will hold them: ``base`` (a preset's or the
     bridge's defaults), then a ROS 2 parameters file's entries for ``/**``, ``bridge_I``
-    or ``NAMESPACE/bridge_I`` (``ros__parameters``: v_max [m/s], omega_max [deg/s], a_max
-    [m/s^2], alpha_max [deg/s^2]; 0 keeps the default), then the command line's
+    or ``NAMESPACE/bridge_I`` (``ros__parameters``, LIMIT_KEYS), then the command line's
     ``overrides`` (same units). ValueError naming the entry that is not a number."""
     out = []
     for i in range(1, n + 1):
-        vals = dict(zip(LIMIT_KEYS, base.as_tuple(), strict=True))
-        for key in ("/**", f"bridge_{i}", f"{namespace.rstrip('/')}/bridge_{i}"):
+        lim = base
+        for key in ("/**", bridge_name(i), f"{namespace.rstrip('/')}/{bridge_name(i)}"):
             entry = (params or {}).get(key) or {}
             rp = entry.get("ros__parameters", {}) if isinstance(entry, dict) else {}
-            for name in LIMIT_KEYS:
-                if name in rp:
-                    vals[name] = _limit_value(name, rp[name], vals[name], f"{key}: {name}")
+            if isinstance(rp, dict):
+                lim = with_given(lim, rp, f"{key}: ")
         for name, x in overrides.items():
-            vals[name] = _limit_value(name, x, vals[name], f"--{name.replace('_', '-')}")
-        out.append(Limits(**vals))
+            lim = with_given(lim, {name: x}, "--")
+        out.append(lim)
     return out
 
 
 def _limit_value(name: str, x: Any, default: float, where: str) -> float:
     if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) or x < 0:
+        where = where.replace("--" + name, "--" + name.replace("_", "-"))
         raise ValueError(f"{where}: a limit >= 0 is required (0 keeps the default), got {x!r}")
     if x == 0:
         return default

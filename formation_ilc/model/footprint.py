@@ -21,7 +21,8 @@ from numpy.typing import NDArray
 
 from formation_ilc.config.scenario import Scenario
 
-__all__ = ["Footprint", "clearance", "Clearance", "predict_clearance"]
+__all__ = ["Footprint", "clearance", "Clearance", "predict_clearance", "BODIES",
+           "footprint_of"]
 
 
 @dataclass(frozen=True)
@@ -44,6 +45,22 @@ class Footprint:
         x = cx[..., None] + c[..., None] * local[:, 0] - s[..., None] * local[:, 1]
         y = cy[..., None] + s[..., None] * local[:, 0] + c[..., None] * local[:, 1]
         return np.stack([x, y], axis=-1)
+
+
+#: bodies the clearance is measured for, by name: a Pioneer 3-DX (and the physics model of
+#: its size) about its axle, the Husky about its turning point (docs/physics.md), and the
+#: bases' presets (``formation_ilc.config.bases``)
+BODIES = ("p3dx", "husky", "turtlebot3", "turtlebot4", "jackal")
+_OWN = {"p3dx": Footprint(0.455, 0.381, -0.045), "husky": Footprint(0.99, 0.67, 0.17)}
+
+
+def footprint_of(name: str) -> Footprint:
+    """The footprint of body ``name`` (one of BODIES); ValueError for another."""
+    if name in _OWN:
+        return _OWN[name]
+    from formation_ilc.config.bases import base_preset
+
+    return Footprint(*base_preset(name).size)
 
 
 def _axes(corners: NDArray[np.float64]) -> NDArray[np.float64]:

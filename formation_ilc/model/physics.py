@@ -39,9 +39,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from formation_ilc.core.kinematics import wrap_angle
-from formation_ilc.model.footprint import Footprint
+from formation_ilc.model.footprint import Footprint, footprint_of
 
-__all__ = ["RobotModel", "MODELS", "PhysicsWorld", "robot_model", "DEFAULT_RATE"]
+__all__ = ["RobotModel", "MODELS", "PhysicsWorld", "robot_model", "DEFAULT_RATE",
+           "POSE_SOURCES"]
+
+#: where a robot's measured pose comes from: the engine's ground truth (a motion-capture
+#: stand-in) or its wheel odometry (drifts)
+POSE_SOURCES = ("truth", "odometry")
 
 #: engine steps per second (PyBullet's default): 48 substeps per sample at dT = 0.2 s
 DEFAULT_RATE = 240.0
@@ -84,7 +89,7 @@ MODELS: dict[str, RobotModel] = {
     "p3dx": RobotModel(
         "p3dx", "package:p3dx_size.urdf", ("left_wheel",), ("right_wheel",),
         wheel_radius=0.0975, track=0.34, torque=2.0, tracked=0.0,
-        footprint=Footprint(0.455, 0.381, -0.045), mass=9.0, caster=("caster_link",),
+        footprint=footprint_of("p3dx"), mass=9.0, caster=("caster_link",),
         spawn_z=0.002, geometric_track=0.33,
         source="Pioneer 3-DX datasheet dimensions; boxes and cylinders of this package"),
     # track and tracked point of both: ``calibrate`` at 240 Hz (docs/physics.md has the runs)
@@ -92,7 +97,7 @@ MODELS: dict[str, RobotModel] = {
         "husky", "pybullet_data:husky/husky.urdf",
         ("front_left_wheel", "rear_left_wheel"), ("front_right_wheel", "rear_right_wheel"),
         wheel_radius=0.17775, track=1.5, torque=30.0, tracked=-0.17,
-        footprint=Footprint(0.99, 0.67, 0.17), mass=44.0, spawn_z=0.02,
+        footprint=footprint_of("husky"), mass=44.0, spawn_z=0.02,
         geometric_track=0.5708, source="pybullet_data husky/husky.urdf (Clearpath Husky)"),
 }
 
@@ -259,6 +264,12 @@ class PhysicsWorld:
             zz = pb.getMatrixFromQuaternion(q)[8]
             out[r] = math.acos(max(-1.0, min(1.0, zz)))
         return out
+
+    def roll_pitch(self) -> NDArray[np.float64]:
+        """Each robot's body roll and pitch [rad], (N, 2) (what an IMU-fused odometry
+        carries)."""
+        pb = self.pb
+        return np.array([pb.getEulerFromQuaternion(self._root(b)[1])[:2] for b in self.bodies])
 
     def body_twist(self) -> NDArray[np.float64]:
         """Each robot's (v forward [m/s], omega [rad/s]) from the engine, (N, 2)."""

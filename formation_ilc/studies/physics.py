@@ -25,14 +25,10 @@ from formation_ilc.config.scenario import Scenario
 from formation_ilc.core.law import command, learn
 from formation_ilc.core.metrics import METRIC_COLUMNS
 from formation_ilc.model.footprint import Clearance, trial_clearance
-from formation_ilc.model.physics import DEFAULT_RATE, PhysicsWorld, RobotModel
+from formation_ilc.model.physics import DEFAULT_RATE, POSE_SOURCES, PhysicsWorld, RobotModel
 from formation_ilc.model.simulate import Problem, trial_errors
 
 __all__ = ["POSE_SOURCES", "PhysicsResult", "run_physics"]
-
-#: where a robot's measured pose comes from: the engine's ground truth (a motion-capture
-#: stand-in) or its wheel odometry (drifts)
-POSE_SOURCES = ("truth", "odometry")
 
 
 @dataclass

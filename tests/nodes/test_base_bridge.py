@@ -4,6 +4,7 @@ service, and acceleration limits on every command (private rclpy Context, no sle
 from __future__ import annotations
 
 import math
+import time
 
 import pytest
 
@@ -16,6 +17,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
 import msgs_schema as ms  # noqa: E402
+from formation_ilc.config.bases import BASES  # noqa: E402
 from formation_ilc.core.kinematics import yaw_and_tilt  # noqa: E402
 
 from ..procs import spin_until  # noqa: E402
@@ -75,7 +77,7 @@ def test_base_bridge_needs_no_motor_service_reads_tilt_and_limits_acceleration(c
     ex.add_node(tester)
     try:
         assert bridge.driver == "base (turtlebot4)" and bridge.stamped  # the preset's
-        assert bridge.rate_limiter.limits.v_max == 0.306
+        assert bridge.rate == BASES["turtlebot4"].limits
         sent: list[tuple[float, float, float]] = []  # (stamp [s], v, omega)
         tester.create_subscription(TwistStamped, "/tb_1/cmd_vel",
                                    lambda m: sent.append((ms.stamp_to_ns(m.header.stamp) * 1e-9,
@@ -85,22 +87,27 @@ def test_base_bridge_needs_no_motor_service_reads_tilt_and_limits_acceleration(c
         pub = tester.create_publisher(Odometry, "/tb_1/odom", ms.ODOM_QOS)
         spin_until(ex, lambda: pub.get_subscription_count() >= 1 and sent)
         assert bridge.motors_on  # no service to wait for
+        core = bridge.core
         pub.publish(odom(math.radians(3), 0.0, 0.25))
-        spin_until(ex, lambda: bridge.odom is not None)
-        assert bridge.odom[2] == pytest.approx(0.25)
-        assert bridge.tilt_max == pytest.approx(math.radians(3))
+        spin_until(ex, lambda: core.odom is not None)
+        assert core.odom[2] == pytest.approx(0.25)
+        assert core.tilt_max == pytest.approx(math.radians(3))
         pub.publish(odom(math.radians(30), 0.0, 1.0))
         spin_until(ex, lambda: bridge.drops.counts["malformed"] == 1)
-        assert bridge.odom[2] == pytest.approx(0.25)  # the tilted pose was not taken
+        assert core.odom[2] == pytest.approx(0.25)  # the tilted pose was not taken
         # every command to the base goes through the limits: from standing, 0.3 m/s is
         # reached no faster than the preset's 2.5 m/s^2 allows, on the messages' stamps
+        # (the node publishes each with the wall time the core limited it at)
         n0 = len(sent)
         for _ in range(5):
-            bridge._send((0.3, 0.0), 0.0)
+            wall = time.time_ns()
+            bridge._send(core.send((0.3, 0.0), time.monotonic(), wall), wall)
         spin_until(ex, lambda: len(sent) >= n0 + 5)
-        assert bridge.out_cmd[0] < 0.3 and bridge.rate_limiter.clipped_accel >= 5
+        assert core.out_cmd[0] < 0.3 and core.rate is not None
+        assert core.rate.clipped_accel >= 5
         for (t1, v1, _), (t2, v2, _) in zip(sent[n0 - 1:], sent[n0:], strict=False):
             assert v2 - v1 <= 2.5 * (t2 - t1) + 1e-12
+        assert core.report()["tilt_max_deg"] == pytest.approx(3.0)
     finally:
         ex.shutdown()
         bridge.destroy_node()
