@@ -39,6 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from formation_ilc.core.kinematics import wrap_angle
+from formation_ilc.core.names import robot_name
 from formation_ilc.model.footprint import Footprint, footprint_of
 
 __all__ = ["RobotModel", "MODELS", "PhysicsWorld", "robot_model", "DEFAULT_RATE",
@@ -334,7 +335,7 @@ class PhysicsWorld:
     def contacts(self) -> dict[str, float]:
         """Time in contact per pair since ``place`` [s] (readings in contact x their
         interval), pairs that touched only, keyed 'robot_i-robot_j' (1-based)."""
-        return {f"robot_{i + 1}-robot_{j + 1}": float(k * self.h * self.sense_every)
+        return {f"{robot_name(i + 1)}-{robot_name(j + 1)}": float(k * self.h * self.sense_every)
                 for (i, j), k in zip(self.pairs, self.contact_steps, strict=True) if k}
 
     def close(self) -> None:
