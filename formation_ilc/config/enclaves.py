@@ -99,6 +99,9 @@ class Grant:
     subscribe: tuple[str, ...]
     dds_publish: tuple[str, ...] = ()
     dds_subscribe: tuple[str, ...] = ()
+    #: the node name its ROS housekeeping (services) runs under; ``*``: any node in
+    #: ``node_namespace`` (a driver whose node name is the driver's own)
+    service_node: str = ""
 
 
 #: enclave name -> what it is, for messages and docs
@@ -126,12 +129,12 @@ def _abs(namespace: str, topic: str) -> str:
 
 def _grant(namespace: str, name: str, publish: Sequence[str], subscribe: Sequence[str], *,
            node_namespace: str | None = None, dds_publish: Sequence[str] = (),
-           dds_subscribe: Sequence[str] = ()) -> Grant:
+           dds_subscribe: Sequence[str] = (), service_node: str = "") -> Grant:
     def absolute(names: Sequence[str]) -> tuple[str, ...]:
         return tuple(sorted({_abs(namespace, t) for t in names}))
     return Grant(enclave_path(namespace, name), name, node_namespace or namespace,
                  absolute(publish), absolute(subscribe), tuple(sorted(set(dds_publish))),
-                 tuple(sorted(set(dds_subscribe))))
+                 tuple(sorted(set(dds_subscribe))), service_node or name)
 
 
 def _robot(t: TopicNames, namespace: str, i: int, senders: list[int], hears_leader: bool
@@ -163,7 +166,7 @@ def _pioneer(t: TopicNames, namespace: str, i: int, d: DriverTopics) -> list[Gra
                    dds_publish=[rq] if rq else [], dds_subscribe=[rr] if rr else []),
             _grant(namespace, f"driver_{i}", driver_pub, driver_sub,
                    node_namespace=d.ns(i) or "/", dds_publish=[rr] if rr else [],
-                   dds_subscribe=[rq] if rq else [])]
+                   dds_subscribe=[rq] if rq else [], service_node="*")]
 
 
 def formation_grants(adjacency: NDArray[np.float64], leader: NDArray[np.float64],
@@ -237,7 +240,7 @@ def permissions_xml(grant: Grant, subject: str, not_before: datetime, not_after:
     ``subject`` is the identity certificate's subject (RFC 4514, e.g. ``CN=/formation/
     robot_1``); the validity is the certificate's, in UTC.
     """
-    hk_pub, hk_sub = housekeeping(grant.node_namespace, grant.node)
+    hk_pub, hk_sub = housekeeping(grant.node_namespace, grant.service_node or grant.node)
     pub = [dds_topic(x) for x in grant.publish] + list(grant.dds_publish) + hk_pub
     sub = [dds_topic(x) for x in grant.subscribe] + list(grant.dds_subscribe) + hk_sub
 
