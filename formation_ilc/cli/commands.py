@@ -297,6 +297,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", type=output_file_arg, metavar="FIXED.mcap",
                    help="default: RUN.repaired.mcap")
 
+    from formation_ilc.cli import keystore
+
+    keystore.add_parser(sub)
+
     try:
         from formation_ilc.cli import launch  # type: ignore[attr-defined,unused-ignore]
     except ImportError:  # the distributed stack is not installed with this build
@@ -869,6 +873,10 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"note: {args.recording}: {line}")
             print(f"{dst}: {n} messages kept")
             return 0
+        if args.command == "keystore":
+            from formation_ilc.cli import keystore
+
+            return keystore.run(args)
         if args.command == "launch":
             from formation_ilc.cli import launch  # type: ignore[attr-defined,unused-ignore]
 

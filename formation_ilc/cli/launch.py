@@ -29,6 +29,10 @@ Node entry points (also `ros2 run formation_ilc <exe>` on a full ROS 2 install):
 --plant pioneer: one bridge per robot instead of the simulator (with --fake-drivers one
 fake RosAria driver per robot too), wall-clock trials, direct links; --init-memory FILE:
 every robot starts from its row of a memory learned by `formation-ilc simulate`.
+
+--secure DIR: every node in its SROS2 enclave of the keystore DIR (`formation-ilc keystore
+create DIR SCENARIO`), DDS-Security enforced; refused before anything starts if the
+keystore or the loaded Fast DDS cannot run it (docs/security.md).
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
 from typing import IO, Any
@@ -48,6 +53,7 @@ from typing import IO, Any
 import numpy as np
 
 from formation_ilc.cli.options import (
+    OptionError,
     int_range,
     nonneg_int,
     out_dir_arg,
@@ -141,6 +147,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "process; the run starts once it listens); analyse it with "
                         "`formation-ilc analyze RUN.mcap`")
     add_host_arguments(p)
+    from formation_ilc.cli import secure
+
+    secure.add_arguments(p)
 
 
 def _pick_domain() -> int:
@@ -217,8 +226,10 @@ def node_commands(cfg_args: dict[str, Any], n: int, container: int, *, links: st
 class Stack:
     """The processes of one run; ``stop()`` ends them (SIGINT, then SIGTERM, SIGKILL)."""
 
-    def __init__(self, env: dict[str, str], log_dir: Path):
+    def __init__(self, env: dict[str, str], log_dir: Path,
+                 env_for: Callable[[dict[str, str], str], dict[str, str]] | None = None):
         self.env = env
+        self.env_for = env_for  # a process's own environment (--secure: its enclave)
         self.log_dir = log_dir
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
         self.logs: dict[str, IO[bytes]] = {}
@@ -236,7 +247,8 @@ class Stack:
             fh.flush()
         self.logs[name] = fh
         self.argv[name] = argv
-        self.procs[name] = subprocess.Popen(argv, env=self.env, stdout=fh,
+        env = self.env_for(self.env, name) if self.env_for else self.env
+        self.procs[name] = subprocess.Popen(argv, env=env, stdout=fh,
                                             stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
 
     def restart(self, name: str) -> str:
@@ -419,6 +431,16 @@ def run(args: argparse.Namespace) -> int:
     if sc.trials < 1:
         print("error: --trials must be at least 1", file=sys.stderr)
         return 2
+    from formation_ilc.cli import secure
+
+    try:  # --secure: keystore and Fast DDS checked before anything starts
+        sec = secure.prepare(getattr(args, "secure", None), [name for name, _ in node_commands(
+            {"timeout": 0}, sc.n, args.container, links=args.links, plant=args.plant,
+            fake_drivers=args.fake_drivers)] + (["recorder"] if args.record else []),
+            namespace, container=args.container)
+    except OptionError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     out = args.out or Path("runs") / f"{sc.name}-launch-{datetime.now():%Y%m%d-%H%M%S}"
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -536,8 +558,10 @@ def run(args: argparse.Namespace) -> int:
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, on_term)
+    if sec is not None:
+        sec.enter_launcher()
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
-    stack = Stack(env, out / "logs")
+    stack = Stack(env, out / "logs", env_for=sec.env if sec is not None else None)
     status = 0
     monitor = None
     try:
