@@ -190,7 +190,7 @@ def formation_grants(adjacency: NDArray[np.float64], leader: NDArray[np.float64]
                          [t.ready, t.config, t.clock]))
     links_pub = [t.link(i, f"robot_{j}") for i in robots for j in senders[i - 1]]
     links_pub += [t.link(i, t.leader) for i in robots if w[i - 1] > 0]
-    links_sub = [t.shared_pose(j) for j in sorted({j for s in senders for j in s})]
+    links_sub = [t.shared_pose(j) for j in robots]  # it reads every robot's, leaves too
     grants.append(_grant(namespace, "link_emulator", [*links_pub, t.ready, t.diagnostics],
                          [*links_sub, t.reference, t.trial_events, t.config, t.clock]))
     if pioneer is None:
