@@ -4,8 +4,8 @@
 
 (Started by tests/stack/test_secure.py.) Brings ``lo`` up, captures every UDP datagram on it
 with a raw packet socket (in a namespace of its own, nothing but COMMAND's traffic is
-there), and meanwhile reads the Fast DDS shared-memory segments (``/dev/shm/fastrtps_*``)
-that COMMAND's processes have mapped. Each marker (hex, comma-separated) is counted where
+there), and meanwhile reads every shared-memory file (``/dev/shm/*``: Fast DDS's transport
+segments and data-sharing pools) that COMMAND's processes have mapped. Each marker (hex, comma-separated) is counted where
 it is seen in clear. Prints one JSON line: the command's exit status, its output, UDP
 packets and bytes seen, shared-memory segments read, and per marker its hits in UDP
 payloads and in shared memory.
@@ -48,8 +48,8 @@ def shm_segments(pids: set[int]) -> set[str]:
             maps = Path(f"/proc/{pid}/maps").read_text()
         except OSError:
             continue
-        found |= {line.split()[-1] for line in maps.splitlines()
-                  if "/dev/shm/" in line and "fastrtps" in line}
+        # every shared file: transport segments (fastrtps_*) and data-sharing pools alike
+        found |= {line.split()[-1] for line in maps.splitlines() if "/dev/shm/" in line}
     return found
 
 
@@ -57,7 +57,9 @@ def main() -> int:
     sep = sys.argv.index("--")
     markers = [bytes.fromhex(h) for h in sys.argv[1].split(",")]
     cmd = sys.argv[sep + 1:]
-    subprocess.run(["ip", "link", "set", "lo", "up"], check=True)
+    # lo is the namespace's only interface: multicast discovery on it reaches nothing else
+    subprocess.run(["ip", "link", "set", "lo", "up", "multicast", "on"], check=True)
+    subprocess.run(["ip", "route", "add", "224.0.0.0/4", "dev", "lo"], check=True)
     sock = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.ntohs(ETH_P_ALL))
     sock.bind(("lo", 0))
     sock.settimeout(0.2)

@@ -241,6 +241,11 @@ def captured_run(env: dict[str, str], out: Path, udp_only: bool, keystore: Path 
         cmd += ["--secure", str(keystore)]
     run_env = dict(plain(env))
     if udp_only:
+        # localhost discovery makes rmw choose its transports (shared memory first); in a
+        # namespace whose only interface is lo, Fast DDS's own discovery is as contained
+        # and honours FASTDDS_BUILTIN_TRANSPORTS
+        cmd += ["--discovery", "inherit"]
+        run_env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SUBNET"
         run_env["FASTDDS_BUILTIN_TRANSPORTS"] = "UDPv4"
     markers = ",".join(m.hex() for m in (MAP_CDR, RUN_ID_KEY))
     p = subprocess.Popen(["unshare", "-n", sys.executable, str(HERE / "secure_capture.py"),
