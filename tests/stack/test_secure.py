@@ -82,66 +82,90 @@ def identity(env: dict[str, str], ks: Path, enclave: str) -> dict[str, str]:
             "ROS_SECURITY_STRATEGY": "Enforce", "ROS_SECURITY_ENCLAVE_OVERRIDE": enclave}
 
 
-@pytest.mark.parametrize("links", ["emulated", "direct"])
-def test_grants_cover_what_the_nodes_do(ros_env, tmp_path, links):
+GRANT_CASES = {"emulated": ["--links", "emulated"], "direct": ["--links", "direct"],
+               "pioneer": ["--plant", "pioneer", "--fake-drivers", "--no-noise"]}
+
+
+def node_topics(node, ex, expected: set[tuple[str, str]], deadline: float
+                ) -> dict[tuple[str, str], tuple[set[str], set[str]]]:
+    """(publishers, subscriptions) of each (name, namespace) in ``expected``, from the ROS
+    graph. Endpoints are discovered one by one: gather until every node is seen and
+    nothing new came for 20 polls."""
+    seen: dict[tuple[str, str], tuple[set[str], set[str]]] = {}
+    stable = 0
+    while time.monotonic() < deadline and stable < 20:
+        ex.spin_once(timeout_sec=0.1)  # the graph cache fills meanwhile
+        before = {k: (set(p), set(q)) for k, (p, q) in seen.items()}
+        for key in node.get_node_names_and_namespaces():
+            if key in expected:
+                pub, sub = seen.setdefault(key, (set(), set()))
+                pub |= {t for t, _ in node.get_publisher_names_and_types_by_node(*key)}
+                sub |= {t for t, _ in node.get_subscriber_names_and_types_by_node(*key)}
+        stable = stable + 1 if set(seen) == expected and seen == before else 0
+    return seen
+
+
+@pytest.mark.parametrize("case", list(GRANT_CASES))
+def test_grants_cover_what_the_nodes_do(ros_env, tmp_path, case):
     """Every topic a node of a real (insecure) run publishes or reads is in its grant: a
     secure run refuses anything else, so a gap would stop the node. Needs no secure
     build."""
     import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
+    from std_msgs.msg import String
 
     import msgs_schema as ms
     from formation_ilc.cli.keystore import grants_for
-    from formation_ilc.cli.secure import enclave_name
 
-    proc = start_launch(ros_env, tmp_path, "paper-triangle3", "--trials", "30", "--links",
-                        links, "--record", str(tmp_path / "run.mcap"))
-    grants = grants_for(load_scenario("paper-triangle3"), ms.NAMESPACE)
-    housekeeping = {"/rosout", "/parameter_events"}
+    pioneer = case == "pioneer"
+    proc = start_launch(ros_env, tmp_path, "paper-triangle3", "--trials", "3",
+                        *GRANT_CASES[case], "--record", str(tmp_path / "run.mcap"))
+    grants = grants_for(load_scenario("paper-triangle3"), ms.NAMESPACE,
+                        plant="pioneer" if pioneer else "sim")
+    f = ms.NAMESPACE
+    expected = {(n, f) for n in ("virtual_leader", "recorder", "monitor", "robot_1", "robot_2",
+                                 "robot_3")}
+    if pioneer:  # a bridge per robot and its driver: enclave driver_i, node fake_pioneer
+        expected |= {(f"bridge_{i}", f) for i in (1, 2, 3)}
+        expected |= {("fake_pioneer", f"/pioneer_{i}") for i in (1, 2, 3)}
+    else:
+        expected |= {("robot_sim", f)} | ({("link_emulator", f)} if case == "emulated"
+                                          else set())
     ctx = Context()
     rclpy.init(context=ctx)
     node = None
-    seen: dict[str, tuple[set[str], set[str]]] = {}
     try:
-        metrics = tmp_path / "metrics.csv"
-        deadline = time.monotonic() + 180
-        while not (metrics.exists() and len(metrics.read_text().splitlines()) >= 2):
-            assert proc.poll() is None, proc.communicate()[0]
-            assert time.monotonic() < deadline, "the stack did not get to trial 1"
-            time.sleep(0.05)
-        node = rclpy.create_node("grant_probe", context=ctx)  # outside the namespace
+        # outside the formation's namespace (the launcher refuses to join one in use)
+        node = rclpy.create_node("grant_probe", context=ctx)
         ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(node)
-        expected = {"virtual_leader", "robot_sim", "recorder", "monitor",
-                    *(f"robot_{i}" for i in (1, 2, 3))} | (
-            {"link_emulator"} if links == "emulated" else set())
-        # trial 1 has ended: every node has made all it will make. Endpoints are discovered
-        # one by one: gather until every node is seen and nothing new came for 20 polls
-        stable = 0
-        while time.monotonic() < deadline and stable < 20:
-            ex.spin_once(timeout_sec=0.1)  # the graph cache fills meanwhile
-            before = {k: (set(p), set(q)) for k, (p, q) in seen.items()}
-            for name, ns in node.get_node_names_and_namespaces():
-                if ns == ms.NAMESPACE and name in expected:
-                    pub, sub = seen.setdefault(name, (set(), set()))
-                    pub |= {t for t, _ in node.get_publisher_names_and_types_by_node(name, ns)}
-                    sub |= {t for t, _ in node.get_subscriber_names_and_types_by_node(name, ns)}
-            stable = stable + 1 if set(seen) == expected and seen == before else 0
-        assert set(seen) == expected, seen
-        seen = {k: (p - housekeeping, q - housekeeping) for k, (p, q) in seen.items()}
+        events: list[str] = []
+        node.create_subscription(String, ms.absolute(ms.TRIAL_EVENTS), lambda m:
+                                 events.append(m.data), ms.SAMPLE_QOS)
+        deadline = time.monotonic() + 240
+        while not any('"start"' in e for e in events):
+            assert proc.poll() is None, proc.communicate()[0]
+            assert time.monotonic() < deadline, "the stack did not start trial 1"
+            ex.spin_once(timeout_sec=0.05)
+        # the leader starts once every node said ready: all have made what they will make
+        seen = node_topics(node, ex, expected, deadline)
     finally:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown(context=ctx)
         stop_group(proc)
-    for name, (pub, sub) in seen.items():
-        g = grants[f"{ms.NAMESPACE}/{enclave_name(name)}"]
-        assert pub <= set(g.publish), (name, sorted(pub - set(g.publish)))
-        assert sub <= set(g.subscribe), (name, sorted(sub - set(g.subscribe)))
+    assert set(seen) == expected, sorted(seen)
+    housekeeping = {"/rosout", "/parameter_events"}
+    for (name, ns), (pub, sub) in seen.items():
+        enclave = f"driver_{ns.rsplit('_', 1)[1]}" if name == "fake_pioneer" else name
+        g = grants[f"{f}/{enclave}"]
+        assert pub - housekeeping <= set(g.publish), (name, sorted(pub - set(g.publish)))
+        assert sub - housekeeping <= set(g.subscribe), (name, sorted(sub - set(g.subscribe)))
     # and the check has teeth: the robots do publish their commands, the plant reads them
-    assert f"{ms.NAMESPACE}/robot_2/cmd_vel" in seen["robot_2"][0]
-    assert f"{ms.NAMESPACE}/robot_2/cmd_vel" in seen["robot_sim"][1]
+    plant = ("bridge_2", f) if pioneer else ("robot_sim", f)
+    assert f"{f}/robot_2/cmd_vel" in seen[("robot_2", f)][0]
+    assert f"{f}/robot_2/cmd_vel" in seen[plant][1]
 
 
 @pytest.mark.slow
