@@ -119,13 +119,15 @@ def test_grants_cover_what_the_nodes_do(ros_env, tmp_path, case):
     from formation_ilc.cli.keystore import grants_for
 
     pioneer = case == "pioneer"
+    # the recorder's grant is checked with the simulator (its run records every topic)
+    record = [] if pioneer else ["--record", str(tmp_path / "run.mcap")]
     proc = start_launch(ros_env, tmp_path, "paper-triangle3", "--trials", "3",
-                        *GRANT_CASES[case], "--record", str(tmp_path / "run.mcap"))
+                        *GRANT_CASES[case], *record)
     grants = grants_for(load_scenario("paper-triangle3"), ms.NAMESPACE,
                         plant="pioneer" if pioneer else "sim")
     f = ms.NAMESPACE
-    expected = {(n, f) for n in ("virtual_leader", "recorder", "monitor", "robot_1", "robot_2",
-                                 "robot_3")}
+    expected = {(n, f) for n in ("virtual_leader", "monitor", "robot_1", "robot_2", "robot_3")}
+    expected |= set() if pioneer else {("recorder", f)}
     if pioneer:  # a bridge per robot and its driver: enclave driver_i, node fake_pioneer
         expected |= {(f"bridge_{i}", f) for i in (1, 2, 3)}
         expected |= {("fake_pioneer", f"/pioneer_{i}") for i in (1, 2, 3)}
@@ -143,10 +145,13 @@ def test_grants_cover_what_the_nodes_do(ros_env, tmp_path, case):
         events: list[str] = []
         node.create_subscription(String, ms.absolute(ms.TRIAL_EVENTS), lambda m:
                                  events.append(m.data), ms.SAMPLE_QOS)
-        deadline = time.monotonic() + 240
+        deadline = time.monotonic() + 400
         while not any('"start"' in e for e in events):
             assert proc.poll() is None, proc.communicate()[0]
-            assert time.monotonic() < deadline, "the stack did not start trial 1"
+            if time.monotonic() > deadline:
+                stop_group(proc)
+                raise AssertionError(f"the stack did not start trial 1: {events}\n"
+                                     f"{proc.communicate()[0][-2000:]}")
             ex.spin_once(timeout_sec=0.05)
         # the leader starts once every node said ready: all have made what they will make
         seen = node_topics(node, ex, expected, deadline)
@@ -197,13 +202,16 @@ def result(p: subprocess.Popen[str]) -> dict:
 
 @pytest.mark.slow
 def test_outsiders_during_a_secure_run(ros_env, tmp_path, keystore):
-    trials = 40
+    """Three outsiders try their luck while a secure formation learns; the run is stopped
+    once they are done (it is long enough to outlast them) and its finished trials must
+    equal the batch simulator's."""
+    trials = 400
     foreign = make_keystore(tmp_path / "foreign")
     proc = start_launch(ros_env, tmp_path / "run", "paper-triangle3", "--trials", str(trials),
                         "--secure", str(keystore))
     probes = {}
+    metrics = tmp_path / "run" / "metrics.csv"
     try:
-        metrics = tmp_path / "run" / "metrics.csv"
         deadline = time.monotonic() + 180
         while not (metrics.exists() and len(metrics.read_text().splitlines()) >= 2):
             assert proc.poll() is None, proc.communicate()[0]
@@ -222,13 +230,12 @@ def test_outsiders_during_a_secure_run(ros_env, tmp_path, keystore):
                                   "listen:robot_1/shared_pose:PoseStamped")
         got = {k: result(p) for k, p in probes.items()}
         # the probes ran while the formation did (else they would prove nothing)
-        assert proc.poll() is None, "the run ended before the probes did: make it longer"
-        out, _ = proc.communicate(timeout=300)
+        assert proc.poll() is None, proc.communicate()[0]
+        done_while_probed = len(metrics.read_text().splitlines()) - 1
     finally:
         for p in probes.values():
             stop_group(p)
-        stop_group(proc)
-    assert proc.returncode == 0, out
+        stop_group(proc)  # SIGINT: the finished trials stay in metrics.csv
     ops = got["plain"]["ops"]
     # nothing refuses its readers and writers locally, and no one lets it in
     assert all(o["created"] for o in ops.values()), ops
@@ -240,9 +247,10 @@ def test_outsiders_during_a_secure_run(ros_env, tmp_path, keystore):
         assert "error" in ops[op]
     ops = got["foreign"]["ops"]
     assert all(o["received"] == 0 and o["matched"] == 0 for o in ops.values()), ops
-    # the forged commands changed nothing: the run equals the batch simulator
-    got_m = read_metrics(tmp_path / "run" / "metrics.csv")
-    ref = simulate(load_scenario("paper-triangle3"), trials=trials).metrics
+    # the forged commands changed nothing: the trials equal the batch simulator's
+    got_m = read_metrics(metrics)
+    assert len(got_m) >= max(done_while_probed, 2)
+    ref = simulate(load_scenario("paper-triangle3"), trials=len(got_m)).metrics
     np.testing.assert_allclose(got_m[:, 1:], ref[:, 1:], rtol=0, atol=TOL)
 
 
