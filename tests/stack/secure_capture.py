@@ -5,10 +5,10 @@
 (Started by tests/stack/test_secure.py.) Brings ``lo`` up, captures every UDP datagram on it
 with a raw packet socket (in a namespace of its own, nothing but COMMAND's traffic is
 there), and meanwhile reads every shared-memory file (``/dev/shm/*``: Fast DDS's transport
-segments and data-sharing pools) that COMMAND's processes have mapped. Each marker (hex, comma-separated) is counted where
-it is seen in clear. Prints one JSON line: the command's exit status, its output, UDP
-packets and bytes seen, shared-memory segments read, and per marker its hits in UDP
-payloads and in shared memory.
+segments and data-sharing pools) that COMMAND's processes have mapped. Each marker (hex,
+comma-separated) is counted where it is seen in clear. Prints one JSON line: the command's
+exit status, its output, UDP packets and bytes seen, shared-memory segments read, and per
+marker its hits in UDP payloads and in shared memory.
 """
 
 from __future__ import annotations
