@@ -93,3 +93,16 @@ def test_secure_launch_refuses_the_wheels_fastdds_before_any_node(tmp_path):
     assert res.stderr.count("\n") == 1 and res.stderr.startswith("error: --secure: ")
     assert "libfastrtps.so.2.14" in res.stderr and "build_secure_dds.sh" in res.stderr
     assert not (out / "logs").exists()  # no node was started
+
+
+def test_maps_parsing_and_markers(tmp_path):
+    from formation_ilc.system.securedds import _mapped
+
+    maps = ("7f00-7f01 r-xp 00000000 08:01 12 /opt/x/lib/libfastrtps.so.2.14\n"
+            "7f02-7f03 r--p 00000000 00:00 0 \n"
+            "7f04-7f05 r-xp 00000000 08:01 13 /opt/x/lib/librmw_fastrtps_cpp.so\n")
+    assert _mapped(maps, "libfastrtps.so") == Path("/opt/x/lib/libfastrtps.so.2.14")
+    assert _mapped(maps, "librmw_fastrtps_shared_cpp.so") is None
+    lib = tmp_path / "lib.so"
+    lib.write_bytes(b"\0" * 4096 + SECURITY_MARKER + b"\0" * 10)
+    assert has_marker(lib, SECURITY_MARKER) and not has_marker(lib, INSECURE_RMW_MARKER)
