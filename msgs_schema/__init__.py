@@ -83,8 +83,21 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 from formation_ilc.core.clock import Malformed, SampleClock
-from formation_ilc.core.links import LEADER, link_name, robot_name
-from formation_ilc.core.links import robot_number as robot_index
+from formation_ilc.core.links import LEADER, link_name
+from formation_ilc.core.names import (
+    BRIDGE_PREFIX,
+    CLOCK,
+    FAKE_DRIVER_NODE,
+    LEADER_NODE,
+    LINKS_NODE,
+    MONITOR_NODE,
+    NAMESPACE,
+    RECORDER_NODE,
+    SIM_NODE,
+    bridge_name,
+    robot_name,
+)
+from formation_ilc.core.names import robot_number as robot_index
 from formation_ilc.protocol.schedule import ABORT, DONE, END, START
 
 __all__ = [
@@ -97,19 +110,21 @@ __all__ = [
     "SampleClock", "stamp_to_ns", "ns_to_stamp", "pose_to_msg", "msg_to_pose", "u_to_twist",
     "twist_to_u", "world_pose", "trajectory_to_path", "path_to_trajectory", "link_tick_to_msg",
     "msg_to_link_tick", "json_to_msg", "msg_to_json", "json_int", "deserialize", "clock_msg",
+    "path_limit", "path_from_raw", "FRAME_ID_MAX",
     "START", "END", "ABORT", "DONE",
     "DriverSpec", "DRIVERS", "DRIVER_CMD_QOS", "ODOM_QOS", "BRIDGE_PREFIX", "bridge_name",
     "odometry_to_pose", "odometry_msg", "driver_twist",
+    "LEADER_NODE", "SIM_NODE", "LINKS_NODE", "MONITOR_NODE", "RECORDER_NODE",
+    "FAKE_DRIVER_NODE",
 ]
 
-#: the default namespace of every node of a formation
-NAMESPACE = "/formation"
+# NAMESPACE (the default namespace of every node of a formation), CLOCK and the node names
+# (LEADER_NODE, SIM_NODE, ..., robot_name, bridge_name) are formation_ilc.core.names', re-exported
 CONFIG = "config"
 REFERENCE = "leader/reference"
 TRIAL_EVENTS = "leader/trial_events"
 READY = "ready"
 DIAGNOSTICS = "diagnostics"
-CLOCK = "/clock"
 
 #: REP-105 world-fixed frame of every pose and path
 WORLD_FRAME = "map"
@@ -191,14 +206,6 @@ MalformedMessage = Malformed
 
 
 # --------------------------------------------------------------------------- Pioneer drivers
-
-#: a hardware bridge's node name is ``bridge_<id>`` (what it says ready as)
-BRIDGE_PREFIX = "bridge_"
-
-
-def bridge_name(i: int) -> str:
-    return f"{BRIDGE_PREFIX}{int(i)}"
-
 
 @dataclass(frozen=True)
 class DriverSpec:
@@ -418,6 +425,34 @@ def path_to_trajectory(msg: Path, reference_heading: NDArray[np.float64] | None 
         stamps[s] = ns
         prev = float(e[2])
     return eta, stamps, frame
+
+
+#: [bytes] a frame id of at most this many characters fits the size bound of a Path
+FRAME_ID_MAX = 64
+
+
+def path_limit(poses: int) -> int:
+    """[bytes] the most a CDR ``nav_msgs/Path`` of at most ``poses`` PoseStamped can take
+    when every frame id has at most FRAME_ID_MAX characters: encapsulation, header and
+    sequence length, then per pose its header (stamp, frame id) and pose (7 float64),
+    alignment included."""
+    header = 8 + 4 + FRAME_ID_MAX + 1 + 7  # stamp, string length, text, NUL, padding
+    return 4 + header + 4 + int(poses) * (header + 7 * 8)
+
+
+def path_from_raw(data: bytes | Path, poses: int, what: str = "Path") -> Path:
+    """The Path in the CDR bytes of a raw subscription, refused (MalformedMessage) before
+    it is deserialized when it is longer than a Path of ``poses`` poses can be: a forged
+    trajectory of megabytes costs a length check, not a minute of building Python
+    objects. A Path already built (an in-process caller) is returned as it is."""
+    if isinstance(data, Path):
+        return data
+    limit = path_limit(poses)
+    if len(data) > limit:
+        raise MalformedMessage(f"{what} of {len(data)} bytes: longer than {poses} poses can "
+                               f"be ({limit} bytes)")
+    msg: Path = deserialize(data, Path)
+    return msg
 
 
 # --------------------------------------------------------------------------- emulated links

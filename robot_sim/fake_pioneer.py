@@ -50,7 +50,7 @@ class FakePioneer(Node):
                              f"got {driver!r}")
         spec = ms.DRIVERS[driver]
         kwargs.setdefault("namespace", spec.default_ns)
-        super().__init__("fake_pioneer", **kwargs)
+        super().__init__(ms.FAKE_DRIVER_NODE, **kwargs)
         for name, default in (("driver", driver), ("rate", 50.0), ("cmd_timeout", 0.6),
                               ("odom_scale", 0.01),
                               ("odom_turn_scale", -0.01), ("odom_turn_bias", 0.002),
@@ -140,7 +140,7 @@ def main(args: list[str] | None = None) -> int:
                             if drv else None)]
 
     return spin_main(build,
-                     node_parser("fake_pioneer", __doc__), args)
+                     node_parser(ms.FAKE_DRIVER_NODE, __doc__), args)
 
 
 if __name__ == "__main__":

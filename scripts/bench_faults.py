@@ -11,9 +11,22 @@ after a few trials, and prints:
 * the largest difference of the run's metrics from the batch simulator (0 up to round-off:
   nothing learned was lost or learned twice).
 
+Liveness (``--liveness``), on the same run:
+
+* a stuck phase: the simulator is stopped (SIGSTOP) in the middle of a trial; the time
+  from the stop to the leader's first finding on the launcher's console ("has had no new
+  sample"), then SIGCONT: the run must still finish equal to batch;
+* a forged abort: a node outside the formation publishes an ``abort`` of the running slot
+  with the next ``seq`` (the run id read from the latched configuration); the time from it
+  to the next trial row (the leader re-asserts its schedule and the slot runs again);
+* a chaos run (``--chaos SEEDS``): a random node (robot, simulator, link emulator, leader,
+  recorder) SIGKILLed every 2-5 s (seeded), over ``--trials`` trials: status, kills, and
+  the largest difference from batch.
+
 Every process runs with localhost discovery and its own ROS_DOMAIN_ID.
 
   .venv/bin/python scripts/bench_faults.py [--trials 10] [--kinds robot leader ...]
+  .venv/bin/python scripts/bench_faults.py --liveness [--chaos 3 --trials 30]
 """
 
 from __future__ import annotations
@@ -116,14 +129,198 @@ def run(kind: str | None, trials: int, domain: int, out: Path, after: int) -> di
     return res
 
 
+def _launch(out: Path, domain: int, trials: int, *extra: str) -> subprocess.Popen[str]:
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               ROS_DOMAIN_ID=str(domain))
+    argv = [sys.executable, "-m", "formation_ilc.cli", "launch", "paper-triangle3",
+            "--trials", str(trials), "--seed", "5", "--out", str(out), "--domain-id",
+            str(domain), "--no-plots", "--record", str(out / "run.mcap"), *extra]
+    return subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, start_new_session=True)
+
+
+def _max_diff(out: Path, trials: int) -> tuple[int, float]:
+    got = read_metrics(out / "metrics.csv")
+    ref = simulate(load_scenario("paper-triangle3").with_options(seed=5), trials=trials).metrics
+    return len(got), (float(np.abs(got[:, 1:] - ref[:len(got), 1:]).max()) if len(got)
+                      else float("nan"))
+
+
+def _lines(proc: subprocess.Popen[str], into: list[tuple[float, str]]) -> None:
+    """Read the launcher's console into ``into`` (time, line), in a thread."""
+    import threading
+
+    def read() -> None:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            into.append((time.monotonic(), line.rstrip()))
+
+    threading.Thread(target=read, daemon=True).start()
+
+
+def stuck(trials: int, domain: int, out: Path, after: int, scale: float) -> dict:
+    """SIGSTOP the simulator mid-trial; time to the leader's finding; SIGCONT."""
+    proc = _launch(out, domain, trials, "--timeout", "20", "--watchdog-scale", str(scale))
+    lines: list[tuple[float, str]] = []
+    _lines(proc, lines)
+    res: dict = {"case": f"stuck simulator (scale {scale})"}
+    try:
+        while rows(out / "metrics.csv") < after:
+            time.sleep(0.02)
+        pid = None
+        while pid is None:
+            pid = find(domain, "-m robot_sim.node")
+        time.sleep(0.5)  # inside the next trial, most often
+        os.kill(pid, signal.SIGSTOP)
+        t_stop = time.monotonic()
+
+        def findings() -> list[tuple[float, str]]:
+            return [(t, ln) for t, ln in lines if t > t_stop and ln.startswith("virtual_leader:")]
+
+        while not findings():
+            if proc.poll() is not None or time.monotonic() - t_stop > 600:
+                break
+            time.sleep(0.05)
+        found = findings()
+        res["detect_s"] = found[0][0] - t_stop if found else float("nan")
+        res["finding"] = found[0][1] if found else ""
+        try:
+            os.kill(pid, signal.SIGCONT)
+        except ProcessLookupError:
+            pass  # the run stopped it already
+        proc.wait(timeout=900)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    res["status"] = proc.returncode
+    res["trials"], res["max_diff"] = _max_diff(out, trials)
+    return res
+
+
+def forged_abort(trials: int, domain: int, out: Path, after: int) -> dict:
+    """A forged abort of the running slot; time from it to the next trial row."""
+    import json
+
+    os.environ["ROS_DOMAIN_ID"] = str(domain)
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from std_msgs.msg import String
+
+    import msgs_schema as ms
+
+    proc = _launch(out, domain, trials, "--timeout", "20")
+    res: dict = {"case": "forged abort"}
+    rclpy.init()
+    node = rclpy.create_node("forger", namespace="/forger")
+    state: dict = {"run": "", "start": None}
+    node.create_subscription(String, "/formation/config",
+                             lambda m: state.update(run=json.loads(m.data)["run_id"]),
+                             ms.LATCHED_QOS)
+    node.create_subscription(String, "/formation/leader/trial_events",
+                             lambda m: state.update(start=json.loads(m.data))
+                             if json.loads(m.data).get("event") == "start" else None,
+                             ms.SAMPLE_QOS)
+    pub = node.create_publisher(String, "/formation/leader/trial_events", ms.SAMPLE_QOS)
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    try:
+        while rows(out / "metrics.csv") < after or state["start"] is None or \
+                state["start"]["trial"] < after or not state["run"]:
+            ex.spin_once(timeout_sec=0.05)
+        ev = state["start"]
+        before = rows(out / "metrics.csv")
+        pub.publish(String(data=json.dumps({"event": "abort", "trial": ev["trial"],
+                                            "slot": ev["slot"], "seq": ev["seq"] + 1,
+                                            "why": "forged", "run": state["run"]})))
+        t0 = time.monotonic()
+        while rows(out / "metrics.csv") <= before and proc.poll() is None:
+            ex.spin_once(timeout_sec=0.05)
+        res["recover_s"] = time.monotonic() - t0
+        proc.wait(timeout=900)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        node.destroy_node()
+        rclpy.shutdown()
+    res["status"] = proc.returncode
+    res["trials"], res["max_diff"] = _max_diff(out, trials)
+    return res
+
+
+def chaos(trials: int, domain: int, out: Path, seed: int) -> dict:
+    """A random node SIGKILLed every 2-5 s (seeded) for the whole run."""
+    import random
+
+    rng = random.Random(seed)
+    victims = ["robot_id:=1", "robot_id:=2", "robot_id:=3", "-m robot_sim.node",
+               "-m robot_sim.link_emulator", "-m virtual_leader.node",
+               "formation_ilc.nodes.recorder"]
+    proc = _launch(out, domain, trials, "--timeout", "20", "--max-restarts", "1000")
+    res: dict = {"case": f"chaos, seed {seed}", "kills": 0}
+    t0 = time.monotonic()
+    try:
+        while rows(out / "metrics.csv") < 1 and proc.poll() is None:
+            time.sleep(0.05)
+        while proc.poll() is None:
+            deadline = time.monotonic() + rng.uniform(2.0, 5.0)
+            victim = rng.choice(victims)
+            while time.monotonic() < deadline and proc.poll() is None:
+                time.sleep(0.05)
+            pid = find(domain, victim)
+            if pid is not None and proc.poll() is None:
+                os.kill(pid, signal.SIGKILL)
+                res["kills"] += 1
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    res["status"] = proc.returncode
+    res["wall_s"] = time.monotonic() - t0
+    res["trials"], res["max_diff"] = _max_diff(out, trials)
+    from formation_ilc.recordings.recording import load_recording, recording_parts
+
+    rec = load_recording(recording_parts(out / "run.mcap"), keep=lambda k, n: False)
+    res["recorded"] = trials - len(rec.missing)
+    return res
+
+
+def liveness(a: argparse.Namespace, domain: int) -> None:
+    print(f"paper-triangle3, {a.trials} trials, lockstep, emulated links, noise and delays, "
+          f"recorded")
+    with tempfile.TemporaryDirectory() as tmp:
+        r = stuck(a.trials, domain, Path(tmp) / "stuck", a.after, a.scale)
+        print(f"{r['case']}: first finding {r['detect_s']:.1f} s after SIGSTOP; after SIGCONT "
+              f"status {r['status']}, {r['trials']} trials, max |run - batch| "
+              f"{r['max_diff']:.3g}\n  {r['finding']}", flush=True)
+        r = forged_abort(a.trials, domain + 1, Path(tmp) / "forged", a.after)
+        print(f"{r['case']}: next trial row {r['recover_s']:.2f} s after it; status "
+              f"{r['status']}, {r['trials']} trials, max |run - batch| {r['max_diff']:.3g}",
+              flush=True)
+        for seed in range(a.chaos):
+            r = chaos(a.trials, domain + 2 + seed, Path(tmp) / f"chaos{seed}", seed)
+            print(f"{r['case']}: {r['kills']} kills, status {r['status']}, {r['trials']} "
+                  f"trials ({r['recorded']} complete in the recording), "
+                  f"{r['wall_s']:.0f} s, max |run - batch| {r['max_diff']:.3g}", flush=True)
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--trials", type=int, default=10)
     p.add_argument("--after", type=int, default=3, help="kill after this many trials")
     p.add_argument("--kinds", nargs="+", choices=list(KINDS), default=list(KINDS))
+    p.add_argument("--liveness", action="store_true",
+                   help="a stuck phase, a forged abort and --chaos runs instead of the kills")
+    p.add_argument("--chaos", type=int, default=0, metavar="SEEDS",
+                   help="with --liveness: chaos runs, one per seed 0..SEEDS-1")
+    p.add_argument("--scale", type=float, default=0.5,
+                   help="with --liveness: --watchdog-scale of the stuck-phase run")
     a = p.parse_args()
     domain = 30 + os.getpid() % 60
+    if a.liveness:
+        liveness(a, domain)
+        return 0
     print(f"paper-triangle3, {a.trials} trials, lockstep, emulated links, noise and delays, "
           f"recorded; SIGKILL after {a.after} trials")
     print(f"{'killed':>14s} {'status':>6s} {'trials':>6s} {'restarts':>8s} "

@@ -102,7 +102,17 @@ MODULES: dict[str, tuple[str, str, list[str]]] = {
     # the leader's trial protocol (tests/stack/test_faults.py drives it across processes: not
     # run per mutant)
     "schedule": ("formation_ilc/protocol/schedule.py", "formation_ilc.protocol.schedule",
-                 [T + "protocol/test_schedule.py"]),
+                 [T + "protocol/test_follower.py", T + "protocol/test_schedule.py"]),
+    # the cores of the simulator, the link emulator and the Pioneer bridge nodes
+    "plant": ("formation_ilc/protocol/plant.py", "formation_ilc.protocol.plant",
+              [T + "protocol/test_plant.py", T + "protocol/test_follower.py"]),
+    "linkemu": ("formation_ilc/protocol/linkemu.py", "formation_ilc.protocol.linkemu",
+                [T + "protocol/test_linkemu.py", T + "protocol/test_plant.py",
+                 T + "protocol/test_follower.py"]),
+    "bridge": ("formation_ilc/protocol/bridge.py", "formation_ilc.protocol.bridge",
+               [T + "protocol/test_bridge.py", T + "protocol/test_follower.py"]),
+    "wallclock": ("formation_ilc/protocol/wallclock.py", "formation_ilc.protocol.wallclock",
+                  [T + "protocol/test_bridge.py", T + "protocol/test_follower.py"]),
 }
 PYTEST_ARGS = ["-x", "-q", "-p", "no:cacheprovider", "-m", "not slow and not multiprocess",
                # compares compiled with interpreted: meaningless with the JIT disabled

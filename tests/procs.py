@@ -65,3 +65,23 @@ def spin_until(ex, cond, timeout: float = 10.0, step: float = 0.01) -> None:
     while not cond():
         assert time.monotonic() < deadline, "timed out"
         ex.spin_once(timeout_sec=step)
+
+
+def wait_emulator_ready(ex, tester, emu) -> None:
+    """Give the link emulator ``emu`` a reader on each of its links and on ``ready``, and
+    spin until it has said ready: it obeys a start only after its ready (as every follower
+    of the schedule does)."""
+    from nav_msgs.msg import Path as PathMsg
+    from std_msgs.msg import String
+
+    import msgs_schema as ms
+
+    said: list[str] = []
+    tester.create_subscription(String, ms.READY,
+                               lambda m: said.append(ms.msg_to_json(m).get("node")),
+                               ms.LATCHED_READER_QOS)
+    for i, links in enumerate(emu.links.links):
+        for sender, _ in links:
+            tester.create_subscription(PathMsg, ms.link_topic(i + 1, sender), lambda m: None,
+                                       ms.SAMPLE_QOS)
+    spin_until(ex, lambda: "link_emulator" in said)

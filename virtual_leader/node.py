@@ -19,7 +19,7 @@ links : str
     subscribe to each other; the network's delays).
 nodes_expected : list of node names that must report ready before a trial starts
     (default: every robot_i, robot_sim, and link_emulator with emulated links; in
-    wallclock every robot_i and bridge_i).
+    wallclock every robot_i and bridge_i: ``formation_ilc.config.team``).
 monitored : bool
     A monitor (the launcher) reads trajectories: nodes wait for it before trial 0.
 state_dir : str
@@ -29,6 +29,8 @@ state_dir : str
 run_id : str
     Identity of the run, carried in the configuration: nodes of another run on the same
     domain and namespace are refused (see ``formation-ilc launch``).
+watchdog_scale : float
+    Every bound of the leader's watchdog times this (default 1.0; see below).
 
 The leader publishes the configuration on ``config`` (latched), waits until every node has
 reported ready for trial k, publishes ``start`` k on ``leader/trial_events``, then follows
@@ -42,6 +44,15 @@ What it accepts (the rest is dropped and counted, with the reason, in its own
 ``diagnostics`` at each trial's end): ready messages from the nodes it waits for, for a
 trial no later than the next one (the monitor and the recorder say ready once for the whole
 run); ``/clock`` of the trial it started, in order (lockstep: sample by sample).
+
+Liveness (``formation_ilc.protocol.watchdog``): each phase (start-up, readies between
+trials, the plant's samples) has a bound derived from dT, the number of nodes and the
+lockstep ``timeout``. Past it the leader names whom it waits for and why (log, stderr, and
+its diagnostics, which the launcher prints); past it again it re-runs (aborts a slot
+without samples, reads the readies anew); after 3 re-runs without progress it stops with
+status 4. A start or abort on its topic that it did not send, or a ready that saw a ``seq``
+it never gave out, makes it re-assert its schedule with a newer ``seq`` (the slot is
+aborted and its iteration runs again).
 
 Wall-clock trials (``mode: wallclock``, real robots behind bridges; no node publishes
 ``/clock``): the ``start`` event carries ``start_wall_ns``, the wall time (Unix epoch, ns)
@@ -65,56 +76,42 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 import msgs_schema as ms
+from formation_ilc.config.runconfig import PARAMS, RunConfig
+from formation_ilc.config.team import Team, default_plant
 from formation_ilc.core.clock import Rejected
+from formation_ilc.core.names import LEADER_NODE
 from formation_ilc.nodes.common import (
     DropCounter,
     fail,
-    make_config,
     matched,
     node_parser,
     spin_main,
 )
 from formation_ilc.protocol.schedule import Ready, Schedule, ScheduleError, TrialEvent
 from formation_ilc.protocol.wallclock import WallSchedule
+from formation_ilc.protocol.watchdog import READY, SAMPLE, STARTUP, STUCK, Bounds, Watchdog
 
 #: [s] how often an abort is repeated until every node has answered it
 ABORT_REPEAT = 1.0
 #: [s] the least time between the leader's start and the first trial (discovery)
 FIRST_START_WAIT = 2.0
 #: the leader's node name (its diagnostics name it)
-NAME = "virtual_leader"
+NAME = LEADER_NODE
 
 
 class LeaderNode(Node):
     def __init__(self, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(NAME, **kwargs)
-        self.declare_parameter("scenario", "")
-        self.declare_parameter("seed", -1)
-        self.declare_parameter("trials", 0)
-        self.declare_parameter("law", 0)
-        self.declare_parameter("memory", "")
-        self.declare_parameter("noise", True)
-        self.declare_parameter("delay", True)
-        self.declare_parameter("mode", "lockstep")
-        self.declare_parameter("links", "emulated")
-        self.declare_parameter("gap", 20)
-        self.declare_parameter("monitored", False)
-        self.declare_parameter("timeout", 30.0)
+        for name, default in PARAMS.items():  # the run configuration's (runconfig)
+            self.declare_parameter(name, default)
         self.declare_parameter("start_margin", 1.0)
         self.declare_parameter("nodes_expected", Parameter.Type.STRING_ARRAY)
         self.declare_parameter("state_dir", "")
-        self.declare_parameter("run_id", "")
+        self.declare_parameter("watchdog_scale", 1.0)
         g = lambda name: self.get_parameter(name).value  # noqa: E731
-        if not g("scenario"):
-            raise ValueError("parameter scenario: a scenario name or file is required")
-        self.cfg = make_config(
-            str(g("scenario")), seed=None if g("seed") < 0 else int(g("seed")),
-            noise=bool(g("noise")), delay=bool(g("delay")),
-            trials=int(g("trials")) or None, law=int(g("law")) or None,
-            memory=str(g("memory")) or None, mode=str(g("mode")), gap=int(g("gap")),
-            monitored=bool(g("monitored")), timeout=float(g("timeout")),
-            links=str(g("links")), run_id=str(g("run_id")))
+        _check_parameters(g)
+        self.cfg = RunConfig.from_params({name: g(name) for name in PARAMS})
         sc = self.cfg.scenario
         self.clock = self.cfg.clock
         self.T = sc.samples
@@ -123,11 +120,8 @@ class LeaderNode(Node):
             expected = g("nodes_expected")
         except ParameterUninitializedException:
             expected = None
-        self.expected = list(expected) if expected else (
-            [ms.robot_name(i + 1) for i in range(sc.n)]
-            + ([ms.bridge_name(i + 1) for i in range(sc.n)] if self.cfg.mode == "wallclock"
-               else ["robot_sim"])
-            + (["link_emulator"] if self.cfg.links == "emulated" else []))
+        self.expected = list(expected) if expected else Team.of(
+            sc.n, plant=default_plant(self.cfg.mode), links=self.cfg.links).expected
         # who reads the reference: the link emulator, or each robot that sees the leader
         self.ref_readers = (int(sum(sc.graph.leader > 0)) if self.cfg.links == "direct"
                             else 1)
@@ -135,12 +129,18 @@ class LeaderNode(Node):
         self.sched = Schedule(self.expected, robots & set(self.expected), self.trials)
         sdir = str(g("state_dir"))
         self.state_file = Path(sdir) / "leader.json" if sdir else None
-        if self.state_file is not None and self.sched.restore(self.state_file):
+        if self.state_file is not None and self._restore():
             self.get_logger().info(
                 f"continues from {self.state_file}: {self.sched.committed} trials learned"
                 + (f"; slot {self.sched.slot} was open and is aborted"
                    if self.sched.abort_pending is not None else ""))
         self.drops = DropCounter(self)
+        #: the last ready refused from each node, with why (named when the schedule waits)
+        self.refused: dict[str, str] = {}
+        self.watch_reports = 0
+        self.watchdog = Watchdog(Bounds.for_run(sc.dt, len(self.expected), self.cfg.mode,
+                                               self.cfg.timeout,
+                                               float(g("watchdog_scale"))))
         self.done_sent = False
         self._abort_sent = 0.0
         self._born = time.monotonic()
@@ -150,7 +150,10 @@ class LeaderNode(Node):
         self.ref_pub = self.create_publisher(PoseStamped, ms.REFERENCE, ms.SAMPLE_QOS)
         self.event_pub = self.create_publisher(String, ms.TRIAL_EVENTS, ms.SAMPLE_QOS)
         self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
-        self.create_subscription(String, ms.READY, self._on_ready, ms.LATCHED_READER_QOS)
+        self.ready_sub = self.create_subscription(String, ms.READY, self._on_ready,
+                                                  ms.LATCHED_READER_QOS)
+        # its own events come back here too; a start or abort it did not send is re-asserted
+        self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
         self.create_subscription(String, ms.CONFIG, self._on_config, ms.LATCHED_QOS)
         self.wall: WallSchedule | None = None
         if self.cfg.mode == "wallclock":
@@ -161,13 +164,16 @@ class LeaderNode(Node):
         self.config_pub.publish(ms.json_to_msg(self.cfg.to_json()))
         self._gate = self.create_timer(0.05, self._maybe_start)
         self._last_change = time.monotonic()
+        self.watchdog.moved(self._last_change, STARTUP)
         self.create_timer(5.0, self._report_wait)
+        self.create_timer(1.0, self._on_watchdog)
         self.get_logger().info(f"{sc.name}: {sc.n} robots, {self.trials} trials of "
                                f"{self.T} samples, {self.cfg.mode}, {self.cfg.links} links; "
                                f"waiting for "
                                f"{', '.join(self.expected)}")
 
     def _on_ready(self, msg: String) -> None:
+        r = None
         try:
             r = Ready.from_json(ms.msg_to_json(msg))
             if r.node not in self.expected:
@@ -177,20 +183,57 @@ class LeaderNode(Node):
             # nobody can be ready for a trial after the next one (trial k+1 needs trial k);
             # the monitor and the recorder say ready once for the whole run
             if r.trial > self.sched.committed + 1 and not r.passive:
-                raise Rejected("future", f"{r.node} ready for {r.trial}, "
-                                         f"{self.sched.committed} trials learned")
+                raise Rejected("future", f"{r.node} ready for trial {r.trial}, but the "
+                                         f"schedule has {self.sched.committed} trials learned")
         except Rejected as exc:
             self.drops.reject(exc, ms.READY)
+            if r is not None and r.node in self.expected and exc.reason != "foreign":
+                self.refused[r.node] = f"{exc.reason}: {exc}"
             return
+        self.refused.pop(r.node, None)
+        committed = self.sched.committed
         why = self.sched.on_ready(r)
+        why = self.sched.seen_unsent(r) or why
         self._last_change = time.monotonic()
+        if self.sched.committed > committed:
+            self.watchdog.moved(self._last_change, READY)
         if why is not None:
-            self.wall = None
-            self.get_logger().warning(f"trial {self.sched.committed} (slot "
-                                      f"{self.sched.slot}) aborted: {why}; it runs again")
-            self._publish_abort()
+            self._aborted(why)
         self._save()
         self._maybe_start()
+
+    def _aborted(self, why: str) -> None:
+        """An abort is pending (just begun): say so, save it, then publish it (saved first:
+        a leader killed in between must not come back with a seq that followers passed)."""
+        self.wall = None
+        s = self.sched
+        self.get_logger().warning(f"trial {s.committed} (slot {s.abort_pending}) aborted: "
+                                  f"{why}; it runs again")
+        self._save()
+        self._publish_abort()
+        self.watchdog.moved(time.monotonic(), READY, progress=False)
+
+    def _on_event(self, msg: String) -> None:
+        """An event on the leader's own topic: its own come back; a start or abort of this
+        run that it did not send makes it re-assert its schedule."""
+        try:
+            ev = TrialEvent.from_json(ms.msg_to_json(msg))
+        except Rejected:
+            return  # followers count it; the leader only watches for starts and aborts
+        if ev.run and ev.run != self.cfg.run_id:
+            return
+        why = self.sched.foreign(ev)
+        if why is not None:
+            self.drops.drop("unexpected", ms.TRIAL_EVENTS, why)
+            self._aborted(why)
+
+    def _restore(self) -> bool:
+        assert self.state_file is not None
+        try:
+            return self.sched.restore(self.state_file)
+        except ScheduleError as exc:
+            raise ValueError(f"{exc} (remove the file to start the run afresh, or restore it "
+                             f"from a copy)") from None
 
     def _on_config(self, msg: String) -> None:
         """Another leader's configuration here: a second formation on this domain and
@@ -263,6 +306,7 @@ class LeaderNode(Node):
         seq = s.started(q)
         self.t = -1
         self._save()
+        self.watchdog.moved(time.monotonic(), SAMPLE, progress=False)
         wall_ns = None
         if self.cfg.mode == "wallclock":
             self.wall = WallSchedule(time.time_ns() + self.margin_ns, self.clock.dt_ns,
@@ -284,6 +328,7 @@ class LeaderNode(Node):
         ns = self.clock.stamp_ns(k, t)
         self._last_t = t
         self._last_change = time.monotonic()
+        self.watchdog.moved(self._last_change, SAMPLE)
         self.ref_pub.publish(ms.pose_to_msg(self.cfg.scenario.reference[t], ns,
                                             ms.WORLD_FRAME, self.ref_msg))
         if t == self.T:
@@ -294,10 +339,74 @@ class LeaderNode(Node):
         s = self.sched
         self.event_pub.publish(ms.json_to_msg(TrialEvent(ms.END, s.committed, slot, s.seq,
                                                          run=self.cfg.run_id).to_json()))
+        committed = s.committed
         s.ended(slot)
+        self.watchdog.moved(time.monotonic(), READY, progress=s.committed > committed)
         self._save()
         self._publish_diagnostics()
         self._maybe_start()
+
+    def _phase(self) -> str:
+        s = self.sched
+        if s.running:
+            # until the plant's first sample of a slot it is starting the trial, which
+            # may load its kernels first (measured: 76 s under a load of 33 on 2 cores)
+            return SAMPLE if self.t >= 0 else STARTUP
+        return STARTUP if s.slot < 0 and s.abort_pending is None else READY
+
+    def _on_watchdog(self) -> None:
+        """Past a phase's bound: say whom the run waits for and why, then re-run (abort a
+        stuck slot; read the readies anew), or, after RETRIES times without progress,
+        stop the leader (status STUCK) naming the cause."""
+        s = self.sched
+        if s.done:
+            return
+        now = time.monotonic()
+        phase = self._phase()
+        if not self.watchdog.expired(now, phase):
+            return
+        wd = self.watchdog
+        bound = wd.bound(phase)
+        waited = wd.waited(now)
+        if phase == SAMPLE:
+            who = ("the plant's /clock" if self.cfg.mode != "wallclock"
+                   else "the leader's wall timer")
+            what = (f"trial {s.committed} (slot {s.slot}) has had no new sample for "
+                    f"{bound:.0f} s (last sample {self.t}; no progress for {waited:.0f} s): "
+                    f"waiting for {who}")
+        else:
+            late = s.explain_wait(self.refused)
+            if s.running:
+                late = [f"the plant's first sample of slot {s.slot}"]
+            what = (f"trial {s.committed} has waited {waited:.0f} s in {phase} (bound "
+                    f"{bound:.0f} s) for: "
+                    + "; ".join(late or ["nobody (its readers: the monitor, recorder)"]))
+        if wd.gave_up:
+            self._report(what, "giving up")
+            fail(self, f"stuck: {what} ({wd.retries} retries without progress)", code=STUCK)
+            return
+        if not wd.acting:
+            self._report(what, f"retries follow after {bound:.0f} s more")
+            return
+        self._report(what, f"retry {wd.strikes - 1} of {wd.retries}")
+        if s.running:
+            s.begin_abort(f"no progress for {bound:.0f} s")
+            self._aborted(s.why)
+            return
+        # read every node's latched ready again, and repeat a pending abort
+        self.destroy_subscription(self.ready_sub)
+        self.ready_sub = self.create_subscription(String, ms.READY, self._on_ready,
+                                                  ms.LATCHED_READER_QOS)
+        if s.abort_pending is not None:
+            self._publish_abort()
+
+    def _report(self, what: str, then: str) -> None:
+        """A watchdog finding: in the log, on stderr, and in the leader's diagnostics (the
+        launcher prints it on its console)."""
+        self.get_logger().error(f"{what}: {then}")
+        print(f"{NAME}: {what}: {then}", file=sys.stderr, flush=True)
+        self.watch_reports += 1
+        self._publish_diagnostics({"count": self.watch_reports, "what": f"{what}: {then}"})
 
     def _report_wait(self) -> None:
         """Say whom the schedule waits for when it has not moved for a while."""
@@ -314,9 +423,12 @@ class LeaderNode(Node):
                                   f"{', '.join(late)}" if late
                                   else f"trial {s.committed}: waiting for readers")
 
-    def _publish_diagnostics(self) -> None:
+    def _publish_diagnostics(self, watchdog: dict[str, Any] | None = None) -> None:
         d: dict[str, Any] = {"node": NAME, "trial": self.sched.committed,
-                             "slot": self.sched.slot}
+                             "slot": self.sched.slot,
+                             "foreign_events": self.sched.foreign_events}
+        if watchdog is not None:
+            d["watchdog"] = watchdog
         d.update(self.drops.as_dict())
         self.diag_pub.publish(ms.json_to_msg(d))
 
@@ -329,6 +441,11 @@ class LeaderNode(Node):
                                f"time of slot {k}, slot {self.sched.slot} "
                                f"{'runs' if self.sched.running else 'is over'}")
             if t == self.t:
+                if self.cfg.mode == "lockstep" and t < self.T:
+                    # the plant sent the sample again (a command still due after
+                    # RESEND_S): the reference of it again too, for a reader that lost it
+                    self.ref_pub.publish(ms.pose_to_msg(self.cfg.scenario.reference[t], ns,
+                                                        ms.WORLD_FRAME, self.ref_msg))
                 raise Rejected("duplicate", f"time of sample {t} again")
             if t < self.t:
                 raise Rejected("out_of_order", f"sample {t} after {self.t}")
@@ -340,15 +457,37 @@ class LeaderNode(Node):
         self.t = t
         self._last_t = t
         self._last_change = time.monotonic()
+        self.watchdog.moved(self._last_change, SAMPLE)
         ref = self.cfg.scenario.reference[t]
         self.ref_pub.publish(ms.pose_to_msg(ref, ns, ms.WORLD_FRAME, self.ref_msg))
         if t == self.T:
             self._end(k)
 
 
+def _check_parameters(g: Any) -> None:
+    """ValueError naming a parameter no run can have (it is refused before anything is
+    published: a leader with ``trials:=-5`` would say "done" at once)."""
+    if int(g("trials")) < 0:
+        raise ValueError(f"parameter trials: {g('trials')}: the number of trials is at least "
+                         f"1 (0 keeps the scenario's)")
+    if int(g("gap")) < 1:
+        raise ValueError(f"parameter gap: {g('gap')}: at least 1 sample between trials")
+    for name in ("timeout", "start_margin", "watchdog_scale"):
+        v = float(g(name))
+        if not (v > 0 and v < 1e6):
+            raise ValueError(f"parameter {name}: {v}: a time in seconds > 0 is required")
+
+
+def _build(ns: Any, argv: list[str]) -> list[Node]:
+    try:
+        return [LeaderNode()]
+    except ValueError as exc:  # a parameter, the scenario or the state file: one line
+        print(f"formation-ilc-leader: {exc}", file=sys.stderr, flush=True)
+        raise SystemExit(2) from None
+
+
 def main(args: list[str] | None = None) -> int:
-    return spin_main(lambda ns, argv: [LeaderNode()],
-                     node_parser("formation-ilc-leader", __doc__), args)
+    return spin_main(_build, node_parser("formation-ilc-leader", __doc__), args)
 
 
 if __name__ == "__main__":

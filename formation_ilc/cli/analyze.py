@@ -5,8 +5,11 @@ A damaged recording (bytes that do not read back in the middle of the file: a ch
 CRC fails, a record that does not parse) is analysed from everything that reads back, and
 the command says what was lost (byte ranges, chunks, messages, their log times, the trials
 left incomplete) on stderr and in report.html, then exits with status 1 (``DAMAGED``). A
-file cut short at its end (a recorder that crashed or was killed) is read up to the cut
-and exits 0 with a note; messages that do not decode are skipped and counted per topic.
+file cut short at its end (a recorder that crashed or was killed) is read up to the cut,
+with a note. Whenever a trial of the run (its configuration's ``trials``) is not complete
+in the files, the run is not whole: a warning names the trials, and the exit status is 3
+(``INCOMPLETE``) unless the file is damaged (1). Messages that do not decode are skipped
+and counted per topic.
 """
 
 from __future__ import annotations
@@ -24,11 +27,15 @@ import numpy as np
 from formation_ilc.core import links
 from formation_ilc.core.metrics import write_metrics
 from formation_ilc.recordings.recording import Recording, RecordingError, load_recording
+from formation_ilc.system.progress import Progress
 
-__all__ = ["analyze", "delay_rows", "findings", "DAMAGED"]
+__all__ = ["analyze", "delay_rows", "findings", "DAMAGED", "INCOMPLETE"]
 
 #: exit status of ``analyze`` on a damaged recording (its results are still written)
 DAMAGED = 1
+#: exit status of ``analyze`` on an intact recording that lacks trials of its run: the run
+#: is not whole (its results are still written)
+INCOMPLETE = 3
 
 
 def findings(rec: Recording) -> tuple[list[str], list[str]]:
@@ -57,6 +64,13 @@ def findings(rec: Recording) -> tuple[list[str], list[str]]:
         (warn if damaged else note).append(
             f"trial(s) {', '.join(map(str, rec.incomplete))} not complete in the "
             f"file{'s' * many}")
+    if rec.missing:
+        runs = rec.config.get("trials", len(rec.metrics))
+        why = ("the leader's 'done' is there: the recording lost them" if rec.ended else
+               "the recording stops before the run's end (no 'done' event: the run was "
+               "interrupted, or its recorder was not running)")
+        warn.append(f"the run is not whole: {len(rec.missing)} of its {runs} trials are not "
+                    f"complete in the file{'s' * many} ({_ranges(rec.missing)}); {why}")
     if rec.superseded:
         note.append(f"{rec.superseded} trajectories of aborted slots or of trials run again "
                     f"after an abort were set aside (the first complete copy counts)")
@@ -64,6 +78,17 @@ def findings(rec: Recording) -> tuple[list[str], list[str]]:
         note.append("skipped messages that do not decode: " + ", ".join(
             f"{t} {n}" for t, n in sorted(rec.undecodable.items())))
     return warn, note
+
+
+def _ranges(ks: list[int]) -> str:
+    """'0-2, 5, 7-9' for [0, 1, 2, 5, 7, 8, 9]."""
+    out: list[str] = []
+    for k in sorted(ks):
+        if out and out[-1].split("-")[-1] == str(k - 1):
+            out[-1] = f"{out[-1].split('-')[0]}-{k}"
+        else:
+            out.append(str(k))
+    return "trial " + ", ".join(out) if len(ks) == 1 else "trials " + ", ".join(out)
 
 
 def delay_rows(rec: Recording) -> list[list[Any]]:
@@ -215,28 +240,18 @@ def analyze(src: Path | list[Path], out: Path, plots: bool = True) -> int:
     files = [src] if isinstance(src, Path) else list(src)
     src = files[0]
     t0 = time.perf_counter()
-    last = [0.0]
-    shown = [0]  # width of the progress line on screen (0: none)
-
-    def progress(n: int) -> None:
-        now = time.perf_counter()
-        if now - last[0] > 0.5:
-            last[0] = now
-            line = f"reading {src.name}: {n} messages [{now - t0:.1f} s]"
-            print("\r" + line.ljust(shown[0]), end="", file=sys.stderr, flush=True)
-            shown[0] = len(line)
-
+    bar = Progress(None, f"reading {src.name}", "messages", interval=0.5)
     try:
-        rec = load_recording(files, progress=progress)
+        rec = load_recording(files, progress=bar.to)
     except RecordingError as exc:
-        # one line: over the progress line if there is one
-        print(("\r" + " " * shown[0] + "\r" if shown[0] else "") + f"error: {exc}",
-              file=sys.stderr)
+        bar.close(clear=True)  # one line: in place of the progress bar if there is one
+        print(f"error: {exc}", file=sys.stderr)
         return 2
+    bar.close(clear=True)
     names = src.name + (f" and {len(files) - 1} more part{'s' * (len(files) > 2)} "
                         f"({', '.join(f.name for f in files[1:])})" if len(files) > 1 else "")
-    print(f"\rread {names}: {rec.messages} messages, {len(rec.metrics)} complete trials "
-          f"[{time.perf_counter() - t0:.1f} s]".ljust(70), file=sys.stderr)
+    print(f"read {names}: {rec.messages} messages, {len(rec.metrics)} complete trials "
+          f"[{time.perf_counter() - t0:.1f} s]", file=sys.stderr)
     out.mkdir(parents=True, exist_ok=True)
     write_metrics(out / "metrics.csv", rec.metrics)
     drows = delay_rows(rec)
@@ -275,4 +290,6 @@ def analyze(src: Path | list[Path], out: Path, plots: bool = True) -> int:
     print(f"results in {out}/ ({', '.join(written)})")
     for line in warn:
         print(f"warning: {line}", file=sys.stderr)
-    return DAMAGED if any(rep.damaged for _, rep in rec.parts) else 0
+    if any(rep.damaged for _, rep in rec.parts):
+        return DAMAGED
+    return INCOMPLETE if rec.missing else 0

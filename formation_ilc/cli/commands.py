@@ -25,9 +25,9 @@ from formation_ilc.cli.options import (  # noqa: E402
     MAX_TRIAL,
     OneLineParser,
     OptionError,
+    add_run_options,
     int_range,
     make_out_dir,
-    nonneg_int,
     out_dir_arg,
     output_file_arg,
     positive_float,
@@ -100,24 +100,6 @@ def _scenario_arg(p: argparse.ArgumentParser) -> None:
                    help="built-in scenario name (formation-ilc scenarios) or a YAML file")
 
 
-def _run_options(p: argparse.ArgumentParser, law: bool = True) -> None:
-    p.add_argument("--trials", type=positive_int, metavar="K",
-                   help="number of trials (default: the scenario's 'trials')")
-    if law:
-        p.add_argument("--law", type=int, choices=(9, 22, 23),
-                       help="9: predictive + delay-compensated current term (the paper's); "
-                            "22: predictive only; 23: current term ignores the delay")
-        p.add_argument("--memory", choices=("feedforward", "literal"),
-                       help="what the learning memory holds (paper-notes 12): feedforward "
-                            "(default; the current term is feedback on top) or literal "
-                            "(the applied input, current term included)")
-    p.add_argument("--seed", type=nonneg_int, help="random seed, >= 0 (default: the "
-                   "scenario's)")
-    p.add_argument("--no-noise", action="store_true",
-                   help="no initial shifts, disturbances or measurement noise")
-    p.add_argument("--no-delay", action="store_true", help="no communication delays")
-
-
 def build_parser() -> argparse.ArgumentParser:
     ap = OneLineParser(
         prog="formation-ilc",
@@ -129,7 +111,19 @@ def build_parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="command", metavar="COMMAND")
 
     sub.add_parser("scenarios", help="list the built-in scenarios")
+    _add_simulate(sub)
+    _add_compare(sub)
+    _add_check(sub)
+    _add_tune(sub)
+    _add_sweep(sub)
+    _add_analyze(sub)
+    _add_mcap_repair(sub)
+    _add_keystore(sub)
+    _add_launch(sub)
+    return ap
 
+
+def _add_simulate(sub: Any) -> None:
     p = sub.add_parser("simulate", help="batch-simulate all robots over all trials",
                        description="Batch-simulate a scenario. Writes DIR/metrics.csv (one "
                                    "row per trial as it ends, trial 0 = the first run), "
@@ -141,7 +135,7 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog=SIMULATE_CODES,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     _scenario_arg(p)
-    _run_options(p)
+    add_run_options(p)
     p.add_argument("--no-plots", action="store_true", help="write no figures")
     p.add_argument("--init-memory", type=Path, metavar="MEMORY.npz",
                    help="start from a learned memory (a run's memory.npz, or an older "
@@ -161,14 +155,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=out_dir_arg, metavar="DIR",
                    help="output folder (default: runs/SCENARIO-LAW-MEMORY-TIME)")
 
+
+def _add_compare(sub: Any) -> None:
     p = sub.add_parser("compare", help="laws 9, 22, 23 in both memory readings, same draws",
                        description="Run laws (9), (22) and (23), each with memory "
                                    "'feedforward' and 'literal', on the same random draws, "
                                    "and plot their errors in one figure (like Fig. 7).")
     _scenario_arg(p)
-    _run_options(p, law=False)
+    add_run_options(p, law=False)
     p.add_argument("--out", type=out_dir_arg, metavar="DIR", help="output folder")
 
+
+def _add_check(sub: Any) -> None:
     p = sub.add_parser("check", help="Theorem 2, condition (20) and the lifted heading map",
                        description="Check a scenario before running it: Theorem 2 (a "
                                    "spanning tree), condition (20), and the lifted heading "
@@ -184,6 +182,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-delay", action="store_true",
                    help="check the delay-free configuration (as run with --no-delay)")
 
+
+def _add_tune(sub: Any) -> None:
     p = sub.add_parser(
         "tune", help="choose learning gains: fewest trials, under condition (20) and a "
                      "bounded heading map",
@@ -239,6 +239,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=out_dir_arg, metavar="DIR", help="output folder (default: "
                    "runs/SCENARIO-tune-TIME)")
 
+
+def _add_sweep(sub: Any) -> None:
     p = sub.add_parser(
         "sweep", help="run a parameter study from a spec file, resumable, locally or on Dask",
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -267,6 +269,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="column the plots show (default trials_to_position)")
     p.add_argument("--no-plots", action="store_true", help="table only")
 
+
+def _add_analyze(sub: Any) -> None:
     p = sub.add_parser("analyze", help="metrics, delays, plots and a report from a recording",
                        description="Analyse a recorded run (formation-ilc launch --record, or "
                                    "simulate --record) from the MCAP file alone. Writes "
@@ -275,7 +279,10 @@ def build_parser() -> argparse.ArgumentParser:
                                    "and report.html (one page to read at a glance). A file "
                                    "cut short by a crash is read up to the cut. A file "
                                    "damaged in the middle is read past the damage; what was "
-                                   "lost is reported and the exit status is 1. A run "
+                                   "lost is reported and the exit status is 1. When a "
+                                   "trial of the run is not complete in the files, the "
+                                   "run is not whole: the trials are named and the exit "
+                                   "status is 3 (1 if also damaged). A run "
                                    "whose recorder was restarted, or that was resumed, "
                                    "left more files next to RUN.mcap (RUN.part1.mcap, "
                                    "RUN.resumed1.mcap, ...): they are read with it, in "
@@ -287,6 +294,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--only-this-file", action="store_true",
                    help="read RUN.mcap alone, not the parts written after it")
 
+
+def _add_mcap_repair(sub: Any) -> None:
     p = sub.add_parser("mcap-repair", help="rewrite a recording cut short by a crash",
                        description="A recorder killed mid-run leaves an MCAP file without "
                                    "its summary and footer; everything flushed before the "
@@ -297,10 +306,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", type=output_file_arg, metavar="FIXED.mcap",
                    help="default: RUN.repaired.mcap")
 
+
+
+def _add_keystore(sub: Any) -> None:
     from formation_ilc.cli import keystore
 
     keystore.add_parser(sub)
 
+
+def _add_launch(sub: Any) -> None:
     try:
         from formation_ilc.cli import launch  # type: ignore[attr-defined,unused-ignore]
     except ImportError:  # the distributed stack is not installed with this build
@@ -310,40 +324,22 @@ def build_parser() -> argparse.ArgumentParser:
                            description=launch.__doc__,
                            formatter_class=argparse.RawDescriptionHelpFormatter)
         launch.add_arguments(p)
-    return ap
 
 
 class Progress:
-    """One line, rewritten on a terminal; otherwise a line every 10 % or every 30 s."""
+    """simulate's and compare's progress: trials done, with the last trial's errors
+    (``formation_ilc.system.progress``: a bar on a terminal, a line every 10 % or 30 s in a
+    log)."""
 
     def __init__(self, total: int, label: str, first: int = 0):
-        self.total = total
-        self.label = label
+        from formation_ilc.system.progress import Progress as Bar
+
         self.first = first
-        self.t0 = time.perf_counter()
-        self.tty = sys.stderr.isatty()
-        self.last = -1.0
-        self.last_time = self.t0
+        self.bar = Bar(total, label, "trials", tenths=True)
 
     def __call__(self, k: int, row: Any) -> None:
-        done = k - self.first + 1
-        now = time.perf_counter()
-        frac = done / self.total
-        if self.tty:
-            if now - self.last < 0.1 and done != self.total:
-                return
-        elif (int(frac * 10) == int(self.last) and done != self.total
-              and now - self.last_time < 30.0):
-            return
-        self.last = now if self.tty else int(frac * 10)
-        self.last_time = now
-        msg = (f"{self.label}: trial {done}/{self.total}  max position {row[1]:.4g} m  "
-               f"max heading {row[2]:.4g} rad  [{now - self.t0:.1f} s]")
-        if self.tty:
-            end = "\n" if done == self.total else ""
-            print("\r" + msg.ljust(100), end=end, file=sys.stderr, flush=True)
-        else:
-            print(msg, file=sys.stderr, flush=True)
+        self.bar.to(k - self.first + 1,
+                    f"max position {row[1]:.4g} m  max heading {row[2]:.4g} rad")
 
 
 class TrialLog:
@@ -497,7 +493,6 @@ def _thin(a: np.ndarray, limit: int = 20_000) -> np.ndarray:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from formation_ilc.model.checks import condition20
     from formation_ilc.model.simulate import simulate, simulate_bytes
 
     sc = _scenario(args)
@@ -506,17 +501,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     if first + k > MAX_TRIAL:
         raise OptionError(f"--first-trial {first} + --trials {k}: trial numbers must stay "
                           f"below 2^53")
-    if args.keep:
-        try:
-            keep = sorted({int(x) for x in args.keep.split(",") if x.strip()})
-        except ValueError:
-            raise OptionError(f"--keep: expected trial numbers like 0,99,1999, got "
-                              f"{args.keep[:60]!r}") from None
-        bad = [x for x in keep if not first <= x < first + k]
-        if bad:
-            raise OptionError(f"--keep: trial {bad[0]} is outside {first}..{first + k - 1}")
-    else:
-        keep = [first + t for t in _default_keep(k)]
+    keep = _keep_trials(args.keep, first, k)
     need = simulate_bytes(sc, k, keep=len(keep), store_metrics=False)
     _fits(sc, need, f"a run keeping {len(keep)} trials' trajectories")
     init = None
@@ -545,7 +530,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
         try:
             args.record.parent.mkdir(parents=True, exist_ok=True)
-            recorder = SimRecorder(args.record, sc, sample_trials=set(keep))
+            recorder = SimRecorder(args.record, sc, sample_trials=set(keep), first_trial=first)
         except OSError as exc:
             log.close()
             raise OptionError(f"--record {args.record}: cannot write: "
@@ -568,30 +553,59 @@ def cmd_simulate(args: argparse.Namespace) -> int:
               f"`formation-ilc check {args.scenario}`", file=sys.stderr)
         return 3
     except KeyboardInterrupt as exc:
-        saved = keeper.save()
-        status = 128 + getattr(exc, "signal", 2)
-        print("", file=sys.stderr)
-        if log.last is None:
-            print(f"interrupted before the first trial ended; nothing learned (in {out}/)",
-                  file=sys.stderr)
-            return status
-        last = int(log.last[0])
-        learned = keeper.saved_trials if keeper.saved_trials is not None else first
-        print(f"interrupted after trial {last}: {out}/metrics.csv holds trials {first}..{last}, "
-              f"{saved} the memory for trial {learned} (learned from the trials before it)",
-              file=sys.stderr)
-        left = first + k - learned
-        if left > 0 and saved is not None:
-            print(f"go on with: formation-ilc simulate {args.scenario} --init-memory {saved} "
-                  f"--first-trial {learned} --trials {left} --out {out}-cont "
-                  f"(and the same options)", file=sys.stderr)
-        return status
+        return _interrupted(args, out, log, keeper, first, k, 128 + getattr(exc, "signal", 2))
     finally:
         _restore_sigterm(previous)
         log.close()
         if recorder is not None:
             recorder.close()
-    elapsed = time.perf_counter() - t0
+    return _simulate_outputs(args, sc, res, log, keeper, out, first,
+                             time.perf_counter() - t0)
+
+
+def _keep_trials(text: str | None, first: int, k: int) -> list[int]:
+    """The trials whose trajectories are kept (--keep), in first..first + k - 1."""
+    if not text:
+        return [first + t for t in _default_keep(k)]
+    try:
+        keep = sorted({int(x) for x in text.split(",") if x.strip()})
+    except ValueError:
+        raise OptionError(f"--keep: expected trial numbers like 0,99,1999, got "
+                          f"{text[:60]!r}") from None
+    bad = [x for x in keep if not first <= x < first + k]
+    if bad:
+        raise OptionError(f"--keep: trial {bad[0]} is outside {first}..{first + k - 1}")
+    return keep
+
+
+def _interrupted(args: argparse.Namespace, out: Path, log: TrialLog, keeper: MemoryKeeper,
+                 first: int, k: int, status: int) -> int:
+    """Save what an interrupted simulation learned, say where it is and how to go on."""
+    saved = keeper.save()
+    print("", file=sys.stderr)
+    if log.last is None:
+        print(f"interrupted before the first trial ended; nothing learned (in {out}/)",
+              file=sys.stderr)
+        return status
+    last = int(log.last[0])
+    learned = keeper.saved_trials if keeper.saved_trials is not None else first
+    print(f"interrupted after trial {last}: {out}/metrics.csv holds trials {first}..{last}, "
+          f"{saved} the memory for trial {learned} (learned from the trials before it)",
+          file=sys.stderr)
+    left = first + k - learned
+    if left > 0 and saved is not None:
+        print(f"go on with: formation-ilc simulate {args.scenario} --init-memory {saved} "
+              f"--first-trial {learned} --trials {left} --out {out}-cont "
+              f"(and the same options)", file=sys.stderr)
+    return status
+
+
+def _simulate_outputs(args: argparse.Namespace, sc: Scenario, res: Any, log: TrialLog,
+                      keeper: MemoryKeeper, out: Path, first: int, elapsed: float) -> int:
+    """A finished simulation's trajectories.npz, summary.json, plots and printed lines."""
+    from formation_ilc.model.checks import condition20
+
+    k = sc.trials
     arrays: dict[str, Any] = {"eta_d": sc.desired.eta}
     for t, r in res.records.items():
         arrays.update({f"eta_{t}": r.eta, f"xi_{t}": r.xi, f"u_{t}": r.u})
@@ -846,15 +860,22 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_sweep(args)
         if args.command == "analyze":
             from formation_ilc.cli.analyze import analyze
-            from formation_ilc.recordings.recording import recording_parts
+            from formation_ilc.recordings.recording import recording_parts, root_of
 
-            _regular_file(args.recording)
-            out = make_out_dir(args.out or args.recording.with_name(args.recording.stem
-                                                                    + "-analysis"))
             files = ([args.recording] if args.only_this_file
                      else recording_parts(args.recording))
-            for f in files[1:]:
+            for f in files:
                 _regular_file(f)
+            if files[0] != args.recording:
+                print(f"note: {args.recording} does not exist; the run's files are "
+                      f"{', '.join(f.name for f in files)}", file=sys.stderr)
+            root = root_of(args.recording)
+            if root != args.recording and not args.only_this_file:
+                print(f"note: {args.recording.name} is one part of the run recorded in "
+                      f"{root.name}: `formation-ilc analyze {root}` reads every part",
+                      file=sys.stderr)
+            out = make_out_dir(args.out or args.recording.with_name(args.recording.stem
+                                                                    + "-analysis"))
             try:
                 return analyze(files, out, plots=not args.no_plots)
             except ValueError as exc:  # not a recording, or not one of ours

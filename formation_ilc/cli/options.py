@@ -17,7 +17,8 @@ from pathlib import Path
 from typing import NoReturn
 
 __all__ = ["OneLineParser", "int_range", "nonneg_int", "positive_int", "positive_float",
-           "out_dir_arg", "output_file_arg", "make_out_dir", "OptionError", "MAX_TRIAL"]
+           "out_dir_arg", "output_file_arg", "make_out_dir", "OptionError", "MAX_TRIAL",
+           "add_run_options", "special_path", "fs_type"]
 
 #: trial indices are stored as float64 in metrics rows: exact up to 2^53
 MAX_TRIAL = 2 ** 53
@@ -90,11 +91,61 @@ def _writable_ancestor(path: Path) -> str | None:
     return None
 
 
+#: kernel file systems: what is written there is no file on a disk (/dev/full fails every
+#: write, /proc and /sys hold the kernel's own controls)
+PSEUDO_FS = frozenset({"proc", "sysfs", "devtmpfs", "devpts", "cgroup", "cgroup2", "debugfs",
+                       "tracefs", "securityfs", "pstore", "bpf", "configfs", "fusectl",
+                       "mqueue", "efivarfs", "binfmt_misc", "autofs", "nsfs", "rpc_pipefs"})
+
+
+def fs_type(path: Path) -> str | None:
+    """The file system type that ``path`` (resolved; or its nearest existing ancestor) is
+    on, from /proc/self/mountinfo; None when that cannot be read."""
+    try:
+        with open("/proc/self/mountinfo", encoding="utf-8", errors="replace") as fh:
+            lines = fh.read(4 << 20).splitlines()
+    except OSError:
+        return None
+    p = Path(os.path.realpath(path))
+    best, kind = "", None
+    for line in lines:
+        left, _, right = line.partition(" - ")
+        fields, rest = left.split(), right.split()
+        if len(fields) < 5 or not rest:
+            continue
+        mount = fields[4].replace("\\040", " ")
+        if (p == Path(mount) or Path(mount) in p.parents) and len(mount) >= len(best):
+            best, kind = mount, rest[0]
+    return kind
+
+
+def special_path(path: Path, want: str) -> str | None:
+    """Why ``path`` cannot be an output (``want``: 'file' or 'folder'): an existing device,
+    FIFO or socket, or a place on a kernel file system (/proc, /sys, /dev); None if it
+    can be one."""
+    import stat
+
+    from formation_ilc.store.bounded import kind_of
+
+    try:
+        st = os.stat(path)
+    except OSError:
+        st = None
+    if st is not None and not (stat.S_ISREG(st.st_mode) or stat.S_ISDIR(st.st_mode)):
+        return f"is {kind_of(st.st_mode)}, not a regular {want}"
+    kind = fs_type(path)
+    if kind in PSEUDO_FS:
+        return (f"is on {kind}, a kernel file system, not a disk (nothing written there is "
+                f"kept as a {want})")
+    return None
+
+
 def out_dir_arg(text: str) -> Path:
     """An argparse type: a folder that exists or can be created (not a file)."""
     if not text.strip():
         raise argparse.ArgumentTypeError("empty folder name")
     path = Path(text)
+    # a folder on /proc or /sys cannot be made: make_out_dir says so when it tries
     why = _writable_ancestor(path)
     if why is not None:
         raise argparse.ArgumentTypeError(f"{text}: {why}")
@@ -102,13 +153,14 @@ def out_dir_arg(text: str) -> Path:
 
 
 def output_file_arg(text: str) -> Path:
-    """An argparse type: a file to write, in a folder that exists or can be created."""
+    """An argparse type: a regular file to write (not a device, a FIFO, a file of /proc),
+    in a folder that exists or can be created."""
     if not text.strip():
         raise argparse.ArgumentTypeError("empty file name")
     path = Path(text)
     if path.is_dir():
         raise argparse.ArgumentTypeError(f"{text}: is a folder, expected a file name")
-    why = _writable_ancestor(path.parent)
+    why = special_path(path, "file") or _writable_ancestor(path.parent)
     if why is not None:
         raise argparse.ArgumentTypeError(f"{text}: {why}")
     return path
@@ -116,6 +168,29 @@ def output_file_arg(text: str) -> Path:
 
 out_dir_arg.__name__ = "folder"
 output_file_arg.__name__ = "file"
+
+
+def add_run_options(p: argparse.ArgumentParser, *, law: bool = True,
+                    trials: int | None = None) -> None:
+    """The options of a run that ``simulate``, ``compare`` and ``launch`` share: --trials
+    (default ``trials``, else the scenario's), --law and --memory (with ``law``), --seed,
+    --no-noise, --no-delay."""
+    p.add_argument("--trials", type=positive_int, metavar="K", default=trials,
+                   help="number of trials (default: "
+                        + ("the scenario's 'trials')" if trials is None else f"{trials})"))
+    if law:
+        p.add_argument("--law", type=int, choices=(9, 22, 23),
+                       help="9: predictive + delay-compensated current term (the paper's); "
+                            "22: predictive only; 23: current term ignores the delay")
+        p.add_argument("--memory", choices=("feedforward", "literal"),
+                       help="what the learning memory holds (paper-notes 12): feedforward "
+                            "(default; the current term is feedback on top) or literal "
+                            "(the applied input, current term included)")
+    p.add_argument("--seed", type=nonneg_int, help="random seed, >= 0 (default: the "
+                   "scenario's)")
+    p.add_argument("--no-noise", action="store_true",
+                   help="no initial shifts, disturbances or measurement noise")
+    p.add_argument("--no-delay", action="store_true", help="no communication delays")
 
 
 def make_out_dir(path: Path, option: str = "--out") -> Path:

@@ -29,7 +29,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from formation_ilc.cli.options import OptionError
-from formation_ilc.config.enclaves import enclave_path
+from formation_ilc.config.enclaves import driver_enclave, enclave_path
+from formation_ilc.core.names import MONITOR_NODE, fake_driver_name
 
 __all__ = ["SECURITY_ENV", "add_arguments", "enclave_name", "SecureRun", "prepare"]
 
@@ -37,7 +38,7 @@ __all__ = ["SECURITY_ENV", "add_arguments", "enclave_name", "SecureRun", "prepar
 SECURITY_ENV = ("ROS_SECURITY_KEYSTORE", "ROS_SECURITY_ENABLE", "ROS_SECURITY_STRATEGY",
                 "ROS_SECURITY_ENCLAVE_OVERRIDE")
 #: the launcher's own node (the monitor) runs in the launcher process
-LAUNCHER_NODE = "monitor"
+LAUNCHER_NODE = MONITOR_NODE
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -50,8 +51,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def enclave_name(process: str) -> str:
     """The enclave (node) name of a launcher process name."""
-    m = re.fullmatch(r"fake_pioneer_(\d+)", process)
-    return f"driver_{m.group(1)}" if m else process
+    m = re.fullmatch(re.escape(fake_driver_name(0)[:-1]) + r"(\d+)", process)
+    return driver_enclave(int(m.group(1))) if m else process
 
 
 @dataclass(frozen=True)

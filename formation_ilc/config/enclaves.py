@@ -35,6 +35,17 @@ from xml.sax.saxutils import escape
 import numpy as np
 from numpy.typing import NDArray
 
+from formation_ilc.core.names import (
+    FAKE_DRIVER_NODE,
+    LEADER_NODE,
+    LINKS_NODE,
+    MONITOR_NODE,
+    RECORDER_NODE,
+    SIM_NODE,
+    bridge_name,
+    robot_name,
+)
+
 __all__ = ["TopicNames", "DriverTopics", "Grant", "ENCLAVE_NODES", "formation_grants",
            "enclave_path", "dds_topic", "housekeeping", "permissions_xml", "governance_xml",
            "DOMAIN_MAX"]
@@ -106,15 +117,25 @@ class Grant:
 
 #: enclave name -> what it is, for messages and docs
 ENCLAVE_NODES = {
-    "virtual_leader": "the virtual leader",
-    "robot_sim": "the kinematic simulator (plant)",
-    "link_emulator": "the link emulator",
-    "recorder": "the recorder",
-    "monitor": "the launcher's monitor",
+    LEADER_NODE: "the virtual leader",
+    SIM_NODE: "the kinematic simulator (plant)",
+    LINKS_NODE: "the link emulator",
+    RECORDER_NODE: "the recorder",
+    MONITOR_NODE: "the launcher's monitor",
     "robot_i": "robot i's controller",
     "bridge_i": "robot i's Pioneer bridge (plant)",
     "driver_i": "robot i's Pioneer driver",
 }
+
+
+#: robot i's Pioneer driver runs in this enclave (its node name is the driver's own)
+DRIVER_ENCLAVE_PREFIX = "driver_"
+
+
+def driver_enclave(i: int) -> str:
+    """The enclave of robot ``i``'s driver: ``driver_i`` (a real driver's, or the fake
+    one's, whatever its node name)."""
+    return f"{DRIVER_ENCLAVE_PREFIX}{int(i)}"
 
 
 def enclave_path(namespace: str, name: str) -> str:
@@ -142,12 +163,12 @@ def _robot(t: TopicNames, namespace: str, i: int, senders: list[int], hears_lead
     """Robot i (1-based): its own topics out; its pose, its links and its in-neighbours'
     shared poses and trajectories in (emulated and direct links both)."""
     sub = [t.pose(i), t.config, t.trial_events]
-    sub += [t.link(i, f"robot_{j}") for j in senders]
+    sub += [t.link(i, robot_name(j)) for j in senders]
     sub += [t.shared_pose(j) for j in senders] + [t.trajectory(j) for j in senders]
     if hears_leader:
         sub += [t.link(i, t.leader), t.reference]
     pub = [t.cmd_vel(i), t.shared_pose(i), t.trajectory(i), t.ready, t.diagnostics]
-    return _grant(namespace, f"robot_{i}", pub, sub)
+    return _grant(namespace, robot_name(i), pub, sub)
 
 
 def _pioneer(t: TopicNames, namespace: str, i: int, d: DriverTopics) -> list[Grant]:
@@ -155,16 +176,16 @@ def _pioneer(t: TopicNames, namespace: str, i: int, d: DriverTopics) -> list[Gra
     cmd, odom, motors = d.name(i, d.cmd), d.name(i, d.odom), d.name(i, d.motors)
     bridge_pub = [t.pose(i), t.ready, t.diagnostics, cmd]
     bridge_sub = [t.cmd_vel(i), t.trial_events, t.config, odom]
-    driver_pub, driver_sub = [odom, f"{d.ns(i)}/fake_pioneer/truth"], [cmd]
+    driver_pub, driver_sub = [odom, f"{d.ns(i)}/{FAKE_DRIVER_NODE}/truth"], [cmd]
     rq = rr = ""
     if d.motors_kind == "p2os_motor_state":
         bridge_pub.append(motors)
         driver_sub.append(motors)
     else:  # a service: requests from the bridge, replies from the driver
         rq, rr = f"rq{motors}Request", f"rr{motors}Reply"
-    return [_grant(namespace, f"bridge_{i}", bridge_pub, bridge_sub,
+    return [_grant(namespace, bridge_name(i), bridge_pub, bridge_sub,
                    dds_publish=[rq] if rq else [], dds_subscribe=[rr] if rr else []),
-            _grant(namespace, f"driver_{i}", driver_pub, driver_sub,
+            _grant(namespace, driver_enclave(i), driver_pub, driver_sub,
                    node_namespace=d.ns(i) or "/", dds_publish=[rr] if rr else [],
                    dds_subscribe=[rq] if rq else [], service_node="*")]
 
@@ -185,26 +206,26 @@ def formation_grants(adjacency: NDArray[np.float64], leader: NDArray[np.float64]
     senders = [[int(j) + 1 for j in np.flatnonzero(a[i] > 0)] for i in range(n)]
     robots = range(1, n + 1)
     grants = [_robot(t, namespace, i, senders[i - 1], bool(w[i - 1] > 0)) for i in robots]
-    grants.append(_grant(namespace, "virtual_leader",
+    grants.append(_grant(namespace, LEADER_NODE,
                          [t.config, t.reference, t.trial_events, t.diagnostics],
                          [t.ready, t.config, t.clock]))
-    links_pub = [t.link(i, f"robot_{j}") for i in robots for j in senders[i - 1]]
+    links_pub = [t.link(i, robot_name(j)) for i in robots for j in senders[i - 1]]
     links_pub += [t.link(i, t.leader) for i in robots if w[i - 1] > 0]
     links_sub = [t.shared_pose(j) for j in robots]  # it reads every robot's, leaves too
-    grants.append(_grant(namespace, "link_emulator", [*links_pub, t.ready, t.diagnostics],
+    grants.append(_grant(namespace, LINKS_NODE, [*links_pub, t.ready, t.diagnostics],
                          [*links_sub, t.reference, t.trial_events, t.config, t.clock]))
     if pioneer is None:
         grants.append(_grant(
-            namespace, "robot_sim",
+            namespace, SIM_NODE,
             [*(t.pose(i) for i in robots), *(t.true_trajectory(i) for i in robots), t.clock,
              t.ready, t.diagnostics],
             [*(t.cmd_vel(i) for i in robots), t.trial_events, t.config]))
     else:
         for i in robots:
             grants += _pioneer(t, namespace, i, pioneer)
-    grants.append(_grant(namespace, "recorder", [t.ready, t.diagnostics],
+    grants.append(_grant(namespace, RECORDER_NODE, [t.ready, t.diagnostics],
                          list(t.recorded(n))))
-    grants.append(_grant(namespace, "monitor", [t.ready],
+    grants.append(_grant(namespace, MONITOR_NODE, [t.ready],
                          [*(t.trajectory(i) for i in robots),
                           *(t.true_trajectory(i) for i in robots), t.diagnostics,
                           t.trial_events]))

@@ -2,22 +2,65 @@
 
 It travels on the ``config`` topic (latched) as JSON: the scenario's YAML text and the
 command-line overrides, so that no node needs the scenario file, and a recording carries it.
+The leader, which publishes it, gets it as ROS parameters (``RunConfig.to_params`` and
+``RunConfig.from_params``, the one mapping between the two; ``param_text`` writes a value
+for ``--ros-args -p NAME:=VALUE``).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from formation_ilc.config.scenario import Scenario, load_scenario, scenario_from_text
 from formation_ilc.core.clock import Rejected, SampleClock
 from formation_ilc.core.links import LINK_MODES
 
-__all__ = ["RunConfig", "make_config", "MODES", "WALL_MODES"]
+__all__ = ["RunConfig", "make_config", "MODES", "WALL_MODES", "PARAMS", "param_text",
+           "scenario_reference"]
 
 MODES = ("lockstep", "realtime", "wallclock")
 #: modes in which the plant does not wait for commands (missed samples are held)
 WALL_MODES = ("realtime", "wallclock")
+
+#: the ROS parameters of a run configuration and their defaults: seed -1, trials 0, law 0
+#: and memory "" keep the scenario's; noise and delay false are ``--no-noise`` and
+#: ``--no-delay`` (``RunConfig.to_params``, ``RunConfig.from_params``)
+PARAMS: dict[str, Any] = {
+    "scenario": "", "seed": -1, "trials": 0, "law": 0, "memory": "", "noise": True,
+    "delay": True, "mode": "lockstep", "links": "emulated", "gap": 20, "monitored": False,
+    "timeout": 30.0, "run_id": ""}
+
+
+def param_text(value: Any) -> str:
+    """``value`` as written after ``-p NAME:=`` on a command line. ROS reads it as YAML:
+    booleans lower case, a list of strings ``[a,b]``, and a string YAML would read as
+    something else (empty, ``true``, ``123``) single-quoted."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (list, tuple)):
+        return "[" + ",".join(str(v) for v in value) + "]"
+    text = str(value)
+    if isinstance(value, str) and _yaml_reads(text) != value:
+        return "'" + text.replace("'", "''") + "'"
+    return text
+
+
+def _yaml_reads(text: str) -> Any:
+    import yaml
+
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError:
+        return None
+
+
+def scenario_reference(scenario: str) -> str:
+    """What another process loads ``scenario`` by: a file's absolute path (the process may
+    run elsewhere), or the built-in name."""
+    return str(Path(scenario).resolve()) if Path(scenario).exists() else scenario
 
 
 @dataclass(frozen=True)
@@ -67,11 +110,36 @@ class RunConfig:
     def to_json(self) -> dict[str, Any]:
         sc = self.scenario
         return {"scenario_text": sc.text, "source": sc.source, "seed": sc.seed,
-                "noise": sc.uncertainty.noisy,
-                "delay": sc.uncertainty.delay.kind != "none", "trials": sc.trials,
+                **_switches(sc), "trials": sc.trials,
                 "law": sc.law.kind, "memory": sc.law.memory, "mode": self.mode,
                 "links": self.links, "gap": self.gap, "monitored": self.monitored,
                 "timeout": self.timeout, "run_id": self.run_id}
+
+    def to_params(self, scenario: str) -> dict[str, Any]:
+        """The ROS parameters (PARAMS) of this configuration; ``scenario`` is the name or
+        file its scenario was loaded from (``scenario_reference``). Every value is
+        explicit, so ``from_params`` gives this configuration back."""
+        sc = self.scenario
+        return {"scenario": scenario, "seed": sc.seed, "trials": sc.trials,
+                "law": sc.law.kind, "memory": sc.law.memory, **_switches(sc),
+                "mode": self.mode, "links": self.links, "gap": self.gap,
+                "monitored": self.monitored, "timeout": float(self.timeout),
+                "run_id": self.run_id}
+
+    @classmethod
+    def from_params(cls, p: Mapping[str, Any]) -> RunConfig:
+        """The configuration of ROS parameters (PARAMS; missing ones take their default):
+        loads the scenario; ValueError (a ScenarioError for the scenario) naming what is
+        wrong."""
+        g = {**PARAMS, **p}
+        if not g["scenario"]:
+            raise ValueError("parameter scenario: a scenario name or file is required")
+        return make_config(
+            str(g["scenario"]), seed=None if int(g["seed"]) < 0 else int(g["seed"]),
+            noise=bool(g["noise"]), delay=bool(g["delay"]), trials=int(g["trials"]) or None,
+            law=int(g["law"]) or None, memory=str(g["memory"]) or None, mode=str(g["mode"]),
+            gap=int(g["gap"]), monitored=bool(g["monitored"]), timeout=float(g["timeout"]),
+            links=str(g["links"]), run_id=str(g["run_id"]))
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> RunConfig:
@@ -86,6 +154,11 @@ class RunConfig:
                        str(d.get("links", "emulated")), str(d.get("run_id", "")))
         except (KeyError, TypeError, ValueError) as exc:
             raise Rejected("malformed", f"bad run configuration: {exc}") from None
+
+
+def _switches(sc: Scenario) -> dict[str, bool]:
+    """noise and delay as ``Scenario.with_options`` takes them back: false strips them."""
+    return {"noise": sc.uncertainty.noisy, "delay": sc.uncertainty.delay.kind != "none"}
 
 
 def make_config(scenario: str, *, seed: int | None = None, noise: bool = True,

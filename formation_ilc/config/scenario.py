@@ -2,15 +2,17 @@
 
 A scenario states every choice the paper leaves open: graph, formation frame, reference,
 gains, memory reading, uncertainty and delay model. Built-in scenarios live in
-``formation_ilc/scenarios`` and are named without their ``.yaml`` suffix.
+``formation_ilc/config/scenarios`` and are named without their ``.yaml`` suffix.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
 import re
 import reprlib
+import stat
 import warnings
 from collections import Counter
 from collections.abc import Iterator
@@ -72,10 +74,26 @@ def read_text_file(path: Path, limit: int = MAX_FILE_BYTES, what: str = "a scena
     """The text of a YAML file, read at most ``limit`` bytes; ScenarioError naming the file
     if it cannot be read, is larger than ``limit``, or is not UTF-8 text."""
     try:
-        with open(path, "rb") as fh:
+        # without blocking: a FIFO would wait for a writer forever
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC | os.O_NOCTTY)
+    except OSError as exc:
+        raise ScenarioError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            kind = ("a FIFO" if stat.S_ISFIFO(mode) else "a device"
+                    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a folder"
+                    if stat.S_ISDIR(mode) else "not a regular file")
+            raise ScenarioError(f"{path}: {kind}, not {what} file (a regular file is needed)")
+        os.set_blocking(fd, True)
+        with os.fdopen(fd, "rb") as fh:
+            fd = -1
             data = fh.read(limit + 1)
     except OSError as exc:
         raise ScenarioError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    finally:
+        if fd >= 0:
+            os.close(fd)
     if len(data) > limit:
         raise ScenarioError(f"{path}: larger than {format_bytes(limit)}, the most {what} file "
                             f"may be (a long sampled reference belongs in a CSV file: "

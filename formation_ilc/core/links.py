@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 
 from formation_ilc.core._jit import njit
 from formation_ilc.core.clock import Malformed, Rejected, SampleClock
+from formation_ilc.core.names import robot_name, robot_number  # re-exported: their owner
 
 __all__ = ["LEADER", "LINK_MODES", "robot_name", "robot_number", "link_name",
            "delivered_label", "Delivery", "LinkInbox", "DELAY_COLUMNS", "link_histograms",
@@ -37,21 +38,6 @@ __all__ = ["LEADER", "LINK_MODES", "robot_name", "robot_number", "link_name",
 #: sender name of the virtual leader's reference
 LEADER = "leader"
 LINK_MODES = ("emulated", "direct")
-
-
-def robot_name(i: int) -> str:
-    """Name of robot ``i`` (1-based): ``robot_i``; also its node name and topic prefix."""
-    return f"robot_{int(i)}"
-
-
-def robot_number(name: str) -> int:
-    """1-based robot number of ``robot_i``; Malformed if ``name`` is not one (ASCII digits,
-    no leading zero, at least 1)."""
-    digits = name[6:]
-    if not (name.startswith("robot_") and digits.isascii() and digits.isdigit()
-            and digits[0] != "0"):
-        raise Malformed(f"not a robot name: {name!r}")
-    return int(digits)
 
 
 def link_name(sender: str, receiver: str) -> str:
@@ -196,7 +182,8 @@ def check_diagnostics(d: Mapping[str, Any]) -> dict[str, Any]:
     """A node's diagnostics (a JSON object), checked where its readers rely on it: ``node``
     a name, ``trial`` an integer, the delay histograms (``delays``, ``injected``) integer
     counts by integer delay, ``dropped`` integer counts, ``timing`` numbers, ``missed`` an
-    integer or integer counts, ``initial_shifts`` (x, y, theta) triples. Malformed naming
+    integer or integer counts, ``initial_shifts`` (x, y, theta) triples, ``watchdog`` (the
+    leader's) an integer ``count`` and a text ``what``. Malformed naming
     the first field that is not; other fields pass as they are."""
     if not isinstance(d.get("node"), str):
         raise Malformed("diagnostics without a node name")
@@ -208,6 +195,8 @@ def check_diagnostics(d: Mapping[str, Any]) -> dict[str, Any]:
         "timing": lambda v: isinstance(v, dict) and all(_is_number(x) for x in v.values()),
         "missed": lambda v: _is_int(v) or (isinstance(v, dict)
                                            and all(_is_int(x) for x in v.values())),
+        "watchdog": lambda v: isinstance(v, dict) and _is_int(v.get("count"))
+        and isinstance(v.get("what"), str) and len(v["what"]) <= 2000,
         "initial_shifts": lambda v: isinstance(v, dict) and all(
             isinstance(x, list) and len(x) == 3 and all(map(_is_number, x))
             for x in v.values()),

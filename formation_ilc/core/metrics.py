@@ -44,11 +44,13 @@ class MetricsWriter:
     """Writes rows as they come and flushes each one, so a crash keeps every finished
     trial."""
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, append: bool = False):
+        """A new file with its header, or (``append``) rows after those already there."""
         self.path = Path(path)
-        self._fh: IO[str] = self.path.open("w", newline="")
+        self._fh: IO[str] = self.path.open("a" if append else "w", newline="")
         self._w = csv.writer(self._fh)
-        self._w.writerow(METRIC_COLUMNS)
+        if not append:
+            self._w.writerow(METRIC_COLUMNS)
         self._fh.flush()
 
     def write(self, row: NDArray[np.float64]) -> None:

@@ -12,7 +12,7 @@ import sys
 import uuid
 from collections import Counter
 from collections.abc import Callable, Iterable
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import rclpy
@@ -26,12 +26,15 @@ import msgs_schema as ms
 from formation_ilc.config.runconfig import RunConfig, make_config
 from formation_ilc.core.clock import REASONS, Rejected
 from formation_ilc.model.simulate import Problem
-from formation_ilc.protocol.schedule import Ready, TrialEvent
+from formation_ilc.protocol.schedule import Follower, Ready, TrialEvent
+from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, is_disk_full
 from formation_ilc.system.lifetime import PARENT_ENV, bound_the_stop, die_with_parent, parent_gone
 
 __all__ = ["PARENT_ENV", "DROP_REASONS", "DropCounter", "RunConfig", "make_config",
            "config_from_msg", "ConfiguredNode", "warm_up", "matched", "fail", "spin_main",
            "node_parser", "ros_param", "robot_node_from_args"]
+
+R = TypeVar("R")
 
 #: environment variable with the run a launcher started this node for (its run_id)
 RUN_ENV = "FORMATION_ILC_RUN_ID"
@@ -83,13 +86,14 @@ class ConfiguredNode(Node):
         self.configured = False
         #: this process's identity in ``ready`` (a new one tells the leader it restarted)
         self.boot = uuid.uuid4().hex[:12]
-        #: ``seq`` of the last start or abort event handled
-        self.seen = -1
-        self.aborted_slots: set[int] = set()  # slots the leader aborted (unexplained_gap)
+        #: what this node takes of the leader's events (its core's, once configured)
+        self.follower = Follower(self.run_id)
 
     def ready_msg(self, trial: int, passive: bool = False) -> String:
-        """The ``ready`` message of this node (``formation_ilc.protocol.schedule``)."""
-        return ms.json_to_msg(Ready(self.get_name(), trial, self.boot, self.seen,
+        """The ``ready`` message of this node (``formation_ilc.protocol.schedule``); the
+        node then counts as ready for the next start."""
+        self.follower.said_ready()
+        return ms.json_to_msg(Ready(self.get_name(), trial, self.boot, self.follower.seen,
                                     passive, self.run_id).to_json())
 
     @property
@@ -97,33 +101,15 @@ class ConfiguredNode(Node):
         cfg = getattr(self, "cfg", None)
         return cfg.run_id if cfg is not None else os.environ.get(RUN_ENV, "")
 
-    def trial_event(self, msg: String) -> TrialEvent | None:
-        """The event on ``leader/trial_events``, or None (dropped and counted)."""
+    def take_event(self, msg: String, take: Callable[[TrialEvent], R]) -> R | None:
+        """What ``take`` (the node's core, which applies ``schedule.Follower``'s rule to a
+        start or abort) makes of the event on ``leader/trial_events``, or None: dropped and
+        counted (undecodable, or refused with its reason)."""
         try:
-            ev = TrialEvent.from_json(ms.msg_to_json(msg))
+            return take(TrialEvent.from_json(ms.msg_to_json(msg)))
         except Rejected as exc:
             self.drops.reject(exc, ms.TRIAL_EVENTS)
             return None
-        if ev.run and self.run_id and ev.run != self.run_id:
-            self.drops.drop("foreign", ms.TRIAL_EVENTS, f"event of run {ev.run}")
-            return None
-        return ev
-
-    def new_start_or_abort(self, msg: String) -> TrialEvent | None:
-        """The start or abort on ``leader/trial_events`` that this node (its last answered
-        ``seq`` in ``self.seen``) has not seen yet, or None: other events are not a
-        follower's business, a repeated abort was answered already, a repeated start is
-        counted stale."""
-        ev = self.trial_event(msg)
-        if ev is None or ev.event not in (ms.START, ms.ABORT):
-            return None
-        if ev.seq <= self.seen:
-            if ev.event == ms.START:
-                self.drops.drop("stale", ms.TRIAL_EVENTS, f"start seq {ev.seq} again")
-            return None
-        if ev.event == ms.ABORT:
-            self.aborted_slots.add(ev.slot)
-        return ev
 
     def follow_config(self, cfg: RunConfig | None = None) -> None:
         """Configure now from ``cfg``, or when the config topic delivers one."""
@@ -293,6 +279,16 @@ def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
                 break
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except OSError as exc:
+        if not is_disk_full(exc):
+            raise
+        # one line naming the file; a supervisor does not restart this status (a new
+        # process would hit the same full disk)
+        name = nodes[0].get_name() if nodes else parser.prog
+        print(f"{name}: {DISK_FULL_TAG}: cannot write {exc.filename or '?'} "
+              f"({exc.strerror}); what was written before is kept", file=sys.stderr,
+              flush=True)
+        Exit.code = DISK_FULL
     finally:
         bound_the_stop()  # the teardown below, and the interpreter's exit after it
         for n in nodes:

@@ -35,7 +35,7 @@ from formation_ilc.core.clock import Rejected
 from formation_ilc.core.links import check_diagnostics
 from formation_ilc.model.simulate import Problem
 from formation_ilc.nodes.common import DropCounter, RunConfig
-from formation_ilc.protocol.schedule import TrialEvent
+from formation_ilc.protocol.schedule import Ready, TrialEvent
 from formation_ilc.protocol.trialrows import Row, SlotRows
 
 
@@ -45,7 +45,7 @@ class MonitorNode(Node):
     def __init__(self, cfg: RunConfig, on_trial: Callable[[int, np.ndarray], None],
                  true_state: bool = True, first: int = 0, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
-        super().__init__("monitor", **kwargs)
+        super().__init__(ms.MONITOR_NODE, **kwargs)
         self.cfg = cfg
         self.pb = Problem.from_scenario(cfg.scenario)
         self.clock = cfg.clock
@@ -59,33 +59,66 @@ class MonitorNode(Node):
         self.events: list[dict[str, Any]] = []
         self.path_subs = []
         for r in range(n):
+            # raw: a trajectory longer than a trial is refused before it is deserialized
             self.path_subs.append(self.create_subscription(
                 Path, ms.trajectory_topic(r + 1), lambda m, r=r: self._on_traj(m, r, False),
-                ms.TRAJECTORY_QOS))
+                ms.TRAJECTORY_QOS, raw=True))
             if true_state:
                 self.path_subs.append(self.create_subscription(
                     Path, ms.true_trajectory_topic(r + 1),
-                    lambda m, r=r: self._on_traj(m, r, True), ms.TRAJECTORY_QOS))
+                    lambda m, r=r: self._on_traj(m, r, True), ms.TRAJECTORY_QOS, raw=True))
         # the schedule waits for the monitor too ("monitor" in the leader's nodes_expected):
         # a writer's match count cannot tell a monitor from a recorder, and a monitor matched
         # after trial 1 would miss trial 0 (trajectories are latched 2 deep)
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
+        self.boot = f"{os.getpid()}"
+        self.said_ready = False
+        #: the last ready of each node (the launcher names whom a stuck run waits for)
+        self.readies: dict[str, Ready] = {}
         self._gate = self.create_timer(0.05, self._check_ready)
         self.create_subscription(String, ms.DIAGNOSTICS, self._on_diag, ms.LATCHED_READER_QOS)
-        self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
+        self.create_subscription(String, ms.READY, self._on_ready, ms.LATCHED_READER_QOS)
+        self.events_sub = self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event,
+                                                   ms.SAMPLE_QOS)
 
     def _check_ready(self) -> None:
         if all(s.get_publisher_count() >= 1 for s in self.path_subs) and \
                 self.ready_pub.get_subscription_count() >= 1:
             self._gate.cancel()
-            self.ready_pub.publish(ms.json_to_msg({"node": "monitor", "passive": True,
-                                                   "trial": self.cfg.scenario.trials,
-                                                   "boot": f"{os.getpid()}",
-                                                   "run": self.cfg.run_id}))
+            self.said_ready = True
+            self.ready_pub.publish(self._ready_msg())
 
-    def _on_traj(self, msg: Path, r: int, true: bool) -> None:
+    def _ready_msg(self) -> String:
+        return ms.json_to_msg({"node": ms.MONITOR_NODE, "passive": True,
+                               "trial": self.cfg.scenario.trials, "boot": self.boot,
+                               "run": self.cfg.run_id})
+
+    def _on_ready(self, msg: String) -> None:
+        """Readies of every node: who is there (``readies``, for the launcher's watchdog);
+        a ``down`` naming this live monitor is refuted by saying ready again (the leader
+        would otherwise wait for a monitor that has said all it will say)."""
+        try:
+            r = Ready.from_json(ms.msg_to_json(msg))
+        except Rejected as exc:
+            self.drops.reject(exc, ms.READY)
+            return
+        if r.run and r.run != self.cfg.run_id:
+            return
+        if r.down and r.node == ms.MONITOR_NODE and r.boot == self.boot and self.said_ready:
+            self.drops.drop("unexpected", ms.READY, f"'down' of this live monitor ({r.boot})")
+            self.ready_pub.publish(self._ready_msg())
+            return
+        if r.node in self.readies or len(self.readies) < 256:  # a flood of names: bounded
+            self.readies[r.node] = r
+
+    def leader_present(self) -> bool:
+        """Whether a writer of the trial events (the leader) has been discovered."""
+        return bool(self.events_sub.get_publisher_count() >= 1)
+
+    def _on_traj(self, data: bytes | Path, r: int, true: bool) -> None:
         topic = (ms.true_trajectory_topic if true else ms.trajectory_topic)(r + 1)
         try:
+            msg = ms.path_from_raw(data, self.pb.samples + 1, "trajectory")
             eta, stamps, frame = ms.path_to_trajectory(msg, self.pb.eta_d[r, :, 2])
             if frame != ms.WORLD_FRAME:
                 raise ms.MalformedMessage(f"trajectory in frame {frame[:50]!r}")
@@ -107,6 +140,11 @@ class MonitorNode(Node):
         try:
             d = check_diagnostics(ms.msg_to_json(msg, ("node", "trial")))
             name, k = d["node"], d["trial"]
+            if name == "virtual_leader":
+                # the leader's own word (its watchdog's findings too, before trial 0 and
+                # after it un-commits a trial): the launcher prints it
+                self.diagnostics[name] = d
+                return
             if k > self.slots.started:
                 raise Rejected("future", f"{name[:100]} diagnostics of trial {k}, slot "
                                          f"{self.slots.started} started")

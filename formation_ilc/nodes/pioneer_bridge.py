@@ -39,7 +39,12 @@ What it obeys (the rest is dropped and counted in its diagnostics, with the reas
 ``start`` event only for the trial after the current one, once it said ready for it and is
 idle, with an agreed start no more than ``START_AHEAD_MAX`` s ahead and not past the trial's
 end; ``cmd_vel`` only inside a trial (a command before a start or during the return would
-move the robot outside the protocol).
+move the robot outside the protocol). Starts and aborts are taken by the rule every follower
+of the schedule applies (``formation_ilc.protocol.schedule.Follower``).
+
+Everything it decides is in ``formation_ilc.protocol.bridge.Bridge``; this node reads its
+parameters, talks to the driver (its motors included) and makes one call into the bridge
+per event.
 """
 
 from __future__ import annotations
@@ -56,7 +61,6 @@ from std_msgs.msg import String
 
 import msgs_schema as ms
 from formation_ilc.core.clock import Rejected
-from formation_ilc.model.simulate import Problem
 from formation_ilc.nodes.common import (
     ConfiguredNode,
     RunConfig,
@@ -66,20 +70,14 @@ from formation_ilc.nodes.common import (
     robot_node_from_args,
     spin_main,
 )
-from formation_ilc.protocol.bridge import (
-    CommandLimits,
-    ReturnController,
-    Watchdog,
-    initial_shift,
-    odom_to_world,
-)
-from formation_ilc.protocol.schedule import Ready, TrialEvent, unexplained_gap
-from formation_ilc.protocol.wallclock import WallSchedule, start_wall_ns
+from formation_ilc.protocol.bridge import Bridge, CommandLimits, Returned
+from formation_ilc.protocol.schedule import Ready
+from formation_ilc.protocol.wallclock import START_AHEAD_MAX
+
+__all__ = ["BridgeNode", "main", "TICK", "START_AHEAD_MAX"]
 
 #: the bridge's control tick [s]: sampling, return controller, watchdog
 TICK = 0.01
-#: [s] the latest a start event's agreed start time may be ahead of this robot's clock
-START_AHEAD_MAX = 60.0
 
 
 def _join(ns: str, name: str) -> str:
@@ -131,43 +129,17 @@ class BridgeNode(ConfiguredNode):
 
     # ------------------------------------------------------------------ set-up
     def configure(self, cfg: RunConfig) -> None:
-        if cfg.mode != "wallclock" or cfg.links != "direct":
-            raise ValueError(f"{self.name}: a real robot runs wall-clock trials with direct "
-                             f"links (mode wallclock, links direct), got mode {cfg.mode}, "
-                             f"links {cfg.links}")
-        pb = Problem.from_scenario(cfg.scenario)
-        if self.id > pb.n:
-            raise ValueError(f"{self.name}: the scenario has robots 1..{pb.n}")
         g = lambda name: self.get_parameter(name).value  # noqa: E731
         init = [float(x) for x in g("initial_pose")]
-        if len(init) == 3:
-            self.initial = (init[0], init[1], init[2])
-        else:
-            x, y, th = (float(v) for v in pb.eta_d[self.id - 1, 0])
-            self.initial = (x, y, th)
-        self.cfg, self.clock, self.T = cfg, cfg.clock, pb.samples
-        timeout = float(g("cmd_timeout"))
-        self.watchdog = Watchdog(timeout if timeout > 0 else 2.5 * cfg.scenario.dt)
-        #: odometry older than this [s] is stale: counted in trials, a stop in returns
-        self.odom_limit = max(0.5, 2.0 * cfg.scenario.dt)
-        self.tol = (float(g("return_tol")), math.radians(float(g("return_tol_heading"))),
-                    float(g("return_timeout")))
-        self.odom: tuple[float, float, float] | None = None
-        self.odom_time = 0.0
+        self.core = core = Bridge(
+            cfg, self.id, name=self.name,
+            initial=(init[0], init[1], init[2]) if len(init) == 3 else None,
+            limits=self.limits, cmd_timeout=float(g("cmd_timeout")), period=self.period,
+            tol=(float(g("return_tol")), math.radians(float(g("return_tol_heading"))),
+                 float(g("return_timeout"))))
+        self.follower = core.follower
+        self.cfg = cfg
         self.motors_on = False
-        self.phase = "idle"            # idle | trial | return
-        self.k = -1            # slot of the current (or last) trial
-        self.iteration = -1
-        self.schedule: WallSchedule | None = None
-        self.returner: ReturnController | None = None
-        self.robot_cmd = (0.0, 0.0)
-        self.out_cmd = (0.0, 0.0)
-        self.last_out = 0.0
-        self.counts = {"missed": 0, "clipped": 0, "watchdog_zero": 0, "return_timeouts": 0,
-                       "stale_odometry": 0}
-        self.shifts: dict[str, list[float]] = {}
-        self.returns: dict[str, dict[str, Any]] = {}
-        self.ready_sent = -1
 
         self.pose_pub = self.create_publisher(PoseStamped, ms.pose_topic(self.id),
                                               ms.SAMPLE_QOS)
@@ -183,7 +155,7 @@ class BridgeNode(ConfiguredNode):
         self._tick = self.create_timer(TICK, self._on_tick)
         self._gate = self.create_timer(0.05, self._check_ready)
         self.get_logger().info(f"{self.name}: driver {self.driver} ({cmd_t}, {odom_t}, "
-                               f"motors {motors_t}), initial pose {self.initial}, limits "
+                               f"motors {motors_t}), initial pose {core.initial}, limits "
                                f"{self.limits.v_max} m/s {math.degrees(self.limits.omega_max):.0f}"
                                f" deg/s")
 
@@ -239,149 +211,64 @@ class BridgeNode(ConfiguredNode):
             self.get_logger().info("motors enabled")
 
     def _check_ready(self) -> None:
-        if self.odom is None or not self.motors_on:
+        if self.core.odom is None or not self.motors_on:
             return
         if matched([(self.pose_pub, 1), (self.ready_pub, 1), (self.drv_pub, 1)]):
             self._gate.cancel()
-            self._say_ready(0, "placed", initial_shift(self.world(), self.initial))
+            self._say_ready(0, "placed", self.core.shift())
 
     # ------------------------------------------------------------------ inputs
-    def world(self) -> tuple[float, float, float]:
-        assert self.odom is not None
-        return odom_to_world(self.initial, self.odom)
-
     def _on_odom(self, msg: Odometry) -> None:
         try:
-            self.odom = ms.odometry_to_pose(msg)
+            pose = ms.odometry_to_pose(msg)
         except Rejected as exc:
             self.drops.reject(exc, self.driver_topics[1])
             return
-        self.odom_time = time.monotonic()
+        self.core.on_odom(pose, time.monotonic())
 
     def _on_cmd(self, msg: Twist) -> None:
         try:
             u = ms.twist_to_u(msg)
-            if self.phase != "trial":
-                raise Rejected("unexpected", f"a command while {self.phase}")
+            cmd = self.core.on_cmd((float(u[0]), float(u[1])), time.monotonic())
         except Rejected as exc:
             self.drops.reject(exc, ms.cmd_vel_topic(self.id))
             return
-        v, w, clipped = self.limits.clamp(float(u[0]), float(u[1]))
-        self.counts["clipped"] += int(clipped)
-        self.robot_cmd = (v, w)
-        self.watchdog.feed(time.monotonic())
-        self._send(self.robot_cmd, time.monotonic())
+        self._send(cmd)
 
     def _on_event(self, msg: String) -> None:
-        try:
-            d = ms.msg_to_json(msg)
-            ev = TrialEvent.from_json(d)
-            if ev.run and self.run_id and ev.run != self.run_id:
-                raise Rejected("foreign", f"event of run {ev.run}")
-            if ev.event not in (ms.START, ms.ABORT) or ev.seq <= self.seen:
-                return
-            start = 0
-            if ev.event == ms.START:
-                start = start_wall_ns(d)
-                now = time.time_ns()
-                if start > now + int(START_AHEAD_MAX * 1e9):
-                    raise Rejected("future", f"start {(start - now) / 1e9:.3g} s ahead")
-                if start + self.T * self.clock.dt_ns < now:
-                    raise Rejected("stale", f"start {(now - start) / 1e9:.3g} s ago: the "
-                                            f"trial would be over")
-        except Rejected as exc:
-            self.drops.reject(exc, ms.TRIAL_EVENTS)
-            return
-        if ev.event == ms.ABORT:
-            # the trial is dropped: stop sampling, drive back, then say ready
-            self.seen = ev.seq
-            self.aborted_slots.add(ev.slot)
-            if self.phase == "trial" and ev.slot == self.k:
-                self.schedule = None
-                self._begin_return(time.monotonic())
-            elif self.phase == "idle" and self.ready_sent >= 0:
-                self._say_ready(self.iteration + 1, "idle",
-                                initial_shift(self.world(), self.initial))
-            return
-        if ev.slot <= self.k or self.phase != "idle" or \
-                unexplained_gap(self.k, ev.slot, self.aborted_slots):
-            self.drops.drop("stale" if ev.slot <= self.k else "unexpected", ms.TRIAL_EVENTS,
-                            f"start of slot {ev.slot} in slot {self.k} ({self.phase})")
-            return
-        self.seen = ev.seq
-        self.k = ev.slot
-        self.iteration = ev.trial
-        self.schedule = WallSchedule(start, self.clock.dt_ns, self.T)
-        self.phase = "trial"
+        core = self.core
+        ev = self.take_event(msg, lambda ev: core.on_event(ev, time.monotonic(),
+                                                           time.time_ns()))
+        # an abort taken: the trial is dropped (the robot drives back, then says ready)
+        if ev is not None and ev.event == ms.ABORT and core.answers_abort():
+            self._say_ready(core.iteration + 1, "idle", core.shift())
 
     # ------------------------------------------------------------------ the tick
     def _on_tick(self) -> None:
-        now = time.monotonic()
-        if self.phase == "trial" and self.schedule is not None:
-            s = self.schedule.due(time.time_ns())
-            if s is not None:
-                self._sample(s, now)
-        if self.phase == "return" and self.returner is not None and self.odom is not None:
-            stale = now - self.odom_time > self.odom_limit
-            self.counts["stale_odometry"] += int(stale)
-            st = self.returner.step(self.world(), now, stale)
-            if st.done:
-                self._returned(st.reached, now)
-                self._send((0.0, 0.0), now)
-            else:
-                self._send((st.v, st.omega), now)
-            return
-        cmd = self.robot_cmd
-        if self.watchdog.expired(now):
-            if self.out_cmd != (0.0, 0.0) and self.phase == "trial":
-                self.counts["watchdog_zero"] += 1
-            cmd = (0.0, 0.0)
-        if cmd != self.out_cmd or now - self.last_out >= self.period:
-            self._send(cmd, now)
+        tick = self.core.tick(time.monotonic(), time.time_ns())
+        if tick.sample is not None:
+            ns, pose = tick.sample
+            self.pose_pub.publish(ms.pose_to_msg(pose, ns, ms.WORLD_FRAME))
+        if tick.returned is not None:
+            self._returned(tick.returned)
+        if tick.cmd is not None:
+            self._send(tick.cmd)
 
-    def _send(self, cmd: tuple[float, float], now: float) -> None:
-        self.out_cmd = cmd
-        self.last_out = now
+    def _send(self, cmd: tuple[float, float]) -> None:
         self.drv_pub.publish(ms.driver_twist(cmd[0], cmd[1], self.stamped, time.time_ns()))
 
-    def _sample(self, s: int, now: float) -> None:
-        if self.odom is None:
-            return
-        if now - self.odom_time > self.odom_limit:
-            self.counts["stale_odometry"] += 1
-        ns = self.clock.stamp_ns(self.k, s)
-        self.pose_pub.publish(ms.pose_to_msg(self.world(), ns, ms.WORLD_FRAME))
-        if s == self.T:
-            assert self.schedule is not None
-            self.counts["missed"] += self.schedule.skipped
-            self.schedule = None
-            self._begin_return(now)
-
-    def _begin_return(self, now: float) -> None:
-        self.robot_cmd = (0.0, 0.0)
-        self.phase = "return"
-        self.returner = ReturnController(self.initial, self.limits, tol_pos=self.tol[0],
-                                         tol_heading=self.tol[1], timeout=self.tol[2])
-        self._return_t0 = now
-
-    def _returned(self, reached: bool, now: float) -> None:
-        self.phase = "idle"
-        self.returner = None
-        shift = initial_shift(self.world(), self.initial)
-        secs = now - self._return_t0
-        if not reached:
-            self.counts["return_timeouts"] += 1
+    def _returned(self, r: Returned) -> None:
+        if not r.reached:
             self.get_logger().error(
-                f"return to the initial pose timed out after {secs:.1f} s: "
-                f"{math.hypot(shift[0], shift[1]):.3f} m, {math.degrees(shift[2]):.1f} deg "
-                f"off; trial {self.iteration + 1} starts from there (check the robot's path)")
-        self.returns[str(self.iteration + 1)] = {"reached": reached, "seconds": round(secs, 3)}
-        self._say_ready(self.iteration + 1, "reached" if reached else "timeout", shift)
+                f"return to the initial pose timed out after {r.seconds:.1f} s: "
+                f"{math.hypot(r.shift[0], r.shift[1]):.3f} m, "
+                f"{math.degrees(r.shift[2]):.1f} deg off; trial {r.trial} starts from there "
+                f"(check the robot's path)")
+        self._say_ready(r.trial, "reached" if r.reached else "timeout", r.shift)
 
     def _say_ready(self, trial: int, how: str, shift: tuple[float, float, float]) -> None:
-        self.shifts[str(trial)] = [float(x) for x in shift]
-        self.ready_sent = trial
-        d = Ready(self.name, trial, self.boot, self.seen, run=self.run_id).to_json()
+        self.core.said_ready(trial, shift)
+        d = Ready(self.name, trial, self.boot, self.follower.seen, run=self.run_id).to_json()
         d.update({"initial_shift": list(shift), "return": how})
         self.ready_pub.publish(ms.json_to_msg(d))
         self.publish_diagnostics(trial - 1)
@@ -390,15 +277,14 @@ class BridgeNode(ConfiguredNode):
         """Stop the robot on the way out (Ctrl-C, a failed run)."""
         if self.configured and hasattr(self, "drv_pub"):
             try:
-                self._send((0.0, 0.0), time.monotonic())
+                self._send(self.core.stop(time.monotonic()))
             except Exception:  # noqa: BLE001 - the context may already be shut down
                 pass
         super().destroy_node()
 
     def publish_diagnostics(self, trial: int) -> None:
         d: dict[str, Any] = {"node": self.name, "trial": trial, "driver": self.driver,
-                             "initial_shifts": self.shifts, "returns": self.returns,
-                             **self.counts}
+                             **self.core.report()}
         d.update(self.drops.as_dict())
         self.diag_pub.publish(ms.json_to_msg(d))
 

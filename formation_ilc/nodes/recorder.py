@@ -44,9 +44,10 @@ import msgs_schema as ms
 from formation_ilc.core.clock import Rejected
 from formation_ilc.core.links import check_diagnostics
 from formation_ilc.nodes.common import DropCounter, RunConfig, node_parser, spin_main
-from formation_ilc.protocol.schedule import TrialEvent
+from formation_ilc.protocol.schedule import Ready, TrialEvent
 from formation_ilc.recordings.mcap_io import CHUNK_BYTES, RosMcapWriter
 from formation_ilc.recordings.recording import META_NAME, qos_of
+from formation_ilc.system.exits import is_disk_full
 
 #: types whose CDR starts with a header stamp (int32 sec, uint32 nanosec) right after the
 #: 4-byte encapsulation: their publish time is that send label
@@ -67,8 +68,10 @@ def _msg_class(type_name: str) -> Any:
 class RecorderNode(Node):
     def __init__(self, output: Path, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
-        super().__init__("recorder", **kwargs)
+        super().__init__(ms.RECORDER_NODE, **kwargs)
         self.output = Path(output)
+        #: this process in its ready (the launcher's ``down`` names it by its pid)
+        self.boot = f"{os.getpid()}"
         self.writer = RosMcapWriter(self.output, flush_period=0.5, chunk_size=int(
             os.environ.get("FORMATION_ILC_RECORDER_CHUNK_BYTES", CHUNK_BYTES)))
         self.drops = DropCounter(self)      # not counted toward progress (still recorded)
@@ -131,17 +134,40 @@ class RecorderNode(Node):
             sent = self._publish_time(topic, data, now)
             self.writer.write(self.names.get(topic) or self._channel(topic), data, now, sent)
         except Exception as exc:  # noqa: BLE001 - a recorder must outlive any one message
+            if is_disk_full(exc):
+                raise  # not one message: nothing more can be recorded (spin_main says so)
             self.unwritable[topic] += 1
             if self.unwritable[topic] <= 3:
                 self.get_logger().error(f"could not record a message on {topic}: {exc!r}")
             return
         if topic == ms.CONFIG and self.cfg is None:
             self._configure(data)
+        elif topic == ms.READY and self.said_ready and len(data) < 4096:
+            self._refute_down(data)
         elif topic in self.progress_topics:
             try:
                 self._progress(topic, data, sent)
             except Rejected as exc:
                 self.drops.reject(exc, topic)
+
+    def _refute_down(self, data: bytes) -> None:
+        """A ``down`` for this very process (the launcher says so only of a recorder that
+        died): a forgery or a mistake, which would make the leader wait for a recorder
+        that is alive and has said ready. It says ready again."""
+        try:
+            r = Ready.from_json(ms.msg_to_json(ms.deserialize(data, String)))
+        except Rejected:
+            return
+        if r.down and r.node == ms.RECORDER_NODE and r.boot == self.boot:
+            self.drops.drop("unexpected", ms.READY, f"'down' of this live recorder ({r.boot})")
+            self.ready_pub.publish(self._ready_msg())
+
+    def _ready_msg(self) -> String:
+        assert self.cfg is not None
+        # ready for every trial of the run: it only watches (formation_ilc.protocol.schedule)
+        return ms.json_to_msg({"node": ms.RECORDER_NODE, "passive": True,
+                               "trial": self.cfg.scenario.trials, "boot": self.boot,
+                               "run": self.cfg.run_id})
 
     def _publish_time(self, topic: str, data: bytes, now: int) -> int:
         """The send label of a stamped message, else (or if it is no valid time) ``now``."""
@@ -228,7 +254,7 @@ class RecorderNode(Node):
                 min(self.robot_diag.values()) >= k:
             self.complete = k
             self.writer.flush()
-            d = {"node": "recorder", "trial": k, "messages": self.writer.count,
+            d = {"node": ms.RECORDER_NODE, "trial": k, "messages": self.writer.count,
                  "file": str(self.output), "invalid_stamps": dict(self.invalid_stamps),
                  "unwritable": dict(self.unwritable)}
             d.update(self.drops.as_dict())
@@ -264,16 +290,16 @@ class RecorderNode(Node):
             self.said_ready = True
             self.truth = all(self.subs[t].get_publisher_count() >= 1 for t in self.optional)
             self._gate.cancel()
-            # ready for every trial of the run: it only watches (formation_ilc.protocol.schedule)
-            self.ready_pub.publish(ms.json_to_msg({"node": "recorder", "passive": True,
-                                                   "trial": self.cfg.scenario.trials,
-                                                   "boot": f"{os.getpid()}",
-                                                   "run": self.cfg.run_id}))
+            self.ready_pub.publish(self._ready_msg())
             self.get_logger().info(f"ready: {len(self.subs)} topics")
 
     def destroy_node(self) -> None:
-        self.writer.close()
-        self.get_logger().info(f"closed {self.output}: {self.writer.count} messages")
+        try:
+            self.writer.close()
+            self.get_logger().info(f"closed {self.output}: {self.writer.count} messages")
+        except OSError as exc:  # a full disk: what was flushed before reads back
+            self.get_logger().error(f"could not close {self.output}: {exc.strerror}; the "
+                                    f"chunks written before read back")
         super().destroy_node()
 
 

@@ -32,7 +32,10 @@ and the links deliver the neighbours' poses:
   (realtime: at most ``LINK_WAIT`` dT after its pose).
 
 A trial the leader aborts (``abort`` on ``leader/trial_events``: a node restarted during
-it) is forgotten, and the learning step undone if it was already taken.
+it) is forgotten, and the learning step undone if it was already taken. Starts and aborts
+are taken by the rule every follower of the schedule applies
+(``formation_ilc.protocol.schedule.Follower``; a start only moves the ``seen`` of the
+robot's next ready: its trials follow its own poses).
 
 It measures every delay by eq. (11) from Rt and St, calls the core's ``law.command`` for its
 one robot (``formation_ilc.protocol.learner.RobotLearner``) and publishes ``cmd_vel``. At
@@ -72,6 +75,7 @@ from formation_ilc.nodes.common import (
     warm_up,
 )
 from formation_ilc.protocol.learner import RobotLearner
+from formation_ilc.protocol.schedule import Follower
 from formation_ilc.store.memoryfile import MemoryFileError, load_memory
 from formation_ilc.store.robotstate import load_state, save_state, state_path
 
@@ -129,6 +133,7 @@ class RobotNode(ConfiguredNode):
             self.get_logger().info(f"{self.name}: initial memory from {path}")
         self.learner = lrn = RobotLearner(pb, self.id - 1, cfg.clock, realtime=self.realtime,
                                           direct=cfg.links == "direct", memory=memory)
+        self.follower = Follower(cfg.run_id)
         sdir = str(self.get_parameter("state_dir").value)
         self.state_file = state_path(sdir, self.id) if sdir else None
         if self.state_file is not None:
@@ -156,9 +161,10 @@ class RobotNode(ConfiguredNode):
                                  ms.SAMPLE_QOS)
         for sender in lrn.slots:
             if cfg.links == "emulated":
+                # raw: a tick longer than one pose is refused before it is deserialized
                 self.create_subscription(Path, ms.link_topic(self.id, sender),
                                          lambda m, s=sender: self._on_link_tick(m, s),
-                                         ms.SAMPLE_QOS)
+                                         ms.SAMPLE_QOS, raw=True)
             else:
                 topic = (ms.REFERENCE if sender == LEADER
                          else ms.shared_pose_topic(ms.robot_index(sender)))
@@ -166,9 +172,10 @@ class RobotNode(ConfiguredNode):
                                          lambda m, s=sender: self._on_link_pose(m, s),
                                          ms.SAMPLE_QOS)
         for sender in lrn.neighbours:
+            # raw: a trajectory longer than a trial is refused before it is deserialized
             self.create_subscription(Path, ms.trajectory_topic(ms.robot_index(sender)),
                                      lambda m, s=sender: self._on_trajectory(m, s),
-                                     ms.TRAJECTORY_QOS)
+                                     ms.TRAJECTORY_QOS, raw=True)
         if self.realtime:
             self._deadline = self.create_timer(LINK_WAIT * cfg.scenario.dt, self._on_deadline)
             self._deadline.cancel()
@@ -194,10 +201,13 @@ class RobotNode(ConfiguredNode):
         self.ready_pub.publish(self.ready_msg(self.learner.iterations))
 
     def _on_event(self, msg: String) -> None:
-        ev = self.trial_event(msg)
-        if ev is None or ev.event not in (ms.START, ms.ABORT) or ev.seq <= self.seen:
+        lrn = self.learner
+        # the robot's trials follow its own poses: a start taken only moves the ``seen``
+        # its next ready carries; it is idle once done with the slot started last
+        ev = self.take_event(msg, lambda ev: self.follower.take(
+            ev, idle=lrn.done_with(self.follower.slot)))
+        if ev is None:
             return
-        self.seen = ev.seq
         if ev.event == ms.ABORT:
             rolled = self.learner.abort(ev.slot)
             if rolled:
@@ -216,12 +226,15 @@ class RobotNode(ConfiguredNode):
     # ------------------------------------------------------------------ per sample
     def _on_pose(self, msg: PoseStamped) -> None:
         lrn = self.learner
+        ns = -1
         try:
             ns = ms.stamp_to_ns(msg.header.stamp)
             eta, _ = ms.world_pose(msg, lrn.expected_heading(self.name, ns))
             ev = lrn.on_pose(ns, eta)
         except Rejected as exc:
             self.drops.reject(exc, "pose")
+            if lrn.is_repeat(ns):
+                self._repeat(msg)
             return
         if ev.last:
             if self.realtime:
@@ -232,6 +245,15 @@ class RobotNode(ConfiguredNode):
         if self.realtime:
             self._deadline.reset()
         self._maybe_command()
+
+    def _repeat(self, msg: PoseStamped) -> None:
+        """The plant sent the current sample again (lockstep; a command of it is still due):
+        while this robot has not commanded it, its shared pose goes out again, the same
+        bits (the links may have lost it). A command is never sent twice: ``cmd_vel`` carries
+        no label, and a second copy reaching the plant after it moved on would be taken as
+        the next sample's command."""
+        if not self.learner.commanded:
+            self.shared_pub.publish(msg)
 
     def _on_link_pose(self, msg: PoseStamped, sender: str) -> None:
         topic = f"{sender}/shared_pose" if sender != LEADER else ms.REFERENCE
@@ -244,9 +266,9 @@ class RobotNode(ConfiguredNode):
             return
         self._maybe_command()
 
-    def _on_link_tick(self, msg: Path, sender: str) -> None:
+    def _on_link_tick(self, data: bytes | Path, sender: str) -> None:
         try:
-            tick, ps = ms.msg_to_link_tick(msg)
+            tick, ps = ms.msg_to_link_tick(ms.path_from_raw(data, 1, "link tick"))
             pose = None
             if ps is not None:
                 st = ms.stamp_to_ns(ps.header.stamp)
@@ -283,12 +305,13 @@ class RobotNode(ConfiguredNode):
         if lrn.try_learn():
             self._learned()
 
-    def _on_trajectory(self, msg: Path, sender: str) -> None:
+    def _on_trajectory(self, data: bytes | Path, sender: str) -> None:
         if not self.configured:
             return
         lrn = self.learner
         try:
             j = ms.robot_index(sender) - 1
+            msg = ms.path_from_raw(data, self.pb.samples + 1, "trajectory")
             eta, stamps, frame = ms.path_to_trajectory(msg, self.pb.eta_d[j, :, 2])
             if frame != ms.WORLD_FRAME:
                 raise ms.MalformedMessage(f"trajectory in frame {frame!r}")

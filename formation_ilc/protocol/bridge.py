@@ -11,17 +11,30 @@ robot on top of a Pioneer driver. Everything it decides is here:
   coordinates (Astolfi 1999; Aicardi et al. 1995; the form of Siegwart & Nourbakhsh,
   "Introduction to Autonomous Mobile Robots", sec. 3.6.2.4), with a tolerance and a
   timeout, driving backwards when the goal is behind;
-* ``initial_shift``: the achieved initial-state shift (b_xi0 of Assumption 2) of a trial.
+* ``initial_shift``: the achieved initial-state shift (b_xi0 of Assumption 2) of a trial;
+* ``Bridge``: the bridge's state machine (idle -> trial -> return -> idle), one call per
+  event with the time it happened: the leader's start and abort (taken by
+  ``schedule.Follower``, with the agreed wall-clock start checked), the robot node's
+  commands, the driver's odometry, and the control tick, which says what to publish (the
+  pose of a sample due on the wall clock, the driver's command) and when a return ends
+  (the node then says ready).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
+
+from formation_ilc.config.runconfig import RunConfig
+from formation_ilc.core.clock import Rejected
+from formation_ilc.model.simulate import Problem
+from formation_ilc.protocol.schedule import ABORT, Follower, TrialEvent
+from formation_ilc.protocol.wallclock import WallSchedule
 
 __all__ = ["CommandLimits", "Watchdog", "compose", "odom_to_world", "wrap",
            "ReturnController", "ReturnStatus", "initial_shift", "PIONEER_V_MAX",
-           "PIONEER_OMEGA_MAX"]
+           "PIONEER_OMEGA_MAX", "Bridge", "BridgeTick", "Returned", "IDLE", "TRIAL", "RETURN"]
 
 # Pioneer 3-DX specification (Adept MobileRobots data sheet): max forward speed 1.2 m/s,
 # rotation 300 deg/s. The defaults stay well inside: |v| <= 0.75 m/s, |omega| <= 100 deg/s
@@ -179,3 +192,217 @@ class ReturnController:
             w = self.k_alpha * alpha + self.k_beta * beta
         cv, cw, _ = self.limits.clamp(v, w)
         return ReturnStatus(cv, cw, False, False, rho, dth)
+
+
+# ---------------------------------------------------------------------- the state machine
+
+#: the bridge's phases: between trials, sampling a trial, driving back to the start
+IDLE, TRIAL, RETURN = "idle", "trial", "return"
+Command = tuple[float, float]
+
+
+@dataclass(frozen=True)
+class Returned:
+    """A return to the initial pose ended (``reached``, else timed out) after ``seconds``
+    [s] with initial shift ``shift``: the bridge is ready for trial ``trial``."""
+
+    trial: int
+    reached: bool
+    shift: Pose
+    seconds: float
+
+
+@dataclass(frozen=True)
+class BridgeTick:
+    """What a control tick makes the bridge do, in this order: publish the pose of a sample
+    (its label [ns], the world pose), end a return (say ready), send a command (v [m/s],
+    omega [rad/s]) to the driver. None: nothing of that kind."""
+
+    sample: tuple[int, Pose] | None = None
+    returned: Returned | None = None
+    cmd: Command | None = None
+
+
+class Bridge:
+    """Robot ``robot`` (1-based) of run ``cfg`` (mode wallclock, links direct) on its base.
+
+    name : the node's name (in error messages). initial : where the robot is placed (world
+    pose); None: the scenario's desired start of the robot. limits : the base's velocity
+    limits. cmd_timeout : [s] a zero command once the robot node is silent that long (0:
+    2.5 dT). period : [s] the command is sent again at least this often (the driver's own
+    watchdog). tol : return tolerances (position [m], heading [rad]) and timeout [s].
+
+    Times: ``now`` [s] on a monotonic clock, ``now_wall_ns`` [ns] on the (synchronised) wall
+    clock that the leader's agreed start refers to.
+    """
+
+    def __init__(self, cfg: RunConfig, robot: int, *, name: str, initial: Pose | None = None,
+                 limits: CommandLimits | None = None, cmd_timeout: float = 0.0,
+                 period: float = 0.05, tol: tuple[float, float, float] = (
+                     0.02, math.radians(2.0), 60.0)):
+        if cfg.mode != "wallclock" or cfg.links != "direct":
+            raise ValueError(f"{name}: a real robot runs wall-clock trials with direct "
+                             f"links (mode wallclock, links direct), got mode {cfg.mode}, "
+                             f"links {cfg.links}")
+        pb = Problem.from_scenario(cfg.scenario)
+        if robot > pb.n:
+            raise ValueError(f"{name}: the scenario has robots 1..{pb.n}")
+        if initial is None:
+            x, y, th = (float(v) for v in pb.eta_d[robot - 1, 0])
+            initial = (x, y, th)
+        self.initial: Pose = initial
+        self.limits = limits or CommandLimits()
+        self.clock, self.T, self.period, self.tol = cfg.clock, pb.samples, period, tol
+        dt = cfg.scenario.dt
+        self.follower = Follower(cfg.run_id, wall_trial_ns=self.T * self.clock.dt_ns)
+        self.watchdog = Watchdog(cmd_timeout if cmd_timeout > 0 else 2.5 * dt)
+        #: odometry older than this [s] is stale: counted in trials, a stop in returns
+        self.odom_limit = max(0.5, 2.0 * dt)
+        self.odom: Pose | None = None
+        self.odom_time = 0.0
+        self.phase = IDLE
+        self.schedule: WallSchedule | None = None
+        self.returner: ReturnController | None = None
+        self.return_t0 = 0.0
+        self.robot_cmd: Command = (0.0, 0.0)
+        self.out_cmd: Command = (0.0, 0.0)
+        self.last_out = 0.0
+        self.counts = {"missed": 0, "clipped": 0, "watchdog_zero": 0, "return_timeouts": 0,
+                       "stale_odometry": 0}
+        self.shifts: dict[str, list[float]] = {}
+        self.returns: dict[str, dict[str, Any]] = {}
+        self.ready_sent = -1   # the trial of the last ready (-1: none yet)
+
+    @property
+    def k(self) -> int:
+        """Slot of the current (or last) trial."""
+        return self.follower.slot
+
+    @property
+    def iteration(self) -> int:
+        return self.follower.trial
+
+    def world(self) -> Pose:
+        """The robot's world pose (after the first odometry)."""
+        assert self.odom is not None
+        return odom_to_world(self.initial, self.odom)
+
+    def shift(self) -> Pose:
+        """The initial shift the robot would start a trial from now."""
+        return initial_shift(self.world(), self.initial)
+
+    # ------------------------------------------------------------------ inputs
+    def on_odom(self, pose: Pose, now: float) -> None:
+        """The driver's odometry pose (x [m], y [m], theta [rad]) at ``now``."""
+        self.odom = pose
+        self.odom_time = now
+
+    def on_cmd(self, u: tuple[float, float], now: float) -> Command:
+        """The robot node's command: clamped, it goes to the driver now (returned).
+        Rejected (unexpected) outside a trial: it would move the robot outside the
+        protocol."""
+        if self.phase != TRIAL:
+            raise Rejected("unexpected", f"a command while {self.phase}")
+        v, w, clipped = self.limits.clamp(float(u[0]), float(u[1]))
+        self.counts["clipped"] += int(clipped)
+        self.robot_cmd = (v, w)
+        self.watchdog.feed(now)
+        return self._send(self.robot_cmd, now)
+
+    def on_event(self, ev: TrialEvent, now: float, now_wall_ns: int) -> TrialEvent | None:
+        """The leader's event: the start or abort taken, or None (nothing to do); Rejected
+        for a start the bridge must not obey (``schedule.Follower``, with its agreed
+        start checked against ``now_wall_ns``). An abort of the running trial stops the
+        sampling and drives the robot back."""
+        taken = self.follower.take(ev, idle=self.phase == IDLE, now_wall_ns=now_wall_ns)
+        if taken is None:
+            return None
+        if taken.event == ABORT:
+            if self.phase == TRIAL and taken.slot == self.k:
+                self.schedule = None
+                self._begin_return(now)
+            return taken
+        assert taken.start_wall_ns is not None  # checked by the follower
+        self.schedule = WallSchedule(taken.start_wall_ns, self.clock.dt_ns, self.T)
+        self.phase = TRIAL
+        return taken
+
+    def answers_abort(self) -> bool:
+        """Whether a ready answers an abort at once: idle, after its first ready (inside a
+        trial or a return the ready comes once the robot is back)."""
+        return self.phase == IDLE and self.ready_sent >= 0
+
+    def said_ready(self, trial: int, shift: Pose) -> None:
+        """The node said ready for ``trial`` from initial shift ``shift``."""
+        self.shifts[str(trial)] = [float(x) for x in shift]
+        self.ready_sent = trial
+        self.follower.said_ready()
+
+    # ------------------------------------------------------------------ the tick
+    def tick(self, now: float, now_wall_ns: int) -> BridgeTick:
+        """The control tick: the sample due on the wall clock, the return controller, the
+        watchdog, and the command sent again at least every ``period``."""
+        sample = None
+        if self.phase == TRIAL and self.schedule is not None:
+            s = self.schedule.due(now_wall_ns)
+            if s is not None:
+                sample = self._sample(s, now)
+        if self.phase == RETURN and self.returner is not None and self.odom is not None:
+            stale = now - self.odom_time > self.odom_limit
+            self.counts["stale_odometry"] += int(stale)
+            st = self.returner.step(self.world(), now, stale)
+            if st.done:
+                returned = self._returned(st.reached, now)
+                return BridgeTick(sample, returned, self._send((0.0, 0.0), now))
+            return BridgeTick(sample, None, self._send((st.v, st.omega), now))
+        cmd = self.robot_cmd
+        if self.watchdog.expired(now):
+            if self.out_cmd != (0.0, 0.0) and self.phase == TRIAL:
+                self.counts["watchdog_zero"] += 1
+            cmd = (0.0, 0.0)
+        if cmd != self.out_cmd or now - self.last_out >= self.period:
+            return BridgeTick(sample, None, self._send(cmd, now))
+        return BridgeTick(sample)
+
+    def stop(self, now: float) -> Command:
+        """The zero command, to send on the way out."""
+        return self._send((0.0, 0.0), now)
+
+    def _send(self, cmd: Command, now: float) -> Command:
+        self.out_cmd = cmd
+        self.last_out = now
+        return cmd
+
+    def _sample(self, s: int, now: float) -> tuple[int, Pose] | None:
+        if self.odom is None:
+            return None
+        if now - self.odom_time > self.odom_limit:
+            self.counts["stale_odometry"] += 1
+        out = (self.clock.stamp_ns(self.k, s), self.world())
+        if s == self.T:
+            assert self.schedule is not None
+            self.counts["missed"] += self.schedule.skipped
+            self.schedule = None
+            self._begin_return(now)
+        return out
+
+    def _begin_return(self, now: float) -> None:
+        self.robot_cmd = (0.0, 0.0)
+        self.phase = RETURN
+        self.returner = ReturnController(self.initial, self.limits, tol_pos=self.tol[0],
+                                         tol_heading=self.tol[1], timeout=self.tol[2])
+        self.return_t0 = now
+
+    def _returned(self, reached: bool, now: float) -> Returned:
+        self.phase = IDLE
+        self.returner = None
+        shift = self.shift()
+        secs = now - self.return_t0
+        if not reached:
+            self.counts["return_timeouts"] += 1
+        self.returns[str(self.iteration + 1)] = {"reached": reached, "seconds": round(secs, 3)}
+        return Returned(self.iteration + 1, reached, shift, secs)
+
+    def report(self) -> dict[str, Any]:
+        """Diagnostics: the initial shift of each trial, each return, and the counters."""
+        return {"initial_shifts": self.shifts, "returns": self.returns, **self.counts}

@@ -141,6 +141,19 @@ class RobotLearner:
             raise Malformed(f"{sender} is not an in-link of {self.name}")
         return ell
 
+    def is_repeat(self, label_ns: int) -> bool:
+        """Lockstep: whether a pose labelled ``label_ns`` is the current sample again (not
+        the trial's last): the plant re-sent it because a command of it is still due, so
+        the shared pose this robot sent for it may have been lost
+        (``protocol.plant.RESEND_S``). The pose itself is refused all the same (``on_pose``:
+        stale)."""
+        if self.realtime or self.t < 0 or self.t >= self.T:
+            return False
+        try:
+            return self.clock.decode(label_ns) == (self.k, self.t)
+        except Rejected:
+            return False
+
     def on_pose(self, label_ns: int, eta: NDArray[np.float64]) -> PoseEvent:
         """The robot's own measured pose, labelled with its clock Rt. Rejected: a sample
         not after the current one (stale), and in lockstep a skipped sample
@@ -347,6 +360,12 @@ class RobotLearner:
         for box in self.inbox.values():
             box.clear()
         return rolled
+
+    def done_with(self, slot: int) -> bool:
+        """Whether the robot holds nothing more of ``slot`` (-1: none): it has learned from
+        it, or the slot was aborted. Until then a start of a later slot is not the leader's
+        (``schedule.Follower``: the robot is not idle)."""
+        return slot <= self.learned or slot <= self.floor
 
     def state(self) -> RobotState:
         """What a restarted robot needs (``formation_ilc.store.robotstate``)."""

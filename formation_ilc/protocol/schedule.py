@@ -31,6 +31,11 @@ namespace.
   answers it (``seen`` = its ``seq``), or comes from a process that has not seen any event
   (``seen`` = -1: it has just started and holds no trial).
 
+Every node that follows the schedule (a plant, the link emulator, a bridge, a robot) takes
+the leader's starts and aborts by one rule, ``Follower``: a start only of the slot after
+the last one it started (a later one when every slot between was aborted), between trials,
+once it has said ready since; each refusal is counted under one reason.
+
 A slot is **committed** once every robot has learned from it (all report ``trial = i+1``).
 Until then it can be aborted: a node that restarts while a slot is open (running, or ended
 but not yet learned from by every robot) makes the leader abort it. The leader writes its
@@ -47,17 +52,21 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from formation_ilc.core.clock import Malformed
+from formation_ilc.core.clock import Malformed, Rejected
+from formation_ilc.protocol.wallclock import check_start_wall
 from formation_ilc.store.atomic import atomic_write_text
+from formation_ilc.store.bounded import StateFileError, read_bounded
 
 __all__ = ["START", "END", "ABORT", "DONE", "TrialEvent", "Ready", "Schedule",
-           "ScheduleError"]
+           "ScheduleError", "Follower", "unexplained_gap"]
 
 START, END, ABORT, DONE = "start", "end", "abort", "done"
 EVENTS = (START, END, ABORT, DONE)
 
 
 def _int(d: dict[str, Any], key: str, default: int | None = None) -> int:
+    if key not in d and default is None:
+        raise Malformed(f"{key!r} is missing")
     v = d.get(key, default)
     if isinstance(v, bool) or not isinstance(v, int):
         raise Malformed(f"{key!r} must be an integer, got {v!r}")
@@ -150,8 +159,125 @@ def unexplained_gap(k: int, slot: int, aborted: Container[int]) -> bool:
     return k >= 0 and slot > k + 1 and not all(s in aborted for s in range(k + 1, slot))
 
 
+@dataclass
+class Follower:
+    """What a node that follows the schedule (a plant, the link emulator, a bridge, a robot)
+    makes of the leader's events: the one rule for taking a ``start`` or an ``abort``.
+
+    ``take`` returns the start or abort to act on, None for an event that needs nothing (an
+    ``end`` or ``done``, or an abort already answered: the leader repeats an abort until
+    every node has answered it), and raises Rejected, with the reason it is counted under,
+    for an event the node must not obey:
+
+    * ``foreign``: of another run (``run``) on the same domain and namespace;
+    * ``stale``: a start whose ``seq`` was handled already, or of a slot not after the last
+      one started here;
+    * ``future``: a start beyond the next slot while a slot between was not aborted
+      (``unexplained_gap``);
+    * ``unexpected``: a start while the node is inside a trial (``idle`` False) or has not
+      said ready since the last start it took;
+    * wall-clock followers (``wall_trial_ns``, the length of a trial [ns]) also check the
+      agreed start (``check_start_wall``): ``malformed`` without one, ``future`` too far
+      ahead, ``stale`` if the trial would be over.
+
+    A start taken names the slot the node runs (``slot``) and its iteration (``trial``);
+    ``seen`` is the ``seq`` of the last start or abort taken, which the node's ready
+    carries. ``said_ready`` must be called with every ready the node sends.
+    """
+
+    run: str = ""
+    wall_trial_ns: int | None = None
+    seen: int = -1           # seq of the last start or abort taken
+    slot: int = -1           # the last slot started here (-1: none, any slot is next)
+    trial: int = -1          # its iteration
+    ready: bool = False      # a ready was said since the last start taken
+    aborted: set[int] = field(default_factory=set)
+
+    def take(self, ev: TrialEvent, idle: bool = True,
+             now_wall_ns: int | None = None) -> TrialEvent | None:
+        """The start or abort ``ev`` if the node acts on it (its state moves), else None or
+        Rejected (see the class). ``idle``: the node is between trials; ``now_wall_ns``:
+        the wall clock [ns], for wall-clock followers."""
+        if ev.run and self.run and ev.run != self.run:
+            raise Rejected("foreign", f"event of run {ev.run}")
+        if ev.event not in (START, ABORT):
+            return None
+        if ev.seq <= self.seen:
+            if ev.event == START:
+                raise Rejected("stale", f"start seq {ev.seq} again")
+            return None
+        if ev.event == ABORT:
+            self.seen = ev.seq
+            self.aborted.add(ev.slot)
+            return ev
+        if self.wall_trial_ns is not None:
+            if now_wall_ns is None:
+                raise ValueError("a wall-clock follower needs the wall clock")
+            check_start_wall(ev.start_wall_ns, now_wall_ns, self.wall_trial_ns)
+        where = f"start of slot {ev.slot} in slot {self.slot}"
+        if ev.slot <= self.slot:
+            raise Rejected("stale", where)
+        if unexplained_gap(self.slot, ev.slot, self.aborted):
+            raise Rejected("future", where)
+        if not idle or not self.ready:
+            raise Rejected("unexpected", f"{where} ({'running' if not idle else 'not ready'})")
+        self.seen, self.slot, self.trial, self.ready = ev.seq, ev.slot, ev.trial, False
+        return ev
+
+    def said_ready(self) -> None:
+        """The node sent a ready (it may take the next start once it is idle)."""
+        self.ready = True
+
+
 class ScheduleError(RuntimeError):
     """The team cannot go on (a robot came back without its memory, say)."""
+
+
+#: the most bytes a leader state file can hold (four small numbers)
+STATE_LIMIT = 4096
+#: slots and seqs above this are no run's (they travel as JSON numbers, exact to 2^53)
+MAX_COUNT = 1 << 53
+
+
+def read_state(path: Path, trials: int) -> dict[str, Any] | None:
+    """The leader state in ``path`` (committed, slot, seq, open), None if there is no file.
+
+    ScheduleError naming the file and the cause when it is not a regular file of at most
+    STATE_LIMIT bytes (read without waiting on a FIFO, never a device read whole), not the
+    JSON object the leader writes, or holds counters no run of ``trials`` trials can have
+    written: ``0 <= committed <= trials``, ``seq >= slot`` (every slot's start took a
+    seq)."""
+    try:
+        raw = read_bounded(path, STATE_LIMIT, "a leader state file")
+    except StateFileError as exc:
+        raise ScheduleError(f"unreadable schedule state: {exc}") from None
+    if raw is None:
+        return None
+    try:
+        d = json.loads(raw)
+    except (ValueError, RecursionError) as exc:
+        raise ScheduleError(f"{path}: unreadable schedule state: {exc}") from None
+    if not isinstance(d, dict):
+        raise ScheduleError(f"{path}: bad schedule state: expected a JSON object, got "
+                            f"{type(d).__name__}")
+    try:
+        out = {k: _int(d, k) for k in ("committed", "slot", "seq")}
+    except Malformed as exc:
+        raise ScheduleError(f"{path}: bad schedule state: {exc}") from None
+    if "open" not in d:
+        raise ScheduleError(f"{path}: bad schedule state: 'open' is missing")
+    if not isinstance(d["open"], bool):
+        raise ScheduleError(f"{path}: bad schedule state: 'open' must be true or false, got "
+                            f"{str(d['open'])[:40]!r}")
+    c, q, seq = out["committed"], out["slot"], out["seq"]
+    why = (f"committed {c} is not in 0..{trials} (the run has {trials} trials)"
+           if not 0 <= c <= trials else
+           f"slot {q} is out of range" if not -1 <= q < MAX_COUNT else
+           f"seq {seq} is out of range" if not -1 <= seq < (1 << 63) else
+           f"seq {seq} below slot {q}: every slot's start took a seq" if seq < q else "")
+    if why:
+        raise ScheduleError(f"{path}: impossible schedule state: {why}")
+    return out | {"open": d["open"]}
 
 
 @dataclass
@@ -178,6 +304,12 @@ class Schedule:
     ready: dict[str, Ready] = field(default_factory=dict)
     restarted: dict[str, int] = field(default_factory=dict)
     answered: set[str] = field(default_factory=set)  # idle since the last start or abort
+    #: what this leader process sent: seq -> (event, trial, slot)
+    sent: dict[int, tuple[str, int, int]] = field(default_factory=dict)
+    #: the slot of the last committed iteration, when this process saw it commit
+    committed_slot: int | None = None
+    #: foreign starts and aborts seen (events this leader did not send)
+    foreign_events: int = 0
 
     # ------------------------------------------------------------------ persistence
     def state(self) -> dict[str, Any]:
@@ -190,21 +322,14 @@ class Schedule:
 
     def restore(self, path: Path) -> bool:
         """Continue from a state file (a restarted leader, ``launch --resume``): a slot
-        left open is aborted first. False if there is no file."""
-        try:
-            d = json.loads(path.read_text())
-        except FileNotFoundError:
+        left open is aborted first. False if there is no file. ScheduleError naming the
+        file when it cannot be this run's state (see :func:`read_state`)."""
+        st = read_state(path, self.trials)
+        if st is None:
             return False
-        except (OSError, ValueError) as exc:
-            raise ScheduleError(f"{path}: unreadable schedule state: {exc}") from None
-        try:
-            self.committed, self.slot = int(d["committed"]), int(d["slot"])
-            self.seq = int(d["seq"])
-            was_open = bool(d["open"])
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ScheduleError(f"{path}: bad schedule state: {exc}") from None
+        self.committed, self.slot, self.seq = st["committed"], st["slot"], st["seq"]
         self.open = self.running = False
-        if was_open:
+        if st["open"]:
             self.begin_abort("the leader restarted")
         return True
 
@@ -217,7 +342,11 @@ class Schedule:
         if r.down:
             # the process that said ready is gone: wait for the one that replaces it (a
             # recorder restarted before the next start loses nothing of the trials after)
-            if self.boots.get(r.node) == r.boot:
+            # only a passive node's (its death is seen by nobody else): an active node's
+            # restart shows in its new ready, and a forged "down" must not make the
+            # schedule wait for a robot that is alive and has said all it will say
+            last = self.ready.get(r.node)
+            if self.boots.get(r.node) == r.boot and last is not None and last.passive:
                 self.ready.pop(r.node, None)
                 self.answered.discard(r.node)
             return None
@@ -238,13 +367,73 @@ class Schedule:
         self._maybe_commit()
         return abort
 
-    def begin_abort(self, why: str) -> None:
-        """Abort the open slot: it gets the next ``seq``; every node must answer."""
-        self.abort_pending = self.slot
+    def seen_unsent(self, r: Ready) -> str | None:
+        """After :meth:`on_ready`: a ready whose ``seen`` is beyond the last ``seq`` this
+        leader gave out comes from a node that handled a start or abort the leader never
+        sent nor saw (a forged one, or one of a buggy node). ``on_ready`` takes it as an
+        answer (it is idle); the leader then re-asserts its schedule (:meth:`reassert`).
+        Returns why (an abort is then pending), else None."""
+        if r.down or r.node not in self.expected or r.seen <= self.seq:
+            return None
+        self.foreign_events += 1
+        return self.reassert(r.seen, f"{r.node} saw seq {r.seen}, which the leader did not "
+                                     f"send")
+
+    def begin_abort(self, why: str, slot: int | None = None) -> None:
+        """Abort the open slot (or ``slot``): it gets the next ``seq``; every node must
+        answer."""
+        self.abort_pending = self.slot if slot is None else slot
+        self.slot = max(self.slot, self.abort_pending)
         self.why = why
         self.open = self.running = False
         self.seq += 1
         self.answered.clear()
+        self.sent[self.seq] = (ABORT, self.committed, self.abort_pending)
+
+    def foreign(self, ev: TrialEvent) -> str | None:
+        """Check a start or abort of this run seen on the events topic. One this leader did
+        not send (a forger, a buggy node: followers take it if its ``seq`` is new to them)
+        makes the leader re-assert its schedule (:meth:`reassert`); returns why (an abort
+        is then pending, to be published), else None."""
+        if ev.event not in (START, ABORT) or self.sent.get(ev.seq) == (ev.event, ev.trial,
+                                                                       ev.slot):
+            return None
+        self.foreign_events += 1
+        return self.reassert(ev.seq, f"a {ev.event} of slot {ev.slot} (seq {ev.seq}) that "
+                                     f"the leader did not send", ev)
+
+    def reassert(self, seq: int, why: str, ev: TrialEvent | None = None) -> str:
+        """A follower took (or may have taken) an event this leader did not send, with
+        ``seq``: the next event gets a larger ``seq`` (followers ignore anything not newer
+        than what they saw), and the slot the event could have moved is aborted, so that
+        every node answers and the same iteration runs again in a fresh slot:
+
+        * a slot open or being aborted: aborted (again);
+        * a start of a later slot (or an unknown event, seen only as a follower's ``seen``):
+          that slot, which the leader never started, is aborted and skipped;
+        * an abort of the slot the team last committed: robots that took it rolled that
+          learning step back (a robot keeps one step), so the leader un-commits it, aborts
+          the slot for every robot alike, and runs that iteration again (same draws, same
+          memory: the run stays equal to batch)."""
+        self.seq = max(self.seq, seq)
+        if ev is not None and ev.event == ABORT and ev.slot == self.committed_slot \
+                and self.committed > 0:
+            # robots that took it rolled back the step learned from that slot
+            self.committed -= 1
+            self.committed_slot = None
+            why += f": trial {self.committed} runs again"
+            if self.abort_pending is None and not (self.open or self.running):
+                self.begin_abort(why, ev.slot)
+                return why
+        if self.abort_pending is not None:
+            self.begin_abort(f"{self.why}; {why}", self.abort_pending)
+        elif self.open or self.running:
+            self.begin_abort(why)
+        else:
+            # a start of the next slot (followers take no other), or an unknown event: that
+            # slot never ran for the leader; aborting it moves every follower out of it
+            self.begin_abort(why, self.slot + 1)
+        return why
 
     def _idle(self, name: str) -> bool:
         r = self.ready.get(name)
@@ -259,6 +448,7 @@ class Schedule:
         if all(name in self.ready and self.ready[name].trial >= i + 1
                and self._idle(name) for name in self.robots):
             self.committed = i + 1
+            self.committed_slot = self.slot
             self.open = False
 
     def acks_missing(self) -> list[str]:
@@ -286,6 +476,26 @@ class Schedule:
     def waiting_for(self) -> list[str]:
         """Expected nodes that are not (yet) idle for the next start."""
         return [n for n in self.expected if not self._idle(n)]
+
+    def explain_wait(self, refused: dict[str, str] | None = None) -> list[str]:
+        """Whom the schedule waits for, each with why (``refused``: the last ready the
+        leader refused from a node, with its reason), for a user."""
+        out = []
+        names = self.acks_missing() if self.abort_pending is not None else self.waiting_for()
+        for n in names:
+            r = self.ready.get(n)
+            if r is None:
+                why = "has not said ready" + ("" if n in self.boots else " (never seen)")
+            elif self.abort_pending is not None and n in self.answered:
+                why = (f"still holds the learning step of the aborted slot (ready for trial "
+                       f"{r.trial}, the team has learned {self.committed})")
+            else:
+                why = (f"has not answered seq {self.seq} (its last ready saw seq {r.seen})"
+                       if r.seen < self.seq else "is not idle")
+            if refused and n in refused:
+                why += f"; its last ready was refused: {refused[n]}"
+            out.append(f"{n} {why}")
+        return out
 
     def next_start(self) -> tuple[int, int] | None:
         """(iteration, slot) of the trial to start now, or None (not everybody is ready).
@@ -315,6 +525,7 @@ class Schedule:
         self.open = self.running = True
         self.seq += 1
         self.answered.clear()
+        self.sent[self.seq] = (START, self.committed, slot)
         return self.seq
 
     @property

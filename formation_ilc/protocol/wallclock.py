@@ -10,9 +10,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from formation_ilc.core.clock import Malformed
+from formation_ilc.core.clock import Malformed, Rejected
 
-__all__ = ["WallSchedule", "start_wall_ns"]
+__all__ = ["WallSchedule", "start_wall_ns", "check_start_wall", "START_AHEAD_MAX"]
+
+#: [s] the latest a start event's agreed start time may be ahead of a follower's clock
+START_AHEAD_MAX = 60.0
 
 
 def start_wall_ns(event: dict[str, object]) -> int:
@@ -21,6 +24,20 @@ def start_wall_ns(event: dict[str, object]) -> int:
     if isinstance(v, bool) or not isinstance(v, int) or v <= 0:
         raise Malformed(f"start event without a valid start_wall_ns: {v!r}")
     return v
+
+
+def check_start_wall(start_ns: int | None, now_ns: int, trial_ns: int) -> int:
+    """The agreed start [ns] of a wall-clock trial lasting ``trial_ns``, seen at ``now_ns``
+    on the follower's wall clock. Rejected: absent or not positive (malformed), more than
+    ``START_AHEAD_MAX`` ahead (future: the robot would wait that long), or so long ago that
+    the trial would be over (stale)."""
+    start = start_wall_ns({"start_wall_ns": start_ns})
+    if start > now_ns + int(START_AHEAD_MAX * 1e9):
+        raise Rejected("future", f"start {(start - now_ns) / 1e9:.3g} s ahead")
+    if start + trial_ns < now_ns:
+        raise Rejected("stale", f"start {(now_ns - start) / 1e9:.3g} s ago: the trial "
+                                f"would be over")
+    return start
 
 
 @dataclass

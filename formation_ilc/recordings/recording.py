@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 
 from formation_ilc.config.runconfig import RunConfig
 from formation_ilc.config.scenario import Scenario
+from formation_ilc.core.clock import Rejected
 from formation_ilc.core.links import check_diagnostics, delivered_label, link_histograms
 from formation_ilc.core.metrics import METRIC_COLUMNS
 from formation_ilc.model.simulate import Problem
@@ -39,10 +40,11 @@ from formation_ilc.recordings.mcap_io import (
     RosMcapWriter,
     qos_yaml,
     read_messages,
+    type_hash,
 )
 
 __all__ = ["qos_of", "SimRecorder", "Recording", "RecordingError", "load_recording",
-           "recording_parts"]
+           "recording_parts", "root_of"]
 
 #: metadata record name holding the run configuration (same JSON as /formation/config)
 META_NAME = "formation_ilc"
@@ -65,7 +67,7 @@ class SimRecorder:
     """
 
     def __init__(self, path: str | Path, sc: Scenario, sample_trials: Iterable[int] = (),
-                 gap: int = 20):
+                 gap: int = 20, first_trial: int = 0):
         import msgs_schema as ms
 
         self.ms = ms
@@ -79,8 +81,11 @@ class SimRecorder:
         # channels by full name, in the stack's default namespace
         self.full = {t: ms.absolute(t) for t, _, _ in ms.topic_table(n)}
         for topic, typ, qos in ms.topic_table(n):
-            self.w.channel(self.full[topic], typ, qos_of(qos))
-        conf = cfg.to_json() | {"recorded_by": "formation-ilc simulate"}
+            # the type hash a ROS writer of the type offers, as the stack's recorder records it
+            self.w.channel(self.full[topic], typ, qos_of(qos), type_hash(typ))
+        # its trials are first_trial .. first_trial + trials - 1 (simulate --first-trial)
+        conf = cfg.to_json() | {"recorded_by": "formation-ilc simulate",
+                                "first_trial": int(first_trial)}
         self._json(ms.CONFIG, conf, 0)
         self.w.metadata(META_NAME, {"config": json.dumps(conf)})
         self.delays: list[dict[str, Counter[int]]] = [{} for _ in range(n)]
@@ -158,6 +163,10 @@ class Recording:
     events : trial events in file order. config : the run configuration (JSON).
     incomplete : trials of the run up to the last one seen whose data is not all in the
         file (cut short, damaged, or never sent).
+    missing : every trial of the run (its configuration's ``trials``, from its
+        ``first_trial``) that is not complete in the files: ``incomplete`` and the trials
+        after the last one seen. A run is whole only when this is empty.
+    ended : the leader's ``done`` event is in the files (the run reached its end).
     Trials are iterations: a slot the leader aborted (a node restarted, docs/reliability.md)
     is dropped and its iteration counted where it ran again.
     undecodable : per topic, messages skipped because they do not decode (junk JSON, a
@@ -181,6 +190,8 @@ class Recording:
     parts: list[tuple[Path, ReadReport]] = field(default_factory=list)
     #: messages of aborted slots, or repeating a trial already complete (not errors)
     superseded: int = 0
+    missing: list[int] = field(default_factory=list)
+    ended: bool = False
 
 
 def _path_outputs(data: bytes, ref_heading: NDArray[np.float64]
@@ -220,7 +231,9 @@ def recording_parts(first: str | Path) -> list[Path]:
     """The files of the run recorded in ``first`` (``RUN.mcap``), in the order they were
     written: ``first``, the parts of its restarted recorder (``RUN.part1.mcap``, ...), then
     each resumed launch's file (``RUN.resumed1.mcap``) and its parts
-    (``RUN.resumed1.part1.mcap``, ...). Only ``first`` when it is itself a part."""
+    (``RUN.resumed1.part1.mcap``, ...). ``first`` itself may be missing (a launch killed
+    before its recorder wrote it, then resumed): the parts that exist are the run. Only
+    ``first`` when it is itself a part (``root_of`` names the run's first file)."""
     first = Path(first)
     stem = first.name[: -len(".mcap")] if first.name.endswith(".mcap") else None
     if stem is None or re.search(r"\.(part|resumed)\d+$", stem):
@@ -235,10 +248,21 @@ def recording_parts(first: str | Path) -> list[Path]:
                 found.append((int(m.group(1)), p))
         return sorted(found)
 
-    out = [first] + [p for _, p in numbered(stem, "part")]
+    # the first file may be missing (a run resumed before its first recording existed)
+    out = ([first] if first.exists() else []) + [p for _, p in numbered(stem, "part")]
     for n, resumed in numbered(stem, "resumed"):
         out += [resumed] + [p for _, p in numbered(f"{stem}.resumed{n}", "part")]
-    return out
+    return out or [first]
+
+
+def root_of(part: str | Path) -> Path:
+    """The first file of the run a recording part belongs to: ``RUN.mcap`` for
+    ``RUN.part2.mcap``, ``RUN.resumed1.mcap`` or ``RUN.resumed1.part1.mcap``."""
+    part = Path(part)
+    m = re.fullmatch(r"(.+?)(\.resumed\d+)?(\.part\d+)?\.mcap", part.name)
+    if m is None or not (m.group(2) or m.group(3)):
+        return part
+    return part.with_name(m.group(1) + ".mcap")
 
 
 def load_recording(path: str | Path | Sequence[str | Path],
@@ -259,147 +283,178 @@ def load_recording(path: str | Path | Sequence[str | Path],
     keep : (trial, total trials) -> whether to keep the trial's trajectories.
     progress : called with the number of messages read so far, now and then.
     """
-    from std_msgs.msg import String
-
-    import msgs_schema as ms
-    from formation_ilc.core.clock import Rejected
-
     paths = [Path(path)] if isinstance(path, (str, Path)) else [Path(p) for p in path]
     if not paths:
         raise ValueError("load_recording: no file given")
-    parts: list[tuple[Path, ReadReport]] = []
-    config: dict[str, Any] | None = None
-    cfg: RunConfig | None = None
-    slots: SlotRows | None = None
-    rec_eta: dict[int, NDArray[np.float64]] = {}
-    rec_xi: dict[int, NDArray[np.float64]] = {}
-    diags: dict[str, dict[str, Any]] = {}
-    events: list[dict[str, Any]] = []
-    bad: Counter[str] = Counter()
-    count = 0
-    superseded = 0
-    traj_topic: dict[str, tuple[int, bool]] = {}
-    # the formation's namespace is where its config topic is
-    events_topic = diag_topic = ""
-    true_seen = False
-    early: list[RawMessage] = []  # what came before the configuration (damage, a late one)
-    last_seen = -1                # the latest trial with any data in the file
+    reader = _RunReader(keep)
+    for part in paths:
+        reader.read(part, progress)
+    return reader.result(paths)
 
-    def text(m: RawMessage, required: tuple[str, ...]) -> dict[str, Any]:
-        return ms.msg_to_json(ms.deserialize(m.data, String), required)
 
-    def configure(m: RawMessage) -> None:
-        nonlocal config, cfg, slots, events_topic, diag_topic
-        conf = text(m, ())
+class _RunReader:
+    """The state of ``load_recording`` over the parts of one run: the run configuration
+    once read, the trials' rows (``SlotRows``, as the launcher's monitor keeps them), the
+    kept trajectories, the last diagnostics of each node, and what was skipped."""
+
+    def __init__(self, keep: Callable[[int, int], bool] | None):
+        from std_msgs.msg import String
+
+        import msgs_schema as ms
+
+        self.ms, self.String = ms, String
+        self.keep = keep
+        self.parts: list[tuple[Path, ReadReport]] = []
+        self.config: dict[str, Any] | None = None
+        self.cfg: RunConfig | None = None
+        self.slots: SlotRows | None = None
+        self.eta: dict[int, NDArray[np.float64]] = {}
+        self.xi: dict[int, NDArray[np.float64]] = {}
+        self.diags: dict[str, dict[str, Any]] = {}
+        self.events: list[dict[str, Any]] = []
+        self.bad: Counter[str] = Counter()
+        self.count = 0
+        self.superseded = 0
+        self.traj_topic: dict[str, tuple[int, bool]] = {}
+        # the formation's namespace is where its config topic is
+        self.events_topic = self.diag_topic = ""
+        self.true_seen = False
+        self.early: list[RawMessage] = []  # what came before the configuration (damage, a late one)
+        self.last_seen = -1                # the latest trial with any data in the file
+
+    def text(self, m: RawMessage, required: tuple[str, ...]) -> dict[str, Any]:
+        """A JSON text message's fields (MalformedMessage if ``required`` are missing)."""
+        return self.ms.msg_to_json(self.ms.deserialize(m.data, self.String), required)
+
+    def read(self, part: Path, progress: Callable[[int], None] | None) -> None:
+        """Every message of one part, in file order."""
+        ms = self.ms
+        report = ReadReport()
+        self.parts.append((part, report))
+        for msg in read_messages(part, report=report):
+            self.count += 1
+            if progress is not None and self.count % 5000 == 0:
+                progress(self.count)
+            if msg.topic.endswith("/" + ms.CONFIG):
+                self._on_config(part, msg)
+            elif self.config is None:
+                if msg.topic.endswith(_ANALYSED):
+                    self.early.append(msg)
+            else:
+                self.dispatch(msg)
+
+    def _on_config(self, part: Path, msg: RawMessage) -> None:
+        """The first configuration sets the run up (and the messages held before it are
+        read); a later part's must be the same run's."""
+        if self.config is not None:
+            _same_run(part, self.config, msg, self.text)
+            return
+        try:
+            self.configure(msg)
+        except ValueError:  # junk, or a configuration that does not load
+            self.bad[msg.topic] += 1
+            return
+        for held in self.early:
+            self.dispatch(held)
+        self.early = []
+
+    def configure(self, m: RawMessage) -> None:
+        ms = self.ms
+        conf = self.text(m, ())
         c = RunConfig.from_json(conf)
         pb = Problem.from_scenario(c.scenario)
-        config, cfg, slots = conf, c, SlotRows(pb, strict=False)
+        self.config, self.cfg, self.slots = conf, c, SlotRows(pb, strict=False)
         namespace = m.topic[: -len(ms.CONFIG) - 1] or "/"
         for r in range(pb.n):
-            traj_topic[ms.absolute(ms.trajectory_topic(r + 1), namespace)] = (r, False)
-            traj_topic[ms.absolute(ms.true_trajectory_topic(r + 1), namespace)] = (r, True)
-        events_topic = ms.absolute(ms.TRIAL_EVENTS, namespace)
-        diag_topic = ms.absolute(ms.DIAGNOSTICS, namespace)
+            self.traj_topic[ms.absolute(ms.trajectory_topic(r + 1), namespace)] = (r, False)
+            self.traj_topic[ms.absolute(ms.true_trajectory_topic(r + 1), namespace)] = (r, True)
+        self.events_topic = ms.absolute(ms.TRIAL_EVENTS, namespace)
+        self.diag_topic = ms.absolute(ms.DIAGNOSTICS, namespace)
 
-    def kept(done: list[Any]) -> None:
-        assert cfg is not None
+    def kept(self, done: list[Any]) -> None:
+        """Keep the trajectories of the trials just completed that ``keep`` asks for."""
+        assert self.cfg is not None
         for d in done:
-            if keep is None or keep(d.trial, cfg.scenario.trials):
-                rec_eta[d.trial] = d.eta
+            if self.keep is None or self.keep(d.trial, self.cfg.scenario.trials):
+                self.eta[d.trial] = d.eta
                 if d.xi is not None:
-                    rec_xi[d.trial] = d.xi
+                    self.xi[d.trial] = d.xi
 
-    def handle(m: RawMessage) -> None:
-        nonlocal true_seen, last_seen
+    def handle(self, m: RawMessage) -> None:
+        ms, slots, cfg = self.ms, self.slots, self.cfg
         assert slots is not None and cfg is not None
-        if m.topic == events_topic:
-            d = text(m, ("event", "trial"))
+        if m.topic == self.events_topic:
+            d = self.text(m, ("event", "trial"))
             ev = TrialEvent.from_json(d)
             if ev.run and cfg.run_id and ev.run != cfg.run_id:
                 raise Rejected("foreign", f"event of run {ev.run}")
             if ev.event == ms.START:
-                last_seen = max(last_seen, ev.trial)
-            events.append(d)
-            kept(slots.event(ev))
-        elif m.topic == diag_topic:
-            dg = check_diagnostics(text(m, ("node", "trial")))
-            diags[dg["node"]] = dg
-        elif m.topic in traj_topic:
-            r, is_true = traj_topic[m.topic]
+                self.last_seen = max(self.last_seen, ev.trial)
+            self.events.append(d)
+            self.kept(slots.event(ev))
+        elif m.topic == self.diag_topic:
+            dg = check_diagnostics(self.text(m, ("node", "trial")))
+            self.diags[dg["node"]] = dg
+        elif m.topic in self.traj_topic:
+            r, is_true = self.traj_topic[m.topic]
             eta, stamps = _path_outputs(m.data, slots.pb.eta_d[r, :, 2])
             k, s0 = cfg.clock.decode(int(stamps[0]))
             if s0 != 0 or k < 0:
                 raise ms.MalformedMessage(f"trajectory of slot {k} sample {s0}: not a "
                                           f"trial of this run")
-            true_seen = true_seen or is_true
-            kept(slots.trajectory(k, r, is_true, eta))
+            self.true_seen = self.true_seen or is_true
+            self.kept(slots.trajectory(k, r, is_true, eta))
 
-    def dispatch(m: RawMessage) -> None:
-        nonlocal superseded
+    def dispatch(self, m: RawMessage) -> None:
+        """``handle``, counting what it refuses: superseded, or skipped as undecodable."""
         try:
-            handle(m)
+            self.handle(m)
         except Rejected as exc:
             if exc.reason in ("stale", "duplicate"):
-                superseded += 1  # an aborted slot's, or a trial run again
+                self.superseded += 1  # an aborted slot's, or a trial run again
             else:
-                bad[m.topic] += 1
-        except (ms.MalformedMessage, ValueError) as exc:
-            bad[m.topic] += 1
+                self.bad[m.topic] += 1
+        except (self.ms.MalformedMessage, ValueError) as exc:
+            self.bad[m.topic] += 1
             if os.environ.get("FORMATION_ILC_DEBUG"):
                 print(f"{m.topic}: skipped a message: {exc}", file=sys.stderr)
 
-    for part in paths:
-        report = ReadReport()
-        parts.append((part, report))
-        for msg in read_messages(part, report=report):
-            count += 1
-            if progress is not None and count % 5000 == 0:
-                progress(count)
-            if msg.topic.endswith("/" + ms.CONFIG):
-                if config is not None:
-                    _same_run(part, config, msg, text)
-                    continue
-                try:
-                    configure(msg)
-                except ValueError:  # junk, or a configuration that does not load
-                    bad[msg.topic] += 1
-                    continue
-                for held in early:
-                    dispatch(held)
-                early = []
-                continue
-            if config is None:
-                if msg.topic.endswith(_ANALYSED):
-                    early.append(msg)
-                continue
-            dispatch(msg)
-    if slots is not None:
-        kept(slots.infer())  # slots whose start was lost with a killed recorder
-    if slots is not None and cfg is not None and not true_seen:
-        # a plant without a true state (hardware): the true_ columns are nan
-        kept(slots.measured_only())
-    if config is None or cfg is None or slots is None:
-        report = parts[0][1]
-        found = (f"{report.messages} messages read" if report.messages
-                 else "no MCAP record read back")
-        where = paths[0] if len(paths) == 1 else f"{paths[0]} (and {len(paths) - 1} parts)"
-        raise RecordingError(f"{where}: no readable run configuration on a .../{ms.CONFIG} "
-                             f"topic ({found}): not a formation-ilc recording, or cut or "
-                             f"damaged before the run started")
-    topic_of = {v: t for t, v in traj_topic.items()}
-    for _, r, is_true in slots.unstarted():  # of no trial the run started
-        bad[topic_of[(r, is_true)]] += 1
-    rows = slots.rows
-    last_seen = max([last_seen, *rows, *slots.iteration_of.values()])
-    metrics = (np.array([rows[k] for k in sorted(rows)]) if rows
-               else np.empty((0, len(METRIC_COLUMNS))))
-    delays, injected = link_histograms(diags)
-    return Recording(scenario=cfg.scenario, config=config, metrics=metrics, eta=rec_eta,
-                     xi=rec_xi, delays=delays, injected=injected, events=events,
-                     incomplete=[k for k in range(min(last_seen + 1, cfg.scenario.trials))
-                                 if k not in rows],
-                     messages=count, undecodable=dict(bad), report=parts[0][1], parts=parts,
-                     superseded=superseded)
+    def result(self, paths: list[Path]) -> Recording:
+        """The recording read from ``paths``; RecordingError if no configuration read."""
+        slots, cfg, config = self.slots, self.cfg, self.config
+        if slots is not None:
+            self.kept(slots.infer())  # slots whose start was lost with a killed recorder
+            if not self.true_seen:
+                # a plant without a true state (hardware): the true_ columns are nan
+                self.kept(slots.measured_only())
+        if config is None or cfg is None or slots is None:
+            report = self.parts[0][1]
+            found = (f"{report.messages} messages read" if report.messages
+                     else "no MCAP record read back")
+            where = paths[0] if len(paths) == 1 else f"{paths[0]} (and {len(paths) - 1} parts)"
+            raise RecordingError(f"{where}: no readable run configuration on a "
+                                 f".../{self.ms.CONFIG} topic ({found}): not a formation-ilc "
+                                 f"recording, or cut or damaged before the run started")
+        topic_of = {v: t for t, v in self.traj_topic.items()}
+        for _, r, is_true in slots.unstarted():  # of no trial the run started
+            self.bad[topic_of[(r, is_true)]] += 1
+        rows = slots.rows
+        last_seen = max([self.last_seen, *rows, *slots.iteration_of.values()])
+        metrics = (np.array([rows[k] for k in sorted(rows)]) if rows
+                   else np.empty((0, len(METRIC_COLUMNS))))
+        delays, injected = link_histograms(self.diags)
+        first = config.get("first_trial", 0)
+        first = first if isinstance(first, int) and not isinstance(first, bool) else 0
+        return Recording(missing=[k for k in range(first, first + cfg.scenario.trials)
+                                  if k not in rows],
+                         ended=any(e.get("event") == self.ms.DONE for e in self.events),
+                         scenario=cfg.scenario, config=config, metrics=metrics, eta=self.eta,
+                         xi=self.xi, delays=delays, injected=injected, events=self.events,
+                         incomplete=[k for k in range(min(last_seen + 1, cfg.scenario.trials))
+                                     if k not in rows],
+                         messages=self.count, undecodable=dict(self.bad),
+                         report=self.parts[0][1], parts=self.parts,
+                         superseded=self.superseded)
 
 
 def _same_run(part: Path, config: dict[str, Any], msg: RawMessage,

@@ -4,7 +4,8 @@ Every file the stack relies on after a crash (a robot's state, the leader's sche
 learned memory, a sweep's finished points and table, a run's run.json) is written here: into a
 temporary file beside it (``.<name>.<random>.tmp``, so globs for ``*.json`` or ``*.npz``
 never see it), flushed to the disk, renamed over the target, and the folder flushed too so
-that the rename itself survives a power cut.
+that the rename itself survives a power cut. A write that fails (a full disk) raises
+OSError naming the target file, and the old version stays.
 """
 
 from __future__ import annotations
@@ -36,9 +37,12 @@ def atomic_open(path: Path | str, mode: str = "wb", *, durable: bool = True,
                 fh.flush()
                 os.fsync(fh.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
+        if isinstance(exc, OSError) and exc.filename in (None, tmp):
+            # name the file the caller writes, not its temporary (a full disk's message)
+            raise OSError(exc.errno, exc.strerror, str(path)) from exc
         raise
     if durable:
         dfd = os.open(path.parent, os.O_RDONLY)

@@ -36,8 +36,6 @@ import itertools
 import json
 import math
 import os
-import sys
-import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -67,6 +65,7 @@ from formation_ilc.studies.study import (
     run_sim_point,
     scenario_data,
 )
+from formation_ilc.system.progress import Progress
 
 __all__ = ["SweepSpec", "load_spec", "spec_from_text", "run_sweep", "plot_table", "map_tasks",
            "close_pools", "TABLE_COLUMNS", "read_table"]
@@ -336,36 +335,10 @@ def read_table(path: str | Path) -> list[dict[str, str]]:
 
 # --------------------------------------------------------------------------- execution
 
-class Bar:
-    """Progress on stderr: points done, rate, expected time left (from this session's rate)."""
-
-    def __init__(self, total: int, already: int, label: str = "sweep"):
-        self.total, self.already, self.label = total, already, label
-        self.done = already
-        self.t0 = time.perf_counter()
-        self.tty = sys.stderr.isatty()
-        self.last = -1.0
-
-    def step(self) -> None:
-        self.done += 1
-        now = time.perf_counter()
-        new = self.done - self.already
-        if self.tty and now - self.last < 0.2 and self.done != self.total:
-            return
-        if not self.tty and now - self.last < 5.0 and self.done != self.total:
-            return
-        self.last = now
-        el = now - self.t0
-        left = (self.total - self.done) * el / max(new, 1)
-        width = 30
-        fill = int(width * self.done / max(self.total, 1))
-        msg = (f"{self.label} [{'#' * fill}{'.' * (width - fill)}] {self.done}/{self.total} "
-               f"points  {el:.0f} s elapsed, about {left:.0f} s left")
-        if self.tty:
-            print("\r" + msg.ljust(100), end="\n" if self.done == self.total else "",
-                  file=sys.stderr, flush=True)
-        else:
-            print(msg, file=sys.stderr, flush=True)
+def points_progress(total: int, already: int, label: str) -> Progress:
+    """Progress of a study on stderr: points done, expected time left from this session's
+    rate (a bar on a terminal, a line every 5 s in a log)."""
+    return Progress(total, label, "points", initial=already, interval=0.2, every=5.0)
 
 
 def _run_task(task: dict[str, Any]) -> dict[str, Any]:
@@ -526,7 +499,7 @@ def run_sweep(spec: SweepSpec, out: Path, workers: int | None = None,
     done = _read_done(folder)
     tasks = spec.check_tasks() + spec.sim_tasks()
     todo = [t for t in tasks if t["id"] not in done]
-    bar = Bar(len(tasks), len(tasks) - len(todo)) if progress else None
+    bar = points_progress(len(tasks), len(tasks) - len(todo), "sweep") if progress else None
     writer = _PointWriter(folder)
     finished = False
     try:
@@ -539,6 +512,8 @@ def run_sweep(spec: SweepSpec, out: Path, workers: int | None = None,
                 on_row(row)
         finished = True
     finally:
+        if bar is not None:
+            bar.close()  # an interrupted sweep's bar keeps its line, what follows goes below
         try:
             writer.close()  # every point finished so far reaches the disk, Ctrl-C or not
         except Exception:

@@ -44,7 +44,7 @@ from numpy.typing import NDArray
 from formation_ilc.config.scenario import Scenario, ScenarioError
 from formation_ilc.model.checks import condition20, heading_map
 from formation_ilc.studies.study import apply_fields, point_id, scenario_text_with
-from formation_ilc.studies.sweep import close_pools, map_tasks
+from formation_ilc.studies.sweep import close_pools, map_tasks, points_progress
 
 __all__ = ["graph_depths", "TuneOptions", "Candidate", "TuneResult", "tune"]
 
@@ -204,6 +204,31 @@ def tune(sc: Scenario, opt: TuneOptions = TuneOptions(), workers: int | None = N
         close_pools()
 
 
+@dataclass
+class _Run:
+    """What every step of one tuning shares: the scenario (its text and source, for the
+    tasks), the options, where tasks run and where messages go."""
+
+    sc: Scenario
+    opt: TuneOptions
+    workers: int | None
+    scheduler: str | None
+    log: Any
+
+    @property
+    def text(self) -> str:
+        return self.sc.text
+
+    @property
+    def source(self) -> str:
+        return self.sc.source
+
+    def rows(self, tasks: list[dict[str, Any]], label: str) -> Any:
+        """The tasks' result rows as they finish, with a progress bar."""
+        return _progress(map_tasks(tasks, self.workers, self.scheduler), len(tasks), label,
+                         self.log)
+
+
 def _tune(sc: Scenario, opt: TuneOptions, workers: int | None, scheduler: str | None,
           log: Any) -> TuneResult:
     """Choose per-depth gains (g, g') for ``sc`` (its law and memory reading).
@@ -215,32 +240,59 @@ def _tune(sc: Scenario, opt: TuneOptions, workers: int | None, scheduler: str | 
     if log is None:
         def log(msg: str) -> None:
             print(msg, file=sys.stderr, flush=True)
-    text, source = sc.text, sc.source
-    depth = graph_depths(sc)
-    levels = sorted({int(d) for d in depth}) if opt.per_robot else [-1]
-    dep = depth if opt.per_robot else np.full(sc.n, -1, dtype=np.int64)
-    law22 = sc.law.kind == 22
-    primes = (opt.prime_grid[0],) if law22 else opt.prime_grid
+    run = _Run(sc, opt, workers, scheduler, log)
+    depth = graph_depths(sc)  # first: a robot the leader cannot reach is refused at once
     base = Candidate(tuple(sc.law.gain), tuple(sc.law.gain_prime))
-    _check(text, base, source)
+    _check(sc.text, base, sc.source)
     max_growth = (min(base.growth, MAX_GROWTH_CAP) if opt.max_growth is None
                   else opt.max_growth)
     log(f"tune: the scenario's gains: (20) {base.cond20:.4f}, rho {base.rho:.4f}, max ||M^k|| "
         f"{base.growth:.3g}; candidates must keep max ||M^k|| <= {max_growth:.3g}")
-    # 0. the scenario's own gains over the seeds: the floors to keep
-    base_trials = max(opt.verify_trials, sc.trials)
-    tasks = _sim_tasks(text, base, opt.seeds, base_trials, opt, source)
-    for row in _progress(map_tasks(tasks, workers, scheduler), len(tasks), "baseline", log):
+    base_trials = _baseline(run, base)
+    fp_max, fh_max = _floor_bounds(base, opt)
+    cands = _candidates(run, depth)
+    ranked = _screen(run, cands, fp_max, fh_max)
+    finalists, checked = _check_in_order(run, ranked, max_growth)
+    _verify(run, finalists)
+    best, ok, reason = _choose(finalists, ranked, fp_max, fh_max, opt)
+    return TuneResult(baseline=base, best=best, finalists=finalists, screened=len(cands),
+                      checked=checked, ok=ok, reason=reason, scenario_text=sc.text,
+                      baseline_trials=base_trials, max_growth=max_growth)
+
+
+def _baseline(run: _Run, base: Candidate) -> int:
+    """0. The scenario's own gains over the seeds: the floors to keep. Returns the trials
+    each seed ran."""
+    opt = run.opt
+    base_trials = max(opt.verify_trials, run.sc.trials)
+    tasks = _sim_tasks(run.text, base, opt.seeds, base_trials, opt, run.source)
+    for row in run.rows(tasks, "baseline"):
         row["seed"] = int(row["id"].rsplit("-s", 1)[1])
         base.rows.append(row)
     base.rows.sort(key=lambda r: r["seed"])
-    fp_max = base.median("floor_position") * opt.floor_factor
-    fh_max = base.median("floor_heading") * opt.floor_factor
-    log(f"tune: the scenario's gains over seeds {list(opt.seeds)} ({base_trials} trials): "
-        f"floors {base.median('floor_position'):.4g} m, {base.median('floor_heading'):.4g} rad "
-        f"(median over seeds); tuned floors must stay below {fp_max:.4g} m, {fh_max:.4g} rad "
-        f"on every seed")
-    # 1. condition (20) (cheap, exact) filters the grid of g
+    fp_max, fh_max = _floor_bounds(base, opt)
+    run.log(f"tune: the scenario's gains over seeds {list(opt.seeds)} ({base_trials} "
+            f"trials): floors {base.median('floor_position'):.4g} m, "
+            f"{base.median('floor_heading'):.4g} rad (median over seeds); tuned floors must "
+            f"stay below {fp_max:.4g} m, {fh_max:.4g} rad on every seed")
+    return base_trials
+
+
+def _floor_bounds(base: Candidate, opt: TuneOptions) -> tuple[float, float]:
+    """The largest floors [m, rad] a candidate may reach: the scenario's own (median over
+    the seeds) times ``floor_factor``."""
+    return (base.median("floor_position") * opt.floor_factor,
+            base.median("floor_heading") * opt.floor_factor)
+
+
+def _candidates(run: _Run, depth: NDArray[np.int64]) -> list[Candidate]:
+    """1. The grid of (g, g') per graph depth (``depth``: of each robot), g filtered by
+    condition (20) (cheap, exact)."""
+    sc, opt = run.sc, run.opt
+    levels = sorted({int(d) for d in depth}) if opt.per_robot else [-1]
+    dep = depth if opt.per_robot else np.full(sc.n, -1, dtype=np.int64)
+    law22 = sc.law.kind == 22
+    primes = (opt.prime_grid[0],) if law22 else opt.prime_grid
     gain_sets = []
     for combo in itertools.product(opt.gain_grid, repeat=len(levels)):
         g = _gains(dep, levels, combo, sc.dt)
@@ -251,68 +303,92 @@ def _tune(sc: Scenario, opt: TuneOptions, workers: int | None, scheduler: str | 
     if law22:  # no current term: g' does not matter, keep the scenario's
         prime_sets = [tuple(sc.law.gain_prime)]
     cands = [Candidate(g, gp) for g in gain_sets for gp in prime_sets]
-    log(f"tune: {sc.n} robots at graph depths {sorted(set(depth.tolist()))}; "
-        f"{len(gain_sets)} gain sets satisfy condition (20), x {len(prime_sets)} g' sets = "
-        f"{len(cands)} candidates")
-    # 2. screen
+    run.log(f"tune: {sc.n} robots at graph depths {sorted(set(depth.tolist()))}; "
+            f"{len(gain_sets)} gain sets satisfy condition (20), x {len(prime_sets)} g' sets = "
+            f"{len(cands)} candidates")
+    return cands
+
+
+def _screen(run: _Run, cands: list[Candidate], fp_max: float, fh_max: float
+            ) -> list[Candidate]:
+    """2. A short run of each candidate on the scenario's seed; those that reach both
+    levels, never above trial 0 and with floors within the bounds, best first."""
+    opt = run.opt
+    window = max(1, opt.screen_trials // 3)
     tasks = []
     by_id: dict[str, Candidate] = {}
     for c in cands:
-        t = _sim_tasks(text, c, (sc.seed,), opt.screen_trials, opt, source,
-                       floor_window=max(1, opt.screen_trials // 3))[0]
+        t = _sim_tasks(run.text, c, (run.sc.seed,), opt.screen_trials, opt, run.source,
+                       floor_window=window)[0]
         tasks.append(t)
         by_id[t["id"]] = c
-    for row in _progress(map_tasks(tasks, workers, scheduler), len(tasks), "screen", log):
+    for row in run.rows(tasks, "screen"):
         by_id[row["id"]].screen = row
     ranked = sorted((c for c in cands if c.screen is not None
                      and _score(c.screen)[0] < math.inf
                      and c.screen["floor_position"] <= fp_max
                      and c.screen["floor_heading"] <= fh_max),
                     key=lambda c: _score(c.screen or {}))
-    log(f"tune: {len(ranked)} candidates reach both levels within {opt.screen_trials} trials, "
-        f"without a trial above trial 0 and with floors (median of the last "
-        f"{max(1, opt.screen_trials // 3)}) within the bounds")
-    # 3. guarantees, best first, a batch at a time on the workers
+    run.log(f"tune: {len(ranked)} candidates reach both levels within {opt.screen_trials} "
+            f"trials, without a trial above trial 0 and with floors (median of the last "
+            f"{window}) within the bounds")
+    return ranked
+
+
+def _check_in_order(run: _Run, ranked: list[Candidate], max_growth: float
+                    ) -> tuple[list[Candidate], int]:
+    """3. The guarantees of the screened candidates, best first, a batch at a time on the
+    workers, until ``opt.finalists`` pass. Returns them and how many were checked."""
+    sc, opt = run.sc, run.opt
     finalists: list[Candidate] = []
     checked = 0
-    batch = 2 * max(1, workers or os.cpu_count() or 1)
+    batch = 2 * max(1, run.workers or os.cpu_count() or 1)
     pos = 0
     while len(finalists) < opt.finalists and pos < len(ranked):
         group = ranked[pos:pos + batch]
         pos += batch
-        tasks = [{"id": f"check-{i}", "scenario": text, "fields": c.fields,
-                  "trials": sc.trials, "source": source, "stop_above": max_growth}
+        tasks = [{"id": f"check-{i}", "scenario": run.text, "fields": c.fields,
+                  "trials": sc.trials, "source": run.source, "stop_above": max_growth}
                  for i, c in enumerate(group)]
-        for row in map_tasks(tasks, workers, scheduler):
+        for row in map_tasks(tasks, run.workers, run.scheduler):
             c = group[int(row["id"].split("-")[1])]
             c.cond20, c.rho = row["cond20"], row["heading_rho"]
             c.growth, c.growth_trial = row["heading_growth"], row["heading_growth_trial"]
             if c.rho is None:
-                raise ScenarioError(f"{source}: the lifted heading map is too large to build "
-                                    f"(robots x samples > checks.LIFTED_LIMIT): tune needs it "
-                                    f"for its guarantee")
+                raise ScenarioError(f"{run.source}: the lifted heading map is too large to "
+                                    f"build (robots x samples > checks.LIFTED_LIMIT): tune "
+                                    f"needs it for its guarantee")
         checked += len(group)
         for c in group:
             kept = c.cond20 < 1.0 and c.rho < 1.0 and c.growth <= max_growth
-            log(f"tune: check g = {_fmt(c.gain)}, g' = {_fmt(c.gain_prime)}: (20) "
-                f"{c.cond20:.4f}, rho {c.rho:.4f}, max ||M^k|| "
-                f"{'>' if not kept and c.growth > max_growth else ''}{c.growth:.3g} -> "
-                f"{'kept' if kept else 'rejected'}")
+            run.log(f"tune: check g = {_fmt(c.gain)}, g' = {_fmt(c.gain_prime)}: (20) "
+                    f"{c.cond20:.4f}, rho {c.rho:.4f}, max ||M^k|| "
+                    f"{'>' if not kept and c.growth > max_growth else ''}{c.growth:.3g} -> "
+                    f"{'kept' if kept else 'rejected'}")
             if kept and len(finalists) < opt.finalists:
                 finalists.append(c)
-    # 4. verify the finalists over the seeds
+    return finalists, checked
+
+
+def _verify(run: _Run, finalists: list[Candidate]) -> None:
+    """4. Each finalist over the seeds (its ``rows``, by seed)."""
+    opt = run.opt
     tasks, owner = [], {}
     for c in finalists:
-        for t in _sim_tasks(text, c, opt.seeds, opt.verify_trials, opt, source):
+        for t in _sim_tasks(run.text, c, opt.seeds, opt.verify_trials, opt, run.source):
             tasks.append(t)
             owner[t["id"]] = c
-    for row in _progress(map_tasks(tasks, workers, scheduler), len(tasks), "verify", log):
+    for row in run.rows(tasks, "verify"):
         row["seed"] = int(row["id"].rsplit("-s", 1)[1])
         owner[row["id"]].rows.append(row)
     for c in finalists:
         c.rows.sort(key=lambda r: r["seed"])
-    fp_max = base.median("floor_position") * opt.floor_factor
-    fh_max = base.median("floor_heading") * opt.floor_factor
+
+
+def _choose(finalists: list[Candidate], ranked: list[Candidate], fp_max: float,
+            fh_max: float, opt: TuneOptions) -> tuple[Candidate | None, bool, str]:
+    """The winner (fewest trials to both levels on the worst seed) among the finalists
+    that met every requirement, whether there is one, and why not."""
     good = [c for c in finalists
             if c.worst("above_trial0") == 0 and c.worst("floor_position") <= fp_max
             and c.worst("floor_heading") <= fh_max and c.worst("trials_to_position") < math.inf
@@ -323,34 +399,26 @@ def _tune(sc: Scenario, opt: TuneOptions, workers: int | None, scheduler: str | 
         return (max(tp, th), tp + th, c.worst("floor_position"))
 
     if good:
-        best = min(good, key=key)
-        ok, reason = True, "all requirements met"
-    elif finalists:
-        best = min(finalists, key=key)
-        ok, reason = False, ("no candidate met every requirement over all seeds (no trial "
-                             "above trial 0, floors within the factor); the best one that "
-                             "met the guarantees is shown")
-    elif not ranked:
-        best, ok, reason = None, False, (
+        return min(good, key=key), True, "all requirements met"
+    if finalists:
+        return min(finalists, key=key), False, (
+            "no candidate met every requirement over all seeds (no trial above trial 0, "
+            "floors within the factor); the best one that met the guarantees is shown")
+    if not ranked:
+        return None, False, (
             f"no candidate reached both levels within {opt.screen_trials} trials without a "
             f"trial above trial 0 and with floors within the bounds; try more "
             f"--screen-trials, a finer --gain-grid / --prime-grid or a larger --floor-factor")
-    else:
-        best, ok, reason = None, False, (
-            f"none of the {len(ranked)} candidates that passed the screening met the "
-            f"guarantees; raise --max-growth or give a finer grid")
-    return TuneResult(baseline=base, best=best, finalists=finalists, screened=len(cands),
-                      checked=checked, ok=ok, reason=reason, scenario_text=text,
-                      baseline_trials=base_trials, max_growth=max_growth)
+    return None, False, (
+        f"none of the {len(ranked)} candidates that passed the screening met the "
+        f"guarantees; raise --max-growth or give a finer grid")
 
 
 def _progress(rows: Any, total: int, label: str, log: Any) -> Any:
-    from formation_ilc.studies.sweep import Bar
-
-    bar = Bar(total, 0, f"tune {label}")
-    for row in rows:
-        bar.step()
-        yield row
+    with points_progress(total, 0, f"tune {label}") as bar:
+        for row in rows:
+            bar.step()
+            yield row
 
 
 def _fmt(v: tuple[float, ...]) -> str:

@@ -35,22 +35,24 @@ def test_the_pure_names_are_msgs_schemas():
 
 
 def test_clock_follows_the_launchers_remapping():
-    from formation_ilc.cli.launch import ros_args
+    from formation_ilc.core.names import namespace_remaps
 
-    assert ks_cli.clock_topic(ms.NAMESPACE) == ms.CLOCK and ros_args(ms.NAMESPACE) == []
-    assert ros_args("/team2")[-1] == f"{ms.CLOCK}:={ks_cli.clock_topic('/team2')}"
+    assert ks_cli.clock_topic(ms.NAMESPACE) == ms.CLOCK and namespace_remaps(ms.NAMESPACE) == []
+    assert namespace_remaps("/team2")[-1] == f"{ms.CLOCK}:={ks_cli.clock_topic('/team2')}"
 
 
-def test_every_process_of_a_launch_has_an_enclave():
-    from formation_ilc.cli.launch import node_commands
+def test_every_process_of_a_launch_has_an_enclave(tmp_path):
+    from tests.cli.test_plan import plan_of
 
     sc = load_scenario("paper-triangle3")
-    for plant, links, fake in (("sim", "emulated", False), ("sim", "direct", False),
-                               ("pioneer", "direct", True)):
+    for plant, extra in (("sim", ("--links", "emulated")), ("sim", ("--links", "direct")),
+                         ("pioneer", ("--fake-drivers",))):
         grants = ks_cli.grants_for(sc, ms.NAMESPACE, plant=plant)
-        procs = [n for n, _ in node_commands({"timeout": 1}, sc.n, 0, links=links, plant=plant,
-                                             fake_drivers=fake)]
-        for name in [*procs, "recorder", "monitor"]:
+        plan = plan_of(tmp_path, "paper-triangle3", "--plant", plant, *extra, "--record",
+                       str(tmp_path / "run.mcap"), out=f"{plant}-{extra[-1]}")
+        names = [s.name for s in plan.nodes]
+        assert "recorder" in names and len(names) > sc.n
+        for name in [*names, "monitor"]:
             assert f"{ms.NAMESPACE}/{enclave_name(name)}" in grants, (plant, name)
 
 
@@ -151,3 +153,24 @@ def test_secure_env_of_a_process(tmp_path):
 def test_help(cmd):
     res = cli(*cmd)
     assert res.returncode == 0 and "keystore" in res.stdout
+
+
+def test_a_secure_plan_puts_every_process_in_its_enclave(tmp_path, monkeypatch):
+    """The plan carries each process's enclave (what its restarts reuse); the loaded Fast DDS
+    check is the one thing stubbed (the wheels' library has no security)."""
+    import formation_ilc.system.securedds as securedds
+    from tests.cli.test_plan import plan_of
+
+    ks = tmp_path / "ks"
+    assert cli("keystore", "create", str(ks), "paper-triangle3").returncode == 0
+    monkeypatch.setattr(securedds, "check", lambda *a, **k: None)
+    plan = plan_of(tmp_path, "paper-triangle3", "--secure", str(ks), "--record",
+                   str(tmp_path / "run.mcap"))
+    assert plan.secure is not None and plan.secure.keystore == ks.resolve()
+    for spec in plan.nodes:
+        env = dict(spec.env)
+        assert env["ROS_SECURITY_ENCLAVE_OVERRIDE"] == f"/formation/{spec.name}", spec.name
+        assert env["ROS_SECURITY_STRATEGY"] == "Enforce"
+        assert env["ROS_SECURITY_KEYSTORE"] == str(ks.resolve())
+    insecure = plan_of(tmp_path, "paper-triangle3", out="plain")
+    assert insecure.secure is None and all(not s.env for s in insecure.nodes)

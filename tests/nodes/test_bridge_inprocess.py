@@ -66,13 +66,13 @@ def test_bridge_clamps_commands_and_zeroes_them_when_the_robot_is_silent(context
         pub.publish(ms.u_to_twist((0.3, 0.2)))
         spin_until(ex, lambda: bridge.drops.counts["unexpected"] == 1)
         assert got[-1][1:] == (0.0, 0.0)
-        bridge.phase = "trial"  # inside a trial (its start is tested with the fake driver)
+        bridge.core.phase = "trial"  # inside a trial (its start is tested with the fake driver)
         cmds = [(2.0, 3.0), (-1.0, -3.0), (0.3, 0.2)]
         want = [(0.5, math.radians(90)), (-0.5, -math.radians(90)), (0.3, 0.2)]
         for (v, w), (wv, ww) in zip(cmds, want, strict=True):
             pub.publish(ms.u_to_twist((v, w)))
             spin_until(ex, lambda wv=wv, ww=ww: got and got[-1][1:] == pytest.approx((wv, ww)))
-        assert bridge.counts["clipped"] == 2
+        assert bridge.core.counts["clipped"] == 2
         # the robot node falls silent: the held command is republished, then zero within
         # the timeout (plus one control tick and the delivery)
         t_last = time.monotonic()
@@ -122,7 +122,7 @@ def test_bridge_is_ready_once_odometry_and_motors_are_in_and_maps_odometry_to_wo
         assert r["trial"] == 0 and r["return"] == "placed"
         assert r["initial_shift"] == pytest.approx([0.0, 0.0, 0.0], abs=1e-9)
         # the world pose is the scenario's desired start composed with the odometry
-        assert bridge.world() == pytest.approx(bridge.initial, abs=1e-9)
+        assert bridge.core.world() == pytest.approx(bridge.core.initial, abs=1e-9)
     finally:
         for n in (bridge, fake, tester):
             n.destroy_node()

@@ -37,7 +37,7 @@ from formation_ilc.config.runconfig import make_config  # noqa: E402
 from formation_ilc.model.simulate import Problem  # noqa: E402
 from formation_ilc.protocol.learner import RobotLearner  # noqa: E402
 
-from ..procs import spin_until  # noqa: E402
+from ..procs import spin_until, wait_emulator_ready  # noqa: E402
 
 SCENARIO = "paper-triangle3"
 #: examples per property: enough to hit every branch of a handler, small enough that all
@@ -293,9 +293,10 @@ def test_a_forged_later_trial_pose_does_not_hijack_the_link_emulator(context, ex
     events = tester.create_publisher(String, ms.TRIAL_EVENTS, ms.SAMPLE_QOS)
     spin_until(ex, lambda: all(p.get_subscription_count() >= 1 for p in [*shared, ref, events])
                and sub.get_publisher_count() >= 1)
+    wait_emulator_ready(ex, tester, emu)
     pb = Problem.from_scenario(cfg.scenario)
     events.publish(ms.json_to_msg({"event": "start", "trial": 0, "slot": 0, "seq": 0}))
-    spin_until(ex, lambda: emu.active)
+    spin_until(ex, lambda: emu.links.active)
 
     def sample(t: int) -> None:
         ns = cfg.clock.stamp_ns(0, t)
@@ -310,7 +311,7 @@ def test_a_forged_later_trial_pose_does_not_hijack_the_link_emulator(context, ex
         shared[1].publish(ms.pose_to_msg(pb.eta_d[1, 0], cfg.clock.stamp_ns(k, 0),
                                          ms.WORLD_FRAME))
     spin_until(ex, lambda: emu.drops.counts["future"] == 2)
-    assert emu.k == 0
+    assert emu.links.k == 0
     for t in range(1, 5):
         sample(t)
     spin_until(ex, lambda: len(got) == 5)
@@ -468,29 +469,31 @@ def test_fuzz_link_emulator_handlers(context):
         @given(msg=st.one_of(poses(), clocks(), st.builds(String, data=st.text(max_size=20))),
                to=st.sampled_from(["shared", "reference"]), done=st.booleans())
         def prop(msg, to, done):
-            emu._start(0, 0)
-            emu.reported = done  # the trial delivered: the next slot may come (held)
-            emu.early = []
-            emu.clock_t = 2
-            emu.next_t = 2
-            before = (emu.k, dropped(emu))
+            lk = emu.links
+            lk.follower.slot = lk.follower.trial = 0  # slot 0 (iteration 0) started
+            lk.begin()
+            lk.reported = done  # the trial delivered: the next slot may come (held)
+            lk.early = []
+            lk.clock_t = 2
+            lk.next_t = 2
+            before = (lk.k, dropped(emu))
             if isinstance(msg, Clock):
                 emu._on_clock(msg)
                 label = in_grid(msg.clock)
-                taken = emu.clock_t != 2 or emu.k != 0 or bool(emu.early)
+                taken = lk.clock_t != 2 or lk.k != 0 or bool(lk.early)
             elif isinstance(msg, String):
                 emu._on_config(msg)  # a second configuration: counted, nothing moves
                 label, taken = None, False
             else:
-                snap = [list(x) for x in emu.shared] + [list(emu.ref)]
+                snap = [list(x) for x in lk.shared] + [list(lk.ref)]
                 (emu._on_reference(msg) if to == "reference" else emu._on_shared(msg, 1))
                 label = in_grid(msg.header.stamp)
-                taken = (emu.k != 0 or bool(emu.early)
-                         or [list(x) for x in emu.shared] + [list(emu.ref)] != snap)
+                taken = (lk.k != 0 or bool(lk.early)
+                         or [list(x) for x in lk.shared] + [list(lk.ref)] != snap)
             assert taken != (dropped(emu) == before[1] + 1)
             allowed = {0, 1} if done else {0}
             if label is None or label[0] not in allowed:
-                assert emu.k == 0 and not taken
+                assert lk.k == 0 and not taken
             seen(taken)
         prop()
         seen.check()
@@ -517,22 +520,24 @@ def test_fuzz_simulator_handlers(context):
         @given(msg=st.one_of(events, twists), r=st.integers(0, 2),
                state=st.sampled_from(["between", "in_trial", "not_ready"]))
         def prop(msg, r, state):
-            sim.k, sim.iteration, sim.seen = 0, 0, 0
-            sim.in_trial, sim.ready_for = state == "in_trial", 0 if state == "not_ready" else 1
-            sim.pending = {0, 1, 2} if sim.in_trial else set()
-            sim.t = 5
+            plant, f = sim.plant, sim.plant.follower
+            f.slot, f.trial, f.seen = 0, 0, 0
+            # "in_trial": ready for the next trial, but inside this one
+            plant.in_trial, f.ready = state == "in_trial", state != "not_ready"
+            plant.pending = {0, 1, 2} if plant.in_trial else set()
+            plant.t = 5
             before = dropped(sim)
             if isinstance(msg, Twist):
                 sim._on_cmd(msg, r)
-                assert sim.k == 0
+                assert plant.k == 0
                 assert dropped(sim) in (before, before + 1)
                 if dropped(sim) == before:  # taken: inside a trial, a finite planar command
-                    assert state == "in_trial" and r not in sim.pending
-                    assert sim.u[r, 5].tolist() == [msg.linear.x, msg.angular.z]
+                    assert state == "in_trial" and r not in plant.pending
+                    assert plant.u[r, 5].tolist() == [msg.linear.x, msg.angular.z]
                 seen(dropped(sim) == before)
                 return
             sim._on_event(msg)
-            if sim.k != 0:  # only the start of the next slot, between trials, once ready
+            if plant.k != 0:  # only the start of the next slot, between trials, once ready
                 ev = json.loads(msg.data)
                 assert (ev["event"], ev["trial"], state) == ("start", 1, "between")
                 assert ev["seq"] > 0
@@ -541,7 +546,7 @@ def test_fuzz_simulator_handlers(context):
                 assert json.loads(msg.data)["event"] in ("end", "done", "abort")
             else:
                 assert dropped(sim) == before + 1
-            seen(sim.k != 0)
+            seen(plant.k != 0)
         prop()
         seen.check()
     finally:
@@ -651,9 +656,11 @@ def test_fuzz_bridge_handlers(context):
         @given(msg=st.one_of(events, twists, st.builds(Odometry)), phase=st.sampled_from(
             ["idle", "trial", "return"]), ready=st.booleans())
         def prop(msg, phase, ready):
-            bridge.k, bridge.phase, bridge.schedule = 0, phase, None
-            bridge.ready_sent = 1 if ready else 0
-            bridge.robot_cmd = (0.0, 0.0)
+            core = bridge.core
+            core.follower.slot, core.phase, core.schedule = 0, phase, None
+            # ready: said ready for trial 1 (since trial 0 started), else only for trial 0
+            core.ready_sent, core.follower.ready = (1 if ready else 0), ready
+            core.robot_cmd = (0.0, 0.0)
             before = dropped(bridge)
             if isinstance(msg, Twist):
                 bridge._on_cmd(msg)
@@ -665,7 +672,7 @@ def test_fuzz_bridge_handlers(context):
                 taken = True
             else:
                 bridge._on_event(msg)
-                taken = bridge.k != 0
+                taken = core.k != 0
                 if taken:
                     ev = json.loads(msg.data)
                     assert (ev["event"], ev["trial"], phase, ready) == ("start", 1, "idle",

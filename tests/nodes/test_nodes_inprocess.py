@@ -23,7 +23,7 @@ from formation_ilc.core.clock import SampleClock  # noqa: E402
 from formation_ilc.model.simulate import Problem  # noqa: E402
 from formation_ilc.protocol.learner import RobotLearner  # noqa: E402
 
-from ..procs import spin_until  # noqa: E402
+from ..procs import spin_until, wait_emulator_ready  # noqa: E402
 
 
 def test_robot_node_commands_what_the_core_computes(context):
@@ -144,6 +144,7 @@ def test_link_emulator_delivers_the_batch_simulators_delay_stream(context):
         spin_until(ex, lambda: all(p.get_subscription_count() >= 1
                                    for p in [*shared, ref, events])
                    and all(sub.get_publisher_count() >= 1 for sub in subs))
+        wait_emulator_ready(ex, tester, emu)
         ticks = 8
         # a hostile pose labelled with a later trial: dropped, it moves nothing
         shared[1].publish(ms.pose_to_msg(pb.eta_d[1, 0], clock.stamp_ns(5, 0),
@@ -165,7 +166,7 @@ def test_link_emulator_delivers_the_batch_simulators_delay_stream(context):
                     for t in range(ticks)]
             assert got[f"{sender}->{i}"] == want, sender
         assert any(p is None for _, p in got["robot_1->2"])  # the early ticks carry nothing
-        assert emu.k == 0 and emu.drops.counts["future"] == 1
+        assert emu.links.k == 0 and emu.drops.counts["future"] == 1
     finally:
         ex.shutdown()
         emu.destroy_node()

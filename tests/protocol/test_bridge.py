@@ -1,4 +1,5 @@
-"""The bridge's pure logic (formation_ilc.protocol.bridge) and the wall-clock schedule."""
+"""The bridge's pure logic (formation_ilc.protocol.bridge), its state machine, and the
+wall-clock schedule."""
 
 from __future__ import annotations
 
@@ -7,18 +8,26 @@ import math
 
 import pytest
 
-from formation_ilc.core.clock import Malformed
+from formation_ilc.config.runconfig import make_config
+from formation_ilc.core.clock import Malformed, Rejected
+from formation_ilc.model.simulate import Problem
 from formation_ilc.protocol.bridge import (
+    IDLE,
     PIONEER_OMEGA_MAX,
     PIONEER_V_MAX,
+    RETURN,
+    TRIAL,
+    Bridge,
     CommandLimits,
     ReturnController,
+    Returned,
     Watchdog,
     compose,
     initial_shift,
     odom_to_world,
     wrap,
 )
+from formation_ilc.protocol.schedule import ABORT, START, TrialEvent
 from formation_ilc.protocol.wallclock import WallSchedule, start_wall_ns
 
 
@@ -154,3 +163,105 @@ def test_help_of_the_new_entry_scripts(module):
     r = subprocess.run([sys.executable, "-m", module, "--help"], capture_output=True,
                        text=True, timeout=60)
     assert r.returncode == 0 and "cmd_vel" in r.stdout and "cmd_timeout" in r.stdout
+
+
+# --------------------------------------------------------------------------- the state machine
+
+SEC = 1_000_000_000
+
+
+def wall_bridge(**kw) -> Bridge:
+    """Robot 1 of paper-triangle3 on a base that sits at odometry (0, 0, 0)."""
+    cfg = make_config("paper-triangle3", links="direct", mode="wallclock", run_id="r")
+    b = Bridge(cfg, 1, name="bridge_1", period=0.05, **kw)
+    b.on_odom((0.0, 0.0, 0.0), 0.0)
+    return b
+
+
+def start_event(slot: int, seq: int, wall_ns: int, trial: int | None = None) -> TrialEvent:
+    return TrialEvent(START, slot if trial is None else trial, slot, seq, start_wall_ns=wall_ns)
+
+
+def test_a_trial_samples_on_the_wall_clock_then_drives_back_and_says_ready():
+    b = wall_bridge(cmd_timeout=1.0)
+    dt_ns = b.clock.dt_ns
+    desired = Problem.from_scenario(make_config("paper-triangle3").scenario).eta_d[0, 0]
+    assert b.initial == tuple(float(v) for v in desired)  # placed at its desired start
+    assert b.shift() == (0.0, 0.0, 0.0) and not b.answers_abort()
+    b.said_ready(0, b.shift())
+    assert b.answers_abort() and b.shifts == {"0": [0.0, 0.0, 0.0]}
+    t0 = 50 * SEC
+    assert b.on_event(start_event(0, 0, t0), 1.0, t0 - SEC).slot == 0
+    assert b.phase == TRIAL and not b.answers_abort()
+    assert b.tick(1.0, t0 - 1).sample is None          # not due yet
+    tick = b.tick(1.0, t0)
+    assert tick.sample == (b.clock.stamp_ns(0, 0), b.world())
+    # the robot node's commands go to the driver, clamped
+    assert b.on_cmd((2.0, 0.1), 1.05) == (b.limits.v_max, 0.1)
+    assert b.counts["clipped"] == 1
+    assert b.tick(1.06, t0 + dt_ns // 2).cmd is None   # unchanged, sent 0.01 s ago
+    assert b.tick(1.11, t0 + dt_ns // 2).cmd == (b.limits.v_max, 0.1)  # every period
+    # the tick fell behind by two samples: the newest is sent, the overtaken one counted
+    assert b.tick(1.2, t0 + 3 * dt_ns).sample[0] == b.clock.stamp_ns(0, 3)
+    for s in range(4, b.T + 1):
+        last = b.tick(1.2, t0 + s * dt_ns)
+        assert last.sample[0] == b.clock.stamp_ns(0, s)
+    assert b.counts["missed"] == 2  # samples 1 and 2
+    # sample T: the return starts at once; the base is at its initial pose
+    assert b.phase == IDLE and last.returned == Returned(1, True, (0.0, 0.0, 0.0), 0.0)
+    assert last.cmd == (0.0, 0.0) and b.robot_cmd == (0.0, 0.0)
+    # odometry of 0.0 s: the T - 1 samples sent (from 1.0 s) and the return's step
+    assert b.counts["stale_odometry"] == b.T - 1 + 1
+    assert b.returns == {"1": {"reached": True, "seconds": 0.0}}
+    with pytest.raises(Rejected) as exc:
+        b.on_cmd((0.1, 0.0), 2.1)
+    assert exc.value.reason == "unexpected"
+    assert b.report()["missed"] == 2 and b.report()["returns"] == b.returns
+
+
+def test_a_silent_robot_node_gets_a_zero_command_counted_once():
+    b = wall_bridge(cmd_timeout=0.5)
+    b.said_ready(0, b.shift())
+    b.on_event(start_event(0, 0, 10 * SEC), 0.0, 10 * SEC)
+    b.on_odom((0.0, 0.0, 0.0), 1.0)
+    b.on_cmd((0.2, 0.0), 1.0)
+    assert b.tick(1.04, 10 * SEC).cmd is None and b.out_cmd == (0.2, 0.0)
+    assert b.tick(1.6, 10 * SEC).cmd == (0.0, 0.0)
+    assert b.counts["watchdog_zero"] == 1
+    assert b.tick(1.7, 10 * SEC).cmd == (0.0, 0.0)  # re-sent at the period, not recounted
+    assert b.counts["watchdog_zero"] == 1
+    assert b.counts["stale_odometry"] == 0
+    assert b.tick(1.7, 10 * SEC + b.clock.dt_ns).sample is not None
+    assert b.counts["stale_odometry"] == 1  # a sample on odometry 0.7 s old
+
+
+def test_an_abort_stops_the_trial_and_the_return_ends_with_a_ready_or_a_timeout():
+    b = wall_bridge(initial=(1.0, 0.0, 0.0), tol=(0.02, 0.05, 2.0))
+    b.said_ready(0, b.shift())
+    b.on_event(start_event(0, 0, 10 * SEC), 0.0, 10 * SEC)
+    assert b.on_event(TrialEvent(ABORT, 0, 0, 1), 0.5, 10 * SEC).event == ABORT
+    assert b.phase == RETURN and b.schedule is None and not b.answers_abort()
+    # the base stands still at odometry 0 (the world pose is the initial one), the
+    # odometry goes stale: the controller stops and its timeout runs
+    b.on_odom((0.1, 0.0, 0.0), 0.5)
+    assert b.tick(0.6, 0).cmd[0] < 0          # 0.1 m ahead of the goal: back up
+    assert b.tick(2.0, 0).cmd == (0.0, 0.0)   # stale odometry: stop
+    end = b.tick(2.7, 0)
+    assert end.returned is not None and not end.returned.reached
+    # ready for the iteration after the aborted one's (as after a trial)
+    assert end.returned.trial == 1 and end.returned.shift == pytest.approx((0.1, 0.0, 0.0))
+    assert b.counts["return_timeouts"] == 1 and b.phase == IDLE and b.answers_abort()
+    # the iteration runs again in slot 1 once the bridge said ready
+    with pytest.raises(Rejected):
+        b.on_event(start_event(1, 2, 10 * SEC, trial=0), 3.0, 10 * SEC)
+    b.said_ready(0, end.returned.shift)
+    assert b.on_event(start_event(1, 2, 10 * SEC, trial=0), 3.0, 10 * SEC).slot == 1
+
+
+def test_the_bridge_needs_wallclock_direct_links_and_its_robot_in_the_team():
+    with pytest.raises(ValueError, match="bridge_1: a real robot runs wall-clock"):
+        Bridge(make_config("paper-triangle3"), 1, name="bridge_1")
+    cfg = make_config("paper-triangle3", links="direct", mode="wallclock")
+    with pytest.raises(ValueError, match="robots 1..3"):
+        Bridge(cfg, 4, name="bridge_4")
+    assert Bridge(cfg, 2, name="b").stop(0.0) == (0.0, 0.0)

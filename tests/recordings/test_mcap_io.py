@@ -1,11 +1,14 @@
-"""MCAP written by formation_ilc.recordings.mcap_io reads back with two independent readers, and a
-file cut short by a kill reads back up to the cut and can be repaired."""
+"""MCAP written by formation_ilc.recordings.mcap_io reads back with two independent readers, a
+file cut short by a kill reads back up to the cut and can be repaired, and the schemas and
+type hashes are the bytes rosbag2 and rclpy give."""
 
+import json
 import os
 import signal
 import subprocess
 import sys
 import textwrap
+from pathlib import Path as Path_
 
 import pytest
 
@@ -14,12 +17,15 @@ from geometry_msgs.msg import PoseStamped, Twist  # noqa: E402
 from nav_msgs.msg import Path  # noqa: E402
 from rclpy.serialization import serialize_message  # noqa: E402
 
+import msgs_schema as ms  # noqa: E402
 from formation_ilc.recordings.mcap_io import (  # noqa: E402
     RosMcapWriter,
+    message_definition,
     qos_yaml,
     read_messages,
     read_metadata,
     repair,
+    type_hash,
 )
 
 
@@ -126,3 +132,49 @@ def test_killed_writer_leaves_readable_file_and_repair_completes_it(tmp_path):
         assert reader.get_summary().statistics.message_count == len(values)
     with pytest.raises(ValueError):
         repair(fixed, fixed)
+
+
+# --------------------------------------------------------------------------- schemas
+
+#: every type the recorder and the batch simulator record (msgs_schema.topic_table)
+RECORDED_TYPES = sorted({typ for _, typ, _ in ms.topic_table(3)})
+#: the schema bytes this project wrote before rosbags' .msg parser found the dependencies
+#: (the installed .msg texts, comments included, concatenated as rosbag2 does)
+DEFINITIONS = json.loads((Path_(__file__).parent / "data" / "message_definitions.json")
+                         .read_text())
+
+
+def test_schemas_keep_the_bytes_written_before(tmp_path):
+    assert sorted(DEFINITIONS) == RECORDED_TYPES
+    f = tmp_path / "s.mcap"
+    with RosMcapWriter(f) as w:
+        for i, typ in enumerate(RECORDED_TYPES):
+            w.channel(f"/t{i}", typ, qos_yaml())
+    from mcap.reader import make_reader
+
+    with f.open("rb") as fh:
+        schemas = make_reader(fh).get_summary().schemas.values()
+    assert {s.name: s.data for s in schemas} == {t: d.encode() for t, d in DEFINITIONS.items()}
+    assert all(s.encoding == "ros2msg" for s in schemas)
+    # the short form of a type name gives the same text
+    assert message_definition("nav_msgs/Path") == DEFINITIONS["nav_msgs/msg/Path"]
+
+
+@pytest.mark.ros
+def test_type_hashes_are_rclpys(context):
+    """``type_hash`` of every recorded type is what rclpy reports for a writer of it (and
+    what the stack's recorder writes into its channels)."""
+    import importlib
+
+    import rclpy
+
+    node = rclpy.create_node("hashes", context=context)
+    try:
+        for i, typ in enumerate(RECORDED_TYPES):
+            pkg, _, name = typ.split("/")
+            node.create_publisher(getattr(importlib.import_module(f"{pkg}.msg"), name),
+                                  f"/hash_{i}", 1)
+            (info,) = node.get_publishers_info_by_topic(f"/hash_{i}")
+            assert type_hash(typ) == str(info.topic_type_hash), typ
+    finally:
+        node.destroy_node()

@@ -24,18 +24,28 @@ from hypothesis import strategies as st  # noqa: E402
 
 import msgs_schema as ms  # noqa: E402
 from formation_ilc.cli import main  # noqa: E402
+from formation_ilc.config.runconfig import RunConfig  # noqa: E402
 from formation_ilc.config.scenario import load_scenario  # noqa: E402
 from formation_ilc.model.simulate import simulate  # noqa: E402
 from formation_ilc.recordings import cdr  # noqa: E402
-from formation_ilc.recordings.mcap_io import ReadReport, read_messages  # noqa: E402
-from formation_ilc.recordings.recording import SimRecorder, load_recording  # noqa: E402
+from formation_ilc.recordings.mcap_io import (  # noqa: E402
+    ReadReport,
+    RosMcapWriter,
+    read_messages,
+)
+from formation_ilc.recordings.recording import (  # noqa: E402
+    SimRecorder,
+    load_recording,
+    recording_parts,
+    root_of,
+)
 
 SCENARIO = "paper-triangle3"
 
 
 def record(path: Path, trials: int, extra=None) -> Path:
     """A batch run recorded as the stack's recorder would (``extra(rec)`` adds messages)."""
-    sc = load_scenario(SCENARIO)
+    sc = load_scenario(SCENARIO).with_options(trials=trials)  # as `simulate --trials` records
     rec = SimRecorder(path, sc)
     simulate(sc, trials=trials, on_trial_data=rec.trial)
     if extra is not None:
@@ -264,3 +274,47 @@ def test_a_writer_killed_with_sigkill_loses_only_its_last_chunk(tmp_path):
     assert rep.cut_short and not rep.damaged
     assert len(xs) >= flushed
     assert xs == list(range(len(xs)))  # every message up to the last flush, in order
+
+
+# --------------------------------------------------------------------------- a run not whole
+
+def test_a_recording_without_a_trial_of_its_run_exits_3_naming_it(tmp_path, capsys):
+    """An intact file that lacks trials of its run (a recorder and a robot killed a moment
+    apart lost a whole trial; a run interrupted before its end) is not a whole run: the
+    analysis writes what there is, names the trials and exits non-zero."""
+    whole = record(tmp_path / "whole.mcap", 5)
+    clock = RunConfig.from_json(load_recording(whole).config).clock
+    cut = tmp_path / "cut.mcap"
+    with RosMcapWriter(cut, flush_period=0) as w:
+        for m in read_messages(whole):
+            if m.topic.endswith("trajectory") and \
+                    clock.decode(int(cdr.decode_path(m.data)[1][0]))[0] == 2:
+                continue  # trial 2's trajectories never reached the file
+            w.channel(m.topic, m.schema, "")
+            w.write(m.topic, m.data, m.log_time, m.publish_time)
+    r = load_recording(cut)
+    assert r.missing == [2] and r.incomplete == [2] and not r.report.damaged
+    assert main(["analyze", str(cut), "--out", str(tmp_path / "an"), "--no-plots"]) == 3
+    err = capsys.readouterr().err
+    assert "the run is not whole: 1 of its 5 trials are not complete in the file (trial 2)" \
+        in err
+    assert load_recording(whole).missing == []
+    assert main(["analyze", str(whole), "--out", str(tmp_path / "an2"), "--no-plots"]) == 0
+
+
+def test_a_run_resumed_before_its_first_recording_existed_reads_as_one_run(tmp_path, capsys):
+    """RUN.mcap was never written; RUN.resumed1.mcap holds the later trials. analyze RUN.mcap
+    reads the parts that exist, and the missing first trials make it exit 3; a part given
+    alone says which run it belongs to."""
+    first = record(tmp_path / "a.mcap", 5)
+    part = tmp_path / "run.resumed1.mcap"
+    first.rename(part)
+    root = tmp_path / "run.mcap"
+    assert recording_parts(root) == [part]
+    assert root_of(part) == root and root_of(tmp_path / "run.resumed1.part2.mcap") == root
+    assert main(["analyze", str(root), "--out", str(tmp_path / "an"), "--no-plots"]) == 0
+    assert "run.mcap does not exist; the run's files are run.resumed1.mcap" in \
+        capsys.readouterr().err
+    assert main(["analyze", str(part), "--out", str(tmp_path / "an2"), "--no-plots"]) == 0
+    assert "run.resumed1.mcap is one part of the run recorded in run.mcap" in \
+        capsys.readouterr().err

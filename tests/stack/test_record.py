@@ -24,7 +24,7 @@ from formation_ilc.cli import main  # noqa: E402
 from formation_ilc.config.scenario import load_scenario  # noqa: E402
 from formation_ilc.core.metrics import read_metrics  # noqa: E402
 from formation_ilc.model.simulate import simulate  # noqa: E402
-from formation_ilc.recordings.mcap_io import read_messages  # noqa: E402
+from formation_ilc.recordings.mcap_io import read_messages, type_hash  # noqa: E402
 from formation_ilc.recordings.recording import load_recording  # noqa: E402
 
 from ..procs import find_child, stop_group  # noqa: E402
@@ -80,6 +80,7 @@ def test_launch_record_then_analyze_reproduces_the_launcher_exactly(ros_env, tmp
             assert ch.message_encoding == "cdr"
             assert "reliability: reliable" in ch.metadata["offered_qos_profiles"]
             assert ch.metadata["topic_type_hash"].startswith("RIHS01_")
+            assert ch.metadata["topic_type_hash"] == type_hash(summary.schemas[ch.schema_id].name)
             assert summary.schemas[ch.schema_id].encoding == "ros2msg"
         poses = [(m, msg) for _, _, m, msg in reader.iter_decoded_messages(
             topics=["/formation/robot_2/pose"])]
@@ -162,6 +163,8 @@ def test_simulate_record_analyses_to_the_simulators_metrics(tmp_path):
     with rec.open("rb") as fh:
         s = make_reader(fh).get_summary()
     by_topic = {c.topic: s.schemas[c.schema_id].name for c in s.channels.values()}
+    for c in s.channels.values():  # and the type hashes a ROS writer offers
+        assert c.metadata["topic_type_hash"] == type_hash(s.schemas[c.schema_id].name)
     assert by_topic["/formation/robot_2/trajectory"] == "nav_msgs/msg/Path"
     assert by_topic["/formation/robot_2/cmd_vel"] == "geometry_msgs/msg/Twist"
     assert r.delays["robot_1->robot_2"]  # the drawn delays, as the robots would count them

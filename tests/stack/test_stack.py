@@ -137,7 +137,7 @@ def test_dead_robot_is_named_and_stack_stops(ros_env, tmp_path):
 def test_ament_layout_for_ros2_run(tmp_path):
     """A wheel install has the ament index marker, package.xml and executables under
     lib/formation_ilc/, found by ament_index_python through AMENT_PREFIX_PATH."""
-    repo = Path(__file__).resolve().parents[1]
+    repo = Path(__file__).resolve().parents[2]  # tests/stack/ -> the repository
     wheel_dir = tmp_path / "wheel"
     prefix = tmp_path / "prefix"
     subprocess.run([sys.executable, "-m", "pip", "wheel", str(repo), "--no-deps", "-q",
@@ -352,7 +352,8 @@ def test_a_stand_in_plant_that_speaks_only_the_contract(ros_env, tmp_path):
     """The simulator replaced by tests/standin_plant.py (no true state, no diagnostics):
     the team still learns, and the true-state columns say they are absent (nan)."""
     trials = 6
-    plant = subprocess.Popen([sys.executable, str(Path(__file__).with_name("standin_plant.py"))],
+    standin = Path(__file__).resolve().parents[1] / "standin_plant.py"  # tests/
+    plant = subprocess.Popen([sys.executable, str(standin)],
                              env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                              text=True, start_new_session=True)
     try:

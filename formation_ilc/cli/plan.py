@@ -1,0 +1,549 @@
+"""The plan of a ``formation-ilc launch``: everything decided from the options before any
+process starts, built once and frozen.
+
+``build_plan`` reads the options (and, with ``--resume DIR``, the run's own ``run.json``),
+refuses what cannot run (``NoRun``: one line and the exit status, before anything starts)
+and returns a ``RunPlan``: the validated run configuration, the team the leader waits for,
+and one ``NodeSpec`` per process (name, command, parameters, restart policy, host). The
+supervisor (``formation_ilc.cli.supervisor``) runs the plan, the report writer
+(``formation_ilc.cli.report``) writes its outputs, and ``--hosts netns`` wraps its
+execution (``formation_ilc.cli.hosts``). Nothing here needs ROS.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import uuid
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+from formation_ilc.cli.options import OptionError
+from formation_ilc.cli.secure import SecureRun
+from formation_ilc.config.runconfig import RunConfig, make_config, param_text, scenario_reference
+from formation_ilc.config.scenario import Scenario
+from formation_ilc.config.team import Team
+from formation_ilc.core.names import (
+    LEADER_NODE,
+    LINKS_NODE,
+    NAMESPACE,
+    RECORDER_NODE,
+    SIM_NODE,
+    bridge_name,
+    fake_driver_name,
+    namespace_remaps,
+    robot_name,
+    robots_process_name,
+)
+from formation_ilc.protocol.schedule import DONE
+from formation_ilc.system.exits import NO_RESTART as EXIT_NO_RESTART
+from formation_ilc.system.netns import LinkFaults
+
+__all__ = ["RUN_FILE", "NO_RESTART", "NoRun", "BridgeOptions", "RestartPolicy", "NodeSpec",
+           "HostsPlan", "RunPlan", "build_plan", "effective_options", "node_specs",
+           "finished", "pick_domain", "resumed_part"]
+
+#: the launch options a run is resumed with (DIR/run.json)
+RUN_FILE = "run.json"
+#: exit status of a node that refuses its configuration: restarting it cannot help
+NO_RESTART = 2
+
+
+class NoRun(Exception):
+    """The options give no run: ``message`` (one line) and the launcher's exit status
+    (2: refused, before anything started; 0: nothing left to do)."""
+
+    def __init__(self, message: str, status: int = 2):
+        super().__init__(message)
+        self.message = message
+        self.status = status
+
+    def report(self) -> int:
+        """Print the message (an error on stderr, else on stdout); the exit status."""
+        if self.status:
+            print(f"error: {self.message}", file=sys.stderr)
+        else:
+            print(self.message)
+        return self.status
+
+
+@dataclass(frozen=True)
+class BridgeOptions:
+    """How the Pioneer bridges reach their drivers (``--plant pioneer``; the
+    ``formation-ilc-bridge`` parameters of the same names).
+
+    driver : 'rosaria', 'p2os2' or 'ros2aria'.
+    driver_ns : robot i's driver namespace, ``{i}`` replaced by the robot number.
+    cmd_type : 'twist' or 'twist_stamped' on the driver's cmd_vel.
+    return_timeout : [s] how long a bridge drives its robot back between trials.
+    fake_drivers : also start one fake driver per robot (``robot_sim.fake_pioneer``).
+    """
+
+    driver: str = "rosaria"
+    driver_ns: str = "/pioneer_{i}"
+    cmd_type: str = "twist"
+    return_timeout: float = 60.0
+    fake_drivers: bool = False
+
+    @classmethod
+    def of(cls, opts: argparse.Namespace) -> BridgeOptions:
+        return cls(opts.driver, opts.driver_ns, opts.cmd_type, float(opts.return_timeout),
+                   bool(opts.fake_drivers))
+
+    def namespace(self, i: int) -> str:
+        return self.driver_ns.replace("{i}", str(i))
+
+
+@dataclass(frozen=True)
+class RestartPolicy:
+    """A node process that dies is started again at most ``max_restarts`` times, unless it
+    exited with ``refused`` (it refused its input) or another status a restart cannot help
+    (``formation_ilc.system.exits.NO_RESTART``: the run is stuck, the disk is full)."""
+
+    max_restarts: int = 3
+    refused: int = NO_RESTART
+
+    def allows(self, code: int, restarts: int) -> bool:
+        """Whether a process that exited with ``code`` after ``restarts`` restarts is
+        started again."""
+        return (code != self.refused and code not in EXIT_NO_RESTART
+                and restarts < self.max_restarts)
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    """One process of the stack: ``python -m module args --ros-args remaps -p k:=v ...``.
+
+    name : process name (its log is ``logs/NAME.log``; a single node's own name).
+    params : ROS parameters, in order (written by ``param_text``).
+    host : robot number whose network namespace the process runs in (``--hosts netns``);
+        None: this machine's (the hub's).
+    passive : a reader that says ready once for the run (the recorder): the leader is told
+        at once when it dies, and its restart interrupts no trial.
+    env : environment variables of this process on top of the run's (``--secure``: its
+        enclave).
+    """
+
+    name: str
+    module: str
+    args: tuple[str, ...] = ()
+    remaps: tuple[str, ...] = ()
+    params: tuple[tuple[str, Any], ...] = ()
+    restart: RestartPolicy = field(default_factory=RestartPolicy)
+    host: int | None = None
+    passive: bool = False
+    python: str = sys.executable
+    env: tuple[tuple[str, str], ...] = ()
+
+    @property
+    def command(self) -> list[str]:
+        ros = [*self.remaps, *(a for k, v in self.params for a in ("-p", f"{k}:={param_text(v)}"))]
+        return [self.python, "-m", self.module, *self.args, *(["--ros-args", *ros] if ros else [])]
+
+
+@dataclass(frozen=True)
+class HostsPlan:
+    """``--hosts netns``: each robot process in a network namespace of its own, ``faults``
+    on the links between robots, Fast DDS ``profile`` ('lossy' or 'none'); ``seed`` seeds
+    the delayers."""
+
+    faults: LinkFaults
+    profile: str
+    seed: int
+
+
+@dataclass(frozen=True)
+class RunPlan:
+    """A launch, decided: what runs, where, and what it writes.
+
+    config : the run configuration every node shares (monitored, with this run's id).
+    team : the nodes the leader waits for (``nodes_expected``).
+    nodes : the processes, in start order.
+    out : the output folder (absolute; it exists).
+    resumed_at : iterations already learned (``--resume``); None for a new run.
+    run_json : the options to write to ``out/run.json`` (None when resuming).
+    final_wait : [s] after the last trial, the longest wait for the last reports.
+    init_memory : ``--init-memory`` as given (the robots get its absolute path).
+    record : the recording this launch writes (absolute), or None; ``record_root``: the
+        run's first file (``analyze`` reads every part from it).
+    bridge : how the Pioneer bridges reach their drivers (``--plant pioneer``), or None.
+    """
+
+    config: RunConfig
+    team: Team
+    nodes: tuple[NodeSpec, ...]
+    out: Path
+    namespace: str
+    domain: int
+    discovery: str
+    plant: str
+    container: int
+    max_restarts: int
+    final_wait: float
+    plots: bool
+    resumed_at: int | None = None
+    run_json: Mapping[str, Any] | None = None
+    init_memory: Path | None = None
+    record: Path | None = None
+    bridge: BridgeOptions | None = None
+    hosts: HostsPlan | None = None
+    #: the run's first recording file (``record`` is the part this launch writes)
+    record_root: Path | None = None
+    #: every bound of the leader's liveness watchdog times this (``--watchdog-scale``)
+    watchdog_scale: float = 1.0
+    #: ``--secure``: the checked keystore every node runs in (its enclave is in its spec)
+    secure: SecureRun | None = None
+
+    @property
+    def scenario(self) -> Scenario:
+        return self.config.scenario
+
+    @property
+    def true_state(self) -> bool:
+        """The plant publishes the robots' true state (only the simulator does)."""
+        return self.plant == "sim"
+
+    @property
+    def pioneer(self) -> bool:
+        return self.plant == "pioneer"
+
+    @property
+    def reporters(self) -> tuple[str, ...]:
+        """Nodes besides the robots whose last trial's diagnostics the launcher waits for
+        (timing, missed samples, injected delays, the bridges' returns, the recording)."""
+        return (((SIM_NODE,) if self.true_state else ()) + self.team.support
+                + (self.team.plants if self.pioneer else ())
+                + ((RECORDER_NODE,) if self.record is not None else ()))
+
+    def banner(self) -> str:
+        sc = self.scenario
+        layout = (f"container: {self.container} robots/process" if self.container
+                  else "one process per robot")
+        return (f"{sc.name}: {sc.n} robots, {sc.trials} trials of {sc.samples} samples "
+                f"(dT {sc.dt} s), {self.config.mode}, {self.config.links} links, plant "
+                f"{', '.join(self.team.plants)}, ROS_DOMAIN_ID={self.domain}, namespace "
+                f"{self.namespace}, {layout}")
+
+
+def finished(plan: RunPlan, diagnostics: Mapping[str, Mapping[str, Any]],
+             events: Sequence[Mapping[str, Any]]) -> bool:
+    """Whether a run whose trials are all in has nothing more to report: every robot's and
+    reporter's diagnostics of the last trial, and the leader's ``done`` (it has saved the
+    last trial as learned by all)."""
+    last = plan.scenario.trials - 1
+    nodes = plan.team.robots + plan.reporters
+    return (all(diagnostics.get(n, {}).get("trial", -1) >= last for n in nodes)
+            and any(e.get("event") == DONE for e in events))
+
+
+# --------------------------------------------------------------------------- building
+
+def build_plan(args: argparse.Namespace) -> RunPlan:
+    """The plan of ``formation-ilc launch`` options (``args`` is not changed); NoRun with
+    the refusal's one line and exit status; ScenarioError for a bad scenario."""
+    opts = effective_options(args)
+    faults = _hosts_faults(opts)
+    mode, links = _mode_and_links(opts, hosts=faults is not None)
+    cfg = make_config(opts.scenario, seed=opts.seed, noise=not opts.no_noise,
+                      delay=not opts.no_delay, trials=opts.trials, law=opts.law,
+                      memory=opts.memory, mode=mode, monitored=True, timeout=opts.timeout,
+                      links=links, run_id=opts.run_id)
+    namespace = opts.namespace or NAMESPACE
+    if not namespace.startswith("/") or "//" in namespace:
+        raise NoRun(f"--namespace {namespace!r}: an absolute ROS namespace like /team2 is "
+                    f"required")
+    sc = cfg.scenario
+    if opts.init_memory is not None:
+        _check_memory(opts.init_memory, sc)
+    if sc.trials < 1:
+        raise NoRun("--trials must be at least 1")
+    # a formation too extreme for float64 is refused (ScenarioError) before anything is made
+    _ = sc.desired
+    out = _out_folder(opts.out, sc)
+    resumed_at = _resumed_at(out, sc) if opts.resume is not None else None
+    team = Team.of(sc.n, plant=opts.plant, links=links, external=opts.plant_nodes,
+                   monitor=True, recorder=opts.record is not None)
+    record = opts.record.resolve() if opts.record is not None else None
+    root = getattr(opts, "record_root_", None) or record
+    domain = opts.domain_id if opts.domain_id is not None else pick_domain()
+    bridge = BridgeOptions.of(opts) if opts.plant == "pioneer" else None
+    plan = RunPlan(
+        config=cfg, team=team, nodes=(), out=out, namespace=namespace, domain=domain,
+        discovery=opts.discovery, plant=opts.plant, container=opts.container,
+        max_restarts=opts.max_restarts,
+        # bridges drive their robots back after the last trial too
+        final_wait=3.0 + (bridge.return_timeout + 2.0 if bridge is not None else 0.0),
+        plots=not opts.no_plots, resumed_at=resumed_at,
+        run_json=None if resumed_at is not None else _run_json(opts, mode, links, out),
+        init_memory=opts.init_memory, record=record, bridge=bridge,
+        record_root=root.resolve() if root is not None else None,
+        watchdog_scale=float(getattr(opts, "watchdog_scale", 1.0)),
+        hosts=None if faults is None else HostsPlan(faults, opts.dds_profile or "lossy",
+                                                    sc.seed))
+    # the processes follow from the rest of the plan
+    return _secured(replace(plan, nodes=node_specs(plan, scenario_reference(opts.scenario))),
+                    getattr(opts, "secure", None))
+
+
+def _secured(plan: RunPlan, keystore: Path | str | None) -> RunPlan:
+    """``plan`` with every process in its enclave of ``keystore`` (``--secure``), checked
+    before anything starts: NoRun if the keystore or the loaded Fast DDS cannot run it."""
+    from formation_ilc.cli.secure import prepare
+
+    try:
+        sec = prepare(keystore, [s.name for s in plan.nodes], plan.namespace,
+                      container=plan.container)
+    except OptionError as exc:
+        raise NoRun(str(exc)) from None
+    if sec is None:
+        return plan
+    return replace(plan, secure=sec, nodes=tuple(
+        replace(s, env=tuple(sec.variables(s.name).items())) for s in plan.nodes))
+
+
+def effective_options(args: argparse.Namespace) -> argparse.Namespace:
+    """The options a run goes with, as a copy: with ``--resume DIR`` the run's own (its
+    run.json), and a new run id when there is none; NoRun for what no run can have."""
+    if args.resume is not None:
+        opts = _resume_options(args)
+    elif args.scenario is None:
+        raise NoRun("a SCENARIO is required (or --resume DIR)")
+    else:
+        opts = argparse.Namespace(**vars(args))
+    if opts.max_restarts < 0:
+        raise NoRun("--max-restarts must be >= 0")
+    if getattr(opts, "run_id", None) is None:
+        # a letter first: an all-digit id would reach the leader as an integer parameter
+        opts.run_id = "r" + uuid.uuid4().hex[:12]
+    return opts
+
+
+def _resume_options(args: argparse.Namespace) -> argparse.Namespace:
+    """The options of the run in ``args.resume``: its run.json (read bounded and checked;
+    every path that pointed into the run's folder re-rooted in the folder being resumed,
+    so a copied folder resumes into itself: ``formation_ilc.store.runfile``), with this
+    call's output folder and --max-restarts, and where the resumed launch records."""
+    from formation_ilc.store.runfile import RunFileError, load_run, require
+
+    out = args.resume
+    try:
+        d = load_run(out)
+    except RunFileError as exc:
+        raise NoRun(f"--resume {exc}") from None
+    if d is None:
+        raise NoRun(f"--resume {out}: no {RUN_FILE} there (not the output folder of a "
+                    f"`formation-ilc launch` run)")
+    if args.scenario is not None:
+        raise NoRun("--resume takes the run's own scenario and options: give no SCENARIO")
+    try:
+        require(d, out)
+    except RunFileError as exc:
+        raise NoRun(f"--resume {exc}") from None
+    ns = argparse.Namespace(**vars(args))
+    for k, v in d.items():
+        setattr(ns, k, v)
+    for k in ("out", "init_memory", "record"):
+        if getattr(ns, k, None) is not None:
+            setattr(ns, k, Path(getattr(ns, k)))
+    ns.out = out
+    ns.resume = out
+    ns.max_restarts = args.max_restarts
+    ns.watchdog_scale = getattr(args, "watchdog_scale", 1.0)
+    if ns.record is not None:
+        ns.record_root_ = ns.record
+        ns.record = resumed_part(ns.record)
+    return ns
+
+
+def resumed_part(root: Path) -> Path:
+    """Where a resumed launch records: the run's first file when no part of its recording
+    exists yet (a launch killed before its recorder wrote it), else the next free
+    ``RUN.resumedN.mcap`` (every part stays as it was written)."""
+    from formation_ilc.recordings.recording import recording_parts
+
+    if not any(p.exists() for p in recording_parts(root)):
+        return root
+    stem = root.with_suffix("")
+    n = 1
+    while Path(f"{stem}.resumed{n}.mcap").exists() or any(
+            stem.parent.glob(f"{stem.name}.resumed{n}.part*.mcap")):
+        n += 1
+    return Path(f"{stem}.resumed{n}.mcap")
+
+
+def _hosts_faults(opts: argparse.Namespace) -> LinkFaults | None:
+    """``--hosts netns``: the faults on the links between robots, once the options and this
+    machine allow it (None: every process on this machine's network)."""
+    from formation_ilc.system import netns
+
+    net = bool(opts.net_delay_ms or opts.net_jitter_ms or opts.net_loss
+               or opts.dds_profile is not None)
+    if opts.hosts != "netns" and not net:
+        return None
+    if opts.hosts != "netns":
+        raise NoRun("--net-delay-ms, --net-jitter-ms, --net-loss and --dds-profile go with "
+                    "--hosts netns")
+    try:
+        faults = netns.LinkFaults(opts.net_delay_ms, opts.net_jitter_ms, opts.net_loss)
+    except netns.NetnsError as exc:
+        raise NoRun(str(exc)) from None
+    if opts.container or opts.plant != "sim" or opts.links == "emulated":
+        raise NoRun("--hosts netns runs one process per robot (no --container), the "
+                    "simulator as plant (--plant sim) and direct links (the links between "
+                    "robots are the network's; no --links emulated)")
+    problem = netns.support_problem()
+    if problem:
+        raise NoRun(f"--hosts netns: {problem}")
+    return faults
+
+
+def _mode_and_links(opts: argparse.Namespace, hosts: bool) -> tuple[str, str]:
+    """The run's mode and links: refuses what a plant cannot do, fills in the defaults."""
+    pioneer = opts.plant == "pioneer"
+    links = "direct" if hosts else opts.links
+    if pioneer and (opts.mode not in (None, "wallclock") or links not in (None, "direct")):
+        raise NoRun(f"--plant pioneer runs --mode wallclock with --links direct (real robots "
+                    f"have no simulated clock and no link emulator), got --mode {opts.mode} "
+                    f"--links {links}")
+    if opts.mode == "wallclock" and not pioneer and opts.plant != "external":
+        raise NoRun("--mode wallclock is for real robots: use it with --plant pioneer (or an "
+                    "external plant that samples on the wall clock); the simulator runs "
+                    "lockstep or realtime")
+    if opts.fake_drivers and not pioneer:
+        raise NoRun("--fake-drivers goes with --plant pioneer")
+    if opts.fake_drivers and opts.driver == "p2os2":
+        raise NoRun("--fake-drivers speak rosaria or ros2aria, not p2os2 (its p2os_msgs are "
+                    "not on PyPI)")
+    mode = opts.mode or ("wallclock" if pioneer else "lockstep")
+    return mode, links or ("direct" if pioneer or mode == "wallclock" else "emulated")
+
+
+def _check_memory(path: Path, sc: Scenario) -> None:
+    """Refuse an --init-memory file that is not a memory for this run."""
+    from formation_ilc.store.memoryfile import MemoryFileError, load_memory
+
+    try:
+        load_memory(path, sc)
+    except MemoryFileError as exc:
+        raise NoRun(f"--init-memory {exc}") from None
+
+
+def _out_folder(out: Path | None, sc: Scenario) -> Path:
+    """The output folder (made; absolute): ``out`` or runs/SCENARIO-launch-TIME."""
+    out = out or Path("runs") / f"{sc.name}-launch-{datetime.now():%Y%m%d-%H%M%S}"
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise NoRun(f"--out {out}: cannot create the folder: {exc.strerror}") from None
+    return out.resolve()
+
+
+def _resumed_at(out: Path, sc: Scenario) -> int:
+    """Iterations every robot has learned in the run in ``out``, decided before anything
+    of it changes: the leader's state and every robot's, read bounded, validated and
+    cross-checked (``formation_ilc.protocol.resume``), and its metrics.csv readable. NoRun
+    naming the file when they are damaged or disagree; with status 0 when every trial is
+    done."""
+    from formation_ilc.core.metrics import read_metrics
+    from formation_ilc.protocol.resume import ResumeError, resume_point
+    from formation_ilc.store.bounded import StateFileError, open_regular
+
+    try:
+        done = resume_point(out / "state", sc).committed
+    except ResumeError as exc:
+        raise NoRun(f"--resume: {exc}") from None
+    if done >= sc.trials:
+        raise NoRun(f"{out}: all {sc.trials} trials are done; nothing to resume", status=0)
+    path = out / "metrics.csv"
+    try:
+        # a few hundred bytes a row; a FIFO or a device is refused unread
+        with open_regular(path, 1024 * sc.trials + (1 << 20), "a metrics.csv") as fh:
+            present = fh is not None
+        if present:
+            read_metrics(path)
+    except (StateFileError, OSError, ValueError) as exc:
+        raise NoRun(f"--resume: {exc} (the run's metrics rows: restore the file, or move it "
+                    f"away to resume without them)") from None
+    return done
+
+
+def _run_json(opts: argparse.Namespace, mode: str, links: str, out: Path) -> dict[str, Any]:
+    """The options ``--resume`` takes the run back with (paths as strings)."""
+    d = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(opts).items()
+         if k not in ("func", "command", "resume") and not k.endswith("_")}
+    d.update(mode=mode, links=links, out=str(out))
+    return d
+
+
+def pick_domain() -> int:
+    """A ROS_DOMAIN_ID in 30..100, distinct per launcher process. The shared-memory locks
+    of Fast DDS name the domain port, so ids whose port files are held (another run on
+    this machine) are avoided."""
+    base = os.getpid() % 71
+    for off in range(71):
+        d = 30 + (base + off) % 71
+        port = 7400 + 250 * d
+        if not any(Path("/dev/shm").glob(f"fastrtps_port{port}*")):
+            return d
+    return 30 + base
+
+
+def node_specs(plan: RunPlan, scenario: str) -> tuple[NodeSpec, ...]:
+    """Every process of ``plan``, in start order: the recorder (it listens before the run
+    starts), the leader, the plant, the link emulator, the robots. ``scenario`` is what
+    the leader loads (``scenario_reference``)."""
+    cfg, n = plan.config, plan.scenario.n
+    state_dir = str(plan.out / "state")
+    nsa = tuple(namespace_remaps(plan.namespace))
+    policy = RestartPolicy(plan.max_restarts)
+
+    def spec(name: str, module: str, **kw: Any) -> NodeSpec:
+        return NodeSpec(name, module, restart=policy, **kw)
+
+    specs: list[NodeSpec] = []
+    if plan.record is not None:
+        specs.append(spec(RECORDER_NODE, "formation_ilc.nodes.recorder",
+                          args=("--output", str(plan.record)), remaps=nsa, passive=True))
+    leader = {**cfg.to_params(scenario), "state_dir": state_dir,
+              "nodes_expected": plan.team.expected}
+    if plan.watchdog_scale != 1.0:
+        leader["watchdog_scale"] = float(plan.watchdog_scale)
+    specs.append(spec(LEADER_NODE, "virtual_leader.node", remaps=nsa,
+                      params=tuple(leader.items())))
+    if plan.plant == "sim":
+        specs.append(spec(SIM_NODE, "robot_sim.node", remaps=nsa,
+                          params=(("timeout", float(cfg.timeout)),)))
+    if plan.bridge is not None:
+        bridge = plan.bridge
+        for i in range(1, n + 1):
+            dns = bridge.namespace(i)
+            if bridge.fake_drivers:
+                specs.append(spec(fake_driver_name(i), "robot_sim.fake_pioneer",
+                                  remaps=("-r", f"__ns:={dns}"),
+                                  params=(("seed", i), ("cmd_type", bridge.cmd_type),
+                                          ("driver", bridge.driver))))
+            specs.append(spec(bridge_name(i), "formation_ilc.nodes.pioneer_bridge", remaps=nsa,
+                              params=(("robot_id", i), ("driver_ns", dns),
+                                      ("cmd_type", bridge.cmd_type), ("driver", bridge.driver),
+                                      ("return_timeout", bridge.return_timeout))))
+    if cfg.links == "emulated":
+        specs.append(spec(LINKS_NODE, "robot_sim.link_emulator", remaps=nsa))
+    robot: tuple[tuple[str, Any], ...] = (
+        ((("init_memory", str(plan.init_memory.resolve())),) if plan.init_memory else ())
+        + (("state_dir", state_dir),))
+    ids = list(range(1, n + 1))
+    if plan.container > 0:
+        for c in range(0, n, plan.container):
+            grp = ids[c:c + plan.container]
+            specs.append(spec(robots_process_name(grp[0], grp[-1]), "formation_ilc.nodes.robot",
+                              args=("--robots", *map(str, grp)), remaps=nsa, params=robot))
+    else:
+        for i in ids:
+            specs.append(spec(robot_name(i), "formation_ilc.nodes.robot", remaps=nsa,
+                              params=(("robot_id", i), *robot),
+                              host=i if plan.hosts is not None else None))
+    return tuple(specs)

@@ -1,0 +1,149 @@
+"""The report writer of a launch: what a finished (or stopped) run leaves behind.
+
+From a ``RunPlan`` and what the run gathered (metrics rows, the nodes' last diagnostics,
+restarts), it writes DIR/diagnostics.json, DIR/delays.csv (per-link delay histograms:
+measured by the robots with eq. 11, injected by the emulated links, and the model's) and
+DIR/summary.json whatever the outcome; after a run that succeeded also DIR/errors.png and
+the printed report (per-trial errors, timing, delays, dropped messages). No ROS here.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from formation_ilc.cli.plan import RunPlan
+from formation_ilc.cli.supervisor import disk_full_line
+from formation_ilc.config.scenario import Scenario
+from formation_ilc.core.links import delay_rows, link_histograms, write_delays
+from formation_ilc.core.names import SIM_NODE
+from formation_ilc.system.exits import DISK_FULL, is_disk_full
+
+__all__ = ["write_report", "summary_of", "print_report"]
+
+#: a bridge's diagnostics that go into summary.json
+BRIDGE_KEYS = ("initial_shifts", "returns", "return_timeouts", "missed", "clipped",
+               "watchdog_zero", "stale_odometry")
+
+
+def summary_of(plan: RunPlan, rows: int, diagnostics: Mapping[str, Mapping[str, Any]],
+               restarts: Mapping[str, int], seconds: float) -> dict[str, Any]:
+    """summary.json of a run of ``plan`` that finished ``rows`` trials in ``seconds``."""
+    sc, cfg = plan.scenario, plan.config
+    sim_diag = diagnostics.get(SIM_NODE, {})
+    summary: dict[str, Any] = {
+        "scenario": sc.name, "robots": sc.n, "trials_done": rows, "trials": sc.trials,
+        "mode": cfg.mode, "links": cfg.links, "plant": list(plan.team.plants),
+        "true_state": plan.true_state, "namespace": plan.namespace,
+        "container": plan.container, "domain_id": plan.domain, "seconds": seconds,
+        "run_id": cfg.run_id, "resumed_at": plan.resumed_at, "restarts": dict(restarts),
+        "timing": sim_diag.get("timing", {}), "missed": sim_diag.get("missed", {}),
+        "dropped": {n: d.get("dropped", {}) for n, d in diagnostics.items()}}
+    if plan.pioneer:
+        summary["bridges"] = {b: {key: diagnostics.get(b, {}).get(key) for key in BRIDGE_KEYS}
+                              for b in plan.team.plants}
+    if plan.init_memory is not None:
+        summary["init_memory"] = str(plan.init_memory)
+    return summary
+
+
+def write_report(plan: RunPlan, rows: Sequence[Sequence[float]],
+                 diagnostics: Mapping[str, Mapping[str, Any]], restarts: Mapping[str, int],
+                 seconds: float, status: int) -> int:
+    """Write the run's outputs into ``plan.out``; after a successful run (``status`` 0)
+    also the figure and the printed report. Returns ``status``."""
+    out = plan.out
+    measured, injected = link_histograms(diagnostics)
+    emulated = plan.config.links == "emulated"
+    dtab = delay_rows(measured, injected if emulated else None,
+                      plan.scenario.uncertainty.delay.pmf() if emulated else None)
+    summary = summary_of(plan, len(rows), diagnostics, restarts, seconds)
+    try:
+        (out / "diagnostics.json").write_text(json.dumps(diagnostics, indent=2) + "\n")
+        write_delays(out / "delays.csv", dtab)
+        (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    except OSError as exc:
+        if not is_disk_full(exc):
+            raise
+        if status == 0:  # else the run's own error line has said it all
+            print(f"error: {disk_full_line('the launcher', exc.filename, out)}",
+                  file=sys.stderr)
+            status = DISK_FULL
+    if status:
+        return status
+    files = ["metrics.csv", "delays.csv", "diagnostics.json", "summary.json"]
+    m = np.array(rows)
+    sc = plan.scenario
+    if plan.plots and len(rows):
+        from formation_ilc.recordings.plots import plot_errors
+
+        plot_errors(m[:, 0], m[:, 1], m[:, 2], out / "errors.png",
+                    f"{sc.name}: distributed stack, {sc.n} robot nodes, {plan.config.mode}")
+        files.append("errors.png")
+    print_report(sc, m, dtab, summary)
+    print(f"results in {out}/ ({', '.join(files)}; logs/)")
+    root = plan.record_root or plan.record
+    if root is not None:
+        print(f"recording: {root} (formation-ilc analyze {root})")
+    return 0
+
+
+def print_report(sc: Scenario, m: np.ndarray, dtab: list[list[Any]], summary: dict[str, Any]
+                 ) -> None:
+    """Per-trial errors (at most about 20 rows), then timing, bridges, delays, drops."""
+    k = len(m)
+    show = range(k) if k <= 20 else sorted({0, 1, 2, k // 4, k // 2, 3 * k // 4, k - 1})
+    print(f"{'trial':>6s} {'max pos [m]':>12s} {'max head [rad]':>15s} {'rms pos [m]':>12s}")
+    for i in show:
+        print(f"{int(m[i, 0]):6d} {m[i, 1]:12.4g} {m[i, 2]:15.4g} {m[i, 5]:12.4g}")
+    _print_timing(sc, summary)
+    for b, d in (summary.get("bridges") or {}).items():
+        shifts = d.get("initial_shifts") or {}
+        worst = max((math.hypot(s[0], s[1]) for s in shifts.values()), default=float("nan"))
+        print(f"{b}: {len(shifts)} starts, largest initial shift {worst:.3f} m, return "
+              f"timeouts {d.get('return_timeouts')}, missed samples {d.get('missed')}, "
+              f"clipped commands {d.get('clipped')}")
+    if not summary.get("true_state", True):
+        print("true state: the plant publishes none; the true_ columns of metrics.csv are nan")
+    if dtab:
+        _print_delays(dtab, direct=summary.get("links") == "direct")
+    drops = {n: sum(d.values()) for n, d in summary["dropped"].items() if sum(d.values())}
+    if drops:
+        print(f"dropped messages: {drops}")
+
+
+def _print_timing(sc: Scenario, summary: dict[str, Any]) -> None:
+    tim = summary.get("timing") or {}
+    nan = float("nan")
+    if tim and summary.get("mode") == "realtime":
+        print(f"realtime: {tim.get('missed_total', 0)} missed of "
+              f"{tim.get('commands', 0) + tim.get('missed_total', 0)} robot-samples; command "
+              f"arrival after the tick p50 {tim.get('p50_ms', nan):.2f} ms, "
+              f"p99 {tim.get('p99_ms', nan):.2f} ms (dT {1000 * sc.dt:.0f} ms)")
+    elif tim:
+        print(f"lockstep: {tim.get('samples_per_s', nan):.0f} samples/s, per-sample "
+              f"latency p50 {tim.get('p50_ms', nan):.2f} ms, "
+              f"p99 {tim.get('p99_ms', nan):.2f} ms")
+
+
+def _print_delays(dtab: list[list[Any]], direct: bool) -> None:
+    """The delay histogram of all links together (measured; injected and model too with
+    emulated links), as fractions."""
+    agg: dict[int, list[float]] = {}
+    for _link, tau, meas, inj, _, p in dtab:
+        a = agg.setdefault(tau, [0, 0, 0 if direct else p])
+        a[0] += meas
+        a[1] += 0 if direct else inj
+    tot = sum(a[0] for a in agg.values()) or 1
+    if direct:
+        print("delays measured by the robots (eq. 11, all links): tau  measured")
+    else:
+        print("delays (all links): tau  measured  injected  model")
+    for tau, (meas, inj, p) in sorted(agg.items()):
+        rest = "" if direct else f" {inj / tot:9.3f} {p:6.3f}"
+        print(f"  {tau:4d} {meas / tot:9.3f}{rest}")

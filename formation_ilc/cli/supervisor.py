@@ -1,0 +1,232 @@
+"""The supervisor of a launch: runs a plan's node processes.
+
+It starts every process of a ``RunPlan`` (``formation_ilc.cli.plan``), one log each in
+``DIR/logs/``; when one dies it starts it again with the same command line, within the
+node's restart policy (a recorder goes on into a new file part), and tells whoever follows
+the run that a passive node went down; it stops them all (SIGINT, then SIGTERM, SIGKILL).
+What the processes do, and when the run is over, is the launcher's business. No ROS here.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO
+
+from formation_ilc.cli.plan import NodeSpec, RunPlan
+from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, NO_RESTART, STUCK
+
+__all__ = ["Stack", "Supervisor", "Failure", "exit_status", "metrics_rows", "resume_hint",
+           "disk_full_line"]
+
+
+class Stack:
+    """The processes of one run; ``stop()`` ends them (SIGINT, then SIGTERM, SIGKILL)."""
+
+    def __init__(self, env: dict[str, str], log_dir: Path):
+        self.env = env
+        self.log_dir = log_dir
+        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+        self.logs: dict[str, IO[bytes]] = {}
+        self.argv: dict[str, list[str]] = {}
+        self.extra: dict[str, dict[str, str]] = {}
+        self.restarts: dict[str, int] = {}
+
+    def start(self, name: str, argv: list[str], extra: dict[str, str] | None = None) -> None:
+        """Start process ``name``: ``argv`` in the run's environment plus ``extra`` (kept
+        for its restarts)."""
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        again = name in self.logs
+        if again:
+            self.logs[name].close()
+        fh = (self.log_dir / f"{name}.log").open("ab" if again else "wb")
+        if again:
+            fh.write(f"\n--- restarted ({self.restarts.get(name, 0)}) ---\n".encode())
+            fh.flush()
+        self.logs[name] = fh
+        self.argv[name] = argv
+        if extra is not None:
+            self.extra[name] = extra
+        env = {**self.env, **self.extra.get(name, {})}
+        self.procs[name] = subprocess.Popen(argv, env=env, stdout=fh,
+                                            stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+
+    def restart(self, name: str) -> str:
+        """Start ``name`` again with the same command line (a recorder into a new file
+        part, ``RUN.partN.mcap``: the first part stays as it was written). Returns a note
+        for the user."""
+        n = self.restarts[name] = self.restarts.get(name, 0) + 1
+        argv = list(self.argv[name])
+        note = ""
+        if "--output" in argv:
+            i = argv.index("--output") + 1
+            first = Path(self.argv.get(f"{name}#first", argv)[i])
+            argv[i] = str(first.with_suffix(f".part{n}.mcap"))
+            self.argv.setdefault(f"{name}#first", self.argv[name])
+            note = f"; the recording goes on in {argv[i]}"
+        self.start(name, argv)
+        return note
+
+    def dead(self) -> list[tuple[str, int]]:
+        return [(n, p.returncode) for n, p in self.procs.items() if p.poll() is not None]
+
+    def log_tail(self, name: str, lines: int = 15) -> str:
+        try:
+            text = (self.log_dir / f"{name}.log").read_text(errors="replace")
+        except OSError:
+            return ""
+        return "\n".join(text.splitlines()[-lines:])
+
+    def stop(self, grace: float = 5.0) -> None:
+        for sig, wait in ((signal.SIGINT, grace), (signal.SIGTERM, 2.0), (signal.SIGKILL, 2.0)):
+            alive = [p for p in self.procs.values() if p.poll() is None]
+            if not alive:
+                break
+            for p in alive:
+                try:
+                    p.send_signal(sig)
+                except ProcessLookupError:
+                    pass
+            deadline = time.monotonic() + wait
+            for p in alive:
+                try:
+                    p.wait(timeout=max(0.0, deadline - time.monotonic()))
+                except subprocess.TimeoutExpired:
+                    pass
+        for fh in self.logs.values():
+            fh.close()
+
+
+def exit_status(code: int) -> str:
+    """How a process ended, for the user: 'status N' or 'signal SIGKILL'."""
+    if code < 0:
+        try:
+            return f"signal {signal.Signals(-code).name}"
+        except ValueError:
+            return f"signal {-code}"
+    return f"status {code}"
+
+
+@dataclass(frozen=True)
+class Failure:
+    """A node process that died for good: its exit ``code`` and the policy it had."""
+
+    spec: NodeSpec
+    code: int
+
+    @property
+    def status(self) -> int:
+        """The launcher's exit status: 2 when the node refused (bad input, or another
+        formation here), the node's own when it is one a restart cannot help (4 stuck, 5
+        disk full: ``formation_ilc.system.exits``), else 1."""
+        if self.code == self.spec.restart.refused:
+            return 2
+        return self.code if self.code in NO_RESTART else 1
+
+
+class Supervisor:
+    """Runs the processes of ``plan``.
+
+    place : the command line of a process (``--hosts netns``: inside its robot's network
+        namespace); default its own.
+    on_down : called with (name, pid) when a passive process died and is started again.
+    """
+
+    def __init__(self, plan: RunPlan, env: dict[str, str],
+                 place: Callable[[NodeSpec], list[str]] | None = None,
+                 on_down: Callable[[str, int], None] | None = None):
+        self.plan = plan
+        self.stack = Stack(env, plan.out / "logs")
+        self.specs = {s.name: s for s in plan.nodes}
+        self.place = place or (lambda spec: spec.command)
+        self.on_down = on_down
+
+    @property
+    def restarts(self) -> dict[str, int]:
+        return self.stack.restarts
+
+    def start(self) -> None:
+        """Start every process of the plan, in its order."""
+        for spec in self.plan.nodes:
+            self.stack.start(spec.name, self.place(spec), dict(spec.env))
+
+    def watch(self) -> Failure | None:
+        """Start again each process that died, within its policy; the first that may not
+        be started again, or None."""
+        for name, code in self.stack.dead():
+            spec = self.specs[name]
+            n = self.stack.restarts.get(name, 0)
+            if not spec.restart.allows(code, n):
+                return Failure(spec, code)
+            if spec.passive and self.on_down is not None:
+                # a passive node's death is not seen otherwise until it is back
+                self.on_down(name, self.stack.procs[name].pid)
+            note = self.stack.restart(name)
+            what = "" if spec.passive else "; the trial it interrupted runs again"
+            print(f"{name} exited with {exit_status(code)}: starting it again "
+                  f"({n + 1}/{spec.restart.max_restarts}){what}{note}", flush=True)
+        return None
+
+    def report(self, failure: Failure) -> int:
+        """Say which process failed and why: the one line the node said, when it stopped on
+        purpose (bad input, a stuck run, a full disk, with what to do next), else its
+        log's tail; the exit status."""
+        name, code, policy = failure.spec.name, failure.code, failure.spec.restart
+        log = self.stack.log_dir / (name + ".log")
+        said = self.last_word(name)
+        out = self.plan.out
+        if code == DISK_FULL:
+            file = (said.split(f"{DISK_FULL_TAG}: cannot write ", 1)[-1].split(" (")[0]
+                    if said and DISK_FULL_TAG in said else None)
+            print(f"error: {disk_full_line(name, file, out)}", file=sys.stderr)
+            return failure.status
+        if (code == policy.refused or code in NO_RESTART) and said is not None:
+            hint = (f"; {len(metrics_rows(out))} trials are in metrics.csv; after fixing the "
+                    f"cause: {resume_hint(out)}" if code == STUCK else "")
+            print(f"error: {said} (log: {log}){hint}", file=sys.stderr)
+            return failure.status
+        again = ("" if code == policy.refused or code in NO_RESTART or not policy.max_restarts
+                 else f" after {policy.max_restarts} restarts")
+        print(f"error: node process {name} exited with {exit_status(code)}{again} "
+              f"(log: {self.stack.log_dir / (name + '.log')})", file=sys.stderr)
+        tail = self.stack.log_tail(name)
+        if tail:
+            print(tail, file=sys.stderr)
+        return failure.status
+
+    def last_word(self, name: str) -> str | None:
+        """The one line a node said last about why it stopped (``NAME: ...`` on stderr,
+        or its entry script's ``formation-ilc-...: ...``), from its log."""
+        for line in reversed(self.stack.log_tail(name, 40).splitlines()):
+            if line.startswith((f"{name}:", "formation-ilc-")):
+                return line
+        return None
+
+    def stop(self) -> None:
+        self.stack.stop()
+
+
+def metrics_rows(out: Path) -> list[str]:
+    """The trial rows in ``out``/metrics.csv, as text (what the user has of the run)."""
+    try:
+        lines = (out / "metrics.csv").read_text().splitlines()[1:]
+    except OSError:
+        return []
+    return [ln for ln in lines if ln.strip()]
+
+
+def resume_hint(out: Path) -> str:
+    return f"formation-ilc launch --resume {out}"
+
+
+def disk_full_line(who: str, filename: str | None, out: Path) -> str:
+    """The one line of a run stopped by a full disk: the file, what was kept, what next."""
+    return (f"the disk is full: {who} could not write {filename or 'its file'}; kept: "
+            f"{out / 'metrics.csv'} with {len(metrics_rows(out))} trials and the state of "
+            f"every trial learned ({out / 'state'}); free some space, then: "
+            f"{resume_hint(out)}")

@@ -1,0 +1,312 @@
+"""The launch plan, built from the options without ROS: what runs (node specs, in order,
+with their parameters), what is refused (one line, the exit status), and what ``--resume``
+takes back; and the supervisor's restart policy on plain processes."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+import yaml
+
+from formation_ilc.cli.commands import build_parser
+from formation_ilc.cli.plan import NO_RESTART, NoRun, RunPlan, build_plan, finished
+from formation_ilc.config.runconfig import RunConfig
+
+
+def options(*argv: str):
+    return build_parser().parse_args(["launch", *argv])
+
+
+def plan_of(tmp_path, *argv: str, out: str = "run") -> RunPlan:
+    return build_plan(options(*argv, "--out", str(tmp_path / out)))
+
+
+def refusal(tmp_path, *argv: str) -> NoRun:
+    with pytest.raises(NoRun) as info:
+        plan_of(tmp_path, *argv)
+    return info.value
+
+
+def params(spec) -> dict:
+    return dict(spec.params)
+
+
+def test_a_simulated_run_plans_one_process_per_node(tmp_path):
+    plan = plan_of(tmp_path, "paper-triangle3", "--trials", "5", "--seed", "3",
+                   "--domain-id", "42")
+    assert [s.name for s in plan.nodes] == ["virtual_leader", "robot_sim", "link_emulator",
+                                            "robot_1", "robot_2", "robot_3"]
+    assert plan.out == (tmp_path / "run").resolve() and plan.out.is_dir()
+    assert plan.domain == 42 and plan.namespace == "/formation"
+    assert plan.config.mode == "lockstep" and plan.config.links == "emulated"
+    assert plan.config.monitored and plan.config.run_id.startswith("r")
+    assert plan.team.expected == ["robot_1", "robot_2", "robot_3", "robot_sim",
+                                  "link_emulator", "monitor"]
+    leader = plan.nodes[0]
+    assert leader.command[1:3] == ["-m", "virtual_leader.node"]
+    assert params(leader)["nodes_expected"] == plan.team.expected
+    assert params(leader)["state_dir"] == str(plan.out / "state")
+    # the leader's parameters are the run configuration's, and give it back
+    cfg = RunConfig.from_params({k: v for k, v in params(leader).items()
+                                 if k not in ("state_dir", "nodes_expected")})
+    assert cfg.to_json() == plan.config.to_json()
+    robot = plan.nodes[3]
+    assert "robot_id:=1" in robot.command and robot.host is None
+    assert params(robot) == {"robot_id": 1, "state_dir": str(plan.out / "state")}
+    assert params(plan.nodes[1]) == {"timeout": 30.0}
+    assert all(s.restart.max_restarts == 3 and s.restart.refused == NO_RESTART
+               for s in plan.nodes)
+    assert plan.run_json is not None and plan.resumed_at is None
+    assert plan.reporters == ("robot_sim", "link_emulator")
+
+
+def test_every_parameter_on_a_command_line_reads_back_as_given(tmp_path):
+    plan = plan_of(tmp_path, "paper-triangle3", "--record", str(tmp_path / "r.mcap"),
+                   "--namespace", "/team2", "--container", "2")
+    for spec in plan.nodes:
+        argv = spec.command
+        assert argv[0] == sys.executable
+        got = {a.split(":=", 1)[0]: yaml.safe_load(a.split(":=", 1)[1])
+               for flag, a in zip(argv, argv[1:], strict=False) if flag == "-p"}
+        assert got == {k: list(v) if isinstance(v, tuple) else v for k, v in spec.params}
+        assert "__ns:=/team2" in argv and "/clock:=/team2/clock" in argv
+    names = [s.name for s in plan.nodes]
+    assert names == ["recorder", "virtual_leader", "robot_sim", "link_emulator",
+                     "robots_1-2", "robots_3-3"]
+    rec = plan.nodes[0]
+    assert rec.passive and rec.command[3:5] == ["--output", str(tmp_path / "r.mcap")]
+    assert plan.nodes[4].command[3:6] == ["--robots", "1", "2"]
+    assert plan.team.passive == ("monitor", "recorder")
+    assert plan.reporters[-1] == "recorder"
+
+
+def test_real_robots_plan_bridges_and_fake_drivers(tmp_path):
+    plan = plan_of(tmp_path, "paper-triangle3", "--plant", "pioneer", "--fake-drivers",
+                   "--driver", "ros2aria", "--driver-ns", "/p{i}", "--cmd-type",
+                   "twist_stamped", "--return-timeout", "40")
+    assert plan.config.mode == "wallclock" and plan.config.links == "direct"
+    assert [s.name for s in plan.nodes] == [
+        "virtual_leader", "fake_pioneer_1", "bridge_1", "fake_pioneer_2", "bridge_2",
+        "fake_pioneer_3", "bridge_3", "robot_1", "robot_2", "robot_3"]
+    fake, bridge = plan.nodes[3], plan.nodes[4]
+    assert fake.remaps == ("-r", "__ns:=/p2")
+    assert params(fake) == {"seed": 2, "cmd_type": "twist_stamped", "driver": "ros2aria"}
+    assert params(bridge) == {"robot_id": 2, "driver_ns": "/p2", "cmd_type": "twist_stamped",
+                              "driver": "ros2aria", "return_timeout": 40.0}
+    assert plan.team.plants == ("bridge_1", "bridge_2", "bridge_3")
+    assert plan.final_wait == 3.0 + 40.0 + 2.0 and not plan.true_state
+    assert plan.reporters == ("bridge_1", "bridge_2", "bridge_3")
+
+
+def test_an_initial_memory_reaches_every_robot_by_its_absolute_path(tmp_path, monkeypatch):
+    from formation_ilc.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["simulate", "paper-triangle3", "--trials", "1", "--no-plots", "--out",
+                 "sim"]) == 0
+    plan = plan_of(tmp_path, "paper-triangle3", "--init-memory", "sim/memory.npz")
+    robot = plan.nodes[-1]
+    assert params(robot)["init_memory"] == str(tmp_path / "sim" / "memory.npz")
+    assert str(plan.init_memory) == "sim/memory.npz"  # as given, for summary.json
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--plant", "pioneer", "--mode", "lockstep"],
+     "--plant pioneer runs --mode wallclock with --links direct (real robots have no "
+     "simulated clock and no link emulator), got --mode lockstep --links None"),
+    (["--plant", "pioneer", "--links", "emulated"], "got --mode None --links emulated"),
+    (["--mode", "wallclock"], "--mode wallclock is for real robots: use it with --plant "
+                              "pioneer"),
+    (["--fake-drivers"], "--fake-drivers goes with --plant pioneer"),
+    (["--plant", "pioneer", "--fake-drivers", "--driver", "p2os2"],
+     "--fake-drivers speak rosaria or ros2aria, not p2os2"),
+    (["--max-restarts", "-1"], "--max-restarts must be >= 0"),
+    (["--namespace", "team2"], "--namespace 'team2': an absolute ROS namespace like /team2 "
+                               "is required"),
+    (["--net-loss", "0.05"], "--net-delay-ms, --net-jitter-ms, --net-loss and --dds-profile "
+                             "go with --hosts netns"),
+    (["--hosts", "netns", "--net-loss", "1.5"], "--net-loss: a fraction in [0, 1) is "
+                                                "required, got 1.5"),
+    (["--hosts", "netns", "--container", "3"], "--hosts netns runs one process per robot"),
+])
+def test_refusals_are_one_line_with_status_2(tmp_path, argv, message):
+    exc = refusal(tmp_path, "paper-triangle3", *argv)
+    assert exc.status == 2 and message in exc.message and "\n" not in exc.message
+
+
+def test_refusals_come_before_anything_is_made(tmp_path):
+    refusal(tmp_path, "paper-triangle3", "--fake-drivers")
+    assert not (tmp_path / "run").exists()
+
+
+def test_without_root_robots_on_hosts_are_refused(tmp_path, monkeypatch):
+    monkeypatch.setattr(os, "geteuid", lambda: 1000)
+    exc = refusal(tmp_path, "paper-triangle3", "--hosts", "netns")
+    assert exc.message.startswith("--hosts netns: needs root") and exc.status == 2
+
+
+def test_a_memory_for_another_team_is_refused(tmp_path):
+    from formation_ilc.cli import main
+
+    assert main(["simulate", "paper-hexagon6", "--trials", "1", "--no-plots", "--out",
+                 str(tmp_path / "sim")]) == 0
+    exc = refusal(tmp_path, "paper-triangle3", "--init-memory",
+                  str(tmp_path / "sim" / "memory.npz"))
+    assert exc.message.startswith("--init-memory ") and "learned for another run" in exc.message
+
+
+def test_a_scenario_is_required(tmp_path):
+    with pytest.raises(NoRun, match=r"a SCENARIO is required \(or --resume DIR\)"):
+        build_plan(options())
+
+
+def test_the_options_are_not_changed_and_run_json_holds_what_resume_needs(tmp_path):
+    args = options("paper-triangle3", "--out", str(tmp_path / "run"), "--plant", "pioneer")
+    before = dict(vars(args))
+    plan = build_plan(args)
+    assert vars(args) == before
+    d = plan.run_json
+    assert d["mode"] == "wallclock" and d["links"] == "direct"
+    assert d["out"] == str(plan.out) and d["run_id"] == plan.config.run_id
+    assert "command" not in d and "resume" not in d
+    json.dumps(d)  # written as JSON
+
+
+def test_resume_takes_the_runs_own_options(tmp_path):
+    from formation_ilc.cli.launch import _save_run
+
+    first = plan_of(tmp_path, "paper-triangle3", "--trials", "6", "--seed", "4",
+                    "--record", str(tmp_path / "rec.mcap"))
+    _save_run(first.out, first.run_json)
+    (tmp_path / "rec.mcap").write_bytes(b"")
+    again = build_plan(options("--resume", str(first.out), "--max-restarts", "1",
+                               "--seed", "9"))
+    assert again.config.to_json() == first.config.to_json()  # seed 4, same run id
+    assert again.resumed_at == 0 and again.run_json is None
+    assert again.max_restarts == 1 and again.out == first.out
+    assert again.record == (tmp_path / "rec.resumed1.mcap").resolve()
+
+
+def test_resume_refusals(tmp_path):
+    exc = refusal(tmp_path, "--resume", str(tmp_path))
+    assert exc.status == 2 and exc.message == (
+        f"--resume {tmp_path}: no run.json there (not the output folder of a "
+        f"`formation-ilc launch` run)")
+    (tmp_path / "run.json").write_text("{not json")
+    assert "run.json: unreadable:" in refusal(tmp_path, "--resume", str(tmp_path)).message
+    (tmp_path / "run.json").write_text("{}")
+    assert refusal(tmp_path, "paper-triangle3", "--resume", str(tmp_path)).message == (
+        "--resume takes the run's own scenario and options: give no SCENARIO")
+
+
+def test_resuming_a_finished_run_is_nothing_to_do(tmp_path, capsys):
+    from formation_ilc.cli.launch import _save_run
+    from formation_ilc.protocol.schedule import Schedule
+
+    first = plan_of(tmp_path, "paper-triangle3", "--trials", "2")
+    _save_run(first.out, first.run_json)
+    s = Schedule(["robot_1"], {"robot_1"}, 2)
+    s.committed = 2
+    (first.out / "state").mkdir()
+    s.save(first.out / "state" / "leader.json")
+    with pytest.raises(NoRun) as info:
+        build_plan(options("--resume", str(first.out)))
+    assert info.value.status == 0
+    assert info.value.report() == 0
+    assert capsys.readouterr().out == f"{first.out}: all 2 trials are done; nothing to resume\n"
+
+
+def test_a_run_is_finished_when_every_last_report_and_the_leaders_done_are_in(tmp_path):
+    plan = plan_of(tmp_path, "paper-triangle3", "--trials", "4", "--record",
+                   str(tmp_path / "r.mcap"))
+    last = {"trial": 3}
+    diag = {n: last for n in ("robot_1", "robot_2", "robot_3", "robot_sim", "link_emulator",
+                              "recorder")}
+    done = [{"event": "start"}, {"event": "done"}]
+    assert finished(plan, diag, done)
+    assert not finished(plan, diag, done[:1])
+    for node in diag:
+        assert not finished(plan, {**diag, node: {"trial": 2}}, done), node
+        assert not finished(plan, {k: v for k, v in diag.items() if k != node}, done), node
+
+
+def test_a_plan_is_built_without_ros(tmp_path):
+    code = (
+        "import sys\n"
+        "for m in ('rclpy', 'rclpy.node', 'geometry_msgs', 'nav_msgs', 'std_msgs'):\n"
+        "    sys.modules[m] = None\n"
+        "from formation_ilc.cli.commands import build_parser\n"
+        "from formation_ilc.cli.plan import build_plan\n"
+        f"a = build_parser().parse_args(['launch', 'paper-triangle3', '--out', "
+        f"{str(tmp_path / 'run')!r}])\n"
+        "print(len(build_plan(a).nodes))\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "6"
+
+
+# --------------------------------------------------------------------------- supervisor
+def _plan_running(tmp_path, *codes: str, max_restarts: int = 2) -> tuple[RunPlan, dict]:
+    """A plan whose processes are plain Python one-liners."""
+    from dataclasses import replace
+
+    from formation_ilc.cli.plan import NodeSpec, RestartPolicy
+
+    plan = plan_of(tmp_path, "paper-triangle3")
+    policy = RestartPolicy(max_restarts)
+    nodes = tuple(NodeSpec(f"p{i}", "x", restart=policy, passive=i == 0)
+                  for i in range(len(codes)))
+    return replace(plan, nodes=nodes), dict(zip((n.name for n in nodes), codes, strict=True))
+
+
+def test_the_supervisor_restarts_within_the_policy(tmp_path, capsys):
+    from formation_ilc.cli.supervisor import Supervisor
+
+    plan, codes = _plan_running(tmp_path, "raise SystemExit(1)", "import time; "
+                                "time.sleep(60)")
+    downs = []
+    sup = Supervisor(plan, dict(os.environ),
+                     place=lambda s: [sys.executable, "-c", codes[s.name]],
+                     on_down=lambda name, pid: downs.append(name))
+    sup.start()
+    try:
+        failure = None
+        while failure is None:
+            sup.stack.procs["p0"].wait(timeout=30)
+            failure = sup.watch()
+        assert failure.spec.name == "p0" and failure.code == 1 and failure.status == 1
+        assert sup.restarts == {"p0": 2} and downs == ["p0", "p0"]
+        assert sup.report(failure) == 1
+    finally:
+        sup.stop()
+    cap = capsys.readouterr()
+    assert "p0 exited with status 1: starting it again (1/2)" in cap.out
+    assert "; the trial it interrupted" not in cap.out  # p0 is passive
+    assert "error: node process p0 exited with status 1 after 2 restarts (log: " in cap.err
+    assert sup.stack.procs["p1"].poll() is not None  # stopped
+
+
+def test_a_node_that_refuses_is_not_started_again(tmp_path, capsys):
+    from formation_ilc.cli.supervisor import Supervisor
+
+    plan, codes = _plan_running(tmp_path, "pass", f"raise SystemExit({NO_RESTART})")
+    sup = Supervisor(plan, dict(os.environ), place=lambda s: [sys.executable, "-c",
+                                                              codes[s.name]])
+    sup.start()
+    try:
+        sup.stack.procs["p1"].wait(timeout=30)
+        sup.stack.procs["p0"].wait(timeout=30)
+        failure = sup.watch()
+        # p0 (exit 0, listed first) is restarted; p1 refused: status 2, no restart
+        assert failure is not None and failure.spec.name == "p1" and failure.status == 2
+        assert sup.restarts == {"p0": 1}
+        assert sup.report(failure) == 2
+    finally:
+        sup.stop()
+    assert "error: node process p1 exited with status 2 (log: " in capsys.readouterr().err

@@ -1,0 +1,193 @@
+"""The emulated links without ROS (formation_ilc.protocol.linkemu): the delay stream of the
+iteration on every link, the trial window (held, refused, replayed), and realtime ticks with
+their delivery deadline. Poses are (label, output) pairs, opaque to the core."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from formation_ilc.config.runconfig import make_config
+from formation_ilc.core.clock import Rejected
+from formation_ilc.core.links import LEADER, delivered_label
+from formation_ilc.protocol.linkemu import SHARED, EmulatedLinks
+from formation_ilc.protocol.schedule import ABORT, START, TrialEvent
+
+
+def emulator(mode: str = "lockstep", seed: int = 9) -> EmulatedLinks:
+    return EmulatedLinks(make_config("paper-triangle3", seed=seed, mode=mode))
+
+
+def start(links: EmulatedLinks, slot: int, seq: int, trial: int | None = None):
+    links.said_ready()
+    taken, out = links.on_event(TrialEvent(START, slot if trial is None else trial, slot, seq))
+    assert taken is not None
+    return out
+
+
+def pose(links: EmulatedLinks, k: int, s: int, j: int) -> tuple[int, np.ndarray]:
+    return links.clock.stamp_ns(k, s), np.full(3, 10.0 * j + s)
+
+
+def feed(links: EmulatedLinks, k: int, s: int, first: int = 0):
+    """The sample-s poses of robots ``first``.. and the reference of slot k; the ticks they
+    release."""
+    ns = links.clock.stamp_ns(k, s)
+    ticks = links.on_reference(ns, (ns, np.zeros(3))).ticks
+    for j in range(first, links.n):
+        ticks += links.on_shared(j, ns, pose(links, k, s, j)).ticks
+    return ticks
+
+
+def reason(f, *args) -> str:
+    with pytest.raises(Rejected) as exc:
+        f(*args)
+    return exc.value.reason
+
+
+def test_each_tick_delivers_the_iterations_delay_stream_once_every_pose_is_in():
+    links = emulator()
+    assert not start(links, 0, 0).ticks
+    pb, clock, sc = links.pb, links.clock, links.cfg.scenario
+    tau, tau0 = sc.uncertainty.draw_delays(sc.seed, 0, pb.n, pb.src.shape[1], pb.samples)
+    for t in range(6):
+        ns = clock.stamp_ns(0, t)
+        assert not links.on_reference(ns, (ns, np.zeros(3))).ticks
+        for j in range(pb.n - 1):
+            assert not links.on_shared(j, ns, pose(links, 0, t, j)).ticks  # not all in yet
+        ticks = links.on_shared(pb.n - 1, ns, pose(links, 0, t, pb.n - 1)).ticks
+        assert sorted((i, m) for i, m, _, _ in ticks) == [
+            (i, m) for i in range(pb.n) for m in range(len(links.links[i]))]
+        for i, m, tick, p in ticks:
+            assert tick == ns
+            sender, ell = links.links[i][m]
+            d = int(tau0[i, t] if sender == LEADER else tau[i, ell, t])
+            s = delivered_label(t, d)
+            if s < 0:
+                assert p is None
+            else:
+                assert p is not None and p[0] == clock.stamp_ns(0, s)
+    assert sum(sum(h.values()) for h in links.injected.values()) == sum(
+        1 for t in range(6) for i in range(pb.n) for _, ell in links.links[i]
+        if delivered_label(t, int(tau0[i, t] if ell < 0 else tau[i, ell, t])) >= 0)
+
+
+def test_the_last_tick_reports_the_trial_and_opens_the_next_slot():
+    links = emulator()
+    start(links, 0, 0)
+    for t in range(links.T - 1):
+        feed(links, 0, t)
+    ns = links.clock.stamp_ns(0, links.T - 1)
+    links.on_reference(ns, (ns, np.zeros(3)))
+    for j in range(links.n):
+        out = links.on_shared(j, ns, pose(links, 0, links.T - 1, j))
+    assert out.done and links.reported
+    rep = links.report()
+    assert (rep["trial"], rep["slot"]) == (0, 0) and set(rep["injected"]) == set(links.injected)
+    # now a pose of slot 1 may exist: held until its start, then replayed
+    assert not links.on_shared(0, links.clock.stamp_ns(1, 0), pose(links, 1, 0, 0)).ticks
+    assert len(links.early) == 1
+    ticks = feed_after_start(links)
+    assert links.k == 1 and not links.early and len(ticks) == sum(map(len, links.links))
+
+
+def feed_after_start(links: EmulatedLinks):
+    """Start slot 1 and feed the rest of its sample 0 (robot 0's came before the start)."""
+    out = start(links, 1, 1)
+    assert not out.ticks and not out.refused and links.count[0] == 1
+    ns = links.clock.stamp_ns(1, 0)
+    ticks = links.on_reference(ns, (ns, np.zeros(3))).ticks
+    for j in range(1, links.n):
+        ticks += links.on_shared(j, ns, pose(links, 1, 0, j)).ticks
+    return ticks
+
+
+def test_labels_outside_the_window_are_refused_and_move_nothing():
+    links = emulator()
+    clk = links.clock
+    # before any start: slot 0 is next (held), slot 1 is not
+    assert reason(links.on_shared, 0, clk.stamp_ns(1, 0), pose(links, 1, 0, 0)) == "future"
+    assert not links.on_shared(0, clk.stamp_ns(0, 0), pose(links, 0, 0, 0)).ticks
+    start(links, 0, 0)
+    assert links.count[0] == 1  # the held pose was replayed
+    cases = [
+        (clk.stamp_ns(1, 0), "future"),   # the next slot, before this one is delivered
+        (clk.stamp_ns(2, 0), "future"),   # a later slot
+        (clk.stamp_ns(0, 3), "future"),   # lockstep: beyond the sample being collected
+        (clk.stamp_ns(0, 0), "duplicate"),
+        (-1, "malformed"),
+    ]
+    for ns, why in cases:
+        assert reason(links.on_shared, 0, ns, (ns, np.zeros(3))) == why, ns
+    assert links.count[0] == 1 and not links.early
+    assert len(feed(links, 0, 0, first=1)) == sum(map(len, links.links))  # tick 0 out
+    assert reason(links.on_shared, 0, clk.stamp_ns(0, 0), (0, np.zeros(3))) == "duplicate"
+    # aborted: the rest of the slot is stale, and held inputs of it are forgotten
+    taken, _ = links.on_event(TrialEvent(ABORT, 0, 0, 1))
+    assert taken is not None and not links.active
+    assert reason(links.on_reference, clk.stamp_ns(0, 1), (0, np.zeros(3))) == "stale"
+
+
+def test_held_inputs_are_bounded_and_refused_on_replay_with_their_reason():
+    links = emulator()
+    ns = links.clock.stamp_ns(0, 0)
+    links.on_shared(0, ns, pose(links, 0, 0, 0))
+    links.on_shared(0, ns, pose(links, 0, 0, 0))  # a copy: held too (no trial yet)
+    while len(links.early) < links.early_max:
+        links.on_reference(ns, (ns, np.zeros(3)))
+    assert reason(links.on_reference, ns, (ns, np.zeros(3))) == "future"
+    out = start(links, 0, 0)
+    assert [(kind, j, e.reason) for kind, j, e in out.refused][0] == (SHARED, 0, "duplicate")
+    assert len(out.refused) == links.early_max - 2  # the second copy, every reference but one
+
+
+def test_realtime_ticks_deliver_what_is_in_by_the_deadline_and_count_the_rest_late():
+    """paper-triangle3: robot 1 sees the leader, robots 2 and 3 see robot 1, whose poses
+    never come here."""
+    links = emulator("realtime", seed=3)
+    start(links, 0, 0)
+    clk, sc, pb = links.clock, links.cfg.scenario, links.pb
+    assert pb.src.tolist() == [[-1], [0], [0]]
+    tau, _ = sc.uncertainty.draw_delays(sc.seed, 0, pb.n, 1, links.T)
+    late = {"robot_1->robot_2": 0, "robot_1->robot_3": 0}
+    for t in range(6):
+        out = links.on_clock(clk.stamp_ns(0, t))
+        assert out.arm
+        ns = clk.stamp_ns(0, t)
+        out.ticks += links.on_reference(ns, (ns, np.zeros(3))).ticks
+        for j in (1, 2):
+            out.ticks += links.on_shared(j, ns, pose(links, 0, t, j)).ticks
+        missing = {i for i in (1, 2) if delivered_label(t, int(tau[i, 0, t])) >= 0}
+        assert {i for i, *_ in out.ticks} == {0, 1, 2} - missing
+        assert set(links.waiting) == missing
+        forced = links.deadline()  # out without robot 1's pose, counted late
+        assert not links.waiting and {i for i, *_ in forced.ticks} == missing
+        assert all(p is None for *_, p in forced.ticks)
+        for i in missing:
+            late[f"robot_1->robot_{i + 1}"] += 1
+        assert links.late == {"leader->robot_1": 0, **late}
+    assert sum(late.values()) > 0
+    assert reason(links.on_clock, clk.stamp_ns(0, 5)) == "duplicate"
+    assert reason(links.on_clock, clk.stamp_ns(0, 4)) == "out_of_order"
+    # a pose of a past sample is still taken in realtime (a stalled emulator)
+    links.on_shared(0, clk.stamp_ns(0, 0), pose(links, 0, 0, 0))
+    assert links.shared[0][0] is not None
+    # a tick that comes before the previous deadline fired sends the previous one first
+    links.on_clock(clk.stamp_ns(0, 6))
+    waited = set(links.waiting)
+    out = links.on_clock(clk.stamp_ns(0, 7))
+    assert out.arm and waited <= {i for i, *_ in out.ticks}
+    # an abort of the slot stops the deliveries
+    links.on_event(TrialEvent(ABORT, 0, 0, 1))
+    assert not links.waiting and not links.active
+
+
+def test_realtime_reports_after_the_last_ticks_deliveries():
+    links = emulator("realtime")
+    start(links, 0, 0)
+    clk = links.clock
+    for t in range(links.T):
+        out = links.on_clock(clk.stamp_ns(0, t))
+        out_d = links.deadline() if links.waiting else out
+        assert (out.done or out_d.done) == (t == links.T - 1)
+    assert links.reported and not links.on_clock(clk.stamp_ns(0, links.T)).ticks

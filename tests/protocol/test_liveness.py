@@ -1,0 +1,191 @@
+"""Liveness without ROS: the leader re-asserts its schedule against events it did not send,
+a forged "down" cannot take a live node's ready away, a stuck phase passes its bound and
+gives up after its retries, and the resume point is decided from state files that must tell
+one story (formation_ilc.protocol.schedule, watchdog, resume)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from formation_ilc.config.scenario import load_scenario
+from formation_ilc.protocol.resume import ResumeError, resume_point
+from formation_ilc.protocol.schedule import ABORT, START, Ready, ScheduleError, TrialEvent
+from formation_ilc.protocol.watchdog import READY, SAMPLE, STARTUP, Bounds, Watchdog
+from formation_ilc.store.robotstate import RobotState, save_state, state_path
+
+from .test_schedule import ready_all, run_slot, sched
+
+
+def answer(s, trial: int) -> None:
+    """Every node answers the pending abort (robots ready for ``trial``)."""
+    ready_all(s, trial, s.seq)
+
+
+def test_a_forged_abort_of_the_running_slot_is_re_asserted_with_a_newer_seq():
+    s = sched()
+    ready_all(s, 0, -1)
+    run_slot(s)                       # trial 0 committed in slot 0
+    seq = s.started(1)
+    assert s.foreign(TrialEvent(START, 1, 1, seq)) is None  # its own start comes back
+    forged = TrialEvent(ABORT, 1, 1, seq + 1, why="forged")
+    why = s.foreign(forged)
+    assert why is not None and "did not send" in why
+    # the slot is aborted by the leader itself, with a seq beyond the forged one: the
+    # followers that took the forgery (seen = seq + 1) take this one too
+    assert s.abort_pending == 1 and s.seq == seq + 2 and not s.running
+    assert s.sent[s.seq] == (ABORT, 1, 1)
+    assert s.foreign(TrialEvent(ABORT, 1, 1, s.seq)) is None  # its own abort, echoed
+    answer(s, 1)
+    assert s.abort_done() and s.next_start() == (1, 2)
+    assert s.foreign_events == 1
+
+
+def test_a_forged_start_between_trials_is_aborted_and_its_slot_skipped():
+    s = sched()
+    ready_all(s, 0, -1)
+    run_slot(s)
+    why = s.foreign(TrialEvent(START, 1, 1, s.seq + 1))
+    assert why is not None
+    assert s.abort_pending == 1 and s.seq == 2
+    answer(s, 1)
+    assert s.next_start() == (1, 2)
+
+
+def test_a_forged_abort_of_the_committed_slot_runs_that_trial_again():
+    """Robots that took it rolled back the step learned from it (they keep one): the
+    leader un-commits it and runs the same iteration again (same draws, same memory)."""
+    s = sched()
+    ready_all(s, 0, -1)
+    run_slot(s)
+    run_slot(s)
+    assert s.committed == 2 and s.committed_slot == 1
+    why = s.foreign(TrialEvent(ABORT, 2, 1, s.seq + 1))
+    assert "trial 1 runs again" in why
+    assert s.committed == 1 and s.abort_pending == 1
+    answer(s, 1)              # every robot rolled back to 1 learned trial
+    assert s.abort_done() and s.next_start() == (1, 2)
+
+
+def test_a_ready_that_saw_an_unsent_seq_re_asserts_the_schedule():
+    s = sched()
+    ready_all(s, 0, -1)
+    seq = s.started(0)
+    r = Ready("robot_sim", 0, "b0", seq + 3)  # took a forged abort it alone saw
+    s.on_ready(r)
+    why = s.seen_unsent(r)
+    assert why == "robot_sim saw seq 3, which the leader did not send"
+    assert s.abort_pending == 0 and s.seq == seq + 4
+    assert s.seen_unsent(Ready("robot_sim", 0, "b0", s.seq)) is None
+
+
+def test_a_down_names_only_a_passive_node():
+    s = sched()
+    ready_all(s, 0, -1)
+    s.on_ready(Ready("robot_2", 0, "b0", down=True))  # a robot's restart shows otherwise
+    assert s.waiting_for() == []
+    s.on_ready(Ready("monitor", 3, "b0", passive=True, down=True))
+    assert s.waiting_for() == ["monitor"]
+
+
+def test_the_wait_is_explained_node_by_node():
+    s = sched()
+    s.on_ready(Ready("robot_1", 0, "b0"))
+    lines = s.explain_wait({"robot_2": "future: robot_2 ready for trial 5"})
+    assert lines == ["robot_2 has not said ready (never seen); its last ready was refused: "
+                     "future: robot_2 ready for trial 5",
+                     "robot_sim has not said ready (never seen)",
+                     "monitor has not said ready (never seen)"]
+    ready_all(s, 0, -1)
+    s.started(0)
+    s.begin_abort("test")
+    s.on_ready(Ready("robot_1", 0, "b0", s.seq))
+    assert s.explain_wait()[0] == "robot_2 has not answered seq 1 (its last ready saw seq -1)"
+
+
+def test_the_watchdog_reports_first_then_acts_then_gives_up():
+    b = Bounds.for_run(dt=0.1, nodes=7, mode="lockstep", timeout=30.0)
+    assert (b.startup, b.ready, b.sample) == (74.0, 33.5, 40.0)
+    assert Bounds.for_run(0.5, 7, "realtime", 30.0).sample == 10.0
+    assert Bounds.for_run(0.01, 7, "realtime", 30.0).sample == 5.0
+    w = Watchdog(b, retries=2)
+    w.moved(0.0, SAMPLE, progress=False)
+    assert not w.expired(40.0, SAMPLE)
+    assert w.expired(40.5, SAMPLE) and w.strikes == 1 and not w.acting  # reports only
+    assert w.expired(81.0, SAMPLE) and w.acting and not w.gave_up     # re-runs
+    w.moved(81.5, READY, progress=False)  # the watchdog's own abort is no progress
+    assert w.expired(115.5, READY) and w.strikes == 3 and not w.gave_up
+    assert not w.expired(116.0, STARTUP)      # another phase starts its own clock
+    assert w.expired(191.0, STARTUP) and w.gave_up
+    w.moved(192.0, SAMPLE)                    # a real sample clears the strikes
+    assert w.strikes == 0 and not w.gave_up
+
+
+def test_a_bound_grows_with_the_runs_own_pace():
+    """On a loaded machine every wait is long: a phase that once took 20 s without a strike
+    gets 4 x 20 s before the next wait of it counts as stuck."""
+    w = Watchdog(Bounds.for_run(dt=0.1, nodes=3, mode="lockstep", timeout=5.0))
+    assert w.bound(SAMPLE) == 15.0
+    w.moved(5000.0, SAMPLE)   # the first call starts the clock (a monotonic time)
+    assert w.bound(SAMPLE) == 15.0
+    w.moved(0.0, SAMPLE)
+    w.moved(12.0, SAMPLE)     # a slow sample, no strike: 12 s
+    assert w.bound(SAMPLE) == 48.0
+    assert not w.expired(12.0 + 40.0, SAMPLE)
+
+
+# --------------------------------------------------------------------------- resume
+SC = load_scenario("paper-triangle3").with_options(trials=10)
+
+
+def robot(it: int, slot: int, pit: int | None = None, pslot: int | None = None) -> RobotState:
+    m = np.zeros((SC.samples, 2))
+    return RobotState(m, it, slot, m, it - 1 if pit is None else pit,
+                      slot - 1 if pslot is None else pslot)
+
+
+def write(tmp_path, leader: dict | None, robots: dict[int, RobotState]) -> None:
+    if leader is not None:
+        (tmp_path / "leader.json").write_text(json.dumps(leader))
+    for i, st in robots.items():
+        save_state(state_path(tmp_path, i), st, SC, i)
+
+
+def test_a_consistent_state_resumes_at_its_committed_trial(tmp_path):
+    write(tmp_path, {"committed": 3, "slot": 3, "seq": 4, "open": True},
+          {1: robot(3, 2), 2: robot(4, 3), 3: robot(3, 2)})  # robot 2 learned the open slot
+    p = resume_point(tmp_path, SC)
+    assert (p.committed, p.open_slot) == (3, 3)
+    assert resume_point(tmp_path / "none", SC).committed == 0
+
+
+@pytest.mark.parametrize("leader, robots, why", [
+    ({"committed": 999, "slot": 999, "seq": 999, "open": False}, {},
+     "committed 999 is not in 0..10"),
+    ({"committed": 10, "slot": 9, "seq": 9, "open": False},
+     {1: robot(3, 2), 2: robot(3, 2), 3: robot(3, 2)}, "3 trials learned .* says 10"),
+    ({"committed": 3, "slot": 3, "seq": 2, "open": False}, {}, "seq 2 below slot 3"),
+    ({"committed": 3, "slot": 3, "seq": 4, "open": 1}, {}, "'open' must be true or false"),
+    ({"committed": 1, "slot": 1, "seq": 1, "open": False},
+     {1: robot(3, 2), 2: robot(3, 2), 3: robot(3, 2)}, "3 trials learned .* says 1"),
+    ({"committed": 3, "slot": 3, "seq": 3, "open": False},
+     {1: robot(3, 2), 2: robot(4, 3), 3: robot(3, 2)}, "robot_2.npz: 4 trials learned"),
+    ({"committed": 3, "slot": 3, "seq": 3, "open": False},
+     {1: robot(3, 2), 3: robot(3, 2)}, "robot_2.npz: missing"),
+    (None, {1: robot(2, 1)}, "leader.json: missing"),
+])
+def test_state_files_that_disagree_are_refused_naming_the_file(tmp_path, leader, robots,
+                                                                why):
+    write(tmp_path, leader, robots)
+    with pytest.raises(ResumeError, match=why) as err:
+        resume_point(tmp_path, SC)
+    assert str(err.value).startswith(str(tmp_path)) and "\n" not in str(err.value)
+
+
+def test_a_restored_leader_refuses_an_impossible_state(tmp_path):
+    (tmp_path / "leader.json").write_text(json.dumps({"committed": 999, "slot": 999,
+                                                      "seq": 999, "open": False}))
+    with pytest.raises(ScheduleError, match="impossible schedule state"):
+        sched().restore(tmp_path / "leader.json")
