@@ -208,7 +208,9 @@ def formation_grants(adjacency: NDArray[np.float64], leader: NDArray[np.float64]
     grants = [_robot(t, namespace, i, senders[i - 1], bool(w[i - 1] > 0)) for i in robots]
     grants.append(_grant(namespace, LEADER_NODE,
                          [t.config, t.reference, t.trial_events, t.diagnostics],
-                         [t.ready, t.config, t.clock]))
+                         # its own events too: it re-asserts against a start or abort
+                         # it did not send (a buggy node's, or a lossy link's replay)
+                         [t.ready, t.config, t.clock, t.trial_events]))
     links_pub = [t.link(i, robot_name(j)) for i in robots for j in senders[i - 1]]
     links_pub += [t.link(i, t.leader) for i in robots if w[i - 1] > 0]
     links_sub = [t.shared_pose(j) for j in robots]  # it reads every robot's, leaves too
@@ -228,7 +230,8 @@ def formation_grants(adjacency: NDArray[np.float64], leader: NDArray[np.float64]
     grants.append(_grant(namespace, MONITOR_NODE, [t.ready],
                          [*(t.trajectory(i) for i in robots),
                           *(t.true_trajectory(i) for i in robots), t.diagnostics,
-                          t.trial_events]))
+                          # readies: it answers a forged 'down' of itself by saying ready
+                          t.trial_events, t.ready]))
     return {g.enclave: g for g in grants}
 
 
