@@ -119,6 +119,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_sweep(sub)
     _add_analyze(sub)
     _add_mcap_repair(sub)
+    _add_keystore(sub)
     _add_launch(sub)
     return ap
 
@@ -313,6 +314,13 @@ def _add_mcap_repair(sub: Any) -> None:
     p.add_argument("recording", type=Path, metavar="RUN.mcap")
     p.add_argument("-o", "--output", type=output_file_arg, metavar="FIXED.mcap",
                    help="default: RUN.repaired.mcap")
+
+
+
+def _add_keystore(sub: Any) -> None:
+    from formation_ilc.cli import keystore
+
+    keystore.add_parser(sub)
 
 
 def _add_launch(sub: Any) -> None:
@@ -939,6 +947,10 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"note: {args.recording}: {line}")
             print(f"{dst}: {n} messages kept")
             return 0
+        if args.command == "keystore":
+            from formation_ilc.cli import keystore
+
+            return keystore.run(args)
         if args.command == "launch":
             from formation_ilc.cli import launch  # type: ignore[attr-defined,unused-ignore]
 

@@ -41,6 +41,10 @@ scenario before anything starts; --physics-bases: physics robots behind them); -
 physics: the PyBullet plant, refused where the batch simulator predicts that the robots'
 bodies touch (--allow-contact); --init-memory FILE:
 every robot starts from its row of a memory learned by `formation-ilc simulate`.
+
+--secure DIR: every node in its SROS2 enclave of the keystore DIR (`formation-ilc keystore
+create DIR SCENARIO`), DDS-Security enforced; refused before anything starts if the
+keystore or the loaded Fast DDS cannot run it (docs/security.md).
 """
 
 from __future__ import annotations
@@ -163,6 +167,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "process; the run starts once it listens); analyse it with "
                         "`formation-ilc analyze RUN.mcap`")
     add_host_arguments(p)
+    from formation_ilc.cli import secure
+
+    secure.add_arguments(p)
 
 
 def add_plant_arguments(p: argparse.ArgumentParser) -> None:
@@ -486,6 +493,8 @@ class _Session:
             raise KeyboardInterrupt
 
         signal.signal(signal.SIGTERM, on_term)
+        if self.plan.secure is not None:  # the monitor joins in its own enclave
+            self.plan.secure.enter_launcher()
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
         status = 0
         try:

@@ -22,6 +22,8 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
+from formation_ilc.cli.options import OptionError
+from formation_ilc.cli.secure import SecureRun
 from formation_ilc.config.runconfig import RunConfig, make_config, param_text, scenario_reference
 from formation_ilc.config.scenario import Scenario
 from formation_ilc.config.team import BRIDGED, Team
@@ -176,6 +178,8 @@ class NodeSpec:
         None: this machine's (the hub's).
     passive : a reader that says ready once for the run (the recorder): the leader is told
         at once when it dies, and its restart interrupts no trial.
+    env : environment variables of this process on top of the run's (``--secure``: its
+        enclave).
     """
 
     name: str
@@ -187,6 +191,7 @@ class NodeSpec:
     host: int | None = None
     passive: bool = False
     python: str = sys.executable
+    env: tuple[tuple[str, str], ...] = ()
 
     @property
     def command(self) -> list[str]:
@@ -250,6 +255,8 @@ class RunPlan:
     watchdog_scale: float = 1.0
     physics: PhysicsOptions | None = None
     notes: tuple[str, ...] = ()
+    #: ``--secure``: the checked keystore every node runs in (its enclave is in its spec)
+    secure: SecureRun | None = None
 
     @property
     def scenario(self) -> Scenario:
@@ -350,7 +357,28 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
         hosts=None if faults is None else HostsPlan(faults, opts.dds_profile or "lossy",
                                                     sc.seed))
     # the processes follow from the rest of the plan
-    return replace(plan, nodes=node_specs(plan, scenario_reference(opts.scenario)))
+    return _secured(replace(plan, nodes=node_specs(plan, scenario_reference(opts.scenario))),
+                    getattr(opts, "secure", None))
+
+
+def _secured(plan: RunPlan, keystore: Path | str | None) -> RunPlan:
+    """``plan`` with every process in its enclave of ``keystore`` (``--secure``), checked
+    before anything starts: NoRun if the keystore or the loaded Fast DDS cannot run it."""
+    from formation_ilc.cli.secure import SECURE_PLANTS, prepare
+
+    if keystore is not None and plan.plant not in SECURE_PLANTS:
+        raise NoRun(f"--secure: the keystore's permissions cover the plants "
+                    f"{', '.join(SECURE_PLANTS)}, not --plant {plan.plant} (run it without "
+                    f"--secure, on a network you trust)")
+    try:
+        sec = prepare(keystore, [s.name for s in plan.nodes], plan.namespace,
+                      container=plan.container)
+    except OptionError as exc:
+        raise NoRun(str(exc)) from None
+    if sec is None:
+        return plan
+    return replace(plan, secure=sec, nodes=tuple(
+        replace(s, env=tuple(sec.variables(s.name).items())) for s in plan.nodes))
 
 
 def effective_options(args: argparse.Namespace) -> argparse.Namespace:
