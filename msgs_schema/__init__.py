@@ -84,6 +84,7 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 from formation_ilc.core.clock import Malformed, SampleClock
+from formation_ilc.core.kinematics import yaw_and_tilt
 from formation_ilc.core.links import LEADER, link_name
 from formation_ilc.core.names import (
     BRIDGE_PREFIX,
@@ -114,7 +115,7 @@ __all__ = [
     "path_limit", "path_from_raw", "FRAME_ID_MAX",
     "START", "END", "ABORT", "DONE",
     "DriverSpec", "DRIVERS", "DRIVER_CMD_QOS", "ODOM_QOS", "BRIDGE_PREFIX", "bridge_name",
-    "odometry_to_pose", "odometry_msg", "driver_twist",
+    "odometry_to_pose", "base_odometry_to_pose", "odometry_msg", "driver_twist",
     "LEADER_NODE", "SIM_NODE", "LINKS_NODE", "MONITOR_NODE", "RECORDER_NODE",
     "FAKE_DRIVER_NODE",
 ]
@@ -216,8 +217,9 @@ class DriverSpec:
     cmd : velocity command in (Twist, or TwistStamped with the bridge's ``cmd_type``);
     odom : nav_msgs/Odometry out, starting at 0 where the robot was placed;
     motors : how motors are enabled; motors_kind: 'empty_service' (std_srvs/Empty),
-        'setbool_service' (std_srvs/SetBool, data true) or 'p2os_motor_state'
-        (p2os_msgs/MotorState with state 1, a topic);
+        'setbool_service' (std_srvs/SetBool, data true), 'p2os_motor_state'
+        (p2os_msgs/MotorState with state 1, a topic) or 'none' (a base whose motors are
+        always on: TurtleBot, Jackal, Husky);
     default_ns : the driver's usual namespace.
     """
 
@@ -237,6 +239,9 @@ DRIVERS: dict[str, DriverSpec] = {
     # std_srvs/SetBool service (true = engaged); not verified against the driver's source:
     # check ``ros2 interface`` on the robot, and remap or change motors_kind if it differs
     "ros2aria": DriverSpec("cmd_vel", "odom", "clutch", "setbool_service", "/"),
+    # any differential-drive base with the common interface: cmd_vel in, nav_msgs/Odometry
+    # out, no motor service (formation_ilc.config.bases has presets of the topic names)
+    "base": DriverSpec("cmd_vel", "odom", "", "none", "/"),
 }
 
 # Drivers publish odometry best effort or reliable: a best-effort reader matches both.
@@ -259,18 +264,46 @@ def odometry_to_pose(msg: Odometry) -> tuple[float, float, float]:
     return x, y, _heading_from_quaternion(q.x, q.y, q.z, q.w, None)
 
 
+def base_odometry_to_pose(msg: Odometry, max_tilt: float
+                          ) -> tuple[float, float, float, float]:
+    """(x, y, yaw, tilt) of a base's odometry, yaw from the full quaternion
+    (``kinematics.yaw_and_tilt``): a base on a slope, or whose IMU-fused odometry carries
+    roll and pitch, still has a heading. MalformedMessage if not finite, or tilted more
+    than ``max_tilt`` [rad] (the odometry of a robot on its side is no planar pose)."""
+    p = msg.pose.pose.position
+    x, y = float(p.x), float(p.y)
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise MalformedMessage("non-finite odometry position")
+    q = msg.pose.pose.orientation
+    try:
+        yaw, tilt = yaw_and_tilt(float(q.x), float(q.y), float(q.z), float(q.w))
+    except ValueError as exc:
+        raise MalformedMessage(str(exc)) from None
+    if tilt > max_tilt:
+        raise MalformedMessage(f"odometry tilted by {math.degrees(tilt):.1f} deg, beyond "
+                               f"the bound of {math.degrees(max_tilt):.1f} deg (max_tilt)")
+    return x, y, yaw, tilt
+
+
 def odometry_msg(pose: Sequence[float], twist: Sequence[float], stamp_ns: int,
                  frame_id: str = "odom", child: str = "base_link",
-                 out: Odometry | None = None) -> Odometry:
-    """A driver's odometry message (for fake drivers): pose (x, y, yaw), twist (v, omega)."""
+                 out: Odometry | None = None,
+                 quat: Sequence[float] | None = None) -> Odometry:
+    """A driver's odometry message (for fake drivers and physics bases): pose (x, y, yaw),
+    twist (v, omega); ``quat`` (x, y, z, w): the orientation with roll and pitch (default:
+    the yaw alone)."""
     m = Odometry() if out is None else out
     ns_to_stamp(stamp_ns, m.header.stamp)
     m.header.frame_id = frame_id
     m.child_frame_id = child
     m.pose.pose.position.x = float(pose[0])
     m.pose.pose.position.y = float(pose[1])
-    m.pose.pose.orientation.z = math.sin(0.5 * float(pose[2]))
-    m.pose.pose.orientation.w = math.cos(0.5 * float(pose[2]))
+    o = m.pose.pose.orientation
+    if quat is None:
+        o.x, o.y = 0.0, 0.0
+        o.z, o.w = math.sin(0.5 * float(pose[2])), math.cos(0.5 * float(pose[2]))
+    else:
+        o.x, o.y, o.z, o.w = (float(c) for c in quat)
     m.twist.twist.linear.x = float(twist[0])
     m.twist.twist.angular.z = float(twist[1])
     return m

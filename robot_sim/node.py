@@ -72,15 +72,31 @@ NAME = ms.SIM_NODE
 
 
 class SimNode(ConfiguredNode):
-    """The kinematic simulator of all robots."""
+    """The kinematic simulator of all robots.
 
-    def __init__(self, **kwargs: Any):
-        super().__init__(NAME, **kwargs)
+    Another plant with this node's schedule, timing and publishing (the physics plant,
+    ``robot_sim.physics_node``) subclasses it with its own ``name`` and ``make_plant``.
+    """
+
+    def __init__(self, name: str = NAME, **kwargs: Any):
+        super().__init__(name, **kwargs)
         declare(self, params.SIM)
+        self.declare_plant_parameters()
         self.follow_config()
 
+    def declare_plant_parameters(self) -> None:
+        """The plant's own parameters (a subclass's)."""
+
+    def make_plant(self, cfg: RunConfig) -> KinematicPlant:
+        """The plant core of run ``cfg`` (ValueError: the node refuses the run)."""
+        return KinematicPlant(cfg)
+
+    def report(self) -> dict[str, Any]:
+        """The trial's diagnostics."""
+        return self.plant.report()
+
     def configure(self, cfg: RunConfig) -> None:
-        self.plant = plant = KinematicPlant(cfg)
+        self.plant = plant = self.make_plant(cfg)
         self.follower = plant.follower
         warm_up(plant.pb)
         self.cfg = cfg
@@ -145,7 +161,7 @@ class SimNode(ConfiguredNode):
             for r in range(plant.n):
                 self.true_pubs[r].publish(ms.trajectory_to_path(plant.xi[r], stamps,
                                                                 ms.WORLD_FRAME))
-            d = {"node": NAME, **plant.report()}
+            d = {"node": self.get_name(), **self.report()}
             d.update(self.drops.as_dict())
             self.diag_pub.publish(ms.diagnostics_to_msg(
                 d, self.get_clock().now().nanoseconds, self.cfg.scenario.dt,

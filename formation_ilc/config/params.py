@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from formation_ilc.config.bases import BASES
 from formation_ilc.config.runconfig import MODES, PARAMS
 
 __all__ = ["Param", "RUN", "ROBOT", "LEADER", "SIM", "BRIDGE", "FAKE_DRIVER", "by_name",
@@ -86,6 +87,11 @@ RUN: tuple[Param, ...] = (
           "command before it stops", "s", lo=1e-3, hi=1e6),
     Param("run_id", PARAMS["run_id"], "identity of the run; nodes of another run on the "
           "same domain and namespace are refused"),
+    Param("headings", PARAMS["headings"], "desired headings: chord (fits the Euler model), "
+          "arc (robots that drive arcs), auto (by plant); empty keeps the scenario's",
+          choices=("", "chord", "arc", "auto")),
+    Param("time_scale", PARAMS["time_scale"], "stretch the reference and formation in "
+          "time by this factor; 0 keeps the scenario's", lo=0.0, hi=1e3),
 )
 
 _RUN = by_name(RUN)
@@ -118,8 +124,10 @@ SIM: tuple[Param, ...] = (
 BRIDGE: tuple[Param, ...] = (
     Param("robot_id", 1, "1-based robot number; the node is named bridge_<id>", lo=1,
           hi=BIG),
-    Param("driver", "rosaria", "the robot's driver", choices=("rosaria", "p2os2",
-                                                               "ros2aria")),
+    Param("driver", "rosaria", "the robot's driver (a base preset sets 'base')",
+          choices=("rosaria", "p2os2", "ros2aria", "base")),
+    Param("base", "", "a differential-drive base's preset (topics, message type, limits); "
+          "empty: a Pioneer driver", choices=("", *BASES)),
     Param("driver_ns", "", "namespace of the driver's topics; empty: the driver's usual"),
     Param("cmd_type", "twist", "type of the driver's command",
           choices=("twist", "twist_stamped")),
@@ -127,6 +135,12 @@ BRIDGE: tuple[Param, ...] = (
           hi=100.0),
     Param("omega_max", 0.0, "clamp of the turn rate; 0: the Pioneer's", "deg/s", lo=0.0,
           hi=36000.0),
+    Param("a_max", 0.0, "limit of the linear acceleration; 0: the preset's (none for a "
+          "Pioneer driver)", "m/s^2", lo=0.0, hi=1000.0),
+    Param("alpha_max", 0.0, "limit of the angular acceleration; 0: the preset's (none for "
+          "a Pioneer driver)", "deg/s^2", lo=0.0, hi=1e6),
+    Param("max_tilt", 10.0, "largest roll or pitch of the odometry accepted (reported); "
+          "beyond it the odometry is refused", "deg", lo=0.0, hi=90.0),
     Param("cmd_timeout", 0.0, "zero command once the robot node is silent this long; "
           "0: 2.5 dT", "s", lo=0.0, hi=1e6),
     Param("rate", 20.0, "rate the command is republished to the driver", "Hz", lo=0.1,

@@ -286,8 +286,10 @@ class RecorderNode(Node):
     def _check_ready(self) -> None:
         if self.cfg is None or self.said_ready:
             return
-        single = [t for t in self.subs
-                  if t not in _MANY_WRITERS and t != ms.CONFIG and t not in self.optional]
+        # in wall-clock trials no node publishes /clock: waiting for it would block the run
+        absent = {ms.CLOCK} if self.cfg.mode == "wallclock" else set()
+        single = [t for t in self.subs if t not in _MANY_WRITERS and t != ms.CONFIG
+                  and t not in self.optional and t not in absent]
         if all(self.subs[t].get_publisher_count() >= 1 for t in single) and \
                 self.ready_pub.get_subscription_count() >= 1:
             self.said_ready = True

@@ -165,7 +165,9 @@ def test_a_scenario_is_required(tmp_path):
 
 
 def test_the_options_are_not_changed_and_run_json_holds_what_resume_needs(tmp_path):
-    args = options("paper-triangle3", "--out", str(tmp_path / "run"), "--plant", "pioneer")
+    # (real Pioneers at the paper's spacing touch in a cold start: allowed, to plan it)
+    args = options("paper-triangle3", "--out", str(tmp_path / "run"), "--plant", "pioneer",
+                   "--allow-contact")
     before = dict(vars(args))
     plan = build_plan(args)
     assert vars(args) == before
