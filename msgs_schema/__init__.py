@@ -19,7 +19,8 @@ config                     std_msgs/String (JSON)       leader -> all (latched)
 leader/reference           geometry_msgs/PoseStamped    leader -> robots that see it, links
 leader/trial_events        std_msgs/String (JSON)       leader -> all
 ready                      std_msgs/String (JSON)       all -> leader (latched)
-diagnostics                std_msgs/String (JSON)       all -> monitor (latched)
+diagnostics                diagnostic_msgs/             all -> monitor, recorder,
+                           DiagnosticArray              ROS tools (latched)
 robot_i/pose               geometry_msgs/PoseStamped    plant -> robot i
 robot_i/cmd_vel            geometry_msgs/Twist          robot i -> plant
 robot_i/shared_pose        geometry_msgs/PoseStamped    robot i -> out-neighbours (direct),
@@ -83,6 +84,7 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 from formation_ilc.core.clock import Malformed, SampleClock
+from formation_ilc.core.kinematics import yaw_and_tilt
 from formation_ilc.core.links import LEADER, link_name
 from formation_ilc.core.names import (
     BRIDGE_PREFIX,
@@ -113,7 +115,7 @@ __all__ = [
     "path_limit", "path_from_raw", "FRAME_ID_MAX",
     "START", "END", "ABORT", "DONE",
     "DriverSpec", "DRIVERS", "DRIVER_CMD_QOS", "ODOM_QOS", "BRIDGE_PREFIX", "bridge_name",
-    "odometry_to_pose", "odometry_msg", "driver_twist",
+    "odometry_to_pose", "base_odometry_to_pose", "odometry_msg", "driver_twist",
     "LEADER_NODE", "SIM_NODE", "LINKS_NODE", "MONITOR_NODE", "RECORDER_NODE",
     "FAKE_DRIVER_NODE",
 ]
@@ -215,8 +217,9 @@ class DriverSpec:
     cmd : velocity command in (Twist, or TwistStamped with the bridge's ``cmd_type``);
     odom : nav_msgs/Odometry out, starting at 0 where the robot was placed;
     motors : how motors are enabled; motors_kind: 'empty_service' (std_srvs/Empty),
-        'setbool_service' (std_srvs/SetBool, data true) or 'p2os_motor_state'
-        (p2os_msgs/MotorState with state 1, a topic);
+        'setbool_service' (std_srvs/SetBool, data true), 'p2os_motor_state'
+        (p2os_msgs/MotorState with state 1, a topic) or 'none' (a base whose motors are
+        always on: TurtleBot, Jackal, Husky);
     default_ns : the driver's usual namespace.
     """
 
@@ -236,6 +239,9 @@ DRIVERS: dict[str, DriverSpec] = {
     # std_srvs/SetBool service (true = engaged); not verified against the driver's source:
     # check ``ros2 interface`` on the robot, and remap or change motors_kind if it differs
     "ros2aria": DriverSpec("cmd_vel", "odom", "clutch", "setbool_service", "/"),
+    # any differential-drive base with the common interface: cmd_vel in, nav_msgs/Odometry
+    # out, no motor service (formation_ilc.config.bases has presets of the topic names)
+    "base": DriverSpec("cmd_vel", "odom", "", "none", "/"),
 }
 
 # Drivers publish odometry best effort or reliable: a best-effort reader matches both.
@@ -258,18 +264,46 @@ def odometry_to_pose(msg: Odometry) -> tuple[float, float, float]:
     return x, y, _heading_from_quaternion(q.x, q.y, q.z, q.w, None)
 
 
+def base_odometry_to_pose(msg: Odometry, max_tilt: float
+                          ) -> tuple[float, float, float, float]:
+    """(x, y, yaw, tilt) of a base's odometry, yaw from the full quaternion
+    (``kinematics.yaw_and_tilt``): a base on a slope, or whose IMU-fused odometry carries
+    roll and pitch, still has a heading. MalformedMessage if not finite, or tilted more
+    than ``max_tilt`` [rad] (the odometry of a robot on its side is no planar pose)."""
+    p = msg.pose.pose.position
+    x, y = float(p.x), float(p.y)
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise MalformedMessage("non-finite odometry position")
+    q = msg.pose.pose.orientation
+    try:
+        yaw, tilt = yaw_and_tilt(float(q.x), float(q.y), float(q.z), float(q.w))
+    except ValueError as exc:
+        raise MalformedMessage(str(exc)) from None
+    if tilt > max_tilt:
+        raise MalformedMessage(f"odometry tilted by {math.degrees(tilt):.1f} deg, beyond "
+                               f"the bound of {math.degrees(max_tilt):.1f} deg (max_tilt)")
+    return x, y, yaw, tilt
+
+
 def odometry_msg(pose: Sequence[float], twist: Sequence[float], stamp_ns: int,
                  frame_id: str = "odom", child: str = "base_link",
-                 out: Odometry | None = None) -> Odometry:
-    """A driver's odometry message (for fake drivers): pose (x, y, yaw), twist (v, omega)."""
+                 out: Odometry | None = None,
+                 quat: Sequence[float] | None = None) -> Odometry:
+    """A driver's odometry message (for fake drivers and physics bases): pose (x, y, yaw),
+    twist (v, omega); ``quat`` (x, y, z, w): the orientation with roll and pitch (default:
+    the yaw alone)."""
     m = Odometry() if out is None else out
     ns_to_stamp(stamp_ns, m.header.stamp)
     m.header.frame_id = frame_id
     m.child_frame_id = child
     m.pose.pose.position.x = float(pose[0])
     m.pose.pose.position.y = float(pose[1])
-    m.pose.pose.orientation.z = math.sin(0.5 * float(pose[2]))
-    m.pose.pose.orientation.w = math.cos(0.5 * float(pose[2]))
+    o = m.pose.pose.orientation
+    if quat is None:
+        o.x, o.y = 0.0, 0.0
+        o.z, o.w = math.sin(0.5 * float(pose[2])), math.cos(0.5 * float(pose[2]))
+    else:
+        o.x, o.y, o.z, o.w = (float(c) for c in quat)
     m.twist.twist.linear.x = float(twist[0])
     m.twist.twist.angular.z = float(twist[1])
     return m
@@ -531,7 +565,7 @@ def topic_table(n: int) -> list[tuple[str, str, QoSProfile]]:
         (REFERENCE, "geometry_msgs/msg/PoseStamped", SAMPLE_QOS),
         (TRIAL_EVENTS, "std_msgs/msg/String", SAMPLE_QOS),
         (READY, "std_msgs/msg/String", LATCHED_QOS),
-        (DIAGNOSTICS, "std_msgs/msg/String", LATCHED_QOS),
+        (DIAGNOSTICS, DIAGNOSTICS_TYPE, LATCHED_QOS),
         (CLOCK, "rosgraph_msgs/msg/Clock", CLOCK_QOS),
     ]
     for i in range(1, n + 1):
@@ -714,3 +748,64 @@ def world_pose_cdr(data: bytes) -> tuple[NDArray[np.float64], int]:
 
 
 __all__ += ["stamped_cdr", "vector_cdr", "world_pose_cdr"]
+
+
+# =========================================================================== diagnostics
+# Standard diagnostics (diagnostic_msgs/DiagnosticArray on ``diagnostics``): a node's report
+# as statuses with levels and key/value pairs (formation_ilc.protocol.health), which the
+# monitor, the recorder and analyze read back without loss, and ROS tools show.
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
+
+from formation_ilc.protocol.health import Status, flatten, statuses, unflatten  # noqa: E402
+
+__all__ += ["DIAGNOSTICS_TYPE", "diagnostics_to_msg", "msg_to_statuses", "msg_to_report"]
+
+DIAGNOSTICS_TYPE = "diagnostic_msgs/msg/DiagnosticArray"
+#: the most statuses and key/value pairs a diagnostics message may carry to be read
+DIAG_STATUS_MAX = 1024
+DIAG_VALUES_MAX = 100_000
+
+
+def diagnostics_to_msg(report: dict[str, Any], stamp_ns: int, dt: float | None = None,
+                       samples: int | None = None, hardware_id: str = "") -> DiagnosticArray:
+    """The DiagnosticArray of one node's report (``health.statuses``: levels by the
+    documented thresholds; ``dt`` [s] and ``samples`` per trial make the relative ones)."""
+    msg = DiagnosticArray()
+    msg.header.stamp = ns_to_stamp(stamp_ns)
+    for st in statuses(report, dt, samples, hardware_id):
+        msg.status.append(DiagnosticStatus(
+            level=bytes([st.level]), name=st.name, message=st.message,
+            hardware_id=st.hardware_id,
+            values=[KeyValue(key=k, value=v) for k, v in flatten(st.values)]))
+    return msg
+
+
+def msg_to_statuses(msg: DiagnosticArray) -> list[Status]:
+    """Every status of a DiagnosticArray with its fields back (MalformedMessage if one's
+    values are not the pairs ``diagnostics_to_msg`` writes, or there are too many)."""
+    if len(msg.status) > DIAG_STATUS_MAX:
+        raise MalformedMessage(f"{len(msg.status)} statuses in one diagnostics message")
+    out = []
+    for st in msg.status:
+        if len(st.values) > DIAG_VALUES_MAX:
+            raise MalformedMessage(f"{len(st.values)} values in one status")
+        try:
+            values = unflatten((kv.key, kv.value) for kv in st.values)
+        except (ValueError, RecursionError) as exc:
+            raise MalformedMessage(f"status {st.name[:100]!r}: {exc}"[:200]) from None
+        level = st.level[0] if isinstance(st.level, (bytes, bytearray)) else int(st.level)
+        out.append(Status(level, st.name, st.message, st.hardware_id, values))
+    return out
+
+
+def msg_to_report(msg: DiagnosticArray, required: Sequence[str] = ()) -> dict[str, Any]:
+    """The node's own report in a DiagnosticArray (the status that names its ``node``);
+    MalformedMessage if there is none or it lacks a key of ``required``."""
+    for st in msg_to_statuses(msg):
+        if "node" in st.values:
+            missing = [k for k in required if k not in st.values]
+            if missing:
+                raise MalformedMessage(f"diagnostics lack {missing}")
+            return st.values
+    raise MalformedMessage("diagnostics without a node's report")

@@ -40,6 +40,7 @@ from __future__ import annotations
 import sys
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rosgraph_msgs.msg import Clock
@@ -48,6 +49,7 @@ from std_msgs.msg import String
 import msgs_schema as ms
 from formation_ilc.core.clock import Rejected
 from formation_ilc.nodes.common import ConfiguredNode, RunConfig, matched, node_parser, spin_main
+from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.linkemu import CLOCK, REFERENCE, SHARED, Emitted, EmulatedLinks
 
 #: realtime: the emulator delivers at the latest this many dT after the tick
@@ -61,6 +63,7 @@ class LinkEmulator(ConfiguredNode):
 
     def __init__(self, **kwargs: Any):
         super().__init__(NAME, **kwargs)
+        declare(self, ())  # no parameters of its own; use_sim_time refused
         self.follow_config()
 
     def configure(self, cfg: RunConfig) -> None:
@@ -72,7 +75,7 @@ class LinkEmulator(ConfiguredNode):
         self.out = [[self.create_publisher(Path, ms.link_topic(i + 1, s), ms.SAMPLE_QOS)
                      for s, _ in links] for i, links in enumerate(self.links.links)]
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         for j in range(self.links.n):
             self.create_subscription(PoseStamped, ms.shared_pose_topic(j + 1),
                                      lambda m, j=j: self._on_shared(m, j), ms.SAMPLE_QOS)
@@ -119,7 +122,9 @@ class LinkEmulator(ConfiguredNode):
         if out.done:
             d: dict[str, Any] = {"node": NAME, **self.links.report()}
             d.update(self.drops.as_dict())
-            self.diag_pub.publish(ms.json_to_msg(d))
+            self.diag_pub.publish(ms.diagnostics_to_msg(
+                d, self.get_clock().now().nanoseconds, self.cfg.scenario.dt,
+                self.cfg.scenario.samples))
             self.ready_pub.publish(self.ready_msg(self.links.iteration + 1))
 
     @staticmethod

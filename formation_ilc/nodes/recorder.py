@@ -41,6 +41,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile
 from std_msgs.msg import String
@@ -50,6 +51,7 @@ from formation_ilc.core.clock import Rejected
 from formation_ilc.core.links import check_diagnostics
 from formation_ilc.nodes.common import DropCounter, RunConfig, node_parser, spin_main
 from formation_ilc.nodes.observer import Observer
+from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.schedule import Ready, TrialEvent
 from formation_ilc.recordings.mcap_io import CHUNK_BYTES, RosMcapWriter, type_hash
 from formation_ilc.recordings.recording import META_NAME, qos_of
@@ -76,6 +78,7 @@ class RecorderNode(Node):
     def __init__(self, output: Path, observe: bool = True, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(ms.RECORDER_NODE, **kwargs)
+        declare(self, ())  # no parameters of its own; use_sim_time refused
         self.output = Path(output)
         #: this process in its ready (the launcher's ``down`` names it by its pid)
         self.boot = f"{os.getpid()}"
@@ -94,7 +97,7 @@ class RecorderNode(Node):
         self.progress_topics: set[str] = set()  # what _progress reads (once configured)
         self.said_ready = False
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         self.paths: dict[int, set[str]] = {}  # slot -> topics of its trajectories recorded
         self.iteration_of: dict[int, int] = {}  # slot -> iteration (start events)
         self.aborted: set[int] = set()
@@ -248,8 +251,8 @@ class RecorderNode(Node):
             self._advance()
             return
         if topic == ms.DIAGNOSTICS:
-            d = check_diagnostics(ms.msg_to_json(ms.deserialize(data, String),
-                                                 ("node", "trial")))
+            d = check_diagnostics(ms.msg_to_report(ms.deserialize(data, DiagnosticArray),
+                                                   ("node", "trial")))
             name, k = d["node"], d["trial"]
             if name not in self.robots:
                 return
@@ -299,7 +302,7 @@ class RecorderNode(Node):
                  "file": str(self.output), "invalid_stamps": dict(self.invalid_stamps),
                  "unwritable": dict(self.unwritable)}
             d.update(self.drops.as_dict())
-            self.diag_pub.publish(ms.json_to_msg(d))
+            self.diag_pub.publish(ms.diagnostics_to_msg(d, self.get_clock().now().nanoseconds))
             k += 1
 
     def _configure(self, data: bytes) -> None:
@@ -329,8 +332,10 @@ class RecorderNode(Node):
     def _check_ready(self) -> None:
         if self.cfg is None or self.said_ready:
             return
-        single = [t for t in self.subs
-                  if t not in _MANY_WRITERS and t != ms.CONFIG and t not in self.optional]
+        # in wall-clock trials no node publishes /clock: waiting for it would block the run
+        absent = {ms.CLOCK} if self.cfg.mode == "wallclock" else set()
+        single = [t for t in self.subs if t not in _MANY_WRITERS and t != ms.CONFIG
+                  and t not in self.optional and t not in absent]
         if all(self.subs[t].get_publisher_count() >= 1 for t in single) and \
                 self.ready_pub.get_subscription_count() >= 1:
             self.said_ready = True
