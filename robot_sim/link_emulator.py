@@ -40,6 +40,7 @@ from __future__ import annotations
 import sys
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rosgraph_msgs.msg import Clock
@@ -55,6 +56,7 @@ from formation_ilc.nodes.common import (
     spin_main,
     warm_up_draws,
 )
+from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.linkemu import CLOCK, REFERENCE, SHARED, Emitted, EmulatedLinks
 from msgs_schema import wire
 from msgs_schema.wire import RawPose
@@ -70,6 +72,7 @@ class LinkEmulator(ConfiguredNode):
 
     def __init__(self, **kwargs: Any):
         super().__init__(NAME, **kwargs)
+        declare(self, ())  # no parameters of its own; use_sim_time refused
         self.follow_config()
 
     def configure(self, cfg: RunConfig) -> None:
@@ -82,7 +85,7 @@ class LinkEmulator(ConfiguredNode):
         self.out = [[self.create_publisher(Path, ms.link_topic(i + 1, s), ms.SAMPLE_QOS)
                      for s, _ in links] for i, links in enumerate(self.links.links)]
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         # the per-sample messages as bytes (msgs_schema.wire: no message objects)
         self.pose_subs = [
             self.create_subscription(PoseStamped, ms.shared_pose_topic(j + 1),
@@ -133,7 +136,9 @@ class LinkEmulator(ConfiguredNode):
         if out.done:
             d: dict[str, Any] = {"node": NAME, **self.links.report()}
             d.update(self.drops.as_dict())
-            self.diag_pub.publish(ms.json_to_msg(d))
+            self.diag_pub.publish(ms.diagnostics_to_msg(
+                d, self.get_clock().now().nanoseconds, self.cfg.scenario.dt,
+                self.cfg.scenario.samples))
             self.ready_pub.publish(self.ready_msg(self.links.iteration + 1))
 
     @staticmethod

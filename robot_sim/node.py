@@ -46,12 +46,14 @@ import sys
 import time
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist
 from nav_msgs.msg import Path
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 import msgs_schema as ms
+from formation_ilc.config import params
 from formation_ilc.core.clock import Rejected
 from formation_ilc.nodes.common import (
     ConfiguredNode,
@@ -62,6 +64,7 @@ from formation_ilc.nodes.common import (
     spin_main,
     warm_up,
 )
+from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.plant import RESEND_S, KinematicPlant, Sample
 
 #: the plant's node name (what it says ready as)
@@ -69,15 +72,31 @@ NAME = ms.SIM_NODE
 
 
 class SimNode(ConfiguredNode):
-    """The kinematic simulator of all robots."""
+    """The kinematic simulator of all robots.
 
-    def __init__(self, **kwargs: Any):
-        super().__init__(NAME, **kwargs)
-        self.declare_parameter("timeout", 0.0)
+    Another plant with this node's schedule, timing and publishing (the physics plant,
+    ``robot_sim.physics_node``) subclasses it with its own ``name`` and ``make_plant``.
+    """
+
+    def __init__(self, name: str = NAME, **kwargs: Any):
+        super().__init__(name, **kwargs)
+        declare(self, params.SIM)
+        self.declare_plant_parameters()
         self.follow_config()
 
+    def declare_plant_parameters(self) -> None:
+        """The plant's own parameters (a subclass's)."""
+
+    def make_plant(self, cfg: RunConfig) -> KinematicPlant:
+        """The plant core of run ``cfg`` (ValueError: the node refuses the run)."""
+        return KinematicPlant(cfg)
+
+    def report(self) -> dict[str, Any]:
+        """The trial's diagnostics."""
+        return self.plant.report()
+
     def configure(self, cfg: RunConfig) -> None:
-        self.plant = plant = KinematicPlant(cfg)
+        self.plant = plant = self.make_plant(cfg)
         self.follower = plant.follower
         warm_up(plant.pb, cfg.scenario.uncertainty)
         self.cfg = cfg
@@ -91,7 +110,7 @@ class SimNode(ConfiguredNode):
                                                 ms.TRAJECTORY_QOS) for r in range(n)]
         self.clock_pub = self.create_publisher(Clock, ms.CLOCK, ms.CLOCK_QOS)
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         self.cmd_subs = [  # bytes: msgs_schema.wire
             self.create_subscription(Twist, ms.cmd_vel_topic(r + 1),
                                      lambda m, r=r: self._on_cmd(m, r), ms.SAMPLE_QOS, raw=True)
@@ -143,9 +162,11 @@ class SimNode(ConfiguredNode):
             for r in range(plant.n):
                 self.true_pubs[r].publish(ms.wire.path_bytes(plant.xi[r], stamps,
                                                              ms.WORLD_FRAME))
-            d = {"node": NAME, **plant.report()}
+            d = {"node": self.get_name(), **self.report()}
             d.update(self.drops.as_dict())
-            self.diag_pub.publish(ms.json_to_msg(d))
+            self.diag_pub.publish(ms.diagnostics_to_msg(
+                d, self.get_clock().now().nanoseconds, self.cfg.scenario.dt,
+                self.cfg.scenario.samples))
         self._send(s)
         if s.last:
             self._say_ready(plant.iteration + 1)

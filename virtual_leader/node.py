@@ -68,14 +68,14 @@ import time
 from pathlib import Path
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
-from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 import msgs_schema as ms
+from formation_ilc.config import params
 from formation_ilc.config.runconfig import PARAMS, RunConfig
 from formation_ilc.config.team import Team, default_plant
 from formation_ilc.core.clock import Rejected
@@ -87,6 +87,7 @@ from formation_ilc.nodes.common import (
     node_parser,
     spin_main,
 )
+from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.schedule import Ready, Schedule, ScheduleError, TrialEvent
 from formation_ilc.protocol.wallclock import WallSchedule
 from formation_ilc.protocol.watchdog import READY, SAMPLE, STARTUP, STUCK, Bounds, Watchdog
@@ -103,12 +104,7 @@ class LeaderNode(Node):
     def __init__(self, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(NAME, **kwargs)
-        for name, default in PARAMS.items():  # the run configuration's (runconfig)
-            self.declare_parameter(name, default)
-        self.declare_parameter("start_margin", 1.0)
-        self.declare_parameter("nodes_expected", Parameter.Type.STRING_ARRAY)
-        self.declare_parameter("state_dir", "")
-        self.declare_parameter("watchdog_scale", 1.0)
+        declare(self, params.LEADER)  # the run configuration's (runconfig) and the leader's
         g = lambda name: self.get_parameter(name).value  # noqa: E731
         _check_parameters(g)
         self.cfg = RunConfig.from_params({name: g(name) for name in PARAMS})
@@ -116,11 +112,8 @@ class LeaderNode(Node):
         self.clock = self.cfg.clock
         self.T = sc.samples
         self.trials = sc.trials
-        try:
-            expected = g("nodes_expected")
-        except ParameterUninitializedException:
-            expected = None
-        self.expected = list(expected) if expected else Team.of(
+        expected = [str(e) for e in g("nodes_expected") if e]
+        self.expected = expected if expected else Team.of(
             sc.n, plant=default_plant(self.cfg.mode), links=self.cfg.links).expected
         # who reads the reference: the link emulator, or each robot that sees the leader
         self.ref_readers = (int(sum(sc.graph.leader > 0)) if self.cfg.links == "direct"
@@ -149,7 +142,7 @@ class LeaderNode(Node):
         self.config_pub = self.create_publisher(String, ms.CONFIG, ms.LATCHED_QOS)
         self.ref_pub = self.create_publisher(PoseStamped, ms.REFERENCE, ms.SAMPLE_QOS)
         self.event_pub = self.create_publisher(String, ms.TRIAL_EVENTS, ms.SAMPLE_QOS)
-        self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         self.ready_sub = self.create_subscription(String, ms.READY, self._on_ready,
                                                   ms.LATCHED_READER_QOS)
         # its own events come back here too; a start or abort it did not send is re-asserted
@@ -434,7 +427,8 @@ class LeaderNode(Node):
         if watchdog is not None:
             d["watchdog"] = watchdog
         d.update(self.drops.as_dict())
-        self.diag_pub.publish(ms.json_to_msg(d))
+        self.diag_pub.publish(ms.diagnostics_to_msg(
+            d, self.get_clock().now().nanoseconds, self.cfg.scenario.dt, self.T))
 
     def _on_clock(self, msg: Clock | bytes) -> None:
         try:

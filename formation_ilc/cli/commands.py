@@ -36,6 +36,7 @@ from formation_ilc.cli.options import (  # noqa: E402
 from formation_ilc.config.scenario import Scenario, ScenarioError, builtin_scenarios, load_scenario  # noqa: E402
 from formation_ilc.core.guards import DivergedError, format_bytes, memory_shortfall  # noqa: E402
 from formation_ilc.core.topology import SpanningTreeError  # noqa: E402
+from formation_ilc.model.footprint import BODIES  # noqa: E402
 from formation_ilc.store.memoryfile import MemoryFileError, load_memory, save_memory  # noqa: E402
 
 EXAMPLES = """\
@@ -118,6 +119,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_sweep(sub)
     _add_analyze(sub)
     _add_mcap_repair(sub)
+    _add_keystore(sub)
     _add_launch(sub)
     return ap
 
@@ -134,7 +136,7 @@ def _add_simulate(sub: Any) -> None:
                        epilog=SIMULATE_CODES,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     _scenario_arg(p)
-    add_run_options(p)
+    add_run_options(p, shape=True)
     p.add_argument("--no-plots", action="store_true", help="write no figures")
     p.add_argument("--init-memory", type=Path, metavar="MEMORY.npz",
                    help="start from a learned memory (a run's memory.npz, or an older "
@@ -151,6 +153,14 @@ def _add_simulate(sub: Any) -> None:
     p.add_argument("--keep", metavar="K1,K2,...",
                    help="trials whose trajectories are plotted and saved "
                         "(default: first, about 10%%, 40%% and last)")
+    p.add_argument("--plant-model", choices=("euler", "arc"), default="euler",
+                   help="euler (default): eq. (1) as the paper steps it; arc: a unicycle that "
+                        "drives an arc each sample, as real robots and the physics plant do "
+                        "(the scenario's auto headings then read as arc)")
+    p.add_argument("--footprint", choices=BODIES, default=None,
+                   help="write clearance.csv: each trial's least clearance between the "
+                        "robots' footprints (this model's body; < 0: they overlap), and say "
+                        "how many trials overlap")
     p.add_argument("--out", type=out_dir_arg, metavar="DIR",
                    help="output folder (default: runs/SCENARIO-LAW-MEMORY-TIME)")
 
@@ -304,6 +314,13 @@ def _add_mcap_repair(sub: Any) -> None:
     p.add_argument("recording", type=Path, metavar="RUN.mcap")
     p.add_argument("-o", "--output", type=output_file_arg, metavar="FIXED.mcap",
                    help="default: RUN.repaired.mcap")
+
+
+
+def _add_keystore(sub: Any) -> None:
+    from formation_ilc.cli import keystore
+
+    keystore.add_parser(sub)
 
 
 def _add_launch(sub: Any) -> None:
@@ -487,7 +504,10 @@ def _thin(a: np.ndarray, limit: int = 20_000) -> np.ndarray:
 def cmd_simulate(args: argparse.Namespace) -> int:
     from formation_ilc.model.simulate import simulate, simulate_bytes
 
-    sc = _scenario(args)
+    sc = _scenario(args).with_options(headings=getattr(args, "headings", None),
+                                      time_scale=getattr(args, "time_scale", None))
+    plant = getattr(args, "plant_model", "euler")
+    sc = sc.for_plant(plant)
     k = sc.trials
     first = int(args.first_trial)
     if first + k > MAX_TRIAL:
@@ -527,12 +547,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             log.close()
             raise OptionError(f"--record {args.record}: cannot write: "
                               f"{exc.strerror or exc}") from None
+    clear_rows: list[Any] = []
+    on_data = _with_clearance(args.footprint, None if recorder is None else recorder.trial,
+                              clear_rows)
     t0 = time.perf_counter()
     previous = _sigterm_as_interrupt()
     try:
         res = simulate(sc, keep=keep, progress=on_trial, initial_memory=init,
-                       first_trial=first,
-                       on_trial_data=None if recorder is None else recorder.trial,
+                       first_trial=first, on_trial_data=on_data, plant=plant,
                        stop_on_divergence=True, on_memory=keeper.update, store_metrics=False)
         keeper.save()
     except DivergedError as exc:
@@ -552,7 +574,39 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         if recorder is not None:
             recorder.close()
     return _simulate_outputs(args, sc, res, log, keeper, out, first,
-                             time.perf_counter() - t0)
+                             time.perf_counter() - t0, clear_rows)
+
+
+def _with_clearance(body: str | None, on_data: Any, rows: list[Any]) -> Any:
+    """``simulate --footprint BODY``: the per-trial callback that also appends each trial's
+    least clearance between the robots' footprints to ``rows``."""
+    if body is None:
+        return on_data
+    from formation_ilc.model.footprint import footprint_of, trial_clearance
+
+    fp = footprint_of(body)
+
+    def with_clearance(k: int, xi: np.ndarray, *rest: Any) -> None:
+        rows.append(trial_clearance(k, xi, fp))
+        if on_data is not None:
+            on_data(k, xi, *rest)
+
+    return with_clearance
+
+
+def _clearance_outputs(body: str, rows: list[Any], out: Path, dt: float,
+                       summary: dict[str, Any]) -> str:
+    """clearance.csv and the summary's footprint entry; the line to print."""
+    with (out / "clearance.csv").open("w") as fh:
+        fh.write("trial,least_clearance,robot_i,robot_j,time,overlapping_samples\n")
+        for c in rows:
+            fh.write(f"{c.trial},{c.value:.6f},{c.robots[0]},{c.robots[1]},"
+                     f"{c.sample * dt:.6g},{c.overlapping}\n")
+    hits = [c for c in rows if c.value < 0]
+    summary["footprint"] = {"model": body, "overlapping_trials": len(hits),
+                            "least_clearance": min(c.value for c in rows)}
+    return (f"  footprints ({body}): {len(hits)} of {len(rows)} trials overlap"
+            + (f", first {hits[0].line(dt)}" if hits else ""))
 
 
 def _keep_trials(text: str | None, first: int, k: int) -> list[int]:
@@ -593,7 +647,8 @@ def _interrupted(args: argparse.Namespace, out: Path, log: TrialLog, keeper: Mem
 
 
 def _simulate_outputs(args: argparse.Namespace, sc: Scenario, res: Any, log: TrialLog,
-                      keeper: MemoryKeeper, out: Path, first: int, elapsed: float) -> int:
+                      keeper: MemoryKeeper, out: Path, first: int, elapsed: float,
+                      clear_rows: list[Any]) -> int:
     """A finished simulation's trajectories.npz, summary.json, plots and printed lines."""
     from formation_ilc.model.checks import condition20
 
@@ -619,6 +674,10 @@ def _simulate_outputs(args: argparse.Namespace, sc: Scenario, res: Any, log: Tri
         "memory_writes": keeper.writes,
     }
     files = ["metrics.csv", "summary.json", "trajectories.npz", "memory.npz"]
+    clear_line = None
+    if clear_rows:
+        clear_line = _clearance_outputs(args.footprint, clear_rows, out, sc.dt, summary)
+        files.append("clearance.csv")
     if not args.no_plots:
         from formation_ilc.recordings.plots import plot_errors, plot_trajectories
 
@@ -638,6 +697,8 @@ def _simulate_outputs(args: argparse.Namespace, sc: Scenario, res: Any, log: Tri
     print(f"  max position error: trial {first} {pos0:.4g} m -> trial {last} {pos1:.4g} m")
     print(f"  max heading error:  trial {first} {head0:.4g} rad -> trial {last} "
           f"{head1:.4g} rad")
+    if clear_line is not None:
+        print(clear_line)
     print(f"  results in {out}/ ({', '.join(files)})")
     return 0
 
@@ -886,6 +947,10 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"note: {args.recording}: {line}")
             print(f"{dst}: {n} messages kept")
             return 0
+        if args.command == "keystore":
+            from formation_ilc.cli import keystore
+
+            return keystore.run(args)
         if args.command == "launch":
             from formation_ilc.cli import launch  # type: ignore[attr-defined,unused-ignore]
 

@@ -28,14 +28,26 @@ anything changes. Statuses: 0 whole, 1 a node failed, 2 refused, 3 recording inc
 Node entry points (also `ros2 run formation_ilc <exe>` on a full ROS 2 install):
   formation-ilc-leader  virtual leader: --ros-args -p scenario:=NAME [-p trials:=K ...]
   formation-ilc-sim     kinematic simulator, the plant (config from the config topic)
+  formation-ilc-physics the PyBullet physics plant (docs/physics.md)
   formation-ilc-links   link emulator, for emulated links (config from the config topic)
   formation-ilc-robot   one robot: --ros-args -p robot_id:=I; container: --robots 1 2 3
   formation-ilc-bridge  a Pioneer 3-DX behind the plant contract: --ros-args -p robot_id:=I
                         -p driver:=rosaria (docs/real-robots.md)
 
+--live [PORT]: serve the running formation to Foxglove on ws://127.0.0.1:PORT (its own
+process, formation-ilc-liveview; docs/ros-tools.md).
+
 --plant pioneer: one bridge per robot instead of the simulator (with --fake-drivers one
-fake RosAria driver per robot too), wall-clock trials, direct links; --init-memory FILE:
+fake RosAria driver per robot too), wall-clock trials, direct links; --plant base: the same
+bridges in front of any differential-drive base (--base PRESET, limits checked against the
+scenario before anything starts; --physics-bases: physics robots behind them); --plant
+physics: the PyBullet plant, refused where the batch simulator predicts that the robots'
+bodies touch (--allow-contact); --init-memory FILE:
 every robot starts from its row of a memory learned by `formation-ilc simulate`.
+
+--secure DIR: every node in its SROS2 enclave of the keystore DIR (`formation-ilc keystore
+create DIR SCENARIO`), DDS-Security enforced; refused before anything starts if the
+keystore or the loaded Fast DDS cannot run it (docs/security.md).
 """
 
 from __future__ import annotations
@@ -79,7 +91,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenario", metavar="SCENARIO", nargs="?",
                    help="built-in scenario name (formation-ilc scenarios) or a YAML file "
                         "(not with --resume)")
-    add_run_options(p, trials=20)
+    add_run_options(p, trials=20, shape=True)
     p.add_argument("--mode", choices=MODES, default=None,
                    help="lockstep (default with the simulator): the simulator waits for every "
                         "robot (as fast as the processes allow, deterministic); realtime: the "
@@ -94,16 +106,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "lockstep run equals `simulate --no-delay`; the default and required "
                         "with --plant pioneer)")
     p.add_argument("--plant", choices=PLANTS, default="sim",
-                   help="sim (default): start the kinematic simulator; external: another "
+                   help="sim (default): start the kinematic simulator; physics: the PyBullet "
+                        "rigid-body plant (docs/physics.md); external: another "
                         "process speaks the plant contract (docs/distributed-stack.md) and "
                         "says ready as one of --plant-nodes; pioneer: one Pioneer bridge per "
                         "robot (formation-ilc-bridge, docs/real-robots.md) in front of a "
-                        "driver (--driver), wall-clock trials, direct links")
+                        "driver (--driver), wall-clock trials, direct links; base: the same "
+                        "bridges in front of any differential-drive base (--base)")
+    add_plant_arguments(p)
     p.add_argument("--driver", choices=("rosaria", "p2os2", "ros2aria"), default="rosaria",
                    help="with --plant pioneer: the robots' driver (default rosaria)")
     p.add_argument("--driver-ns", default="/pioneer_{i}", metavar="PATTERN",
                    help="with --plant pioneer: robot i's driver namespace, {i} replaced by "
-                        "the robot number (default /pioneer_{i})")
+                        "the robot number (default /pioneer_{i}; with --plant base "
+                        "/base_{i})")
     p.add_argument("--cmd-type", choices=("twist", "twist_stamped"), default="twist",
                    help="with --plant pioneer: Twist (default) or TwistStamped "
                         "(diff_drive_controller) on the driver's cmd_vel")
@@ -130,7 +146,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=out_dir_arg, metavar="DIR",
                    help="output folder (default: runs/SCENARIO-launch-TIME)")
     p.add_argument("--domain-id", type=int_range(0, 232), metavar="ID",
-                   help="ROS_DOMAIN_ID (default: a free-looking one in 30..100)")
+                   help="ROS_DOMAIN_ID (default: the caller's ROS_DOMAIN_ID if set, else a "
+                        "free-looking one in 30..100)")
     p.add_argument("--discovery", choices=("localhost", "inherit"), default="localhost",
                    help="localhost (default): ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; "
                         "inherit: keep the caller's discovery settings (multi-host runs)")
@@ -153,7 +170,55 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="record every formation topic to this MCAP file (its own recorder "
                         "process; the run starts once it listens); analyse it with "
                         "`formation-ilc analyze RUN.mcap`")
+    p.add_argument("--live", type=int_range(1, 65535), nargs="?", const=8765, default=None,
+                   metavar="PORT",
+                   help="serve the running formation to Foxglove over its WebSocket protocol "
+                        "on PORT (default 8765), with the recording's topics and schemas "
+                        "(its own process; a slow or absent viewer never holds the run back; "
+                        "docs/ros-tools.md)")
+    p.add_argument("--live-host", default="127.0.0.1", metavar="ADDR",
+                   help="with --live: the address to serve on (default 127.0.0.1, this "
+                        "machine only; 0.0.0.0 serves every network)")
     add_host_arguments(p)
+    from formation_ilc.cli import secure
+
+    secure.add_arguments(p)
+
+
+def add_plant_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of the physics plant and of the bridges' bases and limits."""
+    from formation_ilc.config.bases import BASES
+
+    p.add_argument("--base", choices=tuple(BASES), default="turtlebot4",
+                   help="with --plant base: the base's preset (topics, message type, limits; "
+                        "docs/real-robots.md), default turtlebot4")
+    p.add_argument("--physics-bases", action="store_true",
+                   help="with --plant base: also start physics robots that speak the base's "
+                        "interface (robot_sim.physics_base, --robot-model), for a run without "
+                        "robots")
+    for name, unit in (("v-max", "m/s"), ("omega-max", "deg/s"), ("a-max", "m/s^2"),
+                       ("alpha-max", "deg/s^2")):
+        p.add_argument(f"--{name}", type=float, default=0.0,
+                       metavar=unit.upper().replace("/", "_").replace("^", ""),
+                       help=f"with --plant pioneer or base: every bridge's {name.split('-')[0]}"
+                            f" limit [{unit}] (default: the preset's or the bridge's)")
+    p.add_argument("--params-file", type=Path, metavar="FILE",
+                   help="with --plant pioneer or base: a ROS 2 parameters file for the "
+                        "bridges (e.g. per-robot limits under /formation/bridge_I)")
+    p.add_argument("--robot-model", choices=("p3dx", "husky"), default="p3dx",
+                   help="with --plant physics (or --physics-bases): P3-DX-size two-wheel "
+                        "drive (default) or the Husky of pybullet_data")
+    p.add_argument("--pose", choices=("truth", "odometry"), default="truth",
+                   help="with --plant physics: the robots' measured pose, the engine's ground "
+                        "truth (a motion-capture stand-in, default) or wheel odometry")
+    p.add_argument("--pass-through", action="store_true",
+                   help="with --plant physics: robots pass through each other instead of "
+                        "colliding (contacts are then not reported)")
+    p.add_argument("--physics-rate", type=positive_float, default=240.0, metavar="HZ",
+                   help="with --plant physics: engine steps per second (default 240)")
+    p.add_argument("--allow-contact", action="store_true",
+                   help="run on a plant with bodies although the batch simulator predicts "
+                        "that the robots' footprints overlap")
 
 
 # --------------------------------------------------------------------------- separate hosts
@@ -217,6 +282,8 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
     if "ROS_AUTOMATIC_DISCOVERY_RANGE" in env:
         os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env["ROS_AUTOMATIC_DISCOVERY_RANGE"]
     pb = Problem.from_scenario(plan.scenario)
+    for note in plan.notes:
+        print(note, flush=True)
     print(plan.banner(), flush=True)
     session = _Session(plan, env, place)
     try:
@@ -439,6 +506,8 @@ class _Session:
             raise KeyboardInterrupt
 
         signal.signal(signal.SIGTERM, on_term)
+        if self.plan.secure is not None:  # the monitor joins in its own enclave
+            self.plan.secure.enter_launcher()
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
         status = 0
         try:

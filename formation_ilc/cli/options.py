@@ -171,10 +171,10 @@ output_file_arg.__name__ = "file"
 
 
 def add_run_options(p: argparse.ArgumentParser, *, law: bool = True,
-                    trials: int | None = None) -> None:
+                    trials: int | None = None, shape: bool = False) -> None:
     """The options of a run that ``simulate``, ``compare`` and ``launch`` share: --trials
     (default ``trials``, else the scenario's), --law and --memory (with ``law``), --seed,
-    --no-noise, --no-delay."""
+    --no-noise, --no-delay; with ``shape`` the reference's --headings and --time-scale."""
     p.add_argument("--trials", type=positive_int, metavar="K", default=trials,
                    help="number of trials (default: "
                         + ("the scenario's 'trials')" if trials is None else f"{trials})"))
@@ -191,6 +191,15 @@ def add_run_options(p: argparse.ArgumentParser, *, law: bool = True,
     p.add_argument("--no-noise", action="store_true",
                    help="no initial shifts, disturbances or measurement noise")
     p.add_argument("--no-delay", action="store_true", help="no communication delays")
+    if shape:
+        p.add_argument("--headings", choices=("auto", "chord", "arc"), default=None,
+                       help="desired headings (default: the scenario's; auto: chord for "
+                            "the Euler model and the kinematic simulator, arc for plants "
+                            "that drive arcs: docs/physics.md)")
+        p.add_argument("--time-scale", type=positive_float, default=None, metavar="S",
+                       help="stretch the reference in time by S >= 1 (S times slower: "
+                            "speeds / S, accelerations / S^2), so that a fast scenario fits "
+                            "the robots' limits")
 
 
 def make_out_dir(path: Path, option: str = "--out") -> Path:

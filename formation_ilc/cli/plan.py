@@ -22,13 +22,18 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
+from formation_ilc.cli.options import OptionError
+from formation_ilc.cli.secure import SecureRun
 from formation_ilc.config.runconfig import RunConfig, make_config, param_text, scenario_reference
 from formation_ilc.config.scenario import Scenario
-from formation_ilc.config.team import Team
+from formation_ilc.config.team import BRIDGED, Team
 from formation_ilc.core.names import (
+    BASES_NODE,
     LEADER_NODE,
     LINKS_NODE,
+    LIVEVIEW_NODE,
     NAMESPACE,
+    PHYSICS_NODE,
     RECORDER_NODE,
     SIM_NODE,
     bridge_name,
@@ -41,7 +46,8 @@ from formation_ilc.protocol.schedule import DONE
 from formation_ilc.system.exits import NO_RESTART as EXIT_NO_RESTART
 from formation_ilc.system.netns import LinkFaults
 
-__all__ = ["RUN_FILE", "NO_RESTART", "NoRun", "BridgeOptions", "RestartPolicy", "NodeSpec",
+__all__ = ["RUN_FILE", "NO_RESTART", "NoRun", "BridgeOptions", "PhysicsOptions",
+           "RestartPolicy", "NodeSpec",
            "HostsPlan", "RunPlan", "build_plan", "effective_options", "node_specs",
            "finished", "pick_domain", "resumed_part"]
 
@@ -69,31 +75,82 @@ class NoRun(Exception):
         return self.status
 
 
+#: a Pioneer driver's usual namespace pattern; a base's (``--plant base``) is /base_{i}
+PIONEER_NS = "/pioneer_{i}"
+BASE_NS = "/base_{i}"
+
+
 @dataclass(frozen=True)
 class BridgeOptions:
-    """How the Pioneer bridges reach their drivers (``--plant pioneer``; the
+    """How the bridges reach their drivers (``--plant pioneer`` or ``base``; the
     ``formation-ilc-bridge`` parameters of the same names).
 
-    driver : 'rosaria', 'p2os2' or 'ros2aria'.
+    driver : 'rosaria', 'p2os2' or 'ros2aria' (a Pioneer's).
     driver_ns : robot i's driver namespace, ``{i}`` replaced by the robot number.
-    cmd_type : 'twist' or 'twist_stamped' on the driver's cmd_vel.
+    cmd_type : 'twist' or 'twist_stamped' on the driver's cmd_vel (a Pioneer's; a base
+        preset names its own).
     return_timeout : [s] how long a bridge drives its robot back between trials.
     fake_drivers : also start one fake driver per robot (``robot_sim.fake_pioneer``).
+    base : the base preset (``--plant base``: ``formation_ilc.config.bases``), else None.
+    limits : the limits given on the command line (``config.bases.LIMIT_KEYS``, in the
+        bridge's units), only those given (not 0).
+    params_file : a ROS 2 parameters file every bridge reads (``--params-file``).
+    physics_bases : also start physics robots behind the bases' interface.
     """
 
     driver: str = "rosaria"
-    driver_ns: str = "/pioneer_{i}"
+    driver_ns: str = PIONEER_NS
     cmd_type: str = "twist"
     return_timeout: float = 60.0
     fake_drivers: bool = False
+    base: str | None = None
+    limits: tuple[tuple[str, float], ...] = ()
+    params_file: Path | None = None
+    physics_bases: bool = False
 
     @classmethod
     def of(cls, opts: argparse.Namespace) -> BridgeOptions:
-        return cls(opts.driver, opts.driver_ns, opts.cmd_type, float(opts.return_timeout),
-                   bool(opts.fake_drivers))
+        from formation_ilc.config.bases import LIMIT_KEYS
+
+        base = getattr(opts, "base", None) if opts.plant == "base" else None
+        ns = opts.driver_ns
+        if base is not None and ns == PIONEER_NS:
+            ns = BASE_NS
+        given = tuple((k, float(getattr(opts, k, 0.0) or 0.0)) for k in LIMIT_KEYS)
+        pf = getattr(opts, "params_file", None)
+        return cls(opts.driver, ns, opts.cmd_type, float(opts.return_timeout),
+                   bool(opts.fake_drivers), base, tuple((k, v) for k, v in given if v != 0),
+                   None if pf is None else Path(pf).resolve(),
+                   bool(getattr(opts, "physics_bases", False)))
 
     def namespace(self, i: int) -> str:
         return self.driver_ns.replace("{i}", str(i))
+
+    def params(self, i: int) -> tuple[tuple[str, Any], ...]:
+        """Robot ``i``'s bridge parameters."""
+        kind: tuple[tuple[str, Any], ...] = (
+            (("base", self.base),) if self.base is not None
+            else (("cmd_type", self.cmd_type), ("driver", self.driver)))
+        return ((("robot_id", i), ("driver_ns", self.namespace(i))) + kind
+                + (("return_timeout", self.return_timeout),) + self.limits)
+
+
+@dataclass(frozen=True)
+class PhysicsOptions:
+    """The physics plant (``--plant physics``, and the bodies of ``--physics-bases``): the
+    robot model ('p3dx', 'husky'), the measured pose's source ('truth', 'odometry'),
+    whether robots collide, engine steps per second."""
+
+    model: str = "p3dx"
+    pose: str = "truth"
+    collide: bool = True
+    rate: float = 240.0
+
+    @classmethod
+    def of(cls, opts: argparse.Namespace) -> PhysicsOptions:
+        return cls(getattr(opts, "robot_model", "p3dx"), getattr(opts, "pose", "truth"),
+                   not getattr(opts, "pass_through", False),
+                   float(getattr(opts, "physics_rate", 240.0)))
 
 
 @dataclass(frozen=True)
@@ -122,6 +179,8 @@ class NodeSpec:
         None: this machine's (the hub's).
     passive : a reader that says ready once for the run (the recorder): the leader is told
         at once when it dies, and its restart interrupts no trial.
+    env : environment variables of this process on top of the run's (``--secure``: its
+        enclave).
     """
 
     name: str
@@ -133,6 +192,7 @@ class NodeSpec:
     host: int | None = None
     passive: bool = False
     python: str = sys.executable
+    env: tuple[tuple[str, str], ...] = ()
 
     @property
     def command(self) -> list[str]:
@@ -165,7 +225,11 @@ class RunPlan:
     init_memory : ``--init-memory`` as given (the robots get its absolute path).
     record : the recording this launch writes (absolute), or None; ``record_root``: the
         run's first file (``analyze`` reads every part from it).
-    bridge : how the Pioneer bridges reach their drivers (``--plant pioneer``), or None.
+    bridge : how the bridges reach their drivers (``--plant pioneer`` or ``base``), or
+        None.
+    physics : the physics plant's options (``--plant physics``, ``--physics-bases``), or
+        None.
+    notes : lines to print before the run starts (a contact run allowed anyway).
     """
 
     config: RunConfig
@@ -190,6 +254,12 @@ class RunPlan:
     record_root: Path | None = None
     #: every bound of the leader's liveness watchdog times this (``--watchdog-scale``)
     watchdog_scale: float = 1.0
+    physics: PhysicsOptions | None = None
+    notes: tuple[str, ...] = ()
+    #: ``--secure``: the checked keystore every node runs in (its enclave is in its spec)
+    secure: SecureRun | None = None
+    #: ``--live``: the live view's (host, port), or None
+    live: tuple[str, int] | None = None
 
     @property
     def scenario(self) -> Scenario:
@@ -197,19 +267,20 @@ class RunPlan:
 
     @property
     def true_state(self) -> bool:
-        """The plant publishes the robots' true state (only the simulator does)."""
-        return self.plant == "sim"
+        """The plant publishes the robots' true state (the simulator, the physics plant)."""
+        return self.plant in ("sim", "physics")
 
     @property
-    def pioneer(self) -> bool:
-        return self.plant == "pioneer"
+    def bridged(self) -> bool:
+        """The plant is one bridge per robot (a Pioneer driver or a base behind each)."""
+        return self.plant in BRIDGED
 
     @property
     def reporters(self) -> tuple[str, ...]:
         """Nodes besides the robots whose last trial's diagnostics the launcher waits for
         (timing, missed samples, injected delays, the bridges' returns, the recording)."""
-        return (((SIM_NODE,) if self.true_state else ()) + self.team.support
-                + (self.team.plants if self.pioneer else ())
+        return ((self.team.plants if self.true_state or self.bridged else ())
+                + self.team.support
                 + ((RECORDER_NODE,) if self.record is not None else ()))
 
     def banner(self) -> str:
@@ -244,7 +315,14 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
     cfg = make_config(opts.scenario, seed=opts.seed, noise=not opts.no_noise,
                       delay=not opts.no_delay, trials=opts.trials, law=opts.law,
                       memory=opts.memory, mode=mode, monitored=True, timeout=opts.timeout,
-                      links=links, run_id=opts.run_id)
+                      links=links, run_id=opts.run_id,
+                      headings=getattr(opts, "headings", None),
+                      time_scale=getattr(opts, "time_scale", None))
+    # 'auto' headings: arc on the plants that drive arcs and came with the option (physics,
+    # base); chord for the kinematic simulator, and for the Pioneer bridges and external
+    # plants as before them (their runs and learned memories keep their numbers)
+    cfg = replace(cfg, scenario=cfg.scenario.for_plant(
+        "arc" if opts.plant in ("physics", "base") else "euler"))
     namespace = opts.namespace or NAMESPACE
     if not namespace.startswith("/") or "//" in namespace:
         raise NoRun(f"--namespace {namespace!r}: an absolute ROS namespace like /team2 is "
@@ -262,8 +340,13 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
                    monitor=True, recorder=opts.record is not None)
     record = opts.record.resolve() if opts.record is not None else None
     root = getattr(opts, "record_root_", None) or record
-    domain = opts.domain_id if opts.domain_id is not None else pick_domain()
-    bridge = BridgeOptions.of(opts) if opts.plant == "pioneer" else None
+    domain = opts.domain_id if opts.domain_id is not None else caller_domain()
+    if domain is None:
+        domain = pick_domain()
+    bridge = BridgeOptions.of(opts) if opts.plant in BRIDGED else None
+    physics = (PhysicsOptions.of(opts) if opts.plant == "physics"
+               or (bridge is not None and bridge.physics_bases) else None)
+    notes = _check_plant(opts, sc, namespace, bridge, physics)
     plan = RunPlan(
         config=cfg, team=team, nodes=(), out=out, namespace=namespace, domain=domain,
         discovery=opts.discovery, plant=opts.plant, container=opts.container,
@@ -275,10 +358,33 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
         init_memory=opts.init_memory, record=record, bridge=bridge,
         record_root=root.resolve() if root is not None else None,
         watchdog_scale=float(getattr(opts, "watchdog_scale", 1.0)),
+        physics=physics, notes=notes,
+        live=_live(opts),
         hosts=None if faults is None else HostsPlan(faults, opts.dds_profile or "lossy",
                                                     sc.seed))
     # the processes follow from the rest of the plan
-    return replace(plan, nodes=node_specs(plan, scenario_reference(opts.scenario)))
+    return _secured(replace(plan, nodes=node_specs(plan, scenario_reference(opts.scenario))),
+                    getattr(opts, "secure", None))
+
+
+def _secured(plan: RunPlan, keystore: Path | str | None) -> RunPlan:
+    """``plan`` with every process in its enclave of ``keystore`` (``--secure``), checked
+    before anything starts: NoRun if the keystore or the loaded Fast DDS cannot run it."""
+    from formation_ilc.cli.secure import SECURE_PLANTS, prepare
+
+    if keystore is not None and plan.plant not in SECURE_PLANTS:
+        raise NoRun(f"--secure: the keystore's permissions cover the plants "
+                    f"{', '.join(SECURE_PLANTS)}, not --plant {plan.plant} (run it without "
+                    f"--secure, on a network you trust)")
+    try:
+        sec = prepare(keystore, [s.name for s in plan.nodes], plan.namespace,
+                      container=plan.container)
+    except OptionError as exc:
+        raise NoRun(str(exc)) from None
+    if sec is None:
+        return plan
+    return replace(plan, secure=sec, nodes=tuple(
+        replace(s, env=tuple(sec.variables(s.name).items())) for s in plan.nodes))
 
 
 def effective_options(args: argparse.Namespace) -> argparse.Namespace:
@@ -322,7 +428,7 @@ def _resume_options(args: argparse.Namespace) -> argparse.Namespace:
     ns = argparse.Namespace(**vars(args))
     for k, v in d.items():
         setattr(ns, k, v)
-    for k in ("out", "init_memory", "record"):
+    for k in ("out", "init_memory", "record", "params_file"):
         if getattr(ns, k, None) is not None:
             setattr(ns, k, Path(getattr(ns, k)))
     ns.out = out
@@ -379,23 +485,100 @@ def _hosts_faults(opts: argparse.Namespace) -> LinkFaults | None:
 
 def _mode_and_links(opts: argparse.Namespace, hosts: bool) -> tuple[str, str]:
     """The run's mode and links: refuses what a plant cannot do, fills in the defaults."""
-    pioneer = opts.plant == "pioneer"
+    pioneer = opts.plant in BRIDGED
     links = "direct" if hosts else opts.links
     if pioneer and (opts.mode not in (None, "wallclock") or links not in (None, "direct")):
-        raise NoRun(f"--plant pioneer runs --mode wallclock with --links direct (real robots "
-                    f"have no simulated clock and no link emulator), got --mode {opts.mode} "
-                    f"--links {links}")
+        raise NoRun(f"--plant {opts.plant} runs --mode wallclock with --links direct (real "
+                    f"robots have no simulated clock and no link emulator), got --mode "
+                    f"{opts.mode} --links {links}")
     if opts.mode == "wallclock" and not pioneer and opts.plant != "external":
         raise NoRun("--mode wallclock is for real robots: use it with --plant pioneer (or an "
                     "external plant that samples on the wall clock); the simulator runs "
                     "lockstep or realtime")
-    if opts.fake_drivers and not pioneer:
+    if opts.fake_drivers and opts.plant != "pioneer":
         raise NoRun("--fake-drivers goes with --plant pioneer")
+    if getattr(opts, "physics_bases", False) and opts.plant != "base":
+        raise NoRun("--physics-bases goes with --plant base")
     if opts.fake_drivers and opts.driver == "p2os2":
         raise NoRun("--fake-drivers speak rosaria or ros2aria, not p2os2 (its p2os_msgs are "
                     "not on PyPI)")
     mode = opts.mode or ("wallclock" if pioneer else "lockstep")
     return mode, links or ("direct" if pioneer or mode == "wallclock" else "emulated")
+
+
+def _check_plant(opts: argparse.Namespace, sc: Scenario, namespace: str,
+                 bridge: BridgeOptions | None, physics: PhysicsOptions | None
+                 ) -> tuple[str, ...]:
+    """Refuse a run the plant cannot do, before anything starts: no PyBullet for a physics
+    plant; desired speeds or accelerations beyond the bridges' limits (with the
+    ``--time-scale`` that fits); robots with bodies whose footprints the batch simulator
+    predicts to overlap (unless ``--allow-contact``: then the warning is the plan's note)."""
+    if physics is not None:
+        from formation_ilc.protocol.physics_plant import physics_available
+
+        missing = physics_available()
+        if missing is not None:
+            raise NoRun(missing)
+    if bridge is not None:
+        line = _limits_line(bridge, sc, namespace)
+        if line is not None:
+            raise NoRun(line)
+    # fake drivers are unicycles without bodies: nothing to crash in a rehearsal
+    if physics is None and (bridge is None or bridge.fake_drivers):
+        return ()
+    line = _contact_line(opts, sc, bridge, physics)
+    if line is None:
+        return ()
+    if getattr(opts, "allow_contact", False):
+        return (f"warning: {line}; running anyway (--allow-contact)",)
+    raise NoRun(f"{line}; start from a learned memory (--init-memory, see docs/physics.md), "
+                f"widen the formation's offsets, or --allow-contact")
+
+
+def _limits_line(bridge: BridgeOptions, sc: Scenario, namespace: str) -> str | None:
+    """None if the scenario's desired speeds and accelerations fit every bridge's limits
+    (as the bridges will read them: ``protocol.bridge.bridge_limits``, the params file,
+    the command line); else the one line that says where they do not, and the time scale
+    that fits."""
+    import yaml
+
+    from formation_ilc.config.bases import fit_limits, limits_from_params
+    from formation_ilc.protocol.bridge import bridge_limits
+
+    params = None
+    if bridge.params_file is not None:
+        try:
+            params = yaml.safe_load(bridge.params_file.read_text())
+        except (OSError, yaml.YAMLError) as exc:
+            return f"--params-file {bridge.params_file}: cannot read: {exc}"
+        if not isinstance(params, dict):
+            return f"--params-file {bridge.params_file}: expected a mapping of node names"
+    try:
+        limits = limits_from_params(bridge_limits(bridge.base), sc.n, params,
+                                    dict(bridge.limits), namespace)
+    except ValueError as exc:
+        return str(exc)
+    return fit_limits(sc, limits)
+
+
+def _contact_line(opts: argparse.Namespace, sc: Scenario, bridge: BridgeOptions | None,
+                  physics: PhysicsOptions | None) -> str | None:
+    """The batch simulator's prediction of a run on robots with bodies (noise-free, the arc
+    plant, from the initial memory): None, or the line saying where two footprints first
+    overlap."""
+    from formation_ilc.model.footprint import first_overlap, footprint_of, predict_clearance
+    from formation_ilc.store.memoryfile import load_memory
+
+    body = (physics.model if physics is not None
+            else bridge.base if bridge is not None and bridge.base is not None else "p3dx")
+    fp = footprint_of(body)
+    memory = None if opts.init_memory is None else load_memory(opts.init_memory, sc)
+    hit = first_overlap(predict_clearance(sc, fp, sc.trials, memory=memory))
+    if hit is None:
+        return None
+    start = "warm start" if memory is not None else "cold start (u_0 = 0)"
+    return (f"the batch simulator predicts contact from this {start}: {hit.line(sc.dt)} "
+            f"(footprint {fp.length} x {fp.width} m)")
 
 
 def _check_memory(path: Path, sc: Scenario) -> None:
@@ -455,6 +638,33 @@ def _run_json(opts: argparse.Namespace, mode: str, links: str, out: Path) -> dic
     return d
 
 
+def _live(opts: argparse.Namespace) -> tuple[str, int] | None:
+    """``--live [PORT]`` on ``--live-host``: refused (NoRun) when the port is taken."""
+    import socket
+
+    port = getattr(opts, "live", None)
+    if port is None:
+        return None
+    host = getattr(opts, "live_host", None) or "127.0.0.1"
+    try:
+        with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as s:
+            s.bind((host, int(port)))
+    except OSError as exc:
+        raise NoRun(f"--live {port}: cannot serve on {host}:{port}: {exc.strerror}") from None
+    return host, int(port)
+
+
+def caller_domain() -> int | None:
+    """The caller's ``ROS_DOMAIN_ID`` (the launcher honours it), None when it is not set;
+    NoRun when it is not a domain id."""
+    text = os.environ.get("ROS_DOMAIN_ID", "").strip()
+    if not text:
+        return None
+    if not text.isdigit() or int(text) > 232:
+        raise NoRun(f"ROS_DOMAIN_ID={text[:20]!r}: a domain id 0..232 is required")
+    return int(text)
+
+
 def pick_domain() -> int:
     """A ROS_DOMAIN_ID in 30..100, distinct per launcher process. The shared-memory locks
     of Fast DDS name the domain port, so ids whose port files are held (another run on
@@ -484,6 +694,12 @@ def node_specs(plan: RunPlan, scenario: str) -> tuple[NodeSpec, ...]:
     if plan.record is not None:
         specs.append(spec(RECORDER_NODE, "formation_ilc.nodes.recorder",
                           args=("--output", str(plan.record)), remaps=nsa, passive=True))
+    if plan.live is not None:
+        # the view topics come from the recorder; without one the bridge makes them
+        specs.append(spec(LIVEVIEW_NODE, "formation_ilc.nodes.liveview",
+                          args=("--host", plan.live[0], "--port", str(plan.live[1]),
+                                *(("--observe",) if plan.record is None else ())),
+                          remaps=nsa))
     leader = {**cfg.to_params(scenario), "state_dir": state_dir,
               "nodes_expected": plan.team.expected}
     if plan.watchdog_scale != 1.0:
@@ -493,19 +709,14 @@ def node_specs(plan: RunPlan, scenario: str) -> tuple[NodeSpec, ...]:
     if plan.plant == "sim":
         specs.append(spec(SIM_NODE, "robot_sim.node", remaps=nsa,
                           params=(("timeout", float(cfg.timeout)),)))
+    phys = plan.physics
+    if plan.plant == "physics" and phys is not None:
+        specs.append(spec(PHYSICS_NODE, "robot_sim.physics_node", remaps=nsa,
+                          params=(("timeout", float(cfg.timeout)), ("model", phys.model),
+                                  ("pose", phys.pose), ("collide", phys.collide),
+                                  ("rate", float(phys.rate)))))
     if plan.bridge is not None:
-        bridge = plan.bridge
-        for i in range(1, n + 1):
-            dns = bridge.namespace(i)
-            if bridge.fake_drivers:
-                specs.append(spec(fake_driver_name(i), "robot_sim.fake_pioneer",
-                                  remaps=("-r", f"__ns:={dns}"),
-                                  params=(("seed", i), ("cmd_type", bridge.cmd_type),
-                                          ("driver", bridge.driver))))
-            specs.append(spec(bridge_name(i), "formation_ilc.nodes.pioneer_bridge", remaps=nsa,
-                              params=(("robot_id", i), ("driver_ns", dns),
-                                      ("cmd_type", bridge.cmd_type), ("driver", bridge.driver),
-                                      ("return_timeout", bridge.return_timeout))))
+        specs.extend(_bridge_specs(plan, plan.bridge, nsa, spec))
     if cfg.links == "emulated":
         specs.append(spec(LINKS_NODE, "robot_sim.link_emulator", remaps=nsa))
     robot: tuple[tuple[str, Any], ...] = (
@@ -523,3 +734,33 @@ def node_specs(plan: RunPlan, scenario: str) -> tuple[NodeSpec, ...]:
                               params=(("robot_id", i), *robot),
                               host=i if plan.hosts is not None else None))
     return tuple(specs)
+
+
+def _bridge_specs(plan: RunPlan, bridge: BridgeOptions, nsa: tuple[str, ...],
+                  spec: Any) -> list[NodeSpec]:
+    """The bridges (after the physics bases or fake drivers they drive, if any)."""
+    specs: list[NodeSpec] = []
+    n = plan.scenario.n
+    if bridge.physics_bases and bridge.base is not None and plan.physics is not None:
+        from formation_ilc.config.bases import base_preset
+
+        preset = base_preset(bridge.base)
+        starts = [float(x) for x in plan.scenario.desired.eta[:, 0].ravel()]
+        specs.append(spec(BASES_NODE, "robot_sim.physics_base", remaps=nsa,
+                          params=(("robots", n), ("poses", starts),
+                                  ("ns_pattern", bridge.driver_ns),
+                                  ("cmd_type", preset.cmd_type),
+                                  ("odom_topic", preset.odom_topic),
+                                  ("model", plan.physics.model),
+                                  ("collide", plan.physics.collide))))
+    # a params file goes with the ROS arguments, before the -p parameters (which win)
+    pf = () if bridge.params_file is None else ("--params-file", str(bridge.params_file))
+    for i in range(1, n + 1):
+        if bridge.fake_drivers:
+            specs.append(spec(fake_driver_name(i), "robot_sim.fake_pioneer",
+                              remaps=("-r", f"__ns:={bridge.namespace(i)}"),
+                              params=(("seed", i), ("cmd_type", bridge.cmd_type),
+                                      ("driver", bridge.driver))))
+        specs.append(spec(bridge_name(i), "formation_ilc.nodes.pioneer_bridge",
+                          remaps=nsa + pf, params=bridge.params(i)))
+    return specs

@@ -28,14 +28,17 @@ __all__ = ["write_report", "summary_of", "print_report"]
 
 #: a bridge's diagnostics that go into summary.json
 BRIDGE_KEYS = ("initial_shifts", "returns", "return_timeouts", "missed", "clipped",
-               "watchdog_zero", "stale_odometry")
+               "clipped_accel", "tilt_max_deg", "limits", "watchdog_zero", "stale_odometry")
+#: the physics plant's diagnostics that go into summary.json
+PHYSICS_KEYS = ("model", "pose_source", "substeps", "contacts_by_trial", "tilt_by_trial",
+                "odometry_drift_by_trial")
 
 
 def summary_of(plan: RunPlan, rows: int, diagnostics: Mapping[str, Mapping[str, Any]],
                restarts: Mapping[str, int], seconds: float) -> dict[str, Any]:
     """summary.json of a run of ``plan`` that finished ``rows`` trials in ``seconds``."""
     sc, cfg = plan.scenario, plan.config
-    sim_diag = diagnostics.get(SIM_NODE, {})
+    sim_diag = diagnostics.get(plan.team.plants[0] if plan.true_state else SIM_NODE, {})
     summary: dict[str, Any] = {
         "scenario": sc.name, "robots": sc.n, "trials_done": rows, "trials": sc.trials,
         "mode": cfg.mode, "links": cfg.links, "plant": list(plan.team.plants),
@@ -44,9 +47,11 @@ def summary_of(plan: RunPlan, rows: int, diagnostics: Mapping[str, Mapping[str, 
         "run_id": cfg.run_id, "resumed_at": plan.resumed_at, "restarts": dict(restarts),
         "timing": sim_diag.get("timing", {}), "missed": sim_diag.get("missed", {}),
         "dropped": {n: d.get("dropped", {}) for n, d in diagnostics.items()}}
-    if plan.pioneer:
+    if plan.bridged:
         summary["bridges"] = {b: {key: diagnostics.get(b, {}).get(key) for key in BRIDGE_KEYS}
                               for b in plan.team.plants}
+    if plan.plant == "physics":
+        summary["physics"] = {key: sim_diag.get(key) for key in PHYSICS_KEYS}
     if plan.init_memory is not None:
         summary["init_memory"] = str(plan.init_memory)
     return summary

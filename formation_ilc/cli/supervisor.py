@@ -34,9 +34,12 @@ class Stack:
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
         self.logs: dict[str, IO[bytes]] = {}
         self.argv: dict[str, list[str]] = {}
+        self.extra: dict[str, dict[str, str]] = {}
         self.restarts: dict[str, int] = {}
 
-    def start(self, name: str, argv: list[str]) -> None:
+    def start(self, name: str, argv: list[str], extra: dict[str, str] | None = None) -> None:
+        """Start process ``name``: ``argv`` in the run's environment plus ``extra`` (kept
+        for its restarts)."""
         self.log_dir.mkdir(parents=True, exist_ok=True)
         again = name in self.logs
         if again:
@@ -47,7 +50,10 @@ class Stack:
             fh.flush()
         self.logs[name] = fh
         self.argv[name] = argv
-        self.procs[name] = subprocess.Popen(argv, env=self.env, stdout=fh,
+        if extra is not None:
+            self.extra[name] = extra
+        env = {**self.env, **self.extra.get(name, {})}
+        self.procs[name] = subprocess.Popen(argv, env=env, stdout=fh,
                                             stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
 
     def restart(self, name: str) -> str:
@@ -147,7 +153,7 @@ class Supervisor:
     def start(self) -> None:
         """Start every process of the plan, in its order."""
         for spec in self.plan.nodes:
-            self.stack.start(spec.name, self.place(spec))
+            self.stack.start(spec.name, self.place(spec), dict(spec.env))
 
     def watch(self) -> Failure | None:
         """Start again each process that died, within its policy; the first that may not

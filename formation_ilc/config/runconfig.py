@@ -27,11 +27,12 @@ WALL_MODES = ("realtime", "wallclock")
 
 #: the ROS parameters of a run configuration and their defaults: seed -1, trials 0, law 0
 #: and memory "" keep the scenario's; noise and delay false are ``--no-noise`` and
-#: ``--no-delay`` (``RunConfig.to_params``, ``RunConfig.from_params``)
+#: ``--no-delay``; headings "" and time_scale 0 keep the scenario's desired headings and
+#: time scale (``RunConfig.to_params``, ``RunConfig.from_params``)
 PARAMS: dict[str, Any] = {
     "scenario": "", "seed": -1, "trials": 0, "law": 0, "memory": "", "noise": True,
     "delay": True, "mode": "lockstep", "links": "emulated", "gap": 20, "monitored": False,
-    "timeout": 30.0, "run_id": ""}
+    "timeout": 30.0, "run_id": "", "headings": "", "time_scale": 0.0}
 
 
 def param_text(value: Any) -> str:
@@ -113,7 +114,8 @@ class RunConfig:
                 **_switches(sc), "trials": sc.trials,
                 "law": sc.law.kind, "memory": sc.law.memory, "mode": self.mode,
                 "links": self.links, "gap": self.gap, "monitored": self.monitored,
-                "timeout": self.timeout, "run_id": self.run_id}
+                "timeout": self.timeout, "run_id": self.run_id,
+                "headings": sc.headings, "time_scale": sc.time_scale}
 
     def to_params(self, scenario: str) -> dict[str, Any]:
         """The ROS parameters (PARAMS) of this configuration; ``scenario`` is the name or
@@ -124,7 +126,8 @@ class RunConfig:
                 "law": sc.law.kind, "memory": sc.law.memory, **_switches(sc),
                 "mode": self.mode, "links": self.links, "gap": self.gap,
                 "monitored": self.monitored, "timeout": float(self.timeout),
-                "run_id": self.run_id}
+                "run_id": self.run_id, "headings": sc.headings,
+                "time_scale": float(sc.time_scale)}
 
     @classmethod
     def from_params(cls, p: Mapping[str, Any]) -> RunConfig:
@@ -139,7 +142,8 @@ class RunConfig:
             noise=bool(g["noise"]), delay=bool(g["delay"]), trials=int(g["trials"]) or None,
             law=int(g["law"]) or None, memory=str(g["memory"]) or None, mode=str(g["mode"]),
             gap=int(g["gap"]), monitored=bool(g["monitored"]), timeout=float(g["timeout"]),
-            links=str(g["links"]), run_id=str(g["run_id"]))
+            links=str(g["links"]), run_id=str(g["run_id"]),
+            headings=str(g["headings"]) or None, time_scale=float(g["time_scale"]) or None)
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> RunConfig:
@@ -148,7 +152,9 @@ class RunConfig:
             sc = scenario_from_text(str(d["scenario_text"]), str(d.get("source", "<config>")))
             sc = sc.with_options(law=int(d["law"]), memory=str(d["memory"]),
                                  noise=bool(d["noise"]), delay=bool(d["delay"]),
-                                 seed=int(d["seed"]), trials=int(d["trials"]))
+                                 seed=int(d["seed"]), trials=int(d["trials"]),
+                                 headings=str(d.get("headings", sc.headings)),
+                                 time_scale=float(d.get("time_scale", sc.time_scale)))
             return cls(sc, str(d.get("mode", "lockstep")), int(d.get("gap", 20)),
                        bool(d.get("monitored", False)), float(d.get("timeout", 30.0)),
                        str(d.get("links", "emulated")), str(d.get("run_id", "")))
@@ -165,8 +171,10 @@ def make_config(scenario: str, *, seed: int | None = None, noise: bool = True,
                 delay: bool = True, trials: int | None = None, law: int | None = None,
                 memory: str | None = None, mode: str = "lockstep", gap: int = 20,
                 monitored: bool = False, timeout: float = 30.0,
-                links: str = "emulated", run_id: str = "") -> RunConfig:
+                links: str = "emulated", run_id: str = "", headings: str | None = None,
+                time_scale: float | None = None) -> RunConfig:
     """The run configuration of a scenario name or file with command-line overrides."""
     sc = load_scenario(scenario).with_options(law=law, memory=memory, noise=noise,
-                                              delay=delay, seed=seed, trials=trials)
+                                              delay=delay, seed=seed, trials=trials,
+                                              headings=headings, time_scale=time_scale)
     return RunConfig(sc, mode, gap, monitored, timeout, links, run_id)

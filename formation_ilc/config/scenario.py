@@ -308,19 +308,39 @@ class Scenario:
     uncertainty: Uncertainty
     source: str = "<memory>"
     text: str = field(default="", repr=False)
+    #: desired headings: 'chord', 'arc' (``trajectory.HEADINGS``) or 'auto' (chord for the
+    #: Euler model, arc for any plant that drives arcs: ``for_plant``)
+    headings: str = "auto"
+    #: the reference and the formation stretched in time by this factor (samples x it,
+    #: speeds / it, accelerations / it^2): a scenario too fast for a robot's limits fits
+    time_scale: float = 1.0
 
     @property
     def n(self) -> int:
         return self.graph.n
+
+    @property
+    def heading_rule(self) -> str:
+        """The headings ``desired`` uses: 'auto' reads as 'chord'."""
+        return "chord" if self.headings == "auto" else self.headings
+
+    def for_plant(self, model: str) -> Scenario:
+        """This scenario for a plant model: 'auto' headings become 'chord' for 'euler'
+        (the model the desired inputs are exact for) and 'arc' for anything else (the exact
+        arc model, a physics engine, a real base: a robot that turns while it drives)."""
+        if self.headings != "auto":
+            return self
+        return replace(self, headings="chord" if model == "euler" else "arc")
 
     @cached_property
     def desired(self) -> tr.Desired:
         """Desired outputs and inputs of every robot (built on first use: the costly part);
         ScenarioError if they are not finite (offsets, scales or reference too extreme)."""
         with np.errstate(all="ignore"):
+            # the formation's scales are functions of seconds of the unstretched trial
             pos = tr.formation_positions(self.reference, self.offsets, list(self.scales),
-                                         self.dt, self.frame)
-            d = tr.desired_trajectories(pos, self.dt, self.reference)
+                                         self.dt / self.time_scale, self.frame)
+            d = tr.desired_trajectories(pos, self.dt, self.reference, self.heading_rule)
         for what, a in (("outputs", d.eta), ("inputs", d.u)):
             if not np.isfinite(a).all():
                 robot = int(np.flatnonzero(~np.isfinite(a.reshape(len(a), -1)).all(axis=1))[0])
@@ -331,8 +351,21 @@ class Scenario:
 
     def with_options(self, *, law: int | None = None, memory: str | None = None,
                      noise: bool = True, delay: bool = True, seed: int | None = None,
-                     trials: int | None = None) -> Scenario:
-        """A copy with command-line overrides applied."""
+                     trials: int | None = None, headings: str | None = None,
+                     time_scale: float | None = None) -> Scenario:
+        """A copy with command-line overrides applied. A new ``time_scale`` reads the
+        scenario's text again (its reference and sample count change); ScenarioError if it
+        cannot be applied."""
+        if time_scale is not None and float(time_scale) != self.time_scale:
+            src = Path(self.source)
+            base = src.parent if src.suffix in (".yaml", ".yml") else None
+            again = scenario_from_text(self.text, self.source, base, time_scale=time_scale)
+            return replace(again, headings=self.headings).with_options(
+                law=law, memory=memory, noise=noise, delay=delay, seed=seed, trials=trials,
+                headings=headings)
+        if headings is not None and headings not in ("auto",) + tr.HEADINGS:
+            raise ScenarioError(f"{self.source}: desired.headings: must be one of auto, "
+                                f"{', '.join(tr.HEADINGS)}; got {show(headings)}")
         unc = self.uncertainty
         if not noise:
             unc = unc.without_noise()
@@ -344,7 +377,8 @@ class Scenario:
                          memory=ls.memory if memory is None else memory)
         return replace(self, uncertainty=unc, law=ls,
                        seed=self.seed if seed is None else int(seed),
-                       trials=self.trials if trials is None else int(trials))
+                       trials=self.trials if trials is None else int(trials),
+                       headings=self.headings if headings is None else headings)
 
 
 # --------------------------------------------------------------------------- validation
@@ -466,16 +500,19 @@ def _constant(value: float) -> Any:
 _REFERENCES: dict[str, NDArray] = {}
 
 
-def _reference(f: _Fields, n_samples: int, dt: float, base_dir: Path | None) -> NDArray:
+def _reference(f: _Fields, n_samples: int, dt: float, base_dir: Path | None,
+               time_scale: float = 1.0) -> NDArray:
+    """The reference on t = 0..T+1; with ``time_scale`` s, ``n_samples`` is the stretched
+    count and sample t is where the unstretched reference is at t / s."""
     key = None
     if "file" not in f.data:  # a file's contents may change: read it every time
         try:
-            key = json.dumps([f.data, n_samples, dt], sort_keys=True)
+            key = json.dumps([f.data, n_samples, dt, time_scale], sort_keys=True)
         except (TypeError, ValueError):
             key = None
     if key is not None and key in _REFERENCES:
         return _REFERENCES[key].copy()  # the same mapping validated and built before
-    ref = _build_reference(f, n_samples, dt, base_dir)
+    ref = _build_reference(f, n_samples, dt, base_dir, time_scale)
     if key is not None:
         if len(_REFERENCES) >= 16:
             _REFERENCES.pop(next(iter(_REFERENCES)))
@@ -483,10 +520,15 @@ def _reference(f: _Fields, n_samples: int, dt: float, base_dir: Path | None) -> 
     return ref
 
 
-def _build_reference(f: _Fields, n_samples: int, dt: float, base_dir: Path | None
-                     ) -> NDArray:
+def _build_reference(f: _Fields, n_samples: int, dt: float, base_dir: Path | None,
+                     time_scale: float = 1.0) -> NDArray:
     kind = f.string("kind", choices=("lemniscate", "unicycle", "samples", "waypoints"))
     m = n_samples + 2  # t = 0..T+1
+    if time_scale != 1.0 and kind == "samples":
+        raise f.fail("kind", "a sampled reference cannot be stretched in time (time_scale); "
+                             "give its points at the slower pace")
+    # stretched: sample t sits at t / s of the unstretched grid, whose step is dt / s
+    dt = dt / time_scale
     if kind == "lemniscate":
         ref = tr.paper_lemniscate(m, dt, f.number("x_amplitude", 7.5),
                                   f.number("y_amplitude", 10.0), f.number("period", 45.0,
@@ -500,6 +542,9 @@ def _build_reference(f: _Fields, n_samples: int, dt: float, base_dir: Path | Non
         else:
             raise f.fail("speed", f"expected 'paper-ivb' or a number [m/s], got {show(speed)}")
         radius = f.number("turn_radius", 0.0)
+        if time_scale != 1.0:
+            v0 = v
+            v = lambda t: v0(np.asarray(t) / time_scale)  # noqa: E731
         w = (lambda t: v(t) / radius) if radius != 0 else _constant(0.0)
         start = f.numbers("start", 3, [0.0, 0.0, 0.0], angle_index=(2,))
         ref = tr.unicycle_reference(v, w, m, dt, (start[0], start[1], start[2]))
@@ -610,8 +655,8 @@ def _per_robot(f: _Fields, key: str, n: int, default: float) -> tuple[float, ...
     return (f.as_number(v, key, nonneg=True),) * n
 
 
-def scenario_from_text(text: str, source: str = "<memory>", base_dir: Path | None = None
-                       ) -> Scenario:
+def scenario_from_text(text: str, source: str = "<memory>", base_dir: Path | None = None,
+                       time_scale: float | None = None) -> Scenario:
     """Parse and validate a scenario given as YAML text.
 
     Every failure is a ScenarioError reading ``source: field: reason``, raised before the
@@ -620,17 +665,18 @@ def scenario_from_text(text: str, source: str = "<memory>", base_dir: Path | Non
     is refused before they are allocated (``load_bytes``).
     """
     data = parse_yaml(text, source)
-    return scenario_from_data(data, text, source, base_dir)
+    return scenario_from_data(data, text, source, base_dir, time_scale)
 
 
 def scenario_from_data(data: Any, text: str, source: str = "<memory>",
-                       base_dir: Path | None = None) -> Scenario:
+                       base_dir: Path | None = None, time_scale: float | None = None
+                       ) -> Scenario:
     """Validate a scenario given as the data ``parse_yaml`` makes of ``text`` (mappings,
     lists, strings, numbers; not modified); ``text`` is kept as the scenario's text. What
     ``scenario_from_text`` does after parsing: a study that edits the parsed data of one
     scenario need not write it out and parse it again."""
     with _section(source, "top level"):
-        return _scenario(data, text, source, base_dir)
+        return _scenario(data, text, source, base_dir, time_scale)
 
 
 @contextmanager
@@ -662,7 +708,8 @@ def _name(f: _Fields) -> str:
     return name
 
 
-def _scenario(data: Any, text: str, source: str, base_dir: Path | None) -> Scenario:
+def _scenario(data: Any, text: str, source: str, base_dir: Path | None,
+              time_scale: float | None = None) -> Scenario:
     top = _Fields(data, "", source)
     name = _name(top)
     description = top.string("description", "")
@@ -673,13 +720,16 @@ def _scenario(data: Any, text: str, source: str, base_dir: Path | None) -> Scena
     trials = top.integer("trials", 100, minimum=1)
     seed = top.integer("seed", 0, minimum=0)
     n = top.integer("robots", minimum=1)
+    with _section(source, "desired"):
+        headings, scale = _desired_options(top, time_scale)
+    n_samples = max(2, int(round(n_samples * scale)))
     why = memory_shortfall(load_bytes(n_samples, n))
     if why is not None:
         big = "samples" if 160 * n_samples >= 64 * n * n else "robots"
         raise top.fail(big, f"{n} robots x {n_samples} samples: loading them {why}")
 
     with _section(source, "reference"), np.errstate(all="ignore"):
-        ref = _reference(top.sub("reference"), n_samples, dt, base_dir)
+        ref = _reference(top.sub("reference"), n_samples, dt, base_dir, scale)
 
     with _section(source, "formation"):
         frame, offsets, robot_scales = _formation(top.sub("formation"), n, source)
@@ -701,7 +751,28 @@ def _scenario(data: Any, text: str, source: str, base_dir: Path | None) -> Scena
     return Scenario(name=name, description=description, dt=dt, samples=n_samples, trials=trials,
                     seed=seed, graph=graph, reference=ref, frame=frame, offsets=offsets,
                     scales=tuple(robot_scales), law=law, uncertainty=unc, source=source,
-                    text=text)
+                    text=text, headings=headings, time_scale=scale)
+
+
+#: the most a trial may be stretched in time (a typo like 100 would make it 100 x longer)
+MAX_TIME_SCALE = 20.0
+
+
+def _desired_options(top: _Fields, time_scale: float | None) -> tuple[str, float]:
+    """``desired: {headings, time_scale}``; ``time_scale`` given (the command line's
+    ``--time-scale``) replaces the file's."""
+    df = top.sub("desired", required=False)
+    headings = df.string("headings", "auto", choices=("auto",) + tr.HEADINGS)
+    scale = df.number("time_scale", 1.0, positive=True)
+    df.finish()
+    if time_scale is not None:
+        scale = float(time_scale)
+        if not math.isfinite(scale) or scale <= 0:
+            raise df.fail("time_scale", f"must be > 0, got {time_scale} (--time-scale)")
+    if not 1.0 <= scale <= MAX_TIME_SCALE:
+        raise df.fail("time_scale", f"must be in [1, {MAX_TIME_SCALE:g}] (a factor that "
+                                    f"slows the trial down), got {scale:g}")
+    return headings, scale
 
 
 def _formation(ff: _Fields, n: int, source: str

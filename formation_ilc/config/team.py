@@ -14,17 +14,21 @@ from dataclasses import dataclass
 from formation_ilc.core.names import (
     LINKS_NODE,
     MONITOR_NODE,
+    PHYSICS_NODE,
     RECORDER_NODE,
     SIM_NODE,
     bridge_name,
     robot_name,
 )
 
-__all__ = ["PLANTS", "Team", "default_plant"]
+__all__ = ["PLANTS", "BRIDGED", "Team", "default_plant"]
 
-#: what closes the loop: the kinematic simulator, another process speaking the plant
-#: contract, or one Pioneer bridge per robot
-PLANTS = ("sim", "external", "pioneer")
+#: what closes the loop: the kinematic simulator, the physics plant, another process
+#: speaking the plant contract, or one bridge per robot (in front of a Pioneer driver, or
+#: of any differential-drive base)
+PLANTS = ("sim", "physics", "external", "pioneer", "base")
+#: the plants whose nodes are one bridge per robot (wall-clock trials, direct links)
+BRIDGED = ("pioneer", "base")
 
 
 def default_plant(mode: str) -> str:
@@ -38,8 +42,8 @@ class Team:
     """The nodes of one run by role, in the order the schedule lists them.
 
     robots : ``robot_1`` .. ``robot_n``.
-    plants : the plant's nodes (``robot_sim``; ``bridge_i`` per robot; or an external
-        plant's names).
+    plants : the plant's nodes (``robot_sim``; ``physics_sim``; ``bridge_i`` per robot; or
+        an external plant's names).
     support : the link emulator with emulated links.
     passive : readers that say ready once for the whole run (monitor, recorder).
     """
@@ -56,8 +60,8 @@ class Team:
         external plant's node names) and ``links`` ('emulated' or 'direct')."""
         if plant not in PLANTS:
             raise ValueError(f"plant must be one of {', '.join(PLANTS)}, got {plant!r}")
-        plants = ((SIM_NODE,) if plant == "sim"
-                  else tuple(bridge_name(i + 1) for i in range(n)) if plant == "pioneer"
+        plants = ((SIM_NODE,) if plant == "sim" else (PHYSICS_NODE,) if plant == "physics"
+                  else tuple(bridge_name(i + 1) for i in range(n)) if plant in BRIDGED
                   else tuple(external))
         return cls(robots=tuple(robot_name(i + 1) for i in range(n)), plants=plants,
                    support=(LINKS_NODE,) if links == "emulated" else (),

@@ -5,13 +5,16 @@ State xi = (x, y, theta) [m, m, rad], input u = (v, omega) [m/s, rad/s].
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import NDArray
 
 from formation_ilc.core._jit import njit
 
-__all__ = ["step", "step_into", "unicycle_step", "rollout", "wrap_angle",
-           "heading_from_quaternion", "quaternion_from_heading"]
+__all__ = ["step", "step_into", "unicycle_step", "arc_step", "PLANT_MODELS", "rollout",
+           "wrap_angle", "heading_from_quaternion", "quaternion_from_heading",
+           "yaw_and_tilt"]
 
 
 @njit(cache=True)
@@ -26,6 +29,27 @@ def unicycle_step(x: float, y: float, th: float, v: float, w: float, dt: float
                   ) -> tuple[float, float, float]:
     """One sample of eq. (1) for one robot: v, w the input plus its disturbance."""
     return x + dt * np.cos(th) * v, y + dt * np.sin(th) * v, th + dt * w
+
+
+#: the batch simulator's plant models: 'euler' (eq. 1 as the paper writes it: the robot
+#: drives straight along its heading for a whole sample, then turns) and 'arc' (a unicycle
+#: that holds v and omega for the sample: it drives an arc, as a real base does)
+PLANT_MODELS = ("euler", "arc")
+
+
+@njit(cache=True)
+def arc_step(x: float, y: float, th: float, v: float, w: float, dt: float
+             ) -> tuple[float, float, float]:
+    """One sample of the continuous unicycle under constant (v, w): the exact arc.
+
+    Moves by the arc's chord, v dt sin(w dt / 2) / (w dt / 2), along th + w dt / 2 (the
+    chord's direction); a turn below 1e-9 rad is a straight step.
+    """
+    half = 0.5 * w * dt
+    scale = np.sin(half) / half if abs(half) > 1e-9 else 1.0
+    d = v * dt * scale
+    mid = th + half
+    return x + d * np.cos(mid), y + d * np.sin(mid), th + w * dt
 
 
 @njit(cache=True)
@@ -97,3 +121,20 @@ def heading_from_quaternion(z: float, w: float, previous: float | None = None) -
     if previous is None:
         return float(wrap_angle(th))
     return previous + float(wrap_angle(th - previous))
+
+
+def yaw_and_tilt(x: float, y: float, z: float, w: float) -> tuple[float, float]:
+    """(yaw, tilt) [rad] of any rotation quaternion (x, y, z, w), normalised first.
+
+    yaw : where the body's x axis points, seen from above (ZYX Euler yaw: the heading of a
+    base on a slope or with a little roll). tilt : the angle between the body's z axis and
+    the vertical, whatever the mix of roll and pitch. ValueError for a quaternion that is
+    not finite or of zero length.
+    """
+    n = math.sqrt(x * x + y * y + z * z + w * w)
+    if not math.isfinite(n) or n < 1e-9:
+        raise ValueError("orientation is not a rotation (zero or non-finite quaternion)")
+    x, y, z, w = x / n, y / n, z / n, w / n
+    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    zz = 1.0 - 2.0 * (x * x + y * y)  # the body's z axis, its vertical component
+    return yaw, math.acos(max(-1.0, min(1.0, zz)))

@@ -14,7 +14,8 @@ from __future__ import annotations
 from formation_ilc.core.clock import Malformed
 
 __all__ = ["NAMESPACE", "CLOCK", "LEADER_NODE", "SIM_NODE", "LINKS_NODE", "MONITOR_NODE",
-           "RECORDER_NODE", "FAKE_DRIVER_NODE", "ROBOT_PREFIX", "BRIDGE_PREFIX", "robot_name",
+           "RECORDER_NODE", "FAKE_DRIVER_NODE", "PHYSICS_NODE", "BASES_NODE",
+           "ROBOT_PREFIX", "BRIDGE_PREFIX", "robot_name",
            "robot_number", "bridge_name", "fake_driver_name", "robots_process_name",
            "namespace_remaps"]
 
@@ -28,6 +29,11 @@ CLOCK = "/clock"
 LEADER_NODE = "virtual_leader"
 #: the kinematic simulator, the plant of simulated runs
 SIM_NODE = "robot_sim"
+#: the physics plant (PyBullet, every robot in one world)
+PHYSICS_NODE = "physics_sim"
+#: physics robots behind a base's interface (cmd_vel in, odometry out), for runs of the
+#: base bridges without robots
+BASES_NODE = "physics_bases"
 #: the link emulator (emulated links)
 LINKS_NODE = "link_emulator"
 #: the launcher's monitor (metrics from the wire)
@@ -79,3 +85,7 @@ def namespace_remaps(namespace: str | None) -> list[str]:
     if namespace is None or namespace == NAMESPACE:
         return []
     return ["-r", f"__ns:={namespace}", "-r", f"{CLOCK}:={namespace}{CLOCK}"]
+
+#: the live view's bridge to Foxglove viewers (``launch --live``)
+LIVEVIEW_NODE = "liveview"
+__all__ += ["LIVEVIEW_NODE"]

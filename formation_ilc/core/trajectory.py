@@ -24,7 +24,15 @@ __all__ = [
     "formation_positions",
     "Desired",
     "desired_trajectories",
+    "HEADINGS",
+    "arc_headings",
 ]
+
+#: how desired headings are read from a path (``desired_trajectories``): 'chord', the
+#: direction of each sample's step (exact for the Euler model that ``simulate`` steps), or
+#: 'arc', the heading at the start of each sample's arc (exact for a robot that turns while
+#: it drives: any real base, a physics engine)
+HEADINGS = ("chord", "arc")
 
 
 @dataclass(frozen=True)
@@ -282,13 +290,34 @@ class Desired:
         return self.eta[:, 0]
 
 
+def arc_headings(chord: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Headings at the start of each sample's arc from the chord headings.
+
+    chord : shape (n, T+1), unwrapped direction of each step t -> t+1. A unicycle that turns
+    by d at a constant rate while it drives from p(t) to p(t+1) starts the arc at the chord
+    direction minus d / 2; d is taken as the change of chord direction from the step before
+    (the step after at t = 0). Returns shape (n, T+1).
+    """
+    c = np.asarray(chord, dtype=float)
+    turn = np.empty_like(c)
+    turn[:, 1:] = np.diff(c, axis=1)
+    turn[:, 0] = turn[:, 1] if c.shape[1] > 1 else 0.0
+    return c - 0.5 * turn
+
+
 def desired_trajectories(positions: NDArray[np.float64], dt: float,
-                         reference: NDArray[np.float64]) -> Desired:
+                         reference: NDArray[np.float64], headings: str = "chord") -> Desired:
     """Headings from each robot's own path and the unique u_d of Assumption 1.
 
     positions : shape (n, T+2, 2), desired positions on t = 0..T+1.
     reference : shape (T+2, 3).
+    headings : 'chord' (default: u_d replayed through the Euler model of eq. 1 reproduces
+        eta) or 'arc' (``arc_headings``; v is the arc's length over dt: u_d replayed through
+        the exact-arc unicycle, ``kinematics.arc_step``, reproduces eta to within a quarter
+        of the change of turn per sample, the second difference of the chord headings).
     """
+    if headings not in HEADINGS:
+        raise ValueError(f"headings must be one of {', '.join(HEADINGS)}, got {headings!r}")
     p = np.asarray(positions, dtype=float)
     n, m, _ = p.shape
     steps = np.diff(p, axis=1)  # (n, T+1, 2)
@@ -301,8 +330,16 @@ def desired_trajectories(positions: NDArray[np.float64], dt: float,
     theta = np.stack([h for h, _ in signed])  # (n, T)
     theta = np.concatenate([theta, 2 * theta[:, -1:] - theta[:, -2:-1]], axis=1)  # (n, T+1)
     sign = np.stack([sg for _, sg in signed])
+    chord_len = np.hypot(steps[:, :-1, 0], steps[:, :-1, 1])
+    if headings == "arc":
+        theta = arc_headings(theta)
+        half = 0.5 * np.diff(theta, axis=1)  # half the turn of each sample's arc
+        # an arc of turn 2h is longer than its chord by h / sin(h)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            stretch = np.where(np.abs(half) > 1e-9, half / np.sin(half), 1.0)
+        chord_len = chord_len * stretch
     eta = np.concatenate([p[:, :-1], theta[..., None]], axis=-1)  # (n, T+1, 3)
-    v = sign * np.hypot(steps[:, :-1, 0], steps[:, :-1, 1]) / dt
+    v = sign * chord_len / dt
     w = np.diff(theta, axis=1) / dt
     u = np.stack([v, w], axis=-1)
     return Desired(eta=eta, u=u, reference=np.asarray(reference, dtype=float)[: m - 1])

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 from formation_ilc.config.scenario import Scenario
 from formation_ilc.core._jit import njit
 from formation_ilc.core.guards import DivergedError, check_finite
-from formation_ilc.core.kinematics import unicycle_step, wrap_angle
+from formation_ilc.core.kinematics import PLANT_MODELS, arc_step, unicycle_step, wrap_angle
 from formation_ilc.core.law import (
     command_trig,
     heading_code,
@@ -60,6 +60,8 @@ class Problem:
     law: int
     memory: int
     heading: int
+    #: index into ``kinematics.PLANT_MODELS``: 0 Euler (eq. 1, the paper's), 1 exact arc
+    plant: int = 0
 
     @property
     def n(self) -> int:
@@ -70,14 +72,20 @@ class Problem:
         return int(self.eta_d.shape[1] - 1)
 
     @classmethod
-    def from_scenario(cls, sc: Scenario) -> Problem:
+    def from_scenario(cls, sc: Scenario, plant: str = "euler") -> Problem:
+        """The scenario's arrays; ``plant`` is the model the batch simulator steps
+        ('euler' or 'arc', ``kinematics.PLANT_MODELS``)."""
+        if plant not in PLANT_MODELS:
+            raise ValueError(f"plant model must be one of {', '.join(PLANT_MODELS)}, "
+                             f"got {plant!r}")
         sc.graph.check_spanning_tree()
         src, w = sc.graph.in_links()
         return cls(dt=sc.dt, eta_d=np.ascontiguousarray(sc.desired.eta), src=src, weight=w,
                    leader=sc.graph.leader.copy(), gain=np.asarray(sc.law.gain, dtype=float),
                    gain_prime=np.asarray(sc.law.gain_prime, dtype=float),
                    law=law_code(sc.law.kind), memory=memory_code(sc.law.memory),
-                   heading=heading_code(sc.law.gain_heading))
+                   heading=heading_code(sc.law.gain_heading),
+                   plant=PLANT_MODELS.index(plant))
 
     def trial(self, memory: NDArray[np.float64], xi0: NDArray[np.float64],
               dist: NDArray[np.float64], noise: NDArray[np.float64], tau: NDArray[np.int64],
@@ -88,7 +96,8 @@ class Problem:
         eta = np.empty_like(xi)
         u = np.empty((n, n_t, 2))
         nxt = np.empty_like(memory)
-        run_trial(self.law, self.memory, self.heading, self.dt, memory, xi0, dist, noise, tau,
+        run_trial(self.law, self.memory, self.heading, self.plant, self.dt, memory, xi0, dist,
+                  noise, tau,
                   tau0, self.src, self.weight, self.leader, self.eta_d, self.gain,
                   self.gain_prime, xi, eta, u, nxt)
         return xi, eta, u, nxt
@@ -101,11 +110,12 @@ class Problem:
                                                                                self.src.shape[1])
         rep = lambda a: np.tile(a, (copies,) + (1,) * (a.ndim - 1))  # noqa: E731
         return Problem(self.dt, rep(self.eta_d), src, rep(self.weight), rep(self.leader),
-                       rep(self.gain), rep(self.gain_prime), self.law, self.memory, self.heading)
+                       rep(self.gain), rep(self.gain_prime), self.law, self.memory, self.heading,
+                       self.plant)
 
 
 @njit(cache=True)
-def run_trial(law: int, memory_mode: int, heading: int, dt: float,
+def run_trial(law: int, memory_mode: int, heading: int, plant: int, dt: float,
               memory: NDArray[np.float64], xi0: NDArray[np.float64],
               dist: NDArray[np.float64], noise: NDArray[np.float64],
               tau: NDArray[np.int64], tau0: NDArray[np.int64],
@@ -118,11 +128,11 @@ def run_trial(law: int, memory_mode: int, heading: int, dt: float,
 
     tau : shape (N, L, T+1), delay of each in-link at each sample; tau0 : shape (N, T+1).
     A link delivers at sample t the sender's output labelled t - tau (the network); the
-    law itself is ``command``.
+    law itself is ``command``. plant : 0 Euler, 1 exact arc (``Problem.plant``).
     """
     n, n_links = src.shape
     ws = _workspace(n, n_links, memory.shape[1])
-    _trial(law, memory_mode, heading, dt, memory, xi0, dist, noise, tau, tau0, src, weight,
+    _trial(law, memory_mode, heading, plant, dt, memory, xi0, dist, noise, tau, tau0, src, weight,
            leader, eta_d, gain, gain_prime, xi, eta, u, next_memory, ws[0], ws[1], ws[2], ws[3],
            ws[4])
 
@@ -140,7 +150,7 @@ def _workspace(n: int, n_links: int, n_t: int) -> tuple[
 
 
 @njit(cache=True)
-def _trial(law: int, memory_mode: int, heading: int, dt: float,
+def _trial(law: int, memory_mode: int, heading: int, plant: int, dt: float,
            memory: NDArray[np.float64], xi0: NDArray[np.float64],
            dist: NDArray[np.float64], noise: NDArray[np.float64],
            tau: NDArray[np.int64], tau0: NDArray[np.int64],
@@ -176,9 +186,14 @@ def _trial(law: int, memory_mode: int, heading: int, dt: float,
                      lead_s, leader, gain_prime, trig, u)
         # step_into's arithmetic, by index (views of xi, u, dist per sample cost ~5 %)
         for r in range(n):
-            xi[r, t + 1, 0], xi[r, t + 1, 1], xi[r, t + 1, 2] = unicycle_step(
-                xi[r, t, 0], xi[r, t, 1], xi[r, t, 2], u[r, t, 0] + dist[r, t, 0],
-                u[r, t, 1] + dist[r, t, 1], dt)
+            if plant == 0:
+                xi[r, t + 1, 0], xi[r, t + 1, 1], xi[r, t + 1, 2] = unicycle_step(
+                    xi[r, t, 0], xi[r, t, 1], xi[r, t, 2], u[r, t, 0] + dist[r, t, 0],
+                    u[r, t, 1] + dist[r, t, 1], dt)
+            else:
+                xi[r, t + 1, 0], xi[r, t + 1, 1], xi[r, t + 1, 2] = arc_step(
+                    xi[r, t, 0], xi[r, t, 1], xi[r, t, 2], u[r, t, 0] + dist[r, t, 0],
+                    u[r, t, 1] + dist[r, t, 1], dt)
     for r in range(n):
         for c in range(3):
             eta[r, n_t, c] = xi[r, n_t, c] + noise[r, n_t, c]
@@ -193,7 +208,8 @@ def _trial(law: int, memory_mode: int, heading: int, dt: float,
 
 @njit(cache=True)
 def run_trials(seed: NDArray[np.uint32], first_trial: int, plant: PlantArrays,
-               delays: DelayArrays, law: int, memory_mode: int, heading: int, dt: float,
+               delays: DelayArrays, law: int, memory_mode: int, heading: int,
+               model: int, dt: float,
                src: NDArray[np.int64], weight: NDArray[np.float64], leader: NDArray[np.float64],
                eta_d: NDArray[np.float64], gain: NDArray[np.float64],
                gain_prime: NDArray[np.float64], memory: NDArray[np.float64],
@@ -204,7 +220,8 @@ def run_trials(seed: NDArray[np.uint32], first_trial: int, plant: PlantArrays,
     end: each trial's draws (``uncertainty.fill_plant`` / ``fill_delays``), ``_trial`` and
     ``trial_errors`` into its metrics row (METRIC_COLUMNS).
 
-    memory : the first trial's memory (N, T, 2); spare : an array like it. They alternate
+    model : the plant model (``Problem.plant``). memory : the first trial's memory
+    (N, T, 2); spare : an array like it. They alternate
     as this and the next trial's memory. Returns True when the memory after the last trial
     is in ``spare``, False when in ``memory``. xi, eta, u, tau, tau0 : the last trial's.
     """
@@ -229,7 +246,7 @@ def run_trials(seed: NDArray[np.uint32], first_trial: int, plant: PlantArrays,
         for r in range(n):
             for c in range(3):
                 xi0[r, c] = eta_d[r, 0, c] + shift[r, c]
-        _trial(law, memory_mode, heading, dt, cur, xi0, dist, noise, tau, tau0, src, weight,
+        _trial(law, memory_mode, heading, model, dt, cur, xi0, dist, noise, tau, tau0, src, weight,
                leader, eta_d, gain, gain_prime, xi, eta, u, nxt, nb_eta, nb_s, lead_s, nb_full,
                trig)
         trial_errors(eta, xi, eta_d, src, weight, row)
@@ -336,6 +353,7 @@ def simulate(
     on_memory: Callable[[int, NDArray[np.float64]], None] | None = None,
     store_metrics: bool = True,
     problem: Problem | None = None,
+    plant: str = "euler",
 ) -> SimResult:
     """Run ``trials`` trials (default: the scenario's) and return per-trial metrics.
 
@@ -356,8 +374,10 @@ def simulate(
         ``progress``.
     problem : ``Problem.from_scenario(scenario)`` when the caller has it already (a study
         runs many seeds of one configuration); it does not depend on the seed or trials.
+    plant : the plant model when ``problem`` is None: 'euler' (eq. 1, default) or 'arc' (a
+        unicycle that drives arcs; the scenario's 'auto' headings then read as 'arc').
     """
-    pb = Problem.from_scenario(scenario) if problem is None else problem
+    pb = Problem.from_scenario(scenario.for_plant(plant), plant) if problem is None else problem
     k_total = scenario.trials if trials is None else int(trials)
     n, n_t, n_links = pb.n, pb.samples, pb.src.shape[1]
     unc = scenario.uncertainty
@@ -377,8 +397,8 @@ def simulate(
     keep = set(keep)
     records: dict[int, TrialRecord] = {}
     args = (seed_words(scenario.seed), first_trial, plant_arrays(unc, n_t), delay_arrays(unc),
-            pb.law, pb.memory, pb.heading, pb.dt, pb.src, pb.weight, pb.leader, pb.eta_d,
-            pb.gain, pb.gain_prime)
+            pb.law, pb.memory, pb.heading, pb.plant, pb.dt, pb.src, pb.weight, pb.leader,
+            pb.eta_d, pb.gain, pb.gain_prime)
     if (not keep and progress is None and on_trial_data is None and not stop_on_divergence
             and on_memory is None and store_metrics):
         # every trial in one compiled call: nothing to do in Python between trials
@@ -451,7 +471,8 @@ def simulate_seeds(scenario: Scenario, seeds: Iterable[int], trials: int) -> NDA
         noise = np.concatenate([d[2] for d in draws])
         tau = np.concatenate([d[0] for d in delays])
         tau0 = np.concatenate([d[1] for d in delays])
-        run_trial(pb.law, pb.memory, pb.heading, pb.dt, memory, pb.eta_d[:, 0] + shift, dist,
+        run_trial(pb.law, pb.memory, pb.heading, pb.plant, pb.dt, memory,
+                  pb.eta_d[:, 0] + shift, dist,
                   noise, tau, tau0, pb.src, pb.weight, pb.leader, pb.eta_d, pb.gain,
                   pb.gain_prime, xi, eta, u, nxt)
         for i in range(len(seeds)):

@@ -16,6 +16,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 import rclpy
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
@@ -249,8 +250,7 @@ def node_parser(prog: str, doc: str | None) -> argparse.ArgumentParser:
 
 
 def ros_param(argv: list[str], name: str) -> str | None:
-    """The value of ``-p name:=VALUE`` (or ``--param``) among ROS arguments, before a node
-    exists: a node whose name depends on a parameter needs it at construction."""
+    """The value of ``-p name:=VALUE`` (or ``--param``) among ROS arguments, as written."""
     value = None
     for flag, arg in zip(argv, argv[1:], strict=False):
         if flag in ("-p", "--param") and arg.startswith(f"{name}:="):
@@ -258,17 +258,29 @@ def ros_param(argv: list[str], name: str) -> str | None:
     return value
 
 
-def robot_node_from_args(cls: Callable[[int | None], Node], argv: list[str], prog: str
-                         ) -> Node:
-    """The node of one robot whose ``robot_id`` is given as a ROS parameter (``-p
-    robot_id:=I``): read before the node exists, since its name follows it. A missing or
-    invalid id ends the process with one line and status 2."""
-    rid = ros_param(argv, "robot_id")
-    try:
-        return cls(int(rid) if rid is not None else None)
-    except ValueError as exc:
-        print(f"{prog}: {exc}", file=sys.stderr)
-        raise SystemExit(2) from None
+def robot_node_from_args(cls: Callable[..., Node], argv: list[str], prog: str,
+                         probe_name: str = "robot", **kwargs: Any) -> Node:
+    """The node of one robot whose ``robot_id`` is a ROS parameter (``-p robot_id:=I``, or
+    a ``--params-file`` keyed ``/**`` or by the node's name as a launch file gives it with
+    ``-r __node:=NAME``): read before the node exists, since its name follows it. A
+    missing or invalid id is a ``ParameterError`` (one line and status 2 in spin_main)."""
+    from formation_ilc.config.params import ROBOT
+    from formation_ilc.nodes.params import ParameterError, check, probe_overrides
+
+    found = probe_overrides(probe_name, ms.NAMESPACE, **kwargs)
+    if "robot_id" not in found:
+        raise ParameterError("parameter robot_id: a robot number >= 1 is required "
+                             "(-p robot_id:=I, or robot_id in a --params-file under /** or "
+                             "the node's name)")
+    rid = check(ROBOT[0], found["robot_id"])
+    return cls(int(rid), **kwargs)
+
+
+def _first_line(exc: BaseException) -> str:
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    # rcl's messages end with where in its C source they were raised
+    text = lines[0].split(", at /")[0] if lines else type(exc).__name__
+    return text[:400]
 
 
 def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
@@ -280,7 +292,12 @@ def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
     build : gets the parsed arguments and the raw argv, and returns the nodes.
     """
     argv = list(args if args is not None else sys.argv)
-    ns = parser.parse_args(rclpy.utilities.remove_ros_args(argv)[1:])
+    try:
+        own = rclpy.utilities.remove_ros_args(argv)[1:]
+    except RuntimeError as exc:  # rcl's: a params file that is missing or not YAML
+        print(f"{parser.prog}: {_first_line(exc)}", file=sys.stderr, flush=True)
+        return 2
+    ns = parser.parse_args(own)
     die_with_parent()
     # rclpy's own SIGINT handling raises KeyboardInterrupt inside whatever callback runs,
     # which aborts the process from C++; a flag for the spin loop is enough
@@ -296,7 +313,12 @@ def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
     signal.signal(signal.SIGTERM, on_signal)
     nodes: list[Node] = []
     try:
-        nodes = build(ns, argv)
+        try:
+            nodes = build(ns, argv)
+        except (ValueError, ParameterException) as exc:
+            # a parameter, a scenario or a state file no run can have: one line, status 2
+            print(f"{parser.prog}: {_first_line(exc)}", file=sys.stderr, flush=True)
+            return 2
         ex = make_executor(executor)
         for n in nodes:
             ex.add_node(n)

@@ -26,6 +26,7 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Path
 from rclpy.node import Node
 from std_msgs.msg import String
@@ -76,7 +77,8 @@ class MonitorNode(Node):
         #: the last ready of each node (the launcher names whom a stuck run waits for)
         self.readies: dict[str, Ready] = {}
         self._gate = self.create_timer(0.05, self._check_ready)
-        self.create_subscription(String, ms.DIAGNOSTICS, self._on_diag, ms.LATCHED_READER_QOS)
+        self.create_subscription(DiagnosticArray, ms.DIAGNOSTICS, self._on_diag,
+                                 ms.LATCHED_READER_QOS)
         self.create_subscription(String, ms.READY, self._on_ready, ms.LATCHED_READER_QOS)
         self.events_sub = self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event,
                                                    ms.SAMPLE_QOS)
@@ -136,9 +138,9 @@ class MonitorNode(Node):
         for d in done:
             self.on_trial(d.trial, d.row)
 
-    def _on_diag(self, msg: String) -> None:
+    def _on_diag(self, msg: DiagnosticArray) -> None:
         try:
-            d = check_diagnostics(ms.msg_to_json(msg, ("node", "trial")))
+            d = check_diagnostics(ms.msg_to_report(msg, ("node", "trial")))
             name, k = d["node"], d["trial"]
             if name == "virtual_leader":
                 # the leader's own word (its watchdog's findings too, before trial 0 and

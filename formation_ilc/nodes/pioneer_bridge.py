@@ -18,6 +18,19 @@ usual namespace; remap further with ``-r``):
   (state 1) on ``cmd_motor_state`` (p2os_msgs comes from p2os's ROS 2 workspace: source it);
 * ``ros2aria``: ``cmd_vel``, ``odom``, motors engaged by the service ``clutch`` (assumed
   std_srvs/SetBool; see msgs_schema.DRIVERS).
+* ``base``: any differential-drive base with the common interface (TurtleBot 3/4, Jackal,
+  Husky): ``cmd_vel`` in, ``odom`` out, no motor service. ``base:=NAME`` picks a preset of
+  ``formation_ilc.config.bases`` (topic names, cmd_type, limits; driver ``base`` implied).
+  Yaw comes from the full quaternion; odometry tilted by more than ``max_tilt`` [deg]
+  (default 10) is refused (counted as malformed, with the reason), the largest accepted
+  tilt is reported (``tilt_max_deg``).
+
+Limits: ``v_max`` [m/s], ``omega_max`` [deg/s], ``a_max`` [m/s^2], ``alpha_max``
+[deg/s^2] (0: the preset's, or for Pioneer drivers 0.75 m/s, 100 deg/s and no acceleration
+limit; ``formation_ilc.protocol.bridge.bridge_limits``). With a base preset every command
+sent to the driver, in trials and returns alike, goes through them
+(``core.limits.RateLimiter``, on the command's own stamp); ``clipped`` counts robot
+commands clamped in speed, ``clipped_accel`` commands held back by the acceleration limits.
 
 ``cmd_type``: ``twist`` (default) or ``twist_stamped`` (Jazzy's diff_drive_controller).
 Odometry is read best effort (matches reliable and best-effort drivers). The command is
@@ -49,17 +62,21 @@ per event.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import time
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist, TwistStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from std_msgs.msg import String
 
 import msgs_schema as ms
+from formation_ilc.config import params
+from formation_ilc.config.bases import LIMIT_KEYS, base_preset
 from formation_ilc.core.clock import Rejected
 from formation_ilc.nodes.common import (
     ConfiguredNode,
@@ -70,7 +87,8 @@ from formation_ilc.nodes.common import (
     robot_node_from_args,
     spin_main,
 )
-from formation_ilc.protocol.bridge import Bridge, CommandLimits, Returned
+from formation_ilc.nodes.params import ParameterError, check, declare
+from formation_ilc.protocol.bridge import Bridge, CommandLimits, Returned, bridge_limits
 from formation_ilc.protocol.schedule import Ready
 from formation_ilc.protocol.wallclock import START_AHEAD_MAX
 
@@ -91,32 +109,37 @@ class BridgeNode(ConfiguredNode):
         if robot_id is None:
             for p in kwargs.get("parameter_overrides") or ():
                 if p.name == "robot_id":
-                    robot_id = int(p.value)
-        if robot_id is None or robot_id < 1:
-            raise ValueError("parameter robot_id: a robot number >= 1 is required "
-                             "(--ros-args -p robot_id:=I)")
+                    robot_id = p.value
+        if robot_id is None:
+            raise ParameterError("parameter robot_id: a robot number >= 1 is required "
+                                 "(--ros-args -p robot_id:=I)")
+        robot_id = int(check(params.BRIDGE[0], robot_id))
         super().__init__(ms.bridge_name(robot_id), **kwargs)
         self.id = int(robot_id)
         self.name = ms.bridge_name(self.id)
-        for name, default in (("robot_id", self.id), ("driver", "rosaria"), ("driver_ns", ""),
-                              ("cmd_type", "twist"), ("v_max", 0.0), ("omega_max", 0.0),
-                              ("cmd_timeout", 0.0), ("rate", 20.0), ("return_tol", 0.02),
-                              ("return_tol_heading", 2.0), ("return_timeout", 60.0),
-                              ("initial_pose", [0.0]), ("scenario", ""), ("mode", "wallclock")):
-            self.declare_parameter(name, default)
+        declare(self, params.BRIDGE, robot_id=self.id)
         g = lambda name: self.get_parameter(name).value  # noqa: E731
-        driver = str(g("driver"))
+        base = str(g("base")) or None
+        preset = base_preset(base) if base else None
+        driver = "base" if preset is not None else str(g("driver"))
         if driver not in ms.DRIVERS:
             raise ValueError(f"parameter driver: one of {', '.join(ms.DRIVERS)}, got {driver!r}")
         self.spec = ms.DRIVERS[driver]
-        self.driver = driver
-        if str(g("cmd_type")) not in ("twist", "twist_stamped"):
-            raise ValueError(f"parameter cmd_type: twist or twist_stamped, got {g('cmd_type')!r}")
-        self.stamped = str(g("cmd_type")) == "twist_stamped"
-        v_max, w_max = float(g("v_max")), float(g("omega_max"))
-        base = CommandLimits()
-        self.limits = CommandLimits(v_max if v_max > 0 else base.v_max,
-                                    math.radians(w_max) if w_max > 0 else base.omega_max)
+        if preset is not None:
+            self.spec = dataclasses.replace(self.spec, cmd=preset.cmd_topic,
+                                            odom=preset.odom_topic)
+        self.driver = driver if preset is None else f"base ({preset.name})"
+        cmd_type = str(g("cmd_type"))
+        if cmd_type not in ("twist", "twist_stamped"):
+            raise ValueError(f"parameter cmd_type: twist or twist_stamped, got {cmd_type!r}")
+        # a preset's message type unless another is asked for
+        self.stamped = (cmd_type if preset is None or cmd_type != "twist"
+                        else preset.cmd_type) == "twist_stamped"
+        self.max_tilt = math.radians(float(g("max_tilt")))
+        lim = bridge_limits(base, {k: float(g(k)) for k in LIMIT_KEYS})
+        self.limits = CommandLimits(lim.v_max, lim.omega_max)
+        # acceleration limits only for a base: the Pioneer drivers' runs stay as they were
+        self.rate = lim if preset is not None else None
         self.period = 1.0 / float(g("rate"))
         ns = str(g("driver_ns")) or self.spec.default_ns
         self.driver_topics = (_join(ns, self.spec.cmd), _join(ns, self.spec.odom),
@@ -134,7 +157,8 @@ class BridgeNode(ConfiguredNode):
         self.core = core = Bridge(
             cfg, self.id, name=self.name,
             initial=(init[0], init[1], init[2]) if len(init) == 3 else None,
-            limits=self.limits, cmd_timeout=float(g("cmd_timeout")), period=self.period,
+            limits=self.limits, rate=self.rate, cmd_timeout=float(g("cmd_timeout")),
+            period=self.period,
             tol=(float(g("return_tol")), math.radians(float(g("return_tol_heading"))),
                  float(g("return_timeout"))))
         self.follower = core.follower
@@ -144,7 +168,7 @@ class BridgeNode(ConfiguredNode):
         self.pose_pub = self.create_publisher(PoseStamped, ms.pose_topic(self.id),
                                               ms.SAMPLE_QOS)
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         self.create_subscription(Twist, ms.cmd_vel_topic(self.id), self._on_cmd, ms.SAMPLE_QOS)
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
         cmd_t, odom_t, motors_t = self.driver_topics
@@ -162,6 +186,9 @@ class BridgeNode(ConfiguredNode):
     def _setup_motors(self, topic: str) -> None:
         kind = self.spec.motors_kind
         self.motor_future: Any = None
+        if kind == "none":  # a base whose motors are always on
+            self.motors_on = True
+            return
         if kind == "p2os_motor_state":
             try:
                 from p2os_msgs.msg import MotorState  # type: ignore[import-not-found]
@@ -219,21 +246,27 @@ class BridgeNode(ConfiguredNode):
 
     # ------------------------------------------------------------------ inputs
     def _on_odom(self, msg: Odometry) -> None:
+        tilt = 0.0
         try:
-            pose = ms.odometry_to_pose(msg)
+            if self.spec.motors_kind == "none":  # a base: yaw of the full quaternion
+                x, y, yaw, tilt = ms.base_odometry_to_pose(msg, self.max_tilt)
+                pose = (x, y, yaw)
+            else:
+                pose = ms.odometry_to_pose(msg)
         except Rejected as exc:
             self.drops.reject(exc, self.driver_topics[1])
             return
-        self.core.on_odom(pose, time.monotonic())
+        self.core.on_odom(pose, time.monotonic(), tilt)
 
     def _on_cmd(self, msg: Twist) -> None:
+        wall = time.time_ns()
         try:
             u = ms.twist_to_u(msg)
-            cmd = self.core.on_cmd((float(u[0]), float(u[1])), time.monotonic())
+            cmd = self.core.on_cmd((float(u[0]), float(u[1])), time.monotonic(), wall)
         except Rejected as exc:
             self.drops.reject(exc, ms.cmd_vel_topic(self.id))
             return
-        self._send(cmd)
+        self._send(cmd, wall)
 
     def _on_event(self, msg: String) -> None:
         core = self.core
@@ -245,17 +278,20 @@ class BridgeNode(ConfiguredNode):
 
     # ------------------------------------------------------------------ the tick
     def _on_tick(self) -> None:
-        tick = self.core.tick(time.monotonic(), time.time_ns())
+        wall = time.time_ns()
+        tick = self.core.tick(time.monotonic(), wall)
         if tick.sample is not None:
             ns, pose = tick.sample
             self.pose_pub.publish(ms.pose_to_msg(pose, ns, ms.WORLD_FRAME))
         if tick.returned is not None:
             self._returned(tick.returned)
         if tick.cmd is not None:
-            self._send(tick.cmd)
+            self._send(tick.cmd, wall)
 
-    def _send(self, cmd: tuple[float, float]) -> None:
-        self.drv_pub.publish(ms.driver_twist(cmd[0], cmd[1], self.stamped, time.time_ns()))
+    def _send(self, cmd: tuple[float, float], stamp_ns: int) -> None:
+        """Publish the driver's command, stamped ``stamp_ns`` (the wall time the bridge's
+        limits held it at)."""
+        self.drv_pub.publish(ms.driver_twist(cmd[0], cmd[1], self.stamped, stamp_ns))
 
     def _returned(self, r: Returned) -> None:
         if not r.reached:
@@ -277,7 +313,7 @@ class BridgeNode(ConfiguredNode):
         """Stop the robot on the way out (Ctrl-C, a failed run)."""
         if self.configured and hasattr(self, "drv_pub"):
             try:
-                self._send(self.core.stop(time.monotonic()))
+                self._send(self.core.stop(time.monotonic()), time.time_ns())
             except Exception:  # noqa: BLE001 - the context may already be shut down
                 pass
         super().destroy_node()
@@ -286,14 +322,16 @@ class BridgeNode(ConfiguredNode):
         d: dict[str, Any] = {"node": self.name, "trial": trial, "driver": self.driver,
                              **self.core.report()}
         d.update(self.drops.as_dict())
-        self.diag_pub.publish(ms.json_to_msg(d))
+        self.diag_pub.publish(ms.diagnostics_to_msg(
+            d, self.get_clock().now().nanoseconds, self.cfg.scenario.dt,
+            self.cfg.scenario.samples, ms.robot_name(self.id)))
 
 
 def main(args: list[str] | None = None) -> int:
     parser = node_parser("formation-ilc-bridge", __doc__)
 
     def build(ns: Any, argv: list[str]) -> list[Node]:
-        return [robot_node_from_args(BridgeNode, argv, "formation-ilc-bridge")]
+        return [robot_node_from_args(BridgeNode, argv, "formation-ilc-bridge", "bridge")]
 
     return spin_main(build, parser, args)
 

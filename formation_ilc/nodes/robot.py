@@ -55,12 +55,14 @@ import sys
 from collections import Counter
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist
 from nav_msgs.msg import Path
 from rclpy.node import Node
 from std_msgs.msg import String
 
 import msgs_schema as ms
+from formation_ilc.config import params
 from formation_ilc.core.clock import Rejected
 from formation_ilc.core.links import LEADER
 from formation_ilc.model.simulate import Problem
@@ -74,6 +76,7 @@ from formation_ilc.nodes.common import (
     spin_main,
     warm_up,
 )
+from formation_ilc.nodes.params import ParameterError, check, declare
 from formation_ilc.protocol.learner import RobotLearner
 from formation_ilc.protocol.schedule import Follower
 from formation_ilc.store.memoryfile import MemoryFileError, load_memory
@@ -93,23 +96,13 @@ class RobotNode(ConfiguredNode):
         if robot_id is None:
             for p in kwargs.get("parameter_overrides") or ():
                 if p.name == "robot_id":
-                    robot_id = int(p.value)
+                    robot_id = p.value
         if robot_id is None:
-            raise ValueError("parameter robot_id: a robot number >= 1 is required "
-                             "(--ros-args -p robot_id:=I)")
-        if robot_id < 1:
-            raise ValueError(f"parameter robot_id: a robot number >= 1 is required, "
-                             f"got {robot_id}")
+            raise ParameterError("parameter robot_id: a robot number >= 1 is required "
+                                 "(--ros-args -p robot_id:=I)")
+        robot_id = int(check(params.ROBOT[0], robot_id))
         super().__init__(ms.robot_name(robot_id), **kwargs)
-        self.declare_parameter("robot_id", int(robot_id))
-        self.declare_parameter("scenario", "")
-        self.declare_parameter("seed", -1)
-        self.declare_parameter("noise", True)
-        self.declare_parameter("delay", True)
-        self.declare_parameter("links", "emulated")
-        self.declare_parameter("mode", "lockstep")
-        self.declare_parameter("init_memory", "")
-        self.declare_parameter("state_dir", "")
+        declare(self, params.ROBOT, robot_id=robot_id)
         self.id = int(robot_id)
         self.name = ms.robot_name(self.id)
         self.ready_sent = -1
@@ -156,7 +149,7 @@ class RobotNode(ConfiguredNode):
         self.traj_pub = self.create_publisher(Path, ms.trajectory_topic(self.id),
                                               ms.TRAJECTORY_QOS)
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         # the per-sample messages as bytes (msgs_schema.wire: no message objects)
         self.sample_subs = [self.create_subscription(
             PoseStamped, ms.pose_topic(self.id), self._on_pose, ms.SAMPLE_QOS, raw=True)]
@@ -342,7 +335,9 @@ class RobotNode(ConfiguredNode):
         if self.realtime:
             d["late"] = dict(self.late)
         d.update(self.drops.as_dict())
-        self.diag_pub.publish(ms.json_to_msg(d))
+        self.diag_pub.publish(ms.diagnostics_to_msg(
+            d, self.get_clock().now().nanoseconds, self.cfg.scenario.dt, self.pb.samples,
+            self.name))
 
 
 def main(args: list[str] | None = None) -> int:

@@ -4,6 +4,10 @@ The bridge node (``formation_ilc.nodes.pioneer_bridge``) keeps the plant contrac
 robot on top of a Pioneer driver. Everything it decides is here:
 
 * ``CommandLimits.clamp``: the robot node's (v, omega) clamped to the base's limits;
+  ``bridge_limits``: a bridge's speed and acceleration limits from its base (a preset of
+  ``formation_ilc.config.bases``, or a Pioneer driver) and its parameters; with
+  acceleration limits every command to the driver, in trials and returns alike, goes
+  through a ``core.limits.RateLimiter`` on the command's own stamp;
 * ``Watchdog``: a zero command once the robot node has been silent longer than a timeout;
 * ``compose`` / ``odom_to_world``: the driver's odometry starts where the robot was placed,
   so a world pose is the initial world pose composed with the odometry pose;
@@ -23,18 +27,22 @@ robot on top of a Pioneer driver. Everything it decides is here:
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from formation_ilc.config.bases import base_preset, with_given
 from formation_ilc.config.runconfig import RunConfig
 from formation_ilc.core.clock import Rejected
+from formation_ilc.core.limits import Limits, RateLimiter
 from formation_ilc.model.simulate import Problem
 from formation_ilc.protocol.schedule import ABORT, Follower, TrialEvent
 from formation_ilc.protocol.wallclock import WallSchedule
 
 __all__ = ["CommandLimits", "Watchdog", "compose", "odom_to_world", "wrap",
            "ReturnController", "ReturnStatus", "initial_shift", "PIONEER_V_MAX",
-           "PIONEER_OMEGA_MAX", "Bridge", "BridgeTick", "Returned", "IDLE", "TRIAL", "RETURN"]
+           "PIONEER_OMEGA_MAX", "Bridge", "BridgeTick", "Returned", "IDLE", "TRIAL", "RETURN",
+           "bridge_limits"]
 
 # Pioneer 3-DX specification (Adept MobileRobots data sheet): max forward speed 1.2 m/s,
 # rotation 300 deg/s. The defaults stay well inside: |v| <= 0.75 m/s, |omega| <= 100 deg/s
@@ -43,6 +51,15 @@ PIONEER_V_MAX = 0.75                     # [m/s]
 PIONEER_OMEGA_MAX = math.radians(100.0)  # [rad/s]
 
 Pose = tuple[float, float, float]
+
+
+def bridge_limits(base: str | None, given: Mapping[str, float] | None = None) -> Limits:
+    """The limits a bridge holds: its base preset's (``base``; None: a Pioneer driver's
+    PIONEER_V_MAX and PIONEER_OMEGA_MAX, no acceleration limit), then every value of
+    ``given`` > 0 (``config.bases.LIMIT_KEYS``, in the parameters' units: m/s, deg/s,
+    m/s^2, deg/s^2). ValueError for an unknown preset or a bad value."""
+    default = (base_preset(base).limits if base else Limits(PIONEER_V_MAX, PIONEER_OMEGA_MAX))
+    return with_given(default, given or {})
 
 
 def wrap(a: float) -> float:
@@ -228,16 +245,22 @@ class Bridge:
 
     name : the node's name (in error messages). initial : where the robot is placed (world
     pose); None: the scenario's desired start of the robot. limits : the base's velocity
-    limits. cmd_timeout : [s] a zero command once the robot node is silent that long (0:
+    limits. rate : the base's speed and acceleration limits: every command to the driver
+    goes through a RateLimiter of them (None: the speed clamp only, as for the Pioneer
+    drivers). cmd_timeout : [s] a zero command once the robot node is silent that long (0:
     2.5 dT). period : [s] the command is sent again at least this often (the driver's own
     watchdog). tol : return tolerances (position [m], heading [rad]) and timeout [s].
 
     Times: ``now`` [s] on a monotonic clock, ``now_wall_ns`` [ns] on the (synchronised) wall
-    clock that the leader's agreed start refers to.
+    clock that the leader's agreed start refers to; a command sent at ``now_wall_ns`` is
+    stamped with it, and the acceleration limits hold on those stamps (a reader of
+    TwistStamped sees every change within a_max times the stamps' difference, whatever the
+    jitter of the caller).
     """
 
     def __init__(self, cfg: RunConfig, robot: int, *, name: str, initial: Pose | None = None,
-                 limits: CommandLimits | None = None, cmd_timeout: float = 0.0,
+                 limits: CommandLimits | None = None, rate: Limits | None = None,
+                 cmd_timeout: float = 0.0,
                  period: float = 0.05, tol: tuple[float, float, float] = (
                      0.02, math.radians(2.0), 60.0)):
         if cfg.mode != "wallclock" or cfg.links != "direct":
@@ -252,6 +275,7 @@ class Bridge:
             initial = (x, y, th)
         self.initial: Pose = initial
         self.limits = limits or CommandLimits()
+        self.rate = None if rate is None else RateLimiter(rate)
         self.clock, self.T, self.period, self.tol = cfg.clock, pb.samples, period, tol
         dt = cfg.scenario.dt
         self.follower = Follower(cfg.run_id, wall_trial_ns=self.T * self.clock.dt_ns)
@@ -267,8 +291,9 @@ class Bridge:
         self.robot_cmd: Command = (0.0, 0.0)
         self.out_cmd: Command = (0.0, 0.0)
         self.last_out = 0.0
-        self.counts = {"missed": 0, "clipped": 0, "watchdog_zero": 0, "return_timeouts": 0,
-                       "stale_odometry": 0}
+        self.counts = {"missed": 0, "clipped": 0, "clipped_accel": 0, "watchdog_zero": 0,
+                       "return_timeouts": 0, "stale_odometry": 0}
+        self.tilt_max = 0.0    # [rad] the largest tilt of the odometry taken
         self.shifts: dict[str, list[float]] = {}
         self.returns: dict[str, dict[str, Any]] = {}
         self.ready_sent = -1   # the trial of the last ready (-1: none yet)
@@ -292,22 +317,25 @@ class Bridge:
         return initial_shift(self.world(), self.initial)
 
     # ------------------------------------------------------------------ inputs
-    def on_odom(self, pose: Pose, now: float) -> None:
-        """The driver's odometry pose (x [m], y [m], theta [rad]) at ``now``."""
+    def on_odom(self, pose: Pose, now: float, tilt: float = 0.0) -> None:
+        """The driver's odometry pose (x [m], y [m], theta [rad]) at ``now``, its body
+        tilted by ``tilt`` [rad] (a base's odometry read with its roll and pitch)."""
         self.odom = pose
         self.odom_time = now
+        self.tilt_max = max(self.tilt_max, tilt)
 
-    def on_cmd(self, u: tuple[float, float], now: float) -> Command:
-        """The robot node's command: clamped, it goes to the driver now (returned).
-        Rejected (unexpected) outside a trial: it would move the robot outside the
-        protocol."""
+    def on_cmd(self, u: tuple[float, float], now: float, now_wall_ns: int | None = None
+               ) -> Command:
+        """The robot node's command: clamped, it goes to the driver now (returned; stamp it
+        ``now_wall_ns``). Rejected (unexpected) outside a trial: it would move the robot
+        outside the protocol."""
         if self.phase != TRIAL:
             raise Rejected("unexpected", f"a command while {self.phase}")
         v, w, clipped = self.limits.clamp(float(u[0]), float(u[1]))
         self.counts["clipped"] += int(clipped)
         self.robot_cmd = (v, w)
         self.watchdog.feed(now)
-        return self._send(self.robot_cmd, now)
+        return self.send(self.robot_cmd, now, now_wall_ns)
 
     def on_event(self, ev: TrialEvent, now: float, now_wall_ns: int) -> TrialEvent | None:
         """The leader's event: the start or abort taken, or None (nothing to do); Rejected
@@ -353,22 +381,34 @@ class Bridge:
             st = self.returner.step(self.world(), now, stale)
             if st.done:
                 returned = self._returned(st.reached, now)
-                return BridgeTick(sample, returned, self._send((0.0, 0.0), now))
-            return BridgeTick(sample, None, self._send((st.v, st.omega), now))
+                return BridgeTick(sample, returned, self.send((0.0, 0.0), now, now_wall_ns))
+            return BridgeTick(sample, None, self.send((st.v, st.omega), now, now_wall_ns))
         cmd = self.robot_cmd
         if self.watchdog.expired(now):
             if self.out_cmd != (0.0, 0.0) and self.phase == TRIAL:
                 self.counts["watchdog_zero"] += 1
             cmd = (0.0, 0.0)
         if cmd != self.out_cmd or now - self.last_out >= self.period:
-            return BridgeTick(sample, None, self._send(cmd, now))
+            return BridgeTick(sample, None, self.send(cmd, now, now_wall_ns))
         return BridgeTick(sample)
 
     def stop(self, now: float) -> Command:
-        """The zero command, to send on the way out."""
-        return self._send((0.0, 0.0), now)
+        """The zero command, to send on the way out (no limit holds it back)."""
+        self.out_cmd, self.last_out = (0.0, 0.0), now
+        return self.out_cmd
 
-    def _send(self, cmd: Command, now: float) -> Command:
+    def send(self, cmd: Command, now: float, now_wall_ns: int | None = None) -> Command:
+        """``cmd`` as it goes to the driver at ``now``, stamped ``now_wall_ns`` (None: the
+        stamps are ``now``): through the acceleration limits, if any. In a trial, a command
+        they held back is counted (``clipped_accel``); a return starts from the trial's
+        last speed and is not."""
+        if self.rate is not None:
+            before = self.rate.clipped_accel
+            stamp = now if now_wall_ns is None else now_wall_ns * 1e-9
+            v, w, _ = self.rate.limit(cmd[0], cmd[1], stamp)
+            if self.phase == TRIAL:
+                self.counts["clipped_accel"] += self.rate.clipped_accel - before
+            cmd = (v, w)
         self.out_cmd = cmd
         self.last_out = now
         return cmd
@@ -405,4 +445,8 @@ class Bridge:
 
     def report(self) -> dict[str, Any]:
         """Diagnostics: the initial shift of each trial, each return, and the counters."""
-        return {"initial_shifts": self.shifts, "returns": self.returns, **self.counts}
+        limits = (self.rate.limits if self.rate is not None
+                  else Limits(self.limits.v_max, self.limits.omega_max))
+        return {"initial_shifts": self.shifts, "returns": self.returns,
+                "limits": list(limits.as_tuple()), "tilt_max_deg": math.degrees(self.tilt_max),
+                **self.counts}

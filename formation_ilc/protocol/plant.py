@@ -17,6 +17,11 @@ what the plant does lives here:
   the sample as missed for that robot;
 * the timing figures of the diagnostics.
 
+Another plant that keeps this schedule and timing (the rigid-body world of
+``protocol.physics_plant.PhysicsPlant``) replaces the plant's own steps: ``place`` (a
+trial starts at xi[:, 0]), ``move`` (sample t to t+1 under u[:, t]), ``measured`` (the
+measured pose of sample t) and ``plant_report`` (what else the trial's diagnostics say).
+
 Event order for a trial: ``on_event`` with the leader's start makes sample 0 due
 (``sample()``); after publishing a sample the node calls ``sent(now)`` (the plant then waits
 for commands, unless it was the trial's last sample); ``command(r, u, now)`` per command
@@ -138,6 +143,7 @@ class KinematicPlant:
         shift, self.dist, self.noise = self.cfg.scenario.uncertainty.draw_plant(
             self.cfg.scenario.seed, taken.trial, pb.n, pb.samples)
         self.xi[:, 0] = pb.eta_d[:, 0] + shift
+        self.place()
         self.u[:] = 0.0
         self.t = 0
         self.in_trial = True
@@ -156,7 +162,7 @@ class KinematicPlant:
     def _measure(self, now: float) -> None:
         """Sample t is due: its measured outputs; at sample T the trial is over."""
         t = self.t
-        self.eta[:, t] = self.xi[:, t] + self.noise[:, t]
+        self.eta[:, t] = self.measured(t)
         if t == self.T:
             self.in_trial = False
             self.trial_time += now - self.trial_t0
@@ -189,9 +195,25 @@ class KinematicPlant:
 
     def _step(self, now: float) -> None:
         t = self.t
-        step_into(self.xi[:, t], self.u[:, t], self.dist[:, t], self.pb.dt, self.xi[:, t + 1])
+        self.move(t)
         self.t = t + 1
         self._measure(now)
+
+    # ------------------------------------------------------------------ the plant itself
+    def place(self) -> None:
+        """A trial starts at xi[:, 0] (the kinematic state is xi itself)."""
+
+    def move(self, t: int) -> None:
+        """xi[:, t + 1] from xi[:, t] under u[:, t] and the input disturbance (eq. 1)."""
+        step_into(self.xi[:, t], self.u[:, t], self.dist[:, t], self.pb.dt, self.xi[:, t + 1])
+
+    def measured(self, t: int) -> NDArray[np.float64]:
+        """The measured pose of sample t, (N, 3): the true state plus the output noise."""
+        return self.xi[:, t] + self.noise[:, t]
+
+    def plant_report(self) -> dict[str, Any]:
+        """What else a trial's diagnostics say (another plant's)."""
+        return {}
 
     # ------------------------------------------------------------------ commands
     def command(self, r: int, u: NDArray[np.float64], now: float) -> bool:
@@ -256,7 +278,7 @@ class KinematicPlant:
         timing (``timing``)."""
         return {"trial": self.iteration, "slot": self.k, "mode": self.cfg.mode,
                 "missed": dict(self.missed), "resends": self.resends,
-                "timing": self.timing()}
+                "timing": self.timing(), **self.plant_report()}
 
     def timing(self) -> dict[str, Any]:
         """Samples, seconds inside trials, and the command latency [ms] (lockstep: sample

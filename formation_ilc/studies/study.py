@@ -206,7 +206,7 @@ def _desired_key(sc: Scenario) -> str:
         arr = np.ascontiguousarray(a, dtype=float)
         h.update(repr(arr.shape).encode())
         h.update(arr.tobytes())
-    h.update(repr((sc.scales, sc.dt, sc.frame)).encode())
+    h.update(repr((sc.scales, sc.dt, sc.frame, sc.heading_rule, sc.time_scale)).encode())
     return h.hexdigest()
 
 

@@ -265,3 +265,42 @@ def test_the_bridge_needs_wallclock_direct_links_and_its_robot_in_the_team():
     with pytest.raises(ValueError, match="robots 1..3"):
         Bridge(cfg, 4, name="bridge_4")
     assert Bridge(cfg, 2, name="b").stop(0.0) == (0.0, 0.0)
+
+
+def test_a_bases_acceleration_limits_hold_on_the_commands_stamps_in_trials_and_returns():
+    from formation_ilc.core.limits import Limits
+
+    b = wall_bridge(rate=Limits(0.3, 1.0, 0.5, 1.0))
+    t0 = 10 * SEC
+    assert b.tick(1.0, t0 - SEC).cmd == (0.0, 0.0)  # idle: zero, through the limits too
+    b.said_ready(0, b.shift())
+    b.on_event(start_event(0, 0, t0), 1.0, t0 - SEC)
+    # 0.1 s of stamps after the zero command: at most 0.05 m/s more (0.5 m/s^2)
+    assert b.on_cmd((0.3, 0.0), 1.1, t0 - SEC + SEC // 10) == pytest.approx((0.05, 0.0))
+    assert b.on_cmd((0.3, 0.0), 1.2, t0 - SEC + 2 * SEC // 10) == pytest.approx((0.1, 0.0))
+    assert b.counts["clipped_accel"] == 2 and b.counts["clipped"] == 0
+    # the stamps rule, not the caller's clock: a late callback gets no larger step
+    assert b.on_cmd((0.3, 0.0), 9.0, t0 - SEC + 3 * SEC // 10) == pytest.approx((0.15, 0.0))
+    rep = b.report()
+    assert rep["limits"] == [0.3, 1.0, 0.5, 1.0] and rep["clipped_accel"] == 3
+    # a Pioneer driver's bridge has none: its runs are unchanged
+    p = wall_bridge()
+    p.said_ready(0, p.shift())
+    p.on_event(start_event(0, 0, t0), 1.0, t0 - SEC)
+    assert p.on_cmd((0.3, 0.0), 1.1, t0) == (0.3, 0.0) and p.rate is None
+    assert p.report()["limits"][2:] == [math.inf, math.inf]
+
+
+def test_bridge_limits_take_the_preset_then_every_given_value():
+    from formation_ilc.config.bases import BASES
+    from formation_ilc.protocol.bridge import bridge_limits
+
+    assert bridge_limits(None).as_tuple() == (PIONEER_V_MAX, PIONEER_OMEGA_MAX, math.inf,
+                                              math.inf)
+    tb = BASES["turtlebot4"].limits
+    got = bridge_limits("turtlebot4", {"v_max": 0.2, "omega_max": 0.0, "alpha_max": 90.0})
+    assert got.as_tuple() == (0.2, tb.omega_max, tb.a_max, pytest.approx(math.pi / 2))
+    with pytest.raises(ValueError, match="no base preset 'roomba'"):
+        bridge_limits("roomba")
+    with pytest.raises(ValueError, match="a_max: a limit >= 0 is required"):
+        bridge_limits("jackal", {"a_max": -1.0})

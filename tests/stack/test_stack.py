@@ -81,11 +81,21 @@ def test_lockstep_stack_equals_batch_simulator(ros_env, tmp_path, scenario, unce
         assert got[-1, 1] < 0.5 * got[0, 1]
     else:
         assert got[-1, 2] < 0.85 * got[0, 2]
-    diag = json.loads((tmp_path / "diagnostics.json").read_text())
-    for node, d in diag.items():
-        assert sum(d.get("dropped", {}).values()) == 0, (node, d["dropped"])
+    assert_no_unexplained_drops(json.loads((tmp_path / "diagnostics.json").read_text()))
     if uncertain:
         check_delay_histograms(tmp_path, sc)
+
+
+def assert_no_unexplained_drops(diag: dict, where: str = "") -> None:
+    """No node dropped a message, except the copies of a sample the plant sent again (a
+    command still due 2 s after the sample went out, on a loaded machine: the liveness
+    re-send), which every reader that already had it drops as a duplicate."""
+    resent = sum(int(d.get("resends", 0)) for d in diag.values())
+    for node, d in diag.items():
+        dropped = dict(d.get("dropped", {}))
+        if resent:
+            dropped.pop("duplicate", None)
+        assert sum(dropped.values()) == 0, (where, node, d["dropped"], resent)
 
 
 def check_delay_histograms(out: Path, sc) -> None:
@@ -317,9 +327,7 @@ def test_lockstep_direct_links_equal_batch_without_delay(ros_env, tmp_path, scen
     for r in rows:
         assert r["injected"] == ""  # no emulator: the network's delays are only measured
         assert int(r["measured"]) == (trials * sc.samples if r["tau"] == "0" else 0), r
-    diag = json.loads((tmp_path / "diagnostics.json").read_text())
-    for node, d in diag.items():
-        assert sum(d.get("dropped", {}).values()) == 0, (node, d["dropped"])
+    assert_no_unexplained_drops(json.loads((tmp_path / "diagnostics.json").read_text()))
 
 
 def test_two_formations_share_a_domain_under_two_namespaces(ros_env, tmp_path):
@@ -343,9 +351,8 @@ def test_two_formations_share_a_domain_under_two_namespaces(ros_env, tmp_path):
                                                            delay=links == "emulated")
         np.testing.assert_allclose(got[:, 1:], simulate(sc, trials=8).metrics[:, 1:],
                                    rtol=0, atol=TOL)
-        diag = json.loads((tmp_path / ns[1:] / "diagnostics.json").read_text())
-        for node, d in diag.items():
-            assert sum(d.get("dropped", {}).values()) == 0, (ns, node, d["dropped"])
+        assert_no_unexplained_drops(json.loads((tmp_path / ns[1:] / "diagnostics.json")
+                                                .read_text()), ns)
 
 
 def test_a_stand_in_plant_that_speaks_only_the_contract(ros_env, tmp_path):

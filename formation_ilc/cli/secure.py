@@ -1,0 +1,105 @@
+"""``launch --secure DIR``: every node of the formation in its SROS2 enclave, Enforce.
+
+The launcher's hook, kept apart from the launcher: :func:`prepare` runs before anything
+starts and either refuses (an :class:`OptionError`, one line, exit 2) or returns a
+:class:`SecureRun`, whose :meth:`SecureRun.env` turns one process's environment into its
+secure one (the same transform for local processes, network-namespace hosts and Pioneer
+bridges: ``ip netns exec`` keeps the environment). It refuses when
+
+* the Fast DDS that nodes would load has no DDS-Security (the wheels' build, or a ``pip
+  install`` that put it back under the rebuilt rmw, which would run with no security at
+  all): the message gives the command that builds the secure one
+  (``formation_ilc.system.securedds``);
+* the keystore is missing, expired, from another CA, or lacks the enclave of a node that
+  would start (``formation_ilc.store.keystore.verify``);
+* robots would share a process (``--container``): one process is one DDS participant, and
+  each robot must hold only its own identity.
+
+Process names map to enclaves ``<namespace>/<name>``, except robot i's fake driver
+(``fake_pioneer_i`` runs in the enclave ``driver_i``, as a real driver would).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+from formation_ilc.cli.options import OptionError
+from formation_ilc.config.enclaves import driver_enclave, enclave_path
+from formation_ilc.core.names import MONITOR_NODE, fake_driver_name
+
+__all__ = ["SECURITY_ENV", "SECURE_PLANTS", "add_arguments", "enclave_name", "SecureRun", "prepare"]
+
+#: what rcl reads; every variable a secure run sets
+SECURITY_ENV = ("ROS_SECURITY_KEYSTORE", "ROS_SECURITY_ENABLE", "ROS_SECURITY_STRATEGY",
+                "ROS_SECURITY_ENCLAVE_OVERRIDE")
+#: the plants whose nodes ``formation-ilc keystore create`` grants (the kinematic simulator,
+#: the Pioneer bridges and their drivers); the physics and base plants have no grants yet
+SECURE_PLANTS = ("sim", "pioneer")
+#: the launcher's own node (the monitor) runs in the launcher process
+LAUNCHER_NODE = MONITOR_NODE
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--secure", type=Path, default=None, metavar="DIR",
+                   help="run every node in its SROS2 enclave of the keystore DIR (`formation-"
+                        "ilc keystore create DIR SCENARIO`), with DDS-Security enforced; "
+                        "needs the Fast DDS built by scripts/build_secure_dds.sh "
+                        "(docs/security.md)")
+
+
+def enclave_name(process: str) -> str:
+    """The enclave (node) name of a launcher process name."""
+    m = re.fullmatch(re.escape(fake_driver_name(0)[:-1]) + r"(\d+)", process)
+    return driver_enclave(int(m.group(1))) if m else process
+
+
+@dataclass(frozen=True)
+class SecureRun:
+    """A checked keystore for a formation in ``namespace``."""
+
+    keystore: Path
+    namespace: str
+
+    def variables(self, process: str) -> dict[str, str]:
+        return {"ROS_SECURITY_KEYSTORE": str(self.keystore),
+                "ROS_SECURITY_ENABLE": "true",
+                "ROS_SECURITY_STRATEGY": "Enforce",
+                "ROS_SECURITY_ENCLAVE_OVERRIDE": enclave_path(self.namespace,
+                                                             enclave_name(process))}
+
+    def env(self, base: dict[str, str], process: str) -> dict[str, str]:
+        """``base`` with the security variables of ``process``."""
+        return {**base, **self.variables(process)}
+
+    def enter_launcher(self) -> None:
+        """Put the launcher's own node in its enclave (before rclpy initialises)."""
+        os.environ.update(self.variables(LAUNCHER_NODE))
+
+
+def prepare(keystore: Path | str | None, processes: Iterable[str], namespace: str, *,
+            container: int = 0) -> SecureRun | None:
+    """The secure run for these processes (plus the launcher's monitor), or None without
+    ``--secure``; OptionError (one line) if it cannot run secure."""
+    if keystore is None:
+        return None
+    from formation_ilc.store.keystore import KeystoreError, verify
+    from formation_ilc.system.securedds import InsecureDds, check
+
+    if container:
+        raise OptionError("--secure: one process per robot (no --container): a process "
+                          "is one DDS participant, and each robot holds only its own "
+                          "identity")
+    ks = Path(keystore).resolve()
+    enclaves = [enclave_path(namespace, enclave_name(p))
+                for p in [*processes, LAUNCHER_NODE]]
+    try:
+        verify(ks, enclaves)
+        check()
+    except (KeystoreError, InsecureDds) as exc:
+        raise OptionError(f"--secure: {exc}") from None
+    return SecureRun(ks, namespace)

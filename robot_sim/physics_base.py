@@ -1,0 +1,114 @@
+"""Physics robots behind a base's interface (``python -m robot_sim.physics_base``).
+
+The PyBullet world of ``formation_ilc.model.physics`` in wall time, every robot exposed
+the way a real differential-drive base exposes itself: ``cmd_vel`` in and wheel odometry
+out (nav_msgs/Odometry, starting at 0 where the robot was placed, its orientation carrying
+the body's real roll and pitch), no ground truth to the stack. The generic bridge
+(``formation-ilc-bridge -p base:=...``) drives it exactly as it drives a TurtleBot or a
+Husky: ``formation-ilc launch --plant base --physics-bases`` runs the two together.
+
+Robot i's topics are in ``ns_pattern`` with {i} replaced (default ``/base_{i}``):
+``cmd_vel`` (Twist, or TwistStamped with ``cmd_type:=twist_stamped``) and ``odom_topic``
+(default ``odom``). Every ``tick`` s (default 0.02) the engine advances one tick under the
+newest command of each robot (zero once it is older than ``cmd_timeout``, the base's own
+watchdog) and each robot's odometry is published.
+
+It also publishes, on ``diagnostics`` in its own namespace (the launcher puts it in the
+formation's, so the recorder keeps it), what the robots were asked: per robot the largest
+|v|, |omega| and, between consecutive commands (by their header stamps when stamped),
+|dv/dt| and |domega/dt|, and the true poses' drift from the odometry. Everything it
+decides is in ``formation_ilc.protocol.physics_plant.BaseRobots``. Parameters:
+``robots``, ``poses`` (x, y, theta per robot, flat: where each robot is placed), ``model``,
+``rate`` [Hz], ``collide``; the engine is deterministic.
+"""
+
+from __future__ import annotations
+
+import functools
+import sys
+import time
+from typing import Any
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import Twist, TwistStamped
+from nav_msgs.msg import Odometry
+from rclpy.node import Node
+
+import msgs_schema as ms
+from formation_ilc.core.names import BASES_NODE
+from formation_ilc.nodes.common import node_parser, spin_main
+from formation_ilc.protocol.physics_plant import BaseRobots
+
+NAME = BASES_NODE
+
+
+class PhysicsBases(Node):
+    """N physics robots, each a base with cmd_vel and odometry."""
+
+    def __init__(self, **kwargs: Any):
+        # in the formation's namespace (its diagnostics are recorded); the bases' own topics
+        # are absolute
+        kwargs.setdefault("namespace", ms.NAMESPACE)
+        super().__init__(NAME, **kwargs)
+        for name, default in (("robots", 3), ("poses", [0.0]), ("model", "p3dx"),
+                              ("rate", 250.0), ("tick", 0.02), ("collide", True),
+                              ("ns_pattern", "/base_{i}"), ("cmd_type", "twist"),
+                              ("odom_topic", "odom"), ("cmd_timeout", 0.5)):
+            self.declare_parameter(name, default)
+        g = lambda name: self.get_parameter(name).value  # noqa: E731
+        n = int(g("robots"))
+        poses = np.asarray([float(x) for x in g("poses")], dtype=float)
+        if n < 1 or poses.size != 3 * n:
+            raise ValueError(f"parameters robots, poses: {n} robots need 3 numbers each "
+                             f"(x, y, theta), got {poses.size}")
+        self.core = BaseRobots(str(g("model")), poses.reshape(n, 3), float(g("tick")),
+                               rate=float(g("rate")), collide=bool(g("collide")),
+                               cmd_timeout=float(g("cmd_timeout")))
+        stamped = str(g("cmd_type")) == "twist_stamped"
+        self.odom_pubs = []
+        self.msgs = [Odometry() for _ in range(n)]
+        for i in range(n):
+            ns = str(g("ns_pattern")).replace("{i}", str(i + 1)).rstrip("/")
+            self.create_subscription(TwistStamped if stamped else Twist, f"{ns}/cmd_vel",
+                                     functools.partial(self._on_cmd, i=i), ms.DRIVER_CMD_QOS)
+            self.odom_pubs.append(self.create_publisher(Odometry, f"{ns}/{g('odom_topic')}",
+                                                        ms.ODOM_QOS))
+        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS,
+                                               ms.LATCHED_QOS)
+        self.create_timer(self.core.tick, self._on_tick)
+        self.create_timer(1.0, self._report)
+        world = self.core.world
+        self.get_logger().info(f"{n} physics bases ({world.model.name}), "
+                               f"{world.substeps} engine steps per {self.core.tick} s tick")
+
+    def _on_cmd(self, msg: Twist | TwistStamped, i: int) -> None:
+        now = time.monotonic()
+        stamped = isinstance(msg, TwistStamped)
+        t = msg.twist if stamped else msg
+        stamp = ms.stamp_to_ns(msg.header.stamp) * 1e-9 if stamped else now
+        self.core.command(i, float(t.linear.x), float(t.angular.z), stamp, now)
+
+    def _on_tick(self) -> None:
+        odoms = self.core.step(time.monotonic())
+        stamp = time.time_ns()
+        for i, (pose, twist, quat) in enumerate(odoms):
+            self.odom_pubs[i].publish(ms.odometry_msg(pose, twist, stamp, out=self.msgs[i],
+                                                      quat=quat))
+
+    def _report(self) -> None:
+        self.diag_pub.publish(ms.diagnostics_to_msg({"node": NAME, "trial": -1,
+                                                      **self.core.report()},
+                                                     time.time_ns()))
+
+    def destroy_node(self) -> None:
+        self.core.close()
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> int:
+    return spin_main(lambda ns, argv: [PhysicsBases()], node_parser(NAME, __doc__), args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,116 @@
+#!/usr/bin/env python3
+"""What DDS-Security costs: start-up (discovery and authentication) and lockstep throughput,
+secure against insecure, for teams of 6 and 24 robots.
+
+Runs `formation-ilc launch` in lockstep (one process per robot, emulated links) with and
+without `--secure` (a keystore made for each team), alternately, and prints per run:
+
+* start-up: from the launcher's start to the first sample of trial 1, i.e. the processes
+  starting, discovering each other (and, secure, authenticating every pair of
+  participants and exchanging keys) and matching every reader and writer; measured as the
+  time at which trial 1 ends minus that trial's own duration;
+* samples/s: simulated samples over the wall time inside trials (the simulator's timing),
+  with the per-sample latency p50/p99 (simulator publishes the poses -> every robot's
+  cmd_vel is in).
+
+Needs the Fast DDS of scripts/build_secure_dds.sh in the venv. Teams larger than six are
+paper-hexagon6 tiled (scripts/bench_stack.py).
+
+    python scripts/bench_secure.py                     # 6 and 24 robots, 3 trials, 2 repeats
+    python scripts/bench_secure.py --sizes 6 --repeats 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_stack import team_scenario  # noqa: E402
+
+TRIAL_LINE = re.compile(r"^trial 1/\d+ .*\[(\d+(?:\.\d+)?) s\]")
+
+
+def one_run(scenario: str, trials: int, domain: int, out: Path, keystore: Path | None
+            ) -> dict:
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    argv = [sys.executable, "-m", "formation_ilc.cli", "launch", scenario, "--trials",
+            str(trials), "--out", str(out), "--domain-id", str(domain), "--no-plots",
+            "--mode", "lockstep", "--links", "emulated", "--timeout", "60"]
+    if keystore is not None:
+        argv += ["--secure", str(keystore)]
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    first = None
+    lines = []
+    assert proc.stdout is not None
+    for line in proc.stdout:
+        lines.append(line)
+        if first is None and TRIAL_LINE.match(line):
+            first = time.perf_counter() - t0
+    proc.wait()
+    if proc.returncode or first is None:
+        return {"error": "".join(lines)[-800:]}
+    s = json.loads((out / "summary.json").read_text())
+    t = s["timing"]
+    per_trial = t["samples"] / max(t["samples_per_s"], 1e-9) / max(s["trials_done"], 1)
+    return {"startup": first - per_trial, "rate": t["samples_per_s"], "p50": t["p50_ms"],
+            "p99": t["p99_ms"]}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sizes", type=int, nargs="+", default=[6, 24])
+    ap.add_argument("--trials", type=int, default=3)
+    ap.add_argument("--repeats", type=int, default=2, help="runs of each kind (alternated)")
+    ap.add_argument("--domain", type=int, default=30 + os.getpid() % 60)
+    args = ap.parse_args()
+    check = subprocess.run([sys.executable, "-m", "formation_ilc.system.securedds"],
+                           capture_output=True, text=True)
+    if check.returncode:
+        print(check.stderr.strip(), file=sys.stderr)
+        return 2
+    dom = args.domain
+    with tempfile.TemporaryDirectory() as td:
+        tmp = Path(td)
+        for n in args.sizes:
+            sc = team_scenario(n, tmp, None)
+            ks = tmp / f"ks-{n}"
+            subprocess.run([sys.executable, "-m", "formation_ilc.cli", "keystore", "create",
+                            str(ks), sc], check=True, capture_output=True)
+            got: dict[str, list[dict]] = {"insecure": [], "secure": []}
+            for r in range(args.repeats):
+                for kind in ("insecure", "secure"):
+                    res = one_run(sc, args.trials, dom, tmp / f"{n}-{kind}-{r}",
+                                  ks if kind == "secure" else None)
+                    dom = 30 + (dom - 29) % 71
+                    if "error" in res:
+                        print(f"{n} robots {kind}: FAILED\n{res['error']}", flush=True)
+                        continue
+                    got[kind].append(res)
+                    print(f"{n:3d} robots {kind:8s} start-up {res['startup']:6.2f} s  "
+                          f"{res['rate']:7.1f} samples/s  latency p50 {res['p50']:6.2f} p99 "
+                          f"{res['p99']:6.2f} ms", flush=True)
+            if got["insecure"] and got["secure"]:
+                med = {k: {m: statistics.median(x[m] for x in v) for m in ("startup", "rate")}
+                       for k, v in got.items()}
+                print(f"{n:3d} robots median: start-up {med['insecure']['startup']:.2f} -> "
+                      f"{med['secure']['startup']:.2f} s, throughput "
+                      f"{med['insecure']['rate']:.1f} -> {med['secure']['rate']:.1f} "
+                      f"samples/s (secure/insecure "
+                      f"{med['secure']['rate'] / med['insecure']['rate']:.2f})", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,108 @@
+"""The launch plan of the physics plant and of the bridges in front of any base: their
+node specs, the options that reach the nodes through the plan and RunConfig.to_params, and
+the refusals made before anything starts (limits, predicted contact). No ROS here."""
+
+from __future__ import annotations
+
+import pytest
+
+from formation_ilc.cli.commands import build_parser
+from formation_ilc.cli.plan import NoRun, RunPlan, build_plan
+from formation_ilc.config.bases import BASES
+from formation_ilc.config.runconfig import RunConfig
+from formation_ilc.config.scenario import load_scenario
+
+
+def plan_of(tmp_path, *argv: str) -> RunPlan:
+    return build_plan(build_parser().parse_args(["launch", *argv, "--out",
+                                                 str(tmp_path / "run")]))
+
+
+def short(tmp_path) -> str:
+    """paper-triangle3 cut to 40 samples (8 s)."""
+    scen = tmp_path / "short.yaml"
+    scen.write_text(load_scenario("paper-triangle3").text.replace("samples: 140",
+                                                                  "samples: 40"))
+    return str(scen)
+
+
+def test_the_kinematic_simulator_keeps_chord_headings_and_its_numbers(tmp_path):
+    plan = plan_of(tmp_path, "paper-triangle3", "--trials", "2")
+    sc = plan.scenario
+    assert sc.headings == "chord" and sc.time_scale == 1.0
+    base = load_scenario("paper-triangle3")
+    assert (sc.desired.u == base.desired.u).all() and (sc.desired.eta == base.desired.eta).all()
+    leader = dict(plan.nodes[0].params)
+    assert leader["headings"] == "chord" and leader["time_scale"] == 1.0
+    # the one mapping back: the leader's configuration is the plan's
+    assert RunConfig.from_params(leader).to_json() == plan.config.to_json()
+
+
+def test_physics_plant_is_a_node_spec_with_its_options_and_arc_headings(tmp_path):
+    pytest.importorskip("pybullet")
+    plan = plan_of(tmp_path, "paper-triangle3", "--plant", "physics", "--robot-model",
+                   "husky", "--pose", "odometry", "--physics-rate", "480", "--pass-through",
+                   "--allow-contact", "--time-scale", "1.5", "--trials", "2")
+    names = [s.name for s in plan.nodes]
+    assert names == ["virtual_leader", "physics_sim", "link_emulator", "robot_1", "robot_2",
+                     "robot_3"]
+    assert dict(plan.nodes[1].params) == {"timeout": 30.0, "model": "husky",
+                                          "pose": "odometry", "collide": False, "rate": 480.0}
+    assert plan.nodes[1].module == "robot_sim.physics_node"
+    assert plan.team.plants == ("physics_sim",) and plan.true_state
+    assert plan.reporters == ("physics_sim", "link_emulator")
+    leader = dict(plan.nodes[0].params)
+    assert leader["headings"] == "arc" and leader["time_scale"] == 1.5
+    assert RunConfig.from_params(leader).to_json() == plan.config.to_json()
+    assert plan.scenario.samples == 210  # 140 samples stretched 1.5 times
+    # the contact the batch simulator predicts is said before the run, not hidden
+    assert len(plan.notes) == 1 and plan.notes[0].startswith(
+        "warning: the batch simulator predicts contact from this cold start (u_0 = 0): ")
+
+
+def test_a_colliding_cold_start_is_refused_with_one_line(tmp_path):
+    pytest.importorskip("pybullet")
+    with pytest.raises(NoRun) as info:
+        plan_of(tmp_path, "paper-triangle3", "--plant", "physics")
+    exc = info.value
+    assert exc.status == 2 and "\n" not in exc.message
+    assert exc.message.startswith("the batch simulator predicts contact from this cold start")
+    assert "robots 2 and 3 overlap" in exc.message and "--allow-contact" in exc.message
+
+
+def test_base_bridges_refuse_a_scenario_beyond_the_preset_then_plan_it_stretched(tmp_path):
+    pytest.importorskip("pybullet")
+    scen = short(tmp_path)
+    args = [scen, "--plant", "base", "--base", "turtlebot4", "--physics-bases", "--no-noise",
+            "--trials", "3"]
+    with pytest.raises(NoRun) as info:
+        plan_of(tmp_path, *args)
+    line = info.value.message
+    assert line.startswith("robot ") and "exceeds its limit 0.306 m/s; --time-scale " in line
+    scale = line.rsplit("--time-scale ", 1)[1].split()[0]
+    plan = plan_of(tmp_path, *args, "--time-scale", scale, "--a-max", "2.0")
+    assert plan.config.mode == "wallclock" and plan.config.links == "direct"
+    names = [s.name for s in plan.nodes]
+    assert names == ["virtual_leader", "physics_bases", "bridge_1", "bridge_2", "bridge_3",
+                     "robot_1", "robot_2", "robot_3"]
+    bases = dict(plan.nodes[1].params)
+    assert bases["robots"] == 3 and len(bases["poses"]) == 9
+    assert bases["ns_pattern"] == "/base_{i}" and bases["cmd_type"] == "twist_stamped"
+    assert dict(plan.nodes[3].params) == {"robot_id": 2, "driver_ns": "/base_2",
+                                          "base": "turtlebot4", "return_timeout": 60.0,
+                                          "a_max": 2.0}
+    assert not plan.true_state and plan.bridged
+    assert plan.reporters == ("bridge_1", "bridge_2", "bridge_3")
+    assert dict(plan.nodes[0].params)["headings"] == "arc"
+    assert BASES["turtlebot4"].limits.v_max == 0.306
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--plant", "sim", "--physics-bases"], "--physics-bases goes with --plant base"),
+    (["--plant", "base", "--mode", "lockstep"], "--plant base runs --mode wallclock"),
+    (["--plant", "base", "--v-max", "-1"], "--v-max: a limit >= 0 is required"),
+])
+def test_plant_refusals(tmp_path, argv, message):
+    with pytest.raises(NoRun) as info:
+        plan_of(tmp_path, "paper-triangle3", *argv)
+    assert message in info.value.message and info.value.status == 2

@@ -1,0 +1,172 @@
+"""Permissions derived from a formation's graph (formation_ilc.config.enclaves): least
+privilege per node, no ROS needed (the topic names are passed in as data)."""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+
+from formation_ilc.config.enclaves import (
+    DriverTopics,
+    TopicNames,
+    dds_topic,
+    formation_grants,
+    governance_xml,
+    housekeeping,
+    permissions_xml,
+)
+
+NS = "/formation"
+
+
+def names() -> TopicNames:
+    """The schema's names as msgs_schema spells them (tests/cli checks they agree)."""
+    def r(i: int) -> str:
+        return f"robot_{i}"
+    return TopicNames(
+        config="config", reference="leader/reference", trial_events="leader/trial_events",
+        ready="ready", diagnostics="diagnostics", clock="/clock",
+        pose=lambda i: f"{r(i)}/pose", cmd_vel=lambda i: f"{r(i)}/cmd_vel",
+        shared_pose=lambda i: f"{r(i)}/shared_pose",
+        link=lambda i, s: f"{r(i)}/links/{s}", trajectory=lambda i: f"{r(i)}/trajectory",
+        true_trajectory=lambda i: f"{r(i)}/true_trajectory",
+        recorded=lambda n: ["config", "leader/reference", "leader/trial_events", "ready",
+                            "diagnostics", "/clock"]
+        + [f"{r(i)}/{t}" for i in range(1, n + 1)
+           for t in ("pose", "cmd_vel", "trajectory", "true_trajectory")])
+
+
+# robot 1 hears the leader; 2 <- 1; 3 <- 1, 2 (a_ij > 0: i receives from j)
+ADJ = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0]], dtype=float)
+LEADER = np.array([1.0, 0.0, 0.0])
+
+
+@pytest.fixture
+def grants():
+    return formation_grants(ADJ, LEADER, names(), NS)
+
+
+def test_robot_publishes_only_its_own_topics(grants):
+    for i in (1, 2, 3):
+        g = grants[f"{NS}/robot_{i}"]
+        own = {f"{NS}/robot_{i}/{t}" for t in ("cmd_vel", "shared_pose", "trajectory")}
+        assert set(g.publish) == own | {f"{NS}/ready", f"{NS}/diagnostics"}
+        others = [t for t in g.publish if "/robot_" in t and f"/robot_{i}/" not in t]
+        assert others == []
+
+
+def test_robot_reads_its_in_neighbours_and_the_leader_only_if_it_hears_it(grants):
+    g3 = set(grants[f"{NS}/robot_3"].subscribe)
+    for j in (1, 2):
+        assert f"{NS}/robot_{j}/shared_pose" in g3 and f"{NS}/robot_{j}/trajectory" in g3
+        assert f"{NS}/robot_3/links/robot_{j}" in g3
+    assert f"{NS}/leader/reference" not in g3
+    assert f"{NS}/robot_3/pose" in g3 and f"{NS}/robot_1/pose" not in g3
+    g2 = set(grants[f"{NS}/robot_2"].subscribe)
+    assert f"{NS}/robot_3/shared_pose" not in g2  # 3 is not an in-neighbour of 2
+    assert f"{NS}/robot_1/shared_pose" in g2
+    g1 = set(grants[f"{NS}/robot_1"].subscribe)
+    assert {f"{NS}/leader/reference", f"{NS}/robot_1/links/leader"} <= g1
+    assert not any("shared_pose" in t for t in g1)
+
+
+def test_only_the_plant_reads_cmd_vel_and_publishes_poses(grants):
+    for path, g in grants.items():
+        if path.endswith("robot_sim"):
+            assert {f"{NS}/robot_{i}/cmd_vel" for i in (1, 2, 3)} <= set(g.subscribe)
+            assert {f"{NS}/robot_{i}/pose" for i in (1, 2, 3)} <= set(g.publish)
+            continue
+        pub_poses = [t for t in g.publish if t.endswith("/pose")]
+        assert pub_poses == [], path
+        cmd = [t for t in g.publish if t.endswith("/cmd_vel")]
+        assert cmd == ([f"{path}/cmd_vel"] if "/robot_" in path else []), path
+
+
+def test_only_the_leader_publishes_config_reference_and_events(grants):
+    leader_topics = {f"{NS}/config", f"{NS}/leader/reference", f"{NS}/leader/trial_events"}
+    for path, g in grants.items():
+        mine = leader_topics & set(g.publish)
+        assert mine == (leader_topics if path.endswith("virtual_leader") else set()), path
+
+
+def test_recorder_and_monitor_publish_only_protocol_topics(grants):
+    assert set(grants[f"{NS}/recorder"].publish) == {f"{NS}/ready", f"{NS}/diagnostics"}
+    assert set(grants[f"{NS}/monitor"].publish) == {f"{NS}/ready"}
+    assert f"{NS}/robot_3/cmd_vel" in grants[f"{NS}/recorder"].subscribe
+
+
+def test_link_emulator_serves_exactly_the_graph_links(grants):
+    g = grants[f"{NS}/link_emulator"]
+    links = {t for t in g.publish if "/links/" in t}
+    assert links == {f"{NS}/robot_1/links/leader", f"{NS}/robot_2/links/robot_1",
+                     f"{NS}/robot_3/links/robot_1", f"{NS}/robot_3/links/robot_2"}
+
+
+def test_adding_a_robot_changes_only_the_grants_that_see_it(grants):
+    adj = np.zeros((4, 4))
+    adj[:3, :3] = ADJ
+    adj[3, 2] = 1.0  # robot 4 <- robot 3
+    bigger = formation_grants(adj, np.append(LEADER, 0.0), names(), NS)
+    assert set(bigger) - set(grants) == {f"{NS}/robot_4"}
+    same = {p for p in grants if grants[p] == bigger[p]}
+    assert same == {f"{NS}/robot_1", f"{NS}/robot_2", f"{NS}/robot_3", f"{NS}/virtual_leader"}
+
+
+def test_pioneer_bridges_and_drivers(grants):
+    d = DriverTopics("/pioneer_{i}", "cmd_vel", "pose", "enable_motors", "empty_service")
+    g = formation_grants(ADJ, LEADER, names(), NS, pioneer=d)
+    assert f"{NS}/robot_sim" not in g
+    b2 = g[f"{NS}/bridge_2"]
+    assert f"{NS}/robot_2/cmd_vel" in b2.subscribe and f"{NS}/robot_1/cmd_vel" not in b2.subscribe
+    assert "/pioneer_2/cmd_vel" in b2.publish and "/pioneer_1/cmd_vel" not in b2.publish
+    assert b2.dds_publish == ("rq/pioneer_2/enable_motorsRequest",)
+    d2 = g[f"{NS}/driver_2"]
+    assert d2.node_namespace == "/pioneer_2"
+    assert d2.dds_subscribe == ("rq/pioneer_2/enable_motorsRequest",)
+    assert "/pioneer_2/cmd_vel" in d2.subscribe
+
+
+def test_housekeeping_names_the_nodes_own_services():
+    pub, sub = housekeeping("/formation", "robot_2")
+    assert "rr/formation/robot_2/get_parametersReply" in pub
+    assert "rq/formation/robot_2/set_parametersRequest" in sub
+    assert {"rt/rosout", "ros_discovery_info"} <= set(pub)
+    assert not any("robot_1" in t for t in pub + sub)
+
+
+def test_dds_topic_names():
+    assert dds_topic("/formation/robot_1/pose") == "rt/formation/robot_1/pose"
+    with pytest.raises(ValueError, match="absolute"):
+        dds_topic("robot_1/pose")
+
+
+def test_permissions_document(grants):
+    from datetime import UTC, datetime
+
+    g = grants[f"{NS}/robot_2"]
+    text = permissions_xml(g, "CN=/formation/robot_2", datetime(2026, 1, 1, tzinfo=UTC),
+                           datetime(2027, 1, 1, tzinfo=UTC))
+    root = ET.fromstring(text)
+    grant = root.find("permissions/grant")
+    assert grant is not None and grant.get("name") == "/formation/robot_2"
+    assert grant.findtext("subject_name") == "CN=/formation/robot_2"
+    assert grant.findtext("validity/not_after") == "2027-01-01T00:00:00"
+    assert grant.findtext("default") == "DENY"
+    pub = [t.text for t in grant.findall("allow_rule/publish/topics/topic")]
+    sub = [t.text for t in grant.findall("allow_rule/subscribe/topics/topic")]
+    assert "rt/formation/robot_2/cmd_vel" in pub and "rt/formation/robot_1/cmd_vel" not in pub
+    assert "rt/formation/robot_1/shared_pose" in sub
+    assert "rt/formation/robot_3/shared_pose" not in sub
+
+
+def test_governance_encrypts_and_refuses_strangers():
+    root = ET.fromstring(governance_xml())
+    rule = root.find("domain_access_rules/domain_rule")
+    assert rule is not None
+    assert rule.findtext("allow_unauthenticated_participants") == "false"
+    assert rule.findtext("enable_join_access_control") == "true"
+    topic = rule.find("topic_access_rules/topic_rule")
+    assert topic is not None and topic.findtext("data_protection_kind") == "ENCRYPT"
+    assert topic.findtext("enable_write_access_control") == "true"

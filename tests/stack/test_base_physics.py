@@ -1,0 +1,69 @@
+"""Physics robots driven through the generic base bridge, in wall-clock trials.
+
+``formation-ilc launch --plant base --physics-bases``: P3-DX-size physics robots expose
+``cmd_vel`` and wheel odometry like any base (no ground truth reaches the stack); one
+bridge per robot, with the TurtleBot 4 preset's limits, drives them. A scenario too fast
+for those limits is refused with one line; stretched with ``--time-scale`` it runs, it
+learns, and no command to a base exceeds the limits (read back from the recording).
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+pytest.importorskip("pybullet", reason="the physics extra: pip install -e .[physics]")
+pytest.importorskip("mcap_ros2")
+
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+
+import msgs_schema as ms  # noqa: E402
+from formation_ilc.config.bases import BASES  # noqa: E402
+from formation_ilc.config.scenario import load_scenario  # noqa: E402
+from formation_ilc.core.metrics import read_metrics  # noqa: E402
+from formation_ilc.recordings.mcap_io import read_messages  # noqa: E402
+
+from .test_stack import launch  # noqa: E402
+
+pytestmark = [pytest.mark.ros, pytest.mark.multiprocess, pytest.mark.slow]
+
+TB4 = BASES["turtlebot4"].limits
+
+
+def test_too_fast_for_the_base_is_refused_then_runs_stretched(ros_env, tmp_path):
+    scen = tmp_path / "short.yaml"
+    scen.write_text(load_scenario("paper-triangle3").text.replace("samples: 140",
+                                                                  "samples: 40"))
+    common = [str(scen), "--plant", "base", "--base", "turtlebot4", "--physics-bases",
+              "--no-noise", "--trials", "3"]
+    res = launch(ros_env, tmp_path / "refused", *common, timeout=120.0)
+    assert res.returncode == 2, res.stdout
+    errors = [x for x in res.stdout.splitlines() if x.startswith("error:")]
+    assert len(errors) == 1, res.stdout
+    assert "exceeds its limit 0.306 m/s; --time-scale " in errors[0]
+    assert errors[0].startswith("error: robot ")
+    scale = errors[0].rsplit("--time-scale ", 1)[1].split()[0]
+
+    rec = tmp_path / "run.mcap"
+    res = launch(ros_env, tmp_path / "run", *common, "--time-scale", scale,
+                 "--return-timeout", "40", "--record", str(rec), timeout=900.0)
+    assert res.returncode == 0, res.stdout
+    got = read_metrics(tmp_path / "run" / "metrics.csv")
+    assert len(got) == 3 and got[-1, 1] < got[0, 1]  # it learns from the odometry pose
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["true_state"] is False  # a base gives the stack no ground truth
+    for b in summary["bridges"].values():
+        # the P3-DX-size body pitches a few degrees as it brakes: inside the 10 deg bound
+        assert b["limits"][0] == TB4.v_max and 0 < b["tilt_max_deg"] < 10.0
+    # what the bases were asked, as recorded: never beyond the limits (accelerations on the
+    # commands' stamps, which the bridge limits on)
+    diags = [ms.msg_to_report(ms.deserialize(m.data, DiagnosticArray), ("node",))
+             for m in read_messages(rec, {"/formation/diagnostics"})]
+    bases = [d for d in diags if d["node"] == "physics_bases"]
+    assert bases, "the physics bases' diagnostics are in the recording"
+    seen = bases[-1]["commands_max"]
+    assert len(seen) == 3
+    for c in seen.values():
+        assert 0.1 < c["v"] <= TB4.v_max + 1e-12 and c["omega"] <= TB4.omega_max + 1e-12
+        assert c["a"] <= TB4.a_max * (1 + 1e-9) and c["alpha"] <= TB4.alpha_max * (1 + 1e-9)
