@@ -38,7 +38,7 @@ class Param:
     def check(self, value: Any) -> str | None:
         """Why ``value`` is refused (what rclpy's descriptor does not check), or None."""
         if self.choices and value not in self.choices:
-            return f"one of {', '.join(self.choices)}; got {value!r}"
+            return f"one of {', '.join(c or repr(c) for c in self.choices)}; got {value!r}"
         return None
 
 
@@ -55,7 +55,7 @@ def describe(p: Param) -> str:
         extra.append(f"range: {p.lo if p.lo is not None else '-inf'} .. "
                      f"{p.hi if p.hi is not None else 'inf'}")
     if p.choices:
-        extra.append(f"one of: {', '.join(p.choices)}")
+        extra.append(f"one of: {', '.join(c or repr(c) for c in p.choices)}")
     return p.description + (f" ({'; '.join(extra)})" if extra else "")
 
 
