@@ -56,13 +56,17 @@ def _reader_qos(offered: QoSProfile) -> QoSProfile:
 
 
 class LiveViewNode(Node):
-    def __init__(self, server: Any, observe: bool = False, **kwargs: Any):
+    def __init__(self, start_server: Any, observe: bool = False, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(LIVEVIEW_NODE, **kwargs)
         import foxglove
 
         self.foxglove = foxglove
-        self.server = server
+        # the server starts once every channel of the run exists: a client then gets them in
+        # one advertisement (a channel made while a client subscribed was, at times, unknown
+        # to the server when the client's subscription reached it, which closed the link)
+        self.start_server = start_server
+        self.server: Any = None
         self.observe = observe
         self.drops = DropCounter(self)
         self.channels: dict[str, Any] = {}
@@ -125,6 +129,7 @@ class LiveViewNode(Node):
         if self.observe:
             self.pose_topics = {ms.pose_topic(i + 1): i for i in range(n)}
             self.observer = Observer(self, self.cfg, self._view_sink)
+        self.server = self.start_server()
         self.get_logger().info(f"serving {len(self.channels)} topics on port "
                                f"{self.server.port}")
 
@@ -142,15 +147,26 @@ def main(args: list[str] | None = None) -> int:
         os.nice(NICENESS)  # before rclpy's threads start: they inherit it
 
     def build(ns: Any, argv: list[str]) -> list[Node]:
+        import socket
+
         import foxglove
 
-        try:
-            server = foxglove.start_server(name="formation-ilc", host=ns.host, port=ns.port,
-                                           message_backlog_size=BACKLOG)
-        except Exception as exc:  # noqa: BLE001 - the SDK's own error type: a port in use
-            print(f"error: cannot serve on {ns.host}:{ns.port}: {exc}", file=sys.stderr)
+        def start() -> Any:
+            try:
+                return foxglove.start_server(name="formation-ilc", host=ns.host,
+                                             port=ns.port, message_backlog_size=BACKLOG)
+            except Exception as exc:  # noqa: BLE001 - the SDK's own error type: port in use
+                print(f"error: cannot serve on {ns.host}:{ns.port}: {exc}", file=sys.stderr)
+                raise SystemExit(2) from None
+
+        try:  # a taken port is refused at once, before the run's channels exist
+            with socket.socket(socket.AF_INET6 if ":" in ns.host else socket.AF_INET) as s:
+                s.bind((ns.host, ns.port))
+        except OSError as exc:
+            print(f"error: cannot serve on {ns.host}:{ns.port}: {exc.strerror}",
+                  file=sys.stderr)
             raise SystemExit(2) from None
-        return [LiveViewNode(server, observe=ns.observe)]
+        return [LiveViewNode(start, observe=ns.observe)]
 
     return spin_main(build, parser, args)
 
