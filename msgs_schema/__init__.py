@@ -19,7 +19,8 @@ config                     std_msgs/String (JSON)       leader -> all (latched)
 leader/reference           geometry_msgs/PoseStamped    leader -> robots that see it, links
 leader/trial_events        std_msgs/String (JSON)       leader -> all
 ready                      std_msgs/String (JSON)       all -> leader (latched)
-diagnostics                std_msgs/String (JSON)       all -> monitor (latched)
+diagnostics                diagnostic_msgs/             all -> monitor, recorder,
+                           DiagnosticArray              ROS tools (latched)
 robot_i/pose               geometry_msgs/PoseStamped    plant -> robot i
 robot_i/cmd_vel            geometry_msgs/Twist          robot i -> plant
 robot_i/shared_pose        geometry_msgs/PoseStamped    robot i -> out-neighbours (direct),
@@ -40,6 +41,11 @@ label St; the robot measures each delay from St and its own Rt. An emulated link
 for tick t is stamped t (the tick) and holds the pose delivered then, with its ORIGINAL
 stamp, or no pose when nothing is delivered at t. Malformed input raises
 :class:`MalformedMessage`, which nodes count and drop.
+
+The per-sample messages (poses, shared poses, references, link ticks, ``cmd_vel``,
+``/clock``) travel as CDR bytes that ``msgs_schema.wire`` packs and reads without rclpy's
+message objects (the same bytes, the same checks); the converters below remain for
+everything else and for tests.
 
 The plant contract
 ------------------
@@ -100,6 +106,8 @@ from formation_ilc.core.names import (
 )
 from formation_ilc.core.names import robot_number as robot_index
 from formation_ilc.protocol.schedule import ABORT, DONE, END, START
+from msgs_schema import wire
+from msgs_schema.wire import check_nanosec, check_twist, heading_from_quaternion
 
 __all__ = [
     "NAMESPACE", "CONFIG", "REFERENCE", "TRIAL_EVENTS", "READY", "DIAGNOSTICS", "CLOCK",
@@ -111,10 +119,10 @@ __all__ = [
     "SampleClock", "stamp_to_ns", "ns_to_stamp", "pose_to_msg", "msg_to_pose", "u_to_twist",
     "twist_to_u", "world_pose", "trajectory_to_path", "path_to_trajectory", "link_tick_to_msg",
     "msg_to_link_tick", "json_to_msg", "msg_to_json", "json_int", "deserialize", "clock_msg",
-    "path_limit", "path_from_raw", "FRAME_ID_MAX",
+    "path_limit", "path_from_raw", "within_path_limit", "trajectory_from_raw", "FRAME_ID_MAX",
     "START", "END", "ABORT", "DONE",
     "DriverSpec", "DRIVERS", "DRIVER_CMD_QOS", "ODOM_QOS", "BRIDGE_PREFIX", "bridge_name",
-    "odometry_to_pose", "base_odometry_to_pose", "odometry_msg", "driver_twist",
+    "odometry_to_pose", "base_odometry_to_pose", "odometry_msg", "driver_twist", "wire",
     "LEADER_NODE", "SIM_NODE", "LINKS_NODE", "MONITOR_NODE", "RECORDER_NODE",
     "FAKE_DRIVER_NODE",
 ]
@@ -329,8 +337,7 @@ def stamp_to_ns(stamp: Time) -> int:
     """[ns] of a stamp; MalformedMessage if ``nanosec`` is outside [0, 1e9) (a stamp from
     raw bytes). A negative ``sec`` gives a negative time, which every label check refuses."""
     nsec = int(stamp.nanosec)
-    if not 0 <= nsec < 1_000_000_000:
-        raise MalformedMessage(f"stamp nanosec {nsec} outside [0, 1e9)")
+    check_nanosec(nsec)
     return int(stamp.sec) * 1_000_000_000 + nsec
 
 
@@ -348,19 +355,8 @@ def clock_msg(ns: int) -> Clock:
 
 # --------------------------------------------------------------------------- poses
 
-def _heading_from_quaternion(x: float, y: float, z: float, w: float,
-                             previous: float | None) -> float:
-    """Yaw of a planar quaternion, unwrapped next to ``previous`` (same formula as
-    formation_ilc.core.kinematics.heading_from_quaternion, inlined: this is the hot path)."""
-    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z) and math.isfinite(w)):
-        raise MalformedMessage("non-finite orientation")
-    norm = math.sqrt(x * x + y * y + z * z + w * w)
-    if abs(norm - 1.0) > 1e-6 or abs(x) > 1e-6 or abs(y) > 1e-6:
-        raise MalformedMessage("orientation is not a unit rotation about z")
-    th = 2.0 * math.atan2(z, w)
-    ref = 0.0 if previous is None else previous
-    d = th - ref
-    return ref + (d - 2.0 * math.pi * math.ceil((d - math.pi) / (2.0 * math.pi)))
+#: yaw of a planar quaternion (the check and formula shared with the bytes converters)
+_heading_from_quaternion = heading_from_quaternion
 
 
 def pose_to_msg(eta: Sequence[float] | NDArray[np.float64], stamp_ns: int, frame_id: str,
@@ -414,11 +410,8 @@ def u_to_twist(u: Sequence[float] | NDArray[np.float64], out: Twist | None = Non
 
 def twist_to_u(msg: Twist) -> NDArray[np.float64]:
     """(v, omega); MalformedMessage if non-finite or not planar."""
-    v, w = float(msg.linear.x), float(msg.angular.z)
-    other = (msg.linear.y, msg.linear.z, msg.angular.x, msg.angular.y)
-    if not (math.isfinite(v) and math.isfinite(w)) or any(o != 0.0 for o in other):
-        raise MalformedMessage("cmd_vel is not a finite planar (v, omega) command")
-    return np.array((v, w))
+    return check_twist(float(msg.linear.x), float(msg.angular.z),
+                       (msg.linear.y, msg.linear.z, msg.angular.x, msg.angular.y))
 
 
 # --------------------------------------------------------------------------- trajectories
@@ -480,12 +473,32 @@ def path_from_raw(data: bytes | Path, poses: int, what: str = "Path") -> Path:
     objects. A Path already built (an in-process caller) is returned as it is."""
     if isinstance(data, Path):
         return data
+    msg: Path = deserialize(within_path_limit(data, poses, what), Path)
+    return msg
+
+
+def trajectory_from_raw(data: bytes | Path, poses: int,
+                        reference_heading: NDArray[np.float64] | None = None,
+                        what: str = "trajectory"
+                        ) -> tuple[NDArray[np.float64], NDArray[np.int64], str]:
+    """``path_to_trajectory`` of the Path in the CDR bytes of a raw subscription, refused
+    first by its size (``path_from_raw``) and read without message objects
+    (``wire.read_trajectory``: the same values and checks); a Path already built (an
+    in-process caller) goes through ``path_to_trajectory``."""
+    if isinstance(data, Path):
+        return path_to_trajectory(data, reference_heading)
+    return wire.read_trajectory(within_path_limit(wire.as_bytes(data), poses, what),
+                                reference_heading)
+
+
+def within_path_limit(data: bytes, poses: int, what: str = "Path") -> bytes:
+    """``data``, the CDR bytes of a Path; MalformedMessage if they are longer than a Path
+    of ``poses`` poses can be (``path_limit``), checked before anything reads them."""
     limit = path_limit(poses)
     if len(data) > limit:
         raise MalformedMessage(f"{what} of {len(data)} bytes: longer than {poses} poses can "
                                f"be ({limit} bytes)")
-    msg: Path = deserialize(data, Path)
-    return msg
+    return data
 
 
 # --------------------------------------------------------------------------- emulated links
@@ -564,7 +577,7 @@ def topic_table(n: int) -> list[tuple[str, str, QoSProfile]]:
         (REFERENCE, "geometry_msgs/msg/PoseStamped", SAMPLE_QOS),
         (TRIAL_EVENTS, "std_msgs/msg/String", SAMPLE_QOS),
         (READY, "std_msgs/msg/String", LATCHED_QOS),
-        (DIAGNOSTICS, "std_msgs/msg/String", LATCHED_QOS),
+        (DIAGNOSTICS, DIAGNOSTICS_TYPE, LATCHED_QOS),
         (CLOCK, "rosgraph_msgs/msg/Clock", CLOCK_QOS),
     ]
     for i in range(1, n + 1):
@@ -575,3 +588,236 @@ def topic_table(n: int) -> list[tuple[str, str, QoSProfile]]:
             (true_trajectory_topic(i), "nav_msgs/msg/Path", TRAJECTORY_QOS),
         ]
     return rows
+
+
+# =========================================================================== view topics
+# What the formation should be, for the live view and the recording (issue 18, part B).
+# Published by one observer (``formation_ilc.nodes.observer``: in the recorder, or in the
+# live view's bridge when nothing records); the robots are untouched.
+#
+# =========================  ===============================  ================================
+# topic                      type                             content
+# =========================  ===============================  ================================
+# robot_i/desired_pose       geometry_msgs/PoseStamped        eta_d of each sample (its label)
+# robot_i/desired_path       nav_msgs/Path (latched)          eta_d of a whole trial, at start
+# robot_i/tracking_error     geometry_msgs/Vector3Stamped     per sample: x position error
+#                                                             |p_d - p| [m], y heading error
+#                                                             wrap(th_d - th) [rad], z 0
+# robot_i/trial_error        geometry_msgs/Vector3Stamped     per trial: x max position error,
+#                                                             y max |heading error|, z trial
+# markers                    visualization_msgs/MarkerArray   outline, links, labels, errors
+# =========================  ===============================  ================================
+
+from geometry_msgs.msg import Point, Vector3Stamped  # noqa: E402
+from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
+
+__all__ += ["MARKERS", "desired_pose_topic", "desired_path_topic", "tracking_error_topic",
+            "trial_error_topic", "VIEW_QOS", "view_topic_table", "vector_msg", "markers_msg"]
+
+MARKERS = "markers"
+#: per-sample view messages: reliable to the recorder, never held for a viewer (depth-bound)
+VIEW_QOS = SAMPLE_QOS
+
+
+def desired_pose_topic(i: int) -> str:
+    return f"{robot_name(i)}/desired_pose"
+
+
+def desired_path_topic(i: int) -> str:
+    return f"{robot_name(i)}/desired_path"
+
+
+def tracking_error_topic(i: int) -> str:
+    return f"{robot_name(i)}/tracking_error"
+
+
+def trial_error_topic(i: int) -> str:
+    return f"{robot_name(i)}/trial_error"
+
+
+def view_topic_table(n: int) -> list[tuple[str, str, QoSProfile]]:
+    """The observer's topics for ``n`` robots: (relative name, ROS type, offered QoS)."""
+    rows: list[tuple[str, str, QoSProfile]] = [
+        (MARKERS, "visualization_msgs/msg/MarkerArray", VIEW_QOS)]
+    for i in range(1, n + 1):
+        rows += [
+            (desired_pose_topic(i), "geometry_msgs/msg/PoseStamped", VIEW_QOS),
+            (desired_path_topic(i), "nav_msgs/msg/Path", TRAJECTORY_QOS),
+            (tracking_error_topic(i), "geometry_msgs/msg/Vector3Stamped", VIEW_QOS),
+            (trial_error_topic(i), "geometry_msgs/msg/Vector3Stamped", TRAJECTORY_QOS),
+        ]
+    return rows
+
+
+def vector_msg(stamp_ns: int, x: float, y: float, z: float = 0.0,
+               frame_id: str = WORLD_FRAME) -> Vector3Stamped:
+    m = Vector3Stamped()
+    ns_to_stamp(stamp_ns, m.header.stamp)
+    m.header.frame_id = frame_id
+    m.vector.x, m.vector.y, m.vector.z = float(x), float(y), float(z)
+    return m
+
+
+def _marker(stamp_ns: int, ns: str, mid: int, kind: int, rgba: tuple[float, ...],
+            width: float) -> Marker:
+    m = Marker()
+    ns_to_stamp(stamp_ns, m.header.stamp)
+    m.header.frame_id = WORLD_FRAME
+    m.ns, m.id, m.type, m.action = ns, mid, kind, Marker.ADD
+    m.pose.orientation.w = 1.0
+    m.scale.x = m.scale.y = m.scale.z = width
+    m.color.r, m.color.g, m.color.b, m.color.a = rgba
+    m.frame_locked = False
+    return m
+
+
+def _point(xy: Sequence[float]) -> Point:
+    return Point(x=float(xy[0]), y=float(xy[1]), z=0.0)
+
+
+def markers_msg(stamp_ns: int, desired: Sequence[Sequence[float]], outline: Sequence[int],
+                links: Sequence[tuple[int, int]],
+                positions: dict[int, tuple[float, float]]) -> MarkerArray:
+    """The 3D view's markers at one sample (robot index r is ``robot_{r+1}``):
+    ``formation`` the desired positions (N, >=2) joined in ``outline`` order (closed);
+    ``links`` the graph's links (sender, receiver) between measured ``positions``;
+    ``errors`` each measured position to its desired one; ``labels`` the robots' names."""
+    out = MarkerArray()
+    shape = _marker(stamp_ns, "formation", 0, Marker.LINE_STRIP, (0.6, 0.6, 0.6, 1.0), 0.03)
+    shape.points = [_point(desired[r]) for r in (*outline, outline[0])]
+    lk = _marker(stamp_ns, "links", 0, Marker.LINE_LIST, (0.2, 0.4, 1.0, 0.8), 0.02)
+    lk.points = [_point(positions[r]) for j, i in links for r in (j, i)]
+    err = _marker(stamp_ns, "errors", 0, Marker.LINE_LIST, (1.0, 0.2, 0.2, 1.0), 0.02)
+    err.points = [_point(xy) for r in sorted(positions) for xy in (positions[r], desired[r])]
+    out.markers = [shape, lk, err]
+    for r in sorted(positions):
+        label = _marker(stamp_ns, "labels", r + 1, Marker.TEXT_VIEW_FACING,
+                        (1.0, 1.0, 1.0, 1.0), 0.25)
+        label.pose.position = _point(positions[r])
+        label.pose.position.z = 0.3
+        label.text = robot_name(r + 1)
+        out.markers.append(label)
+    return out
+
+
+# Per-sample view messages are built from CDR templates: a message serialized once, whose
+# stamp (and vector) are then written in place. The observer's cost per pose is then a few
+# struct calls, not rclpy's (de)serialization (about 0.5 ms a pose on a loaded 2-core box).
+
+import struct as _struct  # noqa: E402
+
+_STAMP = _struct.Struct("<iI")
+_VEC = _struct.Struct("<3d")
+_POSE7 = _struct.Struct("<7d")
+
+
+def _little_endian(data: bytes) -> bool:
+    return len(data) >= 16 and data[0] == 0 and data[1] == 1  # CDR_LE encapsulation
+
+
+def stamped_cdr(template: bytes | bytearray, stamp_ns: int) -> bytes:
+    """A serialized stamped message (little-endian CDR, header first) with its stamp set."""
+    out = bytearray(template)
+    _STAMP.pack_into(out, 4, *divmod(int(stamp_ns), 1_000_000_000))
+    return bytes(out)
+
+
+def _body_offset(data: bytes | bytearray) -> int:
+    """Where the body after a Header starts in little-endian CDR (aligned to 8 bytes,
+    alignment counted from after the 4-byte encapsulation)."""
+    n = _struct.unpack_from("<I", data, 12)[0]
+    end = 16 + n
+    return 4 + ((end - 4 + 7) // 8) * 8
+
+
+def vector_cdr(template: bytes | bytearray, stamp_ns: int, x: float, y: float,
+               z: float) -> bytes:
+    """A Vector3Stamped's CDR (``template`` from ``vector_msg``) with stamp and vector set."""
+    out = bytearray(template)
+    _STAMP.pack_into(out, 4, *divmod(int(stamp_ns), 1_000_000_000))
+    _VEC.pack_into(out, _body_offset(out), float(x), float(y), float(z))
+    return bytes(out)
+
+
+def world_pose_cdr(data: bytes) -> tuple[NDArray[np.float64], int]:
+    """(eta, stamp [ns]) of a PoseStamped's CDR bytes, checked as ``world_pose`` checks the
+    message (heading wrapped); MalformedMessage otherwise."""
+    if not _little_endian(data):
+        return world_pose(deserialize(data, PoseStamped))
+    try:
+        sec, nsec = _STAMP.unpack_from(data, 4)
+        n = _struct.unpack_from("<I", data, 12)[0]
+        frame = bytes(data[16:16 + n]).rstrip(b"\0")
+        px, py, _pz, qx, qy, qz, qw = _POSE7.unpack_from(data, _body_offset(data))
+    except _struct.error:
+        raise MalformedMessage("truncated PoseStamped") from None
+    if frame != WORLD_FRAME.encode():
+        raise MalformedMessage(f"pose in frame {frame[:50]!r}, expected {WORLD_FRAME!r}")
+    if not 0 <= nsec < 1_000_000_000 or not (math.isfinite(px) and math.isfinite(py)):
+        raise MalformedMessage("invalid stamp or non-finite position")
+    th = _heading_from_quaternion(qx, qy, qz, qw, None)
+    return np.array((px, py, th)), sec * 1_000_000_000 + nsec
+
+
+__all__ += ["stamped_cdr", "vector_cdr", "world_pose_cdr"]
+
+
+# =========================================================================== diagnostics
+# Standard diagnostics (diagnostic_msgs/DiagnosticArray on ``diagnostics``): a node's report
+# as statuses with levels and key/value pairs (formation_ilc.protocol.health), which the
+# monitor, the recorder and analyze read back without loss, and ROS tools show.
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
+
+from formation_ilc.protocol.health import Status, flatten, statuses, unflatten  # noqa: E402
+
+__all__ += ["DIAGNOSTICS_TYPE", "diagnostics_to_msg", "msg_to_statuses", "msg_to_report"]
+
+DIAGNOSTICS_TYPE = "diagnostic_msgs/msg/DiagnosticArray"
+#: the most statuses and key/value pairs a diagnostics message may carry to be read
+DIAG_STATUS_MAX = 1024
+DIAG_VALUES_MAX = 100_000
+
+
+def diagnostics_to_msg(report: dict[str, Any], stamp_ns: int, dt: float | None = None,
+                       samples: int | None = None, hardware_id: str = "") -> DiagnosticArray:
+    """The DiagnosticArray of one node's report (``health.statuses``: levels by the
+    documented thresholds; ``dt`` [s] and ``samples`` per trial make the relative ones)."""
+    msg = DiagnosticArray()
+    msg.header.stamp = ns_to_stamp(stamp_ns)
+    for st in statuses(report, dt, samples, hardware_id):
+        msg.status.append(DiagnosticStatus(
+            level=bytes([st.level]), name=st.name, message=st.message,
+            hardware_id=st.hardware_id,
+            values=[KeyValue(key=k, value=v) for k, v in flatten(st.values)]))
+    return msg
+
+
+def msg_to_statuses(msg: DiagnosticArray) -> list[Status]:
+    """Every status of a DiagnosticArray with its fields back (MalformedMessage if one's
+    values are not the pairs ``diagnostics_to_msg`` writes, or there are too many)."""
+    if len(msg.status) > DIAG_STATUS_MAX:
+        raise MalformedMessage(f"{len(msg.status)} statuses in one diagnostics message")
+    out = []
+    for st in msg.status:
+        if len(st.values) > DIAG_VALUES_MAX:
+            raise MalformedMessage(f"{len(st.values)} values in one status")
+        try:
+            values = unflatten((kv.key, kv.value) for kv in st.values)
+        except (ValueError, RecursionError) as exc:
+            raise MalformedMessage(f"status {st.name[:100]!r}: {exc}"[:200]) from None
+        level = st.level[0] if isinstance(st.level, (bytes, bytearray)) else int(st.level)
+        out.append(Status(level, st.name, st.message, st.hardware_id, values))
+    return out
+
+
+def msg_to_report(msg: DiagnosticArray, required: Sequence[str] = ()) -> dict[str, Any]:
+    """The node's own report in a DiagnosticArray (the status that names its ``node``);
+    MalformedMessage if there is none or it lacks a key of ``required``."""
+    for st in msg_to_statuses(msg):
+        if "node" in st.values:
+            missing = [k for k in required if k not in st.values]
+            if missing:
+                raise MalformedMessage(f"diagnostics lack {missing}")
+            return st.values
+    raise MalformedMessage("diagnostics without a node's report")

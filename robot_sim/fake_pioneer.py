@@ -34,29 +34,23 @@ from std_msgs.msg import String
 from std_srvs.srv import Empty, SetBool
 
 import msgs_schema as ms
-from formation_ilc.nodes.common import node_parser, ros_param, spin_main
+from formation_ilc.config import params
+from formation_ilc.nodes.common import node_parser, spin_main
+from formation_ilc.nodes.params import check, declare, probe_overrides
 
 FAKE_DRIVERS = ("rosaria", "ros2aria")
 
 
 class FakePioneer(Node):
-    def __init__(self, **kwargs: Any):
-        driver = "rosaria"
+    def __init__(self, driver: str = "rosaria", **kwargs: Any):
         for p in kwargs.get("parameter_overrides") or ():
             if p.name == "driver":
                 driver = str(p.value)
-        if driver not in FAKE_DRIVERS:
-            raise ValueError(f"parameter driver: one of {', '.join(FAKE_DRIVERS)}, "
-                             f"got {driver!r}")
+        driver = check(params.FAKE_DRIVER[0], driver)
         spec = ms.DRIVERS[driver]
         kwargs.setdefault("namespace", spec.default_ns)
         super().__init__(ms.FAKE_DRIVER_NODE, **kwargs)
-        for name, default in (("driver", driver), ("rate", 50.0), ("cmd_timeout", 0.6),
-                              ("odom_scale", 0.01),
-                              ("odom_turn_scale", -0.01), ("odom_turn_bias", 0.002),
-                              ("odom_noise", 0.002), ("seed", 0), ("cmd_type", "twist"),
-                              ("truth_period", 0.0)):
-            self.declare_parameter(name, default)
+        declare(self, params.FAKE_DRIVER, driver=driver)
         g = lambda name: self.get_parameter(name).value  # noqa: E731
         self.cmd_timeout = float(g("cmd_timeout"))
         self.scale, self.turn_scale = float(g("odom_scale")), float(g("odom_turn_scale"))
@@ -133,11 +127,9 @@ class FakePioneer(Node):
 
 def main(args: list[str] | None = None) -> int:
     def build(ns: Any, argv: list[str]) -> list[Node]:
-        from rclpy.parameter import Parameter
-
-        drv = ros_param(argv, "driver")
-        return [FakePioneer(parameter_overrides=[Parameter("driver", value=drv)]
-                            if drv else None)]
+        # the driver names the namespace: read before the node exists (-p or a params file)
+        found = probe_overrides(ms.FAKE_DRIVER_NODE, ms.DRIVERS["rosaria"].default_ns)
+        return [FakePioneer(found.get("driver", "rosaria"))]
 
     return spin_main(build,
                      node_parser(ms.FAKE_DRIVER_NODE, __doc__), args)

@@ -40,6 +40,7 @@ from __future__ import annotations
 import sys
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rosgraph_msgs.msg import Clock
@@ -47,8 +48,18 @@ from std_msgs.msg import String
 
 import msgs_schema as ms
 from formation_ilc.core.clock import Rejected
-from formation_ilc.nodes.common import ConfiguredNode, RunConfig, matched, node_parser, spin_main
+from formation_ilc.nodes.common import (
+    ConfiguredNode,
+    RunConfig,
+    matched,
+    node_parser,
+    spin_main,
+    warm_up_draws,
+)
+from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.linkemu import CLOCK, REFERENCE, SHARED, Emitted, EmulatedLinks
+from msgs_schema import wire
+from msgs_schema.wire import RawPose
 
 #: realtime: the emulator delivers at the latest this many dT after the tick
 DELIVERY_WAIT = 0.5
@@ -61,10 +72,12 @@ class LinkEmulator(ConfiguredNode):
 
     def __init__(self, **kwargs: Any):
         super().__init__(NAME, **kwargs)
+        declare(self, ())  # no parameters of its own; use_sim_time refused
         self.follow_config()
 
     def configure(self, cfg: RunConfig) -> None:
-        self.links: EmulatedLinks[PoseStamped] = EmulatedLinks(cfg)
+        self.links: EmulatedLinks[RawPose] = EmulatedLinks(cfg)
+        warm_up_draws(self.links.pb, cfg.scenario.uncertainty)  # no first tick held by a compile
         self.follower = self.links.follower
         self.cfg = cfg
         self.realtime = self.links.realtime
@@ -72,14 +85,17 @@ class LinkEmulator(ConfiguredNode):
         self.out = [[self.create_publisher(Path, ms.link_topic(i + 1, s), ms.SAMPLE_QOS)
                      for s, _ in links] for i, links in enumerate(self.links.links)]
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
-        for j in range(self.links.n):
+        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        # the per-sample messages as bytes (msgs_schema.wire: no message objects)
+        self.pose_subs = [
             self.create_subscription(PoseStamped, ms.shared_pose_topic(j + 1),
-                                     lambda m, j=j: self._on_shared(m, j), ms.SAMPLE_QOS)
-        self.create_subscription(PoseStamped, ms.REFERENCE, self._on_reference, ms.SAMPLE_QOS)
+                                     lambda m, j=j: self._on_shared(m, j), ms.SAMPLE_QOS,
+                                     raw=True) for j in range(self.links.n)]
+        self.pose_subs.append(self.create_subscription(
+            PoseStamped, ms.REFERENCE, self._on_reference, ms.SAMPLE_QOS, raw=True))
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
         if self.realtime:
-            self.create_subscription(Clock, ms.CLOCK, self._on_clock, ms.CLOCK_QOS)
+            self.create_subscription(Clock, ms.CLOCK, self._on_clock, ms.CLOCK_QOS, raw=True)
             self._deadline = self.create_timer(DELIVERY_WAIT * cfg.scenario.dt,
                                                self._on_deadline)
             self._deadline.cancel()
@@ -87,7 +103,8 @@ class LinkEmulator(ConfiguredNode):
 
     def _check_ready(self) -> None:
         pubs = [(p, 1) for pubs in self.out for p in pubs]
-        if matched(pubs + [(self.ready_pub, 1)]):
+        subs = [(s, 1) for s in self.pose_subs]  # both ends matched: no first pose lost
+        if matched(pubs + subs + [(self.ready_pub, 1)]):
             self._gate.cancel()
             self.ready_pub.publish(self.ready_msg(0))
 
@@ -104,13 +121,13 @@ class LinkEmulator(ConfiguredNode):
             return
         self._emit(out)
 
-    def _emit(self, out: Emitted[PoseStamped]) -> None:
+    def _emit(self, out: Emitted[RawPose]) -> None:
         """Publish what the links send, count the held inputs they refused, and report the
         trial once its last deliveries are out."""
         for kind, j, exc in out.refused:
             self.drops.reject(exc, self._topic(kind, j))
         for i, m, tick, pose in out.ticks:
-            self.out[i][m].publish(ms.link_tick_to_msg(tick, pose))
+            self.out[i][m].publish(wire.link_tick_bytes(tick, pose))
         if self.realtime:
             if out.arm:
                 self._deadline.reset()
@@ -119,7 +136,9 @@ class LinkEmulator(ConfiguredNode):
         if out.done:
             d: dict[str, Any] = {"node": NAME, **self.links.report()}
             d.update(self.drops.as_dict())
-            self.diag_pub.publish(ms.json_to_msg(d))
+            self.diag_pub.publish(ms.diagnostics_to_msg(
+                d, self.get_clock().now().nanoseconds, self.cfg.scenario.dt,
+                self.cfg.scenario.samples))
             self.ready_pub.publish(self.ready_msg(self.links.iteration + 1))
 
     @staticmethod
@@ -127,26 +146,26 @@ class LinkEmulator(ConfiguredNode):
         return {SHARED: ms.shared_pose_topic(j + 1), REFERENCE: ms.REFERENCE,
                 CLOCK: "clock"}[kind]
 
-    def _on_pose(self, msg: PoseStamped, kind: str, j: int) -> None:
+    def _on_pose(self, msg: PoseStamped | bytes, kind: str, j: int) -> None:
         try:
-            ms.world_pose(msg)
-            ns = ms.stamp_to_ns(msg.header.stamp)
-            out = (self.links.on_reference(ns, msg) if kind == REFERENCE
-                   else self.links.on_shared(j, ns, msg))
+            p = wire.read_pose(wire.as_bytes(msg))  # the pose as received, bit for bit
+            wire.world_eta(p)
+            out = (self.links.on_reference(p.label_ns, p) if kind == REFERENCE
+                   else self.links.on_shared(j, p.label_ns, p))
         except Rejected as exc:
             self.drops.reject(exc, self._topic(kind, j))
             return
         self._emit(out)
 
-    def _on_shared(self, msg: PoseStamped, j: int) -> None:
+    def _on_shared(self, msg: PoseStamped | bytes, j: int) -> None:
         self._on_pose(msg, SHARED, j)
 
-    def _on_reference(self, msg: PoseStamped) -> None:
+    def _on_reference(self, msg: PoseStamped | bytes) -> None:
         self._on_pose(msg, REFERENCE, -1)
 
-    def _on_clock(self, msg: Clock) -> None:
+    def _on_clock(self, msg: Clock | bytes) -> None:
         try:
-            out = self.links.on_clock(ms.stamp_to_ns(msg.clock))
+            out = self.links.on_clock(wire.read_clock(wire.as_bytes(msg)))
         except Rejected as exc:
             self.drops.reject(exc, "clock")
             return

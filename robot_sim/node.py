@@ -46,12 +46,14 @@ import sys
 import time
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist
 from nav_msgs.msg import Path
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 import msgs_schema as ms
+from formation_ilc.config import params
 from formation_ilc.core.clock import Rejected
 from formation_ilc.nodes.common import (
     ConfiguredNode,
@@ -62,7 +64,8 @@ from formation_ilc.nodes.common import (
     spin_main,
     warm_up,
 )
-from formation_ilc.protocol.plant import RESEND_S, KinematicPlant
+from formation_ilc.nodes.params import declare
+from formation_ilc.protocol.plant import RESEND_S, KinematicPlant, Sample
 
 #: the plant's node name (what it says ready as)
 NAME = ms.SIM_NODE
@@ -77,7 +80,7 @@ class SimNode(ConfiguredNode):
 
     def __init__(self, name: str = NAME, **kwargs: Any):
         super().__init__(name, **kwargs)
-        self.declare_parameter("timeout", 0.0)
+        declare(self, params.SIM)
         self.declare_plant_parameters()
         self.follow_config()
 
@@ -95,23 +98,23 @@ class SimNode(ConfiguredNode):
     def configure(self, cfg: RunConfig) -> None:
         self.plant = plant = self.make_plant(cfg)
         self.follower = plant.follower
-        warm_up(plant.pb)
+        warm_up(plant.pb, cfg.scenario.uncertainty)
         self.cfg = cfg
         n = plant.n
         timeout = float(self.get_parameter("timeout").value)
         self.timeout = timeout if timeout > 0 else cfg.timeout
         self.realtime = plant.realtime
-        self.pose_msgs = [PoseStamped() for _ in range(n)]
         self.pose_pubs = [self.create_publisher(PoseStamped, ms.pose_topic(r + 1), ms.SAMPLE_QOS)
                           for r in range(n)]
         self.true_pubs = [self.create_publisher(Path, ms.true_trajectory_topic(r + 1),
                                                 ms.TRAJECTORY_QOS) for r in range(n)]
         self.clock_pub = self.create_publisher(Clock, ms.CLOCK, ms.CLOCK_QOS)
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
-        for r in range(n):
+        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        self.cmd_subs = [  # bytes: msgs_schema.wire
             self.create_subscription(Twist, ms.cmd_vel_topic(r + 1),
-                                     lambda m, r=r: self._on_cmd(m, r), ms.SAMPLE_QOS)
+                                     lambda m, r=r: self._on_cmd(m, r), ms.SAMPLE_QOS, raw=True)
+            for r in range(n)]
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
         self._gate = self.create_timer(0.02, self._check_ready)
         if self.realtime:
@@ -124,6 +127,7 @@ class SimNode(ConfiguredNode):
 
     def _check_ready(self) -> None:
         need = [(p, 1) for p in self.pose_pubs] + [(self.clock_pub, 1), (self.ready_pub, 1)]
+        need += [(s, 1) for s in self.cmd_subs]  # both ends matched: no first command lost
         need += [(p, int(self.cfg.monitored)) for p in self.true_pubs]
         if matched(need):
             self._gate.cancel()
@@ -156,23 +160,22 @@ class SimNode(ConfiguredNode):
             # must already have this node's
             stamps = plant.stamps()
             for r in range(plant.n):
-                self.true_pubs[r].publish(ms.trajectory_to_path(plant.xi[r], stamps,
-                                                                ms.WORLD_FRAME))
+                self.true_pubs[r].publish(ms.wire.path_bytes(plant.xi[r], stamps,
+                                                             ms.WORLD_FRAME))
             d = {"node": self.get_name(), **self.report()}
             d.update(self.drops.as_dict())
-            self.diag_pub.publish(ms.json_to_msg(d))
-        self.clock_pub.publish(ms.clock_msg(s.stamp_ns))
-        for r in range(plant.n):
-            self.pose_pubs[r].publish(ms.pose_to_msg(s.eta[r], s.stamp_ns, ms.WORLD_FRAME,
-                                                     self.pose_msgs[r]))
+            self.diag_pub.publish(ms.diagnostics_to_msg(
+                d, self.get_clock().now().nanoseconds, self.cfg.scenario.dt,
+                self.cfg.scenario.samples))
+        self._send(s)
         if s.last:
             self._say_ready(plant.iteration + 1)
             return
         plant.sent(time.perf_counter())
 
-    def _on_cmd(self, msg: Twist, r: int) -> None:
+    def _on_cmd(self, msg: Twist | bytes, r: int) -> None:
         try:
-            u = ms.twist_to_u(msg)
+            u = ms.wire.read_twist(ms.wire.as_bytes(msg))
         except ms.MalformedMessage as exc:
             self.drops.reject(exc, ms.cmd_vel_topic(r + 1))
             return
@@ -196,11 +199,13 @@ class SimNode(ConfiguredNode):
         comes back without waiting for the time-out."""
         if not self.plant.resend_due(time.perf_counter()):
             return
-        s = self.plant.sample()
-        self.clock_pub.publish(ms.clock_msg(s.stamp_ns))
-        for r in range(self.plant.n):
-            self.pose_pubs[r].publish(ms.pose_to_msg(s.eta[r], s.stamp_ns, ms.WORLD_FRAME,
-                                                     self.pose_msgs[r]))
+        self._send(self.plant.sample())
+
+    def _send(self, s: Sample) -> None:
+        """A sample's /clock and every pose, as bytes (msgs_schema.wire)."""
+        self.clock_pub.publish(ms.wire.clock_bytes(s.stamp_ns))
+        for r in self.plant.send_order:
+            self.pose_pubs[r].publish(ms.wire.pose_bytes(s.eta[r], s.stamp_ns, ms.WORLD_FRAME))
 
     def _watchdog(self) -> None:
         late = self.plant.overdue(time.perf_counter(), self.timeout)

@@ -30,10 +30,10 @@ import time
 from typing import Any
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
-from std_msgs.msg import String
 
 import msgs_schema as ms
 from formation_ilc.core.names import BASES_NODE
@@ -74,7 +74,8 @@ class PhysicsBases(Node):
                                      functools.partial(self._on_cmd, i=i), ms.DRIVER_CMD_QOS)
             self.odom_pubs.append(self.create_publisher(Odometry, f"{ns}/{g('odom_topic')}",
                                                         ms.ODOM_QOS))
-        self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS,
+                                               ms.LATCHED_QOS)
         self.create_timer(self.core.tick, self._on_tick)
         self.create_timer(1.0, self._report)
         world = self.core.world
@@ -96,8 +97,9 @@ class PhysicsBases(Node):
                                                       quat=quat))
 
     def _report(self) -> None:
-        self.diag_pub.publish(ms.json_to_msg({"node": NAME, "trial": -1,
-                                              **self.core.report()}))
+        self.diag_pub.publish(ms.diagnostics_to_msg({"node": NAME, "trial": -1,
+                                                      **self.core.report()},
+                                                     time.time_ns()))
 
     def destroy_node(self) -> None:
         self.core.close()

@@ -9,10 +9,21 @@ robot's cmd_vel is in) p50/p90/p99.
 Teams larger than the built-in scenarios are made from paper-hexagon6 by tiling it
 (independent hexagons on one run, the same graph per copy).
 
+The floor (on by default; ``--no-floor``): around each lockstep run, a trivial lockstep of the
+same size on the same DDS, executor, QoS and discovery: a ticker process publishes a
+PoseStamped to each of N responder processes, each answers with a Twist at once, and the
+next tick goes out when all N answers are in (one round trip per tick, nothing else). Its
+ticks/s, measured just before and just after each stack run, is what the machine's load
+allows a lockstep at that moment; the stack's samples/s is printed as a ratio to the mean of
+the two (direct / trivial, emulated / trivial). ``--repeat R`` runs every configuration R
+times, alternated, and prints medians and ranges: on a machine shared with other work the
+floor alone moved between 100 and 520 ticks/s within an hour.
+
     python scripts/bench_stack.py                 # all sizes, 3 trials each
     python scripts/bench_stack.py --sizes 6 24 --trials 2
     python scripts/bench_stack.py --links direct   # one link mode only
     python scripts/bench_stack.py --realtime 24   # only realtime: 24 robots, 1000 samples
+    python scripts/bench_stack.py --sizes 6 --container 0 --repeat 5   # ratios to the floor
 
 Realtime (``--realtime N``): one trial of 1000 samples at dT = 0.1 s (100 s of wall time),
 one process per robot (``--rt-container C``: C robot nodes per process). Prints the missed
@@ -31,6 +42,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from formation_ilc.config.scenario import load_scenario
@@ -92,6 +104,205 @@ def run(scenario: str, trials: int, domain: int, container: int, mode: str, out:
     return s
 
 
+# --------------------------------------------------------------------------- the floor
+
+FLOOR_NS = "/bench_floor"
+
+
+def _floor_node(role: str, index: int, n: int, ticks: int, warm: int) -> int:
+    """One process of the trivial lockstep: the ticker (``index`` 0) or responder
+    ``index`` (1..n). The ticker prints one JSON line (ticks, seconds, ticks_per_s,
+    latency percentiles [ms]) and exits; a responder runs until SIGTERM."""
+    import signal
+
+    import rclpy
+    from geometry_msgs.msg import PoseStamped, Twist
+    from rclpy.node import Node
+    from rclpy.signals import SignalHandlerOptions
+    from rclpy.task import Future
+
+    import msgs_schema as ms
+    from formation_ilc.nodes.common import make_executor
+
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    stop = Future()
+    signal.signal(signal.SIGTERM, lambda *_: stop.done() or stop.set_result(0))
+    node = Node(f"floor_{role}_{index}", namespace=FLOOR_NS)
+    result: dict[str, float] = {}
+    if role == "responder":
+        answer = Twist()
+        pub = node.create_publisher(Twist, f"answer_{index}", ms.SAMPLE_QOS)
+
+        def subscribe() -> None:
+            # take ticks only once the answers have their reader: none can be lost
+            if pub.get_subscription_count() >= 1:
+                gate.cancel()
+                node.create_subscription(PoseStamped, f"tick_{index}",
+                                         lambda m: pub.publish(answer), ms.SAMPLE_QOS)
+
+        gate = node.create_timer(0.02, subscribe)
+    else:
+        tick = PoseStamped()
+        tick.header.frame_id = ms.WORLD_FRAME
+        pubs = [node.create_publisher(PoseStamped, f"tick_{r}", ms.SAMPLE_QOS)
+                for r in range(1, n + 1)]
+        state = {"t": -1, "pending": 0, "t0": 0.0, "sent": 0.0}
+        lat: list[float] = []
+
+        def send() -> None:
+            state["t"] += 1
+            if state["t"] == warm:
+                state["t0"] = time.perf_counter()
+            if state["t"] == warm + ticks:
+                dt = time.perf_counter() - state["t0"]
+                q = np.percentile(np.array(lat[warm:]) * 1e3, [50, 90, 99])
+                result.update(ticks=ticks, seconds=dt, ticks_per_s=ticks / dt,
+                              p50_ms=q[0], p90_ms=q[1], p99_ms=q[2])
+                stop.set_result(0)
+                return
+            state["pending"] = n
+            ms.ns_to_stamp(state["t"], tick.header.stamp)
+            state["sent"] = time.perf_counter()
+            for pub in pubs:
+                pub.publish(tick)
+
+        def on_answer(msg: Twist) -> None:
+            state["pending"] -= 1
+            if state["pending"] == 0:
+                lat.append(time.perf_counter() - state["sent"])
+                send()
+
+        for r in range(1, n + 1):
+            node.create_subscription(Twist, f"answer_{r}", on_answer, ms.SAMPLE_QOS)
+
+        def start() -> None:
+            if all(p.get_subscription_count() >= 1 for p in pubs):
+                gate.cancel()
+                send()
+
+        gate = node.create_timer(0.02, start)
+    ex = make_executor("events")
+    ex.add_node(node)
+    while rclpy.ok() and not stop.done():
+        ex.spin_until_future_complete(stop, timeout_sec=0.25)
+    node.destroy_node()
+    rclpy.try_shutdown()
+    if result:
+        print(json.dumps(result), flush=True)
+    return 0
+
+
+def floor(n: int, domain: int, ticks: int, warm: int = 200, timeout: float = 300) -> dict:
+    """The trivial lockstep of n responders (one process each) and a ticker, on ``domain``:
+    {ticks, seconds, ticks_per_s, p50_ms, p90_ms, p99_ms} or {error}."""
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED="1")
+    me = [sys.executable, str(Path(__file__).resolve()), "--floor-role"]
+    common = ["--floor-n", str(n), "--floor-ticks", str(ticks), "--floor-warm", str(warm)]
+    responders = [subprocess.Popen(me + ["responder", "--floor-index", str(r)] + common,
+                                   env=env, stdout=subprocess.DEVNULL,
+                                   stderr=subprocess.DEVNULL) for r in range(1, n + 1)]
+    try:
+        res = subprocess.run(me + ["ticker", "--floor-index", "0"] + common, env=env,
+                             capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return {"error": "the floor's ticker timed out"}
+    finally:
+        for p in responders:
+            p.terminate()
+        for p in responders:
+            try:
+                p.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+    lines = [ln for ln in res.stdout.splitlines() if ln.startswith("{")]
+    if res.returncode or not lines:
+        return {"error": (res.stdout + res.stderr)[-800:]}
+    return json.loads(lines[-1])
+
+
+def spread(values: list[float]) -> str:
+    """median [min, max] of a list of figures."""
+    if not values:
+        return "-"
+    return (f"{float(np.median(values)):7.2f} [{min(values):.2f}, {max(values):.2f}]"
+            if len(values) > 1 else f"{values[0]:7.2f}")
+
+
+def lockstep(n: int, args: argparse.Namespace, modes: list[str], tmp: Path, dom: int) -> int:
+    """The lockstep runs of a team of n: the floor and each layout and link mode, ``repeat``
+    times alternated; prints each run, then medians and ratios. Returns the next domain."""
+    sc = team_scenario(n, tmp, None)
+    layouts = [0, min(args.container, n)] if args.container else [0]
+    rates: dict[tuple[int, str], list[float]] = {}
+    ratios: dict[tuple[int, str], list[float]] = {}
+    floors: list[float] = []
+    def run_floor() -> float | None:
+        nonlocal dom
+        f = floor(n, dom, args.floor_ticks)
+        dom = 30 + (dom - 29) % 71
+        if "error" in f:
+            print(f"{n:3d} processes, trivial lockstep: FAILED\n{f['error']}", flush=True)
+            return None
+        floors.append(f["ticks_per_s"])
+        print(f"{n:3d} responders, trivial lockstep{'':19s} {f['ticks_per_s']:7.1f} ticks/s"
+              f"    latency p50 {f['p50_ms']:6.2f} p90 {f['p90_ms']:6.2f} p99 "
+              f"{f['p99_ms']:6.2f} ms", flush=True)
+        return float(f["ticks_per_s"])
+
+    # the machine's load moves within minutes: each run is bracketed by floor runs, and its
+    # ratio is to the mean of the two
+    before = run_floor() if args.floor else None
+    for rnd in range(args.repeat):
+        for cont in layouts:
+            for links in modes:
+                out = tmp / f"lock-{n}-{cont}-{links}-{rnd}"
+                s = run(sc, args.trials, dom, cont, "lockstep", out, 900, links)
+                dom = 30 + (dom - 29) % 71
+                after = run_floor() if args.floor else None
+                label = f"{n:3d} robots, {links:8s} " + (
+                    f"container {cont}/process" if cont else "one process per robot")
+                if "error" in s:
+                    print(f"{label}: FAILED\n{s['error']}", flush=True)
+                    before = after
+                    continue
+                t = s["timing"]
+                rates.setdefault((cont, links), []).append(t["samples_per_s"])
+                ratio = ""
+                if before and after:
+                    r = t["samples_per_s"] / (0.5 * (before + after))
+                    ratios.setdefault((cont, links), []).append(r)
+                    ratio = f"  {links} / trivial {r:.2f}"
+                before = after
+                print(f"{label:51s} {t['samples_per_s']:7.1f} samples/s  latency p50 "
+                      f"{t['p50_ms']:6.2f} p90 {t['p90_ms']:6.2f} p99 {t['p99_ms']:6.2f} "
+                      f"max {t['max_ms']:7.2f} ms  (wall {s['wall']:.1f} s incl. "
+                      f"start-up){ratio}", flush=True)
+    print(f"--- {n} robots, {args.repeat} round(s): median [min, max]", flush=True)
+    if floors:
+        print(f"{'trivial lockstep ticks/s':44s} {spread(floors)}", flush=True)
+    targets = {"direct": 0.6, "emulated": 0.4}
+    for cont in layouts:
+        where = f"container {cont}/process" if cont else "one process per robot"
+        for links in modes:
+            if (cont, links) in rates:
+                print(f"{links + ' samples/s, ' + where:44s} {spread(rates[(cont, links)])}",
+                      flush=True)
+        for links in modes:
+            if (cont, links) in ratios:
+                med = float(np.median(ratios[(cont, links)]))
+                goal = targets[links]
+                print(f"{links + ' / trivial, ' + where:44s} {spread(ratios[(cont, links)])}"
+                      f"  (target >= {goal}) -> {'MET' if med >= goal else 'MISSED'}",
+                      flush=True)
+        d, e = rates.get((cont, "direct")), rates.get((cont, "emulated"))
+        if d and e:
+            r = float(np.median(d)) / float(np.median(e))
+            print(f"{'direct / emulated (medians), ' + where:44s} {r:7.2f}", flush=True)
+    return dom
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -109,38 +320,30 @@ def main() -> int:
     ap.add_argument("--links", choices=("emulated", "direct", "both"), default="both",
                     help="link modes to run (default both, with the direct/emulated ratio)")
     ap.add_argument("--domain", type=int, default=30 + os.getpid() % 60)
+    ap.add_argument("--no-floor", dest="floor", action="store_false",
+                    help="skip the trivial lockstep (no ratios)")
+    ap.add_argument("--floor-ticks", type=int, default=2000,
+                    help="timed ticks of the trivial lockstep (after 200 warm-up ticks)")
+    ap.add_argument("--repeat", type=int, default=1, metavar="R",
+                    help="run the floor and every lockstep configuration R times, "
+                         "alternated; print medians [min, max]")
+    # one process of the trivial lockstep (started by this script)
+    ap.add_argument("--floor-role", choices=("ticker", "responder"), help=argparse.SUPPRESS)
+    ap.add_argument("--floor-index", type=int, default=0, help=argparse.SUPPRESS)
+    ap.add_argument("--floor-n", type=int, default=6, help=argparse.SUPPRESS)
+    ap.add_argument("--floor-warm", type=int, default=200, help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.floor_role:
+        return _floor_node(args.floor_role, args.floor_index, args.floor_n, args.floor_ticks,
+                           args.floor_warm)
     if args.sizes is None:
         args.sizes = [] if args.realtime else [3, 6, 12, 24]
     modes = ["emulated", "direct"] if args.links == "both" else [args.links]
-    rates: dict[tuple[int, int, str], float] = {}
     with tempfile.TemporaryDirectory() as td:
         tmp = Path(td)
         dom = args.domain
         for n in args.sizes:
-            sc = team_scenario(n, tmp, None)
-            for cont in ([0, args.container] if args.container else [0]):
-                if cont and cont >= n:
-                    cont = n  # all robots in one process
-                for links in modes:
-                    out = tmp / f"lock-{n}-{cont}-{links}"
-                    s = run(sc, args.trials, dom, cont, "lockstep", out, 900, links)
-                    dom = 30 + (dom - 29) % 71
-                    label = f"{n:3d} robots, {links:8s} " + (
-                        f"container {cont}/process" if cont else "one process per robot")
-                    if "error" in s:
-                        print(f"{label}: FAILED\n{s['error']}", flush=True)
-                        continue
-                    t = s["timing"]
-                    rates[(n, cont, links)] = t["samples_per_s"]
-                    print(f"{label:51s} {t['samples_per_s']:7.1f} samples/s  latency p50 "
-                          f"{t['p50_ms']:6.2f} p90 {t['p90_ms']:6.2f} p99 {t['p99_ms']:6.2f} "
-                          f"max {t['max_ms']:7.2f} ms  (wall {s['wall']:.1f} s incl. "
-                          f"start-up)", flush=True)
-                if (n, cont, "direct") in rates and (n, cont, "emulated") in rates:
-                    r = rates[(n, cont, "direct")] / rates[(n, cont, "emulated")]
-                    print(f"{'':51s} direct / emulated = {r:.2f} (target >= 1) -> "
-                          f"{'MET' if r >= 1 else 'MISSED'}", flush=True)
+            dom = lockstep(n, args, modes, tmp, dom)
         for n in args.realtime:
             # 1000 samples at dT = 0.1 s in realtime: 100 s of wall time
             sc = team_scenario(n, tmp, args.rt_samples, args.rt_dt)

@@ -12,11 +12,11 @@ cd "$(dirname "$0")/.."
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 python3 -m venv "$tmp/venv"
-"$tmp/venv/bin/pip" install -q -e ".[dev,mcap,cluster,physics,mutation]"
+"$tmp/venv/bin/pip" install -q -e ".[dev,mcap,cluster,physics,mutation,live]"
 {
   echo "# Every package version formation-ilc installs, for Python $(python3 -c 'import sys; print("%d.%d" % sys.version_info[:2])') on Linux."
   echo "# Made by scripts/lock.sh (run it to refresh); used as pip constraints:"
-  echo "#   pip install -c requirements.lock -e \".[dev,mcap,cluster,physics]\""
+  echo "#   pip install -c requirements.lock -e \".[dev,mcap,cluster,physics,live]\""
   "$tmp/venv/bin/pip" freeze --exclude-editable --all | grep -v -i -E '^(pip|setuptools|wheel)=='
 } > requirements.lock.new
 mv requirements.lock.new requirements.lock

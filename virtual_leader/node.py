@@ -68,14 +68,14 @@ import time
 from pathlib import Path
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
-from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 import msgs_schema as ms
+from formation_ilc.config import params
 from formation_ilc.config.runconfig import PARAMS, RunConfig
 from formation_ilc.config.team import Team, default_plant
 from formation_ilc.core.clock import Rejected
@@ -87,6 +87,7 @@ from formation_ilc.nodes.common import (
     node_parser,
     spin_main,
 )
+from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.schedule import Ready, Schedule, ScheduleError, TrialEvent
 from formation_ilc.protocol.wallclock import WallSchedule
 from formation_ilc.protocol.watchdog import READY, SAMPLE, STARTUP, STUCK, Bounds, Watchdog
@@ -103,12 +104,7 @@ class LeaderNode(Node):
     def __init__(self, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(NAME, **kwargs)
-        for name, default in PARAMS.items():  # the run configuration's (runconfig)
-            self.declare_parameter(name, default)
-        self.declare_parameter("start_margin", 1.0)
-        self.declare_parameter("nodes_expected", Parameter.Type.STRING_ARRAY)
-        self.declare_parameter("state_dir", "")
-        self.declare_parameter("watchdog_scale", 1.0)
+        declare(self, params.LEADER)  # the run configuration's (runconfig) and the leader's
         g = lambda name: self.get_parameter(name).value  # noqa: E731
         _check_parameters(g)
         self.cfg = RunConfig.from_params({name: g(name) for name in PARAMS})
@@ -116,11 +112,8 @@ class LeaderNode(Node):
         self.clock = self.cfg.clock
         self.T = sc.samples
         self.trials = sc.trials
-        try:
-            expected = g("nodes_expected")
-        except ParameterUninitializedException:
-            expected = None
-        self.expected = list(expected) if expected else Team.of(
+        expected = [str(e) for e in g("nodes_expected") if e]
+        self.expected = expected if expected else Team.of(
             sc.n, plant=default_plant(self.cfg.mode), links=self.cfg.links).expected
         # who reads the reference: the link emulator, or each robot that sees the leader
         self.ref_readers = (int(sum(sc.graph.leader > 0)) if self.cfg.links == "direct"
@@ -149,7 +142,7 @@ class LeaderNode(Node):
         self.config_pub = self.create_publisher(String, ms.CONFIG, ms.LATCHED_QOS)
         self.ref_pub = self.create_publisher(PoseStamped, ms.REFERENCE, ms.SAMPLE_QOS)
         self.event_pub = self.create_publisher(String, ms.TRIAL_EVENTS, ms.SAMPLE_QOS)
-        self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         self.ready_sub = self.create_subscription(String, ms.READY, self._on_ready,
                                                   ms.LATCHED_READER_QOS)
         # its own events come back here too; a start or abort it did not send is re-asserted
@@ -160,7 +153,8 @@ class LeaderNode(Node):
             self.margin_ns = int(float(g("start_margin")) * 1e9)
             self._wall_timer = self.create_timer(0.005, self._on_wall_timer)
         else:
-            self.create_subscription(Clock, ms.CLOCK, self._on_clock, ms.CLOCK_QOS)
+            self.clock_sub = self.create_subscription(Clock, ms.CLOCK, self._on_clock,
+                                                      ms.CLOCK_QOS, raw=True)
         self.config_pub.publish(ms.json_to_msg(self.cfg.to_json()))
         self._gate = self.create_timer(0.05, self._maybe_start)
         self._last_change = time.monotonic()
@@ -300,7 +294,10 @@ class LeaderNode(Node):
                            f"to start a second one here (use another namespace or domain)",
                      code=2)
                 return
-        if not matched([(self.ref_pub, self.ref_readers), (self.event_pub, 1)]):
+        need: list[tuple[Any, int]] = [(self.ref_pub, self.ref_readers), (self.event_pub, 1)]
+        if self.cfg.mode != "wallclock":  # its /clock reader matched the plant's writer too
+            need.append((self.clock_sub, 1))
+        if not matched(need):
             return
         i, q = nxt
         seq = s.started(q)
@@ -430,11 +427,14 @@ class LeaderNode(Node):
         if watchdog is not None:
             d["watchdog"] = watchdog
         d.update(self.drops.as_dict())
-        self.diag_pub.publish(ms.json_to_msg(d))
+        self.diag_pub.publish(ms.diagnostics_to_msg(
+            d, self.get_clock().now().nanoseconds, self.cfg.scenario.dt, self.T))
 
-    def _on_clock(self, msg: Clock) -> None:
+    def _on_clock(self, msg: Clock | bytes) -> None:
         try:
-            ns = ms.stamp_to_ns(msg.clock)  # not now(): see notes on /clock callbacks
+            # bytes, as the per-sample messages are (msgs_schema.wire); the stamp, not
+            # now(): see notes on /clock callbacks
+            ns = ms.wire.read_clock(ms.wire.as_bytes(msg))
             k, t = self.clock.decode(ns)
             if k != self.sched.slot or not self.sched.running:
                 raise Rejected("stale" if k <= self.sched.slot else "future",
@@ -444,8 +444,8 @@ class LeaderNode(Node):
                 if self.cfg.mode == "lockstep" and t < self.T:
                     # the plant sent the sample again (a command still due after
                     # RESEND_S): the reference of it again too, for a reader that lost it
-                    self.ref_pub.publish(ms.pose_to_msg(self.cfg.scenario.reference[t], ns,
-                                                        ms.WORLD_FRAME, self.ref_msg))
+                    self.ref_pub.publish(ms.wire.pose_bytes(self.cfg.scenario.reference[t], ns,
+                                                            ms.WORLD_FRAME))
                 raise Rejected("duplicate", f"time of sample {t} again")
             if t < self.t:
                 raise Rejected("out_of_order", f"sample {t} after {self.t}")
@@ -459,7 +459,7 @@ class LeaderNode(Node):
         self._last_change = time.monotonic()
         self.watchdog.moved(self._last_change, SAMPLE)
         ref = self.cfg.scenario.reference[t]
-        self.ref_pub.publish(ms.pose_to_msg(ref, ns, ms.WORLD_FRAME, self.ref_msg))
+        self.ref_pub.publish(ms.wire.pose_bytes(ref, ns, ms.WORLD_FRAME))
         if t == self.T:
             self._end(k)
 

@@ -34,6 +34,9 @@ Node entry points (also `ros2 run formation_ilc <exe>` on a full ROS 2 install):
   formation-ilc-bridge  a Pioneer 3-DX behind the plant contract: --ros-args -p robot_id:=I
                         -p driver:=rosaria (docs/real-robots.md)
 
+--live [PORT]: serve the running formation to Foxglove on ws://127.0.0.1:PORT (its own
+process, formation-ilc-liveview; docs/ros-tools.md).
+
 --plant pioneer: one bridge per robot instead of the simulator (with --fake-drivers one
 fake RosAria driver per robot too), wall-clock trials, direct links; --plant base: the same
 bridges in front of any differential-drive base (--base PRESET, limits checked against the
@@ -143,7 +146,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=out_dir_arg, metavar="DIR",
                    help="output folder (default: runs/SCENARIO-launch-TIME)")
     p.add_argument("--domain-id", type=int_range(0, 232), metavar="ID",
-                   help="ROS_DOMAIN_ID (default: a free-looking one in 30..100)")
+                   help="ROS_DOMAIN_ID (default: the caller's ROS_DOMAIN_ID if set, else a "
+                        "free-looking one in 30..100)")
     p.add_argument("--discovery", choices=("localhost", "inherit"), default="localhost",
                    help="localhost (default): ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; "
                         "inherit: keep the caller's discovery settings (multi-host runs)")
@@ -166,6 +170,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="record every formation topic to this MCAP file (its own recorder "
                         "process; the run starts once it listens); analyse it with "
                         "`formation-ilc analyze RUN.mcap`")
+    p.add_argument("--live", type=int_range(1, 65535), nargs="?", const=8765, default=None,
+                   metavar="PORT",
+                   help="serve the running formation to Foxglove over its WebSocket protocol "
+                        "on PORT (default 8765), with the recording's topics and schemas "
+                        "(its own process; a slow or absent viewer never holds the run back; "
+                        "docs/ros-tools.md)")
+    p.add_argument("--live-host", default="127.0.0.1", metavar="ADDR",
+                   help="with --live: the address to serve on (default 127.0.0.1, this "
+                        "machine only; 0.0.0.0 serves every network)")
     add_host_arguments(p)
     from formation_ilc.cli import secure
 

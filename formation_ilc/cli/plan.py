@@ -31,6 +31,7 @@ from formation_ilc.core.names import (
     BASES_NODE,
     LEADER_NODE,
     LINKS_NODE,
+    LIVEVIEW_NODE,
     NAMESPACE,
     PHYSICS_NODE,
     RECORDER_NODE,
@@ -257,6 +258,8 @@ class RunPlan:
     notes: tuple[str, ...] = ()
     #: ``--secure``: the checked keystore every node runs in (its enclave is in its spec)
     secure: SecureRun | None = None
+    #: ``--live``: the live view's (host, port), or None
+    live: tuple[str, int] | None = None
 
     @property
     def scenario(self) -> Scenario:
@@ -337,7 +340,9 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
                    monitor=True, recorder=opts.record is not None)
     record = opts.record.resolve() if opts.record is not None else None
     root = getattr(opts, "record_root_", None) or record
-    domain = opts.domain_id if opts.domain_id is not None else pick_domain()
+    domain = opts.domain_id if opts.domain_id is not None else caller_domain()
+    if domain is None:
+        domain = pick_domain()
     bridge = BridgeOptions.of(opts) if opts.plant in BRIDGED else None
     physics = (PhysicsOptions.of(opts) if opts.plant == "physics"
                or (bridge is not None and bridge.physics_bases) else None)
@@ -354,6 +359,7 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
         record_root=root.resolve() if root is not None else None,
         watchdog_scale=float(getattr(opts, "watchdog_scale", 1.0)),
         physics=physics, notes=notes,
+        live=_live(opts),
         hosts=None if faults is None else HostsPlan(faults, opts.dds_profile or "lossy",
                                                     sc.seed))
     # the processes follow from the rest of the plan
@@ -632,6 +638,33 @@ def _run_json(opts: argparse.Namespace, mode: str, links: str, out: Path) -> dic
     return d
 
 
+def _live(opts: argparse.Namespace) -> tuple[str, int] | None:
+    """``--live [PORT]`` on ``--live-host``: refused (NoRun) when the port is taken."""
+    import socket
+
+    port = getattr(opts, "live", None)
+    if port is None:
+        return None
+    host = getattr(opts, "live_host", None) or "127.0.0.1"
+    try:
+        with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as s:
+            s.bind((host, int(port)))
+    except OSError as exc:
+        raise NoRun(f"--live {port}: cannot serve on {host}:{port}: {exc.strerror}") from None
+    return host, int(port)
+
+
+def caller_domain() -> int | None:
+    """The caller's ``ROS_DOMAIN_ID`` (the launcher honours it), None when it is not set;
+    NoRun when it is not a domain id."""
+    text = os.environ.get("ROS_DOMAIN_ID", "").strip()
+    if not text:
+        return None
+    if not text.isdigit() or int(text) > 232:
+        raise NoRun(f"ROS_DOMAIN_ID={text[:20]!r}: a domain id 0..232 is required")
+    return int(text)
+
+
 def pick_domain() -> int:
     """A ROS_DOMAIN_ID in 30..100, distinct per launcher process. The shared-memory locks
     of Fast DDS name the domain port, so ids whose port files are held (another run on
@@ -661,6 +694,12 @@ def node_specs(plan: RunPlan, scenario: str) -> tuple[NodeSpec, ...]:
     if plan.record is not None:
         specs.append(spec(RECORDER_NODE, "formation_ilc.nodes.recorder",
                           args=("--output", str(plan.record)), remaps=nsa, passive=True))
+    if plan.live is not None:
+        # the view topics come from the recorder; without one the bridge makes them
+        specs.append(spec(LIVEVIEW_NODE, "formation_ilc.nodes.liveview",
+                          args=("--host", plan.live[0], "--port", str(plan.live[1]),
+                                *(("--observe",) if plan.record is None else ())),
+                          remaps=nsa))
     leader = {**cfg.to_params(scenario), "state_dir": state_dir,
               "nodes_expected": plan.team.expected}
     if plan.watchdog_scale != 1.0:

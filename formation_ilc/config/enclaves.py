@@ -39,6 +39,7 @@ from formation_ilc.core.names import (
     FAKE_DRIVER_NODE,
     LEADER_NODE,
     LINKS_NODE,
+    LIVEVIEW_NODE,
     MONITOR_NODE,
     RECORDER_NODE,
     SIM_NODE,
@@ -78,6 +79,9 @@ class TopicNames:
     #: every topic the recorder subscribes to, for n robots
     recorded: Callable[[int], Sequence[str]]
     leader: str = "leader"
+    #: the observer's topics for n robots (desired poses, errors, markers): the recorder
+    #: publishes them, or the live view when nothing records
+    view: Callable[[int], Sequence[str]] = lambda n: ()
 
 
 @dataclass(frozen=True)
@@ -121,6 +125,7 @@ ENCLAVE_NODES = {
     SIM_NODE: "the kinematic simulator (plant)",
     LINKS_NODE: "the link emulator",
     RECORDER_NODE: "the recorder",
+    LIVEVIEW_NODE: "the live view (Foxglove WebSocket on 127.0.0.1)",
     MONITOR_NODE: "the launcher's monitor",
     "robot_i": "robot i's controller",
     "bridge_i": "robot i's Pioneer bridge (plant)",
@@ -225,8 +230,11 @@ def formation_grants(adjacency: NDArray[np.float64], leader: NDArray[np.float64]
     else:
         for i in robots:
             grants += _pioneer(t, namespace, i, pioneer)
-    grants.append(_grant(namespace, RECORDER_NODE, [t.ready, t.diagnostics],
+    grants.append(_grant(namespace, RECORDER_NODE, [t.ready, t.diagnostics, *t.view(n)],
                          list(t.recorded(n))))
+    # the live view reads what the recording holds and serves it on 127.0.0.1
+    grants.append(_grant(namespace, LIVEVIEW_NODE, list(t.view(n)),
+                         [*t.recorded(n), *t.view(n)]))
     grants.append(_grant(namespace, MONITOR_NODE, [t.ready],
                          [*(t.trajectory(i) for i in robots),
                           *(t.true_trajectory(i) for i in robots), t.diagnostics,

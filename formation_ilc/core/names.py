@@ -85,3 +85,7 @@ def namespace_remaps(namespace: str | None) -> list[str]:
     if namespace is None or namespace == NAMESPACE:
         return []
     return ["-r", f"__ns:={namespace}", "-r", f"{CLOCK}:={namespace}{CLOCK}"]
+
+#: the live view's bridge to Foxglove viewers (``launch --live``)
+LIVEVIEW_NODE = "liveview"
+__all__ += ["LIVEVIEW_NODE"]

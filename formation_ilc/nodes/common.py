@@ -16,23 +16,26 @@ from typing import Any, TypeVar
 
 import numpy as np
 import rclpy
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
+from rclpy.subscription import Subscription
 from rclpy.task import Future
 from std_msgs.msg import String
 
 import msgs_schema as ms
 from formation_ilc.config.runconfig import RunConfig, make_config
 from formation_ilc.core.clock import REASONS, Rejected
+from formation_ilc.core.uncertainty import Uncertainty
 from formation_ilc.model.simulate import Problem
 from formation_ilc.protocol.schedule import Follower, Ready, TrialEvent
 from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, is_disk_full
 from formation_ilc.system.lifetime import PARENT_ENV, bound_the_stop, die_with_parent, parent_gone
 
 __all__ = ["PARENT_ENV", "DROP_REASONS", "DropCounter", "RunConfig", "make_config",
-           "config_from_msg", "ConfiguredNode", "warm_up", "matched", "fail", "spin_main",
-           "node_parser", "ros_param", "robot_node_from_args"]
+           "config_from_msg", "ConfiguredNode", "warm_up", "warm_up_draws", "matched", "fail",
+           "spin_main", "node_parser", "ros_param", "robot_node_from_args"]
 
 R = TypeVar("R")
 
@@ -156,9 +159,11 @@ class ConfiguredNode(Node):
         raise NotImplementedError
 
 
-def warm_up(pb: Problem) -> None:
+def warm_up(pb: Problem, unc: Uncertainty | None = None) -> None:
     """Compile (or load from the numba cache) every kernel a node calls, with the node's
-    shapes, so the first sample is not late by seconds."""
+    shapes, so the first sample is not late by seconds; with ``unc``, the plant's and the
+    links' draws too (the simulator and the link emulator draw at each trial's start: a
+    first draw there held the first sample of a run for 2-18 s on a loaded machine)."""
     from formation_ilc.core.kinematics import step_into
     from formation_ilc.core.law import command, learn
     from formation_ilc.core.links import delivered_label
@@ -175,13 +180,38 @@ def warm_up(pb: Problem) -> None:
           np.zeros((1, n_l, n_t + 1, 3)), pb.src[i], pb.weight[i], pb.eta_d, pb.leader[i],
           pb.gain[i], pb.heading, np.zeros((1, n_t, 2)))
     step_into(np.zeros((n, 3)), np.zeros((n, 2)), np.zeros((n, 2)), pb.dt, np.zeros((n, 3)))
+    # and as the plant calls it, on views of its (N, T+1, 3) arrays (numba's layout "A", a
+    # second specialisation: compiled at a run's first sample it held that sample 1-3 s)
+    xi, u = np.zeros((n, 2, 3)), np.zeros((n, 1, 2))
+    step_into(xi[:, 0], u[:, 0], u[:, 0], pb.dt, xi[:, 1])
     trial_errors(pb.eta_d, pb.eta_d, pb.eta_d, pb.src, pb.weight, np.zeros(6))
+    delivered_label(0, 0)
+    if unc is not None:
+        warm_up_draws(pb, unc)
+
+
+def warm_up_draws(pb: Problem, unc: Uncertainty) -> None:
+    """Compile (or load) the plant's and the links' draws of ``unc`` with ``pb``'s shapes
+    (a draw of trial 0, which nothing keeps), and the links' delivered label (the link
+    emulator's first tick compiled it inside the first trial)."""
+    from formation_ilc.core.links import delivered_label
+
+    unc.draw_plant(0, 0, pb.n, pb.samples)
+    unc.draw_delays(0, 0, pb.n, pb.src.shape[1], pb.samples)
     delivered_label(0, 0)
 
 
 def matched(pairs: Iterable[tuple[Any, int]]) -> bool:
-    """True when every publisher has at least ``count`` matched subscriptions."""
-    return all(pub.get_subscription_count() >= count for pub, count in pairs)
+    """True when every publisher has at least ``count`` matched subscriptions and every
+    subscription at least ``count`` matched publishers.
+
+    DDS matches each side on its own: a writer may see its reader before the reader has
+    seen the writer, and a reliable reader drops what an unmatched writer sends; the
+    sample then waits for the writer's next heartbeat (seconds). A node that says ready
+    only once both sides of its per-sample topics are matched loses no first sample.
+    """
+    return all((e.get_publisher_count() if isinstance(e, Subscription)
+                else e.get_subscription_count()) >= count for e, count in pairs)
 
 
 class Exit:
@@ -220,8 +250,7 @@ def node_parser(prog: str, doc: str | None) -> argparse.ArgumentParser:
 
 
 def ros_param(argv: list[str], name: str) -> str | None:
-    """The value of ``-p name:=VALUE`` (or ``--param``) among ROS arguments, before a node
-    exists: a node whose name depends on a parameter needs it at construction."""
+    """The value of ``-p name:=VALUE`` (or ``--param``) among ROS arguments, as written."""
     value = None
     for flag, arg in zip(argv, argv[1:], strict=False):
         if flag in ("-p", "--param") and arg.startswith(f"{name}:="):
@@ -229,17 +258,29 @@ def ros_param(argv: list[str], name: str) -> str | None:
     return value
 
 
-def robot_node_from_args(cls: Callable[[int | None], Node], argv: list[str], prog: str
-                         ) -> Node:
-    """The node of one robot whose ``robot_id`` is given as a ROS parameter (``-p
-    robot_id:=I``): read before the node exists, since its name follows it. A missing or
-    invalid id ends the process with one line and status 2."""
-    rid = ros_param(argv, "robot_id")
-    try:
-        return cls(int(rid) if rid is not None else None)
-    except ValueError as exc:
-        print(f"{prog}: {exc}", file=sys.stderr)
-        raise SystemExit(2) from None
+def robot_node_from_args(cls: Callable[..., Node], argv: list[str], prog: str,
+                         probe_name: str = "robot", **kwargs: Any) -> Node:
+    """The node of one robot whose ``robot_id`` is a ROS parameter (``-p robot_id:=I``, or
+    a ``--params-file`` keyed ``/**`` or by the node's name as a launch file gives it with
+    ``-r __node:=NAME``): read before the node exists, since its name follows it. A
+    missing or invalid id is a ``ParameterError`` (one line and status 2 in spin_main)."""
+    from formation_ilc.config.params import ROBOT
+    from formation_ilc.nodes.params import ParameterError, check, probe_overrides
+
+    found = probe_overrides(probe_name, ms.NAMESPACE, **kwargs)
+    if "robot_id" not in found:
+        raise ParameterError("parameter robot_id: a robot number >= 1 is required "
+                             "(-p robot_id:=I, or robot_id in a --params-file under /** or "
+                             "the node's name)")
+    rid = check(ROBOT[0], found["robot_id"])
+    return cls(int(rid), **kwargs)
+
+
+def _first_line(exc: BaseException) -> str:
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    # rcl's messages end with where in its C source they were raised
+    text = lines[0].split(", at /")[0] if lines else type(exc).__name__
+    return text[:400]
 
 
 def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
@@ -251,7 +292,12 @@ def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
     build : gets the parsed arguments and the raw argv, and returns the nodes.
     """
     argv = list(args if args is not None else sys.argv)
-    ns = parser.parse_args(rclpy.utilities.remove_ros_args(argv)[1:])
+    try:
+        own = rclpy.utilities.remove_ros_args(argv)[1:]
+    except RuntimeError as exc:  # rcl's: a params file that is missing or not YAML
+        print(f"{parser.prog}: {_first_line(exc)}", file=sys.stderr, flush=True)
+        return 2
+    ns = parser.parse_args(own)
     die_with_parent()
     # rclpy's own SIGINT handling raises KeyboardInterrupt inside whatever callback runs,
     # which aborts the process from C++; a flag for the spin loop is enough
@@ -267,7 +313,12 @@ def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
     signal.signal(signal.SIGTERM, on_signal)
     nodes: list[Node] = []
     try:
-        nodes = build(ns, argv)
+        try:
+            nodes = build(ns, argv)
+        except (ValueError, ParameterException) as exc:
+            # a parameter, a scenario or a state file no run can have: one line, status 2
+            print(f"{parser.prog}: {_first_line(exc)}", file=sys.stderr, flush=True)
+            return 2
         ex = make_executor(executor)
         for n in nodes:
             ex.add_node(n)

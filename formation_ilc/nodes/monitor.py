@@ -26,6 +26,7 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Path
 from rclpy.node import Node
 from std_msgs.msg import String
@@ -76,7 +77,8 @@ class MonitorNode(Node):
         #: the last ready of each node (the launcher names whom a stuck run waits for)
         self.readies: dict[str, Ready] = {}
         self._gate = self.create_timer(0.05, self._check_ready)
-        self.create_subscription(String, ms.DIAGNOSTICS, self._on_diag, ms.LATCHED_READER_QOS)
+        self.create_subscription(DiagnosticArray, ms.DIAGNOSTICS, self._on_diag,
+                                 ms.LATCHED_READER_QOS)
         self.create_subscription(String, ms.READY, self._on_ready, ms.LATCHED_READER_QOS)
         self.events_sub = self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event,
                                                    ms.SAMPLE_QOS)
@@ -118,8 +120,8 @@ class MonitorNode(Node):
     def _on_traj(self, data: bytes | Path, r: int, true: bool) -> None:
         topic = (ms.true_trajectory_topic if true else ms.trajectory_topic)(r + 1)
         try:
-            msg = ms.path_from_raw(data, self.pb.samples + 1, "trajectory")
-            eta, stamps, frame = ms.path_to_trajectory(msg, self.pb.eta_d[r, :, 2])
+            eta, stamps, frame = ms.trajectory_from_raw(data, self.pb.samples + 1,
+                                                        self.pb.eta_d[r, :, 2])
             if frame != ms.WORLD_FRAME:
                 raise ms.MalformedMessage(f"trajectory in frame {frame[:50]!r}")
             k, s0 = self.clock.decode(int(stamps[0]))
@@ -136,9 +138,9 @@ class MonitorNode(Node):
         for d in done:
             self.on_trial(d.trial, d.row)
 
-    def _on_diag(self, msg: String) -> None:
+    def _on_diag(self, msg: DiagnosticArray) -> None:
         try:
-            d = check_diagnostics(ms.msg_to_json(msg, ("node", "trial")))
+            d = check_diagnostics(ms.msg_to_report(msg, ("node", "trial")))
             name, k = d["node"], d["trial"]
             if name == "virtual_leader":
                 # the leader's own word (its watchdog's findings too, before trial 0 and

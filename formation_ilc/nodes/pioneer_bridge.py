@@ -68,12 +68,14 @@ import sys
 import time
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist, TwistStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from std_msgs.msg import String
 
 import msgs_schema as ms
+from formation_ilc.config import params
 from formation_ilc.config.bases import LIMIT_KEYS, base_preset
 from formation_ilc.core.clock import Rejected
 from formation_ilc.nodes.common import (
@@ -85,6 +87,7 @@ from formation_ilc.nodes.common import (
     robot_node_from_args,
     spin_main,
 )
+from formation_ilc.nodes.params import ParameterError, check, declare
 from formation_ilc.protocol.bridge import Bridge, CommandLimits, Returned, bridge_limits
 from formation_ilc.protocol.schedule import Ready
 from formation_ilc.protocol.wallclock import START_AHEAD_MAX
@@ -106,21 +109,15 @@ class BridgeNode(ConfiguredNode):
         if robot_id is None:
             for p in kwargs.get("parameter_overrides") or ():
                 if p.name == "robot_id":
-                    robot_id = int(p.value)
-        if robot_id is None or robot_id < 1:
-            raise ValueError("parameter robot_id: a robot number >= 1 is required "
-                             "(--ros-args -p robot_id:=I)")
+                    robot_id = p.value
+        if robot_id is None:
+            raise ParameterError("parameter robot_id: a robot number >= 1 is required "
+                                 "(--ros-args -p robot_id:=I)")
+        robot_id = int(check(params.BRIDGE[0], robot_id))
         super().__init__(ms.bridge_name(robot_id), **kwargs)
         self.id = int(robot_id)
         self.name = ms.bridge_name(self.id)
-        for name, default in (("robot_id", self.id), ("driver", "rosaria"), ("driver_ns", ""),
-                              ("cmd_type", "twist"), ("v_max", 0.0), ("omega_max", 0.0),
-                              ("cmd_timeout", 0.0), ("rate", 20.0), ("return_tol", 0.02),
-                              ("return_tol_heading", 2.0), ("return_timeout", 60.0),
-                              ("initial_pose", [0.0]), ("scenario", ""), ("mode", "wallclock"),
-                              ("base", ""), ("a_max", 0.0), ("alpha_max", 0.0),
-                              ("max_tilt", 10.0)):
-            self.declare_parameter(name, default)
+        declare(self, params.BRIDGE, robot_id=self.id)
         g = lambda name: self.get_parameter(name).value  # noqa: E731
         base = str(g("base")) or None
         preset = base_preset(base) if base else None
@@ -171,7 +168,7 @@ class BridgeNode(ConfiguredNode):
         self.pose_pub = self.create_publisher(PoseStamped, ms.pose_topic(self.id),
                                               ms.SAMPLE_QOS)
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         self.create_subscription(Twist, ms.cmd_vel_topic(self.id), self._on_cmd, ms.SAMPLE_QOS)
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
         cmd_t, odom_t, motors_t = self.driver_topics
@@ -325,14 +322,16 @@ class BridgeNode(ConfiguredNode):
         d: dict[str, Any] = {"node": self.name, "trial": trial, "driver": self.driver,
                              **self.core.report()}
         d.update(self.drops.as_dict())
-        self.diag_pub.publish(ms.json_to_msg(d))
+        self.diag_pub.publish(ms.diagnostics_to_msg(
+            d, self.get_clock().now().nanoseconds, self.cfg.scenario.dt,
+            self.cfg.scenario.samples, ms.robot_name(self.id)))
 
 
 def main(args: list[str] | None = None) -> int:
     parser = node_parser("formation-ilc-bridge", __doc__)
 
     def build(ns: Any, argv: list[str]) -> list[Node]:
-        return [robot_node_from_args(BridgeNode, argv, "formation-ilc-bridge")]
+        return [robot_node_from_args(BridgeNode, argv, "formation-ilc-bridge", "bridge")]
 
     return spin_main(build, parser, args)
 

@@ -21,6 +21,11 @@ once (everything is recorded all the same). Chunks are flushed every 0.5 s and a
 file loses the chunks it hits (``formation-ilc analyze`` reads on past them);
 ``formation-ilc mcap-repair`` writes a complete copy.
 
+It hosts the observer (``formation_ilc.nodes.observer``): from each measured pose it
+publishes and records the robot's desired pose, its tracking error and the markers, per
+trial the desired paths and the largest errors (``msgs_schema.view_topic_table``);
+``--no-view`` records without them.
+
   formation-ilc-record --output RUN.mcap [--ros-args ...]
 """
 
@@ -36,6 +41,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile
 from std_msgs.msg import String
@@ -44,14 +50,17 @@ import msgs_schema as ms
 from formation_ilc.core.clock import Rejected
 from formation_ilc.core.links import check_diagnostics
 from formation_ilc.nodes.common import DropCounter, RunConfig, node_parser, spin_main
+from formation_ilc.nodes.observer import Observer
+from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.schedule import Ready, TrialEvent
-from formation_ilc.recordings.mcap_io import CHUNK_BYTES, RosMcapWriter
+from formation_ilc.recordings.mcap_io import CHUNK_BYTES, RosMcapWriter, type_hash
 from formation_ilc.recordings.recording import META_NAME, qos_of
 from formation_ilc.system.exits import is_disk_full
 
 #: types whose CDR starts with a header stamp (int32 sec, uint32 nanosec) right after the
 #: 4-byte encapsulation: their publish time is that send label
-_STAMPED = {"geometry_msgs/msg/PoseStamped", "nav_msgs/msg/Path", "rosgraph_msgs/msg/Clock"}
+_STAMPED = {"geometry_msgs/msg/PoseStamped", "nav_msgs/msg/Path", "rosgraph_msgs/msg/Clock",
+            "geometry_msgs/msg/Vector3Stamped"}
 #: reader queue depth of the recorder's subscriptions [messages per topic]
 _READER_DEPTH = 20000
 #: niceness of the recorder: recording must not take CPU from the control loop
@@ -66,9 +75,10 @@ def _msg_class(type_name: str) -> Any:
 
 
 class RecorderNode(Node):
-    def __init__(self, output: Path, **kwargs: Any):
+    def __init__(self, output: Path, observe: bool = True, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(ms.RECORDER_NODE, **kwargs)
+        declare(self, ())  # no parameters of its own; use_sim_time refused
         self.output = Path(output)
         #: this process in its ready (the launcher's ``down`` names it by its pid)
         self.boot = f"{os.getpid()}"
@@ -87,7 +97,7 @@ class RecorderNode(Node):
         self.progress_topics: set[str] = set()  # what _progress reads (once configured)
         self.said_ready = False
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         self.paths: dict[int, set[str]] = {}  # slot -> topics of its trajectories recorded
         self.iteration_of: dict[int, int] = {}  # slot -> iteration (start events)
         self.aborted: set[int] = set()
@@ -96,6 +106,10 @@ class RecorderNode(Node):
         self.complete = -1
         self.truth = True
         self.robots: set[str] = set()
+        #: the view topics (desired poses, errors, markers) from the poses it records
+        self.observe = observe
+        self.observer: Observer | None = None
+        self.pose_topics: dict[str, int] = {}  # pose topic -> robot index
         self._subscribe(ms.CONFIG, "std_msgs/msg/String", ms.LATCHED_QOS)
         self.create_timer(0.5, self.writer.flush)  # idle periods too
         self._gate = self.create_timer(0.05, self._check_ready)
@@ -149,6 +163,36 @@ class RecorderNode(Node):
                 self._progress(topic, data, sent)
             except Rejected as exc:
                 self.drops.reject(exc, topic)
+        if self.observer is not None and (topic in self.pose_topics or
+                                          topic == ms.TRIAL_EVENTS):
+            self._observe(topic, data)
+
+    def _observe(self, topic: str, data: bytes) -> None:
+        """The observer's view of a pose or trial event; it never stops the recording."""
+        assert self.observer is not None
+        try:
+            if topic == ms.TRIAL_EVENTS:
+                self.observer.on_event(TrialEvent.from_json(ms.msg_to_json(
+                    ms.deserialize(data, String), ("event", "trial"))))
+            else:
+                self.observer.on_pose(self.pose_topics[topic], data)
+        except Rejected:
+            pass  # counted where the message is read for the run (or a pose: by its robot)
+        except Exception as exc:  # noqa: BLE001 - the view must not cost the recording
+            if is_disk_full(exc):
+                raise
+            self.unwritable["observer"] += 1
+            if self.unwritable["observer"] <= 3:
+                self.get_logger().error(f"observer: {exc!r}")
+
+    def _write_view(self, topic: str, data: bytes, stamp: int) -> None:
+        """Record a message the observer published (as rosbag2 would have received it)."""
+        name = self.names.get(topic)
+        if name is None:
+            name = self.names[topic] = self.resolve_topic_name(topic)
+            self.writer.channel(name, self.types[topic], qos_of(self.qos[topic]),
+                                type_hash(self.types[topic]))
+        self.writer.write(name, data, time.time_ns(), stamp)
 
     def _refute_down(self, data: bytes) -> None:
         """A ``down`` for this very process (the launcher says so only of a recorder that
@@ -207,8 +251,8 @@ class RecorderNode(Node):
             self._advance()
             return
         if topic == ms.DIAGNOSTICS:
-            d = check_diagnostics(ms.msg_to_json(ms.deserialize(data, String),
-                                                 ("node", "trial")))
+            d = check_diagnostics(ms.msg_to_report(ms.deserialize(data, DiagnosticArray),
+                                                   ("node", "trial")))
             name, k = d["node"], d["trial"]
             if name not in self.robots:
                 return
@@ -258,7 +302,7 @@ class RecorderNode(Node):
                  "file": str(self.output), "invalid_stamps": dict(self.invalid_stamps),
                  "unwritable": dict(self.unwritable)}
             d.update(self.drops.as_dict())
-            self.diag_pub.publish(ms.json_to_msg(d))
+            self.diag_pub.publish(ms.diagnostics_to_msg(d, self.get_clock().now().nanoseconds))
             k += 1
 
     def _configure(self, data: bytes) -> None:
@@ -279,6 +323,11 @@ class RecorderNode(Node):
         self.progress_topics = self.path_topics | {ms.DIAGNOSTICS, ms.TRIAL_EVENTS}
         # a plant's true state is optional in its contract
         self.optional = {ms.true_trajectory_topic(i + 1) for i in range(n)}
+        if self.observe:
+            self.pose_topics = {ms.pose_topic(i + 1): i for i in range(n)}
+            for topic, type_name, qos in ms.view_topic_table(n):
+                self.types[topic], self.qos[topic] = type_name, qos
+            self.observer = Observer(self, self.cfg, self._write_view)
 
     def _check_ready(self) -> None:
         if self.cfg is None or self.said_ready:
@@ -320,11 +369,14 @@ def _lower_priority() -> None:
 def main(args: list[str] | None = None) -> int:
     parser = node_parser("formation-ilc-record", __doc__)
     parser.add_argument("--output", "-o", type=Path, required=True, metavar="RUN.mcap")
+    parser.add_argument("--no-view", action="store_true",
+                        help="record only what the formation publishes: no desired poses, "
+                             "tracking errors or markers (formation_ilc.nodes.observer)")
     _lower_priority()
 
     def build(ns: Any, argv: list[str]) -> list[Node]:
         ns.output.parent.mkdir(parents=True, exist_ok=True)
-        return [RecorderNode(ns.output)]
+        return [RecorderNode(ns.output, observe=not ns.no_view)]
 
     return spin_main(build, parser, args)
 

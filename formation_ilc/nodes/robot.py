@@ -55,12 +55,14 @@ import sys
 from collections import Counter
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist
 from nav_msgs.msg import Path
 from rclpy.node import Node
 from std_msgs.msg import String
 
 import msgs_schema as ms
+from formation_ilc.config import params
 from formation_ilc.core.clock import Rejected
 from formation_ilc.core.links import LEADER
 from formation_ilc.model.simulate import Problem
@@ -74,10 +76,12 @@ from formation_ilc.nodes.common import (
     spin_main,
     warm_up,
 )
+from formation_ilc.nodes.params import ParameterError, check, declare
 from formation_ilc.protocol.learner import RobotLearner
 from formation_ilc.protocol.schedule import Follower
 from formation_ilc.store.memoryfile import MemoryFileError, load_memory
 from formation_ilc.store.robotstate import load_state, save_state, state_path
+from msgs_schema import wire
 
 #: realtime: how long [dT] a robot waits for its links after its pose
 LINK_WAIT = 0.75
@@ -92,23 +96,13 @@ class RobotNode(ConfiguredNode):
         if robot_id is None:
             for p in kwargs.get("parameter_overrides") or ():
                 if p.name == "robot_id":
-                    robot_id = int(p.value)
+                    robot_id = p.value
         if robot_id is None:
-            raise ValueError("parameter robot_id: a robot number >= 1 is required "
-                             "(--ros-args -p robot_id:=I)")
-        if robot_id < 1:
-            raise ValueError(f"parameter robot_id: a robot number >= 1 is required, "
-                             f"got {robot_id}")
+            raise ParameterError("parameter robot_id: a robot number >= 1 is required "
+                                 "(--ros-args -p robot_id:=I)")
+        robot_id = int(check(params.ROBOT[0], robot_id))
         super().__init__(ms.robot_name(robot_id), **kwargs)
-        self.declare_parameter("robot_id", int(robot_id))
-        self.declare_parameter("scenario", "")
-        self.declare_parameter("seed", -1)
-        self.declare_parameter("noise", True)
-        self.declare_parameter("delay", True)
-        self.declare_parameter("links", "emulated")
-        self.declare_parameter("mode", "lockstep")
-        self.declare_parameter("init_memory", "")
-        self.declare_parameter("state_dir", "")
+        declare(self, params.ROBOT, robot_id=robot_id)
         self.id = int(robot_id)
         self.name = ms.robot_name(self.id)
         self.ready_sent = -1
@@ -147,7 +141,6 @@ class RobotNode(ConfiguredNode):
                                        f"{st.iterations} trials learned")
         self.n_out = int(sum(1 for r in range(pb.n) if r != lrn.i and lrn.i in pb.src[r]))
         self.late: Counter[str] = Counter({"links": 0})
-        self.twist = Twist()
         warm_up(pb)
 
         self.cmd_pub = self.create_publisher(Twist, ms.cmd_vel_topic(self.id), ms.SAMPLE_QOS)
@@ -156,21 +149,22 @@ class RobotNode(ConfiguredNode):
         self.traj_pub = self.create_publisher(Path, ms.trajectory_topic(self.id),
                                               ms.TRAJECTORY_QOS)
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        self.diag_pub = self.create_publisher(String, ms.DIAGNOSTICS, ms.LATCHED_QOS)
-        self.create_subscription(PoseStamped, ms.pose_topic(self.id), self._on_pose,
-                                 ms.SAMPLE_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        # the per-sample messages as bytes (msgs_schema.wire: no message objects)
+        self.sample_subs = [self.create_subscription(
+            PoseStamped, ms.pose_topic(self.id), self._on_pose, ms.SAMPLE_QOS, raw=True)]
         for sender in lrn.slots:
             if cfg.links == "emulated":
-                # raw: a tick longer than one pose is refused before it is deserialized
-                self.create_subscription(Path, ms.link_topic(self.id, sender),
-                                         lambda m, s=sender: self._on_link_tick(m, s),
-                                         ms.SAMPLE_QOS, raw=True)
+                # a tick longer than one pose is refused before it is read
+                self.sample_subs.append(self.create_subscription(
+                    Path, ms.link_topic(self.id, sender),
+                    lambda m, s=sender: self._on_link_tick(m, s), ms.SAMPLE_QOS, raw=True))
             else:
                 topic = (ms.REFERENCE if sender == LEADER
                          else ms.shared_pose_topic(ms.robot_index(sender)))
-                self.create_subscription(PoseStamped, topic,
-                                         lambda m, s=sender: self._on_link_pose(m, s),
-                                         ms.SAMPLE_QOS)
+                self.sample_subs.append(self.create_subscription(
+                    PoseStamped, topic, lambda m, s=sender: self._on_link_pose(m, s),
+                    ms.SAMPLE_QOS, raw=True))
         for sender in lrn.neighbours:
             # raw: a trajectory longer than a trial is refused before it is deserialized
             self.create_subscription(Path, ms.trajectory_topic(ms.robot_index(sender)),
@@ -186,11 +180,13 @@ class RobotNode(ConfiguredNode):
                                f"{self.n_out} out-neighbours, {pb.samples} samples")
 
     def _check_ready(self) -> None:
-        """Ready for trial 0 once every publisher has its readers (nothing published before
-        a reader is matched can be lost)."""
+        """Ready for trial 0 once every publisher has its readers and every per-sample
+        subscription its writer (nothing published before both ends are matched can be
+        lost)."""
         shared_readers = self.n_out if self.cfg.links == "direct" else 1
         need = [(self.cmd_pub, 1), (self.shared_pub, shared_readers), (self.ready_pub, 1),
                 (self.traj_pub, self.n_out + int(self.cfg.monitored))]
+        need += [(sub, 1) for sub in self.sample_subs]
         if matched(need):
             self._gate.cancel()
             self._send_ready()
@@ -224,55 +220,62 @@ class RobotNode(ConfiguredNode):
             save_state(self.state_file, self.learner.state(), self.cfg.scenario, self.id)
 
     # ------------------------------------------------------------------ per sample
-    def _on_pose(self, msg: PoseStamped) -> None:
+    def _on_pose(self, msg: PoseStamped | bytes) -> None:
         lrn = self.learner
+        data = wire.as_bytes(msg)
         ns = -1
         try:
-            ns = ms.stamp_to_ns(msg.header.stamp)
-            eta, _ = ms.world_pose(msg, lrn.expected_heading(self.name, ns))
+            p = wire.read_pose(data)
+            ns = p.label_ns
+            eta = wire.world_eta(p, lrn.expected_heading(self.name, ns))
             ev = lrn.on_pose(ns, eta)
         except Rejected as exc:
             self.drops.reject(exc, "pose")
             if lrn.is_repeat(ns):
-                self._repeat(msg)
+                self._repeat(data)
             return
         if ev.last:
             if self.realtime:
                 self._deadline.cancel()
             self._finish_trial()
             return
-        self.shared_pub.publish(msg)  # the same bits, the same label St
+        # the same bits, the same label St; with direct links a robot without out-neighbours
+        # has no reader, and a publish costs more CPU than the rest of the sample
+        if self.shared_pub.get_subscription_count():
+            self.shared_pub.publish(data)
         if self.realtime:
             self._deadline.reset()
         self._maybe_command()
 
-    def _repeat(self, msg: PoseStamped) -> None:
+    def _repeat(self, data: bytes) -> None:
         """The plant sent the current sample again (lockstep; a command of it is still due):
         while this robot has not commanded it, its shared pose goes out again, the same
         bits (the links may have lost it). A command is never sent twice: ``cmd_vel`` carries
         no label, and a second copy reaching the plant after it moved on would be taken as
         the next sample's command."""
         if not self.learner.commanded:
-            self.shared_pub.publish(msg)
+            self.shared_pub.publish(data)
 
-    def _on_link_pose(self, msg: PoseStamped, sender: str) -> None:
+    def _on_link_pose(self, msg: PoseStamped | bytes, sender: str) -> None:
         topic = f"{sender}/shared_pose" if sender != LEADER else ms.REFERENCE
         try:
-            st = ms.stamp_to_ns(msg.header.stamp)
-            eta, _ = ms.world_pose(msg, self.learner.expected_heading(sender, st))
+            p = wire.read_pose(wire.as_bytes(msg))
+            st = p.label_ns
+            eta = wire.world_eta(p, self.learner.expected_heading(sender, st))
             self.learner.on_link_pose(sender, st, eta)
         except Rejected as exc:
             self.drops.reject(exc, topic)
             return
         self._maybe_command()
 
-    def _on_link_tick(self, data: bytes | Path, sender: str) -> None:
+    def _on_link_tick(self, msg: Path | bytes, sender: str) -> None:
         try:
-            tick, ps = ms.msg_to_link_tick(ms.path_from_raw(data, 1, "link tick"))
+            tick, ps = wire.read_link_tick(ms.within_path_limit(wire.as_bytes(msg), 1,
+                                                                "link tick"))
             pose = None
             if ps is not None:
-                st = ms.stamp_to_ns(ps.header.stamp)
-                eta, _ = ms.world_pose(ps, self.learner.expected_heading(sender, st))
+                st = ps.label_ns
+                eta = wire.world_eta(ps, self.learner.expected_heading(sender, st))
                 pose = (st, eta)
             self.learner.on_link_tick(sender, tick, pose)
         except Rejected as exc:
@@ -292,7 +295,7 @@ class RobotNode(ConfiguredNode):
 
     def _command(self) -> None:
         u = self.learner.command()
-        self.cmd_pub.publish(ms.u_to_twist(u, self.twist))
+        self.cmd_pub.publish(wire.twist_bytes(u))
         if self.realtime:
             self._deadline.cancel()
 
@@ -300,8 +303,8 @@ class RobotNode(ConfiguredNode):
     def _finish_trial(self) -> None:
         lrn = self.learner
         k, eta = lrn.finish_trial()
-        self.traj_pub.publish(ms.trajectory_to_path(eta, lrn.trajectory_stamps(k),
-                                                    ms.WORLD_FRAME))
+        # bytes (msgs_schema.wire): no T+1 message objects to build
+        self.traj_pub.publish(wire.path_bytes(eta, lrn.trajectory_stamps(k), ms.WORLD_FRAME))
         if lrn.try_learn():
             self._learned()
 
@@ -311,8 +314,8 @@ class RobotNode(ConfiguredNode):
         lrn = self.learner
         try:
             j = ms.robot_index(sender) - 1
-            msg = ms.path_from_raw(data, self.pb.samples + 1, "trajectory")
-            eta, stamps, frame = ms.path_to_trajectory(msg, self.pb.eta_d[j, :, 2])
+            eta, stamps, frame = ms.trajectory_from_raw(data, self.pb.samples + 1,
+                                                        self.pb.eta_d[j, :, 2])
             if frame != ms.WORLD_FRAME:
                 raise ms.MalformedMessage(f"trajectory in frame {frame!r}")
             learned = lrn.on_trajectory(sender, stamps, eta)
@@ -332,7 +335,9 @@ class RobotNode(ConfiguredNode):
         if self.realtime:
             d["late"] = dict(self.late)
         d.update(self.drops.as_dict())
-        self.diag_pub.publish(ms.json_to_msg(d))
+        self.diag_pub.publish(ms.diagnostics_to_msg(
+            d, self.get_clock().now().nanoseconds, self.cfg.scenario.dt, self.pb.samples,
+            self.name))
 
 
 def main(args: list[str] | None = None) -> int:

@@ -84,6 +84,12 @@ class KinematicPlant:
         self.realtime = cfg.mode == "realtime"
         n, n_t = pb.n, pb.samples
         self.n, self.T = n, n_t
+        #: the order to send the robots' poses of a sample in: first the robots whose pose
+        #: another robot waits for (the start of a lockstep sample's longest chains: pose,
+        #: shared pose, command), then the others
+        senders = {int(j) for j in pb.src.ravel() if j >= 0}
+        self.send_order = ([r for r in range(n) if r in senders]
+                           + [r for r in range(n) if r not in senders])
         self.xi = np.zeros((n, n_t + 1, 3))      # true states of the trial
         self.eta = np.zeros((n, n_t + 1, 3))     # measured outputs (true + noise)
         self.u = np.zeros((n, n_t, 2))           # applied inputs

@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = ["encode_path", "encode_pose_stamped", "encode_string", "encode_twist",
-           "encode_clock", "decode_path"]
+           "encode_clock", "encode_diagnostic_array", "decode_path"]
 
 _ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR_LE
 
@@ -108,6 +108,28 @@ def encode_string(text: str) -> bytes:
     """std_msgs/msg/String."""
     buf = bytearray(_ENCAPSULATION)
     _string(buf, text)
+    return bytes(buf)
+
+
+def encode_diagnostic_array(stamp_ns: int, statuses: list[tuple[int, str, str, str,
+                                                                list[tuple[str, str]]]]
+                            ) -> bytes:
+    """diagnostic_msgs/msg/DiagnosticArray of (level, name, message, hardware_id, [(key,
+    value)]) statuses, the frame empty."""
+    buf = bytearray(_ENCAPSULATION)
+    buf += struct.pack("<iI", *_sec_nsec(stamp_ns))
+    _string(buf, "")
+    _align(buf, 4)
+    buf += struct.pack("<I", len(statuses))
+    for level, name, message, hardware_id, values in statuses:
+        buf += bytes([level])
+        for text in (name, message, hardware_id):
+            _string(buf, text)
+        _align(buf, 4)
+        buf += struct.pack("<I", len(values))
+        for key, value in values:
+            _string(buf, key)
+            _string(buf, value)
     return bytes(buf)
 
 

@@ -31,6 +31,7 @@ from formation_ilc.core.clock import Rejected
 from formation_ilc.core.links import check_diagnostics, delivered_label, link_histograms
 from formation_ilc.core.metrics import METRIC_COLUMNS
 from formation_ilc.model.simulate import Problem
+from formation_ilc.protocol.health import flatten, statuses
 from formation_ilc.protocol.schedule import TrialEvent
 from formation_ilc.protocol.trialrows import SlotRows
 from formation_ilc.recordings import cdr
@@ -138,8 +139,10 @@ class SimRecorder:
                         cdr.encode_path(eta[r], stamps, ms.WORLD_FRAME, t_end), t_end)
             hist = {sender: {str(a): b for a, b in sorted(c.items())}
                     for sender, c in self.delays[r].items()}
-            self._json(ms.DIAGNOSTICS, {"node": self.names[r], "trial": k, "delays": hist,
-                                        "dropped": {}}, t_end)
+            report = {"node": self.names[r], "trial": k, "delays": hist, "dropped": {}}
+            self._write(ms.DIAGNOSTICS, cdr.encode_diagnostic_array(t_end, [
+                (st.level, st.name, st.message, st.hardware_id, flatten(st.values))
+                for st in statuses(report, pb.dt, n_t, self.names[r])]), t_end)
 
     def close(self) -> None:
         self.w.close()
@@ -298,11 +301,12 @@ class _RunReader:
     kept trajectories, the last diagnostics of each node, and what was skipped."""
 
     def __init__(self, keep: Callable[[int, int], bool] | None):
+        from diagnostic_msgs.msg import DiagnosticArray
         from std_msgs.msg import String
 
         import msgs_schema as ms
 
-        self.ms, self.String = ms, String
+        self.ms, self.String, self.DiagnosticArray = ms, String, DiagnosticArray
         self.keep = keep
         self.parts: list[tuple[Path, ReadReport]] = []
         self.config: dict[str, Any] | None = None
@@ -393,7 +397,8 @@ class _RunReader:
             self.events.append(d)
             self.kept(slots.event(ev))
         elif m.topic == self.diag_topic:
-            dg = check_diagnostics(self.text(m, ("node", "trial")))
+            dg = check_diagnostics(self.ms.msg_to_report(
+                self.ms.deserialize(m.data, self.DiagnosticArray), ("node", "trial")))
             self.diags[dg["node"]] = dg
         elif m.topic in self.traj_topic:
             r, is_true = self.traj_topic[m.topic]

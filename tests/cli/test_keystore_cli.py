@@ -32,6 +32,17 @@ def test_the_pure_names_are_msgs_schemas():
         assert getattr(got, f)(7) == getattr(ref, f)(7), f
     assert got.link(2, "leader") == ref.link(2, "leader")
     assert list(got.recorded(3)) == list(ref.recorded(3))
+    assert list(got.view(3)) == [t for t, _, _ in ms.view_topic_table(3)]
+
+
+def test_the_live_view_reads_everything_and_commands_nothing():
+    sc = load_scenario("paper-triangle3")
+    grants = ks_cli.grants_for(sc, ms.NAMESPACE)
+    live, rec = grants["/formation/liveview"], grants["/formation/recorder"]
+    view = {f"/formation/{t}" for t, _, _ in ms.view_topic_table(sc.n)}
+    assert set(live.publish) == view and view <= set(rec.publish)
+    assert set(rec.subscribe) <= set(live.subscribe)
+    assert not any("cmd_vel" in t or "trial_events" in t for t in live.publish)
 
 
 def test_clock_follows_the_launchers_remapping():

@@ -312,3 +312,43 @@ def test_a_node_that_refuses_is_not_started_again(tmp_path, capsys):
     finally:
         sup.stop()
     assert "error: node process p1 exited with status 2 (log: " in capsys.readouterr().err
+
+
+def test_live_plans_a_bridge_on_localhost_and_refuses_a_taken_port(tmp_path):
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    # the view topics come from the bridge itself when nothing records
+    plan = plan_of(tmp_path, "paper-triangle3", "--live", str(port))
+    live = [n for n in plan.nodes if n.name == "liveview"]
+    assert len(live) == 1 and live[0].module == "formation_ilc.nodes.liveview"
+    assert live[0].args == ("--host", "127.0.0.1", "--port", str(port), "--observe")
+    assert "liveview" not in plan.team.expected  # the run never waits for a viewer
+    # ... and from the recorder when it records
+    plan = plan_of(tmp_path, "paper-triangle3", "--live", str(port), "--record",
+                   str(tmp_path / "r.mcap"), out="rec")
+    live = [n for n in plan.nodes if n.name == "liveview"]
+    assert "--observe" not in live[0].args
+    assert options("paper-triangle3", "--live").live == 8765  # the default port
+    assert all(n.name != "liveview" for n in plan_of(tmp_path, "paper-triangle3",
+                                                     out="none").nodes)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", port))
+        s.listen()
+        r = refusal(tmp_path, "paper-triangle3", "--live", str(port))
+    assert r.status == 2 and f"--live {port}: cannot serve on 127.0.0.1:{port}" in r.message
+
+
+def test_the_callers_ros_domain_id_is_honoured(tmp_path, monkeypatch):
+    monkeypatch.setenv("ROS_DOMAIN_ID", "7")
+    assert plan_of(tmp_path, "paper-triangle3", "--trials", "2", out="a").domain == 7
+    # --domain-id still wins; without either a free-looking one is picked
+    assert plan_of(tmp_path, "paper-triangle3", "--trials", "2",
+                   "--domain-id", "42", out="b").domain == 42
+    monkeypatch.delenv("ROS_DOMAIN_ID")
+    assert 30 <= plan_of(tmp_path, "paper-triangle3", "--trials", "2", out="c").domain <= 100
+    monkeypatch.setenv("ROS_DOMAIN_ID", "abc")
+    with pytest.raises(NoRun, match="ROS_DOMAIN_ID='abc': a domain id 0..232 is required"):
+        plan_of(tmp_path, "paper-triangle3", "--trials", "2", out="d")

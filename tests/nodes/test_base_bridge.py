@@ -119,6 +119,7 @@ def test_unknown_base_is_refused(context):
 
     params = [Parameter("robot_id", value=1), Parameter("scenario", value="paper-triangle3"),
               Parameter("base", value="roomba")]
-    with pytest.raises(ValueError, match="no base preset 'roomba'"):
+    with pytest.raises(ValueError, match="parameter base: one of '', turtlebot3, "
+                       ".*; got 'roomba'"):
         BridgeNode(context=context, parameter_overrides=params)
 

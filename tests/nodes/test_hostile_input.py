@@ -23,6 +23,7 @@ pytestmark = pytest.mark.ros
 
 rclpy = pytest.importorskip("rclpy")
 from builtin_interfaces.msg import Time  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
 from geometry_msgs.msg import PoseStamped, Twist  # noqa: E402
 from hypothesis import example, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
@@ -181,12 +182,21 @@ hist = st.one_of(
                                     st.one_of(st.integers(-1, 9), st.text(max_size=2)),
                                     max_size=2), max_size=2),
     json_values)
-diags = jsons(st.fixed_dictionaries(
+_reports = st.fixed_dictionaries(
     {"node": st.sampled_from(["robot_1", "robot_2", "robot_sim", "recorder", 5]),
      "trial": trial_values},
     optional={"delays": hist, "injected": hist, "dropped": json_values,
               "timing": st.dictionaries(st.text(max_size=4), json_values, max_size=2),
-              "missed": json_values}))
+              "missed": json_values})
+#: DiagnosticArrays: a report as the nodes send it (its fields varied), or statuses whose
+#: key/value pairs are junk (not JSON, keys that nest under values, no node)
+diags = st.one_of(
+    _reports.map(lambda d: ms.diagnostics_to_msg(d, 0)),
+    _reports.map(lambda d: ms.diagnostics_to_msg(d, 0)),
+    st.lists(st.tuples(st.sampled_from(["node", "trial", "trial.x", "delays", "x"]),
+                       st.text(max_size=12)), max_size=4).map(
+        lambda kv: DiagnosticArray(status=[DiagnosticStatus(
+            name="x", values=[KeyValue(key=k, value=v) for k, v in kv])])))
 twists = st.builds(
     lambda v, w, other: ms.u_to_twist((v, w)) if not other else
     Twist(linear=ms.u_to_twist((v, w)).linear,
@@ -350,7 +360,9 @@ def test_a_negative_stamp_is_recorded_and_counted_not_fatal(context, executor, t
     t0 = time.time_ns()
     for m in (good, neg, bytes(raw), good):
         pose.publish(m)
-    spin_until(ex, lambda: rec.writer.count >= 5)  # the config and the four poses
+    # the config, the four poses, and the observer's desired pose and error of the two
+    # valid ones (the invalid stamps are no sample: nothing observed)
+    spin_until(ex, lambda: rec.writer.count >= 9)
     assert rec.invalid_stamps[ms.pose_topic(1)] == 2
     rec.destroy_node()
     report = ReadReport()
@@ -360,6 +372,8 @@ def test_a_negative_stamp_is_recorded_and_counted_not_fatal(context, executor, t
     for m in msgs[1:3]:  # invalid stamps: logged with the receive time
         assert m.publish_time == m.log_time >= t0
     assert bytes(msgs[2].data) == bytes(raw)  # recorded as received
+    errors = [m for m in read_messages(out) if m.topic.endswith("robot_1/tracking_error")]
+    assert [m.publish_time for m in errors] == [CLOCK.stamp_ns(0, 3)] * 2
 
 
 # --------------------------------------------------------------------------- properties
@@ -602,8 +616,9 @@ def test_fuzz_monitor_handlers(context):
         @FUZZ
         @example(msg=_path(1), true=False)
         @example(msg=_path(2), true=True)
-        @example(msg=ms.json_to_msg({"node": "robot_2", "trial": 1, "delays": {}}), true=False)
-        @example(msg=ms.json_to_msg({"node": "robot_2", "trial": 2}), true=False)
+        @example(msg=ms.diagnostics_to_msg({"node": "robot_2", "trial": 1, "delays": {}}, 0),
+                 true=False)
+        @example(msg=ms.diagnostics_to_msg({"node": "robot_2", "trial": 2}, 0), true=False)
         @example(msg=ms.json_to_msg({"event": "end", "trial": 1}), true=False)
         @given(msg=st.one_of(paths(robot=0), diags, events), true=st.booleans())
         def prop(msg, true):
@@ -622,7 +637,7 @@ def test_fuzz_monitor_handlers(context):
             else:
                 diag = mon.diagnostics["robot_1"]
                 n_events = len(mon.events)
-                (mon._on_diag if "node" in msg.data else mon._on_event)(msg)
+                (mon._on_diag if isinstance(msg, DiagnosticArray) else mon._on_event)(msg)
                 taken = (len(mon.events) != n_events or mon.diagnostics["robot_1"] is not diag
                          or len(mon.diagnostics) > 1)
                 assert sl.started in (1, 2)

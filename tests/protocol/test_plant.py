@@ -193,3 +193,12 @@ def test_realtime_holds_missed_commands_and_counts_them():
 def test_the_simulator_refuses_wallclock():
     with pytest.raises(ValueError, match="wallclock"):
         KinematicPlant(make_config("paper-triangle3", links="direct", mode="wallclock"))
+
+
+def test_the_poses_others_wait_for_are_sent_first():
+    plant = KinematicPlant(make_config("paper-hexagon6"))
+    senders = {int(j) for j in plant.pb.src.ravel() if j >= 0}
+    k = len(senders)
+    assert 0 < k < plant.n
+    assert sorted(plant.send_order) == list(range(plant.n))
+    assert set(plant.send_order[:k]) == senders

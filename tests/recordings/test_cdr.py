@@ -48,3 +48,21 @@ def test_small_messages_equal_rclpy():
     ps = ms.pose_to_msg((1.0, -2.0, 0.0), 42, "robot_2")
     same(cdr.encode_pose_stamped(np.array([1.0, -2.0, 0.0]), 42, "robot_2"),
          serialize_message(ps), PoseStamped)
+
+
+@pytest.mark.parametrize("report", [
+    {"node": "robot_sim", "trial": 3, "missed": {"robot_1": 0, "robot_2": 4}, "dropped": {}},
+    {"node": "robot_1", "trial": 0, "delays": {"leader": {"0": 5, "2": 1}}, "note": "ä"},
+])
+def test_diagnostic_array_equals_rclpy(report):
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from formation_ilc.protocol.health import flatten, statuses
+
+    ours = cdr.encode_diagnostic_array(1_700_000_000_123_456_789, [
+        (s.level, s.name, s.message, s.hardware_id, flatten(s.values))
+        for s in statuses(report, 0.1, 40, "robot_1")])
+    theirs = serialize_message(ms.diagnostics_to_msg(report, 1_700_000_000_123_456_789, 0.1,
+                                                     40, "robot_1"))
+    same(ours, theirs, DiagnosticArray)
+    assert ms.msg_to_report(deserialize_message(ours, DiagnosticArray)) == report

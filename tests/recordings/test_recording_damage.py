@@ -27,6 +27,7 @@ from formation_ilc.cli import main  # noqa: E402
 from formation_ilc.config.runconfig import RunConfig  # noqa: E402
 from formation_ilc.config.scenario import load_scenario  # noqa: E402
 from formation_ilc.model.simulate import simulate  # noqa: E402
+from formation_ilc.protocol.health import flatten  # noqa: E402
 from formation_ilc.recordings import cdr  # noqa: E402
 from formation_ilc.recordings.mcap_io import (  # noqa: E402
     ReadReport,
@@ -95,13 +96,14 @@ def corrupt(src: Path, dst: Path, at: int, size: int = 64, seed: int = 1) -> Non
 # --------------------------------------------------------------------------- junk inside
 
 def test_junk_messages_are_skipped_and_counted_not_fatal(tmp_path, capsys):
-    """Reported: one junk JSON string on /formation/diagnostics made analyze fail with a
+    """Reported: one junk message on /formation/diagnostics made analyze fail with a
     traceback. Junk of every analysed kind is now skipped and counted per topic."""
     def junk(rec: SimRecorder) -> None:
         t = 10**12
         rec.w.write(rec.full[ms.DIAGNOSTICS], cdr.encode_string("{junk"), t, t)
-        rec.w.write(rec.full[ms.DIAGNOSTICS], cdr.encode_string(
-            '{"node": "robot_1", "trial": 0, "delays": {"leader": {"x": "y"}}}'), t, t)
+        rec.w.write(rec.full[ms.DIAGNOSTICS], cdr.encode_diagnostic_array(t, [
+            (0, "robot_1", "", "", flatten({"node": "robot_1", "trial": 0,
+                                            "delays": {"leader": {"x": "y"}}}))]), t, t)
         rec.w.write(rec.full[ms.TRIAL_EVENTS], cdr.encode_string("[1, 2"), t, t)
         rec.w.write(rec.full[ms.TRIAL_EVENTS], b"\x00\x01\x00\x00\xff\xff", t, t)
         pb = rec.pb

@@ -16,7 +16,7 @@ import pytest
 pytest.importorskip("pybullet", reason="the physics extra: pip install -e .[physics]")
 pytest.importorskip("mcap_ros2")
 
-from std_msgs.msg import String  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 
 import msgs_schema as ms  # noqa: E402
 from formation_ilc.config.bases import BASES  # noqa: E402
@@ -58,7 +58,7 @@ def test_too_fast_for_the_base_is_refused_then_runs_stretched(ros_env, tmp_path)
         assert b["limits"][0] == TB4.v_max and 0 < b["tilt_max_deg"] < 10.0
     # what the bases were asked, as recorded: never beyond the limits (accelerations on the
     # commands' stamps, which the bridge limits on)
-    diags = [ms.msg_to_json(ms.deserialize(m.data, String), ("node",))
+    diags = [ms.msg_to_report(ms.deserialize(m.data, DiagnosticArray), ("node",))
              for m in read_messages(rec, {"/formation/diagnostics"})]
     bases = [d for d in diags if d["node"] == "physics_bases"]
     assert bases, "the physics bases' diagnostics are in the recording"

@@ -1,0 +1,103 @@
+"""The observer: what the formation should be, next to what it does, on topics.
+
+Not a node of its own: the recorder hosts it (``formation_ilc.nodes.recorder``), or the live
+view's bridge when nothing records (``formation_ilc.nodes.liveview``), since both already
+take every measured pose. Per measured pose it publishes the robot's desired pose and its
+tracking error, at a marker sample (``protocol.view.marker_every``) once the whole team's
+poses are in the 3D view's markers; at a trial's start each robot's desired path (latched);
+once a trial's every pose is in, each robot's largest errors of the trial
+(``msgs_schema.view_topic_table``; the numbers from ``formation_ilc.protocol.view``). Every
+message is serialized once, published as those bytes and handed to ``sink`` (the recorder
+writes it into its file, the bridge to its viewers): the robots and the plant are untouched
+and no sample waits for it.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from typing import Any
+
+from rclpy.node import Node
+from rclpy.serialization import serialize_message
+
+import msgs_schema as ms
+from formation_ilc.config.runconfig import RunConfig
+from formation_ilc.protocol.schedule import TrialEvent
+from formation_ilc.protocol.view import TrackingView, graph_links, marker_every, outline_order
+
+#: sink(relative topic, CDR bytes, send label [ns]) of every message the observer publishes
+Sink = Callable[[str, bytes, int], None]
+
+
+def msg_class(type_name: str) -> Any:
+    """The message class of ``pkg/msg/Name``."""
+    pkg, _, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{pkg}.msg"), name)
+
+
+class Observer:
+    """Publishes the view topics of a run (``cfg``) on ``node``; see the module doc."""
+
+    def __init__(self, node: Node, cfg: RunConfig, sink: Sink | None = None):
+        sc = cfg.scenario
+        self.cfg, self.clock, self.sink = cfg, cfg.clock, sink
+        eta_d = sc.desired.eta
+        self.view = TrackingView(eta_d, marker_every(sc.dt))
+        self.outline = outline_order(eta_d[:, 0])
+        src, _ = sc.graph.in_links()
+        self.links = graph_links(src)
+        self.pubs: dict[str, Any] = {}
+        for topic, type_name, qos in ms.view_topic_table(sc.n):
+            self.pubs[topic] = node.create_publisher(msg_class(type_name), topic, qos)
+        self.iteration_of: dict[int, int] = {}
+        # CDR templates: the desired pose of every robot and sample, an error message
+        self._desired = [[serialize_message(ms.pose_to_msg(eta_d[r, s], 0, ms.WORLD_FRAME))
+                          for s in range(eta_d.shape[1])] for r in range(sc.n)]
+        self._error = serialize_message(ms.vector_msg(0, 0.0, 0.0))
+
+    def _send(self, topic: str, data: bytes, stamp_ns: int) -> None:
+        self.pubs[topic].publish(data)
+        if self.sink is not None:
+            self.sink(topic, data, stamp_ns)
+
+    def _emit(self, topic: str, msg: Any, stamp_ns: int) -> None:
+        self._send(topic, serialize_message(msg), stamp_ns)
+
+    def on_event(self, ev: TrialEvent) -> None:
+        """A trial event: a start publishes the desired paths; an abort forgets the slot."""
+        if ev.event == ms.START:
+            self.iteration_of[ev.slot] = ev.trial
+            stamps = [self.clock.stamp_ns(ev.slot, s) for s in range(self.view.samples + 1)]
+            for r in range(self.view.n):
+                path = ms.trajectory_to_path(self.view.eta_d[r], stamps, ms.WORLD_FRAME)
+                self._emit(ms.desired_path_topic(r + 1), path, stamps[0])
+        elif ev.event == ms.ABORT:
+            self.view.forget(ev.slot)
+
+    def on_pose(self, r: int, data: bytes) -> None:
+        """Robot r's (0-based) measured pose, as received (CDR); MalformedMessage (a
+        Rejected) if it is not a world pose of a sample."""
+        eta, stamp = ms.world_pose_cdr(bytes(data))
+        slot, s = self.clock.decode(stamp)
+        pos, head = self.view.observe(slot, r, s, eta)
+        i = r + 1
+        self._send(ms.desired_pose_topic(i), ms.stamped_cdr(self._desired[r][s], stamp), stamp)
+        self._send(ms.tracking_error_topic(i), ms.vector_cdr(self._error, stamp, pos, head, 0.0),
+                   stamp)
+        team = self.view.position(slot, r, s, eta)
+        if team is not None:
+            self._emit(ms.MARKERS, ms.markers_msg(stamp, self.view.eta_d[:, s, :2],
+                                                  self.outline, self.links, team), stamp)
+        if s == self.view.samples:
+            self._trial_end(slot, stamp)
+
+    def _trial_end(self, slot: int, stamp: int) -> None:
+        peaks = self.view.trial_peaks(slot)
+        if peaks is None:
+            return
+        trial = self.iteration_of.get(slot, slot)
+        for r, pk in enumerate(peaks):
+            self._emit(ms.trial_error_topic(r + 1),
+                       ms.vector_msg(stamp, pk.position, pk.heading, float(trial)), stamp)
+        self.view.forget(slot)

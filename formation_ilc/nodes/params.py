@@ -1,0 +1,145 @@
+"""ROS parameters the ROS way: descriptors, read-only, one-line refusals.
+
+A node declares its table of ``formation_ilc.config.params.Param`` with ``declare``: each
+parameter gets a descriptor (description with unit and range, an integer or floating-point
+range, read-only), and its value, from ``-p`` or a ``--params-file`` YAML (node-keyed or
+``/**``), is checked before it is declared: a wrong type, a value out of range or not among
+the choices is a ``ParameterError`` naming the parameter in one line, which ``spin_main``
+prints before it exits with status 2. Every parameter is read-only once declared
+(``ros2 param set`` is refused with rclpy's reason), and ``use_sim_time`` true is refused
+at start and at run time: the stack keeps its own time (see docs/ros-tools.md).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from formation_ilc.config.params import BIG, Param, describe
+
+__all__ = ["ParameterError", "declare", "probe_overrides", "SIM_TIME_REFUSED"]
+
+SIM_TIME_REFUSED = ("use_sim_time is not supported: the stack keeps its own time (lockstep "
+                    "labels on /clock are read as messages, wallclock is the system clock)")
+
+
+class ParameterError(ValueError):
+    """A parameter no run can have: one line naming it (status 2)."""
+
+
+def _kind(default: Any) -> str:
+    if isinstance(default, bool):
+        return "true or false"
+    if isinstance(default, int):
+        return "an integer"
+    if isinstance(default, float):
+        return "a number"
+    if isinstance(default, list):
+        return ("a list of strings" if default and isinstance(default[0], str)
+                else "a list of numbers")
+    return "a string"
+
+
+def _coerce(p: Param, value: Any) -> Any:
+    """``value`` as the parameter's type (an integer where a number is expected is taken),
+    or ParameterError."""
+    d = p.default
+    ok: bool
+    if isinstance(d, bool):
+        ok = isinstance(value, bool)
+    elif isinstance(d, int):
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif isinstance(d, float):
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if ok:
+            value = float(value)
+    elif isinstance(d, list):
+        want = str if d and isinstance(d[0], str) else float
+        items = list(value) if isinstance(value, (list, tuple)) else None
+        ok = items is not None and all(
+            isinstance(v, want) or (want is float and isinstance(v, int)
+                                    and not isinstance(v, bool)) for v in items)
+        if ok and items is not None:
+            value = [want(v) for v in items]
+    else:
+        ok = isinstance(value, str)
+    if not ok:
+        raise ParameterError(f"parameter {p.name}: expected {_kind(d)}, got {value!r}"[:300])
+    return value
+
+
+def check(p: Param, value: Any) -> Any:
+    """The value ``p`` takes for ``value``, or ParameterError: type, range, choices."""
+    value = _coerce(p, value)
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        lo = p.lo if p.lo is not None else -math.inf
+        hi = p.hi if p.hi is not None else math.inf
+        if not (lo <= value <= hi):
+            shown = "inf" if hi >= BIG else f"{hi:g}"
+            raise ParameterError(f"parameter {p.name}: {value} is outside {lo:g} .. {shown} "
+                                 f"({p.description})")
+    why = p.check(value)
+    if why is not None:
+        raise ParameterError(f"parameter {p.name}: {why}")
+    return value
+
+
+def descriptor(p: Param) -> ParameterDescriptor:
+    d = ParameterDescriptor(name=p.name, description=describe(p), read_only=True)
+    if p.choices:
+        d.additional_constraints = f"one of: {', '.join(p.choices)}"
+    if isinstance(p.default, int) and not isinstance(p.default, bool):
+        d.integer_range = [IntegerRange(from_value=int(p.lo if p.lo is not None else -BIG),
+                                        to_value=int(p.hi if p.hi is not None else BIG))]
+    elif isinstance(p.default, float) and (p.lo is not None or p.hi is not None):
+        d.floating_point_range = [FloatingPointRange(
+            from_value=float(p.lo if p.lo is not None else -1e300),
+            to_value=float(p.hi if p.hi is not None else 1e300))]
+    return d
+
+
+def declare(node: Node, table: tuple[Param, ...] | list[Param], **given: Any) -> None:
+    """Declare ``table`` on ``node`` (read-only, with descriptors); ``given`` values win over
+    overrides (the container mode's robot_id). ParameterError for a bad value or a
+    ``use_sim_time`` true."""
+    if node.get_parameter("use_sim_time").value:
+        raise ParameterError(f"parameter {SIM_TIME_REFUSED}")
+    overrides = node._parameter_overrides  # -p and --params-file, as rcl matched them
+    for p in table:
+        if p.name in given:
+            value = check(p, given[p.name])
+        elif p.name in overrides:
+            value = check(p, overrides[p.name].value)
+        else:
+            value = p.default
+        node.declare_parameter(p.name, value, descriptor(p), ignore_override=True)
+    node.add_on_set_parameters_callback(_refuse_sim_time)
+
+
+def _refuse_sim_time(params: list[Parameter]) -> SetParametersResult:
+    for p in params:
+        if p.name == "use_sim_time" and p.value:
+            return SetParametersResult(successful=False, reason=SIM_TIME_REFUSED)
+    return SetParametersResult(successful=True)
+
+
+def probe_overrides(name: str, namespace: str, **kwargs: Any) -> dict[str, Any]:
+    """The parameter values (``-p`` and ``--params-file``) a node named ``name`` in
+    ``namespace`` would get, before that node exists: a node whose name follows a
+    parameter (robot_id) needs it first. A short-lived node without services or rosout;
+    remappings of the node's name and namespace apply to it as to the real one."""
+    probe = Node(name, namespace=namespace, enable_rosout=False,
+                 start_parameter_services=False, **kwargs)
+    try:
+        return {k: p.value for k, p in probe._parameter_overrides.items()}
+    finally:
+        probe.destroy_node()

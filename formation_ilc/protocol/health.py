@@ -1,0 +1,161 @@
+"""A node's diagnostics as standard statuses: OK, WARN or ERROR by documented thresholds,
+and its fields as key/value pairs, without loss (free of ROS; msgs_schema packs them into
+``diagnostic_msgs/DiagnosticArray``).
+
+Each node's report (the dict it always made: ``node``, ``trial``, counters, histograms) is
+one status named after the node; its fields are flattened to pairs, nested keys joined by
+``.`` and every value JSON text (``unflatten`` gives the report back). The plant adds one
+status per robot (``robot_sim: robot_2``, hardware ``robot_2``) with that robot's missed
+samples, so a robot that cannot speak for itself (stopped, crashed) still turns WARN.
+
+Thresholds (docs/ros-tools.md lists them for users):
+
+* missed samples in the trial (a robot's own count since start, the plant's per robot in
+  the trial, a bridge's): any is WARN; more than ``MISSED_ERROR`` of the trial's samples
+  is ERROR.
+* dropped messages: ``malformed`` or ``foreign`` (junk, another run on the domain) are WARN;
+  the other reasons (stale, duplicate, out of order, future, unexpected) are how the
+  protocol rejects re-sends and restarts, counted and OK.
+* late links (realtime: a robot commanded without every link; the link emulator delivered
+  after its deadline): WARN.
+* measured delay percentiles (the plant's command latency after the tick, realtime): p99
+  above ``LATENCY_WARN`` dT is WARN, above dT ERROR (a command missed its sample).
+* command clipping and return time-outs of a bridge: WARN.
+* the leader's watchdog finding (a phase past its bound): WARN.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+__all__ = ["OK", "WARN", "ERROR", "Status", "flatten", "unflatten", "assess", "statuses",
+           "MISSED_ERROR", "LATENCY_WARN", "WARN_DROPS"]
+
+OK, WARN, ERROR = 0, 1, 2
+LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR"}
+#: the share of a trial's samples missed above which a status is ERROR
+MISSED_ERROR = 0.10
+#: [dT] the p99 command latency above which the plant's status is WARN
+LATENCY_WARN = 0.5
+#: drop reasons that turn a status to WARN
+WARN_DROPS = ("malformed", "foreign")
+_SEP = "."
+
+
+@dataclass
+class Status:
+    """One status: level, name, summary, hardware and the fields (a report, nested)."""
+
+    level: int
+    name: str
+    message: str
+    hardware_id: str = ""
+    values: dict[str, Any] = field(default_factory=dict)
+
+
+def flatten(d: Mapping[str, Any], prefix: str = "") -> list[tuple[str, str]]:
+    """Key/value text pairs of a nested report: keys joined by '.', values JSON (an empty
+    mapping is kept as ``{}``)."""
+    out: list[tuple[str, str]] = []
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, Mapping) and v:
+            out += flatten(v, key + _SEP)
+        else:
+            out.append((key, json.dumps(v, separators=(",", ":"))))
+    return out
+
+
+def unflatten(pairs: Iterable[tuple[str, str]]) -> dict[str, Any]:
+    """The report of ``flatten``'s pairs; ValueError for a value that is not JSON or two
+    pairs that disagree on a key's nesting."""
+    out: dict[str, Any] = {}
+    for key, text in pairs:
+        value = json.loads(text)
+        *path, last = key.split(_SEP)
+        node = out
+        for part in path:
+            node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise ValueError(f"key {key!r} nests under a value")
+        if isinstance(node.get(last), dict) and node[last]:
+            raise ValueError(f"key {key!r} is also a mapping")
+        node[last] = value
+    return out
+
+
+def _num(v: Any) -> float:
+    return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else 0.0
+
+
+def _missed(count: float, samples: int | None, who: str) -> tuple[int, str] | None:
+    if count <= 0:
+        return None
+    if samples and count > MISSED_ERROR * samples:
+        return ERROR, f"{who}{count:g} samples missed (> {MISSED_ERROR:.0%} of {samples})"
+    return WARN, f"{who}{count:g} samples missed"
+
+
+def assess(d: Mapping[str, Any], dt: float | None = None, samples: int | None = None
+           ) -> tuple[int, str]:
+    """The level of a node's report and why (the worst finding), by the thresholds above;
+    ``dt`` [s] and ``samples`` (per trial) make the relative ones."""
+    found: list[tuple[int, str]] = []
+    missed = d.get("missed")
+    if isinstance(missed, Mapping):
+        total = sum(_num(v) for v in missed.values())
+        worst = max((_num(v) for v in missed.values()), default=0.0)
+        hit = _missed(worst, samples, "")
+        if hit is not None:
+            who = ", ".join(f"{k} {_num(v):g}" for k, v in missed.items() if _num(v) > 0)
+            found.append((hit[0], f"{total:g} samples missed ({who})"))
+    else:
+        hit = _missed(_num(missed), None, "")
+        if hit is not None:
+            found.append(hit)
+    dropped = d.get("dropped")
+    for reason in WARN_DROPS:
+        n = _num(dropped.get(reason)) if isinstance(dropped, Mapping) else 0.0
+        if n > 0:
+            found.append((WARN, f"{n:g} {reason} messages dropped"))
+    late = d.get("late")
+    late_n = sum(_num(v) for v in late.values()) if isinstance(late, Mapping) else 0.0
+    if late_n > 0:
+        found.append((WARN, f"{late_n:g} late links"))
+    timing = d.get("timing")
+    if isinstance(timing, Mapping) and dt and "commands" in timing:
+        p99 = _num(timing.get("p99_ms")) / 1e3
+        if p99 > dt:
+            found.append((ERROR, f"command latency p99 {p99 * 1e3:.0f} ms > dT"))
+        elif p99 > LATENCY_WARN * dt:
+            found.append((WARN, f"command latency p99 {p99 * 1e3:.0f} ms > "
+                                f"{LATENCY_WARN:g} dT"))
+    for key, what in (("clipped", "commands clipped"), ("return_timeouts", "return time-outs")):
+        if _num(d.get(key)) > 0:
+            found.append((WARN, f"{_num(d.get(key)):g} {what}"))
+    wd = d.get("watchdog")
+    if isinstance(wd, Mapping) and _num(wd.get("count")) > 0:
+        found.append((WARN, f"watchdog: {str(wd.get('what', ''))[:200]}"))
+    if not found:
+        return OK, "ok"
+    level = max(lv for lv, _ in found)
+    return level, "; ".join(m for lv, m in found if lv == level)
+
+
+def statuses(d: Mapping[str, Any], dt: float | None = None, samples: int | None = None,
+             hardware_id: str = "") -> list[Status]:
+    """The statuses of one node's report: the node's own, and the plant's one per robot."""
+    name = str(d.get("node", "?"))
+    level, message = assess(d, dt, samples)
+    out = [Status(level, name, message, hardware_id, dict(d))]
+    missed = d.get("missed")
+    if isinstance(missed, Mapping):
+        for robot, count in missed.items():
+            hit = _missed(_num(count), samples, "")
+            lv, msg = hit if hit is not None else (OK, "ok")
+            out.append(Status(lv, f"{name}: {robot}", msg, str(robot),
+                              {"robot": robot, "trial": d.get("trial"), "missed": count}))
+    return out

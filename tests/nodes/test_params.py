@@ -1,0 +1,182 @@
+"""Parameters the ROS way: every node starts from ``--params-file`` YAML (node-keyed and
+``/**``), its parameters have descriptors and are read-only, a bad value is one line and
+status 2, ``use_sim_time`` is refused clearly; the shipped example files start the nodes."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.ros
+
+rclpy = pytest.importorskip("rclpy")
+from rclpy.context import Context  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+
+PARAMS = Path(__file__).resolve().parents[2] / "params"
+
+
+@pytest.fixture
+def params_context(ros_env):
+    """A private context initialised with ROS arguments (what a launch file passes)."""
+    made: list[Context] = []
+
+    def make(*ros_args: str) -> Context:
+        ctx = Context()
+        rclpy.init(args=["node", "--ros-args", *ros_args], context=ctx)
+        made.append(ctx)
+        return ctx
+
+    yield make
+    for ctx in made:
+        rclpy.try_shutdown(context=ctx)
+
+
+def test_a_robot_starts_from_a_wildcard_params_file_alone(params_context):
+    from formation_ilc.nodes.common import robot_node_from_args
+    from formation_ilc.nodes.robot import RobotNode
+
+    ctx = params_context("--params-file", str(PARAMS / "team.yaml"))
+    robot = robot_node_from_args(RobotNode, [], "formation-ilc-robot", context=ctx)
+    try:
+        assert robot.get_fully_qualified_name() == "/formation/robot_2"
+        assert robot.get_parameter("scenario").value == "paper-triangle3"
+        assert robot.get_parameter("links").value == "direct"
+        assert robot.configured and robot.cfg.scenario.name == "paper-triangle3"
+    finally:
+        robot.destroy_node()
+
+
+def test_a_robot_starts_from_a_node_keyed_params_file_under_its_launch_name(params_context):
+    from formation_ilc.nodes.common import robot_node_from_args
+    from formation_ilc.nodes.robot import RobotNode
+
+    ctx = params_context("-r", "__node:=robot_1", "--params-file", str(PARAMS / "robot.yaml"))
+    robot = robot_node_from_args(RobotNode, [], "formation-ilc-robot", context=ctx)
+    try:
+        assert robot.get_fully_qualified_name() == "/formation/robot_1"
+        assert robot.id == 1 and robot.configured
+        # descriptors: a description with the range, read-only; a change is refused, with
+        # the reason, and the value stays
+        d = robot.describe_parameter("robot_id")
+        assert d.read_only and "robot number" in d.description
+        assert d.integer_range[0].from_value == 1
+        res = robot.set_parameters([Parameter("seed", value=7)])
+        assert not res[0].successful and "read-only" in res[0].reason
+        assert robot.get_parameter("seed").value == -1
+        res = robot.set_parameters([Parameter("use_sim_time", value=True)])
+        assert not res[0].successful and "use_sim_time is not supported" in res[0].reason
+    finally:
+        robot.destroy_node()
+
+
+def test_a_bridge_starts_from_a_node_keyed_params_file(params_context):
+    from formation_ilc.nodes.common import robot_node_from_args
+    from formation_ilc.nodes.pioneer_bridge import BridgeNode
+
+    ctx = params_context("-r", "__node:=bridge_1", "--params-file", str(PARAMS / "bridge.yaml"))
+    bridge = robot_node_from_args(BridgeNode, [], "formation-ilc-bridge", "bridge", context=ctx)
+    try:
+        assert bridge.get_fully_qualified_name() == "/formation/bridge_1"
+        assert bridge.configured and bridge.cfg.mode == "wallclock"
+        assert bridge.get_parameter("return_timeout").value == 60.0
+        assert "unit: s" in bridge.describe_parameter("return_timeout").description
+    finally:
+        bridge.destroy_node()
+
+
+def test_the_leader_and_the_simulator_start_from_their_example_files(params_context):
+    from robot_sim.node import SimNode
+    from virtual_leader.node import LeaderNode
+
+    ctx = params_context("--params-file", str(PARAMS / "virtual_leader.yaml"),
+                         "--params-file", str(PARAMS / "robot_sim.yaml"))
+    leader = LeaderNode(context=ctx)
+    sim = SimNode(context=ctx)
+    try:
+        assert leader.cfg.scenario.name == "paper-triangle3"
+        assert "robot_1" in leader.expected and "" not in leader.expected
+        assert sim.get_parameter("timeout").value == 0.0
+    finally:
+        leader.destroy_node()
+        sim.destroy_node()
+
+
+def run(module: str, *args: str, env=None) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", module, *args], capture_output=True,
+                          text=True, timeout=120, env=env)
+
+
+@pytest.mark.multiprocess
+@pytest.mark.parametrize("module, args, line", [
+    ("virtual_leader.node", ["-p", "scenario:=paper-triangle3", "-p", "trials:=abc"],
+     "formation-ilc-leader: parameter trials: expected an integer, got 'abc'"),
+    ("virtual_leader.node", ["-p", "scenario:=paper-triangle3", "-p", "mode:=fast"],
+     "formation-ilc-leader: parameter mode: one of lockstep, realtime, wallclock; got 'fast'"),
+    ("virtual_leader.node", ["-p", "trials:=3"],
+     "formation-ilc-leader: parameter scenario: a scenario name or file is required"),
+    ("formation_ilc.nodes.robot", ["-p", "robot_id:=1", "-p", "seed:=x"],
+     "formation-ilc-robot: parameter seed: expected an integer, got 'x'"),
+    ("formation_ilc.nodes.robot", ["-p", "robot_id:=0"],
+     "formation-ilc-robot: parameter robot_id: 0 is outside 1 .. inf (1-based robot number; "
+     "the node is named robot_<id>)"),
+    ("formation_ilc.nodes.robot", ["-p", "scenario:=paper-triangle3"],
+     "formation-ilc-robot: parameter robot_id: a robot number >= 1 is required (-p "
+     "robot_id:=I, or robot_id in a --params-file under /** or the node's name)"),
+    ("robot_sim.node", ["-p", "timeout:=-1.0"],
+     "formation-ilc-sim: parameter timeout: -1.0 is outside 0 .. 1e+06 (lockstep: how long "
+     "the simulator waits for a robot's command; 0: the run configuration's)"),
+    ("robot_sim.link_emulator", ["-p", "use_sim_time:=true"],
+     "formation-ilc-links: parameter use_sim_time is not supported: the stack keeps its own "
+     "time (lockstep labels on /clock are read as messages, wallclock is the system clock)"),
+    ("formation_ilc.nodes.pioneer_bridge", ["-p", "robot_id:=1", "-p", "rate:=0.0"],
+     "formation-ilc-bridge: parameter rate: 0.0 is outside 0.1 .. 1000 (rate the command is "
+     "republished to the driver)"),
+    ("robot_sim.fake_pioneer", ["-p", "driver:=p2os2"],
+     "fake_pioneer: parameter driver: one of rosaria, ros2aria; got 'p2os2'"),
+    ("formation_ilc.nodes.robot", ["--params-file", "/nonexistent/robot.yaml"],
+     "formation-ilc-robot: Failed to parse ROS arguments: Couldn't parse params file: "
+     "'--params-file /nonexistent/robot.yaml'. Error: Error opening YAML file"),
+])
+def test_a_bad_parameter_is_one_line_and_status_2(ros_env, module, args, line):
+    res = run(module, "--ros-args", *args, env=ros_env)
+    assert res.returncode == 2, res.stdout + res.stderr
+    assert [ln for ln in res.stderr.splitlines() if ln.strip()] == [line]
+
+
+@pytest.mark.multiprocess
+def test_the_recorder_refuses_sim_time_before_it_writes_anything(ros_env, tmp_path):
+    out = tmp_path / "run.mcap"
+    res = run("formation_ilc.nodes.recorder", "-o", str(out), "--ros-args", "-p",
+              "use_sim_time:=true", env=ros_env)
+    assert res.returncode == 2, res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1 and "use_sim_time" in res.stderr
+    assert not out.exists()
+
+
+def test_the_fake_driver_starts_from_its_example_file(params_context):
+    import msgs_schema as ms
+    from formation_ilc.nodes.params import probe_overrides
+    from robot_sim.fake_pioneer import FakePioneer
+
+    ctx = params_context("--params-file", str(PARAMS / "fake_pioneer.yaml"))
+    found = probe_overrides(ms.FAKE_DRIVER_NODE, ms.DRIVERS["rosaria"].default_ns, context=ctx)
+    fake = FakePioneer(found["driver"], context=ctx)
+    try:
+        assert fake.get_parameter("cmd_timeout").value == 0.6
+        assert fake.describe_parameter("rate").read_only
+    finally:
+        fake.destroy_node()
+
+
+def test_every_example_file_is_installed_and_every_node_has_one():
+    import tomllib
+
+    data = tomllib.loads((PARAMS.parent / "pyproject.toml").read_text())
+    shipped = data["tool"]["setuptools"]["data-files"]["share/formation_ilc/params"]
+    assert sorted(shipped) == sorted(f"params/{p.name}" for p in PARAMS.glob("*.yaml"))
+    for node in ("robot", "bridge", "virtual_leader", "robot_sim", "fake_pioneer"):
+        assert (PARAMS / f"{node}.yaml").is_file()

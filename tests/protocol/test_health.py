@@ -1,0 +1,58 @@
+"""Standard diagnostics' levels by the documented thresholds, and reports as key/value
+pairs without loss (formation_ilc.protocol.health)."""
+
+from __future__ import annotations
+
+import pytest
+
+from formation_ilc.protocol.health import ERROR, OK, WARN, assess, flatten, statuses, unflatten
+
+
+@pytest.mark.parametrize("report", [
+    {"node": "robot_1", "trial": 2, "slot": 2, "commands": 120, "missed": 0,
+     "delays": {"robot_2": {"0": 40, "1": 80}, "leader": {}}, "dropped": {"stale": 3},
+     "dropped_by_topic": {"stale:robot_2/shared_pose": 3}},
+    {"node": "virtual_leader", "trial": -1, "watchdog": {"count": 1, "what": "waits: x"},
+     "timing": {"p50_ms": 1.25, "nan": float("inf")}, "initial_shifts": {"0": [1.0, 2, 3]}},
+])
+def test_a_report_survives_its_key_value_pairs(report):
+    pairs = flatten(report)
+    assert all(isinstance(k, str) and isinstance(v, str) for k, v in pairs)
+    assert unflatten(pairs) == report
+
+
+def test_pairs_that_are_not_a_report_are_refused():
+    with pytest.raises(ValueError):
+        unflatten([("trial", "not json")])
+    with pytest.raises(ValueError):
+        unflatten([("trial", "1"), ("trial.x", "2")])
+
+
+@pytest.mark.parametrize("report, level, words", [
+    ({"node": "robot_1", "trial": 0, "missed": 0, "dropped": {"stale": 9}}, OK, "ok"),
+    ({"node": "robot_1", "trial": 0, "missed": 1}, WARN, "1 samples missed"),
+    ({"node": "robot_sim", "trial": 0, "missed": {"robot_1": 0, "robot_2": 5}}, ERROR,
+     "5 samples missed (robot_2 5)"),
+    ({"node": "robot_1", "trial": 0, "dropped": {"malformed": 2}}, WARN, "2 malformed"),
+    ({"node": "robot_1", "trial": 0, "late": {"links": 3}}, WARN, "3 late links"),
+    ({"node": "robot_sim", "trial": 0, "timing": {"commands": 9, "p99_ms": 60.0}}, WARN,
+     "p99 60 ms > 0.5 dT"),
+    ({"node": "robot_sim", "trial": 0, "timing": {"commands": 9, "p99_ms": 120.0}}, ERROR,
+     "p99 120 ms > dT"),
+    ({"node": "bridge_1", "trial": 0, "clipped": 4, "return_timeouts": 1}, WARN,
+     "4 commands clipped; 1 return time-outs"),
+    ({"node": "virtual_leader", "trial": 0, "watchdog": {"count": 1, "what": "stuck"}}, WARN,
+     "watchdog: stuck"),
+])
+def test_levels_follow_the_thresholds(report, level, words):
+    lv, message = assess(report, dt=0.1, samples=40)
+    assert lv == level and words in message
+
+
+def test_the_plant_speaks_for_each_robot():
+    st = statuses({"node": "robot_sim", "trial": 1, "missed": {"robot_1": 0, "robot_2": 2}},
+                  0.1, 40)
+    assert [(s.name, s.hardware_id, s.level) for s in st] == [
+        ("robot_sim", "", WARN), ("robot_sim: robot_1", "robot_1", OK),
+        ("robot_sim: robot_2", "robot_2", WARN)]
+    assert st[2].values == {"robot": "robot_2", "trial": 1, "missed": 2}

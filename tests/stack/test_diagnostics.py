@@ -1,0 +1,91 @@
+"""Standard diagnostics during a run: a test node reads ``diagnostics`` as
+diagnostic_msgs/DiagnosticArray while a realtime stack runs, finds every node's status, and
+a robot held with SIGSTOP in the middle of a trial turns its status (the plant's, per robot:
+a stopped robot cannot speak for itself) to WARN."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from formation_ilc.protocol.health import WARN
+
+from ..procs import find_child, stop_group
+from .test_realtime import short_scenario
+
+pytestmark = [pytest.mark.ros, pytest.mark.multiprocess]
+
+rclpy = pytest.importorskip("rclpy")
+
+
+def test_every_node_reports_and_a_stopped_robot_turns_warn(ros_env, tmp_path):
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    import msgs_schema as ms
+
+    ctx = Context()
+    rclpy.init(context=ctx)
+    # outside the formation's namespace: the launcher refuses to start beside its nodes
+    node = rclpy.create_node("diag_reader", namespace="/watcher", context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    seen: list = []
+    poses: list[int] = []
+    node.create_subscription(DiagnosticArray, ms.absolute(ms.DIAGNOSTICS),
+                             lambda m: seen.extend(m.status), ms.LATCHED_READER_QOS)
+    node.create_subscription(PoseStamped, ms.absolute(ms.pose_topic(2)),
+                             lambda m: poses.append(1),
+                             ms.SAMPLE_QOS)
+    argv = [sys.executable, "-m", "formation_ilc.cli", "launch", str(short_scenario(tmp_path)),
+            "--trials", "3", "--seed", "5", "--mode", "realtime", "--out",
+            str(tmp_path / "run"), "--domain-id", ros_env["ROS_DOMAIN_ID"], "--no-plots"]
+    proc = subprocess.Popen(argv, env=ros_env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    stopped_at = None
+    try:
+        deadline = time.monotonic() + 300
+        while proc.poll() is None:
+            assert time.monotonic() < deadline, "the run did not end"
+            ex.spin_once(timeout_sec=0.05)
+            trial0_done = any(s.name == ms.SIM_NODE for s in seen)
+            if stopped_at is None and trial0_done:
+                poses.clear()  # the next pose of robot_2 is one of trial 1
+                stopped_at = 0.0
+            elif stopped_at == 0.0 and poses:
+                victim = find_child(ros_env["ROS_DOMAIN_ID"], "robot_id:=2",
+                                    time.monotonic() + 10)
+                os.kill(victim, signal.SIGSTOP)
+                try:
+                    time.sleep(0.4)  # a stop of a known length (8 samples), not a wait
+                finally:
+                    os.kill(victim, signal.SIGCONT)
+                stopped_at = time.monotonic()
+        out, _ = proc.communicate(timeout=60)
+        for _ in range(20):  # what is still queued
+            ex.spin_once(timeout_sec=0.05)
+    finally:
+        stop_group(proc)
+        ex.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+    assert proc.returncode == 0, out
+    assert stopped_at, "robot_2 was never stopped inside a trial"
+    names = {s.name for s in seen}
+    for expected in ("robot_1", "robot_2", "robot_3", ms.SIM_NODE, ms.LINKS_NODE,
+                     ms.LEADER_NODE):
+        assert expected in names, names
+    # every status is a standard one: a level, the node's report as key/value pairs
+    assert all(s.level[0] in (0, 1, 2) and s.values for s in seen)
+    robot2 = [s for s in seen if s.name == f"{ms.SIM_NODE}: robot_2"]
+    assert robot2 and all(s.hardware_id == "robot_2" for s in robot2)
+    warned = [s for s in robot2 if s.level[0] >= WARN]
+    assert warned, [(s.level, s.message) for s in robot2]
+    assert "samples missed" in warned[0].message and warned[0].hardware_id == "robot_2"
