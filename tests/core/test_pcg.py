@@ -157,9 +157,9 @@ def _reference_run(sc, trials: int, first: int = 0):
         k = first + i
         shift, dist, noise = _numpy_plant(sc.uncertainty, sc.seed, k, n, n_t)
         tau, tau0 = _numpy_delays(sc.uncertainty, sc.seed, k, n, n_links, n_t)
-        run_trial(pb.law, pb.memory, pb.heading, pb.dt, memory, pb.eta_d[:, 0] + shift, dist,
-                  noise, tau, tau0, pb.src, pb.weight, pb.leader, pb.eta_d, pb.gain,
-                  pb.gain_prime, xi, eta, u, nxt)
+        run_trial(pb.law, pb.memory, pb.heading, pb.plant, pb.dt, memory,
+                  pb.eta_d[:, 0] + shift, dist, noise, tau, tau0, pb.src, pb.weight, pb.leader,
+                  pb.eta_d, pb.gain, pb.gain_prime, xi, eta, u, nxt)
         trial_errors(eta, xi, pb.eta_d, pb.src, pb.weight, row)
         metrics[i, 0] = k
         metrics[i, 1:] = row
