@@ -137,9 +137,17 @@ def probe_overrides(name: str, namespace: str, **kwargs: Any) -> dict[str, Any]:
     ``namespace`` would get, before that node exists: a node whose name follows a
     parameter (robot_id) needs it first. A short-lived node without services or rosout;
     remappings of the node's name and namespace apply to it as to the real one."""
+    # nor its type description service: a secure run's permissions grant a node's
+    # services under the node's own name only, and Enforce refused the probe's
     probe = Node(name, namespace=namespace, enable_rosout=False,
-                 start_parameter_services=False, **kwargs)
+                 start_parameter_services=False,
+                 parameter_overrides=[Parameter(_TYPE_DESCRIPTION, value=False)], **kwargs)
     try:
-        return {k: p.value for k, p in probe._parameter_overrides.items()}
+        return {k: p.value for k, p in probe._parameter_overrides.items()
+                if k != _TYPE_DESCRIPTION}
     finally:
         probe.destroy_node()
+
+
+#: rclpy's parameter that switches a node's type description service on (default true)
+_TYPE_DESCRIPTION = "start_type_description_service"
