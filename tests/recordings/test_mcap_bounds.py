@@ -58,11 +58,14 @@ def _chunk_record(uncompressed_size: int, compression: str, data: bytes) -> byte
 
 def _peak_mb_reading(path) -> tuple[int, float]:
     """(messages read, peak RSS in MB) of reading ``path`` in a child process."""
-    code = ("import resource, sys\n"
+    # the peak of the child's own memory (VmHWM): ru_maxrss keeps, across the exec, the
+    # peak of the process it was forked from (pytest, 588 MB late in a whole run)
+    code = ("import re, sys\n"
             "from formation_ilc.recordings.mcap_io import read_messages, ReadReport\n"
             "rep = ReadReport()\n"
             "n = sum(1 for _ in read_messages(sys.argv[1], report=rep))\n"
-            "print(n, len(rep.damage), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)")
+            "hwm = re.search(r'VmHWM:\\s*(\\d+)', open('/proc/self/status').read())\n"
+            "print(n, len(rep.damage), hwm.group(1))")
     res = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True,
                          text=True, timeout=300)
     assert res.returncode == 0, res.stderr

@@ -105,15 +105,15 @@ def test_a_robot_added_reissues_only_what_changed(ks):
     before = snapshot(ks)
     done = create(ks, four_robots())
     changed = {p for p, a in done.enclaves.items() if a != "unchanged"}
-    # robot 4 reads robot 3; the plant, links, recorder and monitor see robot 4
+    # robot 4 reads robot 3; the plant, links, recorder, monitor and live view see robot 4
     assert changed == {f"{NS}/robot_4", f"{NS}/robot_sim", f"{NS}/link_emulator",
-                       f"{NS}/recorder", f"{NS}/monitor"}
+                       f"{NS}/recorder", f"{NS}/monitor", f"{NS}/liveview"}
     assert done.enclaves[f"{NS}/robot_4"] == "new identity, permissions signed"
     assert done.enclaves[f"{NS}/robot_sim"] == "permissions signed"
     after = snapshot(ks)
     for rel, data in before.items():
-        kept = "robot_sim" not in rel and "link_emulator" not in rel and \
-            "recorder" not in rel and "monitor" not in rel
+        kept = not any(f"/{name}/" in rel for name in ("robot_sim", "link_emulator",
+                                                        "recorder", "monitor", "liveview"))
         if kept or rel.endswith(("cert.pem", "key.pem")):
             assert after[rel] == data, rel  # identities are kept
 
