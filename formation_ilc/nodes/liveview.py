@@ -34,7 +34,6 @@ from formation_ilc.core.clock import Rejected
 from formation_ilc.core.names import LIVEVIEW_NODE
 from formation_ilc.nodes.common import DropCounter, RunConfig, node_parser, spin_main
 from formation_ilc.nodes.observer import Observer, msg_class
-from formation_ilc.protocol.schedule import TrialEvent
 from formation_ilc.recordings.mcap_io import message_definition
 
 #: the default port of the live view (Foxglove's own default)
@@ -72,7 +71,6 @@ class LiveViewNode(Node):
         self.channels: dict[str, Any] = {}
         self.subs: dict[str, Any] = {}
         self.observer: Observer | None = None
-        self.pose_topics: dict[str, int] = {}
         self.cfg: RunConfig | None = None
         self._forward(ms.CONFIG, "std_msgs/msg/String", ms.LATCHED_QOS)
 
@@ -98,14 +96,9 @@ class LiveViewNode(Node):
         channel.log(data, log_time=time.time_ns())
         if topic == ms.CONFIG and self.cfg is None:
             self._configure(data)
-        elif self.observer is not None and (topic in self.pose_topics or
-                                            topic == ms.TRIAL_EVENTS):
+        elif self.observer is not None:
             try:
-                if topic == ms.TRIAL_EVENTS:
-                    self.observer.on_event(TrialEvent.from_json(ms.msg_to_json(
-                        ms.deserialize(data, String), ("event", "trial"))))
-                else:
-                    self.observer.on_pose(self.pose_topics[topic], data)
+                self.observer.take(topic, data)
             except Rejected as exc:
                 self.drops.reject(exc, topic)
 
@@ -127,7 +120,6 @@ class LiveViewNode(Node):
             else:
                 self._forward(topic, type_name, qos)
         if self.observe:
-            self.pose_topics = {ms.pose_topic(i + 1): i for i in range(n)}
             self.observer = Observer(self, self.cfg, self._view_sink)
         self.server = self.start_server()
         self.get_logger().info(f"serving {len(self.channels)} topics on port "

@@ -20,6 +20,7 @@ from typing import Any
 
 from rclpy.node import Node
 from rclpy.serialization import serialize_message
+from std_msgs.msg import String
 
 import msgs_schema as ms
 from formation_ilc.config.runconfig import RunConfig
@@ -51,6 +52,8 @@ class Observer:
         for topic, type_name, qos in ms.view_topic_table(sc.n):
             self.pubs[topic] = node.create_publisher(msg_class(type_name), topic, qos)
         self.iteration_of: dict[int, int] = {}
+        #: what the observer reads: each robot's measured pose (topic -> robot index)
+        self.pose_topics = {ms.pose_topic(i + 1): i for i in range(sc.n)}
         # CDR templates: the desired pose of every robot and sample, an error message
         self._desired = [[serialize_message(ms.pose_to_msg(eta_d[r, s], 0, ms.WORLD_FRAME))
                           for s in range(eta_d.shape[1])] for r in range(sc.n)]
@@ -63,6 +66,15 @@ class Observer:
 
     def _emit(self, topic: str, msg: Any, stamp_ns: int) -> None:
         self._send(topic, serialize_message(msg), stamp_ns)
+
+    def take(self, topic: str, data: bytes) -> None:
+        """A message its host received, as CDR: a trial event or a robot's pose is observed,
+        any other topic ignored; Rejected if it cannot be read."""
+        if topic == ms.TRIAL_EVENTS:
+            self.on_event(TrialEvent.from_json(ms.msg_to_json(
+                ms.deserialize(data, String), ("event", "trial"))))
+        elif topic in self.pose_topics:
+            self.on_pose(self.pose_topics[topic], data)
 
     def on_event(self, ev: TrialEvent) -> None:
         """A trial event: a start publishes the desired paths; an abort forgets the slot."""

@@ -109,7 +109,6 @@ class RecorderNode(Node):
         #: the view topics (desired poses, errors, markers) from the poses it records
         self.observe = observe
         self.observer: Observer | None = None
-        self.pose_topics: dict[str, int] = {}  # pose topic -> robot index
         self._subscribe(ms.CONFIG, "std_msgs/msg/String", ms.LATCHED_QOS)
         self.create_timer(0.5, self.writer.flush)  # idle periods too
         self._gate = self.create_timer(0.05, self._check_ready)
@@ -163,19 +162,14 @@ class RecorderNode(Node):
                 self._progress(topic, data, sent)
             except Rejected as exc:
                 self.drops.reject(exc, topic)
-        if self.observer is not None and (topic in self.pose_topics or
-                                          topic == ms.TRIAL_EVENTS):
+        if self.observer is not None:
             self._observe(topic, data)
 
     def _observe(self, topic: str, data: bytes) -> None:
         """The observer's view of a pose or trial event; it never stops the recording."""
         assert self.observer is not None
         try:
-            if topic == ms.TRIAL_EVENTS:
-                self.observer.on_event(TrialEvent.from_json(ms.msg_to_json(
-                    ms.deserialize(data, String), ("event", "trial"))))
-            else:
-                self.observer.on_pose(self.pose_topics[topic], data)
+            self.observer.take(topic, data)
         except Rejected:
             pass  # counted where the message is read for the run (or a pose: by its robot)
         except Exception as exc:  # noqa: BLE001 - the view must not cost the recording
@@ -324,7 +318,6 @@ class RecorderNode(Node):
         # a plant's true state is optional in its contract
         self.optional = {ms.true_trajectory_topic(i + 1) for i in range(n)}
         if self.observe:
-            self.pose_topics = {ms.pose_topic(i + 1): i for i in range(n)}
             for topic, type_name, qos in ms.view_topic_table(n):
                 self.types[topic], self.qos[topic] = type_name, qos
             self.observer = Observer(self, self.cfg, self._write_view)
