@@ -39,7 +39,10 @@ Time labels (``formation_ilc.core.clock.SampleClock``). A stamp is ``(k * period
 its sample: the robot's clock Rt of eq. (11). The shared pose keeps that stamp as the send
 label St; the robot measures each delay from St and its own Rt. An emulated link's message
 for tick t is stamped t (the tick) and holds the pose delivered then, with its ORIGINAL
-stamp, or no pose when nothing is delivered at t. Malformed input raises
+stamp, or no pose when nothing is delivered at t. In ``mode: wallclock`` (real robots)
+stamps are wall time instead (``formation_ilc.core.clock.WallGrid``): sample s of slot q is
+stamped ``start(q) + s * dT``, the start agreed by the leader's ``start`` event, whose
+remainder by dT is q; the label (q, s) follows from the stamp exactly. Malformed input raises
 :class:`MalformedMessage`, which nodes count and drop.
 
 The per-sample messages (poses, shared poses, references, link ticks, ``cmd_vel``,
@@ -57,7 +60,8 @@ robots 1..N. It
    ``robot_i/pose`` (PoseStamped in ``WORLD_FRAME``, stamp ``stamp_ns(k, s)``); sample 0
    after the ``start`` event of trial k, sample s+1 after it applied sample s's command
    (``mode: wallclock``, real robots: sample s at the wall time
-   ``start_wall_ns + s * dT``, ``start_wall_ns`` being in the ``start`` event);
+   ``start_wall_ns + s * dT``, ``start_wall_ns`` being in the ``start`` event, and stamped
+   with that time);
 3. applies ``robot_i/cmd_vel`` (Twist: ``linear.x`` = v [m/s], ``angular.z`` = omega
    [rad/s]) from its sample to the next; in lockstep it waits for every robot's command,
    in realtime it holds the last command of a robot that is late;

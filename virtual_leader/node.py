@@ -57,8 +57,10 @@ aborted and its iteration runs again).
 Wall-clock trials (``mode: wallclock``, real robots behind bridges; no node publishes
 ``/clock``): the ``start`` event carries ``start_wall_ns``, the wall time (Unix epoch, ns)
 ``start_margin`` seconds ahead at which sample 0 is due; the leader publishes r(t) from its
-own wall timer at start_wall_ns + t * dT, stamped with the grid label, and every plant
-samples its robot at the same instants (the machines' clocks synchronised, e.g. chrony).
+own wall timer at start_wall_ns + t * dT, stamped with that time (``core.clock.WallGrid``:
+the start's remainder by dT is the slot, so every stamp names its slot and sample), and
+every plant samples its robot at the same instants (the machines' clocks synchronised,
+e.g. chrony).
 """
 
 from __future__ import annotations
@@ -78,7 +80,7 @@ import msgs_schema as ms
 from formation_ilc.config import params
 from formation_ilc.config.runconfig import PARAMS, RunConfig
 from formation_ilc.config.team import Team, default_plant
-from formation_ilc.core.clock import Rejected
+from formation_ilc.core.clock import Rejected, WallGrid
 from formation_ilc.core.names import LEADER_NODE
 from formation_ilc.nodes.common import (
     DropCounter,
@@ -306,9 +308,11 @@ class LeaderNode(Node):
         self.watchdog.moved(time.monotonic(), SAMPLE, progress=False)
         wall_ns = None
         if self.cfg.mode == "wallclock":
-            self.wall = WallSchedule(time.time_ns() + self.margin_ns, self.clock.dt_ns,
-                                     self.T)
-            wall_ns = self.wall.start_ns
+            grid = self.clock
+            assert isinstance(grid, WallGrid)  # the configuration's, in wallclock mode
+            wall_ns = grid.start_for(q, time.time_ns() + self.margin_ns)
+            grid.agree(q, wall_ns)  # its stamps are wall time: start + t * dT
+            self.wall = WallSchedule(wall_ns, self.clock.dt_ns, self.T)
         self.event_pub.publish(ms.json_to_msg(TrialEvent(
             ms.START, i, q, seq, self.clock.stamp_ns(q, 0), wall_ns,
             run=self.cfg.run_id).to_json()))

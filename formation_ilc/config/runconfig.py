@@ -9,13 +9,14 @@ for ``--ros-args -p NAME:=VALUE``).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from formation_ilc.config.scenario import Scenario, load_scenario, scenario_from_text
-from formation_ilc.core.clock import Rejected, SampleClock
+from formation_ilc.core.clock import Rejected, SampleClock, WallGrid
 from formation_ilc.core.links import LINK_MODES
 
 __all__ = ["RunConfig", "make_config", "MODES", "WALL_MODES", "PARAMS", "param_text",
@@ -104,9 +105,15 @@ class RunConfig:
         """The plant does not wait for commands (realtime or wallclock)."""
         return self.mode in WALL_MODES
 
-    @property
-    def clock(self) -> SampleClock:
-        return SampleClock.for_run(self.scenario.dt, self.scenario.samples, self.gap)
+    @functools.cached_property
+    def clock(self) -> SampleClock | WallGrid:
+        """The run's sample grid: simulated-time labels, or in ``wallclock`` mode real
+        time (``WallGrid``, which learns each slot's agreed start: one per configuration,
+        so every part of a node sees the starts it took)."""
+        grid = SampleClock.for_run(self.scenario.dt, self.scenario.samples, self.gap)
+        if self.mode == "wallclock":
+            return WallGrid(grid.dt_ns, grid.samples, grid.period)
+        return grid
 
     def to_json(self) -> dict[str, Any]:
         sc = self.scenario

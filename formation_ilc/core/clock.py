@@ -5,13 +5,18 @@ Every pose, reference and trajectory of the stack carries a time label on one gr
 samples per trial slot, longer than the trial, so the labels of one trial never mix with the
 next one's). A plant stamps a robot's measured pose with the label of its sample: that is
 the robot's clock Rt of eq. (11); a shared pose keeps it as the send label St.
+
+On real robots (``mode: wallclock``) the stamps are real time instead (:class:`WallGrid`):
+sample s of slot q is stamped with the wall time it was taken, ``start(q) + s * dT``, the
+start agreed by the leader's ``start`` event; the label (q, s) follows from the stamp
+without loss, so eq. (11) measures the same delays on either grid.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["Rejected", "Malformed", "SampleClock", "REASONS", "TrialWindow"]
+__all__ = ["Rejected", "Malformed", "SampleClock", "WallGrid", "REASONS", "TrialWindow"]
 
 #: why an input is refused (the drop counters of every node):
 #: malformed (cannot be decoded into valid data), stale (of a trial or sample already past),
@@ -76,6 +81,72 @@ class SampleClock:
         if s > self.samples:
             raise Malformed(f"stamp {ns} ns is between trials (sample {s} of {self.samples})")
         return int(k), int(s)
+
+    def agree(self, slot: int, start_ns: int) -> None:
+        """Nothing to learn: simulated-time labels do not depend on when a trial starts."""
+
+
+class WallGrid:
+    """Wall-clock stamps of a run on real robots: sample s of slot q is stamped with the
+    time it is taken, ``start(q) + s * dT`` [ns since the Unix epoch], ``start(q)`` being
+    the start the leader's ``start`` event agreed (:meth:`agree`).
+
+    The leader picks every start with ``start(q) % dT == q`` (:meth:`start_for`, at most
+    one sample later than it wanted), so a stamp names its slot by itself
+    (``q = stamp % dT``) and, with the agreed start, its sample
+    (``s = (stamp - start(q)) / dT``, exact): the labels of eq. (11) are those of
+    :class:`SampleClock`, only their stamps are real time that other clocks (motion
+    capture, cameras, another recording) line up with. A stamp of a slot whose start this
+    node has not seen is refused (``unexpected``), as a stamp off a trial is (malformed).
+    Same interface as :class:`SampleClock`.
+    """
+
+    def __init__(self, dt_ns: int, samples: int, period: int):
+        if dt_ns < 1 or samples < 1:
+            raise ValueError("dt_ns >= 1 and samples >= 1 are required")
+        self.dt_ns, self.samples, self.period = int(dt_ns), int(samples), int(period)
+        self.starts: dict[int, int] = {}
+
+    def start_for(self, slot: int, earliest_ns: int) -> int:
+        """The start of ``slot`` the leader agrees on: the first time at or after
+        ``earliest_ns`` whose remainder by dT is the slot."""
+        if not 0 <= slot < self.dt_ns:
+            raise ValueError(f"slot {slot} does not fit a wall-clock grid of dT = "
+                             f"{self.dt_ns} ns (at most {self.dt_ns - 1} slots)")
+        return int(earliest_ns) + (slot - int(earliest_ns)) % self.dt_ns
+
+    def agree(self, slot: int, start_ns: int) -> None:
+        """Slot ``slot`` starts at ``start_ns`` (a start event taken). Rejected: a start
+        that does not name its slot (malformed), or another start for a slot already
+        agreed (unexpected)."""
+        if start_ns <= 0 or start_ns % self.dt_ns != slot:
+            raise Malformed(f"start {start_ns} ns of slot {slot} is not on the wall-clock "
+                            f"grid (start % dT must be the slot)")
+        known = self.starts.setdefault(int(slot), int(start_ns))
+        if known != start_ns:
+            raise Rejected("unexpected", f"slot {slot} was agreed to start at {known} ns, "
+                                         f"not {start_ns} ns")
+
+    def stamp_ns(self, trial: int, sample: int) -> int:
+        start = self.starts.get(int(trial))
+        if start is None:
+            raise Rejected("unexpected", f"the start of slot {trial} is not known here")
+        return start + int(sample) * self.dt_ns
+
+    def decode(self, ns: int) -> tuple[int, int]:
+        """(slot, sample) of the stamp ``ns``; Rejected if it is no sample of a slot whose
+        start is known here (see the class)."""
+        if ns <= 0:
+            raise Malformed(f"stamp {ns} ns is not a wall-clock time")
+        q = ns % self.dt_ns
+        start = self.starts.get(q)
+        if start is None:
+            raise Rejected("unexpected", f"stamp {ns} ns is of slot {q}, whose start is not "
+                                         f"known here")
+        s = (ns - start) // self.dt_ns
+        if not 0 <= s <= self.samples:
+            raise Malformed(f"stamp {ns} ns is off slot {q} (sample {s} of {self.samples})")
+        return int(q), int(s)
 
 
 @dataclass

@@ -164,6 +164,7 @@ class MonitorNode(Node):
             ev = TrialEvent.from_json(d)
             if ev.run and ev.run != self.cfg.run_id:
                 raise Rejected("foreign", f"event of run {ev.run}")
+            ev.agree(self.clock)
             done = self.slots.event(ev)
         except Rejected as exc:
             self.drops.reject(exc, ms.TRIAL_EVENTS)

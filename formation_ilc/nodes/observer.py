@@ -79,6 +79,7 @@ class Observer:
     def on_event(self, ev: TrialEvent) -> None:
         """A trial event: a start publishes the desired paths; an abort forgets the slot."""
         if ev.event == ms.START:
+            ev.agree(self.clock)
             self.iteration_of[ev.slot] = ev.trial
             stamps = [self.clock.stamp_ns(ev.slot, s) for s in range(self.view.samples + 1)]
             for r in range(self.view.n):

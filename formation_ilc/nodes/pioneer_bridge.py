@@ -6,7 +6,8 @@ named ``bridge_I`` and says ready under that name). It needs ``mode: wallclock``
 
 Plant side (msgs_schema's plant contract, robot I): at each sample s of trial k, at the
 wall time start_wall_ns + s * dT agreed by the leader's ``start`` event, it publishes the
-robot's world pose on ``robot_I/pose`` stamped with the grid label stamp_ns(k, s); it
+robot's world pose on ``robot_I/pose`` stamped with that wall time (``WallGrid``: the
+label (k, s) follows from it); it
 forwards ``robot_I/cmd_vel`` to the driver, clamped to ``v_max``/``omega_max``.
 
 Driver side (parameter ``driver``; topics relative to ``driver_ns``, default the driver's

@@ -127,7 +127,7 @@ class RobotNode(ConfiguredNode):
             self.get_logger().info(f"{self.name}: initial memory from {path}")
         self.learner = lrn = RobotLearner(pb, self.id - 1, cfg.clock, realtime=self.realtime,
                                           direct=cfg.links == "direct", memory=memory)
-        self.follower = Follower(cfg.run_id)
+        self.follower = Follower(cfg.run_id, clock=cfg.clock)
         sdir = str(self.get_parameter("state_dir").value)
         self.state_file = state_path(sdir, self.id) if sdir else None
         if self.state_file is not None:

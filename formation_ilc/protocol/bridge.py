@@ -278,7 +278,8 @@ class Bridge:
         self.rate = None if rate is None else RateLimiter(rate)
         self.clock, self.T, self.period, self.tol = cfg.clock, pb.samples, period, tol
         dt = cfg.scenario.dt
-        self.follower = Follower(cfg.run_id, wall_trial_ns=self.T * self.clock.dt_ns)
+        self.follower = Follower(cfg.run_id, wall_trial_ns=self.T * self.clock.dt_ns,
+                                 clock=self.clock)
         self.watchdog = Watchdog(cmd_timeout if cmd_timeout > 0 else 2.5 * dt)
         #: odometry older than this [s] is stale: counted in trials, a stop in returns
         self.odom_limit = max(0.5, 2.0 * dt)

@@ -80,7 +80,7 @@ class KinematicPlant:
         sc = cfg.scenario
         self.cfg, self.clock = cfg, cfg.clock
         self.pb = pb = Problem.from_scenario(sc)
-        self.follower = Follower(cfg.run_id)
+        self.follower = Follower(cfg.run_id, clock=cfg.clock)
         self.realtime = cfg.mode == "realtime"
         n, n_t = pb.n, pb.samples
         self.n, self.T = n, n_t

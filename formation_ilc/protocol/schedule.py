@@ -52,7 +52,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from formation_ilc.core.clock import Malformed, Rejected
+from formation_ilc.core.clock import Malformed, Rejected, SampleClock, WallGrid
 from formation_ilc.protocol.wallclock import check_start_wall
 from formation_ilc.store.atomic import atomic_write_text
 from formation_ilc.store.bounded import StateFileError, read_bounded
@@ -102,6 +102,12 @@ class TrialEvent:
                    None if stamp is None else _int(d, "stamp_ns"),
                    None if wall is None else _int(d, "start_wall_ns"), str(d.get("why", "")),
                    str(d.get("run", "")))
+
+    def agree(self, clock: SampleClock | WallGrid) -> None:
+        """A start of a wall-clock trial tells ``clock`` its slot's agreed start (then the
+        slot's stamps decode); nothing for any other event. Rejected as ``clock.agree``."""
+        if self.event == START and self.start_wall_ns is not None:
+            clock.agree(self.slot, self.start_wall_ns)
 
     def to_json(self) -> dict[str, Any]:
         d: dict[str, Any] = {"event": self.event, "trial": self.trial, "slot": self.slot,
@@ -187,6 +193,8 @@ class Follower:
 
     run: str = ""
     wall_trial_ns: int | None = None
+    #: the node's sample grid: a start taken tells it the slot's agreed wall-clock start
+    clock: SampleClock | WallGrid | None = None
     seen: int = -1           # seq of the last start or abort taken
     slot: int = -1           # the last slot started here (-1: none, any slot is next)
     trial: int = -1          # its iteration
@@ -221,6 +229,8 @@ class Follower:
             raise Rejected("future", where)
         if not idle or not self.ready:
             raise Rejected("unexpected", f"{where} ({'running' if not idle else 'not ready'})")
+        if self.clock is not None:
+            ev.agree(self.clock)
         self.seen, self.slot, self.trial, self.ready = ev.seq, ev.slot, ev.trial, False
         return ev
 

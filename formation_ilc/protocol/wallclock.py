@@ -2,8 +2,9 @@
 
 In ``mode: wallclock`` no node publishes ``/clock``. The leader's ``start`` event of trial
 k carries ``start_wall_ns``; sample s is due at ``start_wall_ns + s * dT`` on every
-machine's (synchronised) wall clock and is labelled ``SampleClock.stamp_ns(k, s)``, so the
-robots' eq. (11) compares grid labels exactly as in simulated time.
+machine's (synchronised) wall clock and is stamped with that time
+(``core.clock.WallGrid``, from which the label (k, s) follows exactly), so the robots'
+eq. (11) compares grid labels exactly as in simulated time.
 """
 
 from __future__ import annotations

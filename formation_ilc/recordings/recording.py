@@ -392,6 +392,7 @@ class _RunReader:
             ev = TrialEvent.from_json(d)
             if ev.run and cfg.run_id and ev.run != cfg.run_id:
                 raise Rejected("foreign", f"event of run {ev.run}")
+            ev.agree(cfg.clock)
             if ev.event == ms.START:
                 self.last_seen = max(self.last_seen, ev.trial)
             self.events.append(d)

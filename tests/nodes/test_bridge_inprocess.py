@@ -224,9 +224,12 @@ def test_wallclock_leader_agrees_the_start_and_publishes_the_reference_on_its_wa
         # the agreed start is the margin ahead of the event
         assert 0 < t0 - sent <= margin * 1e9 + 5e7
         clock = leader.cfg.clock
+        assert t0 % clock.dt_ns == 0  # slot 0 (the start's remainder by dT names the slot)
         assert [label for _, label in refs] == [clock.stamp_ns(0, s) for s in range(11)]
-        for s, (arrival, _) in enumerate(refs):
+        for s, (arrival, label) in enumerate(refs):
             due = t0 + s * clock.dt_ns
+            # stamped with the wall time of its sample, from which the label follows
+            assert label == due and clock.decode(label) == (0, s)
             # published on the wall timer at its due time (5 ms timer, a loaded machine)
             assert due <= arrival <= due + 40_000_000, (s, (arrival - due) / 1e6)
         # the leader neither follows nor needs /clock in wall-clock trials

@@ -179,7 +179,10 @@ def wall_bridge(**kw) -> Bridge:
 
 
 def start_event(slot: int, seq: int, wall_ns: int, trial: int | None = None) -> TrialEvent:
-    return TrialEvent(START, slot if trial is None else trial, slot, seq, start_wall_ns=wall_ns)
+    """The leader's start of ``slot`` at about ``wall_ns`` (a whole number of samples): on
+    the wall-clock grid, its remainder by dT is the slot (``WallGrid.start_for``)."""
+    return TrialEvent(START, slot if trial is None else trial, slot, seq,
+                      start_wall_ns=wall_ns + slot)
 
 
 def test_a_trial_samples_on_the_wall_clock_then_drives_back_and_says_ready():
@@ -196,6 +199,7 @@ def test_a_trial_samples_on_the_wall_clock_then_drives_back_and_says_ready():
     assert b.tick(1.0, t0 - 1).sample is None          # not due yet
     tick = b.tick(1.0, t0)
     assert tick.sample == (b.clock.stamp_ns(0, 0), b.world())
+    assert tick.sample[0] == t0  # stamped with the wall time the sample is taken at
     # the robot node's commands go to the driver, clamped
     assert b.on_cmd((2.0, 0.1), 1.05) == (b.limits.v_max, 0.1)
     assert b.counts["clipped"] == 1
@@ -204,8 +208,8 @@ def test_a_trial_samples_on_the_wall_clock_then_drives_back_and_says_ready():
     # the tick fell behind by two samples: the newest is sent, the overtaken one counted
     assert b.tick(1.2, t0 + 3 * dt_ns).sample[0] == b.clock.stamp_ns(0, 3)
     for s in range(4, b.T + 1):
-        last = b.tick(1.2, t0 + s * dt_ns)
-        assert last.sample[0] == b.clock.stamp_ns(0, s)
+        last = b.tick(1.2, t0 + s * dt_ns + 3_000_000)  # a timer 3 ms late
+        assert last.sample[0] == b.clock.stamp_ns(0, s) == t0 + s * dt_ns
     assert b.counts["missed"] == 2  # samples 1 and 2
     # sample T: the return starts at once; the base is at its initial pose
     assert b.phase == IDLE and last.returned == Returned(1, True, (0.0, 0.0, 0.0), 0.0)

@@ -26,6 +26,9 @@ def start(slot: int, seq: int, trial: int | None = None, **kw) -> TrialEvent:
     return TrialEvent(START, slot if trial is None else trial, slot, seq, **kw)
 
 
+start_of = start
+
+
 def reason(f, ev: TrialEvent, **kw) -> str:
     with pytest.raises(Rejected) as exc:
         f(ev, **kw)
@@ -137,26 +140,31 @@ FOLLOWERS = {"plant": plant_follower, "links": links_follower, "bridge": bridge_
 def test_every_follower_refuses_the_same_starts_for_the_same_reasons(kind):
     core, take = FOLLOWERS[kind]()
     f = core.follower
-    wall = {"start_wall_ns": 1} if kind == "bridge" else {}
-    assert reason(take, start(0, 0, **wall)) == "unexpected"  # before its first ready
+
+    def start(slot: int, seq: int, trial: int | None = None) -> TrialEvent:
+        # a bridge's starts are on the wall-clock grid: the remainder by dT is the slot
+        wall = {"start_wall_ns": 1000 * SEC + slot} if kind == "bridge" else {}
+        return start_of(slot, seq, trial, **wall)
+
+    assert reason(take, start(0, 0)) == "unexpected"  # before its first ready
     f.said_ready()
-    assert take(start(0, 0, **wall)).slot == 0
-    assert reason(take, start(0, 0, **wall)) == "stale"       # a replay
-    assert reason(take, start(0, 1, **wall)) == "stale"       # a second start of the slot
-    assert reason(take, start(2, 1, **wall)) == "future"      # a later trial
-    assert reason(take, start(1, 1, **wall)) == "unexpected"  # inside trial 0
+    assert take(start(0, 0)).slot == 0
+    assert reason(take, start(0, 0)) == "stale"       # a replay
+    assert reason(take, start(0, 1)) == "stale"       # a second start of the slot
+    assert reason(take, start(2, 1)) == "future"      # a later trial
+    assert reason(take, start(1, 1)) == "unexpected"  # inside trial 0
     f.said_ready()  # a ready mid-trial does not open the next slot either
-    assert reason(take, start(1, 1, **wall)) == "unexpected"
+    assert reason(take, start(1, 1)) == "unexpected"
     assert reason(take, TrialEvent(START, 1, 1, 1, run="x")) == "foreign"
     assert f.slot == 0 and f.seen == 0
     # aborted: the node leaves the trial; the next slot is taken once it said ready
     assert take(TrialEvent(ABORT, 0, 0, 1)).event == ABORT
     assert take(TrialEvent(ABORT, 0, 0, 1)) is None
     if kind == "bridge":
-        assert reason(take, start(1, 2, trial=0, **wall)) == "unexpected"  # driving back
+        assert reason(take, start(1, 2, trial=0)) == "unexpected"  # driving back
         assert core.tick(0.1, 2).returned.reached
     f.said_ready()
-    assert take(start(1, 2, trial=0, **wall)).slot == 1
+    assert take(start(1, 2, trial=0)).slot == 1
 
 
 def test_each_follower_says_when_it_is_inside_a_trial():
@@ -171,7 +179,7 @@ def test_each_follower_says_when_it_is_inside_a_trial():
     bridge, take_b = bridge_follower()
     bridge.said_ready(0, (0.0, 0.0, 0.0))
     assert bridge.phase == IDLE and bridge.answers_abort()
-    take_b(start(0, 0, start_wall_ns=1))
+    take_b(start(0, 0, start_wall_ns=1000 * SEC))
     assert bridge.phase == TRIAL
     take_b(TrialEvent(ABORT, 0, 0, 1))
     assert bridge.phase == RETURN and not bridge.answers_abort()

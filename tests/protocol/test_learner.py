@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from formation_ilc.config.scenario import load_scenario
-from formation_ilc.core.clock import Rejected, SampleClock
+from formation_ilc.core.clock import Rejected, SampleClock, WallGrid
 from formation_ilc.core.links import LEADER, Delivery, LinkInbox, delivered_label, robot_name
 from formation_ilc.model.simulate import Problem
 from formation_ilc.protocol.learner import RobotLearner
@@ -202,3 +202,68 @@ def test_trajectories_of_a_neighbour_are_checked():
     with pytest.raises(Rejected) as exc:
         lrn.on_trajectory("robot_1", good, eta)
     assert exc.value.reason == "stale"
+
+
+# --------------------------------------------------------------------------- wall clock
+
+def test_wall_clock_stamps_measure_the_same_delays_as_labels():
+    """eq. (11) on real robots: a realtime robot on direct links whose neighbours' poses
+    arrive late (the scenario's delays) measures the same delays, and commands the same,
+    whether stamps are simulated-time labels or wall time (``WallGrid``)."""
+    sc = load_scenario("paper-triangle3")
+    pb = Problem.from_scenario(sc)
+    tau, tau0 = sc.uncertainty.draw_delays(sc.seed, 0, pb.n, pb.src.shape[1], pb.samples)
+    assert tau.max() > 0
+    labels = SampleClock.for_run(sc.dt, sc.samples)
+    wall = WallGrid(labels.dt_ns, labels.samples, labels.period)
+    wall.agree(0, wall.start_for(0, 1_795_000_000_123_456_789))  # 2026-11-18, not on dT
+    r = 1  # robot_2: robot_1 in
+    runs = []
+    for clock in (labels, wall):
+        lrn = RobotLearner(pb, r, clock, realtime=True, direct=True)
+        newest: dict[str, int] = {}
+        u = []
+        for t in range(pb.samples + 1):
+            lrn.on_pose(clock.stamp_ns(0, t), pb.eta_d[r, t])
+            if t == pb.samples:
+                break
+            for sender, s in [(robot_name(j + 1), t - int(tau[r, ell, t]))
+                              for ell, j in enumerate(pb.src[r]) if j >= 0] + \
+                    [(LEADER, t - int(tau0[r, t]))] * lrn.sees_leader:
+                if s >= 0 and s > newest.get(sender, -1):  # what has arrived by now
+                    newest[sender] = s
+                    eta = pb.eta_d[0, s] if sender != LEADER else np.zeros(3)
+                    lrn.on_link_pose(sender, clock.stamp_ns(0, s), eta)
+            u.append(lrn.command().copy())
+        runs.append((lrn.delays, np.array(u)))
+    (d_label, u_label), (d_wall, u_wall) = runs
+    assert d_label == d_wall and max(d_label["robot_1"]) > 0
+    np.testing.assert_array_equal(u_label, u_wall)
+
+
+def test_a_wall_clock_stamp_names_its_slot_and_sample():
+    labels = SampleClock.for_run(0.05, 100, gap=20)
+    grid = WallGrid(labels.dt_ns, labels.samples, labels.period)
+    t0 = 1_795_000_000_000_000_000
+    with pytest.raises(ValueError, match="does not fit"):
+        grid.start_for(labels.dt_ns, t0)
+    starts = {q: grid.start_for(q, t0 + q * 60_000_000_000 + 7) for q in (0, 1, 3)}
+    for q, start in starts.items():
+        assert 0 <= start - (t0 + q * 60_000_000_000 + 7) < labels.dt_ns  # < one sample late
+        grid.agree(q, start)
+        for s in (0, 1, 57, 100):
+            ns = grid.stamp_ns(q, s)
+            assert ns == start + s * labels.dt_ns  # the time sample s is taken
+            assert grid.decode(ns) == (q, s)
+    grid.agree(1, starts[1])  # the same start again: nothing changes
+    for bad, why in (
+            (lambda: grid.agree(1, starts[1] + labels.dt_ns), "unexpected"),  # moved
+            (lambda: grid.agree(2, starts[1]), "malformed"),  # its remainder is slot 1's
+            (lambda: grid.decode(starts[3] + 2), "unexpected"),  # slot 2: start not seen
+            (lambda: grid.decode(starts[3] - labels.dt_ns), "malformed"),  # before it
+            (lambda: grid.decode(grid.stamp_ns(3, 101)), "malformed"),  # after it
+            (lambda: grid.decode(-5), "malformed"),
+            (lambda: grid.stamp_ns(2, 0), "unexpected")):
+        with pytest.raises(Rejected) as exc:
+            bad()
+        assert exc.value.reason == why
