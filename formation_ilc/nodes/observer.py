@@ -40,7 +40,9 @@ def msg_class(type_name: str) -> Any:
 class Observer:
     """Publishes the view topics of a run (``cfg``) on ``node``; see the module doc."""
 
-    def __init__(self, node: Node, cfg: RunConfig, sink: Sink | None = None):
+    def __init__(self, node: Node | None, cfg: RunConfig, sink: Sink | None = None):
+        """``node`` None: no publishers, every message only goes to ``sink`` (the batch
+        simulator's recording)."""
         sc = cfg.scenario
         self.cfg, self.clock, self.sink = cfg, cfg.clock, sink
         eta_d = sc.desired.eta
@@ -49,7 +51,7 @@ class Observer:
         src, _ = sc.graph.in_links()
         self.links = graph_links(src)
         self.pubs: dict[str, Any] = {}
-        for topic, type_name, qos in ms.view_topic_table(sc.n):
+        for topic, type_name, qos in ms.view_topic_table(sc.n) if node is not None else ():
             self.pubs[topic] = node.create_publisher(msg_class(type_name), topic, qos)
         self.iteration_of: dict[int, int] = {}
         #: what the observer reads: each robot's measured pose (topic -> robot index)
@@ -60,7 +62,9 @@ class Observer:
         self._error = serialize_message(ms.vector_msg(0, 0.0, 0.0))
 
     def _send(self, topic: str, data: bytes, stamp_ns: int) -> None:
-        self.pubs[topic].publish(data)
+        pub = self.pubs.get(topic)
+        if pub is not None:
+            pub.publish(data)
         if self.sink is not None:
             self.sink(topic, data, stamp_ns)
 
@@ -107,8 +111,15 @@ class Observer:
 
     def _trial_end(self, slot: int, stamp: int) -> None:
         peaks = self.view.trial_peaks(slot)
-        if peaks is None:
-            return
+        if peaks is not None:
+            self._trial_errors(slot, peaks, stamp)
+
+    def whole_trial(self, slot: int, eta: Any, stamp: int) -> None:
+        """A trial's measured outputs (N, T+1, 3) all at once, none of its poses observed
+        (the batch simulator's trials without per-sample topics): its trial errors."""
+        self._trial_errors(slot, self.view.whole_trial_peaks(eta), stamp)
+
+    def _trial_errors(self, slot: int, peaks: list[Any], stamp: int) -> None:
         trial = self.iteration_of.get(slot, slot)
         for r, pk in enumerate(peaks):
             self._emit(ms.trial_error_topic(r + 1),

@@ -105,6 +105,16 @@ class TrackingView:
             del self.peaks[(slot, r)]
         return [p for p in got if p is not None]
 
+    def whole_trial_peaks(self, eta: NDArray[np.float64]) -> list[TrialPeak]:
+        """Each robot's peaks of a whole trial's measured outputs ``eta`` (N, T+1, 3) at
+        once, as :meth:`observe` of every sample then :meth:`trial_peaks` give them."""
+        d = self.eta_d - np.asarray(eta, dtype=float)
+        pos = np.sqrt(d[:, 1:, 0] ** 2 + d[:, 1:, 1] ** 2).max(axis=1)
+        h = d[:, 1:, 2]
+        head = np.abs(h - 2.0 * np.pi * np.ceil((h - np.pi) / (2.0 * np.pi))).max(axis=1)
+        every = set(range(self.samples + 1))
+        return [TrialPeak(float(p), float(a), set(every)) for p, a in zip(pos, head, strict=True)]
+
     def forget(self, slot: int) -> None:
         """Drop what is kept of a slot (aborted, or ended without every sample)."""
         for key in [k for k in self.peaks if k[0] <= slot]:

@@ -61,9 +61,11 @@ def qos_of(profile: Any) -> str:
 class SimRecorder:
     """Writes a batch simulation as the distributed stack's recorder would.
 
-    Per trial: trial events, each robot's measured and true trajectory, and each robot's
-    cumulative delay histogram (its diagnostics). For the trials in ``sample_trials`` also
-    the per-sample topics: /clock, each robot's pose and cmd_vel, and the reference.
+    Per trial: trial events, each robot's measured and true trajectory, its largest errors
+    of the trial, and each robot's cumulative delay histogram (its diagnostics). For the
+    trials in ``sample_trials`` also the per-sample topics: /clock, each robot's pose and
+    cmd_vel, and the reference, and what the stack's recorder adds (the desired paths,
+    poses, errors and the markers: ``formation_ilc.nodes.observer``).
     Times are simulated time on the stack's sample grid (``SampleClock``).
     """
 
@@ -81,9 +83,14 @@ class SimRecorder:
         n = sc.n
         # channels by full name, in the stack's default namespace
         self.full = {t: ms.absolute(t) for t, _, _ in ms.topic_table(n)}
-        for topic, typ, qos in ms.topic_table(n):
+        # and what the stack's recorder adds beside them (formation_ilc.nodes.observer)
+        self.full |= {t: ms.absolute(t) for t, _, _ in ms.view_topic_table(n)}
+        for topic, typ, qos in ms.topic_table(n) + ms.view_topic_table(n):
             # the type hash a ROS writer of the type offers, as the stack's recorder records it
             self.w.channel(self.full[topic], typ, qos_of(qos), type_hash(typ))
+        from formation_ilc.nodes.observer import Observer
+
+        self.observer = Observer(None, cfg, sink=self._write)
         # its trials are first_trial .. first_trial + trials - 1 (simulate --first-trial)
         conf = cfg.to_json() | {"recorded_by": "formation-ilc simulate",
                                 "first_trial": int(first_trial)}
@@ -106,6 +113,8 @@ class SimRecorder:
         t0, t_end = int(stamps[0]), int(stamps[-1])
         self._json(ms.TRIAL_EVENTS, {"event": ms.START, "trial": k, "stamp_ns": t0}, t0)
         if k in self.sample_trials:
+            # desired paths, and per pose its desired pose, error and the team's markers
+            self.observer.on_event(TrialEvent(ms.START, k, k, stamp_ns=t0))
             ref = self.sc.reference
             world = ms.WORLD_FRAME
             for t in range(n_t + 1):
@@ -113,11 +122,14 @@ class SimRecorder:
                 self._write(ms.CLOCK, cdr.encode_clock(ns), ns)
                 self._write(ms.REFERENCE, cdr.encode_pose_stamped(ref[t], ns, world), ns)
                 for r in range(n):
-                    self._write(ms.pose_topic(r + 1),
-                                cdr.encode_pose_stamped(eta[r, t], ns, world), ns)
+                    pose = cdr.encode_pose_stamped(eta[r, t], ns, world)
+                    self._write(ms.pose_topic(r + 1), pose, ns)
+                    self.observer.on_pose(r, pose)  # the trial's errors after sample T
                     if t < n_t:
                         self._write(ms.cmd_vel_topic(r + 1),
                                     cdr.encode_twist(u[r, t, 0], u[r, t, 1]), ns)
+        else:
+            self.observer.whole_trial(k, eta, t_end)
         self._json(ms.TRIAL_EVENTS, {"event": ms.END, "trial": k}, t_end)
         # what each robot counts: the deliveries of ticks 0..T-1 that carry a sample >= 0
         t_idx = np.arange(n_t)

@@ -168,5 +168,25 @@ def test_simulate_record_analyses_to_the_simulators_metrics(tmp_path):
     assert by_topic["/formation/robot_2/trajectory"] == "nav_msgs/msg/Path"
     assert by_topic["/formation/robot_2/cmd_vel"] == "geometry_msgs/msg/Twist"
     assert r.delays["robot_1->robot_2"]  # the drawn delays, as the robots would count them
+    # what the stack's recorder adds: per kept trial (0, 1 and 5 of 6) the desired paths and
+    # per pose its desired pose and error, the markers; per trial each robot's largest errors
+    assert by_topic["/formation/markers"] == "visualization_msgs/msg/MarkerArray"
+    counts = Counter(m.topic for m in read_messages(rec))
+    for i in (1, 2, 3):
+        assert counts[f"/formation/robot_{i}/desired_path"] == 3
+        assert counts[f"/formation/robot_{i}/desired_pose"] == 3 * 141
+        assert counts[f"/formation/robot_{i}/tracking_error"] == 3 * 141
+        assert counts[f"/formation/robot_{i}/trial_error"] == 6
+    assert counts["/formation/markers"] > 3
+    from geometry_msgs.msg import Vector3Stamped
+    from rclpy.serialization import deserialize_message
+
+    peaks = np.zeros((6, 3, 2))  # trial, robot, (position, heading)
+    for m in read_messages(rec):
+        if m.topic.endswith("/trial_error"):
+            v = deserialize_message(m.data, Vector3Stamped).vector
+            peaks[int(v.z), int(m.topic.split("/")[2][6:]) - 1] = (v.x, v.y)
+    # the team's largest, every trial (per pose or whole: the same numbers): the metrics
+    np.testing.assert_allclose(peaks.max(axis=1), ref[:, 1:3], rtol=1e-12, atol=1e-15)
     assert main(["analyze", str(rec), "--out", str(tmp_path / "an")]) == 0
     assert (tmp_path / "an" / "report.html").exists()
