@@ -36,8 +36,10 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
 import msgs_schema as ms
+from formation_ilc.config import params
 from formation_ilc.core.names import BASES_NODE
 from formation_ilc.nodes.common import node_parser, spin_main
+from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.physics_plant import BaseRobots
 
 NAME = BASES_NODE
@@ -51,11 +53,7 @@ class PhysicsBases(Node):
         # are absolute
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(NAME, **kwargs)
-        for name, default in (("robots", 3), ("poses", [0.0]), ("model", "p3dx"),
-                              ("rate", 250.0), ("tick", 0.02), ("collide", True),
-                              ("ns_pattern", "/base_{i}"), ("cmd_type", "twist"),
-                              ("odom_topic", "odom"), ("cmd_timeout", 0.5)):
-            self.declare_parameter(name, default)
+        declare(self, params.PHYSICS_BASES)
         g = lambda name: self.get_parameter(name).value  # noqa: E731
         n = int(g("robots"))
         poses = np.asarray([float(x) for x in g("poses")], dtype=float)

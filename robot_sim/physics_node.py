@@ -27,9 +27,10 @@ from __future__ import annotations
 import sys
 from typing import Any
 
+from formation_ilc.config import params
 from formation_ilc.core.names import PHYSICS_NODE
-from formation_ilc.model.physics import DEFAULT_RATE
 from formation_ilc.nodes.common import RunConfig, node_parser, spin_main
+from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.physics_plant import PhysicsPlant
 from robot_sim.node import SimNode
 
@@ -44,9 +45,7 @@ class PhysicsNode(SimNode):
         super().__init__(NAME, **kwargs)  # the run configuration arrives later, on a topic
 
     def declare_plant_parameters(self) -> None:
-        for name, default in (("model", "p3dx"), ("pose", "truth"), ("rate", DEFAULT_RATE),
-                              ("collide", True)):
-            self.declare_parameter(name, default)
+        declare(self, params.PHYSICS[len(params.SIM):])  # the simulator's are declared
 
     def make_plant(self, cfg: RunConfig) -> PhysicsPlant:
         g = lambda name: self.get_parameter(name).value  # noqa: E731

@@ -137,6 +137,11 @@ def run(module: str, *args: str, env=None) -> subprocess.CompletedProcess[str]:
      "republished to the driver)"),
     ("robot_sim.fake_pioneer", ["-p", "driver:=p2os2"],
      "fake_pioneer: parameter driver: one of rosaria, ros2aria; got 'p2os2'"),
+    ("robot_sim.physics_node", ["-p", "model:=roomba"],
+     "formation-ilc-physics: parameter model: one of p3dx, husky; got 'roomba'"),
+    ("robot_sim.physics_base", ["-p", "tick:=0.0"],
+     "physics_bases: parameter tick: 0.0 is outside 0.0001 .. 10 (how often "
+     "the world is stepped and odometry published)"),
     ("formation_ilc.nodes.robot", ["--params-file", "/nonexistent/robot.yaml"],
      "formation-ilc-robot: Failed to parse ROS arguments: Couldn't parse params file: "
      "'--params-file /nonexistent/robot.yaml'. Error: Error opening YAML file"),
@@ -172,11 +177,32 @@ def test_the_fake_driver_starts_from_its_example_file(params_context):
         fake.destroy_node()
 
 
+def test_the_physics_nodes_start_from_their_example_files(params_context):
+    pytest.importorskip("pybullet")  # the [physics] extra; CI installs it
+    from robot_sim.physics_base import PhysicsBases
+    from robot_sim.physics_node import PhysicsNode
+
+    ctx = params_context("--params-file", str(PARAMS / "physics_sim.yaml"),
+                         "--params-file", str(PARAMS / "physics_bases.yaml"))
+    sim = PhysicsNode(context=ctx)
+    bases = PhysicsBases(context=ctx)
+    try:
+        assert sim.get_parameter("rate").value == 240.0
+        assert sim.describe_parameter("model").read_only
+        assert "unit: Hz" in sim.describe_parameter("rate").description
+        assert bases.get_parameter("robots").value == 3 and len(bases.odom_pubs) == 3
+        assert bases.describe_parameter("tick").floating_point_range[0].to_value == 10.0
+    finally:
+        sim.destroy_node()
+        bases.destroy_node()
+
+
 def test_every_example_file_is_installed_and_every_node_has_one():
     import tomllib
 
     data = tomllib.loads((PARAMS.parent / "pyproject.toml").read_text())
     shipped = data["tool"]["setuptools"]["data-files"]["share/formation_ilc/params"]
     assert sorted(shipped) == sorted(f"params/{p.name}" for p in PARAMS.glob("*.yaml"))
-    for node in ("robot", "bridge", "virtual_leader", "robot_sim", "fake_pioneer"):
+    for node in ("robot", "bridge", "virtual_leader", "robot_sim", "fake_pioneer",
+                 "physics_sim", "physics_bases"):
         assert (PARAMS / f"{node}.yaml").is_file()
