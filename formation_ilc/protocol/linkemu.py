@@ -9,7 +9,10 @@ that decides what the links deliver lives here:
   the pose labelled ``delivered_label(t, tau)``, tau being the delay stream of the trial's
   iteration as the batch simulator draws it; no pose while that label is negative, or when
   the link loses the sample (``delay: loss``);
-* lockstep: tick t goes out once every robot's sample-t pose and the reference are in;
+* lockstep: robot i's deliveries of tick t go out as soon as the poses they need are in
+  (with delays, often before the plant has even published sample t) and robot i's own
+  sample t-1 pose is (it is at sample t-1 at least: its lookahead); tick t+1 opens once
+  every robot's tick t is out. No robot waits for a pose it is not delivered;
 * realtime: the tick is ``/clock``; robot i's deliveries of tick t go out as soon as the poses
   they need are in, and at the latest at the deadline (``deadline()``), without those still
   missing (counted ``late``);
@@ -151,7 +154,8 @@ class EmulatedLinks(Generic[P]):
         self.ref = [None] * (self.T + 1)
         self.count = np.zeros(self.T + 1, dtype=np.int64)
         self.next_t = 0
-        self.waiting = {}
+        # realtime: /clock arms each tick; lockstep: tick 0 is open for every robot
+        self.waiting = {} if self.realtime else dict.fromkeys(range(self.n), 0)
         self.reported = False
 
     def said_ready(self) -> None:
@@ -187,7 +191,7 @@ class EmulatedLinks(Generic[P]):
             self._tick(s, out)
             return
         box = self.ref if kind == REFERENCE else self.shared[j]
-        if box[s] is not None or (s < self.next_t and not self.realtime):
+        if box[s] is not None:  # (lockstep: every pose before the open tick's is in)
             raise Rejected("duplicate", f"sample {s} again")
         box[s] = pose
         if kind == SHARED:
@@ -241,15 +245,21 @@ class EmulatedLinks(Generic[P]):
         return True
 
     def _deliver(self, out: Emitted[P]) -> None:
-        """Lockstep: every tick whose poses are all in, in order."""
-        while self.next_t < self.T and self.count[self.next_t] == self.n \
-                and self.ref[self.next_t] is not None:
+        """Lockstep: each robot's deliveries of the open tick whose poses are in (and whose
+        robot is at the sample before it); the next tick once every robot's are out."""
+        while self.waiting:
             t = self.next_t
-            for i in range(self.n):
-                self._send(i, t, True, out)
+            for i in list(self.waiting):
+                if (t == 0 or self.shared[i][t - 1] is not None) and \
+                        self._send(i, t, False, out):
+                    del self.waiting[i]
+            if self.waiting:
+                return
             self.next_t = t + 1
             if self.next_t == self.T:
                 self._done(out)
+                return
+            self.waiting = dict.fromkeys(range(self.n), self.next_t)
 
     def _tick(self, t: int, out: Emitted[P]) -> None:
         if t <= self.clock_t:

@@ -45,58 +45,83 @@ def reason(f, *args) -> str:
     return exc.value.reason
 
 
-def test_each_tick_delivers_the_iterations_delay_stream_once_every_pose_is_in():
+def test_each_tick_delivers_the_iterations_delay_stream_as_soon_as_its_poses_are_in():
+    """Lockstep: robot i's tick t goes out at the input that completes what it needs (the
+    poses its links deliver at t, its own sample t-1) once every tick t-1 is out; the
+    poses delivered are the iteration's delay stream, each tick once."""
     links = emulator()
     assert not start(links, 0, 0).ticks
     pb, clock, sc = links.pb, links.clock, links.cfg.scenario
     tau, tau0 = sc.uncertainty.draw_delays(sc.seed, 0, pb.n, pb.src.shape[1], pb.samples)
-    for t in range(6):
+    n_t = 6
+    emitted: dict[tuple[int, int, int], tuple[int, int]] = {}  # (i, m, t) -> input step
+    for t in range(n_t):
         ns = clock.stamp_ns(0, t)
-        assert not links.on_reference(ns, (ns, np.zeros(3))).ticks
-        for j in range(pb.n - 1):
-            assert not links.on_shared(j, ns, pose(links, 0, t, j)).ticks  # not all in yet
-        ticks = links.on_shared(pb.n - 1, ns, pose(links, 0, t, pb.n - 1)).ticks
-        assert sorted((i, m) for i, m, _, _ in ticks) == [
-            (i, m) for i in range(pb.n) for m in range(len(links.links[i]))]
-        for i, m, tick, p in ticks:
-            assert tick == ns
-            sender, ell = links.links[i][m]
-            d = int(tau0[i, t] if sender == LEADER else tau[i, ell, t])
-            s = delivered_label(t, d)
-            if s < 0:
-                assert p is None
-            else:
-                assert p is not None and p[0] == clock.stamp_ns(0, s)
+        for step in range(pb.n + 1):  # the reference, then robot 0's pose, 1's, ...
+            got = links.on_reference(ns, (ns, np.zeros(3))) if step == 0 else \
+                links.on_shared(step - 1, ns, pose(links, 0, t, step - 1))
+            for i, m, tick, p in got.ticks:
+                tt = clock.decode(tick)[1]
+                assert (i, m, tt) not in emitted  # each tick of each link once
+                emitted[(i, m, tt)] = (t, step)
+                sender, ell = links.links[i][m]
+                d = int(tau0[i, tt] if sender == LEADER else tau[i, ell, tt])
+                s = delivered_label(tt, d)
+                assert p is None if s < 0 else p[0] == clock.stamp_ns(0, s)
+    eager = 0
+    opened = (0, 0)  # the input step at which tick t opened (every tick t-1 out)
+    for t in range(n_t):
+        out_at = []
+        for i in range(pb.n):
+            # the input step at which robot i's tick t has all it needs: the tick open,
+            # its own sample t-1 in, every pose its links deliver at t in
+            need = [opened] + ([(t - 1, i + 1)] if t > 0 else [])
+            for _, ell in links.links[i]:
+                s = delivered_label(t, int(tau0[i, t] if ell < 0 else tau[i, ell, t]))
+                if s >= 0:
+                    need.append((s, 0 if ell < 0 else int(pb.src[i, ell]) + 1))
+            want = max(need)
+            for m in range(len(links.links[i])):
+                assert emitted[(i, m, t)] == want, (i, m, t)
+            eager += want < (t, pb.n)
+            out_at.append(want)
+        opened = max(out_at)
+    assert eager > 0  # some robots were not held for the last robot's pose
+    # what went out (ticks up to n_t, the next ones of robots whose poses were in already)
     assert sum(sum(h.values()) for h in links.injected.values()) == sum(
-        1 for t in range(6) for i in range(pb.n) for _, ell in links.links[i]
-        if delivered_label(t, int(tau0[i, t] if ell < 0 else tau[i, ell, t])) >= 0)
+        1 for i, m, t in emitted
+        if delivered_label(t, int(tau0[i, t] if links.links[i][m][1] < 0
+                                  else tau[i, links.links[i][m][1], t])) >= 0)
 
 
 def test_the_last_tick_reports_the_trial_and_opens_the_next_slot():
     links = emulator()
     start(links, 0, 0)
-    for t in range(links.T - 1):
-        feed(links, 0, t)
-    ns = links.clock.stamp_ns(0, links.T - 1)
-    links.on_reference(ns, (ns, np.zeros(3)))
-    for j in range(links.n):
-        out = links.on_shared(j, ns, pose(links, 0, links.T - 1, j))
-    assert out.done and links.reported
+    done = []
+    for t in range(links.T):
+        ns = links.clock.stamp_ns(0, t)
+        done.append(links.on_reference(ns, (ns, np.zeros(3))).done)
+        for j in range(links.n):
+            done.append(links.on_shared(j, ns, pose(links, 0, t, j)).done)
+    assert done.count(True) == 1 and links.reported  # once, when the last tick went out
     rep = links.report()
     assert (rep["trial"], rep["slot"]) == (0, 0) and set(rep["injected"]) == set(links.injected)
     # now a pose of slot 1 may exist: held until its start, then replayed
     assert not links.on_shared(0, links.clock.stamp_ns(1, 0), pose(links, 1, 0, 0)).ticks
     assert len(links.early) == 1
     ticks = feed_after_start(links)
-    assert links.k == 1 and not links.early and len(ticks) == sum(map(len, links.links))
+    assert links.k == 1 and not links.early
+    tick0 = links.clock.stamp_ns(1, 0)
+    assert sorted((i, m) for i, m, t, _ in ticks if t == tick0) == [
+        (i, m) for i in range(links.n) for m in range(len(links.links[i]))]
 
 
 def feed_after_start(links: EmulatedLinks):
     """Start slot 1 and feed the rest of its sample 0 (robot 0's came before the start)."""
     out = start(links, 1, 1)
-    assert not out.ticks and not out.refused and links.count[0] == 1
+    assert not out.refused and links.count[0] == 1
     ns = links.clock.stamp_ns(1, 0)
-    ticks = links.on_reference(ns, (ns, np.zeros(3))).ticks
+    ticks = out.ticks + links.on_reference(ns, (ns, np.zeros(3))).ticks
     for j in range(1, links.n):
         ticks += links.on_shared(j, ns, pose(links, 1, 0, j)).ticks
     return ticks
@@ -120,7 +145,8 @@ def test_labels_outside_the_window_are_refused_and_move_nothing():
     for ns, why in cases:
         assert reason(links.on_shared, 0, ns, (ns, np.zeros(3))) == why, ns
     assert links.count[0] == 1 and not links.early
-    assert len(feed(links, 0, 0, first=1)) == sum(map(len, links.links))  # tick 0 out
+    feed(links, 0, 0, first=1)
+    assert links.next_t >= 1  # every robot's tick 0 is out
     assert reason(links.on_shared, 0, clk.stamp_ns(0, 0), (0, np.zeros(3))) == "duplicate"
     # aborted: the rest of the slot is stale, and held inputs of it are forgotten
     taken, _ = links.on_event(TrialEvent(ABORT, 0, 0, 1))
