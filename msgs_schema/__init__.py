@@ -616,7 +616,8 @@ from geometry_msgs.msg import Point, Vector3Stamped  # noqa: E402
 from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
 
 __all__ += ["MARKERS", "desired_pose_topic", "desired_path_topic", "tracking_error_topic",
-            "trial_error_topic", "VIEW_QOS", "view_topic_table", "vector_msg", "markers_msg"]
+            "trial_error_topic", "VIEW_QOS", "view_topic_table", "vector_msg", "markers_msg",
+           "MarkersTemplate"]
 
 MARKERS = "markers"
 #: per-sample view messages: reliable to the recorder, never held for a viewer (depth-bound)
@@ -741,6 +742,62 @@ def vector_cdr(template: bytes | bytearray, stamp_ns: int, x: float, y: float,
     _STAMP.pack_into(out, 4, *divmod(int(stamp_ns), 1_000_000_000))
     _VEC.pack_into(out, _body_offset(out), float(x), float(y), float(z))
     return bytes(out)
+
+
+class MarkersTemplate:
+    """``markers_msg`` of one team layout as CDR bytes, written in place per sample.
+
+    The markers of an ``n``-robot team with a given ``outline`` and ``links`` always have
+    the same size: ``markers_msg`` is serialized once with sentinel coordinates and stamp,
+    the offsets of each sentinel are found, and :meth:`cdr` writes a sample's stamp and
+    coordinates there (about 50 struct calls instead of building and serializing six
+    Markers: 1.2 ms a sample with rclpy). The bytes equal ``markers_msg``'s serialized
+    (tests/protocol/test_view.py)."""
+
+    _SEC, _NSEC = 2_000_000_011, 123_456_789
+
+    def __init__(self, n: int, outline: Sequence[int], links: Sequence[tuple[int, int]]):
+        from rclpy.serialization import serialize_message
+
+        sentinel = lambda k: 1.0e9 + 7.0 * k + 0.3125  # noqa: E731 (exact in binary)
+        desired = [(sentinel(2 * r), sentinel(2 * r + 1)) for r in range(n)]
+        positions = {r: (sentinel(2 * (n + r)), sentinel(2 * (n + r) + 1)) for r in range(n)}
+        stamp = self._SEC * 1_000_000_000 + self._NSEC
+        self.template = bytes(serialize_message(
+            markers_msg(stamp, desired, outline, links, positions)))
+        self.n = n
+
+        def find(packed: bytes) -> list[int]:
+            out, at = [], self.template.find(packed)
+            while at >= 0:
+                out.append(at)
+                at = self.template.find(packed, at + 1)
+            return out
+
+        self.stamps = find(_STAMP.pack(self._SEC, self._NSEC))
+        #: (offsets, source index): 0..2n-1 desired x/y of robot r, 2n.. measured x/y
+        self.coords = [(find(_struct.pack("<d", sentinel(k))), k) for k in range(4 * n)]
+        if len(self.stamps) != 3 + n or any(not offs for offs, _ in self.coords):
+            raise RuntimeError("the markers template did not find every field")
+
+    def cdr(self, stamp_ns: int, desired: NDArray[np.float64] | Sequence[Sequence[float]],
+            positions: dict[int, tuple[float, float]]) -> bytes:
+        """The serialized ``markers_msg(stamp_ns, desired, ..., positions)``; ``positions``
+        has every robot of the team."""
+        out = bytearray(self.template)
+        sec_nsec = divmod(int(stamp_ns), 1_000_000_000)
+        for at in self.stamps:
+            _STAMP.pack_into(out, at, *sec_nsec)
+        n = self.n
+        pack = _struct.Struct("<d").pack_into
+        for offs, k in self.coords:
+            if k < 2 * n:
+                v = float(desired[k // 2][k % 2])
+            else:
+                v = float(positions[(k - 2 * n) // 2][k % 2])
+            for at in offs:
+                pack(out, at, v)
+        return bytes(out)
 
 
 def world_pose_cdr(data: bytes) -> tuple[NDArray[np.float64], int]:

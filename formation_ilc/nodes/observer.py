@@ -18,6 +18,7 @@ import importlib
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 from rclpy.node import Node
 from rclpy.serialization import serialize_message
 from std_msgs.msg import String
@@ -26,6 +27,7 @@ import msgs_schema as ms
 from formation_ilc.config.runconfig import RunConfig
 from formation_ilc.protocol.schedule import TrialEvent
 from formation_ilc.protocol.view import TrackingView, graph_links, marker_every, outline_order
+from formation_ilc.recordings import cdr
 
 #: sink(relative topic, CDR bytes, send label [ns]) of every message the observer publishes
 Sink = Callable[[str, bytes, int], None]
@@ -60,6 +62,7 @@ class Observer:
         self._desired = [[serialize_message(ms.pose_to_msg(eta_d[r, s], 0, ms.WORLD_FRAME))
                           for s in range(eta_d.shape[1])] for r in range(sc.n)]
         self._error = serialize_message(ms.vector_msg(0, 0.0, 0.0))
+        self._markers = ms.MarkersTemplate(sc.n, self.outline, self.links)
 
     def _send(self, topic: str, data: bytes, stamp_ns: int) -> None:
         pub = self.pubs.get(topic)
@@ -86,9 +89,10 @@ class Observer:
             ev.agree(self.clock)
             self.iteration_of[ev.slot] = ev.trial
             stamps = [self.clock.stamp_ns(ev.slot, s) for s in range(self.view.samples + 1)]
-            for r in range(self.view.n):
-                path = ms.trajectory_to_path(self.view.eta_d[r], stamps, ms.WORLD_FRAME)
-                self._emit(ms.desired_path_topic(r + 1), path, stamps[0])
+            for r in range(self.view.n):  # the bytes trajectory_to_path serializes to
+                path = cdr.encode_path(self.view.eta_d[r], np.array(stamps), ms.WORLD_FRAME,
+                                       stamps[-1])
+                self._send(ms.desired_path_topic(r + 1), path, stamps[0])
         elif ev.event == ms.ABORT:
             self.view.forget(ev.slot)
 
@@ -104,8 +108,8 @@ class Observer:
                    stamp)
         team = self.view.position(slot, r, s, eta)
         if team is not None:
-            self._emit(ms.MARKERS, ms.markers_msg(stamp, self.view.eta_d[:, s, :2],
-                                                  self.outline, self.links, team), stamp)
+            self._send(ms.MARKERS, self._markers.cdr(stamp, self.view.eta_d[:, s, :2], team),
+                       stamp)
         if s == self.view.samples:
             self._trial_end(slot, stamp)
 

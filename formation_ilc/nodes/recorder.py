@@ -63,8 +63,9 @@ _STAMPED = {"geometry_msgs/msg/PoseStamped", "nav_msgs/msg/Path", "rosgraph_msgs
             "geometry_msgs/msg/Vector3Stamped"}
 #: reader queue depth of the recorder's subscriptions [messages per topic]
 _READER_DEPTH = 20000
-#: niceness of the recorder: recording must not take CPU from the control loop
-NICENESS = 10
+#: niceness of the recorder: recording must not take CPU from the control loop, nor fall
+#: behind it for good (see _lower_priority)
+NICENESS = 5
 #: topics written by many nodes (not waited for before saying ready)
 _MANY_WRITERS = {ms.READY, ms.DIAGNOSTICS}
 
@@ -353,8 +354,11 @@ def _lower_priority() -> None:
 
     Measured on paper-hexagon6 (6 robot processes, 2 cores, 8 trials, median of 4 runs):
     recording at normal priority cost 18 % of lockstep throughput, niced 6 %. SCHED_IDLE
-    starved the recorder's DDS threads and lost samples. FORMATION_ILC_RECORDER_SCHED=normal
-    records at normal priority."""
+    starved the recorder's DDS threads and lost samples. Niceness 10 lost samples too once
+    lockstep got faster (paper-triangle3, 40 trials, a recorder restarted at trial 4: 7 to 8
+    trials incomplete in each of 3 runs; it never caught up), niceness 5 none in 4 runs,
+    one of them beside a busy loop. FORMATION_ILC_RECORDER_SCHED=normal records at normal
+    priority."""
     if os.environ.get("FORMATION_ILC_RECORDER_SCHED", "nice") != "normal":
         os.nice(NICENESS)
 

@@ -43,3 +43,26 @@ def test_pose_cdr_refuses_what_world_pose_refuses():
         ms.world_pose_cdr(serialize_message(bad))
     with pytest.raises(ms.MalformedMessage):
         ms.world_pose_cdr(serialize_message(ok)[:40])
+
+
+@pytest.mark.parametrize("scenario", ["paper-triangle3", "paper-hexagon6"])
+def test_the_markers_template_writes_what_markers_msg_serializes(scenario):
+    from visualization_msgs.msg import MarkerArray
+
+    from formation_ilc.config.scenario import load_scenario
+    from formation_ilc.protocol.view import graph_links, outline_order
+
+    sc = load_scenario(scenario)
+    eta_d = sc.desired.eta
+    outline, links = outline_order(eta_d[:, 0]), graph_links(sc.graph.in_links()[0])
+    tpl = ms.MarkersTemplate(sc.n, outline, links)
+    rng = np.random.default_rng(3)
+    for _ in range(10):
+        s = int(rng.integers(0, sc.samples + 1))
+        stamp = int(rng.integers(0, 2**31 * 10**9))
+        pos = {r: tuple(rng.normal(scale=3.0, size=2)) for r in range(sc.n)}
+        ours = tpl.cdr(stamp, eta_d[:, s, :2], pos)
+        theirs = serialize_message(ms.markers_msg(stamp, eta_d[:, s, :2], outline, links, pos))
+        assert len(ours) == len(theirs)  # (rclpy leaves padding bytes uninitialised)
+        assert deserialize_message(ours, MarkerArray) == deserialize_message(theirs,
+                                                                              MarkerArray)
