@@ -36,14 +36,16 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def client(port: int, n: int, modules: str, stop: float) -> subprocess.Popen | None:
+def client(port: int, n: int, modules: str, stop: float, niceness: int = 0
+           ) -> subprocess.Popen | None:
     """Foxglove's client subscribed to the live view until the run ends (retries until
     the server listens); None if it never connected before ``stop``."""
     topics = [f"robot_{i}/{k}" for i in range(1, n + 1)
               for k in ("pose", "desired_pose", "tracking_error")] + ["markers"]
     env = dict(os.environ, NODE_PATH=modules)
+    nice = ["nice", "-n", str(niceness)] if niceness else []
     while time.monotonic() < stop:
-        p = subprocess.Popen(["node", str(CLIENT / "client.js"), f"ws://127.0.0.1:{port}",
+        p = subprocess.Popen([*nice, "node", str(CLIENT / "client.js"), f"ws://127.0.0.1:{port}",
                               str(10**9), *topics], env=env, stdout=subprocess.PIPE,
                              stderr=subprocess.STDOUT, text=True)
         time.sleep(1.0)
@@ -66,8 +68,9 @@ def run(args: argparse.Namespace, live: bool, domain: int, out: Path) -> dict:
     stack = subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                              text=True)
     viewer = None
-    if live:
-        viewer = client(port, args.robots, args.node_modules, time.monotonic() + 120)
+    if live and not args.no_client:
+        viewer = client(port, args.robots, args.node_modules, time.monotonic() + 120,
+                        args.client_nice)
     stdout, _ = stack.communicate(timeout=1800)
     received = ""
     if viewer is not None:
@@ -90,8 +93,15 @@ def main() -> int:
     ap.add_argument("--trials", type=int, default=3)
     ap.add_argument("--pairs", type=int, default=3, help="runs without and with --live")
     ap.add_argument("--record", action="store_true", help="every run records too")
+    ap.add_argument("--no-client", action="store_true",
+                    help="live runs without a client: what serving alone costs")
+    ap.add_argument("--client-nice", type=int, default=0, metavar="N",
+                    help="run the client at niceness N (a viewer on this machine that "
+                         "yields to the control loop; default 0)")
     ap.add_argument("--domain", type=int, default=30 + os.getpid() % 60)
     args = ap.parse_args()
+    what = ("--live, no client" if args.no_client else "--live and a client" +
+            (f" at niceness {args.client_nice}" if args.client_nice else ""))
     figures: dict[bool, list[float]] = {False: [], True: []}
     with tempfile.TemporaryDirectory() as tmp:
         for k in range(args.pairs):
@@ -100,15 +110,15 @@ def main() -> int:
                 if "error" in r:
                     print(f"run failed: {r['error']}", file=sys.stderr)
                     return 1
-                if live and not r["viewer"]:
+                if live and not r["viewer"] and not args.no_client:
                     print("the client never connected", file=sys.stderr)
                     return 1
                 figures[live].append(r["samples_per_s"])
-                print(f"pair {k} {'live + client' if live else 'plain        '}: "
+                print(f"pair {k} {what if live else 'plain'}: "
                       f"{r['samples_per_s']:7.1f} samples/s", flush=True)
     plain, live = statistics.median(figures[False]), statistics.median(figures[True])
     print(f"{args.scenario}, {args.trials} trials{', recorded' if args.record else ''}: "
-          f"median {plain:.1f} samples/s plain, {live:.1f} with --live and a client; "
+          f"median {plain:.1f} samples/s plain, {live:.1f} with {what}; "
           f"ratio {live / plain:.3f} (cost {100 * (1 - live / plain):.1f} %)")
     return 0
 
