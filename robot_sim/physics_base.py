@@ -36,13 +36,31 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
 import msgs_schema as ms
-from formation_ilc.config import params
+from formation_ilc.config.params import Param
 from formation_ilc.core.names import BASES_NODE
+from formation_ilc.model.physics import MODELS
 from formation_ilc.nodes.common import node_parser, spin_main
 from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.physics_plant import BaseRobots
 
 NAME = BASES_NODE
+
+#: N physics robots as plain differential-drive bases (``formation-ilc-physics-bases``)
+PARAMS: tuple[Param, ...] = (
+    Param("robots", 3, "how many bases", lo=1, hi=1000),
+    Param("poses", [0.0], "their start poses: x, y, theta of each base in turn", "m, rad"),
+    Param("model", "p3dx", "the robot model of every base", choices=tuple(MODELS)),
+    Param("rate", 250.0, "engine steps per second", "Hz", lo=1.0, hi=1e5),
+    Param("tick", 0.02, "how often the world is stepped and odometry published", "s",
+          lo=1e-4, hi=10.0),
+    Param("collide", True, "bases collide with each other"),
+    Param("ns_pattern", "/base_{i}", "namespace of base i's topics ({i}: 1-based)"),
+    Param("cmd_type", "twist", "the message type of cmd_vel",
+          choices=("twist", "twist_stamped")),
+    Param("odom_topic", "odom", "the odometry topic, relative to the base's namespace"),
+    Param("cmd_timeout", 0.5, "a base stops when no command came for this long", "s",
+          lo=1e-3, hi=1e3),
+)
 
 
 class PhysicsBases(Node):
@@ -53,7 +71,7 @@ class PhysicsBases(Node):
         # are absolute
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(NAME, **kwargs)
-        declare(self, params.PHYSICS_BASES)
+        declare(self, PARAMS)
         g = lambda name: self.get_parameter(name).value  # noqa: E731
         n = int(g("robots"))
         poses = np.asarray([float(x) for x in g("poses")], dtype=float)

@@ -27,8 +27,9 @@ from __future__ import annotations
 import sys
 from typing import Any
 
-from formation_ilc.config import params
+from formation_ilc.config.params import Param
 from formation_ilc.core.names import PHYSICS_NODE
+from formation_ilc.model.physics import DEFAULT_RATE, MODELS, POSE_SOURCES
 from formation_ilc.nodes.common import RunConfig, node_parser, spin_main
 from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.physics_plant import PhysicsPlant
@@ -36,6 +37,17 @@ from robot_sim.node import SimNode
 
 #: the physics plant's node name (what it says ready as)
 NAME = PHYSICS_NODE
+
+#: the physics plant's own parameters (the simulator's come from ``config.params.SIM``)
+PARAMS: tuple[Param, ...] = (
+    Param("model", "p3dx", "the robot model every robot of the team is",
+          choices=tuple(MODELS)),
+    Param("pose", "truth", "what a robot's pose is: the body's true pose, or its "
+          "odometry from the wheel encoders", choices=POSE_SOURCES),
+    Param("rate", DEFAULT_RATE, "engine steps per second (each sample is dT * rate steps)",
+          "Hz", lo=1.0, hi=1e5),
+    Param("collide", True, "robots collide with each other (false: they pass through)"),
+)
 
 
 class PhysicsNode(SimNode):
@@ -45,7 +57,7 @@ class PhysicsNode(SimNode):
         super().__init__(NAME, **kwargs)  # the run configuration arrives later, on a topic
 
     def declare_plant_parameters(self) -> None:
-        declare(self, params.PHYSICS[len(params.SIM):])  # the simulator's are declared
+        declare(self, PARAMS)  # after the simulator's (SIM)
 
     def make_plant(self, cfg: RunConfig) -> PhysicsPlant:
         g = lambda name: self.get_parameter(name).value  # noqa: E731

@@ -18,6 +18,7 @@ paper-hexagon6 tiled (scripts/bench_stack.py).
 
     python scripts/bench_secure.py                     # 6 and 24 robots, 3 trials, 2 repeats
     python scripts/bench_secure.py --sizes 6 --repeats 3
+    python -u scripts/bench_secure.py --sizes 24 --repeats 1 --watchdog-scale 4
 """
 
 from __future__ import annotations
@@ -39,14 +40,15 @@ from bench_stack import team_scenario  # noqa: E402
 TRIAL_LINE = re.compile(r"^trial 1/\d+ .*\[(\d+(?:\.\d+)?) s\]")
 
 
-def one_run(scenario: str, trials: int, domain: int, out: Path, keystore: Path | None
-            ) -> dict:
+def one_run(scenario: str, trials: int, domain: int, out: Path, keystore: Path | None,
+            extra: tuple[str, ...] = ()) -> dict:
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     argv = [sys.executable, "-m", "formation_ilc.cli", "launch", scenario, "--trials",
             str(trials), "--out", str(out), "--domain-id", str(domain), "--no-plots",
             "--mode", "lockstep", "--links", "emulated", "--timeout", "60"]
     if keystore is not None:
         argv += ["--secure", str(keystore)]
+    argv += list(extra)
     t0 = time.perf_counter()
     proc = subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             text=True)
@@ -74,7 +76,10 @@ def main() -> int:
     ap.add_argument("--trials", type=int, default=3)
     ap.add_argument("--repeats", type=int, default=2, help="runs of each kind (alternated)")
     ap.add_argument("--domain", type=int, default=30 + os.getpid() % 60)
+    ap.add_argument("--watchdog-scale", type=float, default=1.0, metavar="X",
+                    help="the launcher's --watchdog-scale (a large secure team starts slowly)")
     args = ap.parse_args()
+    extra = ("--watchdog-scale", str(args.watchdog_scale)) if args.watchdog_scale != 1 else ()
     check = subprocess.run([sys.executable, "-m", "formation_ilc.system.securedds"],
                            capture_output=True, text=True)
     if check.returncode:
@@ -92,7 +97,7 @@ def main() -> int:
             for r in range(args.repeats):
                 for kind in ("insecure", "secure"):
                     res = one_run(sc, args.trials, dom, tmp / f"{n}-{kind}-{r}",
-                                  ks if kind == "secure" else None)
+                                  ks if kind == "secure" else None, extra)
                     dom = 30 + (dom - 29) % 71
                     if "error" in res:
                         print(f"{n} robots {kind}: FAILED\n{res['error']}", flush=True)

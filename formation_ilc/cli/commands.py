@@ -543,6 +543,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         try:
             args.record.parent.mkdir(parents=True, exist_ok=True)
             recorder = SimRecorder(args.record, sc, sample_trials=set(keep), first_trial=first)
+            from formation_ilc.nodes.observer import Observer
+
+            recorder.observe(lambda cfg, sink: Observer(None, cfg, sink))
         except OSError as exc:
             log.close()
             raise OptionError(f"--record {args.record}: cannot write: "

@@ -14,7 +14,6 @@ from typing import Any
 
 from formation_ilc.config.bases import BASES
 from formation_ilc.config.runconfig import MODES, PARAMS
-from formation_ilc.model.physics import DEFAULT_RATE, MODELS, POSE_SOURCES
 
 __all__ = ["Param", "RUN", "ROBOT", "LEADER", "SIM", "BRIDGE", "FAKE_DRIVER", "by_name",
            "describe"]
@@ -120,34 +119,6 @@ ROBOT: tuple[Param, ...] = (
 SIM: tuple[Param, ...] = (
     Param("timeout", 0.0, "lockstep: how long the simulator waits for a robot's command; "
           "0: the run configuration's", "s", lo=0.0, hi=1e6),
-)
-
-#: the physics plant (``formation-ilc-physics``): the simulator's, and the engine's
-PHYSICS: tuple[Param, ...] = SIM + (
-    Param("model", "p3dx", "the robot model every robot of the team is",
-          choices=tuple(MODELS)),
-    Param("pose", "truth", "what a robot's pose is: the body's true pose, or its "
-          "odometry from the wheel encoders", choices=POSE_SOURCES),
-    Param("rate", DEFAULT_RATE, "engine steps per second (each sample is dT * rate steps)",
-          "Hz", lo=1.0, hi=1e5),
-    Param("collide", True, "robots collide with each other (false: they pass through)"),
-)
-
-#: N physics robots as plain differential-drive bases (``formation-ilc-physics-bases``)
-PHYSICS_BASES: tuple[Param, ...] = (
-    Param("robots", 3, "how many bases", lo=1, hi=1000),
-    Param("poses", [0.0], "their start poses: x, y, theta of each base in turn", "m, rad"),
-    Param("model", "p3dx", "the robot model of every base", choices=tuple(MODELS)),
-    Param("rate", 250.0, "engine steps per second", "Hz", lo=1.0, hi=1e5),
-    Param("tick", 0.02, "how often the world is stepped and odometry published", "s",
-          lo=1e-4, hi=10.0),
-    Param("collide", True, "bases collide with each other"),
-    Param("ns_pattern", "/base_{i}", "namespace of base i's topics ({i}: 1-based)"),
-    Param("cmd_type", "twist", "the message type of cmd_vel",
-          choices=("twist", "twist_stamped")),
-    Param("odom_topic", "odom", "the odometry topic, relative to the base's namespace"),
-    Param("cmd_timeout", 0.5, "a base stops when no command came for this long", "s",
-          lo=1e-3, hi=1e3),
 )
 
 BRIDGE: tuple[Param, ...] = (

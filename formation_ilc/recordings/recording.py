@@ -61,11 +61,11 @@ def qos_of(profile: Any) -> str:
 class SimRecorder:
     """Writes a batch simulation as the distributed stack's recorder would.
 
-    Per trial: trial events, each robot's measured and true trajectory, its largest errors
-    of the trial, and each robot's cumulative delay histogram (its diagnostics). For the
-    trials in ``sample_trials`` also the per-sample topics: /clock, each robot's pose and
-    cmd_vel, and the reference, and what the stack's recorder adds (the desired paths,
-    poses, errors and the markers: ``formation_ilc.nodes.observer``).
+    Per trial: trial events, each robot's measured and true trajectory, and each robot's
+    cumulative delay histogram (its diagnostics). For the trials in ``sample_trials`` also
+    the per-sample topics: /clock, each robot's pose and cmd_vel, and the reference. With
+    an observer (``observe``) also what the stack's recorder adds: every trial's largest
+    errors, and for the kept trials the desired paths, poses, errors and the markers.
     Times are simulated time on the stack's sample grid (``SampleClock``).
     """
 
@@ -88,9 +88,9 @@ class SimRecorder:
         for topic, typ, qos in ms.topic_table(n) + ms.view_topic_table(n):
             # the type hash a ROS writer of the type offers, as the stack's recorder records it
             self.w.channel(self.full[topic], typ, qos_of(qos), type_hash(typ))
-        from formation_ilc.nodes.observer import Observer
-
-        self.observer = Observer(None, cfg, sink=self._write)
+        self.cfg = cfg
+        #: what the stack's recorder adds (``observe``); None: the formation's own topics
+        self.observer: Any = None
         # its trials are first_trial .. first_trial + trials - 1 (simulate --first-trial)
         conf = cfg.to_json() | {"recorded_by": "formation-ilc simulate",
                                 "first_trial": int(first_trial)}
@@ -98,6 +98,13 @@ class SimRecorder:
         self.w.metadata(META_NAME, {"config": json.dumps(conf)})
         self.delays: list[dict[str, Counter[int]]] = [{} for _ in range(n)]
         self.names = [ms.robot_name(i + 1) for i in range(n)]
+
+    def observe(self, make: Callable[[RunConfig, Callable[[str, bytes, int], None]], Any]
+                ) -> None:
+        """Also record what the stack's recorder adds, from ``make(cfg, sink)``: an observer
+        with the stack's (``formation_ilc.nodes.observer.Observer`` without a node; the CLI
+        passes it: this layer sits below the nodes)."""
+        self.observer = make(self.cfg, self._write)
 
     def _json(self, topic: str, data: dict[str, Any], ns: int) -> None:
         self._write(topic, cdr.encode_string(json.dumps(data, separators=(",", ":"))), ns)
@@ -112,9 +119,11 @@ class SimRecorder:
         stamps = np.array([clk.stamp_ns(k, s) for s in range(n_t + 1)], dtype=np.int64)
         t0, t_end = int(stamps[0]), int(stamps[-1])
         self._json(ms.TRIAL_EVENTS, {"event": ms.START, "trial": k, "stamp_ns": t0}, t0)
+        obs = self.observer
         if k in self.sample_trials:
             # desired paths, and per pose its desired pose, error and the team's markers
-            self.observer.on_event(TrialEvent(ms.START, k, k, stamp_ns=t0))
+            if obs is not None:
+                obs.on_event(TrialEvent(ms.START, k, k, stamp_ns=t0))
             ref = self.sc.reference
             world = ms.WORLD_FRAME
             for t in range(n_t + 1):
@@ -124,12 +133,13 @@ class SimRecorder:
                 for r in range(n):
                     pose = cdr.encode_pose_stamped(eta[r, t], ns, world)
                     self._write(ms.pose_topic(r + 1), pose, ns)
-                    self.observer.on_pose(r, pose)  # the trial's errors after sample T
+                    if obs is not None:
+                        obs.on_pose(r, pose)  # the trial's errors after sample T
                     if t < n_t:
                         self._write(ms.cmd_vel_topic(r + 1),
                                     cdr.encode_twist(u[r, t, 0], u[r, t, 1]), ns)
-        else:
-            self.observer.whole_trial(k, eta, t_end)
+        elif obs is not None:
+            obs.whole_trial(k, eta, t_end)
         self._json(ms.TRIAL_EVENTS, {"event": ms.END, "trial": k}, t_end)
         # what each robot counts: the deliveries of ticks 0..T-1 that carry a sample >= 0
         t_idx = np.arange(n_t)

@@ -42,6 +42,7 @@ def run_team(cfg, trials: int):
         assert taken is not None and not sent.ticks
         started(plant, k, k, k, now=float(k))
         u = np.zeros((pb.n, pb.samples, 2))
+        done = 0
         while True:
             s = plant.sample()
             for r, lrn in enumerate(team):
@@ -53,13 +54,15 @@ def run_team(cfg, trials: int):
             for j in range(pb.n):
                 em = links.on_shared(j, s.stamp_ns, (s.stamp_ns, s.eta[j].copy()))
                 ticks += em.ticks
-                assert em.done == (s.t == pb.samples - 1 and j == pb.n - 1)
+                done += em.done  # once, when the last tick is out (which may be before
+                # the last poses are: the ticks of a robot go out once its poses are in)
             for i, m, tick, pose in ticks:
                 team[i].on_link_tick(links.links[i][m][0], tick, pose)
             for r, lrn in enumerate(team):
                 assert lrn.can_command()
                 u[r, s.t] = lrn.command()
                 assert plant.command(r, u[r, s.t], float(k)) == (r == pb.n - 1)
+        assert done == 1 and links.reported
         trajs = [lrn.finish_trial()[1].copy() for lrn in team]
         for r, lrn in enumerate(team):
             lrn.try_learn()
