@@ -36,22 +36,27 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def client(port: int, n: int, modules: str, stop: float, niceness: int = 0
+def client(port: int, n: int, modules: str, stop: float, log: Path, niceness: int = 0
            ) -> subprocess.Popen | None:
     """Foxglove's client subscribed to the live view until the run ends (retries until
-    the server listens); None if it never connected before ``stop``."""
+    the server listens and the client has subscribed); None if it never did before
+    ``stop``."""
     topics = [f"robot_{i}/{k}" for i in range(1, n + 1)
               for k in ("pose", "desired_pose", "tracking_error")] + ["markers"]
     env = dict(os.environ, NODE_PATH=modules)
     nice = ["nice", "-n", str(niceness)] if niceness else []
     while time.monotonic() < stop:
-        p = subprocess.Popen([*nice, "node", str(CLIENT / "client.js"), f"ws://127.0.0.1:{port}",
-                              str(10**9), *topics], env=env, stdout=subprocess.PIPE,
-                             stderr=subprocess.STDOUT, text=True)
-        time.sleep(1.0)
-        if p.poll() is None:
-            return p  # connected and receiving
-        time.sleep(0.5)
+        with log.open("w") as err:
+            p = subprocess.Popen([*nice, "node", str(CLIENT / "client.js"),
+                                  f"ws://127.0.0.1:{port}", "0", *topics], env=env,
+                                 stdout=subprocess.PIPE, stderr=err, text=True)
+        while p.poll() is None and time.monotonic() < stop:
+            if "subscribed" in log.read_text():
+                return p  # connected, subscribed, decoding until SIGTERM
+            time.sleep(0.1)
+        p.kill()
+        p.wait()
+        time.sleep(0.3)  # the server is not up yet
     return None
 
 
@@ -70,17 +75,20 @@ def run(args: argparse.Namespace, live: bool, domain: int, out: Path) -> dict:
     viewer = None
     if live and not args.no_client:
         viewer = client(port, args.robots, args.node_modules, time.monotonic() + 120,
-                        args.client_nice)
+                        out.parent / f"{out.name}-client.log", args.client_nice)
     stdout, _ = stack.communicate(timeout=1800)
-    received = ""
+    counts: dict[str, int] = {}
     if viewer is not None:
-        viewer.kill()
-        received = viewer.communicate()[0]
+        viewer.terminate()  # it prints what it decoded
+        last = (viewer.communicate(timeout=30)[0].strip().splitlines() or [""])[-1]
+        counts = json.loads(last).get("counts", {}) if last.startswith("{") else {}
     if stack.returncode:
         return {"error": stdout[-800:]}
     s = json.loads((out / "summary.json").read_text())
+    poses = sum(v for k, v in counts.items() if k.endswith("/pose"))
     return {"samples_per_s": s["timing"]["samples_per_s"], "viewer": viewer is not None,
-            "viewer_output": received[-300:]}
+            "poses": poses, "decoded": sum(counts.values()),
+            "robot_samples": args.robots * (s["timing"]["samples"] + args.trials)}
 
 
 def main() -> int:
@@ -114,8 +122,10 @@ def main() -> int:
                     print("the client never connected", file=sys.stderr)
                     return 1
                 figures[live].append(r["samples_per_s"])
+                seen = (f"; the client decoded {r['decoded']} messages, {r['poses']} of the "
+                        f"run's {r['robot_samples']} robot poses" if r.get("viewer") else "")
                 print(f"pair {k} {what if live else 'plain'}: "
-                      f"{r['samples_per_s']:7.1f} samples/s", flush=True)
+                      f"{r['samples_per_s']:7.1f} samples/s{seen}", flush=True)
     plain, live = statistics.median(figures[False]), statistics.median(figures[True])
     print(f"{args.scenario}, {args.trials} trials{', recorded' if args.record else ''}: "
           f"median {plain:.1f} samples/s plain, {live:.1f} with {what}; "

@@ -176,6 +176,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "on PORT (default 8765), with the recording's topics and schemas "
                         "(its own process; a slow or absent viewer never holds the run back; "
                         "docs/ros-tools.md)")
+    p.add_argument("--live-rate", type=float, default=None, metavar="HZ",
+                   help="with --live: messages a second forwarded per per-sample topic "
+                        "(default 30, what a screen shows; 0: every message)")
     p.add_argument("--live-host", default="127.0.0.1", metavar="ADDR",
                    help="with --live: the address to serve on (default 127.0.0.1, this "
                         "machine only; 0.0.0.0 serves every network)")

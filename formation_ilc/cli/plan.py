@@ -260,6 +260,8 @@ class RunPlan:
     secure: SecureRun | None = None
     #: ``--live``: the live view's (host, port), or None
     live: tuple[str, int] | None = None
+    #: ``--live-rate``: messages a second per per-sample channel (None: the view's default)
+    live_rate: float | None = None
 
     @property
     def scenario(self) -> Scenario:
@@ -359,7 +361,7 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
         record_root=root.resolve() if root is not None else None,
         watchdog_scale=float(getattr(opts, "watchdog_scale", 1.0)),
         physics=physics, notes=notes,
-        live=_live(opts),
+        live=_live(opts), live_rate=_live_rate(opts),
         hosts=None if faults is None else HostsPlan(faults, opts.dds_profile or "lossy",
                                                     sc.seed))
     # the processes follow from the rest of the plan
@@ -654,6 +656,18 @@ def _live(opts: argparse.Namespace) -> tuple[str, int] | None:
     return host, int(port)
 
 
+def _live_rate(opts: argparse.Namespace) -> float | None:
+    """``--live-rate HZ``: a rate >= 0 (NoRun otherwise, or without ``--live``)."""
+    rate = getattr(opts, "live_rate", None)
+    if rate is None:
+        return None
+    if getattr(opts, "live", None) is None:
+        raise NoRun("--live-rate: only with --live")
+    if not rate >= 0:
+        raise NoRun(f"--live-rate {rate}: a rate >= 0 messages a second is required")
+    return float(rate)
+
+
 def caller_domain() -> int | None:
     """The caller's ``ROS_DOMAIN_ID`` (the launcher honours it), None when it is not set;
     NoRun when it is not a domain id."""
@@ -698,7 +712,9 @@ def node_specs(plan: RunPlan, scenario: str) -> tuple[NodeSpec, ...]:
         # the view topics come from the recorder; without one the bridge makes them
         specs.append(spec(LIVEVIEW_NODE, "formation_ilc.nodes.liveview",
                           args=("--host", plan.live[0], "--port", str(plan.live[1]),
-                                *(("--observe",) if plan.record is None else ())),
+                                *(("--observe",) if plan.record is None else ()),
+                                *(("--rate", repr(plan.live_rate))
+                                  if plan.live_rate is not None else ())),
                           remaps=nsa))
     leader = {**cfg.to_params(scenario), "state_dir": state_dir,
               "nodes_expected": plan.team.expected}

@@ -1,17 +1,21 @@
 """Live view: the running formation served to Foxglove over its WebSocket protocol.
 
-A bridge, started by ``formation-ilc launch --live [PORT]``: it subscribes to every topic a
-recording holds (``msgs_schema.topic_table`` and ``view_topic_table``) as raw CDR and
-forwards those bytes unchanged on a ``foxglove-sdk`` WebSocket server, one channel per topic
+A bridge, started by ``formation-ilc launch --live [PORT]``: it offers every topic a
+recording holds (``msgs_schema.topic_table`` and ``view_topic_table``), one channel per topic
 with the type's ``ros2msg`` definition (the schemas of the recording, from
-``formation_ilc.recordings.mcap_io.message_definition``). Open ``ws://127.0.0.1:PORT`` in
-Foxglove (docs/ros-tools.md).
+``formation_ilc.recordings.mcap_io.message_definition``), and forwards the raw CDR bytes it
+takes unchanged. Open ``ws://127.0.0.1:PORT`` in Foxglove (docs/ros-tools.md).
+
+Like Foxglove's own ROS bridge it subscribes to a per-sample topic only while a viewer
+subscribes to its channel (or to a view topic computed from it): with no viewer, or a viewer
+that shows two robots, it takes nothing else off the run. The latched and per-trial topics
+(configuration, readiness, diagnostics, paths, trial events) it always takes.
 
 It never holds the run back: its subscriptions to per-sample topics are best effort (a
 bridge that falls behind loses samples, the writers never wait for it), it runs below the
 control loop's priority (like the recorder), and the server keeps at most
 ``BACKLOG`` messages per viewer, dropping the oldest for a slow viewer; a viewer that goes
-away is simply gone. With ``--observe`` (a launch that does not record) it publishes the
+away is simply gone. With ``--observe`` (a launch that does not record) it computes the
 desired poses, errors and markers itself (``formation_ilc.nodes.observer``); otherwise the
 recorder does and it forwards them.
 
@@ -22,9 +26,12 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 import time
+from collections import Counter
 from typing import Any
 
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
@@ -42,6 +49,14 @@ DEFAULT_PORT = 8765
 BACKLOG = 4096
 #: niceness: the view must not take CPU from the control loop
 NICENESS = 10
+#: messages a second forwarded per per-sample channel by default (what a screen shows; a
+#: lockstep run makes several hundred samples a second per robot)
+DEFAULT_RATE = 30.0
+#: how soon [s] the subscriptions follow a viewer's (the server's thread only flags it: the
+#: EventsExecutor takes no guard conditions)
+FOLLOW = 0.1
+#: how often [s] the bridge also looks whether DDS readers take the view topics it computes
+RECHECK = 1.0
 #: per-sample topics: a bridge that falls behind loses samples; the writers never wait
 _VIEWER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                          reliability=ReliabilityPolicy.BEST_EFFORT,
@@ -54,8 +69,23 @@ def _reader_qos(offered: QoSProfile) -> QoSProfile:
     return _VIEWER_QOS
 
 
+class _Viewers:
+    """The server's listener: which channels viewers subscribe to (foxglove ServerListener;
+    called on the server's thread)."""
+
+    def __init__(self, node: LiveViewNode):
+        self.node = node
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        self.node.viewers_want(channel.topic, +1)
+
+    def on_unsubscribe(self, client: Any, channel: Any) -> None:
+        self.node.viewers_want(channel.topic, -1)
+
+
 class LiveViewNode(Node):
-    def __init__(self, start_server: Any, observe: bool = False, **kwargs: Any):
+    def __init__(self, start_server: Any, observe: bool = False, rate: float = DEFAULT_RATE,
+                 **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(LIVEVIEW_NODE, **kwargs)
         import foxglove
@@ -67,11 +97,25 @@ class LiveViewNode(Node):
         self.start_server = start_server
         self.server: Any = None
         self.observe = observe
+        #: per-sample channels forward at most one message per ``1/rate`` s (0: every one)
+        self.period = 1.0 / rate if rate > 0 else 0.0
+        self._due: dict[str, float] = {}
         self.drops = DropCounter(self)
         self.channels: dict[str, Any] = {}
         self.subs: dict[str, Any] = {}
         self.observer: Observer | None = None
         self.cfg: RunConfig | None = None
+        #: per-sample DDS topics taken on demand: topic -> (type, offered QoS)
+        self.on_demand: dict[str, tuple[str, QoSProfile]] = {}
+        #: channel (relative topic) -> the DDS topics it is made of
+        self.sources: dict[str, frozenset[str]] = {}
+        #: channel (absolute topic, as the server names it) -> viewers subscribed
+        self.wanted: Counter[str] = Counter()
+        self._lock = threading.Lock()
+        self._changed = False
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(FOLLOW, self._follow, clock=steady)
+        self.create_timer(RECHECK, self._reconcile, clock=steady)
         self._forward(ms.CONFIG, "std_msgs/msg/String", ms.LATCHED_QOS)
 
     def _channel(self, topic: str, type_name: str) -> Any:
@@ -85,15 +129,81 @@ class LiveViewNode(Node):
         return ch
 
     def _forward(self, topic: str, type_name: str, qos: QoSProfile) -> None:
+        """Forward a DDS topic on its channel: at once if latched or per trial, else while
+        a viewer wants it."""
+        self._channel(topic, type_name)
+        self.sources[topic] = frozenset({topic})
+        if qos.durability == DurabilityPolicy.TRANSIENT_LOCAL or topic == ms.TRIAL_EVENTS:
+            self._subscribe(topic, type_name, qos)
+        else:
+            self.on_demand[topic] = (type_name, qos)
+
+    def _subscribe(self, topic: str, type_name: str, qos: QoSProfile) -> None:
         if topic in self.subs:
             return
-        ch = self._channel(topic, type_name)
-        self.subs[topic] = self.create_subscription(
-            msg_class(type_name), topic, lambda data, t=topic, c=ch: self._on(t, c, data),
-            _reader_qos(qos), raw=True)
+        ch = self.channels.get(topic)
+
+        def on(data: bytes) -> None:
+            self._on(topic, ch, data)
+
+        self.subs[topic] = self.create_subscription(msg_class(type_name), topic, on,
+                                                    _reader_qos(qos), raw=True)
+
+    def viewers_want(self, absolute: str, change: int) -> None:
+        """A viewer subscribed (+1) to a channel or left it (-1): the subscriptions follow
+        on the executor's thread."""
+        with self._lock:
+            self.wanted[absolute] += change
+            self._changed = True
+
+    def _follow(self) -> None:
+        with self._lock:
+            changed, self._changed = self._changed, False
+        if changed:
+            self._reconcile()
+
+    def _reconcile(self) -> None:
+        """Take exactly the per-sample topics that the viewers' channels (and DDS readers of
+        the view topics computed here) are made of."""
+        with self._lock:
+            viewed = {t for t, k in self.wanted.items() if k > 0}
+        need: set[str] = set()
+        for topic, made_of in self.sources.items():
+            if self.resolve_topic_name(topic) in viewed:
+                need |= made_of
+        if self.observer is not None:
+            for topic in self.observer.listened():
+                need |= self.sources.get(topic, frozenset())
+        for topic, (type_name, qos) in self.on_demand.items():
+            if topic in need and topic not in self.subs:
+                self._subscribe(topic, type_name, qos)
+            elif topic not in need and topic in self.subs:
+                self.destroy_subscription(self.subs.pop(topic))
+
+    @staticmethod
+    def _made_of(topic: str, poses: list[str]) -> list[str]:
+        """The poses the observer computes a view topic from: the whole team's (markers),
+        none (a desired path: from the trial's start), else its robot's."""
+        if topic == ms.MARKERS:
+            return poses
+        robot, _, kind = topic.partition("/")
+        if ms.desired_path_topic(1).endswith("/" + kind):
+            return []
+        return [p for p in poses if p.partition("/")[0] == robot]
+
+    def _take(self, topic: str) -> bool:
+        """Whether a per-sample channel forwards a message now (its rate)."""
+        if not self.period:
+            return True
+        now = time.monotonic()
+        if now < self._due.get(topic, 0.0):
+            return False
+        self._due[topic] = now + self.period
+        return True
 
     def _on(self, topic: str, channel: Any, data: bytes) -> None:
-        channel.log(data, log_time=time.time_ns())
+        if channel is not None and (topic not in self.on_demand or self._take(topic)):
+            channel.log(data, log_time=time.time_ns())
         if topic == ms.CONFIG and self.cfg is None:
             self._configure(data)
         elif self.observer is not None:
@@ -114,16 +224,29 @@ class LiveViewNode(Node):
         n = self.cfg.scenario.n
         for topic, type_name, qos in ms.topic_table(n):
             self._forward(topic, type_name, qos)
+        poses = [ms.pose_topic(i) for i in range(1, n + 1)]
         for topic, type_name, qos in ms.view_topic_table(n):
-            if self.observe:
-                self._channel(topic, type_name)
-            else:
+            if not self.observe:
                 self._forward(topic, type_name, qos)
+                continue
+            self._channel(topic, type_name)
+            self.sources[topic] = frozenset(self._made_of(topic, poses))
         if self.observe:
-            self.observer = Observer(self, self.cfg, self._view_sink)
-        self.server = self.start_server()
+            self.observer = Observer(self, self.cfg, self._view_sink, gate=self._take)
+        self.server = self.start_server(_Viewers(self))
         self.get_logger().info(f"serving {len(self.channels)} topics on port "
                                f"{self.server.port}")
+
+
+def _lower_priority() -> None:
+    """Run below the control loop, before rclpy's threads start (they inherit it):
+    FORMATION_ILC_LIVEVIEW_SCHED=nice (default: niceness ``NICENESS``), idle (SCHED_IDLE:
+    only what the run leaves) or normal."""
+    how = os.environ.get("FORMATION_ILC_LIVEVIEW_SCHED", "nice")
+    if how == "idle":
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+    elif how != "normal":
+        os.nice(NICENESS)
 
 
 def main(args: list[str] | None = None) -> int:
@@ -132,21 +255,25 @@ def main(args: list[str] | None = None) -> int:
                         help="address to serve on (default 127.0.0.1: this machine only)")
     parser.add_argument("--port", type=int, default=DEFAULT_PORT,
                         help=f"WebSocket port (default {DEFAULT_PORT})")
+    parser.add_argument("--rate", type=float, default=DEFAULT_RATE, metavar="HZ",
+                        help=f"messages a second forwarded per per-sample topic (default "
+                             f"{DEFAULT_RATE:g}; 0: every message). Latched and per-trial "
+                             f"topics always go whole")
     parser.add_argument("--observe", action="store_true",
                         help="publish the desired poses, errors and markers here (when no "
                              "recorder does)")
-    if os.environ.get("FORMATION_ILC_LIVEVIEW_SCHED", "nice") != "normal":
-        os.nice(NICENESS)  # before rclpy's threads start: they inherit it
+    _lower_priority()
 
     def build(ns: Any, argv: list[str]) -> list[Node]:
         import socket
 
         import foxglove
 
-        def start() -> Any:
+        def start(listener: Any) -> Any:
             try:
                 return foxglove.start_server(name="formation-ilc", host=ns.host,
-                                             port=ns.port, message_backlog_size=BACKLOG)
+                                             port=ns.port, message_backlog_size=BACKLOG,
+                                             server_listener=listener)
             except Exception as exc:  # noqa: BLE001 - the SDK's own error type: port in use
                 print(f"error: cannot serve on {ns.host}:{ns.port}: {exc}", file=sys.stderr)
                 raise SystemExit(2) from None
@@ -158,7 +285,9 @@ def main(args: list[str] | None = None) -> int:
             print(f"error: cannot serve on {ns.host}:{ns.port}: {exc.strerror}",
                   file=sys.stderr)
             raise SystemExit(2) from None
-        return [LiveViewNode(start, observe=ns.observe)]
+        if not ns.rate >= 0:
+            raise ValueError(f"--rate {ns.rate}: a rate >= 0 is required")
+        return [LiveViewNode(start, observe=ns.observe, rate=ns.rate)]
 
     return spin_main(build, parser, args)
 

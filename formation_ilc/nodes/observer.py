@@ -9,17 +9,22 @@ once a trial's every pose is in, each robot's largest errors of the trial
 (``msgs_schema.view_topic_table``; the numbers from ``formation_ilc.protocol.view``). Every
 message is serialized once, published as those bytes and handed to ``sink`` (the recorder
 writes it into its file, the bridge to its viewers): the robots and the plant are untouched
-and no sample waits for it.
+and no sample waits for it. A per-sample topic is published on DDS only while some reader
+there takes it (checked every ``LISTENERS_EVERY`` seconds), as ``rviz`` and the live view do
+on demand; the latched ones (paths, trial errors) always, for late joiners.
 """
 
 from __future__ import annotations
 
 import importlib
+import math
+import time
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy
 from rclpy.serialization import serialize_message
 from std_msgs.msg import String
 
@@ -31,6 +36,8 @@ from formation_ilc.recordings import cdr
 
 #: sink(relative topic, CDR bytes, send label [ns]) of every message the observer publishes
 Sink = Callable[[str, bytes, int], None]
+#: how often [s] the observer asks DDS which of its per-sample topics have readers
+LISTENERS_EVERY = 0.5
 
 
 def msg_class(type_name: str) -> Any:
@@ -42,19 +49,28 @@ def msg_class(type_name: str) -> Any:
 class Observer:
     """Publishes the view topics of a run (``cfg``) on ``node``; see the module doc."""
 
-    def __init__(self, node: Node | None, cfg: RunConfig, sink: Sink | None = None):
+    def __init__(self, node: Node | None, cfg: RunConfig, sink: Sink | None = None,
+                 gate: Callable[[str], bool] | None = None):
         """``node`` None: no publishers, every message only goes to ``sink`` (the batch
-        simulator's recording)."""
+        simulator's recording). ``gate(topic)``: whether the sink takes this per-sample
+        message (the live view's rate; asked once per message, None: it takes all)."""
         sc = cfg.scenario
-        self.cfg, self.clock, self.sink = cfg, cfg.clock, sink
+        self.cfg, self.clock, self.sink, self.gate = cfg, cfg.clock, sink, gate
         eta_d = sc.desired.eta
         self.view = TrackingView(eta_d, marker_every(sc.dt))
         self.outline = outline_order(eta_d[:, 0])
         src, _ = sc.graph.in_links()
         self.links = graph_links(src)
         self.pubs: dict[str, Any] = {}
+        #: per-sample topics (volatile): published only while they have a reader
+        self.on_demand: set[str] = set()
         for topic, type_name, qos in ms.view_topic_table(sc.n) if node is not None else ():
-            self.pubs[topic] = node.create_publisher(msg_class(type_name), topic, qos)
+            self.pubs[topic] = node.create_publisher(  # type: ignore[union-attr]
+                msg_class(type_name), topic, qos)
+            if qos.durability != DurabilityPolicy.TRANSIENT_LOCAL:
+                self.on_demand.add(topic)
+        self._heard: set[str] = set()
+        self._heard_at = -math.inf
         self.iteration_of: dict[int, int] = {}
         #: what the observer reads: each robot's measured pose (topic -> robot index)
         self.pose_topics = {ms.pose_topic(i + 1): i for i in range(sc.n)}
@@ -64,11 +80,29 @@ class Observer:
         self._error = serialize_message(ms.vector_msg(0, 0.0, 0.0))
         self._markers = ms.MarkersTemplate(sc.n, self.outline, self.links)
 
-    def _send(self, topic: str, data: bytes, stamp_ns: int) -> None:
-        pub = self.pubs.get(topic)
-        if pub is not None:
-            pub.publish(data)
-        if self.sink is not None:
+    def listened(self) -> set[str]:
+        """The per-sample topics that some DDS reader takes (asked at most every
+        ``LISTENERS_EVERY`` seconds)."""
+        now = time.monotonic()
+        if now - self._heard_at >= LISTENERS_EVERY:
+            self._heard_at = now
+            self._heard = {t for t in self.on_demand if self.pubs[t].get_subscription_count()}
+        return self._heard
+
+    def _to(self, topic: str) -> tuple[bool, bool]:
+        """Where a per-sample message of ``topic`` goes now: (published on DDS, to the
+        sink)."""
+        pub = topic in self.pubs and (topic not in self.on_demand or topic in self.listened())
+        return pub, self.sink is not None and (self.gate is None or self.gate(topic))
+
+    def _send(self, topic: str, data: bytes, stamp_ns: int,
+              to: tuple[bool, bool] | None = None) -> None:
+        """Publish and sink a message; ``to`` from :meth:`_to` (None: a latched or
+        per-trial one, which goes everywhere)."""
+        pub, sink = to if to is not None else (topic in self.pubs, self.sink is not None)
+        if pub:
+            self.pubs[topic].publish(data)
+        if sink and self.sink is not None:
             self.sink(topic, data, stamp_ns)
 
     def _emit(self, topic: str, msg: Any, stamp_ns: int) -> None:
@@ -103,13 +137,15 @@ class Observer:
         slot, s = self.clock.decode(stamp)
         pos, head = self.view.observe(slot, r, s, eta)
         i = r + 1
-        self._send(ms.desired_pose_topic(i), ms.stamped_cdr(self._desired[r][s], stamp), stamp)
-        self._send(ms.tracking_error_topic(i), ms.vector_cdr(self._error, stamp, pos, head, 0.0),
-                   stamp)
+        # a per-sample message is built only if it goes somewhere
+        if any(to := self._to(topic := ms.desired_pose_topic(i))):
+            self._send(topic, ms.stamped_cdr(self._desired[r][s], stamp), stamp, to)
+        if any(to := self._to(topic := ms.tracking_error_topic(i))):
+            self._send(topic, ms.vector_cdr(self._error, stamp, pos, head, 0.0), stamp, to)
         team = self.view.position(slot, r, s, eta)
-        if team is not None:
+        if team is not None and any(to := self._to(ms.MARKERS)):
             self._send(ms.MARKERS, self._markers.cdr(stamp, self.view.eta_d[:, s, :2], team),
-                       stamp)
+                       stamp, to)
         if s == self.view.samples:
             self._trial_end(slot, stamp)
 

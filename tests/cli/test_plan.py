@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import socket
 import subprocess
 import sys
 
@@ -315,8 +316,6 @@ def test_a_node_that_refuses_is_not_started_again(tmp_path, capsys):
 
 
 def test_live_plans_a_bridge_on_localhost_and_refuses_a_taken_port(tmp_path):
-    import socket
-
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
@@ -339,6 +338,26 @@ def test_live_plans_a_bridge_on_localhost_and_refuses_a_taken_port(tmp_path):
         s.listen()
         r = refusal(tmp_path, "paper-triangle3", "--live", str(port))
     assert r.status == 2 and f"--live {port}: cannot serve on 127.0.0.1:{port}" in r.message
+
+
+def test_live_rate_reaches_the_bridge_and_bad_rates_are_refused(tmp_path):
+    port = str(_free_port_for_plan())
+    plan = plan_of(tmp_path, "paper-triangle3", "--live", port, "--live-rate", "12.5")
+    live = [n for n in plan.nodes if n.name == "liveview"][0]
+    assert live.args[-2:] == ("--rate", "12.5")
+    plan = plan_of(tmp_path, "paper-triangle3", "--live", port, "--live-rate", "0", out="r0")
+    assert [n for n in plan.nodes if n.name == "liveview"][0].args[-2:] == ("--rate", "0.0")
+    for argv, why in ((("--live", port, "--live-rate", "-1"), "a rate >= 0"),
+                      (("--live", port, "--live-rate", "nan"), "a rate >= 0"),
+                      (("--live-rate", "5"), "only with --live")):
+        r = refusal(tmp_path, "paper-triangle3", *argv)
+        assert r.status == 2 and why in r.message, r.message
+
+
+def _free_port_for_plan() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
 
 
 def test_the_callers_ros_domain_id_is_honoured(tmp_path, monkeypatch):

@@ -1,0 +1,181 @@
+"""The live view takes a per-sample topic off the run only while something shows it: a
+viewer subscribed to its channel, to a view topic computed from it, or a DDS reader of such
+a view topic; the latched and per-trial topics it always takes (in-process, on the
+EventsExecutor the node runs on, a fake server standing in for foxglove's, whose listener the
+test drives as a viewer would)."""
+
+from __future__ import annotations
+
+import os
+import time
+from types import SimpleNamespace
+
+import pytest
+
+import msgs_schema as ms
+from formation_ilc.config.runconfig import RunConfig
+from formation_ilc.config.scenario import load_scenario
+
+if os.environ.get("FORMATION_ILC_REQUIRE_LIVE") != "1":
+    pytest.importorskip("foxglove")  # the 'live' extra; CI requires it
+
+pytestmark = pytest.mark.ros
+
+
+class FakeServer:
+    port = 0
+
+    def __init__(self, listener):
+        self.listener = listener
+
+
+def _per_sample(n: int) -> set[str]:
+    return {t for t, _, q in ms.topic_table(n) + ms.view_topic_table(n)
+            if q.durability != ms.LATCHED_QOS.durability and t != ms.TRIAL_EVENTS}
+
+
+def _spin_until(ex, cond, timeout=10.0):
+    end = time.monotonic() + timeout
+    while not cond() and time.monotonic() < end:
+        ex.spin_once(timeout_sec=0.05)
+    return cond()
+
+
+@pytest.mark.parametrize("observe", [True, False])
+def test_subscriptions_follow_what_viewers_show(context, observe):
+    from rclpy.experimental import EventsExecutor
+    from rclpy.node import Node
+    from std_msgs.msg import String
+
+    from formation_ilc.nodes.liveview import LiveViewNode
+
+    servers: list[FakeServer] = []
+
+    def start(listener):
+        servers.append(FakeServer(listener))
+        return servers[-1]
+
+    live = LiveViewNode(start, observe=observe, context=context)
+    leader = Node("leader", namespace=ms.NAMESPACE, context=context)
+    ex = EventsExecutor(context=context)  # as the node runs
+    ex.add_node(live)
+    ex.add_node(leader)
+    try:
+        cfg = RunConfig(load_scenario("paper-triangle3"))
+        leader.create_publisher(String, ms.CONFIG, ms.LATCHED_QOS).publish(
+            ms.json_to_msg(cfg.to_json()))
+        assert _spin_until(ex, lambda: servers), "the server never started"
+        n = cfg.scenario.n
+        per_sample = _per_sample(n)
+        taken = set(live.subs)
+        # with no viewer: every latched or per-trial topic, no per-sample one
+        assert ms.TRIAL_EVENTS in taken and ms.DIAGNOSTICS in taken
+        assert ms.trajectory_topic(2) in taken
+        assert not taken & per_sample
+        assert {ms.pose_topic(i) for i in (1, 2, 3)} <= set(live.channels)
+        listener = servers[0].listener
+
+        def view(topic, change):
+            ch = SimpleNamespace(topic=live.resolve_topic_name(topic), id=0)
+            (listener.on_subscribe if change > 0 else listener.on_unsubscribe)(
+                SimpleNamespace(id=1), ch)
+
+        def per_sample_taken():
+            return set(live.subs) & per_sample
+
+        view(ms.cmd_vel_topic(3), +1)
+        assert _spin_until(ex, lambda: per_sample_taken() == {ms.cmd_vel_topic(3)})
+        view(ms.tracking_error_topic(2), +1)  # computed here, or forwarded
+        want = ms.pose_topic(2) if observe else ms.tracking_error_topic(2)
+        assert _spin_until(ex, lambda: per_sample_taken() >= {want})
+        if observe:
+            assert per_sample_taken() == {ms.cmd_vel_topic(3), ms.pose_topic(2)}
+            view(ms.MARKERS, +1)  # the whole team's poses
+            assert _spin_until(ex, lambda: per_sample_taken() == {
+                ms.cmd_vel_topic(3), *(ms.pose_topic(i) for i in (1, 2, 3))})
+            view(ms.MARKERS, -1)
+        else:
+            assert ms.pose_topic(2) not in per_sample_taken()
+        view(ms.cmd_vel_topic(3), -1)
+        view(ms.tracking_error_topic(2), -1)
+        assert _spin_until(ex, lambda: not per_sample_taken())
+        assert ms.TRIAL_EVENTS in live.subs  # the per-trial ones stay
+    finally:
+        ex.shutdown()
+        live.destroy_node()
+        leader.destroy_node()
+
+
+def test_a_dds_reader_of_a_computed_view_topic_gets_it(context):
+    """rviz (or any DDS reader) subscribed to robot_1's tracking error: the live view takes
+    robot_1's poses and publishes the errors, with no WebSocket viewer at all."""
+    from geometry_msgs.msg import PoseStamped, Vector3Stamped
+    from rclpy.experimental import EventsExecutor
+    from rclpy.node import Node
+    from std_msgs.msg import String
+
+    from formation_ilc.nodes.liveview import RECHECK, LiveViewNode
+    from formation_ilc.protocol.schedule import TrialEvent
+
+    live = LiveViewNode(lambda listener: FakeServer(listener), observe=True, context=context)
+    other = Node("rviz", namespace=ms.NAMESPACE, context=context)
+    ex = EventsExecutor(context=context)  # as the node runs
+    ex.add_node(live)
+    ex.add_node(other)
+    try:
+        cfg = RunConfig(load_scenario("paper-triangle3"))
+        other.create_publisher(String, ms.CONFIG, ms.LATCHED_QOS).publish(
+            ms.json_to_msg(cfg.to_json()))
+        assert _spin_until(ex, lambda: live.observer is not None)
+        assert ms.pose_topic(1) not in live.subs
+        got: list[Vector3Stamped] = []
+        other.create_subscription(Vector3Stamped, ms.tracking_error_topic(1), got.append,
+                                  ms.VIEW_QOS)
+        assert _spin_until(ex, lambda: ms.pose_topic(1) in live.subs, timeout=5 * RECHECK + 5)
+        assert ms.pose_topic(2) not in live.subs
+        events = other.create_publisher(String, ms.TRIAL_EVENTS, ms.SAMPLE_QOS)
+        poses = other.create_publisher(PoseStamped, ms.pose_topic(1), ms.SAMPLE_QOS)
+        clock = cfg.clock
+        eta = cfg.scenario.desired.eta[0, 5] + [0.3, 0.4, 0.0]
+        start = TrialEvent(ms.START, 0, 0, 1, run=cfg.run_id)
+
+        last = [0.0]
+
+        def sent():  # again every 0.2 s until the error is in (the first may come before
+            if time.monotonic() - last[0] > 0.2:  # the observer's publisher matched)
+                last[0] = time.monotonic()
+                events.publish(ms.json_to_msg(start.to_json()))
+                poses.publish(ms.pose_to_msg(eta, clock.stamp_ns(0, 5), ms.WORLD_FRAME))
+            return bool(got)
+
+        assert _spin_until(ex, sent, timeout=10)
+        assert got[0].vector.x == pytest.approx(0.5, abs=1e-9)  # |(0.3, 0.4)|
+    finally:
+        ex.shutdown()
+        live.destroy_node()
+        other.destroy_node()
+
+
+def test_a_per_sample_channel_forwards_at_most_its_rate(context):
+    from formation_ilc.nodes.liveview import LiveViewNode
+
+    live = LiveViewNode(lambda listener: FakeServer(listener), rate=20.0, context=context)
+    every = LiveViewNode(lambda listener: FakeServer(listener), rate=0.0, context=context,
+                         namespace="/other")
+    try:
+        taken = []
+        end = time.monotonic() + 0.5
+        while time.monotonic() < end:
+            taken += [t for t in ("robot_1/pose", "robot_2/pose") if live._take(t)]
+            time.sleep(0.001)
+        # 0.5 s at 20 a second: at most 11 per channel, each channel on its own
+        assert 1 <= taken.count("robot_1/pose") <= 11
+        assert 1 <= taken.count("robot_2/pose") <= 11
+        time.sleep(0.06)
+        assert live._take("robot_1/pose") and not live._take("robot_1/pose")
+        time.sleep(0.06)  # one period (0.05 s) later it forwards again
+        assert live._take("robot_1/pose")
+        assert all(every._take("robot_1/pose") for _ in range(100))
+    finally:
+        live.destroy_node()
+        every.destroy_node()
