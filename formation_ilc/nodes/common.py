@@ -214,6 +214,18 @@ def matched(pairs: Iterable[tuple[Any, int]]) -> bool:
                 else e.get_subscription_count()) >= count for e, count in pairs)
 
 
+def unmatched(pairs: Iterable[tuple[Any, int]]) -> list[str]:
+    """What :func:`matched` still waits for, one phrase an endpoint: "TOPIC: 0 of 1
+    readers" (for a log line naming why a node is not ready)."""
+    out = []
+    for e, count in pairs:
+        sub = isinstance(e, Subscription)
+        have = e.get_publisher_count() if sub else e.get_subscription_count()
+        if have < count:
+            out.append(f"{e.topic_name}: {have} of {count} {'writers' if sub else 'readers'}")
+    return out
+
+
 class Exit:
     """Exit status a node asks for; ``stop`` is done when the process should end."""
 

@@ -52,6 +52,7 @@ its own memory) in one process on one executor.
 from __future__ import annotations
 
 import sys
+import time
 from collections import Counter
 from typing import Any
 
@@ -74,6 +75,7 @@ from formation_ilc.nodes.common import (
     node_parser,
     robot_node_from_args,
     spin_main,
+    unmatched,
     warm_up,
 )
 from formation_ilc.nodes.params import ParameterError, check, declare
@@ -85,6 +87,8 @@ from msgs_schema import wire
 
 #: realtime: how long [dT] a robot waits for its links after its pose
 LINK_WAIT = 0.75
+#: how often [s] a robot not yet ready names the endpoints it waits for in its log
+MATCH_WARN = 10.0
 
 
 class RobotNode(ConfiguredNode):
@@ -175,6 +179,7 @@ class RobotNode(ConfiguredNode):
             self._deadline.cancel()
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
         self._gate = self.create_timer(0.02, self._check_ready)
+        self._unmatched_warn = time.monotonic() + MATCH_WARN
         self.get_logger().info(f"{self.name}: {len(lrn.neighbours)} in-links"
                                f"{' + leader' if lrn.sees_leader else ''} ({cfg.links}), "
                                f"{self.n_out} out-neighbours, {pb.samples} samples")
@@ -190,6 +195,11 @@ class RobotNode(ConfiguredNode):
         if matched(need):
             self._gate.cancel()
             self._send_ready()
+            return
+        now = time.monotonic()
+        if now >= self._unmatched_warn:  # say what it waits for (every MATCH_WARN s)
+            self._unmatched_warn = now + MATCH_WARN
+            self.get_logger().warning(f"not ready: waiting for {'; '.join(unmatched(need))}")
 
     def _send_ready(self) -> None:
         """Idle: ready for the next iteration (the number of trials learned)."""
