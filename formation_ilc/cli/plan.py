@@ -179,6 +179,8 @@ class NodeSpec:
         None: this machine's (the hub's).
     passive : a reader that says ready once for the run (the recorder): the leader is told
         at once when it dies, and its restart interrupts no trial.
+    optional : no part of the run (the live view): the run never waits for it, its restart
+        interrupts no trial, and once its restarts are used up the run goes on without it.
     env : environment variables of this process on top of the run's (``--secure``: its
         enclave).
     """
@@ -191,6 +193,7 @@ class NodeSpec:
     restart: RestartPolicy = field(default_factory=RestartPolicy)
     host: int | None = None
     passive: bool = False
+    optional: bool = False
     python: str = sys.executable
     env: tuple[tuple[str, str], ...] = ()
 
@@ -715,7 +718,7 @@ def node_specs(plan: RunPlan, scenario: str) -> tuple[NodeSpec, ...]:
                                 *(("--observe",) if plan.record is None else ()),
                                 *(("--rate", repr(plan.live_rate))
                                   if plan.live_rate is not None else ())),
-                          remaps=nsa))
+                          remaps=nsa, optional=True))
     leader = {**cfg.to_params(scenario), "state_dir": state_dir,
               "nodes_expected": plan.team.expected}
     if plan.watchdog_scale != 1.0:

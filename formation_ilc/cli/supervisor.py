@@ -162,12 +162,19 @@ class Supervisor:
             spec = self.specs[name]
             n = self.stack.restarts.get(name, 0)
             if not spec.restart.allows(code, n):
+                if spec.optional:  # a viewer: the run goes on without it
+                    self.stack.procs.pop(name)
+                    print(f"{name} exited with {exit_status(code)}"
+                          f"{f' after {n} restarts' if n else ''}: the run goes on without "
+                          f"it (log: {self.stack.log_dir / (name + '.log')})", flush=True)
+                    continue
                 return Failure(spec, code)
             if spec.passive and self.on_down is not None:
                 # a passive node's death is not seen otherwise until it is back
                 self.on_down(name, self.stack.procs[name].pid)
             note = self.stack.restart(name)
-            what = "" if spec.passive else "; the trial it interrupted runs again"
+            what = ("" if spec.passive or spec.optional
+                    else "; the trial it interrupted runs again")
             print(f"{name} exited with {exit_status(code)}: starting it again "
                   f"({n + 1}/{spec.restart.max_restarts}){what}{note}", flush=True)
         return None

@@ -295,6 +295,35 @@ def test_the_supervisor_restarts_within_the_policy(tmp_path, capsys):
     assert sup.stack.procs["p1"].poll() is not None  # stopped
 
 
+def test_an_optional_node_that_keeps_failing_is_left_behind(tmp_path, capsys):
+    """The live view is optional: its failures end nothing; the run goes on without it."""
+    from dataclasses import replace
+
+    from formation_ilc.cli.supervisor import Supervisor
+
+    plan, codes = _plan_running(tmp_path, "import time; time.sleep(60)",
+                                "raise SystemExit(1)", max_restarts=1)
+    nodes = (plan.nodes[0], replace(plan.nodes[1], passive=False, optional=True))
+    sup = Supervisor(replace(plan, nodes=nodes), dict(os.environ),
+                     place=lambda s: [sys.executable, "-c", codes[s.name]])
+    sup.start()
+    try:
+        for _ in range(2):  # the first exit is restarted, the second left behind
+            sup.stack.procs["p1"].wait(timeout=30)
+            assert sup.watch() is None
+        assert "p1" not in sup.stack.procs and sup.watch() is None
+        assert sup.stack.procs["p0"].poll() is None  # the run goes on
+    finally:
+        sup.stop()
+    out = capsys.readouterr().out
+    assert "p1 exited with status 1: starting it again (1/1)\n" in out  # no trial re-run
+    assert "p1 exited with status 1 after 1 restarts: the run goes on without it" in out
+    plan = plan_of(tmp_path, "paper-triangle3", "--live", str(_free_port_for_plan()),
+                   out="live")
+    assert [n.optional for n in plan.nodes if n.name == "liveview"] == [True]
+    assert not any(n.optional for n in plan.nodes if n.name != "liveview")
+
+
 def test_a_node_that_refuses_is_not_started_again(tmp_path, capsys):
     from formation_ilc.cli.supervisor import Supervisor
 
