@@ -6,6 +6,7 @@ test drives as a viewer would)."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 from types import SimpleNamespace
@@ -41,8 +42,10 @@ def _spin_until(ex, cond, timeout=10.0):
     return cond()
 
 
-@pytest.mark.parametrize("observe", [True, False])
-def test_subscriptions_follow_what_viewers_show(context, observe):
+@contextlib.contextmanager
+def _configured(context, observe: bool):
+    """A live view on the EventsExecutor it runs on, beside a node ``other`` that has sent
+    it paper-triangle3's configuration; yields (live, other, executor, cfg, server)."""
     from rclpy.experimental import EventsExecutor
     from rclpy.node import Node
     from std_msgs.msg import String
@@ -56,15 +59,25 @@ def test_subscriptions_follow_what_viewers_show(context, observe):
         return servers[-1]
 
     live = LiveViewNode(start, observe=observe, context=context)
-    leader = Node("leader", namespace=ms.NAMESPACE, context=context)
-    ex = EventsExecutor(context=context)  # as the node runs
+    other = Node("other", namespace=ms.NAMESPACE, context=context)
+    ex = EventsExecutor(context=context)
     ex.add_node(live)
-    ex.add_node(leader)
+    ex.add_node(other)
     try:
         cfg = RunConfig(load_scenario("paper-triangle3"))
-        leader.create_publisher(String, ms.CONFIG, ms.LATCHED_QOS).publish(
+        other.create_publisher(String, ms.CONFIG, ms.LATCHED_QOS).publish(
             ms.json_to_msg(cfg.to_json()))
         assert _spin_until(ex, lambda: servers), "the server never started"
+        yield live, other, ex, cfg, servers[0]
+    finally:
+        ex.shutdown()
+        live.destroy_node()
+        other.destroy_node()
+
+
+@pytest.mark.parametrize("observe", [True, False])
+def test_subscriptions_follow_what_viewers_show(context, observe):
+    with _configured(context, observe) as (live, _, ex, cfg, server):
         n = cfg.scenario.n
         per_sample = _per_sample(n)
         taken = set(live.subs)
@@ -73,7 +86,7 @@ def test_subscriptions_follow_what_viewers_show(context, observe):
         assert ms.trajectory_topic(2) in taken
         assert not taken & per_sample
         assert {ms.pose_topic(i) for i in (1, 2, 3)} <= set(live.channels)
-        listener = servers[0].listener
+        listener = server.listener
 
         def view(topic, change):
             ch = SimpleNamespace(topic=live.resolve_topic_name(topic), id=0)
@@ -100,32 +113,18 @@ def test_subscriptions_follow_what_viewers_show(context, observe):
         view(ms.tracking_error_topic(2), -1)
         assert _spin_until(ex, lambda: not per_sample_taken())
         assert ms.TRIAL_EVENTS in live.subs  # the per-trial ones stay
-    finally:
-        ex.shutdown()
-        live.destroy_node()
-        leader.destroy_node()
 
 
 def test_a_dds_reader_of_a_computed_view_topic_gets_it(context):
     """rviz (or any DDS reader) subscribed to robot_1's tracking error: the live view takes
     robot_1's poses and publishes the errors, with no WebSocket viewer at all."""
     from geometry_msgs.msg import PoseStamped, Vector3Stamped
-    from rclpy.experimental import EventsExecutor
-    from rclpy.node import Node
     from std_msgs.msg import String
 
-    from formation_ilc.nodes.liveview import RECHECK, LiveViewNode
+    from formation_ilc.nodes.liveview import RECHECK
     from formation_ilc.protocol.schedule import TrialEvent
 
-    live = LiveViewNode(lambda listener: FakeServer(listener), observe=True, context=context)
-    other = Node("rviz", namespace=ms.NAMESPACE, context=context)
-    ex = EventsExecutor(context=context)  # as the node runs
-    ex.add_node(live)
-    ex.add_node(other)
-    try:
-        cfg = RunConfig(load_scenario("paper-triangle3"))
-        other.create_publisher(String, ms.CONFIG, ms.LATCHED_QOS).publish(
-            ms.json_to_msg(cfg.to_json()))
+    with _configured(context, True) as (live, other, ex, cfg, _):
         assert _spin_until(ex, lambda: live.observer is not None)
         assert ms.pose_topic(1) not in live.subs
         got: list[Vector3Stamped] = []
@@ -150,10 +149,6 @@ def test_a_dds_reader_of_a_computed_view_topic_gets_it(context):
 
         assert _spin_until(ex, sent, timeout=10)
         assert got[0].vector.x == pytest.approx(0.5, abs=1e-9)  # |(0.3, 0.4)|
-    finally:
-        ex.shutdown()
-        live.destroy_node()
-        other.destroy_node()
 
 
 def test_a_per_sample_channel_forwards_at_most_its_rate(context):
