@@ -210,8 +210,7 @@ def matched(pairs: Iterable[tuple[Any, int]]) -> bool:
     sample then waits for the writer's next heartbeat (seconds). A node that says ready
     only once both sides of its per-sample topics are matched loses no first sample.
     """
-    return all((e.get_publisher_count() if isinstance(e, Subscription)
-                else e.get_subscription_count()) >= count for e, count in pairs)
+    return not unmatched(pairs)
 
 
 def unmatched(pairs: Iterable[tuple[Any, int]]) -> list[str]:
