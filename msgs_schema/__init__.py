@@ -118,7 +118,8 @@ __all__ = [
     "WORLD_FRAME", "LEADER", "LEADER_FRAME", "robot_name", "robot_index", "link_name",
     "pose_topic", "cmd_vel_topic", "shared_pose_topic", "link_topic", "trajectory_topic",
     "true_trajectory_topic", "absolute", "relative",
-    "SAMPLE_QOS", "LATCHED_QOS", "LATCHED_READER_QOS", "TRAJECTORY_QOS", "CLOCK_QOS",
+    "SAMPLE_QOS", "LATCHED_QOS", "LATCHED_READER_QOS", "TRAJECTORY_QOS",
+    "TRAJECTORY_READER_QOS", "CLOCK_QOS",
     "MalformedMessage", "topic_table",
     "SampleClock", "stamp_to_ns", "ns_to_stamp", "pose_to_msg", "msg_to_pose", "u_to_twist",
     "twist_to_u", "world_pose", "trajectory_to_path", "path_to_trajectory", "link_tick_to_msg",
@@ -207,6 +208,12 @@ LATCHED_READER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=256,
 TRAJECTORY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2,
                             reliability=ReliabilityPolicy.RELIABLE,
                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# Readers of trajectories: deeper than the writers' 2, because a reader's KEEP_LAST history
+# is shared by every writer of the topic, and two stray writers' messages (a restarted
+# node's, a forger's) taken in the same instant as a trial's trajectory would evict it.
+TRAJECTORY_READER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=32,
+                                   reliability=ReliabilityPolicy.RELIABLE,
+                                   durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # /clock: reliable writer (also serves rclpy's best-effort time-source readers).
 CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=64,
                        reliability=ReliabilityPolicy.RELIABLE,

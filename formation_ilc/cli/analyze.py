@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from formation_ilc.cli.supervisor import trial_ranges
 from formation_ilc.core import links
 from formation_ilc.core.metrics import write_metrics
 from formation_ilc.recordings.recording import Recording, RecordingError, load_recording
@@ -70,7 +71,7 @@ def findings(rec: Recording) -> tuple[list[str], list[str]]:
                "the recording stops before the run's end (no 'done' event: the run was "
                "interrupted, or its recorder was not running)")
         warn.append(f"the run is not whole: {len(rec.missing)} of its {runs} trials are not "
-                    f"complete in the file{'s' * many} ({_ranges(rec.missing)}); {why}")
+                    f"complete in the file{'s' * many} ({trial_ranges(rec.missing)}); {why}")
     if rec.superseded:
         note.append(f"{rec.superseded} trajectories of aborted slots or of trials run again "
                     f"after an abort were set aside (the first complete copy counts)")
@@ -78,17 +79,6 @@ def findings(rec: Recording) -> tuple[list[str], list[str]]:
         note.append("skipped messages that do not decode: " + ", ".join(
             f"{t} {n}" for t, n in sorted(rec.undecodable.items())))
     return warn, note
-
-
-def _ranges(ks: list[int]) -> str:
-    """'0-2, 5, 7-9' for [0, 1, 2, 5, 7, 8, 9]."""
-    out: list[str] = []
-    for k in sorted(ks):
-        if out and out[-1].split("-")[-1] == str(k - 1):
-            out[-1] = f"{out[-1].split('-')[0]}-{k}"
-        else:
-            out.append(str(k))
-    return "trial " + ", ".join(out) if len(ks) == 1 else "trials " + ", ".join(out)
 
 
 def delay_rows(rec: Recording) -> list[list[Any]]:

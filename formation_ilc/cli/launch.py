@@ -77,6 +77,7 @@ from formation_ilc.cli.supervisor import (
     disk_full_line,
     metrics_rows,
     resume_hint,
+    trial_ranges,
 )
 from formation_ilc.config.runconfig import MODES
 from formation_ilc.config.team import PLANTS
@@ -384,18 +385,23 @@ class Watch:
     (RETRIES + 3): by then the leader's own watchdog has reported, retried and stopped
     (``formation_ilc.protocol.watchdog``). Until the leader's events writer shows up, the
     bound is twice the unscaled start-up bound (starting processes is as slow as the
-    machine, whatever the scale)."""
+    machine, whatever the scale). Once the leader is done, a trial row still missing after
+    the ready bound will not come (a trajectory was lost on its way here): the run stops
+    naming it rather than wait for the backstop."""
 
-    def __init__(self, bounds: Any, out: Path, nodes: int):
+    def __init__(self, bounds: Any, out: Path, nodes: int, trials: int):
         from formation_ilc.protocol.watchdog import RETRIES, STARTUP_PER_NODE_S, STARTUP_S
 
         self.limit = max(bounds.startup, bounds.ready, bounds.sample) * (RETRIES + 3)
         self.first = 2 * (STARTUP_S + STARTUP_PER_NODE_S * nodes)
+        self.after_done = bounds.ready
+        self.trials = trials
         self.out = out
         self.seen = 0
         self.mark: tuple[int, int, int] = (-1, -1, -1)
         self.since = time.monotonic()
         self.leader = False
+        self.done_at: float | None = None
 
     def tick(self, monitor: Any, now: float) -> str | None:
         """Print a new finding of the leader's; why the run is given up, or None."""
@@ -409,6 +415,14 @@ class Watch:
             print(f"{LEADER_NODE}: {text[:1000]}", flush=True)
         if not self.leader and monitor.leader_present():
             self.leader, self.since = True, now  # its own watchdog runs from here
+        if monitor.slots.done_at is not None:
+            self.done_at = now if self.done_at is None else self.done_at
+            missing = sorted(set(range(monitor.slots.first, self.trials)) - set(monitor.rows))
+            if missing and now - self.done_at > self.after_done:
+                return (f"the leader is done, but the metrics of {trial_ranges(missing)} "
+                        f"never came: a robot's trajectory was lost on its way to the "
+                        f"launcher; {len(metrics_rows(self.out))} trials are in "
+                        f"metrics.csv; the learning itself is complete (state/)")
         mark = (len(monitor.events), len(monitor.rows), count)
         if mark != self.mark:
             self.mark, self.since = mark, now
@@ -566,7 +580,8 @@ class _Session:
         final_deadline: float | None = None
         watch = Watch(Bounds.for_run(plan.scenario.dt, len(plan.team.expected),
                                      plan.config.mode, plan.config.timeout,
-                                     plan.watchdog_scale), plan.out, len(plan.team.expected))
+                                     plan.watchdog_scale), plan.out, len(plan.team.expected),
+                      plan.scenario.trials)
         while True:
             ex.spin_once(timeout_sec=0.05)
             stuck = watch.tick(monitor, time.monotonic())

@@ -22,7 +22,7 @@ from formation_ilc.cli.plan import NodeSpec, RunPlan
 from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, NO_RESTART, STUCK
 
 __all__ = ["Stack", "Supervisor", "Failure", "exit_status", "metrics_rows", "resume_hint",
-           "disk_full_line"]
+           "disk_full_line", "trial_ranges"]
 
 
 class Stack:
@@ -225,6 +225,17 @@ def metrics_rows(out: Path) -> list[str]:
     except OSError:
         return []
     return [ln for ln in lines if ln.strip()]
+
+
+def trial_ranges(ks: list[int]) -> str:
+    """'trials 0-2, 5, 7-9' for [0, 1, 2, 5, 7, 8, 9]; 'trial 4' for [4]."""
+    out: list[str] = []
+    for k in sorted(ks):
+        if out and out[-1].split("-")[-1] == str(k - 1):
+            out[-1] = f"{out[-1].split('-')[0]}-{k}"
+        else:
+            out.append(str(k))
+    return "trial " + ", ".join(out) if len(ks) == 1 else "trials " + ", ".join(out)
 
 
 def resume_hint(out: Path) -> str:

@@ -63,11 +63,11 @@ class MonitorNode(Node):
             # raw: a trajectory longer than a trial is refused before it is deserialized
             self.path_subs.append(self.create_subscription(
                 Path, ms.trajectory_topic(r + 1), lambda m, r=r: self._on_traj(m, r, False),
-                ms.TRAJECTORY_QOS, raw=True))
+                ms.TRAJECTORY_READER_QOS, raw=True))
             if true_state:
                 self.path_subs.append(self.create_subscription(
                     Path, ms.true_trajectory_topic(r + 1),
-                    lambda m, r=r: self._on_traj(m, r, True), ms.TRAJECTORY_QOS, raw=True))
+                    lambda m, r=r: self._on_traj(m, r, True), ms.TRAJECTORY_READER_QOS, raw=True))
         # the schedule waits for the monitor too ("monitor" in the leader's nodes_expected):
         # a writer's match count cannot tell a monitor from a recorder, and a monitor matched
         # after trial 1 would miss trial 0 (trajectories are latched 2 deep)

@@ -173,7 +173,7 @@ class RobotNode(ConfiguredNode):
             # raw: a trajectory longer than a trial is refused before it is deserialized
             self.create_subscription(Path, ms.trajectory_topic(ms.robot_index(sender)),
                                      lambda m, s=sender: self._on_trajectory(m, s),
-                                     ms.TRAJECTORY_QOS, raw=True)
+                                     ms.TRAJECTORY_READER_QOS, raw=True)
         if self.realtime:
             self._deadline = self.create_timer(LINK_WAIT * cfg.scenario.dt, self._on_deadline)
             self._deadline.cancel()

@@ -330,6 +330,35 @@ def test_a_forged_later_trial_pose_does_not_hijack_the_link_emulator(context, ex
     assert sum(emu.drops.counts.values()) == 2
 
 
+def test_stray_trajectories_do_not_evict_a_real_one(context, executor):
+    """Met in CI: two malformed trajectories from a second writer of robot_1/trajectory,
+    taken by the launcher's monitor in the same instant as robot_1's real one, evicted it
+    from a reader history as deep as the writers' (2): that trial's metrics never came
+    and the launch waited for them. Readers of trajectories keep more than that."""
+    from formation_ilc.nodes.monitor import MonitorNode
+
+    ex, nodes = executor
+    mon = MonitorNode(CFG, lambda k, row: None, true_state=False, context=context)
+    real = rclpy.create_node("robot_1", namespace=ms.NAMESPACE, context=context)
+    stray = rclpy.create_node("stray", namespace=ms.NAMESPACE, context=context)
+    nodes += [mon, real, stray]
+    ex.add_node(mon)  # only the monitor takes messages
+    pubs = [n.create_publisher(Path, ms.trajectory_topic(1), ms.TRAJECTORY_QOS)
+            for n in (real, stray)]
+    spin_until(ex, lambda: mon.path_subs[0].get_publisher_count() >= 2
+               and all(p.get_subscription_count() >= 1 for p in pubs))
+    mon.slots.started, mon.slots.iteration_of = 1, {0: 0, 1: 1}
+    short = _path(1)
+    short.poses = short.poses[:3]
+    pubs[0].publish(_path(1))
+    pubs[1].publish(short)
+    pubs[1].publish(short)
+    time.sleep(0.5)  # all three wait in the reader's history before the monitor takes any
+    spin_until(ex, lambda: dropped(mon) == 2 and mon.slots.eta.get(1))
+    assert list(mon.slots.eta[1]) == [0]
+    assert mon.drops.by_topic == {"malformed:robot_1/trajectory": 2}
+
+
 def test_a_negative_stamp_is_recorded_and_counted_not_fatal(context, executor, tmp_path):
     """Reported: one PoseStamped with sec = -1 (or 3e9, which arrives negative) killed the
     recorder inside the MCAP writer. Now it is recorded with the receive time as its
