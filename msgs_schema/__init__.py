@@ -647,6 +647,21 @@ def trial_error_topic(i: int) -> str:
     return f"{robot_name(i)}/trial_error"
 
 
+#: the plant's preview of the team for viewers: a nav_msgs/Path stamped with a sample's
+#: label holding every robot's measured pose of that sample (the bytes it sends on
+#: robot_i/pose), at most ``PREVIEW_HZ`` a second of wall time, and only while a reader
+#: takes it. A lockstep run makes hundreds of samples a second; a viewer that takes the
+#: preview instead of every pose costs the run one message per frame, not one per robot
+#: and sample. Best effort: the plant never waits for a viewer. Not recorded (the poses
+#: are).
+PREVIEW = "preview/poses"
+PREVIEW_HZ = 30.0
+PREVIEW_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2,
+                         reliability=ReliabilityPolicy.BEST_EFFORT,
+                         durability=DurabilityPolicy.VOLATILE)
+__all__ += ["PREVIEW", "PREVIEW_HZ", "PREVIEW_QOS"]
+
+
 def view_topic_table(n: int) -> list[tuple[str, str, QoSProfile]]:
     """The observer's topics for ``n`` robots: (relative name, ROS type, offered QoS)."""
     rows: list[tuple[str, str, QoSProfile]] = [

@@ -36,6 +36,7 @@ from formation_ilc.core.clock import Malformed
 __all__ = ["RawPose", "as_bytes", "pose_bytes", "read_pose", "raw_pose_bytes", "pose_eta",
            "world_eta", "twist_bytes", "read_twist", "clock_bytes", "read_clock",
            "link_tick_bytes", "read_link_tick", "path_bytes", "read_trajectory",
+           "raw_pose", "pose_set_bytes", "read_pose_set",
            "check_nanosec", "heading_from_quaternion", "check_twist"]
 
 _LE = b"\x00\x01\x00\x00"  # CDR_LE encapsulation, no options
@@ -230,6 +231,18 @@ def read_trajectory(data: bytes, reference_heading: NDArray[np.float64] | None =
     return eta, stamps, frame
 
 
+def read_pose_set(data: bytes, most: int) -> tuple[int, list[RawPose]]:
+    """(stamp [ns], its poses as received) of a nav_msgs/Path of at most ``most`` poses
+    (the plant's preview: one pose per robot); MalformedMessage if it holds more."""
+    r = _Reader(data)
+    stamp = r.stamp()
+    r.string()  # the path's frame: not checked (each pose's is, by its reader)
+    (n,) = r.take("I", 4, 4)
+    if n > most:
+        raise Malformed(f"at most {most} poses expected, got {n}")
+    return stamp, [r.pose() for _ in range(n)]
+
+
 def read_link_tick(data: bytes) -> tuple[int, RawPose | None]:
     """(tick [ns], the delivered pose or None) of an emulated link's nav_msgs/Path;
     MalformedMessage if it holds more than one pose (as ``msg_to_link_tick``)."""
@@ -248,13 +261,19 @@ def _stamp(ns: int) -> tuple[int, int]:
     return divmod(int(ns), _NS)
 
 
-def pose_bytes(eta: Sequence[float] | NDArray[np.float64], stamp_ns: int,
-               frame_id: str = "map") -> bytes:
-    """The bytes of ``pose_to_msg(eta, stamp_ns, frame_id)``: eta = (x [m], y [m],
+def raw_pose(eta: Sequence[float] | NDArray[np.float64], stamp_ns: int,
+             frame_id: str = "map") -> RawPose:
+    """The RawPose of ``pose_to_msg(eta, stamp_ns, frame_id)``: eta = (x [m], y [m],
     theta [rad]), orientation (0, 0, sin(theta/2), cos(theta/2))."""
     x, y, th = float(eta[0]), float(eta[1]), float(eta[2])
-    return raw_pose_bytes(RawPose(int(stamp_ns), frame_id, (
-        x, y, 0.0, 0.0, 0.0, math.sin(0.5 * th), math.cos(0.5 * th))))
+    return RawPose(int(stamp_ns), frame_id, (
+        x, y, 0.0, 0.0, 0.0, math.sin(0.5 * th), math.cos(0.5 * th)))
+
+
+def pose_bytes(eta: Sequence[float] | NDArray[np.float64], stamp_ns: int,
+               frame_id: str = "map") -> bytes:
+    """The bytes of ``pose_to_msg(eta, stamp_ns, frame_id)`` (see :func:`raw_pose`)."""
+    return raw_pose_bytes(raw_pose(eta, stamp_ns, frame_id))
 
 
 def _pose_body(p: RawPose, at: int) -> bytes:
@@ -274,12 +293,22 @@ def raw_pose_bytes(p: RawPose) -> bytes:
     return _LE + _pose_body(p, 0)
 
 
+def pose_set_bytes(stamp_ns: int, poses: Sequence[RawPose]) -> bytes:
+    """A nav_msgs/Path stamped ``stamp_ns``, in "map", holding ``poses`` as they were sent
+    (their labels and doubles): an emulated link's tick, the plant's preview."""
+    sec, nsec = _stamp(stamp_ns)
+    parts = [_LE + struct.pack("<iII4sI", sec, nsec, 4, b"map\x00", len(poses))]
+    at = len(parts[0]) - 4
+    for p in poses:
+        parts.append(_pose_body(p, at))
+        at += len(parts[-1])
+    return b"".join(parts)
+
+
 def link_tick_bytes(tick_ns: int, pose: RawPose | None) -> bytes:
     """The bytes of ``link_tick_to_msg``: a Path stamped with the tick, in "map", holding
     the delivered pose as it was sent (its label and doubles) or nothing."""
-    sec, nsec = _stamp(tick_ns)
-    head = _LE + struct.pack("<iII4sI", sec, nsec, 4, b"map\x00", 0 if pose is None else 1)
-    return head if pose is None else head + _pose_body(pose, len(head) - 4)
+    return pose_set_bytes(tick_ns, () if pose is None else (pose,))
 
 
 def path_bytes(eta: NDArray[np.float64], stamps_ns: Sequence[int], frame_id: str) -> bytes:

@@ -5,7 +5,9 @@ every robot with the scenario's initial-state shifts, input disturbances and out
 (the plant stream of trial k, as the batch simulator draws it), publishes ``/clock`` and
 each robot's measured pose (in the world frame, stamped with the sample's label), and
 applies ``cmd_vel``. At each trial's end it also publishes the true trajectories (ground
-truth, for the metrics' ``true_`` columns) and its timing on ``diagnostics``.
+truth, for the metrics' ``true_`` columns) and its timing on ``diagnostics``. While a viewer
+takes it, a preview of the whole team's poses goes out at most ``msgs_schema.PREVIEW_HZ`` a
+second (what the live view shows of a fast run).
 
 * lockstep: sample t+1 is computed when every robot has commanded sample t, so a run goes
   as fast as the processes allow; if a robot stays silent for ``timeout`` seconds the
@@ -69,6 +71,8 @@ from formation_ilc.protocol.plant import RESEND_S, KinematicPlant, Sample
 
 #: the plant's node name (what it says ready as)
 NAME = ms.SIM_NODE
+#: [s] while the preview has no reader, how often the simulator asks again
+PREVIEW_ASK_S = 0.5
 
 
 class SimNode(ConfiguredNode):
@@ -109,6 +113,8 @@ class SimNode(ConfiguredNode):
         self.true_pubs = [self.create_publisher(Path, ms.true_trajectory_topic(r + 1),
                                                 ms.TRAJECTORY_QOS) for r in range(n)]
         self.clock_pub = self.create_publisher(Clock, ms.CLOCK, ms.CLOCK_QOS)
+        self.preview_pub = self.create_publisher(Path, ms.PREVIEW, ms.PREVIEW_QOS)
+        self._preview_due = 0.0
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         self.cmd_subs = [  # bytes: msgs_schema.wire
@@ -206,6 +212,19 @@ class SimNode(ConfiguredNode):
         self.clock_pub.publish(ms.wire.clock_bytes(s.stamp_ns))
         for r in self.plant.send_order:
             self.pose_pubs[r].publish(ms.wire.pose_bytes(s.eta[r], s.stamp_ns, ms.WORLD_FRAME))
+        now = time.monotonic()
+        if now >= self._preview_due:
+            self._preview(s, now)
+
+    def _preview(self, s: Sample, now: float) -> None:
+        """The team's poses of this sample on the preview (``msgs_schema.PREVIEW``): at most
+        PREVIEW_HZ a second, and while nobody takes it, its readers asked twice a second."""
+        if not self.preview_pub.get_subscription_count():
+            self._preview_due = now + PREVIEW_ASK_S
+            return
+        self._preview_due = now + 1.0 / ms.PREVIEW_HZ
+        self.preview_pub.publish(ms.wire.pose_set_bytes(s.stamp_ns, [
+            ms.wire.raw_pose(s.eta[r], s.stamp_ns, ms.WORLD_FRAME) for r in range(self.plant.n)]))
 
     def _watchdog(self) -> None:
         late = self.plant.overdue(time.perf_counter(), self.timeout)

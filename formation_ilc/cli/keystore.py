@@ -46,7 +46,8 @@ def topic_names(namespace: str) -> TopicNames:
         true_trajectory=ms.true_trajectory_topic,
         recorded=lambda n: [clock_topic(namespace) if t == ms.CLOCK else t
                             for t, _, _ in ms.topic_table(n)],
-        leader=ms.LEADER, view=lambda n: [t for t, _, _ in ms.view_topic_table(n)])
+        leader=ms.LEADER, view=lambda n: [t for t, _, _ in ms.view_topic_table(n)],
+        preview=ms.PREVIEW)
 
 
 def grants_for(scenario: Any, namespace: str, *, plant: str = "sim", driver: str = "rosaria",

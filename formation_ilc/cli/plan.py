@@ -716,6 +716,8 @@ def node_specs(plan: RunPlan, scenario: str) -> tuple[NodeSpec, ...]:
         specs.append(spec(LIVEVIEW_NODE, "formation_ilc.nodes.liveview",
                           args=("--host", plan.live[0], "--port", str(plan.live[1]),
                                 *(("--observe",) if plan.record is None else ()),
+                                # the simulator and the physics plant publish a preview
+                                *(("--preview",) if plan.true_state else ()),
                                 *(("--rate", repr(plan.live_rate))
                                   if plan.live_rate is not None else ())),
                           remaps=nsa, optional=True))

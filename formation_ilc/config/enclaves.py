@@ -82,6 +82,8 @@ class TopicNames:
     #: the observer's topics for n robots (desired poses, errors, markers): the recorder
     #: publishes them, or the live view when nothing records
     view: Callable[[int], Sequence[str]] = lambda n: ()
+    #: the plant's preview of the team's poses for the live view ("": none)
+    preview: str = ""
 
 
 @dataclass(frozen=True)
@@ -225,7 +227,7 @@ def formation_grants(adjacency: NDArray[np.float64], leader: NDArray[np.float64]
         grants.append(_grant(
             namespace, SIM_NODE,
             [*(t.pose(i) for i in robots), *(t.true_trajectory(i) for i in robots), t.clock,
-             t.ready, t.diagnostics],
+             t.ready, t.diagnostics, *([t.preview] if t.preview else [])],
             [*(t.cmd_vel(i) for i in robots), t.trial_events, t.config]))
     else:
         for i in robots:
@@ -234,7 +236,7 @@ def formation_grants(adjacency: NDArray[np.float64], leader: NDArray[np.float64]
                          list(t.recorded(n))))
     # the live view reads what the recording holds and serves it on 127.0.0.1
     grants.append(_grant(namespace, LIVEVIEW_NODE, list(t.view(n)),
-                         [*t.recorded(n), *t.view(n)]))
+                         [*t.recorded(n), *t.view(n), *([t.preview] if t.preview else [])]))
     grants.append(_grant(namespace, MONITOR_NODE, [t.ready],
                          [*(t.trajectory(i) for i in robots),
                           *(t.true_trajectory(i) for i in robots), t.diagnostics,

@@ -11,6 +11,15 @@ subscribes to its channel (or to a view topic computed from it): with no viewer,
 that shows two robots, it takes nothing else off the run. The latched and per-trial topics
 (configuration, readiness, diagnostics, paths, trial events) it always takes.
 
+With ``--preview`` (the plant is the simulator or the physics plant, which publish one) and
+a rate up to ``msgs_schema.PREVIEW_HZ``, the robots' poses come from the plant's preview
+instead: one message of the whole team's poses of a sample, at most PREVIEW_HZ a second,
+which the bridge splits onto the robots' pose channels (the bytes the plant sent on
+robot_i/pose) and from which it computes the desired poses, errors and markers (also with a
+recorder, then for its viewers only); the trial errors come from the robots' trajectories.
+A lockstep run makes hundreds of samples a second per robot; taking each off DDS in Python
+cost the run a fifth of its speed.
+
 It never holds the run back: its subscriptions to per-sample topics are best effort (a
 bridge that falls behind loses samples, the writers never wait for it), it runs below the
 control loop's priority (like the recorder), and the server keeps at most
@@ -19,7 +28,8 @@ away is simply gone. With ``--observe`` (a launch that does not record) it compu
 desired poses, errors and markers itself (``formation_ilc.nodes.observer``); otherwise the
 recorder does and it forwards them.
 
-  formation-ilc-liveview [--host 127.0.0.1] [--port 8765] [--observe] [--ros-args ...]
+  formation-ilc-liveview [--host 127.0.0.1] [--port 8765] [--rate HZ] [--observe]
+                         [--preview] [--ros-args ...]
 """
 
 from __future__ import annotations
@@ -85,7 +95,7 @@ class _Viewers:
 
 class LiveViewNode(Node):
     def __init__(self, start_server: Any, observe: bool = False, rate: float = DEFAULT_RATE,
-                 **kwargs: Any):
+                 preview: bool = False, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(LIVEVIEW_NODE, **kwargs)
         import foxglove
@@ -99,6 +109,9 @@ class LiveViewNode(Node):
         self.observe = observe
         #: per-sample channels forward at most one message per ``1/rate`` s (0: every one)
         self.period = 1.0 / rate if rate > 0 else 0.0
+        #: the robots' poses come from the plant's preview (it publishes one, and the rate
+        #: asks no more of them than it gives): the view computes its topics from those
+        self.sampled = preview and 0 < rate <= ms.PREVIEW_HZ
         self._due: dict[str, float] = {}
         self.drops = DropCounter(self)
         self.channels: dict[str, Any] = {}
@@ -181,14 +194,18 @@ class LiveViewNode(Node):
                 self.destroy_subscription(self.subs.pop(topic))
 
     @staticmethod
-    def _made_of(topic: str, poses: list[str]) -> list[str]:
-        """The poses the observer computes a view topic from: the whole team's (markers),
-        none (a desired path: from the trial's start), else its robot's."""
-        if topic == ms.MARKERS:
-            return poses
+    def _made_of(topic: str, poses: list[str], sampled: bool = False) -> list[str]:
+        """The per-sample topics the observer computes a view topic from: none for a
+        desired path (from the trial's start) and, sampled, for a trial error (from the
+        trajectories, always taken); else the preview when sampled; else the whole team's
+        poses (markers) or its robot's."""
         robot, _, kind = topic.partition("/")
         if ms.desired_path_topic(1).endswith("/" + kind):
             return []
+        if sampled:
+            return [] if ms.trial_error_topic(1).endswith("/" + kind) else [ms.PREVIEW]
+        if topic == ms.MARKERS:
+            return poses
         return [p for p in poses if p.partition("/")[0] == robot]
 
     def _take(self, topic: str) -> bool:
@@ -202,6 +219,9 @@ class LiveViewNode(Node):
         return True
 
     def _on(self, topic: str, channel: Any, data: bytes) -> None:
+        if topic == ms.PREVIEW:
+            self._on_preview(data)
+            return
         if channel is not None and (topic not in self.on_demand or self._take(topic)):
             channel.log(data, log_time=time.time_ns())
         if topic == ms.CONFIG and self.cfg is None:
@@ -211,6 +231,25 @@ class LiveViewNode(Node):
                 self.observer.take(topic, data)
             except Rejected as exc:
                 self.drops.reject(exc, topic)
+
+    def _on_preview(self, data: bytes) -> None:
+        """The team's poses of one sample: each on its robot's pose channel (the bytes the
+        plant sent on robot_i/pose), and to the observer."""
+        n = len(self.observer.pose_topics) if self.observer is not None else 0
+        try:
+            _, poses = ms.wire.read_pose_set(data, n)
+        except Rejected as exc:
+            self.drops.reject(exc, ms.PREVIEW)
+            return
+        for r, p in enumerate(poses):
+            topic = ms.pose_topic(r + 1)
+            pose = ms.wire.raw_pose_bytes(p)
+            if self._take(topic):
+                self.channels[topic].log(pose, log_time=time.time_ns())
+            try:
+                self.observer.take(topic, pose)  # type: ignore[union-attr]
+            except Rejected as exc:
+                self.drops.reject(exc, ms.PREVIEW)
 
     def _view_sink(self, topic: str, data: bytes, stamp: int) -> None:
         self.channels[topic].log(data, log_time=time.time_ns())
@@ -225,14 +264,20 @@ class LiveViewNode(Node):
         for topic, type_name, qos in ms.topic_table(n):
             self._forward(topic, type_name, qos)
         poses = [ms.pose_topic(i) for i in range(1, n + 1)]
+        if self.sampled:  # every robot's pose channel, and all computed here, from one topic
+            self.on_demand[ms.PREVIEW] = ("nav_msgs/msg/Path", ms.PREVIEW_QOS)
+            for p in poses:
+                self.sources[p] = frozenset({ms.PREVIEW})
         for topic, type_name, qos in ms.view_topic_table(n):
-            if not self.observe:
+            if not (self.observe or self.sampled):
                 self._forward(topic, type_name, qos)
                 continue
             self._channel(topic, type_name)
-            self.sources[topic] = frozenset(self._made_of(topic, poses))
-        if self.observe:
-            self.observer = Observer(self, self.cfg, self._view_sink, gate=self._take)
+            self.sources[topic] = frozenset(self._made_of(topic, poses, self.sampled))
+        if self.observe or self.sampled:
+            # with a recorder (which publishes the view topics on DDS) only to the viewers
+            self.observer = Observer(self if self.observe else None, self.cfg,
+                                     self._view_sink, gate=self._take, sampled=self.sampled)
         self.server = self.start_server(_Viewers(self))
         self.get_logger().info(f"serving {len(self.channels)} topics on port "
                                f"{self.server.port}")
@@ -259,6 +304,10 @@ def main(args: list[str] | None = None) -> int:
                         help=f"messages a second forwarded per per-sample topic (default "
                              f"{DEFAULT_RATE:g}; 0: every message). Latched and per-trial "
                              f"topics always go whole")
+    parser.add_argument("--preview", action="store_true",
+                        help=f"the plant publishes a preview of the team's poses "
+                             f"({ms.PREVIEW}, at most {ms.PREVIEW_HZ:g} a second): at a rate "
+                             f"up to that, take the robots' poses from it, not every sample")
     parser.add_argument("--observe", action="store_true",
                         help="publish the desired poses, errors and markers here (when no "
                              "recorder does)")
@@ -287,7 +336,7 @@ def main(args: list[str] | None = None) -> int:
             raise SystemExit(2) from None
         if not ns.rate >= 0:
             raise ValueError(f"--rate {ns.rate}: a rate >= 0 is required")
-        return [LiveViewNode(start, observe=ns.observe, rate=ns.rate)]
+        return [LiveViewNode(start, observe=ns.observe, rate=ns.rate, preview=ns.preview)]
 
     return spin_main(build, parser, args)
 

@@ -12,6 +12,10 @@ writes it into its file, the bridge to its viewers): the robots and the plant ar
 and no sample waits for it. A per-sample topic is published on DDS only while some reader
 there takes it (checked every ``LISTENERS_EVERY`` seconds), as ``rviz`` and the live view do
 on demand; the latched ones (paths, trial errors) always, for late joiners.
+
+``sampled`` (the live view fed by the plant's preview, ``msgs_schema.PREVIEW``): the poses
+come a few samples a second, the whole team's of a sample at once; markers go out at each,
+and the trial errors come from the robots' whole-trial trajectories instead.
 """
 
 from __future__ import annotations
@@ -50,14 +54,19 @@ class Observer:
     """Publishes the view topics of a run (``cfg``) on ``node``; see the module doc."""
 
     def __init__(self, node: Node | None, cfg: RunConfig, sink: Sink | None = None,
-                 gate: Callable[[str], bool] | None = None):
+                 gate: Callable[[str], bool] | None = None, *, sampled: bool = False):
         """``node`` None: no publishers, every message only goes to ``sink`` (the batch
         simulator's recording). ``gate(topic)``: whether the sink takes this per-sample
-        message (the live view's rate; asked once per message, None: it takes all)."""
+        message (the live view's rate; asked once per message, None: it takes all).
+        ``sampled``: the poses come a few samples at a time, the whole team's of each at
+        once (the plant's preview, ``msgs_schema.PREVIEW``): markers at every such sample,
+        and the trial errors from the robots' trajectories (:meth:`take` of
+        ``robot_i/trajectory``), not from every pose."""
         sc = cfg.scenario
         self.cfg, self.clock, self.sink, self.gate = cfg, cfg.clock, sink, gate
+        self.sampled = sampled
         eta_d = sc.desired.eta
-        self.view = TrackingView(eta_d, marker_every(sc.dt))
+        self.view = TrackingView(eta_d, 1 if sampled else marker_every(sc.dt))
         self.outline = outline_order(eta_d[:, 0])
         src, _ = sc.graph.in_links()
         self.links = graph_links(src)
@@ -74,6 +83,10 @@ class Observer:
         self.iteration_of: dict[int, int] = {}
         #: what the observer reads: each robot's measured pose (topic -> robot index)
         self.pose_topics = {ms.pose_topic(i + 1): i for i in range(sc.n)}
+        #: sampled: each robot's trajectory (topic -> robot index), and those of a slot so far
+        self.trajectory_topics = ({ms.trajectory_topic(i + 1): i for i in range(sc.n)}
+                                  if sampled else {})
+        self._trials: dict[int, dict[int, Any]] = {}
         # CDR templates: the desired pose of every robot and sample, an error message
         self._desired = [[serialize_message(ms.pose_to_msg(eta_d[r, s], 0, ms.WORLD_FRAME))
                           for s in range(eta_d.shape[1])] for r in range(sc.n)]
@@ -116,6 +129,8 @@ class Observer:
                 ms.deserialize(data, String), ("event", "trial"))))
         elif topic in self.pose_topics:
             self.on_pose(self.pose_topics[topic], data)
+        elif topic in self.trajectory_topics:
+            self.on_trajectory(self.trajectory_topics[topic], data)
 
     def on_event(self, ev: TrialEvent) -> None:
         """A trial event: a start publishes the desired paths; an abort forgets the slot."""
@@ -146,8 +161,27 @@ class Observer:
         if team is not None and any(to := self._to(ms.MARKERS)):
             self._send(ms.MARKERS, self._markers.cdr(stamp, self.view.eta_d[:, s, :2], team),
                        stamp, to)
-        if s == self.view.samples:
+        if s == self.view.samples and not self.sampled:
             self._trial_end(slot, stamp)
+
+    def on_trajectory(self, r: int, data: bytes) -> None:
+        """Robot r's (0-based) measured trajectory of a trial (sampled): once the whole
+        team's of a slot are in, their trial errors. MalformedMessage if it is not a world
+        trajectory of one trial's samples."""
+        v = self.view
+        eta, stamps, frame = ms.trajectory_from_raw(data, v.samples + 1, v.eta_d[r, :, 2])
+        if frame != ms.WORLD_FRAME:
+            raise ms.MalformedMessage(f"trajectory in frame {frame[:50]!r}")
+        slot, s0 = self.clock.decode(int(stamps[0]))
+        if s0 != 0 or self.clock.decode(int(stamps[-1])) != (slot, v.samples):
+            raise ms.MalformedMessage("stamps are not samples 0..T of one trial")
+        got = self._trials.setdefault(slot, {})
+        got[r] = eta
+        if len(got) == v.n:
+            del self._trials[slot]
+            self.whole_trial(slot, np.stack([got[i] for i in range(v.n)]), int(stamps[-1]))
+        for old in sorted(self._trials)[:-4]:  # slots whose team never completed
+            del self._trials[old]
 
     def _trial_end(self, slot: int, stamp: int) -> None:
         peaks = self.view.trial_peaks(slot)

@@ -352,7 +352,9 @@ def test_live_plans_a_bridge_on_localhost_and_refuses_a_taken_port(tmp_path):
     plan = plan_of(tmp_path, "paper-triangle3", "--live", str(port))
     live = [n for n in plan.nodes if n.name == "liveview"]
     assert len(live) == 1 and live[0].module == "formation_ilc.nodes.liveview"
-    assert live[0].args == ("--host", "127.0.0.1", "--port", str(port), "--observe")
+    # the simulator publishes a preview of the team's poses (msgs_schema.PREVIEW)
+    assert live[0].args == ("--host", "127.0.0.1", "--port", str(port), "--observe",
+                            "--preview")
     assert "liveview" not in plan.team.expected  # the run never waits for a viewer
     # ... and from the recorder when it records
     plan = plan_of(tmp_path, "paper-triangle3", "--live", str(port), "--record",

@@ -11,6 +11,7 @@ import os
 import time
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 import msgs_schema as ms
@@ -43,7 +44,7 @@ def _spin_until(ex, cond, timeout=10.0):
 
 
 @contextlib.contextmanager
-def _configured(context, observe: bool):
+def _configured(context, observe: bool, preview: bool = False):
     """A live view on the EventsExecutor it runs on, beside a node ``other`` that has sent
     it paper-triangle3's configuration; yields (live, other, executor, cfg, server)."""
     from rclpy.experimental import EventsExecutor
@@ -58,7 +59,7 @@ def _configured(context, observe: bool):
         servers.append(FakeServer(listener))
         return servers[-1]
 
-    live = LiveViewNode(start, observe=observe, context=context)
+    live = LiveViewNode(start, observe=observe, preview=preview, context=context)
     other = Node("other", namespace=ms.NAMESPACE, context=context)
     ex = EventsExecutor(context=context)
     ex.add_node(live)
@@ -174,3 +175,76 @@ def test_a_per_sample_channel_forwards_at_most_its_rate(context):
     finally:
         live.destroy_node()
         every.destroy_node()
+
+
+class Logged:
+    """Stands for a foxglove channel: what the bridge logged on it."""
+
+    def __init__(self):
+        self.got: list[bytes] = []
+
+    def log(self, data, log_time=None):
+        self.got.append(bytes(data))
+
+
+@pytest.mark.parametrize("observe", [True, False])
+def test_the_plants_preview_feeds_the_pose_channels_and_the_view(context, observe):
+    """With the plant's preview (``--preview``), a viewer of any robot's pose or of a view
+    topic makes the bridge take one topic, the preview, and no robot's pose: each robot's
+    pose channel gets the bytes the plant sent on robot_i/pose, the markers come from each
+    preview, and the trial errors from the robots' trajectories (always taken). With a
+    recorder (``observe`` False) the bridge computes them too, for its viewers only."""
+    from geometry_msgs.msg import Vector3Stamped
+    from nav_msgs.msg import Path
+    from rclpy.serialization import deserialize_message
+    from std_msgs.msg import String
+
+    from formation_ilc.protocol.schedule import TrialEvent
+
+    with _configured(context, observe, preview=True) as (live, other, ex, cfg, server):
+        sc = cfg.scenario
+        n, per_sample = sc.n, _per_sample(sc.n)
+        assert live.sampled and live.observer is not None and live.observer.sampled
+        assert ms.PREVIEW not in live.subs and not set(live.subs) & per_sample
+        assert ms.trajectory_topic(1) in live.subs
+        logged = {t: Logged() for t in [*(ms.pose_topic(i) for i in range(1, n + 1)),
+                                         ms.MARKERS, ms.tracking_error_topic(2),
+                                         ms.trial_error_topic(1)]}
+        live.channels.update(logged)
+        ch = SimpleNamespace(topic=live.resolve_topic_name(ms.pose_topic(2)), id=0)
+        server.listener.on_subscribe(SimpleNamespace(id=1), ch)
+        assert _spin_until(ex, lambda: ms.PREVIEW in live.subs)
+        assert not set(live.subs) & per_sample  # no robot's pose stream at all
+        clock, eta_d = cfg.clock, sc.desired.eta
+        events = other.create_publisher(String, ms.TRIAL_EVENTS, ms.SAMPLE_QOS)
+        preview = other.create_publisher(Path, ms.PREVIEW, ms.PREVIEW_QOS)
+        trajs = [other.create_publisher(Path, ms.trajectory_topic(i), ms.TRAJECTORY_QOS)
+                 for i in range(1, n + 1)]
+        stamp = clock.stamp_ns(0, 6)
+        eta = eta_d[:, 6] + [0.0, 0.3, 0.0]
+        team = ms.wire.pose_set_bytes(stamp, [ms.wire.raw_pose(e, stamp) for e in eta])
+
+        def previewed():  # best effort, and the first may come before the reader matched
+            preview.publish(team)
+            time.sleep(0.06)  # past the channels' rate
+            return all(logged[ms.pose_topic(i)].got for i in range(1, n + 1))
+
+        assert _spin_until(ex, previewed, timeout=10)
+        for i in range(1, n + 1):
+            assert logged[ms.pose_topic(i)].got[0] == ms.wire.pose_bytes(eta[i - 1], stamp)
+        err = deserialize_message(logged[ms.tracking_error_topic(2)].got[0], Vector3Stamped)
+        assert err.vector.x == pytest.approx(0.3, abs=1e-12)
+        assert logged[ms.MARKERS].got  # the whole team came in one message
+        # trial 0's errors, once every robot's trajectory of slot 0 is in
+        events.publish(ms.json_to_msg(TrialEvent(ms.START, 0, 0, 1, run=cfg.run_id).to_json()))
+        stamps = [clock.stamp_ns(0, s) for s in range(sc.samples + 1)]
+        off = np.zeros(3)
+        off[0] = 0.5
+        for i, pub in enumerate(trajs):
+            pub.publish(ms.trajectory_to_path(eta_d[i] + (off if i == 0 else 0.0), stamps,
+                                              ms.WORLD_FRAME))
+        assert _spin_until(ex, lambda: logged[ms.trial_error_topic(1)].got)
+        peak = deserialize_message(logged[ms.trial_error_topic(1)].got[0], Vector3Stamped)
+        assert (peak.vector.x, peak.vector.z) == (pytest.approx(0.5, abs=1e-12), 0.0)
+        server.listener.on_unsubscribe(SimpleNamespace(id=1), ch)
+        assert _spin_until(ex, lambda: ms.PREVIEW not in live.subs)

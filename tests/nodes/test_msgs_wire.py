@@ -59,6 +59,27 @@ def test_a_received_pose_is_forwarded_bit_for_bit():
     assert _same(w.raw_pose_bytes(w.read_pose(serialize_message(other))), other)
 
 
+def test_the_preview_holds_each_robots_pose_bytes():
+    """The plant's preview (a Path of the team's poses of one sample) decodes as rclpy does
+    to those PoseStamped, and each read back packs to the bytes sent on robot_i/pose."""
+    poses = list(_poses(6, seed=8))
+    stamp = poses[0][1]
+    raw = [w.raw_pose(eta, stamp) for eta, _ in poses]
+    data = w.pose_set_bytes(stamp, raw)
+    msg = Path()
+    msg.header.frame_id = "map"
+    ms.ns_to_stamp(stamp, msg.header.stamp)
+    msg.poses = [ms.pose_to_msg(eta, stamp, "map") for eta, _ in poses]
+    assert _same(data, msg)
+    got_stamp, got = w.read_pose_set(data, 6)
+    assert got_stamp == stamp and got == raw
+    assert [w.raw_pose_bytes(p) for p in got] == [w.pose_bytes(eta, stamp) for eta, _ in poses]
+    with pytest.raises(ms.MalformedMessage, match="at most 5 poses expected, got 6"):
+        w.read_pose_set(data, 5)
+    with pytest.raises(ms.MalformedMessage):
+        w.read_pose_set(data[:-8], 6)
+
+
 def test_reading_gives_the_converters_values():
     for eta, ns in _poses():
         for frame in ("map", "robot_2"):
