@@ -29,6 +29,8 @@ robot_i/links/S            nav_msgs/Path (0 or 1 pose)  link emulator -> robot i
 robot_i/trajectory         nav_msgs/Path (trial end)    robot i -> out-neighbours, monitor
 robot_i/true_trajectory    nav_msgs/Path (trial end)    simulator (optional) -> monitor
 /clock                     rosgraph_msgs/Clock          plant, in simulated time -> all
+preview/poses              nav_msgs/Path (every         simulator, <= PREVIEW_HZ while
+                           robot's pose of a sample)    read -> live view (not recorded)
 =========================  ===========================  ==================================
 
 Frames (REP-105). Every pose and path is in the world-fixed frame ``WORLD_FRAME`` ("map");

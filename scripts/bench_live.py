@@ -8,7 +8,8 @@ client (tests/stack/foxglove_client/client.js, node, its node_modules from ``npm
 their folder with --node-modules) subscribes to every robot's pose, desired pose and
 tracking error and the markers and decodes every message for the whole run. Prints each
 run's lockstep samples/s (simulated samples over the wall time inside trials, the
-launcher's own figure), the medians and their ratio: the live view's cost.
+launcher's own figure), the medians and their ratio, and the median of each pair's ratio:
+the live view's cost.
 
     python scripts/bench_live.py --node-modules DIR            # paper-hexagon6, 3 pairs
     python scripts/bench_live.py --node-modules DIR --pairs 5 --trials 4 --record
@@ -24,6 +25,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -60,6 +62,62 @@ def client(port: int, n: int, modules: str, stop: float, log: Path, niceness: in
     return None
 
 
+def _cpu_s(pid: int) -> float | None:
+    """[s] of CPU (user + system) process ``pid`` has used, or None if it is gone."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+class CpuWatch(threading.Thread):
+    """The CPU seconds the live view's process and the client used from the end of the
+    run's first trial (its row in ``metrics``) to their exit, and the wall time between
+    (read from /proc every 0.2 s): what they took while trials ran, start-up left out."""
+
+    def __init__(self, client_pid: int | None, metrics: Path):
+        super().__init__(daemon=True)
+        self.client_pid = client_pid
+        self.metrics = metrics
+        self.seconds: dict[str, float] = {}
+        self.wall = 0.0
+        self._at_first: dict[str, float] | None = None
+        self._first_t = 0.0
+        self._done = threading.Event()
+
+    def _liveview_pid(self) -> int | None:
+        for d in Path("/proc").iterdir():
+            if d.name.isdigit():
+                try:
+                    cmd = (d / "cmdline").read_bytes()
+                except OSError:
+                    continue
+                if b"formation_ilc.nodes.liveview" in cmd:
+                    return int(d.name)
+        return None
+
+    def run(self) -> None:
+        live = None
+        last: dict[str, float] = {}
+        while not self._done.wait(0.2):
+            live = live or self._liveview_pid()
+            for name, pid in (("live view", live), ("client", self.client_pid)):
+                t = _cpu_s(pid) if pid is not None else None
+                if t is not None:
+                    last[name] = t
+            if self._at_first is None and self.metrics.exists() and \
+                    len(self.metrics.read_text().splitlines()) >= 2:
+                self._at_first, self._first_t = dict(last), time.monotonic()
+            if self._at_first is not None:
+                self.wall = time.monotonic() - self._first_t
+                self.seconds = {k: v - self._at_first.get(k, 0.0) for k, v in last.items()}
+
+    def stop(self) -> None:
+        self._done.set()
+        self.join()
+
+
 def run(args: argparse.Namespace, live: bool, domain: int, out: Path) -> dict:
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     argv = [sys.executable, "-m", "formation_ilc.cli", "launch", args.scenario, "--trials",
@@ -76,7 +134,10 @@ def run(args: argparse.Namespace, live: bool, domain: int, out: Path) -> dict:
     if live and not args.no_client:
         viewer = client(port, args.robots, args.node_modules, time.monotonic() + 120,
                         out.parent / f"{out.name}-client.log", args.client_nice)
+    cpu = CpuWatch(viewer.pid if viewer is not None else None, out / "metrics.csv")
+    cpu.start()
     stdout, _ = stack.communicate(timeout=1800)
+    cpu.stop()
     counts: dict[str, int] = {}
     if viewer is not None:
         viewer.terminate()  # it prints what it decoded
@@ -87,6 +148,7 @@ def run(args: argparse.Namespace, live: bool, domain: int, out: Path) -> dict:
     s = json.loads((out / "summary.json").read_text())
     poses = sum(v for k, v in counts.items() if k.endswith("/pose"))
     return {"samples_per_s": s["timing"]["samples_per_s"], "viewer": viewer is not None,
+            "cpu": cpu.seconds, "cpu_wall": cpu.wall,
             "poses": poses, "decoded": sum(counts.values()),
             "robot_samples": args.robots * (s["timing"]["samples"] + args.trials)}
 
@@ -124,13 +186,30 @@ def main() -> int:
                 figures[live].append(r["samples_per_s"])
                 seen = (f"; the client decoded {r['decoded']} messages, {r['poses']} of the "
                         f"run's {r['robot_samples']} robot poses" if r.get("viewer") else "")
+                if r["cpu"]:
+                    seen += (f"; CPU after trial 0 ({r['cpu_wall']:.1f} s): " + ", ".join(
+                        f"{k} {v:.2f} s ({100 * v / r['cpu_wall']:.1f} % of a core)"
+                        for k, v in r["cpu"].items()))
                 print(f"pair {k} {what if live else 'plain'}: "
                       f"{r['samples_per_s']:7.1f} samples/s{seen}", flush=True)
     plain, live = statistics.median(figures[False]), statistics.median(figures[True])
     print(f"{args.scenario}, {args.trials} trials{', recorded' if args.record else ''}: "
           f"median {plain:.1f} samples/s plain, {live:.1f} with {what}; "
           f"ratio {live / plain:.3f} (cost {100 * (1 - live / plain):.1f} %)")
+    # each pair's runs are minutes apart: their ratio leaves out the load that drifts over
+    # a whole benchmark (on this kind of machine runs move by up to 40 %)
+    ratios = sorted(b / a for a, b in zip(figures[False], figures[True], strict=True))
+    paired = statistics.median(ratios)
+    print(f"median of the {len(ratios)} pairs' ratios {paired:.3f} (cost "
+          f"{100 * (1 - paired):.1f} %; quartiles {_quartiles(ratios)})")
     return 0
+
+
+def _quartiles(xs: list[float]) -> str:
+    if len(xs) < 4:
+        return "need 4 pairs"
+    q1, _, q3 = statistics.quantiles(xs, n=4)
+    return f"{q1:.3f} to {q3:.3f}"
 
 
 if __name__ == "__main__":
