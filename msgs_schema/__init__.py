@@ -122,7 +122,7 @@ __all__ = [
     "true_trajectory_topic", "absolute", "relative",
     "SAMPLE_QOS", "LATCHED_QOS", "LATCHED_READER_QOS", "TRAJECTORY_QOS",
     "TRAJECTORY_READER_QOS", "CLOCK_QOS",
-    "MalformedMessage", "topic_table",
+    "MalformedMessage", "topic_table", "trial_trajectory",
     "SampleClock", "stamp_to_ns", "ns_to_stamp", "pose_to_msg", "msg_to_pose", "u_to_twist",
     "twist_to_u", "world_pose", "trajectory_to_path", "path_to_trajectory", "link_tick_to_msg",
     "msg_to_link_tick", "json_to_msg", "msg_to_json", "json_int", "deserialize", "clock_msg",
@@ -502,6 +502,22 @@ def trajectory_from_raw(data: bytes | Path, poses: int,
         return path_to_trajectory(data, reference_heading)
     return wire.read_trajectory(within_path_limit(wire.as_bytes(data), poses, what),
                                 reference_heading)
+
+
+def trial_trajectory(data: bytes | Path, clock: SampleClock,
+                     reference_heading: NDArray[np.float64]
+                     ) -> tuple[int, NDArray[np.float64], NDArray[np.int64]]:
+    """A robot's whole-trial trajectory (``robot_i/trajectory``), as the launcher's monitor
+    and the live view take it: (slot, eta (T+1, 3), stamps [ns]), headings unwrapped next
+    to ``reference_heading`` (T+1,); MalformedMessage if it is not in the world frame or
+    its stamps are not samples 0..T of one slot."""
+    eta, stamps, frame = trajectory_from_raw(data, len(reference_heading), reference_heading)
+    if frame != WORLD_FRAME:
+        raise MalformedMessage(f"trajectory in frame {frame[:50]!r}")
+    k, s0 = clock.decode(int(stamps[0]))
+    if s0 != 0 or any(int(x) != clock.stamp_ns(k, s) for s, x in enumerate(stamps)):
+        raise MalformedMessage("stamps are not samples 0..T of one trial")
+    return k, eta, stamps
 
 
 def within_path_limit(data: bytes, poses: int, what: str = "Path") -> bytes:

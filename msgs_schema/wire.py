@@ -231,28 +231,26 @@ def read_trajectory(data: bytes, reference_heading: NDArray[np.float64] | None =
     return eta, stamps, frame
 
 
-def read_pose_set(data: bytes, most: int) -> tuple[int, list[RawPose]]:
+def read_pose_set(data: bytes, most: int,
+                  too_many: str = "at most {most} poses expected, got {n}"
+                  ) -> tuple[int, list[RawPose]]:
     """(stamp [ns], its poses as received) of a nav_msgs/Path of at most ``most`` poses
-    (the plant's preview: one pose per robot); MalformedMessage if it holds more."""
+    (the plant's preview: one pose per robot; an emulated link's tick); MalformedMessage
+    ``too_many`` if it holds more."""
     r = _Reader(data)
     stamp = r.stamp()
     r.string()  # the path's frame: not checked (each pose's is, by its reader)
     (n,) = r.take("I", 4, 4)
     if n > most:
-        raise Malformed(f"at most {most} poses expected, got {n}")
+        raise Malformed(too_many.format(most=most, n=n))
     return stamp, [r.pose() for _ in range(n)]
 
 
 def read_link_tick(data: bytes) -> tuple[int, RawPose | None]:
     """(tick [ns], the delivered pose or None) of an emulated link's nav_msgs/Path;
     MalformedMessage if it holds more than one pose (as ``msg_to_link_tick``)."""
-    r = _Reader(data)
-    tick = r.stamp()
-    r.string()  # the path's frame: not checked (the pose's is)
-    (n,) = r.take("I", 4, 4)
-    if n > 1:
-        raise Malformed(f"a link delivers at most one pose per tick, got {n}")
-    return tick, (r.pose() if n else None)
+    tick, poses = read_pose_set(data, 1, "a link delivers at most one pose per tick, got {n}")
+    return tick, (poses[0] if poses else None)
 
 
 # --------------------------------------------------------------------------- packing

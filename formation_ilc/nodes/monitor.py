@@ -120,14 +120,7 @@ class MonitorNode(Node):
     def _on_traj(self, data: bytes | Path, r: int, true: bool) -> None:
         topic = (ms.true_trajectory_topic if true else ms.trajectory_topic)(r + 1)
         try:
-            eta, stamps, frame = ms.trajectory_from_raw(data, self.pb.samples + 1,
-                                                        self.pb.eta_d[r, :, 2])
-            if frame != ms.WORLD_FRAME:
-                raise ms.MalformedMessage(f"trajectory in frame {frame[:50]!r}")
-            k, s0 = self.clock.decode(int(stamps[0]))
-            if s0 != 0 or any(int(x) != self.clock.stamp_ns(k, s)
-                              for s, x in enumerate(stamps)):
-                raise ms.MalformedMessage("stamps are not samples 0..T of one trial")
+            k, eta, _ = ms.trial_trajectory(data, self.clock, self.pb.eta_d[r, :, 2])
             done = self.slots.trajectory(k, r, true, eta)
         except Rejected as exc:
             self.drops.reject(exc, topic)

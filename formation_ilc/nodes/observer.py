@@ -169,12 +169,7 @@ class Observer:
         team's of a slot are in, their trial errors. MalformedMessage if it is not a world
         trajectory of one trial's samples."""
         v = self.view
-        eta, stamps, frame = ms.trajectory_from_raw(data, v.samples + 1, v.eta_d[r, :, 2])
-        if frame != ms.WORLD_FRAME:
-            raise ms.MalformedMessage(f"trajectory in frame {frame[:50]!r}")
-        slot, s0 = self.clock.decode(int(stamps[0]))
-        if s0 != 0 or self.clock.decode(int(stamps[-1])) != (slot, v.samples):
-            raise ms.MalformedMessage("stamps are not samples 0..T of one trial")
+        slot, eta, stamps = ms.trial_trajectory(data, self.clock, v.eta_d[r, :, 2])
         got = self._trials.setdefault(slot, {})
         got[r] = eta
         if len(got) == v.n:
