@@ -10,6 +10,7 @@ import os
 import subprocess
 import sys
 import time
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -228,38 +229,87 @@ def _rows(path: Path) -> int:
         return 0
 
 
-def test_a_stalled_robot_makes_the_plant_resend_and_the_run_stays_equal_to_batch(ros_env,
-                                                                              tmp_path):
-    """robot_2 is stopped (SIGSTOP) for longer than the plant's re-send interval in the
-    middle of a trial: the plant sends the sample again (more than once), the robot, once it
-    runs again, finds copies of its current sample in its queue and commands once; the run
-    is equal to batch (a re-sent sample never changes what a robot learns)."""
+class ClockWatch:
+    """A node outside the formation's namespace that counts how often each /clock stamp
+    went out: a stamp seen again is a re-send of the plant."""
+
+    def __init__(self, context):
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from rosgraph_msgs.msg import Clock
+
+        self.node = rclpy.create_node("clock_watch", namespace="/clock_watch",
+                                      context=context)
+        self.seen: Counter[int] = Counter()
+        self.last = -1
+        self.node.create_subscription(Clock, ms.CLOCK, self._clock, ms.CLOCK_QOS)
+        self.ex = SingleThreadedExecutor(context=context)
+        self.ex.add_node(self.node)
+
+    def _clock(self, msg) -> None:
+        self.last = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
+        self.seen[self.last] += 1
+
+    def spin(self) -> None:
+        self.ex.spin_once(timeout_sec=0.05)
+
+    def close(self) -> None:
+        self.ex.shutdown()
+        self.node.destroy_node()
+
+
+def test_a_stalled_robot_makes_the_plant_resend_and_the_run_stays_equal_to_batch(
+        ros_env, context, tmp_path):
+    """robot_2 is stopped (SIGSTOP) early in trial 1 and held until the plant has sent its
+    sample out twice more (seen on /clock): the robot, once it runs again, finds copies of
+    its current sample in its queue and commands once; the run is equal to batch (a
+    re-sent sample never changes what a robot learns).
+
+    Stopped at a moment picked from the process table alone (CI stop 24), the robot could
+    land between two trials, where the leader, not the plant, waits for it: no re-send."""
     import signal
 
+    from formation_ilc.core.clock import SampleClock
     from formation_ilc.protocol.plant import RESEND_S
 
     from ..procs import find_child
 
+    sc = load_scenario("paper-triangle3")
+    grid = SampleClock.for_run(sc.dt, sc.samples)
     proc = launch(ros_env, tmp_path, "paper-triangle3", "--trials", str(TRIALS), "--seed",
                   str(SEED))
+    watch = None
+    stalled = None
     try:
         deadline = time.monotonic() + 600
-        while _rows(tmp_path / "metrics.csv") < 2:
+        while not (tmp_path / "metrics.csv").exists():  # the formation runs: join it
             assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
-            time.sleep(0.05)  # polling a file, bounded by the deadline
-        victim = find_child(ros_env["ROS_DOMAIN_ID"], "robot_id:=2", time.monotonic() + 10)
+            time.sleep(0.1)  # waiting for the launcher, bounded by the deadline
+        victim = find_child(ros_env["ROS_DOMAIN_ID"], "robot_id:=2", deadline)
+        watch = ClockWatch(context)
+        # early in trial 1: the plant still has most of the trial to wait on the robot in
+        while watch.last < 0 or grid.decode(watch.last)[0] < 1 \
+                or grid.decode(watch.last)[1] > sc.samples // 4:
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            watch.spin()
         os.kill(victim, signal.SIGSTOP)
-        stopped = time.monotonic()
         try:
-            # the plant's re-sends come every RESEND_S while the robot is stopped
-            while time.monotonic() - stopped < 3 * RESEND_S:
-                time.sleep(0.1)  # a stop of a known length, not a wait for a result
+            stopped = time.monotonic()
+            while time.monotonic() - stopped < 10 * RESEND_S:  # bounded: fails below
+                watch.spin()
+                stalled = max(watch.seen, key=lambda ns: (watch.seen[ns], ns))
+                if watch.seen[stalled] >= 3:  # sent, and sent again twice
+                    break
         finally:
             os.kill(victim, signal.SIGCONT)
         out, err = proc.communicate(timeout=600)
     finally:
         stop_group(proc)
+        if watch is not None:
+            watch.close()
     assert proc.returncode == 0, out + err
+    assert stalled is not None and watch is not None and watch.seen[stalled] >= 3, \
+        f"no sample went out three times while robot_2 was stopped: {watch and watch.seen}"
     got = read_metrics(tmp_path / "metrics.csv")
     np.testing.assert_allclose(got[:, 1:], batch()[:, 1:], rtol=0, atol=TOL)
     diag = json.loads((tmp_path / "diagnostics.json").read_text())
