@@ -9,10 +9,15 @@ their folder with --node-modules) subscribes to every robot's pose, desired pose
 tracking error and the markers and decodes every message for the whole run. Prints each
 run's lockstep samples/s (simulated samples over the wall time inside trials, the
 launcher's own figure), the medians and their ratio, and the median of each pair's ratio:
-the live view's cost.
+the live view's cost. Then the same for the **steady state**: the samples a second of wall
+time from the end of trial ``--from-trial`` (its line on the launcher's console) to the
+end of the run, in both kinds of run, once the client has subscribed: what a connected
+viewer costs, without the bridge's and the client's start-up (about 1.6 s and 0.5 s of
+CPU), which fall into the first trials of a short run.
 
     python scripts/bench_live.py --node-modules DIR            # paper-hexagon6, 3 pairs
     python scripts/bench_live.py --node-modules DIR --pairs 5 --trials 4 --record
+    python -u scripts/bench_live.py --node-modules DIR --pairs 8 --trials 12 --from-trial 3
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import socket
 import statistics
 import subprocess
@@ -30,6 +36,8 @@ import time
 from pathlib import Path
 
 CLIENT = Path(__file__).resolve().parent.parent / "tests" / "stack" / "foxglove_client"
+#: the launcher's line for a trial whose metrics are in: "trial K/N  max position ..."
+TRIAL_LINE = re.compile(r"^trial (\d+)/(\d+) ")
 
 
 def free_port() -> int:
@@ -118,6 +126,34 @@ class CpuWatch(threading.Thread):
         self.join()
 
 
+class Console(threading.Thread):
+    """The launcher's console, read as it comes: when each trial's line came (its metrics
+    are in, so the trial has ended)."""
+
+    def __init__(self, proc: subprocess.Popen):
+        super().__init__(daemon=True)
+        self.proc = proc
+        self.lines: list[str] = []
+        #: trial number K of its line "trial K/N" -> time.monotonic() it came
+        self.ended: dict[int, float] = {}
+
+    def run(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.append(line)
+            m = TRIAL_LINE.match(line)
+            if m:
+                self.ended.setdefault(int(m[1]), time.monotonic())
+
+    def steady(self, first: int, per_trial: float) -> float | None:
+        """Samples a second of wall time from trial ``first``'s line to the last trial's
+        (None: too few trials)."""
+        last = max(self.ended, default=0)
+        if first not in self.ended or last <= first:
+            return None
+        return (last - first) * per_trial / (self.ended[last] - self.ended[first])
+
+
 def run(args: argparse.Namespace, live: bool, domain: int, out: Path) -> dict:
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     argv = [sys.executable, "-m", "formation_ilc.cli", "launch", args.scenario, "--trials",
@@ -130,13 +166,19 @@ def run(args: argparse.Namespace, live: bool, domain: int, out: Path) -> dict:
         argv += ["--live", str(port)]
     stack = subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                              text=True)
+    console = Console(stack)
+    console.start()
     viewer = None
+    subscribed = None
     if live and not args.no_client:
         viewer = client(port, args.robots, args.node_modules, time.monotonic() + 120,
                         out.parent / f"{out.name}-client.log", args.client_nice)
+        subscribed = time.monotonic()
     cpu = CpuWatch(viewer.pid if viewer is not None else None, out / "metrics.csv")
     cpu.start()
-    stdout, _ = stack.communicate(timeout=1800)
+    stack.wait(timeout=1800)
+    console.join()
+    stdout = "".join(console.lines)
     cpu.stop()
     counts: dict[str, int] = {}
     if viewer is not None:
@@ -147,7 +189,11 @@ def run(args: argparse.Namespace, live: bool, domain: int, out: Path) -> dict:
         return {"error": stdout[-800:]}
     s = json.loads((out / "summary.json").read_text())
     poses = sum(v for k, v in counts.items() if k.endswith("/pose"))
+    per_trial = s["timing"]["samples"] / max(s["trials_done"], 1)
     return {"samples_per_s": s["timing"]["samples_per_s"], "viewer": viewer is not None,
+            "steady": console.steady(args.from_trial, per_trial),
+            "late_client": subscribed is not None
+            and subscribed > console.ended.get(args.from_trial, 0.0),
             "cpu": cpu.seconds, "cpu_wall": cpu.wall,
             "poses": poses, "decoded": sum(counts.values()),
             "robot_samples": args.robots * (s["timing"]["samples"] + args.trials)}
@@ -168,11 +214,19 @@ def main() -> int:
     ap.add_argument("--client-nice", type=int, default=0, metavar="N",
                     help="run the client at niceness N (a viewer on this machine that "
                          "yields to the control loop; default 0)")
+    ap.add_argument("--from-trial", type=int, default=2, metavar="K",
+                    help="the steady state counts from the end of trial K (1-based, as the "
+                         "launcher prints it; default 2): a client that subscribes later is "
+                         "named")
     ap.add_argument("--domain", type=int, default=30 + os.getpid() % 60)
     args = ap.parse_args()
+    if not 1 <= args.from_trial < args.trials:
+        ap.error(f"--from-trial {args.from_trial}: 1 <= K < --trials ({args.trials}) is "
+                 f"required")
     what = ("--live, no client" if args.no_client else "--live and a client" +
             (f" at niceness {args.client_nice}" if args.client_nice else ""))
     figures: dict[bool, list[float]] = {False: [], True: []}
+    steady: dict[bool, list[float]] = {False: [], True: []}
     with tempfile.TemporaryDirectory() as tmp:
         for k in range(args.pairs):
             for live in (False, True):
@@ -183,7 +237,16 @@ def main() -> int:
                 if live and not r["viewer"] and not args.no_client:
                     print("the client never connected", file=sys.stderr)
                     return 1
+                if r["steady"] is None:
+                    print(f"run {k} ({'live' if live else 'plain'}): no line for trial "
+                          f"{args.from_trial} or after it on the launcher's console",
+                          file=sys.stderr)
+                    return 1
                 figures[live].append(r["samples_per_s"])
+                steady[live].append(r["steady"])
+                if r["late_client"]:
+                    print(f"pair {k}: the client subscribed after trial {args.from_trial} "
+                          f"ended: its steady state starts too early", flush=True)
                 seen = (f"; the client decoded {r['decoded']} messages, {r['poses']} of the "
                         f"run's {r['robot_samples']} robot poses" if r.get("viewer") else "")
                 if r["cpu"]:
@@ -191,18 +254,25 @@ def main() -> int:
                         f"{k} {v:.2f} s ({100 * v / r['cpu_wall']:.1f} % of a core)"
                         for k, v in r["cpu"].items()))
                 print(f"pair {k} {what if live else 'plain'}: "
-                      f"{r['samples_per_s']:7.1f} samples/s{seen}", flush=True)
+                      f"{r['samples_per_s']:7.1f} samples/s, steady {r['steady']:7.1f} "
+                      f"samples/s of wall time{seen}", flush=True)
+    print(f"{args.scenario}, {args.trials} trials{', recorded' if args.record else ''}, "
+          f"{what}:")
+    _summary("whole run, inside trials", figures)
+    _summary(f"steady state, from the end of trial {args.from_trial}", steady)
+    return 0
+
+
+def _summary(title: str, figures: dict[bool, list[float]]) -> None:
     plain, live = statistics.median(figures[False]), statistics.median(figures[True])
-    print(f"{args.scenario}, {args.trials} trials{', recorded' if args.record else ''}: "
-          f"median {plain:.1f} samples/s plain, {live:.1f} with {what}; "
-          f"ratio {live / plain:.3f} (cost {100 * (1 - live / plain):.1f} %)")
+    print(f"  {title}: median {plain:.1f} samples/s plain, {live:.1f} live; ratio "
+          f"{live / plain:.3f} (cost {100 * (1 - live / plain):.1f} %)")
     # each pair's runs are minutes apart: their ratio leaves out the load that drifts over
     # a whole benchmark (on this kind of machine runs move by up to 40 %)
     ratios = sorted(b / a for a, b in zip(figures[False], figures[True], strict=True))
     paired = statistics.median(ratios)
-    print(f"median of the {len(ratios)} pairs' ratios {paired:.3f} (cost "
+    print(f"  {title}: median of the {len(ratios)} pairs' ratios {paired:.3f} (cost "
           f"{100 * (1 - paired):.1f} %; quartiles {_quartiles(ratios)})")
-    return 0
 
 
 def _quartiles(xs: list[float]) -> str:
