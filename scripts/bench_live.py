@@ -15,9 +15,8 @@ end of the run, in both kinds of run, once the client has subscribed: what a con
 viewer costs, without the bridge's and the client's start-up (about 1.6 s and 0.5 s of
 CPU), which fall into the first trials of a short run.
 
-    python scripts/bench_live.py --node-modules DIR            # paper-hexagon6, 3 pairs
-    python scripts/bench_live.py --node-modules DIR --pairs 5 --trials 4 --record
-    python -u scripts/bench_live.py --node-modules DIR --pairs 8 --trials 12 --from-trial 3
+    python -u scripts/bench_live.py --node-modules DIR   # paper-hexagon6, 6 pairs of 12 trials
+    python scripts/bench_live.py --node-modules DIR --pairs 5 --trials 4 --from-trial 2 --record
 """
 
 from __future__ import annotations
@@ -26,6 +25,7 @@ import argparse
 import json
 import os
 import re
+import shutil
 import socket
 import statistics
 import subprocess
@@ -206,17 +206,17 @@ def main() -> int:
                     help="node_modules of tests/stack/foxglove_client (npm ci there)")
     ap.add_argument("--scenario", default="paper-hexagon6")
     ap.add_argument("--robots", type=int, default=6, help="robots of the scenario")
-    ap.add_argument("--trials", type=int, default=3)
-    ap.add_argument("--pairs", type=int, default=3, help="runs without and with --live")
+    ap.add_argument("--trials", type=int, default=12)
+    ap.add_argument("--pairs", type=int, default=6, help="runs without and with --live")
     ap.add_argument("--record", action="store_true", help="every run records too")
     ap.add_argument("--no-client", action="store_true",
                     help="live runs without a client: what serving alone costs")
     ap.add_argument("--client-nice", type=int, default=0, metavar="N",
                     help="run the client at niceness N (a viewer on this machine that "
                          "yields to the control loop; default 0)")
-    ap.add_argument("--from-trial", type=int, default=2, metavar="K",
+    ap.add_argument("--from-trial", type=int, default=3, metavar="K",
                     help="the steady state counts from the end of trial K (1-based, as the "
-                         "launcher prints it; default 2): a client that subscribes later is "
+                         "launcher prints it; default 3): a client that subscribes later is "
                          "named")
     ap.add_argument("--domain", type=int, default=30 + os.getpid() % 60)
     args = ap.parse_args()
@@ -232,7 +232,10 @@ def main() -> int:
             for live in (False, True):
                 r = run(args, live, args.domain, Path(tmp) / f"run{k}-{int(live)}")
                 if "error" in r:
-                    print(f"run failed: {r['error']}", file=sys.stderr)
+                    kept = tempfile.mkdtemp(prefix="bench_live-failed-")
+                    shutil.copytree(Path(tmp), kept, dirs_exist_ok=True)
+                    print(f"run failed: {r['error']}\n(its folder, logs included, is kept "
+                          f"in {kept})", file=sys.stderr)
                     return 1
                 if live and not r["viewer"] and not args.no_client:
                     print("the client never connected", file=sys.stderr)
