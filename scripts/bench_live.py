@@ -35,6 +35,8 @@ import threading
 import time
 from pathlib import Path
 
+from procstat import cmdline, descendants, proc_cpu
+
 CLIENT = Path(__file__).resolve().parent.parent / "tests" / "stack" / "foxglove_client"
 #: the launcher's line for a trial whose metrics are in: "trial K/N  max position ..."
 TRIAL_LINE = re.compile(r"^trial (\d+)/(\d+) ")
@@ -70,22 +72,15 @@ def client(port: int, n: int, modules: str, stop: float, log: Path, niceness: in
     return None
 
 
-def _cpu_s(pid: int) -> float | None:
-    """[s] of CPU (user + system) process ``pid`` has used, or None if it is gone."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except OSError:
-        return None
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
 class CpuWatch(threading.Thread):
-    """The CPU seconds the live view's process and the client used from the end of the
-    run's first trial (its row in ``metrics``) to their exit, and the wall time between
-    (read from /proc every 0.2 s): what they took while trials ran, start-up left out."""
+    """The CPU seconds the live view's process (below the launcher ``launcher_pid``) and
+    the client used from the end of the run's first trial (its row in ``metrics``) to their
+    exit, and the wall time between (read from /proc every 0.2 s): what they took while
+    trials ran, start-up left out."""
 
-    def __init__(self, client_pid: int | None, metrics: Path):
+    def __init__(self, launcher_pid: int, client_pid: int | None, metrics: Path):
         super().__init__(daemon=True)
+        self.launcher_pid = launcher_pid
         self.client_pid = client_pid
         self.metrics = metrics
         self.seconds: dict[str, float] = {}
@@ -95,15 +90,9 @@ class CpuWatch(threading.Thread):
         self._done = threading.Event()
 
     def _liveview_pid(self) -> int | None:
-        for d in Path("/proc").iterdir():
-            if d.name.isdigit():
-                try:
-                    cmd = (d / "cmdline").read_bytes()
-                except OSError:
-                    continue
-                if b"formation_ilc.nodes.liveview" in cmd:
-                    return int(d.name)
-        return None
+        """This run's live view (another run's, on the machine, is not counted)."""
+        return next((p for p in descendants([self.launcher_pid])
+                     if b"formation_ilc.nodes.liveview" in cmdline(p)), None)
 
     def run(self) -> None:
         live = None
@@ -111,7 +100,7 @@ class CpuWatch(threading.Thread):
         while not self._done.wait(0.2):
             live = live or self._liveview_pid()
             for name, pid in (("live view", live), ("client", self.client_pid)):
-                t = _cpu_s(pid) if pid is not None else None
+                t = proc_cpu(pid) if pid is not None else None
                 if t is not None:
                     last[name] = t
             if self._at_first is None and self.metrics.exists() and \
@@ -174,7 +163,8 @@ def run(args: argparse.Namespace, live: bool, domain: int, out: Path) -> dict:
         viewer = client(port, args.robots, args.node_modules, time.monotonic() + 120,
                         out.parent / f"{out.name}-client.log", args.client_nice)
         subscribed = time.monotonic()
-    cpu = CpuWatch(viewer.pid if viewer is not None else None, out / "metrics.csv")
+    cpu = CpuWatch(stack.pid, viewer.pid if viewer is not None else None,
+                   out / "metrics.csv")
     cpu.start()
     stack.wait(timeout=1800)
     console.join()

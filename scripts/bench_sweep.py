@@ -50,6 +50,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from procstat import TICK, descendants, proc_cpu
+
 from formation_ilc.config.scenario import load_scenario
 from formation_ilc.model.simulate import simulate
 from formation_ilc.studies.study import apply_fields
@@ -66,37 +68,9 @@ grid:
 
 TARGET_EFF = 0.90
 TARGET_PER_CORE = 8e6
-TICK = os.sysconf("SC_CLK_TCK")
 
 
 # --------------------------------------------------------------------------- measuring
-
-def _proc_cpu(pid: int) -> float:
-    """CPU seconds (user + system) of one live process; 0 if it is gone."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return 0.0
-    fields = stat.rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / TICK  # utime, stime
-
-
-def _descendants(roots: list[int]) -> list[int]:
-    """``roots`` and every live process below them."""
-    parent: dict[int, int] = {}
-    for d in Path("/proc").iterdir():
-        if d.name.isdigit():
-            try:
-                parent[int(d.name)] = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
-            except (OSError, IndexError, ValueError):
-                continue
-    out, todo = [], list(roots)
-    while todo:
-        p = todo.pop()
-        out.append(p)
-        todo.extend(c for c, pp in parent.items() if pp == p)
-    return out
-
 
 def _machine_busy() -> float:
     """CPU seconds the whole machine has been busy (user, nice, system, irq, softirq)."""
@@ -115,15 +89,15 @@ class Run:
 def _measure(fn: Callable[[], object], roots: Callable[[], list[int]]) -> Run:
     """Run ``fn``; its wall time, the CPU of this process and of ``roots()``'s process
     trees (taken before and after: they must outlive the run), and the others' load."""
-    pids = [p for p in _descendants(roots()) if p != os.getpid()]
-    c_children = sum(_proc_cpu(p) for p in pids)
+    pids = [p for p in descendants(roots()) if p != os.getpid()]
+    c_children = sum(proc_cpu(p) or 0.0 for p in pids)
     busy0 = _machine_busy()
     c0 = time.process_time()
     t0 = time.perf_counter()
     fn()
     wall = time.perf_counter() - t0
     cpu = time.process_time() - c0
-    cpu += sum(_proc_cpu(p) for p in pids) - c_children
+    cpu += sum(proc_cpu(p) or 0.0 for p in pids) - c_children
     others = max(0.0, (_machine_busy() - busy0 - cpu) / wall)
     return Run(wall, cpu, others)
 
