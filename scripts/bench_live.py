@@ -155,26 +155,32 @@ def run(args: argparse.Namespace, live: bool, domain: int, out: Path) -> dict:
         argv += ["--live", str(port)]
     stack = subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                              text=True)
-    console = Console(stack)
-    console.start()
     viewer = None
-    subscribed = None
-    if live and not args.no_client:
-        viewer = client(port, args.robots, args.node_modules, time.monotonic() + 120,
-                        out.parent / f"{out.name}-client.log", args.client_nice)
-        subscribed = time.monotonic()
-    cpu = CpuWatch(stack.pid, viewer.pid if viewer is not None else None,
-                   out / "metrics.csv")
-    cpu.start()
-    stack.wait(timeout=1800)
-    console.join()
-    stdout = "".join(console.lines)
-    cpu.stop()
-    counts: dict[str, int] = {}
-    if viewer is not None:
-        viewer.terminate()  # it prints what it decoded
-        last = (viewer.communicate(timeout=30)[0].strip().splitlines() or [""])[-1]
-        counts = json.loads(last).get("counts", {}) if last.startswith("{") else {}
+    try:
+        console = Console(stack)
+        console.start()
+        subscribed = None
+        if live and not args.no_client:
+            viewer = client(port, args.robots, args.node_modules, time.monotonic() + 120,
+                            out.parent / f"{out.name}-client.log", args.client_nice)
+            subscribed = time.monotonic()
+        cpu = CpuWatch(stack.pid, viewer.pid if viewer is not None else None,
+                       out / "metrics.csv")
+        cpu.start()
+        stack.wait(timeout=1800)
+        console.join()
+        stdout = "".join(console.lines)
+        cpu.stop()
+        counts: dict[str, int] = {}
+        if viewer is not None:
+            viewer.terminate()  # it prints what it decoded
+            last = (viewer.communicate(timeout=30)[0].strip().splitlines() or [""])[-1]
+            counts = json.loads(last).get("counts", {}) if last.startswith("{") else {}
+    finally:  # a run that overran or a bench stopped by ^C leaves nothing behind
+        for proc in (viewer, stack):
+            if proc is not None and proc.poll() is None:
+                proc.terminate()  # the launcher stops every node it started
+                proc.wait(timeout=120)
     if stack.returncode:
         return {"error": stdout[-800:]}
     s = json.loads((out / "summary.json").read_text())
