@@ -134,8 +134,10 @@ class SimNode(ConfiguredNode):
     def _check_ready(self) -> None:
         need = [(p, 1) for p in self.pose_pubs] + [(self.clock_pub, 1), (self.ready_pub, 1)]
         need += [(s, 1) for s in self.cmd_subs]  # both ends matched: no first command lost
-        need += [(p, int(self.cfg.monitored)) for p in self.true_pubs]
-        if matched(need):
+        # every reader of the results by name (RunConfig.result_readers): a count would
+        # let the recorder stand in for a monitor not yet matched, or the other way round
+        need += [(p, self.cfg.result_readers) for p in self.true_pubs]
+        if matched(need, self):
             self._gate.cancel()
             self._say_ready(0)
 

@@ -320,7 +320,7 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
     cfg = make_config(opts.scenario, seed=opts.seed, noise=not opts.no_noise,
                       delay=not opts.no_delay, trials=opts.trials, law=opts.law,
                       memory=opts.memory, mode=mode, monitored=True, timeout=opts.timeout,
-                      links=links, run_id=opts.run_id,
+                      recorded=opts.record is not None, links=links, run_id=opts.run_id,
                       headings=getattr(opts, "headings", None),
                       time_scale=getattr(opts, "time_scale", None))
     # 'auto' headings: arc on the plants that drive arcs and came with the option (physics,

@@ -83,6 +83,8 @@ RUN: tuple[Param, ...] = (
           "samples", lo=1, hi=BIG),
     Param("monitored", PARAMS["monitored"], "a monitor (the launcher) reads trajectories: "
           "nodes wait for it before trial 0"),
+    Param("recorded", PARAMS["recorded"], "a recorder writes the run: nodes that publish "
+          "trajectories wait for it before trial 0"),
     Param("timeout", PARAMS["timeout"], "lockstep: how long the plant waits for a robot's "
           "command before it stops", "s", lo=1e-3, hi=1e6),
     Param("run_id", PARAMS["run_id"], "identity of the run; nodes of another run on the "

@@ -18,6 +18,7 @@ from typing import Any
 from formation_ilc.config.scenario import Scenario, load_scenario, scenario_from_text
 from formation_ilc.core.clock import Rejected, SampleClock, WallGrid
 from formation_ilc.core.links import LINK_MODES
+from formation_ilc.core.names import MONITOR_NODE, RECORDER_NODE
 
 __all__ = ["RunConfig", "make_config", "MODES", "WALL_MODES", "PARAMS", "param_text",
            "scenario_reference"]
@@ -33,7 +34,7 @@ WALL_MODES = ("realtime", "wallclock")
 PARAMS: dict[str, Any] = {
     "scenario": "", "seed": -1, "trials": 0, "law": 0, "memory": "", "noise": True,
     "delay": True, "mode": "lockstep", "links": "emulated", "gap": 20, "monitored": False,
-    "timeout": 30.0, "run_id": "", "headings": "", "time_scale": 0.0}
+    "recorded": False, "timeout": 30.0, "run_id": "", "headings": "", "time_scale": 0.0}
 
 
 def param_text(value: Any) -> str:
@@ -78,6 +79,8 @@ class RunConfig:
         'direct' (robots subscribe to their neighbours; delays are the network's).
     gap : samples between the end of one trial's labels and the next trial's (stamps).
     monitored : a monitor (the launcher) reads trajectories and diagnostics.
+    recorded : a recorder writes the run to a file. With ``monitored``, it names the
+        readers a node that publishes trajectories waits for (``result_readers``).
     timeout : [s] lockstep: how long the plant waits for a robot's command.
     run_id : identity of the run (set by the launcher): a node that has taken this
         configuration refuses another run's on the same domain and namespace.
@@ -90,6 +93,7 @@ class RunConfig:
     timeout: float = 30.0
     links: str = "emulated"
     run_id: str = ""
+    recorded: bool = False
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -104,6 +108,16 @@ class RunConfig:
     def wall(self) -> bool:
         """The plant does not wait for commands (realtime or wallclock)."""
         return self.mode in WALL_MODES
+
+    @property
+    def result_readers(self) -> tuple[str, ...]:
+        """The node names that must read every trajectory (measured and true): the
+        launcher's monitor and the recorder, as this run has them. A count of matched
+        readers cannot stand for them: the recorder, a live view or a user's tool reads
+        the same topics, and a trajectory sent before the monitor has matched its writer
+        is gone for it once two more are sent (the writers keep two)."""
+        return ((MONITOR_NODE,) if self.monitored else ()) + \
+            ((RECORDER_NODE,) if self.recorded else ())
 
     @functools.cached_property
     def clock(self) -> SampleClock | WallGrid:
@@ -121,7 +135,7 @@ class RunConfig:
                 **_switches(sc), "trials": sc.trials,
                 "law": sc.law.kind, "memory": sc.law.memory, "mode": self.mode,
                 "links": self.links, "gap": self.gap, "monitored": self.monitored,
-                "timeout": self.timeout, "run_id": self.run_id,
+                "recorded": self.recorded, "timeout": self.timeout, "run_id": self.run_id,
                 "headings": sc.headings, "time_scale": sc.time_scale}
 
     def to_params(self, scenario: str) -> dict[str, Any]:
@@ -132,7 +146,8 @@ class RunConfig:
         return {"scenario": scenario, "seed": sc.seed, "trials": sc.trials,
                 "law": sc.law.kind, "memory": sc.law.memory, **_switches(sc),
                 "mode": self.mode, "links": self.links, "gap": self.gap,
-                "monitored": self.monitored, "timeout": float(self.timeout),
+                "monitored": self.monitored, "recorded": self.recorded,
+                "timeout": float(self.timeout),
                 "run_id": self.run_id, "headings": sc.headings,
                 "time_scale": float(sc.time_scale)}
 
@@ -148,8 +163,8 @@ class RunConfig:
             str(g["scenario"]), seed=None if int(g["seed"]) < 0 else int(g["seed"]),
             noise=bool(g["noise"]), delay=bool(g["delay"]), trials=int(g["trials"]) or None,
             law=int(g["law"]) or None, memory=str(g["memory"]) or None, mode=str(g["mode"]),
-            gap=int(g["gap"]), monitored=bool(g["monitored"]), timeout=float(g["timeout"]),
-            links=str(g["links"]), run_id=str(g["run_id"]),
+            gap=int(g["gap"]), monitored=bool(g["monitored"]), recorded=bool(g["recorded"]),
+            timeout=float(g["timeout"]), links=str(g["links"]), run_id=str(g["run_id"]),
             headings=str(g["headings"]) or None, time_scale=float(g["time_scale"]) or None)
 
     @classmethod
@@ -164,7 +179,8 @@ class RunConfig:
                                  time_scale=float(d.get("time_scale", sc.time_scale)))
             return cls(sc, str(d.get("mode", "lockstep")), int(d.get("gap", 20)),
                        bool(d.get("monitored", False)), float(d.get("timeout", 30.0)),
-                       str(d.get("links", "emulated")), str(d.get("run_id", "")))
+                       str(d.get("links", "emulated")), str(d.get("run_id", "")),
+                       bool(d.get("recorded", False)))
         except (KeyError, TypeError, ValueError) as exc:
             raise Rejected("malformed", f"bad run configuration: {exc}") from None
 
@@ -179,9 +195,9 @@ def make_config(scenario: str, *, seed: int | None = None, noise: bool = True,
                 memory: str | None = None, mode: str = "lockstep", gap: int = 20,
                 monitored: bool = False, timeout: float = 30.0,
                 links: str = "emulated", run_id: str = "", headings: str | None = None,
-                time_scale: float | None = None) -> RunConfig:
+                time_scale: float | None = None, recorded: bool = False) -> RunConfig:
     """The run configuration of a scenario name or file with command-line overrides."""
     sc = load_scenario(scenario).with_options(law=law, memory=memory, noise=noise,
                                               delay=delay, seed=seed, trials=trials,
                                               headings=headings, time_scale=time_scale)
-    return RunConfig(sc, mode, gap, monitored, timeout, links, run_id)
+    return RunConfig(sc, mode, gap, monitored, timeout, links, run_id, recorded)

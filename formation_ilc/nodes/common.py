@@ -11,7 +11,7 @@ import signal
 import sys
 import uuid
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Collection, Iterable
 from typing import Any, TypeVar
 
 import numpy as np
@@ -34,7 +34,8 @@ from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, is_disk_full
 from formation_ilc.system.lifetime import PARENT_ENV, bound_the_stop, die_with_parent, parent_gone
 
 __all__ = ["PARENT_ENV", "DROP_REASONS", "DropCounter", "RunConfig", "make_config",
-           "config_from_msg", "ConfiguredNode", "warm_up", "warm_up_draws", "matched", "fail",
+           "config_from_msg", "ConfiguredNode", "warm_up", "warm_up_draws", "matched", "unmatched",
+           "readers_wanting", "fail",
            "spin_main", "node_parser", "ros_param", "robot_node_from_args"]
 
 R = TypeVar("R")
@@ -201,28 +202,61 @@ def warm_up_draws(pb: Problem, unc: Uncertainty) -> None:
     delivered_label(0, 0)
 
 
-def matched(pairs: Iterable[tuple[Any, int]]) -> bool:
+def matched(pairs: Iterable[tuple[Any, int | Collection[str]]], node: Node | None = None
+            ) -> bool:
     """True when every publisher has at least ``count`` matched subscriptions and every
-    subscription at least ``count`` matched publishers.
+    subscription at least ``count`` matched publishers; for a publisher, ``count`` may
+    instead name the reader nodes it must have (``node``'s graph, ``readers_wanting``).
 
     DDS matches each side on its own: a writer may see its reader before the reader has
     seen the writer, and a reliable reader drops what an unmatched writer sends; the
     sample then waits for the writer's next heartbeat (seconds). A node that says ready
     only once both sides of its per-sample topics are matched loses no first sample.
     """
-    return not unmatched(pairs)
+    return not unmatched(pairs, node)
 
 
-def unmatched(pairs: Iterable[tuple[Any, int]]) -> list[str]:
+def unmatched(pairs: Iterable[tuple[Any, int | Collection[str]]], node: Node | None = None
+              ) -> list[str]:
     """What :func:`matched` still waits for, one phrase an endpoint: "TOPIC: 0 of 1
     readers" (for a log line naming why a node is not ready)."""
     out = []
-    for e, count in pairs:
+    for e, want in pairs:
         sub = isinstance(e, Subscription)
         have = e.get_publisher_count() if sub else e.get_subscription_count()
-        if have < count:
-            out.append(f"{e.topic_name}: {have} of {count} {'writers' if sub else 'readers'}")
+        if isinstance(want, int):
+            if have < want:
+                out.append(f"{e.topic_name}: {have} of {want} {'writers' if sub else 'readers'}")
+            continue
+        assert node is not None and not sub, "named readers: a publisher and its node"
+        phrase = readers_wanting(node, e, want)
+        if phrase:
+            out.append(phrase)
     return out
+
+
+def readers_wanting(node: Node, pub: Any, names: Collection[str]) -> str:
+    """Why ``pub`` has not yet matched the reader nodes ``names`` (in ``node``'s
+    namespace), or "" when it has.
+
+    A count cannot say *which* readers a writer matched: the recorder, a live view or a
+    user's tool read the same topics as the monitor, and any of them could stand in for
+    it. rclpy names no matched reader, but the graph names every reader discovered on the
+    topic; the writer matches a reader as discovery finds it (both come from the same
+    endpoint discovery). So: every named node has a reader on the topic in the graph, and
+    the writer has matched at least as many readers as the graph lists (a discovered
+    reader it has not matched yet keeps it waiting, whoever that reader is).
+    """
+    listed = node.get_subscriptions_info_by_topic(pub.topic_name)
+    ns = node.get_namespace()
+    seen = {i.node_name for i in listed if i.node_namespace == ns}
+    missing = sorted(set(names) - seen)
+    have = pub.get_subscription_count()
+    need = max(len(listed), len(set(names)))
+    if not missing and have >= need:
+        return ""
+    return (f"{pub.topic_name}: {have} of {need} readers"
+            + (f" (not yet discovered: {', '.join(missing)})" if missing else ""))
 
 
 class Exit:

@@ -143,7 +143,10 @@ class RobotNode(ConfiguredNode):
                 lrn.restore(st)
                 self.get_logger().info(f"{self.name}: continues from {self.state_file}: "
                                        f"{st.iterations} trials learned")
-        self.n_out = int(sum(1 for r in range(pb.n) if r != lrn.i and lrn.i in pb.src[r]))
+        #: the robots that learn from this one's trajectory (its out-neighbours)
+        self.out_names = tuple(ms.robot_name(r + 1) for r in range(pb.n)
+                               if r != lrn.i and lrn.i in pb.src[r])
+        self.n_out = len(self.out_names)
         self.late: Counter[str] = Counter({"links": 0})
         warm_up(pb)
 
@@ -189,17 +192,20 @@ class RobotNode(ConfiguredNode):
         subscription its writer (nothing published before both ends are matched can be
         lost)."""
         shared_readers = self.n_out if self.cfg.links == "direct" else 1
+        # the trajectory's readers by name: the out-neighbours, which learn from it, and
+        # the results' readers (a count would let the recorder stand in for one of them)
         need = [(self.cmd_pub, 1), (self.shared_pub, shared_readers), (self.ready_pub, 1),
-                (self.traj_pub, self.n_out + int(self.cfg.monitored))]
+                (self.traj_pub, self.out_names + self.cfg.result_readers)]
         need += [(sub, 1) for sub in self.sample_subs]
-        if matched(need):
+        if matched(need, self):
             self._gate.cancel()
             self._send_ready()
             return
         now = time.monotonic()
         if now >= self._unmatched_warn:  # say what it waits for (every MATCH_WARN s)
             self._unmatched_warn = now + MATCH_WARN
-            self.get_logger().warning(f"not ready: waiting for {'; '.join(unmatched(need))}")
+            waits = "; ".join(unmatched(need, self))
+            self.get_logger().warning(f"not ready: waiting for {waits}")
 
     def _send_ready(self) -> None:
         """Idle: ready for the next iteration (the number of trials learned)."""

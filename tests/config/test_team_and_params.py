@@ -42,8 +42,8 @@ graph:
 CONFIGS = [
     dict(),
     dict(seed=3, trials=7, law=22, memory="literal", noise=False),
-    dict(delay=False, mode="realtime", links="direct", gap=5, monitored=True, timeout=2.5,
-         run_id="r0123abc"),
+    dict(delay=False, mode="realtime", links="direct", gap=5, monitored=True, recorded=True,
+         timeout=2.5, run_id="r0123abc"),
     dict(noise=False, delay=False, mode="wallclock", links="direct", law=23),
 ]
 

@@ -36,3 +36,50 @@ def test_unmatched_names_the_endpoints_still_missing_their_other_side(context):
     finally:
         a.destroy_node()
         b.destroy_node()
+
+
+def _until(cond, timeout=10.0):
+    end = time.monotonic() + timeout
+    while not cond() and time.monotonic() < end:
+        time.sleep(0.05)
+    return cond()
+
+
+def test_a_writer_waiting_for_named_readers_takes_no_other_reader_for_one(context):
+    """The recorder (or any other reader) matched first does not stand in for the monitor:
+    the trajectory writer waits until the monitor itself is there and matched."""
+    from rclpy.node import Node
+    from std_msgs.msg import String
+
+    import msgs_schema as ms
+    from formation_ilc.config.runconfig import RunConfig
+    from formation_ilc.config.scenario import load_scenario
+    from formation_ilc.nodes.common import matched, unmatched
+
+    cfg = RunConfig(load_scenario("paper-triangle3"), monitored=True, recorded=True)
+    assert cfg.result_readers == (ms.MONITOR_NODE, ms.RECORDER_NODE)
+    plant = Node("robot_sim", namespace=ms.NAMESPACE, context=context)
+    readers = []
+    try:
+        pub = plant.create_publisher(String, "robot_1/true_trajectory", 2)
+        need = [(pub, cfg.result_readers)]
+        assert not matched(need, plant)
+        for name in (ms.RECORDER_NODE, "liveview"):  # two readers, neither the monitor
+            readers.append(Node(name, namespace=ms.NAMESPACE, context=context))
+            readers[-1].create_subscription(String, "robot_1/true_trajectory",
+                                            lambda m: None, 2)
+        assert _until(lambda: pub.get_subscription_count() == 2)
+        time.sleep(0.3)  # and the graph has them
+        assert not matched(need, plant)  # two readers for two names: not the right ones
+        assert unmatched(need, plant) == [
+            f"/formation/robot_1/true_trajectory: 2 of 2 readers (not yet discovered: "
+            f"{ms.MONITOR_NODE})"]
+        readers.append(Node(ms.MONITOR_NODE, namespace=ms.NAMESPACE, context=context))
+        readers[-1].create_subscription(String, "robot_1/true_trajectory", lambda m: None, 2)
+        assert _until(lambda: matched(need, plant))
+        assert pub.get_subscription_count() == 3
+        # without a recording, the monitor alone is named
+        assert RunConfig(cfg.scenario, monitored=True).result_readers == (ms.MONITOR_NODE,)
+    finally:
+        for n in readers + [plant]:
+            n.destroy_node()
