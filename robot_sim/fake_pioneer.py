@@ -128,8 +128,8 @@ class FakePioneer(Node):
 def main(args: list[str] | None = None) -> int:
     def build(ns: Any, argv: list[str]) -> list[Node]:
         # the driver names the namespace: read before the node exists (-p or a params file)
-        found = probe_overrides(ms.FAKE_DRIVER_NODE, ms.DRIVERS["rosaria"].default_ns)
-        return [FakePioneer(found.get("driver", "rosaria"))]
+        with probe_overrides(ms.FAKE_DRIVER_NODE, ms.DRIVERS["rosaria"].default_ns) as found:
+            return [FakePioneer(found.get("driver", "rosaria"))]
 
     return spin_main(build,
                      node_parser(ms.FAKE_DRIVER_NODE, __doc__), args)

@@ -312,13 +312,13 @@ def robot_node_from_args(cls: Callable[..., Node], argv: list[str], prog: str,
     from formation_ilc.config.params import ROBOT
     from formation_ilc.nodes.params import ParameterError, check, probe_overrides
 
-    found = probe_overrides(probe_name, ms.NAMESPACE, **kwargs)
-    if "robot_id" not in found:
-        raise ParameterError("parameter robot_id: a robot number >= 1 is required "
-                             "(-p robot_id:=I, or robot_id in a --params-file under /** or "
-                             "the node's name)")
-    rid = check(ROBOT[0], found["robot_id"])
-    return cls(int(rid), **kwargs)
+    with probe_overrides(probe_name, ms.NAMESPACE, **kwargs) as found:
+        if "robot_id" not in found:
+            raise ParameterError("parameter robot_id: a robot number >= 1 is required "
+                                 "(-p robot_id:=I, or robot_id in a --params-file under /** "
+                                 "or the node's name)")
+        rid = check(ROBOT[0], found["robot_id"])
+        return cls(int(rid), **kwargs)  # while the probe holds the participant
 
 
 def _first_line(exc: BaseException) -> str:

@@ -12,7 +12,9 @@ at start and at run time: the stack keeps its own time (see docs/ros-tools.md).
 
 from __future__ import annotations
 
+import contextlib
 import math
+from collections.abc import Iterator
 from typing import Any
 
 from rcl_interfaces.msg import (
@@ -132,19 +134,26 @@ def _refuse_sim_time(params: list[Parameter]) -> SetParametersResult:
     return SetParametersResult(successful=True)
 
 
-def probe_overrides(name: str, namespace: str, **kwargs: Any) -> dict[str, Any]:
+@contextlib.contextmanager
+def probe_overrides(name: str, namespace: str, **kwargs: Any) -> Iterator[dict[str, Any]]:
     """The parameter values (``-p`` and ``--params-file``) a node named ``name`` in
     ``namespace`` would get, before that node exists: a node whose name follows a
     parameter (robot_id) needs it first. A short-lived node without services or rosout;
-    remappings of the node's name and namespace apply to it as to the real one."""
+    remappings of the node's name and namespace apply to it as to the real one.
+
+    A context manager: create the real node inside the ``with`` block. rmw destroys a
+    context's DDS participant with its last node, so a probe destroyed before the real
+    node existed made each robot process announce a participant that lived 0.2 s; every
+    other participant discovered it too, and in a secure run began an authentication
+    handshake with it that went on until its discovery lease ran out."""
     # nor its type description service: a secure run's permissions grant a node's
     # services under the node's own name only, and Enforce refused the probe's
     probe = Node(name, namespace=namespace, enable_rosout=False,
                  start_parameter_services=False,
                  parameter_overrides=[Parameter(_TYPE_DESCRIPTION, value=False)], **kwargs)
     try:
-        return {k: p.value for k, p in probe._parameter_overrides.items()
-                if k != _TYPE_DESCRIPTION}
+        yield {k: p.value for k, p in probe._parameter_overrides.items()
+               if k != _TYPE_DESCRIPTION}
     finally:
         probe.destroy_node()
 

@@ -162,14 +162,40 @@ def test_the_recorder_refuses_sim_time_before_it_writes_anything(ros_env, tmp_pa
     assert not out.exists()
 
 
+def test_the_robot_node_is_made_while_its_probe_holds_the_participant(params_context):
+    """The probe that reads robot_id lives until the robot's node exists: rmw destroys a
+    context's DDS participant with its last node, and a robot process whose probe went
+    first announced two participants (in a secure run, two handshakes with everyone)."""
+    from rclpy.node import Node
+
+    from formation_ilc.nodes.common import robot_node_from_args
+
+    ctx = params_context("-p", "robot_id:=2")
+    seen: list[list[tuple[str, str]]] = []
+
+    class Made(Node):
+        def __init__(self, rid: int, **kwargs):
+            super().__init__(f"robot_{rid}", namespace="/formation", **kwargs)
+            seen.append(sorted(self.get_node_names_and_namespaces()))
+
+    node = robot_node_from_args(Made, [], "formation-ilc-robot", context=ctx)
+    try:
+        assert ("robot", "/formation") in seen[0]  # the probe, still there
+        assert ("robot_2", "/formation") in seen[0]
+        assert ("robot", "/formation") not in node.get_node_names_and_namespaces()
+    finally:
+        node.destroy_node()
+
+
 def test_the_fake_driver_starts_from_its_example_file(params_context):
     import msgs_schema as ms
     from formation_ilc.nodes.params import probe_overrides
     from robot_sim.fake_pioneer import FakePioneer
 
     ctx = params_context("--params-file", str(PARAMS / "fake_pioneer.yaml"))
-    found = probe_overrides(ms.FAKE_DRIVER_NODE, ms.DRIVERS["rosaria"].default_ns, context=ctx)
-    fake = FakePioneer(found["driver"], context=ctx)
+    with probe_overrides(ms.FAKE_DRIVER_NODE, ms.DRIVERS["rosaria"].default_ns,
+                         context=ctx) as found:
+        fake = FakePioneer(found["driver"], context=ctx)
     try:
         assert fake.get_parameter("cmd_timeout").value == 0.6
         assert fake.describe_parameter("rate").read_only
