@@ -7,7 +7,10 @@
 # ROS_SECURITY_ENABLE=true node creation fails. This script builds the same Fast DDS release
 # with -DSECURITY=ON and the wheels' other options, and the two rmw_fastrtps libraries
 # against it (security changes public Fast DDS headers, so they must be rebuilt, not just
-# relinked); every other library stays as pip installed it.
+# relinked); every other library stays as pip installed it. rmw_fastrtps gets one patch,
+# scripts/secure_dds/rmw-keep-profile-properties.patch: upstream drops a secure
+# participant's XML-profile properties, among them the authentication handshake's retry
+# settings that `launch --secure` gives every node (docs/security.md).
 #
 #   --sources DIR  a folder holding Fast-DDS-2.14.5.tar.gz, rmw_fastrtps-jazzy-3b66524.tar.gz
 #                  and tinyxml2-6.0.0.h (checked against the checksums below). Without it the
@@ -35,7 +38,7 @@ repo=$(pwd)
 
 # Recipe version: bump when the build steps change, so that no cache entry of the old
 # recipe is reused.
-RECIPE=3
+RECIPE=4
 FASTDDS_TAR=Fast-DDS-2.14.5.tar.gz
 FASTDDS_SHA=c0d545ab264c3ecdd1a402d8e5fb6f1c0c478cee10a87000518185aed1e09180
 FASTDDS_URL=https://github.com/eProsima/Fast-DDS/archive/refs/tags/v2.14.5.tar.gz
@@ -64,8 +67,8 @@ py="$venv/bin/python"
 site=$("$py" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')
 [ -f "$venv/lib/libfastrtps.so.2.14.5" ] \
   || die "$venv/lib/libfastrtps.so.2.14.5: missing (install the project into the venv first)"
-for tool in cmake g++ sha256sum readelf flock; do
-  command -v "$tool" >/dev/null || die "$tool: not found (apt-get install cmake g++)"
+for tool in cmake g++ sha256sum readelf flock patch; do
+  command -v "$tool" >/dev/null || die "$tool: not found (apt-get install cmake g++ patch)"
 done
 for header in /usr/include/asio.hpp /usr/include/openssl/ssl.h /usr/include/sqlite3.h; do
   [ -f "$header" ] || die "$header: missing (apt-get install libasio-dev libssl-dev libsqlite3-dev)"
@@ -107,7 +110,9 @@ echo "$sums" | sed 's/^/  /'
 wheels=$(cd "$site" && ls -d ros_fastrtps-*.dist-info ros_fastcdr-*.dist-info ros_rmw-*.dist-info \
   ros_rmw_dds_common-*.dist-info ros_rmw_fastrtps_cpp-*.dist-info \
   ros_rmw_fastrtps_shared_cpp-*.dist-info ros_tracetools-*.dist-info 2>/dev/null | sort)
+rmw_patch=scripts/secure_dds/rmw-keep-profile-properties.patch
 key=$({ echo "recipe $RECIPE"; echo "$sums"; sha_of scripts/secure_dds/CMakeLists.txt;
+        sha_of "$rmw_patch";
         echo "$wheels"; } | sha256sum | cut -c1-16)
 entry="$cache_root/$key"
 prefix="$entry/prefix"
@@ -147,6 +152,7 @@ build() {
     mkdir -p "$work/fastdds" "$work/rmw" "$work/tinyxml2"
     tar -xzf "$srcdir/$FASTDDS_TAR" -C "$work/fastdds" --strip-components=1
     tar -xzf "$srcdir/$RMW_TAR" -C "$work/rmw" --strip-components=1
+    patch -s -d "$work/rmw" -p1 < "$repo/$rmw_patch" || die "$rmw_patch: does not apply"
     cp "$srcdir/$TINYXML_H" "$work/tinyxml2/tinyxml2.h"
     # SQLite: Debian's libsqlite3 instead of the bundled amalgamation (an empty stand-in
     # for the source file the CMake list names; the library is linked below)

@@ -275,6 +275,8 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
 
     if plan.run_json is not None:
         _save_run(plan.out, plan.run_json)
+    if plan.secure is not None:
+        plan.secure.write_profile()
     env = _node_env(plan)
     # Fast DDS files that nodes killed earlier left behind (held by no process)
     stale = clean_leftovers(min_age=2.0)

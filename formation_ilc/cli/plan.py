@@ -381,13 +381,30 @@ def _secured(plan: RunPlan, keystore: Path | str | None) -> RunPlan:
         raise NoRun(f"--secure: the keystore's permissions cover the plants "
                     f"{', '.join(SECURE_PLANTS)}, not --plant {plan.plant} (run it without "
                     f"--secure, on a network you trust)")
+    # the handshake retries go into the profile the processes would load anyway: the
+    # lossy-links one on netns hosts, else the user's own
+    if plan.hosts is not None:
+        from formation_ilc.system.netns import lossy_profile
+
+        base = lossy_profile() if plan.hosts.profile == "lossy" else None
+    else:
+        base = Path(os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"]) \
+            if os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE") else None
     try:
         sec = prepare(keystore, [s.name for s in plan.nodes], plan.namespace,
-                      container=plan.container)
+                      container=plan.container, profile=plan.out / "fastdds-secure.xml",
+                      base_profile=base)
     except OptionError as exc:
         raise NoRun(str(exc)) from None
     if sec is None:
         return plan
+    if not sec.handshake_applies:
+        from formation_ilc.system.securedds import BUILD_COMMAND
+
+        plan = replace(plan, notes=(*plan.notes, (
+            "note: this venv's rmw_fastrtps drops the authentication handshake's retry "
+            "settings (built before they were kept): a large secure team may not start; "
+            f"rebuild it: {BUILD_COMMAND}")))
     return replace(plan, secure=sec, nodes=tuple(
         replace(s, env=tuple(sec.variables(s.name).items())) for s in plan.nodes))
 

@@ -60,17 +60,33 @@ def enclave_name(process: str) -> str:
 
 @dataclass(frozen=True)
 class SecureRun:
-    """A checked keystore for a formation in ``namespace``."""
+    """A checked keystore for a formation in ``namespace``; ``profile``: where the run's
+    Fast DDS profile goes (:meth:`write_profile`: ``base_profile``'s with the handshake
+    retries of ``securedds.secure_profile``), None for none."""
 
     keystore: Path
     namespace: str
+    profile: Path | None = None
+    base_profile: Path | None = None
+    #: whether the loaded rmw applies the profile's handshake settings (the patched build)
+    handshake_applies: bool = True
 
     def variables(self, process: str) -> dict[str, str]:
-        return {"ROS_SECURITY_KEYSTORE": str(self.keystore),
-                "ROS_SECURITY_ENABLE": "true",
-                "ROS_SECURITY_STRATEGY": "Enforce",
-                "ROS_SECURITY_ENCLAVE_OVERRIDE": enclave_path(self.namespace,
-                                                             enclave_name(process))}
+        out = {"ROS_SECURITY_KEYSTORE": str(self.keystore),
+               "ROS_SECURITY_ENABLE": "true",
+               "ROS_SECURITY_STRATEGY": "Enforce",
+               "ROS_SECURITY_ENCLAVE_OVERRIDE": enclave_path(self.namespace,
+                                                            enclave_name(process))}
+        if self.profile is not None:
+            out["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(self.profile)
+        return out
+
+    def write_profile(self) -> None:
+        """Write the run's Fast DDS profile (before any process starts)."""
+        from formation_ilc.system.securedds import secure_profile
+
+        if self.profile is not None:
+            self.profile.write_text(secure_profile(self.base_profile))
 
     def env(self, base: dict[str, str], process: str) -> dict[str, str]:
         """``base`` with the security variables of ``process``."""
@@ -82,13 +98,21 @@ class SecureRun:
 
 
 def prepare(keystore: Path | str | None, processes: Iterable[str], namespace: str, *,
-            container: int = 0) -> SecureRun | None:
+            container: int = 0, profile: Path | None = None,
+            base_profile: Path | None = None) -> SecureRun | None:
     """The secure run for these processes (plus the launcher's monitor), or None without
-    ``--secure``; OptionError (one line) if it cannot run secure."""
+    ``--secure``; OptionError (one line) if it cannot run secure. ``profile``,
+    ``base_profile``: :class:`SecureRun`'s (a ``base_profile`` that is no profiles file is
+    refused here)."""
     if keystore is None:
         return None
     from formation_ilc.store.keystore import KeystoreError, verify
-    from formation_ilc.system.securedds import InsecureDds, check
+    from formation_ilc.system.securedds import (
+        InsecureDds,
+        check,
+        keeps_profile_properties,
+        secure_profile,
+    )
 
     if container:
         raise OptionError("--secure: one process per robot (no --container): a process "
@@ -99,7 +123,11 @@ def prepare(keystore: Path | str | None, processes: Iterable[str], namespace: st
                 for p in [*processes, LAUNCHER_NODE]]
     try:
         verify(ks, enclaves)
-        check()
+        applies = keeps_profile_properties(check())
+        if profile is not None:
+            secure_profile(base_profile)
     except (KeystoreError, InsecureDds) as exc:
         raise OptionError(f"--secure: {exc}") from None
-    return SecureRun(ks, namespace)
+    except ValueError as exc:
+        raise OptionError(f"--secure: FASTRTPS_DEFAULT_PROFILES_FILE {exc}") from None
+    return SecureRun(ks, namespace, profile, base_profile, applies)

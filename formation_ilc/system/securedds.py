@@ -17,8 +17,15 @@ therefore checks, before any node starts, what the dynamic loader really gives a
 
 Any failure is :class:`InsecureDds`, whose message names the library and the command that
 builds the secure one. ``python -m formation_ilc.system.securedds`` runs the check (exit 0
-or 2); ``--expect DIR`` also requires the loaded libraries to be the files in ``DIR`` (the
-build script's own verification).
+or 2); ``--expect DIR`` also requires the loaded libraries to be the files in ``DIR`` and
+the rmw to be the patched one (the build script's own verification).
+
+A secure run also gives every node the Fast DDS profile of :func:`secure_profile`: the
+authentication handshake retried every second until it succeeds. With Fast DDS's defaults
+a pair of participants gives up after 10 requests (about 14 s), silently, and 28
+participants starting on two busy cores never all authenticate. Upstream rmw_fastrtps drops
+a secure participant's profile properties; the build script's patched rmw keeps them
+(:data:`PROFILE_MARKER`, :func:`keeps_profile_properties`).
 """
 
 from __future__ import annotations
@@ -28,11 +35,13 @@ import ctypes
 import hashlib
 import mmap
 import sys
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["BUILD_COMMAND", "SECURITY_MARKER", "INSECURE_RMW_MARKER", "InsecureDds",
-           "LoadedDds", "has_marker", "loaded_libraries", "check", "main"]
+__all__ = ["BUILD_COMMAND", "SECURITY_MARKER", "INSECURE_RMW_MARKER", "PROFILE_MARKER",
+           "HANDSHAKE_PROPERTIES", "InsecureDds", "LoadedDds", "has_marker",
+           "loaded_libraries", "check", "keeps_profile_properties", "secure_profile", "main"]
 
 #: how a user gets a secure Fast DDS into the active venv
 BUILD_COMMAND = "bash scripts/build_secure_dds.sh (docs/security.md)"
@@ -40,6 +49,19 @@ BUILD_COMMAND = "bash scripts/build_secure_dds.sh (docs/security.md)"
 SECURITY_MARKER = b"builtin.PKI-DH"
 #: in librmw_fastrtps_shared_cpp only when built against a Fast DDS without security
 INSECURE_RMW_MARKER = b"This Fast DDS version doesn't have the security libraries"
+#: in librmw_fastrtps_shared_cpp only when built with the build script's patch
+#: (scripts/secure_dds/rmw-keep-profile-properties.patch), which keeps a secure
+#: participant's XML-profile properties
+PROFILE_MARKER = b"formation-ilc: rmw keeps the XML profile's participant properties"
+#: the PKI-DH handshake of every secure participant: a request every second, never given up
+#: (Fast DDS: 10 requests from 125 ms, 1.5 times longer each, then silent failure)
+HANDSHAKE_PROPERTIES = (
+    ("dds.sec.auth.builtin.PKI-DH.max_handshake_requests", "1000000"),
+    ("dds.sec.auth.builtin.PKI-DH.initial_handshake_resend_period", "1000"),
+    ("dds.sec.auth.builtin.PKI-DH.handshake_resend_period_gain", "1.0"),
+)
+#: the Fast DDS XML profiles' namespace
+PROFILES_NS = "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"
 #: what rmw_implementation loads for RMW_IMPLEMENTATION=rmw_fastrtps_cpp
 RMW_LIBRARY = "librmw_fastrtps_cpp.so"
 
@@ -102,6 +124,62 @@ def check(rmw_library: str = RMW_LIBRARY) -> LoadedDds:
     return libs
 
 
+def keeps_profile_properties(libs: LoadedDds) -> bool:
+    """Whether the loaded rmw gives a secure participant its profile's properties (the
+    handshake settings of :func:`secure_profile`): the build script's patched rmw."""
+    return has_marker(libs.rmw_shared, PROFILE_MARKER)
+
+
+def _local(tag: str) -> str:
+    return tag.rsplit("}", 1)[-1]
+
+
+def _child(parent: ET.Element, name: str, ns: str) -> ET.Element:
+    """``parent``'s first child called ``name`` (any namespace), made if there is none."""
+    for c in parent:
+        if _local(c.tag) == name:
+            return c
+    return ET.SubElement(parent, f"{ns}{name}")
+
+
+def secure_profile(base: Path | None = None) -> str:
+    """A Fast DDS XML profiles file for a secure run's processes: ``base``'s profiles (the
+    user's FASTRTPS_DEFAULT_PROFILES_FILE, the lossy-links one, or none) with
+    :data:`HANDSHAKE_PROPERTIES` in the default participant profile; a property ``base``
+    sets itself keeps ``base``'s value. ValueError names a ``base`` that is not a profiles
+    file."""
+    if base is None:
+        root = ET.Element(f"{{{PROFILES_NS}}}profiles")
+    else:
+        try:
+            root = ET.parse(base).getroot()
+        except (OSError, ET.ParseError) as exc:
+            raise ValueError(f"{base}: not a readable Fast DDS profiles file ({exc})") from None
+    profiles = root if _local(root.tag) == "profiles" else next(
+        (c for c in root if _local(c.tag) == "profiles"), None)
+    if profiles is None:
+        raise ValueError(f"{base}: no <profiles> element (a Fast DDS profiles file?)")
+    ns = profiles.tag[:profiles.tag.index("}") + 1] if profiles.tag.startswith("{") else ""
+    part = next((c for c in profiles if _local(c.tag) == "participant"
+                 and c.get("is_default_profile") == "true"), None)
+    if part is None:
+        part = ET.SubElement(profiles, f"{ns}participant",
+                             profile_name="formation_ilc_secure", is_default_profile="true")
+    props = _child(_child(_child(part, "rtps", ns), "propertiesPolicy", ns), "properties", ns)
+    have = {(p.findtext(f"{ns}name") or "").strip() for p in props}
+    for name, value in HANDSHAKE_PROPERTIES:
+        if name not in have:
+            prop = ET.SubElement(props, f"{ns}property")
+            ET.SubElement(prop, f"{ns}name").text = name
+            ET.SubElement(prop, f"{ns}value").text = value
+    ET.register_namespace("", ns.strip("{}") or PROFILES_NS)
+    ET.indent(root)
+    return ('<?xml version="1.0" encoding="UTF-8"?>\n'
+            "<!-- formation-ilc launch --secure: the authentication handshake retried every "
+            "second until it succeeds (docs/security.md) -->\n"
+            + ET.tostring(root, encoding="unicode") + "\n")
+
+
 def _sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
@@ -124,6 +202,9 @@ def main(argv: list[str] | None = None) -> int:
                 if not want.is_file() or _sha256(want) != _sha256(loaded):
                     raise InsecureDds(f"{loaded}: not the build in {args.expect} (another "
                                       f"library on LD_LIBRARY_PATH first?)")
+            if not keeps_profile_properties(libs):
+                raise InsecureDds(f"{libs.rmw_shared}: not patched to keep a participant's "
+                                  f"profile properties (rmw-keep-profile-properties.patch)")
     except InsecureDds as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -175,16 +175,55 @@ def test_a_secure_plan_puts_every_process_in_its_enclave(tmp_path, monkeypatch):
     ks = tmp_path / "ks"
     assert cli("keystore", "create", str(ks), "paper-triangle3").returncode == 0
     monkeypatch.setattr(securedds, "check", lambda *a, **k: None)
+    monkeypatch.setattr(securedds, "keeps_profile_properties", lambda libs: True)
+    monkeypatch.delenv("FASTRTPS_DEFAULT_PROFILES_FILE", raising=False)
     plan = plan_of(tmp_path, "paper-triangle3", "--secure", str(ks), "--record",
                    str(tmp_path / "run.mcap"))
     assert plan.secure is not None and plan.secure.keystore == ks.resolve()
+    profile = plan.out / "fastdds-secure.xml"
     for spec in plan.nodes:
         env = dict(spec.env)
         assert env["ROS_SECURITY_ENCLAVE_OVERRIDE"] == f"/formation/{spec.name}", spec.name
         assert env["ROS_SECURITY_STRATEGY"] == "Enforce"
         assert env["ROS_SECURITY_KEYSTORE"] == str(ks.resolve())
+        # every process loads the profile with the handshake retries
+        assert env["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(profile), spec.name
+    assert not any("handshake" in n for n in plan.notes)
+    plan.secure.write_profile()
+    assert "max_handshake_requests" in profile.read_text()
     insecure = plan_of(tmp_path, "paper-triangle3", out="plain")
     assert insecure.secure is None and all(not s.env for s in insecure.nodes)
+
+
+def test_a_secure_plan_keeps_the_users_profile_and_warns_of_an_unpatched_rmw(
+        tmp_path, monkeypatch):
+    """The user's own Fast DDS profile is the base of the run's; an rmw that would drop the
+    handshake settings is named in a note before the run (the run still goes: small teams
+    start without them)."""
+    import formation_ilc.system.securedds as securedds
+    from tests.cli.test_plan import plan_of
+
+    ks = tmp_path / "ks"
+    assert cli("keystore", "create", str(ks), "paper-triangle3").returncode == 0
+    own = tmp_path / "own.xml"
+    own.write_text('<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">'
+                   '<data_writer profile_name="mine" is_default_profile="true"/></profiles>')
+    monkeypatch.setattr(securedds, "check", lambda *a, **k: None)
+    monkeypatch.setattr(securedds, "keeps_profile_properties", lambda libs: False)
+    monkeypatch.setenv("FASTRTPS_DEFAULT_PROFILES_FILE", str(own))
+    plan = plan_of(tmp_path, "paper-triangle3", "--secure", str(ks))
+    assert plan.secure is not None and plan.secure.base_profile == own
+    assert any("handshake" in n and "build_secure_dds" in n for n in plan.notes)
+    plan.secure.write_profile()
+    text = (plan.out / "fastdds-secure.xml").read_text()
+    assert 'profile_name="mine"' in text and "handshake_resend_period_gain" in text
+    own.write_text("not xml")
+    from formation_ilc.cli.plan import NoRun
+
+    with pytest.raises(NoRun) as info:
+        plan_of(tmp_path, "paper-triangle3", "--secure", str(ks), out="again")
+    assert info.value.status == 2 and str(own) in info.value.message
+    assert "\n" not in info.value.message
 
 
 def test_a_plant_without_grants_is_refused_secure(tmp_path):

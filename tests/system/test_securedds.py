@@ -106,3 +106,44 @@ def test_maps_parsing_and_markers(tmp_path):
     lib = tmp_path / "lib.so"
     lib.write_bytes(b"\0" * 4096 + SECURITY_MARKER + b"\0" * 10)
     assert has_marker(lib, SECURITY_MARKER) and not has_marker(lib, INSECURE_RMW_MARKER)
+
+
+def test_the_secure_profile_retries_the_handshake_and_keeps_what_it_is_given(tmp_path):
+    """The handshake properties go into the default participant profile: a fresh one, or
+    the given file's, whose own profiles and values stay."""
+    import xml.etree.ElementTree as ET
+
+    from formation_ilc.system.netns import lossy_profile
+    from formation_ilc.system.securedds import HANDSHAKE_PROPERTIES, PROFILES_NS, secure_profile
+
+    ns = {"p": PROFILES_NS}
+
+    def props(text: str) -> dict[str, str]:
+        root = ET.fromstring(text.split("\n", 2)[2])
+        parts = [p for p in root.iter(f"{{{PROFILES_NS}}}participant")
+                 if p.get("is_default_profile") == "true"]
+        assert len(parts) == 1
+        return {p.findtext("p:name", namespaces=ns): p.findtext("p:value", namespaces=ns)
+                for p in parts[0].findall("p:rtps/p:propertiesPolicy/p:properties/p:property",
+                                          ns)}
+
+    assert props(secure_profile()) == dict(HANDSHAKE_PROPERTIES)
+    lossy = secure_profile(lossy_profile())
+    assert props(lossy) == dict(HANDSHAKE_PROPERTIES)
+    assert "formation_ilc_lossy_links_writer" in lossy and "50000000" in lossy
+    own = tmp_path / "own.xml"
+    own.write_text(f"""<dds><profiles xmlns="{PROFILES_NS}">
+  <participant profile_name="p" is_default_profile="true"><rtps><name>x</name>
+    <propertiesPolicy><properties><property>
+      <name>dds.sec.auth.builtin.PKI-DH.initial_handshake_resend_period</name>
+      <value>300</value></property></properties></propertiesPolicy></rtps></participant>
+</profiles></dds>""")
+    mine = props(secure_profile(own))
+    assert mine["dds.sec.auth.builtin.PKI-DH.initial_handshake_resend_period"] == "300"
+    assert mine["dds.sec.auth.builtin.PKI-DH.max_handshake_requests"] == "1000000"
+    bad = tmp_path / "bad.xml"
+    bad.write_text("<nothing/>")
+    with pytest.raises(ValueError, match="no <profiles>"):
+        secure_profile(bad)
+    with pytest.raises(ValueError, match="not a readable"):
+        secure_profile(tmp_path / "missing.xml")
