@@ -167,6 +167,12 @@ def test_governance_encrypts_and_refuses_strangers():
     assert rule is not None
     assert rule.findtext("allow_unauthenticated_participants") == "false"
     assert rule.findtext("enable_join_access_control") == "true"
+    # every RTPS message encrypted, a MAC per receiver: per message, not per topic (a
+    # 24-robot team never finished the per-topic key exchanges; docs/security.md)
+    assert rule.findtext("rtps_protection_kind") == "ENCRYPT_WITH_ORIGIN_AUTHENTICATION"
+    assert rule.findtext("discovery_protection_kind") == "ENCRYPT"
     topic = rule.find("topic_access_rules/topic_rule")
-    assert topic is not None and topic.findtext("data_protection_kind") == "ENCRYPT"
+    assert topic is not None and topic.findtext("topic_expression") == "*"
     assert topic.findtext("enable_write_access_control") == "true"
+    assert topic.findtext("enable_read_access_control") == "true"
+    assert topic.findtext("enable_discovery_protection") == "true"
