@@ -25,7 +25,7 @@ from typing import Any
 from formation_ilc.cli.options import OptionError
 from formation_ilc.cli.secure import SecureRun
 from formation_ilc.config.runconfig import RunConfig, make_config, param_text, scenario_reference
-from formation_ilc.config.scenario import Scenario
+from formation_ilc.config.scenario import Scenario, ScenarioError
 from formation_ilc.config.team import BRIDGED, Team
 from formation_ilc.core.names import (
     BASES_NODE,
@@ -317,12 +317,20 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
     opts = effective_options(args)
     faults = _hosts_faults(opts)
     mode, links = _mode_and_links(opts, hosts=faults is not None)
-    cfg = make_config(opts.scenario, seed=opts.seed, noise=not opts.no_noise,
-                      delay=not opts.no_delay, trials=opts.trials, law=opts.law,
-                      memory=opts.memory, mode=mode, monitored=True, timeout=opts.timeout,
-                      recorded=opts.record is not None, links=links, run_id=opts.run_id,
-                      headings=getattr(opts, "headings", None),
-                      time_scale=getattr(opts, "time_scale", None))
+    try:
+        cfg = make_config(opts.scenario, seed=opts.seed, noise=not opts.no_noise,
+                          delay=not opts.no_delay, trials=opts.trials, law=opts.law,
+                          memory=opts.memory, mode=mode, monitored=True,
+                          timeout=opts.timeout, recorded=opts.record is not None,
+                          links=links, run_id=opts.run_id,
+                          headings=getattr(opts, "headings", None),
+                          time_scale=getattr(opts, "time_scale", None))
+    except ScenarioError:
+        raise
+    except ValueError as exc:
+        # RunConfig owns its rules (e.g. wall-clock trials need direct links): a refusal
+        # in one line, not a traceback
+        raise NoRun(f"launch: {exc}") from None
     # 'auto' headings: arc on the plants that drive arcs and came with the option (physics,
     # base); chord for the kinematic simulator, and for the Pioneer bridges and external
     # plants as before them (their runs and learned memories keep their numbers)

@@ -133,6 +133,9 @@ def test_an_initial_memory_reaches_every_robot_by_its_absolute_path(tmp_path, mo
     (["--hosts", "netns", "--net-loss", "1.5"], "--net-loss: a fraction in [0, 1) is "
                                                 "required, got 1.5"),
     (["--hosts", "netns", "--container", "3"], "--hosts netns runs one process per robot"),
+    # the run configuration's own rule, refused in one line (it was a traceback)
+    (["--plant", "external", "--mode", "wallclock", "--links", "emulated"],
+     "launch: mode wallclock needs links direct"),
 ])
 def test_refusals_are_one_line_with_status_2(tmp_path, argv, message):
     exc = refusal(tmp_path, "paper-triangle3", *argv)
