@@ -132,12 +132,7 @@ class SimNode(ConfiguredNode):
             self.create_timer(RESEND_S / 4, self._resend)
 
     def _check_ready(self) -> None:
-        # each pose by its readers' names: robot i, and the recorder (a count would let
-        # either stand in for the other, and the later one lose the first samples)
-        need: list[tuple[Any, int | tuple[str, ...]]] = [
-            (p, (ms.robot_name(r + 1), *self.cfg.sample_readers))
-            for r, p in enumerate(self.pose_pubs)]
-        need += [(self.clock_pub, 1), (self.ready_pub, 1)]
+        need = [(p, 1) for p in self.pose_pubs] + [(self.clock_pub, 1), (self.ready_pub, 1)]
         need += [(s, 1) for s in self.cmd_subs]  # both ends matched: no first command lost
         # every reader of the results by name (RunConfig.result_readers): a count would
         # let the recorder stand in for a monitor not yet matched, or the other way round

@@ -119,14 +119,6 @@ class RunConfig:
         return ((MONITOR_NODE,) if self.monitored else ()) + \
             ((RECORDER_NODE,) if self.recorded else ())
 
-    @property
-    def sample_readers(self) -> tuple[str, ...]:
-        """The node names besides robot i that must read every per-sample output of the
-        plant (robot i's pose): the recorder, when this run has one. Counted, the robot
-        alone satisfied the plant's writer, and the recorder lost the first samples of
-        trial 1 when it matched later (seen in CI: 275 of 282 poses recorded)."""
-        return (RECORDER_NODE,) if self.recorded else ()
-
     @functools.cached_property
     def clock(self) -> SampleClock | WallGrid:
         """The run's sample grid: simulated-time labels, or in ``wallclock`` mode real
