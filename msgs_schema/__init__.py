@@ -194,7 +194,11 @@ def relative(name: str, namespace: str = NAMESPACE) -> str:
 
 
 # Lockstep must not lose a sample on localhost: reliable, and deep enough for a burst.
-SAMPLE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=64,
+# The depth is also how far a passive reader (the recorder, niced, outside the lockstep)
+# may fall behind before a writer drops samples it has not acknowledged: at 64, a recorder
+# that stalled for about 0.25 s of a 280 samples/s run lost samples 70-76 of trial 1 (seen
+# in CI); 512 gives it about 2 s.
+SAMPLE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=512,
                         reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.VOLATILE)
 # Configuration, readiness and diagnostics: a late joiner gets the last word of each writer.
@@ -216,8 +220,9 @@ TRAJECTORY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2,
 TRAJECTORY_READER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=32,
                                    reliability=ReliabilityPolicy.RELIABLE,
                                    durability=DurabilityPolicy.TRANSIENT_LOCAL)
-# /clock: reliable writer (also serves rclpy's best-effort time-source readers).
-CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=64,
+# /clock: reliable writer (also serves rclpy's best-effort time-source readers); as deep
+# as SAMPLE_QOS, for the recorder.
+CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=512,
                        reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.VOLATILE)
 
