@@ -49,8 +49,8 @@ def run_on_hosts(plan: RunPlan, execute: Execute) -> int:
         with hosts:
             os.environ.update(hosts.ros_env())
             os.environ.pop("FASTRTPS_DEFAULT_PROFILES_FILE", None)
-            if profile == "lossy":
-                os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(netns.lossy_profile())
+            if plan.hosts.profile_file is not None:
+                os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(plan.hosts.profile_file)
             print(f"hosts: robot i in network namespace {hosts.robot_ns(1)[:-1]}i "
                   f"({netns.SUBNET}.{netns.ROBOT_HOST0}+i), the rest in {hosts.hub} "
                   f"({hosts.hub_address}); links between robots: {faults.describe()}; "

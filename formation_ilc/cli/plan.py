@@ -213,6 +213,14 @@ class HostsPlan:
     profile: str
     seed: int
 
+    @property
+    def profile_file(self) -> Path | None:
+        """The Fast DDS profiles file every process of the run loads (None: Fast DDS's
+        defaults, also when this machine's environment names one)."""
+        from formation_ilc.system.netns import lossy_profile
+
+        return lossy_profile() if self.profile == "lossy" else None
+
 
 @dataclass(frozen=True)
 class RunPlan:
@@ -392,9 +400,7 @@ def _secured(plan: RunPlan, keystore: Path | str | None) -> RunPlan:
     # the handshake retries go into the profile the processes would load anyway: the
     # lossy-links one on netns hosts, else the user's own
     if plan.hosts is not None:
-        from formation_ilc.system.netns import lossy_profile
-
-        base = lossy_profile() if plan.hosts.profile == "lossy" else None
+        base = plan.hosts.profile_file
     else:
         base = Path(os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"]) \
             if os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE") else None
