@@ -35,10 +35,12 @@ watchdog_scale : float
 The leader publishes the configuration on ``config`` (latched), waits until every node has
 reported ready for trial k, publishes ``start`` k on ``leader/trial_events``, then follows
 ``/clock``: at each sample t of the trial it broadcasts r(t) on ``leader/reference`` (in the
-world frame, stamped with the sample's label), and at t = T ``end`` k. After the last trial
-it publishes ``done``. When a node restarts during a trial, the leader aborts that trial
-and runs it again in the next slot of the label grid (``formation_ilc.protocol.schedule``: the
-protocol, slots and aborts).
+world frame, stamped with the sample's label), and at t = T ``end`` k. Its readers are the
+robots that see it, or with emulated links the link emulator; in lockstep with direct
+links no robot reads it (``RunConfig.leader_in_step``), only the recorder and viewers.
+After the last trial it publishes ``done``. When a node restarts during a trial, the leader
+aborts that trial and runs it again in the next slot of the label grid
+(``formation_ilc.protocol.schedule``: the protocol, slots and aborts).
 
 What it accepts (the rest is dropped and counted, with the reason, in its own
 ``diagnostics`` at each trial's end): ready messages from the nodes it waits for, for a
@@ -118,8 +120,10 @@ class LeaderNode(Node):
         self.expected = expected if expected else Team.of(
             sc.n, plant=default_plant(self.cfg.mode), links=self.cfg.links).expected
         # who reads the reference: the link emulator, or each robot that sees the leader
-        self.ref_readers = (int(sum(sc.graph.leader > 0)) if self.cfg.links == "direct"
-                            else 1)
+        # (none in lockstep with direct links: RunConfig.leader_in_step)
+        self.ref_readers = (1 if self.cfg.links == "emulated"
+                            else 0 if self.cfg.leader_in_step
+                            else int(sum(sc.graph.leader > 0)))
         robots = {ms.robot_name(i + 1) for i in range(sc.n)}
         self.sched = Schedule(self.expected, robots & set(self.expected), self.trials)
         sdir = str(g("state_dir"))

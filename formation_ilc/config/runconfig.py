@@ -110,6 +110,19 @@ class RunConfig:
         return self.mode in WALL_MODES
 
     @property
+    def leader_in_step(self) -> bool:
+        """Whether a robot that sees the leader takes the leader link from its own sample
+        rather than from the per-sample reference messages: in lockstep with direct links.
+        There the robot waits for St = Rt on every link, so the reference of its sample t
+        is labelled t (delay 0, eq. 11), and the law reads the reference itself from the
+        scenario (eq. 9 uses only the label's sample of the leader link): the message would
+        carry nothing the robot does not have. The leader still broadcasts every sample's
+        reference (the recorder and the live view read it). In realtime and wallclock
+        trials the leader link's delay is the network's, and with emulated links the
+        emulator delays it: there the robots take what arrives."""
+        return self.mode == "lockstep" and self.links == "direct"
+
+    @property
     def result_readers(self) -> tuple[str, ...]:
         """The node names that must read every trajectory (measured and true): the
         launcher's monitor and the recorder, as this run has them. A count of matched

@@ -23,10 +23,11 @@ Per sample t of trial k: the measured pose arrives on ``robot_<id>/pose`` (its s
 the robot's clock Rt), is shared on ``robot_<id>/shared_pose`` (stamp = send label St),
 and the links deliver the neighbours' poses:
 
-* ``links: direct``: the node subscribes to each in-neighbour's ``shared_pose`` (and to
-  ``leader/reference`` if it sees the leader) and uses, on each link, the newest pose
-  with St <= Rt. Lockstep: it waits for St = Rt on every link. Realtime: it waits at most
-  ``LINK_WAIT`` dT after its pose, then uses what has arrived.
+* ``links: direct``: the node subscribes to each in-neighbour's ``shared_pose`` (and, in
+  realtime, to ``leader/reference`` if it sees the leader) and uses, on each link, the
+  newest pose with St <= Rt. Lockstep: it waits for St = Rt on every link; the leader link
+  is then the robot's own sample, with no message (``RunConfig.leader_in_step``).
+  Realtime: it waits at most ``LINK_WAIT`` dT after its pose, then uses what has arrived.
 * ``links: emulated``: the link emulator sends one message per link and tick on
   ``robot_<id>/links/<sender>``; the node commands when every link reported the tick
   (realtime: at most ``LINK_WAIT`` dT after its pose).
@@ -130,7 +131,8 @@ class RobotNode(ConfiguredNode):
             memory = load_memory(path, cfg.scenario)[self.id - 1]
             self.get_logger().info(f"{self.name}: initial memory from {path}")
         self.learner = lrn = RobotLearner(pb, self.id - 1, cfg.clock, realtime=self.realtime,
-                                          direct=cfg.links == "direct", memory=memory)
+                                          direct=cfg.links == "direct", memory=memory,
+                                          leader_in_step=cfg.leader_in_step)
         self.follower = Follower(cfg.run_id, clock=cfg.clock)
         sdir = str(self.get_parameter("state_dir").value)
         self.state_file = state_path(sdir, self.id) if sdir else None
@@ -161,6 +163,8 @@ class RobotNode(ConfiguredNode):
         self.sample_subs = [self.create_subscription(
             PoseStamped, ms.pose_topic(self.id), self._on_pose, ms.SAMPLE_QOS, raw=True)]
         for sender in lrn.slots:
+            if sender == LEADER and cfg.leader_in_step:
+                continue  # the leader link is the robot's own sample (RunConfig.leader_in_step)
             if cfg.links == "emulated":
                 # a tick longer than one pose is refused before it is read
                 self.sample_subs.append(self.create_subscription(

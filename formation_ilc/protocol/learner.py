@@ -7,7 +7,8 @@ comes back. Everything that decides what the robot does lives here, with no ROS 
 * the label-to-sample mapping of its own poses (``SampleClock``), new trials, missed
   samples and the zero-order hold of what the plant applied when the robot did not command;
 * each link's inbox (``LinkInbox``: emulated ticks or direct poses), eq. (11) from Rt and
-  St, eq. (10) gating (in ``law.command``), and the per-link delay histograms;
+  St, eq. (10) gating (in ``law.command``), and the per-link delay histograms; in lockstep
+  with direct links the leader link is the robot's own sample (``leader_in_step``);
 * the learning memory and the trial-end learning from the neighbours' whole trajectories
   (``law.learn``, the same function the batch simulator calls).
 
@@ -52,6 +53,9 @@ __all__ = ["PoseEvent", "RobotLearner", "LINK_LOOKAHEAD"]
 
 #: lockstep: how many samples after its own current sample a link input may be labelled
 LINK_LOOKAHEAD = 1
+#: what the leader link "delivers" in step (``leader_in_step``): eq. (9) uses its label only
+_UNUSED_POSE = np.zeros(3)
+_UNUSED_POSE.flags.writeable = False
 
 
 @dataclass(frozen=True)
@@ -71,10 +75,16 @@ class RobotLearner:
     realtime : the plant does not wait for commands (samples may be missed and held).
     direct : links are direct (newest pose with St <= Rt) rather than emulated ticks.
     memory : initial learning memory, shape (T, 2) [m/s, rad/s]; default 0 (u_0 = 0).
+    leader_in_step : lockstep with direct links (``RunConfig.leader_in_step``): the leader
+        link delivers, at each own pose, the reference labelled with that pose's label
+        (St = Rt, what the robot would wait for); no reference message is taken.
     """
 
     def __init__(self, pb: Problem, index: int, clock: SampleClock, *, realtime: bool = False,
-                 direct: bool = False, memory: NDArray[np.float64] | None = None):
+                 direct: bool = False, memory: NDArray[np.float64] | None = None,
+                 leader_in_step: bool = False):
+        if leader_in_step and (realtime or not direct):
+            raise ValueError("leader_in_step is for lockstep with direct links")
         if not 0 <= index < pb.n:
             raise ValueError(f"robot {index + 1}: the scenario has robots 1..{pb.n}")
         self.pb, self.i, self.clock = pb, index, clock
@@ -90,6 +100,8 @@ class RobotLearner:
         if self.sees_leader:
             self.slots[LEADER] = -1
         self.inbox = {s: LinkInbox(s, clock, direct) for s in self.slots}
+        #: the leader link taken from the robot's own samples (None: from messages)
+        self.leader_box = self.inbox[LEADER] if leader_in_step and self.sees_leader else None
         self.neighbours = [s for s in self.slots if s != LEADER]
         self.memory = np.zeros((1, n_t, 2))
         if memory is not None:
@@ -183,6 +195,9 @@ class RobotLearner:
         self.have[s] = True
         last = s == self.T
         self.commanded = last
+        if self.leader_box is not None and not last:
+            # the law reads only the label's sample of the leader link: the pose is unused
+            self.leader_box.offer(label_ns, _UNUSED_POSE, k)
         return PoseEvent(k, s, new, last)
 
     def _window(self, k: int, what: str) -> bool:

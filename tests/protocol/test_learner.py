@@ -81,12 +81,15 @@ def test_delivered_label():
 
 # --------------------------------------------------------------------------- a team
 
-def run_team(pb: Problem, clock: SampleClock, memory, draws, direct: bool):
+def run_team(pb: Problem, clock: SampleClock, memory, draws, direct: bool,
+             in_step: bool = False):
     """Feed one learner per robot with the batch trial's outputs, event by event; return
-    (commands (N, T, 2), learned memory (N, T, 2))."""
+    (commands (N, T, 2), learned memory (N, T, 2)). ``in_step``: lockstep with direct
+    links, the leader link taken from the robot's own samples (no reference is fed)."""
     xi0, dist, noise, tau, tau0 = draws
     _, eta, u_ref, _ = pb.trial(memory, xi0, dist, noise, tau, tau0)
-    team = [RobotLearner(pb, r, clock, direct=direct, memory=memory[r]) for r in range(pb.n)]
+    team = [RobotLearner(pb, r, clock, direct=direct, memory=memory[r],
+                         leader_in_step=in_step) for r in range(pb.n)]
     k = 0
     u = np.zeros((pb.n, pb.samples, 2))
     ref_label = lambda s: clock.stamp_ns(k, s)  # noqa: E731
@@ -107,7 +110,7 @@ def run_team(pb: Problem, clock: SampleClock, memory, draws, direct: bool):
                     s = delivered_label(t, int(tau[r, ell, t]))
                     lrn.on_link_tick(sender, clock.stamp_ns(k, t),
                                      None if s < 0 else (clock.stamp_ns(k, s), eta[j, s]))
-            if lrn.sees_leader:
+            if lrn.sees_leader and not in_step:
                 if direct:
                     lrn.on_link_pose(LEADER, ref_label(t), np.zeros(3))
                 else:
@@ -131,8 +134,9 @@ def run_team(pb: Problem, clock: SampleClock, memory, draws, direct: bool):
 
 @pytest.mark.parametrize("scenario", ["paper-triangle3", "paper-hexagon6"])
 @pytest.mark.parametrize("law", [9, 22, 23])
-@pytest.mark.parametrize("direct", [False, True], ids=["emulated", "direct"])
-def test_a_team_of_learners_equals_the_batch_trial(scenario, law, direct):
+@pytest.mark.parametrize(("direct", "in_step"), [(False, False), (True, False), (True, True)],
+                         ids=["emulated", "direct", "direct-leader-in-step"])
+def test_a_team_of_learners_equals_the_batch_trial(scenario, law, direct, in_step):
     sc = load_scenario(scenario).with_options(law=law, delay=not direct)
     pb = Problem.from_scenario(sc)
     clock = SampleClock.for_run(sc.dt, sc.samples)
@@ -141,8 +145,11 @@ def test_a_team_of_learners_equals_the_batch_trial(scenario, law, direct):
     tau, tau0 = sc.uncertainty.draw_delays(sc.seed, 0, pb.n, pb.src.shape[1], pb.samples)
     draws = (pb.eta_d[:, 0] + shift, dist, noise, tau, tau0)
     _, nxt_ref = pb.trial(mem, *draws)[2:]
-    _, nxt, team = run_team(pb, clock, mem, draws, direct)
+    _, nxt, team = run_team(pb, clock, mem, draws, direct, in_step)
     np.testing.assert_allclose(nxt, nxt_ref, rtol=0, atol=1e-15)
+    for lrn in team:  # direct: the leader link has delay 0 at every sample, messages or none
+        if direct and lrn.sees_leader:
+            assert lrn.delays[LEADER] == {0: pb.samples}
     # eq. (11) from the labels: every robot measured the delays the links had
     for r, lrn in enumerate(team):
         for ell, j in enumerate(pb.src[r]):
@@ -267,3 +274,30 @@ def test_a_wall_clock_stamp_names_its_slot_and_sample():
         with pytest.raises(Rejected) as exc:
             bad()
         assert exc.value.reason == why
+
+
+def test_leader_in_step_takes_no_reference_message():
+    """Lockstep with direct links: a robot that sees the leader can command as soon as its
+    own pose and its in-neighbours' poses are in; a reference message of the same label is
+    refused (duplicate); the option is refused where the leader link has real delays."""
+    sc = load_scenario("paper-triangle3").with_options(delay=False)
+    pb = Problem.from_scenario(sc)
+    clock = SampleClock.for_run(sc.dt, sc.samples)
+    lead = next(r for r in range(pb.n) if pb.leader[r] != 0.0)
+    lrn = RobotLearner(pb, lead, clock, direct=True, leader_in_step=True)
+    plain = RobotLearner(pb, lead, clock, direct=True)
+    for t in range(3):
+        ns = clock.stamp_ns(0, t)
+        for x in (lrn, plain):
+            x.on_pose(ns, pb.eta_d[lead, t])
+            for sender in x.neighbours:
+                x.on_link_pose(sender, ns, pb.eta_d[pb.src[lead][x.slots[sender]], t])
+        assert lrn.can_command() and not plain.can_command()
+        plain.on_link_pose(LEADER, ns, np.zeros(3))
+        with pytest.raises(Rejected) as exc:
+            lrn.on_link_pose(LEADER, ns, np.zeros(3))
+        assert exc.value.reason == "duplicate"
+        np.testing.assert_array_equal(lrn.command(), plain.command())
+    for kw in ({"realtime": True, "direct": True}, {"direct": False}):
+        with pytest.raises(ValueError, match="lockstep with direct links"):
+            RobotLearner(pb, lead, clock, leader_in_step=True, **kw)
