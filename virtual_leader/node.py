@@ -90,6 +90,7 @@ from formation_ilc.nodes.common import (
     matched,
     node_parser,
     spin_main,
+    unmatched,
 )
 from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.schedule import Ready, Schedule, ScheduleError, TrialEvent
@@ -300,10 +301,7 @@ class LeaderNode(Node):
                            f"to start a second one here (use another namespace or domain)",
                      code=2)
                 return
-        need: list[tuple[Any, int]] = [(self.ref_pub, self.ref_readers), (self.event_pub, 1)]
-        if self.cfg.mode != "wallclock":  # its /clock reader matched the plant's writer too
-            need.append((self.clock_sub, 1))
-        if not matched(need):
+        if not matched(self._start_gate()):
             return
         i, q = nxt
         seq = s.started(q)
@@ -351,6 +349,20 @@ class LeaderNode(Node):
         self._publish_diagnostics()
         self._maybe_start()
 
+    def _start_gate(self) -> list[tuple[Any, int]]:
+        """The endpoints a trial's start waits for, beside the readies: the reference's
+        readers, the events' reader, and (simulated time) a writer of /clock."""
+        need: list[tuple[Any, int]] = [(self.ref_pub, self.ref_readers), (self.event_pub, 1)]
+        if self.cfg.mode != "wallclock":  # its /clock reader matched the plant's writer too
+            need.append((self.clock_sub, 1))
+        return need
+
+    def _start_waits_for(self) -> list[str]:
+        """Whom the next start waits for, one phrase each: the nodes not ready (or not
+        answering an abort), else the endpoints of ``_start_gate`` not yet matched."""
+        late = self.sched.explain_wait(self.refused)
+        return late or unmatched(self._start_gate())
+
     def _phase(self) -> str:
         s = self.sched
         if s.running:
@@ -380,7 +392,7 @@ class LeaderNode(Node):
                     f"{bound:.0f} s (last sample {self.t}; no progress for {waited:.0f} s): "
                     f"waiting for {who}")
         else:
-            late = s.explain_wait(self.refused)
+            late = self._start_waits_for()
             if s.running:
                 late = [f"the plant's first sample of slot {s.slot}"]
             what = (f"trial {s.committed} has waited {waited:.0f} s in {phase} (bound "
@@ -424,9 +436,10 @@ class LeaderNode(Node):
             return
         late = s.waiting_for()
         what = "the abort's answer" if s.abort_pending is not None else "ready"
+        gate = "; ".join(unmatched(self._start_gate())) or "readers"
         self.get_logger().warning(f"trial {s.committed} waits for {what} from "
                                   f"{', '.join(late)}" if late
-                                  else f"trial {s.committed}: waiting for readers")
+                                  else f"trial {s.committed}: waiting for {gate}")
 
     def _publish_diagnostics(self, watchdog: dict[str, Any] | None = None) -> None:
         d: dict[str, Any] = {"node": NAME, "trial": self.sched.committed,

@@ -171,3 +171,36 @@ def test_link_emulator_delivers_the_batch_simulators_delay_stream(context):
         ex.shutdown()
         emu.destroy_node()
         tester.destroy_node()
+
+
+def test_leader_names_the_endpoints_its_start_waits_for(context):
+    """Every node is ready, but no robot reads the reference yet: what the leader says it
+    waits for names the topic and the count (it said "nobody" before), and the names go
+    once the readers are there."""
+    from formation_ilc.protocol.schedule import Ready
+    from virtual_leader.node import LeaderNode
+
+    leader = LeaderNode(context=context, parameter_overrides=[
+        Parameter("scenario", value="paper-triangle3"), Parameter("trials", value=1),
+        Parameter("links", value="direct"), Parameter("mode", value="realtime")])
+    tester = rclpy.create_node("tester", namespace=ms.NAMESPACE, context=context)
+    ex = SingleThreadedExecutor(context=context)
+    ex.add_node(leader)
+    ex.add_node(tester)
+    try:
+        leader._gate.cancel()  # no start: what it waits for is the question
+        for node in leader.expected:
+            leader._on_ready(ms.json_to_msg(Ready(node, 0, "boot").to_json()))
+        assert not leader.sched.explain_wait(leader.refused)  # every node is ready
+        waits = leader._start_waits_for()
+        ref = f"{ms.NAMESPACE}/{ms.REFERENCE}"
+        assert f"{ref}: 0 of 1 readers" in waits  # robot 1 sees the leader
+        assert "/clock: 0 of 1 writers" in waits  # no plant yet
+        # the readers come: each phrase goes with its endpoint
+        tester.create_subscription(PoseStamped, ms.REFERENCE, lambda m: None, ms.SAMPLE_QOS)
+        spin_until(ex, lambda: not any(w.startswith(ref) for w in leader._start_waits_for()))
+        assert leader._start_waits_for() == ["/clock: 0 of 1 writers"]
+    finally:
+        ex.shutdown()
+        leader.destroy_node()
+        tester.destroy_node()
