@@ -75,9 +75,9 @@ class RobotLearner:
     realtime : the plant does not wait for commands (samples may be missed and held).
     direct : links are direct (newest pose with St <= Rt) rather than emulated ticks.
     memory : initial learning memory, shape (T, 2) [m/s, rad/s]; default 0 (u_0 = 0).
-    leader_in_step : lockstep with direct links (``RunConfig.leader_in_step``): the leader
-        link delivers, at each own pose, the reference labelled with that pose's label
-        (St = Rt, what the robot would wait for); no reference message is taken.
+    leader_in_step : lockstep with direct links (``RunConfig.leader_in_step``): at each own
+        pose the leader link delivers that pose's label (St = Rt, what the robot would
+        wait for; eq. 9 reads the leader link's label only); no reference is taken.
     """
 
     def __init__(self, pb: Problem, index: int, clock: SampleClock, *, realtime: bool = False,
