@@ -436,10 +436,12 @@ class LeaderNode(Node):
             return
         late = s.waiting_for()
         what = "the abort's answer" if s.abort_pending is not None else "ready"
+        if late:
+            self.get_logger().warning(f"trial {s.committed} waits for {what} from "
+                                      f"{', '.join(late)}")
+            return
         gate = "; ".join(unmatched(self._start_gate())) or "readers"
-        self.get_logger().warning(f"trial {s.committed} waits for {what} from "
-                                  f"{', '.join(late)}" if late
-                                  else f"trial {s.committed}: waiting for {gate}")
+        self.get_logger().warning(f"trial {s.committed}: waiting for {gate}")
 
     def _publish_diagnostics(self, watchdog: dict[str, Any] | None = None) -> None:
         d: dict[str, Any] = {"node": NAME, "trial": self.sched.committed,
