@@ -38,9 +38,12 @@ reported ready for trial k, publishes ``start`` k on ``leader/trial_events``, th
 world frame, stamped with the sample's label), and at t = T ``end`` k. Its readers are the
 robots that see it, or with emulated links the link emulator; in lockstep with direct
 links no robot reads it (``RunConfig.leader_in_step``), only the recorder and viewers.
-After the last trial it publishes ``done``. When a node restarts during a trial, the leader
-aborts that trial and runs it again in the next slot of the label grid
-(``formation_ilc.protocol.schedule``: the protocol, slots and aborts).
+While a slot has had no new sample for half of ``protocol.plant.RESEND_S`` (simulated
+time) it sends the slot's start again, unchanged, for a follower whose reader matched after the
+start went out (``protocol.schedule.StartRepeat``). After the last trial it publishes
+``done``. When a node restarts during a trial, the leader aborts that trial and runs it
+again in the next slot of the label grid (``formation_ilc.protocol.schedule``: the
+protocol, slots and aborts).
 
 What it accepts (the rest is dropped and counted, with the reason, in its own
 ``diagnostics`` at each trial's end): ready messages from the nodes it waits for, for a
@@ -93,7 +96,14 @@ from formation_ilc.nodes.common import (
     unmatched,
 )
 from formation_ilc.nodes.params import declare
-from formation_ilc.protocol.schedule import Ready, Schedule, ScheduleError, TrialEvent
+from formation_ilc.protocol.plant import RESEND_S
+from formation_ilc.protocol.schedule import (
+    Ready,
+    Schedule,
+    ScheduleError,
+    StartRepeat,
+    TrialEvent,
+)
 from formation_ilc.protocol.wallclock import WallSchedule
 from formation_ilc.protocol.watchdog import READY, SAMPLE, STARTUP, STUCK, Bounds, Watchdog
 
@@ -145,6 +155,10 @@ class LeaderNode(Node):
         self._abort_sent = 0.0
         self._born = time.monotonic()
         self.t = -1          # last sample of the running slot whose reference went out
+        #: simulated time: the running slot's start again while it does not move, for a
+        #: follower whose reader matched after it went out; sooner than the plant re-sends
+        #: a sample, so that the follower has the start when the sample comes again
+        self.repeat = StartRepeat(RESEND_S / 2)
         self.ref_msg = PoseStamped()
         self.config_pub = self.create_publisher(String, ms.CONFIG, ms.LATCHED_QOS)
         self.ref_pub = self.create_publisher(PoseStamped, ms.REFERENCE, ms.SAMPLE_QOS)
@@ -162,6 +176,7 @@ class LeaderNode(Node):
         else:
             self.clock_sub = self.create_subscription(Clock, ms.CLOCK, self._on_clock,
                                                       ms.CLOCK_QOS, raw=True)
+            self.create_timer(RESEND_S / 8, self._start_again)
         self.config_pub.publish(ms.json_to_msg(self.cfg.to_json()))
         self._gate = self.create_timer(0.05, self._maybe_start)
         self._last_change = time.monotonic()
@@ -207,6 +222,7 @@ class LeaderNode(Node):
         """An abort is pending (just begun): say so, save it, then publish it (saved first:
         a leader killed in between must not come back with a seq that followers passed)."""
         self.wall = None
+        self.repeat.stop()
         s = self.sched
         self.get_logger().warning(f"trial {s.committed} (slot {s.abort_pending}) aborted: "
                                   f"{why}; it runs again")
@@ -315,9 +331,21 @@ class LeaderNode(Node):
             wall_ns = grid.start_for(q, time.time_ns() + self.margin_ns)
             grid.agree(q, wall_ns)  # its stamps are wall time: start + t * dT
             self.wall = WallSchedule(wall_ns, self.clock.dt_ns, self.T)
-        self.event_pub.publish(ms.json_to_msg(TrialEvent(
-            ms.START, i, q, seq, self.clock.stamp_ns(q, 0), wall_ns,
-            run=self.cfg.run_id).to_json()))
+        start = TrialEvent(ms.START, i, q, seq, self.clock.stamp_ns(q, 0), wall_ns,
+                           run=self.cfg.run_id)
+        self.event_pub.publish(ms.json_to_msg(start.to_json()))
+        if wall_ns is None:  # simulated time: the plant's samples show that it moves
+            self.repeat.sent(start, time.monotonic())
+
+    def _start_again(self) -> None:
+        """Simulated time: the running slot's start once more while it has had no new
+        sample for RESEND_S / 2 (``protocol.schedule.StartRepeat``)."""
+        if not self.sched.running:
+            self.repeat.stop()
+            return
+        start = self.repeat.again(time.monotonic())
+        if start is not None:
+            self.event_pub.publish(ms.json_to_msg(start.to_json()))
 
     def _on_wall_timer(self) -> None:
         """wallclock: r(t) for each sample due on the wall clock (the newest one if the
@@ -339,6 +367,7 @@ class LeaderNode(Node):
             self._end(k)
 
     def _end(self, slot: int) -> None:
+        self.repeat.stop()
         s = self.sched
         self.event_pub.publish(ms.json_to_msg(TrialEvent(ms.END, s.committed, slot, s.seq,
                                                          run=self.cfg.run_id).to_json()))
@@ -446,7 +475,8 @@ class LeaderNode(Node):
     def _publish_diagnostics(self, watchdog: dict[str, Any] | None = None) -> None:
         d: dict[str, Any] = {"node": NAME, "trial": self.sched.committed,
                              "slot": self.sched.slot,
-                             "foreign_events": self.sched.foreign_events}
+                             "foreign_events": self.sched.foreign_events,
+                             "starts_repeated": self.repeat.count}
         if watchdog is not None:
             d["watchdog"] = watchdog
         d.update(self.drops.as_dict())
@@ -481,6 +511,7 @@ class LeaderNode(Node):
         self._last_t = t
         self._last_change = time.monotonic()
         self.watchdog.moved(self._last_change, SAMPLE)
+        self.repeat.moved(self._last_change)
         ref = self.cfg.scenario.reference[t]
         self.ref_pub.publish(ms.wire.pose_bytes(ref, ns, ms.WORLD_FRAME))
         if t == self.T:

@@ -11,7 +11,9 @@ of it can be mistaken for a new one.
 
 Protocol (JSON on ``leader/trial_events``; ``ready`` from every node):
 
-* ``start``  {trial: i, slot: q, seq, stamp_ns}: slot q runs iteration i.
+* ``start``  {trial: i, slot: q, seq, stamp_ns}: slot q runs iteration i. In simulated time
+  the leader sends it again, unchanged, while the slot has had no new sample for a while
+  (``StartRepeat``): for a follower whose reader matched after it went out.
 * ``end``    {trial: i, slot: q, seq}: the leader's reference reached sample T.
 * ``abort``  {trial: i, slot: q, seq, why}: forget slot q. A robot that already learned from it
   rolls back to the memory it had before (every robot keeps one step of history), so an
@@ -58,7 +60,7 @@ from formation_ilc.store.atomic import atomic_write_text
 from formation_ilc.store.bounded import StateFileError, read_bounded
 
 __all__ = ["START", "END", "ABORT", "DONE", "TrialEvent", "Ready", "Schedule",
-           "ScheduleError", "Follower", "unexplained_gap"]
+           "ScheduleError", "Follower", "StartRepeat", "unexplained_gap"]
 
 START, END, ABORT, DONE = "start", "end", "abort", "done"
 EVENTS = (START, END, ABORT, DONE)
@@ -177,7 +179,7 @@ class Follower:
 
     * ``foreign``: of another run (``run``) on the same domain and namespace;
     * ``stale``: a start whose ``seq`` was handled already, or of a slot not after the last
-      one started here;
+      one started here (the start taken, again, is the leader's repeat: None, not counted);
     * ``future``: a start beyond the next slot while a slot between was not aborted
       (``unexplained_gap``);
     * ``unexpected``: a start while the node is inside a trial (``idle`` False) or has not
@@ -211,9 +213,9 @@ class Follower:
         if ev.event not in (START, ABORT):
             return None
         if ev.seq <= self.seen:
-            if ev.event == START:
+            if ev.event == START and not (ev.seq == self.seen >= 0 and ev.slot == self.slot):
                 raise Rejected("stale", f"start seq {ev.seq} again")
-            return None
+            return None  # an abort answered, or the start taken: repeats (StartRepeat)
         if ev.event == ABORT:
             self.seen = ev.seq
             self.aborted.add(ev.slot)
@@ -237,6 +239,48 @@ class Follower:
     def said_ready(self) -> None:
         """The node sent a ready (it may take the next start once it is idle)."""
         self.ready = True
+
+
+class StartRepeat:
+    """Simulated time: the running slot's ``start`` goes out again while its trial does not
+    move.
+
+    The events topic keeps nothing for a reader that comes late, and DDS matches each side
+    on its own: a follower that came back (the link emulator restarted, say) may say ready
+    before the leader's events writer has matched its reader, and then never gets the next
+    start. In lockstep the trial then waits for that node until the plant's time-out, and
+    the plant's re-sent sample cannot help (the follower holds samples of a slot it was not
+    told of). So once a slot has had no new sample for ``every`` seconds since its start or
+    its last sample, the leader sends the same start again (the same ``seq``), every
+    ``every`` seconds, until the slot moves, ends or is aborted. A follower that took it
+    ignores the repeat (``Follower.take``); one that lost it takes it then.
+    """
+
+    def __init__(self, every: float):
+        self.every = every
+        self.event: TrialEvent | None = None
+        self.due = 0.0
+        self.count = 0  # starts sent again (the leader's diagnostics)
+
+    def sent(self, ev: TrialEvent, now: float) -> None:
+        """The start ``ev`` went out at ``now``."""
+        self.event, self.due = ev, now + self.every
+
+    def moved(self, now: float) -> None:
+        """The running slot's next sample came at ``now``."""
+        self.due = now + self.every
+
+    def stop(self) -> None:
+        """The slot ended or was aborted: nothing to repeat."""
+        self.event = None
+
+    def again(self, now: float) -> TrialEvent | None:
+        """The start to send again now, or None."""
+        if self.event is None or now < self.due:
+            return None
+        self.due = now + self.every
+        self.count += 1
+        return self.event
 
 
 class ScheduleError(RuntimeError):

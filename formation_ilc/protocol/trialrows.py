@@ -55,6 +55,7 @@ class SlotRows:
         self.iteration_of: dict[int, int] = {}  # slot -> iteration (start events)
         self.aborted: set[int] = set()
         self.started = -1                      # the last slot started
+        self.start_seq = -1                    # the seq of its start
         self.done_at: tuple[int, int] | None = None  # (slot, trials) of the done event
         self.rows: dict[int, NDArray[np.float64]] = {}
         self.eta: dict[int, dict[int, NDArray[np.float64]]] = {}
@@ -63,6 +64,9 @@ class SlotRows:
     def event(self, ev: TrialEvent) -> list[Row]:
         """Take a trial event; returns the rows it completes. Rejected (strict) if it is
         out of the leader's order."""
+        if ev.event == START and ev.seq >= 0 and (ev.slot, ev.seq) == (self.started,
+                                                                     self.start_seq):
+            return []  # the leader sends a start again while its slot does not move
         if self.strict:
             if ev.event == START and ev.slot <= self.started:
                 raise Rejected("stale", f"start of slot {ev.slot}, slot {self.started} "
@@ -80,7 +84,8 @@ class SlotRows:
             if ev.slot in self.iteration_of and self.iteration_of[ev.slot] != ev.trial:
                 raise Rejected("unexpected", f"slot {ev.slot} started as trial {ev.trial}, "
                                              f"it runs trial {self.iteration_of[ev.slot]}")
-            self.started = max(self.started, ev.slot)
+            if ev.slot >= self.started:
+                self.started, self.start_seq = ev.slot, ev.seq
             self.iteration_of[ev.slot] = ev.trial
             return self._complete(ev.slot)
         if ev.event == ABORT:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -200,6 +201,56 @@ def test_leader_names_the_endpoints_its_start_waits_for(context):
         tester.create_subscription(PoseStamped, ms.REFERENCE, lambda m: None, ms.SAMPLE_QOS)
         spin_until(ex, lambda: not any(w.startswith(ref) for w in leader._start_waits_for()))
         assert leader._start_waits_for() == ["/clock: 0 of 1 writers"]
+    finally:
+        ex.shutdown()
+        leader.destroy_node()
+        tester.destroy_node()
+
+
+def test_leader_sends_a_start_again_while_its_slot_does_not_move(context):
+    """A follower whose reader matched after the start went out never gets it (the events
+    topic keeps nothing for a late reader), and a lockstep trial would wait for it until the
+    plant's time-out: while the slot has no new sample for RESEND_S / 2 the leader sends the
+    same start again (same seq), and stops once a sample comes."""
+    from rosgraph_msgs.msg import Clock
+    from std_msgs.msg import String
+
+    from formation_ilc.protocol.plant import RESEND_S
+    from formation_ilc.protocol.schedule import Ready
+    from virtual_leader.node import LeaderNode
+
+    leader = LeaderNode(context=context, parameter_overrides=[
+        Parameter("scenario", value="paper-triangle3"), Parameter("trials", value=1),
+        Parameter("links", value="direct"), Parameter("mode", value="lockstep")])
+    tester = rclpy.create_node("tester", namespace=ms.NAMESPACE, context=context)
+    ex = SingleThreadedExecutor(context=context)
+    ex.add_node(leader)
+    ex.add_node(tester)
+    try:
+        events: list[dict] = []
+        tester.create_subscription(String, ms.TRIAL_EVENTS,
+                                   lambda m: events.append(ms.msg_to_json(m)), ms.SAMPLE_QOS)
+        clock_pub = tester.create_publisher(Clock, ms.CLOCK, ms.CLOCK_QOS)
+        for node in leader.expected:
+            leader._on_ready(ms.json_to_msg(Ready(node, 0, "boot").to_json()))
+        starts = lambda: [e for e in events if e["event"] == "start"]  # noqa: E731
+        spin_until(ex, lambda: len(starts()) >= 1, timeout=30)
+        first = starts()[0]
+        assert first["slot"] == 0 and leader.sched.running
+        # nobody sends sample 0: the same start goes out again, and again
+        spin_until(ex, lambda: len(starts()) >= 3, timeout=6 * RESEND_S)
+        assert all(e == first for e in starts())
+        assert leader.repeat.count >= 2
+        # the plant's first sample: the slot moves, the repeats stop until it stalls again
+        clock_pub.publish(ms.clock_msg(first["stamp_ns"]))
+        spin_until(ex, lambda: leader.t == 0)
+        assert leader.repeat.due == leader._last_change + leader.repeat.every
+        n = leader.repeat.count
+        # an abort ends the slot: nothing is repeated after it
+        leader.sched.begin_abort("test")
+        leader._aborted("test")
+        assert leader.repeat.event is None and leader.repeat.again(time.monotonic() + 99) is None
+        assert leader.repeat.count == n
     finally:
         ex.shutdown()
         leader.destroy_node()

@@ -13,7 +13,13 @@ from formation_ilc.config.runconfig import make_config
 from formation_ilc.core.clock import Malformed, Rejected
 from formation_ilc.model.simulate import Problem
 from formation_ilc.protocol.learner import RobotLearner
-from formation_ilc.protocol.schedule import Ready, Schedule, ScheduleError, TrialEvent
+from formation_ilc.protocol.schedule import (
+    Ready,
+    Schedule,
+    ScheduleError,
+    StartRepeat,
+    TrialEvent,
+)
 from formation_ilc.store.robotstate import load_state, save_state
 
 ROBOTS = ["robot_1", "robot_2"]
@@ -474,3 +480,20 @@ def test_a_restarted_node_that_saw_an_event_must_still_answer_the_abort():
     s.started(1)
     assert s.on_ready(Ready("robot_sim", 1, "new", -1)) is not None
     assert "robot_sim" not in s.acks_missing()
+
+
+def test_a_start_goes_out_again_only_while_its_slot_does_not_move():
+    rep = StartRepeat(2.0)
+    assert rep.again(100.0) is None  # nothing started
+    ev = TrialEvent("start", 3, 4, 7)
+    rep.sent(ev, 10.0)
+    assert rep.again(11.9) is None
+    assert rep.again(12.0) is ev       # 2 s without a sample
+    assert rep.again(13.0) is None     # then every 2 s
+    assert rep.again(14.0) is ev
+    rep.moved(15.0)                    # a sample: the next repeat is 2 s after it
+    assert rep.again(16.5) is None
+    assert rep.again(17.0) is ev
+    rep.stop()                         # ended or aborted
+    assert rep.again(1e9) is None
+    assert rep.count == 3

@@ -109,6 +109,21 @@ def test_strict_refuses_events_out_of_order_and_trajectories_of_slots_not_starte
     assert exc.value.reason == "duplicate"
 
 
+def test_the_leaders_repeat_of_a_start_is_no_news_and_not_a_refusal():
+    """The leader sends a start again (the same seq) while its slot does not move: the
+    monitor takes it as nothing, and still refuses a replay of an older start."""
+    rows = SlotRows(PB, strict=True)
+    rows.event(TrialEvent("start", 0, 0, 0))
+    assert rows.event(TrialEvent("start", 0, 0, 0)) == []
+    rows.event(TrialEvent("abort", 0, 0, 1))
+    rows.event(TrialEvent("start", 0, 1, 2))
+    assert rows.event(TrialEvent("start", 0, 1, 2)) == []
+    with pytest.raises(Rejected) as exc:
+        rows.event(TrialEvent("start", 0, 0, 0))
+    assert exc.value.reason == "stale"
+    assert (rows.started, rows.iteration_of) == (1, {0: 0, 1: 0})
+
+
 def test_a_recording_takes_a_trajectory_before_its_start_and_names_the_unstarted():
     rows = SlotRows(PB, strict=False)
     assert feed(rows, 0, 0) == []                 # held: no start seen yet

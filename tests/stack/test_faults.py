@@ -91,7 +91,7 @@ def test_a_killed_node_is_restarted_and_nothing_is_lost(ros_env, tmp_path, kind)
     np.testing.assert_array_equal(got[:, 0], np.arange(TRIALS))
     np.testing.assert_allclose(got[:, 1:], ref[:, 1:], rtol=0, atol=TOL)
     summary = json.loads((tmp_path / "summary.json").read_text())
-    assert summary["restarts"] == {NODE[kind]: 1}
+    assert summary["restarts"] == {NODE[kind]: 1}, out
     assert summary["trials_done"] == TRIALS
     # the robots' memory on disk is the memory of the last trial, for every robot
     for r in range(1, 4):
