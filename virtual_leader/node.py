@@ -168,7 +168,10 @@ class LeaderNode(Node):
                                                   ms.LATCHED_READER_QOS)
         # its own events come back here too; a start or abort it did not send is re-asserted
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
-        self.create_subscription(String, ms.CONFIG, self._on_config, ms.LATCHED_QOS)
+        # a second formation's latched configuration is what this reader is for: a depth
+        # of 1 (shared by every writer of the keyless topic) let this leader's own config
+        # replace it before it was taken, and the second formation ran
+        self.create_subscription(String, ms.CONFIG, self._on_config, ms.LATCHED_READER_QOS)
         self.wall: WallSchedule | None = None
         if self.cfg.mode == "wallclock":
             self.margin_ns = int(float(g("start_margin")) * 1e9)
