@@ -249,8 +249,8 @@ class StartRepeat:
     on its own: a follower that came back (the link emulator restarted, say) may say ready
     before the leader's events writer has matched its reader, and then never gets the next
     start. In lockstep the trial then waits for that node until the plant's time-out, and
-    the plant's re-sent sample cannot help (the follower holds samples of a slot it was not
-    told of). So once a slot has had no new sample for ``every`` seconds since its start or
+    the plant's re-sent sample cannot help (the follower refuses samples of a slot it was
+    not told of). So once a slot has had no new sample for ``every`` seconds since its start or
     its last sample, the leader sends the same start again (the same ``seq``), every
     ``every`` seconds, until the slot moves, ends or is aborted. A follower that took it
     ignores the repeat (``Follower.take``); one that lost it takes it then.
