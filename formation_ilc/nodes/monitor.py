@@ -158,6 +158,8 @@ class MonitorNode(Node):
             if ev.run and ev.run != self.cfg.run_id:
                 raise Rejected("foreign", f"event of run {ev.run}")
             ev.agree(self.clock)
+            if self.slots.repeat(ev):
+                return  # not progress: the launcher's backstop counts the events
             done = self.slots.event(ev)
         except Rejected as exc:
             self.drops.reject(exc, ms.TRIAL_EVENTS)

@@ -64,9 +64,8 @@ class SlotRows:
     def event(self, ev: TrialEvent) -> list[Row]:
         """Take a trial event; returns the rows it completes. Rejected (strict) if it is
         out of the leader's order."""
-        if ev.event == START and ev.seq >= 0 and (ev.slot, ev.seq) == (self.started,
-                                                                     self.start_seq):
-            return []  # the leader sends a start again while its slot does not move
+        if self.repeat(ev):
+            return []
         if self.strict:
             if ev.event == START and ev.slot <= self.started:
                 raise Rejected("stale", f"start of slot {ev.slot}, slot {self.started} "
@@ -95,6 +94,12 @@ class SlotRows:
         if ev.event == DONE:  # the slot after the last, and the trials learned
             self.done_at = (ev.slot, ev.trial)
         return []
+
+    def repeat(self, ev: TrialEvent) -> bool:
+        """Whether ``ev`` is the last start taken, again: the leader repeats a start while
+        its slot does not move (``schedule.StartRepeat``); no news, and no refusal."""
+        return ev.event == START and ev.seq >= 0 and (ev.slot, ev.seq) == (self.started,
+                                                                         self.start_seq)
 
     def infer(self) -> list[Row]:
         """For a recording: the iteration of a slot whose start event is not in the file (a

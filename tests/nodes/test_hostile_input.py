@@ -657,7 +657,7 @@ def test_fuzz_monitor_handlers(context):
         @given(msg=st.one_of(paths(robot=0), diags, events), true=st.booleans())
         def prop(msg, true):
             sl = mon.slots
-            sl.started, sl.eta, sl.xi = 1, {}, {}
+            sl.started, sl.start_seq, sl.eta, sl.xi = 1, -1, {}, {}
             sl.rows.clear()
             sl.rows[0] = np.zeros(1)
             sl.iteration_of, sl.aborted = {0: 0, 1: 1}, set()
@@ -682,6 +682,27 @@ def test_fuzz_monitor_handlers(context):
         prop()
         seen.check()
         assert rows == []  # no trial completed from one robot's trajectory
+    finally:
+        mon.destroy_node()
+
+
+def test_monitor_takes_the_leaders_repeated_start_as_no_event(context):
+    """The leader repeats a start while its slot does not move: the monitor neither counts
+    it as dropped nor lists it among the run's events (the launcher's backstop takes a new
+    event for progress), and a replay of an older start is still refused."""
+    from formation_ilc.nodes.monitor import MonitorNode
+
+    mon = MonitorNode(CFG, lambda k, row: None, context=context)
+    try:
+        start = ms.json_to_msg({"event": "start", "trial": 0, "slot": 0, "seq": 0})
+        mon._on_event(start)
+        mon._on_event(start)
+        mon._on_event(start)
+        assert [e["event"] for e in mon.events] == ["start"] and dropped(mon) == 0
+        mon._on_event(ms.json_to_msg({"event": "abort", "trial": 0, "slot": 0, "seq": 1}))
+        mon._on_event(ms.json_to_msg({"event": "start", "trial": 0, "slot": 1, "seq": 2}))
+        mon._on_event(start)  # the first slot's start, replayed: refused
+        assert len(mon.events) == 3 and dropped(mon) == 1
     finally:
         mon.destroy_node()
 

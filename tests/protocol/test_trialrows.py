@@ -117,7 +117,9 @@ def test_the_leaders_repeat_of_a_start_is_no_news_and_not_a_refusal():
     assert rows.event(TrialEvent("start", 0, 0, 0)) == []
     rows.event(TrialEvent("abort", 0, 0, 1))
     rows.event(TrialEvent("start", 0, 1, 2))
+    assert rows.repeat(TrialEvent("start", 0, 1, 2))
     assert rows.event(TrialEvent("start", 0, 1, 2)) == []
+    assert not rows.repeat(TrialEvent("start", 0, 0, 0))
     with pytest.raises(Rejected) as exc:
         rows.event(TrialEvent("start", 0, 0, 0))
     assert exc.value.reason == "stale"
