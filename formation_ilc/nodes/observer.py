@@ -81,6 +81,8 @@ class Observer:
         self._heard: set[str] = set()
         self._heard_at = -math.inf
         self.iteration_of: dict[int, int] = {}
+        #: (slot, seq) of the last start: the leader repeats it while its slot does not move
+        self._start: tuple[int, int] | None = None
         #: what the observer reads: each robot's measured pose (topic -> robot index)
         self.pose_topics = {ms.pose_topic(i + 1): i for i in range(sc.n)}
         #: sampled: each robot's trajectory (topic -> robot index), and those of a slot so far
@@ -133,8 +135,12 @@ class Observer:
             self.on_trajectory(self.trajectory_topics[topic], data)
 
     def on_event(self, ev: TrialEvent) -> None:
-        """A trial event: a start publishes the desired paths; an abort forgets the slot."""
+        """A trial event: a start publishes the desired paths (once: a repeat of it is no
+        news); an abort forgets the slot."""
         if ev.event == ms.START:
+            if ev.seq >= 0 and (ev.slot, ev.seq) == self._start:
+                return
+            self._start = (ev.slot, ev.seq)
             ev.agree(self.clock)
             self.iteration_of[ev.slot] = ev.trial
             stamps = [self.clock.stamp_ns(ev.slot, s) for s in range(self.view.samples + 1)]
@@ -143,6 +149,7 @@ class Observer:
                                        stamps[-1])
                 self._send(ms.desired_path_topic(r + 1), path, stamps[0])
         elif ev.event == ms.ABORT:
+            self._start = None
             self.view.forget(ev.slot)
 
     def on_pose(self, r: int, data: bytes) -> None:

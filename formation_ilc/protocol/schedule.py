@@ -198,6 +198,7 @@ class Follower:
     #: the node's sample grid: a start taken tells it the slot's agreed wall-clock start
     clock: SampleClock | WallGrid | None = None
     seen: int = -1           # seq of the last start or abort taken
+    start_seq: int = -1      # seq of the last start taken, while no abort followed it
     slot: int = -1           # the last slot started here (-1: none, any slot is next)
     trial: int = -1          # its iteration
     ready: bool = False      # a ready was said since the last start taken
@@ -213,11 +214,11 @@ class Follower:
         if ev.event not in (START, ABORT):
             return None
         if ev.seq <= self.seen:
-            if ev.event == START and not (ev.seq == self.seen >= 0 and ev.slot == self.slot):
+            if ev.event == START and not self.repeat(ev):
                 raise Rejected("stale", f"start seq {ev.seq} again")
             return None  # an abort answered, or the start taken: repeats (StartRepeat)
         if ev.event == ABORT:
-            self.seen = ev.seq
+            self.seen, self.start_seq = ev.seq, -1
             self.aborted.add(ev.slot)
             return ev
         if self.wall_trial_ns is not None:
@@ -234,7 +235,14 @@ class Follower:
         if self.clock is not None:
             ev.agree(self.clock)
         self.seen, self.slot, self.trial, self.ready = ev.seq, ev.slot, ev.trial, False
+        self.start_seq = ev.seq
         return ev
+
+    def repeat(self, ev: TrialEvent) -> bool:
+        """Whether ``ev`` is the last start taken here, again (and no abort since): the
+        leader repeats a start while its slot does not move (``StartRepeat``)."""
+        return (ev.event == START and ev.seq == self.start_seq >= 0
+                and ev.slot == self.slot)
 
     def said_ready(self) -> None:
         """The node sent a ready (it may take the next start once it is idle)."""
@@ -249,8 +257,8 @@ class StartRepeat:
     on its own: a follower that came back (the link emulator restarted, say) may say ready
     before the leader's events writer has matched its reader, and then never gets the next
     start. In lockstep the trial then waits for that node until the plant's time-out, and
-    the plant's re-sent sample cannot help (the follower refuses samples of a slot it was
-    not told of). So once a slot has had no new sample for ``every`` seconds since its start or
+    the plant's re-sent sample cannot help: a follower not told of a slot does not run it
+    (a restarted one refuses its samples). So once a slot has had no new sample for ``every`` seconds since its start or
     its last sample, the leader sends the same start again (the same ``seq``), every
     ``every`` seconds, until the slot moves, ends or is aborted. A follower that took it
     ignores the repeat (``Follower.take``); one that lost it takes it then.

@@ -89,6 +89,8 @@ class SlotRows:
             return self._complete(ev.slot)
         if ev.event == ABORT:
             self.aborted.add(ev.slot)
+            if ev.slot == self.started:  # a start of it again is a replay, not a repeat
+                self.start_seq = -1
             self.eta.pop(ev.slot, None)
             self.xi.pop(ev.slot, None)
         if ev.event == DONE:  # the slot after the last, and the trials learned
@@ -96,8 +98,9 @@ class SlotRows:
         return []
 
     def repeat(self, ev: TrialEvent) -> bool:
-        """Whether ``ev`` is the last start taken, again: the leader repeats a start while
-        its slot does not move (``schedule.StartRepeat``); no news, and no refusal."""
+        """Whether ``ev`` is the last start taken, again, with no abort of its slot since:
+        the leader repeats a start while its slot does not move
+        (``schedule.StartRepeat``); no news, and no refusal."""
         return ev.event == START and ev.seq >= 0 and (ev.slot, ev.seq) == (self.started,
                                                                          self.start_seq)
 

@@ -415,6 +415,8 @@ class _RunReader:
             if ev.run and cfg.run_id and ev.run != cfg.run_id:
                 raise Rejected("foreign", f"event of run {ev.run}")
             ev.agree(cfg.clock)
+            if slots.repeat(ev):
+                return  # the leader's repeat of a stalled slot's start: not an event
             if ev.event == ms.START:
                 self.last_seen = max(self.last_seen, ev.trial)
             self.events.append(d)

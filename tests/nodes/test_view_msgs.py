@@ -66,3 +66,25 @@ def test_the_markers_template_writes_what_markers_msg_serializes(scenario):
         assert len(ours) == len(theirs)  # (rclpy leaves padding bytes uninitialised)
         assert deserialize_message(ours, MarkerArray) == deserialize_message(theirs,
                                                                               MarkerArray)
+
+
+def test_the_observer_publishes_a_starts_desired_paths_once():
+    """The leader repeats a start while its slot does not move: the view's desired paths go
+    out at the start, not again at each repeat; a later slot's start sends them again."""
+    from formation_ilc.config.runconfig import make_config
+    from formation_ilc.nodes.observer import Observer
+    from formation_ilc.protocol.schedule import TrialEvent
+
+    cfg = make_config("paper-triangle3", seed=1)
+    sent: list[str] = []
+    obs = Observer(None, cfg, lambda topic, data, ns: sent.append(topic))
+    paths = {ms.desired_path_topic(r + 1) for r in range(cfg.scenario.n)}
+    start = TrialEvent("start", 0, 0, 0)
+    obs.on_event(start)
+    assert set(sent) == paths and len(sent) == len(paths)
+    obs.on_event(start)
+    obs.on_event(start)
+    assert len(sent) == len(paths)
+    obs.on_event(TrialEvent("abort", 0, 0, 1))
+    obs.on_event(TrialEvent("start", 0, 1, 2))
+    assert len(sent) == 2 * len(paths)

@@ -162,6 +162,7 @@ def test_every_follower_refuses_the_same_starts_for_the_same_reasons(kind):
     assert take(TrialEvent(ABORT, 0, 0, 1)).event == ABORT
     assert take(TrialEvent(ABORT, 0, 0, 1)) is None
     assert reason(take, start(0, 0)) == "stale"       # a replay of the start it aborted
+    assert reason(take, start(0, 1)) == "stale"       # a start with the abort's seq
     if kind == "bridge":
         assert reason(take, start(1, 2, trial=0)) == "unexpected"  # driving back
         assert core.tick(0.1, 2).returned.reached

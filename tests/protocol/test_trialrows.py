@@ -116,6 +116,8 @@ def test_the_leaders_repeat_of_a_start_is_no_news_and_not_a_refusal():
     rows.event(TrialEvent("start", 0, 0, 0))
     assert rows.event(TrialEvent("start", 0, 0, 0)) == []
     rows.event(TrialEvent("abort", 0, 0, 1))
+    with pytest.raises(Rejected):  # its start after its abort: a replay, not a repeat
+        rows.event(TrialEvent("start", 0, 0, 0))
     rows.event(TrialEvent("start", 0, 1, 2))
     assert rows.repeat(TrialEvent("start", 0, 1, 2))
     assert rows.event(TrialEvent("start", 0, 1, 2)) == []

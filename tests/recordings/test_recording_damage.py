@@ -320,3 +320,18 @@ def test_a_run_resumed_before_its_first_recording_existed_reads_as_one_run(tmp_p
     assert main(["analyze", str(part), "--out", str(tmp_path / "an2"), "--no-plots"]) == 0
     assert "run.resumed1.mcap is one part of the run recorded in run.mcap" in \
         capsys.readouterr().err
+
+
+def test_the_leaders_repeated_start_reads_as_one_event(tmp_path):
+    """The leader repeats a start while its slot does not move (same seq): a recording
+    lists it once among the run's events, and its trials read as before."""
+    def repeats(rec: SimRecorder) -> None:
+        t = rec.clock.stamp_ns(2, rec.pb.samples) + 1
+        for _ in range(3):
+            rec._json(ms.TRIAL_EVENTS, {"event": "start", "trial": 2, "slot": 2, "seq": 5}, t)
+
+    r = load_recording(record(tmp_path / "repeats.mcap", 3, repeats))
+    assert [e.get("seq") for e in r.events if e["event"] == "start"] == [None, None, None, 5]
+    np.testing.assert_allclose(r.metrics, simulate(load_scenario(SCENARIO), trials=3).metrics,
+                               rtol=1e-13, atol=1e-13)
+    assert r.incomplete == []
