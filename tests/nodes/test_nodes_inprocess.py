@@ -4,6 +4,7 @@ the node under test sends back (bounded spin loops, no sleeps)."""
 
 from __future__ import annotations
 
+import contextlib
 import subprocess
 import sys
 import time
@@ -174,24 +175,42 @@ def test_link_emulator_delivers_the_batch_simulators_delay_stream(context):
         tester.destroy_node()
 
 
-def test_leader_names_the_endpoints_its_start_waits_for(context):
-    """Every node is ready, but no robot reads the reference yet: what the leader says it
-    waits for names the topic and the count (it said "nobody" before), and the names go
-    once the readers are there."""
-    from formation_ilc.protocol.schedule import Ready
+@contextlib.contextmanager
+def leader_and_tester(context, mode: str):
+    """A leader of paper-triangle3 (one trial, direct links, ``mode``), a tester node
+    beside it, and the executor of both; all three ended afterwards."""
     from virtual_leader.node import LeaderNode
 
     leader = LeaderNode(context=context, parameter_overrides=[
         Parameter("scenario", value="paper-triangle3"), Parameter("trials", value=1),
-        Parameter("links", value="direct"), Parameter("mode", value="realtime")])
+        Parameter("links", value="direct"), Parameter("mode", value=mode)])
     tester = rclpy.create_node("tester", namespace=ms.NAMESPACE, context=context)
     ex = SingleThreadedExecutor(context=context)
     ex.add_node(leader)
     ex.add_node(tester)
     try:
+        yield leader, tester, ex
+    finally:
+        ex.shutdown()
+        leader.destroy_node()
+        tester.destroy_node()
+
+
+def all_ready(leader) -> None:
+    """Every node the leader waits for says ready for trial 0."""
+    from formation_ilc.protocol.schedule import Ready
+
+    for node in leader.expected:
+        leader._on_ready(ms.json_to_msg(Ready(node, 0, "boot").to_json()))
+
+
+def test_leader_names_the_endpoints_its_start_waits_for(context):
+    """Every node is ready, but no robot reads the reference yet: what the leader says it
+    waits for names the topic and the count (it said "nobody" before), and the names go
+    once the readers are there."""
+    with leader_and_tester(context, "realtime") as (leader, tester, ex):
         leader._gate.cancel()  # no start: what it waits for is the question
-        for node in leader.expected:
-            leader._on_ready(ms.json_to_msg(Ready(node, 0, "boot").to_json()))
+        all_ready(leader)
         assert not leader.sched.explain_wait(leader.refused)  # every node is ready
         waits = leader._start_waits_for()
         ref = f"{ms.NAMESPACE}/{ms.REFERENCE}"
@@ -201,10 +220,6 @@ def test_leader_names_the_endpoints_its_start_waits_for(context):
         tester.create_subscription(PoseStamped, ms.REFERENCE, lambda m: None, ms.SAMPLE_QOS)
         spin_until(ex, lambda: not any(w.startswith(ref) for w in leader._start_waits_for()))
         assert leader._start_waits_for() == ["/clock: 0 of 1 writers"]
-    finally:
-        ex.shutdown()
-        leader.destroy_node()
-        tester.destroy_node()
 
 
 def test_leader_sends_a_start_again_while_its_slot_does_not_move(context):
@@ -216,23 +231,13 @@ def test_leader_sends_a_start_again_while_its_slot_does_not_move(context):
     from std_msgs.msg import String
 
     from formation_ilc.protocol.plant import RESEND_S
-    from formation_ilc.protocol.schedule import Ready
-    from virtual_leader.node import LeaderNode
 
-    leader = LeaderNode(context=context, parameter_overrides=[
-        Parameter("scenario", value="paper-triangle3"), Parameter("trials", value=1),
-        Parameter("links", value="direct"), Parameter("mode", value="lockstep")])
-    tester = rclpy.create_node("tester", namespace=ms.NAMESPACE, context=context)
-    ex = SingleThreadedExecutor(context=context)
-    ex.add_node(leader)
-    ex.add_node(tester)
-    try:
+    with leader_and_tester(context, "lockstep") as (leader, tester, ex):
         events: list[dict] = []
         tester.create_subscription(String, ms.TRIAL_EVENTS,
                                    lambda m: events.append(ms.msg_to_json(m)), ms.SAMPLE_QOS)
         clock_pub = tester.create_publisher(Clock, ms.CLOCK, ms.CLOCK_QOS)
-        for node in leader.expected:
-            leader._on_ready(ms.json_to_msg(Ready(node, 0, "boot").to_json()))
+        all_ready(leader)
         starts = lambda: [e for e in events if e["event"] == "start"]  # noqa: E731
         spin_until(ex, lambda: len(starts()) >= 1, timeout=30)
         first = starts()[0]
@@ -251,7 +256,3 @@ def test_leader_sends_a_start_again_while_its_slot_does_not_move(context):
         leader._aborted("test")
         assert leader.repeat.event is None and leader.repeat.again(time.monotonic() + 99) is None
         assert leader.repeat.count == n
-    finally:
-        ex.shutdown()
-        leader.destroy_node()
-        tester.destroy_node()
