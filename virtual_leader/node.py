@@ -39,9 +39,9 @@ world frame, stamped with the sample's label), and at t = T ``end`` k. Its reade
 robots that see it, or with emulated links the link emulator; in lockstep with direct
 links no robot reads it (``RunConfig.leader_in_step``), only the recorder and viewers.
 While a slot has had no new sample for half of ``protocol.plant.RESEND_S`` (simulated
-time) it sends the slot's start again, unchanged, for a follower whose reader matched after the
-start went out (``protocol.schedule.StartRepeat``). After the last trial it publishes
-``done``. When a node restarts during a trial, the leader aborts that trial and runs it
+time) it sends the slot's start again, unchanged, for a follower whose reader matched
+after the start went out (``protocol.schedule.StartRepeat``). After the last trial it
+publishes ``done``. When a node restarts during a trial, the leader aborts that trial and runs it
 again in the next slot of the label grid (``formation_ilc.protocol.schedule``: the
 protocol, slots and aborts).
 

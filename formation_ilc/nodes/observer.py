@@ -34,7 +34,7 @@ from std_msgs.msg import String
 
 import msgs_schema as ms
 from formation_ilc.config.runconfig import RunConfig
-from formation_ilc.protocol.schedule import TrialEvent
+from formation_ilc.protocol.schedule import TrialEvent, is_repeat
 from formation_ilc.protocol.view import TrackingView, graph_links, marker_every, outline_order
 from formation_ilc.recordings import cdr
 
@@ -81,8 +81,9 @@ class Observer:
         self._heard: set[str] = set()
         self._heard_at = -math.inf
         self.iteration_of: dict[int, int] = {}
-        #: (slot, seq) of the last start: the leader repeats it while its slot does not move
-        self._start: tuple[int, int] | None = None
+        #: (slot, seq) of the last start (seq -1: none, or an abort since): the leader
+        #: repeats it while its slot does not move
+        self._start = (-1, -1)
         #: what the observer reads: each robot's measured pose (topic -> robot index)
         self.pose_topics = {ms.pose_topic(i + 1): i for i in range(sc.n)}
         #: sampled: each robot's trajectory (topic -> robot index), and those of a slot so far
@@ -138,7 +139,7 @@ class Observer:
         """A trial event: a start publishes the desired paths (once: a repeat of it is no
         news); an abort forgets the slot."""
         if ev.event == ms.START:
-            if ev.seq >= 0 and (ev.slot, ev.seq) == self._start:
+            if is_repeat(ev, *self._start):
                 return
             self._start = (ev.slot, ev.seq)
             ev.agree(self.clock)
@@ -149,7 +150,7 @@ class Observer:
                                        stamps[-1])
                 self._send(ms.desired_path_topic(r + 1), path, stamps[0])
         elif ev.event == ms.ABORT:
-            self._start = None
+            self._start = (-1, -1)
             self.view.forget(ev.slot)
 
     def on_pose(self, r: int, data: bytes) -> None:

@@ -60,7 +60,7 @@ from formation_ilc.store.atomic import atomic_write_text
 from formation_ilc.store.bounded import StateFileError, read_bounded
 
 __all__ = ["START", "END", "ABORT", "DONE", "TrialEvent", "Ready", "Schedule",
-           "ScheduleError", "Follower", "StartRepeat", "unexplained_gap"]
+           "ScheduleError", "Follower", "StartRepeat", "is_repeat", "unexplained_gap"]
 
 START, END, ABORT, DONE = "start", "end", "abort", "done"
 EVENTS = (START, END, ABORT, DONE)
@@ -239,14 +239,19 @@ class Follower:
         return ev
 
     def repeat(self, ev: TrialEvent) -> bool:
-        """Whether ``ev`` is the last start taken here, again (and no abort since): the
-        leader repeats a start while its slot does not move (``StartRepeat``)."""
-        return (ev.event == START and ev.seq == self.start_seq >= 0
-                and ev.slot == self.slot)
+        """Whether ``ev`` is the last start taken here, again (and no abort since)."""
+        return is_repeat(ev, self.slot, self.start_seq)
 
     def said_ready(self) -> None:
         """The node sent a ready (it may take the next start once it is idle)."""
         self.ready = True
+
+
+def is_repeat(ev: TrialEvent, slot: int, seq: int) -> bool:
+    """Whether ``ev`` is the start of ``slot`` with ``seq`` (the last one a reader took; -1:
+    none, or an abort since) again: the leader repeats a start while its slot does not
+    move (``StartRepeat``), and a reader takes the repeat as no news."""
+    return ev.event == START and ev.seq == seq >= 0 and ev.slot == slot
 
 
 class StartRepeat:
@@ -258,10 +263,11 @@ class StartRepeat:
     before the leader's events writer has matched its reader, and then never gets the next
     start. In lockstep the trial then waits for that node until the plant's time-out, and
     the plant's re-sent sample cannot help: a follower not told of a slot does not run it
-    (a restarted one refuses its samples). So once a slot has had no new sample for ``every`` seconds since its start or
-    its last sample, the leader sends the same start again (the same ``seq``), every
-    ``every`` seconds, until the slot moves, ends or is aborted. A follower that took it
-    ignores the repeat (``Follower.take``); one that lost it takes it then.
+    (a restarted one refuses its samples). So once a slot has had no new sample for
+    ``every`` seconds since its start or its last sample, the leader sends the same start
+    again (the same ``seq``), every ``every`` seconds, until the slot moves, ends or is
+    aborted. A follower that took it ignores the repeat (``Follower.take``); one that lost
+    it takes it then.
     """
 
     def __init__(self, every: float):

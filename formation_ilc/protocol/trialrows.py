@@ -24,7 +24,15 @@ from numpy.typing import NDArray
 from formation_ilc.core.clock import Rejected
 from formation_ilc.core.metrics import METRIC_COLUMNS, TRUE_COLUMNS
 from formation_ilc.model.simulate import Problem, trial_errors
-from formation_ilc.protocol.schedule import ABORT, DONE, END, START, TrialEvent, unexplained_gap
+from formation_ilc.protocol.schedule import (
+    ABORT,
+    DONE,
+    END,
+    START,
+    TrialEvent,
+    is_repeat,
+    unexplained_gap,
+)
 
 __all__ = ["Row", "SlotRows"]
 
@@ -101,8 +109,7 @@ class SlotRows:
         """Whether ``ev`` is the last start taken, again, with no abort of its slot since:
         the leader repeats a start while its slot does not move
         (``schedule.StartRepeat``); no news, and no refusal."""
-        return ev.event == START and ev.seq >= 0 and (ev.slot, ev.seq) == (self.started,
-                                                                         self.start_seq)
+        return is_repeat(ev, self.started, self.start_seq)
 
     def infer(self) -> list[Row]:
         """For a recording: the iteration of a slot whose start event is not in the file (a
