@@ -31,6 +31,9 @@ robot_i/true_trajectory    nav_msgs/Path (trial end)    simulator (optional) -> 
 /clock                     rosgraph_msgs/Clock          plant, in simulated time -> all
 preview/poses              nav_msgs/Path (every         simulator, <= PREVIEW_HZ while
                            robot's pose of a sample)    read -> live view (not recorded)
+team/poses                 nav_msgs/Path (every         simulator, physics plant (every
+                           robot's pose of a sample)    sample, with a safety filter) ->
+                                                        robots' safety filters
 =========================  ===========================  ==================================
 
 Frames (REP-105). Every pose and path is in the world-fixed frame ``WORLD_FRAME`` ("map");
@@ -678,11 +681,17 @@ def trial_error_topic(i: int) -> str:
 #: and sample. Best effort: the plant never waits for a viewer. Not recorded (the poses
 #: are).
 PREVIEW = "preview/poses"
+#: every robot's measured pose of a sample in one message, for the robots' safety filters
+#: (``core.safety``): what a motion-capture system gives, once per sample from the plant
+#: (the simulator, the physics plant) when the run has a filter with ``sensing: team``.
+#: Pose i is robot i + 1's, each stamped with the sample's label as on robot_i/pose.
+#: Reliable, like every per-sample topic: in lockstep a robot waits for it.
+TEAM_POSES = "team/poses"
 PREVIEW_HZ = 30.0
 PREVIEW_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2,
                          reliability=ReliabilityPolicy.BEST_EFFORT,
                          durability=DurabilityPolicy.VOLATILE)
-__all__ += ["PREVIEW", "PREVIEW_HZ", "PREVIEW_QOS"]
+__all__ += ["PREVIEW", "PREVIEW_HZ", "PREVIEW_QOS", "TEAM_POSES"]
 
 
 def view_topic_table(n: int) -> list[tuple[str, str, QoSProfile]]:

@@ -457,7 +457,7 @@ class _Session:
 
     def __init__(self, plan: RunPlan, env: dict[str, str],
                  place: Callable[[NodeSpec], list[str]] | None):
-        from formation_ilc.core.metrics import METRIC_COLUMNS, TRUE_COLUMNS
+        from formation_ilc.core.metrics import COUNT_COLUMNS, METRIC_COLUMNS, TRUE_COLUMNS
 
         self.plan = plan
         self.done = plan.resumed_at or 0  # iterations every robot has learned (resumed)
@@ -465,7 +465,8 @@ class _Session:
         self.t_start = time.monotonic()
         # without a true state the true_ columns are nan by design
         self.finite_cols = [i for i, c in enumerate(METRIC_COLUMNS)
-                            if i > 0 and (plan.true_state or c not in TRUE_COLUMNS)]
+                            if i > 0 and c not in COUNT_COLUMNS
+                            and (plan.true_state or c not in TRUE_COLUMNS)]
         self.supervisor = Supervisor(plan, env, place, on_down=self._down)
         self.monitor: Any = None
         self.down_pub: Any = None

@@ -94,6 +94,9 @@ RUN: tuple[Param, ...] = (
           choices=("", "chord", "arc", "auto")),
     Param("time_scale", PARAMS["time_scale"], "stretch the reference and formation in "
           "time by this factor; 0 keeps the scenario's", lo=0.0, hi=1e3),
+    Param("safety", PARAMS["safety"], "the safety filter every robot's command goes "
+          "through: JSON of formation_ilc.config.safety.SafetySettings (body, limits, "
+          "margin, learning, sensing); empty: no filter"),
 )
 
 _RUN = by_name(RUN)

@@ -38,6 +38,7 @@ from formation_ilc.config.scenario import (
 )
 from formation_ilc.core import guards
 from formation_ilc.core.guards import DivergedError, check_finite
+from formation_ilc.core.metrics import METRIC_COLUMNS
 from formation_ilc.model.simulate import simulate
 from formation_ilc.store.memoryfile import MemoryFileError, load_memory, save_memory
 
@@ -284,7 +285,7 @@ def test_metrics_are_streamed_in_bounded_memory(tmp_path):
     """A run of many trials keeps at most ``cap`` rows for its plot; the csv gets them all."""
     log = TrialLog(tmp_path / "m.csv", cap=8)
     for k in range(1000):
-        log.add(np.array([k, 1000.0 - k if k != 500 else 0.5, 0, 0, 0, 0, 0]))
+        log.add(np.array([k, 1000.0 - k if k != 500 else 0.5, 0, 0, 0, 0, 0, 0, np.nan]))
     log.close()
     rows = log.rows()
     assert len(rows) <= 9 and rows[0, 0] == 0 and rows[-1, 0] == 999
@@ -297,7 +298,7 @@ def test_simulate_stores_no_metrics_when_asked():
     seen: list[float] = []
     res = simulate(sc, trials=3, progress=lambda k, row: seen.append(row[1]),
                    store_metrics=False)
-    assert res.metrics.shape == (0, 7) and len(seen) == 3
+    assert res.metrics.shape == (0, len(METRIC_COLUMNS)) and len(seen) == 3
     full = simulate(sc, trials=3)
     np.testing.assert_array_equal(full.column("max_position_error"), seen)
 
@@ -340,7 +341,7 @@ def test_simulate_reports_the_last_finite_memory_on_divergence():
         noise=False, delay=False)
     with pytest.raises(DivergedError) as exc:
         simulate(sc, trials=10, stop_on_divergence=True)
-    assert exc.value.trial == 1 and exc.value.result.metrics.shape == (1, 7)
+    assert exc.value.trial == 1 and exc.value.result.metrics.shape == (1, len(METRIC_COLUMNS))
     assert np.isfinite(exc.value.result.memory).all()
 
 

@@ -93,7 +93,7 @@ def test_metrics_rows_records_and_callbacks_agree(sc):
         np.testing.assert_array_equal(rec.u, u)
         row = np.zeros(6)
         trial_errors(rec.eta, rec.xi, pb.eta_d, pb.src, pb.weight, row)
-        np.testing.assert_array_equal(row, res.metrics[k, 1:])
+        np.testing.assert_array_equal(row, res.metrics[k, 1:7])
         # the draws of trial k, as every process of the stack draws them
         t_ref, t0_ref = sc.uncertainty.draw_delays(sc.seed, k, 3, pb.src.shape[1], 6)
         np.testing.assert_array_equal(tau, t_ref)
@@ -181,15 +181,15 @@ def test_value_types_are_frozen(sc):
 
 def test_simulate_bytes_by_hand(sc):
     """The estimate's formula on the tiny team: 3 robots, 6 samples, robot 3 has two
-    in-links (L = 2), 7 metric columns of 8 bytes per trial."""
-    assert len(METRIC_COLUMNS) == 7
+    in-links (L = 2), 9 metric columns of 8 bytes per trial."""
+    assert len(METRIC_COLUMNS) == 9
     per = 3 * (6 + 2)  # robots x (samples + 2)
-    assert simulate_bytes(sc) == 8 * (32 + 4 * 2) * per + 3 * 8 * 7
-    assert simulate_bytes(sc, 10, keep=2) == 8 * (32 + 8 + 16) * per + 10 * 8 * 7
+    assert simulate_bytes(sc) == 8 * (32 + 4 * 2) * per + 3 * 8 * 9
+    assert simulate_bytes(sc, 10, keep=2) == 8 * (32 + 8 + 16) * per + 10 * 8 * 9
     assert simulate_bytes(sc, 10, keep=1, store_metrics=False) == 8 * (32 + 8 + 8) * per
     # a team where nobody has a neighbour still counts one link per robot
     alone = scenario_from_text(TEXT.replace(
         "leader: {1: 1.0}", "leader: {1: 1.0, 2: 1.0, 3: 1.0}").replace(
         "edges: [{from: 1, to: 2}, {from: 1, to: 3}, {from: 2, to: 3, weight: 0.5}]",
         "edges: []"))
-    assert simulate_bytes(alone, 1) == 8 * (32 + 4) * per + 8 * 7
+    assert simulate_bytes(alone, 1) == 8 * (32 + 4) * per + 8 * 9

@@ -64,7 +64,9 @@ def test_bases_hold_commands_report_what_they_were_asked_and_stop_when_silent():
         for k in range(25):                              # 0.5 s: inside the time-out
             odom = bases.step(0.02 * k)
         (x0, y0, th0), (v0, _), q0 = odom[0]
-        assert x0 > 0.05 and v0 == 0.3 and abs(y0) < 0.01
+        # held as asked, under the body's acceleration limit (0.3 m/s^2): 0.15 m/s after
+        # 0.5 s, about 0.04 m
+        assert x0 > 0.03 and v0 == 0.3 and abs(y0) < 0.01
         assert math.hypot(*q0) == pytest.approx(1.0)
         (x1, _, th1), _, _ = odom[1]
         assert x1 > 0.0 and th1 > 0.05                   # in its own start frame
