@@ -28,6 +28,7 @@ from formation_ilc.cli.options import (  # noqa: E402
     add_run_options,
     int_range,
     make_out_dir,
+    nonneg_float,
     out_dir_arg,
     output_file_arg,
     positive_float,
@@ -85,6 +86,10 @@ exit status (for scripts):
   4  converges only after a large transient (max_k ||M^k|| >= 10)
   5  Theorem 2 and condition (20) hold; the lifted heading map was not built
      (robots x samples > 3600), so the transient is unknown
+  6  the learning checks pass (0, 4 or 5 above), but the desired motion leaves the
+     base's limits (--base: its peak speed, turn rate or acceleration; the line names the
+     robot, the time and the --time-scale that fits), or the formation brings two robots'
+     bodies closer than the safety filter keeps them
 """
 
 SIMULATE_CODES = """\
@@ -160,7 +165,21 @@ def _add_simulate(sub: Any) -> None:
     p.add_argument("--footprint", choices=BODIES, default=None,
                    help="write clearance.csv: each trial's least clearance between the "
                         "robots' footprints (this model's body; < 0: they overlap), and say "
-                        "how many trials overlap")
+                        "how many trials overlap (default with --safety: its --body)")
+    p.add_argument("--safety", action="store_true",
+                   help="put every robot's command through the safety filter, as the stack "
+                        "does on a plant with bodies (docs/safety.md): predicts what the "
+                        "bodies will do; metrics.csv counts the commands it changed "
+                        "(filter_active). With --plant-model arc, as the robots drive")
+    p.add_argument("--body", choices=BODIES, default="p3dx",
+                   help="with --safety: the robots' body, whose footprint and limits the "
+                        "filter keeps (default p3dx)")
+    p.add_argument("--safety-margin", type=nonneg_float, default=0.1, metavar="M",
+                   help="with --safety: the least gap [m] between two robots' covering discs")
+    p.add_argument("--safety-learning", choices=("applied", "freeze", "ignore"),
+                   default="applied",
+                   help="with --safety: how the memory learns where the filter changed a "
+                        "command (docs/safety.md)")
     p.add_argument("--out", type=out_dir_arg, metavar="DIR",
                    help="output folder (default: runs/SCENARIO-LAW-MEMORY-TIME)")
 
@@ -190,6 +209,16 @@ def _add_check(sub: Any) -> None:
                    help="horizon for the transient-growth estimate (default: scenario's)")
     p.add_argument("--no-delay", action="store_true",
                    help="check the delay-free configuration (as run with --no-delay)")
+    p.add_argument("--base", choices=(*BODIES, "none"), default="p3dx",
+                   help="the robots the desired motion must fit: their speed and "
+                        "acceleration limits (a physics model's maker's, else the base "
+                        "preset's) and their body for the safety filter (default p3dx, the "
+                        "paper's Pioneer 3-DX; none: check the learning only)")
+    p.add_argument("--headings", choices=("auto", "chord", "arc"), default="arc",
+                   help="the desired headings the motion is checked with (default arc: "
+                        "robots that drive arcs)")
+    p.add_argument("--time-scale", type=positive_float, default=None, metavar="S",
+                   help="check the scenario stretched in time by S")
 
 
 def _add_tune(sub: Any) -> None:
@@ -551,14 +580,17 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             raise OptionError(f"--record {args.record}: cannot write: "
                               f"{exc.strerror or exc}") from None
     clear_rows: list[Any] = []
-    on_data = _with_clearance(args.footprint, None if recorder is None else recorder.trial,
+    safety = _safety_spec(args, sc)
+    footprint = args.footprint or (args.body if safety is not None else None)
+    on_data = _with_clearance(footprint, None if recorder is None else recorder.trial,
                               clear_rows)
     t0 = time.perf_counter()
     previous = _sigterm_as_interrupt()
     try:
         res = simulate(sc, keep=keep, progress=on_trial, initial_memory=init,
                        first_trial=first, on_trial_data=on_data, plant=plant,
-                       stop_on_divergence=True, on_memory=keeper.update, store_metrics=False)
+                       stop_on_divergence=True, on_memory=keeper.update, store_metrics=False,
+                       safety=safety)
         keeper.save()
     except DivergedError as exc:
         saved = keeper.save()
@@ -578,6 +610,23 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             recorder.close()
     return _simulate_outputs(args, sc, res, log, keeper, out, first,
                              time.perf_counter() - t0, clear_rows)
+
+
+def _safety_spec(args: argparse.Namespace, sc: Any) -> Any:
+    """``simulate --safety``: the filter of ``--body`` with its own limits, or None."""
+    if not getattr(args, "safety", False):
+        return None
+    from formation_ilc.config.safety import SafetySettings
+    from formation_ilc.model.safety import body_limits, desired_clearance, spec_of
+
+    spec = spec_of(SafetySettings(args.body, body_limits(args.body), args.safety_margin,
+                                  args.safety_learning), sc.dt)
+    dc = desired_clearance(sc, spec)
+    if not dc.fits:
+        raise OptionError(f"--safety: {dc.line(sc.dt)} ({args.body} bodies + "
+                          f"{args.safety_margin:g} m margin); widen the formation's offsets "
+                          f"or lower --safety-margin")
+    return spec
 
 
 def _with_clearance(body: str | None, on_data: Any, rows: list[Any]) -> Any:
@@ -756,6 +805,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 #: check's exit status per verdict (CHECK_CODES)
 CHECK_OK, CHECK_NO_TREE, CHECK_DIVERGES, CHECK_TRANSIENT, CHECK_UNKNOWN = 0, 2, 3, 4, 5
+CHECK_LIMITS = 6
 
 
 def check_status(rep: Any) -> int:
@@ -786,7 +836,42 @@ def cmd_check(args: argparse.Namespace) -> int:
     if status == CHECK_NO_TREE:
         print("error: no gain can satisfy condition (20) on this graph (Theorem 2)",
               file=sys.stderr)
+    problems = _motion_check(args, sc)
+    if problems and status in (CHECK_OK, CHECK_TRANSIENT, CHECK_UNKNOWN):
+        for line in problems:
+            print(f"error: {line}", file=sys.stderr)
+        return CHECK_LIMITS
     return status
+
+
+def _motion_check(args: argparse.Namespace, sc: Scenario) -> list[str]:
+    """``check``'s look at the desired motion: every robot's peaks, printed; what does
+    not fit ``--base`` (its limits, its body under the safety filter), returned."""
+    from formation_ilc.config.bases import fit_limits
+    from formation_ilc.config.safety import SafetySettings
+    from formation_ilc.model.safety import body_limits, desired_clearance, motion_peaks, spec_of
+
+    if args.base == "none":
+        return []
+    moved = sc.with_options(headings=args.headings, time_scale=args.time_scale)
+    body = args.base
+    limits = body_limits(body)
+    print(f"desired motion ({args.headings} headings"
+          + (f", time scale {moved.time_scale:g}" if moved.time_scale != 1 else "")
+          + f"; {body}: v <= {limits.v_max:g} m/s, omega <= {limits.omega_max:.3g} rad/s, "
+            f"a <= {limits.a_max:g} m/s^2, alpha <= {limits.alpha_max:.3g} rad/s^2):")
+    for p in motion_peaks(moved):
+        print(f"  {p.line(moved.dt)}")
+    problems = []
+    line = fit_limits(moved, [limits] * moved.n)
+    if line is not None:
+        problems.append(f"{body}: {line}")
+    dc = desired_clearance(moved, spec_of(SafetySettings(body, limits), moved.dt))
+    print(f"  closest robots: {dc.line(moved.dt)}")
+    if not dc.fits:
+        problems.append(f"{body}: {dc.line(moved.dt)}: the safety filter would hold the "
+                        f"robots off their formation; widen the offsets")
+    return problems
 
 
 def cmd_tune(args: argparse.Namespace) -> int:

@@ -66,6 +66,7 @@ import numpy as np
 from formation_ilc.cli.options import (
     add_run_options,
     int_range,
+    nonneg_float,
     out_dir_arg,
     output_file_arg,
     positive_float,
@@ -223,6 +224,43 @@ def add_plant_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--allow-contact", action="store_true",
                    help="run on a plant with bodies although the batch simulator predicts "
                         "that the robots' footprints overlap")
+    add_safety_arguments(p)
+
+
+def add_safety_arguments(p: argparse.ArgumentParser) -> None:
+    """The safety filter's options (docs/safety.md)."""
+    from formation_ilc.config.safety import BODIES
+    from formation_ilc.core.safety import LEARNING
+
+    g = p.add_argument_group("the safety filter (docs/safety.md)")
+    g.add_argument("--safety", action=argparse.BooleanOptionalAction, default=None,
+                   help="put every robot's learned command through the safety filter: it "
+                        "keeps the robots' bodies a margin apart and the command inside the "
+                        "base's speed and acceleration limits, and the memory learns "
+                        "through it. Default: on with every plant with bodies (physics, "
+                        "pioneer, base), off with the kinematic simulator (the paper's "
+                        "reproduction is unchanged)")
+    g.add_argument("--body", choices=BODIES, default=None,
+                   help="with --plant sim --safety: the body the filter keeps apart "
+                        "(default p3dx); other plants know their own")
+    g.add_argument("--safety-margin", type=nonneg_float, default=0.1, metavar="M",
+                   help="least gap [m] between two robots' covering discs (default 0.1)")
+    g.add_argument("--safety-learning", choices=LEARNING, default="applied",
+                   help="how the memory learns where the filter changed a command: applied "
+                        "(default: from the command the robot really drove), freeze (no "
+                        "learning at those samples), ignore (as if unchanged; winds up)")
+    g.add_argument("--on-contact", choices=("stop", "abort", "continue"), default="stop",
+                   help="with --plant physics, when two robots touch or one tilts past "
+                        "--tilt-limit: stop (default): stop the robots, abort the trial and "
+                        "run it again, at most --contact-retries times, then end the run "
+                        "(status 6) naming the pair; abort: stop the robots and end the run "
+                        "at once (status 6); continue: report it and go on")
+    g.add_argument("--contact-retries", type=int_range(0, 100), default=2, metavar="N",
+                   help="with --on-contact stop: how often one trial is run again after a "
+                        "contact (default 2)")
+    g.add_argument("--tilt-limit", type=positive_float, default=10.0, metavar="DEG",
+                   help="with --plant physics: a robot tilted past this [deg] is treated "
+                        "as a contact (default 10)")
 
 
 # --------------------------------------------------------------------------- separate hosts
@@ -502,8 +540,15 @@ class _Session:
         now = time.monotonic()
         if not np.isfinite(row[self.finite_cols]).all():
             raise Diverged(k)
-        print(f"trial {k + 1}/{self.plan.scenario.trials}  max position {row[1]:.4g} m  "
-              f"max heading {row[2]:.4g} rad  [{now - self.t_start:.1f} s]", flush=True)
+        print(progress_line(k, self.plan, row) + f"  [{now - self.t_start:.1f} s]",
+              flush=True)
+
+    def on_contact(self, node: str, c: dict[str, Any]) -> None:
+        """A plant's contact, said the moment it happened (the plant acts on it)."""
+        action = {"stop": "the robots are stopped and the trial runs again",
+                  "abort": "the run ends", "give_up": "the run ends (retries spent)",
+                  "continue": "going on"}.get(str(c.get("action")), "")
+        print(f"contact: {str(c.get('line', ''))[:300]}: {action} ({node})", flush=True)
 
     def _down(self, name: str, pid: int) -> None:
         """Tell the leader at once that a passive node died, so that no trial starts
@@ -571,7 +616,8 @@ class _Session:
         plan = self.plan
         self.monitor = monitor = MonitorNode(plan.config, self.on_trial,
                                              true_state=plan.true_state,
-                                             namespace=plan.namespace, first=self.done)
+                                             namespace=plan.namespace, first=self.done,
+                                             on_contact=self.on_contact)
         self.down_pub = monitor.create_publisher(String, ms.READY, ms.LATCHED_QOS)
         ex = EventsExecutor()
         ex.add_node(monitor)
@@ -616,6 +662,30 @@ class _Session:
                   f"there (it would corrupt both); use --namespace or --domain-id",
                   file=sys.stderr)
             raise _Refused
+
+
+def progress_line(k: int, plan: RunPlan, row: np.ndarray) -> str:
+    """A trial's line on the console: its measured errors; where the plant knows the
+    ground truth (the simulator, the physics plant) the true errors beside them; what
+    the safety filter changed and the contacts, when the run has them."""
+    from formation_ilc.core.metrics import METRIC_COLUMNS
+
+    col = {c: row[i] for i, c in enumerate(METRIC_COLUMNS)}
+    line = f"trial {k + 1}/{plan.scenario.trials}  max position "
+    if plan.true_state:
+        line += (f"{col['true_max_position_error']:.4g} m true, "
+                 f"{col['max_position_error']:.4g} m measured  max heading "
+                 f"{col['true_max_heading_error']:.4g} rad true, "
+                 f"{col['max_heading_error']:.4g} measured")
+    else:
+        line += (f"{col['max_position_error']:.4g} m  max heading "
+                 f"{col['max_heading_error']:.4g} rad")
+    if plan.config.safety is not None:
+        f = col["filter_active"]
+        line += "  filtered " + ("?" if np.isnan(f) else f"{int(f)}")
+    if plan.physics is not None and not np.isnan(col["contacts"]):
+        line += f"  contacts {int(col['contacts'])}"
+    return line
 
 
 def _foreign(node: Any, namespace: str, wait: float, allowed: set[str]) -> list[str]:

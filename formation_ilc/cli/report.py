@@ -31,7 +31,7 @@ BRIDGE_KEYS = ("initial_shifts", "returns", "return_timeouts", "missed", "clippe
                "clipped_accel", "tilt_max_deg", "limits", "watchdog_zero", "stale_odometry")
 #: the physics plant's diagnostics that go into summary.json
 PHYSICS_KEYS = ("model", "pose_source", "substeps", "contacts_by_trial", "tilt_by_trial",
-                "odometry_drift_by_trial")
+                "odometry_drift_by_trial", "limited")
 
 
 def summary_of(plan: RunPlan, rows: int, diagnostics: Mapping[str, Mapping[str, Any]],
@@ -54,6 +54,10 @@ def summary_of(plan: RunPlan, rows: int, diagnostics: Mapping[str, Mapping[str, 
         summary["physics"] = {key: sim_diag.get(key) for key in PHYSICS_KEYS}
     if plan.init_memory is not None:
         summary["init_memory"] = str(plan.init_memory)
+    if cfg.safety is not None:
+        # the filter's settings, and what it changed over the run, by robot
+        summary["safety"] = {**cfg.safety.to_json(), "filter_total": {
+            r: diagnostics.get(r, {}).get("filter_total") for r in plan.team.robots}}
     return summary
 
 
@@ -103,9 +107,24 @@ def print_report(sc: Scenario, m: np.ndarray, dtab: list[list[Any]], summary: di
     """Per-trial errors (at most about 20 rows), then timing, bridges, delays, drops."""
     k = len(m)
     show = range(k) if k <= 20 else sorted({0, 1, 2, k // 4, k // 2, 3 * k // 4, k - 1})
-    print(f"{'trial':>6s} {'max pos [m]':>12s} {'max head [rad]':>15s} {'rms pos [m]':>12s}")
+    # where the plant knows the truth, true and measured side by side; the safety filter's
+    # changed commands and the contacts where the run counted them
+    truth = k > 0 and bool(np.isfinite(m[:, 3]).any())
+    filt = k > 0 and bool(summary.get("safety"))
+    contacts = k > 0 and bool(np.isfinite(m[:, 8]).any())
+    head = f"{'trial':>6s} {'max pos [m]':>12s}"
+    head += f" {'true pos [m]':>13s}" if truth else ""
+    head += f" {'max head [rad]':>15s} {'rms pos [m]':>12s}"
+    head += f" {'filtered':>9s}" if filt else ""
+    head += f" {'contacts':>9s}" if contacts else ""
+    print(head)
     for i in show:
-        print(f"{int(m[i, 0]):6d} {m[i, 1]:12.4g} {m[i, 2]:15.4g} {m[i, 5]:12.4g}")
+        line = f"{int(m[i, 0]):6d} {m[i, 1]:12.4g}"
+        line += f" {m[i, 3]:13.4g}" if truth else ""
+        line += f" {m[i, 2]:15.4g} {m[i, 5]:12.4g}"
+        line += f" {m[i, 7]:9.0f}" if filt else ""
+        line += f" {m[i, 8]:9.0f}" if contacts else ""
+        print(line)
     _print_timing(sc, summary)
     for b, d in (summary.get("bridges") or {}).items():
         shifts = d.get("initial_shifts") or {}

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -169,9 +170,10 @@ def trial_clearance(trial: int, xi: NDArray[np.float64], fp: Footprint) -> Clear
 
 def predict_clearance(sc: Scenario, fp: Footprint, trials: int,
                       memory: NDArray[np.float64] | None = None, plant: str = "arc",
-                      first_trial: int = 0) -> list[Clearance]:
+                      first_trial: int = 0, safety: Any = None) -> list[Clearance]:
     """The batch simulator's prediction of a run: ``trials`` trials from ``memory``
-    (default u_0 = 0), without noise or delay, and each trial's least clearance."""
+    (default u_0 = 0), without noise or delay, through the safety filter ``safety``
+    (``core.safety.SafetySpec``; None: none), and each trial's least clearance."""
     from formation_ilc.model.simulate import simulate
 
     quiet = sc.with_options(noise=False, delay=False, trials=trials)
@@ -181,7 +183,7 @@ def predict_clearance(sc: Scenario, fp: Footprint, trials: int,
         out.append(trial_clearance(k, xi, fp))
 
     simulate(quiet, initial_memory=memory, on_trial_data=on_data, plant=plant,
-             first_trial=first_trial, store_metrics=False)
+             first_trial=first_trial, store_metrics=False, safety=safety)
     return out
 
 

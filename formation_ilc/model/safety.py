@@ -26,8 +26,8 @@ from formation_ilc.core.limits import Limits, input_rates
 from formation_ilc.core.safety import SafetySpec
 from formation_ilc.model.footprint import Footprint, footprint_of
 
-__all__ = ["MARGIN", "DISCS", "spec_for", "spec_of", "sensing_radius", "DesiredClearance",
-           "desired_clearance", "MotionPeaks", "motion_peaks"]
+__all__ = ["MARGIN", "DISCS", "spec_for", "spec_of", "body_limits", "sensing_radius",
+           "DesiredClearance", "desired_clearance", "MotionPeaks", "motion_peaks"]
 
 #: [m] added to two disc radii: the least gap the filter keeps between two bodies'
 #: covering discs (it covers the discs' excess over the rectangle, the arcs a robot drives
@@ -67,6 +67,15 @@ def spec_for(fp: Footprint, limits: Limits, dt: float, *, margin: float = MARGIN
     return SafetySpec(offsets, distance, gamma=1.0, radius=radius, limits=limits, dt=dt,
                       stale_speed=stale_speed, weight=0.1, speed_uncertainty=speed_uncertainty,
                       window=3, brake_share=1.0, learning=learning)
+
+
+def body_limits(body: str) -> Limits:
+    """A body's own speed and acceleration limits: a physics model's (its maker's,
+    ``model.physics.MODELS``), else the base preset's (``config.bases``)."""
+    from formation_ilc.config.bases import base_preset
+    from formation_ilc.model.physics import MODELS
+
+    return MODELS[body].limits if body in MODELS else base_preset(body).limits
 
 
 def spec_of(settings: SafetySettings, dt: float) -> SafetySpec:

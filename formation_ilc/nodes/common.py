@@ -93,12 +93,15 @@ class ConfiguredNode(Node):
         #: what this node takes of the leader's events (its core's, once configured)
         self.follower = Follower(self.run_id)
 
-    def ready_msg(self, trial: int, passive: bool = False) -> String:
+    def ready_msg(self, trial: int, passive: bool = False, abort_slot: int = -1,
+                  why: str = "") -> String:
         """The ``ready`` message of this node (``formation_ilc.protocol.schedule``); the
-        node then counts as ready for the next start."""
+        node then counts as ready for the next start. ``abort_slot``: a plant asks the
+        leader to abort that slot, saying ``why``."""
         self.follower.said_ready()
         return ms.json_to_msg(Ready(self.get_name(), trial, self.boot, self.follower.seen,
-                                    passive, self.run_id).to_json())
+                                    passive, self.run_id, abort_slot=abort_slot,
+                                    why=why).to_json())
 
     @property
     def run_id(self) -> str:

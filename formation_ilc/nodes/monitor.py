@@ -44,7 +44,9 @@ class MonitorNode(Node):
     """Collects trial k's trajectories; calls ``on_trial(k, row)`` when all are in."""
 
     def __init__(self, cfg: RunConfig, on_trial: Callable[[int, np.ndarray], None],
-                 true_state: bool = True, first: int = 0, **kwargs: Any):
+                 true_state: bool = True, first: int = 0,
+                 on_contact: Callable[[str, dict[str, Any]], None] | None = None,
+                 **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(ms.MONITOR_NODE, **kwargs)
         self.cfg = cfg
@@ -54,7 +56,10 @@ class MonitorNode(Node):
         self.true_state = true_state
         self.drops = DropCounter(self)
         n = self.pb.n
-        self.slots = SlotRows(self.pb, true_state, first)  # the rows, by iteration
+        # the rows, by iteration (with the counts the robots' filters and the plant report)
+        self.slots = SlotRows(self.pb, true_state, first, safety=cfg.safety is not None)
+        self.on_contact = on_contact
+        self.contacts_seen: set[tuple[str, int, int]] = set()
         self.rows = self.slots.rows
         self.diagnostics: dict[str, dict[str, Any]] = {}
         self.events: list[dict[str, Any]] = []
@@ -149,7 +154,30 @@ class MonitorNode(Node):
         except Rejected as exc:
             self.drops.reject(exc, ms.DIAGNOSTICS)
             return
+        self._counts(name, d)
+        if "contact" in d and isinstance(d["contact"], dict):
+            c = d["contact"]
+            key = (name, int(d["trial"]), int(c.get("slot", -1)))
+            if key not in self.contacts_seen:  # said at once, once
+                self.contacts_seen.add(key)
+                if self.on_contact is not None:
+                    self.on_contact(name, c)
+            return  # a mid-trial word, not the node's report
         self.diagnostics[name] = d
+
+    def _counts(self, name: str, d: dict[str, Any]) -> None:
+        """A robot's filter count, a plant's contacts: for the trial's row."""
+        f = d.get("filter")
+        if isinstance(f, dict) and "slot" in f and "changed" in f:
+            try:
+                r = ms.robot_index(name) - 1
+            except (ValueError, Rejected):
+                return
+            if 0 <= r < self.pb.n:
+                self.slots.note_filtered(int(f["slot"]), r, int(f["changed"]))
+        c = d.get("contact_report")
+        if isinstance(c, dict) and "slot" in c and isinstance(c.get("pairs"), list):
+            self.slots.note_contacts(int(c["slot"]), len(c["pairs"]))
 
     def _on_event(self, msg: String) -> None:
         try:

@@ -22,6 +22,10 @@ Thresholds (docs/ros-tools.md lists them for users):
   above ``LATENCY_WARN`` dT is WARN, above dT ERROR (a command missed its sample).
 * command clipping and return time-outs of a bridge: WARN.
 * the leader's watchdog finding (a phase past its bound): WARN.
+* contact between robots, or a robot tipped (a plant with bodies): ERROR; contacts in the
+  trial's report: WARN (the run acted on them).
+* commands the safety filter changed (a robot's ``filter``): OK, it is doing its work;
+  a sample where no command in the limits kept every barrier (``infeasible``): WARN.
 """
 
 from __future__ import annotations
@@ -139,6 +143,17 @@ def assess(d: Mapping[str, Any], dt: float | None = None, samples: int | None = 
     wd = d.get("watchdog")
     if isinstance(wd, Mapping) and _num(wd.get("count")) > 0:
         found.append((WARN, f"watchdog: {str(wd.get('what', ''))[:200]}"))
+    contact = d.get("contact")
+    if isinstance(contact, Mapping):
+        found.append((ERROR, f"contact: {str(contact.get('line', ''))[:200]}"))
+    report = d.get("contact_report")
+    if isinstance(report, Mapping) and isinstance(report.get("pairs"), list) \
+            and report["pairs"]:
+        found.append((WARN, f"{len(report['pairs'])} pairs of robots touched in the trial"))
+    filt = d.get("filter")
+    if isinstance(filt, Mapping) and _num(filt.get("infeasible")) > 0:
+        found.append((WARN, f"safety filter: {_num(filt.get('infeasible')):g} samples braked "
+                            f"(no command in the limits kept every barrier)"))
     if not found:
         return OK, "ok"
     level = max(lv for lv, _ in found)

@@ -183,6 +183,15 @@ class RobotLearner:
         ell = self._slot(sender)
         return None if ell < 0 else float(self.pb.eta_d[self.pb.src[self.i, ell], s, 2])
 
+    def expected_team_heading(self, j: int, label_ns: int) -> float:
+        """The desired heading of robot ``j`` (0-based) at ``label_ns``'s sample: where to
+        unwrap its measured heading heard for the safety filter (the filter takes cos and
+        sin only). Rejected if the label is off the grid or ``j`` is no robot."""
+        if not 0 <= j < self.pb.n:
+            raise Rejected("unexpected", f"team pose of robot index {j}")
+        _, s = self.clock.decode(label_ns)
+        return float(self.pb.eta_d[j, s, 2])
+
     def _slot(self, sender: str) -> int:
         ell = self.slots.get(sender)
         if ell is None:

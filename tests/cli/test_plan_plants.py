@@ -40,14 +40,20 @@ def test_the_kinematic_simulator_keeps_chord_headings_and_its_numbers(tmp_path):
 
 def test_physics_plant_is_a_node_spec_with_its_options_and_arc_headings(tmp_path):
     pytest.importorskip("pybullet")
+    # the Husky's body at the paper's spacing: no room for the safety filter (refused with
+    # it, tested below), so without it
     plan = plan_of(tmp_path, "paper-triangle3", "--plant", "physics", "--robot-model",
                    "husky", "--pose", "odometry", "--physics-rate", "480", "--pass-through",
-                   "--allow-contact", "--time-scale", "1.5", "--trials", "2")
+                   "--allow-contact", "--time-scale", "1.5", "--trials", "2", "--no-safety",
+                   "--on-contact", "continue", "--contact-retries", "5", "--tilt-limit", "20")
     names = [s.name for s in plan.nodes]
     assert names == ["virtual_leader", "physics_sim", "link_emulator", "robot_1", "robot_2",
                      "robot_3"]
     assert dict(plan.nodes[1].params) == {"timeout": 30.0, "model": "husky",
-                                          "pose": "odometry", "collide": False, "rate": 480.0}
+                                          "pose": "odometry", "collide": False, "rate": 480.0,
+                                          "on_contact": "continue", "contact_retries": 5,
+                                          "tilt_limit": 20.0}
+    assert plan.config.safety is None
     assert plan.nodes[1].module == "robot_sim.physics_node"
     assert plan.team.plants == ("physics_sim",) and plan.true_state
     assert plan.reporters == ("physics_sim", "link_emulator")
@@ -63,11 +69,51 @@ def test_physics_plant_is_a_node_spec_with_its_options_and_arc_headings(tmp_path
 def test_a_colliding_cold_start_is_refused_with_one_line(tmp_path):
     pytest.importorskip("pybullet")
     with pytest.raises(NoRun) as info:
-        plan_of(tmp_path, "paper-triangle3", "--plant", "physics")
+        plan_of(tmp_path, "paper-triangle3", "--plant", "physics", "--no-safety")
     exc = info.value
     assert exc.status == 2 and "\n" not in exc.message
     assert exc.message.startswith("the batch simulator predicts contact from this cold start")
     assert "robots 2 and 3 overlap" in exc.message and "--allow-contact" in exc.message
+    assert "--safety" in exc.message
+
+
+def test_the_safety_filter_is_on_with_bodies_and_lets_the_cold_start_run(tmp_path):
+    pytest.importorskip("pybullet")
+    plan = plan_of(tmp_path, "paper-triangle3", "--plant", "physics", "--trials", "30")
+    sf = plan.config.safety
+    assert sf is not None and sf.body == "p3dx" and sf.sensing == "team"
+    assert sf.limits.v_max == 1.2 and sf.limits.a_max == 0.3  # the maker's, physics model
+    # the prediction went through the filter and says what it covered
+    assert plan.notes[-1].startswith("the batch simulator predicts no contact in the 30 "
+                                     "trials of this run through the safety filter")
+    # the robots read it from the leader's configuration
+    leader = dict(plan.nodes[0].params)
+    assert RunConfig.from_params(leader).safety == sf
+    # off on the kinematic simulator unless asked for
+    assert plan_of(tmp_path / "s", "paper-triangle3").config.safety is None
+    on = plan_of(tmp_path / "t", "paper-triangle3", "--safety", "--body", "jackal")
+    assert on.config.safety is not None and on.config.safety.body == "jackal"
+
+
+@pytest.mark.parametrize(("args", "says"), [
+    (("--plant", "physics", "--robot-model", "husky"),
+     "the desired formation brings robots 1 and 3 to 0.559 m"),
+    (("--plant", "physics", "--scenario", "paper-hexagon6"),
+     "robot 2: desired acceleration 31.2 m/s^2 at t = 0.0 s exceeds its limit 0.3 m/s^2; "
+     "no time scale up to 20 fits (p3dx robots' limits: Pioneer 3-DX datasheet"),
+    (("--plant", "external", "--safety"), "--safety: with --plant external"),
+    (("--plant", "physics", "--body", "husky"), "--body goes with --plant sim"),
+])
+def test_what_the_bodies_or_the_filter_cannot_do_is_refused(tmp_path, args, says):
+    pytest.importorskip("pybullet")
+    name = "paper-triangle3"
+    if "--scenario" in args:
+        i = args.index("--scenario")
+        name, args = args[i + 1], args[:i] + args[i + 2:]
+    with pytest.raises(NoRun) as info:
+        plan_of(tmp_path, name, *args)
+    assert info.value.status == 2 and says in info.value.message
+    assert "\n" not in info.value.message
 
 
 def test_base_bridges_refuse_a_scenario_beyond_the_preset_then_plan_it_stretched(tmp_path):

@@ -21,6 +21,7 @@ import yaml
 
 from formation_ilc.cli.commands import (
     CHECK_DIVERGES,
+    CHECK_LIMITS,
     CHECK_OK,
     CHECK_TRANSIENT,
     CHECK_UNKNOWN,
@@ -377,8 +378,55 @@ def test_check_exits_with_its_verdict(tmp_path, capsys):
     assert main(["check", str(p), "--trials", "8"]) == CHECK_DIVERGES
     assert "verdict: will not converge" in capsys.readouterr().out
     p.write_text(_with(TRIANGLE, samples="1300"))  # 3 x 1300 > 3600: the lifted map is skipped
-    assert main(["check", str(p)]) == CHECK_UNKNOWN
+    assert main(["check", str(p), "--base", "none"]) == CHECK_UNKNOWN
     assert main(["check", "paper-triangle3", "--trials", "8"]) == CHECK_OK
+
+
+UNTUNED = """\
+name: untuned-corners
+dt: 0.2
+samples: 100
+trials: 10
+robots: 4
+reference:
+  kind: waypoints
+  times: [0, 5, 10, 20]
+  points: [[0, 0], [3, 0], [3, 3], [0, 3]]
+formation:
+  frame: leader
+  offsets:
+    1: {x: 1.5, y: 0.0}
+    2: {x: 0.0, y: 1.5}
+    3: {x: -1.5, y: 0.0}
+    4: {x: 0.0, y: -1.5}
+graph:
+  leader: {1: 1.0}
+  edges: [{from: 1, to: 2}, {from: 2, to: 3}, {from: 3, to: 4}]
+law: {kind: 9, memory: feedforward, gain: 0.08, gain_prime: 0.08, gain_heading: measured}
+"""
+
+
+def test_check_fails_a_scenario_whose_motion_leaves_the_base_limits(tmp_path, capsys):
+    """Before: 'converges' (exit 0) for waypoints with corners whose desired speed reaches
+    metres a second; now every robot's peaks are printed and the run exits 6 naming the
+    robot and the time scale that fits."""
+    p = tmp_path / "untuned.yaml"
+    p.write_text(UNTUNED)
+    status = main(["check", str(p)])
+    out, err = capsys.readouterr()
+    assert status == CHECK_LIMITS
+    assert out.count("peak speed") == 4 and "largest step" in out
+    (line,) = [x for x in err.splitlines() if x.startswith("error: p3dx: robot")]
+    assert "exceeds its limit" in line
+    # the learning alone passes
+    assert main(["check", str(p), "--base", "none"]) == CHECK_OK
+    capsys.readouterr()
+    # the corners turn the leader-frame formation in one sample: the outer robots jump 2 m
+    # between two samples, which no time scale and no base's limits make good
+    assert main(["check", str(p), "--base", "jackal", "--time-scale", "4"]) == CHECK_LIMITS
+    out, err = capsys.readouterr()
+    assert "time scale 4" in out and "largest step 2.1" in out
+    assert "no time scale up to 20 fits" in err
 
 
 # --------------------------------------------------------------------------- interruption
