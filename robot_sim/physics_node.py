@@ -95,12 +95,13 @@ class PhysicsNode(SimNode):
         plant = self.plant
         if isinstance(plant, PhysicsPlant):
             ev = plant.take_contact()
-            if ev is not None:
-                self._on_contact(plant, ev)
+            if ev is not None and not self._on_contact(plant, ev):
+                return  # the run ends here: no sample after the contact
         super()._publish_sample()
 
-    def _on_contact(self, plant: PhysicsPlant, ev: ContactEvent) -> None:
-        """Say it at once (log, diagnostics), then act: stop and re-run, or end the run."""
+    def _on_contact(self, plant: PhysicsPlant, ev: ContactEvent) -> bool:
+        """Say it at once (log, diagnostics), then act: stop and re-run, or end the run.
+        Returns whether the trial goes on (its robots standing, with ``stop``)."""
         line = ev.line(self.cfg.scenario.dt, plant.tilt_limit)
         then = {"stop": "robots stopped; the trial runs again "
                         f"({plant.reruns.get(ev.trial, 0)} of {plant.retries})",
@@ -121,6 +122,8 @@ class PhysicsNode(SimNode):
                                                   why=f"contact: {line}"))
         elif ev.action in ("abort", "give_up"):
             fail(self, f"contact: {line}; {then} (--on-contact, docs/safety.md)", CONTACT)
+            return False
+        return True
 
     def destroy_node(self) -> None:
         plant = getattr(self, "plant", None)

@@ -154,7 +154,7 @@ class MonitorNode(Node):
         except Rejected as exc:
             self.drops.reject(exc, ms.DIAGNOSTICS)
             return
-        self._counts(name, d)
+        self.slots.note_diagnostics(d)
         if "contact" in d and isinstance(d["contact"], dict):
             c = d["contact"]
             key = (name, int(d["trial"]), int(c.get("slot", -1)))
@@ -164,20 +164,6 @@ class MonitorNode(Node):
                     self.on_contact(name, c)
             return  # a mid-trial word, not the node's report
         self.diagnostics[name] = d
-
-    def _counts(self, name: str, d: dict[str, Any]) -> None:
-        """A robot's filter count, a plant's contacts: for the trial's row."""
-        f = d.get("filter")
-        if isinstance(f, dict) and "slot" in f and "changed" in f:
-            try:
-                r = ms.robot_index(name) - 1
-            except (ValueError, Rejected):
-                return
-            if 0 <= r < self.pb.n:
-                self.slots.note_filtered(int(f["slot"]), r, int(f["changed"]))
-        c = d.get("contact_report")
-        if isinstance(c, dict) and "slot" in c and isinstance(c.get("pairs"), list):
-            self.slots.note_contacts(int(c["slot"]), len(c["pairs"]))
 
     def _on_event(self, msg: String) -> None:
         try:

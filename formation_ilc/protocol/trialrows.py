@@ -23,13 +23,16 @@ is 0 in a run without a filter, the sum over the robots once every robot's count
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from formation_ilc.core.clock import Rejected
 from formation_ilc.core.metrics import METRIC_COLUMNS, TRUE_COLUMNS
+from formation_ilc.core.names import robot_number
 from formation_ilc.model.simulate import Problem, trial_errors
 from formation_ilc.protocol.schedule import (
     ABORT,
@@ -169,6 +172,22 @@ class SlotRows:
             raise Rejected("duplicate", f"slot {slot} again")
         store.setdefault(slot, {})[robot] = eta
         return self._complete(slot)
+
+    def note_diagnostics(self, d: Mapping[str, Any]) -> None:
+        """What a node's diagnostics (checked: ``core.links.check_diagnostics``) say of a
+        row's counts: a robot's ``filter`` (the commands its filter changed in a slot), a
+        plant's ``contact_report`` (the pairs that touched in a slot)."""
+        f = d.get("filter")
+        if isinstance(f, Mapping) and "slot" in f and "changed" in f:
+            try:
+                r = robot_number(str(d.get("node"))) - 1
+            except Rejected:
+                return
+            if 0 <= r < self.pb.n:
+                self.note_filtered(int(f["slot"]), r, int(f["changed"]))
+        c = d.get("contact_report")
+        if isinstance(c, Mapping) and "slot" in c and isinstance(c.get("pairs"), list):
+            self.note_contacts(int(c["slot"]), len(c["pairs"]))
 
     def note_filtered(self, slot: int, robot: int, changed: int) -> None:
         """Robot ``robot`` (0-based) says its filter changed ``changed`` commands in

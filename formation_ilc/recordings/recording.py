@@ -389,7 +389,8 @@ class _RunReader:
         conf = self.text(m, ())
         c = RunConfig.from_json(conf)
         pb = Problem.from_scenario(c.scenario)
-        self.config, self.cfg, self.slots = conf, c, SlotRows(pb, strict=False)
+        self.config, self.cfg = conf, c
+        self.slots = SlotRows(pb, strict=False, safety=c.safety is not None)
         namespace = m.topic[: -len(ms.CONFIG) - 1] or "/"
         for r in range(pb.n):
             self.traj_topic[ms.absolute(ms.trajectory_topic(r + 1), namespace)] = (r, False)
@@ -424,7 +425,9 @@ class _RunReader:
         elif m.topic == self.diag_topic:
             dg = check_diagnostics(self.ms.msg_to_report(
                 self.ms.deserialize(m.data, self.DiagnosticArray), ("node", "trial")))
-            self.diags[dg["node"]] = dg
+            slots.note_diagnostics(dg)
+            if "contact" not in dg:  # a mid-trial word, not the node's report
+                self.diags[dg["node"]] = dg
         elif m.topic in self.traj_topic:
             r, is_true = self.traj_topic[m.topic]
             eta, stamps = _path_outputs(m.data, slots.pb.eta_d[r, :, 2])
