@@ -234,16 +234,15 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
         flags |= CHANGED_LIMITS
     # in scaled coordinates (v, c omega) the cost is Euclidean
     zx, zy = v_n, c * w_n
-    cap = 4 + count * n_discs * n_discs + 4
-    px = np.empty(cap)
-    py = np.empty(cap)
-    qx = np.empty(cap)
-    qy = np.empty(cap)
-    px[0], py[0] = v_lo, c * w_lo
-    px[1], py[1] = v_hi, c * w_lo
-    px[2], py[2] = v_hi, c * w_hi
-    px[3], py[3] = v_lo, c * w_hi
-    n = 4
+    bx0, bx1, by0, by1 = v_lo, v_hi, c * w_lo, c * w_hi
+    # the barriers' half-planes a0 v + a1 (c omega) >= rhs that cut the box (one that holds
+    # at every corner of the box cannot change the answer: most of them, as the box is a
+    # sample's acceleration wide)
+    cap = count * n_discs * n_discs
+    ha0 = np.empty(cap)
+    ha1 = np.empty(cap)
+    hb = np.empty(cap)
+    m = 0
     cth, sth = np.cos(th), np.sin(th)
     a_brake = params[12] * a_max if params[12] > 0.0 else np.inf
     barrier = False
@@ -277,25 +276,39 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
                 rhs = -closing_speed(share, gamma, dt, a_brake)
                 a0 = dx * cth + dy * sth
                 a1 = ell * (-dx * sth + dy * cth) / c
+                if (a0 * bx0 + a1 * by0 >= rhs and a0 * bx1 + a1 * by0 >= rhs
+                        and a0 * bx0 + a1 * by1 >= rhs and a0 * bx1 + a1 * by1 >= rhs):
+                    continue  # holds over the whole box
                 if a0 * zx + a1 * zy < rhs - _TOL:
                     barrier = True
-                n = _clip_polygon(px, py, n, a0, a1, rhs, qx, qy)
-                px, qx = qx, px
-                py, qy = qy, py
-                if n == 0:
-                    break
-            if n == 0:
-                break
+                ha0[m] = a0
+                ha1[m] = a1
+                hb[m] = rhs
+                m += 1
+    if not barrier and flags == 0:
+        out[0] = v_n
+        out[1] = w_n
+        return 0
+    # the feasible set: the box clipped by the half-planes that cut it
+    px = np.empty(4 + m + 4)
+    py = np.empty(4 + m + 4)
+    qx = np.empty(4 + m + 4)
+    qy = np.empty(4 + m + 4)
+    px[0], py[0] = bx0, by0
+    px[1], py[1] = bx1, by0
+    px[2], py[2] = bx1, by1
+    px[3], py[3] = bx0, by1
+    n = 4
+    for k in range(m):
+        n = _clip_polygon(px, py, n, ha0[k], ha1[k], hb[k], qx, qy)
+        px, qx = qx, px
+        py, qy = qy, py
         if n == 0:
             break
     if n == 0:
         out[0] = _clip(0.0, v_lo, v_hi)
         out[1] = _clip(w_n, w_lo, w_hi)
         return flags | CHANGED_BARRIER | INFEASIBLE
-    if not barrier and flags == 0:
-        out[0] = v_n
-        out[1] = w_n
-        return 0
     if barrier:
         flags |= CHANGED_BARRIER
     # the nearest point of the polygon: the nominal point is outside it

@@ -167,6 +167,7 @@ class RobotLearner:
             self.others = np.zeros((n, 6))
             self.ages = np.zeros(n)
             self.out = np.zeros(2)
+            self._other_idx = np.array([j for j in range(n) if j != index], dtype=np.int64)
             #: the commands the filter changed in the last trial finished, and in all
             self.filtered: dict[str, int] = {}
             self.filtered_total = Counter({"changed": 0, "limits": 0, "barrier": 0,
@@ -361,27 +362,7 @@ class RobotLearner:
         motion from the pose ``window`` samples before, and its age."""
         sp = self.safety
         assert sp is not None
-        dt = self.pb.dt
-        m = 0
-        if self.team_k == self.k:
-            for j in range(self.pb.n):
-                if j == self.i:
-                    continue
-                have = self.team_have[j]
-                sj = int(self.team_last[j])
-                while sj > t or (sj >= 0 and not have[sj]):  # realtime: newest up to t
-                    sj -= 1
-                if sj < 0:
-                    continue  # never heard in this trial: nothing to keep away from
-                sb = max(0, sj - sp.window) if sp.window > 0 else sj
-                while sb < sj and not have[sb]:  # the nearest heard after it
-                    sb += 1
-                e1, e0 = self.team_eta[j, sj], self.team_eta[j, sb]
-                self.others[m, :3] = e1
-                motion(e1[0], e1[1], e1[2], e0[0], e0[1], e0[2], (sj - sb) * dt,
-                       self.others, m)
-                self.ages[m] = (t - sj) * dt
-                m += 1
+        m = self._heard(t, sp.window) if self.team_k == self.k else 0
         prev = self.applied[0, t - 1] if t > 0 else (0.0, 0.0)
         own = self.eta[0, t]
         self.nominal[0, t] = self.u[0]
@@ -390,6 +371,46 @@ class RobotLearner:
             float(own[2]), float(prev[0]), float(prev[1]), self.others, self.ages, m,
             self.safety_params, self.out)
         self.u[0] = self.out
+
+    def _heard(self, t: int, window: int) -> int:
+        """Fill ``others`` and ``ages`` with what this robot heard of the others up to
+        sample t (``core.safety.motion``'s reading, as the batch simulator's
+        ``filter_team``); returns how many."""
+        dt = self.pb.dt
+        idx = self._other_idx
+        last = np.minimum(self.team_last[idx], t)
+        back = np.maximum(last - window, 0) if window > 0 else last
+        have = self.team_have
+        if (last >= 0).all() and have[idx, last].all() and have[idx, back].all():
+            # every pose at hand (lockstep): all at once
+            e1, e0 = self.team_eta[idx, last], self.team_eta[idx, back]
+            m = len(idx)
+            o = self.others
+            o[:m, :3] = e1
+            span = (last - back) * dt
+            with np.errstate(invalid="ignore", divide="ignore"):
+                d = e1 - e0
+                d[:, 2] -= 2.0 * np.pi * np.floor((d[:, 2] + np.pi) / (2.0 * np.pi))
+                o[:m, 3:] = np.where(span[:, None] > 0, d / span[:, None], 0.0)
+            self.ages[:m] = (t - last) * dt
+            return m
+        m = 0
+        for j in idx:
+            row = have[j]
+            sj = int(self.team_last[j])
+            while sj > t or (sj >= 0 and not row[sj]):  # realtime: newest up to t
+                sj -= 1
+            if sj < 0:
+                continue  # never heard in this trial: nothing to keep away from
+            sb = max(0, sj - window) if window > 0 else sj
+            while sb < sj and not row[sb]:  # the nearest heard after it
+                sb += 1
+            e1, e0 = self.team_eta[j, sj], self.team_eta[j, sb]
+            self.others[m, :3] = e1
+            motion(e1[0], e1[1], e1[2], e0[0], e0[1], e0[2], (sj - sb) * dt, self.others, m)
+            self.ages[m] = (t - sj) * dt
+            m += 1
+        return m
 
     def command(self) -> NDArray[np.float64]:
         """u(t) = (v [m/s], omega [rad/s]) of the current sample from what the links
