@@ -785,7 +785,7 @@ def _ramped_reference(top: _Fields, n_samples: int, dt: float, base_dir: Path | 
     f = top.sub("reference")
     q = RAMP_FINE
     fine = _reference(f, (n_samples + 1) * q, dt, base_dir, scale * q)  # step dt / q
-    t = np.arange(n_samples + 2) * dt
+    t: NDArray[np.float64] = np.arange(n_samples + 2, dtype=np.float64) * dt
     tau = ramp_seconds(t, ramp)
     at = tau / (dt / q)
     grid = np.arange(len(fine))
