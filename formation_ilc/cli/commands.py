@@ -176,8 +176,8 @@ def _add_simulate(sub: Any) -> None:
                         "filter keeps (default p3dx)")
     p.add_argument("--safety-margin", type=nonneg_float, default=0.1, metavar="M",
                    help="with --safety: the least gap [m] between two robots' covering discs")
-    p.add_argument("--safety-learning", choices=("applied", "freeze", "ignore"),
-                   default="applied",
+    p.add_argument("--safety-learning", choices=("applied", "split", "freeze", "ignore"),
+                   default=None,
                    help="with --safety: how the memory learns where the filter changed a "
                         "command (docs/safety.md)")
     p.add_argument("--out", type=out_dir_arg, metavar="DIR",
@@ -581,7 +581,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                               f"{exc.strerror or exc}") from None
     clear_rows: list[Any] = []
     safety = _safety_spec(args, sc)
-    footprint = args.footprint or (args.body if safety is not None else None)
+    args.footprint = footprint = args.footprint or (args.body if safety is not None else None)
     on_data = _with_clearance(footprint, None if recorder is None else recorder.trial,
                               clear_rows)
     t0 = time.perf_counter()
@@ -619,6 +619,9 @@ def _safety_spec(args: argparse.Namespace, sc: Any) -> Any:
     from formation_ilc.config.safety import SafetySettings
     from formation_ilc.model.safety import body_limits, desired_clearance, spec_of
 
+    from formation_ilc.config.safety import default_learning
+
+    args.safety_learning = args.safety_learning or default_learning(args.body)
     spec = spec_of(SafetySettings(args.body, body_limits(args.body), args.safety_margin,
                                   args.safety_learning), sc.dt)
     dc = desired_clearance(sc, spec)
@@ -725,6 +728,9 @@ def _simulate_outputs(args: argparse.Namespace, sc: Scenario, res: Any, log: Tri
         "seconds": elapsed, "ms_per_trial": 1000 * elapsed / k,
         "memory_writes": keeper.writes,
     }
+    if getattr(args, "safety", False):
+        summary["safety"] = {"body": args.body, "margin": args.safety_margin,
+                             "learning": args.safety_learning}
     files = ["metrics.csv", "summary.json", "trajectories.npz", "memory.npz"]
     clear_line = None
     if clear_rows:

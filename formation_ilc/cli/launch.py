@@ -245,10 +245,13 @@ def add_safety_arguments(p: argparse.ArgumentParser) -> None:
                         "(default p3dx); other plants know their own")
     g.add_argument("--safety-margin", type=nonneg_float, default=0.1, metavar="M",
                    help="least gap [m] between two robots' covering discs (default 0.1)")
-    g.add_argument("--safety-learning", choices=LEARNING, default="applied",
+    g.add_argument("--safety-learning", choices=LEARNING, default=None,
                    help="how the memory learns where the filter changed a command: applied "
-                        "(default: from the command the robot really drove), freeze (no "
-                        "learning at those samples), ignore (as if unchanged; winds up)")
+                        "(from the command the robot really drove; the default on two "
+                        "wheels), split (from it where a limit clipped the command, not at "
+                        "all where a barrier moved it; the default on skid steer: husky, "
+                        "jackal), freeze (no learning at those samples), ignore (as if "
+                        "unchanged; winds up). docs/safety.md compares them")
     g.add_argument("--on-contact", choices=("stop", "abort", "continue"), default="stop",
                    help="with --plant physics, when two robots touch or one tilts past "
                         "--tilt-limit: stop (default): stop the robots, abort the trial and "

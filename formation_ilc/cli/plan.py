@@ -25,7 +25,7 @@ from typing import Any
 from formation_ilc.cli.options import OptionError
 from formation_ilc.cli.secure import SecureRun
 from formation_ilc.config.runconfig import RunConfig, make_config, param_text, scenario_reference
-from formation_ilc.config.safety import SafetySettings
+from formation_ilc.config.safety import SafetySettings, default_learning
 from formation_ilc.config.scenario import Scenario, ScenarioError
 from formation_ilc.config.team import BRIDGED, Team
 from formation_ilc.core.names import (
@@ -603,7 +603,8 @@ def _safety(opts: argparse.Namespace, sc: Scenario, namespace: str,
     limits = limits.tighter(Limits())
     try:
         return SafetySettings(body, limits, float(getattr(opts, "safety_margin", 0.1)),
-                              str(getattr(opts, "safety_learning", "applied")),
+                              getattr(opts, "safety_learning", None)
+                              or default_learning(body),
                               "peers" if opts.plant in BRIDGED else "team")
     except ValueError as exc:
         raise NoRun(f"--safety: {exc}") from None

@@ -27,11 +27,19 @@ from formation_ilc.core.clock import Rejected
 from formation_ilc.core.limits import Limits
 from formation_ilc.core.safety import LEARNING
 
-__all__ = ["SafetySettings", "SENSING", "BODIES"]
+__all__ = ["SafetySettings", "SENSING", "BODIES", "SKID_STEER", "default_learning"]
 
 SENSING = ("team", "peers")
 #: bodies the filter knows (``model.footprint.BODIES``, kept here for the config layer)
 BODIES = ("p3dx", "husky", "turtlebot3", "turtlebot4", "jackal")
+#: the skid-steer bodies among them
+SKID_STEER = ("husky", "jackal")
+
+
+def default_learning(body: str) -> str:
+    """How a team of ``body`` robots learns through its filter unless told otherwise
+    (docs/safety.md measured it): ``applied`` on two wheels, ``split`` on skid steer."""
+    return "split" if body in SKID_STEER else "applied"
 
 
 @dataclass(frozen=True)

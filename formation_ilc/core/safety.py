@@ -35,11 +35,21 @@ clipped to the box) and the sample is flagged ``INFEASIBLE``.
 
 Learning through the filter (``LEARNING``): the memory must not wind up where the filter
 overrode the learned command. ``learn_base`` gives the memory the learning step starts
-from: ``applied`` (default) adds what the filter changed, m + (u_applied - u_nominal), so
-the memory learns from the command the robot really drove (the anti-windup of ILC with
-input saturation); ``freeze`` keeps the old memory at overridden samples
-(``freeze_flagged``); ``ignore`` learns as if nothing had been changed (winds up; for
-comparison). docs/safety.md has the measurements that chose ``applied``.
+from, ``freeze_flagged`` restores it where nothing may be learned:
+
+* ``applied``: m + (u_applied - u_nominal) at every changed sample, so the memory learns
+  from the command the robot really drove (the anti-windup of ILC with input saturation);
+* ``freeze``: the old memory at every changed sample;
+* ``split``: ``applied`` where only a limit clipped the command (a saturation, the same
+  from trial to trial: anti-windup is right), ``freeze`` where a barrier moved it (another
+  robot was in the way: a state of this trial, not of the task);
+* ``ignore``: learns as if nothing had been changed (winds up; for comparison).
+
+docs/safety.md has the measurements behind the default (``config.safety.default_learning``):
+``applied`` for two-wheel bodies, where it learns fastest and the filter's work falls to
+zero as the team converges; ``split`` for skid-steer bases (Husky, Jackal), whose
+acceleration limits let a barrier change a command by metres a second within a sample,
+and where ``applied`` then stalls.
 
 Units: metres, seconds, radians. Robots' poses (x, y, theta) are their tracked points.
 """
@@ -60,8 +70,8 @@ __all__ = ["SafetySpec", "LEARNING", "CHANGED_LIMITS", "CHANGED_BARRIER", "INFEA
            "freeze_flagged", "learning_code", "PARAMS", "MAX_DISCS"]
 
 #: how the memory learns at samples the filter changed
-LEARNING = ("applied", "freeze", "ignore")
-APPLIED, FREEZE, IGNORE = 0, 1, 2
+LEARNING = ("applied", "freeze", "ignore", "split")
+APPLIED, FREEZE, IGNORE, SPLIT = 0, 1, 2, 3
 
 #: flags of one filtered command (bitwise or)
 CHANGED_LIMITS = 1     # the learned command left the box of the base's limits
@@ -405,7 +415,8 @@ def learn_base(mode: int, memory: NDArray[np.float64], nominal: NDArray[np.float
         for t in range(memory.shape[1]):
             for c in range(2):
                 x = memory[r, t, c]
-                if mode == APPLIED and flags[r, t] != 0:
+                f = flags[r, t]
+                if f != 0 and (mode == APPLIED or (mode == SPLIT and f == CHANGED_LIMITS)):
                     x += applied[r, t, c] - nominal[r, t, c]
                 out[r, t, c] = x
 
@@ -413,11 +424,13 @@ def learn_base(mode: int, memory: NDArray[np.float64], nominal: NDArray[np.float
 @njit(cache=True)
 def freeze_flagged(mode: int, memory: NDArray[np.float64], flags: NDArray[np.int64],
                    learned: NDArray[np.float64]) -> None:
-    """``freeze``: the learned memory keeps the old one at every flagged sample."""
-    if mode != FREEZE:
+    """``freeze``: the learned memory keeps the old one at every flagged sample; ``split``:
+    at every sample where a barrier acted."""
+    if mode != FREEZE and mode != SPLIT:
         return
     for r in range(memory.shape[0]):
         for t in range(memory.shape[1]):
-            if flags[r, t] != 0:
+            f = flags[r, t]
+            if (mode == FREEZE and f != 0) or (mode == SPLIT and f & CHANGED_BARRIER):
                 learned[r, t, 0] = memory[r, t, 0]
                 learned[r, t, 1] = memory[r, t, 1]

@@ -93,6 +93,11 @@ def test_the_safety_filter_is_on_with_bodies_and_lets_the_cold_start_run(tmp_pat
     assert plan_of(tmp_path / "s", "paper-triangle3").config.safety is None
     on = plan_of(tmp_path / "t", "paper-triangle3", "--safety", "--body", "jackal")
     assert on.config.safety is not None and on.config.safety.body == "jackal"
+    # how the memory learns through the filter: by body, as measured (docs/safety.md)
+    assert sf.learning == "applied" and on.config.safety.learning == "split"
+    told = plan_of(tmp_path / "u", "paper-triangle3", "--safety", "--safety-learning",
+                   "freeze")
+    assert told.config.safety is not None and told.config.safety.learning == "freeze"
 
 
 @pytest.mark.parametrize(("args", "says"), [

@@ -23,6 +23,7 @@ from formation_ilc.core.safety import (
     SafetySpec,
     closing_speed,
     filter_command,
+    freeze_flagged,
     learn_base,
     motion,
 )
@@ -216,6 +217,18 @@ def test_learn_base_modes():
     np.testing.assert_array_equal(out[0, [0, 2]], 0.0)
     learn_base(1, mem, nominal, applied, flags, out)  # freeze: the memory itself
     np.testing.assert_array_equal(out, mem)
+    # split: from the applied command where only a limit clipped it; a barrier's sample
+    # starts from the memory and keeps it after the step
+    flags = np.array([[CHANGED_LIMITS, CHANGED_BARRIER, CHANGED_LIMITS | CHANGED_BARRIER]])
+    applied[0, 0] = 0.5
+    applied[0, 2] = 0.75
+    learn_base(3, mem, nominal, applied, flags, out)
+    np.testing.assert_array_equal(out[0, 0], [-0.5, -0.5])
+    np.testing.assert_array_equal(out[0, 1:], 0.0)
+    learned = np.full_like(mem, 9.0)
+    freeze_flagged(3, mem, flags, learned)
+    np.testing.assert_array_equal(learned[0, 0], 9.0)  # learned where a limit clipped
+    np.testing.assert_array_equal(learned[0, 1:], 0.0)  # kept where a barrier acted
 
 
 def test_spec_validates_its_fields():
