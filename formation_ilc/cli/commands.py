@@ -616,10 +616,8 @@ def _safety_spec(args: argparse.Namespace, sc: Any) -> Any:
     """``simulate --safety``: the filter of ``--body`` with its own limits, or None."""
     if not getattr(args, "safety", False):
         return None
-    from formation_ilc.config.safety import SafetySettings
+    from formation_ilc.config.safety import SafetySettings, default_learning
     from formation_ilc.model.safety import body_limits, desired_clearance, spec_of
-
-    from formation_ilc.config.safety import default_learning
 
     args.safety_learning = args.safety_learning or default_learning(args.body)
     spec = spec_of(SafetySettings(args.body, body_limits(args.body), args.safety_margin,
