@@ -567,11 +567,13 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
     recorder = None
     if args.record is not None:
+        import msgs_schema as ms
         from formation_ilc.recordings.recording import SimRecorder
 
         try:
             args.record.parent.mkdir(parents=True, exist_ok=True)
-            recorder = SimRecorder(args.record, sc, sample_trials=set(keep), first_trial=first)
+            recorder = SimRecorder(args.record, sc, ms.recorder_table(sc.n),
+                                   sample_trials=set(keep), first_trial=first)
             from formation_ilc.nodes.observer import Observer
 
             recorder.observe(lambda cfg, sink: Observer(None, cfg, sink))

@@ -20,24 +20,19 @@ from typing import Any
 
 from formation_ilc.cli.options import OptionError, int_range
 from formation_ilc.config.enclaves import DriverTopics, Grant, TopicNames, formation_grants
+from formation_ilc.core import names as ms
 
 __all__ = ["add_parser", "run", "topic_names", "clock_topic", "grants_for"]
 
 DEFAULT_DRIVER_NS = "/pioneer_{i}"
 
 
-def clock_topic(namespace: str) -> str:
-    """Where the formation's ``/clock`` is: the launcher remaps it into any namespace but
-    the default one (``launch.ros_args``)."""
-    import msgs_schema as ms
-
-    return ms.CLOCK if namespace == ms.NAMESPACE else f"{namespace.rstrip('/')}{ms.CLOCK}"
+#: where the formation's ``/clock`` is in a namespace (``core.names.clock_topic``)
+clock_topic = ms.clock_topic
 
 
 def topic_names(namespace: str) -> TopicNames:
-    """The schema's topic names (``msgs_schema``, which imports ROS) for the pure grants."""
-    import msgs_schema as ms
-
+    """The schema's topic names (``formation_ilc.core.names``) for the grants."""
     return TopicNames(
         config=ms.CONFIG, reference=ms.REFERENCE, trial_events=ms.TRIAL_EVENTS,
         ready=ms.READY, diagnostics=ms.DIAGNOSTICS, clock=clock_topic(namespace),
@@ -45,16 +40,14 @@ def topic_names(namespace: str) -> TopicNames:
         link=ms.link_topic, trajectory=ms.trajectory_topic,
         true_trajectory=ms.true_trajectory_topic,
         recorded=lambda n: [clock_topic(namespace) if t == ms.CLOCK else t
-                            for t, _, _ in ms.topic_table(n)],
-        leader=ms.LEADER, view=lambda n: [t for t, _, _ in ms.view_topic_table(n)],
+                            for t in ms.recorded_topics(n)],
+        leader=ms.LEADER, view=ms.view_topics,
         preview=ms.PREVIEW)
 
 
 def grants_for(scenario: Any, namespace: str, *, plant: str = "sim", driver: str = "rosaria",
                driver_ns: str = DEFAULT_DRIVER_NS) -> dict[str, Grant]:
     """Every node's grant for ``scenario`` (a loaded Scenario) in ``namespace``."""
-    import msgs_schema as ms
-
     pioneer = None
     if plant == "pioneer":
         spec = ms.DRIVERS[driver]
@@ -98,7 +91,6 @@ def add_parser(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """``keystore create``: exit 0, or 2 with one line on a bad scenario or keystore."""
-    import msgs_schema as ms
     from formation_ilc.config.scenario import load_scenario
     from formation_ilc.store.keystore import KeystoreError, create
 

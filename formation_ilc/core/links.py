@@ -29,14 +29,13 @@ from numpy.typing import NDArray
 
 from formation_ilc.core._jit import njit
 from formation_ilc.core.clock import Malformed, Rejected, SampleClock
-from formation_ilc.core.names import robot_name, robot_number  # re-exported: their owner
+from formation_ilc.core.names import LEADER, robot_name, robot_number  # re-exported: their owner
 
 __all__ = ["LEADER", "LINK_MODES", "robot_name", "robot_number", "link_name",
            "delivered_label", "Delivery", "LinkInbox", "DELAY_COLUMNS", "link_histograms",
            "delay_rows", "write_delays", "check_diagnostics"]
 
 #: sender name of the virtual leader's reference
-LEADER = "leader"
 LINK_MODES = ("emulated", "direct")
 
 

@@ -31,12 +31,15 @@ Thresholds (docs/ros-tools.md lists them for users):
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Mapping
+from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from formation_ilc.core.clock import Malformed
+
 __all__ = ["OK", "WARN", "ERROR", "Status", "flatten", "unflatten", "assess", "statuses",
-           "MISSED_ERROR", "LATENCY_WARN", "WARN_DROPS"]
+           "MISSED_ERROR", "LATENCY_WARN", "WARN_DROPS", "DIAG_STATUS_MAX", "DIAG_VALUES_MAX",
+           "read_statuses", "node_report"]
 
 OK, WARN, ERROR = 0, 1, 2
 LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR"}
@@ -47,6 +50,9 @@ LATENCY_WARN = 0.5
 #: drop reasons that turn a status to WARN
 WARN_DROPS = ("malformed", "foreign")
 _SEP = "."
+#: the most statuses and key/value pairs a diagnostics message may carry to be read
+DIAG_STATUS_MAX = 1024
+DIAG_VALUES_MAX = 100_000
 
 
 @dataclass
@@ -174,3 +180,38 @@ def statuses(d: Mapping[str, Any], dt: float | None = None, samples: int | None 
             out.append(Status(lv, f"{name}: {robot}", msg, str(robot),
                               {"robot": robot, "trial": d.get("trial"), "missed": count}))
     return out
+
+
+#: one status as a message carries it: (level, name, message, hardware_id, [(key, value)])
+StatusFields = tuple[int, str, str, str, Collection[tuple[str, str]]]
+
+
+def read_statuses(rows: Collection[StatusFields]) -> list[Status]:
+    """Every status of a diagnostics message (``rows`` as the message carries them) with its
+    fields back; Malformed if one's values are not the pairs ``flatten`` writes, or there
+    are too many (counted before a pair is read). ``msgs_schema.msg_to_statuses`` reads a
+    message object with it, ``recordings`` the bytes (``wire.read_diagnostics``)."""
+    if len(rows) > DIAG_STATUS_MAX:
+        raise Malformed(f"{len(rows)} statuses in one diagnostics message")
+    out = []
+    for level, name, message, hardware_id, pairs in rows:
+        if len(pairs) > DIAG_VALUES_MAX:
+            raise Malformed(f"{len(pairs)} values in one status")
+        try:
+            values = unflatten(pairs)
+        except (ValueError, RecursionError) as exc:
+            raise Malformed(f"status {name[:100]!r}: {exc}"[:200]) from None
+        out.append(Status(level, name, message, hardware_id, values))
+    return out
+
+
+def node_report(found: Sequence[Status], required: Sequence[str] = ()) -> dict[str, Any]:
+    """The node's own report among a message's statuses (the status that names its
+    ``node``); Malformed if there is none or it lacks a key of ``required``."""
+    for st in found:
+        if "node" in st.values:
+            missing = [k for k in required if k not in st.values]
+            if missing:
+                raise Malformed(f"diagnostics lack {missing}")
+            return st.values
+    raise Malformed("diagnostics without a node's report")

@@ -25,9 +25,9 @@ def test_quaternion_at_the_tolerance_boundary_is_accepted():
     # |x|, |y| and | |q| - 1 | exactly at 1e-6 are accepted (the rule is "more than")
     for x, y in ((1e-6, 0.0), (0.0, 1e-6)):
         w = math.sqrt(1.0 - x * x - y * y)
-        assert ms._heading_from_quaternion(x, y, 0.0, w, None) == pytest.approx(0.0, abs=1e-5)
+        assert ms.wire.heading_from_quaternion(x, y, 0.0, w, None) == pytest.approx(0.0, abs=1e-5)
     with pytest.raises(ms.MalformedMessage):
-        ms._heading_from_quaternion(0.0, 0.0, 0.6, 0.6, None)  # |q| = 0.85
+        ms.wire.heading_from_quaternion(0.0, 0.0, 0.6, 0.6, None)  # |q| = 0.85
 
 
 def test_pose_message_is_planar():
