@@ -5,17 +5,23 @@
 
 It reads the code that the roster replaced, so it runs only on a checkout from before it.
 """
-import json, socket, sys, tempfile
+import json
+import socket
+import sys
+import tempfile
 from pathlib import Path
+
 from formation_ilc.cli.commands import build_parser
-from formation_ilc.cli.plan import build_plan
 from formation_ilc.cli.keystore import grants_for
+from formation_ilc.cli.plan import build_plan
 from formation_ilc.config.scenario import load_scenario
-from formation_ilc.config.team import Team
+from formation_ilc.config.team import Team  # type: ignore[import-not-found]
+
 
 def free_port():
     with socket.socket() as s:
-        s.bind(("127.0.0.1", 0)); return s.getsockname()[1]
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
 
 def combos():
     for plant in ("sim", "physics", "external", "pioneer", "base"):
@@ -28,7 +34,8 @@ def combos():
     yield "sim", "emulated", False, False, ("--mode", "realtime")
     yield "external", "direct", False, False, ("--plant-nodes", "my_plant", "other")
     yield "pioneer", "direct", False, False, ("--fake-drivers",)
-    yield "pioneer", "direct", True, True, ("--fake-drivers", "--driver", "ros2aria", "--driver-ns", "/p{i}")
+    yield "pioneer", "direct", True, True, ("--fake-drivers", "--driver", "ros2aria",
+                                            "--driver-ns", "/p{i}")
     yield "base", "direct", False, False, ("--physics-bases",)
     yield "base", "direct", True, False, ("--physics-bases", "--base", "jackal")
 
@@ -44,16 +51,18 @@ def plan_answers(tmp):
             argv = ["launch", scen, "--plant", plant, "--links", links, "--domain-id", "42",
                     "--trials", "2", "--out", str(tmp / "run"), "--allow-contact", *extra]
             if plant in ("pioneer", "base"):
-                argv += ["--v-max", "50", "--omega-max", "5000", "--a-max", "50", "--alpha-max", "50000"]
+                argv += ["--v-max", "50", "--omega-max", "5000", "--a-max", "50",
+                         "--alpha-max", "50000"]
             if record:
                 argv += ["--record", str(tmp / "run.mcap")]
             port = None
             if live:
-                port = free_port(); argv += ["--live", str(port)]
+                port = free_port()
+                argv += ["--live", str(port)]
             args = build_parser().parse_args(argv)
             args.run_id = "rgolden"
             plan = build_plan(args)
-            def norm(x):
+            def norm(x, port=port):
                 s = json.dumps(x, default=str)
                 s = s.replace(str(tmp), "<tmp>").replace(sys.executable, "<python>")
                 if port is not None:
@@ -68,7 +77,8 @@ def plan_answers(tmp):
                 "nodes": [{"name": s.name, "module": s.module, "args": s.args,
                            "remaps": s.remaps, "params": s.params, "passive": s.passive,
                            "optional": s.optional, "host": s.host, "env": s.env,
-                           "restart": [s.restart.max_restarts, s.restart.refused]} for s in plan.nodes]})
+                           "restart": [s.restart.max_restarts, s.restart.refused]}
+                          for s in plan.nodes]})
     return out
 
 def team_answers():
