@@ -19,7 +19,7 @@ links : str
     subscribe to each other; the network's delays).
 nodes_expected : list of node names that must report ready before a trial starts
     (default: every robot_i, robot_sim, and link_emulator with emulated links; in
-    wallclock every robot_i and bridge_i: ``formation_ilc.config.team``).
+    wallclock every robot_i and bridge_i: the team of ``formation_ilc.config.roster``).
 monitored : bool
     A monitor (the launcher) reads trajectories: nodes wait for it before trial 0.
 state_dir : str
@@ -83,8 +83,9 @@ from std_msgs.msg import String
 
 import msgs_schema as ms
 from formation_ilc.config import params
+from formation_ilc.config.plants import default_plant
+from formation_ilc.config.roster import Lineup, roster
 from formation_ilc.config.runconfig import PARAMS, RunConfig
-from formation_ilc.config.team import Team, default_plant
 from formation_ilc.core.clock import Rejected, WallGrid
 from formation_ilc.core.names import LEADER_NODE
 from formation_ilc.nodes.common import (
@@ -128,8 +129,9 @@ class LeaderNode(Node):
         self.T = sc.samples
         self.trials = sc.trials
         expected = [str(e) for e in g("nodes_expected") if e]
-        self.expected = expected if expected else Team.of(
-            sc.n, plant=default_plant(self.cfg.mode), links=self.cfg.links).expected
+        self.expected = expected if expected else roster(Lineup(
+            sc.n, plant=default_plant(self.cfg.mode), links=self.cfg.links,
+            monitor=False)).team.expected
         # who reads the reference: the link emulator, or each robot that sees the leader
         # (none in lockstep with direct links: RunConfig.leader_in_step)
         self.ref_readers = (1 if self.cfg.links == "emulated"

@@ -80,8 +80,8 @@ from formation_ilc.cli.supervisor import (
     resume_hint,
     trial_ranges,
 )
+from formation_ilc.config.plants import PLANT_TABLE, PLANTS
 from formation_ilc.config.runconfig import MODES
-from formation_ilc.config.team import PLANTS
 from formation_ilc.core.links import LINK_MODES
 from formation_ilc.protocol.watchdog import Bounds
 from formation_ilc.system.exits import DISK_FULL, STUCK, is_disk_full
@@ -107,14 +107,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "neighbours, as on robots, and the delays are the network's (a "
                         "lockstep run equals `simulate --no-delay`; the default and required "
                         "with --plant pioneer)")
-    p.add_argument("--plant", choices=PLANTS, default="sim",
-                   help="sim (default): start the kinematic simulator; physics: the PyBullet "
-                        "rigid-body plant (docs/physics.md); external: another "
-                        "process speaks the plant contract (docs/distributed-stack.md) and "
-                        "says ready as one of --plant-nodes; pioneer: one Pioneer bridge per "
-                        "robot (formation-ilc-bridge, docs/real-robots.md) in front of a "
-                        "driver (--driver), wall-clock trials, direct links; base: the same "
-                        "bridges in front of any differential-drive base (--base)")
+    p.add_argument("--plant", choices=PLANTS, default=PLANTS[0],
+                   help="; ".join(f"{row.name}{' (default)' if row.name == PLANTS[0] else ''}: "
+                                  f"{row.help}" for row in PLANT_TABLE))
     add_plant_arguments(p)
     p.add_argument("--driver", choices=("rosaria", "p2os2", "ros2aria"), default="rosaria",
                    help="with --plant pioneer: the robots' driver (default rosaria)")
@@ -656,7 +651,7 @@ class _Session:
         """_Refused, said why, when another formation runs on this domain and namespace
         (an external plant's nodes are ours)."""
         plan = self.plan
-        allowed = set(plan.team.plants) if plan.plant == "external" else set()
+        allowed = {m.name for m in plan.roster.by_role("plant") if m.entry is None}
         others = _foreign(self.monitor, plan.namespace, wait, allowed)
         if others:
             print(f"error: another formation runs on ROS_DOMAIN_ID={plan.domain} in namespace "

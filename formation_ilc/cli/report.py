@@ -50,7 +50,7 @@ def summary_of(plan: RunPlan, rows: int, diagnostics: Mapping[str, Mapping[str, 
     if plan.bridged:
         summary["bridges"] = {b: {key: diagnostics.get(b, {}).get(key) for key in BRIDGE_KEYS}
                               for b in plan.team.plants}
-    if plan.plant == "physics":
+    if plan.row.physics:
         summary["physics"] = {key: sim_diag.get(key) for key in PHYSICS_KEYS}
     if plan.init_memory is not None:
         summary["init_memory"] = str(plan.init_memory)

@@ -29,12 +29,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from formation_ilc.config.enclaves import Grant, driver_enclave, enclave_path
 from formation_ilc.config.plants import Plant, plant
 from formation_ilc.core import names as nm
 from formation_ilc.core.topology import Graph
 
-__all__ = ["TRIAL", "ONCE", "NEVER", "Member", "Lineup", "Roster", "Team", "Grant",
-           "roster", "driver_enclave", "enclave_path", "DRIVER_NS", "ENTRY_SCRIPTS"]
+__all__ = ["TRIAL", "ONCE", "NEVER", "Member", "Lineup", "Roster", "Team", "roster",
+           "DRIVER_NS", "ENTRY_SCRIPTS"]
 
 #: whether the leader waits for a member's ready: before each trial, once for the whole
 #: run (a passive reader: the monitor, the recorder), or never
@@ -42,8 +43,6 @@ TRIAL, ONCE, NEVER = "trial", "once", "never"
 
 #: robot i's driver namespace by the bridges' driver kind (``{i}``: the robot's number)
 DRIVER_NS = {"pioneer": "/pioneer_{i}", "base": "/base_{i}"}
-#: robot i's driver runs in this enclave (its node name is the driver's own)
-DRIVER_ENCLAVE_PREFIX = "driver_"
 
 #: the entry scripts of the processes the launcher starts (``pyproject.toml`` names their
 #: modules; ``formation_ilc.cli.plan`` starts each as ``python -m MODULE``)
@@ -51,18 +50,6 @@ ENTRY_SCRIPTS = ("formation-ilc-leader", "formation-ilc-robot", "formation-ilc-s
                  "formation-ilc-physics", "formation-ilc-links", "formation-ilc-record",
                  "formation-ilc-liveview", "formation-ilc-bridge",
                  "formation-ilc-fake-pioneer", "formation-ilc-physics-bases")
-
-
-def driver_enclave(i: int) -> str:
-    """The enclave of robot ``i``'s driver: ``driver_i`` (a real driver's, or the fake
-    one's, whatever its node name)."""
-    return f"{DRIVER_ENCLAVE_PREFIX}{int(i)}"
-
-
-def enclave_path(namespace: str, name: str) -> str:
-    """``/formation/robot_1``: the enclave of node ``name`` of the formation in
-    ``namespace``."""
-    return f"{namespace.rstrip('/')}/{name}"
 
 
 @dataclass(frozen=True)
@@ -181,23 +168,6 @@ class Team:
     def expected(self) -> list[str]:
         """Every node the schedule waits for (the leader's ``nodes_expected``)."""
         return [*self.robots, *self.plants, *self.support, *self.passive]
-
-
-@dataclass(frozen=True)
-class Grant:
-    """What one node may do: its enclave, its node name and namespace, and the ROS topic
-    names (absolute) it may publish and subscribe; services as DDS names (rq/, rr/)."""
-
-    enclave: str
-    node: str
-    node_namespace: str
-    publish: tuple[str, ...]
-    subscribe: tuple[str, ...]
-    dds_publish: tuple[str, ...] = ()
-    dds_subscribe: tuple[str, ...] = ()
-    #: the node name its ROS housekeeping (services) runs under; ``*``: any node in
-    #: ``node_namespace`` (a driver whose node name is the driver's own)
-    service_node: str = ""
 
 
 @dataclass(frozen=True)

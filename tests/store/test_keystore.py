@@ -14,20 +14,19 @@ import numpy as np
 import pytest
 from cryptography import x509
 
-from formation_ilc.config.enclaves import formation_grants
 from formation_ilc.store.keystore import (
     KeystoreError,
     create,
     enclave_dir,
     verify,
 )
-from tests.config.test_enclaves import ADJ, LEADER, NS, names
+from tests.config.test_enclaves import ADJ, LEADER, NS, grants_of
 
 ROBOT2 = f"{NS}/robot_2"
 
 
 def grants(adj=ADJ, leader=LEADER):
-    return formation_grants(adj, leader, names(), NS)
+    return grants_of(adj, leader)
 
 
 def four_robots():
