@@ -567,16 +567,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
     recorder = None
     if args.record is not None:
-        import msgs_schema as ms
-        from formation_ilc.recordings.recording import SimRecorder
+        from formation_ilc.nodes.observer import sim_recorder
 
         try:
             args.record.parent.mkdir(parents=True, exist_ok=True)
-            recorder = SimRecorder(args.record, sc, ms.recorder_table(sc.n),
-                                   sample_trials=set(keep), first_trial=first)
-            from formation_ilc.nodes.observer import Observer
-
-            recorder.observe(lambda cfg, sink: Observer(None, cfg, sink))
+            recorder = sim_recorder(args.record, sc, set(keep), first)
         except OSError as exc:
             log.close()
             raise OptionError(f"--record {args.record}: cannot write: "

@@ -489,7 +489,8 @@ class Diverged(Exception):
 
 
 class _Session:
-    """One execution of a plan: the metrics file, the supervisor, the monitor node."""
+    """One execution of a plan: the metrics file, the supervisor, and the ROS host with the
+    monitor node (``formation_ilc.nodes.host``)."""
 
     def __init__(self, plan: RunPlan, env: dict[str, str],
                  place: Callable[[NodeSpec], list[str]] | None):
@@ -504,8 +505,7 @@ class _Session:
                             if i > 0 and c not in COUNT_COLUMNS
                             and (plan.true_state or c not in TRUE_COLUMNS)]
         self.supervisor = Supervisor(plan, env, place, on_down=self._down)
-        self.monitor: Any = None
-        self.down_pub: Any = None
+        self.host: Any = None
         self.diagnostics: dict[str, dict[str, Any]] = {}
 
     def _metrics(self) -> tuple[list[Any], Any]:
@@ -530,7 +530,8 @@ class _Session:
 
     def rows(self) -> list[Any]:
         """Every finished trial's metrics row, by iteration (a resumed run's first)."""
-        got = self.monitor.rows if self.monitor is not None else {}
+        monitor = self.host.monitor if self.host is not None else None
+        got = monitor.rows if monitor is not None else {}
         return list(self.kept) + [got[k] for k in sorted(got)]
 
     def on_trial(self, k: int, row: np.ndarray) -> None:
@@ -551,29 +552,22 @@ class _Session:
     def _down(self, name: str, pid: int) -> None:
         """Tell the leader at once that a passive node died, so that no trial starts
         without it (the recorder: no trial unrecorded)."""
-        import msgs_schema as ms
-        from formation_ilc.protocol.schedule import Ready
-
-        cfg = self.plan.config
-        self.down_pub.publish(ms.json_to_msg(Ready(
-            name, cfg.scenario.trials, str(pid), passive=True, run=cfg.run_id,
-            down=True).to_json()))
+        self.host.down(name, pid)
 
     def run(self, pb: Any) -> int:
         """Start the nodes, follow the trials to the end; the exit status (the outputs
         are the caller's)."""
-        import rclpy
-        from rclpy.signals import SignalHandlerOptions
+        from formation_ilc.nodes.host import LauncherHost
 
         def on_term(signum: int, frame: Any) -> None:
             raise KeyboardInterrupt
 
         signal.signal(signal.SIGTERM, on_term)
-        if self.plan.secure is not None:  # the monitor joins in its own enclave
-            self.plan.secure.enter_launcher()
-        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+        self.host = LauncherHost(self.plan, self.on_trial, first=self.done,
+                                 on_contact=self.on_contact)
         status = 0
         try:
+            self.host.start()
             status = self._follow(pb)
         except _Refused:
             status = 2
@@ -595,33 +589,17 @@ class _Session:
         finally:
             self.supervisor.stop()
             self.writer.close()
-            if self.monitor is not None:
-                self.diagnostics = dict(self.monitor.diagnostics)
-                self.monitor.destroy_node()
-            rclpy.try_shutdown()
+            self.diagnostics = self.host.close()
         return status
 
     def _follow(self, pb: Any) -> int:
         """The monitor joins, the nodes start, and the run is followed until every trial
         and report is in (or the wait for them is over), or a node fails for good."""
-        from rclpy.experimental import EventsExecutor
-        from std_msgs.msg import String
-
-        import msgs_schema as ms
-        from formation_ilc.nodes.common import warm_up
-        from formation_ilc.nodes.monitor import MonitorNode
-
-        plan = self.plan
-        self.monitor = monitor = MonitorNode(plan.config, self.on_trial,
-                                             true_state=plan.true_state,
-                                             namespace=plan.namespace, first=self.done,
-                                             on_contact=self.on_contact)
-        self.down_pub = monitor.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        ex = EventsExecutor()
-        ex.add_node(monitor)
+        plan, host = self.plan, self.host
+        monitor = host.monitor
         # discovery runs while the kernels compile; then look for another formation here
         t_node = time.monotonic()
-        warm_up(pb)  # compile the kernels once, into the numba cache every node then loads
+        host.warm_up(pb)  # compile the kernels once, into the numba cache every node loads
         self._refuse_foreign(max(0.0, 1.5 - (time.monotonic() - t_node)))
         self.supervisor.start()
         final_deadline: float | None = None
@@ -630,7 +608,7 @@ class _Session:
                                      plan.watchdog_scale), plan.out, len(plan.team.expected),
                       plan.scenario.trials)
         while True:
-            ex.spin_once(timeout_sec=0.05)
+            host.spin_once(0.05)
             stuck = watch.tick(monitor, time.monotonic())
             if stuck is not None:
                 print(f"error: {stuck}", file=sys.stderr)
@@ -652,7 +630,7 @@ class _Session:
         (an external plant's nodes are ours)."""
         plan = self.plan
         allowed = {m.name for m in plan.roster.by_role("plant") if m.entry is None}
-        others = _foreign(self.monitor, plan.namespace, wait, allowed)
+        others = self.host.foreign(wait, allowed)
         if others:
             print(f"error: another formation runs on ROS_DOMAIN_ID={plan.domain} in namespace "
                   f"{plan.namespace} ({', '.join(sorted(others)[:6])}"
@@ -684,18 +662,3 @@ def progress_line(k: int, plan: RunPlan, row: np.ndarray) -> str:
     if plan.physics is not None and not np.isnan(col["contacts"]):
         line += f"  contacts {int(col['contacts'])}"
     return line
-
-
-def _foreign(node: Any, namespace: str, wait: float, allowed: set[str]) -> list[str]:
-    """Nodes of another formation in ``namespace`` on this domain (other than ``allowed``:
-    an external plant's), after giving discovery ``wait`` seconds."""
-    import msgs_schema as ms
-
-    deadline = time.monotonic() + wait
-    while time.monotonic() < deadline:
-        time.sleep(0.05)
-    found = [f"{ns.rstrip('/')}/{name}" for name, ns in node.get_node_names_and_namespaces()
-             if ns == namespace and name != node.get_name() and name not in allowed]
-    if node.count_publishers(ms.absolute(ms.CONFIG, namespace)) and not found:
-        found.append(ms.absolute(ms.CONFIG, namespace))
-    return found

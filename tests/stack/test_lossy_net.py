@@ -30,8 +30,8 @@ from formation_ilc.cli import main
 from formation_ilc.config.scenario import load_scenario
 from formation_ilc.core.metrics import read_metrics
 from formation_ilc.model.simulate import simulate
+from formation_ilc.system import delayer as dl
 from formation_ilc.system.netns import LinkFaults, NetnsError, hold_quantiles, support_problem
-from robot_sim import delayer as dl
 
 from ..procs import processes, stop_group
 from .test_realtime import SEED, short_scenario
