@@ -211,15 +211,15 @@ def test_leader_names_the_endpoints_its_start_waits_for(context):
     with leader_and_tester(context, "realtime") as (leader, tester, ex):
         leader._gate.cancel()  # no start: what it waits for is the question
         all_ready(leader)
-        assert not leader.sched.explain_wait(leader.refused)  # every node is ready
-        waits = leader._start_waits_for()
+        assert not leader.core.sched.explain_wait(leader.core.refused)  # every node is ready
+        waits = leader.core.start_waits_for()
         ref = f"{ms.NAMESPACE}/{ms.REFERENCE}"
         assert f"{ref}: 0 of 1 readers" in waits  # robot 1 sees the leader
         assert "/clock: 0 of 1 writers" in waits  # no plant yet
         # the readers come: each phrase goes with its endpoint
         tester.create_subscription(PoseStamped, ms.REFERENCE, lambda m: None, ms.SAMPLE_QOS)
-        spin_until(ex, lambda: not any(w.startswith(ref) for w in leader._start_waits_for()))
-        assert leader._start_waits_for() == ["/clock: 0 of 1 writers"]
+        spin_until(ex, lambda: not any(w.startswith(ref) for w in leader.core.start_waits_for()))
+        assert leader.core.start_waits_for() == ["/clock: 0 of 1 writers"]
 
 
 def test_leader_sends_a_start_again_while_its_slot_does_not_move(context):
@@ -241,18 +241,19 @@ def test_leader_sends_a_start_again_while_its_slot_does_not_move(context):
         starts = lambda: [e for e in events if e["event"] == "start"]  # noqa: E731
         spin_until(ex, lambda: len(starts()) >= 1, timeout=30)
         first = starts()[0]
-        assert first["slot"] == 0 and leader.sched.running
+        assert first["slot"] == 0 and leader.core.sched.running
         # nobody sends sample 0: the same start goes out again, and again
         spin_until(ex, lambda: len(starts()) >= 3, timeout=6 * RESEND_S)
         assert all(e == first for e in starts())
-        assert leader.repeat.count >= 2
+        assert leader.core.repeat.count >= 2
         # the plant's first sample: the slot moves, the repeats stop until it stalls again
         clock_pub.publish(ms.clock_msg(first["stamp_ns"]))
-        spin_until(ex, lambda: leader.t == 0)
-        assert leader.repeat.due == leader._last_change + leader.repeat.every
-        n = leader.repeat.count
+        spin_until(ex, lambda: leader.core.t == 0)
+        assert leader.core.repeat.due == leader.core.last_change + leader.core.repeat.every
+        n = leader.core.repeat.count
         # an abort ends the slot: nothing is repeated after it
-        leader.sched.begin_abort("test")
-        leader._aborted("test")
-        assert leader.repeat.event is None and leader.repeat.again(time.monotonic() + 99) is None
-        assert leader.repeat.count == n
+        leader.core.sched.begin_abort("test")
+        leader.core.aborted("test")
+        assert (leader.core.repeat.event is None
+                and leader.core.repeat.again(time.monotonic() + 99) is None)
+        assert leader.core.repeat.count == n
