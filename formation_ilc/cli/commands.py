@@ -11,6 +11,8 @@ import math
 import os
 import sys
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -107,6 +109,7 @@ def _scenario_arg(p: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``formation-ilc`` parser: one subparser per row of ``COMMANDS``."""
     ap = OneLineParser(
         prog="formation-ilc",
         description="Distributed iterative learning control of differential-drive robot "
@@ -115,18 +118,13 @@ def build_parser() -> argparse.ArgumentParser:
                     "disturbances, noise and communication delays.",
         epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="command", metavar="COMMAND")
-
-    sub.add_parser("scenarios", help="list the built-in scenarios")
-    _add_simulate(sub)
-    _add_compare(sub)
-    _add_check(sub)
-    _add_tune(sub)
-    _add_sweep(sub)
-    _add_analyze(sub)
-    _add_mcap_repair(sub)
-    _add_keystore(sub)
-    _add_launch(sub)
+    for c in COMMANDS.values():
+        c.add(sub)
     return ap
+
+
+def _add_scenarios(sub: Any) -> None:
+    sub.add_parser("scenarios", help="list the built-in scenarios")
 
 
 def _add_simulate(sub: Any) -> None:
@@ -353,15 +351,12 @@ def _add_keystore(sub: Any) -> None:
 
 
 def _add_launch(sub: Any) -> None:
-    try:
-        from formation_ilc.cli import launch  # type: ignore[attr-defined,unused-ignore]
-    except ImportError:  # the distributed stack is not installed with this build
-        launch = None  # type: ignore[assignment]
-    if launch is not None:
-        p = sub.add_parser("launch", help="run the distributed ROS 2 stack on localhost",
-                           description=launch.__doc__,
-                           formatter_class=argparse.RawDescriptionHelpFormatter)
-        launch.add_arguments(p)
+    from formation_ilc.cli import launch
+
+    p = sub.add_parser("launch", help="run the distributed ROS 2 stack on localhost",
+                       description=launch.__doc__,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    launch.add_arguments(p)
 
 
 class Progress:
@@ -977,73 +972,102 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_scenarios(args: argparse.Namespace) -> int:
+    for name in builtin_scenarios():
+        sc = load_scenario(name)
+        print(f"{name:20s} {sc.n} robots, {sc.samples} samples of {sc.dt} s, "
+              f"{sc.trials} trials: {sc.description.strip().splitlines()[0]}")
+    return 0
+
+
+def cmd_analyze(args: argparse.Namespace) -> int:
+    from formation_ilc.cli.analyze import analyze
+    from formation_ilc.recordings.recording import recording_parts, root_of
+
+    files = [args.recording] if args.only_this_file else recording_parts(args.recording)
+    for f in files:
+        _regular_file(f)
+    if files[0] != args.recording:
+        print(f"note: {args.recording} does not exist; the run's files are "
+              f"{', '.join(f.name for f in files)}", file=sys.stderr)
+    root = root_of(args.recording)
+    if root != args.recording and not args.only_this_file:
+        print(f"note: {args.recording.name} is one part of the run recorded in "
+              f"{root.name}: `formation-ilc analyze {root}` reads every part",
+              file=sys.stderr)
+    out = make_out_dir(args.out or args.recording.with_name(args.recording.stem + "-analysis"))
+    try:
+        return analyze(files, out, plots=not args.no_plots)
+    except ValueError as exc:  # not a recording, or not one of ours
+        raise ScenarioError(" ".join(str(exc).split())) from None
+
+
+def cmd_mcap_repair(args: argparse.Namespace) -> int:
+    from formation_ilc.recordings.mcap_io import ReadReport, repair
+
+    _regular_file(args.recording)
+    dst = args.output or args.recording.with_suffix(".repaired.mcap")
+    rep = ReadReport()
+    try:
+        n = repair(args.recording, dst, rep)
+    except ValueError as exc:
+        raise ScenarioError(" ".join(str(exc).split())) from None
+    for line in rep.lines():
+        print(f"note: {args.recording}: {line}")
+    print(f"{dst}: {n} messages kept")
+    return 0
+
+
+def cmd_keystore(args: argparse.Namespace) -> int:
+    from formation_ilc.cli import keystore
+
+    return keystore.run(args)
+
+
+def cmd_launch(args: argparse.Namespace) -> int:
+    from formation_ilc.cli import launch
+
+    return int(launch.run(args))
+
+
+@dataclass(frozen=True)
+class Command:
+    """One subcommand of ``formation-ilc``: ``add(subparsers)`` registers its parser (named
+    ``name``), ``run(args)`` runs it and returns the exit status; ``interrupted`` is what
+    Ctrl-C says."""
+
+    name: str
+    add: Callable[[Any], None]
+    run: Callable[[argparse.Namespace], int]
+    interrupted: str = "interrupted; finished trials are in metrics.csv"
+
+
+#: every subcommand, in the order ``--help`` lists them: one registration each
+COMMANDS: dict[str, Command] = {c.name: c for c in (
+    Command("scenarios", _add_scenarios, cmd_scenarios),
+    Command("simulate", _add_simulate, cmd_simulate),
+    Command("compare", _add_compare, cmd_compare),
+    Command("check", _add_check, cmd_check),
+    Command("tune", _add_tune, cmd_tune),
+    Command("sweep", _add_sweep, cmd_sweep,
+            interrupted="interrupted; every finished point is kept in DIR/points: run the "
+                        "same command again to go on"),
+    Command("analyze", _add_analyze, cmd_analyze),
+    Command("mcap-repair", _add_mcap_repair, cmd_mcap_repair),
+    Command("keystore", _add_keystore, cmd_keystore),
+    Command("launch", _add_launch, cmd_launch),
+)}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
     if args.command is None:
         ap.print_help()
         return 1
+    command = COMMANDS[args.command]
     try:
-        if args.command == "scenarios":
-            for name in builtin_scenarios():
-                sc = load_scenario(name)
-                print(f"{name:20s} {sc.n} robots, {sc.samples} samples of {sc.dt} s, "
-                      f"{sc.trials} trials: {sc.description.strip().splitlines()[0]}")
-            return 0
-        if args.command == "simulate":
-            return cmd_simulate(args)
-        if args.command == "compare":
-            return cmd_compare(args)
-        if args.command == "check":
-            return cmd_check(args)
-        if args.command == "tune":
-            return cmd_tune(args)
-        if args.command == "sweep":
-            return cmd_sweep(args)
-        if args.command == "analyze":
-            from formation_ilc.cli.analyze import analyze
-            from formation_ilc.recordings.recording import recording_parts, root_of
-
-            files = ([args.recording] if args.only_this_file
-                     else recording_parts(args.recording))
-            for f in files:
-                _regular_file(f)
-            if files[0] != args.recording:
-                print(f"note: {args.recording} does not exist; the run's files are "
-                      f"{', '.join(f.name for f in files)}", file=sys.stderr)
-            root = root_of(args.recording)
-            if root != args.recording and not args.only_this_file:
-                print(f"note: {args.recording.name} is one part of the run recorded in "
-                      f"{root.name}: `formation-ilc analyze {root}` reads every part",
-                      file=sys.stderr)
-            out = make_out_dir(args.out or args.recording.with_name(args.recording.stem
-                                                                    + "-analysis"))
-            try:
-                return analyze(files, out, plots=not args.no_plots)
-            except ValueError as exc:  # not a recording, or not one of ours
-                raise ScenarioError(" ".join(str(exc).split())) from None
-        if args.command == "mcap-repair":
-            from formation_ilc.recordings.mcap_io import ReadReport, repair
-
-            _regular_file(args.recording)
-            dst = args.output or args.recording.with_suffix(".repaired.mcap")
-            rep = ReadReport()
-            try:
-                n = repair(args.recording, dst, rep)
-            except ValueError as exc:
-                raise ScenarioError(" ".join(str(exc).split())) from None
-            for line in rep.lines():
-                print(f"note: {args.recording}: {line}")
-            print(f"{dst}: {n} messages kept")
-            return 0
-        if args.command == "keystore":
-            from formation_ilc.cli import keystore
-
-            return keystore.run(args)
-        if args.command == "launch":
-            from formation_ilc.cli import launch  # type: ignore[attr-defined,unused-ignore]
-
-            return int(launch.run(args))
+        return command.run(args)
     except (ScenarioError, SpanningTreeError, OptionError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -1056,14 +1080,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        if args.command == "sweep":
-            print("\ninterrupted; every finished point is kept in DIR/points: run the same "
-                  "command again to go on", file=sys.stderr)
-        else:
-            print("\ninterrupted; finished trials are in metrics.csv", file=sys.stderr)
+        print(f"\n{command.interrupted}", file=sys.stderr)
         return 130
-    ap.error(f"unknown command {args.command}")
-    return 2
 
 
 if __name__ == "__main__":
