@@ -14,9 +14,20 @@ from formation_ilc.system.shm import clean_leftovers, fastdds_files
 _counter = itertools.count()
 
 
+#: the free range of domain ids the tests use
+DOMAINS = range(30, 101)
+
+
 def next_domain_id() -> int:
-    """Distinct per test in this run (pid + counter), within the free range 30..100."""
-    return 30 + (os.getpid() * 13 + next(_counter)) % 71
+    """Distinct per test in this run, within DOMAINS. Tests run in parallel (pytest-xdist,
+    one network namespace for all) each take ids from a share of the range of their own
+    (worker k of W: the k-th of W slices), so two tests running at once never meet."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    count = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1") or 1)
+    if not worker.startswith("gw") or count <= 1:
+        return DOMAINS[(os.getpid() * 13 + next(_counter)) % len(DOMAINS)]
+    span = len(DOMAINS) // count
+    return DOMAINS[int(worker[2:]) * span + next(_counter) % span]
 
 
 def clean_shm(before: set[str]) -> list[str]:
@@ -50,3 +61,29 @@ def context(ros_env):
     rclpy.init(context=ctx)
     yield ctx
     rclpy.try_shutdown(context=ctx)
+
+
+@pytest.fixture
+def executor(context):
+    """An executor in ``context`` and a list of nodes destroyed with it afterwards."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    ex = SingleThreadedExecutor(context=context)
+    nodes: list = []
+    yield ex, nodes
+    ex.shutdown()
+    for n in nodes:
+        n.destroy_node()
+
+
+#: test files whose tests share state and so run one after another in one process when the
+#: suite runs in parallel (pytest-xdist's --dist loadgroup): the Pioneer runs share the cold
+#: first-trial error (test_pioneer._cold)
+SERIAL_FILES = {"test_pioneer.py": "pioneer"}
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        group = SERIAL_FILES.get(item.path.name)
+        if group is not None:
+            item.add_marker(pytest.mark.xdist_group(group))

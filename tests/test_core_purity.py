@@ -151,3 +151,18 @@ def test_no_relative_import_reaches_outside_its_layer():
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.ImportFrom):
                 assert node.level <= 1, f"{path}: from {'.' * node.level}{node.module}"
+
+
+def test_every_module_is_in_the_architecture():
+    """docs/architecture.md names every module in its layer's row (or its package's)."""
+    rows: dict[str, str] = {}
+    for line in (ROOT / "docs" / "architecture.md").read_text().splitlines():
+        m = re.match(r"\| `(\w+)`(?:, `(\w+)`)? \|", line)
+        for layer in (m.groups() if m else ()):
+            if layer:
+                rows[layer] = rows.get(layer, "") + line
+    assert set(LAYERS) <= set(rows)
+    missing = [f"{layer}/{path.stem}" for layer in LAYERS for path in _files(layer)
+               if path.stem not in ("__init__", "__main__")
+               and f"`{path.stem}`" not in rows[layer]]
+    assert not missing, missing
