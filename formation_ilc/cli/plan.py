@@ -381,7 +381,8 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
                        **({} if bridge is None else dict(
                            driver=bridge.driver, driver_ns=bridge.driver_ns, base=bridge.base,
                            fake_drivers=bridge.fake_drivers,
-                           physics_bases=bridge.physics_bases)))
+                           physics_bases=bridge.physics_bases)),
+                       sensing=None if safety is None else safety.sensing)
     plan = RunPlan(
         config=cfg, roster=roster(lineup), nodes=(), out=out, namespace=namespace, domain=domain,
         discovery=opts.discovery, plant=opts.plant, container=opts.container,

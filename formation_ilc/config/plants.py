@@ -43,7 +43,8 @@ class Plant:
     headings : the desired headings an 'auto' run takes on it: 'arc' on plants that drive
         arcs (and came with the option), 'euler' (chords) where runs and learned memories
         keep their numbers from before.
-    bodies : the robots have bodies: the batch simulator's contact check runs first.
+    bodies : the robots have bodies: the safety filter is on by default, the batch
+        simulator's contact check runs first, and ``--body`` is the plant's to say.
     secure : ``launch --secure`` and ``keystore create --plant NAME`` grant its nodes.
     hosts : ``--hosts netns`` (each robot on a network host of its own) can run it.
     help : one line for ``--plant``'s help.
@@ -63,6 +64,13 @@ class Plant:
     secure: bool = True
     hosts: bool = False
     help: str = ""
+
+    @property
+    def sensing(self) -> str | None:
+        """How a robot's safety filter hears the others on this plant: 'team' (the plant's
+        ``team/poses``, every robot's pose of a sample in one message), 'peers' (each other
+        robot's own pose topic, behind bridges), None (an external plant: no filter)."""
+        return "peers" if self.per_robot else "team" if self.node is not None else None
 
 
 #: every kind of plant, in the order ``--plant`` lists them

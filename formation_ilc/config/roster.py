@@ -109,6 +109,8 @@ class Lineup:
         (``config.bases``).
     fake_drivers : a fake Pioneer driver per robot (the launcher starts them).
     physics_bases : physics robots behind the bases' interface (the launcher starts them).
+    sensing : the robots' safety filter, and how it hears the others ('team': the plant's
+        ``team/poses``; 'peers': every other robot's pose), or None without a filter.
     """
 
     n: int
@@ -123,6 +125,7 @@ class Lineup:
     base: str | None = None
     fake_drivers: bool = False
     physics_bases: bool = False
+    sensing: str | None = None
     adjacency: NDArray[np.float64] | None = field(default=None, compare=False)
     leader: NDArray[np.float64] | None = field(default=None, compare=False)
 
@@ -134,9 +137,11 @@ class Lineup:
                    **kw)
 
     def for_keystore(self) -> Lineup:
-        """Every member a run of this formation and plant may start: the link emulator, the
-        recorder, the live view and the monitor too (a keystore serves every run)."""
-        return replace(self, links="emulated", record=True, live=True, monitor=True)
+        """Every member a run of this formation and plant may start, with every topic it
+        may use: the link emulator, the recorder, the live view and the monitor too, and
+        the safety filter's hearing (a keystore serves every run)."""
+        return replace(self, links="emulated", record=True, live=True, monitor=True,
+                       sensing=self.row.sensing)
 
     @property
     def row(self) -> Plant:
@@ -285,19 +290,24 @@ def roster(lineup: Lineup) -> Roster:
             (*(nm.shared_pose_topic(j) for j in robots), nm.REFERENCE, nm.TRIAL_EVENTS,
              nm.CONFIG, nm.CLOCK)))
     for i in robots:
-        members.append(_robot(i, senders[i - 1], hears[i - 1]))
+        members.append(_robot(i, senders[i - 1], hears[i - 1], lineup))
     return Roster(lineup, tuple(members))
 
 
-def _robot(i: int, senders: list[int], hears_leader: bool) -> Member:
+def _robot(i: int, senders: list[int], hears_leader: bool, lineup: Lineup) -> Member:
     """Robot i (1-based): its own topics out; its pose, its links and its in-neighbours'
-    shared poses and trajectories in (emulated and direct links both)."""
+    shared poses and trajectories in (emulated and direct links both); with a safety filter
+    the others' poses too (the plant's ``team/poses``, or each other robot's pose)."""
     sub = [nm.pose_topic(i), nm.CONFIG, nm.TRIAL_EVENTS]
     sub += [nm.link_topic(i, nm.robot_name(j)) for j in senders]
     sub += [nm.shared_pose_topic(j) for j in senders] + [nm.trajectory_topic(j)
                                                          for j in senders]
     if hears_leader:
         sub += [nm.link_topic(i, nm.LEADER), nm.REFERENCE]
+    if lineup.sensing == "team":
+        sub.append(nm.TEAM_POSES)
+    elif lineup.sensing == "peers":
+        sub += [nm.pose_topic(j) for j in range(1, lineup.n + 1) if j != i]
     pub = [nm.cmd_vel_topic(i), nm.shared_pose_topic(i), nm.trajectory_topic(i), nm.READY,
            nm.DIAGNOSTICS]
     return Member(nm.robot_name(i), "robot", "formation-ilc-robot", TRIAL, True,
@@ -317,6 +327,8 @@ def _plant(lineup: Lineup, row: Plant) -> list[Member]:
         pub += [nm.READY, nm.DIAGNOSTICS]
         if row.true_state:
             pub.append(nm.PREVIEW)
+        if lineup.sensing == "team":
+            pub.append(nm.TEAM_POSES)
         return [Member(row.node, "plant", row.entry, TRIAL, row.reports, row.node, tuple(pub),
                        (*(nm.cmd_vel_topic(i) for i in robots), nm.TRIAL_EVENTS, nm.CONFIG))]
     if not row.per_robot:  # external: its nodes are the user's, granted nothing here

@@ -1,7 +1,8 @@
 """The roster against the answers the stack gave before it existed, frozen.
 
-``data/roster_golden.json`` holds what the code at 0647a59 answered, before the roster
-replaced its three separate rules: the leader's team (``config.team.Team.of``) for 1, 3 and
+``data/roster_golden.json`` holds what the code at 88c1f6a answered (made by
+``data/make_roster_golden.py`` on a checkout of it), before the roster replaced its three
+separate rules: the leader's team (``config.team.Team.of``) for 1, 3 and
 6 robots on every plant, links, monitor and recorder; every process of ``formation-ilc
 launch`` (``cli.plan.node_specs`` through ``build_plan``: name, module, arguments, remaps,
 parameters, restart policy, host) with the team, the awaited reporters and the plant's
@@ -9,7 +10,10 @@ kind, for every plant x links x record x live combination of paper-triangle3 and
 (containers, namespaces, drivers, fake drivers, physics bases); and the keystore's grants
 (``config.enclaves.formation_grants``) of two scenarios in two namespaces for the
 simulator and the Pioneer drivers. Each answer must stay what it was: keystores made before
-stay valid, launches start the same processes with the same command lines.
+stay valid, launches start the same processes with the same command lines. The one
+difference is what the safety filter (added at 88c1f6a) reads and its grants never had:
+the plant's ``team/poses`` (robots on the simulator), each other robot's pose (robots
+behind bridges); those permissions are added, and only those.
 """
 
 from __future__ import annotations
@@ -25,8 +29,14 @@ from formation_ilc.cli.commands import build_parser
 from formation_ilc.cli.plan import build_plan
 from formation_ilc.config.roster import ENTRY_SCRIPTS, Lineup, roster
 from formation_ilc.config.scenario import load_scenario
+from formation_ilc.core.names import TEAM_POSES, absolute, pose_topic
 
 GOLDEN = json.loads((Path(__file__).parent / "data" / "roster_golden.json").read_text())
+
+
+#: plants whose robots have bodies, and the scenario their runs took (data/make_roster_golden)
+BODIES = ("physics", "pioneer", "base")
+BODY_SCENARIO = Path(__file__).parents[2] / "docs" / "examples" / "hexagon6-p3dx.yaml"
 
 
 def _golden(part: str) -> dict[str, dict]:
@@ -40,7 +50,7 @@ def _free_port() -> int:
 
 
 def test_the_golden_answers_are_all_there():
-    assert GOLDEN["generated_from"] == "0647a59"
+    assert GOLDEN["generated_from"] == "88c1f6a"
     assert len(_golden("teams")) == 120 and len(_golden("grants")) == 16
     assert len(_golden("plans")) == 48
 
@@ -68,7 +78,29 @@ def test_every_enclave_keeps_its_grant(key):
                   "dds_publish": list(g.dds_publish), "dds_subscribe": list(g.dds_subscribe),
                   "service_node": g.service_node}
            for path, g in roster(lineup).grants(namespace).items()}
+    # what the safety filter reads, granted now: the plant's team poses, or the peers' poses
+    n = sc.n
+    added: dict[str, tuple[set[str], set[str]]] = {}
+    for path, g in got.items():
+        name = path.rsplit("/", 1)[1]
+        pub = {t for t in g["publish"] if t == absolute(TEAM_POSES, namespace)}
+        sub = {t for t in g["subscribe"] if t == absolute(TEAM_POSES, namespace)}
+        if plant == "pioneer" and name.startswith("robot_"):
+            i = int(name.split("_")[1])
+            sub |= {absolute(pose_topic(j), namespace) for j in range(1, n + 1) if j != i}
+        g["publish"] = [t for t in g["publish"] if t not in pub]
+        g["subscribe"] = [t for t in g["subscribe"] if t not in sub]
+        if pub or sub:
+            added[name] = (pub, sub)
     assert got == _golden("grants")[key]
+    team = absolute(TEAM_POSES, namespace)
+    robots = {f"robot_{i}" for i in range(1, n + 1)}
+    if plant == "sim":
+        assert added == {"robot_sim": ({team}, set()),
+                         **{r: (set(), {team}) for r in robots}}
+    else:
+        assert set(added) == robots and all(not p and len(s) == n - 1
+                                            for p, s in added.values())
 
 
 def _module(script: str) -> str:
@@ -83,7 +115,11 @@ def test_every_entry_script_is_installed():
 @pytest.mark.parametrize("key", sorted(_golden("plans")))
 def test_a_launch_plans_the_processes_it_planned(tmp_path, key):
     scenario, plant, links, record, live, *extra = key.split("|")
-    argv = ["launch", scenario, "--plant", plant, "--links", links, "--domain-id", "42",
+    name = scenario
+    if plant in BODIES:  # robots with bodies: a scenario within their limits
+        name = str(tmp_path / "bodies.yaml")
+        Path(name).write_text(BODY_SCENARIO.read_text())
+    argv = ["launch", name, "--plant", plant, "--links", links, "--domain-id", "42",
             "--trials", "2", "--out", str(tmp_path / "run"), "--allow-contact", *extra]
     if plant in ("pioneer", "base"):
         argv += ["--v-max", "50", "--omega-max", "5000", "--a-max", "50", "--alpha-max",

@@ -144,7 +144,7 @@ def test_a_reference_built_once_is_reused_and_not_shared(tmp_path):
 SRC = "s.yaml"
 DELETE = object()
 
-BASE: dict[str, Any] = {
+RULES_BASE: dict[str, Any] = {
     "name": "rules",
     "description": "a scenario every field of which is set, for the rule tests",
     "dt": 0.1,
@@ -180,9 +180,9 @@ WAYPOINTS = {"kind": "waypoints", "times": [0.0, 2.0], "points": [[0.0, 0.0], [2
 
 
 def variant(*changes: tuple[str, Any]) -> dict[str, Any]:
-    """BASE with each (path, value) applied; a path reads like the error's field,
+    """RULES_BASE with each (path, value) applied; a path reads like the error's field,
     ``graph.edges[1].to``; value DELETE removes the field."""
-    data = copy.deepcopy(BASE)
+    data = copy.deepcopy(RULES_BASE)
     for path, value in changes:
         keys: list[Any] = []
         for part in path.split("."):
@@ -215,7 +215,7 @@ def refused(data: Any, field: str, why: str) -> None:
 @pytest.mark.parametrize("reference", [None, UNICYCLE, SAMPLES, WAYPOINTS],
                          ids=["lemniscate", "unicycle", "samples", "waypoints"])
 def test_base_loads(reference):
-    data = BASE if reference is None else variant(("reference", reference))
+    data = RULES_BASE if reference is None else variant(("reference", reference))
     sc = load(data)
     assert sc.n == 3 and sc.samples == 10 and sc.law.gain_prime == (0.08, 0.1, 0.1)
     assert sc.desired.eta.shape == (3, 11, 3) and np.isfinite(sc.desired.eta).all()
@@ -494,7 +494,7 @@ def test_delay_rules(section, field, why):
 def test_a_delay_of_the_whole_trial_is_accepted_one_more_is_refused(section):
     """Boundary: tau = samples (T) is a valid delay (eq. 11 allows 0 <= tau <= T), T + 1
     is not."""
-    n_t = BASE["samples"]
+    n_t = RULES_BASE["samples"]
 
     def with_delay(d):
         s = {k: (d if v == "N" else [d if x == "N" else x for x in v] if isinstance(v, list)

@@ -425,9 +425,12 @@ def test_every_real_path_fits_its_bound_even_with_the_longest_frame_id(poses):
 
 
 def test_a_path_longer_than_the_trial_is_refused_before_it_is_deserialized(monkeypatch):
+    from msgs_schema import convert
+
     calls = []
-    real = ms.deserialize
-    monkeypatch.setattr(ms, "deserialize", lambda data, cls: calls.append(1) or real(data, cls))
+    real = convert.deserialize
+    monkeypatch.setattr(convert, "deserialize",
+                        lambda data, cls: calls.append(1) or real(data, cls))
     big = _bytes(300)  # twice a trial of 140 samples (a size bound: 141 exactly is checked after)
     with pytest.raises(ms.MalformedMessage, match=r"trajectory of \d+ bytes: longer than 141 "
                                                   r"poses can be"):

@@ -23,6 +23,12 @@ def free_port():
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
 
+#: plants whose robots have bodies (limits checked, the safety filter on by default), and
+#: the scenario their runs take: one that fits a P3-DX's limits
+BODIES = ("physics", "pioneer", "base")
+BODY_SCENARIO = Path(__file__).parents[3] / "docs" / "examples" / "hexagon6-p3dx.yaml"
+
+
 def combos():
     for plant in ("sim", "physics", "external", "pioneer", "base"):
         for links in (("direct",) if plant in ("pioneer", "base") else ("emulated", "direct")):
@@ -48,7 +54,11 @@ def plan_answers(tmp):
         for plant, links, record, live, extra in combos():
             if scen == "paper-hexagon6" and (extra or not (record and live)):
                 continue
-            argv = ["launch", scen, "--plant", plant, "--links", links, "--domain-id", "42",
+            name = scen
+            if plant in BODIES:  # robots with bodies: a scenario within their limits
+                name = str(tmp / "bodies.yaml")
+                Path(name).write_text(BODY_SCENARIO.read_text())
+            argv = ["launch", name, "--plant", plant, "--links", links, "--domain-id", "42",
                     "--trials", "2", "--out", str(tmp / "run"), "--allow-contact", *extra]
             if plant in ("pioneer", "base"):
                 argv += ["--v-max", "50", "--omega-max", "5000", "--a-max", "50",
