@@ -361,10 +361,12 @@ def test_two_formations_share_a_domain_under_two_namespaces(ros_env, tmp_path):
 
 
 def test_a_stand_in_plant_that_speaks_only_the_contract(ros_env, tmp_path):
-    """The simulator replaced by tests/standin_plant.py (no true state, no diagnostics):
+    """The simulator replaced by tests/stack/standin_plant.py (no true state, no diagnostics):
     the team still learns, and the true-state columns say they are absent (nan)."""
     trials = 6
-    standin = Path(__file__).resolve().parents[1] / "standin_plant.py"  # tests/
+    # beside this file: run from tests/, its folders (tests/msgs_schema/, ...) would
+    # shadow the packages they test
+    standin = Path(__file__).resolve().parent / "standin_plant.py"
     plant = subprocess.Popen([sys.executable, str(standin)],
                              env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                              text=True, start_new_session=True)

@@ -11,11 +11,12 @@ import sys
 import tempfile
 from pathlib import Path
 
+from formation_ilc.config.team import Team  # type: ignore[import-not-found]
+
 from formation_ilc.cli.commands import build_parser
 from formation_ilc.cli.keystore import grants_for
 from formation_ilc.cli.plan import build_plan
 from formation_ilc.config.scenario import load_scenario
-from formation_ilc.config.team import Team  # type: ignore[import-not-found]
 
 
 def free_port():
