@@ -76,14 +76,26 @@ def executor(context):
         n.destroy_node()
 
 
-#: test files whose tests share state and so run one after another in one process when the
-#: suite runs in parallel (pytest-xdist's --dist loadgroup): the Pioneer runs share the cold
-#: first-trial error (test_pioneer._cold)
-SERIAL_FILES = {"test_pioneer.py": "pioneer"}
+#: multi-process tests that mostly wait on the wall clock (wall-clock and realtime trials,
+#: a watchdog's bounds): with the suite side by side (pytest-xdist, ``--dist loadgroup``)
+#: they run one after another in one test process, the ``clock`` lane, while the other
+#: multi-process tests (lockstep runs that take all the CPU they get) run one after another
+#: in another, the ``lockstep`` lane; in-process tests fill in beside both. Two lanes, not
+#: more: two lockstep runs at once on two cores only slow each other, and a realtime run
+#: needs the cores a third stack would take. Tests in one lane run in file order, so runs
+#: shared through tests/stack/shared.py are made before they are read.
+CLOCK_FILES = ("test_pioneer.py", "test_realtime.py", "test_base_physics.py",
+               "test_diagnostics.py")
+CLOCK_TESTS = ("test_a_run_waiting_for_a_node_that_never_comes_stops_naming_it",
+               "test_secure_pioneer_bridges_and_fake_drivers",
+               "test_secure_bases_with_physics_bases_equal_the_insecure_run",
+               "test_lossy_links_across_namespaces")
 
 
 def pytest_collection_modifyitems(config, items):
     for item in items:
-        group = SERIAL_FILES.get(item.path.name)
-        if group is not None:
-            item.add_marker(pytest.mark.xdist_group(group))
+        if item.get_closest_marker("multiprocess") is None:
+            continue
+        clock = (item.path.name in CLOCK_FILES
+                 or item.name.split("[", 1)[0] in CLOCK_TESTS)
+        item.add_marker(pytest.mark.xdist_group("clock" if clock else "lockstep"))

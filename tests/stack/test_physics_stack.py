@@ -23,6 +23,7 @@ from formation_ilc.model.simulate import simulate  # noqa: E402
 from formation_ilc.recordings.recording import load_recording  # noqa: E402
 from formation_ilc.studies.physics import run_physics  # noqa: E402
 
+from .shared import RUNS
 from .test_stack import launch  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.multiprocess]
@@ -45,6 +46,8 @@ def test_lockstep_physics_learns_from_the_engine_recorded_and_analysed(ros_env, 
     got = read_metrics(tmp_path / "run" / "metrics.csv")
     err = got[:, 1]
     assert len(got) == 3 and err[2] < err[1] < err[0]
+    # the insecure run a secure one is compared with (tests/stack/test_secure.py)
+    RUNS[("physics", (scen.read_text(),))] = got
     # ground truth as the pose: measured and true columns are the engine's, both finite
     np.testing.assert_array_equal(got[:, 1], got[:, 3])
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())

@@ -32,6 +32,7 @@ from formation_ilc.core.metrics import read_metrics
 from formation_ilc.model.simulate import simulate
 
 from ..procs import stop_group
+from .shared import RUNS
 from .test_stack import TOL, launch, start_launch
 
 pytestmark = [pytest.mark.ros, pytest.mark.multiprocess]
@@ -420,11 +421,14 @@ def test_secure_physics_plant_equals_the_insecure_run(ros_env, tmp_path, secure_
     _nothing_received(got)
     secure = read_metrics(tmp_path / "secure" / "metrics.csv")
     assert len(secure) >= 2, out
-    k = min(len(secure), 4)
-    res = launch(ros_env, tmp_path / "insecure", *common, "--trials", str(k), timeout=600)
-    assert res.returncode == 0, res.stdout
-    insecure = read_metrics(tmp_path / "insecure" / "metrics.csv")
-    np.testing.assert_allclose(secure[:k], insecure, rtol=0, atol=TOL)
+    # the insecure run of the same options: test_physics_stack's (3 trials), else our own
+    insecure = RUNS.get(("physics", (Path(scen).read_text(),)))
+    if insecure is None:
+        res = launch(ros_env, tmp_path / "insecure", *common, "--trials", "3", timeout=600)
+        assert res.returncode == 0, res.stdout
+        insecure = read_metrics(tmp_path / "insecure" / "metrics.csv")
+    k = min(len(secure), len(insecure))
+    np.testing.assert_allclose(secure[:k], insecure[:k], rtol=0, atol=TOL)
 
 
 @pytest.mark.slow
@@ -436,6 +440,7 @@ def test_secure_bases_with_physics_bases_equal_the_insecure_run(ros_env, tmp_pat
     bridges gets against the batch simulator), it learns as the insecure run does, every
     bridge returns its robot, and an unsecured participant receives nothing."""
     pytest.importorskip("pybullet")
+    from .test_base_physics import base_key
     from .test_pioneer import BATCH_ATOL
 
     scen = tmp_path / "short.yaml"
@@ -448,19 +453,23 @@ def test_secure_bases_with_physics_bases_equal_the_insecure_run(ros_env, tmp_pat
     # the time scale that fits the base's limits, as the refusal names it (no process runs)
     refused = launch(ros_env, tmp_path / "refused", *common, "--trials", "2", timeout=120.0)
     assert refused.returncode == 2, refused.stdout
-    common += ["--time-scale", refused.stdout.rsplit("--time-scale ", 1)[1].split()[0]]
+    scale = refused.stdout.rsplit("--time-scale ", 1)[1].split()[0]
+    common += ["--time-scale", scale]
     got, out, alive = _secure_run_probed(ros_env, tmp_path / "secure", ks,
                                          [*common, "--trials", "30"], first_rows=2)
     assert alive, out
     _nothing_received(got)
     secure = read_metrics(tmp_path / "secure" / "metrics.csv")
     assert len(secure) >= 2, out
-    k = min(len(secure), 3)
-    res = launch(ros_env, tmp_path / "insecure", *common, "--trials", str(k), timeout=900)
-    assert res.returncode == 0, res.stdout
-    insecure = read_metrics(tmp_path / "insecure" / "metrics.csv")
-    assert insecure[-1, 1] < insecure[0, 1] and secure[k - 1, 1] < secure[0, 1]
-    np.testing.assert_allclose(secure[:k, 1:3], insecure[:, 1:3], rtol=0, atol=BATCH_ATOL)
+    # the insecure run of the same options: test_base_physics's (3 trials), else our own
+    insecure = RUNS.get(base_key(scen.read_text(), scale))
+    if insecure is None:
+        res = launch(ros_env, tmp_path / "insecure", *common, "--trials", "2", timeout=900)
+        assert res.returncode == 0, res.stdout
+        insecure = read_metrics(tmp_path / "insecure" / "metrics.csv")
+    k = min(len(secure), len(insecure))
+    assert k >= 2 and insecure[k - 1, 1] < insecure[0, 1] and secure[k - 1, 1] < secure[0, 1]
+    np.testing.assert_allclose(secure[:k, 1:3], insecure[:k, 1:3], rtol=0, atol=BATCH_ATOL)
     diag = json.loads((tmp_path / "secure" / "diagnostics.json").read_text())
     for i in (1, 2, 3):
         assert diag[f"bridge_{i}"]["return_timeouts"] == 0
