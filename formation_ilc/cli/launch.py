@@ -243,8 +243,9 @@ def add_safety_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--body", choices=BODIES, default=None,
                    help="with --plant sim --safety: the body the filter keeps apart "
                         "(default p3dx); other plants know their own")
-    g.add_argument("--safety-margin", type=nonneg_float, default=0.1, metavar="M",
-                   help="least gap [m] between two robots' covering discs (default 0.1)")
+    g.add_argument("--safety-margin", type=nonneg_float, default=None, metavar="M",
+                   help="least gap [m] between two robots' covering discs (default 0.1; "
+                        "0.25 on skid steer, whose wheels slip: docs/safety.md)")
     g.add_argument("--safety-learning", choices=LEARNING, default=None,
                    help="how the memory learns where the filter changed a command: applied "
                         "(from the command the robot really drove; the default on two "

@@ -25,7 +25,7 @@ from typing import Any
 from formation_ilc.cli.options import OptionError
 from formation_ilc.cli.secure import SecureRun
 from formation_ilc.config.runconfig import RunConfig, make_config, param_text, scenario_reference
-from formation_ilc.config.safety import SafetySettings, default_learning
+from formation_ilc.config.safety import SafetySettings, default_learning, default_margin
 from formation_ilc.config.scenario import Scenario, ScenarioError
 from formation_ilc.config.team import BRIDGED, Team
 from formation_ilc.core.names import (
@@ -602,7 +602,9 @@ def _safety(opts: argparse.Namespace, sc: Scenario, namespace: str,
             limits = limits.tighter(lim)
     limits = limits.tighter(Limits())
     try:
-        return SafetySettings(body, limits, float(getattr(opts, "safety_margin", 0.1)),
+        margin = getattr(opts, "safety_margin", None)
+        return SafetySettings(body, limits,
+                              default_margin(body) if margin is None else float(margin),
                               getattr(opts, "safety_learning", None)
                               or default_learning(body),
                               "peers" if opts.plant in BRIDGED else "team")

@@ -91,8 +91,13 @@ def test_the_safety_filter_is_on_with_bodies_and_lets_the_cold_start_run(tmp_pat
     assert RunConfig.from_params(leader).safety == sf
     # off on the kinematic simulator unless asked for
     assert plan_of(tmp_path / "s", "paper-triangle3").config.safety is None
-    on = plan_of(tmp_path / "t", "paper-triangle3", "--safety", "--body", "jackal")
+    # a skid-steer body keeps a wider margin by default: the paper's spacing has no room
+    with pytest.raises(NoRun, match="jackal bodies \\+ 0.25 m margin"):
+        plan_of(tmp_path / "t", "paper-triangle3", "--safety", "--body", "jackal")
+    on = plan_of(tmp_path / "t", "paper-triangle3", "--safety", "--body", "jackal",
+                 "--safety-margin", "0.1")
     assert on.config.safety is not None and on.config.safety.body == "jackal"
+    assert sf.margin == 0.1 and on.config.safety.margin == 0.1
     # how the memory learns through the filter: by body, as measured (docs/safety.md)
     assert sf.learning == "applied" and on.config.safety.learning == "split"
     told = plan_of(tmp_path / "u", "paper-triangle3", "--safety", "--safety-learning",
