@@ -281,6 +281,9 @@ class RunPlan:
     live: tuple[str, int] | None = None
     #: ``--live-rate``: messages a second per per-sample channel (None: the view's default)
     live_rate: float | None = None
+    #: the batch simulator predicted no contact in this run's trials (a plant with bodies):
+    #: the report warns if the plant saw one all the same
+    predicted_clear: bool = False
 
     @property
     def scenario(self) -> Scenario:
@@ -392,7 +395,9 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
         physics=physics, notes=notes,
         live=_live(opts), live_rate=_live_rate(opts),
         hosts=None if faults is None else HostsPlan(faults, opts.dds_profile or "lossy",
-                                                    sc.seed))
+                                                    sc.seed),
+        predicted_clear=any(n.startswith("the batch simulator predicts no contact")
+                            for n in notes))
     # the processes follow from the rest of the plan
     return _secured(replace(plan, nodes=node_specs(plan, scenario_reference(opts.scenario))),
                     getattr(opts, "secure", None))
