@@ -172,8 +172,9 @@ def _add_simulate(sub: Any) -> None:
     p.add_argument("--body", choices=BODIES, default="p3dx",
                    help="with --safety: the robots' body, whose footprint and limits the "
                         "filter keeps (default p3dx)")
-    p.add_argument("--safety-margin", type=nonneg_float, default=0.1, metavar="M",
-                   help="with --safety: the least gap [m] between two robots' covering discs")
+    p.add_argument("--safety-margin", type=nonneg_float, default=None, metavar="M",
+                   help="with --safety: the least gap [m] between two robots' covering discs "
+                        "(default 0.1; 0.25 on skid steer)")
     p.add_argument("--safety-learning", choices=("applied", "split", "freeze", "ignore"),
                    default=None,
                    help="with --safety: how the memory learns where the filter changed a "
@@ -608,10 +609,12 @@ def _safety_spec(args: argparse.Namespace, sc: Any) -> Any:
     """``simulate --safety``: the filter of ``--body`` with its own limits, or None."""
     if not getattr(args, "safety", False):
         return None
-    from formation_ilc.config.safety import SafetySettings, default_learning
+    from formation_ilc.config.safety import SafetySettings, default_learning, default_margin
     from formation_ilc.model.safety import body_limits, desired_clearance, spec_of
 
     args.safety_learning = args.safety_learning or default_learning(args.body)
+    if args.safety_margin is None:
+        args.safety_margin = default_margin(args.body)
     spec = spec_of(SafetySettings(args.body, body_limits(args.body), args.safety_margin,
                                   args.safety_learning), sc.dt)
     dc = desired_clearance(sc, spec)

@@ -23,7 +23,13 @@ on this console, re-runs, then stops the run (status 4, with the resume command)
 whose recording lacks a trial fails (status 3); a full disk stops it (status 5, the file
 named, with the resume command); a resume is decided from validated state files before
 anything changes. Statuses: 0 whole, 1 a node failed, 2 refused, 3 recording incomplete,
-4 stuck, 5 disk full, 130 interrupted.
+4 stuck, 5 disk full, 6 robots touched past what --on-contact allows, 130 interrupted.
+
+Safety (docs/safety.md): on every plant with bodies (physics, pioneer, base) each robot's
+command goes through the safety filter (robots kept apart, commands inside the base's
+limits, the memory learning through it); --no-safety turns it off, --safety turns it on
+with the simulator. Contacts are printed at once, counted in metrics.csv and acted on
+(--on-contact).
 
 Node entry points (also `ros2 run formation_ilc <exe>` on a full ROS 2 install):
   formation-ilc-leader  virtual leader: --ros-args -p scenario:=NAME [-p trials:=K ...]
@@ -238,8 +244,9 @@ def add_safety_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--body", choices=BODIES, default=None,
                    help="with --plant sim --safety: the body the filter keeps apart "
                         "(default p3dx); other plants know their own")
-    g.add_argument("--safety-margin", type=nonneg_float, default=0.1, metavar="M",
-                   help="least gap [m] between two robots' covering discs (default 0.1)")
+    g.add_argument("--safety-margin", type=nonneg_float, default=None, metavar="M",
+                   help="least gap [m] between two robots' covering discs (default 0.1; "
+                        "0.25 on skid steer, whose wheels slip: docs/safety.md)")
     g.add_argument("--safety-learning", choices=LEARNING, default=None,
                    help="how the memory learns where the filter changed a command: applied "
                         "(from the command the robot really drove; the default on two "

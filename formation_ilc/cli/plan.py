@@ -30,7 +30,7 @@ from formation_ilc.cli.secure import SecureRun
 from formation_ilc.config.plants import Plant, plant
 from formation_ilc.config.roster import Lineup, Member, Roster, Team, roster
 from formation_ilc.config.runconfig import RunConfig, make_config, param_text, scenario_reference
-from formation_ilc.config.safety import SafetySettings, default_learning
+from formation_ilc.config.safety import SafetySettings, default_learning, default_margin
 from formation_ilc.config.scenario import Scenario, ScenarioError
 from formation_ilc.core.names import NAMESPACE, namespace_remaps, robots_process_name
 from formation_ilc.protocol.schedule import DONE
@@ -272,6 +272,9 @@ class RunPlan:
     live: tuple[str, int] | None = None
     #: ``--live-rate``: messages a second per per-sample channel (None: the view's default)
     live_rate: float | None = None
+    #: the batch simulator predicted no contact in this run's trials (a plant with bodies):
+    #: the report warns if the plant saw one all the same
+    predicted_clear: bool = False
 
     @property
     def scenario(self) -> Scenario:
@@ -397,7 +400,9 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
         physics=physics, notes=notes,
         live=live, live_rate=_live_rate(opts),
         hosts=None if faults is None else HostsPlan(faults, opts.dds_profile or "lossy",
-                                                    sc.seed))
+                                                    sc.seed),
+        predicted_clear=any(n.startswith("the batch simulator predicts no contact")
+                            for n in notes))
     # the processes follow from the rest of the plan
     return _secured(replace(plan, nodes=node_specs(plan, scenario_reference(opts.scenario))),
                     getattr(opts, "secure", None))
@@ -613,7 +618,9 @@ def _safety(opts: argparse.Namespace, row: Plant, sc: Scenario, namespace: str,
             limits = limits.tighter(lim)
     limits = limits.tighter(Limits())
     try:
-        return SafetySettings(body, limits, float(getattr(opts, "safety_margin", 0.1)),
+        margin = getattr(opts, "safety_margin", None)
+        return SafetySettings(body, limits,
+                              default_margin(body) if margin is None else float(margin),
                               getattr(opts, "safety_learning", None)
                               or default_learning(body),
                               "peers" if row.per_robot else "team")

@@ -95,11 +95,25 @@ def write_report(plan: RunPlan, rows: Sequence[Sequence[float]],
                     f"{sc.name}: distributed stack, {sc.n} robot nodes, {plan.config.mode}")
         files.append("errors.png")
     print_report(sc, m, dtab, summary)
+    wrong = contact_warning(plan.predicted_clear, m)
+    if wrong is not None:
+        print(wrong)
     print(f"results in {out}/ ({', '.join(files)}; logs/)")
     root = plan.record_root or plan.record
     if root is not None:
         print(f"recording: {root} (formation-ilc analyze {root})")
     return 0
+
+
+def contact_warning(predicted_clear: bool, m: np.ndarray) -> str | None:
+    """The line that says the contact prediction was wrong: it predicted none, and the
+    metrics rows ``m`` (METRIC_COLUMNS) count contacts; else None."""
+    touched = [int(r[0]) for r in m if len(r) > 8 and r[8] > 0] if len(m) else []
+    if not (predicted_clear and touched):
+        return None
+    return (f"warning: the batch simulator predicted no contact, but robots touched in "
+            f"trial(s) {', '.join(map(str, touched[:10]))}: the bodies did what its "
+            f"kinematic model does not (slip, lag, noise); docs/safety.md")
 
 
 def print_report(sc: Scenario, m: np.ndarray, dtab: list[list[Any]], summary: dict[str, Any]

@@ -27,7 +27,8 @@ from formation_ilc.core.clock import Rejected
 from formation_ilc.core.limits import Limits
 from formation_ilc.core.safety import LEARNING
 
-__all__ = ["SafetySettings", "SENSING", "BODIES", "SKID_STEER", "default_learning"]
+__all__ = ["SafetySettings", "SENSING", "BODIES", "SKID_STEER", "default_learning",
+           "default_margin"]
 
 SENSING = ("team", "peers")
 #: bodies the filter knows (``model.footprint.BODIES``, kept here for the config layer)
@@ -40,6 +41,14 @@ def default_learning(body: str) -> str:
     """How a team of ``body`` robots learns through its filter unless told otherwise
     (docs/safety.md measured it): ``applied`` on two wheels, ``split`` on skid steer."""
     return "split" if body in SKID_STEER else "applied"
+
+
+def default_margin(body: str) -> float:
+    """The gap [m] the filter keeps between ``body`` robots' covering discs unless told
+    otherwise: 0.1 m on two wheels; 0.25 m on skid steer, whose wheels slip sideways in
+    every turn, so that the body is where its command says only to within centimetres
+    (docs/safety.md: a Husky team touched by 1.7 cm with 0.1 m, not with 0.25 m)."""
+    return 0.25 if body in SKID_STEER else 0.1
 
 
 @dataclass(frozen=True)

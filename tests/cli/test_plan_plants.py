@@ -91,8 +91,13 @@ def test_the_safety_filter_is_on_with_bodies_and_lets_the_cold_start_run(tmp_pat
     assert RunConfig.from_params(leader).safety == sf
     # off on the kinematic simulator unless asked for
     assert plan_of(tmp_path / "s", "paper-triangle3").config.safety is None
-    on = plan_of(tmp_path / "t", "paper-triangle3", "--safety", "--body", "jackal")
+    # a skid-steer body keeps a wider margin by default: the paper's spacing has no room
+    with pytest.raises(NoRun, match="jackal bodies \\+ 0.25 m margin"):
+        plan_of(tmp_path / "t", "paper-triangle3", "--safety", "--body", "jackal")
+    on = plan_of(tmp_path / "t", "paper-triangle3", "--safety", "--body", "jackal",
+                 "--safety-margin", "0.1")
     assert on.config.safety is not None and on.config.safety.body == "jackal"
+    assert sf.margin == 0.1 and on.config.safety.margin == 0.1
     # how the memory learns through the filter: by body, as measured (docs/safety.md)
     assert sf.learning == "applied" and on.config.safety.learning == "split"
     told = plan_of(tmp_path / "u", "paper-triangle3", "--safety", "--safety-learning",
@@ -157,3 +162,43 @@ def test_plant_refusals(tmp_path, argv, message):
     with pytest.raises(NoRun) as info:
         plan_of(tmp_path, "paper-triangle3", *argv)
     assert message in info.value.message and info.value.status == 2
+
+
+def test_a_memory_past_the_limits_is_held_by_the_filter_or_refused(tmp_path):
+    """A warm memory whose commands leave the robots' limits: with the filter the run says
+    so (the filter holds them inside); without it the run is refused: never sent."""
+    pytest.importorskip("pybullet")
+    import numpy as np
+
+    from formation_ilc.store.memoryfile import save_memory
+
+    plan = plan_of(tmp_path / "a", "paper-triangle3", "--plant", "physics", "--trials", "2")
+    sc = plan.scenario
+    fast = np.zeros((sc.n, sc.samples, 2))
+    fast[1, 40:, 0] = 3.0  # robot 2 asked for 3 m/s from t = 8 s: past 1.2 m/s, and a step
+    mem = save_memory(tmp_path / "fast.npz", fast, sc)
+    plan = plan_of(tmp_path / "b", "paper-triangle3", "--plant", "physics", "--trials", "2",
+                   "--init-memory", str(mem), "--allow-contact")
+    (note,) = [x for x in plan.notes if x.startswith("note: --init-memory")]
+    assert "robot 2: the memory's" in note and "exceeds its limit" in note
+    assert "the safety filter holds those commands inside the limits" in note
+    with pytest.raises(NoRun) as info:
+        plan_of(tmp_path / "c", "paper-triangle3", "--plant", "physics", "--trials", "2",
+                "--init-memory", str(mem), "--no-safety", "--allow-contact")
+    assert info.value.status == 2 and "would be sent past the robots' limits" \
+        in info.value.message
+    assert "robot 2" in info.value.message
+
+
+def test_a_wrong_contact_prediction_is_said():
+    import numpy as np
+
+    from formation_ilc.cli.report import contact_warning
+
+    rows = np.zeros((3, 9))
+    rows[:, 0] = [0, 1, 2]
+    assert contact_warning(True, rows) is None  # predicted none, none happened
+    rows[2, 8] = 1
+    line = contact_warning(True, rows)
+    assert line is not None and "predicted no contact, but robots touched in trial(s) 2" in line
+    assert contact_warning(False, rows) is None  # it was predicted (or not predicted at all)

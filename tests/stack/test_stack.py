@@ -380,7 +380,7 @@ def test_a_stand_in_plant_that_speaks_only_the_contract(ros_env, tmp_path):
     assert res.returncode == 0, res.stdout + plant_log
     assert "true state: the plant publishes none" in res.stdout
     got = read_metrics(tmp_path / "metrics.csv")
-    assert got.shape == (trials, 7)
+    assert got.shape == (trials, 9)
     assert np.isnan(got[:, 3:5]).all()          # true_max_position/heading_error
     assert np.isfinite(got[:, [1, 2, 5, 6]]).all()
     assert got[-1, 1] < 0.5 * got[0, 1]         # it learns
