@@ -76,11 +76,11 @@ def executor(context):
         n.destroy_node()
 
 
-#: multi-process tests that mostly wait on the wall clock (wall-clock and realtime trials,
-#: a watchdog's bounds): with the suite side by side (pytest-xdist, ``--dist loadgroup``)
-#: they run one after another in one test process, the ``clock`` lane, while the other
-#: multi-process tests (lockstep runs that take all the CPU they get) run one after another
-#: in another, the ``lockstep`` lane; in-process tests fill in beside both. Two lanes, not
+#: stack tests that mostly wait on the wall clock (wall-clock and realtime trials, a
+#: watchdog's bounds): with the suite side by side (pytest-xdist) they run one after
+#: another in one test process, the ``clock`` lane, while the other stack tests (lockstep
+#: runs that take all the CPU they get) run one after another in another, the ``lockstep``
+#: lane (``pytest_xdist_make_scheduler``); in-process tests fill in beside both. Two lanes, not
 #: more: two lockstep runs at once on two cores only slow each other, and a realtime run
 #: needs the cores a third stack would take. Tests in one lane run in file order, so runs
 #: shared through tests/stack/shared.py are made before they are read.
@@ -92,10 +92,24 @@ CLOCK_TESTS = ("test_a_run_waiting_for_a_node_that_never_comes_stops_naming_it",
                "test_lossy_links_across_namespaces")
 
 
-def pytest_collection_modifyitems(config, items):
-    for item in items:
-        if item.get_closest_marker("multiprocess") is None:
-            continue
-        clock = (item.path.name in CLOCK_FILES
-                 or item.name.split("[", 1)[0] in CLOCK_TESTS)
-        item.add_marker(pytest.mark.xdist_group("clock" if clock else "lockstep"))
+def lane(nodeid: str) -> str | None:
+    """The lane of a test (``clock`` or ``lockstep``), or None: what is not a stack test
+    runs wherever a test process is free."""
+    path, _, name = nodeid.partition("::")
+    if not path.startswith("tests/stack/"):
+        return None
+    base = name.split("[", 1)[0]
+    return "clock" if path.rsplit("/", 1)[1] in CLOCK_FILES or base in CLOCK_TESTS \
+        else "lockstep"
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """pytest-xdist's scheduler with the two lanes as units of work: every test of a lane
+    goes to one test process, in file order; every other test is a unit of its own."""
+    from xdist.scheduler import LoadScopeScheduling
+
+    class Lanes(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return lane(nodeid) or nodeid
+
+    return Lanes(config, log)
