@@ -66,7 +66,7 @@ from formation_ilc.nodes.common import (
     spin_main,
     warm_up,
 )
-from formation_ilc.nodes.params import declare
+from formation_ilc.nodes.params import declare, effective
 from formation_ilc.protocol.plant import RESEND_S, KinematicPlant, Sample
 
 #: the plant's node name (what it says ready as)
@@ -107,6 +107,7 @@ class SimNode(ConfiguredNode):
         n = plant.n
         timeout = float(self.get_parameter("timeout").value)
         self.timeout = timeout if timeout > 0 else cfg.timeout
+        effective(self, {"timeout": float(self.timeout)})  # the parameter reads what runs
         self.realtime = plant.realtime
         self.pose_pubs = [self.create_publisher(PoseStamped, ms.pose_topic(r + 1), ms.SAMPLE_QOS)
                           for r in range(n)]

@@ -98,7 +98,7 @@ from formation_ilc.nodes.common import (
     spin_main,
     unmatched,
 )
-from formation_ilc.nodes.params import declare
+from formation_ilc.nodes.params import declare, effective
 from formation_ilc.protocol.leader import NAME, Leader
 from formation_ilc.protocol.plant import RESEND_S
 from formation_ilc.protocol.schedule import TrialEvent
@@ -121,6 +121,12 @@ class LeaderNode(Node):
         if not expected:  # started alone: the team the launcher would name, no monitor
             expected = roster(Lineup(sc.n, plant=default_plant(cfg.mode), links=cfg.links,
                                      monitor=False)).team.expected
+        # the parameters that keep the scenario's read the scenario's; the team, whom
+        # the leader waits for
+        effective(self, {"seed": sc.seed, "trials": sc.trials, "law": sc.law.kind,
+                         "memory": sc.law.memory, "headings": sc.headings,
+                         "time_scale": float(sc.time_scale),
+                         "nodes_expected": list(expected)})
         # who reads the reference: the link emulator, or each robot that sees the leader
         # (none in lockstep with direct links: RunConfig.leader_in_step)
         self.ref_readers = (1 if cfg.links == "emulated"

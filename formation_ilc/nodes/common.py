@@ -101,7 +101,7 @@ class ConfiguredNode(Node):
         self.follower.said_ready()
         return ms.json_to_msg(Ready(self.get_name(), trial, self.boot, self.follower.seen,
                                     passive, self.run_id, abort_slot=abort_slot,
-                                    why=why).to_json())
+                                    why=why, config=self.own_config).to_json())
 
     @property
     def run_id(self) -> str:
@@ -118,9 +118,19 @@ class ConfiguredNode(Node):
             self.drops.reject(exc, ms.TRIAL_EVENTS)
             return None
 
-    def follow_config(self, cfg: RunConfig | None = None) -> None:
-        """Configure now from ``cfg``, or when the config topic delivers one."""
+    #: the fields of ``RunConfig.agreement`` this node runs with (None: all)
+    AGREES_ON: tuple[str, ...] | None = None
+    #: what a node that configured itself from its own parameters runs with (its readies
+    #: carry it; the leader names a difference and stops); None when it follows ``config``
+    own_config: dict[str, Any] | None = None
+
+    def follow_config(self, cfg: RunConfig | None = None, own: bool = True) -> None:
+        """Configure now from ``cfg`` (``own``: from the node's own parameters), or when the
+        config topic delivers one."""
         if cfg is not None:
+            if own:
+                self.own_config = {k: v for k, v in cfg.agreement().items()
+                                   if self.AGREES_ON is None or k in self.AGREES_ON}
             self.configured = True
             try:
                 self.configure(cfg)
@@ -157,7 +167,7 @@ class ConfiguredNode(Node):
                             f"node belongs to run {mine}")
             return
         self._config_json = ms.msg_to_json(msg)
-        self.follow_config(cfg)
+        self.follow_config(cfg, own=False)
 
     def configure(self, cfg: RunConfig) -> None:
         raise NotImplementedError

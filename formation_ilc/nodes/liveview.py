@@ -51,6 +51,7 @@ from formation_ilc.core.clock import Rejected
 from formation_ilc.core.names import LIVEVIEW_NODE
 from formation_ilc.nodes.common import DropCounter, RunConfig, node_parser, spin_main
 from formation_ilc.nodes.observer import Observer, msg_class
+from formation_ilc.nodes.params import declare
 from formation_ilc.recordings.mcap_io import message_definition
 
 #: the default port of the live view (Foxglove's own default)
@@ -98,6 +99,7 @@ class LiveViewNode(Node):
                  preview: bool = False, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(LIVEVIEW_NODE, **kwargs)
+        declare(self, ())  # no parameters of its own; a misspelt one is refused
         import foxglove
 
         self.foxglove = foxglove

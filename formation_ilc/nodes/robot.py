@@ -80,7 +80,7 @@ from formation_ilc.nodes.common import (
     unmatched,
     warm_up,
 )
-from formation_ilc.nodes.params import ParameterError, check, declare
+from formation_ilc.nodes.params import ParameterError, check, declare, effective
 from formation_ilc.protocol.learner import RobotLearner
 from formation_ilc.protocol.schedule import Follower
 from formation_ilc.store.memoryfile import MemoryFileError, load_memory
@@ -125,6 +125,12 @@ class RobotNode(ConfiguredNode):
     def configure(self, cfg: RunConfig) -> None:
         pb = Problem.from_scenario(cfg.scenario)
         self.cfg, self.pb = cfg, pb
+        sc = cfg.scenario
+        # the parameters read what runs: the leader's configuration overrides them
+        effective(self, {"scenario": cfg.scenario_param, "seed": sc.seed,
+                         "noise": sc.uncertainty.noisy,
+                         "delay": sc.uncertainty.delay.kind != "none", "links": cfg.links,
+                         "mode": cfg.mode})
         self.realtime = cfg.wall
         memory = None
         path = str(self.get_parameter("init_memory").value)
