@@ -31,6 +31,9 @@ run_id : str
     domain and namespace are refused (see ``formation-ilc launch``).
 watchdog_scale : float
     Every bound of the leader's watchdog times this (default 1.0; see below).
+exit_when_done : bool
+    End the process with status 0 once ``done`` is out (default false): a launch file
+    shuts the other nodes down with it (``launch/formation.launch.py``).
 
 The leader publishes the configuration on ``config`` (latched), waits until every node has
 reported ready for trial k, publishes ``start`` k on ``leader/trial_events``, then follows
@@ -92,6 +95,7 @@ from formation_ilc.config.runconfig import PARAMS, RunConfig
 from formation_ilc.core.clock import Rejected
 from formation_ilc.nodes.common import (
     DropCounter,
+    Exit,
     fail,
     matched,
     node_parser,
@@ -163,10 +167,23 @@ class LeaderNode(Node):
         self.config_pub.publish(ms.json_to_msg(cfg.to_json()))
         self._gate = self.create_timer(0.05, self.core.maybe_start)
         self.create_timer(5.0, self.core.report_wait)
+        if g("exit_when_done"):
+            self.create_timer(0.5, self._exit_when_done)
         self.create_timer(1.0, self.core.on_watchdog)
         self.get_logger().info(f"{sc.name}: {sc.n} robots, {sc.trials} trials of "
                                f"{sc.samples} samples, {cfg.mode}, {cfg.links} links; "
                                f"waiting for {', '.join(expected)}")
+
+    def _exit_when_done(self) -> None:
+        """The run is over: end this process with status 0 (``exit_when_done``); the
+        ``done`` event went out at least one timer period before."""
+        if self.core.done_sent:
+            if getattr(self, "_done_seen", False):
+                self.get_logger().info("done: the leader exits (exit_when_done)")
+                Exit.code = 0
+                if Exit.stop is not None and not Exit.stop.done():
+                    Exit.stop.set_result(0)
+            self._done_seen = True
 
     @property
     def expected(self) -> list[str]:
@@ -220,7 +237,17 @@ class LeaderNode(Node):
             self.cfg.scenario.samples))
 
     def log(self, level: str, text: str) -> None:
-        getattr(self.get_logger(), level)(text)
+        # one call site per severity: rclpy refuses a call site whose severity changes
+        # ("Logger severity cannot be changed between calls")
+        lg = self.get_logger()
+        if level == "info":
+            lg.info(text)
+        elif level == "warning":
+            lg.warning(text)
+        elif level == "debug":
+            lg.debug(text)
+        else:
+            lg.error(text)
 
     def alert(self, text: str) -> None:
         self.get_logger().error(text)

@@ -123,6 +123,8 @@ LEADER: tuple[Param, ...] = _LEADER_RUN + (
     Param("state_dir", "", "folder of the leader's schedule (leader.json); empty: none"),
     Param("watchdog_scale", 1.0, "every bound of the leader's watchdog times this",
           lo=1e-3, hi=1e6),
+    Param("exit_when_done", False, "end the leader's process (status 0) once it has said "
+          "done: a launch file stops the other nodes with it"),
 )
 
 ROBOT: tuple[Param, ...] = (

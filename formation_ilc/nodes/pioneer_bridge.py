@@ -106,6 +106,9 @@ def _join(ns: str, name: str) -> str:
 class BridgeNode(ConfiguredNode):
     """The bridge of robot ``robot_id`` (parameter; ``**kwargs`` go to ``Node``)."""
 
+    #: what a bridge that took its own scenario runs with (its draws and links are not its)
+    AGREES_ON = ("scenario", "scenario_text", "mode", "gap")
+
     def __init__(self, robot_id: int | None = None, **kwargs: Any):
         if robot_id is None:
             for p in kwargs.get("parameter_overrides") or ():
