@@ -81,7 +81,6 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
@@ -94,6 +93,7 @@ from formation_ilc.config.roster import Lineup, roster
 from formation_ilc.config.runconfig import PARAMS, RunConfig
 from formation_ilc.core.clock import Rejected
 from formation_ilc.nodes.common import (
+    Diagnostics,
     DropCounter,
     Exit,
     fail,
@@ -149,7 +149,7 @@ class LeaderNode(Node):
         self.config_pub = self.create_publisher(String, ms.CONFIG, ms.LATCHED_QOS)
         self.ref_pub = self.create_publisher(PoseStamped, ms.REFERENCE, ms.SAMPLE_QOS)
         self.event_pub = self.create_publisher(String, ms.TRIAL_EVENTS, ms.SAMPLE_QOS)
-        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        self.diag_pub = Diagnostics(self)  # per-trial report and /diagnostics
         self.ready_sub = self.create_subscription(String, ms.READY, self._on_ready,
                                                   ms.LATCHED_READER_QOS)
         # its own events come back here too; a start or abort it did not send is re-asserted

@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 import time
+from typing import Any
 
 import pytest
 
@@ -42,6 +43,15 @@ def test_every_node_reports_and_a_stopped_robot_turns_warn(ros_env, tmp_path):
     poses: list[tuple[int, int]] = []
     node.create_subscription(DiagnosticArray, ms.absolute(ms.DIAGNOSTICS),
                              lambda m: seen.extend(m.status), ms.LATCHED_READER_QOS)
+    # the standard stream, as the aggregator and rqt_robot_monitor read it: arrival time
+    # of each status by name
+    standard: dict[str, list[tuple[float, Any]]] = {}
+
+    def on_standard(m: DiagnosticArray) -> None:
+        for st in m.status:
+            standard.setdefault(st.name, []).append((time.monotonic(), st))
+    node.create_subscription(DiagnosticArray, ms.ROS_DIAGNOSTICS, on_standard,
+                             ms.ROS_DIAGNOSTICS_QOS)
     # the label of each pose says its trial and sample (the run's default grid)
     grid = SampleClock.for_run(0.05, 120)
     node.create_subscription(PoseStamped, ms.absolute(ms.pose_topic(2)),
@@ -99,3 +109,20 @@ def test_every_node_reports_and_a_stopped_robot_turns_warn(ros_env, tmp_path):
     warned = [s for s in robot2 if s.level[0] >= WARN]
     assert warned, [(s.level, s.message) for s in robot2]
     assert "samples missed" in warned[0].message and warned[0].hardware_id == "robot_2"
+    # /diagnostics: every node's status named ``node: task``, with a hardware id and plain
+    # values, about once a second all through the run (a live node never goes stale)
+    for name in ("robot_1: learner", "robot_2: learner", "robot_3: learner",
+                 f"{ms.SIM_NODE}: plant", f"{ms.LINKS_NODE}: links",
+                 f"{ms.LEADER_NODE}: schedule"):
+        got = standard.get(name)
+        assert got and len(got) >= 5, (name, sorted(standard))
+        assert all(st.hardware_id for _, st in got)
+        gaps = sorted(b - a for (a, _), (b, _) in zip(got, got[1:], strict=False))
+        median = gaps[len(gaps) // 2]
+        assert 0.3 < median < 1.5, (name, median)  # the period, 1 s
+        last = got[-1][1]
+        values = {kv.key: kv.value for kv in last.values}
+        assert values["node"] == name.split(":")[0]  # a name as text, no JSON quotes
+        assert not any(v.startswith('"') for v in values.values()), values
+    robots = [st for _, st in standard[f"{ms.SIM_NODE}: robot_2"]]
+    assert all(st.hardware_id == "robot_2" for st in robots)
