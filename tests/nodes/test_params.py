@@ -103,7 +103,8 @@ def test_the_leader_and_the_simulator_start_from_their_example_files(params_cont
         assert leader.cfg.scenario.name == "paper-triangle3"
         assert "robot_1" in leader.expected and "" not in leader.expected
         # the parameters read what runs: the scenario's values, the team waited for
-        assert leader.get_parameter("trials").value == leader.cfg.scenario.trials == 300
+        assert leader.get_parameter("trials").value == leader.cfg.scenario.trials == 20
+        assert leader.get_parameter("law").value == 9  # 0 in the file: the scenario's
         assert leader.get_parameter("seed").value == 1
         assert leader.get_parameter("memory").value == "feedforward"
         assert leader.get_parameter("nodes_expected").value == leader.expected
