@@ -856,12 +856,17 @@ def _run_json(opts: argparse.Namespace, mode: str, links: str, out: Path) -> dic
 
 
 def _live(opts: argparse.Namespace) -> tuple[str, int] | None:
-    """``--live [PORT]`` on ``--live-host``: refused (NoRun) when the port is taken."""
+    """``--live [PORT]`` on ``--live-host``: refused (NoRun) without foxglove-sdk or when
+    the port is taken."""
+    import importlib.util
     import socket
 
     port = getattr(opts, "live", None)
     if port is None:
         return None
+    if importlib.util.find_spec("foxglove") is None:  # before anything starts, not 3 restarts
+        raise NoRun("argument --live: needs foxglove-sdk, the 'live' extra: pip install -c "
+                    "requirements.lock -e \".[live]\" (or pip install foxglove-sdk)")
     host = getattr(opts, "live_host", None) or "127.0.0.1"
     try:
         with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as s:
