@@ -32,7 +32,7 @@ from formation_ilc.config.roster import Lineup, Member, Roster, Team, roster
 from formation_ilc.config.runconfig import RunConfig, make_config, param_text, scenario_reference
 from formation_ilc.config.safety import SafetySettings, default_learning, default_margin
 from formation_ilc.config.scenario import Scenario, ScenarioError
-from formation_ilc.core.names import NAMESPACE, namespace_remaps, robots_process_name
+from formation_ilc.core.names import LEADER_NODE, NAMESPACE, namespace_remaps, robots_process_name
 from formation_ilc.protocol.schedule import DONE
 from formation_ilc.system.exits import NO_RESTART as EXIT_NO_RESTART
 from formation_ilc.system.netns import LinkFaults
@@ -1020,3 +1020,45 @@ def _entry_modules() -> dict[str, str]:
 
     return {ep.name: ep.value.split(":")[0]
             for ep in entry_points(group="console_scripts") if ep.name.startswith("formation-ilc")}
+
+
+# --------------------------------------------------------------------------- ros2 launch
+
+#: the ``ros2 run formation_ilc`` executable of each node module (``ros2_run/``)
+ROS2_RUN = {
+    "virtual_leader.node": "virtual_leader", "robot_sim.node": "robot_sim",
+    "robot_sim.physics_node": "physics_sim", "robot_sim.link_emulator": "link_emulator",
+    "formation_ilc.nodes.robot": "robot", "formation_ilc.nodes.recorder": "recorder",
+    "formation_ilc.nodes.liveview": "liveview",
+    "formation_ilc.nodes.pioneer_bridge": "pioneer_bridge",
+    "robot_sim.fake_pioneer": "fake_pioneer", "robot_sim.physics_base": "physics_bases",
+}
+
+
+def ros_launch_processes(argv: list[str]) -> list[dict[str, Any]]:
+    """The processes ``formation-ilc launch ARGV`` starts, as a ROS launch file starts them
+    (``launch/formation.launch.py``): the same processes with the same arguments, ROS
+    arguments and parameters, but no monitor (the launcher's own node: nobody waits for
+    it), and the leader ends its process after the last trial (``exit_when_done``), which
+    ends the launch. Each entry: name, executable (``ros2 run formation_ilc``), arguments,
+    ros_arguments (remaps, params files, ``-p`` parameters), and whether the launch ends
+    with it. NoRun for options the launcher refuses."""
+    from formation_ilc.cli.commands import build_parser
+
+    plan = build_plan(build_parser().parse_args(["launch", *argv]))
+    lineup = replace(plan.roster.lineup, monitor=False)
+    plan = replace(plan, config=replace(plan.config, monitored=False),
+                   roster=roster(lineup))
+    opts = build_parser().parse_args(["launch", *argv])
+    out = []
+    for spec in node_specs(plan, scenario_reference(opts.scenario)):
+        params = dict(spec.params)
+        if spec.name == LEADER_NODE:
+            params["exit_when_done"] = True
+        ros = [*spec.remaps]
+        for k, v in params.items():
+            ros += ["-p", f"{k}:={param_text(v)}"]
+        out.append({"name": spec.name, "executable": ROS2_RUN[spec.module],
+                    "arguments": list(spec.args), "ros_arguments": ros,
+                    "ends_launch": spec.name == LEADER_NODE})
+    return out
