@@ -1024,15 +1024,20 @@ def _entry_modules() -> dict[str, str]:
 
 # --------------------------------------------------------------------------- ros2 launch
 
-#: the ``ros2 run formation_ilc`` executable of each node module (``ros2_run/``)
+#: the ``ros2 run formation_ilc`` executable of each node's entry script (``ros2_run/``)
 ROS2_RUN = {
-    "virtual_leader.node": "virtual_leader", "robot_sim.node": "robot_sim",
-    "robot_sim.physics_node": "physics_sim", "robot_sim.link_emulator": "link_emulator",
-    "formation_ilc.nodes.robot": "robot", "formation_ilc.nodes.recorder": "recorder",
-    "formation_ilc.nodes.liveview": "liveview",
-    "formation_ilc.nodes.pioneer_bridge": "pioneer_bridge",
-    "robot_sim.fake_pioneer": "fake_pioneer", "robot_sim.physics_base": "physics_bases",
+    "formation-ilc-leader": "virtual_leader", "formation-ilc-sim": "robot_sim",
+    "formation-ilc-physics": "physics_sim", "formation-ilc-links": "link_emulator",
+    "formation-ilc-robot": "robot", "formation-ilc-record": "recorder",
+    "formation-ilc-liveview": "liveview", "formation-ilc-bridge": "pioneer_bridge",
+    "formation-ilc-fake-pioneer": "fake_pioneer", "formation-ilc-physics-bases": "physics_bases",
 }
+
+
+def ros2_executable(module: str) -> str:
+    """The ``ros2 run formation_ilc`` executable that runs node module ``module``."""
+    script = {m: s for s, m in _entry_modules().items()}[module]
+    return ROS2_RUN[script]
 
 
 def ros_launch_processes(argv: list[str]) -> list[dict[str, Any]]:
@@ -1058,7 +1063,7 @@ def ros_launch_processes(argv: list[str]) -> list[dict[str, Any]]:
         ros = [*spec.remaps]
         for k, v in params.items():
             ros += ["-p", f"{k}:={param_text(v)}"]
-        out.append({"name": spec.name, "executable": ROS2_RUN[spec.module],
+        out.append({"name": spec.name, "executable": ros2_executable(spec.module),
                     "arguments": list(spec.args), "ros_arguments": ros,
                     "ends_launch": spec.name == LEADER_NODE})
     return out

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from formation_ilc.cli.commands import build_parser
-from formation_ilc.cli.plan import ROS2_RUN, build_plan
+from formation_ilc.cli.plan import ROS2_RUN, build_plan, entry_module, ros2_executable
 from formation_ilc.config.runconfig import param_text
 
 FILE = Path(__file__).resolve().parents[2] / "launch" / "formation.launch.py"
@@ -83,7 +83,8 @@ def test_its_processes_are_the_launchers_for_the_same_arguments(launch_file, tmp
     # the same arguments, ROS arguments and parameters; the leader also ends the launch
     plan = build_plan(build_parser().parse_args(
         ["launch", context["scenario"], *argv, "--out", str(tmp_path / "plan")]))
-    assert [n.kwargs["executable"] for n in nodes] == [ROS2_RUN[s.module] for s in plan.nodes]
+    assert [n.kwargs["executable"] for n in nodes] == [ros2_executable(s.module)
+                                                       for s in plan.nodes]
     for node, spec in zip(nodes, plan.nodes, strict=True):
         assert node.kwargs["package"] == "formation_ilc"
         assert node.kwargs["arguments"] == list(spec.args)
@@ -111,5 +112,5 @@ def test_its_processes_are_the_launchers_for_the_same_arguments(launch_file, tmp
 
 
 def test_every_executable_is_a_ros2_run_shim():
-    for module, exe in ROS2_RUN.items():
-        assert f"from {module} import main" in (SHIMS / exe).read_text()
+    for script, exe in ROS2_RUN.items():
+        assert f"from {entry_module(script)} import main" in (SHIMS / exe).read_text()
