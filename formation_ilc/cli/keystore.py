@@ -47,7 +47,7 @@ def topic_names(namespace: str) -> TopicNames:
         recorded=lambda n: [clock_topic(namespace) if t == ms.CLOCK else t
                             for t, _, _ in ms.topic_table(n)],
         leader=ms.LEADER, view=lambda n: [t for t, _, _ in ms.view_topic_table(n)],
-        preview=ms.PREVIEW)
+        preview=ms.PREVIEW, team_poses=ms.TEAM_POSES)
 
 
 def grants_for(scenario: Any, namespace: str, *, plant: str = "sim", driver: str = "rosaria",

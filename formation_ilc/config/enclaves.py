@@ -84,6 +84,8 @@ class TopicNames:
     view: Callable[[int], Sequence[str]] = lambda n: ()
     #: the plant's preview of the team's poses for the live view ("": none)
     preview: str = ""
+    #: every robot's pose of a sample for the robots' safety filters ("": none)
+    team_poses: str = ""
 
 
 @dataclass(frozen=True)
@@ -165,11 +167,15 @@ def _grant(namespace: str, name: str, publish: Sequence[str], subscribe: Sequenc
                  tuple(sorted(set(dds_subscribe))), service_node or name)
 
 
-def _robot(t: TopicNames, namespace: str, i: int, senders: list[int], hears_leader: bool
-           ) -> Grant:
+def _robot(t: TopicNames, namespace: str, i: int, senders: list[int], hears_leader: bool,
+           n: int = 0) -> Grant:
     """Robot i (1-based): its own topics out; its pose, its links and its in-neighbours'
-    shared poses and trajectories in (emulated and direct links both)."""
+    shared poses and trajectories in (emulated and direct links both); for its safety
+    filter every other robot's pose (behind bridges) and the plant's ``team/poses``."""
     sub = [t.pose(i), t.config, t.trial_events]
+    sub += [t.pose(j) for j in range(1, n + 1) if j != i]
+    if t.team_poses:
+        sub.append(t.team_poses)
     sub += [t.link(i, robot_name(j)) for j in senders]
     sub += [t.shared_pose(j) for j in senders] + [t.trajectory(j) for j in senders]
     if hears_leader:
@@ -212,7 +218,7 @@ def formation_grants(adjacency: NDArray[np.float64], leader: NDArray[np.float64]
     t = topics
     senders = [[int(j) + 1 for j in np.flatnonzero(a[i] > 0)] for i in range(n)]
     robots = range(1, n + 1)
-    grants = [_robot(t, namespace, i, senders[i - 1], bool(w[i - 1] > 0)) for i in robots]
+    grants = [_robot(t, namespace, i, senders[i - 1], bool(w[i - 1] > 0), n) for i in robots]
     grants.append(_grant(namespace, LEADER_NODE,
                          [t.config, t.reference, t.trial_events, t.diagnostics],
                          # its own events too: it re-asserts against a start or abort
@@ -227,7 +233,8 @@ def formation_grants(adjacency: NDArray[np.float64], leader: NDArray[np.float64]
         grants.append(_grant(
             namespace, SIM_NODE,
             [*(t.pose(i) for i in robots), *(t.true_trajectory(i) for i in robots), t.clock,
-             t.ready, t.diagnostics, *([t.preview] if t.preview else [])],
+             t.ready, t.diagnostics, *([t.preview] if t.preview else []),
+             *([t.team_poses] if t.team_poses else [])],
             [*(t.cmd_vel(i) for i in robots), t.trial_events, t.config]))
     else:
         for i in robots:
