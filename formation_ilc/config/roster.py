@@ -304,10 +304,9 @@ def _robot(i: int, senders: list[int], hears_leader: bool, lineup: Lineup) -> Me
                                                          for j in senders]
     if hears_leader:
         sub += [nm.link_topic(i, nm.LEADER), nm.REFERENCE]
-    if lineup.sensing == "team":
-        sub.append(nm.TEAM_POSES)
-    elif lineup.sensing == "peers":
+    if lineup.sensing is not None:  # every robot's pose, and the plant's team/poses
         sub += [nm.pose_topic(j) for j in range(1, lineup.n + 1) if j != i]
+        sub.append(nm.TEAM_POSES)
     pub = [nm.cmd_vel_topic(i), nm.shared_pose_topic(i), nm.trajectory_topic(i), nm.READY,
            nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS]
     return Member(nm.robot_name(i), "robot", "formation-ilc-robot", TRIAL, True,
