@@ -147,7 +147,7 @@ def run(module: str, *args: str, env=None) -> subprocess.CompletedProcess[str]:
     ("robot_sim.fake_pioneer", ["-p", "driver:=p2os2"],
      "fake_pioneer: parameter driver: one of rosaria, ros2aria; got 'p2os2'"),
     ("robot_sim.physics_node", ["-p", "model:=roomba"],
-     "formation-ilc-physics: parameter model: one of p3dx, husky; got 'roomba'"),
+     "formation-ilc-physics: parameter model: one of p3dx, husky, husky-imu; got 'roomba'"),
     ("robot_sim.physics_base", ["-p", "tick:=0.0"],
      "physics_bases: parameter tick: 0.0 is outside 0.0001 .. 10 (how often "
      "the world is stepped and odometry published)"),
