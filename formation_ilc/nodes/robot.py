@@ -233,7 +233,9 @@ class RobotNode(ConfiguredNode):
     def _on_event(self, msg: String) -> None:
         lrn = self.learner
         # the robot's trials follow its own poses: a start taken only moves the ``seen``
-        # its next ready carries; it is idle once done with the slot started last
+        # its next ready carries; it is idle once done with the slot started last (or run
+        # without its start: Follower.ran)
+        self.follower.ran(lrn.learned)
         ev = self.take_event(msg, lambda ev: self.follower.take(
             ev, idle=lrn.done_with(self.follower.slot)))
         if ev is None:

@@ -258,6 +258,13 @@ class Follower:
         self.start_seq = ev.seq
         return ev
 
+    def ran(self, slot: int) -> None:
+        """The node ran ``slot`` without taking its start (a robot follows its own poses;
+        the start was lost on its way): the slot is behind it, and the next slot's start
+        is no gap (``future``) but the next one."""
+        if slot > self.slot:
+            self.slot, self.start_seq = slot, -1
+
     def repeat(self, ev: TrialEvent) -> bool:
         """Whether ``ev`` is the last start taken here, again (and no abort since)."""
         return is_repeat(ev, self.slot, self.start_seq)
@@ -541,10 +548,23 @@ class Schedule:
             return
         i = self.committed
         if all(name in self.ready and self.ready[name].trial >= i + 1
-               and self._idle(name) for name in self.robots):
+               and (self._idle(name) or self._learned_open_slot(name))
+               for name in self.robots):
             self.committed = i + 1
             self.committed_slot = self.slot
             self.open = False
+            self.answered.update(self.robots)  # every robot is idle for the next start
+
+    def _learned_open_slot(self, name: str) -> bool:
+        """A robot's trials follow its own poses: it may run and learn a slot whose start
+        it never took (the start was lost on its way, say while the robot's process was
+        stopped), and its ready then names an older ``seq``. A ready that says it learned
+        one trial more than the team while the open slot has ended answers that slot all
+        the same: at that slot's start every robot had learned exactly ``committed`` trials
+        (``next_start``; an aborted slot's learning step is rolled back before the next
+        start), so only this slot can have taught it the one more."""
+        return (self.abort_pending is None and not self.running
+                and self.ready[name].trial == self.committed + 1)
 
     def acks_missing(self) -> list[str]:
         """Nodes that have not answered the pending abort. A robot has answered once it is

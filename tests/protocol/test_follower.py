@@ -82,6 +82,20 @@ def test_aborts_are_taken_once_and_explain_a_gap():
     assert reason(f.take, start(5, 3)) == "future"
 
 
+def test_a_slot_run_without_its_start_is_behind_the_follower_and_no_gap():
+    """A robot follows its own poses: a start lost on its way (its process was stopped as
+    the start went out) leaves it learning the slot all the same; the next start is then
+    the next slot, not a gap, and the lost start coming late is stale."""
+    f = ready_follower(slot=1, seen=1)
+    assert reason(f.take, start(3, 3)) == "future"  # slot 2 never taken here
+    f.ran(2)
+    assert f.take(start(3, 3)).slot == 3 and f.seen == 3
+    f.said_ready()
+    assert reason(f.take, start(2, 2)) == "stale"
+    f.ran(1)  # never backwards
+    assert f.slot == 3
+
+
 def test_a_wallclock_follower_checks_the_agreed_start():
     trial_ns = 10 * SEC
     f = Follower(RUN, wall_trial_ns=trial_ns)

@@ -393,6 +393,41 @@ def test_a_ready_answers_the_last_event_only_if_it_has_seen_it():
     assert s.waiting_for() == ["robot_2"]
 
 
+def test_a_robot_that_learned_the_slot_without_its_start_answers_it():
+    """The start of slot 1 never reached robot_2 (stopped as it went out) but robot_2 ran
+    and learned the slot from its poses: its ready says one trial more than the team and
+    an older seq. That answers the ended slot, and the run goes on; the same ready while
+    the slot runs, or one trial short, answers nothing (CI stop 34: the leader waited
+    for robot_2 until its watchdog gave up)."""
+    s = sched()
+    ready_all(s, 0, -1)
+    run_slot(s)  # slot 0: seq 0
+    seq = s.started(1)
+    for n in ("robot_1", "robot_sim"):
+        s.on_ready(Ready(n, 2, "b0", seq))
+    s.on_ready(Ready("robot_2", 2, "b0", seq - 1))
+    assert s.committed == 1 and s.open  # the reference still runs
+    s.on_ready(Ready("robot_2", 1, "b0", seq - 1))  # its ready of slot 0, again
+    s.ended(1)
+    assert s.committed == 1 and s.waiting_for() == ["robot_2"]
+    assert "has not answered seq 1 (its last ready saw seq 0)" in s.explain_wait()[0]
+    s.on_ready(Ready("robot_2", 2, "b0", seq - 1))
+    assert s.committed == 2 and not s.open and s.waiting_for() == []
+    assert s.next_start() == (2, 2)
+
+
+def test_a_robot_that_learned_an_aborted_slot_still_owes_its_roll_back():
+    """One trial more than the team answers an open slot, never an abort."""
+    s = sched()
+    ready_all(s, 0, -1)
+    seq = s.started(0)
+    s.ended(0)
+    s.begin_abort("robot_sim asked")
+    ready_all(s, 1, seq)  # learned the aborted slot, and missed the abort
+    assert s.abort_pending == 0 and s.committed == 0
+    assert sorted(s.acks_missing()) == ["robot_1", "robot_2", "robot_sim"]
+
+
 def test_a_slot_that_has_not_ended_is_not_committed_and_other_slots_do_not_end_it():
     s = sched()
     ready_all(s, 0, -1)
