@@ -123,9 +123,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="with --plant pioneer: robot i's driver namespace, {i} replaced by "
                         "the robot number (default /pioneer_{i}; with --plant base "
                         "/base_{i})")
-    p.add_argument("--cmd-type", choices=("twist", "twist_stamped"), default="twist",
-                   help="with --plant pioneer: Twist (default) or TwistStamped "
-                        "(diff_drive_controller) on the driver's cmd_vel")
+    p.add_argument("--cmd-type", choices=("twist", "twist_stamped"), default=None,
+                   help="Twist or TwistStamped (diff_drive_controller) on the driver's "
+                        "cmd_vel; default: a --base preset's (docs/real-robots.md), Twist "
+                        "for a Pioneer driver")
     p.add_argument("--fake-drivers", action="store_true",
                    help="with --plant pioneer: also start one fake RosAria driver per robot "
                         "(robot_sim.fake_pioneer: a unicycle in wall time with odometry "

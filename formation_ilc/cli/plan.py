@@ -78,8 +78,8 @@ class BridgeOptions:
 
     driver : 'rosaria', 'p2os2' or 'ros2aria' (a Pioneer's).
     driver_ns : robot i's driver namespace, ``{i}`` replaced by the robot number.
-    cmd_type : 'twist' or 'twist_stamped' on the driver's cmd_vel (a Pioneer's; a base
-        preset names its own).
+    cmd_type : 'twist' or 'twist_stamped' on the driver's cmd_vel, or None: a base
+        preset's own, Twist for a Pioneer's.
     return_timeout : [s] how long a bridge drives its robot back between trials.
     fake_drivers : also start one fake driver per robot (``robot_sim.fake_pioneer``).
     base : the base preset (``--plant base``: ``formation_ilc.config.bases``), else None.
@@ -91,7 +91,7 @@ class BridgeOptions:
 
     driver: str = "rosaria"
     driver_ns: str = PIONEER_NS
-    cmd_type: str = "twist"
+    cmd_type: str | None = None
     return_timeout: float = 60.0
     fake_drivers: bool = False
     base: str | None = None
@@ -109,10 +109,23 @@ class BridgeOptions:
             ns = BASE_NS
         given = tuple((k, float(getattr(opts, k, 0.0) or 0.0)) for k in LIMIT_KEYS)
         pf = getattr(opts, "params_file", None)
-        return cls(opts.driver, ns, opts.cmd_type, float(opts.return_timeout),
+        return cls(opts.driver, ns, getattr(opts, "cmd_type", None),
+                   float(opts.return_timeout),
                    bool(opts.fake_drivers), base, tuple((k, v) for k, v in given if v != 0),
                    None if pf is None else Path(pf).resolve(),
                    bool(getattr(opts, "physics_bases", False)))
+
+    @property
+    def sent_type(self) -> str:
+        """The command type the bridges send: the one asked for, else a base preset's,
+        else Twist."""
+        if self.cmd_type is not None:
+            return self.cmd_type
+        if self.base is not None:
+            from formation_ilc.config.bases import base_preset
+
+            return base_preset(self.base).cmd_type
+        return "twist"
 
     def namespace(self, i: int) -> str:
         return self.driver_ns.replace("{i}", str(i))
@@ -121,7 +134,9 @@ class BridgeOptions:
         """Robot ``i``'s bridge parameters."""
         kind: tuple[tuple[str, Any], ...] = (
             (("base", self.base),) if self.base is not None
-            else (("cmd_type", self.cmd_type), ("driver", self.driver)))
+            else (("cmd_type", self.sent_type), ("driver", self.driver)))
+        if self.base is not None and self.cmd_type is not None:  # the preset's, overridden
+            kind += (("cmd_type", self.cmd_type),)
         return ((("robot_id", i), ("driver_ns", self.namespace(i))) + kind
                 + (("return_timeout", self.return_timeout),) + self.limits)
 
@@ -991,7 +1006,7 @@ def _launch(plan: RunPlan, m: Member, scenario: str, nsa: tuple[str, ...]) -> La
     if m.robot is not None:  # robot i's fake driver, in the driver's namespace
         assert bridge is not None
         return ((), ("-r", f"__ns:={bridge.namespace(m.robot)}"),
-                (("seed", m.robot), ("cmd_type", bridge.cmd_type), ("driver", bridge.driver)))
+                (("seed", m.robot), ("cmd_type", bridge.sent_type), ("driver", bridge.driver)))
     # the physics bases: every robot's base in one world
     from formation_ilc.config.bases import base_preset
 
@@ -999,7 +1014,7 @@ def _launch(plan: RunPlan, m: Member, scenario: str, nsa: tuple[str, ...]) -> La
     preset = base_preset(bridge.base)
     starts = [float(x) for x in plan.scenario.desired.eta[:, 0].ravel()]
     return (), nsa, (("robots", plan.scenario.n), ("poses", starts),
-                     ("ns_pattern", bridge.driver_ns), ("cmd_type", preset.cmd_type),
+                     ("ns_pattern", bridge.driver_ns), ("cmd_type", bridge.sent_type),
                      ("odom_topic", preset.odom_topic), ("model", phys.model),
                      ("collide", phys.collide))
 

@@ -52,9 +52,11 @@ class BasePreset:
 
 
 BASES: dict[str, BasePreset] = {
+    # Jazzy's TurtleBot 3 node takes TwistStamped (its enable_stamped_cmd_vel parameter;
+    # with it false, run the bridge with cmd_type twist), and the TurtleBot 4 too
     "turtlebot3": BasePreset("turtlebot3", Limits(0.22, 2.84, 2.5, 3.2), (0.138, 0.178),
+                             cmd_type="twist_stamped",
                              source="ROBOTIS e-Manual; turtlebot3_navigation2"),
-    # Jazzy's TurtleBot 4 takes TwistStamped on cmd_vel
     "turtlebot4": BasePreset("turtlebot4", Limits(0.306, 1.9, 2.5, 3.2), (0.342, 0.339),
                              cmd_type="twist_stamped",
                              source="Create 3 specifications; turtlebot4 teleop"),

@@ -156,9 +156,8 @@ BRIDGE: tuple[Param, ...] = (
           "empty: a Pioneer driver", choices=("", *BASES)),
     Param("driver_ns", "", "namespace of the driver's topics; empty: the driver's usual",
           effective="the namespace used"),
-    Param("cmd_type", "twist", "type of the driver's command",
-          choices=("twist", "twist_stamped"), effective="a preset's type unless "
-          "twist_stamped is asked for"),
+    Param("cmd_type", "", "type of the driver's command; empty: a base preset's, else twist",
+          choices=("", "twist", "twist_stamped"), effective="the type sent"),
     Param("v_max", 0.0, "clamp of the linear speed; 0: the Pioneer's", "m/s", lo=0.0,
           hi=100.0, effective=_LIMIT_USED),
     Param("omega_max", 0.0, "clamp of the turn rate; 0: the Pioneer's", "deg/s", lo=0.0,

@@ -133,11 +133,11 @@ class BridgeNode(ConfiguredNode):
                                             odom=preset.odom_topic)
         self.driver = driver if preset is None else f"base ({preset.name})"
         cmd_type = str(g("cmd_type"))
-        if cmd_type not in ("twist", "twist_stamped"):
+        if cmd_type not in ("", "twist", "twist_stamped"):
             raise ValueError(f"parameter cmd_type: twist or twist_stamped, got {cmd_type!r}")
         # a preset's message type unless another is asked for
-        self.stamped = (cmd_type if preset is None or cmd_type != "twist"
-                        else preset.cmd_type) == "twist_stamped"
+        self.stamped = (cmd_type or (preset.cmd_type if preset is not None else "twist")
+                        ) == "twist_stamped"
         self.max_tilt = math.radians(float(g("max_tilt")))
         lim = bridge_limits(base, {k: float(g(k)) for k in LIMIT_KEYS})
         self.limits = CommandLimits(lim.v_max, lim.omega_max)

@@ -103,6 +103,20 @@ def test_real_robots_plan_bridges_and_fake_drivers(tmp_path):
     assert plan.reporters == ("bridge_1", "bridge_2", "bridge_3")
 
 
+@pytest.mark.parametrize(("extra", "sent", "bridge_has"), [
+    ((), "twist_stamped", None),                       # Jazzy's TurtleBot 3: stamped
+    (("--cmd-type", "twist"), "twist", "twist"),       # enable_stamped_cmd_vel false
+])
+def test_a_base_sends_its_presets_command_type_unless_another_is_asked(
+        tmp_path, extra, sent, bridge_has):
+    plan = plan_of(tmp_path, "paper-triangle3", "--plant", "base", "--base", "turtlebot3",
+                   "--physics-bases", "--time-scale", "2.3", *extra)
+    bridge = next(s for s in plan.nodes if s.name == "bridge_1")
+    bases = next(s for s in plan.nodes if s.name == "physics_bases")
+    assert params(bridge).get("cmd_type") == bridge_has
+    assert params(bases)["cmd_type"] == sent
+
+
 def test_an_initial_memory_reaches_every_robot_by_its_absolute_path(tmp_path, monkeypatch):
     from formation_ilc.cli import main
 
