@@ -14,6 +14,8 @@
   match, is skipped and reading resumes at the next valid record (``ReadReport`` says what
   was lost: byte ranges, chunks, messages, their log times).
 * ``repair``: rewrite a cut-short or damaged file with a complete summary and footer.
+* ``bag_metadata``: the ``rosbag2`` metadata record a closed file ends with, as rosbag2's
+  MCAP storage writes it (``ros2 bag info`` reads the distro, topics and counts from it).
 """
 
 from __future__ import annotations
@@ -33,7 +35,13 @@ from pathlib import Path
 from typing import IO, Any
 
 __all__ = ["message_definition", "type_hash", "qos_yaml", "RosMcapWriter", "RawMessage",
-           "read_messages", "repair", "read_metadata", "ReadReport", "Damage", "CHUNK_BYTES"]
+           "read_messages", "repair", "read_metadata", "ReadReport", "Damage", "CHUNK_BYTES",
+           "bag_metadata", "ROS_DISTRO"]
+
+#: the ROS distribution the stack's wheels are (rosbag2's ``ros_distro``)
+ROS_DISTRO = "jazzy"
+#: rosbag2's metadata format version of that distribution
+BAG_METADATA_VERSION = 9
 
 #: chunk size limit [bytes of uncompressed records] of the recorder and the batch
 #: simulator's recordings: what one damaged chunk loses at most (scripts/bench_record.py
@@ -166,6 +174,9 @@ class RosMcapWriter:
         self._period = flush_period
         self._last_flush = time.monotonic()
         self._copies: list[Any] = []  # schema and channel records still to write outside chunks
+        #: per topic: type, offered QoS, type hash, messages written (the rosbag2 record)
+        self._topics: dict[str, list[Any]] = {}
+        self._span: list[int] = []  # first and last log time [ns]
         self.count = 0
         self.closed = False
 
@@ -187,6 +198,7 @@ class RosMcapWriter:
         cid = self._w.register_channel(topic=topic, message_encoding="cdr", schema_id=sid,
                                        metadata=meta)
         self._channels[topic] = cid
+        self._topics[topic] = [type_name, qos, type_hash, 0]
         self._copies.append(Channel(id=cid, topic=topic, message_encoding="cdr",
                                     schema_id=sid, metadata=meta))
         return cid
@@ -203,6 +215,14 @@ class RosMcapWriter:
         except OSError as exc:
             raise self._named(exc) from exc
         self.count += 1
+        self._topics[topic][3] += 1
+        t = int(log_time)
+        if not self._span:
+            self._span = [t, t]
+        elif t < self._span[0]:
+            self._span[0] = t
+        elif t > self._span[1]:
+            self._span[1] = t
         if self._period > 0 and time.monotonic() - self._last_flush >= self._period:
             self.flush()
 
@@ -235,6 +255,8 @@ class RosMcapWriter:
     def close(self) -> None:
         if not self.closed:
             self.flush()
+            self._w.add_metadata("rosbag2", {"serialized_metadata": bag_metadata(
+                self.path.name, self._topics, self._span)})
             self._w.finish()
             self._fh.close()
             self.closed = True
@@ -244,6 +266,33 @@ class RosMcapWriter:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+
+def bag_metadata(name: str, topics: dict[str, list[Any]], span: list[int]) -> str:
+    """rosbag2's metadata of one MCAP file (YAML, the ``serialized_metadata`` of the
+    ``rosbag2`` record): ``topics`` maps a topic to [type, offered QoS YAML, type hash,
+    messages]; ``span`` is the first and last log time [ns] (empty: no message)."""
+    import yaml
+
+    start, end = (span[0], span[1]) if span else (0, 0)
+    count = sum(t[3] for t in topics.values())
+    doc = {
+        "version": BAG_METADATA_VERSION, "storage_identifier": "mcap",
+        "duration": {"nanoseconds": end - start},
+        "starting_time": {"nanoseconds_since_epoch": start},
+        "message_count": count,
+        "topics_with_message_count": [
+            {"topic_metadata": {"name": topic, "type": ty, "serialization_format": "cdr",
+                                "offered_qos_profiles": qos, "type_description_hash": h},
+             "message_count": n}
+            for topic, (ty, qos, h, n) in sorted(topics.items())],
+        "compression_format": "", "compression_mode": "",
+        "relative_file_paths": [name],
+        "files": [{"path": name, "starting_time": {"nanoseconds_since_epoch": start},
+                   "duration": {"nanoseconds": end - start}, "message_count": count}],
+        "custom_data": {}, "ros_distro": ROS_DISTRO,
+    }
+    return str(yaml.safe_dump(doc, sort_keys=False))
 
 
 @dataclass(frozen=True)

@@ -11,6 +11,7 @@ import textwrap
 from pathlib import Path as Path_
 
 import pytest
+import yaml
 
 pytest.importorskip("mcap_ros2")  # the [mcap] extra; CI installs it
 from geometry_msgs.msg import PoseStamped, Twist  # noqa: E402
@@ -85,6 +86,15 @@ def test_roundtrip_with_mcap_ros2_and_rosbags(tmp_path):
     assert got[0].linear.x == 0.5 and got[0].angular.z == -0.25  # log-time order
     assert len(got[3].poses) == 5 and got[3].poses[4].pose.position.x == 4.25
     assert read_metadata(f)["formation_ilc"]["scenario"] == "name: x"
+    # rosbag2's own record: what `ros2 bag info` reads (distro, counts per topic, span)
+    bag = yaml.safe_load(read_metadata(f)["rosbag2"]["serialized_metadata"])
+    assert bag["ros_distro"] == "jazzy" and bag["storage_identifier"] == "mcap"
+    assert bag["message_count"] == 6 and bag["files"][0]["message_count"] == 6
+    counts = {t["topic_metadata"]["name"]: t["message_count"]
+              for t in bag["topics_with_message_count"]}
+    assert sum(counts.values()) == 6 and counts["/formation/robot_1/trajectory"] >= 1
+    assert bag["duration"]["nanoseconds"] == max(m.log_time for _, _, m, _ in decoded) - \
+        bag["starting_time"]["nanoseconds_since_epoch"]
 
 
 WRITER = textwrap.dedent("""
