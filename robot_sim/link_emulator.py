@@ -54,7 +54,6 @@ from formation_ilc.nodes.common import (
     matched,
     node_parser,
     spin_main,
-    warm_up_draws,
 )
 from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.linkemu import CLOCK, REFERENCE, SHARED, Emitted, EmulatedLinks
@@ -77,7 +76,6 @@ class LinkEmulator(ConfiguredNode):
 
     def configure(self, cfg: RunConfig) -> None:
         self.links: EmulatedLinks[RawPose] = EmulatedLinks(cfg)
-        warm_up_draws(self.links.pb, cfg.scenario.uncertainty)  # no first tick held by a compile
         self.follower = self.links.follower
         self.cfg = cfg
         self.realtime = self.links.realtime

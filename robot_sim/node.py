@@ -64,7 +64,6 @@ from formation_ilc.nodes.common import (
     matched,
     node_parser,
     spin_main,
-    warm_up,
 )
 from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.plant import RESEND_S, KinematicPlant, Sample
@@ -102,7 +101,6 @@ class SimNode(ConfiguredNode):
     def configure(self, cfg: RunConfig) -> None:
         self.plant = plant = self.make_plant(cfg)
         self.follower = plant.follower
-        warm_up(plant.pb, cfg.scenario.uncertainty)
         self.cfg = cfg
         n = plant.n
         timeout = float(self.get_parameter("timeout").value)

@@ -270,7 +270,6 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
     node, then the report; the exit status. ``place``: a process's command line (default
     its own)."""
     from formation_ilc.cli.report import write_report
-    from formation_ilc.model.simulate import Problem
     from formation_ilc.system.shm import clean_leftovers, fastdds_files
 
     if plan.run_json is not None:
@@ -287,13 +286,12 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
     os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
     if "ROS_AUTOMATIC_DISCOVERY_RANGE" in env:
         os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env["ROS_AUTOMATIC_DISCOVERY_RANGE"]
-    pb = Problem.from_scenario(plan.scenario)
     for note in plan.notes:
         print(note, flush=True)
     print(plan.banner(), flush=True)
     session = _Session(plan, env, place)
     try:
-        status = session.run(pb)
+        status = session.run()
     finally:
         # the shared-memory files of nodes killed during the run, and older leftovers
         clean_leftovers(fastdds_files() - shm_before)
@@ -515,7 +513,7 @@ class _Session:
             name, cfg.scenario.trials, str(pid), passive=True, run=cfg.run_id,
             down=True).to_json()))
 
-    def run(self, pb: Any) -> int:
+    def run(self) -> int:
         """Start the nodes, follow the trials to the end; the exit status (the outputs
         are the caller's)."""
         import rclpy
@@ -530,7 +528,7 @@ class _Session:
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
         status = 0
         try:
-            status = self._follow(pb)
+            status = self._follow()
         except _Refused:
             status = 2
         except Diverged as exc:
@@ -557,14 +555,13 @@ class _Session:
             rclpy.try_shutdown()
         return status
 
-    def _follow(self, pb: Any) -> int:
+    def _follow(self) -> int:
         """The monitor joins, the nodes start, and the run is followed until every trial
         and report is in (or the wait for them is over), or a node fails for good."""
         from rclpy.experimental import EventsExecutor
         from std_msgs.msg import String
 
         import msgs_schema as ms
-        from formation_ilc.nodes.common import warm_up
         from formation_ilc.nodes.monitor import MonitorNode
 
         plan = self.plan
@@ -574,10 +571,8 @@ class _Session:
         self.down_pub = monitor.create_publisher(String, ms.READY, ms.LATCHED_QOS)
         ex = EventsExecutor()
         ex.add_node(monitor)
-        # discovery runs while the kernels compile; then look for another formation here
-        t_node = time.monotonic()
-        warm_up(pb)  # compile the kernels once, into the numba cache every node then loads
-        self._refuse_foreign(max(0.0, 1.5 - (time.monotonic() - t_node)))
+        # look for another formation here (discovery of its nodes takes a moment)
+        self._refuse_foreign(1.5)
         self.supervisor.start()
         final_deadline: float | None = None
         watch = Watch(Bounds.for_run(plan.scenario.dt, len(plan.team.expected),

@@ -14,7 +14,6 @@ from collections import Counter
 from collections.abc import Callable, Collection, Iterable
 from typing import Any, TypeVar
 
-import numpy as np
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
@@ -27,14 +26,12 @@ from std_msgs.msg import String
 import msgs_schema as ms
 from formation_ilc.config.runconfig import RunConfig, make_config
 from formation_ilc.core.clock import REASONS, Rejected
-from formation_ilc.core.uncertainty import Uncertainty
-from formation_ilc.model.simulate import Problem
 from formation_ilc.protocol.schedule import Follower, Ready, TrialEvent
 from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, is_disk_full
 from formation_ilc.system.lifetime import PARENT_ENV, bound_the_stop, die_with_parent, parent_gone
 
 __all__ = ["PARENT_ENV", "DROP_REASONS", "DropCounter", "RunConfig", "make_config",
-           "config_from_msg", "ConfiguredNode", "warm_up", "warm_up_draws", "matched", "unmatched",
+           "config_from_msg", "ConfiguredNode", "matched", "unmatched",
            "readers_wanting", "fail",
            "spin_main", "node_parser", "ros_param", "robot_node_from_args"]
 
@@ -158,48 +155,6 @@ class ConfiguredNode(Node):
 
     def configure(self, cfg: RunConfig) -> None:
         raise NotImplementedError
-
-
-def warm_up(pb: Problem, unc: Uncertainty | None = None) -> None:
-    """Compile (or load from the numba cache) every kernel a node calls, with the node's
-    shapes, so the first sample is not late by seconds; with ``unc``, the plant's and the
-    links' draws too (the simulator and the link emulator draw at each trial's start: a
-    first draw there held the first sample of a run for 2-18 s on a loaded machine)."""
-    from formation_ilc.core.kinematics import step_into
-    from formation_ilc.core.law import command, learn
-    from formation_ilc.core.links import delivered_label
-    from formation_ilc.model.simulate import trial_errors
-
-    n, n_t, n_l = pb.n, pb.samples, pb.src.shape[1]
-    i = slice(0, 1)
-    out = np.zeros((1, 2))
-    eta = np.zeros((1, n_t + 1, 3))
-    command(0, pb.law, np.zeros((1, 2)), eta, pb.eta_d[i], np.zeros((1, n_l, 3)),
-            np.zeros((1, n_l), dtype=np.int64), pb.src[i], pb.weight[i], pb.eta_d,
-            np.zeros(1, dtype=np.int64), pb.leader[i], pb.gain_prime[i], pb.heading, out)
-    learn(pb.law, pb.memory, np.zeros((1, n_t, 2)), np.zeros((1, n_t, 2)), eta, pb.eta_d[i],
-          np.zeros((1, n_l, n_t + 1, 3)), pb.src[i], pb.weight[i], pb.eta_d, pb.leader[i],
-          pb.gain[i], pb.heading, np.zeros((1, n_t, 2)))
-    step_into(np.zeros((n, 3)), np.zeros((n, 2)), np.zeros((n, 2)), pb.dt, np.zeros((n, 3)))
-    # and as the plant calls it, on views of its (N, T+1, 3) arrays (numba's layout "A", a
-    # second specialisation: compiled at a run's first sample it held that sample 1-3 s)
-    xi, u = np.zeros((n, 2, 3)), np.zeros((n, 1, 2))
-    step_into(xi[:, 0], u[:, 0], u[:, 0], pb.dt, xi[:, 1])
-    trial_errors(pb.eta_d, pb.eta_d, pb.eta_d, pb.src, pb.weight, np.zeros(6))
-    delivered_label(0, 0)
-    if unc is not None:
-        warm_up_draws(pb, unc)
-
-
-def warm_up_draws(pb: Problem, unc: Uncertainty) -> None:
-    """Compile (or load) the plant's and the links' draws of ``unc`` with ``pb``'s shapes
-    (a draw of trial 0, which nothing keeps), and the links' delivered label (the link
-    emulator's first tick compiled it inside the first trial)."""
-    from formation_ilc.core.links import delivered_label
-
-    unc.draw_plant(0, 0, pb.n, pb.samples)
-    unc.draw_delays(0, 0, pb.n, pb.src.shape[1], pb.samples)
-    delivered_label(0, 0)
 
 
 def matched(pairs: Iterable[tuple[Any, int | Collection[str]]], node: Node | None = None

@@ -77,7 +77,6 @@ from formation_ilc.nodes.common import (
     robot_node_from_args,
     spin_main,
     unmatched,
-    warm_up,
 )
 from formation_ilc.nodes.params import ParameterError, check, declare
 from formation_ilc.protocol.learner import RobotLearner
@@ -150,7 +149,6 @@ class RobotNode(ConfiguredNode):
                                if r != lrn.i and lrn.i in pb.src[r])
         self.n_out = len(self.out_names)
         self.late: Counter[str] = Counter({"links": 0})
-        warm_up(pb)
 
         self.cmd_pub = self.create_publisher(Twist, ms.cmd_vel_topic(self.id), ms.SAMPLE_QOS)
         self.shared_pub = self.create_publisher(PoseStamped, ms.shared_pose_topic(self.id),
