@@ -53,11 +53,12 @@ keystore or the loaded Fast DDS cannot run it (docs/security.md).
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import signal
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -300,7 +301,7 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
         status = check_recording(plan.record_root, plan.scenario.trials)
     return write_report(plan, session.rows(), session.diagnostics,
                         session.supervisor.restarts, time.monotonic() - session.t_start,
-                        status)
+                        status, startup=session.startup())
 
 
 def check_recording(root: Path, trials: int) -> int:
@@ -375,6 +376,68 @@ def _rewrite_metrics(path: Path, kept: list[Any]) -> None:
         w.writerow(METRIC_COLUMNS)
         for r in kept:
             w.writerow(format_row(np.asarray(r, dtype=float)))
+
+
+class StartupProgress:
+    """What the console shows while a run starts: from the processes' start to the
+    leader's first ``start``, a line at least every ``every`` seconds (sooner when a count
+    moved), with how many of the nodes the leader waits for are found in the ROS graph
+    and how many have said ready; after ``name_after`` seconds, also whom it still waits
+    for. Then one line that the first trial starts. The times it saw (``found_at``: every
+    node found, ``ready_at``: every node ready, ``started_at``: the first start; seconds
+    from ``t0``) go into summary.json."""
+
+    def __init__(self, expected: Sequence[str], t0: float, every: float = 1.0,
+                 name_after: float = 5.0):
+        self.expected = list(expected)
+        self.t0 = t0
+        self.every = every
+        self.name_after = name_after
+        self.last_line = -math.inf  # the first call prints
+        self.last_counts: tuple[int, int] = (-1, -1)
+        self.found_at: float | None = None
+        self.ready_at: float | None = None
+        self.started_at: float | None = None
+
+    @property
+    def active(self) -> bool:
+        return self.started_at is None
+
+    def update(self, now: float, found: Collection[str], ready: Collection[str],
+               started: bool) -> str | None:
+        """The line to print now, or None. ``found``: node names found in the graph;
+        ``ready``: nodes that have said ready; ``started``: the leader started a trial."""
+        if not self.active:
+            return None
+        t = now - self.t0
+        n = len(self.expected)
+        n_found = sum(1 for e in self.expected if e in found)
+        n_ready = sum(1 for e in self.expected if e in ready)
+        if n_found == n and self.found_at is None:
+            self.found_at = t
+        if n_ready == n and self.ready_at is None:
+            self.ready_at = t
+        if started:
+            self.started_at = t
+            return f"start-up done [{t:.1f} s]: {n} nodes ready, the first trial starts"
+        counts = (n_found, n_ready)
+        if counts == self.last_counts and now - self.last_line < self.every:
+            return None
+        if counts != self.last_counts and now - self.last_line < 0.25 * self.every:
+            return None  # several changes at once: one line
+        self.last_counts, self.last_line = counts, now
+        line = f"start-up [{t:.1f} s]: {n_found} of {n} nodes found, {n_ready} ready"
+        if n_ready == n:
+            line += "; waiting for the leader to start the first trial"
+        elif t >= self.name_after:
+            waiting = [e for e in self.expected if e not in ready]
+            line += f"; waiting for {', '.join(waiting[:6])}" + (
+                f" and {len(waiting) - 6} more" if len(waiting) > 6 else "")
+        return line
+
+    def summary(self) -> dict[str, float | None]:
+        return {"all_found_s": self.found_at, "all_ready_s": self.ready_at,
+                "first_start_s": self.started_at}
 
 
 class Watch:
@@ -465,6 +528,7 @@ class _Session:
         self.finite_cols = [i for i, c in enumerate(METRIC_COLUMNS)
                             if i > 0 and (plan.true_state or c not in TRUE_COLUMNS)]
         self.supervisor = Supervisor(plan, env, place, on_down=self._down)
+        self.progress: StartupProgress | None = None
         self.monitor: Any = None
         self.down_pub: Any = None
         self.diagnostics: dict[str, dict[str, Any]] = {}
@@ -488,6 +552,11 @@ class _Session:
                  f"{', '.join(map(str, lost))}: the launcher stopped before it wrote them)"
                  if lost else ""), flush=True)
         return kept, MetricsWriter(path, append=True)
+
+    def startup(self) -> dict[str, float | None]:
+        """When every node was found and ready, and the first trial started [s from the
+        session's start]."""
+        return self.progress.summary() if self.progress is not None else {}
 
     def rows(self) -> list[Any]:
         """Every finished trial's metrics row, by iteration (a resumed run's first)."""
@@ -547,6 +616,9 @@ class _Session:
                   file=sys.stderr)
             status = DISK_FULL
         finally:
+            if status == 0:
+                print(f"every trial is in: stopping the {len(self.plan.nodes)} processes "
+                      f"[{time.monotonic() - self.t_start:.1f} s]", flush=True)
             self.supervisor.stop()
             self.writer.close()
             if self.monitor is not None:
@@ -563,6 +635,7 @@ class _Session:
 
         import msgs_schema as ms
         from formation_ilc.nodes.monitor import MonitorNode
+        from formation_ilc.protocol.schedule import START
 
         plan = self.plan
         self.monitor = monitor = MonitorNode(plan.config, self.on_trial,
@@ -571,9 +644,17 @@ class _Session:
         self.down_pub = monitor.create_publisher(String, ms.READY, ms.LATCHED_QOS)
         ex = EventsExecutor()
         ex.add_node(monitor)
-        # look for another formation here (discovery of its nodes takes a moment)
+        # the processes start (imports are most of their start) while the monitor looks for
+        # another formation here; they join the domain only once there is none
+        self.supervisor.start(gated=True)
+        print(f"started {len(plan.nodes)} processes; looking for another formation on "
+              f"ROS_DOMAIN_ID={plan.domain} in {plan.namespace} ...", flush=True)
         self._refuse_foreign(1.5)
-        self.supervisor.start()
+        self.supervisor.open_gate()
+        print(f"none: the processes join; the leader waits for {len(plan.team.expected)} "
+              f"nodes [{time.monotonic() - self.t_start:.1f} s]", flush=True)
+        progress = self.progress = StartupProgress(plan.team.expected, self.t_start)
+        graph_at, found = 0.0, set()
         final_deadline: float | None = None
         watch = Watch(Bounds.for_run(plan.scenario.dt, len(plan.team.expected),
                                      plan.config.mode, plan.config.timeout,
@@ -581,6 +662,17 @@ class _Session:
                       plan.scenario.trials)
         while True:
             ex.spin_once(timeout_sec=0.05)
+            if progress.active:
+                now = time.monotonic()
+                if now - graph_at >= 0.5:  # a graph query: twice a second is enough
+                    graph_at = now
+                    found = {name for name, ns in monitor.get_node_names_and_namespaces()
+                             if ns == plan.namespace}
+                ready = set(monitor.readies)
+                line = progress.update(now, found | ready, ready,
+                                       any(e.get("event") == START for e in monitor.events))
+                if line:
+                    print(line, flush=True)
             stuck = watch.tick(monitor, time.monotonic())
             if stuck is not None:
                 print(f"error: {stuck}", file=sys.stderr)

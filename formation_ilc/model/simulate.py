@@ -464,14 +464,18 @@ def simulate_seeds(scenario: Scenario, seeds: Iterable[int], trials: int) -> NDA
     u = np.empty((n, n_t, 2))
     out = np.empty((len(seeds), trials))
     row = np.empty(len(METRIC_COLUMNS) - 1)
+    # each seed's draws into its rows of the stacked arrays, by the compiled kernels
+    shift, dist, noise = np.empty((n, 3)), np.empty((n, n_t, 2)), np.empty((n, n_t + 1, 3))
+    tau = np.empty((n, n_links, n_t + 1), dtype=np.int64)
+    tau0 = np.empty((n, n_t + 1), dtype=np.int64)
+    state = np.empty(STATE_SIZE, dtype=np.uint64)
+    words = [seed_words(s) for s in seeds]
+    plant_args, delay_args = plant_arrays(unc, n_t), delay_arrays(unc)
     for k in range(trials):
-        draws = [unc.draw_plant(s, k, n1, n_t) for s in seeds]
-        delays = [unc.draw_delays(s, k, n1, n_links, n_t) for s in seeds]
-        shift = np.concatenate([d[0] for d in draws])
-        dist = np.concatenate([d[1] for d in draws])
-        noise = np.concatenate([d[2] for d in draws])
-        tau = np.concatenate([d[0] for d in delays])
-        tau0 = np.concatenate([d[1] for d in delays])
+        for i, w in enumerate(words):
+            sl = slice(i * n1, (i + 1) * n1)
+            fill_plant.jit(w, k, *plant_args, state, shift[sl], dist[sl], noise[sl])
+            fill_delays.jit(w, k, *delay_args, state, tau[sl], tau0[sl])
         run_trial.jit(pb.law, pb.memory, pb.heading, pb.plant, pb.dt, memory,
                       pb.eta_d[:, 0] + shift, dist,
                       noise, tau, tau0, pb.src, pb.weight, pb.leader, pb.eta_d, pb.gain,

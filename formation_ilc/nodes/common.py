@@ -28,7 +28,13 @@ from formation_ilc.config.runconfig import RunConfig, make_config
 from formation_ilc.core.clock import REASONS, Rejected
 from formation_ilc.protocol.schedule import Follower, Ready, TrialEvent
 from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, is_disk_full
-from formation_ilc.system.lifetime import PARENT_ENV, bound_the_stop, die_with_parent, parent_gone
+from formation_ilc.system.lifetime import (
+    PARENT_ENV,
+    bound_the_stop,
+    die_with_parent,
+    parent_gone,
+    wait_at_gate,
+)
 
 __all__ = ["PARENT_ENV", "DROP_REASONS", "DropCounter", "RunConfig", "make_config",
            "config_from_msg", "ConfiguredNode", "matched", "unmatched",
@@ -299,6 +305,10 @@ def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
         return 2
     ns = parser.parse_args(own)
     die_with_parent()
+    try:
+        wait_at_gate()  # imports done; the launcher says when to join the domain
+    except KeyboardInterrupt:  # stopped at the gate: the run was refused
+        return 130
     # rclpy's own SIGINT handling raises KeyboardInterrupt inside whatever callback runs,
     # which aborts the process from C++; a flag for the spin loop is enough
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
