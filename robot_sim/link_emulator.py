@@ -54,6 +54,7 @@ from formation_ilc.nodes.common import (
     matched,
     node_parser,
     spin_main,
+    unmatched,
 )
 from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.linkemu import CLOCK, REFERENCE, SHARED, Emitted, EmulatedLinks
@@ -102,9 +103,12 @@ class LinkEmulator(ConfiguredNode):
     def _check_ready(self) -> None:
         pubs = [(p, 1) for pubs in self.out for p in pubs]
         subs = [(s, 1) for s in self.pose_subs]  # both ends matched: no first pose lost
-        if matched(pubs + subs + [(self.ready_pub, 1)]):
+        need = pubs + subs + [(self.ready_pub, 1)]
+        if matched(need):
             self._gate.cancel()
             self.ready_pub.publish(self.ready_msg(0))
+            return
+        self.not_ready(unmatched(need))
 
     def _on_event(self, msg: String) -> None:
         res = self.take_event(msg, self.links.on_event)

@@ -64,6 +64,7 @@ from formation_ilc.nodes.common import (
     matched,
     node_parser,
     spin_main,
+    unmatched,
 )
 from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.plant import RESEND_S, KinematicPlant, Sample
@@ -138,6 +139,8 @@ class SimNode(ConfiguredNode):
         if matched(need, self):
             self._gate.cancel()
             self._say_ready(0)
+            return
+        self.not_ready(unmatched(need, self))
 
     def _say_ready(self, trial: int) -> None:
         self.ready_pub.publish(self.ready_msg(trial))

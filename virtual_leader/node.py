@@ -147,6 +147,8 @@ class LeaderNode(Node):
         self.drops = DropCounter(self)
         #: the last ready refused from each node, with why (named when the schedule waits)
         self.refused: dict[str, str] = {}
+        #: what a node not yet ready last said it waits for (its unmatched endpoints)
+        self.waiting: dict[str, str] = {}
         self.watch_reports = 0
         self.watchdog = Watchdog(Bounds.for_run(sc.dt, len(self.expected), self.cfg.mode,
                                                self.cfg.timeout,
@@ -172,6 +174,10 @@ class LeaderNode(Node):
         # of 1 (shared by every writer of the keyless topic) let this leader's own config
         # replace it before it was taken, and the second formation ran
         self.create_subscription(String, ms.CONFIG, self._on_config, ms.LATCHED_READER_QOS)
+        # a node not yet ready says what it waits for in its diagnostics: the watchdog
+        # names it (discovery that does not complete shows as endpoints never matched)
+        self.create_subscription(DiagnosticArray, ms.DIAGNOSTICS, self._on_diagnostics,
+                                 ms.LATCHED_READER_QOS)
         self.wall: WallSchedule | None = None
         if self.cfg.mode == "wallclock":
             self.margin_ns = int(float(g("start_margin")) * 1e9)
@@ -210,16 +216,36 @@ class LeaderNode(Node):
                 self.refused[r.node] = f"{exc.reason}: {exc}"
             return
         self.refused.pop(r.node, None)
+        self.waiting.pop(r.node, None)
         committed = self.sched.committed
+        first = r.node not in self.sched.ready
         why = self.sched.on_ready(r)
         why = self.sched.seen_unsent(r) or why
         self._last_change = time.monotonic()
         if self.sched.committed > committed:
             self.watchdog.moved(self._last_change, READY)
+        elif first and self.watchdog.first_startup:
+            # a node's first ready before any trial: the team's start-up moves on
+            self.watchdog.moved(self._last_change, STARTUP)
         if why is not None:
             self._aborted(why)
         self._save()
         self._maybe_start()
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        """Keep what an expected node that has not said ready waits for (``waiting`` in
+        its report); anything else on the topic is not the leader's business."""
+        try:
+            d = ms.msg_to_report(msg, ("node",))
+        except Rejected:
+            return  # the monitor counts malformed diagnostics; nothing to do here
+        name, waits = d.get("node"), d.get("waiting")
+        if name not in self.expected or not isinstance(waits, list) or name in \
+                self.sched.ready:
+            return
+        text = "; ".join(str(w) for w in waits[:8])
+        self.waiting[name] = text[:600] + (f" and {len(waits) - 8} more" if len(waits) > 8
+                                           else "")
 
     def _aborted(self, why: str) -> None:
         """An abort is pending (just begun): say so, save it, then publish it (saved first:
@@ -392,7 +418,7 @@ class LeaderNode(Node):
     def _start_waits_for(self) -> list[str]:
         """Whom the next start waits for, one phrase each: the nodes not ready (or not
         answering an abort), else the endpoints of ``_start_gate`` not yet matched."""
-        late = self.sched.explain_wait(self.refused)
+        late = self.sched.explain_wait(self.refused, self.waiting)
         return late or unmatched(self._start_gate())
 
     def _phase(self) -> str:
@@ -415,7 +441,7 @@ class LeaderNode(Node):
         if not self.watchdog.expired(now, phase):
             return
         wd = self.watchdog
-        bound = wd.bound(phase)
+        bound = wd.expired_bound
         waited = wd.waited(now)
         if phase == SAMPLE:
             who = ("the plant's /clock" if self.cfg.mode != "wallclock"
@@ -432,12 +458,18 @@ class LeaderNode(Node):
                     + "; ".join(late or ["nobody (its readers: the monitor, recorder)"]))
         if wd.gave_up:
             self._report(what, "giving up")
-            fail(self, f"stuck: {what} ({wd.retries} retries without progress)", code=STUCK)
+            tried = ("the readies read anew once" if wd.first_startup
+                     else f"{wd.retries} retries")
+            fail(self, f"stuck: {what} ({tried} without progress)", code=STUCK)
             return
         if not wd.acting:
             self._report(what, f"retries follow after {bound:.0f} s more")
             return
-        self._report(what, f"retry {wd.strikes - 1} of {wd.retries}")
+        if wd.first_startup:
+            self._report(what, f"reading the readies anew; giving up in "
+                               f"{wd.bound(phase):.0f} s if nothing moves")
+        else:
+            self._report(what, f"retry {wd.strikes - 1} of {wd.retries}")
         if s.running:
             s.begin_abort(f"no progress for {bound:.0f} s")
             self._aborted(s.why)

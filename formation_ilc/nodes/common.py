@@ -9,6 +9,7 @@ import argparse
 import os
 import signal
 import sys
+import time
 import uuid
 from collections import Counter
 from collections.abc import Callable, Collection, Iterable
@@ -82,6 +83,11 @@ class DropCounter:
         return {"dropped": dict(self.counts), "dropped_by_topic": dict(self.by_topic)}
 
 
+#: how often [s] a node not yet ready names the endpoints it waits for (its log, and its
+#: diagnostics, which the leader's watchdog repeats)
+MATCH_WARN = 10.0
+
+
 class ConfiguredNode(Node):
     """A node that builds itself (``configure``) from a run configuration: one given at
     start, or the latched one on the config topic (``follow_config``)."""
@@ -91,6 +97,8 @@ class ConfiguredNode(Node):
         super().__init__(name, **kwargs)
         self.drops = DropCounter(self)
         self.configured = False
+        # the first word half a period in: a node that matches in a few seconds says none
+        self._waiting_said = time.monotonic() - MATCH_WARN / 2
         #: this process's identity in ``ready`` (a new one tells the leader it restarted)
         self.boot = uuid.uuid4().hex[:12]
         #: what this node takes of the leader's events (its core's, once configured)
@@ -102,6 +110,22 @@ class ConfiguredNode(Node):
         self.follower.said_ready()
         return ms.json_to_msg(Ready(self.get_name(), trial, self.boot, self.follower.seen,
                                     passive, self.run_id).to_json())
+
+    def not_ready(self, waits: list[str]) -> None:
+        """Not ready yet: every MATCH_WARN seconds say what it waits for (``waits``, one
+        phrase an endpoint, :func:`unmatched`) in the log and, when the node has a
+        diagnostics writer (``diag_pub``), as ``waiting`` in its diagnostics, for the
+        leader's watchdog to name."""
+        now = time.monotonic()
+        if not waits or now - self._waiting_said < MATCH_WARN:
+            return
+        self._waiting_said = now
+        self.get_logger().warning(f"not ready: waiting for {'; '.join(waits)}")
+        pub = getattr(self, "diag_pub", None)
+        if pub is not None:
+            pub.publish(ms.diagnostics_to_msg(
+                {"node": self.get_name(), "trial": -1, "waiting": list(waits)},
+                self.get_clock().now().nanoseconds, hardware_id=self.get_name()))
 
     @property
     def run_id(self) -> str:

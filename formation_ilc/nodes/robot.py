@@ -53,7 +53,6 @@ its own memory) in one process on one executor.
 from __future__ import annotations
 
 import sys
-import time
 from collections import Counter
 from typing import Any
 
@@ -87,8 +86,6 @@ from msgs_schema import wire
 
 #: realtime: how long [dT] a robot waits for its links after its pose
 LINK_WAIT = 0.75
-#: how often [s] a robot not yet ready names the endpoints it waits for in its log
-MATCH_WARN = 10.0
 
 
 class RobotNode(ConfiguredNode):
@@ -184,7 +181,6 @@ class RobotNode(ConfiguredNode):
             self._deadline.cancel()
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
         self._gate = self.create_timer(0.02, self._check_ready)
-        self._unmatched_warn = time.monotonic() + MATCH_WARN
         self.get_logger().info(f"{self.name}: {len(lrn.neighbours)} in-links"
                                f"{' + leader' if lrn.sees_leader else ''} ({cfg.links}), "
                                f"{self.n_out} out-neighbours, {pb.samples} samples")
@@ -203,11 +199,7 @@ class RobotNode(ConfiguredNode):
             self._gate.cancel()
             self._send_ready()
             return
-        now = time.monotonic()
-        if now >= self._unmatched_warn:  # say what it waits for (every MATCH_WARN s)
-            self._unmatched_warn = now + MATCH_WARN
-            waits = "; ".join(unmatched(need, self))
-            self.get_logger().warning(f"not ready: waiting for {waits}")
+        self.not_ready(unmatched(need, self))
 
     def _send_ready(self) -> None:
         """Idle: ready for the next iteration (the number of trials learned)."""
