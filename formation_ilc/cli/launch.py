@@ -275,6 +275,7 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
 
     if plan.run_json is not None:
         _save_run(plan.out, plan.run_json)
+    plan.write_peers_profile()  # before the secure one, which builds on it
     if plan.secure is not None:
         plan.secure.write_profile()
     env = _node_env(plan)
@@ -285,8 +286,9 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
     shm_before = fastdds_files()
     # our own monitor node joins the same domain: set before rclpy initialises
     os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
-    if "ROS_AUTOMATIC_DISCOVERY_RANGE" in env:
-        os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env["ROS_AUTOMATIC_DISCOVERY_RANGE"]
+    for name in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):
+        if name in env:
+            os.environ[name] = env[name]
     for note in plan.notes:
         print(note, flush=True)
     print(plan.banner(), flush=True)
@@ -358,6 +360,8 @@ def _node_env(plan: RunPlan) -> dict[str, str]:
     env["ROS_DOMAIN_ID"] = str(plan.domain)
     if plan.discovery == "localhost":
         env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    if plan.peers_profile is not None:  # a secure run's profile, built on it, comes later
+        env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(plan.peers_profile)
     env["PYTHONUNBUFFERED"] = "1"
     env[PARENT_ENV] = str(os.getpid())  # every node ends with this launcher
     env[RUN_ENV] = plan.config.run_id  # and takes only this run's configuration
