@@ -97,17 +97,18 @@ def run_physics(sc: Scenario, model: RobotModel, trials: int, *,
                 nb_eta[:] = eta[src, t]
                 nb_s[:] = np.where(valid, t, -1)
                 lead_s[:] = t
-                command(t, pb.law, mem[:, t], eta, pb.eta_d, nb_eta, nb_s, pb.src, pb.weight,
-                        pb.eta_d, lead_s, pb.leader, pb.gain_prime, pb.heading, u[:, t])
+                command.jit(t, pb.law, mem[:, t], eta, pb.eta_d, nb_eta, nb_s, pb.src,
+                            pb.weight, pb.eta_d, lead_s, pb.leader, pb.gain_prime, pb.heading,
+                            u[:, t])
                 world.step(u[:, t])
                 tilt = max(tilt, float(world.tilt().max()))
             res.seconds += time.perf_counter() - t0
             res.samples += n_t
             nb_full[:] = eta[src]
-            learn(pb.law, pb.memory, mem, u, eta, pb.eta_d, nb_full, pb.src, pb.weight,
-                  pb.eta_d, pb.leader, pb.gain, pb.heading, nxt)
+            learn.jit(pb.law, pb.memory, mem, u, eta, pb.eta_d, nb_full, pb.src, pb.weight,
+                      pb.eta_d, pb.leader, pb.gain, pb.heading, nxt)
             mem, nxt = nxt, mem
-            trial_errors(eta, xi, pb.eta_d, pb.src, pb.weight, row)
+            trial_errors.jit(eta, xi, pb.eta_d, pb.src, pb.weight, row)
             res.metrics[i, 0] = k
             res.metrics[i, 1:] = row
             res.contacts.append(world.contacts())
