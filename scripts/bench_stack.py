@@ -395,9 +395,7 @@ def scale_run(n: int, args: argparse.Namespace, tmp: Path, dom: int) -> dict:
     t0 = time.monotonic()
     proc = subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             text=True)
-    bare = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--bare-node",
-                             str(args.timeout)], env=env, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
+    bare: subprocess.Popen[bytes] | None = None
     marks: dict[str, float] = {}
     lines: list[str] = []
 
@@ -406,6 +404,8 @@ def scale_run(n: int, args: argparse.Namespace, tmp: Path, dom: int) -> dict:
         for line in proc.stdout:
             now = time.monotonic() - t0
             lines.append(line.rstrip())
+            if line.startswith("started ") and "started" not in marks:
+                marks["started"] = now
             if line.startswith("start-up done") and "first" not in marks:
                 marks["first"] = now
             if line.startswith("every trial is in") and "end" not in marks:
@@ -416,7 +416,17 @@ def scale_run(n: int, args: argparse.Namespace, tmp: Path, dom: int) -> dict:
     peak: dict[int, tuple[str, float]] = {}
     cpu_at: dict[str, dict[int, float]] = {}
     while proc.poll() is None and time.monotonic() - t0 < args.timeout:
-        for pid in descendants([proc.pid, bare.pid]):
+        if bare is None and "started" in marks:
+            # the bare node loads the run's Fast DDS profile too, if it has one (written
+            # before the processes start)
+            team = out / "fastdds-discovery.xml"
+            bare = subprocess.Popen(
+                [sys.executable, str(Path(__file__).resolve()), "--bare-node",
+                 str(args.timeout)],
+                env={**env, **({"FASTRTPS_DEFAULT_PROFILES_FILE": str(team)}
+                               if team.exists() else {})},
+                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        for pid in descendants([proc.pid] + ([bare.pid] if bare is not None else [])):
             kind = kind_of(pid)
             mb = rss_mb(pid)
             if kind is not None and mb is not None:
@@ -429,8 +439,9 @@ def scale_run(n: int, args: argparse.Namespace, tmp: Path, dom: int) -> dict:
     if proc.poll() is None:
         proc.kill()
     proc.wait()
-    bare.terminate()
-    bare.wait()
+    if bare is not None:
+        bare.terminate()
+        bare.wait()
     reader.join(timeout=5)
     if proc.returncode:
         return {"error": "\n".join(lines[-12:])}
@@ -440,17 +451,28 @@ def scale_run(n: int, args: argparse.Namespace, tmp: Path, dom: int) -> dict:
         by_kind.setdefault(kind, []).append(mb)
     samples = s["timing"].get("samples", 0)  # in every trial
     cpu = None
+    cpu_kind: dict[str, list[float]] = {}  # ms per sample, per process of each kind
     if "first" in cpu_at and "end" in cpu_at:
         used = sum(cpu_at["end"].get(p, c) - c for p, c in cpu_at["first"].items())
         cpu = 1000.0 * used / max(1.0, samples)
+        for p, c in cpu_at["first"].items():
+            if p in peak:
+                cpu_kind.setdefault(peak[p][0], []).append(
+                    1000.0 * (cpu_at["end"].get(p, c) - c) / max(1.0, samples))
     startup = s.get("startup", {})
-    return {"robots": n, "participants": len(peak) - 1,  # the bare node is no part
+    # the CPU the processes had used by the first trial's start: what starting costs
+    start_cpu = sorted(cpu_at.get("first", {}).values())
+    return {"start_cpu": sum(start_cpu), "start_cpu_median": float(np.median(start_cpu))
+            if start_cpu else float("nan"),
+            "robots": n, "participants": len(peak) - 1,  # the bare node is no part
             "first": marks.get("first"), "found": startup.get("all_found_s"),
             "ready": startup.get("all_ready_s"), "kinds": by_kind,
             "total_mb": sum(mb for k, mb in peak.values() if k != "bare node"),
             "cpu_ms": cpu, "samples": samples,
             "missed": s["timing"].get("missed_total", sum(s.get("missed", {}).values())),
-            "robot_samples": n * samples, "timing": s["timing"]}
+            "robot_samples": n * samples, "timing": s["timing"],
+            "missed_by": {k: v for k, v in s.get("missed", {}).items() if v},
+            "cpu_kind": cpu_kind}
 
 
 def scale_curve(args: argparse.Namespace, tmp: Path, dom: int) -> None:
@@ -469,6 +491,18 @@ def scale_curve(args: argparse.Namespace, tmp: Path, dom: int) -> None:
               f"ready {r['ready']:.1f} s (launcher's clock); RSS in all "
               f"{r['total_mb']:.0f} MB; CPU {r['cpu_ms']:.2f} ms per sample; "
               f"missed {r['missed']} of {r['robot_samples']:.0f}", flush=True)
+        t = r["timing"]
+        if args.scale_mode == "realtime":
+            worst = sorted(r["missed_by"].items(), key=lambda kv: -kv[1])[:8]
+            print(f"  realtime: command arrival after the tick p50 {t.get('p50_ms', 0):.1f} "
+                  f"p99 {t.get('p99_ms', 0):.1f} max {t.get('max_ms', 0):.1f} ms; timer lag "
+                  f"p99 {t.get('tick_lag_p99_ms', 0):.1f} max {t.get('tick_lag_max_ms', 0):.1f} "
+                  f"ms; missed by robot (most first) {dict(worst)}", flush=True)
+        print("  CPU per sample in trials, per process [ms]: " + ", ".join(
+            f"{k} {max(v):.2f}" + (f" (median {float(np.median(v)):.2f})" if len(v) > 1 else "")
+            for k, v in sorted(r["cpu_kind"].items())), flush=True)
+        print(f"  CPU used by the first trial's start: {r['start_cpu']:.1f} s in all, median "
+              f"{r['start_cpu_median']:.2f} s per process", flush=True)
         print(f"  RSS, bare rclpy node {bare:.1f} MB; per kind, max [ratio to bare]: "
               + ", ".join(f"{k} {max(v):.1f} MB [{max(v) / bare:.2f}]"
                           for k, v in sorted(r["kinds"].items()) if k != "bare node"),

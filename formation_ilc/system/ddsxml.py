@@ -54,12 +54,17 @@ class Profiles:
 
     def default_participant(self, name: str) -> ET.Element:
         """The default participant profile (made, named ``name``, if there is none)."""
-        part = next((c for c in self.profiles if local(c.tag) == "participant"
-                     and c.get("is_default_profile") == "true"), None)
-        if part is None:
-            part = ET.SubElement(self.profiles, f"{self.ns}participant", profile_name=name,
-                                 is_default_profile="true")
-        return part
+        return self.default_profile("participant", name)
+
+    def default_profile(self, kind: str, name: str) -> ET.Element:
+        """The default profile of ``kind`` ("participant", "data_writer", "data_reader"):
+        the file's, or one made and named ``name``."""
+        found = next((c for c in self.profiles if local(c.tag) == kind
+                      and c.get("is_default_profile") == "true"), None)
+        if found is None:
+            found = ET.SubElement(self.profiles, f"{self.ns}{kind}", profile_name=name,
+                                  is_default_profile="true")
+        return found
 
     def text(self, comment: str) -> str:
         """The file's text, with ``comment`` after the XML declaration."""
