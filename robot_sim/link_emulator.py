@@ -98,7 +98,7 @@ class LinkEmulator(ConfiguredNode):
             self._deadline = self.create_timer(DELIVERY_WAIT * cfg.scenario.dt,
                                                self._on_deadline)
             self._deadline.cancel()
-        self._gate = self.create_timer(0.02, self._check_ready)
+        self._gate = self.create_timer(0.05, self._check_ready)
 
     def _check_ready(self) -> None:
         pubs = [(p, 1) for pubs in self.out for p in pubs]

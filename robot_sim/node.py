@@ -121,7 +121,7 @@ class SimNode(ConfiguredNode):
                                      lambda m, r=r: self._on_cmd(m, r), ms.SAMPLE_QOS, raw=True)
             for r in range(n)]
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
-        self._gate = self.create_timer(0.02, self._check_ready)
+        self._gate = self.create_timer(0.05, self._check_ready)
         if self.realtime:
             # started (reset) at each trial's start, so ticks are in phase with sample 0
             self._tick = self.create_timer(cfg.scenario.dt, self._on_wall_tick)

@@ -197,8 +197,25 @@ def matched(pairs: Iterable[tuple[Any, int | Collection[str]]], node: Node | Non
     seen the writer, and a reliable reader drops what an unmatched writer sends; the
     sample then waits for the writer's next heartbeat (seconds). A node that says ready
     only once both sides of its per-sample topics are matched loses no first sample.
+
+    It stops at the first endpoint that is not matched, and asks the graph for named
+    readers (a query each) only once every count holds: a node polls this until it is
+    ready, and the simulator of a 50-robot team has about 150 endpoints to check.
     """
-    return not unmatched(pairs, node)
+    pairs = list(pairs)
+    for e, want in pairs:
+        if isinstance(want, int):
+            sub = isinstance(e, Subscription)
+            have = e.get_publisher_count() if sub else e.get_subscription_count()
+            if have < want:
+                return False
+    for e, want in pairs:
+        if not isinstance(want, int):
+            assert node is not None and not isinstance(e, Subscription), \
+                "named readers: a publisher and its node"
+            if readers_wanting(node, e, want):
+                return False
+    return True
 
 
 def unmatched(pairs: Iterable[tuple[Any, int | Collection[str]]], node: Node | None = None

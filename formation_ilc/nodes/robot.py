@@ -180,7 +180,7 @@ class RobotNode(ConfiguredNode):
             self._deadline = self.create_timer(LINK_WAIT * cfg.scenario.dt, self._on_deadline)
             self._deadline.cancel()
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
-        self._gate = self.create_timer(0.02, self._check_ready)
+        self._gate = self.create_timer(0.05, self._check_ready)
         self.get_logger().info(f"{self.name}: {len(lrn.neighbours)} in-links"
                                f"{' + leader' if lrn.sees_leader else ''} ({cfg.links}), "
                                f"{self.n_out} out-neighbours, {pb.samples} samples")
