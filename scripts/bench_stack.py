@@ -446,6 +446,7 @@ def scale_run(n: int, args: argparse.Namespace, tmp: Path, dom: int) -> dict:
     if proc.returncode:
         return {"error": "\n".join(lines[-12:])}
     s = json.loads((out / "summary.json").read_text())
+    sim_diag = json.loads((out / "diagnostics.json").read_text()).get("robot_sim", {})
     by_kind: dict[str, list[float]] = {}
     for kind, mb in peak.values():
         by_kind.setdefault(kind, []).append(mb)
@@ -472,6 +473,7 @@ def scale_run(n: int, args: argparse.Namespace, tmp: Path, dom: int) -> dict:
             "missed": s["timing"].get("missed_total", sum(s.get("missed", {}).values())),
             "robot_samples": n * samples, "timing": s["timing"],
             "missed_by": {k: v for k, v in s.get("missed", {}).items() if v},
+            "missed_at": sim_diag.get("missed_at", {}),
             "cpu_kind": cpu_kind}
 
 
@@ -497,7 +499,8 @@ def scale_curve(args: argparse.Namespace, tmp: Path, dom: int) -> None:
             print(f"  realtime: command arrival after the tick p50 {t.get('p50_ms', 0):.1f} "
                   f"p99 {t.get('p99_ms', 0):.1f} max {t.get('max_ms', 0):.1f} ms; timer lag "
                   f"p99 {t.get('tick_lag_p99_ms', 0):.1f} max {t.get('tick_lag_max_ms', 0):.1f} "
-                  f"ms; missed by robot (most first) {dict(worst)}", flush=True)
+                  f"ms; missed by robot (most first) {dict(worst)}; by sample of a trial "
+                  f"(most first) {r['missed_at']}", flush=True)
         print("  CPU per sample in trials, per process [ms]: " + ", ".join(
             f"{k} {max(v):.2f}" + (f" (median {float(np.median(v)):.2f})" if len(v) > 1 else "")
             for k, v in sorted(r["cpu_kind"].items())), flush=True)
