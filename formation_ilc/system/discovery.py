@@ -1,5 +1,4 @@
-"""The Fast DDS profile of a large team on one machine: discovery beyond 32 processes, and
-readers and writers that take memory as they need it.
+"""Localhost discovery for teams of more than about 30 processes on one machine.
 
 With ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` rmw_fastrtps (Jazzy) turns multicast off
 and gives every participant one initial peer, 127.0.0.1 without a port, which Fast DDS
@@ -17,11 +16,12 @@ rmw's 127.0.0.1 stays), so every participant announces itself to every other. Di
 stays on the loopback interface: the peers are 127.0.0.1 and rmw_fastrtps still turns
 multicast off.
 
-It also makes every reader and writer allocate its first sample only (``allocated_samples``
-1, where Fast DDS preallocates 100): their histories grow to their depth as samples come.
-Measured in one process, 200 PoseStamped writers of depth 512 took 88 KB each, 41 KB
-with this; the simulator of a 50-robot team has about 150 readers and writers of its own.
-A setting the caller's profile makes itself is kept.
+Tried and not kept: every reader and writer allocating one sample where Fast DDS
+preallocates 100 (``allocated_samples`` 1 in the default data writer and reader profiles).
+It halved what a reader or writer costs (one process, 200 PoseStamped writers of depth
+512: 88 KB each, 41 KB with it), but in 2 of 3 runs of 52 participants with it one
+participant's ROS graph stayed without a node (0 of 6 runs without it); the cause was not
+isolated.
 """
 
 from __future__ import annotations
@@ -31,8 +31,8 @@ from pathlib import Path
 
 from formation_ilc.system.ddsxml import Profiles, child
 
-__all__ = ["RMW_PEER_IDS", "MARGIN", "MAX_IDS", "ALLOCATED_SAMPLES", "discovery_port",
-           "peer_ids", "needs_peers", "peers_profile"]
+__all__ = ["RMW_PEER_IDS", "MARGIN", "MAX_IDS", "discovery_port", "peer_ids", "needs_peers",
+           "peers_profile"]
 
 #: participant ids that rmw_fastrtps's LOCALHOST peer reaches (its maxInitialPeersRange)
 RMW_PEER_IDS = 32
@@ -42,8 +42,6 @@ MARGIN = 16
 #: participant ids of one domain: ids from 120 on share ports with the next domain
 #: (RTPS port mapping: 7400 + 250 domain + 10 + 2 id)
 MAX_IDS = 120
-#: samples a reader's or writer's history allocates when it is made (Fast DDS: 100)
-ALLOCATED_SAMPLES = 1
 
 
 def discovery_port(domain: int, participant: int) -> int:
@@ -77,12 +75,6 @@ def peers_profile(base: Path | None, domain: int, participants: int) -> str:
         udp = ET.SubElement(ET.SubElement(peers, f"{ns}locator"), f"{ns}udpv4")
         ET.SubElement(udp, f"{ns}address").text = "127.0.0.1"
         ET.SubElement(udp, f"{ns}port").text = str(discovery_port(domain, i))
-    for kind in ("data_writer", "data_reader"):
-        entity = doc.default_profile(kind, f"formation_ilc_{kind}")
-        limits = child(child(entity, "topic", ns), "resourceLimitsQos", ns)
-        if limits.find(f"{ns}allocated_samples") is None:
-            ET.SubElement(limits, f"{ns}allocated_samples").text = str(ALLOCATED_SAMPLES)
     return doc.text(f"formation-ilc launch: every participant of a {participants}-process "
                     f"team on ROS_DOMAIN_ID={domain} announces itself to every other on "
-                    f"this machine; readers and writers allocate samples as they need them "
-                    f"(formation_ilc/system/discovery.py)")
+                    f"this machine (formation_ilc/system/discovery.py)")

@@ -12,7 +12,6 @@ from formation_ilc.cli.commands import build_parser
 from formation_ilc.cli.plan import NoRun, build_plan
 from formation_ilc.system.ddsxml import PROFILES_NS
 from formation_ilc.system.discovery import (
-    ALLOCATED_SAMPLES,
     MARGIN,
     MAX_IDS,
     RMW_PEER_IDS,
@@ -42,26 +41,10 @@ def test_the_rtps_port_of_a_participant():
     assert discovery_port(101, 119) == 7400 + 25250 + 10 + 238
 
 
-def allocated(text: str) -> dict[str, str | None]:
-    root = ET.fromstring(text.split("\n", 2)[2])
-    out = {}
-    for kind in ("data_writer", "data_reader"):
-        found = [p for p in root.iter(f"{{{PROFILES_NS}}}{kind}")
-                 if p.get("is_default_profile") == "true"]
-        assert len(found) == 1
-        out[kind] = found[0].findtext("p:topic/p:resourceLimitsQos/p:allocated_samples",
-                                      namespaces=NS)
-    return out
-
-
 def test_every_id_a_team_may_take_is_a_peer_on_the_loopback():
-    text = peers_profile(None, 21, 54)
-    got = peers(text)
+    got = peers(peers_profile(None, 21, 54))
     assert got == [("127.0.0.1", discovery_port(21, i)) for i in range(54 + MARGIN)]
     assert peer_ids(54) == 54 + MARGIN and peer_ids(500) == MAX_IDS
-    # readers and writers allocate their samples as they need them
-    assert allocated(text) == {"data_writer": str(ALLOCATED_SAMPLES),
-                               "data_reader": str(ALLOCATED_SAMPLES)}
 
 
 def test_needed_only_beyond_what_the_rmw_reaches():
@@ -86,7 +69,8 @@ def test_the_users_profiles_are_kept(tmp_path):
     root = ET.fromstring(text.split("\n", 2)[2])
     assert root.find(".//p:participant/p:rtps/p:name", NS).text == "kept"
     assert root.find(".//p:data_writer", NS).get("profile_name") == "w"
-    assert allocated(text) == {"data_writer": "7", "data_reader": str(ALLOCATED_SAMPLES)}
+    assert root.find(".//p:data_writer/p:topic/p:resourceLimitsQos/p:allocated_samples",
+                     NS).text == "7"
     bad = tmp_path / "bad.xml"
     bad.write_text("<not-xml")
     with pytest.raises(ValueError, match="not a readable Fast DDS profiles file"):
