@@ -48,7 +48,6 @@ import sys
 import time
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist
 from nav_msgs.msg import Path
 from rosgraph_msgs.msg import Clock
@@ -66,7 +65,7 @@ from formation_ilc.nodes.common import (
     spin_main,
     unmatched,
 )
-from formation_ilc.nodes.params import declare
+from formation_ilc.nodes.params import declare, effective
 from formation_ilc.protocol.plant import RESEND_S, KinematicPlant, Sample
 
 #: the plant's node name (what it says ready as)
@@ -106,6 +105,7 @@ class SimNode(ConfiguredNode):
         n = plant.n
         timeout = float(self.get_parameter("timeout").value)
         self.timeout = timeout if timeout > 0 else cfg.timeout
+        effective(self, {"timeout": float(self.timeout)})  # the parameter reads what runs
         self.realtime = plant.realtime
         self.pose_pubs = [self.create_publisher(PoseStamped, ms.pose_topic(r + 1), ms.SAMPLE_QOS)
                           for r in range(n)]
@@ -114,8 +114,10 @@ class SimNode(ConfiguredNode):
         self.clock_pub = self.create_publisher(Clock, ms.CLOCK, ms.CLOCK_QOS)
         self.preview_pub = self.create_publisher(Path, ms.PREVIEW, ms.PREVIEW_QOS)
         self._preview_due = 0.0
+        # every robot's pose of a sample in one message, for the robots' safety filters
+        self.team_pub = (self.create_publisher(Path, ms.TEAM_POSES, ms.SAMPLE_QOS)
+                         if cfg.safety is not None and cfg.safety.sensing == "team" else None)
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         self.cmd_subs = [  # bytes: msgs_schema.wire
             self.create_subscription(Twist, ms.cmd_vel_topic(r + 1),
                                      lambda m, r=r: self._on_cmd(m, r), ms.SAMPLE_QOS, raw=True)
@@ -131,7 +133,11 @@ class SimNode(ConfiguredNode):
             self.create_timer(RESEND_S / 4, self._resend)
 
     def _check_ready(self) -> None:
-        need = [(p, 1) for p in self.pose_pubs] + [(self.clock_pub, 1), (self.ready_pub, 1)]
+        need: list[tuple[Any, int | tuple[str, ...]]] = [(p, 1) for p in self.pose_pubs]
+        need += [(self.clock_pub, 1), (self.ready_pub, 1)]
+        if self.team_pub is not None:  # every robot filters with it
+            need.append((self.team_pub, tuple(ms.robot_name(r + 1)
+                                              for r in range(self.plant.n))))
         need += [(s, 1) for s in self.cmd_subs]  # both ends matched: no first command lost
         # every reader of the results by name (RunConfig.result_readers): a count would
         # let the recorder stand in for a monitor not yet matched, or the other way round
@@ -213,6 +219,10 @@ class SimNode(ConfiguredNode):
     def _send(self, s: Sample) -> None:
         """A sample's /clock and every pose, as bytes (msgs_schema.wire)."""
         self.clock_pub.publish(ms.wire.clock_bytes(s.stamp_ns))
+        if self.team_pub is not None:
+            self.team_pub.publish(ms.wire.pose_set_bytes(s.stamp_ns, [
+                ms.wire.raw_pose(s.eta[r], s.stamp_ns, ms.WORLD_FRAME)
+                for r in range(self.plant.n)]))
         for r in self.plant.send_order:
             self.pose_pubs[r].publish(ms.wire.pose_bytes(s.eta[r], s.stamp_ns, ms.WORLD_FRAME))
         now = time.monotonic()

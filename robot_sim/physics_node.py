@@ -13,26 +13,37 @@ its substeps (``rate`` Hz, 48 per sample at dT = 0.2 s and 240 Hz), in lockstep 
 * true trajectory (``robot_i/true_trajectory``): always the engine's ground truth.
 * diagnostics at each trial's end: ``contacts`` (seconds in contact per pair of robots),
   ``tilt_max`` [rad], ``odometry_drift`` [m] (largest distance between odometry and truth),
-  and the same for every trial so far (``contacts_by_trial`` ...); a contact is also
-  logged as a warning.
+  and the same for every trial so far (``contacts_by_trial`` ...).
+* contacts acted on (``on_contact``): the first contact of a trial between two robots, or a
+  robot tilted past ``tilt_limit``, is logged and published in the diagnostics at once
+  (``contact``: the launcher prints it); ``stop`` (default) holds every robot still for the
+  rest of the trial and asks the leader to abort it (it runs again), at most
+  ``contact_retries`` times per trial, then ends the run (status 6) naming the pair;
+  ``abort`` ends the run at once; ``continue`` goes on.
 
 Everything it decides is in ``formation_ilc.protocol.physics_plant.PhysicsPlant``.
 
 Parameters: ``model`` (p3dx, husky), ``pose`` (truth, odometry), ``rate`` [Hz], ``collide``
-(robots collide, default true; false lets them pass through each other), ``timeout`` [s].
+(robots collide, default true; false lets them pass through each other), ``timeout`` [s],
+``on_contact`` (stop, abort, continue), ``contact_retries``, ``tilt_limit`` [deg].
 """
 
 from __future__ import annotations
 
+import math
 import sys
+import time
 from typing import Any
 
+import msgs_schema as ms
 from formation_ilc.config.params import Param
 from formation_ilc.core.names import PHYSICS_NODE
 from formation_ilc.model.physics import DEFAULT_RATE, MODELS, POSE_SOURCES
-from formation_ilc.nodes.common import RunConfig, node_parser, spin_main
+from formation_ilc.nodes.common import RunConfig, fail, node_parser, spin_main
 from formation_ilc.nodes.params import declare
-from formation_ilc.protocol.physics_plant import PhysicsPlant
+from formation_ilc.protocol.physics_plant import ON_CONTACT, ContactEvent, PhysicsPlant
+from formation_ilc.protocol.plant import RESEND_S
+from formation_ilc.system.exits import CONTACT
 from robot_sim.node import SimNode
 
 #: the physics plant's node name (what it says ready as)
@@ -47,6 +58,13 @@ PARAMS: tuple[Param, ...] = (
     Param("rate", DEFAULT_RATE, "engine steps per second (each sample is dT * rate steps)",
           "Hz", lo=1.0, hi=1e5),
     Param("collide", True, "robots collide with each other (false: they pass through)"),
+    Param("on_contact", "stop", "when robots touch (or one tips past tilt_limit): stop them "
+          "and run the trial again (at most contact_retries times), stop them and end the "
+          "run, or report and go on", choices=ON_CONTACT),
+    Param("contact_retries", 2, "how often one trial runs again after a contact", lo=0,
+          hi=100),
+    Param("tilt_limit", 10.0, "a robot tilted past this counts as a contact", "deg",
+          lo=0.1, hi=180.0),
 )
 
 
@@ -54,6 +72,7 @@ class PhysicsNode(SimNode):
     """All robots of the run in one PyBullet world."""
 
     def __init__(self, **kwargs: Any):
+        self._asked = 0.0  # when it last asked for a held trial's abort (monotonic) [s]
         super().__init__(NAME, **kwargs)  # the run configuration arrives later, on a topic
 
     def declare_plant_parameters(self) -> None:
@@ -62,7 +81,9 @@ class PhysicsNode(SimNode):
     def make_plant(self, cfg: RunConfig) -> PhysicsPlant:
         g = lambda name: self.get_parameter(name).value  # noqa: E731
         plant = PhysicsPlant(cfg, str(g("model")), pose=str(g("pose")), rate=float(g("rate")),
-                             collide=bool(g("collide")))
+                             collide=bool(g("collide")), on_contact=str(g("on_contact")),
+                             retries=int(g("contact_retries")),
+                             tilt_limit=math.radians(float(g("tilt_limit"))))
         self.get_logger().info(plant.describe())
         return plant
 
@@ -72,6 +93,59 @@ class PhysicsNode(SimNode):
             self.get_logger().warning(f"trial {d['trial']}: robots in contact: "
                                       f"{d['contacts']} [s]")
         return d
+
+    def _publish_sample(self) -> None:
+        plant = self.plant
+        if isinstance(plant, PhysicsPlant):
+            ev = plant.take_contact()
+            if ev is not None and not self._on_contact(plant, ev):
+                return  # the run ends here: no sample after the contact
+            if plant.held:
+                return  # the trial waits for the leader's abort (it asked): no sample
+        super()._publish_sample()
+
+    def _resend(self) -> None:
+        """A held trial asks for its abort again (RESEND_S apart): a lost request must not
+        leave the run waiting for the watchdog."""
+        plant = self.plant
+        if isinstance(plant, PhysicsPlant) and plant.held and plant.contact is not None:
+            now = time.monotonic()
+            if now - self._asked >= RESEND_S:
+                self._ask_abort(plant.contact, plant)
+            return
+        super()._resend()
+
+    def _ask_abort(self, ev: ContactEvent, plant: PhysicsPlant) -> None:
+        """Ask the leader to abort the trial the robots touched in (its ready says why)."""
+        self._asked = time.monotonic()
+        line = ev.line(self.cfg.scenario.dt, plant.tilt_limit)
+        self.ready_pub.publish(self.ready_msg(ev.trial, abort_slot=ev.slot,
+                                              why=f"contact: {line}"))
+
+    def _on_contact(self, plant: PhysicsPlant, ev: ContactEvent) -> bool:
+        """Say it at once (log, diagnostics), then act: stop and re-run, or end the run.
+        Returns whether the trial goes on (its robots standing, with ``stop``)."""
+        line = ev.line(self.cfg.scenario.dt, plant.tilt_limit)
+        then = {"stop": "robots stopped; the trial runs again "
+                        f"({plant.reruns.get(ev.trial, 0)} of {plant.retries})",
+                "continue": "going on (--on-contact continue)",
+                "abort": "robots stopped; ending the run (--on-contact abort)",
+                "give_up": f"robots stopped; the trial touched again after {plant.retries} "
+                           f"re-runs: ending the run"}[ev.action]
+        self.get_logger().warning(f"contact: {line}: {then}")
+        d = {"node": self.get_name(), "trial": ev.trial,
+             "contact": {"slot": ev.slot, "sample": ev.sample, "line": line,
+                         "action": ev.action, "pairs": [list(p) for p in ev.pairs],
+                         "tilt": ev.tilt}}
+        self.diag_pub.publish(ms.diagnostics_to_msg(
+            d, self.get_clock().now().nanoseconds, self.cfg.scenario.dt,
+            self.cfg.scenario.samples))
+        if ev.action == "stop":
+            self._ask_abort(ev, plant)
+        elif ev.action in ("abort", "give_up"):
+            fail(self, f"contact: {line}; {then} (--on-contact, docs/safety.md)", CONTACT)
+            return False
+        return True
 
     def destroy_node(self) -> None:
         plant = getattr(self, "plant", None)

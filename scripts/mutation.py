@@ -58,51 +58,48 @@ REASONS = REPO / "scripts" / "mutation_reasons.json"
 T = "tests/"
 MODULES: dict[str, tuple[str, str, list[str]]] = {
     "law": ("formation_ilc/core/law.py", "formation_ilc.core.law",
-            [T + "core/test_law_edges.py", T + "core/test_reference.py", T + "core/test_law.py"]),
+            [T + "core/test_law.py", T + "core/test_reference.py"]),
     "delays": ("formation_ilc/core/delays.py", "formation_ilc.core.delays",
                [T + "core/test_delay_models.py", T + "core/test_delays.py",
                 T + "core/test_reference.py"]),
     "topology": ("formation_ilc/core/topology.py", "formation_ilc.core.topology",
-                 [T + "core/test_topology_edges.py", T + "core/test_topology.py",
-                  T + "core/test_reference.py"]),
+                 [T + "core/test_topology.py", T + "core/test_reference.py"]),
     "checks": ("formation_ilc/model/checks.py", "formation_ilc.model.checks",
-               [T + "model/test_checks_edges.py", T + "core/test_topology.py",
+               [T + "model/test_checks.py", T + "core/test_topology.py",
                 T + "core/test_reference.py"]),
     "trajectory": ("formation_ilc/core/trajectory.py", "formation_ilc.core.trajectory",
-                   [T + "core/test_trajectory_edges.py", T + "core/test_trajectory.py",
-                    T + "core/test_reference.py"]),
+                   [T + "core/test_trajectory.py", T + "core/test_reference.py"]),
     "kinematics": ("formation_ilc/core/kinematics.py", "formation_ilc.core.kinematics",
-                   [T + "core/test_kinematics_edges.py", T + "core/test_reference.py",
+                   [T + "core/test_kinematics.py", T + "core/test_reference.py",
                     T + "core/test_trajectory.py"]),
     "simulate": ("formation_ilc/model/simulate.py", "formation_ilc.model.simulate",
-                 [T + "model/test_simulate_edges.py", T + "core/test_reference.py",
+                 [T + "model/test_simulate.py", T + "core/test_reference.py",
                   T + "core/test_pcg.py"]),
     "scenario": ("formation_ilc/config/scenario.py", "formation_ilc.config.scenario",
-                 [T + "config/test_scenario_defaults.py", T + "config/test_scenario.py",
-                  T + "config/test_scenario_rules.py"]),
+                 [T + "config/test_scenario_defaults.py", T + "config/test_scenario.py"]),
     "uncertainty": ("formation_ilc/core/uncertainty.py", "formation_ilc.core.uncertainty",
-                    [T + "core/test_uncertainty_draws.py", T + "model/test_simulate_edges.py",
+                    [T + "core/test_uncertainty_draws.py", T + "model/test_simulate.py",
                      T + "config/test_scenario.py", T + "core/test_delays.py",
                      T + "core/test_pcg.py"]),
     # numpy's SeedSequence/PCG64/random() in numba (run interpreted here: test_pcg takes
     # about 12 s unmutated, most mutants die in its first seconds)
     "pcg": ("formation_ilc/core/pcg.py", "formation_ilc.core.pcg",
             [T + "core/test_pcg.py", T + "core/test_uncertainty_draws.py"]),
-    "msgs_schema": ("msgs_schema/__init__.py", "msgs_schema",
-                    [T + "nodes/test_msgs_edges.py", T + "nodes/test_msgs_schema.py",
-                     T + "nodes/test_msgs_rules.py"]),
+    "msgs_schema": ("msgs_schema/convert.py", "msgs_schema.convert",
+                    [T + "msgs_schema/test_convert.py"]),
     # the robot as a pure learner and the link rules it shares with the emulator
     "clock": ("formation_ilc/core/clock.py", "formation_ilc.core.clock",
-              [T + "protocol/test_learner.py", T + "nodes/test_msgs_schema.py",
-               T + "nodes/test_msgs_rules.py"]),
+              [T + "protocol/test_learner.py", T + "msgs_schema/test_convert.py"]),
     "links": ("formation_ilc/core/links.py", "formation_ilc.core.links",
-              [T + "protocol/test_learner.py", T + "nodes/test_msgs_rules.py"]),
+              [T + "protocol/test_learner.py", T + "msgs_schema/test_convert.py"]),
     "learner": ("formation_ilc/protocol/learner.py", "formation_ilc.protocol.learner",
                 [T + "protocol/test_learner.py"]),
     # the leader's trial protocol (tests/stack/test_faults.py drives it across processes: not
     # run per mutant)
     "schedule": ("formation_ilc/protocol/schedule.py", "formation_ilc.protocol.schedule",
                  [T + "protocol/test_follower.py", T + "protocol/test_schedule.py"]),
+    "leader": ("formation_ilc/protocol/leader.py", "formation_ilc.protocol.leader",
+               [T + "protocol/test_leader.py"]),
     # the cores of the simulator, the link emulator and the Pioneer bridge nodes
     "plant": ("formation_ilc/protocol/plant.py", "formation_ilc.protocol.plant",
               [T + "protocol/test_plant.py", T + "protocol/test_follower.py"]),
@@ -114,7 +111,8 @@ MODULES: dict[str, tuple[str, str, list[str]]] = {
     "wallclock": ("formation_ilc/protocol/wallclock.py", "formation_ilc.protocol.wallclock",
                   [T + "protocol/test_bridge.py", T + "protocol/test_follower.py"]),
 }
-PYTEST_ARGS = ["-x", "-q", "-p", "no:cacheprovider", "-m", "not slow and not multiprocess",
+PYTEST_ARGS = ["-x", "-q", "-p", "no:cacheprovider", "-n", "0",  # one process: the import hook
+               "-m", "not slow and not multiprocess",
                # compares compiled with interpreted: meaningless with the JIT disabled
                "--deselect", T + "core/test_law.py::test_compiled_law_equals_interpreted_law"]
 

@@ -14,9 +14,20 @@ from formation_ilc.system.shm import clean_leftovers, fastdds_files
 _counter = itertools.count()
 
 
+#: the free range of domain ids the tests use
+DOMAINS = range(30, 101)
+
+
 def next_domain_id() -> int:
-    """Distinct per test in this run (pid + counter), within the free range 30..100."""
-    return 30 + (os.getpid() * 13 + next(_counter)) % 71
+    """Distinct per test in this run, within DOMAINS. Tests run in parallel (pytest-xdist,
+    one network namespace for all) each take ids from a share of the range of their own
+    (worker k of W: the k-th of W slices), so two tests running at once never meet."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    count = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1") or 1)
+    if not worker.startswith("gw") or count <= 1:
+        return DOMAINS[(os.getpid() * 13 + next(_counter)) % len(DOMAINS)]
+    span = len(DOMAINS) // count
+    return DOMAINS[int(worker[2:]) * span + next(_counter) % span]
 
 
 def clean_shm(before: set[str]) -> list[str]:
@@ -50,3 +61,55 @@ def context(ros_env):
     rclpy.init(context=ctx)
     yield ctx
     rclpy.try_shutdown(context=ctx)
+
+
+@pytest.fixture
+def executor(context):
+    """An executor in ``context`` and a list of nodes destroyed with it afterwards."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    ex = SingleThreadedExecutor(context=context)
+    nodes: list = []
+    yield ex, nodes
+    ex.shutdown()
+    for n in nodes:
+        n.destroy_node()
+
+
+#: stack tests that mostly wait on the wall clock (wall-clock and realtime trials, a
+#: watchdog's bounds): with the suite side by side (pytest-xdist) they run one after
+#: another in one test process, the ``clock`` lane, while the other stack tests (lockstep
+#: runs that take all the CPU they get) run one after another in another, the ``lockstep``
+#: lane (``pytest_xdist_make_scheduler``); in-process tests fill in beside both. Two lanes, not
+#: more: two lockstep runs at once on two cores only slow each other, and a realtime run
+#: needs the cores a third stack would take. Tests in one lane run in file order, so runs
+#: shared through tests/stack/shared.py are made before they are read.
+CLOCK_FILES = ("test_pioneer.py", "test_realtime.py", "test_base_physics.py",
+               "test_diagnostics.py")
+CLOCK_TESTS = ("test_a_run_waiting_for_a_node_that_never_comes_stops_naming_it",
+               "test_secure_pioneer_bridges_and_fake_drivers",
+               "test_secure_bases_with_physics_bases_equal_the_insecure_run",
+               "test_lossy_links_across_namespaces")
+
+
+def lane(nodeid: str) -> str | None:
+    """The lane of a test (``clock`` or ``lockstep``), or None: what is not a stack test
+    runs wherever a test process is free."""
+    path, _, name = nodeid.partition("::")
+    if not path.startswith("tests/stack/"):
+        return None
+    base = name.split("[", 1)[0]
+    return "clock" if path.rsplit("/", 1)[1] in CLOCK_FILES or base in CLOCK_TESTS \
+        else "lockstep"
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """pytest-xdist's scheduler with the two lanes as units of work: every test of a lane
+    goes to one test process, in file order; every other test is a unit of its own."""
+    from xdist.scheduler import LoadScopeScheduling
+
+    class Lanes(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return lane(nodeid) or nodeid
+
+    return Lanes(config, log)

@@ -19,7 +19,7 @@ links : str
     subscribe to each other; the network's delays).
 nodes_expected : list of node names that must report ready before a trial starts
     (default: every robot_i, robot_sim, and link_emulator with emulated links; in
-    wallclock every robot_i and bridge_i: ``formation_ilc.config.team``).
+    wallclock every robot_i and bridge_i: the team of ``formation_ilc.config.roster``).
 monitored : bool
     A monitor (the launcher) reads trajectories: nodes wait for it before trial 0.
 state_dir : str
@@ -31,6 +31,9 @@ run_id : str
     domain and namespace are refused (see ``formation-ilc launch``).
 watchdog_scale : float
     Every bound of the leader's watchdog times this (default 1.0; see below).
+exit_when_done : bool
+    End the process with status 0 once ``done`` is out (default false): a launch file
+    shuts the other nodes down with it (``launch/formation.launch.py``).
 
 The leader publishes the configuration on ``config`` (latched), waits until every node has
 reported ready for trial k, publishes ``start`` k on ``leader/trial_events``, then follows
@@ -66,12 +69,15 @@ own wall timer at start_wall_ns + t * dT, stamped with that time (``core.clock.W
 the start's remainder by dT is the slot, so every stamp names its slot and sample), and
 every plant samples its robot at the same instants (the machines' clocks synchronised,
 e.g. chrony).
+
+Every decision above is the pure core's (``formation_ilc.protocol.leader.Leader``, tested
+without ROS); this node declares the parameters, the publishers, subscriptions and timers,
+and makes one call into it per event.
 """
 
 from __future__ import annotations
 
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -83,89 +89,68 @@ from std_msgs.msg import String
 
 import msgs_schema as ms
 from formation_ilc.config import params
+from formation_ilc.config.plants import default_plant
+from formation_ilc.config.roster import Lineup, roster
 from formation_ilc.config.runconfig import PARAMS, RunConfig
-from formation_ilc.config.team import Team, default_plant
-from formation_ilc.core.clock import Rejected, WallGrid
-from formation_ilc.core.names import LEADER_NODE
+from formation_ilc.core.clock import Rejected
 from formation_ilc.nodes.common import (
+    Diagnostics,
     DropCounter,
+    Exit,
     fail,
     matched,
     node_parser,
     spin_main,
     unmatched,
 )
-from formation_ilc.nodes.params import declare
+from formation_ilc.nodes.params import declare, effective
+from formation_ilc.protocol.leader import NAME, Leader
 from formation_ilc.protocol.plant import RESEND_S
-from formation_ilc.protocol.schedule import (
-    Ready,
-    Schedule,
-    ScheduleError,
-    StartRepeat,
-    TrialEvent,
-)
-from formation_ilc.protocol.wallclock import WallSchedule
-from formation_ilc.protocol.watchdog import READY, SAMPLE, STARTUP, STUCK, Bounds, Watchdog
-
-#: [s] how often an abort is repeated until every node has answered it
-ABORT_REPEAT = 1.0
-#: [s] the least time between the leader's start and the first trial (discovery)
-FIRST_START_WAIT = 2.0
-#: the leader's node name (its diagnostics name it)
-NAME = LEADER_NODE
+from formation_ilc.protocol.schedule import TrialEvent
 
 
 class LeaderNode(Node):
+    """The leader's node: parameters, publishers, subscriptions, timers; its decisions are
+    ``self.core``'s (``formation_ilc.protocol.leader.Leader``), and it is the core's
+    ``LeaderIO``."""
+
     def __init__(self, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(NAME, **kwargs)
         declare(self, params.LEADER)  # the run configuration's (runconfig) and the leader's
         g = lambda name: self.get_parameter(name).value  # noqa: E731
         _check_parameters(g)
-        self.cfg = RunConfig.from_params({name: g(name) for name in PARAMS})
-        sc = self.cfg.scenario
-        self.clock = self.cfg.clock
-        self.T = sc.samples
-        self.trials = sc.trials
+        self.cfg = cfg = RunConfig.from_params({name: g(name) for name in PARAMS})
+        sc = cfg.scenario
         expected = [str(e) for e in g("nodes_expected") if e]
-        self.expected = expected if expected else Team.of(
-            sc.n, plant=default_plant(self.cfg.mode), links=self.cfg.links).expected
+        if not expected:  # started alone: the team the launcher would name, no monitor
+            expected = roster(Lineup(sc.n, plant=default_plant(cfg.mode), links=cfg.links,
+                                     monitor=False)).team.expected
+        # the parameters that keep the scenario's read the scenario's; the team, whom
+        # the leader waits for
+        effective(self, {"seed": sc.seed, "trials": sc.trials, "law": sc.law.kind,
+                         "memory": sc.law.memory, "headings": sc.headings,
+                         "time_scale": float(sc.time_scale),
+                         "nodes_expected": list(expected)})
         # who reads the reference: the link emulator, or each robot that sees the leader
         # (none in lockstep with direct links: RunConfig.leader_in_step)
-        self.ref_readers = (1 if self.cfg.links == "emulated"
-                            else 0 if self.cfg.leader_in_step
+        self.ref_readers = (1 if cfg.links == "emulated"
+                            else 0 if cfg.leader_in_step
                             else int(sum(sc.graph.leader > 0)))
-        robots = {ms.robot_name(i + 1) for i in range(sc.n)}
-        self.sched = Schedule(self.expected, robots & set(self.expected), self.trials)
         sdir = str(g("state_dir"))
-        self.state_file = Path(sdir) / "leader.json" if sdir else None
-        if self.state_file is not None and self._restore():
-            self.get_logger().info(
-                f"continues from {self.state_file}: {self.sched.committed} trials learned"
-                + (f"; slot {self.sched.slot} was open and is aborted"
-                   if self.sched.abort_pending is not None else ""))
+        # a state file that cannot be gone on from is refused before anything is published
+        self.core = Leader(cfg, expected, self, state_file=Path(sdir) / "leader.json"
+                           if sdir else None, namespace=self.get_namespace(),
+                           watchdog_scale=float(g("watchdog_scale")),
+                           start_margin=float(g("start_margin")))
+        if self.core.restored is not None:
+            self.get_logger().info(self.core.restored)
         self.drops = DropCounter(self)
-        #: the last ready refused from each node, with why (named when the schedule waits)
-        self.refused: dict[str, str] = {}
-        #: what a node not yet ready last said it waits for (its unmatched endpoints)
-        self.waiting: dict[str, str] = {}
-        self.watch_reports = 0
-        self.watchdog = Watchdog(Bounds.for_run(sc.dt, len(self.expected), self.cfg.mode,
-                                               self.cfg.timeout,
-                                               float(g("watchdog_scale"))))
-        self.done_sent = False
-        self._abort_sent = 0.0
-        self._born = time.monotonic()
-        self.t = -1          # last sample of the running slot whose reference went out
-        #: simulated time: the running slot's start again while it does not move, for a
-        #: follower whose reader matched after it went out; sooner than the plant re-sends
-        #: a sample, so that the follower has the start when the sample comes again
-        self.repeat = StartRepeat(RESEND_S / 2)
         self.ref_msg = PoseStamped()
         self.config_pub = self.create_publisher(String, ms.CONFIG, ms.LATCHED_QOS)
         self.ref_pub = self.create_publisher(PoseStamped, ms.REFERENCE, ms.SAMPLE_QOS)
         self.event_pub = self.create_publisher(String, ms.TRIAL_EVENTS, ms.SAMPLE_QOS)
-        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        self.diag_pub = Diagnostics(self)  # per-trial report and /diagnostics
         self.ready_sub = self.create_subscription(String, ms.READY, self._on_ready,
                                                   ms.LATCHED_READER_QOS)
         # its own events come back here too; a start or abort it did not send is re-asserted
@@ -178,236 +163,120 @@ class LeaderNode(Node):
         # names it (discovery that does not complete shows as endpoints never matched)
         self.create_subscription(DiagnosticArray, ms.DIAGNOSTICS, self._on_diagnostics,
                                  ms.LATCHED_READER_QOS)
-        self.wall: WallSchedule | None = None
-        if self.cfg.mode == "wallclock":
-            self.margin_ns = int(float(g("start_margin")) * 1e9)
-            self._wall_timer = self.create_timer(0.005, self._on_wall_timer)
+        if cfg.mode == "wallclock":
+            self._wall_timer = self.create_timer(0.005, self.core.on_wall_timer)
         else:
             self.clock_sub = self.create_subscription(Clock, ms.CLOCK, self._on_clock,
                                                       ms.CLOCK_QOS, raw=True)
-            self.create_timer(RESEND_S / 8, self._start_again)
-        self.config_pub.publish(ms.json_to_msg(self.cfg.to_json()))
-        self._gate = self.create_timer(0.05, self._maybe_start)
-        self._last_change = time.monotonic()
-        self.watchdog.moved(self._last_change, STARTUP)
-        self.create_timer(5.0, self._report_wait)
-        self.create_timer(1.0, self._on_watchdog)
-        self.get_logger().info(f"{sc.name}: {sc.n} robots, {self.trials} trials of "
-                               f"{self.T} samples, {self.cfg.mode}, {self.cfg.links} links; "
-                               f"waiting for "
-                               f"{', '.join(self.expected)}")
+            self.create_timer(RESEND_S / 8, self.core.start_again)
+        self.config_pub.publish(ms.json_to_msg(cfg.to_json()))
+        self._gate = self.create_timer(0.05, self.core.maybe_start)
+        self.create_timer(5.0, self.core.report_wait)
+        if g("exit_when_done"):
+            self.create_timer(0.5, self._exit_when_done)
+        self.create_timer(1.0, self.core.on_watchdog)
+        self.get_logger().info(f"{sc.name}: {sc.n} robots, {sc.trials} trials of "
+                               f"{sc.samples} samples, {cfg.mode}, {cfg.links} links; "
+                               f"waiting for {', '.join(expected)}")
 
+    def _exit_when_done(self) -> None:
+        """The run is over: end this process with status 0 (``exit_when_done``); the
+        ``done`` event went out at least one timer period before."""
+        if self.core.done_sent:
+            if getattr(self, "_done_seen", False):
+                self.get_logger().info("done: the leader exits (exit_when_done)")
+                Exit.code = 0
+                if Exit.stop is not None and not Exit.stop.done():
+                    Exit.stop.set_result(0)
+            self._done_seen = True
+
+    @property
+    def expected(self) -> list[str]:
+        return self.core.expected
+
+    # ------------------------------------------------------------------ callbacks
     def _on_ready(self, msg: String) -> None:
-        r = None
         try:
-            r = Ready.from_json(ms.msg_to_json(msg))
-            if r.node not in self.expected:
-                raise Rejected("unexpected", f"ready from {r.node[:100]}, not waited for")
-            if r.run and r.run != self.cfg.run_id:
-                raise Rejected("foreign", f"{r.node} of run {r.run}")
-            # nobody can be ready for a trial after the next one (trial k+1 needs trial k);
-            # the monitor and the recorder say ready once for the whole run
-            if r.trial > self.sched.committed + 1 and not r.passive:
-                raise Rejected("future", f"{r.node} ready for trial {r.trial}, but the "
-                                         f"schedule has {self.sched.committed} trials learned")
+            self.core.on_ready(ms.msg_to_json(msg))
         except Rejected as exc:
             self.drops.reject(exc, ms.READY)
-            if r is not None and r.node in self.expected and exc.reason != "foreign":
-                self.refused[r.node] = f"{exc.reason}: {exc}"
-            return
-        self.refused.pop(r.node, None)
-        self.waiting.pop(r.node, None)
-        committed = self.sched.committed
-        first = r.node not in self.sched.ready
-        why = self.sched.on_ready(r)
-        why = self.sched.seen_unsent(r) or why
-        self._last_change = time.monotonic()
-        if self.sched.committed > committed:
-            self.watchdog.moved(self._last_change, READY)
-        elif first and self.watchdog.first_startup:
-            # a node's first ready before any trial: the team's start-up moves on
-            self.watchdog.moved(self._last_change, STARTUP)
-        if why is not None:
-            self._aborted(why)
-        self._save()
-        self._maybe_start()
-
-    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
-        """Keep what an expected node that has not said ready waits for (``waiting`` in
-        its report); anything else on the topic is not the leader's business."""
-        try:
-            d = ms.msg_to_report(msg, ("node",))
-        except Rejected:
-            return  # the monitor counts malformed diagnostics; nothing to do here
-        name, waits = d.get("node"), d.get("waiting")
-        if name not in self.expected or not isinstance(waits, list) or name in \
-                self.sched.ready:
-            return
-        text = "; ".join(str(w) for w in waits[:8])
-        self.waiting[name] = text[:600] + (f" and {len(waits) - 8} more" if len(waits) > 8
-                                           else "")
-
-    def _aborted(self, why: str) -> None:
-        """An abort is pending (just begun): say so, save it, then publish it (saved first:
-        a leader killed in between must not come back with a seq that followers passed)."""
-        self.wall = None
-        self.repeat.stop()
-        s = self.sched
-        self.get_logger().warning(f"trial {s.committed} (slot {s.abort_pending}) aborted: "
-                                  f"{why}; it runs again")
-        self._save()
-        self._publish_abort()
-        self.watchdog.moved(time.monotonic(), READY, progress=False)
 
     def _on_event(self, msg: String) -> None:
-        """An event on the leader's own topic: its own come back; a start or abort of this
-        run that it did not send makes it re-assert its schedule."""
         try:
-            ev = TrialEvent.from_json(ms.msg_to_json(msg))
+            data = ms.msg_to_json(msg)
         except Rejected:
             return  # followers count it; the leader only watches for starts and aborts
-        if ev.run and ev.run != self.cfg.run_id:
-            return
-        why = self.sched.foreign(ev)
-        if why is not None:
-            self.drops.drop("unexpected", ms.TRIAL_EVENTS, why)
-            self._aborted(why)
-
-    def _restore(self) -> bool:
-        assert self.state_file is not None
-        try:
-            return self.sched.restore(self.state_file)
-        except ScheduleError as exc:
-            raise ValueError(f"{exc} (remove the file to start the run afresh, or restore it "
-                             f"from a copy)") from None
+        self.core.on_event(data)
 
     def _on_config(self, msg: String) -> None:
-        """Another leader's configuration here: a second formation on this domain and
-        namespace. Refuse to start (before trial 0); an established run goes on."""
         try:
-            d = ms.msg_to_json(msg)
+            data = ms.msg_to_json(msg)
         except Rejected as exc:
             self.drops.reject(exc, ms.CONFIG)
             return
-        other = str(d.get("run_id", ""))
-        if other == self.cfg.run_id:
-            return
-        if self.sched.slot < 0:
-            fail(self, f"another formation (run {other or '?'}) publishes its configuration "
-                       f"on {self.get_namespace()}/{ms.CONFIG} in this ROS domain: refusing "
-                       f"to start a second one here (use another namespace or domain)",
-                 code=2)
-            return
-        self.drops.drop("foreign", ms.CONFIG, f"configuration of run {other or '?'}")
+        self.core.on_config(data)
 
-    def _save(self) -> None:
-        self.sched.save(self.state_file)
-
-    def _publish_abort(self) -> None:
-        s = self.sched
-        assert s.abort_pending is not None
-        self._abort_sent = time.monotonic()
-        self.event_pub.publish(ms.json_to_msg(TrialEvent(
-            ms.ABORT, s.committed, s.abort_pending, s.seq, why=s.why,
-            run=self.cfg.run_id).to_json()))
-
-    def _maybe_start(self) -> None:
-        s = self.sched
-        if s.abort_pending is not None:
-            if not s.abort_done():
-                if time.monotonic() - self._abort_sent > ABORT_REPEAT and matched(
-                        [(self.event_pub, 1)]):
-                    self._publish_abort()  # a node that came back after it was sent
-                return
-            self._save()
-        if s.done:
-            if not self.done_sent:
-                self.done_sent = True
-                self.event_pub.publish(ms.json_to_msg(TrialEvent(
-                    ms.DONE, s.committed, s.slot + 1, s.seq, run=self.cfg.run_id).to_json()))
-                self._publish_diagnostics()
-                self.get_logger().info(f"done: {self.trials} trials")
-            return
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         try:
-            nxt = s.next_start()
-        except ScheduleError as exc:
-            fail(self, str(exc))
-            return
-        if nxt is None:
-            return
-        if s.slot < 0:
-            # before the first trial: give discovery time to show another formation's
-            # leader here (its configuration may not have reached us, its writer has)
-            if time.monotonic() - self._born < FIRST_START_WAIT:
-                return
-            if self.count_publishers(ms.CONFIG) > 1:
-                fail(self, f"another formation's leader publishes on "
-                           f"{self.get_namespace()}/{ms.CONFIG} in this ROS domain: refusing "
-                           f"to start a second one here (use another namespace or domain)",
-                     code=2)
-                return
-        if not matched(self._start_gate()):
-            return
-        i, q = nxt
-        seq = s.started(q)
-        self.t = -1
-        self._save()
-        self.watchdog.moved(time.monotonic(), SAMPLE, progress=False)
-        wall_ns = None
+            report = ms.msg_to_report(msg, ("node",))
+        except Rejected:
+            return  # the monitor counts malformed diagnostics; nothing to do here
+        self.core.on_waiting(report)
+
+    def _on_clock(self, msg: Clock | bytes) -> None:
+        try:
+            # bytes, as the per-sample messages are (msgs_schema.wire); the stamp, not
+            # now(): see notes on /clock callbacks
+            self.core.on_clock(ms.wire.read_clock(ms.wire.as_bytes(msg)))
+        except Rejected as exc:
+            self.drops.reject(exc, "clock")
+
+    # ------------------------------------------------------------------ LeaderIO
+    def publish_event(self, event: TrialEvent) -> None:
+        self.event_pub.publish(ms.json_to_msg(event.to_json()))
+
+    def publish_reference(self, t: int, stamp_ns: int) -> None:
+        ref = self.cfg.scenario.reference[t]
         if self.cfg.mode == "wallclock":
-            grid = self.clock
-            assert isinstance(grid, WallGrid)  # the configuration's, in wallclock mode
-            wall_ns = grid.start_for(q, time.time_ns() + self.margin_ns)
-            grid.agree(q, wall_ns)  # its stamps are wall time: start + t * dT
-            self.wall = WallSchedule(wall_ns, self.clock.dt_ns, self.T)
-        start = TrialEvent(ms.START, i, q, seq, self.clock.stamp_ns(q, 0), wall_ns,
-                           run=self.cfg.run_id)
-        self.event_pub.publish(ms.json_to_msg(start.to_json()))
-        if wall_ns is None:  # simulated time: the plant's samples show that it moves
-            self.repeat.sent(start, time.monotonic())
+            self.ref_pub.publish(ms.pose_to_msg(ref, stamp_ns, ms.WORLD_FRAME, self.ref_msg))
+        else:  # bytes, as the per-sample messages are
+            self.ref_pub.publish(ms.wire.pose_bytes(ref, stamp_ns, ms.WORLD_FRAME))
 
-    def _start_again(self) -> None:
-        """Simulated time: the running slot's start once more while it has had no new
-        sample for RESEND_S / 2 (``protocol.schedule.StartRepeat``)."""
-        if not self.sched.running:
-            self.repeat.stop()
-            return
-        start = self.repeat.again(time.monotonic())
-        if start is not None:
-            self.event_pub.publish(ms.json_to_msg(start.to_json()))
+    def publish_diagnostics(self, report: dict[str, Any]) -> None:
+        report.update(self.drops.as_dict())
+        self.diag_pub.publish(ms.diagnostics_to_msg(
+            report, self.get_clock().now().nanoseconds, self.cfg.scenario.dt,
+            self.cfg.scenario.samples))
 
-    def _on_wall_timer(self) -> None:
-        """wallclock: r(t) for each sample due on the wall clock (the newest one if the
-        timer fell behind; earlier ones are not sent late)."""
-        if self.wall is None:
-            return
-        t = self.wall.due(time.time_ns())
-        if t is None:
-            return
-        k = self.sched.slot
-        ns = self.clock.stamp_ns(k, t)
-        self._last_t = t
-        self._last_change = time.monotonic()
-        self.watchdog.moved(self._last_change, SAMPLE)
-        self.ref_pub.publish(ms.pose_to_msg(self.cfg.scenario.reference[t], ns,
-                                            ms.WORLD_FRAME, self.ref_msg))
-        if t == self.T:
-            self.wall = None
-            self._end(k)
+    def log(self, level: str, text: str) -> None:
+        # one call site per severity: rclpy refuses a call site whose severity changes
+        # ("Logger severity cannot be changed between calls")
+        lg = self.get_logger()
+        if level == "info":
+            lg.info(text)
+        elif level == "warning":
+            lg.warning(text)
+        elif level == "debug":
+            lg.debug(text)
+        else:
+            lg.error(text)
 
-    def _end(self, slot: int) -> None:
-        self.repeat.stop()
-        s = self.sched
-        self.event_pub.publish(ms.json_to_msg(TrialEvent(ms.END, s.committed, slot, s.seq,
-                                                         run=self.cfg.run_id).to_json()))
-        committed = s.committed
-        s.ended(slot)
-        self.watchdog.moved(time.monotonic(), READY, progress=s.committed > committed)
-        self._save()
-        self._publish_diagnostics()
-        self._maybe_start()
+    def alert(self, text: str) -> None:
+        self.get_logger().error(text)
+        print(f"{NAME}: {text}", file=sys.stderr, flush=True)
 
-    def _start_gate(self) -> list[tuple[Any, int]]:
+    def drop(self, reason: str, topic: str, why: str) -> None:
+        self.drops.drop(reason, topic, why)
+
+    def fail(self, text: str, code: int) -> None:
+        fail(self, text, code=code)
+
+    def reread_readies(self) -> None:
+        self.destroy_subscription(self.ready_sub)
+        self.ready_sub = self.create_subscription(String, ms.READY, self._on_ready,
+                                                  ms.LATCHED_READER_QOS)
+
+    def _gate_pairs(self) -> list[tuple[Any, int]]:
         """The endpoints a trial's start waits for, beside the readies: the reference's
         readers, the events' reader, and (simulated time) a writer of /clock."""
         need: list[tuple[Any, int]] = [(self.ref_pub, self.ref_readers), (self.event_pub, 1)]
@@ -415,142 +284,14 @@ class LeaderNode(Node):
             need.append((self.clock_sub, 1))
         return need
 
-    def _start_waits_for(self) -> list[str]:
-        """Whom the next start waits for, one phrase each: the nodes not ready (or not
-        answering an abort), else the endpoints of ``_start_gate`` not yet matched."""
-        late = self.sched.explain_wait(self.refused, self.waiting)
-        return late or unmatched(self._start_gate())
+    def start_gate(self) -> list[str]:
+        return unmatched(self._gate_pairs())
 
-    def _phase(self) -> str:
-        s = self.sched
-        if s.running:
-            # until the plant's first sample of a slot it is starting the trial, which
-            # may load its kernels first (measured: 76 s under a load of 33 on 2 cores)
-            return SAMPLE if self.t >= 0 else STARTUP
-        return STARTUP if s.slot < 0 and s.abort_pending is None else READY
+    def events_read(self) -> bool:
+        return matched([(self.event_pub, 1)])
 
-    def _on_watchdog(self) -> None:
-        """Past a phase's bound: say whom the run waits for and why, then re-run (abort a
-        stuck slot; read the readies anew), or, after RETRIES times without progress,
-        stop the leader (status STUCK) naming the cause."""
-        s = self.sched
-        if s.done:
-            return
-        now = time.monotonic()
-        phase = self._phase()
-        if not self.watchdog.expired(now, phase):
-            return
-        wd = self.watchdog
-        bound = wd.expired_bound
-        waited = wd.waited(now)
-        if phase == SAMPLE:
-            who = ("the plant's /clock" if self.cfg.mode != "wallclock"
-                   else "the leader's wall timer")
-            what = (f"trial {s.committed} (slot {s.slot}) has had no new sample for "
-                    f"{bound:.0f} s (last sample {self.t}; no progress for {waited:.0f} s): "
-                    f"waiting for {who}")
-        else:
-            late = self._start_waits_for()
-            if s.running:
-                late = [f"the plant's first sample of slot {s.slot}"]
-            what = (f"trial {s.committed} has waited {waited:.0f} s in {phase} (bound "
-                    f"{bound:.0f} s) for: "
-                    + "; ".join(late or ["nobody (its readers: the monitor, recorder)"]))
-        if wd.gave_up:
-            self._report(what, "giving up")
-            tried = ("the readies read anew once" if wd.first_startup
-                     else f"{wd.retries} retries")
-            fail(self, f"stuck: {what} ({tried} without progress)", code=STUCK)
-            return
-        if not wd.acting:
-            self._report(what, f"retries follow after {bound:.0f} s more")
-            return
-        if wd.first_startup:
-            self._report(what, f"reading the readies anew; giving up in "
-                               f"{wd.bound(phase):.0f} s if nothing moves")
-        else:
-            self._report(what, f"retry {wd.strikes - 1} of {wd.retries}")
-        if s.running:
-            s.begin_abort(f"no progress for {bound:.0f} s")
-            self._aborted(s.why)
-            return
-        # read every node's latched ready again, and repeat a pending abort
-        self.destroy_subscription(self.ready_sub)
-        self.ready_sub = self.create_subscription(String, ms.READY, self._on_ready,
-                                                  ms.LATCHED_READER_QOS)
-        if s.abort_pending is not None:
-            self._publish_abort()
-
-    def _report(self, what: str, then: str) -> None:
-        """A watchdog finding: in the log, on stderr, and in the leader's diagnostics (the
-        launcher prints it on its console)."""
-        self.get_logger().error(f"{what}: {then}")
-        print(f"{NAME}: {what}: {then}", file=sys.stderr, flush=True)
-        self.watch_reports += 1
-        self._publish_diagnostics({"count": self.watch_reports, "what": f"{what}: {then}"})
-
-    def _report_wait(self) -> None:
-        """Say whom the schedule waits for when it has not moved for a while."""
-        s = self.sched
-        if time.monotonic() - self._last_change < 5.0 or s.done:
-            return
-        if s.running:
-            self.get_logger().warning(f"trial {s.committed} (slot {s.slot}) has not ended "
-                                      f"(last clock: {getattr(self, '_last_t', None)})")
-            return
-        late = s.waiting_for()
-        what = "the abort's answer" if s.abort_pending is not None else "ready"
-        if late:
-            self.get_logger().warning(f"trial {s.committed} waits for {what} from "
-                                      f"{', '.join(late)}")
-            return
-        gate = "; ".join(unmatched(self._start_gate())) or "readers"
-        self.get_logger().warning(f"trial {s.committed}: waiting for {gate}")
-
-    def _publish_diagnostics(self, watchdog: dict[str, Any] | None = None) -> None:
-        d: dict[str, Any] = {"node": NAME, "trial": self.sched.committed,
-                             "slot": self.sched.slot,
-                             "foreign_events": self.sched.foreign_events,
-                             "starts_repeated": self.repeat.count}
-        if watchdog is not None:
-            d["watchdog"] = watchdog
-        d.update(self.drops.as_dict())
-        self.diag_pub.publish(ms.diagnostics_to_msg(
-            d, self.get_clock().now().nanoseconds, self.cfg.scenario.dt, self.T))
-
-    def _on_clock(self, msg: Clock | bytes) -> None:
-        try:
-            # bytes, as the per-sample messages are (msgs_schema.wire); the stamp, not
-            # now(): see notes on /clock callbacks
-            ns = ms.wire.read_clock(ms.wire.as_bytes(msg))
-            k, t = self.clock.decode(ns)
-            if k != self.sched.slot or not self.sched.running:
-                raise Rejected("stale" if k <= self.sched.slot else "future",
-                               f"time of slot {k}, slot {self.sched.slot} "
-                               f"{'runs' if self.sched.running else 'is over'}")
-            if t == self.t:
-                if self.cfg.mode == "lockstep" and t < self.T:
-                    # the plant sent the sample again (a command still due after
-                    # RESEND_S): the reference of it again too, for a reader that lost it
-                    self.ref_pub.publish(ms.wire.pose_bytes(self.cfg.scenario.reference[t], ns,
-                                                            ms.WORLD_FRAME))
-                raise Rejected("duplicate", f"time of sample {t} again")
-            if t < self.t:
-                raise Rejected("out_of_order", f"sample {t} after {self.t}")
-            if self.cfg.mode == "lockstep" and t > self.t + 1:
-                raise Rejected("future", f"sample {t} while {self.t + 1} is due")
-        except Rejected as exc:
-            self.drops.reject(exc, "clock")
-            return
-        self.t = t
-        self._last_t = t
-        self._last_change = time.monotonic()
-        self.watchdog.moved(self._last_change, SAMPLE)
-        self.repeat.moved(self._last_change)
-        ref = self.cfg.scenario.reference[t]
-        self.ref_pub.publish(ms.wire.pose_bytes(ref, ns, ms.WORLD_FRAME))
-        if t == self.T:
-            self._end(k)
+    def config_writers(self) -> int:
+        return self.count_publishers(ms.CONFIG)
 
 
 def _check_parameters(g: Any) -> None:

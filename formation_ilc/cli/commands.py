@@ -11,6 +11,8 @@ import math
 import os
 import sys
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -28,6 +30,7 @@ from formation_ilc.cli.options import (  # noqa: E402
     add_run_options,
     int_range,
     make_out_dir,
+    nonneg_float,
     out_dir_arg,
     output_file_arg,
     positive_float,
@@ -86,6 +89,10 @@ exit status (for scripts):
   4  converges only after a large transient (max_k ||M^k|| >= 10)
   5  Theorem 2 and condition (20) hold; the lifted heading map was not built
      (robots x samples > 3600), so the transient is unknown
+  6  the learning checks pass (0, 4 or 5 above), but the desired motion leaves the
+     base's limits (--base: its peak speed, turn rate or acceleration; the line names the
+     robot, the time and the --time-scale that fits), or the formation brings two robots'
+     bodies closer than the safety filter keeps them
 """
 
 SIMULATE_CODES = """\
@@ -103,6 +110,7 @@ def _scenario_arg(p: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``formation-ilc`` parser: one subparser per row of ``COMMANDS``."""
     ap = OneLineParser(
         prog="formation-ilc",
         description="Distributed iterative learning control of differential-drive robot "
@@ -111,19 +119,13 @@ def build_parser() -> argparse.ArgumentParser:
                     "disturbances, noise and communication delays.",
         epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="command", metavar="COMMAND")
-
-    sub.add_parser("scenarios", help="list the built-in scenarios")
-    _add_simulate(sub)
-    _add_compare(sub)
-    _add_check(sub)
-    _add_tune(sub)
-    _add_sweep(sub)
-    _add_analyze(sub)
-    _add_mcap_repair(sub)
-    _add_keystore(sub)
-    _add_launch(sub)
-    _add_team(sub)
+    for c in COMMANDS.values():
+        c.add(sub)
     return ap
+
+
+def _add_scenarios(sub: Any) -> None:
+    sub.add_parser("scenarios", help="list the built-in scenarios")
 
 
 def _add_simulate(sub: Any) -> None:
@@ -162,7 +164,22 @@ def _add_simulate(sub: Any) -> None:
     p.add_argument("--footprint", choices=BODIES, default=None,
                    help="write clearance.csv: each trial's least clearance between the "
                         "robots' footprints (this model's body; < 0: they overlap), and say "
-                        "how many trials overlap")
+                        "how many trials overlap (default with --safety: its --body)")
+    p.add_argument("--safety", action="store_true",
+                   help="put every robot's command through the safety filter, as the stack "
+                        "does on a plant with bodies (docs/safety.md): predicts what the "
+                        "bodies will do; metrics.csv counts the commands it changed "
+                        "(filter_active). With --plant-model arc, as the robots drive")
+    p.add_argument("--body", choices=BODIES, default="p3dx",
+                   help="with --safety: the robots' body, whose footprint and limits the "
+                        "filter keeps (default p3dx)")
+    p.add_argument("--safety-margin", type=nonneg_float, default=None, metavar="M",
+                   help="with --safety: the least gap [m] between two robots' covering discs "
+                        "(default 0.1; 0.25 on skid steer)")
+    p.add_argument("--safety-learning", choices=("applied", "split", "freeze", "ignore"),
+                   default=None,
+                   help="with --safety: how the memory learns where the filter changed a "
+                        "command (docs/safety.md)")
     p.add_argument("--out", type=out_dir_arg, metavar="DIR",
                    help="output folder (default: runs/SCENARIO-LAW-MEMORY-TIME)")
 
@@ -192,6 +209,16 @@ def _add_check(sub: Any) -> None:
                    help="horizon for the transient-growth estimate (default: scenario's)")
     p.add_argument("--no-delay", action="store_true",
                    help="check the delay-free configuration (as run with --no-delay)")
+    p.add_argument("--base", choices=(*BODIES, "none"), default="p3dx",
+                   help="the robots the desired motion must fit: their speed and "
+                        "acceleration limits (a physics model's maker's, else the base "
+                        "preset's) and their body for the safety filter (default p3dx, the "
+                        "paper's Pioneer 3-DX; none: check the learning only)")
+    p.add_argument("--headings", choices=("auto", "chord", "arc"), default="arc",
+                   help="the desired headings the motion is checked with (default arc: "
+                        "robots that drive arcs)")
+    p.add_argument("--time-scale", type=positive_float, default=None, metavar="S",
+                   help="check the scenario stretched in time by S")
 
 
 def _add_tune(sub: Any) -> None:
@@ -368,15 +395,12 @@ def _add_keystore(sub: Any) -> None:
 
 
 def _add_launch(sub: Any) -> None:
-    try:
-        from formation_ilc.cli import launch  # type: ignore[attr-defined,unused-ignore]
-    except ImportError:  # the distributed stack is not installed with this build
-        launch = None  # type: ignore[assignment]
-    if launch is not None:
-        p = sub.add_parser("launch", help="run the distributed ROS 2 stack on localhost",
-                           description=launch.__doc__,
-                           formatter_class=argparse.RawDescriptionHelpFormatter)
-        launch.add_arguments(p)
+    from formation_ilc.cli import launch
+
+    p = sub.add_parser("launch", help="run the distributed ROS 2 stack on localhost",
+                       description=launch.__doc__,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    launch.add_arguments(p)
 
 
 class Progress:
@@ -582,27 +606,27 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
     recorder = None
     if args.record is not None:
-        from formation_ilc.recordings.recording import SimRecorder
+        from formation_ilc.nodes.observer import sim_recorder
 
         try:
             args.record.parent.mkdir(parents=True, exist_ok=True)
-            recorder = SimRecorder(args.record, sc, sample_trials=set(keep), first_trial=first)
-            from formation_ilc.nodes.observer import Observer
-
-            recorder.observe(lambda cfg, sink: Observer(None, cfg, sink))
+            recorder = sim_recorder(args.record, sc, set(keep), first)
         except OSError as exc:
             log.close()
             raise OptionError(f"--record {args.record}: cannot write: "
                               f"{exc.strerror or exc}") from None
     clear_rows: list[Any] = []
-    on_data = _with_clearance(args.footprint, None if recorder is None else recorder.trial,
+    safety = _safety_spec(args, sc)
+    args.footprint = footprint = args.footprint or (args.body if safety is not None else None)
+    on_data = _with_clearance(footprint, None if recorder is None else recorder.trial,
                               clear_rows)
     t0 = time.perf_counter()
     previous = _sigterm_as_interrupt()
     try:
         res = simulate(sc, keep=keep, progress=on_trial, initial_memory=init,
                        first_trial=first, on_trial_data=on_data, plant=plant,
-                       stop_on_divergence=True, on_memory=keeper.update, store_metrics=False)
+                       stop_on_divergence=True, on_memory=keeper.update, store_metrics=False,
+                       safety=safety)
         keeper.save()
     except DivergedError as exc:
         saved = keeper.save()
@@ -622,6 +646,26 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             recorder.close()
     return _simulate_outputs(args, sc, res, log, keeper, out, first,
                              time.perf_counter() - t0, clear_rows)
+
+
+def _safety_spec(args: argparse.Namespace, sc: Any) -> Any:
+    """``simulate --safety``: the filter of ``--body`` with its own limits, or None."""
+    if not getattr(args, "safety", False):
+        return None
+    from formation_ilc.config.safety import SafetySettings, default_learning, default_margin
+    from formation_ilc.model.safety import body_limits, desired_clearance, spec_of
+
+    args.safety_learning = args.safety_learning or default_learning(args.body)
+    if args.safety_margin is None:
+        args.safety_margin = default_margin(args.body)
+    spec = spec_of(SafetySettings(args.body, body_limits(args.body), args.safety_margin,
+                                  args.safety_learning), sc.dt)
+    dc = desired_clearance(sc, spec)
+    if not dc.fits:
+        raise OptionError(f"--safety: {dc.line(sc.dt)} ({args.body} bodies + "
+                          f"{args.safety_margin:g} m margin); widen the formation's offsets "
+                          f"or lower --safety-margin")
+    return spec
 
 
 def _with_clearance(body: str | None, on_data: Any, rows: list[Any]) -> Any:
@@ -720,6 +764,9 @@ def _simulate_outputs(args: argparse.Namespace, sc: Scenario, res: Any, log: Tri
         "seconds": elapsed, "ms_per_trial": 1000 * elapsed / k,
         "memory_writes": keeper.writes,
     }
+    if getattr(args, "safety", False):
+        summary["safety"] = {"body": args.body, "margin": args.safety_margin,
+                             "learning": args.safety_learning}
     files = ["metrics.csv", "summary.json", "trajectories.npz", "memory.npz"]
     clear_line = None
     if clear_rows:
@@ -800,6 +847,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 #: check's exit status per verdict (CHECK_CODES)
 CHECK_OK, CHECK_NO_TREE, CHECK_DIVERGES, CHECK_TRANSIENT, CHECK_UNKNOWN = 0, 2, 3, 4, 5
+CHECK_LIMITS = 6
 
 
 def check_status(rep: Any) -> int:
@@ -830,7 +878,42 @@ def cmd_check(args: argparse.Namespace) -> int:
     if status == CHECK_NO_TREE:
         print("error: no gain can satisfy condition (20) on this graph (Theorem 2)",
               file=sys.stderr)
+    problems = _motion_check(args, sc)
+    if problems and status in (CHECK_OK, CHECK_TRANSIENT, CHECK_UNKNOWN):
+        for line in problems:
+            print(f"error: {line}", file=sys.stderr)
+        return CHECK_LIMITS
     return status
+
+
+def _motion_check(args: argparse.Namespace, sc: Scenario) -> list[str]:
+    """``check``'s look at the desired motion: every robot's peaks, printed; what does
+    not fit ``--base`` (its limits, its body under the safety filter), returned."""
+    from formation_ilc.config.bases import fit_limits
+    from formation_ilc.config.safety import SafetySettings
+    from formation_ilc.model.safety import body_limits, desired_clearance, motion_peaks, spec_of
+
+    if args.base == "none":
+        return []
+    moved = sc.with_options(headings=args.headings, time_scale=args.time_scale)
+    body = args.base
+    limits = body_limits(body)
+    print(f"desired motion ({args.headings} headings"
+          + (f", time scale {moved.time_scale:g}" if moved.time_scale != 1 else "")
+          + f"; {body}: v <= {limits.v_max:g} m/s, omega <= {limits.omega_max:.3g} rad/s, "
+            f"a <= {limits.a_max:g} m/s^2, alpha <= {limits.alpha_max:.3g} rad/s^2):")
+    for p in motion_peaks(moved):
+        print(f"  {p.line(moved.dt)}")
+    problems = []
+    line = fit_limits(moved, [limits] * moved.n)
+    if line is not None:
+        problems.append(f"{body}: {line}")
+    dc = desired_clearance(moved, spec_of(SafetySettings(body, limits), moved.dt))
+    print(f"  closest robots: {dc.line(moved.dt)}")
+    if not dc.fits:
+        problems.append(f"{body}: {dc.line(moved.dt)}: the safety filter would hold the "
+                        f"robots off their formation; widen the offsets")
+    return problems
 
 
 def cmd_tune(args: argparse.Namespace) -> int:
@@ -935,75 +1018,103 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_scenarios(args: argparse.Namespace) -> int:
+    for name in builtin_scenarios():
+        sc = load_scenario(name)
+        print(f"{name:20s} {sc.n} robots, {sc.samples} samples of {sc.dt} s, "
+              f"{sc.trials} trials: {sc.description.strip().splitlines()[0]}")
+    return 0
+
+
+def cmd_analyze(args: argparse.Namespace) -> int:
+    from formation_ilc.cli.analyze import analyze
+    from formation_ilc.recordings.recording import recording_parts, root_of
+
+    files = [args.recording] if args.only_this_file else recording_parts(args.recording)
+    for f in files:
+        _regular_file(f)
+    if files[0] != args.recording:
+        print(f"note: {args.recording} does not exist; the run's files are "
+              f"{', '.join(f.name for f in files)}", file=sys.stderr)
+    root = root_of(args.recording)
+    if root != args.recording and not args.only_this_file:
+        print(f"note: {args.recording.name} is one part of the run recorded in "
+              f"{root.name}: `formation-ilc analyze {root}` reads every part",
+              file=sys.stderr)
+    out = make_out_dir(args.out or args.recording.with_name(args.recording.stem + "-analysis"))
+    try:
+        return analyze(files, out, plots=not args.no_plots)
+    except ValueError as exc:  # not a recording, or not one of ours
+        raise ScenarioError(" ".join(str(exc).split())) from None
+
+
+def cmd_mcap_repair(args: argparse.Namespace) -> int:
+    from formation_ilc.recordings.mcap_io import ReadReport, repair
+
+    _regular_file(args.recording)
+    dst = args.output or args.recording.with_suffix(".repaired.mcap")
+    rep = ReadReport()
+    try:
+        n = repair(args.recording, dst, rep)
+    except ValueError as exc:
+        raise ScenarioError(" ".join(str(exc).split())) from None
+    for line in rep.lines():
+        print(f"note: {args.recording}: {line}")
+    print(f"{dst}: {n} messages kept")
+    return 0
+
+
+def cmd_keystore(args: argparse.Namespace) -> int:
+    from formation_ilc.cli import keystore
+
+    return keystore.run(args)
+
+
+def cmd_launch(args: argparse.Namespace) -> int:
+    from formation_ilc.cli import launch
+
+    return int(launch.run(args))
+
+
+@dataclass(frozen=True)
+class Command:
+    """One subcommand of ``formation-ilc``: ``add(subparsers)`` registers its parser (named
+    ``name``), ``run(args)`` runs it and returns the exit status; ``interrupted`` is what
+    Ctrl-C says."""
+
+    name: str
+    add: Callable[[Any], None]
+    run: Callable[[argparse.Namespace], int]
+    interrupted: str = "interrupted; finished trials are in metrics.csv"
+
+
+#: every subcommand, in the order ``--help`` lists them: one registration each
+COMMANDS: dict[str, Command] = {c.name: c for c in (
+    Command("scenarios", _add_scenarios, cmd_scenarios),
+    Command("simulate", _add_simulate, cmd_simulate),
+    Command("compare", _add_compare, cmd_compare),
+    Command("check", _add_check, cmd_check),
+    Command("tune", _add_tune, cmd_tune),
+    Command("sweep", _add_sweep, cmd_sweep,
+            interrupted="interrupted; every finished point is kept in DIR/points: run the "
+                        "same command again to go on"),
+    Command("analyze", _add_analyze, cmd_analyze),
+    Command("mcap-repair", _add_mcap_repair, cmd_mcap_repair),
+    Command("keystore", _add_keystore, cmd_keystore),
+    Command("launch", _add_launch, cmd_launch),
+    Command("team", _add_team, cmd_team),
+)}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
     if args.command is None:
         ap.print_help()
         return 1
+    command = COMMANDS[args.command]
     try:
-        if args.command == "scenarios":
-            for name in builtin_scenarios():
-                sc = load_scenario(name)
-                print(f"{name:20s} {sc.n} robots, {sc.samples} samples of {sc.dt} s, "
-                      f"{sc.trials} trials: {sc.description.strip().splitlines()[0]}")
-            return 0
-        if args.command == "simulate":
-            return cmd_simulate(args)
-        if args.command == "compare":
-            return cmd_compare(args)
-        if args.command == "check":
-            return cmd_check(args)
-        if args.command == "tune":
-            return cmd_tune(args)
-        if args.command == "sweep":
-            return cmd_sweep(args)
-        if args.command == "analyze":
-            from formation_ilc.cli.analyze import analyze
-            from formation_ilc.recordings.recording import recording_parts, root_of
-
-            files = ([args.recording] if args.only_this_file
-                     else recording_parts(args.recording))
-            for f in files:
-                _regular_file(f)
-            if files[0] != args.recording:
-                print(f"note: {args.recording} does not exist; the run's files are "
-                      f"{', '.join(f.name for f in files)}", file=sys.stderr)
-            root = root_of(args.recording)
-            if root != args.recording and not args.only_this_file:
-                print(f"note: {args.recording.name} is one part of the run recorded in "
-                      f"{root.name}: `formation-ilc analyze {root}` reads every part",
-                      file=sys.stderr)
-            out = make_out_dir(args.out or args.recording.with_name(args.recording.stem
-                                                                    + "-analysis"))
-            try:
-                return analyze(files, out, plots=not args.no_plots)
-            except ValueError as exc:  # not a recording, or not one of ours
-                raise ScenarioError(" ".join(str(exc).split())) from None
-        if args.command == "mcap-repair":
-            from formation_ilc.recordings.mcap_io import ReadReport, repair
-
-            _regular_file(args.recording)
-            dst = args.output or args.recording.with_suffix(".repaired.mcap")
-            rep = ReadReport()
-            try:
-                n = repair(args.recording, dst, rep)
-            except ValueError as exc:
-                raise ScenarioError(" ".join(str(exc).split())) from None
-            for line in rep.lines():
-                print(f"note: {args.recording}: {line}")
-            print(f"{dst}: {n} messages kept")
-            return 0
-        if args.command == "team":
-            return cmd_team(args)
-        if args.command == "keystore":
-            from formation_ilc.cli import keystore
-
-            return keystore.run(args)
-        if args.command == "launch":
-            from formation_ilc.cli import launch  # type: ignore[attr-defined,unused-ignore]
-
-            return int(launch.run(args))
+        return command.run(args)
     except (ScenarioError, SpanningTreeError, OptionError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -1016,14 +1127,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        if args.command == "sweep":
-            print("\ninterrupted; every finished point is kept in DIR/points: run the same "
-                  "command again to go on", file=sys.stderr)
-        else:
-            print("\ninterrupted; finished trials are in metrics.csv", file=sys.stderr)
+        print(f"\n{command.interrupted}", file=sys.stderr)
         return 130
-    ap.error(f"unknown command {args.command}")
-    return 2
 
 
 if __name__ == "__main__":

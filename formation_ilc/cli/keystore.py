@@ -2,13 +2,15 @@
 
 Makes (or brings up to date) a CA, the governance (authenticated participants only,
 discovery and data encrypted) and one enclave per node of the formation, each with
-least-privilege permissions derived from the scenario's graph
-(``formation_ilc.config.enclaves``): robot i publishes only its own topics and reads its
-own pose, its in-neighbours' shared poses and trajectories and the leader's topics it
-needs; the plant publishes the poses and reads the ``cmd_vel``; the recorder and the
-monitor read. Run it again after changing the graph (a robot added): it keeps every valid
-certificate and re-signs only the permissions that changed. ``launch --secure DIR`` runs
-every node in its enclave. docs/security.md: threat model, deployment to real robots.
+least-privilege permissions: its member's topics in the roster
+(``formation_ilc.config.roster``), derived from the scenario's graph. Robot i publishes
+only its own topics and reads its own pose, its in-neighbours' shared poses and
+trajectories and the leader's topics it needs; the plant publishes the poses and reads the
+``cmd_vel`` (the simulator, the physics plant, or each robot's bridge and its driver); the
+recorder and the monitor read. Run it again after changing the graph (a robot added): it
+keeps every valid certificate and re-signs only the permissions that changed. ``launch
+--secure DIR`` runs every node in its enclave. docs/security.md: threat model, deployment
+to real robots.
 """
 
 from __future__ import annotations
@@ -19,48 +21,22 @@ from pathlib import Path
 from typing import Any
 
 from formation_ilc.cli.options import OptionError, int_range
-from formation_ilc.config.enclaves import DriverTopics, Grant, TopicNames, formation_grants
+from formation_ilc.config.enclaves import Grant
+from formation_ilc.config.plants import SECURE_PLANTS, plant
+from formation_ilc.config.roster import DRIVER_NS, Lineup, roster
+from formation_ilc.core.names import NAMESPACE
 
-__all__ = ["add_parser", "run", "topic_names", "clock_topic", "grants_for"]
-
-DEFAULT_DRIVER_NS = "/pioneer_{i}"
-
-
-def clock_topic(namespace: str) -> str:
-    """Where the formation's ``/clock`` is: the launcher remaps it into any namespace but
-    the default one (``launch.ros_args``)."""
-    import msgs_schema as ms
-
-    return ms.CLOCK if namespace == ms.NAMESPACE else f"{namespace.rstrip('/')}{ms.CLOCK}"
-
-
-def topic_names(namespace: str) -> TopicNames:
-    """The schema's topic names (``msgs_schema``, which imports ROS) for the pure grants."""
-    import msgs_schema as ms
-
-    return TopicNames(
-        config=ms.CONFIG, reference=ms.REFERENCE, trial_events=ms.TRIAL_EVENTS,
-        ready=ms.READY, diagnostics=ms.DIAGNOSTICS, clock=clock_topic(namespace),
-        pose=ms.pose_topic, cmd_vel=ms.cmd_vel_topic, shared_pose=ms.shared_pose_topic,
-        link=ms.link_topic, trajectory=ms.trajectory_topic,
-        true_trajectory=ms.true_trajectory_topic,
-        recorded=lambda n: [clock_topic(namespace) if t == ms.CLOCK else t
-                            for t, _, _ in ms.topic_table(n)],
-        leader=ms.LEADER, view=lambda n: [t for t, _, _ in ms.view_topic_table(n)],
-        preview=ms.PREVIEW)
+__all__ = ["add_parser", "run", "grants_for"]
 
 
 def grants_for(scenario: Any, namespace: str, *, plant: str = "sim", driver: str = "rosaria",
-               driver_ns: str = DEFAULT_DRIVER_NS) -> dict[str, Grant]:
-    """Every node's grant for ``scenario`` (a loaded Scenario) in ``namespace``."""
-    import msgs_schema as ms
-
-    pioneer = None
-    if plant == "pioneer":
-        spec = ms.DRIVERS[driver]
-        pioneer = DriverTopics(driver_ns, spec.cmd, spec.odom, spec.motors, spec.motors_kind)
-    return formation_grants(scenario.graph.adjacency, scenario.graph.leader,
-                            topic_names(namespace), namespace, pioneer=pioneer)
+               driver_ns: str | None = None, base: str | None = None,
+               physics_bases: bool = False) -> dict[str, Grant]:
+    """Every enclave's grant for ``scenario`` (a loaded Scenario) in ``namespace``: every
+    member a run of its formation on ``plant`` may start (``Lineup.for_keystore``)."""
+    lineup = Lineup.of(scenario.graph, plant=plant, driver=driver, driver_ns=driver_ns,
+                       base=base, physics_bases=physics_bases)
+    return roster(lineup.for_keystore()).grants(namespace)
 
 
 def _namespace(value: str) -> str:
@@ -86,29 +62,45 @@ def add_parser(sub: Any) -> None:
                         "/formation)")
     c.add_argument("--days", type=int_range(1, 36500), default=365, metavar="D",
                    help="validity of new enclave certificates and permissions (default 365)")
-    c.add_argument("--plant", choices=("sim", "pioneer"), default="sim",
-                   help="sim (default): the kinematic simulator drives the robots; pioneer: "
-                        "one bridge and one driver enclave per robot (launch --plant pioneer)")
+    c.add_argument("--plant", choices=SECURE_PLANTS, default=SECURE_PLANTS[0],
+                   help="the plant of the runs the keystore serves, as given to launch: sim "
+                        "(default): the kinematic simulator drives the robots; physics: the "
+                        "physics plant; pioneer: one bridge and one driver enclave per "
+                        "robot; base: one bridge per robot and a driver enclave per base "
+                        "(with --physics-bases: one enclave for the physics bases instead)")
     c.add_argument("--driver", choices=("rosaria", "p2os2", "ros2aria"), default="rosaria",
                    help="with --plant pioneer: the robots' driver (default rosaria)")
-    c.add_argument("--driver-ns", default=DEFAULT_DRIVER_NS, metavar="PATTERN",
-                   help="with --plant pioneer: robot i's driver namespace (default "
-                        "/pioneer_{i})")
+    c.add_argument("--driver-ns", default=None, metavar="PATTERN",
+                   help="with --plant pioneer or base: robot i's driver namespace (default "
+                        "/pioneer_{i}; with --plant base /base_{i})")
+    from formation_ilc.config.bases import BASES
+
+    c.add_argument("--base", choices=tuple(BASES), default="turtlebot4",
+                   help="with --plant base: the base's preset (its topics), as given to "
+                        "launch (default turtlebot4)")
+    c.add_argument("--physics-bases", action="store_true",
+                   help="with --plant base: the runs start physics robots behind the bases' "
+                        "interface (launch --physics-bases)")
 
 
 def run(args: argparse.Namespace) -> int:
     """``keystore create``: exit 0, or 2 with one line on a bad scenario or keystore."""
-    import msgs_schema as ms
     from formation_ilc.config.scenario import load_scenario
     from formation_ilc.store.keystore import KeystoreError, create
 
     sc = load_scenario(args.scenario)
-    namespace = args.namespace or ms.NAMESPACE
-    if args.plant == "pioneer" and "{i}" not in args.driver_ns:
-        raise OptionError(f"--driver-ns {args.driver_ns!r}: needs {{i}} (one namespace per "
+    namespace = args.namespace or NAMESPACE
+    row = plant(args.plant)
+    if args.physics_bases and row.driver != "base":
+        raise OptionError("--physics-bases goes with --plant base")
+    driver_ns = args.driver_ns or DRIVER_NS.get(row.driver or "")
+    if row.driver is not None and driver_ns is not None and "{i}" not in driver_ns:
+        raise OptionError(f"--driver-ns {driver_ns!r}: needs {{i}} (one namespace per "
                           f"robot)")
     grants = grants_for(sc, namespace, plant=args.plant, driver=args.driver,
-                        driver_ns=args.driver_ns)
+                        driver_ns=driver_ns,
+                        base=args.base if row.driver == "base" else None,
+                        physics_bases=args.physics_bases)
     try:
         done = create(args.keystore, grants, days=args.days)
     except KeystoreError as exc:

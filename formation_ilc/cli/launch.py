@@ -23,7 +23,13 @@ on this console, re-runs, then stops the run (status 4, with the resume command)
 whose recording lacks a trial fails (status 3); a full disk stops it (status 5, the file
 named, with the resume command); a resume is decided from validated state files before
 anything changes. Statuses: 0 whole, 1 a node failed, 2 refused, 3 recording incomplete,
-4 stuck, 5 disk full, 130 interrupted.
+4 stuck, 5 disk full, 6 robots touched past what --on-contact allows, 130 interrupted.
+
+Safety (docs/safety.md): on every plant with bodies (physics, pioneer, base) each robot's
+command goes through the safety filter (robots kept apart, commands inside the base's
+limits, the memory learning through it); --no-safety turns it off, --safety turns it on
+with the simulator. Contacts are printed at once, counted in metrics.csv and acted on
+(--on-contact).
 
 Node entry points (also `ros2 run formation_ilc <exe>` on a full ROS 2 install):
   formation-ilc-leader  virtual leader: --ros-args -p scenario:=NAME [-p trials:=K ...]
@@ -67,6 +73,7 @@ import numpy as np
 from formation_ilc.cli.options import (
     add_run_options,
     int_range,
+    nonneg_float,
     out_dir_arg,
     output_file_arg,
     positive_float,
@@ -80,8 +87,8 @@ from formation_ilc.cli.supervisor import (
     resume_hint,
     trial_ranges,
 )
+from formation_ilc.config.plants import PLANT_TABLE, PLANTS
 from formation_ilc.config.runconfig import MODES
-from formation_ilc.config.team import PLANTS
 from formation_ilc.core.links import LINK_MODES
 from formation_ilc.protocol.watchdog import Bounds
 from formation_ilc.system.exits import DISK_FULL, STUCK, is_disk_full
@@ -107,14 +114,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "neighbours, as on robots, and the delays are the network's (a "
                         "lockstep run equals `simulate --no-delay`; the default and required "
                         "with --plant pioneer)")
-    p.add_argument("--plant", choices=PLANTS, default="sim",
-                   help="sim (default): start the kinematic simulator; physics: the PyBullet "
-                        "rigid-body plant (docs/physics.md); external: another "
-                        "process speaks the plant contract (docs/distributed-stack.md) and "
-                        "says ready as one of --plant-nodes; pioneer: one Pioneer bridge per "
-                        "robot (formation-ilc-bridge, docs/real-robots.md) in front of a "
-                        "driver (--driver), wall-clock trials, direct links; base: the same "
-                        "bridges in front of any differential-drive base (--base)")
+    p.add_argument("--plant", choices=PLANTS, default=PLANTS[0],
+                   help="; ".join(f"{row.name}{' (default)' if row.name == PLANTS[0] else ''}: "
+                                  f"{row.help}" for row in PLANT_TABLE))
     add_plant_arguments(p)
     p.add_argument("--driver", choices=("rosaria", "p2os2", "ros2aria"), default="rosaria",
                    help="with --plant pioneer: the robots' driver (default rosaria)")
@@ -210,9 +212,11 @@ def add_plant_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--params-file", type=Path, metavar="FILE",
                    help="with --plant pioneer or base: a ROS 2 parameters file for the "
                         "bridges (e.g. per-robot limits under /formation/bridge_I)")
-    p.add_argument("--robot-model", choices=("p3dx", "husky"), default="p3dx",
+    p.add_argument("--robot-model", choices=("p3dx", "husky", "husky-imu"), default="p3dx",
                    help="with --plant physics (or --physics-bases): P3-DX-size two-wheel "
-                        "drive (default) or the Husky of pybullet_data")
+                        "drive (default), the Husky of pybullet_data (wheel speeds open "
+                        "loop), or the Husky whose base tracks its commanded speed and turn "
+                        "rate (husky-imu: docs/physics.md)")
     p.add_argument("--pose", choices=("truth", "odometry"), default="truth",
                    help="with --plant physics: the robots' measured pose, the engine's ground "
                         "truth (a motion-capture stand-in, default) or wheel odometry")
@@ -224,6 +228,47 @@ def add_plant_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--allow-contact", action="store_true",
                    help="run on a plant with bodies although the batch simulator predicts "
                         "that the robots' footprints overlap")
+    add_safety_arguments(p)
+
+
+def add_safety_arguments(p: argparse.ArgumentParser) -> None:
+    """The safety filter's options (docs/safety.md)."""
+    from formation_ilc.config.safety import BODIES
+    from formation_ilc.core.safety import LEARNING
+
+    g = p.add_argument_group("the safety filter (docs/safety.md)")
+    g.add_argument("--safety", action=argparse.BooleanOptionalAction, default=None,
+                   help="put every robot's learned command through the safety filter: it "
+                        "keeps the robots' bodies a margin apart and the command inside the "
+                        "base's speed and acceleration limits, and the memory learns "
+                        "through it. Default: on with every plant with bodies (physics, "
+                        "pioneer, base), off with the kinematic simulator (the paper's "
+                        "reproduction is unchanged)")
+    g.add_argument("--body", choices=BODIES, default=None,
+                   help="with --plant sim --safety: the body the filter keeps apart "
+                        "(default p3dx); other plants know their own")
+    g.add_argument("--safety-margin", type=nonneg_float, default=None, metavar="M",
+                   help="least gap [m] between two robots' covering discs (default 0.1; "
+                        "0.25 on skid steer, whose wheels slip: docs/safety.md)")
+    g.add_argument("--safety-learning", choices=LEARNING, default=None,
+                   help="how the memory learns where the filter changed a command: applied "
+                        "(from the command the robot really drove; the default on two "
+                        "wheels), split (from it where a limit clipped the command, not at "
+                        "all where a barrier moved it; the default on skid steer: husky, "
+                        "jackal), freeze (no learning at those samples), ignore (as if "
+                        "unchanged; winds up). docs/safety.md compares them")
+    g.add_argument("--on-contact", choices=("stop", "abort", "continue"), default="stop",
+                   help="with --plant physics, when two robots touch or one tilts past "
+                        "--tilt-limit: stop (default): stop the robots, abort the trial and "
+                        "run it again, at most --contact-retries times, then end the run "
+                        "(status 6) naming the pair; abort: stop the robots and end the run "
+                        "at once (status 6); continue: report it and go on")
+    g.add_argument("--contact-retries", type=int_range(0, 100), default=2, metavar="N",
+                   help="with --on-contact stop: how often one trial is run again after a "
+                        "contact (default 2)")
+    g.add_argument("--tilt-limit", type=positive_float, default=10.0, metavar="DEG",
+                   help="with --plant physics: a robot tilted past this [deg] is treated "
+                        "as a contact (default 10)")
 
 
 # --------------------------------------------------------------------------- separate hosts
@@ -518,11 +563,12 @@ class Diverged(Exception):
 
 
 class _Session:
-    """One execution of a plan: the metrics file, the supervisor, the monitor node."""
+    """One execution of a plan: the metrics file, the supervisor, and the ROS host with the
+    monitor node (``formation_ilc.nodes.host``)."""
 
     def __init__(self, plan: RunPlan, env: dict[str, str],
                  place: Callable[[NodeSpec], list[str]] | None):
-        from formation_ilc.core.metrics import METRIC_COLUMNS, TRUE_COLUMNS
+        from formation_ilc.core.metrics import COUNT_COLUMNS, METRIC_COLUMNS, TRUE_COLUMNS
 
         self.plan = plan
         self.done = plan.resumed_at or 0  # iterations every robot has learned (resumed)
@@ -530,11 +576,11 @@ class _Session:
         self.t_start = time.monotonic()
         # without a true state the true_ columns are nan by design
         self.finite_cols = [i for i, c in enumerate(METRIC_COLUMNS)
-                            if i > 0 and (plan.true_state or c not in TRUE_COLUMNS)]
+                            if i > 0 and c not in COUNT_COLUMNS
+                            and (plan.true_state or c not in TRUE_COLUMNS)]
         self.supervisor = Supervisor(plan, env, place, on_down=self._down)
         self.progress: StartupProgress | None = None
-        self.monitor: Any = None
-        self.down_pub: Any = None
+        self.host: Any = None
         self.diagnostics: dict[str, dict[str, Any]] = {}
 
     def _metrics(self) -> tuple[list[Any], Any]:
@@ -564,7 +610,8 @@ class _Session:
 
     def rows(self) -> list[Any]:
         """Every finished trial's metrics row, by iteration (a resumed run's first)."""
-        got = self.monitor.rows if self.monitor is not None else {}
+        monitor = self.host.monitor if self.host is not None else None
+        got = monitor.rows if monitor is not None else {}
         return list(self.kept) + [got[k] for k in sorted(got)]
 
     def on_trial(self, k: int, row: np.ndarray) -> None:
@@ -572,35 +619,35 @@ class _Session:
         now = time.monotonic()
         if not np.isfinite(row[self.finite_cols]).all():
             raise Diverged(k)
-        print(f"trial {k + 1}/{self.plan.scenario.trials}  max position {row[1]:.4g} m  "
-              f"max heading {row[2]:.4g} rad  [{now - self.t_start:.1f} s]", flush=True)
+        print(progress_line(k, self.plan, row) + f"  [{now - self.t_start:.1f} s]",
+              flush=True)
+
+    def on_contact(self, node: str, c: dict[str, Any]) -> None:
+        """A plant's contact, said the moment it happened (the plant acts on it)."""
+        action = {"stop": "the robots are stopped and the trial runs again",
+                  "abort": "the run ends", "give_up": "the run ends (retries spent)",
+                  "continue": "going on"}.get(str(c.get("action")), "")
+        print(f"contact: {str(c.get('line', ''))[:300]}: {action} ({node})", flush=True)
 
     def _down(self, name: str, pid: int) -> None:
         """Tell the leader at once that a passive node died, so that no trial starts
         without it (the recorder: no trial unrecorded)."""
-        import msgs_schema as ms
-        from formation_ilc.protocol.schedule import Ready
-
-        cfg = self.plan.config
-        self.down_pub.publish(ms.json_to_msg(Ready(
-            name, cfg.scenario.trials, str(pid), passive=True, run=cfg.run_id,
-            down=True).to_json()))
+        self.host.down(name, pid)
 
     def run(self) -> int:
         """Start the nodes, follow the trials to the end; the exit status (the outputs
         are the caller's)."""
-        import rclpy
-        from rclpy.signals import SignalHandlerOptions
+        from formation_ilc.nodes.host import LauncherHost
 
         def on_term(signum: int, frame: Any) -> None:
             raise KeyboardInterrupt
 
         signal.signal(signal.SIGTERM, on_term)
-        if self.plan.secure is not None:  # the monitor joins in its own enclave
-            self.plan.secure.enter_launcher()
-        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+        self.host = LauncherHost(self.plan, self.on_trial, first=self.done,
+                                 on_contact=self.on_contact)
         status = 0
         try:
+            self.host.start()
             status = self._follow()
         except _Refused:
             status = 2
@@ -625,29 +672,16 @@ class _Session:
                       f"[{time.monotonic() - self.t_start:.1f} s]", flush=True)
             self.supervisor.stop()
             self.writer.close()
-            if self.monitor is not None:
-                self.diagnostics = dict(self.monitor.diagnostics)
-                self.monitor.destroy_node()
-            rclpy.try_shutdown()
+            self.diagnostics = self.host.close()
         return status
 
     def _follow(self) -> int:
         """The monitor joins, the nodes start, and the run is followed until every trial
         and report is in (or the wait for them is over), or a node fails for good."""
-        from rclpy.experimental import EventsExecutor
-        from std_msgs.msg import String
-
-        import msgs_schema as ms
-        from formation_ilc.nodes.monitor import MonitorNode
         from formation_ilc.protocol.schedule import START
 
-        plan = self.plan
-        self.monitor = monitor = MonitorNode(plan.config, self.on_trial,
-                                             true_state=plan.true_state,
-                                             namespace=plan.namespace, first=self.done)
-        self.down_pub = monitor.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        ex = EventsExecutor()
-        ex.add_node(monitor)
+        plan, host = self.plan, self.host
+        monitor = host.monitor
         # the processes start (imports are most of their start) while the monitor looks for
         # another formation here; they join the domain only once there is none
         self.supervisor.start(gated=True)
@@ -665,7 +699,7 @@ class _Session:
                                      plan.watchdog_scale), plan.out, len(plan.team.expected),
                       plan.scenario.trials)
         while True:
-            ex.spin_once(timeout_sec=0.05)
+            host.spin_once(0.05)
             if progress.active:
                 now = time.monotonic()
                 if now - graph_at >= 0.5:  # a graph query: twice a second is enough
@@ -697,8 +731,8 @@ class _Session:
         """_Refused, said why, when another formation runs on this domain and namespace
         (an external plant's nodes are ours)."""
         plan = self.plan
-        allowed = set(plan.team.plants) if plan.plant == "external" else set()
-        others = _foreign(self.monitor, plan.namespace, wait, allowed)
+        allowed = {m.name for m in plan.roster.by_role("plant") if m.entry is None}
+        others = self.host.foreign(wait, allowed)
         if others:
             print(f"error: another formation runs on ROS_DOMAIN_ID={plan.domain} in namespace "
                   f"{plan.namespace} ({', '.join(sorted(others)[:6])}"
@@ -708,16 +742,25 @@ class _Session:
             raise _Refused
 
 
-def _foreign(node: Any, namespace: str, wait: float, allowed: set[str]) -> list[str]:
-    """Nodes of another formation in ``namespace`` on this domain (other than ``allowed``:
-    an external plant's), after giving discovery ``wait`` seconds."""
-    import msgs_schema as ms
+def progress_line(k: int, plan: RunPlan, row: np.ndarray) -> str:
+    """A trial's line on the console: its measured errors; where the plant knows the
+    ground truth (the simulator, the physics plant) the true errors beside them; what
+    the safety filter changed and the contacts, when the run has them."""
+    from formation_ilc.core.metrics import METRIC_COLUMNS
 
-    deadline = time.monotonic() + wait
-    while time.monotonic() < deadline:
-        time.sleep(0.05)
-    found = [f"{ns.rstrip('/')}/{name}" for name, ns in node.get_node_names_and_namespaces()
-             if ns == namespace and name != node.get_name() and name not in allowed]
-    if node.count_publishers(ms.absolute(ms.CONFIG, namespace)) and not found:
-        found.append(ms.absolute(ms.CONFIG, namespace))
-    return found
+    col = {c: row[i] for i, c in enumerate(METRIC_COLUMNS)}
+    line = f"trial {k + 1}/{plan.scenario.trials}  max position "
+    if plan.true_state:
+        line += (f"{col['true_max_position_error']:.4g} m true, "
+                 f"{col['max_position_error']:.4g} m measured  max heading "
+                 f"{col['true_max_heading_error']:.4g} rad true, "
+                 f"{col['max_heading_error']:.4g} measured")
+    else:
+        line += (f"{col['max_position_error']:.4g} m  max heading "
+                 f"{col['max_heading_error']:.4g} rad")
+    if plan.config.safety is not None:
+        f = col["filter_active"]
+        line += "  filtered " + ("?" if np.isnan(f) else f"{int(f)}")
+    if plan.physics is not None and not np.isnan(col["contacts"]):
+        line += f"  contacts {int(col['contacts'])}"
+    return line

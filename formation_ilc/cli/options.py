@@ -18,7 +18,7 @@ from typing import NoReturn
 
 __all__ = ["OneLineParser", "int_range", "nonneg_int", "positive_int", "positive_float",
            "out_dir_arg", "output_file_arg", "make_out_dir", "OptionError", "MAX_TRIAL",
-           "add_run_options", "special_path", "fs_type"]
+           "add_run_options", "special_path", "fs_type", "nonneg_float"]
 
 #: trial indices are stored as float64 in metrics rows: exact up to 2^53
 MAX_TRIAL = 2 ** 53
@@ -72,6 +72,20 @@ def positive_float(text: str) -> float:
 
 
 positive_float.__name__ = "number"
+
+
+def nonneg_float(text: str) -> float:
+    """An argparse type: a finite number >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
+    return value
+
+
+nonneg_float.__name__ = "number"
 
 
 def _writable_ancestor(path: Path) -> str | None:

@@ -3,8 +3,10 @@ process starts, built once and frozen.
 
 ``build_plan`` reads the options (and, with ``--resume DIR``, the run's own ``run.json``),
 refuses what cannot run (``NoRun``: one line and the exit status, before anything starts)
-and returns a ``RunPlan``: the validated run configuration, the team the leader waits for,
-and one ``NodeSpec`` per process (name, command, parameters, restart policy, host). The
+and returns a ``RunPlan``: the validated run configuration, the roster of the run
+(``formation_ilc.config.roster``: its members, the team the leader waits for, their
+enclaves), and one ``NodeSpec`` per process the roster names (command, parameters, restart
+policy, host). The
 supervisor (``formation_ilc.cli.supervisor``) runs the plan, the report writer
 (``formation_ilc.cli.report``) writes its outputs, and ``--hosts netns`` wraps its
 execution (``formation_ilc.cli.hosts``). Nothing here needs ROS.
@@ -13,6 +15,7 @@ execution (``formation_ilc.cli.hosts``). Nothing here needs ROS.
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import sys
 import uuid
@@ -24,24 +27,12 @@ from typing import Any
 
 from formation_ilc.cli.options import OptionError
 from formation_ilc.cli.secure import SecureRun
+from formation_ilc.config.plants import Plant, plant
+from formation_ilc.config.roster import Lineup, Member, Roster, Team, roster
 from formation_ilc.config.runconfig import RunConfig, make_config, param_text, scenario_reference
+from formation_ilc.config.safety import SafetySettings, default_learning, default_margin
 from formation_ilc.config.scenario import Scenario, ScenarioError
-from formation_ilc.config.team import BRIDGED, Team
-from formation_ilc.core.names import (
-    BASES_NODE,
-    LEADER_NODE,
-    LINKS_NODE,
-    LIVEVIEW_NODE,
-    NAMESPACE,
-    PHYSICS_NODE,
-    RECORDER_NODE,
-    SIM_NODE,
-    bridge_name,
-    fake_driver_name,
-    namespace_remaps,
-    robot_name,
-    robots_process_name,
-)
+from formation_ilc.core.names import LEADER_NODE, NAMESPACE, namespace_remaps, robots_process_name
 from formation_ilc.protocol.schedule import DONE
 from formation_ilc.system.exits import NO_RESTART as EXIT_NO_RESTART
 from formation_ilc.system.netns import LinkFaults
@@ -49,7 +40,7 @@ from formation_ilc.system.netns import LinkFaults
 __all__ = ["RUN_FILE", "NO_RESTART", "NoRun", "BridgeOptions", "PhysicsOptions",
            "RestartPolicy", "NodeSpec",
            "HostsPlan", "RunPlan", "build_plan", "effective_options", "node_specs",
-           "finished", "pick_domain", "resumed_part"]
+           "finished", "pick_domain", "resumed_part", "entry_module"]
 
 #: the launch options a run is resumed with (DIR/run.json)
 RUN_FILE = "run.json"
@@ -112,7 +103,7 @@ class BridgeOptions:
     def of(cls, opts: argparse.Namespace) -> BridgeOptions:
         from formation_ilc.config.bases import LIMIT_KEYS
 
-        base = getattr(opts, "base", None) if opts.plant == "base" else None
+        base = getattr(opts, "base", None) if plant(opts.plant).driver == "base" else None
         ns = opts.driver_ns
         if base is not None and ns == PIONEER_NS:
             ns = BASE_NS
@@ -145,12 +136,19 @@ class PhysicsOptions:
     pose: str = "truth"
     collide: bool = True
     rate: float = 240.0
+    #: what the plant does when robots touch (``protocol.physics_plant.ON_CONTACT``), how
+    #: often one trial runs again after one, and the tilt [deg] that counts as one
+    on_contact: str = "stop"
+    contact_retries: int = 2
+    tilt_limit: float = 10.0
 
     @classmethod
     def of(cls, opts: argparse.Namespace) -> PhysicsOptions:
         return cls(getattr(opts, "robot_model", "p3dx"), getattr(opts, "pose", "truth"),
                    not getattr(opts, "pass_through", False),
-                   float(getattr(opts, "physics_rate", 240.0)))
+                   float(getattr(opts, "physics_rate", 240.0)),
+                   getattr(opts, "on_contact", "stop"), int(getattr(opts, "contact_retries", 2)),
+                   float(getattr(opts, "tilt_limit", 10.0)))
 
 
 @dataclass(frozen=True)
@@ -227,7 +225,8 @@ class RunPlan:
     """A launch, decided: what runs, where, and what it writes.
 
     config : the run configuration every node shares (monitored, with this run's id).
-    team : the nodes the leader waits for (``nodes_expected``).
+    roster : every member of the run (``config.roster``): the team the leader waits for
+        (``nodes_expected``), the processes, the enclaves, the plant's row.
     nodes : the processes, in start order.
     out : the output folder (absolute; it exists).
     resumed_at : iterations already learned (``--resume``); None for a new run.
@@ -244,7 +243,7 @@ class RunPlan:
     """
 
     config: RunConfig
-    team: Team
+    roster: Roster
     nodes: tuple[NodeSpec, ...]
     out: Path
     namespace: str
@@ -279,6 +278,9 @@ class RunPlan:
     peers_profile: Path | None = None
     #: the profiles file it builds on (the caller's FASTRTPS_DEFAULT_PROFILES_FILE), or None
     peers_base: Path | None = None
+    #: the batch simulator predicted no contact in this run's trials (a plant with bodies):
+    #: the report warns if the plant saw one all the same
+    predicted_clear: bool = False
 
     @property
     def participants(self) -> int:
@@ -299,22 +301,30 @@ class RunPlan:
         return self.config.scenario
 
     @property
+    def team(self) -> Team:
+        """The nodes the leader waits for (``nodes_expected``)."""
+        return self.roster.team
+
+    @property
+    def row(self) -> Plant:
+        """The plant's row of the plant table."""
+        return self.roster.plant
+
+    @property
     def true_state(self) -> bool:
         """The plant publishes the robots' true state (the simulator, the physics plant)."""
-        return self.plant in ("sim", "physics")
+        return self.row.true_state
 
     @property
     def bridged(self) -> bool:
         """The plant is one bridge per robot (a Pioneer driver or a base behind each)."""
-        return self.plant in BRIDGED
+        return self.row.per_robot
 
     @property
     def reporters(self) -> tuple[str, ...]:
         """Nodes besides the robots whose last trial's diagnostics the launcher waits for
         (timing, missed samples, injected delays, the bridges' returns, the recording)."""
-        return ((self.team.plants if self.true_state or self.bridged else ())
-                + self.team.support
-                + ((RECORDER_NODE,) if self.record is not None else ()))
+        return self.roster.reporters
 
     def banner(self) -> str:
         sc = self.scenario
@@ -362,8 +372,8 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
     # 'auto' headings: arc on the plants that drive arcs and came with the option (physics,
     # base); chord for the kinematic simulator, and for the Pioneer bridges and external
     # plants as before them (their runs and learned memories keep their numbers)
-    cfg = replace(cfg, scenario=cfg.scenario.for_plant(
-        "arc" if opts.plant in ("physics", "base") else "euler"))
+    row = plant(opts.plant)
+    cfg = replace(cfg, scenario=cfg.scenario.for_plant(row.headings))
     namespace = opts.namespace or NAMESPACE
     if not namespace.startswith("/") or "//" in namespace:
         raise NoRun(f"--namespace {namespace!r}: an absolute ROS namespace like /team2 is "
@@ -377,19 +387,27 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
     _ = sc.desired
     out = _out_folder(opts.out, sc)
     resumed_at = _resumed_at(out, sc) if opts.resume is not None else None
-    team = Team.of(sc.n, plant=opts.plant, links=links, external=opts.plant_nodes,
-                   monitor=True, recorder=opts.record is not None)
     record = opts.record.resolve() if opts.record is not None else None
     root = getattr(opts, "record_root_", None) or record
     domain = opts.domain_id if opts.domain_id is not None else caller_domain()
     if domain is None:
         domain = pick_domain()
-    bridge = BridgeOptions.of(opts) if opts.plant in BRIDGED else None
-    physics = (PhysicsOptions.of(opts) if opts.plant == "physics"
+    bridge = BridgeOptions.of(opts) if row.per_robot else None
+    physics = (PhysicsOptions.of(opts) if row.physics
                or (bridge is not None and bridge.physics_bases) else None)
-    notes = _check_plant(opts, sc, namespace, bridge, physics)
+    safety = _safety(opts, row, sc, namespace, bridge, physics)
+    cfg = replace(cfg, safety=safety)
+    notes = _check_plant(opts, row, sc, namespace, bridge, physics, safety)
+    live = _live(opts)
+    lineup = Lineup.of(sc.graph, plant=row.name, links=links, record=opts.record is not None,
+                       live=live is not None, external=tuple(opts.plant_nodes),
+                       **({} if bridge is None else dict(
+                           driver=bridge.driver, driver_ns=bridge.driver_ns, base=bridge.base,
+                           fake_drivers=bridge.fake_drivers,
+                           physics_bases=bridge.physics_bases)),
+                       sensing=None if safety is None else safety.sensing)
     plan = RunPlan(
-        config=cfg, team=team, nodes=(), out=out, namespace=namespace, domain=domain,
+        config=cfg, roster=roster(lineup), nodes=(), out=out, namespace=namespace, domain=domain,
         discovery=opts.discovery, plant=opts.plant, container=opts.container,
         max_restarts=opts.max_restarts,
         # bridges drive their robots back after the last trial too
@@ -400,9 +418,11 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
         record_root=root.resolve() if root is not None else None,
         watchdog_scale=float(getattr(opts, "watchdog_scale", 1.0)),
         physics=physics, notes=notes,
-        live=_live(opts), live_rate=_live_rate(opts),
+        live=live, live_rate=_live_rate(opts),
         hosts=None if faults is None else HostsPlan(faults, opts.dds_profile or "lossy",
-                                                    sc.seed))
+                                                    sc.seed),
+        predicted_clear=any(n.startswith("the batch simulator predicts no contact")
+                            for n in notes))
     # the processes follow from the rest of the plan
     plan = _with_peers(replace(plan, nodes=node_specs(plan, scenario_reference(opts.scenario))))
     return _secured(plan, getattr(opts, "secure", None))
@@ -434,9 +454,10 @@ def _with_peers(plan: RunPlan) -> RunPlan:
 def _secured(plan: RunPlan, keystore: Path | str | None) -> RunPlan:
     """``plan`` with every process in its enclave of ``keystore`` (``--secure``), checked
     before anything starts: NoRun if the keystore or the loaded Fast DDS cannot run it."""
-    from formation_ilc.cli.secure import SECURE_PLANTS, prepare
+    from formation_ilc.cli.secure import prepare
+    from formation_ilc.config.plants import SECURE_PLANTS
 
-    if keystore is not None and plan.plant not in SECURE_PLANTS:
+    if keystore is not None and not plan.row.secure:
         raise NoRun(f"--secure: the keystore's permissions cover the plants "
                     f"{', '.join(SECURE_PLANTS)}, not --plant {plan.plant} (run it without "
                     f"--secure, on a network you trust)")
@@ -445,7 +466,7 @@ def _secured(plan: RunPlan, keystore: Path | str | None) -> RunPlan:
     # large team, which are written next to it: checked here on the user's own)
     base = plan.hosts.profile_file if plan.hosts is not None else _user_profile()
     try:
-        sec = prepare(keystore, [s.name for s in plan.nodes], plan.namespace,
+        sec = prepare(keystore, [_enclave(plan, s.name) for s in plan.nodes], plan.namespace,
                       container=plan.container, profile=plan.out / "fastdds-secure.xml",
                       base_profile=base)
     except OptionError as exc:
@@ -462,7 +483,14 @@ def _secured(plan: RunPlan, keystore: Path | str | None) -> RunPlan:
             "settings (built before they were kept): a large secure team may not start; "
             f"rebuild it: {BUILD_COMMAND}")))
     return replace(plan, secure=sec, nodes=tuple(
-        replace(s, env=tuple(sec.variables(s.name).items())) for s in plan.nodes))
+        replace(s, env=tuple(sec.variables(_enclave(plan, s.name)).items()))
+        for s in plan.nodes))
+
+
+def _enclave(plan: RunPlan, process: str) -> str:
+    """The enclave a process runs in: its member's (robot i's fake driver runs in
+    ``driver_i``, as a real driver would)."""
+    return plan.roster.enclave_of(process)
 
 
 def effective_options(args: argparse.Namespace) -> argparse.Namespace:
@@ -551,7 +579,7 @@ def _hosts_faults(opts: argparse.Namespace) -> LinkFaults | None:
         faults = netns.LinkFaults(opts.net_delay_ms, opts.net_jitter_ms, opts.net_loss)
     except netns.NetnsError as exc:
         raise NoRun(str(exc)) from None
-    if opts.container or opts.plant != "sim" or opts.links == "emulated":
+    if opts.container or not plant(opts.plant).hosts or opts.links == "emulated":
         raise NoRun("--hosts netns runs one process per robot (no --container), the "
                     "simulator as plant (--plant sim) and direct links (the links between "
                     "robots are the network's; no --links emulated)")
@@ -563,19 +591,20 @@ def _hosts_faults(opts: argparse.Namespace) -> LinkFaults | None:
 
 def _mode_and_links(opts: argparse.Namespace, hosts: bool) -> tuple[str, str]:
     """The run's mode and links: refuses what a plant cannot do, fills in the defaults."""
-    pioneer = opts.plant in BRIDGED
+    row = plant(opts.plant)
+    pioneer = row.per_robot
     links = "direct" if hosts else opts.links
     if pioneer and (opts.mode not in (None, "wallclock") or links not in (None, "direct")):
         raise NoRun(f"--plant {opts.plant} runs --mode wallclock with --links direct (real "
                     f"robots have no simulated clock and no link emulator), got --mode "
                     f"{opts.mode} --links {links}")
-    if opts.mode == "wallclock" and not pioneer and opts.plant != "external":
+    if opts.mode == "wallclock" and row.clock:
         raise NoRun("--mode wallclock is for real robots: use it with --plant pioneer (or an "
                     "external plant that samples on the wall clock); the simulator runs "
                     "lockstep or realtime")
-    if opts.fake_drivers and opts.plant != "pioneer":
+    if opts.fake_drivers and row.driver != "pioneer":
         raise NoRun("--fake-drivers goes with --plant pioneer")
-    if getattr(opts, "physics_bases", False) and opts.plant != "base":
+    if getattr(opts, "physics_bases", False) and row.driver != "base":
         raise NoRun("--physics-bases goes with --plant base")
     if opts.fake_drivers and opts.driver == "p2os2":
         raise NoRun("--fake-drivers speak rosaria or ros2aria, not p2os2 (its p2os_msgs are "
@@ -584,33 +613,176 @@ def _mode_and_links(opts: argparse.Namespace, hosts: bool) -> tuple[str, str]:
     return mode, links or ("direct" if pioneer or mode == "wallclock" else "emulated")
 
 
-def _check_plant(opts: argparse.Namespace, sc: Scenario, namespace: str,
-                 bridge: BridgeOptions | None, physics: PhysicsOptions | None
-                 ) -> tuple[str, ...]:
+def _safety(opts: argparse.Namespace, row: Plant, sc: Scenario, namespace: str,
+            bridge: BridgeOptions | None, physics: PhysicsOptions | None
+            ) -> SafetySettings | None:
+    """The run's safety filter (``--safety``; on by default with a plant whose robots have
+    bodies: the plant table's ``bodies``): the body its robots have and the limits it
+    keeps (the physics model's, the bridges' as they will read them, the base preset's),
+    or None."""
+    on = getattr(opts, "safety", None)
+    if on is None:
+        on = row.bodies
+    if not on:
+        return None
+    from formation_ilc.config.bases import BASES, limits_from_params
+    from formation_ilc.core.limits import Limits
+    from formation_ilc.model.physics import MODELS
+    from formation_ilc.protocol.bridge import bridge_limits
+
+    body = getattr(opts, "body", None)
+    if row.entry is None:  # an external plant
+        raise NoRun("--safety: with --plant external the launcher knows neither the robots' "
+                    "bodies nor their limits; run the filter on the plant's side")
+    if body is not None and row.bodies:
+        raise NoRun(f"--body goes with --plant sim; --plant {opts.plant} knows its robots' "
+                    f"body")
+    if physics is not None:  # the physics plant, or physics robots behind the bases
+        body = physics.model
+        limits = MODELS[body].limits
+    else:
+        body = body or "p3dx"
+        limits = MODELS[body].limits if body in MODELS else BASES[body].limits
+    if bridge is not None:
+        # the bridges' limits, as they will read them; a Pioneer's acceleration is ARIA's
+        base = bridge.base
+        if base is None:
+            body = "p3dx" if physics is None else body
+            limits = limits.tighter(BASES["p3dx"].limits)
+        elif physics is None:
+            body = base
+        try:
+            held = limits_from_params(bridge_limits(base), sc.n, _params_file(bridge),
+                                      dict(bridge.limits), namespace)
+        except ValueError as exc:
+            raise NoRun(str(exc)) from None
+        for lim in held:
+            limits = limits.tighter(lim)
+    limits = limits.tighter(Limits())
+    try:
+        margin = getattr(opts, "safety_margin", None)
+        return SafetySettings(body, limits,
+                              default_margin(body) if margin is None else float(margin),
+                              getattr(opts, "safety_learning", None)
+                              or default_learning(body),
+                              "peers" if row.per_robot else "team")
+    except ValueError as exc:
+        raise NoRun(f"--safety: {exc}") from None
+
+
+def _params_file(bridge: BridgeOptions) -> Any:
+    """The bridges' parameters file as YAML (None without one); NoRun if unreadable."""
+    import yaml
+
+    if bridge.params_file is None:
+        return None
+    try:
+        params = yaml.safe_load(bridge.params_file.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise NoRun(f"--params-file {bridge.params_file}: cannot read: {exc}") from None
+    if not isinstance(params, dict):
+        raise NoRun(f"--params-file {bridge.params_file}: expected a mapping of node names")
+    return params
+
+
+def _check_plant(opts: argparse.Namespace, row: Plant, sc: Scenario, namespace: str,
+                 bridge: BridgeOptions | None, physics: PhysicsOptions | None,
+                 safety: SafetySettings | None = None) -> tuple[str, ...]:
     """Refuse a run the plant cannot do, before anything starts: no PyBullet for a physics
-    plant; desired speeds or accelerations beyond the bridges' limits (with the
-    ``--time-scale`` that fits); robots with bodies whose footprints the batch simulator
-    predicts to overlap (unless ``--allow-contact``: then the warning is the plan's note)."""
+    plant; desired speeds or accelerations beyond the bridges' or the physics robots'
+    limits (with the ``--time-scale`` that fits); a formation tighter than the safety
+    filter's distance; an initial memory past the limits without the filter; robots with
+    bodies whose footprints the batch simulator predicts to overlap (unless
+    ``--allow-contact``: then the warning is the plan's note). The notes say what the
+    prediction covered."""
+    notes: list[str] = []
     if physics is not None:
         from formation_ilc.protocol.physics_plant import physics_available
 
         missing = physics_available()
         if missing is not None:
             raise NoRun(missing)
+        line = _physics_limits_line(physics, sc)
+        if line is not None:
+            raise NoRun(line)
     if bridge is not None:
         line = _limits_line(bridge, sc, namespace)
         if line is not None:
             raise NoRun(line)
+    if safety is not None:
+        line = _formation_line(sc, safety)
+        if line is not None:
+            raise NoRun(line)
+    memory_note = _memory_limits(opts, sc, physics, safety)
+    if memory_note:
+        notes.append(memory_note)
     # fake drivers are unicycles without bodies: nothing to crash in a rehearsal
-    if physics is None and (bridge is None or bridge.fake_drivers):
-        return ()
-    line = _contact_line(opts, sc, bridge, physics)
+    if not row.bodies or (bridge is not None and bridge.fake_drivers):
+        return tuple(notes)
+    line, covered = _contact_line(opts, sc, bridge, physics, safety)
     if line is None:
-        return ()
+        return (*notes, covered)
     if getattr(opts, "allow_contact", False):
-        return (f"warning: {line}; running anyway (--allow-contact)",)
-    raise NoRun(f"{line}; start from a learned memory (--init-memory, see docs/physics.md), "
-                f"widen the formation's offsets, or --allow-contact")
+        return (*notes, f"warning: {line}; running anyway (--allow-contact)")
+    raise NoRun(f"{line}; put the robots through the safety filter (--safety), start from "
+                f"a learned memory (--init-memory, see docs/physics.md), widen the "
+                f"formation's offsets, or --allow-contact")
+
+
+def _physics_limits_line(physics: PhysicsOptions, sc: Scenario) -> str | None:
+    """None if the scenario's desired motion fits the physics robots' limits (their
+    makers'); else the line that says where not, and the ``--time-scale`` that fits."""
+    from formation_ilc.config.bases import fit_limits
+    from formation_ilc.model.physics import MODELS
+
+    model = MODELS[physics.model]
+    line = fit_limits(sc, [model.limits] * sc.n)
+    if line is None:
+        return None
+    return f"{line} ({model.name} robots' limits: {model.limits_source})"
+
+
+def _formation_line(sc: Scenario, safety: SafetySettings) -> str | None:
+    """None if the desired formation keeps the robots' covering discs the filter's
+    distance apart; else the line that says where it does not."""
+    from formation_ilc.model.safety import desired_clearance, spec_of
+
+    dc = desired_clearance(sc, spec_of(safety, sc.dt))
+    if dc.fits:
+        return None
+    return (f"{dc.line(sc.dt)} ({safety.body} bodies + {safety.margin:g} m margin): the "
+            f"filter would hold the robots off their own formation; widen the formation's "
+            f"offsets, lower --safety-margin, or --no-safety")
+
+
+def _memory_limits(opts: argparse.Namespace, sc: Scenario, physics: PhysicsOptions | None,
+                   safety: SafetySettings | None) -> str | None:
+    """An initial memory whose commands leave the limits: refused without the filter on a
+    plant with bodies (they would be sent); with it, a note (the filter holds them inside
+    and the memory learns inside)."""
+    if opts.init_memory is None:
+        return None
+    from formation_ilc.core.limits import check_inputs
+    from formation_ilc.model.physics import MODELS
+    from formation_ilc.store.memoryfile import load_memory
+
+    if safety is not None:
+        limits = safety.limits
+    elif physics is not None:
+        limits = MODELS[physics.model].limits
+    else:
+        return None
+    memory = load_memory(opts.init_memory, sc)
+    v = check_inputs(memory, sc.dt, [limits] * sc.n)
+    if v is None:
+        return None
+    line = v.line(sc.dt).replace("desired", "the memory's")
+    if safety is None:
+        raise NoRun(f"--init-memory {opts.init_memory}: {line}: it would be sent past the "
+                    f"robots' limits; run with the safety filter (--safety: it holds every "
+                    f"command inside them and the memory learns inside)")
+    return (f"note: --init-memory {opts.init_memory}: {line}; the safety filter holds those "
+            f"commands inside the limits and the memory learns inside them")
 
 
 def _limits_line(bridge: BridgeOptions, sc: Scenario, namespace: str) -> str | None:
@@ -640,23 +812,32 @@ def _limits_line(bridge: BridgeOptions, sc: Scenario, namespace: str) -> str | N
 
 
 def _contact_line(opts: argparse.Namespace, sc: Scenario, bridge: BridgeOptions | None,
-                  physics: PhysicsOptions | None) -> str | None:
+                  physics: PhysicsOptions | None, safety: SafetySettings | None = None
+                  ) -> tuple[str | None, str]:
     """The batch simulator's prediction of a run on robots with bodies (noise-free, the arc
-    plant, from the initial memory): None, or the line saying where two footprints first
-    overlap."""
+    plant, from the initial memory, through the run's safety filter): (None, or the line
+    saying where two footprints first overlap; the note saying what it covered)."""
     from formation_ilc.model.footprint import first_overlap, footprint_of, predict_clearance
+    from formation_ilc.model.safety import spec_of
     from formation_ilc.store.memoryfile import load_memory
 
     body = (physics.model if physics is not None
             else bridge.base if bridge is not None and bridge.base is not None else "p3dx")
     fp = footprint_of(body)
     memory = None if opts.init_memory is None else load_memory(opts.init_memory, sc)
-    hit = first_overlap(predict_clearance(sc, fp, sc.trials, memory=memory))
-    if hit is None:
-        return None
+    spec = None if safety is None else spec_of(safety, sc.dt)
+    found = predict_clearance(sc, fp, sc.trials, memory=memory, safety=spec)
+    hit = first_overlap(found)
     start = "warm start" if memory is not None else "cold start (u_0 = 0)"
-    return (f"the batch simulator predicts contact from this {start}: {hit.line(sc.dt)} "
-            f"(footprint {fp.length} x {fp.width} m)")
+    through = " through the safety filter" if spec is not None else ""
+    if hit is None:
+        least = min(found, key=lambda c: c.value)
+        return None, (f"the batch simulator predicts no contact in the {len(found)} trials "
+                      f"of this run{through} ({start}; least clearance "
+                      f"{least.value:.3f} m, trial {least.trial}); it does not look past "
+                      f"trial {sc.trials - 1}, and a plant with bodies reports what happens")
+    return (f"the batch simulator predicts contact from this {start}{through}: "
+            f"{hit.line(sc.dt)} (footprint {fp.length} x {fp.width} m)"), ""
 
 
 def _check_memory(path: Path, sc: Scenario) -> None:
@@ -717,12 +898,17 @@ def _run_json(opts: argparse.Namespace, mode: str, links: str, out: Path) -> dic
 
 
 def _live(opts: argparse.Namespace) -> tuple[str, int] | None:
-    """``--live [PORT]`` on ``--live-host``: refused (NoRun) when the port is taken."""
+    """``--live [PORT]`` on ``--live-host``: refused (NoRun) without foxglove-sdk or when
+    the port is taken."""
+    import importlib.util
     import socket
 
     port = getattr(opts, "live", None)
     if port is None:
         return None
+    if importlib.util.find_spec("foxglove") is None:  # before anything starts, not 3 restarts
+        raise NoRun("argument --live: needs foxglove-sdk, the 'live' extra: pip install -c "
+                    "requirements.lock -e \".[live]\" (or pip install foxglove-sdk)")
     host = getattr(opts, "live_host", None) or "127.0.0.1"
     try:
         with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as s:
@@ -769,92 +955,157 @@ def pick_domain() -> int:
 
 
 def node_specs(plan: RunPlan, scenario: str) -> tuple[NodeSpec, ...]:
-    """Every process of ``plan``, in start order: the recorder (it listens before the run
-    starts), the leader, the plant, the link emulator, the robots. ``scenario`` is what
-    the leader loads (``scenario_reference``)."""
-    cfg, n = plan.config, plan.scenario.n
-    state_dir = str(plan.out / "state")
+    """Every process of ``plan``: the roster's members that have an entry script, in its
+    start order (the recorder, which listens before the run starts, the live view, the
+    leader, the plant and what it drives, the link emulator, the robots), each with its
+    launch parameters. ``scenario`` is what the leader loads (``scenario_reference``)."""
     nsa = tuple(namespace_remaps(plan.namespace))
     policy = RestartPolicy(plan.max_restarts)
-
-    def spec(name: str, module: str, **kw: Any) -> NodeSpec:
-        return NodeSpec(name, module, restart=policy, **kw)
-
     specs: list[NodeSpec] = []
-    if plan.record is not None:
-        specs.append(spec(RECORDER_NODE, "formation_ilc.nodes.recorder",
-                          args=("--output", str(plan.record)), remaps=nsa, passive=True))
-    if plan.live is not None:
-        # the view topics come from the recorder; without one the bridge makes them
-        specs.append(spec(LIVEVIEW_NODE, "formation_ilc.nodes.liveview",
-                          args=("--host", plan.live[0], "--port", str(plan.live[1]),
-                                *(("--observe",) if plan.record is None else ()),
-                                # the simulator and the physics plant publish a preview
-                                *(("--preview",) if plan.true_state else ()),
-                                *(("--rate", repr(plan.live_rate))
-                                  if plan.live_rate is not None else ())),
-                          remaps=nsa, optional=True))
-    leader = {**cfg.to_params(scenario), "state_dir": state_dir,
-              "nodes_expected": plan.team.expected}
-    if plan.watchdog_scale != 1.0:
-        leader["watchdog_scale"] = float(plan.watchdog_scale)
-    specs.append(spec(LEADER_NODE, "virtual_leader.node", remaps=nsa,
-                      params=tuple(leader.items())))
-    if plan.plant == "sim":
-        specs.append(spec(SIM_NODE, "robot_sim.node", remaps=nsa,
-                          params=(("timeout", float(cfg.timeout)),)))
-    phys = plan.physics
-    if plan.plant == "physics" and phys is not None:
-        specs.append(spec(PHYSICS_NODE, "robot_sim.physics_node", remaps=nsa,
-                          params=(("timeout", float(cfg.timeout)), ("model", phys.model),
-                                  ("pose", phys.pose), ("collide", phys.collide),
-                                  ("rate", float(phys.rate)))))
-    if plan.bridge is not None:
-        specs.extend(_bridge_specs(plan, plan.bridge, nsa, spec))
-    if cfg.links == "emulated":
-        specs.append(spec(LINKS_NODE, "robot_sim.link_emulator", remaps=nsa))
+    robots: list[Member] = []
+    for m in plan.roster.processes:
+        if m.role == "robot":
+            robots.append(m)
+            continue
+        args, remaps, params = _launch(plan, m, scenario, nsa)
+        specs.append(NodeSpec(m.name, entry_module(m.entry or ""), args=args, remaps=remaps,
+                              params=params, restart=policy, passive=m.waits == "once",
+                              optional=m.optional))
+    state_dir = str(plan.out / "state")
     robot: tuple[tuple[str, Any], ...] = (
         ((("init_memory", str(plan.init_memory.resolve())),) if plan.init_memory else ())
         + (("state_dir", state_dir),))
-    ids = list(range(1, n + 1))
+    module = entry_module("formation-ilc-robot")
     if plan.container > 0:
-        for c in range(0, n, plan.container):
-            grp = ids[c:c + plan.container]
-            specs.append(spec(robots_process_name(grp[0], grp[-1]), "formation_ilc.nodes.robot",
-                              args=("--robots", *map(str, grp)), remaps=nsa, params=robot))
+        for c in range(0, len(robots), plan.container):
+            grp = [m.robot or 0 for m in robots[c:c + plan.container]]
+            specs.append(NodeSpec(robots_process_name(grp[0], grp[-1]), module,
+                                  args=("--robots", *map(str, grp)), remaps=nsa, params=robot,
+                                  restart=policy))
     else:
-        for i in ids:
-            specs.append(spec(robot_name(i), "formation_ilc.nodes.robot", remaps=nsa,
-                              params=(("robot_id", i), *robot),
-                              host=i if plan.hosts is not None else None))
+        for m in robots:
+            specs.append(NodeSpec(m.name, module, remaps=nsa,
+                                  params=(("robot_id", m.robot), *robot), restart=policy,
+                                  host=m.robot if plan.hosts is not None else None))
     return tuple(specs)
 
 
-def _bridge_specs(plan: RunPlan, bridge: BridgeOptions, nsa: tuple[str, ...],
-                  spec: Any) -> list[NodeSpec]:
-    """The bridges (after the physics bases or fake drivers they drive, if any)."""
-    specs: list[NodeSpec] = []
-    n = plan.scenario.n
-    if bridge.physics_bases and bridge.base is not None and plan.physics is not None:
-        from formation_ilc.config.bases import base_preset
+Launch = tuple[tuple[str, ...], tuple[str, ...], tuple[tuple[str, Any], ...]]
 
-        preset = base_preset(bridge.base)
-        starts = [float(x) for x in plan.scenario.desired.eta[:, 0].ravel()]
-        specs.append(spec(BASES_NODE, "robot_sim.physics_base", remaps=nsa,
-                          params=(("robots", n), ("poses", starts),
-                                  ("ns_pattern", bridge.driver_ns),
-                                  ("cmd_type", preset.cmd_type),
-                                  ("odom_topic", preset.odom_topic),
-                                  ("model", plan.physics.model),
-                                  ("collide", plan.physics.collide))))
-    # a params file goes with the ROS arguments, before the -p parameters (which win)
-    pf = () if bridge.params_file is None else ("--params-file", str(bridge.params_file))
-    for i in range(1, n + 1):
-        if bridge.fake_drivers:
-            specs.append(spec(fake_driver_name(i), "robot_sim.fake_pioneer",
-                              remaps=("-r", f"__ns:={bridge.namespace(i)}"),
-                              params=(("seed", i), ("cmd_type", bridge.cmd_type),
-                                      ("driver", bridge.driver))))
-        specs.append(spec(bridge_name(i), "formation_ilc.nodes.pioneer_bridge",
-                          remaps=nsa + pf, params=bridge.params(i)))
-    return specs
+
+def _launch(plan: RunPlan, m: Member, scenario: str, nsa: tuple[str, ...]) -> Launch:
+    """(arguments, ROS remaps, ROS parameters) of member ``m``'s process, from the plan's
+    options."""
+    cfg = plan.config
+    if m.role == "recorder":
+        return ("--output", str(plan.record)), nsa, ()
+    if m.role == "liveview":
+        assert plan.live is not None
+        # the view topics come from the recorder; without one the bridge makes them
+        return (("--host", plan.live[0], "--port", str(plan.live[1]),
+                 *(("--observe",) if plan.record is None else ()),
+                 # the simulator and the physics plant publish a preview
+                 *(("--preview",) if plan.true_state else ()),
+                 *(("--rate", repr(plan.live_rate)) if plan.live_rate is not None else ())),
+                nsa, ())
+    if m.role == "leader":
+        leader = {**cfg.to_params(scenario), "state_dir": str(plan.out / "state"),
+                  "nodes_expected": plan.team.expected}
+        if plan.watchdog_scale != 1.0:
+            leader["watchdog_scale"] = float(plan.watchdog_scale)
+        return (), nsa, tuple(leader.items())
+    if m.role == "support":
+        return (), nsa, ()
+    bridge, phys = plan.bridge, plan.physics
+    if m.role == "plant" and m.robot is None:  # one node for the team
+        params: tuple[tuple[str, Any], ...] = (("timeout", float(cfg.timeout)),)
+        if plan.row.physics and phys is not None:
+            params += (("model", phys.model), ("pose", phys.pose), ("collide", phys.collide),
+                       ("rate", float(phys.rate)), ("on_contact", phys.on_contact),
+                       ("contact_retries", phys.contact_retries),
+                       ("tilt_limit", float(phys.tilt_limit)))
+        return (), nsa, params
+    if m.role == "plant":  # robot i's bridge
+        assert bridge is not None and m.robot is not None
+        # a params file goes with the ROS arguments, before the -p parameters (which win)
+        pf = () if bridge.params_file is None else ("--params-file", str(bridge.params_file))
+        return (), nsa + pf, bridge.params(m.robot)
+    if m.robot is not None:  # robot i's fake driver, in the driver's namespace
+        assert bridge is not None
+        return ((), ("-r", f"__ns:={bridge.namespace(m.robot)}"),
+                (("seed", m.robot), ("cmd_type", bridge.cmd_type), ("driver", bridge.driver)))
+    # the physics bases: every robot's base in one world
+    from formation_ilc.config.bases import base_preset
+
+    assert bridge is not None and bridge.base is not None and phys is not None
+    preset = base_preset(bridge.base)
+    starts = [float(x) for x in plan.scenario.desired.eta[:, 0].ravel()]
+    return (), nsa, (("robots", plan.scenario.n), ("poses", starts),
+                     ("ns_pattern", bridge.driver_ns), ("cmd_type", preset.cmd_type),
+                     ("odom_topic", preset.odom_topic), ("model", phys.model),
+                     ("collide", phys.collide))
+
+
+def entry_module(script: str) -> str:
+    """The module an entry script runs (``pyproject.toml``'s ``[project.scripts]``, as
+    installed), started as ``python -m MODULE``; NoRun when it is not installed."""
+    found = _entry_modules().get(script)
+    if found is None:
+        raise NoRun(f"the entry script {script!r} is not installed: install the package "
+                    f"again (pip install -e .)")
+    return found
+
+
+@functools.cache
+def _entry_modules() -> dict[str, str]:
+    from importlib.metadata import entry_points
+
+    return {ep.name: ep.value.split(":")[0]
+            for ep in entry_points(group="console_scripts") if ep.name.startswith("formation-ilc")}
+
+
+# --------------------------------------------------------------------------- ros2 launch
+
+#: the ``ros2 run formation_ilc`` executable of each node's entry script (``ros2_run/``)
+ROS2_RUN = {
+    "formation-ilc-leader": "virtual_leader", "formation-ilc-sim": "robot_sim",
+    "formation-ilc-physics": "physics_sim", "formation-ilc-links": "link_emulator",
+    "formation-ilc-robot": "robot", "formation-ilc-record": "recorder",
+    "formation-ilc-liveview": "liveview", "formation-ilc-bridge": "pioneer_bridge",
+    "formation-ilc-fake-pioneer": "fake_pioneer", "formation-ilc-physics-bases": "physics_bases",
+}
+
+
+def ros2_executable(module: str) -> str:
+    """The ``ros2 run formation_ilc`` executable that runs node module ``module``."""
+    script = {m: s for s, m in _entry_modules().items()}[module]
+    return ROS2_RUN[script]
+
+
+def ros_launch_processes(argv: list[str]) -> list[dict[str, Any]]:
+    """The processes ``formation-ilc launch ARGV`` starts, as a ROS launch file starts them
+    (``launch/formation.launch.py``): the same processes with the same arguments, ROS
+    arguments and parameters, but no monitor (the launcher's own node: nobody waits for
+    it), and the leader ends its process after the last trial (``exit_when_done``), which
+    ends the launch. Each entry: name, executable (``ros2 run formation_ilc``), arguments,
+    ros_arguments (remaps, params files, ``-p`` parameters), and whether the launch ends
+    with it. NoRun for options the launcher refuses."""
+    from formation_ilc.cli.commands import build_parser
+
+    plan = build_plan(build_parser().parse_args(["launch", *argv]))
+    lineup = replace(plan.roster.lineup, monitor=False)
+    plan = replace(plan, config=replace(plan.config, monitored=False),
+                   roster=roster(lineup))
+    opts = build_parser().parse_args(["launch", *argv])
+    out = []
+    for spec in node_specs(plan, scenario_reference(opts.scenario)):
+        params = dict(spec.params)
+        if spec.name == LEADER_NODE:
+            params["exit_when_done"] = True
+        ros = [*spec.remaps]
+        for k, v in params.items():
+            ros += ["-p", f"{k}:={param_text(v)}"]
+        out.append({"name": spec.name, "executable": ros2_executable(spec.module),
+                    "arguments": list(spec.args), "ros_arguments": ros,
+                    "ends_launch": spec.name == LEADER_NODE})
+    return out

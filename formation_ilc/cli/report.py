@@ -31,7 +31,7 @@ BRIDGE_KEYS = ("initial_shifts", "returns", "return_timeouts", "missed", "clippe
                "clipped_accel", "tilt_max_deg", "limits", "watchdog_zero", "stale_odometry")
 #: the physics plant's diagnostics that go into summary.json
 PHYSICS_KEYS = ("model", "pose_source", "substeps", "contacts_by_trial", "tilt_by_trial",
-                "odometry_drift_by_trial")
+                "odometry_drift_by_trial", "limited")
 
 
 def summary_of(plan: RunPlan, rows: int, diagnostics: Mapping[str, Mapping[str, Any]],
@@ -54,10 +54,14 @@ def summary_of(plan: RunPlan, rows: int, diagnostics: Mapping[str, Mapping[str, 
     if plan.bridged:
         summary["bridges"] = {b: {key: diagnostics.get(b, {}).get(key) for key in BRIDGE_KEYS}
                               for b in plan.team.plants}
-    if plan.plant == "physics":
+    if plan.row.physics:
         summary["physics"] = {key: sim_diag.get(key) for key in PHYSICS_KEYS}
     if plan.init_memory is not None:
         summary["init_memory"] = str(plan.init_memory)
+    if cfg.safety is not None:
+        # the filter's settings, and what it changed over the run, by robot
+        summary["safety"] = {**cfg.safety.to_json(), "filter_total": {
+            r: diagnostics.get(r, {}).get("filter_total") for r in plan.team.robots}}
     return summary
 
 
@@ -98,6 +102,9 @@ def write_report(plan: RunPlan, rows: Sequence[Sequence[float]],
         plot_errors(m[:, 0], m[:, 1], m[:, 2], out / "errors.png",
                     f"{sc.name}: distributed stack, {sc.n} robot nodes, {plan.config.mode}")
         files.append("errors.png")
+    wrong = contact_warning(plan.predicted_clear, m)
+    if wrong is not None:
+        print(wrong)
     print(f"results in {out}/ ({', '.join(files)}; logs/)")
     root = plan.record_root or plan.record
     if root is not None:
@@ -105,14 +112,40 @@ def write_report(plan: RunPlan, rows: Sequence[Sequence[float]],
     return 0
 
 
+def contact_warning(predicted_clear: bool, m: np.ndarray) -> str | None:
+    """The line that says the contact prediction was wrong: it predicted none, and the
+    metrics rows ``m`` (METRIC_COLUMNS) count contacts; else None."""
+    touched = [int(r[0]) for r in m if len(r) > 8 and r[8] > 0] if len(m) else []
+    if not (predicted_clear and touched):
+        return None
+    return (f"warning: the batch simulator predicted no contact, but robots touched in "
+            f"trial(s) {', '.join(map(str, touched[:10]))}: the bodies did what its "
+            f"kinematic model does not (slip, lag, noise); docs/safety.md")
+
+
 def print_report(sc: Scenario, m: np.ndarray, dtab: list[list[Any]], summary: dict[str, Any]
                  ) -> None:
     """Per-trial errors (at most about 20 rows), then timing, bridges, delays, drops."""
     k = len(m)
     show = range(k) if k <= 20 else sorted({0, 1, 2, k // 4, k // 2, 3 * k // 4, k - 1})
-    print(f"{'trial':>6s} {'max pos [m]':>12s} {'max head [rad]':>15s} {'rms pos [m]':>12s}")
+    # where the plant knows the truth, true and measured side by side; the safety filter's
+    # changed commands and the contacts where the run counted them
+    truth = k > 0 and bool(np.isfinite(m[:, 3]).any())
+    filt = k > 0 and bool(summary.get("safety"))
+    contacts = k > 0 and bool(np.isfinite(m[:, 8]).any())
+    head = f"{'trial':>6s} {'max pos [m]':>12s}"
+    head += f" {'true pos [m]':>13s}" if truth else ""
+    head += f" {'max head [rad]':>15s} {'rms pos [m]':>12s}"
+    head += f" {'filtered':>9s}" if filt else ""
+    head += f" {'contacts':>9s}" if contacts else ""
+    print(head)
     for i in show:
-        print(f"{int(m[i, 0]):6d} {m[i, 1]:12.4g} {m[i, 2]:15.4g} {m[i, 5]:12.4g}")
+        line = f"{int(m[i, 0]):6d} {m[i, 1]:12.4g}"
+        line += f" {m[i, 3]:13.4g}" if truth else ""
+        line += f" {m[i, 2]:15.4g} {m[i, 5]:12.4g}"
+        line += f" {m[i, 7]:9.0f}" if filt else ""
+        line += f" {m[i, 8]:9.0f}" if contacts else ""
+        print(line)
     _print_timing(sc, summary)
     for b, d in (summary.get("bridges") or {}).items():
         shifts = d.get("initial_shifts") or {}

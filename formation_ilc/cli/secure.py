@@ -15,31 +15,28 @@ bridges: ``ip netns exec`` keeps the environment). It refuses when
 * robots would share a process (``--container``): one process is one DDS participant, and
   each robot must hold only its own identity.
 
-Process names map to enclaves ``<namespace>/<name>``, except robot i's fake driver
-(``fake_pioneer_i`` runs in the enclave ``driver_i``, as a real driver would).
+Each process runs in its roster member's enclave ``<namespace>/<enclave>``
+(``formation_ilc.config.roster``: a node's own name, except robot i's fake driver, which
+runs in the enclave ``driver_i`` as a real driver would).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import re
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
 from formation_ilc.cli.options import OptionError
-from formation_ilc.config.enclaves import driver_enclave, enclave_path
-from formation_ilc.core.names import MONITOR_NODE, fake_driver_name
+from formation_ilc.config.enclaves import enclave_path
+from formation_ilc.core.names import MONITOR_NODE
 
-__all__ = ["SECURITY_ENV", "SECURE_PLANTS", "add_arguments", "enclave_name", "SecureRun", "prepare"]
+__all__ = ["SECURITY_ENV", "add_arguments", "SecureRun", "prepare"]
 
 #: what rcl reads; every variable a secure run sets
 SECURITY_ENV = ("ROS_SECURITY_KEYSTORE", "ROS_SECURITY_ENABLE", "ROS_SECURITY_STRATEGY",
                 "ROS_SECURITY_ENCLAVE_OVERRIDE")
-#: the plants whose nodes ``formation-ilc keystore create`` grants (the kinematic simulator,
-#: the Pioneer bridges and their drivers); the physics and base plants have no grants yet
-SECURE_PLANTS = ("sim", "pioneer")
 #: the launcher's own node (the monitor) runs in the launcher process
 LAUNCHER_NODE = MONITOR_NODE
 
@@ -50,12 +47,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "ilc keystore create DIR SCENARIO`), with DDS-Security enforced; "
                         "needs the Fast DDS built by scripts/build_secure_dds.sh "
                         "(docs/security.md)")
-
-
-def enclave_name(process: str) -> str:
-    """The enclave (node) name of a launcher process name."""
-    m = re.fullmatch(re.escape(fake_driver_name(0)[:-1]) + r"(\d+)", process)
-    return driver_enclave(int(m.group(1))) if m else process
 
 
 @dataclass(frozen=True)
@@ -71,12 +62,13 @@ class SecureRun:
     #: whether the loaded rmw applies the profile's handshake settings (the patched build)
     handshake_applies: bool = True
 
-    def variables(self, process: str) -> dict[str, str]:
+    def variables(self, enclave: str) -> dict[str, str]:
+        """The security variables of a process in ``enclave`` (its name in the
+        formation's namespace)."""
         out = {"ROS_SECURITY_KEYSTORE": str(self.keystore),
                "ROS_SECURITY_ENABLE": "true",
                "ROS_SECURITY_STRATEGY": "Enforce",
-               "ROS_SECURITY_ENCLAVE_OVERRIDE": enclave_path(self.namespace,
-                                                            enclave_name(process))}
+               "ROS_SECURITY_ENCLAVE_OVERRIDE": enclave_path(self.namespace, enclave)}
         if self.profile is not None:
             out["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(self.profile)
         return out
@@ -88,20 +80,20 @@ class SecureRun:
         if self.profile is not None:
             self.profile.write_text(secure_profile(self.base_profile))
 
-    def env(self, base: dict[str, str], process: str) -> dict[str, str]:
-        """``base`` with the security variables of ``process``."""
-        return {**base, **self.variables(process)}
+    def env(self, base: dict[str, str], enclave: str) -> dict[str, str]:
+        """``base`` with the security variables of a process in ``enclave``."""
+        return {**base, **self.variables(enclave)}
 
     def enter_launcher(self) -> None:
         """Put the launcher's own node in its enclave (before rclpy initialises)."""
         os.environ.update(self.variables(LAUNCHER_NODE))
 
 
-def prepare(keystore: Path | str | None, processes: Iterable[str], namespace: str, *,
+def prepare(keystore: Path | str | None, enclaves: Iterable[str], namespace: str, *,
             container: int = 0, profile: Path | None = None,
             base_profile: Path | None = None) -> SecureRun | None:
-    """The secure run for these processes (plus the launcher's monitor), or None without
-    ``--secure``; OptionError (one line) if it cannot run secure. ``profile``,
+    """The secure run for processes in these ``enclaves`` (plus the launcher's monitor),
+    or None without ``--secure``; OptionError (one line) if it cannot run secure. ``profile``,
     ``base_profile``: :class:`SecureRun`'s (a ``base_profile`` that is no profiles file is
     refused here)."""
     if keystore is None:
@@ -119,10 +111,9 @@ def prepare(keystore: Path | str | None, processes: Iterable[str], namespace: st
                           "is one DDS participant, and each robot holds only its own "
                           "identity")
     ks = Path(keystore).resolve()
-    enclaves = [enclave_path(namespace, enclave_name(p))
-                for p in [*processes, LAUNCHER_NODE]]
+    paths = [enclave_path(namespace, e) for e in [*enclaves, LAUNCHER_NODE]]
     try:
-        verify(ks, enclaves)
+        verify(ks, paths)
         applies = keeps_profile_properties(check())
         if profile is not None:
             secure_profile(base_profile)

@@ -1,55 +1,36 @@
-"""Least-privilege DDS permissions of every node of a formation, derived from its graph.
+"""DDS-Security permissions and governance of a formation's enclaves.
 
 A secure formation (``formation-ilc keystore``, ``launch --secure``) runs each node in an
 SROS2 enclave whose signed permissions list the topics it may publish and subscribe; with
 ``Enforce`` Fast DDS refuses any other writer or reader at creation, and its peers refuse
-a participant without a certificate of the formation's CA. The permissions come from the
-scenario's communication graph (``adjacency[i, j] > 0``: robot i receives from robot j;
-``leader[i] > 0``: robot i hears the leader):
-
-* robot i publishes only its own ``cmd_vel``, ``shared_pose`` and ``trajectory``; it reads
-  its own ``pose`` and ``links/*``, its in-neighbours' ``shared_pose`` and ``trajectory``,
-  the leader's ``reference`` (if it hears the leader), ``config`` and ``trial_events``;
-* the plant (``robot_sim``, or robot i's Pioneer bridge) publishes the poses and reads the
-  ``cmd_vel`` of the robots it drives;
-* the leader alone publishes ``config``, ``reference`` and ``trial_events``;
-* the link emulator reads shared poses and the reference and publishes the emulated links;
-* the recorder and the launcher's monitor read; like every node they publish on the
-  protocol's shared ``ready`` and ``diagnostics`` topics.
-
-Every node also gets its ROS housekeeping: ``rosout``, ``parameter_events``, its own
-parameter and type-description services, and ``ros_discovery_info``.
-
-Topic names are the caller's (``msgs_schema`` is the one place that names a topic and
-imports ROS, so :class:`TopicNames` carries its names into this ROS-free module). This
-module is pure: grants and XML text; ``formation_ilc.store.keystore`` signs and writes them.
+a participant without a certificate of the formation's CA. What each node may do is its
+member's in the roster (``formation_ilc.config.roster``: ``Roster.grants``, least privilege
+derived from the graph); this module turns a :class:`Grant` into the permissions document
+(every node also gets its ROS housekeeping: ``rosout``, ``parameter_events``, its own
+parameter and type-description services, and ``ros_discovery_info``) and writes the
+governance. It is pure: grants and XML text; ``formation_ilc.store.keystore`` signs and
+writes them.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from xml.sax.saxutils import escape
 
-import numpy as np
-from numpy.typing import NDArray
-
 from formation_ilc.core.names import (
-    FAKE_DRIVER_NODE,
+    BASES_NODE,
     LEADER_NODE,
     LINKS_NODE,
     LIVEVIEW_NODE,
     MONITOR_NODE,
+    PHYSICS_NODE,
     RECORDER_NODE,
     SIM_NODE,
-    bridge_name,
-    robot_name,
 )
 
-__all__ = ["TopicNames", "DriverTopics", "Grant", "ENCLAVE_NODES", "formation_grants",
-           "enclave_path", "dds_topic", "housekeeping", "permissions_xml", "governance_xml",
-           "DOMAIN_MAX"]
+__all__ = ["Grant", "ENCLAVE_NODES", "enclave_path", "driver_enclave", "dds_topic",
+           "housekeeping", "permissions_xml", "governance_xml", "DOMAIN_MAX"]
 
 #: the ROS domain ids a keystore serves (every id ROS 2 allows on Linux)
 DOMAIN_MAX = 232
@@ -57,51 +38,6 @@ DOMAIN_MAX = 232
 _NODE_SERVICES = ("describe_parameters", "get_parameter_types", "get_parameters",
                   "list_parameters", "set_parameters", "set_parameters_atomically",
                   "get_type_description")
-
-
-@dataclass(frozen=True)
-class TopicNames:
-    """The schema's topic names (``msgs_schema``): relative to the formation's namespace,
-    except ``clock``, which the caller resolves (``/clock``, or remapped into a namespace)."""
-
-    config: str
-    reference: str
-    trial_events: str
-    ready: str
-    diagnostics: str
-    clock: str
-    pose: Callable[[int], str]
-    cmd_vel: Callable[[int], str]
-    shared_pose: Callable[[int], str]
-    link: Callable[[int, str], str]
-    trajectory: Callable[[int], str]
-    true_trajectory: Callable[[int], str]
-    #: every topic the recorder subscribes to, for n robots
-    recorded: Callable[[int], Sequence[str]]
-    leader: str = "leader"
-    #: the observer's topics for n robots (desired poses, errors, markers): the recorder
-    #: publishes them, or the live view when nothing records
-    view: Callable[[int], Sequence[str]] = lambda n: ()
-    #: the plant's preview of the team's poses for the live view ("": none)
-    preview: str = ""
-
-
-@dataclass(frozen=True)
-class DriverTopics:
-    """A Pioneer driver's topics (``msgs_schema.DriverSpec``) in the namespace
-    ``namespace`` (``{i}`` is the robot's number)."""
-
-    namespace: str
-    cmd: str
-    odom: str
-    motors: str
-    motors_kind: str
-
-    def ns(self, i: int) -> str:
-        return self.namespace.replace("{i}", str(int(i))).rstrip("/") or ""
-
-    def name(self, i: int, topic: str) -> str:
-        return f"{self.ns(i)}/{topic}"
 
 
 @dataclass(frozen=True)
@@ -125,17 +61,19 @@ class Grant:
 ENCLAVE_NODES = {
     LEADER_NODE: "the virtual leader",
     SIM_NODE: "the kinematic simulator (plant)",
+    PHYSICS_NODE: "the physics plant",
+    BASES_NODE: "the physics robots behind the bases' interface (their drivers)",
     LINKS_NODE: "the link emulator",
     RECORDER_NODE: "the recorder",
     LIVEVIEW_NODE: "the live view (Foxglove WebSocket on 127.0.0.1)",
     MONITOR_NODE: "the launcher's monitor",
     "robot_i": "robot i's controller",
-    "bridge_i": "robot i's Pioneer bridge (plant)",
-    "driver_i": "robot i's Pioneer driver",
+    "bridge_i": "robot i's bridge (plant), in front of a Pioneer driver or a base",
+    "driver_i": "robot i's driver (a Pioneer's, or a base's)",
 }
 
 
-#: robot i's Pioneer driver runs in this enclave (its node name is the driver's own)
+#: robot i's driver runs in this enclave (its node name is the driver's own)
 DRIVER_ENCLAVE_PREFIX = "driver_"
 
 
@@ -149,100 +87,6 @@ def enclave_path(namespace: str, name: str) -> str:
     """``/formation/robot_1``: the enclave of node ``name`` of the formation in
     ``namespace``."""
     return f"{namespace.rstrip('/')}/{name}"
-
-
-def _abs(namespace: str, topic: str) -> str:
-    return topic if topic.startswith("/") else f"{namespace.rstrip('/')}/{topic}"
-
-
-def _grant(namespace: str, name: str, publish: Sequence[str], subscribe: Sequence[str], *,
-           node_namespace: str | None = None, dds_publish: Sequence[str] = (),
-           dds_subscribe: Sequence[str] = (), service_node: str = "") -> Grant:
-    def absolute(names: Sequence[str]) -> tuple[str, ...]:
-        return tuple(sorted({_abs(namespace, t) for t in names}))
-    return Grant(enclave_path(namespace, name), name, node_namespace or namespace,
-                 absolute(publish), absolute(subscribe), tuple(sorted(set(dds_publish))),
-                 tuple(sorted(set(dds_subscribe))), service_node or name)
-
-
-def _robot(t: TopicNames, namespace: str, i: int, senders: list[int], hears_leader: bool
-           ) -> Grant:
-    """Robot i (1-based): its own topics out; its pose, its links and its in-neighbours'
-    shared poses and trajectories in (emulated and direct links both)."""
-    sub = [t.pose(i), t.config, t.trial_events]
-    sub += [t.link(i, robot_name(j)) for j in senders]
-    sub += [t.shared_pose(j) for j in senders] + [t.trajectory(j) for j in senders]
-    if hears_leader:
-        sub += [t.link(i, t.leader), t.reference]
-    pub = [t.cmd_vel(i), t.shared_pose(i), t.trajectory(i), t.ready, t.diagnostics]
-    return _grant(namespace, robot_name(i), pub, sub)
-
-
-def _pioneer(t: TopicNames, namespace: str, i: int, d: DriverTopics) -> list[Grant]:
-    """Robot i's bridge (the plant contract for one robot) and its driver."""
-    cmd, odom, motors = d.name(i, d.cmd), d.name(i, d.odom), d.name(i, d.motors)
-    bridge_pub = [t.pose(i), t.ready, t.diagnostics, cmd]
-    bridge_sub = [t.cmd_vel(i), t.trial_events, t.config, odom]
-    driver_pub, driver_sub = [odom, f"{d.ns(i)}/{FAKE_DRIVER_NODE}/truth"], [cmd]
-    rq = rr = ""
-    if d.motors_kind == "p2os_motor_state":
-        bridge_pub.append(motors)
-        driver_sub.append(motors)
-    else:  # a service: requests from the bridge, replies from the driver
-        rq, rr = f"rq{motors}Request", f"rr{motors}Reply"
-    return [_grant(namespace, bridge_name(i), bridge_pub, bridge_sub,
-                   dds_publish=[rq] if rq else [], dds_subscribe=[rr] if rr else []),
-            _grant(namespace, driver_enclave(i), driver_pub, driver_sub,
-                   node_namespace=d.ns(i) or "/", dds_publish=[rr] if rr else [],
-                   dds_subscribe=[rq] if rq else [], service_node="*")]
-
-
-def formation_grants(adjacency: NDArray[np.float64], leader: NDArray[np.float64],
-                     topics: TopicNames, namespace: str, *,
-                     pioneer: DriverTopics | None = None) -> dict[str, Grant]:
-    """Every node's grant, by enclave path, for the graph (``adjacency``, ``leader``).
-
-    With ``pioneer`` the plant is one bridge and one driver per robot (``--plant pioneer``);
-    otherwise the kinematic simulator. The link emulator's grant is always made (emulated
-    links); a run with direct links does not start it.
-    """
-    a = np.asarray(adjacency, dtype=float)
-    w = np.asarray(leader, dtype=float)
-    n = a.shape[0]
-    t = topics
-    senders = [[int(j) + 1 for j in np.flatnonzero(a[i] > 0)] for i in range(n)]
-    robots = range(1, n + 1)
-    grants = [_robot(t, namespace, i, senders[i - 1], bool(w[i - 1] > 0)) for i in robots]
-    grants.append(_grant(namespace, LEADER_NODE,
-                         [t.config, t.reference, t.trial_events, t.diagnostics],
-                         # its own events too: it re-asserts against a start or abort
-                         # it did not send (a buggy node's, or a lossy link's replay)
-                         [t.ready, t.config, t.clock, t.trial_events]))
-    links_pub = [t.link(i, robot_name(j)) for i in robots for j in senders[i - 1]]
-    links_pub += [t.link(i, t.leader) for i in robots if w[i - 1] > 0]
-    links_sub = [t.shared_pose(j) for j in robots]  # it reads every robot's, leaves too
-    grants.append(_grant(namespace, LINKS_NODE, [*links_pub, t.ready, t.diagnostics],
-                         [*links_sub, t.reference, t.trial_events, t.config, t.clock]))
-    if pioneer is None:
-        grants.append(_grant(
-            namespace, SIM_NODE,
-            [*(t.pose(i) for i in robots), *(t.true_trajectory(i) for i in robots), t.clock,
-             t.ready, t.diagnostics, *([t.preview] if t.preview else [])],
-            [*(t.cmd_vel(i) for i in robots), t.trial_events, t.config]))
-    else:
-        for i in robots:
-            grants += _pioneer(t, namespace, i, pioneer)
-    grants.append(_grant(namespace, RECORDER_NODE, [t.ready, t.diagnostics, *t.view(n)],
-                         list(t.recorded(n))))
-    # the live view reads what the recording holds and serves it on 127.0.0.1
-    grants.append(_grant(namespace, LIVEVIEW_NODE, list(t.view(n)),
-                         [*t.recorded(n), *t.view(n), *([t.preview] if t.preview else [])]))
-    grants.append(_grant(namespace, MONITOR_NODE, [t.ready],
-                         [*(t.trajectory(i) for i in robots),
-                          *(t.true_trajectory(i) for i in robots), t.diagnostics,
-                          # readies: it answers a forged 'down' of itself by saying ready
-                          t.trial_events, t.ready]))
-    return {g.enclave: g for g in grants}
 
 
 def dds_topic(ros_name: str) -> str:

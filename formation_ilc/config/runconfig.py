@@ -10,18 +10,20 @@ for ``--ros-args -p NAME:=VALUE``).
 from __future__ import annotations
 
 import functools
+import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from formation_ilc.config.safety import SafetySettings
 from formation_ilc.config.scenario import Scenario, load_scenario, scenario_from_text
 from formation_ilc.core.clock import Rejected, SampleClock, WallGrid
 from formation_ilc.core.links import LINK_MODES
 from formation_ilc.core.names import MONITOR_NODE, RECORDER_NODE
 
 __all__ = ["RunConfig", "make_config", "MODES", "WALL_MODES", "PARAMS", "param_text",
-           "scenario_reference"]
+           "scenario_reference", "disagreement"]
 
 MODES = ("lockstep", "realtime", "wallclock")
 #: modes in which the plant does not wait for commands (missed samples are held)
@@ -34,7 +36,8 @@ WALL_MODES = ("realtime", "wallclock")
 PARAMS: dict[str, Any] = {
     "scenario": "", "seed": -1, "trials": 0, "law": 0, "memory": "", "noise": True,
     "delay": True, "mode": "lockstep", "links": "emulated", "gap": 20, "monitored": False,
-    "recorded": False, "timeout": 30.0, "run_id": "", "headings": "", "time_scale": 0.0}
+    "recorded": False, "timeout": 30.0, "run_id": "", "headings": "", "time_scale": 0.0,
+    "safety": ""}
 
 
 def param_text(value: Any) -> str:
@@ -84,6 +87,8 @@ class RunConfig:
     timeout : [s] lockstep: how long the plant waits for a robot's command.
     run_id : identity of the run (set by the launcher): a node that has taken this
         configuration refuses another run's on the same domain and namespace.
+    safety : the safety filter every robot's command goes through
+        (``config.safety.SafetySettings``), or None: the learned command is sent as it is.
     """
 
     scenario: Scenario
@@ -94,6 +99,7 @@ class RunConfig:
     links: str = "emulated"
     run_id: str = ""
     recorded: bool = False
+    safety: SafetySettings | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -149,7 +155,29 @@ class RunConfig:
                 "law": sc.law.kind, "memory": sc.law.memory, "mode": self.mode,
                 "links": self.links, "gap": self.gap, "monitored": self.monitored,
                 "recorded": self.recorded, "timeout": self.timeout, "run_id": self.run_id,
-                "headings": sc.headings, "time_scale": sc.time_scale}
+                "headings": sc.headings, "time_scale": sc.time_scale,
+                "safety": None if self.safety is None else self.safety.to_json()}
+
+    @property
+    def scenario_param(self) -> str:
+        """The ``scenario`` parameter of this configuration: a built-in's name, or the file
+        it was loaded from."""
+        sc = self.scenario
+        return sc.name if sc.source.endswith("(built-in)") else sc.source
+
+    def agreement(self) -> dict[str, Any]:
+        """What every node of one run must agree on (its ``ready`` carries it): the
+        scenario (name and text), the draws, the law, the time grid, the links, the
+        filter. Two nodes that differ here would not run one team."""
+        import hashlib
+
+        sc = self.scenario
+        return {"scenario": sc.name,
+                "scenario_text": hashlib.sha256(sc.text.encode()).hexdigest()[:12],
+                "seed": sc.seed, **_switches(sc), "law": sc.law.kind,
+                "memory": sc.law.memory, "mode": self.mode, "links": self.links,
+                "gap": self.gap, "headings": sc.headings, "time_scale": float(sc.time_scale),
+                "safety": None if self.safety is None else self.safety.to_json()}
 
     def to_params(self, scenario: str) -> dict[str, Any]:
         """The ROS parameters (PARAMS) of this configuration; ``scenario`` is the name or
@@ -162,7 +190,8 @@ class RunConfig:
                 "monitored": self.monitored, "recorded": self.recorded,
                 "timeout": float(self.timeout),
                 "run_id": self.run_id, "headings": sc.headings,
-                "time_scale": float(sc.time_scale)}
+                "time_scale": float(sc.time_scale),
+                "safety": "" if self.safety is None else json.dumps(self.safety.to_json())}
 
     @classmethod
     def from_params(cls, p: Mapping[str, Any]) -> RunConfig:
@@ -172,13 +201,22 @@ class RunConfig:
         g = {**PARAMS, **p}
         if not g["scenario"]:
             raise ValueError("parameter scenario: a scenario name or file is required")
+        safety = None
+        if g["safety"]:
+            try:
+                safety = SafetySettings.from_json(json.loads(str(g["safety"])))
+            except (ValueError, Rejected) as exc:
+                raise ValueError(f"parameter safety: JSON of the filter's settings "
+                                 f"(formation_ilc.config.safety), got {str(g['safety'])[:80]!r}: "
+                                 f"{exc}") from None
         return make_config(
             str(g["scenario"]), seed=None if int(g["seed"]) < 0 else int(g["seed"]),
             noise=bool(g["noise"]), delay=bool(g["delay"]), trials=int(g["trials"]) or None,
             law=int(g["law"]) or None, memory=str(g["memory"]) or None, mode=str(g["mode"]),
             gap=int(g["gap"]), monitored=bool(g["monitored"]), recorded=bool(g["recorded"]),
             timeout=float(g["timeout"]), links=str(g["links"]), run_id=str(g["run_id"]),
-            headings=str(g["headings"]) or None, time_scale=float(g["time_scale"]) or None)
+            headings=str(g["headings"]) or None, time_scale=float(g["time_scale"]) or None,
+            safety=safety)
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> RunConfig:
@@ -190,12 +228,20 @@ class RunConfig:
                                  seed=int(d["seed"]), trials=int(d["trials"]),
                                  headings=str(d.get("headings", sc.headings)),
                                  time_scale=float(d.get("time_scale", sc.time_scale)))
+            safety = d.get("safety")
             return cls(sc, str(d.get("mode", "lockstep")), int(d.get("gap", 20)),
                        bool(d.get("monitored", False)), float(d.get("timeout", 30.0)),
                        str(d.get("links", "emulated")), str(d.get("run_id", "")),
-                       bool(d.get("recorded", False)))
+                       bool(d.get("recorded", False)),
+                       None if safety is None else SafetySettings.from_json(safety))
         except (KeyError, TypeError, ValueError) as exc:
             raise Rejected("malformed", f"bad run configuration: {exc}") from None
+
+
+def disagreement(mine: dict[str, Any], theirs: dict[str, Any]) -> list[tuple[str, Any, Any]]:
+    """The fields of two ``RunConfig.agreement`` on which they differ: (field, mine,
+    theirs), in the order of ``mine``; a field only one of them has is not compared."""
+    return [(k, v, theirs[k]) for k, v in mine.items() if k in theirs and theirs[k] != v]
 
 
 def _switches(sc: Scenario) -> dict[str, bool]:
@@ -208,9 +254,10 @@ def make_config(scenario: str, *, seed: int | None = None, noise: bool = True,
                 memory: str | None = None, mode: str = "lockstep", gap: int = 20,
                 monitored: bool = False, timeout: float = 30.0,
                 links: str = "emulated", run_id: str = "", headings: str | None = None,
-                time_scale: float | None = None, recorded: bool = False) -> RunConfig:
+                time_scale: float | None = None, recorded: bool = False,
+                safety: SafetySettings | None = None) -> RunConfig:
     """The run configuration of a scenario name or file with command-line overrides."""
     sc = load_scenario(scenario).with_options(law=law, memory=memory, noise=noise,
                                               delay=delay, seed=seed, trials=trials,
                                               headings=headings, time_scale=time_scale)
-    return RunConfig(sc, mode, gap, monitored, timeout, links, run_id, recorded)
+    return RunConfig(sc, mode, gap, monitored, timeout, links, run_id, recorded, safety)

@@ -314,6 +314,12 @@ class Scenario:
     #: the reference and the formation stretched in time by this factor (samples x it,
     #: speeds / it, accelerations / it^2): a scenario too fast for a robot's limits fits
     time_scale: float = 1.0
+    #: [s] the desired motion eases in from rest over the trial's first ``ramp`` seconds
+    #: (``desired.ramp``): a reference that starts at speed (a step no time scale removes)
+    #: fits a base's acceleration limit; 0: none
+    ramp: float = 0.0
+    #: with a ramp: the formation's seconds (of the unstretched trial) at t = 0..T+1
+    warped: NDArray[np.float64] | None = field(default=None, repr=False)
 
     @property
     def n(self) -> int:
@@ -339,7 +345,8 @@ class Scenario:
         with np.errstate(all="ignore"):
             # the formation's scales are functions of seconds of the unstretched trial
             pos = tr.formation_positions(self.reference, self.offsets, list(self.scales),
-                                         self.dt / self.time_scale, self.frame)
+                                         self.dt / self.time_scale, self.frame,
+                                         times=self.warped)
             d = tr.desired_trajectories(pos, self.dt, self.reference, self.heading_rule)
         for what, a in (("outputs", d.eta), ("inputs", d.u)):
             if not np.isfinite(a).all():
@@ -721,15 +728,19 @@ def _scenario(data: Any, text: str, source: str, base_dir: Path | None,
     seed = top.integer("seed", 0, minimum=0)
     n = top.integer("robots", minimum=1)
     with _section(source, "desired"):
-        headings, scale = _desired_options(top, time_scale)
+        headings, scale, ramp = _desired_options(top, time_scale)
     n_samples = max(2, int(round(n_samples * scale)))
     why = memory_shortfall(load_bytes(n_samples, n))
     if why is not None:
         big = "samples" if 160 * n_samples >= 64 * n * n else "robots"
         raise top.fail(big, f"{n} robots x {n_samples} samples: loading them {why}")
 
+    warped = None
     with _section(source, "reference"), np.errstate(all="ignore"):
-        ref = _reference(top.sub("reference"), n_samples, dt, base_dir, scale)
+        if ramp > 0:
+            ref, warped = _ramped_reference(top, n_samples, dt, base_dir, scale, ramp)
+        else:
+            ref = _reference(top.sub("reference"), n_samples, dt, base_dir, scale)
 
     with _section(source, "formation"):
         frame, offsets, robot_scales = _formation(top.sub("formation"), n, source)
@@ -751,19 +762,54 @@ def _scenario(data: Any, text: str, source: str, base_dir: Path | None,
     return Scenario(name=name, description=description, dt=dt, samples=n_samples, trials=trials,
                     seed=seed, graph=graph, reference=ref, frame=frame, offsets=offsets,
                     scales=tuple(robot_scales), law=law, uncertainty=unc, source=source,
-                    text=text, headings=headings, time_scale=scale)
+                    text=text, headings=headings, time_scale=scale, ramp=ramp, warped=warped)
+
+
+#: how much finer than the sample grid a ramped reference is built, then read at the
+#: warped times
+RAMP_FINE = 10
+
+
+def ramp_seconds(t: NDArray[np.float64], ramp: float) -> NDArray[np.float64]:
+    """The warped time of trial time ``t`` [s] with a ramp of ``ramp`` seconds: its rate
+    eases from 0 to 1 as 3 x^2 - 2 x^3 (x = t / ramp; the speed and the acceleration start
+    at 0, the acceleration ends at 0), then runs on half a ramp behind."""
+    x = np.clip(t / ramp, 0.0, 1.0)
+    return np.where(t < ramp, ramp * (x ** 3 - 0.5 * x ** 4), t - 0.5 * ramp)
+
+
+def _ramped_reference(top: _Fields, n_samples: int, dt: float, base_dir: Path | None,
+                      scale: float, ramp: float) -> tuple[NDArray, NDArray]:
+    """The reference on t = 0..T+1 read at the warped times (``ramp_seconds``), from the
+    same reference built RAMP_FINE times finer; and the formation's warped seconds."""
+    f = top.sub("reference")
+    q = RAMP_FINE
+    fine = _reference(f, (n_samples + 1) * q, dt, base_dir, scale * q)  # step dt / q
+    t: NDArray[np.float64] = np.arange(n_samples + 2, dtype=np.float64) * dt
+    tau = ramp_seconds(t, ramp)
+    at = tau / (dt / q)
+    grid = np.arange(len(fine))
+    heading = np.unwrap(fine[:, 2])
+    ref = np.stack([np.interp(at, grid, fine[:, 0]), np.interp(at, grid, fine[:, 1]),
+                    np.interp(at, grid, heading)], axis=1)
+    return ref, tau / scale
 
 
 #: the most a trial may be stretched in time (a typo like 100 would make it 100 x longer)
 MAX_TIME_SCALE = 20.0
 
 
-def _desired_options(top: _Fields, time_scale: float | None) -> tuple[str, float]:
-    """``desired: {headings, time_scale}``; ``time_scale`` given (the command line's
+def _desired_options(top: _Fields, time_scale: float | None) -> tuple[str, float, float]:
+    """``desired: {headings, time_scale, ramp}``; ``time_scale`` given (the command line's
     ``--time-scale``) replaces the file's."""
     df = top.sub("desired", required=False)
     headings = df.string("headings", "auto", choices=("auto",) + tr.HEADINGS)
     scale = df.number("time_scale", 1.0, positive=True)
+    ramp = df.number("ramp", 0.0, nonneg=True)
+    ref_data = top.data.get("reference") if isinstance(top.data, dict) else None
+    if ramp > 0 and isinstance(ref_data, dict) and ref_data.get("kind") == "samples":
+        raise df.fail("ramp", "a sampled reference cannot be eased in (its points are its "
+                              "pace); give them from rest")
     df.finish()
     if time_scale is not None:
         scale = float(time_scale)
@@ -772,7 +818,7 @@ def _desired_options(top: _Fields, time_scale: float | None) -> tuple[str, float
     if not 1.0 <= scale <= MAX_TIME_SCALE:
         raise df.fail("time_scale", f"must be in [1, {MAX_TIME_SCALE:g}] (a factor that "
                                     f"slows the trial down), got {scale:g}")
-    return headings, scale
+    return headings, scale, ramp
 
 
 def _formation(ff: _Fields, n: int, source: str

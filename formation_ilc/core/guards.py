@@ -134,7 +134,8 @@ def check_finite(trial: int, row: NDArray[np.float64] | None = None,
 
     row : a metrics row (``metrics.METRIC_COLUMNS``: the trial, then errors); its
         ``true_`` columns may be nan when the plant does not report the true state, so
-        only the measured ones are checked here.
+        only the measured ones are checked here (and no count: ``contacts`` is nan on a
+        plant without bodies).
     arrays : named arrays with the robot axis first, e.g. ``output=eta`` (N, T+1, 3),
         ``input=u`` (N, T, 2), ``learned_memory=memory`` (N, T, 2); the first robot with a
         non-finite value is named. Cost: one pass over each array. The arrays are checked
@@ -150,8 +151,9 @@ def check_finite(trial: int, row: NDArray[np.float64] | None = None,
             robot = int(np.flatnonzero(np.logical_not(finite_rows))[0]) + 1
         raise DivergedError(trial, name.replace("_", " "), robot)
     if row is not None:
-        from formation_ilc.core.metrics import METRIC_COLUMNS, TRUE_COLUMNS
+        from formation_ilc.core.metrics import COUNT_COLUMNS, METRIC_COLUMNS, TRUE_COLUMNS
 
         for name, value in zip(METRIC_COLUMNS[1:], np.asarray(row)[1:], strict=False):
-            if name not in TRUE_COLUMNS and not math.isfinite(float(value)):
+            if name not in TRUE_COLUMNS and name not in COUNT_COLUMNS \
+                    and not math.isfinite(float(value)):
                 raise DivergedError(trial, f"{name.replace('_', ' ')}")

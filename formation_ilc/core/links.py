@@ -29,14 +29,13 @@ from numpy.typing import NDArray
 
 from formation_ilc.core._jit import njit
 from formation_ilc.core.clock import Malformed, Rejected, SampleClock
-from formation_ilc.core.names import robot_name, robot_number  # re-exported: their owner
+from formation_ilc.core.names import LEADER, robot_name, robot_number  # re-exported: their owner
 
 __all__ = ["LEADER", "LINK_MODES", "robot_name", "robot_number", "link_name",
            "delivered_label", "Delivery", "LinkInbox", "DELAY_COLUMNS", "link_histograms",
            "delay_rows", "write_delays", "check_diagnostics"]
 
 #: sender name of the virtual leader's reference
-LEADER = "leader"
 LINK_MODES = ("emulated", "direct")
 
 
@@ -183,7 +182,9 @@ def check_diagnostics(d: Mapping[str, Any]) -> dict[str, Any]:
     a name, ``trial`` an integer, the delay histograms (``delays``, ``injected``) integer
     counts by integer delay, ``dropped`` integer counts, ``timing`` numbers, ``missed`` an
     integer or integer counts, ``initial_shifts`` (x, y, theta) triples, ``watchdog`` (the
-    leader's) an integer ``count`` and a text ``what``. Malformed naming
+    leader's) an integer ``count`` and a text ``what``, ``filter`` (a robot's safety
+    filter) integer counts with their ``slot``, ``contact_report`` (a plant with bodies)
+    its ``slot`` and a list of ``pairs``. Malformed naming
     the first field that is not; other fields pass as they are."""
     if not isinstance(d.get("node"), str):
         raise Malformed("diagnostics without a node name")
@@ -200,6 +201,12 @@ def check_diagnostics(d: Mapping[str, Any]) -> dict[str, Any]:
         "initial_shifts": lambda v: isinstance(v, dict) and all(
             isinstance(x, list) and len(x) == 3 and all(map(_is_number, x))
             for x in v.values()),
+        # a robot's safety filter: the slot of the trial and integer counts
+        "filter": lambda v: isinstance(v, dict) and (not v or (
+            _is_int(v.get("slot")) and all(_is_int(x) for x in v.values()))),
+        # a plant with bodies: the slot of the trial and the pairs that touched in it
+        "contact_report": lambda v: isinstance(v, dict) and _is_int(v.get("slot"))
+        and isinstance(v.get("pairs"), list) and len(v["pairs"]) <= 10_000,
     }
     for key, ok in checks.items():
         if key in d and not ok(d[key]):

@@ -17,7 +17,8 @@ from typing import IO
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["METRIC_COLUMNS", "TRUE_COLUMNS", "MetricsWriter", "write_metrics", "read_metrics",
+__all__ = ["METRIC_COLUMNS", "TRUE_COLUMNS", "ERROR_COLUMNS", "COUNT_COLUMNS", "V1_COLUMNS",
+           "MetricsWriter", "write_metrics", "read_metrics",
            "format_row"]
 
 #: metrics.csv columns
@@ -29,7 +30,16 @@ METRIC_COLUMNS = (
     "true_max_heading_error",
     "rms_position_error",
     "max_formation_error",
+    "filter_active",
+    "contacts",
 )
+#: the columns before the safety filter and contacts were counted (older files)
+V1_COLUMNS = METRIC_COLUMNS[:7]
+#: the error columns (all but the trial and the counts): finite in every trial that did not
+#: diverge
+ERROR_COLUMNS = METRIC_COLUMNS[1:7]
+#: counts of events, not errors: ``contacts`` is nan on a plant without bodies
+COUNT_COLUMNS = ("filter_active", "contacts")
 #: the columns that need the plant's true state
 TRUE_COLUMNS = ("true_max_position_error", "true_max_heading_error")
 
@@ -80,12 +90,15 @@ def read_metrics(path: str | Path) -> NDArray[np.float64]:
     path = Path(path)
     with path.open(newline="") as fh:
         rows = list(csv.reader(fh))
-    if not rows or tuple(rows[0]) != METRIC_COLUMNS:
+    if not rows or tuple(rows[0]) not in (METRIC_COLUMNS, V1_COLUMNS):
         raise ValueError(f"{path}: not a metrics.csv (header {rows[0] if rows else 'missing'})")
-    out = np.empty((len(rows) - 1, len(METRIC_COLUMNS)))
+    width = len(rows[0])
+    out = np.full((len(rows) - 1, len(METRIC_COLUMNS)), np.nan)
     for i, r in enumerate(rows[1:]):
         try:
-            out[i] = [float(x) for x in r]
+            if len(r) != width:
+                raise ValueError
+            out[i, :width] = [float(x) for x in r]
         except ValueError:
             raise ValueError(f"{path}: line {i + 2}: not numbers: {r}") from None
     return out

@@ -1,29 +1,48 @@
-"""Node names of the distributed stack: the one place that spells them.
+"""Names of the distributed stack: nodes, topics, frames. The one place that spells them.
 
 A node's name is what it says ready as, what its diagnostics carry, what the leader's
-schedule waits for (``formation_ilc.config.team``) and what the launcher calls its process
-and log file. Nodes, the launcher, the leader's membership rule and ``msgs_schema`` (which
-re-exports them) import them from here; this module needs no ROS, so the launcher's plan
-and the membership rule are testable without it.
+schedule waits for and what the launcher calls its process and log file
+(``formation_ilc.config.roster``). A topic's name is what every node, the launcher, the
+recordings and the keystore's permissions use. This module needs no ROS: code that needs a
+name (the launcher's plan, the roster, the keystore's grants, the recordings) imports it
+from here; ``msgs_schema`` re-exports every name beside the message types, QoS profiles and
+converters, which do need ROS.
 
-Robots are 1-based in names (``robot_1``), as in topic names.
+Names are relative: a node resolves them in its namespace (``NAMESPACE`` by default;
+``--ros-args -r __ns:=/team2`` moves one node, ``formation-ilc launch --namespace /team2`` a
+whole formation), so several formations share a ROS domain. ``/clock`` is the ROS
+convention's absolute name; a namespaced launch remaps it into the namespace too
+(``namespace_remaps``). Robots are 1-based in names (``robot_1``); the topic table with the
+types and QoS is ``msgs_schema``'s docstring.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from formation_ilc.core.clock import Malformed
 
 __all__ = ["NAMESPACE", "CLOCK", "LEADER_NODE", "SIM_NODE", "LINKS_NODE", "MONITOR_NODE",
-           "RECORDER_NODE", "FAKE_DRIVER_NODE", "PHYSICS_NODE", "BASES_NODE",
+           "RECORDER_NODE", "FAKE_DRIVER_NODE", "PHYSICS_NODE", "BASES_NODE", "LIVEVIEW_NODE",
            "ROBOT_PREFIX", "BRIDGE_PREFIX", "robot_name",
            "robot_number", "bridge_name", "fake_driver_name", "robots_process_name",
-           "namespace_remaps"]
+           "namespace_remaps",
+           # topics and frames
+           "CONFIG", "REFERENCE", "TRIAL_EVENTS", "READY", "DIAGNOSTICS", "ROS_DIAGNOSTICS",
+           "LEADER",
+           "WORLD_FRAME", "pose_topic", "cmd_vel_topic", "shared_pose_topic", "link_topic",
+           "trajectory_topic", "true_trajectory_topic", "absolute", "relative", "clock_topic",
+           "recorded_topics", "MARKERS", "desired_pose_topic", "desired_path_topic",
+           "tracking_error_topic", "trial_error_topic", "view_topics", "PREVIEW", "TEAM_POSES",
+           # drivers
+           "DriverSpec", "DRIVERS"]
 
 #: the default namespace of every node of a formation
 NAMESPACE = "/formation"
 #: the ROS convention's absolute clock topic: the one name a namespaced formation remaps
-#: (msgs_schema re-exports it with the other topic names)
 CLOCK = "/clock"
+
+# --------------------------------------------------------------------------- nodes
 
 #: the virtual leader (reference, schedule, run configuration)
 LEADER_NODE = "virtual_leader"
@@ -40,6 +59,8 @@ LINKS_NODE = "link_emulator"
 MONITOR_NODE = "monitor"
 #: the recorder (MCAP)
 RECORDER_NODE = "recorder"
+#: the live view's bridge to Foxglove viewers (``launch --live``)
+LIVEVIEW_NODE = "liveview"
 #: a fake Pioneer driver (tests and runs without robots); one per robot, in the driver's
 #: namespace, so the node name is the same for every robot
 FAKE_DRIVER_NODE = "fake_pioneer"
@@ -86,6 +107,174 @@ def namespace_remaps(namespace: str | None) -> list[str]:
         return []
     return ["-r", f"__ns:={namespace}", "-r", f"{CLOCK}:={namespace}{CLOCK}"]
 
-#: the live view's bridge to Foxglove viewers (``launch --live``)
-LIVEVIEW_NODE = "liveview"
-__all__ += ["LIVEVIEW_NODE"]
+
+# --------------------------------------------------------------------------- topics
+
+CONFIG = "config"
+REFERENCE = "leader/reference"
+TRIAL_EVENTS = "leader/trial_events"
+READY = "ready"
+DIAGNOSTICS = "diagnostics"
+#: the standard diagnostics stream ROS tools read (diagnostic_aggregator, rqt_robot_monitor):
+#: every node's statuses about once a second, ``node: task`` names, plain values; absolute,
+#: remappable with ``-r /diagnostics:=TOPIC``
+ROS_DIAGNOSTICS = "/diagnostics"
+#: the leader as a sender: link names ``leader->robot_i``, the emulated link
+#: ``robot_i/links/leader``
+LEADER = "leader"
+#: REP-105 world-fixed frame of every pose and path
+WORLD_FRAME = "map"
+
+
+def pose_topic(i: int) -> str:
+    """Measured pose of robot ``i`` (plant -> robot)."""
+    return f"{robot_name(i)}/pose"
+
+
+def cmd_vel_topic(i: int) -> str:
+    """Robot ``i``'s command (robot -> plant)."""
+    return f"{robot_name(i)}/cmd_vel"
+
+
+def shared_pose_topic(i: int) -> str:
+    """Robot ``i``'s labelled output, for its neighbours (stamp = send label St)."""
+    return f"{robot_name(i)}/shared_pose"
+
+
+def link_topic(i: int, sender: str) -> str:
+    """Emulated link ``sender -> robot_i``: one message per tick (0 or 1 pose)."""
+    return f"{robot_name(i)}/links/{sender}"
+
+
+def trajectory_topic(i: int) -> str:
+    """Robot ``i``'s whole-trial measured output, sent at trial end."""
+    return f"{robot_name(i)}/trajectory"
+
+
+def true_trajectory_topic(i: int) -> str:
+    """A simulator's ground truth (true state) of robot ``i`` for one trial, for metrics."""
+    return f"{robot_name(i)}/true_trajectory"
+
+
+def absolute(topic: str, namespace: str = NAMESPACE) -> str:
+    """The full name of a topic in ``namespace`` (absolute names stay as they are)."""
+    if topic.startswith("/"):
+        return topic
+    ns = namespace.rstrip("/")
+    return f"{ns}/{topic}"
+
+
+def relative(name: str, namespace: str = NAMESPACE) -> str:
+    """The schema's name of a full topic name in ``namespace`` (inverse of ``absolute``)."""
+    prefix = namespace.rstrip("/") + "/"
+    return name[len(prefix):] if name.startswith(prefix) else name
+
+
+def clock_topic(namespace: str) -> str:
+    """Where the formation's ``/clock`` is: the launcher remaps it into any namespace but
+    the default one (``namespace_remaps``)."""
+    return CLOCK if namespace == NAMESPACE else f"{namespace.rstrip('/')}{CLOCK}"
+
+
+def recorded_topics(n: int) -> list[str]:
+    """Every recorded topic of a run of ``n`` robots, in the order of the schema's table
+    (``msgs_schema.topic_table`` gives each its type and QoS).
+
+    The recorder subscribes to exactly these; the batch simulator records on them too. Two
+    kinds of message are left out because they repeat others bit for bit: the shared poses
+    (``shared_pose_topic``: a robot re-sends its measured pose unchanged, label included)
+    and the emulated links' per-tick messages (``link_topic``: shared poses and the
+    reference, forwarded). The delays the links carried are in each robot's diagnostics.
+    """
+    names = [CONFIG, REFERENCE, TRIAL_EVENTS, READY, DIAGNOSTICS, CLOCK]
+    for i in range(1, n + 1):
+        names += [pose_topic(i), cmd_vel_topic(i), trajectory_topic(i),
+                  true_trajectory_topic(i)]
+    return names
+
+
+# --------------------------------------------------------------------------- view topics
+# What the formation should be, for the live view and the recording: published by one
+# observer (``formation_ilc.nodes.observer``: in the recorder, or in the live view's bridge
+# when nothing records); the robots are untouched. Types: ``msgs_schema.view_topic_table``.
+
+#: the 3D view's markers (outline, links, labels, errors)
+MARKERS = "markers"
+
+
+def desired_pose_topic(i: int) -> str:
+    """eta_d of robot ``i`` at each sample (stamped with its label)."""
+    return f"{robot_name(i)}/desired_pose"
+
+
+def desired_path_topic(i: int) -> str:
+    """eta_d of robot ``i`` over a whole trial, at its start (latched)."""
+    return f"{robot_name(i)}/desired_path"
+
+
+def tracking_error_topic(i: int) -> str:
+    """Robot ``i``'s position and heading error at each sample."""
+    return f"{robot_name(i)}/tracking_error"
+
+
+def trial_error_topic(i: int) -> str:
+    """Robot ``i``'s largest errors of each trial."""
+    return f"{robot_name(i)}/trial_error"
+
+
+def view_topics(n: int) -> list[str]:
+    """The observer's topics for ``n`` robots, in the order of
+    ``msgs_schema.view_topic_table``."""
+    names = [MARKERS]
+    for i in range(1, n + 1):
+        names += [desired_pose_topic(i), desired_path_topic(i), tracking_error_topic(i),
+                  trial_error_topic(i)]
+    return names
+
+
+#: the plant's preview of the team for viewers (every robot's pose of a sample in one
+#: message, at most ``msgs_schema.PREVIEW_HZ`` a second, only while read); not recorded
+PREVIEW = "preview/poses"
+#: every robot's measured pose of a sample in one message, for the robots' safety filters
+#: (``core.safety``): what a motion-capture system gives, once per sample from the plant
+#: (the simulator, the physics plant) when the run has a filter with ``sensing: team``.
+#: Pose i is robot i + 1's, each stamped with the sample's label as on robot_i/pose
+TEAM_POSES = "team/poses"
+
+
+# --------------------------------------------------------------------------- drivers
+
+@dataclass(frozen=True)
+class DriverSpec:
+    """A Pioneer driver's side of the bridge: topic names relative to the driver's
+    namespace (the bridge's ``driver_ns`` parameter; remap further with ``-r``).
+
+    cmd : velocity command in (Twist, or TwistStamped with the bridge's ``cmd_type``);
+    odom : nav_msgs/Odometry out, starting at 0 where the robot was placed;
+    motors : how motors are enabled; motors_kind: 'empty_service' (std_srvs/Empty),
+        'setbool_service' (std_srvs/SetBool, data true), 'p2os_motor_state'
+        (p2os_msgs/MotorState with state 1, a topic) or 'none' (a base whose motors are
+        always on: TurtleBot, Jackal, Husky);
+    default_ns : the driver's usual namespace.
+    """
+
+    cmd: str
+    odom: str
+    motors: str
+    motors_kind: str
+    default_ns: str
+
+
+DRIVERS: dict[str, DriverSpec] = {
+    # RosAria (ROS 1 via ros1_bridge, or its ROS 2 ports): node RosAria
+    "rosaria": DriverSpec("cmd_vel", "pose", "enable_motors", "empty_service", "/RosAria"),
+    # p2os2 (p2os_driver): motors on by publishing p2os_msgs/MotorState{state: 1}
+    "p2os2": DriverSpec("cmd_vel", "pose", "cmd_motor_state", "p2os_motor_state", "/"),
+    # ros2aria: odometry on ``odom``; the motors are engaged through ``clutch``. Assumed a
+    # std_srvs/SetBool service (true = engaged); not verified against the driver's source:
+    # check ``ros2 interface`` on the robot, and remap or change motors_kind if it differs
+    "ros2aria": DriverSpec("cmd_vel", "odom", "clutch", "setbool_service", "/"),
+    # any differential-drive base with the common interface: cmd_vel in, nav_msgs/Odometry
+    # out, no motor service (formation_ilc.config.bases has presets of the topic names)
+    "base": DriverSpec("cmd_vel", "odom", "", "none", "/"),
+}

@@ -253,15 +253,18 @@ def formation_positions(
     scales: list[Callable[[NDArray[np.float64]], NDArray[np.float64]]],
     dt: float,
     frame: str,
+    times: NDArray[np.float64] | None = None,
 ) -> NDArray[np.float64]:
     """Desired positions r(t) + d_i(t), shape (n, M, 2).
 
     reference : shape (M, 3) (x, y, heading). base : shape (n, 2), the offset of each robot
     at scale 1 in the world frame or in the leader's body frame (x ahead, y left).
     scales : one callable per robot, seconds -> scale factor (s(t), D1(t), ...).
+    times : shape (M,), the seconds the scales are read at (default t * dt; a ramped
+        start's warped seconds).
     """
     m = reference.shape[0]
-    sec = np.arange(m, dtype=float) * dt
+    sec = np.arange(m, dtype=float) * dt if times is None else np.asarray(times, dtype=float)
     s = np.stack([np.broadcast_to(f(sec), (m,)) for f in scales])  # (n, M)
     d = s[:, :, None] * np.asarray(base, dtype=float)[:, None, :]  # (n, M, 2)
     if frame == "leader":

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -34,6 +35,18 @@ class Footprint:
     width: float
     offset: float = 0.0
 
+    def discs(self, count: int = 2) -> tuple[tuple[float, ...], float]:
+        """``count`` equal discs along the heading that cover the rectangle: their centres'
+        offsets ahead of the tracked point [m] and their radius [m] (the safety filter's
+        body, ``core.safety``). Two discs cover an elongated body far more tightly than one
+        circle: a P3-DX 0.455 x 0.381 m in radius 0.222 m each instead of 0.296 m."""
+        if count < 1:
+            raise ValueError(f"discs: count >= 1, got {count}")
+        piece = self.length / count
+        offsets = tuple(self.offset - 0.5 * self.length + (k + 0.5) * piece
+                        for k in range(count))
+        return offsets, float(np.hypot(0.5 * piece, 0.5 * self.width))
+
     def corners(self, pose: NDArray[np.float64]) -> NDArray[np.float64]:
         """Corners of the footprint at ``pose`` (..., 3) -> (..., 4, 2), counter-clockwise."""
         p = np.asarray(pose, dtype=float)
@@ -50,8 +63,9 @@ class Footprint:
 #: bodies the clearance is measured for, by name: a Pioneer 3-DX (and the physics model of
 #: its size) about its axle, the Husky about its turning point (docs/physics.md), and the
 #: bases' presets (``formation_ilc.config.bases``)
-BODIES = ("p3dx", "husky", "turtlebot3", "turtlebot4", "jackal")
-_OWN = {"p3dx": Footprint(0.455, 0.381, -0.045), "husky": Footprint(0.99, 0.67, 0.17)}
+BODIES = ("p3dx", "husky", "husky-imu", "turtlebot3", "turtlebot4", "jackal")
+_OWN = {"p3dx": Footprint(0.455, 0.381, -0.045), "husky": Footprint(0.99, 0.67, 0.17),
+        "husky-imu": Footprint(0.99, 0.67, 0.17)}
 
 
 def footprint_of(name: str) -> Footprint:
@@ -157,9 +171,10 @@ def trial_clearance(trial: int, xi: NDArray[np.float64], fp: Footprint) -> Clear
 
 def predict_clearance(sc: Scenario, fp: Footprint, trials: int,
                       memory: NDArray[np.float64] | None = None, plant: str = "arc",
-                      first_trial: int = 0) -> list[Clearance]:
+                      first_trial: int = 0, safety: Any = None) -> list[Clearance]:
     """The batch simulator's prediction of a run: ``trials`` trials from ``memory``
-    (default u_0 = 0), without noise or delay, and each trial's least clearance."""
+    (default u_0 = 0), without noise or delay, through the safety filter ``safety``
+    (``core.safety.SafetySpec``; None: none), and each trial's least clearance."""
     from formation_ilc.model.simulate import simulate
 
     quiet = sc.with_options(noise=False, delay=False, trials=trials)
@@ -169,7 +184,7 @@ def predict_clearance(sc: Scenario, fp: Footprint, trials: int,
         out.append(trial_clearance(k, xi, fp))
 
     simulate(quiet, initial_memory=memory, on_trial_data=on_data, plant=plant,
-             first_trial=first_trial, store_metrics=False)
+             first_trial=first_trial, store_metrics=False, safety=safety)
     return out
 
 

@@ -31,7 +31,7 @@ import os
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib import resources
 from typing import Any
 
@@ -39,6 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from formation_ilc.core.kinematics import wrap_angle
+from formation_ilc.core.limits import Limits
 from formation_ilc.core.names import robot_name
 from formation_ilc.model.footprint import Footprint, footprint_of
 
@@ -67,6 +68,8 @@ class RobotModel:
     calibrated for skid steer). torque [N m]: each wheel motor's limit. tracked [m]: the
     tracked point's distance ahead of the base origin. footprint: the body, about the
     tracked point. caster: links whose friction is removed (a caster swivels freely).
+    limits: the maker's speed and acceleration limits, which the world enforces on every
+    command (``PhysicsWorld.step``) as the robot's own controller does.
     """
 
     name: str
@@ -84,6 +87,14 @@ class RobotModel:
     spawn_z: float = 0.0
     source: str = ""
     geometric_track: float = field(default=0.0)
+    limits: Limits = field(default_factory=Limits)
+    limits_source: str = ""
+    #: velocity loops on the base (the body's speed and turn rate, as an IMU-fused odometry
+    #: gives them, fed back at SENSE_RATE): the wheel speeds' mean and difference are
+    #: corrected by a proportional and an integral term of gain ``yaw_loop`` [1/s] on the
+    #: errors, so that the body drives and turns as commanded whatever its wheels slip
+    #: (what a skid-steer base's controller with an IMU can do); 0: open loop
+    yaw_loop: float = 0.0
 
 
 MODELS: dict[str, RobotModel] = {
@@ -92,15 +103,29 @@ MODELS: dict[str, RobotModel] = {
         wheel_radius=0.0975, track=0.34, torque=2.0, tracked=0.0,
         footprint=footprint_of("p3dx"), mass=9.0, caster=("caster_link",),
         spawn_z=0.002, geometric_track=0.33,
-        source="Pioneer 3-DX datasheet dimensions; boxes and cylinders of this package"),
+        source="Pioneer 3-DX datasheet dimensions; boxes and cylinders of this package",
+        limits=Limits(1.2, math.radians(300), 0.3, math.radians(100)),
+        limits_source="Pioneer 3-DX datasheet: 1.2 m/s, 300 deg/s; ARIA's default "
+                      "accelerations 0.3 m/s^2, 100 deg/s^2 (TransAccel, RotAccel)"),
     # track and tracked point of both: ``calibrate`` at 240 Hz (docs/physics.md has the runs)
     "husky": RobotModel(
         "husky", "pybullet_data:husky/husky.urdf",
         ("front_left_wheel", "rear_left_wheel"), ("front_right_wheel", "rear_right_wheel"),
         wheel_radius=0.17775, track=1.5, torque=30.0, tracked=-0.17,
         footprint=footprint_of("husky"), mass=44.0, spawn_z=0.02,
-        geometric_track=0.5708, source="pybullet_data husky/husky.urdf (Clearpath Husky)"),
+        geometric_track=0.5708, source="pybullet_data husky/husky.urdf (Clearpath Husky)",
+        limits=Limits(1.0, 2.0, 3.0, 6.0),
+        limits_source="Husky datasheet 1.0 m/s; husky_control control.yaml: 2.0 rad/s, "
+                      "3.0 m/s^2, 6.0 rad/s^2"),
 }
+
+
+# the Husky whose base closes velocity loops on the body's speed and turn rate (an IMU-fused
+# controller): it drives and turns as commanded whatever its wheels slip (docs/physics.md,
+# "Skid steer")
+MODELS["husky-imu"] = replace(
+    MODELS["husky"], name="husky-imu", yaw_loop=10.0,
+    source="pybullet_data husky/husky.urdf (Clearpath Husky) with velocity loops on the base")
 
 
 def robot_model(name: str, **changes: Any) -> RobotModel:
@@ -205,8 +230,12 @@ class PhysicsWorld:
         self.phi = np.zeros((n, 2))    # wheel angles (left, right) at the last reading
         self.yaw = np.zeros(n)         # unwrapped truth heading
         self.contact_steps = np.zeros(len(self.pairs), dtype=np.int64)
+        self.contact_depth = np.zeros(len(self.pairs))
         self.steps = 0
         self._cmd = np.zeros((n, 2))
+        #: commands the limits changed since ``place`` (``step``)
+        self.limited = 0
+        self._loop_i = np.zeros((n, 2))  # the velocity loops' integrals [m/s, rad/s]
 
     # ------------------------------------------------------------------ state
     def place(self, poses: NDArray[np.float64]) -> None:
@@ -225,6 +254,8 @@ class PhysicsWorld:
                 pb.resetJointState(b, j, 0.0, 0.0, physicsClientId=c)
         self.yaw[:] = np.asarray(poses, dtype=float)[:, 2]
         self._cmd[:] = 0.0
+        self.limited = 0
+        self._loop_i[:] = 0.0
         # settle on the wheels without driving (a URDF's origin may sit above the floor)
         self._drive(np.zeros((self.n, 2)))
         for _ in range(self.substeps):
@@ -234,6 +265,7 @@ class PhysicsWorld:
         self._sense()  # encoders zeroed where the robot stands
         self.odom[:] = self.truth()
         self.contact_steps[:] = 0
+        self.contact_depth[:] = 0.0
 
     def truth(self) -> NDArray[np.float64]:
         """Ground truth of the tracked points, (N, 3): x, y [m], heading [rad] unwrapped
@@ -295,18 +327,42 @@ class PhysicsWorld:
                                          forces=[m.torque] * len(self.wheels),
                                          physicsClientId=c)
 
+    def limit(self, u: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Commands u (N, 2) as the robots' controllers take them: each inside the model's
+        speed limits and at most an acceleration limit x dT from the previous command (0
+        after ``place``: the robots stand)."""
+        lim = self.model.limits
+        u = np.asarray(u, dtype=float)
+        lo = np.maximum(self._cmd - self.dt * np.array([lim.a_max, lim.alpha_max]),
+                        -np.array([lim.v_max, lim.omega_max]))
+        hi = np.minimum(self._cmd + self.dt * np.array([lim.a_max, lim.alpha_max]),
+                        np.array([lim.v_max, lim.omega_max]))
+        out = np.clip(u, lo, hi)
+        out = np.where(np.isfinite(u), out, 0.0)  # a non-finite command stops the wheel
+        return out
+
     def step(self, u: NDArray[np.float64]) -> None:
-        """Hold commands u (N, 2) [m/s, rad/s] for one sample: ``substeps`` engine steps.
+        """Hold commands u (N, 2) [m/s, rad/s] for one sample: ``substeps`` engine steps,
+        after the model's limits (``limit``; counted in ``limited``).
         Every ``sense_every`` steps (``SENSE_RATE``) the wheel encoders are read into the
         odometry and contacts between robots are checked."""
         pb, c = self.pb, self.cid
         u = np.asarray(u, dtype=float)
+        held = self.limit(u)
+        self.limited += int(np.count_nonzero(np.any(np.abs(held - u) > 1e-9, axis=1)))
+        u = held
         self._cmd[:] = u
         self._drive(u)
+        loop = self.model.yaw_loop
         for k in range(1, self.substeps + 1):
             pb.stepSimulation(physicsClientId=c)
             if k % self.sense_every == 0 or k == self.substeps:
                 self._sense()
+                if loop > 0:  # the base's own velocity loops: P + I on speed and turn
+                    self.truth()  # the headings now (the body's forward direction)
+                    err = u - self.body_twist()
+                    self._loop_i += loop * loop / 4 * err * self.h * self.sense_every
+                    self._drive(u + 0.1 * loop * err + self._loop_i)
         self.steps += self.substeps
 
     def _sense(self) -> None:
@@ -329,8 +385,19 @@ class PhysicsWorld:
         if self.collide:
             bodies = self.bodies
             for p, (i, j) in enumerate(self.pairs):
-                if pb.getContactPoints(bodies[i], bodies[j], physicsClientId=c):
+                pts = pb.getContactPoints(bodies[i], bodies[j], physicsClientId=c)
+                if pts:
                     self.contact_steps[p] += 1
+                    # contact distance (index 8) is negative for penetration
+                    depth = -min(pt[8] for pt in pts)
+                    self.contact_depth[p] = max(self.contact_depth[p], depth)
+
+    def contact_pairs(self) -> list[tuple[int, int, float, float]]:
+        """Pairs that touched since ``place``: (i, j) 1-based, seconds in contact, the
+        deepest penetration [m]."""
+        return [(i + 1, j + 1, float(k * self.h * self.sense_every), float(d))
+                for (i, j), k, d in zip(self.pairs, self.contact_steps, self.contact_depth,
+                                        strict=True) if k]
 
     def contacts(self) -> dict[str, float]:
         """Time in contact per pair since ``place`` [s] (readings in contact x their

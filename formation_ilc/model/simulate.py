@@ -29,6 +29,13 @@ from formation_ilc.core.law import (
 from formation_ilc.core.links import delivered_label
 from formation_ilc.core.metrics import METRIC_COLUMNS
 from formation_ilc.core.pcg import STATE_SIZE
+from formation_ilc.core.safety import (
+    SafetySpec,
+    filter_team,
+    freeze_flagged,
+    learn_base,
+    learning_code,
+)
 from formation_ilc.core.uncertainty import (
     DelayArrays,
     PlantArrays,
@@ -40,7 +47,16 @@ from formation_ilc.core.uncertainty import (
 )
 
 __all__ = ["Problem", "TrialRecord", "SimResult", "simulate", "simulate_seeds", "trial_errors",
-           "simulate_bytes", "METRIC_COLUMNS", "DivergedError"]
+           "simulate_bytes", "METRIC_COLUMNS", "DivergedError", "safety_arrays", "SafetyArrays"]
+
+#: the safety filter's arrays for the kernels (``safety_arrays``): its parameters
+#: (``SafetySpec.params()``, empty: no filter), (learning code, pose age [s], velocity
+#: window [samples]), and the scratch: nominal commands (N, T, 2), flags (N, T), previous
+#: commands (N, 2), the poses and motions and ages a robot hears (N, 6), (N,), the memory
+#: the learning step starts from (N, T, 2)
+SafetyArrays = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
+                     NDArray[np.int64], NDArray[np.float64], NDArray[np.float64],
+                     NDArray[np.float64], NDArray[np.float64]]
 
 
 @dataclass(frozen=True)
@@ -63,6 +79,10 @@ class Problem:
     heading: int
     #: index into ``kinematics.PLANT_MODELS``: 0 Euler (eq. 1, the paper's), 1 exact arc
     plant: int = 0
+    #: the safety filter every robot's command goes through (None: none), and how old [s]
+    #: the other robots' poses are when a robot filters with them
+    safety: SafetySpec | None = None
+    safety_age: float = 0.0
 
     @property
     def n(self) -> int:
@@ -73,9 +93,12 @@ class Problem:
         return int(self.eta_d.shape[1] - 1)
 
     @classmethod
-    def from_scenario(cls, sc: Scenario, plant: str = "euler") -> Problem:
+    def from_scenario(cls, sc: Scenario, plant: str = "euler",
+                      safety: SafetySpec | None = None, safety_age: float = 0.0) -> Problem:
         """The scenario's arrays; ``plant`` is the model the batch simulator steps
-        ('euler' or 'arc', ``kinematics.PLANT_MODELS``)."""
+        ('euler' or 'arc', ``kinematics.PLANT_MODELS``); ``safety`` the filter between
+        the law and the plant (None: none), with other robots' poses ``safety_age`` [s]
+        old."""
         if plant not in PLANT_MODELS:
             raise ValueError(f"plant model must be one of {', '.join(PLANT_MODELS)}, "
                              f"got {plant!r}")
@@ -86,7 +109,7 @@ class Problem:
                    gain_prime=np.asarray(sc.law.gain_prime, dtype=float),
                    law=law_code(sc.law.kind), memory=memory_code(sc.law.memory),
                    heading=heading_code(sc.law.gain_heading),
-                   plant=PLANT_MODELS.index(plant))
+                   plant=PLANT_MODELS.index(plant), safety=safety, safety_age=safety_age)
 
     def trial(self, memory: NDArray[np.float64], xi0: NDArray[np.float64],
               dist: NDArray[np.float64], noise: NDArray[np.float64], tau: NDArray[np.int64],
@@ -100,7 +123,7 @@ class Problem:
         run_trial.jit(self.law, self.memory, self.heading, self.plant, self.dt, memory, xi0,
                       dist, noise, tau,
                   tau0, self.src, self.weight, self.leader, self.eta_d, self.gain,
-                  self.gain_prime, xi, eta, u, nxt)
+                  self.gain_prime, xi, eta, u, nxt, safety_arrays(self))
         return xi, eta, u, nxt
 
     def tiled(self, copies: int) -> Problem:
@@ -110,9 +133,27 @@ class Problem:
         src = np.where(self.src[None] >= 0, self.src[None] + offs, -1).reshape(-1,
                                                                                self.src.shape[1])
         rep = lambda a: np.tile(a, (copies,) + (1,) * (a.ndim - 1))  # noqa: E731
+        if self.safety is not None:
+            raise ValueError("tiled teams would see each other: no safety filter here")
         return Problem(self.dt, rep(self.eta_d), src, rep(self.weight), rep(self.leader),
                        rep(self.gain), rep(self.gain_prime), self.law, self.memory, self.heading,
                        self.plant)
+
+
+def safety_arrays(pb: Problem) -> SafetyArrays:
+    """The safety filter of ``pb`` as the kernels take it (an empty parameter array when
+    it has none)."""
+    n, n_t = pb.n, pb.samples
+    if pb.safety is None:
+        params = np.empty(0)
+        meta = np.zeros(3)
+        n_t = 0
+    else:
+        params = pb.safety.params()
+        meta = np.array([learning_code(pb.safety.learning), pb.safety_age,
+                         pb.safety.window])
+    return (params, meta, np.zeros((n, n_t, 2)), np.zeros((n, n_t), dtype=np.int64),
+            np.zeros((n, 2)), np.zeros((n, 6)), np.zeros(n), np.zeros((n, n_t, 2)))
 
 
 @njit(cache=True)
@@ -124,18 +165,19 @@ def run_trial(law: int, memory_mode: int, heading: int, plant: int, dt: float,
               eta_d: NDArray[np.float64], gain: NDArray[np.float64],
               gain_prime: NDArray[np.float64],
               xi: NDArray[np.float64], eta: NDArray[np.float64], u: NDArray[np.float64],
-              next_memory: NDArray[np.float64]) -> None:
+              next_memory: NDArray[np.float64], sf: SafetyArrays) -> None:
     """One trial of N robots; fills xi, eta (N, T+1, 3), u (N, T, 2) and next_memory.
 
     tau : shape (N, L, T+1), delay of each in-link at each sample; tau0 : shape (N, T+1).
     A link delivers at sample t the sender's output labelled t - tau (the network); the
     law itself is ``command``. plant : 0 Euler, 1 exact arc (``Problem.plant``).
+    sf : the safety filter (``safety_arrays``); u is what it let through.
     """
     n, n_links = src.shape
     ws = _workspace(n, n_links, memory.shape[1])
     _trial(law, memory_mode, heading, plant, dt, memory, xi0, dist, noise, tau, tau0, src, weight,
            leader, eta_d, gain, gain_prime, xi, eta, u, next_memory, ws[0], ws[1], ws[2], ws[3],
-           ws[4])
+           ws[4], sf)
 
 
 @njit(cache=True)
@@ -161,14 +203,18 @@ def _trial(law: int, memory_mode: int, heading: int, plant: int, dt: float,
            xi: NDArray[np.float64], eta: NDArray[np.float64], u: NDArray[np.float64],
            next_memory: NDArray[np.float64], nb_eta: NDArray[np.float64],
            nb_s: NDArray[np.int64], lead_s: NDArray[np.int64],
-           nb_full: NDArray[np.float64], trig: NDArray[np.float64]) -> None:
-    """``run_trial`` on the scratch of :func:`_workspace` (reused from trial to trial)."""
+           nb_full: NDArray[np.float64], trig: NDArray[np.float64], sf: SafetyArrays) -> int:
+    """``run_trial`` on the scratch of :func:`_workspace` (reused from trial to trial).
+    Returns how many commands (robots x samples) the safety filter changed."""
     n, n_links = src.shape
     n_t = memory.shape[1]
+    safe = sf[0].shape[0] > 0
     nb_eta[:] = 0.0
     nb_s[:] = 0
     lead_s[:] = 0
     xi[:, 0] = xi0
+    if safe:
+        sf[4][:] = 0.0  # a trial starts from rest
     for t in range(n_t):
         for r in range(n):
             for c in range(3):
@@ -185,6 +231,9 @@ def _trial(law: int, memory_mode: int, heading: int, plant: int, dt: float,
         heading_trig(heading, eta, eta_d, t, t + 1, trig, 0)
         command_trig(t, t, law, memory, eta, eta_d, nb_eta, nb_s, src, weight, eta_d,
                      lead_s, leader, gain_prime, trig, u)
+        if safe:
+            filter_team(t, u, eta, sf[4], sf[1][1], sf[0], int(sf[1][2]), sf[2], sf[3], sf[5],
+                        sf[6])
         # step_into's arithmetic, by index (views of xi, u, dist per sample cost ~5 %)
         for r in range(n):
             if plant == 0:
@@ -203,8 +252,21 @@ def _trial(law: int, memory_mode: int, heading: int, plant: int, dt: float,
             j = src[r, ell]
             if j >= 0:
                 nb_full[r, ell] = eta[j]
-    learn_trig(law, memory_mode, memory, u, eta, eta_d, nb_full, src, weight, eta_d, leader,
+    if not safe:
+        learn_trig(law, memory_mode, memory, u, eta, eta_d, nb_full, src, weight, eta_d, leader,
+                   gain, trig, next_memory)
+        return 0
+    mode = int(sf[1][0])
+    learn_base(mode, memory, sf[2], u, sf[3], sf[7])
+    learn_trig(law, memory_mode, sf[7], u, eta, eta_d, nb_full, src, weight, eta_d, leader,
                gain, trig, next_memory)
+    freeze_flagged(mode, memory, sf[3], next_memory)
+    changed = 0
+    for r in range(n):
+        for t in range(n_t):
+            if sf[3][r, t] != 0:
+                changed += 1
+    return changed
 
 
 @njit(cache=True)
@@ -216,10 +278,11 @@ def run_trials(seed: NDArray[np.uint32], first_trial: int, plant: PlantArrays,
                gain_prime: NDArray[np.float64], memory: NDArray[np.float64],
                spare: NDArray[np.float64], metrics: NDArray[np.float64],
                xi: NDArray[np.float64], eta: NDArray[np.float64], u: NDArray[np.float64],
-               tau: NDArray[np.int64], tau0: NDArray[np.int64]) -> bool:
+               tau: NDArray[np.int64], tau0: NDArray[np.int64], sf: SafetyArrays) -> bool:
     """Trials first_trial, first_trial + 1, ... (one per row of ``metrics``), compiled end to
     end: each trial's draws (``uncertainty.fill_plant`` / ``fill_delays``), ``_trial`` and
-    ``trial_errors`` into its metrics row (METRIC_COLUMNS).
+    ``trial_errors`` into its metrics row (METRIC_COLUMNS; the commands the safety filter
+    ``sf`` changed, and no contacts: nan).
 
     model : the plant model (``Problem.plant``). memory : the first trial's memory
     (N, T, 2); spare : an array like it. They alternate
@@ -247,13 +310,15 @@ def run_trials(seed: NDArray[np.uint32], first_trial: int, plant: PlantArrays,
         for r in range(n):
             for c in range(3):
                 xi0[r, c] = eta_d[r, 0, c] + shift[r, c]
-        _trial(law, memory_mode, heading, model, dt, cur, xi0, dist, noise, tau, tau0, src, weight,
-               leader, eta_d, gain, gain_prime, xi, eta, u, nxt, nb_eta, nb_s, lead_s, nb_full,
-               trig)
+        changed = _trial(law, memory_mode, heading, model, dt, cur, xi0, dist, noise, tau, tau0,
+                         src, weight, leader, eta_d, gain, gain_prime, xi, eta, u, nxt, nb_eta,
+                         nb_s, lead_s, nb_full, trig, sf)
         trial_errors(eta, xi, eta_d, src, weight, row)
         metrics[i, 0] = k
         for c in range(6):
             metrics[i, c + 1] = row[c]
+        metrics[i, 7] = changed
+        metrics[i, 8] = np.nan  # no bodies, no contacts
         cur, nxt = nxt, cur
         swapped = not swapped
     return swapped
@@ -355,6 +420,8 @@ def simulate(
     store_metrics: bool = True,
     problem: Problem | None = None,
     plant: str = "euler",
+    safety: SafetySpec | None = None,
+    safety_age: float = 0.0,
 ) -> SimResult:
     """Run ``trials`` trials (default: the scenario's) and return per-trial metrics.
 
@@ -377,8 +444,13 @@ def simulate(
         runs many seeds of one configuration); it does not depend on the seed or trials.
     plant : the plant model when ``problem`` is None: 'euler' (eq. 1, default) or 'arc' (a
         unicycle that drives arcs; the scenario's 'auto' headings then read as 'arc').
+    safety : when ``problem`` is None, the safety filter between the law and the plant
+        (``core.safety``; None: none): each robot filters with every other robot's measured
+        pose of the sample, taken as ``safety_age`` [s] old. The metrics' ``filter_active``
+        column counts the commands it changed.
     """
-    pb = Problem.from_scenario(scenario.for_plant(plant), plant) if problem is None else problem
+    pb = (Problem.from_scenario(scenario.for_plant(plant), plant, safety, safety_age)
+          if problem is None else problem)
     k_total = scenario.trials if trials is None else int(trials)
     n, n_t, n_links = pb.n, pb.samples, pb.src.shape[1]
     unc = scenario.uncertainty
@@ -400,10 +472,11 @@ def simulate(
     args = (seed_words(scenario.seed), first_trial, plant_arrays(unc, n_t), delay_arrays(unc),
             pb.law, pb.memory, pb.heading, pb.plant, pb.dt, pb.src, pb.weight, pb.leader,
             pb.eta_d, pb.gain, pb.gain_prime)
+    sf = safety_arrays(pb)
     if (not keep and progress is None and on_trial_data is None and not stop_on_divergence
             and on_memory is None and store_metrics):
         # every trial in one compiled call: nothing to do in Python between trials
-        if run_trials.jit(*args, memory, nxt, metrics, xi, eta, u, tau, tau0):
+        if run_trials.jit(*args, memory, nxt, metrics, xi, eta, u, tau, tau0, sf):
             memory = nxt
         return SimResult(metrics=metrics, records=records, memory=memory)
     rows = np.empty((1, len(METRIC_COLUMNS)))
@@ -417,7 +490,7 @@ def simulate(
     for i in range(k_total):
         k = first_trial + i
         # the same compiled code, one trial per call
-        run_trials.jit(*args[:1], k, *args[2:], memory, nxt, rows, xi, eta, u, tau, tau0)
+        run_trials.jit(*args[:1], k, *args[2:], memory, nxt, rows, xi, eta, u, tau, tau0, sf)
         done = i if store_metrics else 0
         if stop_on_divergence:
             try:
@@ -479,7 +552,7 @@ def simulate_seeds(scenario: Scenario, seeds: Iterable[int], trials: int) -> NDA
         run_trial.jit(pb.law, pb.memory, pb.heading, pb.plant, pb.dt, memory,
                       pb.eta_d[:, 0] + shift, dist,
                       noise, tau, tau0, pb.src, pb.weight, pb.leader, pb.eta_d, pb.gain,
-                      pb.gain_prime, xi, eta, u, nxt)
+                      pb.gain_prime, xi, eta, u, nxt, safety_arrays(pb))
         for i in range(len(seeds)):
             sl = slice(i * n1, (i + 1) * n1)
             trial_errors.jit(eta[sl], xi[sl], base.eta_d, base.src, base.weight, row)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import os
 import signal
+import socket
 import sys
 import time
 import uuid
@@ -16,6 +17,7 @@ from collections.abc import Callable, Collection, Iterable
 from typing import Any, TypeVar
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -37,7 +39,7 @@ from formation_ilc.system.lifetime import (
     wait_at_gate,
 )
 
-__all__ = ["PARENT_ENV", "DROP_REASONS", "DropCounter", "RunConfig", "make_config",
+__all__ = ["PARENT_ENV", "DROP_REASONS", "DropCounter", "Diagnostics", "RunConfig", "make_config",
            "config_from_msg", "ConfiguredNode", "matched", "unmatched",
            "readers_wanting", "fail",
            "spin_main", "node_parser", "ros_param", "robot_node_from_args"]
@@ -96,6 +98,9 @@ class ConfiguredNode(Node):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(name, **kwargs)
         self.drops = DropCounter(self)
+        #: the per-trial report and the standard stream (from the start: a node that waits
+        #: for its configuration is alive)
+        self.diag_pub = Diagnostics(self)
         self.configured = False
         # the first word half a period in: a node that matches in a few seconds says none
         self._waiting_said = time.monotonic() - MATCH_WARN / 2
@@ -104,12 +109,15 @@ class ConfiguredNode(Node):
         #: what this node takes of the leader's events (its core's, once configured)
         self.follower = Follower(self.run_id)
 
-    def ready_msg(self, trial: int, passive: bool = False) -> String:
+    def ready_msg(self, trial: int, passive: bool = False, abort_slot: int = -1,
+                  why: str = "") -> String:
         """The ``ready`` message of this node (``formation_ilc.protocol.schedule``); the
-        node then counts as ready for the next start."""
+        node then counts as ready for the next start. ``abort_slot``: a plant asks the
+        leader to abort that slot, saying ``why``."""
         self.follower.said_ready()
         return ms.json_to_msg(Ready(self.get_name(), trial, self.boot, self.follower.seen,
-                                    passive, self.run_id).to_json())
+                                    passive, self.run_id, abort_slot=abort_slot,
+                                    why=why, config=self.own_config).to_json())
 
     def not_ready(self, waits: list[str]) -> None:
         """Not ready yet: every MATCH_WARN seconds say what it waits for (``waits``, one
@@ -142,9 +150,19 @@ class ConfiguredNode(Node):
             self.drops.reject(exc, ms.TRIAL_EVENTS)
             return None
 
-    def follow_config(self, cfg: RunConfig | None = None) -> None:
-        """Configure now from ``cfg``, or when the config topic delivers one."""
+    #: the fields of ``RunConfig.agreement`` this node runs with (None: all)
+    AGREES_ON: tuple[str, ...] | None = None
+    #: what a node that configured itself from its own parameters runs with (its readies
+    #: carry it; the leader names a difference and stops); None when it follows ``config``
+    own_config: dict[str, Any] | None = None
+
+    def follow_config(self, cfg: RunConfig | None = None, own: bool = True) -> None:
+        """Configure now from ``cfg`` (``own``: from the node's own parameters), or when the
+        config topic delivers one."""
         if cfg is not None:
+            if own:
+                self.own_config = {k: v for k, v in cfg.agreement().items()
+                                   if self.AGREES_ON is None or k in self.AGREES_ON}
             self.configured = True
             try:
                 self.configure(cfg)
@@ -181,10 +199,45 @@ class ConfiguredNode(Node):
                             f"node belongs to run {mine}")
             return
         self._config_json = ms.msg_to_json(msg)
-        self.follow_config(cfg)
+        self.follow_config(cfg, own=False)
 
     def configure(self, cfg: RunConfig) -> None:
         raise NotImplementedError
+
+
+class Diagnostics:
+    """A node's diagnostics, two ways. ``publish`` sends its report (``diagnostics_to_msg``)
+    on the formation's ``diagnostics`` (latched, at each trial's end: the launcher, the
+    recorder and analyze read it, values as JSON), and the standard stream repeats the
+    node's current statuses on ``/diagnostics`` every ``PERIOD`` seconds and at each
+    report, as diagnostic_updater does: ``node: task`` names, hardware ids, plain values,
+    so that the aggregator's staleness (5 s by default) sees a live node as live."""
+
+    PERIOD = 1.0
+
+    def __init__(self, node: Node):
+        from rclpy.clock import Clock, ClockType
+
+        self.node = node
+        self.name = node.get_name()
+        self.host = socket.gethostname()
+        self.pub = node.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        self.ros_pub = node.create_publisher(DiagnosticArray, ms.ROS_DIAGNOSTICS,
+                                             ms.ROS_DIAGNOSTICS_QOS)
+        self.statuses = [ms.starting_status(self.name, self.host, "running; no report yet")]
+        node.create_timer(self.PERIOD, self.tick,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def publish(self, msg: DiagnosticArray) -> None:
+        self.pub.publish(msg)
+        self.statuses = ms.standard_statuses(msg, self.name, self.host)
+        self.tick()
+
+    def tick(self) -> None:
+        out = DiagnosticArray()
+        out.header.stamp = self.node.get_clock().now().to_msg()
+        out.status = self.statuses
+        self.ros_pub.publish(out)
 
 
 def matched(pairs: Iterable[tuple[Any, int | Collection[str]]], node: Node | None = None

@@ -44,7 +44,9 @@ class MonitorNode(Node):
     """Collects trial k's trajectories; calls ``on_trial(k, row)`` when all are in."""
 
     def __init__(self, cfg: RunConfig, on_trial: Callable[[int, np.ndarray], None],
-                 true_state: bool = True, first: int = 0, **kwargs: Any):
+                 true_state: bool = True, first: int = 0,
+                 on_contact: Callable[[str, dict[str, Any]], None] | None = None,
+                 **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(ms.MONITOR_NODE, **kwargs)
         self.cfg = cfg
@@ -54,7 +56,10 @@ class MonitorNode(Node):
         self.true_state = true_state
         self.drops = DropCounter(self)
         n = self.pb.n
-        self.slots = SlotRows(self.pb, true_state, first)  # the rows, by iteration
+        # the rows, by iteration (with the counts the robots' filters and the plant report)
+        self.slots = SlotRows(self.pb, true_state, first, safety=cfg.safety is not None)
+        self.on_contact = on_contact
+        self.contacts_seen: set[tuple[str, int, int]] = set()
         self.rows = self.slots.rows
         self.diagnostics: dict[str, dict[str, Any]] = {}
         self.events: list[dict[str, Any]] = []
@@ -151,6 +156,15 @@ class MonitorNode(Node):
         except Rejected as exc:
             self.drops.reject(exc, ms.DIAGNOSTICS)
             return
+        self.slots.note_diagnostics(d)
+        if "contact" in d and isinstance(d["contact"], dict):
+            c = d["contact"]
+            key = (name, int(d["trial"]), int(c.get("slot", -1)))
+            if key not in self.contacts_seen:  # said at once, once
+                self.contacts_seen.add(key)
+                if self.on_contact is not None:
+                    self.on_contact(name, c)
+            return  # a mid-trial word, not the node's report
         self.diagnostics[name] = d
 
     def _on_event(self, msg: String) -> None:

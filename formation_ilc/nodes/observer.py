@@ -202,3 +202,14 @@ class Observer:
             self._emit(ms.trial_error_topic(r + 1),
                        ms.vector_msg(stamp, pk.position, pk.heading, float(trial)), stamp)
         self.view.forget(slot)
+
+
+def sim_recorder(path: Any, sc: Any, sample_trials: Any, first_trial: int) -> Any:
+    """A ``SimRecorder`` (``formation-ilc simulate --record``) writing what the stack's
+    recorder writes: the schema's topics with their types and QoS, and this observer's."""
+    from formation_ilc.recordings.recording import SimRecorder
+
+    rec = SimRecorder(path, sc, ms.recorder_table(sc.n), sample_trials=sample_trials,
+                      first_trial=first_trial)
+    rec.observe(lambda cfg, sink: Observer(None, cfg, sink))
+    return rec

@@ -56,7 +56,6 @@ import sys
 from collections import Counter
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist
 from nav_msgs.msg import Path
 from rclpy.node import Node
@@ -66,6 +65,7 @@ import msgs_schema as ms
 from formation_ilc.config import params
 from formation_ilc.core.clock import Rejected
 from formation_ilc.core.links import LEADER
+from formation_ilc.model.safety import spec_of
 from formation_ilc.model.simulate import Problem
 from formation_ilc.nodes.common import (
     ConfiguredNode,
@@ -77,7 +77,7 @@ from formation_ilc.nodes.common import (
     spin_main,
     unmatched,
 )
-from formation_ilc.nodes.params import ParameterError, check, declare
+from formation_ilc.nodes.params import ParameterError, check, declare, effective
 from formation_ilc.protocol.learner import RobotLearner
 from formation_ilc.protocol.schedule import Follower
 from formation_ilc.store.memoryfile import MemoryFileError, load_memory
@@ -120,15 +120,22 @@ class RobotNode(ConfiguredNode):
     def configure(self, cfg: RunConfig) -> None:
         pb = Problem.from_scenario(cfg.scenario)
         self.cfg, self.pb = cfg, pb
+        sc = cfg.scenario
+        # the parameters read what runs: the leader's configuration overrides them
+        effective(self, {"scenario": cfg.scenario_param, "seed": sc.seed,
+                         "noise": sc.uncertainty.noisy,
+                         "delay": sc.uncertainty.delay.kind != "none", "links": cfg.links,
+                         "mode": cfg.mode})
         self.realtime = cfg.wall
         memory = None
         path = str(self.get_parameter("init_memory").value)
         if path:
             memory = load_memory(path, cfg.scenario)[self.id - 1]
             self.get_logger().info(f"{self.name}: initial memory from {path}")
+        safety = None if cfg.safety is None else spec_of(cfg.safety, cfg.scenario.dt)
         self.learner = lrn = RobotLearner(pb, self.id - 1, cfg.clock, realtime=self.realtime,
                                           direct=cfg.links == "direct", memory=memory,
-                                          leader_in_step=cfg.leader_in_step)
+                                          leader_in_step=cfg.leader_in_step, safety=safety)
         self.follower = Follower(cfg.run_id, clock=cfg.clock)
         sdir = str(self.get_parameter("state_dir").value)
         self.state_file = state_path(sdir, self.id) if sdir else None
@@ -153,7 +160,6 @@ class RobotNode(ConfiguredNode):
         self.traj_pub = self.create_publisher(Path, ms.trajectory_topic(self.id),
                                               ms.TRAJECTORY_QOS)
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         # the per-sample messages as bytes (msgs_schema.wire: no message objects)
         self.sample_subs = [self.create_subscription(
             PoseStamped, ms.pose_topic(self.id), self._on_pose, ms.SAMPLE_QOS, raw=True)]
@@ -171,6 +177,14 @@ class RobotNode(ConfiguredNode):
                 self.sample_subs.append(self.create_subscription(
                     PoseStamped, topic, lambda m, s=sender: self._on_link_pose(m, s),
                     ms.SAMPLE_QOS, raw=True))
+        if cfg.safety is not None:  # the other robots' poses, for the safety filter
+            if cfg.safety.sensing == "team":
+                self.sample_subs.append(self.create_subscription(
+                    Path, ms.TEAM_POSES, self._on_team, ms.SAMPLE_QOS, raw=True))
+            else:
+                self.sample_subs += [self.create_subscription(
+                    PoseStamped, ms.pose_topic(j + 1), lambda m, j=j: self._on_peer(m, j),
+                    ms.SAMPLE_QOS, raw=True) for j in range(pb.n) if j != lrn.i]
         for sender in lrn.neighbours:
             # raw: a trajectory longer than a trial is refused before it is deserialized
             self.create_subscription(Path, ms.trajectory_topic(ms.robot_index(sender)),
@@ -293,6 +307,39 @@ class RobotNode(ConfiguredNode):
             return
         self._maybe_command()
 
+    def _on_team(self, msg: Path | bytes) -> None:
+        """Every robot's pose of a sample (the plant's ``team/poses``), for the filter."""
+        lrn, heard = self.learner, False
+        try:
+            _, poses = wire.read_pose_set(wire.as_bytes(msg), self.pb.n)
+        except Rejected as exc:
+            self.drops.reject(exc, ms.TEAM_POSES)
+            return
+        for j, p in enumerate(poses):
+            if j == lrn.i:
+                continue
+            try:
+                st = p.label_ns
+                lrn.on_team_pose(j, st, wire.world_eta(
+                    p, lrn.expected_team_heading(j, st)))
+                heard = True
+            except Rejected as exc:
+                self.drops.reject(exc, ms.TEAM_POSES)
+        if heard:
+            self._maybe_command()
+
+    def _on_peer(self, msg: PoseStamped | bytes, j: int) -> None:
+        """Robot j's (0-based) own pose, for the filter (``sensing: peers``)."""
+        lrn = self.learner
+        try:
+            p = wire.read_pose(wire.as_bytes(msg))
+            st = p.label_ns
+            lrn.on_team_pose(j, st, wire.world_eta(p, lrn.expected_team_heading(j, st)))
+        except Rejected as exc:
+            self.drops.reject(exc, ms.pose_topic(j + 1))
+            return
+        self._maybe_command()
+
     def _maybe_command(self) -> None:
         if self.learner.can_command():
             self._command()
@@ -313,6 +360,10 @@ class RobotNode(ConfiguredNode):
     def _finish_trial(self) -> None:
         lrn = self.learner
         k, eta = lrn.finish_trial()
+        if lrn.safety is not None:
+            # what the filter changed in this trial, before the trajectory that completes
+            # the trial's row for the monitor (protocol.trialrows)
+            self.publish_diagnostics()
         # bytes (msgs_schema.wire): no T+1 message objects to build
         self.traj_pub.publish(wire.path_bytes(eta, lrn.trajectory_stamps(k), ms.WORLD_FRAME))
         if lrn.try_learn():

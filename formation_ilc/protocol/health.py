@@ -22,17 +22,37 @@ Thresholds (docs/ros-tools.md lists them for users):
   above ``LATENCY_WARN`` dT is WARN, above dT ERROR (a command missed its sample).
 * command clipping and return time-outs of a bridge: WARN.
 * the leader's watchdog finding (a phase past its bound): WARN.
+* contact between robots, or a robot tipped (a plant with bodies): ERROR; contacts in the
+  trial's report: WARN (the run acted on them).
+* commands the safety filter changed (a robot's ``filter``): OK, it is doing its work;
+  a sample where no command in the limits kept every barrier (``infeasible``): WARN.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Mapping
+from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from formation_ilc.core.clock import Malformed
+from formation_ilc.core.names import (
+    BASES_NODE,
+    BRIDGE_PREFIX,
+    LEADER_NODE,
+    LINKS_NODE,
+    LIVEVIEW_NODE,
+    MONITOR_NODE,
+    PHYSICS_NODE,
+    RECORDER_NODE,
+    ROBOT_PREFIX,
+    SIM_NODE,
+)
+
 __all__ = ["OK", "WARN", "ERROR", "Status", "flatten", "unflatten", "assess", "statuses",
-           "MISSED_ERROR", "LATENCY_WARN", "WARN_DROPS"]
+           "TASKS", "task_name", "plain_value", "hardware_of",
+           "MISSED_ERROR", "LATENCY_WARN", "WARN_DROPS", "DIAG_STATUS_MAX", "DIAG_VALUES_MAX",
+           "read_statuses", "node_report"]
 
 OK, WARN, ERROR = 0, 1, 2
 LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR"}
@@ -43,6 +63,9 @@ LATENCY_WARN = 0.5
 #: drop reasons that turn a status to WARN
 WARN_DROPS = ("malformed", "foreign")
 _SEP = "."
+#: the most statuses and key/value pairs a diagnostics message may carry to be read
+DIAG_STATUS_MAX = 1024
+DIAG_VALUES_MAX = 100_000
 
 
 @dataclass
@@ -67,6 +90,42 @@ def flatten(d: Mapping[str, Any], prefix: str = "") -> list[tuple[str, str]]:
         else:
             out.append((key, json.dumps(v, separators=(",", ":"))))
     return out
+
+
+#: the task each node's own status stands for (``node: task`` on the standard stream, as
+#: diagnostic_updater names a status)
+TASKS = {LEADER_NODE: "schedule", SIM_NODE: "plant", PHYSICS_NODE: "plant",
+         LINKS_NODE: "links", RECORDER_NODE: "recording", BASES_NODE: "bases",
+         MONITOR_NODE: "monitor", LIVEVIEW_NODE: "live view"}
+
+
+def task_name(node: str) -> str:
+    """The standard status name of ``node``'s own report: ``robot_2: learner``,
+    ``bridge_1: bridge``, ``virtual_leader: schedule``."""
+    for prefix, task in ((ROBOT_PREFIX, "learner"), (BRIDGE_PREFIX, "bridge")):
+        if node.startswith(prefix) and node[len(prefix):].isdigit():
+            return f"{node}: {task}"
+    return f"{node}: {TASKS.get(node, 'report')}"
+
+
+def hardware_of(node: str, host: str) -> str:
+    """The hardware a node's status is about: its robot (``robot_i`` for robot i's learner
+    and bridge), else the host it runs on."""
+    for prefix in (ROBOT_PREFIX, BRIDGE_PREFIX):
+        digits = node[len(prefix):]
+        if node.startswith(prefix) and digits.isdigit():
+            return f"{ROBOT_PREFIX}{digits}"
+    return host
+
+
+def plain_value(text: str) -> str:
+    """A key/value pair's value as ROS tools show it: a JSON string without its quotes, any
+    other value (number, true, list) as its JSON text."""
+    try:
+        v = json.loads(text)
+    except ValueError:
+        return text
+    return v if isinstance(v, str) else text
 
 
 def unflatten(pairs: Iterable[tuple[str, str]]) -> dict[str, Any]:
@@ -139,6 +198,17 @@ def assess(d: Mapping[str, Any], dt: float | None = None, samples: int | None = 
     wd = d.get("watchdog")
     if isinstance(wd, Mapping) and _num(wd.get("count")) > 0:
         found.append((WARN, f"watchdog: {str(wd.get('what', ''))[:200]}"))
+    contact = d.get("contact")
+    if isinstance(contact, Mapping):
+        found.append((ERROR, f"contact: {str(contact.get('line', ''))[:200]}"))
+    report = d.get("contact_report")
+    if isinstance(report, Mapping) and isinstance(report.get("pairs"), list) \
+            and report["pairs"]:
+        found.append((WARN, f"{len(report['pairs'])} pairs of robots touched in the trial"))
+    filt = d.get("filter")
+    if isinstance(filt, Mapping) and _num(filt.get("infeasible")) > 0:
+        found.append((WARN, f"safety filter: {_num(filt.get('infeasible')):g} samples braked "
+                            f"(no command in the limits kept every barrier)"))
     if not found:
         return OK, "ok"
     level = max(lv for lv, _ in found)
@@ -159,3 +229,38 @@ def statuses(d: Mapping[str, Any], dt: float | None = None, samples: int | None 
             out.append(Status(lv, f"{name}: {robot}", msg, str(robot),
                               {"robot": robot, "trial": d.get("trial"), "missed": count}))
     return out
+
+
+#: one status as a message carries it: (level, name, message, hardware_id, [(key, value)])
+StatusFields = tuple[int, str, str, str, Collection[tuple[str, str]]]
+
+
+def read_statuses(rows: Collection[StatusFields]) -> list[Status]:
+    """Every status of a diagnostics message (``rows`` as the message carries them) with its
+    fields back; Malformed if one's values are not the pairs ``flatten`` writes, or there
+    are too many (counted before a pair is read). ``msgs_schema.msg_to_statuses`` reads a
+    message object with it, ``recordings`` the bytes (``wire.read_diagnostics``)."""
+    if len(rows) > DIAG_STATUS_MAX:
+        raise Malformed(f"{len(rows)} statuses in one diagnostics message")
+    out = []
+    for level, name, message, hardware_id, pairs in rows:
+        if len(pairs) > DIAG_VALUES_MAX:
+            raise Malformed(f"{len(pairs)} values in one status")
+        try:
+            values = unflatten(pairs)
+        except (ValueError, RecursionError) as exc:
+            raise Malformed(f"status {name[:100]!r}: {exc}"[:200]) from None
+        out.append(Status(level, name, message, hardware_id, values))
+    return out
+
+
+def node_report(found: Sequence[Status], required: Sequence[str] = ()) -> dict[str, Any]:
+    """The node's own report among a message's statuses (the status that names its
+    ``node``); Malformed if there is none or it lacks a key of ``required``."""
+    for st in found:
+        if "node" in st.values:
+            missing = [k for k in required if k not in st.values]
+            if missing:
+                raise Malformed(f"diagnostics lack {missing}")
+            return st.values
+    raise Malformed("diagnostics without a node's report")

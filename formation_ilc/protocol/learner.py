@@ -10,7 +10,12 @@ comes back. Everything that decides what the robot does lives here, with no ROS 
   St, eq. (10) gating (in ``law.command``), and the per-link delay histograms; in lockstep
   with direct links the leader link is the robot's own sample (``leader_in_step``);
 * the learning memory and the trial-end learning from the neighbours' whole trajectories
-  (``law.learn``, the same function the batch simulator calls).
+  (``law.learn``, the same function the batch simulator calls);
+* with a safety filter (``core.safety``), the other robots' poses it hears
+  (``on_team_pose``), the filter between the law's command and the plant
+  (``safety.filter_command``, the batch simulator's), and learning through it
+  (``safety.learn_base``): in lockstep it waits for every robot's pose of its sample, as
+  the batch simulator filters with them.
 
 Event order for trial k: ``on_pose`` per sample (the robot's own measured pose, whose label
 is its clock Rt); link inputs (``on_link_pose`` or ``on_link_tick``) in any order; when
@@ -46,6 +51,17 @@ from formation_ilc.core.clock import Malformed, Rejected, SampleClock, TrialWind
 from formation_ilc.core.delays import measure_delay_ns
 from formation_ilc.core.law import command, learn
 from formation_ilc.core.links import LEADER, Delivery, LinkInbox, link_name, robot_name
+from formation_ilc.core.safety import (
+    CHANGED_BARRIER,
+    CHANGED_LIMITS,
+    INFEASIBLE,
+    SafetySpec,
+    filter_command,
+    freeze_flagged,
+    learn_base,
+    learning_code,
+    motion,
+)
 from formation_ilc.model.simulate import Problem
 from formation_ilc.store.robotstate import RobotState
 
@@ -78,11 +94,12 @@ class RobotLearner:
     leader_in_step : lockstep with direct links (``RunConfig.leader_in_step``): at each own
         pose the leader link delivers that pose's label (St = Rt, what the robot would
         wait for; eq. 9 reads the leader link's label only); no reference is taken.
+    safety : the safety filter between the law's command and the plant (None: none).
     """
 
     def __init__(self, pb: Problem, index: int, clock: SampleClock, *, realtime: bool = False,
                  direct: bool = False, memory: NDArray[np.float64] | None = None,
-                 leader_in_step: bool = False):
+                 leader_in_step: bool = False, safety: SafetySpec | None = None):
         if leader_in_step and (realtime or not direct):
             raise ValueError("leader_in_step is for lockstep with direct links")
         if not 0 <= index < pb.n:
@@ -135,6 +152,26 @@ class RobotLearner:
         self.delays: dict[str, Counter[int]] = {s: Counter() for s in self.slots}
         self.missed = 0
         self.commands = 0
+        self.safety = safety
+        if safety is not None:
+            n = pb.n
+            self.safety_params = safety.params()
+            self.safety_mode = learning_code(safety.learning)
+            self.team_k = -1                            # the trial team_eta holds
+            self.team_eta = np.zeros((n, n_t + 1, 3))   # other robots' poses heard
+            self.team_have = np.zeros((n, n_t + 1), dtype=bool)
+            self.team_last = np.full(n, -1, dtype=np.int64)  # newest sample heard
+            self.nominal = np.zeros((1, n_t, 2))        # the law's commands
+            self.flags = np.zeros((1, n_t), dtype=np.int64)
+            self.base = np.zeros((1, n_t, 2))
+            self.others = np.zeros((n, 6))
+            self.ages = np.zeros(n)
+            self.out = np.zeros(2)
+            self._other_idx = np.array([j for j in range(n) if j != index], dtype=np.int64)
+            #: the commands the filter changed in the last trial finished, and in all
+            self.filtered: dict[str, int] = {}
+            self.filtered_total = Counter({"changed": 0, "limits": 0, "barrier": 0,
+                                           "infeasible": 0})
 
     # ------------------------------------------------------------------ own poses
     def expected_heading(self, sender: str, label_ns: int) -> float | None:
@@ -146,6 +183,15 @@ class RobotLearner:
             return float(self.pb.eta_d[self.i, s, 2])
         ell = self._slot(sender)
         return None if ell < 0 else float(self.pb.eta_d[self.pb.src[self.i, ell], s, 2])
+
+    def expected_team_heading(self, j: int, label_ns: int) -> float:
+        """The desired heading of robot ``j`` (0-based) at ``label_ns``'s sample: where to
+        unwrap its measured heading heard for the safety filter (the filter takes cos and
+        sin only). Rejected if the label is off the grid or ``j`` is no robot."""
+        if not 0 <= j < self.pb.n:
+            raise Rejected("unexpected", f"team pose of robot index {j}")
+        _, s = self.clock.decode(label_ns)
+        return float(self.pb.eta_d[j, s, 2])
 
     def _slot(self, sender: str) -> int:
         ell = self.slots.get(sender)
@@ -232,12 +278,18 @@ class RobotLearner:
         self.t = -1
         self.have[:] = False
         self.applied[:] = 0.0
+        if self.safety is not None:
+            self.nominal[:] = 0.0
+            self.flags[:] = 0
+            self._team_trial(k)
 
     def _hold(self, t: int) -> None:
         """Record what the plant applied at a sample the robot did not command: the
         previous command (zero-order hold; 0 at sample 0)."""
         if t < self.T:
             self.applied[0, t] = self.applied[0, t - 1] if t > 0 else 0.0
+            if self.safety is not None:  # nothing of it was the law's to learn from
+                self.nominal[0, t] = self.applied[0, t]
 
     # ------------------------------------------------------------------ links
     def on_link_pose(self, sender: str, label_ns: int, eta: NDArray[np.float64]) -> None:
@@ -267,8 +319,98 @@ class RobotLearner:
         return self.inbox[sender]
 
     def can_command(self) -> bool:
-        """A sample is due and every link has what it will deliver for it."""
-        return not self.commanded and all(b.has(self.rt_ns) for b in self.inbox.values())
+        """A sample is due and every link has what it will deliver for it (lockstep with a
+        safety filter: and every other robot's pose of the sample is in)."""
+        if self.commanded or not all(b.has(self.rt_ns) for b in self.inbox.values()):
+            return False
+        if self.safety is None or self.realtime:
+            return True
+        return self.team_k == self.k and bool(self.team_have[:, self.t].all())
+
+    # ------------------------------------------------------------------ safety filter
+    def _team_trial(self, k: int) -> None:
+        """The team's poses now held are of trial ``k`` (a later one starts afresh); the
+        robot's own poses count as heard."""
+        if self.team_k != k:
+            self.team_k = k
+            self.team_have[:] = False
+            self.team_have[self.i] = True
+            self.team_last[:] = -1
+
+    def on_team_pose(self, j: int, label_ns: int, eta: NDArray[np.float64]) -> None:
+        """Robot ``j``'s (0-based) pose labelled ``label_ns``, for the safety filter.
+        Rejected: no filter or the robot itself (unexpected), a slot aborted or learned
+        (stale), outside the robot's window (its trial, the next once learned), a trial
+        older than the poses held (stale), a sample heard already (duplicate)."""
+        if self.safety is None or j == self.i or not 0 <= j < self.pb.n:
+            raise Rejected("unexpected", f"team pose of robot index {j}")
+        self._fresh(label_ns)
+        k, s = self.clock.decode(label_ns)
+        self._window(k, "team pose")
+        if k < self.team_k:
+            raise Rejected("stale", f"team pose of trial {k} after trial {self.team_k}")
+        self._team_trial(k)
+        if self.team_have[j, s]:
+            raise Rejected("duplicate", f"robot {j + 1}'s pose of sample {s}")
+        self.team_eta[j, s] = eta
+        self.team_have[j, s] = True
+        self.team_last[j] = max(self.team_last[j], s)
+
+    def _filter(self, t: int) -> None:
+        """The safety filter on this sample's command ``self.u`` (in place): with the
+        newest pose heard of every other robot (in lockstep, the sample's own), its
+        motion from the pose ``window`` samples before, and its age."""
+        sp = self.safety
+        assert sp is not None
+        m = self._heard(t, sp.window) if self.team_k == self.k else 0
+        prev = self.applied[0, t - 1] if t > 0 else (0.0, 0.0)
+        own = self.eta[0, t]
+        self.nominal[0, t] = self.u[0]
+        self.flags[0, t] = filter_command(
+            float(self.u[0, 0]), float(self.u[0, 1]), float(own[0]), float(own[1]),
+            float(own[2]), float(prev[0]), float(prev[1]), self.others, self.ages, m,
+            self.safety_params, self.out)
+        self.u[0] = self.out
+
+    def _heard(self, t: int, window: int) -> int:
+        """Fill ``others`` and ``ages`` with what this robot heard of the others up to
+        sample t (``core.safety.motion``'s reading, as the batch simulator's
+        ``filter_team``); returns how many."""
+        dt = self.pb.dt
+        idx = self._other_idx
+        last = np.minimum(self.team_last[idx], t)
+        back = np.maximum(last - window, 0) if window > 0 else last
+        have = self.team_have
+        if (last >= 0).all() and have[idx, last].all() and have[idx, back].all():
+            # every pose at hand (lockstep): all at once
+            e1, e0 = self.team_eta[idx, last], self.team_eta[idx, back]
+            m = len(idx)
+            o = self.others
+            o[:m, :3] = e1
+            span = (last - back) * dt
+            with np.errstate(invalid="ignore", divide="ignore"):
+                d = e1 - e0
+                d[:, 2] -= 2.0 * np.pi * np.floor((d[:, 2] + np.pi) / (2.0 * np.pi))
+                o[:m, 3:] = np.where(span[:, None] > 0, d / span[:, None], 0.0)
+            self.ages[:m] = (t - last) * dt
+            return m
+        m = 0
+        for j in idx:
+            row = have[j]
+            sj = int(self.team_last[j])
+            while sj > t or (sj >= 0 and not row[sj]):  # realtime: newest up to t
+                sj -= 1
+            if sj < 0:
+                continue  # never heard in this trial: nothing to keep away from
+            sb = max(0, sj - window) if window > 0 else sj
+            while sb < sj and not row[sb]:  # the nearest heard after it
+                sb += 1
+            e1, e0 = self.team_eta[j, sj], self.team_eta[j, sb]
+            self.others[m, :3] = e1
+            motion(e1[0], e1[1], e1[2], e0[0], e0[1], e0[2], (sj - sb) * dt, self.others, m)
+            self.ages[m] = (t - sj) * dt
+            m += 1
+        return m
 
     def command(self) -> NDArray[np.float64]:
         """u(t) = (v [m/s], omega [rad/s]) of the current sample from what the links
@@ -295,6 +437,8 @@ class RobotLearner:
         command(t, pb.law, self.memory[:, t], self.eta, pb.eta_d[sl], self.nb_eta, self.nb_s,
                 pb.src[sl], pb.weight[sl], pb.eta_d, self.lead_s, pb.leader[sl],
                 pb.gain_prime[sl], pb.heading, self.u)
+        if self.safety is not None:
+            self._filter(t)
         self.applied[0, t] = self.u[0]
         self.commanded = True
         self.commands += 1
@@ -310,6 +454,14 @@ class RobotLearner:
         for box in self.inbox.values():  # deliveries for samples already commanded
             box.forget(self.rt_ns)
         self.finished = self.k
+        if self.safety is not None:
+            f = self.flags[0]
+            counts = {"changed": int(np.count_nonzero(f)),
+                      "limits": int(np.count_nonzero(f & CHANGED_LIMITS)),
+                      "barrier": int(np.count_nonzero(f & CHANGED_BARRIER)),
+                      "infeasible": int(np.count_nonzero(f & INFEASIBLE))}
+            self.filtered = {"slot": self.k, **counts}
+            self.filtered_total.update(counts)
         return self.k, self.eta[0]
 
     def trajectory_stamps(self, trial: int) -> list[int]:
@@ -345,9 +497,16 @@ class RobotLearner:
             self.nb_full[0, ell] = eta
         self.prev_memory[:] = self.memory
         self.prev_iterations, self.prev_learned = self.iterations, self.learned
-        learn(pb.law, pb.memory, self.memory, self.applied, self.eta, pb.eta_d[sl],
+        start = self.memory
+        if self.safety is not None:  # learning through the filter (core.safety)
+            learn_base(self.safety_mode, self.memory, self.nominal, self.applied, self.flags,
+                       self.base)
+            start = self.base
+        learn(pb.law, pb.memory, start, self.applied, self.eta, pb.eta_d[sl],
               self.nb_full, pb.src[sl], pb.weight[sl], pb.eta_d, pb.leader[sl], pb.gain[sl],
               pb.heading, self.next_memory)
+        if self.safety is not None:
+            freeze_flagged(self.safety_mode, self.memory, self.flags, self.next_memory)
         self.memory, self.next_memory = self.next_memory, self.memory
         self.learned = k
         self.iterations += 1
@@ -410,6 +569,11 @@ class RobotLearner:
                        for s, h in self.delays.items()}}
         if not self.direct:
             d["unused"] = {s: b.unused for s, b in self.inbox.items()}
+        if self.safety is not None:
+            # the commands the filter changed: in the last trial finished (its slot), and
+            # in all trials of this process
+            d["filter"] = dict(self.filtered)
+            d["filter_total"] = dict(self.filtered_total)
         return d
 
     def link_names(self) -> list[str]:

@@ -12,6 +12,13 @@ applied (the engine's own dynamics are the plant's disturbance). Its trial repor
 contacts between robots, the largest tilt and the odometry's drift from the truth, for the
 trial and for every trial so far. ``robot_sim.physics_node`` is the thin node around it.
 
+Contacts are acted on (``ON_CONTACT``): the first contact between two robots in a trial, or
+a robot tilted past ``tilt_limit``, is a ``ContactEvent`` the node reports at once. With
+``stop`` (the default) the plant holds every robot's command at zero for the rest of the
+trial and asks the leader to abort it (the same iteration runs again), at most ``retries``
+times per iteration, after which the run ends (``give_up``); ``abort`` stops the robots and
+ends the run at once; ``continue`` reports and goes on.
+
 ``BaseRobots`` is the same world in wall time with each robot exposed as a base exposes
 itself (``robot_sim.physics_base``): the newest command of each robot is held (zero once
 older than the base's own command time-out), odometry in the frame of the robot's start
@@ -22,6 +29,7 @@ pose with the body's real roll and pitch, and what the robots were asked: the la
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -37,8 +45,38 @@ from formation_ilc.model.physics import (
     robot_model,
 )
 from formation_ilc.protocol.plant import KinematicPlant
+from formation_ilc.protocol.schedule import ABORT, TrialEvent
 
-__all__ = ["PhysicsPlant", "BaseRobots", "BaseOdometry", "physics_available"]
+__all__ = ["PhysicsPlant", "BaseRobots", "BaseOdometry", "physics_available", "ON_CONTACT",
+           "ContactEvent"]
+
+#: what a physics plant does when robots touch: stop them and re-run the trial (at most
+#: ``retries`` times), stop them and end the run, or report and go on
+ON_CONTACT = ("stop", "abort", "continue")
+
+
+@dataclass(frozen=True)
+class ContactEvent:
+    """Robots touched (or tipped) in a trial: the iteration and slot, the sample, the pairs
+    (i, j 1-based, seconds in contact, deepest penetration [m]), the largest tilt [rad]
+    and its robot (1-based), and what the plant does about it (``action``: 'stop',
+    'abort', 'continue' or 'give_up': the retries are spent)."""
+
+    trial: int
+    slot: int
+    sample: int
+    pairs: tuple[tuple[int, int, float, float], ...]
+    tilt: float
+    tilted: int
+    action: str
+
+    def line(self, dt: float, tilt_limit: float) -> str:
+        what = [f"robots {i} and {j} in contact ({depth * 100:.1f} cm deep)"
+                for i, j, _, depth in self.pairs]
+        if self.tilt > tilt_limit:
+            what.append(f"robot {self.tilted} tilted {math.degrees(self.tilt):.1f} deg")
+        return (f"trial {self.trial} (slot {self.slot}), t = {self.sample * dt:.1f} s: "
+                f"{'; '.join(what)}")
 
 
 def physics_available() -> str | None:
@@ -60,7 +98,8 @@ class PhysicsPlant(KinematicPlant):
     """
 
     def __init__(self, cfg: RunConfig, model: str = "p3dx", *, pose: str = "truth",
-                 rate: float = DEFAULT_RATE, collide: bool = True):
+                 rate: float = DEFAULT_RATE, collide: bool = True, on_contact: str = "stop",
+                 retries: int = 2, tilt_limit: float = math.radians(10.0)):
         missing = physics_available()
         if missing is not None:
             raise ValueError(missing)
@@ -68,6 +107,20 @@ class PhysicsPlant(KinematicPlant):
             raise ValueError(f"parameter pose: one of {', '.join(POSE_SOURCES)}, got {pose!r}")
         if not (rate > 0 and math.isfinite(rate)):
             raise ValueError(f"parameter rate: engine steps per second > 0, got {rate}")
+        if on_contact not in ON_CONTACT:
+            raise ValueError(f"parameter on_contact: one of {', '.join(ON_CONTACT)}, got "
+                             f"{on_contact!r}")
+        if retries < 0:
+            raise ValueError(f"parameter contact_retries: >= 0, got {retries}")
+        if not 0 < tilt_limit <= math.pi:
+            raise ValueError(f"parameter tilt_limit: in (0, 180] deg, got "
+                             f"{math.degrees(tilt_limit):g}")
+        self.on_contact, self.retries, self.tilt_limit = on_contact, retries, tilt_limit
+        #: the trial's contact (None: none yet), and the re-runs each iteration had
+        self.contact: ContactEvent | None = None
+        self.reruns: dict[int, int] = {}
+        #: contacts (pairs that touched) of every trial, by iteration, for the report
+        self.contact_trials = 0
         robot: RobotModel = robot_model(model)
         super().__init__(cfg)
         self.pose_source = pose
@@ -89,11 +142,53 @@ class PhysicsPlant(KinematicPlant):
         self.xi[:, 0] = self.world.truth()  # where it stands once settled on its wheels
         self.tilt_max = 0.0
         self.drift = 0.0
+        self.contact = None
+        self.fresh_contact: ContactEvent | None = None
 
     def move(self, t: int) -> None:
+        if self.contact is not None and self.contact.action != "continue":
+            self.u[:, t] = 0.0  # the robots were stopped: they stand for the rest of it
         self.world.step(self.u[:, t])
         self.xi[:, t + 1] = self.world.truth()
-        self.tilt_max = max(self.tilt_max, float(self.world.tilt().max()))
+        tilts = self.world.tilt()
+        self.tilt_max = max(self.tilt_max, float(tilts.max()))
+        if self.contact is None:
+            pairs = self.world.contact_pairs()
+            if pairs or tilts.max() > self.tilt_limit:
+                self._contact(t + 1, pairs, tilts)
+
+    def _contact(self, t: int, pairs: list[tuple[int, int, float, float]],
+                 tilts: NDArray[np.float64]) -> None:
+        """The trial's first contact (or tilt past the limit): what the plant does."""
+        i = self.iteration
+        action = self.on_contact
+        if action == "stop":
+            self.reruns[i] = self.reruns.get(i, 0) + 1
+            if self.reruns[i] > self.retries:
+                action = "give_up"
+        self.contact_trials += 1
+        self.contact = self.fresh_contact = ContactEvent(
+            i, self.k, t, tuple(pairs), float(tilts.max()), int(np.argmax(tilts)) + 1, action)
+
+    @property
+    def held(self) -> bool:
+        """The trial waits for the leader's abort: its robots touched and were stopped
+        (``stop``), so no further sample goes out, its last one included (a sample after
+        the contact would let the robots finish and learn from the trial the abort is to
+        take back). The abort of its slot releases it (``on_event``)."""
+        return self.contact is not None and self.contact.action == "stop"
+
+    def on_event(self, ev: TrialEvent, now: float) -> TrialEvent | None:
+        taken = super().on_event(ev, now)
+        if (taken is not None and taken.event == ABORT and self.contact is not None
+                and taken.slot == self.contact.slot):
+            self.contact = None  # the trial it held is gone
+        return taken
+
+    def take_contact(self) -> ContactEvent | None:
+        """The contact of this trial not yet taken (the node reports it once)."""
+        ev, self.fresh_contact = self.fresh_contact, None
+        return ev
 
     def measured(self, t: int) -> NDArray[np.float64]:
         odom = self.world.odom
@@ -112,7 +207,14 @@ class PhysicsPlant(KinematicPlant):
         return {"contacts": contacts, "tilt_max": self.tilt_max,
                 "odometry_drift": self.drift, "pose_source": self.pose_source,
                 "model": self.world.model.name, "substeps": self.world.substeps,
+                "limited": self.world.limited,
+                "contact_report": self.contact_report(),
                 **self.by_trial}
+
+    def contact_report(self) -> dict[str, Any]:
+        """The trial's contacts for the metrics rows (``protocol.trialrows``): its slot
+        and the pairs that touched (i, j, seconds, depth [m])."""
+        return {"slot": self.k, "pairs": [list(p) for p in self.world.contact_pairs()]}
 
     def close(self) -> None:
         self.world.close()

@@ -137,15 +137,30 @@ class Ready:
     run: str = ""
     #: said by a supervisor (the launcher), not the node: process ``boot`` of ``node`` died
     down: bool = False
+    #: a plant asks the leader to abort slot ``abort_slot`` of the trial, saying why (its
+    #: robots touched: ``--on-contact stop``); -1: no request
+    abort_slot: int = -1
+    why: str = ""
+    #: what the node runs with, when it configured itself from its own parameters
+    #: (``RunConfig.agreement``, or the part of it the node uses): the leader compares it
+    #: with its own
+    config: dict[str, Any] | None = None
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> Ready:
         node = d.get("node")
         if not isinstance(node, str) or not node:
             raise Malformed(f"ready: node must be a name, got {node!r}")
+        why = d.get("why", "")
+        if not isinstance(why, str) or len(why) > 2000:
+            raise Malformed("ready: why must be a text of at most 2000 characters")
+        config = d.get("config")
+        if config is not None and not (isinstance(config, dict) and len(config) <= 32
+                                       and len(json.dumps(config)) <= 4000):
+            raise Malformed("ready: config must be an object of at most 32 fields")
         return cls(node, _int(d, "trial"), str(d.get("boot", "")), _int(d, "seen", -1),
                    bool(d.get("passive", False)), str(d.get("run", "")),
-                   bool(d.get("down", False)))
+                   bool(d.get("down", False)), _int(d, "abort_slot", -1), why, config)
 
     def to_json(self) -> dict[str, Any]:
         d: dict[str, Any] = {"node": self.node, "trial": self.trial, "boot": self.boot,
@@ -156,6 +171,11 @@ class Ready:
             d["run"] = self.run
         if self.down:
             d["down"] = True
+        if self.abort_slot >= 0:
+            d["abort_slot"] = self.abort_slot
+            d["why"] = self.why
+        if self.config is not None:
+            d["config"] = self.config
         return d
 
 
@@ -404,7 +424,8 @@ class Schedule:
     # ------------------------------------------------------------------ events
     def on_ready(self, r: Ready) -> str | None:
         """Take a node's ready. Returns why the open slot must be aborted (a node
-        restarted while it was open), else None."""
+        restarted while it was open, or a plant asked for it: its robots touched), else
+        None."""
         if r.node not in self.expected:
             return None
         if r.down:
@@ -422,6 +443,12 @@ class Schedule:
         self.boots[r.node] = r.boot
         self.ready[r.node] = r
         abort = None
+        if (r.abort_slot >= 0 and r.abort_slot == self.slot and r.node not in self.robots
+                and not r.passive and (self.open or self.running)
+                and self.abort_pending is None):
+            # a plant asks: its robots touched in this slot (it stopped them)
+            abort = f"{r.node}: {r.why}" if r.why else f"{r.node} asked"
+            self.begin_abort(abort)
         if r.seen < 0 or r.seen >= self.seq:
             self.answered.add(r.node)
         if old is not None and old != r.boot:

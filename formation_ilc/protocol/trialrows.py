@@ -12,17 +12,27 @@ and the same memory, and its repetition is dropped as a duplicate.
 ``strict`` (the monitor) also refuses events out of the leader's order and trajectories of
 a slot not started yet; a recording (``strict=False``) is taken as the file gives it, and
 a trajectory that comes before its slot's start waits for it.
+
+The counts of a row (``core.metrics.COUNT_COLUMNS``) come from the nodes' reports, noted
+as they arrive (``note_filtered``, ``note_contacts``): a robot reports what its safety
+filter changed before it sends its trajectory, the plant its contacts before its last
+poses. A row takes what has been noted when its trajectories are in: ``filter_active``
+is 0 in a run without a filter, the sum over the robots once every robot's count is in
+(else nan); ``contacts`` is the plant's count (nan without bodies, or when not noted).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from formation_ilc.core.clock import Rejected
 from formation_ilc.core.metrics import METRIC_COLUMNS, TRUE_COLUMNS
+from formation_ilc.core.names import robot_number
 from formation_ilc.model.simulate import Problem, trial_errors
 from formation_ilc.protocol.schedule import (
     ABORT,
@@ -35,6 +45,9 @@ from formation_ilc.protocol.schedule import (
 )
 
 __all__ = ["Row", "SlotRows"]
+
+_FILTER = METRIC_COLUMNS.index("filter_active")
+_CONTACTS = METRIC_COLUMNS.index("contacts")
 
 
 @dataclass
@@ -55,8 +68,12 @@ class SlotRows:
     """
 
     def __init__(self, pb: Problem, true_state: bool = True, first: int = 0,
-                 strict: bool = True):
+                 strict: bool = True, safety: bool = False):
         self.pb = pb
+        self.safety = safety
+        #: slot -> robot (0-based) -> commands its filter changed; slot -> contacts
+        self.filtered: dict[int, dict[int, int]] = {}
+        self.contacts: dict[int, int] = {}
         self.true_state = true_state
         self.first = first
         self.strict = strict
@@ -101,6 +118,8 @@ class SlotRows:
                 self.start_seq = -1
             self.eta.pop(ev.slot, None)
             self.xi.pop(ev.slot, None)
+            self.filtered.pop(ev.slot, None)
+            self.contacts.pop(ev.slot, None)
         if ev.event == DONE:  # the slot after the last, and the trials learned
             self.done_at = (ev.slot, ev.trial)
         return []
@@ -154,6 +173,33 @@ class SlotRows:
         store.setdefault(slot, {})[robot] = eta
         return self._complete(slot)
 
+    def note_diagnostics(self, d: Mapping[str, Any]) -> None:
+        """What a node's diagnostics (checked: ``core.links.check_diagnostics``) say of a
+        row's counts: a robot's ``filter`` (the commands its filter changed in a slot), a
+        plant's ``contact_report`` (the pairs that touched in a slot)."""
+        f = d.get("filter")
+        if isinstance(f, Mapping) and "slot" in f and "changed" in f:
+            try:
+                r = robot_number(str(d.get("node"))) - 1
+            except Rejected:
+                return
+            if 0 <= r < self.pb.n:
+                self.note_filtered(int(f["slot"]), r, int(f["changed"]))
+        c = d.get("contact_report")
+        if isinstance(c, Mapping) and "slot" in c and isinstance(c.get("pairs"), list):
+            self.note_contacts(int(c["slot"]), len(c["pairs"]))
+
+    def note_filtered(self, slot: int, robot: int, changed: int) -> None:
+        """Robot ``robot`` (0-based) says its filter changed ``changed`` commands in
+        ``slot`` (a slot whose row is made already: ignored)."""
+        if slot not in self.iteration_of or self.iteration_of[slot] not in self.rows:
+            self.filtered.setdefault(slot, {})[robot] = int(changed)
+
+    def note_contacts(self, slot: int, pairs: int) -> None:
+        """The plant says ``pairs`` pairs of robots touched in ``slot``."""
+        if slot not in self.iteration_of or self.iteration_of[slot] not in self.rows:
+            self.contacts[slot] = int(pairs)
+
     def measured_only(self) -> list[Row]:
         """Rows of the slots whose measured trajectories are all in, with nan true columns:
         for a recording whose plant published no true state."""
@@ -187,6 +233,10 @@ class SlotRows:
         if xi is None:
             for c in TRUE_COLUMNS:
                 row[METRIC_COLUMNS.index(c)] = np.nan
+        got = self.filtered.pop(slot, {})
+        row[_FILTER] = (0.0 if not self.safety
+                        else float(sum(got.values())) if len(got) == n else np.nan)
+        row[_CONTACTS] = float(self.contacts.pop(slot, np.nan))
         self.eta.pop(slot, None)
         self.xi.pop(slot, None)
         if i < self.first or i in self.rows:

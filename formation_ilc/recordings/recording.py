@@ -27,12 +27,14 @@ from numpy.typing import NDArray
 
 from formation_ilc.config.runconfig import RunConfig
 from formation_ilc.config.scenario import Scenario
-from formation_ilc.core.clock import Rejected
+from formation_ilc.core import names as ms
+from formation_ilc.core.clock import Malformed, Rejected
 from formation_ilc.core.links import check_diagnostics, delivered_label, link_histograms
 from formation_ilc.core.metrics import METRIC_COLUMNS
 from formation_ilc.model.simulate import Problem
-from formation_ilc.protocol.health import flatten, statuses
-from formation_ilc.protocol.schedule import TrialEvent
+from formation_ilc.protocol import wire
+from formation_ilc.protocol.health import flatten, node_report, read_statuses, statuses
+from formation_ilc.protocol.schedule import DONE, END, START, TrialEvent
 from formation_ilc.protocol.trialrows import SlotRows
 from formation_ilc.recordings import cdr
 from formation_ilc.recordings.mcap_io import (
@@ -66,14 +68,13 @@ class SimRecorder:
     the per-sample topics: /clock, each robot's pose and cmd_vel, and the reference. With
     an observer (``observe``) also what the stack's recorder adds: every trial's largest
     errors, and for the kept trials the desired paths, poses, errors and the markers.
-    Times are simulated time on the stack's sample grid (``SampleClock``).
+    Times are simulated time on the stack's sample grid (``SampleClock``). ``table``: every
+    topic's (name, ROS type, QoS profile), the schema's (``msgs_schema.topic_table`` and
+    ``view_topic_table``; the caller passes them: this layer sits below the ROS side).
     """
 
-    def __init__(self, path: str | Path, sc: Scenario, sample_trials: Iterable[int] = (),
-                 gap: int = 20, first_trial: int = 0):
-        import msgs_schema as ms
-
-        self.ms = ms
+    def __init__(self, path: str | Path, sc: Scenario, table: Sequence[tuple[str, str, Any]],
+                 sample_trials: Iterable[int] = (), gap: int = 20, first_trial: int = 0):
         self.sc = sc
         self.pb = Problem.from_scenario(sc)
         cfg = RunConfig(sc, mode="lockstep", gap=gap)
@@ -81,13 +82,14 @@ class SimRecorder:
         self.sample_trials = set(sample_trials)
         self.w = RosMcapWriter(path, flush_period=1.0)
         n = sc.n
-        # channels by full name, in the stack's default namespace
-        self.full = {t: ms.absolute(t) for t, _, _ in ms.topic_table(n)}
-        # and what the stack's recorder adds beside them (formation_ilc.nodes.observer)
-        self.full |= {t: ms.absolute(t) for t, _, _ in ms.view_topic_table(n)}
-        for topic, typ, qos in ms.topic_table(n) + ms.view_topic_table(n):
+        # channels by full name, in the stack's default namespace: the recorded topics and
+        # what the stack's recorder adds beside them (formation_ilc.nodes.observer)
+        self.full = {t: ms.absolute(t) for t in ms.recorded_topics(n) + ms.view_topics(n)}
+        types = {topic: (typ, qos) for topic, typ, qos in table}
+        for topic, full in self.full.items():
             # the type hash a ROS writer of the type offers, as the stack's recorder records it
-            self.w.channel(self.full[topic], typ, qos_of(qos), type_hash(typ))
+            typ, qos = types[topic]
+            self.w.channel(full, typ, qos_of(qos), type_hash(typ))
         self.cfg = cfg
         #: what the stack's recorder adds (``observe``); None: the formation's own topics
         self.observer: Any = None
@@ -114,16 +116,16 @@ class SimRecorder:
 
     def trial(self, k: int, xi: NDArray[np.float64], eta: NDArray[np.float64],
               u: NDArray[np.float64], tau: NDArray[np.int64], tau0: NDArray[np.int64]) -> None:
-        ms, pb, clk = self.ms, self.pb, self.clock
+        pb, clk = self.pb, self.clock
         n, n_t = pb.n, pb.samples
         stamps = np.array([clk.stamp_ns(k, s) for s in range(n_t + 1)], dtype=np.int64)
         t0, t_end = int(stamps[0]), int(stamps[-1])
-        self._json(ms.TRIAL_EVENTS, {"event": ms.START, "trial": k, "stamp_ns": t0}, t0)
+        self._json(ms.TRIAL_EVENTS, {"event": START, "trial": k, "stamp_ns": t0}, t0)
         obs = self.observer
         if k in self.sample_trials:
             # desired paths, and per pose its desired pose, error and the team's markers
             if obs is not None:
-                obs.on_event(TrialEvent(ms.START, k, k, stamp_ns=t0))
+                obs.on_event(TrialEvent(START, k, k, stamp_ns=t0))
             ref = self.sc.reference
             world = ms.WORLD_FRAME
             for t in range(n_t + 1):
@@ -140,7 +142,7 @@ class SimRecorder:
                                     cdr.encode_twist(u[r, t, 0], u[r, t, 1]), ns)
         elif obs is not None:
             obs.whole_trial(k, eta, t_end)
-        self._json(ms.TRIAL_EVENTS, {"event": ms.END, "trial": k}, t_end)
+        self._json(ms.TRIAL_EVENTS, {"event": END, "trial": k}, t_end)
         # what each robot counts: the deliveries of ticks 0..T-1 that carry a sample >= 0
         t_idx = np.arange(n_t)
         for i in range(n):
@@ -222,27 +224,25 @@ class Recording:
 def _path_outputs(data: bytes, ref_heading: NDArray[np.float64]
                   ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """eta (S, 3) and stamps of a recorded trajectory, decoded as the monitor decodes it
-    (msgs_schema.path_to_trajectory: same heading function, unwrapped next to the desired
-    heading), with the bytes parsed by numpy when the layout allows it. MalformedMessage
-    if it is not a valid trajectory of ``len(ref_heading)`` poses."""
-    import msgs_schema as ms
-
+    (``wire.read_trajectory``: same heading function, unwrapped next to the desired
+    heading), with the bytes parsed by numpy when the layout allows it. Malformed if it is
+    not a valid trajectory of ``len(ref_heading)`` poses."""
     try:
         f, stamps, frame, _ = cdr.decode_path(data)
     except (ValueError, struct.error, IndexError):
-        eta, stamps, frame = ms.path_to_trajectory(ms.deserialize(data, ms.Path), ref_heading)
+        eta, stamps, frame = wire.read_trajectory(data, ref_heading)
         f = None
     if frame != ms.WORLD_FRAME:
-        raise ms.MalformedMessage(f"trajectory in frame {frame[:50]!r}")
+        raise Malformed(f"trajectory in frame {frame[:50]!r}")
     if f is None:
         return eta, stamps
     if len(f) != len(ref_heading):
-        raise ms.MalformedMessage(f"trajectory has {len(f)} poses, expected {len(ref_heading)}")
+        raise Malformed(f"trajectory has {len(f)} poses, expected {len(ref_heading)}")
     if not np.isfinite(f[:, :2]).all():
-        raise ms.MalformedMessage("non-finite position")
+        raise Malformed("non-finite position")
     eta = np.empty((len(f), 3))
     eta[:, :2] = f[:, :2]
-    hq = ms._heading_from_quaternion
+    hq = wire.heading_from_quaternion
     for s, (qx, qy, qz, qw) in enumerate(f[:, 3:].tolist()):
         eta[s, 2] = hq(qx, qy, qz, qw, float(ref_heading[s]))
     return eta, stamps
@@ -323,12 +323,6 @@ class _RunReader:
     kept trajectories, the last diagnostics of each node, and what was skipped."""
 
     def __init__(self, keep: Callable[[int, int], bool] | None):
-        from diagnostic_msgs.msg import DiagnosticArray
-        from std_msgs.msg import String
-
-        import msgs_schema as ms
-
-        self.ms, self.String, self.DiagnosticArray = ms, String, DiagnosticArray
         self.keep = keep
         self.parts: list[tuple[Path, ReadReport]] = []
         self.config: dict[str, Any] | None = None
@@ -350,11 +344,10 @@ class _RunReader:
 
     def text(self, m: RawMessage, required: tuple[str, ...]) -> dict[str, Any]:
         """A JSON text message's fields (MalformedMessage if ``required`` are missing)."""
-        return self.ms.msg_to_json(self.ms.deserialize(m.data, self.String), required)
+        return wire.json_object(wire.read_string(m.data), required)
 
     def read(self, part: Path, progress: Callable[[int], None] | None) -> None:
         """Every message of one part, in file order."""
-        ms = self.ms
         report = ReadReport()
         self.parts.append((part, report))
         for msg in read_messages(part, report=report):
@@ -385,11 +378,11 @@ class _RunReader:
         self.early = []
 
     def configure(self, m: RawMessage) -> None:
-        ms = self.ms
         conf = self.text(m, ())
         c = RunConfig.from_json(conf)
         pb = Problem.from_scenario(c.scenario)
-        self.config, self.cfg, self.slots = conf, c, SlotRows(pb, strict=False)
+        self.config, self.cfg = conf, c
+        self.slots = SlotRows(pb, strict=False, safety=c.safety is not None)
         namespace = m.topic[: -len(ms.CONFIG) - 1] or "/"
         for r in range(pb.n):
             self.traj_topic[ms.absolute(ms.trajectory_topic(r + 1), namespace)] = (r, False)
@@ -407,7 +400,7 @@ class _RunReader:
                     self.xi[d.trial] = d.xi
 
     def handle(self, m: RawMessage) -> None:
-        ms, slots, cfg = self.ms, self.slots, self.cfg
+        slots, cfg = self.slots, self.cfg
         assert slots is not None and cfg is not None
         if m.topic == self.events_topic:
             d = self.text(m, ("event", "trial"))
@@ -417,21 +410,23 @@ class _RunReader:
             ev.agree(cfg.clock)
             if slots.repeat(ev):
                 return  # the leader's repeat of a stalled slot's start: not an event
-            if ev.event == ms.START:
+            if ev.event == START:
                 self.last_seen = max(self.last_seen, ev.trial)
             self.events.append(d)
             self.kept(slots.event(ev))
         elif m.topic == self.diag_topic:
-            dg = check_diagnostics(self.ms.msg_to_report(
-                self.ms.deserialize(m.data, self.DiagnosticArray), ("node", "trial")))
-            self.diags[dg["node"]] = dg
+            dg = check_diagnostics(node_report(read_statuses(wire.read_diagnostics(m.data)),
+                                               ("node", "trial")))
+            slots.note_diagnostics(dg)
+            if "contact" not in dg:  # a mid-trial word, not the node's report
+                self.diags[dg["node"]] = dg
         elif m.topic in self.traj_topic:
             r, is_true = self.traj_topic[m.topic]
             eta, stamps = _path_outputs(m.data, slots.pb.eta_d[r, :, 2])
             k, s0 = cfg.clock.decode(int(stamps[0]))
             if s0 != 0 or k < 0:
-                raise ms.MalformedMessage(f"trajectory of slot {k} sample {s0}: not a "
-                                          f"trial of this run")
+                raise Malformed(f"trajectory of slot {k} sample {s0}: not a trial of this "
+                                f"run")
             self.true_seen = self.true_seen or is_true
             self.kept(slots.trajectory(k, r, is_true, eta))
 
@@ -444,7 +439,7 @@ class _RunReader:
                 self.superseded += 1  # an aborted slot's, or a trial run again
             else:
                 self.bad[m.topic] += 1
-        except (self.ms.MalformedMessage, ValueError) as exc:
+        except (Malformed, ValueError) as exc:
             self.bad[m.topic] += 1
             if os.environ.get("FORMATION_ILC_DEBUG"):
                 print(f"{m.topic}: skipped a message: {exc}", file=sys.stderr)
@@ -463,7 +458,7 @@ class _RunReader:
                      else "no MCAP record read back")
             where = paths[0] if len(paths) == 1 else f"{paths[0]} (and {len(paths) - 1} parts)"
             raise RecordingError(f"{where}: no readable run configuration on a "
-                                 f".../{self.ms.CONFIG} topic ({found}): not a formation-ilc "
+                                 f".../{ms.CONFIG} topic ({found}): not a formation-ilc "
                                  f"recording, or cut or damaged before the run started")
         topic_of = {v: t for t, v in self.traj_topic.items()}
         for _, r, is_true in slots.unstarted():  # of no trial the run started
@@ -477,7 +472,7 @@ class _RunReader:
         first = first if isinstance(first, int) and not isinstance(first, bool) else 0
         return Recording(missing=[k for k in range(first, first + cfg.scenario.trials)
                                   if k not in rows],
-                         ended=any(e.get("event") == self.ms.DONE for e in self.events),
+                         ended=any(e.get("event") == DONE for e in self.events),
                          scenario=cfg.scenario, config=config, metrics=metrics, eta=self.eta,
                          xi=self.xi, delays=delays, injected=injected, events=self.events,
                          incomplete=[k for k in range(min(last_seen + 1, cfg.scenario.trials))

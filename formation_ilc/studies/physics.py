@@ -24,6 +24,13 @@ from numpy.typing import NDArray
 from formation_ilc.config.scenario import Scenario
 from formation_ilc.core.law import command, learn
 from formation_ilc.core.metrics import METRIC_COLUMNS
+from formation_ilc.core.safety import (
+    SafetySpec,
+    filter_team,
+    freeze_flagged,
+    learn_base,
+    learning_code,
+)
 from formation_ilc.model.footprint import Clearance, trial_clearance
 from formation_ilc.model.physics import DEFAULT_RATE, POSE_SOURCES, PhysicsWorld, RobotModel
 from formation_ilc.model.simulate import Problem, trial_errors
@@ -37,7 +44,9 @@ class PhysicsResult:
     columns from the engine. contacts : per trial, seconds in contact per pair.
     clearance : per trial, the least footprint clearance of the true poses. tilt : per
     trial, the largest tilt of any robot [rad]. memory : after the last trial.
-    seconds : wall time in the engine loop; samples : samples stepped."""
+    seconds : wall time in the engine loop; samples : samples stepped.
+    filtered : per trial, the commands the safety filter changed; limited : per trial,
+    the commands the robots' own limits changed (after the filter)."""
 
     metrics: NDArray[np.float64]
     contacts: list[dict[str, float]] = field(default_factory=list)
@@ -47,6 +56,8 @@ class PhysicsResult:
     seconds: float = 0.0
     samples: int = 0
     xi: dict[int, NDArray[np.float64]] = field(default_factory=dict)
+    filtered: list[int] = field(default_factory=list)
+    limited: list[int] = field(default_factory=list)
 
     def column(self, name: str) -> NDArray[np.float64]:
         return self.metrics[:, METRIC_COLUMNS.index(name)]
@@ -56,11 +67,14 @@ def run_physics(sc: Scenario, model: RobotModel, trials: int, *,
                 memory: NDArray[np.float64] | None = None, pose: str = "truth",
                 rate: float = DEFAULT_RATE, collide: bool = True, first_trial: int = 0,
                 keep: tuple[int, ...] = (),
-                progress: Callable[[int, NDArray[np.float64]], None] | None = None
-                ) -> PhysicsResult:
+                progress: Callable[[int, NDArray[np.float64]], None] | None = None,
+                safety: SafetySpec | None = None) -> PhysicsResult:
     """``trials`` trials of ``sc`` on ``model`` robots from ``memory`` (N, T, 2) (default
     u_0 = 0). ``sc``'s 'auto' headings read as 'arc' (a physics robot drives arcs).
-    keep : trials whose true trajectories (N, T+1, 3) are returned in ``xi``."""
+    keep : trials whose true trajectories (N, T+1, 3) are returned in ``xi``.
+    safety : the filter between each robot's learned command and its body (``core.safety``,
+    each robot hearing every other robot's measured pose of the sample), learned through
+    as the batch simulator does (``simulate(safety=...)``)."""
     if pose not in POSE_SOURCES:
         raise ValueError(f"pose must be one of {', '.join(POSE_SOURCES)}, got {pose!r}")
     sc = sc.for_plant("physics")
@@ -80,7 +94,14 @@ def run_physics(sc: Scenario, model: RobotModel, trials: int, *,
     valid = pb.src >= 0
     src = np.where(valid, pb.src, 0)
     res = PhysicsResult(metrics=np.empty((trials, len(METRIC_COLUMNS))))
-    row = np.empty(len(METRIC_COLUMNS) - 1)
+    row = np.empty(6)
+    if safety is not None:
+        params, mode = safety.params(), learning_code(safety.learning)
+        nominal = np.zeros((n, n_t, 2))
+        flags = np.zeros((n, n_t), dtype=np.int64)
+        prev = np.zeros((n, 2))
+        others, ages = np.zeros((n, 6)), np.zeros(n)
+        base = np.zeros((n, n_t, 2))
     with PhysicsWorld(model, n, pb.dt, rate=rate, collide=collide) as world:
         for i in range(trials):
             k = first_trial + i
@@ -88,6 +109,8 @@ def run_physics(sc: Scenario, model: RobotModel, trials: int, *,
             world.place(pb.eta_d[:, 0] + shift)
             t0 = time.perf_counter()
             tilt = 0.0
+            if safety is not None:
+                prev[:] = 0.0
             for t in range(n_t + 1):
                 xi[:, t] = world.truth()
                 measured = xi[:, t] if pose == "truth" else world.odom
@@ -100,18 +123,32 @@ def run_physics(sc: Scenario, model: RobotModel, trials: int, *,
                 command.jit(t, pb.law, mem[:, t], eta, pb.eta_d, nb_eta, nb_s, pb.src,
                             pb.weight, pb.eta_d, lead_s, pb.leader, pb.gain_prime, pb.heading,
                             u[:, t])
+                if safety is not None:
+                    filter_team.jit(t, u, eta, prev, 0.0, params, safety.window, nominal,
+                                    flags, others, ages)
                 world.step(u[:, t])
                 tilt = max(tilt, float(world.tilt().max()))
             res.seconds += time.perf_counter() - t0
             res.samples += n_t
             nb_full[:] = eta[src]
-            learn.jit(pb.law, pb.memory, mem, u, eta, pb.eta_d, nb_full, pb.src, pb.weight,
+            start = mem
+            if safety is not None:
+                learn_base.jit(mode, mem, nominal, u, flags, base)
+                start = base
+            learn.jit(pb.law, pb.memory, start, u, eta, pb.eta_d, nb_full, pb.src, pb.weight,
                       pb.eta_d, pb.leader, pb.gain, pb.heading, nxt)
+            if safety is not None:
+                freeze_flagged.jit(mode, mem, flags, nxt)
             mem, nxt = nxt, mem
             trial_errors.jit(eta, xi, pb.eta_d, pb.src, pb.weight, row)
+            contacts = world.contacts()
             res.metrics[i, 0] = k
-            res.metrics[i, 1:] = row
-            res.contacts.append(world.contacts())
+            res.metrics[i, 1:7] = row
+            res.metrics[i, 7] = int(np.count_nonzero(flags)) if safety is not None else 0
+            res.metrics[i, 8] = len(contacts)
+            res.filtered.append(int(res.metrics[i, 7]))
+            res.limited.append(world.limited)
+            res.contacts.append(contacts)
             res.clearance.append(trial_clearance(k, xi, model.footprint))
             res.tilt.append(tilt)
             if k in keep:

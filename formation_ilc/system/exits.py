@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import errno
 
-__all__ = ["OK", "CRASHED", "REFUSED", "FAILED", "STUCK", "DISK_FULL", "NO_RESTART",
+__all__ = ["OK", "CRASHED", "REFUSED", "FAILED", "STUCK", "DISK_FULL", "CONTACT", "NO_RESTART",
            "DISK_FULL_TAG", "is_disk_full"]
 
 OK = 0
@@ -23,8 +23,11 @@ FAILED = 3
 STUCK = 4
 #: a write failed for want of space (ENOSPC, EDQUOT): the node named the file
 DISK_FULL = 5
+#: a plant with bodies ended the run: robots touched (or one tipped) past what its
+#: ``--on-contact`` policy allows; the node named the pair
+CONTACT = 6
 #: statuses a supervisor does not restart
-NO_RESTART = frozenset({REFUSED, STUCK, DISK_FULL})
+NO_RESTART = frozenset({REFUSED, STUCK, DISK_FULL, CONTACT})
 #: what a node's last line says when the disk is full (a supervisor looks for it)
 DISK_FULL_TAG = "disk full"
 

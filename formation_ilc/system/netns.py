@@ -15,7 +15,7 @@ shared memory would bypass the links), and discovery is unicast to the listed ad
 
 Faults (``LinkFaults``) go on the links between robots, per direction: in each robot's
 namespace an iptables rule queues the UDP packets it sends to the other robots
-(``NFQUEUE --queue-num 0 --queue-bypass``) and a delayer process (``robot_sim.delayer``)
+(``NFQUEUE --queue-num 0 --queue-bypass``) and a delayer process (``formation_ilc.system.delayer``)
 holds each for a drawn delay or drops it. The links between a robot and the hub stand
 for the robot's own wiring (its plant, the ground station's schedule) and are not faulted.
 
@@ -117,7 +117,8 @@ def support_problem() -> str | None:
                   "-d", "127.0.0.2", "-j", "NFQUEUE", "--queue-num", "0", "--queue-bypass"],
                  "NFQUEUE target")
             res = subprocess.run(["ip", "netns", "exec", ns, sys.executable, "-c",
-                                  "from robot_sim.delayer import NfQueue; NfQueue(0).close()"],
+                                  "from formation_ilc.system.delayer import NfQueue; "
+                                  "NfQueue(0).close()"],
                                  capture_output=True, text=True, timeout=30)
             if res.returncode != 0:
                 tail = res.stderr.strip().splitlines()
@@ -271,7 +272,7 @@ class Hosts:
                                  ",".join(peers), "-j", "NFQUEUE", "--queue-num", "0",
                                  "--queue-bypass"]), f"NFQUEUE rule in {ns}")
         f = self.faults
-        argv = [sys.executable, "-m", "robot_sim.delayer", "--queue", "0",
+        argv = [sys.executable, "-m", "formation_ilc.system.delayer", "--queue", "0",
                 "--delay-ms", str(f.delay_ms), "--jitter-ms", str(f.jitter_ms),
                 "--loss", str(f.loss), "--seed", str(self.seed + i)]
         self.log_dir.mkdir(parents=True, exist_ok=True)

@@ -13,10 +13,11 @@ import pytest
 
 import msgs_schema as ms
 from formation_ilc.cli import keystore as ks_cli
-from formation_ilc.cli.secure import SecureRun, enclave_name
+from formation_ilc.cli.secure import SecureRun
+from formation_ilc.config.roster import Lineup, roster
 from formation_ilc.config.scenario import load_scenario
+from formation_ilc.core.names import clock_topic
 from formation_ilc.store.keystore import create, enclave_dir
-from tests.config.test_enclaves import names
 
 
 def cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
@@ -25,14 +26,21 @@ def cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
 
 
 def test_the_pure_names_are_msgs_schemas():
-    got, ref = ks_cli.topic_names(ms.NAMESPACE), names()
-    for f in ("config", "reference", "trial_events", "ready", "diagnostics", "clock", "leader"):
-        assert getattr(got, f) == getattr(ref, f), f
-    for f in ("pose", "cmd_vel", "shared_pose", "trajectory", "true_trajectory"):
-        assert getattr(got, f)(7) == getattr(ref, f)(7), f
-    assert got.link(2, "leader") == ref.link(2, "leader")
-    assert list(got.recorded(3)) == list(ref.recorded(3))
-    assert list(got.view(3)) == [t for t, _, _ in ms.view_topic_table(3)]
+    # the grants' names (formation_ilc.core.names, no ROS) are what the nodes use
+    assert (ms.CONFIG, ms.REFERENCE, ms.TRIAL_EVENTS, ms.READY, ms.DIAGNOSTICS,
+            clock_topic(ms.NAMESPACE), ms.LEADER) == (
+        "config", "leader/reference", "leader/trial_events", "ready", "diagnostics", "/clock",
+        "leader")
+    assert [f(7) for f in (ms.pose_topic, ms.cmd_vel_topic, ms.shared_pose_topic,
+                           ms.trajectory_topic, ms.true_trajectory_topic)] == [
+        f"robot_7/{t}" for t in ("pose", "cmd_vel", "shared_pose", "trajectory",
+                                 "true_trajectory")]
+    assert ms.link_topic(2, "leader") == "robot_2/links/leader"
+    assert ms.recorded_topics(3) == [t for t, _, _ in ms.topic_table(3)] == [
+        "config", "leader/reference", "leader/trial_events", "ready", "diagnostics",
+        "/clock"] + [f"robot_{i}/{t}" for i in range(1, 4)
+                     for t in ("pose", "cmd_vel", "trajectory", "true_trajectory")]
+    assert ms.view_topics(3) == [t for t, _, _ in ms.view_topic_table(3)]
 
 
 def test_the_live_view_reads_everything_and_commands_nothing():
@@ -48,8 +56,8 @@ def test_the_live_view_reads_everything_and_commands_nothing():
 def test_clock_follows_the_launchers_remapping():
     from formation_ilc.core.names import namespace_remaps
 
-    assert ks_cli.clock_topic(ms.NAMESPACE) == ms.CLOCK and namespace_remaps(ms.NAMESPACE) == []
-    assert namespace_remaps("/team2")[-1] == f"{ms.CLOCK}:={ks_cli.clock_topic('/team2')}"
+    assert clock_topic(ms.NAMESPACE) == ms.CLOCK and namespace_remaps(ms.NAMESPACE) == []
+    assert namespace_remaps("/team2")[-1] == f"{ms.CLOCK}:={clock_topic('/team2')}"
 
 
 def test_every_process_of_a_launch_has_an_enclave(tmp_path):
@@ -64,7 +72,7 @@ def test_every_process_of_a_launch_has_an_enclave(tmp_path):
         names = [s.name for s in plan.nodes]
         assert "recorder" in names and len(names) > sc.n
         for name in [*names, "monitor"]:
-            assert f"{ms.NAMESPACE}/{enclave_name(name)}" in grants, (plant, name)
+            assert f"{ms.NAMESPACE}/{plan.roster.enclave_of(name)}" in grants, (plant, name)
 
 
 def test_keystore_create_and_rerun(tmp_path):
@@ -153,7 +161,9 @@ def test_secure_launch_refuses_containers(tmp_path):
 
 def test_secure_env_of_a_process(tmp_path):
     run = SecureRun(tmp_path, "/formation")
-    env = run.env({"A": "1"}, "fake_pioneer_2")
+    # robot i's fake driver runs in the enclave of robot i's driver, as a real one would
+    fake = roster(Lineup(3, plant="pioneer", fake_drivers=True)).enclave_of("fake_pioneer_2")
+    env = run.env({"A": "1"}, fake)
     assert env["A"] == "1" and env["ROS_SECURITY_ENABLE"] == "true"
     assert env["ROS_SECURITY_STRATEGY"] == "Enforce"
     assert env["ROS_SECURITY_ENCLAVE_OVERRIDE"] == "/formation/driver_2"
@@ -227,13 +237,14 @@ def test_a_secure_plan_keeps_the_users_profile_and_warns_of_an_unpatched_rmw(
 
 
 def test_a_plant_without_grants_is_refused_secure(tmp_path):
-    """The physics plant's nodes have no enclaves: one line naming the plants that do,
-    before the keystore is even read."""
+    """An external plant's nodes are not the formation's to grant: one line naming the plants
+    that have grants (every other plant), before the keystore is even read."""
     from formation_ilc.cli.plan import NoRun
     from tests.cli.test_plan import plan_of
 
     with pytest.raises(NoRun) as info:
-        plan_of(tmp_path, "paper-triangle3", "--plant", "physics", "--allow-contact",
-                "--secure", str(tmp_path / "no-keystore"))
-    assert info.value.status == 2 and "--plant physics" in info.value.message
-    assert "sim, pioneer" in info.value.message and "\n" not in info.value.message
+        plan_of(tmp_path, "paper-triangle3", "--plant", "external", "--secure",
+                str(tmp_path / "no-keystore"))
+    assert info.value.status == 2 and "--plant external" in info.value.message
+    assert "sim, physics, pioneer, base" in info.value.message
+    assert "\n" not in info.value.message

@@ -405,3 +405,13 @@ def test_the_callers_ros_domain_id_is_honoured(tmp_path, monkeypatch):
     monkeypatch.setenv("ROS_DOMAIN_ID", "abc")
     with pytest.raises(NoRun, match="ROS_DOMAIN_ID='abc': a domain id 0..232 is required"):
         plan_of(tmp_path, "paper-triangle3", "--trials", "2", out="d")
+
+
+def test_live_without_foxglove_sdk_is_refused_before_anything_starts(tmp_path, monkeypatch):
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "foxglove" else real(name, *a))
+    r = refusal(tmp_path, "paper-triangle3", "--live")
+    assert r.status == 2 and r.message.startswith("argument --live: needs foxglove-sdk")

@@ -40,14 +40,20 @@ def test_the_kinematic_simulator_keeps_chord_headings_and_its_numbers(tmp_path):
 
 def test_physics_plant_is_a_node_spec_with_its_options_and_arc_headings(tmp_path):
     pytest.importorskip("pybullet")
+    # the Husky's body at the paper's spacing: no room for the safety filter (refused with
+    # it, tested below), so without it
     plan = plan_of(tmp_path, "paper-triangle3", "--plant", "physics", "--robot-model",
                    "husky", "--pose", "odometry", "--physics-rate", "480", "--pass-through",
-                   "--allow-contact", "--time-scale", "1.5", "--trials", "2")
+                   "--allow-contact", "--time-scale", "1.5", "--trials", "2", "--no-safety",
+                   "--on-contact", "continue", "--contact-retries", "5", "--tilt-limit", "20")
     names = [s.name for s in plan.nodes]
     assert names == ["virtual_leader", "physics_sim", "link_emulator", "robot_1", "robot_2",
                      "robot_3"]
     assert dict(plan.nodes[1].params) == {"timeout": 30.0, "model": "husky",
-                                          "pose": "odometry", "collide": False, "rate": 480.0}
+                                          "pose": "odometry", "collide": False, "rate": 480.0,
+                                          "on_contact": "continue", "contact_retries": 5,
+                                          "tilt_limit": 20.0}
+    assert plan.config.safety is None
     assert plan.nodes[1].module == "robot_sim.physics_node"
     assert plan.team.plants == ("physics_sim",) and plan.true_state
     assert plan.reporters == ("physics_sim", "link_emulator")
@@ -63,11 +69,61 @@ def test_physics_plant_is_a_node_spec_with_its_options_and_arc_headings(tmp_path
 def test_a_colliding_cold_start_is_refused_with_one_line(tmp_path):
     pytest.importorskip("pybullet")
     with pytest.raises(NoRun) as info:
-        plan_of(tmp_path, "paper-triangle3", "--plant", "physics")
+        plan_of(tmp_path, "paper-triangle3", "--plant", "physics", "--no-safety")
     exc = info.value
     assert exc.status == 2 and "\n" not in exc.message
     assert exc.message.startswith("the batch simulator predicts contact from this cold start")
     assert "robots 2 and 3 overlap" in exc.message and "--allow-contact" in exc.message
+    assert "--safety" in exc.message
+
+
+def test_the_safety_filter_is_on_with_bodies_and_lets_the_cold_start_run(tmp_path):
+    pytest.importorskip("pybullet")
+    plan = plan_of(tmp_path, "paper-triangle3", "--plant", "physics", "--trials", "30")
+    sf = plan.config.safety
+    assert sf is not None and sf.body == "p3dx" and sf.sensing == "team"
+    assert sf.limits.v_max == 1.2 and sf.limits.a_max == 0.3  # the maker's, physics model
+    # the prediction went through the filter and says what it covered
+    assert plan.notes[-1].startswith("the batch simulator predicts no contact in the 30 "
+                                     "trials of this run through the safety filter")
+    # the robots read it from the leader's configuration
+    leader = dict(plan.nodes[0].params)
+    assert RunConfig.from_params(leader).safety == sf
+    # off on the kinematic simulator unless asked for
+    assert plan_of(tmp_path / "s", "paper-triangle3").config.safety is None
+    # a skid-steer body keeps a wider margin by default: the paper's spacing has no room
+    with pytest.raises(NoRun, match="jackal bodies \\+ 0.25 m margin"):
+        plan_of(tmp_path / "t", "paper-triangle3", "--safety", "--body", "jackal")
+    on = plan_of(tmp_path / "t", "paper-triangle3", "--safety", "--body", "jackal",
+                 "--safety-margin", "0.1")
+    assert on.config.safety is not None and on.config.safety.body == "jackal"
+    assert sf.margin == 0.1 and on.config.safety.margin == 0.1
+    # how the memory learns through the filter: by body, as measured (docs/safety.md)
+    assert sf.learning == "applied" and on.config.safety.learning == "split"
+    told = plan_of(tmp_path / "u", "paper-triangle3", "--safety", "--safety-learning",
+                   "freeze")
+    assert told.config.safety is not None and told.config.safety.learning == "freeze"
+
+
+@pytest.mark.parametrize(("args", "says"), [
+    (("--plant", "physics", "--robot-model", "husky"),
+     "the desired formation brings robots 1 and 3 to 0.559 m"),
+    (("--plant", "physics", "--scenario", "paper-hexagon6"),
+     "robot 2: desired acceleration 31.2 m/s^2 at t = 0.0 s exceeds its limit 0.3 m/s^2; "
+     "no time scale up to 20 fits (p3dx robots' limits: Pioneer 3-DX datasheet"),
+    (("--plant", "external", "--safety"), "--safety: with --plant external"),
+    (("--plant", "physics", "--body", "husky"), "--body goes with --plant sim"),
+])
+def test_what_the_bodies_or_the_filter_cannot_do_is_refused(tmp_path, args, says):
+    pytest.importorskip("pybullet")
+    name = "paper-triangle3"
+    if "--scenario" in args:
+        i = args.index("--scenario")
+        name, args = args[i + 1], args[:i] + args[i + 2:]
+    with pytest.raises(NoRun) as info:
+        plan_of(tmp_path, name, *args)
+    assert info.value.status == 2 and says in info.value.message
+    assert "\n" not in info.value.message
 
 
 def test_base_bridges_refuse_a_scenario_beyond_the_preset_then_plan_it_stretched(tmp_path):
@@ -106,3 +162,43 @@ def test_plant_refusals(tmp_path, argv, message):
     with pytest.raises(NoRun) as info:
         plan_of(tmp_path, "paper-triangle3", *argv)
     assert message in info.value.message and info.value.status == 2
+
+
+def test_a_memory_past_the_limits_is_held_by_the_filter_or_refused(tmp_path):
+    """A warm memory whose commands leave the robots' limits: with the filter the run says
+    so (the filter holds them inside); without it the run is refused: never sent."""
+    pytest.importorskip("pybullet")
+    import numpy as np
+
+    from formation_ilc.store.memoryfile import save_memory
+
+    plan = plan_of(tmp_path / "a", "paper-triangle3", "--plant", "physics", "--trials", "2")
+    sc = plan.scenario
+    fast = np.zeros((sc.n, sc.samples, 2))
+    fast[1, 40:, 0] = 3.0  # robot 2 asked for 3 m/s from t = 8 s: past 1.2 m/s, and a step
+    mem = save_memory(tmp_path / "fast.npz", fast, sc)
+    plan = plan_of(tmp_path / "b", "paper-triangle3", "--plant", "physics", "--trials", "2",
+                   "--init-memory", str(mem), "--allow-contact")
+    (note,) = [x for x in plan.notes if x.startswith("note: --init-memory")]
+    assert "robot 2: the memory's" in note and "exceeds its limit" in note
+    assert "the safety filter holds those commands inside the limits" in note
+    with pytest.raises(NoRun) as info:
+        plan_of(tmp_path / "c", "paper-triangle3", "--plant", "physics", "--trials", "2",
+                "--init-memory", str(mem), "--no-safety", "--allow-contact")
+    assert info.value.status == 2 and "would be sent past the robots' limits" \
+        in info.value.message
+    assert "robot 2" in info.value.message
+
+
+def test_a_wrong_contact_prediction_is_said():
+    import numpy as np
+
+    from formation_ilc.cli.report import contact_warning
+
+    rows = np.zeros((3, 9))
+    rows[:, 0] = [0, 1, 2]
+    assert contact_warning(True, rows) is None  # predicted none, none happened
+    rows[2, 8] = 1
+    line = contact_warning(True, rows)
+    assert line is not None and "predicted no contact, but robots touched in trial(s) 2" in line
+    assert contact_warning(False, rows) is None  # it was predicted (or not predicted at all)

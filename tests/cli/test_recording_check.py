@@ -10,6 +10,7 @@ import pytest
 pytest.importorskip("mcap")
 pytest.importorskip("rclpy")
 
+import msgs_schema as ms  # noqa: E402
 from formation_ilc.cli.launch import INCOMPLETE, check_recording  # noqa: E402
 from formation_ilc.config.runconfig import RunConfig  # noqa: E402
 from formation_ilc.config.scenario import load_scenario  # noqa: E402
@@ -21,7 +22,7 @@ from formation_ilc.recordings.recording import SimRecorder, load_recording  # no
 
 def record(path, trials: int):
     sc = load_scenario("paper-triangle3").with_options(trials=trials)
-    rec = SimRecorder(path, sc)
+    rec = SimRecorder(path, sc, ms.recorder_table(sc.n))
     simulate(sc, trials=trials, on_trial_data=rec.trial)
     rec.close()
     return path

@@ -21,6 +21,7 @@ import yaml
 
 from formation_ilc.cli.commands import (
     CHECK_DIVERGES,
+    CHECK_LIMITS,
     CHECK_OK,
     CHECK_TRANSIENT,
     CHECK_UNKNOWN,
@@ -38,6 +39,7 @@ from formation_ilc.config.scenario import (
 )
 from formation_ilc.core import guards
 from formation_ilc.core.guards import DivergedError, check_finite
+from formation_ilc.core.metrics import METRIC_COLUMNS
 from formation_ilc.model.simulate import simulate
 from formation_ilc.store.memoryfile import MemoryFileError, load_memory, save_memory
 
@@ -284,7 +286,7 @@ def test_metrics_are_streamed_in_bounded_memory(tmp_path):
     """A run of many trials keeps at most ``cap`` rows for its plot; the csv gets them all."""
     log = TrialLog(tmp_path / "m.csv", cap=8)
     for k in range(1000):
-        log.add(np.array([k, 1000.0 - k if k != 500 else 0.5, 0, 0, 0, 0, 0]))
+        log.add(np.array([k, 1000.0 - k if k != 500 else 0.5, 0, 0, 0, 0, 0, 0, np.nan]))
     log.close()
     rows = log.rows()
     assert len(rows) <= 9 and rows[0, 0] == 0 and rows[-1, 0] == 999
@@ -297,7 +299,7 @@ def test_simulate_stores_no_metrics_when_asked():
     seen: list[float] = []
     res = simulate(sc, trials=3, progress=lambda k, row: seen.append(row[1]),
                    store_metrics=False)
-    assert res.metrics.shape == (0, 7) and len(seen) == 3
+    assert res.metrics.shape == (0, len(METRIC_COLUMNS)) and len(seen) == 3
     full = simulate(sc, trials=3)
     np.testing.assert_array_equal(full.column("max_position_error"), seen)
 
@@ -340,7 +342,7 @@ def test_simulate_reports_the_last_finite_memory_on_divergence():
         noise=False, delay=False)
     with pytest.raises(DivergedError) as exc:
         simulate(sc, trials=10, stop_on_divergence=True)
-    assert exc.value.trial == 1 and exc.value.result.metrics.shape == (1, 7)
+    assert exc.value.trial == 1 and exc.value.result.metrics.shape == (1, len(METRIC_COLUMNS))
     assert np.isfinite(exc.value.result.memory).all()
 
 
@@ -376,8 +378,55 @@ def test_check_exits_with_its_verdict(tmp_path, capsys):
     assert main(["check", str(p), "--trials", "8"]) == CHECK_DIVERGES
     assert "verdict: will not converge" in capsys.readouterr().out
     p.write_text(_with(TRIANGLE, samples="1300"))  # 3 x 1300 > 3600: the lifted map is skipped
-    assert main(["check", str(p)]) == CHECK_UNKNOWN
+    assert main(["check", str(p), "--base", "none"]) == CHECK_UNKNOWN
     assert main(["check", "paper-triangle3", "--trials", "8"]) == CHECK_OK
+
+
+UNTUNED = """\
+name: untuned-corners
+dt: 0.2
+samples: 100
+trials: 10
+robots: 4
+reference:
+  kind: waypoints
+  times: [0, 5, 10, 20]
+  points: [[0, 0], [3, 0], [3, 3], [0, 3]]
+formation:
+  frame: leader
+  offsets:
+    1: {x: 1.5, y: 0.0}
+    2: {x: 0.0, y: 1.5}
+    3: {x: -1.5, y: 0.0}
+    4: {x: 0.0, y: -1.5}
+graph:
+  leader: {1: 1.0}
+  edges: [{from: 1, to: 2}, {from: 2, to: 3}, {from: 3, to: 4}]
+law: {kind: 9, memory: feedforward, gain: 0.08, gain_prime: 0.08, gain_heading: measured}
+"""
+
+
+def test_check_fails_a_scenario_whose_motion_leaves_the_base_limits(tmp_path, capsys):
+    """Before: 'converges' (exit 0) for waypoints with corners whose desired speed reaches
+    metres a second; now every robot's peaks are printed and the run exits 6 naming the
+    robot and the time scale that fits."""
+    p = tmp_path / "untuned.yaml"
+    p.write_text(UNTUNED)
+    status = main(["check", str(p)])
+    out, err = capsys.readouterr()
+    assert status == CHECK_LIMITS
+    assert out.count("peak speed") == 4 and "largest step" in out
+    (line,) = [x for x in err.splitlines() if x.startswith("error: p3dx: robot")]
+    assert "exceeds its limit" in line
+    # the learning alone passes
+    assert main(["check", str(p), "--base", "none"]) == CHECK_OK
+    capsys.readouterr()
+    # the corners turn the leader-frame formation in one sample: the outer robots jump 2 m
+    # between two samples, which no time scale and no base's limits make good
+    assert main(["check", str(p), "--base", "jackal", "--time-scale", "4"]) == CHECK_LIMITS
+    out, err = capsys.readouterr()
+    assert "time scale 4" in out and "largest step 2.1" in out
+    assert "no time scale up to 20 fits" in err
 
 
 # --------------------------------------------------------------------------- interruption

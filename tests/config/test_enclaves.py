@@ -1,5 +1,5 @@
-"""Permissions derived from a formation's graph (formation_ilc.config.enclaves): least
-privilege per node, no ROS needed (the topic names are passed in as data)."""
+"""Permissions derived from a formation's graph (the roster's grants, formation_ilc.config
+.enclaves' documents): least privilege per node, no ROS needed."""
 
 from __future__ import annotations
 
@@ -9,33 +9,23 @@ import numpy as np
 import pytest
 
 from formation_ilc.config.enclaves import (
-    DriverTopics,
-    TopicNames,
+    Grant,
     dds_topic,
-    formation_grants,
     governance_xml,
     housekeeping,
     permissions_xml,
 )
+from formation_ilc.config.roster import Lineup, roster
+from formation_ilc.core.names import view_topics
 
 NS = "/formation"
 
 
-def names() -> TopicNames:
-    """The schema's names as msgs_schema spells them (tests/cli checks they agree)."""
-    def r(i: int) -> str:
-        return f"robot_{i}"
-    return TopicNames(
-        config="config", reference="leader/reference", trial_events="leader/trial_events",
-        ready="ready", diagnostics="diagnostics", clock="/clock",
-        pose=lambda i: f"{r(i)}/pose", cmd_vel=lambda i: f"{r(i)}/cmd_vel",
-        shared_pose=lambda i: f"{r(i)}/shared_pose",
-        link=lambda i, s: f"{r(i)}/links/{s}", trajectory=lambda i: f"{r(i)}/trajectory",
-        true_trajectory=lambda i: f"{r(i)}/true_trajectory",
-        recorded=lambda n: ["config", "leader/reference", "leader/trial_events", "ready",
-                            "diagnostics", "/clock"]
-        + [f"{r(i)}/{t}" for i in range(1, n + 1)
-           for t in ("pose", "cmd_vel", "trajectory", "true_trajectory")])
+def grants_of(adj, leader, *, plant: str = "sim", **kw) -> dict[str, Grant]:
+    """Every enclave's grant of the formation ``adj``, ``leader`` in NS, as the keystore
+    makes them."""
+    lineup = Lineup(len(adj), plant=plant, adjacency=adj, leader=leader, **kw)
+    return roster(lineup.for_keystore()).grants(NS)
 
 
 # robot 1 hears the leader; 2 <- 1; 3 <- 1, 2 (a_ij > 0: i receives from j)
@@ -45,7 +35,7 @@ LEADER = np.array([1.0, 0.0, 0.0])
 
 @pytest.fixture
 def grants():
-    return formation_grants(ADJ, LEADER, names(), NS)
+    return grants_of(ADJ, LEADER)
 
 
 def test_robot_publishes_only_its_own_topics(grants):
@@ -63,7 +53,10 @@ def test_robot_reads_its_in_neighbours_and_the_leader_only_if_it_hears_it(grants
         assert f"{NS}/robot_{j}/shared_pose" in g3 and f"{NS}/robot_{j}/trajectory" in g3
         assert f"{NS}/robot_3/links/robot_{j}" in g3
     assert f"{NS}/leader/reference" not in g3
-    assert f"{NS}/robot_3/pose" in g3 and f"{NS}/robot_1/pose" not in g3
+    # every robot's pose (behind bridges) and the plant's team/poses: the safety filter
+    # keeps it away from all of them, neighbours or not; reading is all it may do
+    assert {f"{NS}/robot_{j}/pose" for j in (1, 2, 3)} <= g3
+    assert f"{NS}/team/poses" in g3
     g2 = set(grants[f"{NS}/robot_2"].subscribe)
     assert f"{NS}/robot_3/shared_pose" not in g2  # 3 is not an in-neighbour of 2
     assert f"{NS}/robot_1/shared_pose" in g2
@@ -92,7 +85,9 @@ def test_only_the_leader_publishes_config_reference_and_events(grants):
 
 
 def test_recorder_and_monitor_publish_only_protocol_topics(grants):
-    assert set(grants[f"{NS}/recorder"].publish) == {f"{NS}/ready", f"{NS}/diagnostics"}
+    # and the recorder the view topics of its observer (desired poses, errors, markers)
+    view = {f"{NS}/{t}" for t in view_topics(3)}
+    assert set(grants[f"{NS}/recorder"].publish) == {f"{NS}/ready", f"{NS}/diagnostics", *view}
     assert set(grants[f"{NS}/monitor"].publish) == {f"{NS}/ready"}
     assert f"{NS}/robot_3/cmd_vel" in grants[f"{NS}/recorder"].subscribe
 
@@ -108,15 +103,19 @@ def test_adding_a_robot_changes_only_the_grants_that_see_it(grants):
     adj = np.zeros((4, 4))
     adj[:3, :3] = ADJ
     adj[3, 2] = 1.0  # robot 4 <- robot 3
-    bigger = formation_grants(adj, np.append(LEADER, 0.0), names(), NS)
+    bigger = grants_of(adj, np.append(LEADER, 0.0))
     assert set(bigger) - set(grants) == {f"{NS}/robot_4"}
     same = {p for p in grants if grants[p] == bigger[p]}
-    assert same == {f"{NS}/robot_1", f"{NS}/robot_2", f"{NS}/robot_3", f"{NS}/virtual_leader"}
+    assert same == {f"{NS}/virtual_leader"}
+    # the robots already there change only by reading robot 4's pose (their safety filter)
+    for i in (1, 2, 3):
+        extra = set(bigger[f"{NS}/robot_{i}"].subscribe) - set(grants[f"{NS}/robot_{i}"].subscribe)
+        assert extra == {f"{NS}/robot_4/pose"}
+        assert bigger[f"{NS}/robot_{i}"].publish == grants[f"{NS}/robot_{i}"].publish
 
 
 def test_pioneer_bridges_and_drivers(grants):
-    d = DriverTopics("/pioneer_{i}", "cmd_vel", "pose", "enable_motors", "empty_service")
-    g = formation_grants(ADJ, LEADER, names(), NS, pioneer=d)
+    g = grants_of(ADJ, LEADER, plant="pioneer", driver="rosaria")
     assert f"{NS}/robot_sim" not in g
     b2 = g[f"{NS}/bridge_2"]
     assert f"{NS}/robot_2/cmd_vel" in b2.subscribe and f"{NS}/robot_1/cmd_vel" not in b2.subscribe

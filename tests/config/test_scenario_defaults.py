@@ -1,6 +1,6 @@
 """What a scenario file leaves out gets the documented default, each given field lands where
 it belongs, and the command-line overrides (with_options) change only what they name.
-(The validation rules, one per case: tests/config/test_scenario_rules.py.)"""
+(The validation rules, one per case: tests/config/test_scenario.py.)"""
 
 import dataclasses
 

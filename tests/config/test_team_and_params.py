@@ -4,6 +4,8 @@ waits for, and the node names: one owner each, no ROS needed."""
 import pytest
 import yaml
 
+from formation_ilc.config.plants import PLANTS, default_plant
+from formation_ilc.config.roster import Lineup, roster
 from formation_ilc.config.runconfig import (
     PARAMS,
     RunConfig,
@@ -12,7 +14,6 @@ from formation_ilc.config.runconfig import (
     scenario_reference,
 )
 from formation_ilc.config.scenario import ScenarioError
-from formation_ilc.config.team import PLANTS, Team, default_plant
 from formation_ilc.core.clock import Malformed
 from formation_ilc.core.names import (
     CLOCK,
@@ -97,18 +98,22 @@ def test_a_scenario_file_is_referenced_by_its_absolute_path(tmp_path, monkeypatc
     assert scenario_reference("paper-hexagon6") == "paper-hexagon6"
 
 
+def team(n: int, **kw):
+    return roster(Lineup(n, **kw)).team
+
+
 def test_the_team_by_plant_and_links():
-    sim = Team.of(3, plant="sim", links="emulated", monitor=True, recorder=True)
+    sim = team(3, plant="sim", links="emulated", monitor=True, record=True)
     assert sim.expected == ["robot_1", "robot_2", "robot_3", "robot_sim", "link_emulator",
                             "monitor", "recorder"]
-    pioneer = Team.of(2, plant="pioneer", links="direct")
+    pioneer = team(2, plant="pioneer", links="direct", monitor=False)
     assert pioneer.expected == ["robot_1", "robot_2", "bridge_1", "bridge_2"]
-    ext = Team.of(2, plant="external", links="direct", external=["standin_plant"],
-                  monitor=True)
+    ext = team(2, plant="external", links="direct", external=("standin_plant",),
+               monitor=True)
     assert ext.plants == ("standin_plant",) and ext.support == ()
     assert ext.expected[-1] == "monitor"
     with pytest.raises(ValueError, match="plant must be one of"):
-        Team.of(2, plant="gazebo", links="direct")
+        team(2, plant="gazebo", links="direct")
 
 
 def test_a_leader_started_alone_waits_for_the_team_the_launcher_would_name():
@@ -117,8 +122,8 @@ def test_a_leader_started_alone_waits_for_the_team_the_launcher_would_name():
                         ("wallclock", "direct")):
         plant = default_plant(mode)
         assert plant in PLANTS
-        alone = Team.of(4, plant=plant, links=links)
-        launched = Team.of(4, plant=plant, links=links, monitor=True)
+        alone = team(4, plant=plant, links=links, monitor=False)
+        launched = team(4, plant=plant, links=links, monitor=True)
         assert launched.expected == alone.expected + ["monitor"]
     assert default_plant("wallclock") == "pioneer" and default_plant("lockstep") == "sim"
 

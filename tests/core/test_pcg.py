@@ -26,7 +26,14 @@ from formation_ilc.core.uncertainty import (
     fill_plant,
     plant_arrays,
 )
-from formation_ilc.model.simulate import METRIC_COLUMNS, Problem, run_trial, simulate, trial_errors
+from formation_ilc.model.simulate import (
+    METRIC_COLUMNS,
+    Problem,
+    run_trial,
+    safety_arrays,
+    simulate,
+    trial_errors,
+)
 
 SEEDS = (0, 1, 7, 2**31 + 5, 2**32 - 1, 2**32, 2**40 + 3, 2**63 - 1, 2**64 + 17, 2**100 + 9)
 
@@ -179,17 +186,18 @@ def _reference_run(sc, trials: int, first: int = 0):
     nxt, xi, u = np.empty_like(memory), np.empty((n, n_t + 1, 3)), np.empty((n, n_t, 2))
     eta = np.empty_like(xi)
     metrics = np.empty((trials, len(METRIC_COLUMNS)))
-    row = np.empty(len(METRIC_COLUMNS) - 1)
+    row = np.empty(6)
     for i in range(trials):
         k = first + i
         shift, dist, noise = _numpy_plant(sc.uncertainty, sc.seed, k, n, n_t)
         tau, tau0 = _numpy_delays(sc.uncertainty, sc.seed, k, n, n_links, n_t)
         run_trial(pb.law, pb.memory, pb.heading, pb.plant, pb.dt, memory,
                   pb.eta_d[:, 0] + shift, dist, noise, tau, tau0, pb.src, pb.weight, pb.leader,
-                  pb.eta_d, pb.gain, pb.gain_prime, xi, eta, u, nxt)
+                  pb.eta_d, pb.gain, pb.gain_prime, xi, eta, u, nxt, safety_arrays(pb))
         trial_errors(eta, xi, pb.eta_d, pb.src, pb.weight, row)
         metrics[i, 0] = k
-        metrics[i, 1:] = row
+        metrics[i, 1:7] = row
+        metrics[i, 7:] = (0.0, np.nan)  # no filter, no bodies
         memory, nxt = nxt, memory
     return metrics, memory, xi
 

@@ -304,7 +304,8 @@ def test_simulate_equals_reference_run(law, memory, heading):
         xi, eta, u, mem = ref.trial(setup, mem, xi0, dist, noise, per_link_delays(setup, tau),
                                     tau0)
         assert res.metrics[i, 0] == k
-        assert max_diff(res.metrics[i, 1:], ref.trial_metrics(setup, xi, eta)) <= TOL
+        assert max_diff(res.metrics[i, 1:7], ref.trial_metrics(setup, xi, eta)) <= TOL
+        assert res.metrics[i, 7] == 0 and np.isnan(res.metrics[i, 8])  # no filter, no bodies
         if k in (2, 4):
             rec = res.records[k]
             assert max(max_diff(rec.xi, xi), max_diff(rec.eta, eta), max_diff(rec.u, u)) <= TOL
@@ -312,7 +313,8 @@ def test_simulate_equals_reference_run(law, memory, heading):
     # the order ref.trial_metrics returns its columns in
     assert METRIC_COLUMNS[1:] == ("max_position_error", "max_heading_error",
                                   "true_max_position_error", "true_max_heading_error",
-                                  "rms_position_error", "max_formation_error")
+                                  "rms_position_error", "max_formation_error",
+                                  "filter_active", "contacts")
 
 
 # --------------------------------------------------------------------------- eq. (11)

@@ -56,7 +56,7 @@ def test_the_team_still_learns_with_20_percent_loss_on_every_link():
     assert floor < 0.15 * m[0, 1]                 # 4.5 m -> about 0.44 m
     assert floor < 2.0 * floor_clean              # lossless: about 0.33 m
     assert np.median(m[-10:, 2]) < 0.15 * m[0, 2]  # heading too
-    assert np.isfinite(m).all()
+    assert np.isfinite(m[:, :8]).all()  # every error, and the filter's count (0)
 
 
 @pytest.mark.parametrize("bad", [1.0, -0.1, "a lot"])

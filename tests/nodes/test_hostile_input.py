@@ -12,7 +12,6 @@ before every example, so an example does not depend on the ones before it.
 from __future__ import annotations
 
 import json
-import math
 import struct
 import time
 
@@ -22,312 +21,41 @@ import pytest
 pytestmark = pytest.mark.ros
 
 rclpy = pytest.importorskip("rclpy")
-from builtin_interfaces.msg import Time  # noqa: E402
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import PoseStamped, Twist  # noqa: E402
-from hypothesis import example, given, settings  # noqa: E402
+from hypothesis import example, given  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 from nav_msgs.msg import Odometry, Path  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
-from rosgraph_msgs.msg import Clock  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 
 import msgs_schema as ms  # noqa: E402
-from formation_ilc.config.runconfig import make_config  # noqa: E402
-from formation_ilc.model.simulate import Problem  # noqa: E402
-from formation_ilc.protocol.learner import RobotLearner  # noqa: E402
+from tests.hostile import (  # noqa: E402
+    CFG,
+    CLOCK,
+    FUZZ,
+    SCENARIO,
+    Outcomes,
+    _path,
+    _pose,
+    _time,
+    base_learner,
+    diags,
+    dropped,
+    events,
+    in_grid,
+    paths,
+    poses,
+    robot_node,
+    stamps,
+    twists,
+    window,
+)
 
-from ..procs import spin_until, wait_emulator_ready  # noqa: E402
-
-SCENARIO = "paper-triangle3"
-#: examples per property: enough to hit every branch of a handler, small enough that all
-#: the property tests of this file take well under 30 s
-EXAMPLES = 120
-FUZZ = settings(max_examples=EXAMPLES, deadline=None, database=None)
-
-CFG = make_config(SCENARIO, seed=3, noise=False, delay=False, links="direct")
-CLOCK = CFG.clock
-T = CFG.scenario.samples
-PB = Problem.from_scenario(CFG.scenario)
-
-
-def dropped(node) -> int:
-    return sum(node.drops.counts.values())
-
-
-class Outcomes:
-    """How often a property saw each outcome: a fuzz that only ever hit one branch of a
-    handler would prove little, so each test asserts it saw both."""
-
-    def __init__(self) -> None:
-        self.n: dict[str, int] = {"taken": 0, "dropped": 0}
-
-    def __call__(self, taken: bool) -> None:
-        self.n["taken" if taken else "dropped"] += 1
-
-    def check(self) -> None:
-        assert self.n["taken"] > 0 and self.n["dropped"] > 0, self.n
-
-
-# --------------------------------------------------------------------------- strategies
-
-def _time(ns: int) -> Time:
-    sec, nsec = divmod(ns, 1_000_000_000)
-    return Time(sec=sec, nanosec=nsec)
-
-
-#: labels at and next to the windows of the base states the tests reset nodes to (trial 0
-#: at sample 1; trial 0 finished), anywhere near the grid, or off it by a little
-grid_ns = st.builds(
-    lambda ks, off: CLOCK.stamp_ns(*ks) + off,
-    st.one_of(st.sampled_from([(0, 2), (1, 0), (0, 1), (0, 3), (1, 1), (0, T), (1, 4)]),
-              st.tuples(st.integers(-1, 7), st.integers(-2, T + 22))),
-    st.sampled_from([0, 0, 0, 0, 0, 0, 1, -1, CLOCK.dt_ns // 2]))
-#: valid-looking labels mostly, and raw stamps anywhere in the message's range (negative
-#: seconds, nanoseconds >= 1e9)
-stamps = st.one_of(
-    grid_ns.filter(lambda ns: -2**31 * 10**9 <= ns < 2**31 * 10**9).map(_time),
-    grid_ns.filter(lambda ns: -2**31 * 10**9 <= ns < 2**31 * 10**9).map(_time),
-    st.builds(lambda sec, nsec: Time(sec=sec, nanosec=nsec),
-              st.integers(-2**31, 2**31 - 1), st.integers(0, 2**32 - 1)))
-finite = st.floats(-1e3, 1e3, allow_nan=False)
-special = st.sampled_from([math.nan, math.inf, -math.inf, 1e308, -0.0])
-frames = st.sampled_from(["map", "odom", "", "robot_2", "base_link"])
-
-
-@st.composite
-def poses(draw) -> PoseStamped:
-    """A valid pose at a label of ``stamps``, then broken in one way or none."""
-    m = ms.pose_to_msg((draw(finite), draw(finite), draw(finite)), 0, ms.WORLD_FRAME)
-    m.header.stamp = draw(stamps)
-    how = draw(st.sampled_from(["none"] * 5 + ["frame", "x", "y", "quat", "tilt"]))
-    if how == "frame":
-        m.header.frame_id = draw(frames)
-    elif how in ("x", "y"):
-        setattr(m.pose.position, how, draw(special))
-    elif how == "quat":
-        q = m.pose.orientation
-        q.x, q.y, q.z, q.w = (draw(st.one_of(finite, special)) for _ in range(4))
-    elif how == "tilt":
-        m.pose.orientation.x = 0.1
-    return m
-
-
-@st.composite
-def paths(draw, robot: int = 0) -> Path:
-    """Mostly a real-looking trajectory of some trial, then broken in one way or none."""
-    k = draw(st.integers(-1, 3))
-    eta = PB.eta_d[robot].copy()
-    stamps_ns = [CLOCK.stamp_ns(max(k, 0), s) for s in range(T + 1)]
-    msg = ms.trajectory_to_path(eta, stamps_ns, ms.WORLD_FRAME)
-    how = draw(st.sampled_from(["none"] * 4 + ["short", "long", "stamp", "nan", "frame",
-                                              "negative", "empty", "path_frame"]))
-    if how == "short":
-        msg.poses = msg.poses[:-1]
-    elif how == "long":
-        msg.poses = [*msg.poses, msg.poses[-1]]
-    elif how == "stamp":
-        msg.poses[draw(st.integers(0, T))].header.stamp = draw(stamps)
-    elif how == "nan":
-        msg.poses[draw(st.integers(0, T))].pose.position.x = math.nan
-    elif how == "frame":
-        msg.poses[draw(st.integers(0, T))].header.frame_id = "odom"
-    elif how == "negative":
-        msg.poses[0].header.stamp = Time(sec=-1, nanosec=0)
-    elif how == "empty":
-        msg.poses = []
-    elif how == "path_frame":
-        msg.header.frame_id = draw(frames)
-        for ps in msg.poses:
-            ps.header.frame_id = msg.header.frame_id
-    return msg
-
-
-json_values = st.recursive(
-    st.one_of(st.none(), st.booleans(), st.integers(-10, 10**20), st.floats(),
-              st.text(max_size=8)),
-    lambda inner: st.one_of(st.lists(inner, max_size=3),
-                            st.dictionaries(st.text(max_size=6), inner, max_size=3)),
-    max_leaves=8)
-small = st.integers(-1, 4)
-trial_values = st.one_of(small, small, small, st.integers(), st.floats(), st.booleans(),
-                         st.none(), st.text(max_size=3))
-
-
-def jsons(fields: st.SearchStrategy) -> st.SearchStrategy:
-    """Strings: junk text, any JSON, or objects with the protocol's fields varied."""
-    structured = fields.map(lambda d: json.dumps(d, allow_nan=True))
-    return st.one_of(
-        structured, structured, structured, structured,
-        st.text(max_size=40),
-        json_values.map(json.dumps),
-        st.just("[" * 5000),
-    ).map(lambda s: String(data=s))
-
-
-events = jsons(st.fixed_dictionaries(
-    {"event": st.sampled_from(["start", "start", "end", "done", "abort", "halt", 1]),
-     "trial": trial_values, "seq": st.one_of(st.integers(-1, 3), st.just("1"))},
-    optional={"start_wall_ns": st.one_of(st.integers(-1, 2**63),
-                                         st.just(time.time_ns() + 10**9)),
-              "stamp_ns": st.integers()}))
-readies = jsons(st.fixed_dictionaries(
-    {"node": st.sampled_from(["robot_1", "robot_2", "robot_3", "robot_sim", "monitor",
-                              "recorder", "link_emulator", "intruder", 7]),
-     "trial": trial_values}))
-hist = st.one_of(
-    st.dictionaries(st.sampled_from(["robot_1", "leader"]),
-                    st.dictionaries(st.sampled_from(["0", "1", "-1", "x", "²"]),
-                                    st.one_of(st.integers(-1, 9), st.text(max_size=2)),
-                                    max_size=2), max_size=2),
-    json_values)
-_reports = st.fixed_dictionaries(
-    {"node": st.sampled_from(["robot_1", "robot_2", "robot_sim", "recorder", 5]),
-     "trial": trial_values},
-    optional={"delays": hist, "injected": hist, "dropped": json_values,
-              "timing": st.dictionaries(st.text(max_size=4), json_values, max_size=2),
-              "missed": json_values})
-#: DiagnosticArrays: a report as the nodes send it (its fields varied), or statuses whose
-#: key/value pairs are junk (not JSON, keys that nest under values, no node)
-diags = st.one_of(
-    _reports.map(lambda d: ms.diagnostics_to_msg(d, 0)),
-    _reports.map(lambda d: ms.diagnostics_to_msg(d, 0)),
-    st.lists(st.tuples(st.sampled_from(["node", "trial", "trial.x", "delays", "x"]),
-                       st.text(max_size=12)), max_size=4).map(
-        lambda kv: DiagnosticArray(status=[DiagnosticStatus(
-            name="x", values=[KeyValue(key=k, value=v) for k, v in kv])])))
-twists = st.builds(
-    lambda v, w, other: ms.u_to_twist((v, w)) if not other else
-    Twist(linear=ms.u_to_twist((v, w)).linear,
-          angular=type(Twist().angular)(x=other, z=w)),
-    st.one_of(finite, finite, special), st.one_of(finite, finite, special),
-    st.sampled_from([0.0, 0.0, 0.0, 1.0, math.nan]))
-
-
-def _pose(k: int, s: int, robot: int = 0) -> PoseStamped:
-    return ms.pose_to_msg(PB.eta_d[robot, s], CLOCK.stamp_ns(k, s), ms.WORLD_FRAME)
-
-
-def _path(k: int, robot: int = 0) -> Path:
-    return ms.trajectory_to_path(PB.eta_d[robot], [CLOCK.stamp_ns(k, s) for s in range(T + 1)],
-                                 ms.WORLD_FRAME)
-
-
-def clocks() -> st.SearchStrategy:
-    return stamps.map(lambda t: Clock(clock=t))
-
-
-def in_grid(t: Time) -> tuple[int, int] | None:
-    """(trial, sample) of a stamp if it is a valid label, else None."""
-    try:
-        return CLOCK.decode(ms.stamp_to_ns(t))
-    except ms.MalformedMessage:
-        return None
-
-
-# --------------------------------------------------------------------------- helpers
-
-@pytest.fixture
-def executor(context):
-    ex = SingleThreadedExecutor(context=context)
-    nodes: list = []
-    yield ex, nodes
-    ex.shutdown()
-    for n in nodes:
-        n.destroy_node()
-
-
-def robot_node(context, links: str = "direct"):
-    from formation_ilc.nodes.robot import RobotNode
-
-    params = [Parameter("robot_id", value=2), Parameter("scenario", value=SCENARIO),
-              Parameter("links", value=links), Parameter("delay", value=False),
-              Parameter("noise", value=False), Parameter("seed", value=3)]
-    return RobotNode(context=context, parameter_overrides=params)
-
-
-def base_learner(node, direct: bool, finished: bool) -> RobotLearner:
-    """Robot 2 in trial 0 at sample 1 (``finished``: trial 0 done and learned, so trial 1
-    is open)."""
-    lrn = RobotLearner(node.pb, 1, CLOCK, direct=direct)
-    steps = T + 1 if finished else 2
-    for s in range(steps):
-        ns = CLOCK.stamp_ns(0, s)
-        ev = lrn.on_pose(ns, PB.eta_d[1, s])
-        if ev.last:
-            lrn.finish_trial()
-            break
-        if direct:
-            lrn.on_link_pose("robot_1", ns, PB.eta_d[0, s])
-        else:
-            lrn.on_link_tick("robot_1", ns, None)
-        if s < steps - 1:
-            lrn.command()
-    if finished:
-        stamps_ns = np.array(lrn.trajectory_stamps(0))
-        assert lrn.on_trajectory("robot_1", stamps_ns, PB.eta_d[0])
-    return lrn
-
-
-def window(lrn: RobotLearner) -> set[int]:
-    """The trials robot 2 may take input of: the current one, the next once learned."""
-    return {lrn.k, lrn.k + 1} if lrn.learned >= lrn.k else {lrn.k}
-
+from ..procs import spin_until  # noqa: E402
 
 # --------------------------------------------------------------------------- regressions
 
-def test_a_forged_later_trial_pose_does_not_hijack_the_link_emulator(context, executor):
-    """Reported: one well-formed PoseStamped on robot_2/shared_pose labelled with a later
-    trial made the link emulator jump to that trial and drop all real traffic as stale.
-    Now it is dropped as ``future`` and the real traffic keeps flowing."""
-    from robot_sim.link_emulator import LinkEmulator
-
-    cfg = make_config(SCENARIO, seed=9)
-    ex, nodes = executor
-    emu = LinkEmulator(context=context)
-    tester = rclpy.create_node("tester", namespace=ms.NAMESPACE, context=context)
-    nodes += [emu, tester]
-    ex.add_node(emu)
-    ex.add_node(tester)
-    got: list[int] = []
-    sub = tester.create_subscription(
-        Path, ms.link_topic(2, "robot_1"),
-        lambda m: got.append(ms.msg_to_link_tick(m)[0]), ms.SAMPLE_QOS)
-    cfg_pub = tester.create_publisher(String, ms.CONFIG, ms.LATCHED_QOS)
-    cfg_pub.publish(ms.json_to_msg(cfg.to_json()))
-    spin_until(ex, lambda: emu.configured)
-    shared = [tester.create_publisher(PoseStamped, ms.shared_pose_topic(j + 1), ms.SAMPLE_QOS)
-              for j in range(3)]
-    ref = tester.create_publisher(PoseStamped, ms.REFERENCE, ms.SAMPLE_QOS)
-    events = tester.create_publisher(String, ms.TRIAL_EVENTS, ms.SAMPLE_QOS)
-    spin_until(ex, lambda: all(p.get_subscription_count() >= 1 for p in [*shared, ref, events])
-               and sub.get_publisher_count() >= 1)
-    wait_emulator_ready(ex, tester, emu)
-    pb = Problem.from_scenario(cfg.scenario)
-    events.publish(ms.json_to_msg({"event": "start", "trial": 0, "slot": 0, "seq": 0}))
-    spin_until(ex, lambda: emu.links.active)
-
-    def sample(t: int) -> None:
-        ns = cfg.clock.stamp_ns(0, t)
-        for j in range(3):
-            shared[j].publish(ms.pose_to_msg(pb.eta_d[j, t], ns, ms.WORLD_FRAME))
-        ref.publish(ms.pose_to_msg(cfg.scenario.reference[t], ns, ms.WORLD_FRAME))
-
-    sample(0)
-    spin_until(ex, lambda: len(got) == 1)
-    # the forgery: a well-formed pose of trial 7, and one of the next trial mid-trial
-    for k in (7, 1):
-        shared[1].publish(ms.pose_to_msg(pb.eta_d[1, 0], cfg.clock.stamp_ns(k, 0),
-                                         ms.WORLD_FRAME))
-    spin_until(ex, lambda: emu.drops.counts["future"] == 2)
-    assert emu.links.k == 0
-    for t in range(1, 5):
-        sample(t)
-    spin_until(ex, lambda: len(got) == 5)
-    assert got == [cfg.clock.stamp_ns(0, t) for t in range(5)]
-    assert emu.drops.by_topic["future:robot_2/shared_pose"] == 2
-    assert sum(emu.drops.counts.values()) == 2
 
 
 def test_stray_trajectories_do_not_evict_a_real_one(context, executor):
@@ -496,148 +224,10 @@ def test_fuzz_robot_link_tick_and_trajectory_handlers(context):
         node.destroy_node()
 
 
-def test_fuzz_link_emulator_handlers(context):
-    from robot_sim.link_emulator import LinkEmulator
-
-    cfg = make_config(SCENARIO, seed=3, mode="realtime")
-    emu = LinkEmulator(context=context)
-    emu.follow_config(cfg)
-    seen = Outcomes()
-    try:
-        @FUZZ
-        @example(msg=_pose(0, 2), to="shared", done=False)
-        @example(msg=_pose(1, 0), to="reference", done=True)
-        @example(msg=_pose(1, 0), to="reference", done=False)
-        @example(msg=Clock(clock=_time(CLOCK.stamp_ns(0, 3))), to="shared", done=False)
-        @given(msg=st.one_of(poses(), clocks(), st.builds(String, data=st.text(max_size=20))),
-               to=st.sampled_from(["shared", "reference"]), done=st.booleans())
-        def prop(msg, to, done):
-            lk = emu.links
-            lk.follower.slot = lk.follower.trial = 0  # slot 0 (iteration 0) started
-            lk.begin()
-            lk.reported = done  # the trial delivered: the next slot may come (held)
-            lk.early = []
-            lk.clock_t = 2
-            lk.next_t = 2
-            before = (lk.k, dropped(emu))
-            if isinstance(msg, Clock):
-                emu._on_clock(msg)
-                label = in_grid(msg.clock)
-                taken = lk.clock_t != 2 or lk.k != 0 or bool(lk.early)
-            elif isinstance(msg, String):
-                emu._on_config(msg)  # a second configuration: counted, nothing moves
-                label, taken = None, False
-            else:
-                snap = [list(x) for x in lk.shared] + [list(lk.ref)]
-                (emu._on_reference(msg) if to == "reference" else emu._on_shared(msg, 1))
-                label = in_grid(msg.header.stamp)
-                taken = (lk.k != 0 or bool(lk.early)
-                         or [list(x) for x in lk.shared] + [list(lk.ref)] != snap)
-            assert taken != (dropped(emu) == before[1] + 1)
-            allowed = {0, 1} if done else {0}
-            if label is None or label[0] not in allowed:
-                assert lk.k == 0 and not taken
-            seen(taken)
-        prop()
-        seen.check()
-    finally:
-        emu.destroy_node()
 
 
-def test_fuzz_simulator_handlers(context):
-    from robot_sim.node import SimNode
-
-    sim = SimNode(context=context)
-    sim.follow_config(CFG)
-    seen = Outcomes()
-    try:
-        @FUZZ
-        @example(msg=ms.u_to_twist((0.2, 0.1)), r=1, state="in_trial")
-        @example(msg=ms.u_to_twist((0.2, 0.1)), r=1, state="between")
-        @example(msg=ms.json_to_msg({"event": "start", "trial": 1, "seq": 1}), r=0,
-                 state="between")
-        @example(msg=ms.json_to_msg({"event": "start", "trial": 1, "seq": 1}), r=0,
-                 state="not_ready")
-        @example(msg=ms.json_to_msg({"event": "start", "trial": 2, "seq": 1}), r=0,
-                 state="between")
-        @given(msg=st.one_of(events, twists), r=st.integers(0, 2),
-               state=st.sampled_from(["between", "in_trial", "not_ready"]))
-        def prop(msg, r, state):
-            plant, f = sim.plant, sim.plant.follower
-            f.slot, f.trial, f.seen = 0, 0, 0
-            # "in_trial": ready for the next trial, but inside this one
-            plant.in_trial, f.ready = state == "in_trial", state != "not_ready"
-            plant.pending = {0, 1, 2} if plant.in_trial else set()
-            plant.t = 5
-            before = dropped(sim)
-            if isinstance(msg, Twist):
-                sim._on_cmd(msg, r)
-                assert plant.k == 0
-                assert dropped(sim) in (before, before + 1)
-                if dropped(sim) == before:  # taken: inside a trial, a finite planar command
-                    assert state == "in_trial" and r not in plant.pending
-                    assert plant.u[r, 5].tolist() == [msg.linear.x, msg.angular.z]
-                seen(dropped(sim) == before)
-                return
-            sim._on_event(msg)
-            if plant.k != 0:  # only the start of the next slot, between trials, once ready
-                ev = json.loads(msg.data)
-                assert (ev["event"], ev["trial"], state) == ("start", 1, "between")
-                assert ev["seq"] > 0
-                assert dropped(sim) == before
-            elif dropped(sim) == before:
-                # not counted: end, done, an abort (answered), or the leader's repeat of the
-                # start taken (slot 0, seq 0)
-                ev = json.loads(msg.data)
-                assert ev["event"] in ("end", "done", "abort") or (
-                    ev["event"] == "start" and ev.get("slot", ev["trial"]) == 0
-                    and ev["seq"] == 0)
-            else:
-                assert dropped(sim) == before + 1
-            seen(plant.k != 0)
-        prop()
-        seen.check()
-    finally:
-        sim.destroy_node()
 
 
-def test_fuzz_leader_handlers(context):
-    from virtual_leader.node import LeaderNode
-
-    params = [Parameter("scenario", value=SCENARIO), Parameter("trials", value=4)]
-    leader = LeaderNode(context=context, parameter_overrides=params)
-    leader._gate.cancel()  # the schedule itself is not under test here
-    seen = Outcomes()
-    try:
-        @FUZZ
-        @example(msg=Clock(clock=_time(CLOCK.stamp_ns(1, 4))))
-        @example(msg=Clock(clock=_time(CLOCK.stamp_ns(1, 5))))
-        @example(msg=ms.json_to_msg({"node": "robot_2", "trial": 2}))
-        @example(msg=ms.json_to_msg({"node": "robot_2", "trial": 3}))
-        @given(msg=st.one_of(readies, clocks()))
-        def prop(msg):
-            leader.k, leader.t, leader.ended = 1, 3, 0
-            leader.ready = {n: 1 for n in leader.expected}
-            before = (dict(leader.ready), leader.t, leader.ended, dropped(leader))
-            if isinstance(msg, Clock):
-                leader._on_clock(msg)
-                label = in_grid(msg.clock)
-                if label is None or label != (1, 4):  # lockstep: sample 4 of trial 1 only
-                    assert (leader.t, leader.ended) == before[1:3]
-                taken = leader.t != before[1]
-            else:
-                leader._on_ready(msg)
-                changed = {n: v for n, v in leader.ready.items() if before[0][n] != v}
-                for n, v in changed.items():  # ready for trial 2 at most, or the whole run
-                    assert v == 2 or (n in ("monitor", "recorder") and v == 4)
-                taken = bool(changed) or (
-                    dropped(leader) == before[3] and leader.ready == before[0])
-            assert taken != (dropped(leader) == before[3] + 1)
-            seen(taken)
-        prop()
-        seen.check()
-    finally:
-        leader.destroy_node()
 
 
 def test_fuzz_monitor_handlers(context):

@@ -8,7 +8,7 @@ import pytest
 
 from formation_ilc.config.scenario import load_scenario
 from formation_ilc.core.clock import Rejected
-from formation_ilc.core.metrics import METRIC_COLUMNS, TRUE_COLUMNS
+from formation_ilc.core.metrics import ERROR_COLUMNS, METRIC_COLUMNS, TRUE_COLUMNS
 from formation_ilc.model.simulate import Problem, simulate
 from formation_ilc.protocol.schedule import TrialEvent
 from formation_ilc.protocol.trialrows import SlotRows
@@ -148,7 +148,7 @@ def test_without_a_true_state_the_true_columns_are_nan():
     assert [d.trial for d in done] == [0] and done[0].xi is None
     true_cols = [METRIC_COLUMNS.index(c) for c in TRUE_COLUMNS]
     assert np.isnan(done[0].row[true_cols]).all()
-    other = [i for i in range(1, len(METRIC_COLUMNS)) if i not in true_cols]
+    other = [METRIC_COLUMNS.index(c) for c in ERROR_COLUMNS if c not in TRUE_COLUMNS]
     assert np.isfinite(done[0].row[other]).all()
 
 
@@ -230,3 +230,25 @@ def test_unexplained_gap():
     assert unexplained_gap(3, 5, set())
     assert not unexplained_gap(3, 6, {4, 5})
     assert unexplained_gap(3, 6, {5})
+
+
+def test_rows_count_what_the_filter_changed_and_the_contacts_noted_before_them():
+    rows = SlotRows(PB, safety=True)
+    rows.event(start(0, 0))
+    for r in range(PB.n):
+        rows.note_filtered(0, r, r + 2)
+    rows.note_contacts(0, 1)
+    (d,) = feed(rows, 0, 0)
+    assert d.row[METRIC_COLUMNS.index("filter_active")] == sum(r + 2 for r in range(PB.n))
+    assert d.row[METRIC_COLUMNS.index("contacts")] == 1
+    # a robot's count missing: unknown, not a smaller sum; no contact report: unknown
+    rows.event(start(1, 1))
+    rows.note_filtered(1, 0, 5)
+    (d,) = feed(rows, 1, 1)
+    assert np.isnan(d.row[METRIC_COLUMNS.index("filter_active")])
+    assert np.isnan(d.row[METRIC_COLUMNS.index("contacts")])
+    # a run without a filter changed nothing
+    plain = SlotRows(PB)
+    plain.event(start(0, 0))
+    (d,) = feed(plain, 0, 0)
+    assert d.row[METRIC_COLUMNS.index("filter_active")] == 0

@@ -47,7 +47,7 @@ SCENARIO = "paper-triangle3"
 def record(path: Path, trials: int, extra=None) -> Path:
     """A batch run recorded as the stack's recorder would (``extra(rec)`` adds messages)."""
     sc = load_scenario(SCENARIO).with_options(trials=trials)  # as `simulate --trials` records
-    rec = SimRecorder(path, sc)
+    rec = SimRecorder(path, sc, ms.recorder_table(sc.n))
     simulate(sc, trials=trials, on_trial_data=rec.trial)
     if extra is not None:
         extra(rec)

@@ -24,11 +24,18 @@ from formation_ilc.config.scenario import load_scenario  # noqa: E402
 from formation_ilc.core.metrics import read_metrics  # noqa: E402
 from formation_ilc.recordings.mcap_io import read_messages  # noqa: E402
 
+from .shared import RUNS  # noqa: E402
 from .test_stack import launch  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.multiprocess, pytest.mark.slow]
 
 TB4 = BASES["turtlebot4"].limits
+
+
+def base_key(scenario: str, scale: str) -> tuple[str, tuple[str, ...]]:
+    """The shared run of the TurtleBot 4 physics bases on ``scenario`` stretched ``scale``
+    times (no noise, 40 s returns)."""
+    return "base", (scenario, scale)
 
 
 def test_too_fast_for_the_base_is_refused_then_runs_stretched(ros_env, tmp_path):
@@ -51,6 +58,8 @@ def test_too_fast_for_the_base_is_refused_then_runs_stretched(ros_env, tmp_path)
     assert res.returncode == 0, res.stdout
     got = read_metrics(tmp_path / "run" / "metrics.csv")
     assert len(got) == 3 and got[-1, 1] < got[0, 1]  # it learns from the odometry pose
+    # the insecure run a secure one is compared with (tests/stack/test_secure.py)
+    RUNS[base_key(scen.read_text(), scale)] = got
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["true_state"] is False  # a base gives the stack no ground truth
     for b in summary["bridges"].values():

@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 
 from formation_ilc.cli import main as cli_main
+from formation_ilc.config.safety import SafetySettings
 from formation_ilc.config.scenario import load_scenario
 from formation_ilc.core.metrics import read_metrics
+from formation_ilc.model.safety import spec_of
 from formation_ilc.model.simulate import simulate
 from tests.stack.test_stack import launch
 
@@ -41,11 +43,19 @@ def test_team_learns_through_bridges_and_fake_drivers(ros_env, tmp_path):
     assert res.returncode == 0, res.stdout
     assert "wallclock, direct links, plant bridge_1, bridge_2, bridge_3" in res.stdout
     got = read_metrics(out / "metrics.csv")
-    assert got.shape == (TRIALS, 7)
-    # no true state from a real robot: the true_ columns are nan, the rest finite
-    assert np.isnan(got[:, 3:5]).all() and np.isfinite(got[:, [1, 2, 5, 6]]).all()
+    assert got.shape == (TRIALS, 9)
+    # no true state from a real robot: the true_ columns are nan, the rest finite; no
+    # bodies report contacts; the robots' safety filter (on by default on robots) counts
+    assert np.isnan(got[:, 3:5]).all() and np.isfinite(got[:, [1, 2, 5, 6, 7]]).all()
+    assert np.isnan(got[:, 8]).all()
+    summary = json.loads((out / "summary.json").read_text())
+    safety = SafetySettings.from_json(summary["safety"])
+    # the robots heard each other's own poses (bridges: no plant knows them all); a
+    # Pioneer's limits: its bridge's speed, ARIA's accelerations
+    assert safety.sensing == "peers" and safety.body == "p3dx"
+    assert safety.limits.v_max == 0.75 and safety.limits.a_max == 0.3
     sc = load_scenario("paper-triangle3").with_options(noise=False, delay=False)
-    ref = simulate(sc, trials=TRIALS).metrics
+    ref = simulate(sc, trials=TRIALS, safety=spec_of(safety, sc.dt)).metrics
     print("bridge max position error per trial:", got[:, 1].round(4).tolist())
     print("batch  max position error per trial:", ref[:, 1].round(4).tolist())
     # the team learns, as the batch simulator does
@@ -53,7 +63,6 @@ def test_team_learns_through_bridges_and_fake_drivers(ros_env, tmp_path):
     np.testing.assert_allclose(got[:, 1], ref[:, 1], rtol=0, atol=BATCH_ATOL)
     _cold["first"] = float(got[0, 1])
 
-    summary = json.loads((out / "summary.json").read_text())
     assert summary["mode"] == "wallclock" and summary["links"] == "direct"
     assert summary["true_state"] is False
     diag = json.loads((out / "diagnostics.json").read_text())
@@ -80,10 +89,13 @@ def test_team_learns_through_bridges_and_fake_drivers(ros_env, tmp_path):
 def test_memory_learned_in_simulation_starts_the_robots_better(ros_env, tmp_path):
     """The paper's workflow: learn noise-free in simulation, carry the memory to the robots.
     The first trial on the (fake) robots from that memory has a smaller error than a cold
-    start through the same stack."""
+    start through the same stack. The robots' commands go through the safety filter (on by
+    default on robots), so the memory is learned through it too: a memory learned without
+    the base's acceleration limit asks for more than the robots may do."""
     sim = tmp_path / "sim"
     assert cli_main(["simulate", "paper-triangle3", "--trials", "100", "--no-noise",
-                     "--no-delay", "--no-plots", "--out", str(sim)]) == 0
+                     "--no-delay", "--no-plots", "--safety", "--body", "p3dx",
+                     "--out", str(sim)]) == 0
     memory = sim / "memory.npz"
     assert memory.is_file()
     out = tmp_path / "warm"

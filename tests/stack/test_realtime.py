@@ -75,9 +75,9 @@ def test_realtime_run_accounts_for_every_sample(ros_env, tmp_path):
     n, n_t = sc.n, sc.samples
 
     got = read_metrics(out / "metrics.csv")
-    assert got.shape == (TRIALS, 7)
+    assert got.shape == (TRIALS, 9)
     np.testing.assert_array_equal(got[:, 0], np.arange(TRIALS))
-    assert np.isfinite(got).all()
+    assert np.isfinite(got[:, :8]).all() and np.isnan(got[:, 8]).all()  # no bodies
 
     diag = json.loads((out / "diagnostics.json").read_text())
     sim = diag["robot_sim"]
@@ -143,7 +143,7 @@ def test_realtime_direct_links_learn_and_report_the_measured_delays(ros_env, tmp
     assert res.returncode == 0, res.stdout
     assert "delays measured by the robots (eq. 11, all links)" in res.stdout
     got = read_metrics(out / "metrics.csv")
-    assert got.shape == (trials, 7) and np.isfinite(got).all()
+    assert got.shape == (trials, 9) and np.isfinite(got[:, :8]).all()  # no bodies: no contacts
     sc = load_scenario("paper-triangle3").with_options(seed=SEED)
     # it learns as the batch simulator does with (almost) no delay: DDS on one machine
     # delivers within a sample, so eq. (11) measures 0 or 1 (batch: 4.71 -> 3.45 m in 3

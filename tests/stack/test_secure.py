@@ -32,6 +32,7 @@ from formation_ilc.core.metrics import read_metrics
 from formation_ilc.model.simulate import simulate
 
 from ..procs import stop_group
+from .shared import RUNS
 from .test_stack import TOL, launch, start_launch
 
 pytestmark = [pytest.mark.ros, pytest.mark.multiprocess]
@@ -362,3 +363,111 @@ def test_no_plaintext_leaves_a_process(ros_env, tmp_path, keystore, udp_only):
     else:
         assert secure["shm_segments"] > 0 and secure["shm_reads"] > 0, secure
     assert secure[where] == [0, 0], secure
+
+
+def _secure_run_probed(env: dict[str, str], out: Path, ks: Path, args: list[str],
+                       first_rows: int = 1, seconds: float = 5.0) -> tuple[dict, str, bool]:
+    """A secure launch of ``args`` (long enough to outlast the probe), an unsecured
+    participant listening to it once ``first_rows`` trials are in, then the launch
+    stopped (SIGINT: the finished trials stay in metrics.csv). (probe result, the
+    launcher's output, whether the run was still going when the probe was done)."""
+    proc = start_launch(env, out, *args, "--secure", str(ks))
+    metrics = out / "metrics.csv"
+    p = None
+    try:
+        deadline = time.monotonic() + 600  # a hang guard: secure start-up is slow under load
+        while not (metrics.exists() and len(metrics.read_text().splitlines()) > first_rows):
+            assert proc.poll() is None, proc.communicate()[0]
+            assert time.monotonic() < deadline, "the secure run did not get to its trials"
+            time.sleep(0.05)
+        p = probe(plain(env), seconds, "intruder", "listen:robot_1/pose:PoseStamped",
+                  "listen:config:String", "listen:leader/trial_events:String")
+        got = result(p)
+        alive = proc.poll() is None
+    finally:
+        if p is not None:
+            stop_group(p)
+        stop_group(proc)
+    return got, proc.communicate()[0], alive
+
+
+def _nothing_received(got: dict) -> None:
+    ops = got["ops"]
+    assert all(o["created"] for o in ops.values()), ops  # nothing refuses it locally
+    assert all(o["received"] == 0 and o["matched"] == 0 for o in ops.values()), ops
+
+
+def _keystore(path: Path, scenario: str, *extra: str) -> Path:
+    res = subprocess.run([sys.executable, "-m", "formation_ilc.cli", "keystore", "create",
+                          str(path), scenario, *extra], capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    return path
+
+
+@pytest.mark.slow
+def test_secure_physics_plant_equals_the_insecure_run(ros_env, tmp_path, secure_dds):
+    """``launch --secure --plant physics``: the physics plant in its enclave (its grants
+    from the roster: the simulator's topics), lockstep, equal to the same run insecure to
+    round-off (the engine is deterministic), an unsecured participant receiving nothing."""
+    pytest.importorskip("pybullet")
+    from .test_physics_stack import short_triangle
+
+    scen = str(short_triangle(tmp_path / "short.yaml"))
+    ks = _keystore(tmp_path / "ks", scen, "--plant", "physics")
+    common = [scen, "--plant", "physics", "--no-noise", "--no-delay", "--links", "direct"]
+    got, out, alive = _secure_run_probed(ros_env, tmp_path / "secure", ks,
+                                         [*common, "--trials", "60"])
+    assert alive, out  # the probe listened while the formation ran
+    _nothing_received(got)
+    secure = read_metrics(tmp_path / "secure" / "metrics.csv")
+    assert len(secure) >= 2, out
+    # the insecure run of the same options: test_physics_stack's (3 trials), else our own
+    insecure = RUNS.get(("physics", (Path(scen).read_text(),)))
+    if insecure is None:
+        res = launch(ros_env, tmp_path / "insecure", *common, "--trials", "3", timeout=600)
+        assert res.returncode == 0, res.stdout
+        insecure = read_metrics(tmp_path / "insecure" / "metrics.csv")
+    k = min(len(secure), len(insecure))
+    np.testing.assert_allclose(secure[:k], insecure[:k], rtol=0, atol=TOL)
+
+
+@pytest.mark.slow
+def test_secure_bases_with_physics_bases_equal_the_insecure_run(ros_env, tmp_path, secure_dds):
+    """``launch --secure --plant base --physics-bases``: each bridge and the physics bases
+    in their enclaves (the bases' cmd_vel and odometry granted from the roster). Wall-clock
+    trials against physics in wall time are not repeatable to round-off: the secure run's
+    errors equal the insecure run's within BATCH_ATOL (what a bridge run of the Pioneer
+    bridges gets against the batch simulator), it learns as the insecure run does, and an
+    unsecured participant receives nothing. (The run is stopped once the probe is done:
+    its report, written after the bridges' last return, is not waited for.)"""
+    pytest.importorskip("pybullet")
+    from .test_base_physics import base_key
+    from .test_pioneer import BATCH_ATOL
+
+    scen = tmp_path / "short.yaml"
+    scen.write_text(load_scenario("paper-triangle3").text.replace("samples: 140",
+                                                                  "samples: 40"))
+    ks = _keystore(tmp_path / "ks", str(scen), "--plant", "base", "--base", "turtlebot4",
+                   "--physics-bases")
+    common = [str(scen), "--plant", "base", "--base", "turtlebot4", "--physics-bases",
+              "--no-noise", "--return-timeout", "40"]
+    # the time scale that fits the base's limits, as the refusal names it (no process runs)
+    refused = launch(ros_env, tmp_path / "refused", *common, "--trials", "2", timeout=120.0)
+    assert refused.returncode == 2, refused.stdout
+    scale = refused.stdout.rsplit("--time-scale ", 1)[1].split()[0]
+    common += ["--time-scale", scale]
+    got, out, alive = _secure_run_probed(ros_env, tmp_path / "secure", ks,
+                                         [*common, "--trials", "30"], first_rows=2)
+    assert alive, out
+    _nothing_received(got)
+    secure = read_metrics(tmp_path / "secure" / "metrics.csv")
+    assert len(secure) >= 2, out
+    # the insecure run of the same options: test_base_physics's (3 trials), else our own
+    insecure = RUNS.get(base_key(scen.read_text(), scale))
+    if insecure is None:
+        res = launch(ros_env, tmp_path / "insecure", *common, "--trials", "2", timeout=900)
+        assert res.returncode == 0, res.stdout
+        insecure = read_metrics(tmp_path / "insecure" / "metrics.csv")
+    k = min(len(secure), len(insecure))
+    assert k >= 2 and insecure[k - 1, 1] < insecure[0, 1] and secure[k - 1, 1] < secure[0, 1]
+    np.testing.assert_allclose(secure[:k, 1:3], insecure[:k, 1:3], rtol=0, atol=BATCH_ATOL)

@@ -361,10 +361,12 @@ def test_two_formations_share_a_domain_under_two_namespaces(ros_env, tmp_path):
 
 
 def test_a_stand_in_plant_that_speaks_only_the_contract(ros_env, tmp_path):
-    """The simulator replaced by tests/standin_plant.py (no true state, no diagnostics):
+    """The simulator replaced by tests/stack/standin_plant.py (no true state, no diagnostics):
     the team still learns, and the true-state columns say they are absent (nan)."""
     trials = 6
-    standin = Path(__file__).resolve().parents[1] / "standin_plant.py"  # tests/
+    # beside this file: run from tests/, its folders (tests/msgs_schema/, ...) would
+    # shadow the packages they test
+    standin = Path(__file__).resolve().parent / "standin_plant.py"
     plant = subprocess.Popen([sys.executable, str(standin)],
                              env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                              text=True, start_new_session=True)
@@ -378,7 +380,7 @@ def test_a_stand_in_plant_that_speaks_only_the_contract(ros_env, tmp_path):
     assert res.returncode == 0, res.stdout + plant_log
     assert "true state: the plant publishes none" in res.stdout
     got = read_metrics(tmp_path / "metrics.csv")
-    assert got.shape == (trials, 7)
+    assert got.shape == (trials, 9)
     assert np.isnan(got[:, 3:5]).all()          # true_max_position/heading_error
     assert np.isfinite(got[:, [1, 2, 5, 6]]).all()
     assert got[-1, 1] < 0.5 * got[0, 1]         # it learns

@@ -5,7 +5,7 @@ disturbance, no true trajectories, no diagnostics. A test runs the stack with
 ``--plant external --plant-nodes standin_plant`` and this process, and checks that the team
 still learns: nothing else in the stack may need the plant to be the simulator.
 
-    python tests/standin_plant.py [--ros-args -r __ns:=/team2]
+    python tests/stack/standin_plant.py [--ros-args -r __ns:=/team2]
 """
 
 from __future__ import annotations

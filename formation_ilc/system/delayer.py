@@ -7,7 +7,7 @@ socket itself (no compiled dependency, no libnetfilter_queue), so it runs wherev
 kernel has NFQUEUE. Inside a network namespace, as root::
 
     iptables -A OUTPUT -p udp ! -o lo -j NFQUEUE --queue-num 0 --queue-bypass
-    python -m robot_sim.delayer --delay-ms 100 --jitter-ms 50 --loss 0.05 --seed 1
+    python -m formation_ilc.system.delayer --delay-ms 100 --jitter-ms 50 --loss 0.05 --seed 1
 
 Each packet queued is dropped with probability ``--loss`` (independently), else held for a
 delay drawn uniformly from [delay - jitter, delay + jitter] ms (at least 0) and then
@@ -333,7 +333,7 @@ def _fraction(text: str) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m robot_sim.delayer",
+    p = argparse.ArgumentParser(prog="python -m formation_ilc.system.delayer",
                                 description=__doc__.split("\n\n")[0],
                                 epilog="Run as root inside the network namespace whose "
                                        "OUTPUT chain has the NFQUEUE rule.")

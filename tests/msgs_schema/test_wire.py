@@ -269,3 +269,37 @@ def test_a_trajectory_longer_than_a_trial_is_refused_by_its_size():
     with pytest.raises(ms.MalformedMessage, match="longer than"):
         ms.trajectory_from_raw(data, 10)
     assert len(ms.trajectory_from_raw(data, 40)[0]) == 40
+
+
+def test_texts_and_reports_read_from_bytes_as_the_message_converters_read_them():
+    """What the recordings read without rclpy (a String's JSON, a DiagnosticArray's
+    statuses: ``wire.read_string``, ``wire.read_diagnostics``) is what the converters give
+    for the message rclpy deserialises from the same bytes; bytes that do not decode, and
+    counts that cannot fit in them, are malformed."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from std_msgs.msg import String
+
+    from formation_ilc.protocol.health import node_report, read_statuses
+
+    text = ms.json_to_msg({"node": "robot_2", "trial": 3, "x": [1.5, "é"]})
+    data = serialize_message(text)
+    assert w.read_string(data) == deserialize_message(data, String).data
+    assert w.json_object(w.read_string(data), ("node", "trial")) == ms.msg_to_json(text)
+    with pytest.raises(ms.MalformedMessage, match="lacks"):
+        w.json_object(w.read_string(data), ("seq",))
+    report = {"node": "robot_sim", "trial": 4, "missed": {"robot_2": 3}, "timing": {"p50_ms": 1.5},
+              "dropped": {"stale": 2}}
+    diag = serialize_message(ms.diagnostics_to_msg(report, 12_000_000_001, 0.2, 140))
+    want = ms.msg_to_statuses(deserialize_message(diag, DiagnosticArray))
+    got = read_statuses(w.read_diagnostics(diag))
+    assert len(got) > 1 and got == want
+    assert node_report(got, ("node", "trial")) == ms.msg_to_report(
+        deserialize_message(diag, DiagnosticArray), ("node", "trial"))
+    for cut in (0, 3, 12, 20, len(diag) // 2, len(diag) - 1):
+        with pytest.raises(ms.MalformedMessage):
+            w.read_diagnostics(diag[:cut])
+    huge = diag[:20] + struct.pack("<I", 10**9) + diag[24:]  # the count of statuses
+    with pytest.raises(ms.MalformedMessage, match="cut short"):
+        w.read_diagnostics(huge)
+    with pytest.raises(ms.MalformedMessage):
+        w.read_string(data[:6])

@@ -1,0 +1,386 @@
+"""The roster of a formation: every process of a run, from its options, in one place.
+
+For a run's options (:class:`Lineup`: the team size and graph, the plant, the links, what
+else runs) the roster gives each member its node name, the entry script that starts it,
+whether the leader waits for its ready (each trial, once for the run, or never), whether
+the launcher waits for its last report, its enclave, and the topics it publishes and
+subscribes. Everything else reads it:
+
+* the leader's team (``Team``, ``nodes_expected``): the members it waits for;
+* the launcher's processes (``formation_ilc.cli.plan.node_specs``): the members with an
+  entry script, in start order;
+* the keystore's permissions (``Roster.grants``, signed by ``formation_ilc.store.keystore``):
+  each enclave may publish and subscribe exactly its members' topics (least privilege,
+  derived from the graph: ``adjacency[i, j] > 0``, robot i receives from robot j;
+  ``leader[i] > 0``, robot i hears the leader);
+* the report (which diagnostics the launcher waits for) and the refusals (which plant can
+  run secure, on netns hosts, ...) through the plant's row (``formation_ilc.config.plants``).
+
+Topic names are ``formation_ilc.core.names``'; a member's topics are relative to the
+formation's namespace, or absolute (``/clock``, a driver's topics). This module is pure.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from formation_ilc.config.enclaves import Grant, driver_enclave, enclave_path
+from formation_ilc.config.plants import Plant, plant
+from formation_ilc.core import names as nm
+from formation_ilc.core.topology import Graph
+
+__all__ = ["TRIAL", "ONCE", "NEVER", "Member", "Lineup", "Roster", "Team", "roster",
+           "DRIVER_NS", "ENTRY_SCRIPTS"]
+
+#: whether the leader waits for a member's ready: before each trial, once for the whole
+#: run (a passive reader: the monitor, the recorder), or never
+TRIAL, ONCE, NEVER = "trial", "once", "never"
+
+#: robot i's driver namespace by the bridges' driver kind (``{i}``: the robot's number)
+DRIVER_NS = {"pioneer": "/pioneer_{i}", "base": "/base_{i}"}
+
+#: the entry scripts of the processes the launcher starts (``pyproject.toml`` names their
+#: modules; ``formation_ilc.cli.plan`` starts each as ``python -m MODULE``)
+ENTRY_SCRIPTS = ("formation-ilc-leader", "formation-ilc-robot", "formation-ilc-sim",
+                 "formation-ilc-physics", "formation-ilc-links", "formation-ilc-record",
+                 "formation-ilc-liveview", "formation-ilc-bridge",
+                 "formation-ilc-fake-pioneer", "formation-ilc-physics-bases")
+
+
+@dataclass(frozen=True)
+class Member:
+    """One node of the formation.
+
+    name : its node name; also the launcher's process and log name.
+    role : 'robot', 'plant', 'support' (the link emulator), 'leader', 'recorder',
+        'liveview', 'monitor' (in the launcher's process), 'driver' (a robot's driver or
+        the physics bases behind the bridges).
+    entry : the entry script the launcher starts it with; None: no process of the
+        launcher's (the monitor runs inside it; an external plant or a real driver is
+        started by someone else).
+    waits : whether the leader waits for its ready (TRIAL, ONCE or NEVER).
+    reports : whether the launcher waits for its last trial's diagnostics.
+    enclave : its enclave's name in the formation's namespace (``enclave_path``).
+    publish, subscribe : the ROS topics it may publish and subscribe: relative to the
+        formation's namespace, or absolute.
+    robot : the robot it belongs to (robots, bridges, drivers), else None.
+    optional : no part of the run: nothing waits for it, and the run goes on without it
+        once its restarts are used up (the live view).
+    node_namespace : its own namespace when it is not the formation's (a driver's).
+    dds_publish, dds_subscribe : services as DDS names (``rq/...Request``, ``rr/...Reply``).
+    service_node : the node name its ROS housekeeping (services) runs under; ``*``: any
+        node in its namespace (a driver whose node name is the driver's own).
+    """
+
+    name: str
+    role: str
+    entry: str | None
+    waits: str
+    reports: bool
+    enclave: str
+    publish: tuple[str, ...]
+    subscribe: tuple[str, ...]
+    robot: int | None = None
+    optional: bool = False
+    node_namespace: str | None = None
+    dds_publish: tuple[str, ...] = ()
+    dds_subscribe: tuple[str, ...] = ()
+    service_node: str = ""
+
+
+@dataclass(frozen=True)
+class Lineup:
+    """What the roster is built from: a run's options.
+
+    n : robots; ``adjacency`` (n, n) and ``leader`` (n,): the scenario's graph (the topics
+        each robot reads; without them every robot is taken to read nothing but its own:
+        enough for names and processes, not for permissions).
+    plant : a row of ``config.plants``; ``external``: an external plant's node names.
+    links : 'emulated' (the link emulator runs) or 'direct'.
+    record, live : a recorder, the live view; ``monitor``: the launcher's monitor (a leader
+        started alone has none).
+    driver, driver_ns, base : the bridges' drivers: the Pioneer driver's kind, robot i's
+        driver namespace (``{i}``; None: ``DRIVER_NS``'s), the base preset
+        (``config.bases``).
+    fake_drivers : a fake Pioneer driver per robot (the launcher starts them).
+    physics_bases : physics robots behind the bases' interface (the launcher starts them).
+    sensing : the robots' safety filter, and how it hears the others ('team': the plant's
+        ``team/poses``; 'peers': every other robot's pose), or None without a filter.
+    """
+
+    n: int
+    plant: str = "sim"
+    links: str = "emulated"
+    record: bool = False
+    live: bool = False
+    monitor: bool = True
+    external: tuple[str, ...] = ()
+    driver: str = "rosaria"
+    driver_ns: str | None = None
+    base: str | None = None
+    fake_drivers: bool = False
+    physics_bases: bool = False
+    sensing: str | None = None
+    adjacency: NDArray[np.float64] | None = field(default=None, compare=False)
+    leader: NDArray[np.float64] | None = field(default=None, compare=False)
+
+    @classmethod
+    def of(cls, graph: Graph, **kw: Any) -> Lineup:
+        """The lineup of a scenario's ``graph``."""
+        a = np.asarray(graph.adjacency, dtype=float)
+        return cls(n=a.shape[0], adjacency=a, leader=np.asarray(graph.leader, dtype=float),
+                   **kw)
+
+    def for_keystore(self) -> Lineup:
+        """Every member a run of this formation and plant may start, with every topic it
+        may use: the link emulator, the recorder, the live view and the monitor too, and
+        the safety filter's hearing (a keystore serves every run)."""
+        return replace(self, links="emulated", record=True, live=True, monitor=True,
+                       sensing=self.row.sensing)
+
+    @property
+    def row(self) -> Plant:
+        return plant(self.plant)
+
+    def driver_namespace(self, i: int) -> str:
+        """Robot ``i``'s driver namespace (``{i}`` replaced; no trailing slash)."""
+        pattern = self.driver_ns or DRIVER_NS.get(self.row.driver or "", "/")
+        return pattern.replace("{i}", str(int(i))).rstrip("/") or ""
+
+
+@dataclass(frozen=True)
+class Team:
+    """The nodes the leader waits for, by role, in the order the schedule lists them.
+
+    robots : ``robot_1`` .. ``robot_n``.
+    plants : the plant's nodes (``robot_sim``; ``physics_sim``; ``bridge_i`` per robot; or
+        an external plant's names).
+    support : the link emulator with emulated links.
+    passive : readers that say ready once for the whole run (monitor, recorder).
+    """
+
+    robots: tuple[str, ...]
+    plants: tuple[str, ...]
+    support: tuple[str, ...] = ()
+    passive: tuple[str, ...] = ()
+
+    @property
+    def expected(self) -> list[str]:
+        """Every node the schedule waits for (the leader's ``nodes_expected``)."""
+        return [*self.robots, *self.plants, *self.support, *self.passive]
+
+
+@dataclass(frozen=True)
+class Roster:
+    """Every member of a run, in the launcher's start order: the monitor (inside the
+    launcher, it joins first), the recorder (it listens before the run starts), the live
+    view, the leader, the plant (and what it drives), the link emulator, the robots."""
+
+    lineup: Lineup
+    members: tuple[Member, ...]
+
+    @property
+    def plant(self) -> Plant:
+        return self.lineup.row
+
+    def by_role(self, *roles: str) -> tuple[Member, ...]:
+        return tuple(m for m in self.members if m.role in roles)
+
+    @property
+    def team(self) -> Team:
+        """The members the leader waits for, by role."""
+        each = [m for m in self.members if m.waits == TRIAL]
+        return Team(robots=tuple(m.name for m in each if m.role == "robot"),
+                    plants=tuple(m.name for m in each if m.role == "plant"),
+                    support=tuple(m.name for m in each if m.role == "support"),
+                    passive=tuple(m.name for m in self.members if m.waits == ONCE))
+
+    @property
+    def processes(self) -> tuple[Member, ...]:
+        """The members the launcher starts, in start order."""
+        return tuple(m for m in self.members if m.entry is not None)
+
+    @property
+    def reporters(self) -> tuple[str, ...]:
+        """Members besides the robots whose last trial's diagnostics the launcher waits for
+        (timing, missed samples, injected delays, the bridges' returns, the recording)."""
+        return tuple(m.name for role in ("plant", "support", "recorder")
+                     for m in self.members if m.role == role and m.reports)
+
+    def enclave_of(self, process: str) -> str:
+        """The enclave of a launcher process (a member's name), or ``process`` itself when
+        no member has that name."""
+        for m in self.members:
+            if m.name == process:
+                return m.enclave
+        return process
+
+    def grants(self, namespace: str) -> dict[str, Grant]:
+        """Every enclave's grant, by enclave path (a member each; the topics absolute in
+        ``namespace``, ``/clock`` as the launcher remaps it there)."""
+        clock = nm.clock_topic(namespace)
+
+        def absolute(topics: Sequence[str]) -> tuple[str, ...]:
+            return tuple(sorted({nm.absolute(clock if t == nm.CLOCK else t, namespace)
+                                 for t in topics}))
+
+        out = {}
+        for m in self.members:
+            path = enclave_path(namespace, m.enclave)
+            out[path] = Grant(path, m.name if m.role != "driver" or m.robot is None
+                              else m.enclave, m.node_namespace or namespace,
+                              absolute(m.publish), absolute(m.subscribe),
+                              tuple(sorted(set(m.dds_publish))),
+                              tuple(sorted(set(m.dds_subscribe))),
+                              m.service_node or m.name)
+        return out
+
+
+# --------------------------------------------------------------------------- building
+
+def roster(lineup: Lineup) -> Roster:
+    """The roster of ``lineup`` (ValueError for a plant that is not in the table)."""
+    row = lineup.row
+    n = lineup.n
+    robots = range(1, n + 1)
+    a = (np.zeros((n, n)) if lineup.adjacency is None
+         else np.asarray(lineup.adjacency, dtype=float))
+    w = np.zeros(n) if lineup.leader is None else np.asarray(lineup.leader, dtype=float)
+    senders = [[int(j) + 1 for j in np.flatnonzero(a[i] > 0)] for i in range(n)]
+    hears = [bool(w[i] > 0) for i in range(n)]
+    protocol = (nm.READY, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS)
+    members: list[Member] = []
+    if lineup.monitor:
+        members.append(Member(
+            nm.MONITOR_NODE, "monitor", None, ONCE, False, nm.MONITOR_NODE, (nm.READY,),
+            (*(nm.trajectory_topic(i) for i in robots),
+             *(nm.true_trajectory_topic(i) for i in robots), nm.DIAGNOSTICS,
+             # readies: it answers a forged 'down' of itself by saying ready
+             nm.TRIAL_EVENTS, nm.READY)))
+    if lineup.record:
+        members.append(Member(
+            nm.RECORDER_NODE, "recorder", "formation-ilc-record", ONCE, True,
+            nm.RECORDER_NODE, (*protocol, *nm.view_topics(n)), tuple(nm.recorded_topics(n))))
+    if lineup.live:
+        # the live view reads what the recording holds and serves it on 127.0.0.1
+        members.append(Member(
+            nm.LIVEVIEW_NODE, "liveview", "formation-ilc-liveview", NEVER, False,
+            nm.LIVEVIEW_NODE, tuple(nm.view_topics(n)),
+            (*nm.recorded_topics(n), *nm.view_topics(n), nm.PREVIEW), optional=True))
+    members.append(Member(
+        nm.LEADER_NODE, "leader", "formation-ilc-leader", NEVER, False, nm.LEADER_NODE,
+        (nm.CONFIG, nm.REFERENCE, nm.TRIAL_EVENTS, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS),
+        # its own events too: it re-asserts against a start or abort it did not send (a
+        # buggy node's, or a lossy link's replay)
+        (nm.READY, nm.CONFIG, nm.CLOCK, nm.TRIAL_EVENTS)))
+    members += _plant(lineup, row)
+    if lineup.links == "emulated":
+        links_pub = [nm.link_topic(i, nm.robot_name(j)) for i in robots
+                     for j in senders[i - 1]]
+        links_pub += [nm.link_topic(i, nm.LEADER) for i in robots if hears[i - 1]]
+        members.append(Member(
+            nm.LINKS_NODE, "support", "formation-ilc-links", TRIAL, True, nm.LINKS_NODE,
+            (*links_pub, *protocol),
+            # every robot's shared pose, the leaves' too
+            (*(nm.shared_pose_topic(j) for j in robots), nm.REFERENCE, nm.TRIAL_EVENTS,
+             nm.CONFIG, nm.CLOCK)))
+    for i in robots:
+        members.append(_robot(i, senders[i - 1], hears[i - 1], lineup))
+    return Roster(lineup, tuple(members))
+
+
+def _robot(i: int, senders: list[int], hears_leader: bool, lineup: Lineup) -> Member:
+    """Robot i (1-based): its own topics out; its pose, its links and its in-neighbours'
+    shared poses and trajectories in (emulated and direct links both); with a safety filter
+    the others' poses too (the plant's ``team/poses``, or each other robot's pose)."""
+    sub = [nm.pose_topic(i), nm.CONFIG, nm.TRIAL_EVENTS]
+    sub += [nm.link_topic(i, nm.robot_name(j)) for j in senders]
+    sub += [nm.shared_pose_topic(j) for j in senders] + [nm.trajectory_topic(j)
+                                                         for j in senders]
+    if hears_leader:
+        sub += [nm.link_topic(i, nm.LEADER), nm.REFERENCE]
+    if lineup.sensing is not None:  # every robot's pose, and the plant's team/poses
+        sub += [nm.pose_topic(j) for j in range(1, lineup.n + 1) if j != i]
+        sub.append(nm.TEAM_POSES)
+    pub = [nm.cmd_vel_topic(i), nm.shared_pose_topic(i), nm.trajectory_topic(i), nm.READY,
+           nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS]
+    return Member(nm.robot_name(i), "robot", "formation-ilc-robot", TRIAL, True,
+                  nm.robot_name(i), tuple(pub), tuple(sub), robot=i)
+
+
+def _plant(lineup: Lineup, row: Plant) -> list[Member]:
+    """The plant's members: its node (or external names), or the bridges with what they
+    drive (the physics bases first, else each robot's driver before its bridge)."""
+    robots = range(1, lineup.n + 1)
+    if row.node is not None:
+        pub = [*(nm.pose_topic(i) for i in robots)]
+        if row.true_state:
+            pub += [nm.true_trajectory_topic(i) for i in robots]
+        if row.clock:
+            pub.append(nm.CLOCK)
+        pub += [nm.READY, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS]
+        if row.true_state:
+            pub.append(nm.PREVIEW)
+        if lineup.sensing == "team":
+            pub.append(nm.TEAM_POSES)
+        return [Member(row.node, "plant", row.entry, TRIAL, row.reports, row.node, tuple(pub),
+                       (*(nm.cmd_vel_topic(i) for i in robots), nm.TRIAL_EVENTS, nm.CONFIG))]
+    if not row.per_robot:  # external: its nodes are the user's, granted nothing here
+        return [Member(name, "plant", None, TRIAL, row.reports, name, (), ())
+                for name in lineup.external]
+    out: list[Member] = []
+    cmd, odom, motors, kind = _driver_topics(lineup)
+    if row.driver == "base" and lineup.physics_bases:
+        out.append(Member(
+            nm.BASES_NODE, "driver", "formation-ilc-physics-bases", NEVER, False,
+            nm.BASES_NODE,
+            (*(f"{lineup.driver_namespace(i)}/{odom}" for i in robots), nm.DIAGNOSTICS,
+             nm.ROS_DIAGNOSTICS),
+            tuple(f"{lineup.driver_namespace(i)}/cmd_vel" for i in robots)))
+    for i in robots:
+        ns = lineup.driver_namespace(i)
+        c, o, mo = f"{ns}/{cmd}", f"{ns}/{odom}", f"{ns}/{motors}"
+        bridge_pub = [nm.pose_topic(i), nm.READY, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS, c]
+        bridge_sub = [nm.cmd_vel_topic(i), nm.TRIAL_EVENTS, nm.CONFIG, o]
+        driver_pub, driver_sub = [o], [c]
+        if row.driver == "pioneer":
+            driver_pub.append(f"{ns}/{nm.FAKE_DRIVER_NODE}/truth")
+        rq = rr = ""
+        if kind == "p2os_motor_state":
+            bridge_pub.append(mo)
+            driver_sub.append(mo)
+        elif kind != "none":  # a service: requests from the bridge, replies from the driver
+            rq, rr = f"rq{mo}Request", f"rr{mo}Reply"
+        if not (row.driver == "base" and lineup.physics_bases):
+            fake = lineup.fake_drivers and row.driver == "pioneer"
+            out.append(Member(
+                nm.fake_driver_name(i) if fake else driver_enclave(i), "driver",
+                "formation-ilc-fake-pioneer" if fake else None, NEVER, False,
+                driver_enclave(i), tuple(driver_pub), tuple(driver_sub), robot=i,
+                node_namespace=ns or "/", dds_publish=(rr,) if rr else (),
+                dds_subscribe=(rq,) if rq else (), service_node="*"))
+        out.append(Member(
+            nm.bridge_name(i), "plant", row.entry, TRIAL, row.reports, nm.bridge_name(i),
+            tuple(bridge_pub), tuple(bridge_sub), robot=i, dds_publish=(rq,) if rq else (),
+            dds_subscribe=(rr,) if rr else ()))
+    return out
+
+
+def _driver_topics(lineup: Lineup) -> tuple[str, str, str, str]:
+    """(cmd, odom, motors, motors kind) of the bridges' drivers, relative to each driver's
+    namespace: a Pioneer driver's (``names.DRIVERS``), or the base preset's."""
+    if lineup.row.driver == "base":
+        from formation_ilc.config.bases import base_preset
+
+        spec = nm.DRIVERS["base"]
+        preset = base_preset(lineup.base) if lineup.base else None
+        if preset is not None:
+            return preset.cmd_topic, preset.odom_topic, spec.motors, spec.motors_kind
+        return spec.cmd, spec.odom, spec.motors, spec.motors_kind
+    spec = nm.DRIVERS[lineup.driver]
+    return spec.cmd, spec.odom, spec.motors, spec.motors_kind

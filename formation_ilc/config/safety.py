@@ -1,0 +1,93 @@
+"""A run's safety filter settings, as the nodes share them in the run configuration.
+
+The launcher decides them (``formation-ilc launch --safety``; on by default on every plant
+with bodies) and the leader broadcasts them inside the run configuration, so every robot
+filters with the same body, limits and margin (``formation_ilc.model.safety.spec_of``
+turns them into the filter's ``core.safety.SafetySpec``).
+
+body : the name of the robots' body (``model.footprint.BODIES``): its footprint, covered by
+    two discs.
+limits : the base's speed and acceleration limits the filter keeps (and the learned
+    commands are held inside): v_max [m/s], omega_max [rad/s], a_max [m/s^2],
+    alpha_max [rad/s^2].
+margin : [m] the least gap between two robots' covering discs.
+learning : how the memory learns where the filter changed a command (``core.safety.LEARNING``).
+sensing : how a robot hears the other robots' poses: 'team' (the plant's ``team/poses``,
+    every robot's pose of a sample in one message) or 'peers' (every other robot's
+    ``pose`` topic: plants of one bridge per robot).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from formation_ilc.core.clock import Rejected
+from formation_ilc.core.limits import Limits
+from formation_ilc.core.safety import LEARNING
+
+__all__ = ["SafetySettings", "SENSING", "BODIES", "SKID_STEER", "default_learning",
+           "default_margin"]
+
+SENSING = ("team", "peers")
+#: bodies the filter knows (``model.footprint.BODIES``, kept here for the config layer)
+BODIES = ("p3dx", "husky", "husky-imu", "turtlebot3", "turtlebot4", "jackal")
+#: the skid-steer bodies among them
+SKID_STEER = ("husky", "husky-imu", "jackal")
+
+
+def default_learning(body: str) -> str:
+    """How a team of ``body`` robots learns through its filter unless told otherwise
+    (docs/safety.md measured it): ``applied`` on two wheels, ``split`` on skid steer."""
+    return "split" if body in SKID_STEER else "applied"
+
+
+def default_margin(body: str) -> float:
+    """The gap [m] the filter keeps between ``body`` robots' covering discs unless told
+    otherwise: 0.1 m on two wheels; 0.25 m on skid steer, whose wheels slip sideways in
+    every turn, so that the body is where its command says only to within centimetres
+    (docs/safety.md: a Husky team touched by 1.7 cm with 0.1 m, not with 0.25 m)."""
+    return 0.25 if body in SKID_STEER else 0.1
+
+
+@dataclass(frozen=True)
+class SafetySettings:
+    body: str = "p3dx"
+    limits: Limits = Limits()
+    margin: float = 0.1
+    learning: str = "applied"
+    sensing: str = "team"
+
+    def __post_init__(self) -> None:
+        if self.body not in BODIES:
+            raise ValueError(f"safety body: one of {', '.join(BODIES)}, got {self.body!r}")
+        if not (self.margin >= 0 and math.isfinite(self.margin)):
+            raise ValueError(f"safety margin: a distance >= 0 [m], got {self.margin!r}")
+        if self.learning not in LEARNING:
+            raise ValueError(f"safety learning: one of {', '.join(LEARNING)}, got "
+                             f"{self.learning!r}")
+        if self.sensing not in SENSING:
+            raise ValueError(f"safety sensing: one of {', '.join(SENSING)}, got "
+                             f"{self.sensing!r}")
+
+    def to_json(self) -> dict[str, Any]:
+        return {"body": self.body, "limits": [_num(x) for x in self.limits.as_tuple()],
+                "margin": self.margin, "learning": self.learning, "sensing": self.sensing}
+
+    @classmethod
+    def from_json(cls, d: Any) -> SafetySettings:
+        """Settings of a JSON object; Rejected (malformed) naming what is wrong."""
+        try:
+            lim = [math.inf if x is None else float(x) for x in d["limits"]]
+            if len(lim) != 4:
+                raise ValueError("limits: 4 numbers")
+            return cls(str(d["body"]), Limits(*lim), float(d["margin"]),
+                       str(d["learning"]), str(d["sensing"]))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise Rejected("malformed", f"bad safety settings: {exc}") from None
+
+
+def _num(x: float) -> float | None:
+    """JSON has no inf: an absent limit is null."""
+    return None if math.isinf(x) else x

@@ -1,0 +1,102 @@
+"""The launcher's ROS host: the one rclpy context of a ``formation-ilc launch`` process.
+
+The launcher (``formation_ilc.cli.launch``) decides and supervises without ROS; this module
+is its ROS side. It joins the formation's domain (in the monitor's enclave with
+``--secure``), hosts the monitor node (``formation_ilc.nodes.monitor``: per-trial metrics,
+diagnostics and the leader's events from the wire), tells the leader at once when a
+passive node died (a ``ready`` with ``down``), looks for another formation on the same
+domain and namespace before anything starts, and spins. The launcher calls
+:meth:`LauncherHost.spin_once` from its own loop, so every decision stays in its pure
+code.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+__all__ = ["LauncherHost"]
+
+
+class LauncherHost:
+    """rclpy, the monitor node and its executor for one run of ``plan``
+    (``formation_ilc.cli.plan.RunPlan``); ``on_trial(k, row)`` gets each finished trial's
+    metrics row (iterations from ``first``), ``on_contact(node, report)`` a plant's
+    contact the moment it is said."""
+
+    def __init__(self, plan: Any, on_trial: Callable[[int, np.ndarray], None], first: int = 0,
+                 on_contact: Callable[[str, dict[str, Any]], None] | None = None):
+        self.plan = plan
+        self.on_trial = on_trial
+        self.first = first
+        self.on_contact = on_contact
+        self.monitor: Any = None
+        self._down_pub: Any = None
+        self._ex: Any = None
+
+    def start(self) -> None:
+        """Initialise rclpy (its signal handlers off: the launcher handles signals) in the
+        monitor's enclave with ``--secure``, and start the monitor node."""
+        import rclpy
+        from rclpy.experimental import EventsExecutor
+        from rclpy.signals import SignalHandlerOptions
+        from std_msgs.msg import String
+
+        import msgs_schema as ms
+        from formation_ilc.nodes.monitor import MonitorNode
+
+        plan = self.plan
+        if plan.secure is not None:  # the monitor joins in its own enclave
+            plan.secure.enter_launcher()
+        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+        self.monitor = MonitorNode(plan.config, self.on_trial, true_state=plan.true_state,
+                                   namespace=plan.namespace, first=self.first,
+                                   on_contact=self.on_contact)
+        self._down_pub = self.monitor.create_publisher(String, ms.READY, ms.LATCHED_QOS)
+        self._ex = EventsExecutor()
+        self._ex.add_node(self.monitor)
+
+    def spin_once(self, timeout: float) -> None:
+        self._ex.spin_once(timeout_sec=timeout)
+
+    def down(self, name: str, pid: int) -> None:
+        """Tell the leader that the passive node ``name`` (process ``pid``) died, so that no
+        trial starts without it (the recorder: no trial unrecorded)."""
+        import msgs_schema as ms
+        from formation_ilc.protocol.schedule import Ready
+
+        cfg = self.plan.config
+        self._down_pub.publish(ms.json_to_msg(Ready(
+            name, cfg.scenario.trials, str(pid), passive=True, run=cfg.run_id,
+            down=True).to_json()))
+
+    def foreign(self, wait: float, allowed: set[str]) -> list[str]:
+        """Nodes of another formation in the plan's namespace on this domain (other than
+        ``allowed``: an external plant's), after giving discovery ``wait`` seconds; its
+        leader's ``config`` writer counts when none of its nodes is seen yet."""
+        import msgs_schema as ms
+
+        node, namespace = self.monitor, self.plan.namespace
+        deadline = time.monotonic() + wait
+        while time.monotonic() < deadline:
+            time.sleep(0.05)
+        found = [f"{ns.rstrip('/')}/{name}"
+                 for name, ns in node.get_node_names_and_namespaces()
+                 if ns == namespace and name != node.get_name() and name not in allowed]
+        if node.count_publishers(ms.absolute(ms.CONFIG, namespace)) and not found:
+            found.append(ms.absolute(ms.CONFIG, namespace))
+        return found
+
+    def close(self) -> dict[str, dict[str, Any]]:
+        """Destroy the monitor and shut rclpy down; the nodes' last diagnostics."""
+        import rclpy
+
+        diagnostics: dict[str, dict[str, Any]] = {}
+        if self.monitor is not None:
+            diagnostics = dict(self.monitor.diagnostics)
+            self.monitor.destroy_node()
+        rclpy.try_shutdown()
+        return diagnostics

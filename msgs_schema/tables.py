@@ -1,0 +1,70 @@
+"""Every recorded topic and every view topic with its ROS type and offered QoS: the names
+are ``formation_ilc.core.names``' (``recorded_topics``, ``view_topics``), the types and
+profiles this package's. The recorder subscribes to exactly ``topic_table``; the batch
+simulator records on it too (``formation-ilc simulate --record``)."""
+
+from __future__ import annotations
+
+from rclpy.qos import QoSProfile
+
+from formation_ilc.core.names import (
+    CLOCK,
+    CONFIG,
+    DIAGNOSTICS,
+    MARKERS,
+    READY,
+    REFERENCE,
+    TRIAL_EVENTS,
+    recorded_topics,
+    view_topics,
+)
+from msgs_schema.diagnostics import DIAGNOSTICS_TYPE
+from msgs_schema.qos import CLOCK_QOS, LATCHED_QOS, SAMPLE_QOS, TRAJECTORY_QOS, VIEW_QOS
+
+__all__ = ["topic_table", "view_topic_table", "recorder_table"]
+
+_STRING = "std_msgs/msg/String"
+_POSE = "geometry_msgs/msg/PoseStamped"
+_PATH = "nav_msgs/msg/Path"
+_VECTOR = "geometry_msgs/msg/Vector3Stamped"
+
+#: type and offered QoS of each topic, robot i's by the part after ``robot_i/``
+_TYPES: dict[str, tuple[str, QoSProfile]] = {
+    CONFIG: (_STRING, LATCHED_QOS),
+    REFERENCE: (_POSE, SAMPLE_QOS),
+    TRIAL_EVENTS: (_STRING, SAMPLE_QOS),
+    READY: (_STRING, LATCHED_QOS),
+    DIAGNOSTICS: (DIAGNOSTICS_TYPE, LATCHED_QOS),
+    CLOCK: ("rosgraph_msgs/msg/Clock", CLOCK_QOS),
+    "pose": (_POSE, SAMPLE_QOS),
+    "cmd_vel": ("geometry_msgs/msg/Twist", SAMPLE_QOS),
+    "trajectory": (_PATH, TRAJECTORY_QOS),
+    "true_trajectory": (_PATH, TRAJECTORY_QOS),
+    MARKERS: ("visualization_msgs/msg/MarkerArray", VIEW_QOS),
+    "desired_pose": (_POSE, VIEW_QOS),
+    "desired_path": (_PATH, TRAJECTORY_QOS),
+    "tracking_error": (_VECTOR, VIEW_QOS),
+    "trial_error": (_VECTOR, TRAJECTORY_QOS),
+}
+
+
+def _row(topic: str) -> tuple[str, str, QoSProfile]:
+    kind = topic if topic in _TYPES else topic.split("/", 1)[1]
+    return (topic, *_TYPES[kind])
+
+
+def topic_table(n: int) -> list[tuple[str, str, QoSProfile]]:
+    """Every recorded topic of a run of ``n`` robots: (relative name, ROS type, offered QoS),
+    in the order of ``names.recorded_topics`` (which says what is left out, and why)."""
+    return [_row(t) for t in recorded_topics(n)]
+
+
+def view_topic_table(n: int) -> list[tuple[str, str, QoSProfile]]:
+    """The observer's topics for ``n`` robots: (relative name, ROS type, offered QoS)."""
+    return [_row(t) for t in view_topics(n)]
+
+
+def recorder_table(n: int) -> list[tuple[str, str, QoSProfile]]:
+    """Every topic a recording of ``n`` robots holds: the recorded topics and the view
+    topics the recorder's observer adds (``recordings.recording.SimRecorder``'s table)."""
+    return topic_table(n) + view_topic_table(n)

@@ -1,0 +1,179 @@
+"""The roster against the answers the stack gave before it existed, frozen.
+
+``data/roster_golden.json`` holds what the code at 88c1f6a answered (made by
+``data/make_roster_golden.py`` on a checkout of it), before the roster replaced its three
+separate rules: the leader's team (``config.team.Team.of``) for 1, 3 and
+6 robots on every plant, links, monitor and recorder; every process of ``formation-ilc
+launch`` (``cli.plan.node_specs`` through ``build_plan``: name, module, arguments, remaps,
+parameters, restart policy, host) with the team, the awaited reporters and the plant's
+kind, for every plant x links x record x live combination of paper-triangle3 and more
+(containers, namespaces, drivers, fake drivers, physics bases); and the keystore's grants
+(``config.enclaves.formation_grants``) of two scenarios in two namespaces for the
+simulator and the Pioneer drivers. Each answer must stay what it was: keystores made before
+stay valid, launches start the same processes with the same command lines. The one
+difference is what the safety filter (added at 88c1f6a) reads and its grants never had:
+every other robot's pose and the plant's ``team/poses`` (as main granted them from
+77a8d24 on); those permissions are added, and only those.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+from importlib.metadata import entry_points
+from pathlib import Path
+
+import pytest
+
+from formation_ilc.cli.commands import build_parser
+from formation_ilc.cli.plan import build_plan
+from formation_ilc.config.roster import ENTRY_SCRIPTS, Lineup, roster
+from formation_ilc.config.scenario import load_scenario
+from formation_ilc.core.names import TEAM_POSES, absolute, pose_topic
+
+GOLDEN = json.loads((Path(__file__).parent / "data" / "roster_golden.json").read_text())
+
+
+#: plants whose robots have bodies, and the scenario their runs took (data/make_roster_golden)
+BODIES = ("physics", "pioneer", "base")
+BODY_SCENARIO = Path(__file__).parents[2] / "docs" / "examples" / "hexagon6-p3dx.yaml"
+
+
+def _golden(part: str) -> dict[str, dict]:
+    return {k.split("|", 1)[1]: v for k, v in GOLDEN.items() if k.startswith(part + "|")}
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def test_the_golden_answers_are_all_there():
+    assert GOLDEN["generated_from"] == "88c1f6a"
+    assert len(_golden("teams")) == 120 and len(_golden("grants")) == 16
+    assert len(_golden("plans")) == 48
+
+
+@pytest.mark.parametrize("key", sorted(_golden("teams")))
+def test_the_team_is_the_one_the_leader_waited_for(key):
+    n, plant, links, monitor, recorder = key.split("|")
+    r = roster(Lineup(int(n), plant=plant, links=links, monitor=monitor == "1",
+                      record=recorder == "1", external=("ext_a", "ext_b")))
+    team = r.team
+    want = _golden("teams")[key]
+    assert [list(team.robots), list(team.plants), list(team.support), list(team.passive),
+            team.expected] == [want["robots"], want["plants"], want["support"],
+                               want["passive"], want["expected"]]
+
+
+@pytest.mark.parametrize("key", sorted(_golden("grants")))
+def test_every_enclave_keeps_its_grant(key):
+    scenario, namespace, plant, driver, driver_ns = key.split("|")
+    sc = load_scenario(scenario)
+    lineup = Lineup.of(sc.graph, plant=plant, driver=driver,
+                       driver_ns=driver_ns if plant == "pioneer" else None).for_keystore()
+    got = {path: {"enclave": g.enclave, "node": g.node, "node_namespace": g.node_namespace,
+                  "publish": list(g.publish), "subscribe": list(g.subscribe),
+                  "dds_publish": list(g.dds_publish), "dds_subscribe": list(g.dds_subscribe),
+                  "service_node": g.service_node}
+           for path, g in roster(lineup).grants(namespace).items()}
+    # what the safety filter reads, granted now: the plant's team poses, or the peers' poses
+    n = sc.n
+    added: dict[str, tuple[set[str], set[str]]] = {}
+    for path, g in got.items():
+        name = path.rsplit("/", 1)[1]
+        pub = {t for t in g["publish"] if t == absolute(TEAM_POSES, namespace)}
+        sub = {t for t in g["subscribe"] if t == absolute(TEAM_POSES, namespace)}
+        if name.startswith("robot_") and name[6:].isdigit():
+            i = int(name[6:])
+            sub |= {absolute(pose_topic(j), namespace) for j in range(1, n + 1) if j != i}
+        g["publish"] = [t for t in g["publish"] if t not in pub]
+        g["subscribe"] = [t for t in g["subscribe"] if t not in sub]
+        if pub or sub:
+            added[name] = (pub, sub)
+    # the standard diagnostics stream (issue 30), granted now to every node that reports
+    for g in got.values():
+        reports = absolute("diagnostics", namespace) in g["publish"]
+        assert ("/diagnostics" in g["publish"]) == reports, g
+        g["publish"] = [t for t in g["publish"] if t != "/diagnostics"]
+        g["dds_publish"] = [t for t in g["dds_publish"] if t != "rt/diagnostics"]
+    assert got == _golden("grants")[key]
+    team = absolute(TEAM_POSES, namespace)
+    robots = {f"robot_{i}" for i in range(1, n + 1)}
+    peers = {r: {absolute(pose_topic(j), namespace) for j in range(1, n + 1)
+                 if f"robot_{j}" != r} for r in robots}
+    assert added == {**({"robot_sim": ({team}, set())} if plant == "sim" else {}),
+                     **{r: (set(), {team} | peers[r]) for r in robots}}
+
+
+def _module(script: str) -> str:
+    (ep,) = entry_points(group="console_scripts", name=script)
+    return ep.value.split(":")[0]
+
+
+def test_every_entry_script_is_installed():
+    assert {s: _module(s) for s in ENTRY_SCRIPTS}["formation-ilc-leader"] == "virtual_leader.node"
+
+
+@pytest.mark.parametrize("key", sorted(_golden("plans")))
+def test_a_launch_plans_the_processes_it_planned(tmp_path, key):
+    scenario, plant, links, record, live, *extra = key.split("|")
+    name = scenario
+    if plant in BODIES:  # robots with bodies: a scenario within their limits
+        name = str(tmp_path / "bodies.yaml")
+        Path(name).write_text(BODY_SCENARIO.read_text())
+    argv = ["launch", name, "--plant", plant, "--links", links, "--domain-id", "42",
+            "--trials", "2", "--out", str(tmp_path / "run"), "--allow-contact", *extra]
+    if plant in ("pioneer", "base"):
+        argv += ["--v-max", "50", "--omega-max", "5000", "--a-max", "50", "--alpha-max",
+                 "50000"]
+    if record == "record":
+        argv += ["--record", str(tmp_path / "run.mcap")]
+    port = None
+    if live == "live":
+        port = _free_port()
+        argv += ["--live", str(port)]
+    if plant == "physics" or "--physics-bases" in extra:
+        pytest.importorskip("pybullet")
+    args = build_parser().parse_args(argv)
+    args.run_id = "rgolden"
+    plan = build_plan(args)
+
+    def norm(x):
+        text = json.dumps(x, default=str).replace(str(tmp_path), "<tmp>")
+        text = text.replace(json.dumps(plan.nodes[0].python)[1:-1], "<python>")
+        return json.loads(text if port is None else text.replace(str(port), "<port>"))
+
+    got = norm({
+        "team": {"robots": plan.team.robots, "plants": plan.team.plants,
+                 "support": plan.team.support, "passive": plan.team.passive,
+                 "expected": plan.team.expected},
+        "reporters": plan.reporters, "true_state": plan.true_state, "bridged": plan.bridged,
+        "nodes": [{"name": s.name, "module": s.module, "args": s.args, "remaps": s.remaps,
+                   "params": s.params, "passive": s.passive, "optional": s.optional,
+                   "host": s.host, "env": s.env,
+                   "restart": [s.restart.max_restarts, s.restart.refused]}
+                  for s in plan.nodes]})
+    want = _golden("plans")[key]
+    assert got == want
+    # the roster names the same processes, each started by its entry script
+    sc = plan.scenario
+    r = roster(Lineup.of(sc.graph, plant=plant, links=links, record=record == "record",
+                         live=live == "live", external=tuple(plan.team.plants)
+                         if plant == "external" else (),
+                         driver=plan.bridge.driver if plan.bridge else "rosaria",
+                         driver_ns=plan.bridge.driver_ns if plan.bridge else None,
+                         base=plan.bridge.base if plan.bridge else None,
+                         fake_drivers="--fake-drivers" in extra,
+                         physics_bases="--physics-bases" in extra))
+    if "--container" not in extra:
+        assert [(m.name, _module(m.entry or "")) for m in r.processes] == [
+            (n["name"], n["module"]) for n in want["nodes"]]
+        assert [m.optional for m in r.processes] == [n["optional"] for n in want["nodes"]]
+        assert [m.waits == "once" for m in r.processes] == [n["passive"]
+                                                            for n in want["nodes"]]
+    assert r.team.expected == want["team"]["expected"]
+    assert list(r.reporters) == want["reporters"]
+    assert r.plant.true_state == want["true_state"]
+    assert r.plant.per_robot == want["bridged"]

@@ -1,0 +1,272 @@
+"""The safety filter (``core.safety``): minimally invasive, inside the limits, keeps its
+distance, and the memory learns through it.
+
+The filter is a 2-variable QP solved exactly by polygon clipping; a brute-force grid
+search over the same box and half-planes is its reference here.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from formation_ilc.config.scenario import load_scenario
+from formation_ilc.core.kinematics import arc_step
+from formation_ilc.core.limits import Limits
+from formation_ilc.core.safety import (
+    CHANGED_BARRIER,
+    CHANGED_LIMITS,
+    INFEASIBLE,
+    PARAMS,
+    SafetySpec,
+    closing_speed,
+    filter_command,
+    freeze_flagged,
+    learn_base,
+    motion,
+)
+from formation_ilc.model.footprint import Footprint, footprint_of, trial_clearance
+from formation_ilc.model.safety import desired_clearance, spec_for
+from formation_ilc.model.simulate import simulate
+
+P3 = Limits(1.2, math.radians(300), 0.3, math.radians(100))
+FP = footprint_of("p3dx")
+
+
+def spec(**kw) -> SafetySpec:
+    return spec_for(FP, kw.pop("limits", P3), kw.pop("dt", 0.2), **kw)
+
+
+def run(sp: SafetySpec, nominal, own, prev, others, ages=None):
+    others = np.asarray(others, dtype=float).reshape(-1, 6)
+    ages = np.zeros(len(others)) if ages is None else np.asarray(ages, dtype=float)
+    out = np.zeros(2)
+    flags = filter_command(nominal[0], nominal[1], own[0], own[1], own[2], prev[0], prev[1],
+                           others, ages, len(others), sp.params(), out)
+    return out, flags
+
+
+def test_params_order_is_the_kernels():
+    sp = spec()
+    p = sp.params()
+    assert len(p) == len(PARAMS) + len(sp.discs)
+    assert p[PARAMS.index("distance")] == sp.distance and p[1] == len(sp.discs)
+
+
+def test_the_filter_is_the_identity_when_robots_are_far_apart():
+    sp = spec()
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        prev = rng.uniform(-0.5, 0.5, 2)
+        nominal = prev + rng.uniform(-0.05, 0.05, 2)  # inside the acceleration box
+        far = [20.0 + rng.uniform(0, 5), rng.uniform(-5, 5), rng.uniform(-3, 3), 0, 0, 0]
+        out, flags = run(sp, nominal, (0.0, 0.0, rng.uniform(-3, 3)), prev, far)
+        assert flags == 0
+        np.testing.assert_array_equal(out, nominal)
+
+
+def test_the_command_is_held_inside_the_limits():
+    sp = spec()
+    out, flags = run(sp, (5.0, -9.0), (0, 0, 0), (0.5, 0.0), np.zeros((0, 6)))
+    assert flags == CHANGED_LIMITS
+    # speed step at most a_max dT, turn-rate step at most alpha_max dT
+    assert out[0] == pytest.approx(0.5 + 0.3 * 0.2)
+    assert out[1] == pytest.approx(-math.radians(100) * 0.2)
+
+
+def test_a_limit_of_inf_is_no_limit():
+    sp = spec(limits=Limits())
+    out, flags = run(sp, (50.0, -9.0), (0, 0, 0), (0.0, 0.0), np.zeros((0, 6)))
+    assert flags == 0 and tuple(out) == (50.0, -9.0)
+
+
+def brute(sp: SafetySpec, nominal, own, prev, others):
+    """The nearest point of a fine grid over the box that keeps every half-plane the
+    filter builds (the same half-planes: evaluated by calling the filter with that point
+    as the nominal command, which it must leave unchanged)."""
+    lim, dt, c = sp.limits, sp.dt, sp.weight
+    vs = np.linspace(max(-lim.v_max, prev[0] - lim.a_max * dt),
+                     min(lim.v_max, prev[0] + lim.a_max * dt), 121)
+    ws = np.linspace(max(-lim.omega_max, prev[1] - lim.alpha_max * dt),
+                     min(lim.omega_max, prev[1] + lim.alpha_max * dt), 121)
+    best, arg = math.inf, None
+    for v in vs:
+        for w in ws:
+            _, f = run(sp, (v, w), own, prev, others)
+            if f & CHANGED_BARRIER:
+                continue
+            d = (v - nominal[0]) ** 2 + c * c * (w - nominal[1]) ** 2
+            if d < best:
+                best, arg = d, (v, w)
+    return arg, best
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_the_answer_is_the_grid_optimum(seed):
+    sp = spec()
+    rng = np.random.default_rng(seed)
+    while True:  # a case where the barrier binds and some command keeps it
+        own = (0.0, 0.0, float(rng.uniform(-1, 1)))
+        prev = rng.uniform(-0.2, 0.6, 2)
+        nominal = prev + rng.uniform(-0.15, 0.15, 2)
+        dist = float(rng.uniform(0.6, 1.2))
+        other = [dist * math.cos(own[2]), dist * math.sin(own[2]) + rng.uniform(-0.2, 0.2),
+                 float(rng.uniform(-3, 3)), 0.0, 0.0, 0.0]
+        out, flags = run(sp, nominal, own, prev, other)
+        if flags & CHANGED_BARRIER and not flags & INFEASIBLE:
+            break
+    # the answer keeps every half-plane: filtering it again changes nothing
+    again, f2 = run(sp, out, own, prev, other)
+    assert not f2 & CHANGED_BARRIER
+    np.testing.assert_allclose(again, out, atol=1e-9)
+    arg, best = brute(sp, nominal, own, prev, other)
+    got = (out[0] - nominal[0]) ** 2 + sp.weight ** 2 * (out[1] - nominal[1]) ** 2
+    assert arg is not None
+    # exact optimum: no grid point that keeps the barrier is nearer (grid step slack)
+    assert got <= best + 1e-4
+
+
+def head_on(sp: SafetySpec, speed: float, steps: int = 120):
+    """Two robots driven straight at each other at ``speed``, both filtered; returns the
+    least distance between their footprints and whether any step was infeasible."""
+    dt = sp.dt
+    poses = np.array([[-3.0, 0.0, 0.0], [3.0, 0.0, math.pi]])
+    prev = np.zeros((2, 2))
+    hist = [poses.copy()]
+    least, infeasible, nearest = math.inf, False, math.inf
+    for _ in range(steps):
+        u = np.zeros((2, 2))
+        for r in range(2):
+            o = 1 - r
+            back = hist[max(0, len(hist) - 1 - sp.window)]
+            other = np.zeros((1, 6))
+            other[0, :3] = poses[o]
+            span = (len(hist) - 1 - max(0, len(hist) - 1 - sp.window)) * dt
+            motion(poses[o, 0], poses[o, 1], poses[o, 2], back[o, 0], back[o, 1], back[o, 2],
+                   span, other, 0)
+            out, flags = run(sp, (speed, 0.0), poses[r], prev[r], other)
+            infeasible |= bool(flags & INFEASIBLE)
+            u[r] = out
+        for r in range(2):
+            poses[r] = arc_step(*poses[r], u[r, 0], u[r, 1], dt)
+        prev = u
+        hist.append(poses.copy())
+        c = trial_clearance(0, np.stack(hist, axis=1)[:, -1:], FP).value
+        least = min(least, c)
+        # the nearest pair of the two bodies' covering discs
+        for a in sp.discs:
+            for b in sp.discs:
+                pa = poses[0, :2] + a * np.array([math.cos(poses[0, 2]), math.sin(poses[0, 2])])
+                pb = poses[1, :2] + b * np.array([math.cos(poses[1, 2]), math.sin(poses[1, 2])])
+                nearest = min(nearest, float(np.hypot(*(pa - pb))))
+    return least, infeasible, nearest
+
+
+@pytest.mark.parametrize("speed", [0.3, 0.75, 1.2])
+def test_two_robots_driven_head_on_stop_short_of_the_distance(speed):
+    sp = spec()
+    least, _, nearest = head_on(sp, speed)
+    assert least > 0.0
+    # they stopped short: their discs kept the filter's distance (within a centimetre), and
+    # came close to it (the filter is not more cautious than it says)
+    assert sp.distance - 0.01 < nearest < sp.distance + 0.05
+
+
+def test_without_braking_room_the_robot_brakes_as_hard_as_it_can():
+    sp = spec()
+    # another robot right ahead, this one fast: no command in the box keeps the barrier
+    out, flags = run(sp, (0.9, 0.0), (0.0, 0.0, 0.0), (0.9, 0.0), [0.5, 0.0, math.pi, 0, 0, 0])
+    assert flags & INFEASIBLE
+    assert out[0] == pytest.approx(0.9 - 0.3 * 0.2)
+
+
+def test_closing_speed_lets_a_robot_stop_within_its_share():
+    dt, a = 0.2, 0.3
+    for share in (0.01, 0.1, 0.5, 2.0):
+        w = closing_speed(share, 1.0, dt, a)
+        assert 1.5 * w * dt + w * w / (2 * a) <= share + 1e-12
+        # braking in steps of a dT from w, after one sample at w, stays within the share
+        v, covered = w, w * dt
+        while v > 0:
+            v = max(0.0, v - a * dt)
+            covered += v * dt
+        assert covered <= share + 1e-12
+    assert closing_speed(-0.1, 1.0, dt, a) == 0.0
+
+
+def test_a_receding_robot_leaves_room():
+    sp = spec()
+    ahead = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+    receding = [1.0, 0.0, 0.0, 0.6, 0.0, 0.0]
+    slow, _ = run(sp, (0.6, 0.0), (0, 0, 0), (0.6, 0.0), ahead)
+    free, _ = run(sp, (0.6, 0.0), (0, 0, 0), (0.6, 0.0), receding)
+    assert free[0] > slow[0]
+
+
+def test_learn_base_modes():
+    mem = np.zeros((1, 3, 2))
+    nominal = np.ones((1, 3, 2))
+    applied = nominal.copy()
+    applied[0, 1] = 0.25
+    flags = np.array([[0, CHANGED_BARRIER, 0]])
+    out = np.empty_like(mem)
+    learn_base(0, mem, nominal, applied, flags, out)  # applied
+    np.testing.assert_array_equal(out[0, 1], [-0.75, -0.75])
+    np.testing.assert_array_equal(out[0, [0, 2]], 0.0)
+    learn_base(1, mem, nominal, applied, flags, out)  # freeze: the memory itself
+    np.testing.assert_array_equal(out, mem)
+    # split: from the applied command where only a limit clipped it; a barrier's sample
+    # starts from the memory and keeps it after the step
+    flags = np.array([[CHANGED_LIMITS, CHANGED_BARRIER, CHANGED_LIMITS | CHANGED_BARRIER]])
+    applied[0, 0] = 0.5
+    applied[0, 2] = 0.75
+    learn_base(3, mem, nominal, applied, flags, out)
+    np.testing.assert_array_equal(out[0, 0], [-0.5, -0.5])
+    np.testing.assert_array_equal(out[0, 1:], 0.0)
+    learned = np.full_like(mem, 9.0)
+    freeze_flagged(3, mem, flags, learned)
+    np.testing.assert_array_equal(learned[0, 0], 9.0)  # learned where a limit clipped
+    np.testing.assert_array_equal(learned[0, 1:], 0.0)  # kept where a barrier acted
+
+
+def test_spec_validates_its_fields():
+    for kw in ({"gamma": 0.0}, {"gamma": 2.0}, {"distance": -1.0}, {"radius": 0.0},
+               {"learning": "never"}, {"discs": ()}):
+        base = dict(discs=(0.0,), distance=0.5, gamma=1.0, radius=3.0, limits=P3, dt=0.2)
+        base.update(kw)
+        with pytest.raises(ValueError, match="safety"):
+            SafetySpec(**base)
+
+
+def test_two_discs_cover_the_footprint():
+    fp = Footprint(0.455, 0.381, -0.045)
+    offsets, r = fp.discs(2)
+    corners = fp.corners(np.zeros(3))
+    for cx, cy in corners:
+        assert min(math.hypot(cx - o, cy) for o in offsets) <= r + 1e-12
+    assert r < math.hypot(0.455 / 2, 0.381 / 2)  # tighter than one circle
+
+
+def test_learning_through_the_filter_converges_cold_with_no_overlap():
+    """Batch: paper-triangle3 from u = 0 on P3-DX-size bodies, noise-free, the arc model:
+    the unfiltered run overlaps; the filtered one never does, its error falls, and the
+    filter acts less as learning converges."""
+    sc = load_scenario("paper-triangle3").with_options(noise=False, delay=False, trials=40)
+    sp = spec()
+    assert desired_clearance(sc.for_plant("arc"), sp).fits
+    seen: list[float] = []
+    res = simulate(sc, plant="arc", safety=sp,
+                   on_trial_data=lambda k, xi, *r: seen.append(trial_clearance(k, xi, FP).value))
+    assert min(seen) > 0.0
+    err = res.column("max_position_error")
+    assert err[-5:].mean() < 0.5 * err[:5].mean()
+    assert err[-1] < 0.6
+    changed = res.column("filter_active")
+    assert changed[1:6].max() > 0  # it acted in the transient
+    assert changed[-5:].mean() < changed[1:6].mean()
+    free: list[float] = []
+    simulate(sc, plant="arc",
+             on_trial_data=lambda k, xi, *r: free.append(trial_clearance(k, xi, FP).value))
+    assert min(free) < 0.0  # the reason for the filter
