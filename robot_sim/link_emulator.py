@@ -53,7 +53,7 @@ from formation_ilc.nodes.common import (
     matched,
     node_parser,
     spin_main,
-    warm_up_draws,
+    unmatched,
 )
 from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.linkemu import CLOCK, REFERENCE, SHARED, Emitted, EmulatedLinks
@@ -76,7 +76,6 @@ class LinkEmulator(ConfiguredNode):
 
     def configure(self, cfg: RunConfig) -> None:
         self.links: EmulatedLinks[RawPose] = EmulatedLinks(cfg)
-        warm_up_draws(self.links.pb, cfg.scenario.uncertainty)  # no first tick held by a compile
         self.follower = self.links.follower
         self.cfg = cfg
         self.realtime = self.links.realtime
@@ -97,14 +96,17 @@ class LinkEmulator(ConfiguredNode):
             self._deadline = self.create_timer(DELIVERY_WAIT * cfg.scenario.dt,
                                                self._on_deadline)
             self._deadline.cancel()
-        self._gate = self.create_timer(0.02, self._check_ready)
+        self._gate = self.create_timer(0.05, self._check_ready)
 
     def _check_ready(self) -> None:
         pubs = [(p, 1) for pubs in self.out for p in pubs]
         subs = [(s, 1) for s in self.pose_subs]  # both ends matched: no first pose lost
-        if matched(pubs + subs + [(self.ready_pub, 1)]):
+        need = pubs + subs + [(self.ready_pub, 1)]
+        if matched(need):
             self._gate.cancel()
             self.ready_pub.publish(self.ready_msg(0))
+            return
+        self.not_ready(unmatched(need))
 
     def _on_event(self, msg: String) -> None:
         res = self.take_event(msg, self.links.on_event)

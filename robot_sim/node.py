@@ -63,7 +63,7 @@ from formation_ilc.nodes.common import (
     matched,
     node_parser,
     spin_main,
-    warm_up,
+    unmatched,
 )
 from formation_ilc.nodes.params import declare, effective
 from formation_ilc.protocol.plant import RESEND_S, KinematicPlant, Sample
@@ -101,7 +101,6 @@ class SimNode(ConfiguredNode):
     def configure(self, cfg: RunConfig) -> None:
         self.plant = plant = self.make_plant(cfg)
         self.follower = plant.follower
-        warm_up(plant.pb, cfg.scenario.uncertainty)
         self.cfg = cfg
         n = plant.n
         timeout = float(self.get_parameter("timeout").value)
@@ -124,7 +123,7 @@ class SimNode(ConfiguredNode):
                                      lambda m, r=r: self._on_cmd(m, r), ms.SAMPLE_QOS, raw=True)
             for r in range(n)]
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
-        self._gate = self.create_timer(0.02, self._check_ready)
+        self._gate = self.create_timer(0.05, self._check_ready)
         if self.realtime:
             # started (reset) at each trial's start, so ticks are in phase with sample 0
             self._tick = self.create_timer(cfg.scenario.dt, self._on_wall_tick)
@@ -146,6 +145,8 @@ class SimNode(ConfiguredNode):
         if matched(need, self):
             self._gate.cancel()
             self._say_ready(0)
+            return
+        self.not_ready(unmatched(need, self))
 
     def _say_ready(self, trial: int) -> None:
         self.ready_pub.publish(self.ready_msg(trial))

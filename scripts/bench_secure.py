@@ -1,20 +1,21 @@
 #!/usr/bin/env python3
 """What DDS-Security costs: start-up (discovery and authentication) and lockstep throughput,
-secure against insecure, for teams of 6 and 24 robots.
+secure against insecure, for teams of 6 and 24 robots (and 50: ``--sizes 6 24 50``).
 
 Runs `formation-ilc launch` in lockstep (one process per robot, emulated links) with and
 without `--secure` (a keystore made for each team), alternately, and prints per run:
 
-* start-up: from the launcher's start to the first sample of trial 1, i.e. the processes
-  starting, discovering each other (and, secure, authenticating every pair of
-  participants and exchanging keys) and matching every reader and writer; measured as the
-  time at which trial 1 ends minus that trial's own duration;
+* start-up: from the launcher's start to the start of trial 1 (its console line "start-up
+  done"), i.e. the processes starting, discovering each other (and, secure,
+  authenticating every pair of participants and exchanging keys) and matching every
+  reader and writer; the target for a secure team of 24 is 40 s;
 * samples/s: simulated samples over the wall time inside trials (the simulator's timing),
   with the per-sample latency p50/p99 (simulator publishes the poses -> every robot's
   cmd_vel is in).
 
 Needs the Fast DDS of scripts/build_secure_dds.sh in the venv. Teams larger than six are
-paper-hexagon6 tiled (scripts/bench_stack.py).
+paper-hexagon6 tiled (scripts/bench_stack.py) when their size is a multiple of six, else
+``formation-ilc team N``.
 
     python scripts/bench_secure.py                     # 6 and 24 robots, 3 trials, 2 repeats
     python scripts/bench_secure.py --sizes 6 --repeats 3
@@ -26,7 +27,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 import statistics
 import subprocess
 import sys
@@ -37,7 +37,10 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_stack import team_scenario  # noqa: E402
 
-TRIAL_LINE = re.compile(r"^trial 1/\d+ .*\[(\d+(?:\.\d+)?) s\]")
+from formation_ilc.config.generate import team_yaml  # noqa: E402
+
+#: [s] a secure team of 24 starts within this (issue 32)
+TARGET_24 = 40.0
 
 
 def one_run(scenario: str, trials: int, domain: int, out: Path, keystore: Path | None,
@@ -57,16 +60,15 @@ def one_run(scenario: str, trials: int, domain: int, out: Path, keystore: Path |
     assert proc.stdout is not None
     for line in proc.stdout:
         lines.append(line)
-        if first is None and TRIAL_LINE.match(line):
+        if first is None and line.startswith("start-up done"):
             first = time.perf_counter() - t0
     proc.wait()
     if proc.returncode or first is None:
         return {"error": "".join(lines)[-800:]}
     s = json.loads((out / "summary.json").read_text())
     t = s["timing"]
-    per_trial = t["samples"] / max(t["samples_per_s"], 1e-9) / max(s["trials_done"], 1)
-    return {"startup": first - per_trial, "rate": t["samples_per_s"], "p50": t["p50_ms"],
-            "p99": t["p99_ms"]}
+    return {"startup": first, "rate": t["samples_per_s"], "p50": t["p50_ms"],
+            "p99": t["p99_ms"], "found": s.get("startup", {}).get("all_found_s")}
 
 
 def main() -> int:
@@ -88,8 +90,13 @@ def main() -> int:
     dom = args.domain
     with tempfile.TemporaryDirectory() as td:
         tmp = Path(td)
+        print(f"load before: {Path('/proc/loadavg').read_text().split()[:3]}", flush=True)
         for n in args.sizes:
-            sc = team_scenario(n, tmp, None)
+            if n % 6 == 0:
+                sc = team_scenario(n, tmp, None)
+            else:
+                sc = str(tmp / f"team{n}.yaml")
+                Path(sc).write_text(team_yaml(n))
             ks = tmp / f"ks-{n}"
             subprocess.run([sys.executable, "-m", "formation_ilc.cli", "keystore", "create",
                             str(ks), sc], check=True, capture_output=True)
@@ -114,6 +121,12 @@ def main() -> int:
                       f"{med['insecure']['rate']:.1f} -> {med['secure']['rate']:.1f} "
                       f"samples/s (secure/insecure "
                       f"{med['secure']['rate'] / med['insecure']['rate']:.2f})", flush=True)
+            if n == 24 and got["secure"]:
+                worst = max(x["startup"] for x in got["secure"])
+                print(f" 24 robots secure start-up, slowest of {len(got['secure'])}: "
+                      f"{worst:.1f} s (target <= {TARGET_24:.0f} s) -> "
+                      f"{'MET' if worst <= TARGET_24 else 'MISSED'}", flush=True)
+        print(f"load after: {Path('/proc/loadavg').read_text().split()[:3]}", flush=True)
     return 0
 
 

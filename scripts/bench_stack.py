@@ -29,6 +29,20 @@ Realtime (``--realtime N``): one trial of 1000 samples at dT = 0.1 s (100 s of w
 one process per robot (``--rt-container C``: C robot nodes per process). Prints the missed
 samples (a robot whose command was not in before the simulator's next tick), the command
 arrival after the tick p50/p99/max, and how late the simulator's timer fired.
+
+The scale curve (``--scale N ...``): for each team size, one launch of ``formation-ilc team
+N`` (paper-hexagon6 for 6) in realtime at dT = 0.1 s (``--scale-mode lockstep`` for
+lockstep), ``--scale-trials`` trials, one process per robot (``--scale-container C``: C
+robots per process; ``--scale-hosts``: robots on network-namespace hosts). It prints, per
+size: the time from the launch to the first trial's start (seen on the launcher's console),
+discovery (when the launcher's monitor had found every node, and every node was ready),
+the DDS participants, the resident memory (RSS) of every process at its peak, in all and
+per kind of node, against a bare rclpy node (one publisher, one subscription, on the same
+domain during the same run, so that it holds the same discovery data), the CPU of all the
+run's processes per sample inside trials, and the realtime misses; then one table.
+
+    python scripts/bench_stack.py --scale 6 12 24 50 100 --scale-trials 3
+    python scripts/bench_stack.py --scale 50 --scale-trials 10 --links direct
 """
 
 from __future__ import annotations
@@ -303,6 +317,211 @@ def lockstep(n: int, args: argparse.Namespace, modes: list[str], tmp: Path, dom:
     return dom
 
 
+# --------------------------------------------------------------------------- the curve
+
+#: what each process is, from its command line (first match)
+KINDS = (("robot", b"formation_ilc.nodes.robot"), ("simulator", b"robot_sim.node"),
+         ("link emulator", b"robot_sim.link_emulator"), ("leader", b"virtual_leader.node"),
+         ("recorder", b"formation_ilc.nodes.recorder"), ("launcher", b"formation_ilc.cli"),
+         ("bare node", b"--bare-node"))
+
+
+def rss_mb(pid: int) -> float | None:
+    """Resident memory [MB] of ``pid`` (VmRSS), or None if it is gone."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        return None
+    return None
+
+
+def kind_of(pid: int) -> str | None:
+    from procstat import cmdline
+
+    cmd = cmdline(pid)
+    for kind, mark in KINDS:
+        if mark in cmd:
+            return kind
+    return None
+
+
+def _bare_node(seconds: float) -> int:
+    """A bare rclpy node: one publisher, one subscription, the EventsExecutor, spinning
+    for ``seconds`` (the memory floor a node of the stack is compared with)."""
+    import rclpy
+    from geometry_msgs.msg import PoseStamped, Twist
+    from rclpy.experimental import EventsExecutor
+
+    rclpy.init()
+    node = rclpy.create_node("bare_node", namespace="/bench_bare")
+    node.create_publisher(Twist, "bare_out", 10)
+    node.create_subscription(PoseStamped, "bare_in", lambda m: None, 10)
+    ex = EventsExecutor()
+    ex.add_node(node)
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        ex.spin_once(timeout_sec=0.25)
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
+
+
+def scale_run(n: int, args: argparse.Namespace, tmp: Path, dom: int) -> dict:
+    """One launch of a team of n for the curve; its figures, or {"error": ...}."""
+    import threading
+
+    from procstat import descendants, proc_cpu
+
+    from formation_ilc.config.generate import team_yaml
+
+    mode = args.scale_mode
+    if n == 6:
+        sc = "paper-hexagon6"
+    else:
+        path = tmp / f"team{n}.yaml"
+        path.write_text(team_yaml(n))
+        sc = str(path)
+    out = tmp / f"scale-{n}-{mode}"
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               ROS_DOMAIN_ID=str(dom), PYTHONUNBUFFERED="1")
+    argv = [sys.executable, "-m", "formation_ilc.cli", "launch", sc, "--trials",
+            str(args.scale_trials), "--out", str(out), "--domain-id", str(dom), "--no-plots",
+            "--mode", mode, "--links", args.links if args.links != "both" else "emulated",
+            "--container", str(args.scale_container)]
+    if args.scale_hosts:
+        argv += ["--hosts", "netns"]
+    t0 = time.monotonic()
+    proc = subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    bare: subprocess.Popen[bytes] | None = None
+    marks: dict[str, float] = {}
+    lines: list[str] = []
+
+    def read() -> None:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            now = time.monotonic() - t0
+            lines.append(line.rstrip())
+            if line.startswith("started ") and "started" not in marks:
+                marks["started"] = now
+            if line.startswith("start-up done") and "first" not in marks:
+                marks["first"] = now
+            if line.startswith("every trial is in") and "end" not in marks:
+                marks["end"] = now
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    peak: dict[int, tuple[str, float]] = {}
+    cpu_at: dict[str, dict[int, float]] = {}
+    while proc.poll() is None and time.monotonic() - t0 < args.timeout:
+        if bare is None and "started" in marks:
+            # the bare node loads the run's Fast DDS profile too, if it has one (written
+            # before the processes start)
+            team = out / "fastdds-discovery.xml"
+            bare = subprocess.Popen(
+                [sys.executable, str(Path(__file__).resolve()), "--bare-node",
+                 str(args.timeout)],
+                env={**env, **({"FASTRTPS_DEFAULT_PROFILES_FILE": str(team)}
+                               if team.exists() else {})},
+                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        for pid in descendants([proc.pid] + ([bare.pid] if bare is not None else [])):
+            kind = kind_of(pid)
+            mb = rss_mb(pid)
+            if kind is not None and mb is not None:
+                peak[pid] = (kind, max(mb, peak.get(pid, (kind, 0.0))[1]))
+        for mark in ("first", "end"):  # the run's CPU when the trials start and end
+            if mark in marks and mark not in cpu_at:
+                cpu_at[mark] = {p: c for p in descendants([proc.pid])
+                                if (c := proc_cpu(p)) is not None}
+        time.sleep(0.5)
+    if proc.poll() is None:
+        proc.kill()
+    proc.wait()
+    if bare is not None:
+        bare.terminate()
+        bare.wait()
+    reader.join(timeout=5)
+    if proc.returncode:
+        return {"error": "\n".join(lines[-12:])}
+    s = json.loads((out / "summary.json").read_text())
+    sim_diag = json.loads((out / "diagnostics.json").read_text()).get("robot_sim", {})
+    by_kind: dict[str, list[float]] = {}
+    for kind, mb in peak.values():
+        by_kind.setdefault(kind, []).append(mb)
+    samples = s["timing"].get("samples", 0)  # in every trial
+    cpu = None
+    cpu_kind: dict[str, list[float]] = {}  # ms per sample, per process of each kind
+    if "first" in cpu_at and "end" in cpu_at:
+        used = sum(cpu_at["end"].get(p, c) - c for p, c in cpu_at["first"].items())
+        cpu = 1000.0 * used / max(1.0, samples)
+        for p, c in cpu_at["first"].items():
+            if p in peak:
+                cpu_kind.setdefault(peak[p][0], []).append(
+                    1000.0 * (cpu_at["end"].get(p, c) - c) / max(1.0, samples))
+    startup = s.get("startup", {})
+    # the CPU the processes had used by the first trial's start: what starting costs
+    start_cpu = sorted(cpu_at.get("first", {}).values())
+    return {"start_cpu": sum(start_cpu), "start_cpu_median": float(np.median(start_cpu))
+            if start_cpu else float("nan"),
+            "robots": n, "participants": len(peak) - 1,  # the bare node is no part
+            "first": marks.get("first"), "found": startup.get("all_found_s"),
+            "ready": startup.get("all_ready_s"), "kinds": by_kind,
+            "total_mb": sum(mb for k, mb in peak.values() if k != "bare node"),
+            "cpu_ms": cpu, "samples": samples,
+            "missed": s["timing"].get("missed_total", sum(s.get("missed", {}).values())),
+            "robot_samples": n * samples, "timing": s["timing"],
+            "missed_by": {k: v for k, v in s.get("missed", {}).items() if v},
+            "missed_at": sim_diag.get("missed_at", {}),
+            "cpu_kind": cpu_kind}
+
+
+def scale_curve(args: argparse.Namespace, tmp: Path, dom: int) -> None:
+    print(f"load before: {Path('/proc/loadavg').read_text().split()[:3]}", flush=True)
+    rows = []
+    for n in args.scale:
+        r = scale_run(n, args, tmp, dom)
+        dom = 30 + (dom - 29) % 71
+        if "error" in r:
+            print(f"{n} robots: FAILED\n{r['error']}", flush=True)
+            continue
+        rows.append(r)
+        bare = max(r["kinds"].get("bare node", [float("nan")]))
+        print(f"{n} robots, {r['participants']} participants: first trial "
+              f"{r['first']:.1f} s after the launch; every node found {r['found']:.1f} s, "
+              f"ready {r['ready']:.1f} s (launcher's clock); RSS in all "
+              f"{r['total_mb']:.0f} MB; CPU {r['cpu_ms']:.2f} ms per sample; "
+              f"missed {r['missed']} of {r['robot_samples']:.0f}", flush=True)
+        t = r["timing"]
+        if args.scale_mode == "realtime":
+            worst = sorted(r["missed_by"].items(), key=lambda kv: -kv[1])[:8]
+            print(f"  realtime: command arrival after the tick p50 {t.get('p50_ms', 0):.1f} "
+                  f"p99 {t.get('p99_ms', 0):.1f} max {t.get('max_ms', 0):.1f} ms; timer lag "
+                  f"p99 {t.get('tick_lag_p99_ms', 0):.1f} max {t.get('tick_lag_max_ms', 0):.1f} "
+                  f"ms; missed by robot (most first) {dict(worst)}; by sample of a trial "
+                  f"(most first) {r['missed_at']}", flush=True)
+        print("  CPU per sample in trials, per process [ms]: " + ", ".join(
+            f"{k} {max(v):.2f}" + (f" (median {float(np.median(v)):.2f})" if len(v) > 1 else "")
+            for k, v in sorted(r["cpu_kind"].items())), flush=True)
+        print(f"  CPU used by the first trial's start: {r['start_cpu']:.1f} s in all, median "
+              f"{r['start_cpu_median']:.2f} s per process", flush=True)
+        print(f"  RSS, bare rclpy node {bare:.1f} MB; per kind, max [ratio to bare]: "
+              + ", ".join(f"{k} {max(v):.1f} MB [{max(v) / bare:.2f}]"
+                          for k, v in sorted(r["kinds"].items()) if k != "bare node"),
+              flush=True)
+    print(f"load after: {Path('/proc/loadavg').read_text().split()[:3]}", flush=True)
+    print(f"\n| robots | participants | launch to trial 1 [s] | all found / ready [s] | "
+          f"RSS total [MB] | robot RSS / bare | CPU per sample [ms] | {args.scale_mode} "
+          f"misses |\n| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+    for r in rows:
+        bare = max(r["kinds"].get("bare node", [float("nan")]))
+        robot = max(r["kinds"].get("robot", [float("nan")]))
+        print(f"| {r['robots']} | {r['participants']} | {r['first']:.1f} | {r['found']:.1f} "
+              f"/ {r['ready']:.1f} | {r['total_mb']:.0f} | {robot / bare:.2f} | "
+              f"{r['cpu_ms']:.2f} | {r['missed']} of {r['robot_samples']:.0f} |", flush=True)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -332,16 +551,31 @@ def main() -> int:
     ap.add_argument("--floor-index", type=int, default=0, help=argparse.SUPPRESS)
     ap.add_argument("--floor-n", type=int, default=6, help=argparse.SUPPRESS)
     ap.add_argument("--floor-warm", type=int, default=200, help=argparse.SUPPRESS)
+    ap.add_argument("--scale", type=int, nargs="*", default=[], metavar="N",
+                    help="the scale curve: these team sizes (formation-ilc team N)")
+    ap.add_argument("--scale-mode", choices=("realtime", "lockstep"), default="realtime")
+    ap.add_argument("--scale-trials", type=int, default=3)
+    ap.add_argument("--scale-container", type=int, default=0, metavar="C")
+    ap.add_argument("--scale-hosts", action="store_true",
+                    help="the curve's robots on network-namespace hosts (--hosts netns)")
+    ap.add_argument("--timeout", type=float, default=3600.0,
+                    help="[s] the longest one launch of the curve may take")
+    ap.add_argument("--bare-node", type=float, help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.bare_node is not None:
+        return _bare_node(args.bare_node)
     if args.floor_role:
         return _floor_node(args.floor_role, args.floor_index, args.floor_n, args.floor_ticks,
                            args.floor_warm)
     if args.sizes is None:
-        args.sizes = [] if args.realtime else [3, 6, 12, 24]
+        args.sizes = [] if args.realtime or args.scale else [3, 6, 12, 24]
     modes = ["emulated", "direct"] if args.links == "both" else [args.links]
     with tempfile.TemporaryDirectory() as td:
         tmp = Path(td)
         dom = args.domain
+        if args.scale:
+            scale_curve(args, tmp, dom)
+            dom = 30 + (dom - 29 + len(args.scale)) % 71
         for n in args.sizes:
             dom = lockstep(n, args, modes, tmp, dom)
         for n in args.realtime:

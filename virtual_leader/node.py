@@ -81,6 +81,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
@@ -158,6 +159,10 @@ class LeaderNode(Node):
         # of 1 (shared by every writer of the keyless topic) let this leader's own config
         # replace it before it was taken, and the second formation ran
         self.create_subscription(String, ms.CONFIG, self._on_config, ms.LATCHED_READER_QOS)
+        # a node not yet ready says what it waits for in its diagnostics: the watchdog
+        # names it (discovery that does not complete shows as endpoints never matched)
+        self.create_subscription(DiagnosticArray, ms.DIAGNOSTICS, self._on_diagnostics,
+                                 ms.LATCHED_READER_QOS)
         if cfg.mode == "wallclock":
             self._wall_timer = self.create_timer(0.005, self.core.on_wall_timer)
         else:
@@ -210,6 +215,13 @@ class LeaderNode(Node):
             self.drops.reject(exc, ms.CONFIG)
             return
         self.core.on_config(data)
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        try:
+            report = ms.msg_to_report(msg, ("node",))
+        except Rejected:
+            return  # the monitor counts malformed diagnostics; nothing to do here
+        self.core.on_waiting(report)
 
     def _on_clock(self, msg: Clock | bytes) -> None:
         try:

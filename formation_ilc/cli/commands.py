@@ -53,6 +53,7 @@ examples:
   formation-ilc sweep study.yaml --out runs/study      gains x graphs x laws x seeds
   formation-ilc launch paper-triangle3 --trials 20     real ROS 2 processes, one per robot
   formation-ilc launch paper-triangle3 --record run.mcap && formation-ilc analyze run.mcap
+  formation-ilc launch team50 --mode realtime          50 robot processes (formation-ilc team N)
 
 A SCENARIO is a built-in name or a YAML file (see formation_ilc/config/scenarios/*.yaml).
 """
@@ -343,6 +344,48 @@ def _add_mcap_repair(sub: Any) -> None:
     p.add_argument("-o", "--output", type=output_file_arg, metavar="FIXED.mcap",
                    help="default: RUN.repaired.mcap")
 
+
+
+def _add_team(sub: Any) -> None:
+    from formation_ilc.config.generate import GRAPH_RULES, PATTERNS
+
+    p = sub.add_parser(
+        "team", help="write a scenario for a team of N robots (a pattern and a graph rule)",
+        description="Write a scenario file for a team of N robots: the formation from a "
+                    "pattern, the graph from a rule, everything else (reference, timing, "
+                    "law, uncertainty, delays) from a base scenario. The built-in team50 "
+                    "is `formation-ilc team 50`. Then: formation-ilc launch FILE.")
+    p.add_argument("robots", type=int_range(1, 1000), metavar="N", help="robots")
+    p.add_argument("-o", "--output", type=output_file_arg, metavar="FILE.yaml",
+                   help="where to write it (default teamN.yaml in this folder)")
+    p.add_argument("--pattern", choices=PATTERNS, default="grid",
+                   help="grid: rows of about sqrt(2 N) robots; ring: one circle (default grid)")
+    p.add_argument("--graph", choices=GRAPH_RULES, default="relay",
+                   help="relay: along the pattern every third robot sees the leader and its "
+                        "two neighbours follow it (the paper's leader-relay tree)")
+    p.add_argument("--spacing", type=positive_float, default=1.5, metavar="M",
+                   help="distance between neighbours [m] (default 1.5)")
+    p.add_argument("--columns", type=int_range(1, 1000), metavar="C",
+                   help="grid: robots per row (default about sqrt(2 N))")
+    p.add_argument("--from", dest="base", default="paper-hexagon6", metavar="SCENARIO",
+                   help="the base scenario (default paper-hexagon6)")
+
+
+def cmd_team(args: argparse.Namespace) -> int:
+    from formation_ilc.config.generate import team_yaml
+
+    text = team_yaml(args.robots, pattern=args.pattern, graph=args.graph,
+                     spacing=args.spacing, columns=args.columns, base=args.base)
+    out = args.output or Path(f"team{args.robots}.yaml")
+    try:
+        out.write_text(text)
+    except OSError as exc:
+        raise ScenarioError(f"{out}: cannot write: {exc.strerror}") from None
+    sc = load_scenario(out)
+    print(f"wrote {out}: {sc.n} robots ({args.pattern}, graph rule {args.graph}, "
+          f"{int(sc.graph.leader.astype(bool).sum())} see the leader); run it with: "
+          f"formation-ilc launch {out}")
+    return 0
 
 
 def _add_keystore(sub: Any) -> None:
@@ -1059,6 +1102,7 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
     Command("mcap-repair", _add_mcap_repair, cmd_mcap_repair),
     Command("keystore", _add_keystore, cmd_keystore),
     Command("launch", _add_launch, cmd_launch),
+    Command("team", _add_team, cmd_team),
 )}
 
 

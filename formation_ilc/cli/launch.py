@@ -59,11 +59,12 @@ keystore or the loaded Fast DDS cannot run it (docs/security.md).
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import signal
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -316,11 +317,11 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
     node, then the report; the exit status. ``place``: a process's command line (default
     its own)."""
     from formation_ilc.cli.report import write_report
-    from formation_ilc.model.simulate import Problem
     from formation_ilc.system.shm import clean_leftovers, fastdds_files
 
     if plan.run_json is not None:
         _save_run(plan.out, plan.run_json)
+    plan.write_peers_profile()  # before the secure one, which builds on it
     if plan.secure is not None:
         plan.secure.write_profile()
     env = _node_env(plan)
@@ -331,15 +332,15 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
     shm_before = fastdds_files()
     # our own monitor node joins the same domain: set before rclpy initialises
     os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
-    if "ROS_AUTOMATIC_DISCOVERY_RANGE" in env:
-        os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env["ROS_AUTOMATIC_DISCOVERY_RANGE"]
-    pb = Problem.from_scenario(plan.scenario)
+    for name in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):
+        if name in env:
+            os.environ[name] = env[name]
     for note in plan.notes:
         print(note, flush=True)
     print(plan.banner(), flush=True)
     session = _Session(plan, env, place)
     try:
-        status = session.run(pb)
+        status = session.run()
     finally:
         # the shared-memory files of nodes killed during the run, and older leftovers
         clean_leftovers(fastdds_files() - shm_before)
@@ -348,7 +349,7 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
         status = check_recording(plan.record_root, plan.scenario.trials)
     return write_report(plan, session.rows(), session.diagnostics,
                         session.supervisor.restarts, time.monotonic() - session.t_start,
-                        status)
+                        status, startup=session.startup())
 
 
 def check_recording(root: Path, trials: int) -> int:
@@ -405,6 +406,8 @@ def _node_env(plan: RunPlan) -> dict[str, str]:
     env["ROS_DOMAIN_ID"] = str(plan.domain)
     if plan.discovery == "localhost":
         env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    if plan.peers_profile is not None:  # a secure run's profile, built on it, comes later
+        env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(plan.peers_profile)
     env["PYTHONUNBUFFERED"] = "1"
     env[PARENT_ENV] = str(os.getpid())  # every node ends with this launcher
     env[RUN_ENV] = plan.config.run_id  # and takes only this run's configuration
@@ -423,6 +426,68 @@ def _rewrite_metrics(path: Path, kept: list[Any]) -> None:
         w.writerow(METRIC_COLUMNS)
         for r in kept:
             w.writerow(format_row(np.asarray(r, dtype=float)))
+
+
+class StartupProgress:
+    """What the console shows while a run starts: from the processes' start to the
+    leader's first ``start``, a line at least every ``every`` seconds (sooner when a count
+    moved), with how many of the nodes the leader waits for are found in the ROS graph
+    and how many have said ready; after ``name_after`` seconds, also whom it still waits
+    for. Then one line that the first trial starts. The times it saw (``found_at``: every
+    node found, ``ready_at``: every node ready, ``started_at``: the first start; seconds
+    from ``t0``) go into summary.json."""
+
+    def __init__(self, expected: Sequence[str], t0: float, every: float = 1.0,
+                 name_after: float = 5.0):
+        self.expected = list(expected)
+        self.t0 = t0
+        self.every = every
+        self.name_after = name_after
+        self.last_line = -math.inf  # the first call prints
+        self.last_counts: tuple[int, int] = (-1, -1)
+        self.found_at: float | None = None
+        self.ready_at: float | None = None
+        self.started_at: float | None = None
+
+    @property
+    def active(self) -> bool:
+        return self.started_at is None
+
+    def update(self, now: float, found: Collection[str], ready: Collection[str],
+               started: bool) -> str | None:
+        """The line to print now, or None. ``found``: node names found in the graph;
+        ``ready``: nodes that have said ready; ``started``: the leader started a trial."""
+        if not self.active:
+            return None
+        t = now - self.t0
+        n = len(self.expected)
+        n_found = sum(1 for e in self.expected if e in found)
+        n_ready = sum(1 for e in self.expected if e in ready)
+        if n_found == n and self.found_at is None:
+            self.found_at = t
+        if n_ready == n and self.ready_at is None:
+            self.ready_at = t
+        if started:
+            self.started_at = t
+            return f"start-up done [{t:.1f} s]: {n} nodes ready, the first trial starts"
+        counts = (n_found, n_ready)
+        if counts == self.last_counts and now - self.last_line < self.every:
+            return None
+        if counts != self.last_counts and now - self.last_line < 0.25 * self.every:
+            return None  # several changes at once: one line
+        self.last_counts, self.last_line = counts, now
+        line = f"start-up [{t:.1f} s]: {n_found} of {n} nodes found, {n_ready} ready"
+        if n_ready == n:
+            line += "; waiting for the leader to start the first trial"
+        elif t >= self.name_after:
+            waiting = [e for e in self.expected if e not in ready]
+            line += f"; waiting for {', '.join(waiting[:6])}" + (
+                f" and {len(waiting) - 6} more" if len(waiting) > 6 else "")
+        return line
+
+    def summary(self) -> dict[str, float | None]:
+        return {"all_found_s": self.found_at, "all_ready_s": self.ready_at,
+                "first_start_s": self.started_at}
 
 
 class Watch:
@@ -515,6 +580,7 @@ class _Session:
                             if i > 0 and c not in COUNT_COLUMNS
                             and (plan.true_state or c not in TRUE_COLUMNS)]
         self.supervisor = Supervisor(plan, env, place, on_down=self._down)
+        self.progress: StartupProgress | None = None
         self.host: Any = None
         self.diagnostics: dict[str, dict[str, Any]] = {}
 
@@ -537,6 +603,11 @@ class _Session:
                  f"{', '.join(map(str, lost))}: the launcher stopped before it wrote them)"
                  if lost else ""), flush=True)
         return kept, MetricsWriter(path, append=True)
+
+    def startup(self) -> dict[str, float | None]:
+        """When every node was found and ready, and the first trial started [s from the
+        session's start]."""
+        return self.progress.summary() if self.progress is not None else {}
 
     def rows(self) -> list[Any]:
         """Every finished trial's metrics row, by iteration (a resumed run's first)."""
@@ -564,7 +635,7 @@ class _Session:
         without it (the recorder: no trial unrecorded)."""
         self.host.down(name, pid)
 
-    def run(self, pb: Any) -> int:
+    def run(self) -> int:
         """Start the nodes, follow the trials to the end; the exit status (the outputs
         are the caller's)."""
         from formation_ilc.nodes.host import LauncherHost
@@ -578,7 +649,7 @@ class _Session:
         status = 0
         try:
             self.host.start()
-            status = self._follow(pb)
+            status = self._follow()
         except _Refused:
             status = 2
         except Diverged as exc:
@@ -597,21 +668,32 @@ class _Session:
                   file=sys.stderr)
             status = DISK_FULL
         finally:
+            if status == 0:
+                print(f"every trial is in: stopping the {len(self.plan.nodes)} processes "
+                      f"[{time.monotonic() - self.t_start:.1f} s]", flush=True)
             self.supervisor.stop()
             self.writer.close()
             self.diagnostics = self.host.close()
         return status
 
-    def _follow(self, pb: Any) -> int:
+    def _follow(self) -> int:
         """The monitor joins, the nodes start, and the run is followed until every trial
         and report is in (or the wait for them is over), or a node fails for good."""
+        from formation_ilc.protocol.schedule import START
+
         plan, host = self.plan, self.host
         monitor = host.monitor
-        # discovery runs while the kernels compile; then look for another formation here
-        t_node = time.monotonic()
-        host.warm_up(pb)  # compile the kernels once, into the numba cache every node loads
-        self._refuse_foreign(max(0.0, 1.5 - (time.monotonic() - t_node)))
-        self.supervisor.start()
+        # the processes start (imports are most of their start) while the monitor looks for
+        # another formation here; they join the domain only once there is none
+        self.supervisor.start(gated=True)
+        print(f"started {len(plan.nodes)} processes; looking for another formation on "
+              f"ROS_DOMAIN_ID={plan.domain} in {plan.namespace} ...", flush=True)
+        self._refuse_foreign(1.5)
+        self.supervisor.open_gate()
+        print(f"none: the processes join; the leader waits for {len(plan.team.expected)} "
+              f"nodes [{time.monotonic() - self.t_start:.1f} s]", flush=True)
+        progress = self.progress = StartupProgress(plan.team.expected, self.t_start)
+        graph_at, found = 0.0, set()
         final_deadline: float | None = None
         watch = Watch(Bounds.for_run(plan.scenario.dt, len(plan.team.expected),
                                      plan.config.mode, plan.config.timeout,
@@ -619,6 +701,17 @@ class _Session:
                       plan.scenario.trials)
         while True:
             host.spin_once(0.05)
+            if progress.active:
+                now = time.monotonic()
+                if now - graph_at >= 0.5:  # a graph query: twice a second is enough
+                    graph_at = now
+                    found = {name for name, ns in monitor.get_node_names_and_namespaces()
+                             if ns == plan.namespace}
+                ready = set(monitor.readies)
+                line = progress.update(now, found | ready, ready,
+                                       any(e.get("event") == START for e in monitor.events))
+                if line:
+                    print(line, flush=True)
             stuck = watch.tick(monitor, time.monotonic())
             if stuck is not None:
                 print(f"error: {stuck}", file=sys.stderr)

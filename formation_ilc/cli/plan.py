@@ -287,9 +287,29 @@ class RunPlan:
     live: tuple[str, int] | None = None
     #: ``--live-rate``: messages a second per per-sample channel (None: the view's default)
     live_rate: float | None = None
+    #: a team of more processes than localhost discovery reaches: the Fast DDS profiles
+    #: file with every participant's discovery port (``system.discovery``), written by the
+    #: launcher before anything starts and loaded by every process; None: the caller's
+    peers_profile: Path | None = None
+    #: the profiles file it builds on (the caller's FASTRTPS_DEFAULT_PROFILES_FILE), or None
+    peers_base: Path | None = None
     #: the batch simulator predicted no contact in this run's trials (a plant with bodies):
     #: the report warns if the plant saw one all the same
     predicted_clear: bool = False
+
+    @property
+    def participants(self) -> int:
+        """DDS participants of the run on this machine: its processes and the launcher's
+        monitor (one per process; ``--hosts netns`` robots are on hosts of their own)."""
+        return len(self.nodes) + 1
+
+    def write_peers_profile(self) -> None:
+        """Write ``peers_profile`` (when the plan has one)."""
+        from formation_ilc.system.discovery import peers_profile
+
+        if self.peers_profile is not None:
+            self.peers_profile.write_text(peers_profile(self.peers_base, self.domain,
+                                                        self.participants))
 
     @property
     def scenario(self) -> Scenario:
@@ -419,8 +439,31 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
         predicted_clear=any(n.startswith("the batch simulator predicts no contact")
                             for n in notes))
     # the processes follow from the rest of the plan
-    return _secured(replace(plan, nodes=node_specs(plan, scenario_reference(opts.scenario))),
-                    getattr(opts, "secure", None))
+    plan = _with_peers(replace(plan, nodes=node_specs(plan, scenario_reference(opts.scenario))))
+    return _secured(plan, getattr(opts, "secure", None))
+
+
+def _user_profile() -> Path | None:
+    """The caller's FASTRTPS_DEFAULT_PROFILES_FILE, or None."""
+    value = os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE")
+    return Path(value) if value else None
+
+
+def _with_peers(plan: RunPlan) -> RunPlan:
+    """``plan`` with a discovery profile when its processes are more than localhost
+    discovery reaches on its own (``system.discovery``); NoRun when the caller's
+    FASTRTPS_DEFAULT_PROFILES_FILE cannot be built on."""
+    from formation_ilc.system.discovery import needs_peers, peers_profile
+
+    if (plan.discovery != "localhost" or plan.hosts is not None
+            or not needs_peers(plan.participants)):
+        return plan
+    base = _user_profile()
+    try:
+        peers_profile(base, plan.domain, plan.participants)
+    except ValueError as exc:
+        raise NoRun(f"FASTRTPS_DEFAULT_PROFILES_FILE {exc}") from None
+    return replace(plan, peers_profile=plan.out / "fastdds-discovery.xml", peers_base=base)
 
 
 def _secured(plan: RunPlan, keystore: Path | str | None) -> RunPlan:
@@ -434,12 +477,9 @@ def _secured(plan: RunPlan, keystore: Path | str | None) -> RunPlan:
                     f"{', '.join(SECURE_PLANTS)}, not --plant {plan.plant} (run it without "
                     f"--secure, on a network you trust)")
     # the handshake retries go into the profile the processes would load anyway: the
-    # lossy-links one on netns hosts, else the user's own
-    if plan.hosts is not None:
-        base = plan.hosts.profile_file
-    else:
-        base = Path(os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"]) \
-            if os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE") else None
+    # lossy-links one on netns hosts, else the user's own (with the discovery peers of a
+    # large team, which are written next to it: checked here on the user's own)
+    base = plan.hosts.profile_file if plan.hosts is not None else _user_profile()
     try:
         sec = prepare(keystore, [_enclave(plan, s.name) for s in plan.nodes], plan.namespace,
                       container=plan.container, profile=plan.out / "fastdds-secure.xml",
@@ -448,6 +488,8 @@ def _secured(plan: RunPlan, keystore: Path | str | None) -> RunPlan:
         raise NoRun(str(exc)) from None
     if sec is None:
         return plan
+    if plan.peers_profile is not None:
+        sec = replace(sec, base_profile=plan.peers_profile)
     if not sec.handshake_applies:
         from formation_ilc.system.securedds import BUILD_COMMAND
 

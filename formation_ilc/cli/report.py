@@ -35,8 +35,11 @@ PHYSICS_KEYS = ("model", "pose_source", "substeps", "contacts_by_trial", "tilt_b
 
 
 def summary_of(plan: RunPlan, rows: int, diagnostics: Mapping[str, Mapping[str, Any]],
-               restarts: Mapping[str, int], seconds: float) -> dict[str, Any]:
-    """summary.json of a run of ``plan`` that finished ``rows`` trials in ``seconds``."""
+               restarts: Mapping[str, int], seconds: float,
+               startup: Mapping[str, float | None] | None = None) -> dict[str, Any]:
+    """summary.json of a run of ``plan`` that finished ``rows`` trials in ``seconds``;
+    ``startup``: when the launcher found every node, saw every ready, saw the first start
+    (seconds from its start)."""
     sc, cfg = plan.scenario, plan.config
     sim_diag = diagnostics.get(plan.team.plants[0] if plan.true_state else SIM_NODE, {})
     summary: dict[str, Any] = {
@@ -46,7 +49,8 @@ def summary_of(plan: RunPlan, rows: int, diagnostics: Mapping[str, Mapping[str, 
         "container": plan.container, "domain_id": plan.domain, "seconds": seconds,
         "run_id": cfg.run_id, "resumed_at": plan.resumed_at, "restarts": dict(restarts),
         "timing": sim_diag.get("timing", {}), "missed": sim_diag.get("missed", {}),
-        "dropped": {n: d.get("dropped", {}) for n, d in diagnostics.items()}}
+        "dropped": {n: d.get("dropped", {}) for n, d in diagnostics.items()},
+        "startup": dict(startup or {})}
     if plan.bridged:
         summary["bridges"] = {b: {key: diagnostics.get(b, {}).get(key) for key in BRIDGE_KEYS}
                               for b in plan.team.plants}
@@ -63,7 +67,8 @@ def summary_of(plan: RunPlan, rows: int, diagnostics: Mapping[str, Mapping[str, 
 
 def write_report(plan: RunPlan, rows: Sequence[Sequence[float]],
                  diagnostics: Mapping[str, Mapping[str, Any]], restarts: Mapping[str, int],
-                 seconds: float, status: int) -> int:
+                 seconds: float, status: int,
+                 startup: Mapping[str, float | None] | None = None) -> int:
     """Write the run's outputs into ``plan.out``; after a successful run (``status`` 0)
     also the figure and the printed report. Returns ``status``."""
     out = plan.out
@@ -71,7 +76,7 @@ def write_report(plan: RunPlan, rows: Sequence[Sequence[float]],
     emulated = plan.config.links == "emulated"
     dtab = delay_rows(measured, injected if emulated else None,
                       plan.scenario.uncertainty.delay.pmf() if emulated else None)
-    summary = summary_of(plan, len(rows), diagnostics, restarts, seconds)
+    summary = summary_of(plan, len(rows), diagnostics, restarts, seconds, startup)
     try:
         (out / "diagnostics.json").write_text(json.dumps(diagnostics, indent=2) + "\n")
         write_delays(out / "delays.csv", dtab)
@@ -88,13 +93,15 @@ def write_report(plan: RunPlan, rows: Sequence[Sequence[float]],
     files = ["metrics.csv", "delays.csv", "diagnostics.json", "summary.json"]
     m = np.array(rows)
     sc = plan.scenario
+    print_report(sc, m, dtab, summary)
     if plan.plots and len(rows):
+        # a second or two (matplotlib, which on a fresh install first builds its caches)
+        print(f"writing {out / 'errors.png'} ...", flush=True)
         from formation_ilc.recordings.plots import plot_errors
 
         plot_errors(m[:, 0], m[:, 1], m[:, 2], out / "errors.png",
                     f"{sc.name}: distributed stack, {sc.n} robot nodes, {plan.config.mode}")
         files.append("errors.png")
-    print_report(sc, m, dtab, summary)
     wrong = contact_warning(plan.predicted_clear, m)
     if wrong is not None:
         print(wrong)

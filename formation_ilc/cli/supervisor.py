@@ -9,6 +9,7 @@ What the processes do, and when the run is over, is the launcher's business. No 
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
@@ -20,6 +21,7 @@ from typing import IO
 
 from formation_ilc.cli.plan import NodeSpec, RunPlan
 from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, NO_RESTART, STUCK
+from formation_ilc.system.lifetime import GATE_ENV
 
 __all__ = ["Stack", "Supervisor", "Failure", "exit_status", "metrics_rows", "resume_hint",
            "disk_full_line", "trial_ranges"]
@@ -36,6 +38,21 @@ class Stack:
         self.argv: dict[str, list[str]] = {}
         self.extra: dict[str, dict[str, str]] = {}
         self.restarts: dict[str, int] = {}
+        #: the gate's pipe (read end, write end) while it is shut (``shut_gate``)
+        self.gate: tuple[int, int] | None = None
+
+    def shut_gate(self) -> None:
+        """Processes started from now on wait at the gate (``system.lifetime``) until
+        ``open_gate``: their stdin is a pipe that stays open until then."""
+        if self.gate is None:
+            self.gate = os.pipe()
+
+    def open_gate(self) -> None:
+        """Let every process waiting at the gate go on (idempotent)."""
+        if self.gate is not None:
+            for fd in self.gate:
+                os.close(fd)
+            self.gate = None
 
     def start(self, name: str, argv: list[str], extra: dict[str, str] | None = None) -> None:
         """Start process ``name``: ``argv`` in the run's environment plus ``extra`` (kept
@@ -53,8 +70,11 @@ class Stack:
         if extra is not None:
             self.extra[name] = extra
         env = {**self.env, **self.extra.get(name, {})}
-        self.procs[name] = subprocess.Popen(argv, env=env, stdout=fh,
-                                            stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+        if self.gate is not None:
+            env[GATE_ENV] = "stdin"
+        self.procs[name] = subprocess.Popen(
+            argv, env=env, stdout=fh, stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL if self.gate is None else self.gate[0])
 
     def restart(self, name: str) -> str:
         """Start ``name`` again with the same command line (a recorder into a new file
@@ -100,6 +120,7 @@ class Stack:
                     pass
         for fh in self.logs.values():
             fh.close()
+        self.open_gate()  # after the signals: nothing stopped at the gate goes on
 
 
 def exit_status(code: int) -> str:
@@ -150,10 +171,16 @@ class Supervisor:
     def restarts(self) -> dict[str, int]:
         return self.stack.restarts
 
-    def start(self) -> None:
-        """Start every process of the plan, in its order."""
+    def start(self, gated: bool = False) -> None:
+        """Start every process of the plan, in its order; ``gated``: they wait at the
+        gate until ``open_gate``."""
+        if gated:
+            self.stack.shut_gate()
         for spec in self.plan.nodes:
             self.stack.start(spec.name, self.place(spec), dict(spec.env))
+
+    def open_gate(self) -> None:
+        self.stack.open_gate()
 
     def watch(self) -> Failure | None:
         """Start again each process that died, within its policy; the first that may not

@@ -5,10 +5,11 @@ process of the distributed stack can draw exactly what the batch simulator draws
 same trial: the kinematic simulator draws the ``plant`` stream, the link emulator the
 ``delay`` stream. Changing the draw order here changes every recorded run.
 
-The generator is ``numpy.random.default_rng([seed, trial, stream])`` (:func:`trial_rng`);
-the draws are made by compiled kernels (:func:`fill_plant`, :func:`fill_delays`) that
-reproduce its numbers bit for bit (``pcg.py``), so that the batch simulator draws a trial
-inside its compiled loop. In numpy terms, the contract is::
+The generator is ``numpy.random.default_rng([seed, trial, stream])`` (:func:`trial_rng`).
+``Uncertainty.draw_plant`` and ``draw_delays`` (the nodes' draws, once per trial) are the
+contract below in numpy; the batch simulator draws a trial inside its compiled loop with
+kernels (:func:`fill_plant`, :func:`fill_delays`) that reproduce numpy's numbers bit for bit
+(``pcg.py``). In numpy terms, the contract is::
 
     rng = trial_rng(seed, trial, PLANT_STREAM)
     shift = rng.uniform(-1, 1, (n, 3)) * initial_shift
@@ -31,7 +32,7 @@ from numpy.typing import NDArray
 from formation_ilc.core._jit import njit
 from formation_ilc.core.delays import DelayModel
 from formation_ilc.core.links import LOST
-from formation_ilc.core.pcg import STATE_SIZE, next_double, seed_state, seed_words
+from formation_ilc.core.pcg import next_double, seed_state, seed_words
 
 __all__ = ["Harmonic", "Uncertainty", "TrialDraws", "trial_rng", "PLANT_STREAM", "DELAY_STREAM",
            "PlantArrays", "DelayArrays", "plant_arrays", "delay_arrays", "fill_plant",
@@ -115,21 +116,28 @@ class Uncertainty:
     def draw_plant(self, seed: int, trial: int, n: int, n_samples: int
                    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """(shift (n, 3), disturbance (n, T, 2), noise (n, T+1, 3)) of one trial."""
-        shift = np.empty((n, 3))
-        dist = np.empty((n, n_samples, 2))
-        noise = np.empty((n, n_samples + 1, 3))
-        fill_plant(seed_words(seed), _trial_index(trial), *plant_arrays(self, n_samples),
-                   np.empty(STATE_SIZE, dtype=np.uint64), shift, dist, noise)
+        shift_w, dist_w, noise_w, dist_fixed, noise_fixed = plant_arrays(self, n_samples)
+        rng = trial_rng(seed, _trial_index(trial), PLANT_STREAM)
+        # numpy's uniform(-1, 1) is -1 + 2 random(): the kernel's numbers, in its order
+        shift = rng.uniform(-1.0, 1.0, (n, 3)) * shift_w
+        dist = rng.uniform(-1.0, 1.0, (n, n_samples, 2)) * dist_w + dist_fixed.T
+        noise = rng.uniform(-1.0, 1.0, (n, n_samples + 1, 3)) * noise_w + noise_fixed.T
         return shift, dist, noise
 
     def draw_delays(self, seed: int, trial: int, n: int, n_links: int, n_samples: int
                     ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """(tau of each in-link (n, L, T+1), tau of each leader link (n, T+1)) in samples;
         a lost sample's tau is ``links.LOST``."""
-        tau = np.empty((n, n_links, n_samples + 1), dtype=np.int64)
-        tau0 = np.empty((n, n_samples + 1), dtype=np.int64)
-        fill_delays(seed_words(seed), _trial_index(trial), *delay_arrays(self),
-                    np.empty(STATE_SIZE, dtype=np.uint64), tau, tau0)
+        trial = _trial_index(trial)
+        rng = trial_rng(seed, trial, DELAY_STREAM)
+        tau = self.delay.draw(rng, (n, n_links, n_samples + 1))
+        tau0 = (self.delay.draw(rng, (n, n_samples + 1)) if self.delay_leader
+                else np.zeros((n, n_samples + 1), dtype=np.int64))
+        if self.link_loss > 0.0:
+            lost = trial_rng(seed, trial, LOSS_STREAM)
+            tau[lost.random(tau.shape) < self.link_loss] = LOST
+            if self.delay_leader:
+                tau0[lost.random(tau0.shape) < self.link_loss] = LOST
         return tau, tau0
 
 

@@ -2,7 +2,8 @@
 
 Each trial runs in one compiled loop over samples that calls the law's per-step function
 (``law.command``) for all robots at once, then ``law.learn`` for the next trial's memory.
-The robot node calls the same two functions for one robot.
+The robot node calls the same two functions for one robot, interpreted (``core/_jit.py``);
+the functions here call the compiled forms (``kernel.jit``).
 """
 
 from __future__ import annotations
@@ -119,8 +120,8 @@ class Problem:
         eta = np.empty_like(xi)
         u = np.empty((n, n_t, 2))
         nxt = np.empty_like(memory)
-        run_trial(self.law, self.memory, self.heading, self.plant, self.dt, memory, xi0, dist,
-                  noise, tau,
+        run_trial.jit(self.law, self.memory, self.heading, self.plant, self.dt, memory, xi0,
+                      dist, noise, tau,
                   tau0, self.src, self.weight, self.leader, self.eta_d, self.gain,
                   self.gain_prime, xi, eta, u, nxt, safety_arrays(self))
         return xi, eta, u, nxt
@@ -475,7 +476,7 @@ def simulate(
     if (not keep and progress is None and on_trial_data is None and not stop_on_divergence
             and on_memory is None and store_metrics):
         # every trial in one compiled call: nothing to do in Python between trials
-        if run_trials(*args, memory, nxt, metrics, xi, eta, u, tau, tau0, sf):
+        if run_trials.jit(*args, memory, nxt, metrics, xi, eta, u, tau, tau0, sf):
             memory = nxt
         return SimResult(metrics=metrics, records=records, memory=memory)
     rows = np.empty((1, len(METRIC_COLUMNS)))
@@ -489,7 +490,7 @@ def simulate(
     for i in range(k_total):
         k = first_trial + i
         # the same compiled code, one trial per call
-        run_trials(*args[:1], k, *args[2:], memory, nxt, rows, xi, eta, u, tau, tau0, sf)
+        run_trials.jit(*args[:1], k, *args[2:], memory, nxt, rows, xi, eta, u, tau, tau0, sf)
         done = i if store_metrics else 0
         if stop_on_divergence:
             try:
@@ -536,21 +537,25 @@ def simulate_seeds(scenario: Scenario, seeds: Iterable[int], trials: int) -> NDA
     u = np.empty((n, n_t, 2))
     out = np.empty((len(seeds), trials))
     row = np.empty(len(METRIC_COLUMNS) - 1)
+    # each seed's draws into its rows of the stacked arrays, by the compiled kernels
+    shift, dist, noise = np.empty((n, 3)), np.empty((n, n_t, 2)), np.empty((n, n_t + 1, 3))
+    tau = np.empty((n, n_links, n_t + 1), dtype=np.int64)
+    tau0 = np.empty((n, n_t + 1), dtype=np.int64)
+    state = np.empty(STATE_SIZE, dtype=np.uint64)
+    words = [seed_words(s) for s in seeds]
+    plant_args, delay_args = plant_arrays(unc, n_t), delay_arrays(unc)
     for k in range(trials):
-        draws = [unc.draw_plant(s, k, n1, n_t) for s in seeds]
-        delays = [unc.draw_delays(s, k, n1, n_links, n_t) for s in seeds]
-        shift = np.concatenate([d[0] for d in draws])
-        dist = np.concatenate([d[1] for d in draws])
-        noise = np.concatenate([d[2] for d in draws])
-        tau = np.concatenate([d[0] for d in delays])
-        tau0 = np.concatenate([d[1] for d in delays])
-        run_trial(pb.law, pb.memory, pb.heading, pb.plant, pb.dt, memory,
-                  pb.eta_d[:, 0] + shift, dist,
-                  noise, tau, tau0, pb.src, pb.weight, pb.leader, pb.eta_d, pb.gain,
-                  pb.gain_prime, xi, eta, u, nxt, safety_arrays(pb))
+        for i, w in enumerate(words):
+            sl = slice(i * n1, (i + 1) * n1)
+            fill_plant.jit(w, k, *plant_args, state, shift[sl], dist[sl], noise[sl])
+            fill_delays.jit(w, k, *delay_args, state, tau[sl], tau0[sl])
+        run_trial.jit(pb.law, pb.memory, pb.heading, pb.plant, pb.dt, memory,
+                      pb.eta_d[:, 0] + shift, dist,
+                      noise, tau, tau0, pb.src, pb.weight, pb.leader, pb.eta_d, pb.gain,
+                      pb.gain_prime, xi, eta, u, nxt, safety_arrays(pb))
         for i in range(len(seeds)):
             sl = slice(i * n1, (i + 1) * n1)
-            trial_errors(eta[sl], xi[sl], base.eta_d, base.src, base.weight, row)
+            trial_errors.jit(eta[sl], xi[sl], base.eta_d, base.src, base.weight, row)
             out[i, k] = row[0]
         memory, nxt = nxt, memory
     return out

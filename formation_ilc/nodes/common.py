@@ -10,12 +10,12 @@ import os
 import signal
 import socket
 import sys
+import time
 import uuid
 from collections import Counter
 from collections.abc import Callable, Collection, Iterable
 from typing import Any, TypeVar
 
-import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.exceptions import ParameterException
@@ -29,14 +29,18 @@ from std_msgs.msg import String
 import msgs_schema as ms
 from formation_ilc.config.runconfig import RunConfig, make_config
 from formation_ilc.core.clock import REASONS, Rejected
-from formation_ilc.core.uncertainty import Uncertainty
-from formation_ilc.model.simulate import Problem
 from formation_ilc.protocol.schedule import Follower, Ready, TrialEvent
 from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, is_disk_full
-from formation_ilc.system.lifetime import PARENT_ENV, bound_the_stop, die_with_parent, parent_gone
+from formation_ilc.system.lifetime import (
+    PARENT_ENV,
+    bound_the_stop,
+    die_with_parent,
+    parent_gone,
+    wait_at_gate,
+)
 
 __all__ = ["PARENT_ENV", "DROP_REASONS", "DropCounter", "Diagnostics", "RunConfig", "make_config",
-           "config_from_msg", "ConfiguredNode", "warm_up", "warm_up_draws", "matched", "unmatched",
+           "config_from_msg", "ConfiguredNode", "matched", "unmatched",
            "readers_wanting", "fail",
            "spin_main", "node_parser", "ros_param", "robot_node_from_args"]
 
@@ -81,6 +85,11 @@ class DropCounter:
         return {"dropped": dict(self.counts), "dropped_by_topic": dict(self.by_topic)}
 
 
+#: how often [s] a node not yet ready names the endpoints it waits for (its log, and its
+#: diagnostics, which the leader's watchdog repeats)
+MATCH_WARN = 10.0
+
+
 class ConfiguredNode(Node):
     """A node that builds itself (``configure``) from a run configuration: one given at
     start, or the latched one on the config topic (``follow_config``)."""
@@ -93,6 +102,8 @@ class ConfiguredNode(Node):
         #: for its configuration is alive)
         self.diag_pub = Diagnostics(self)
         self.configured = False
+        # the first word half a period in: a node that matches in a few seconds says none
+        self._waiting_said = time.monotonic() - MATCH_WARN / 2
         #: this process's identity in ``ready`` (a new one tells the leader it restarted)
         self.boot = uuid.uuid4().hex[:12]
         #: what this node takes of the leader's events (its core's, once configured)
@@ -107,6 +118,22 @@ class ConfiguredNode(Node):
         return ms.json_to_msg(Ready(self.get_name(), trial, self.boot, self.follower.seen,
                                     passive, self.run_id, abort_slot=abort_slot,
                                     why=why, config=self.own_config).to_json())
+
+    def not_ready(self, waits: list[str]) -> None:
+        """Not ready yet: every MATCH_WARN seconds say what it waits for (``waits``, one
+        phrase an endpoint, :func:`unmatched`) in the log and, when the node has a
+        diagnostics writer (``diag_pub``), as ``waiting`` in its diagnostics, for the
+        leader's watchdog to name."""
+        now = time.monotonic()
+        if not waits or now - self._waiting_said < MATCH_WARN:
+            return
+        self._waiting_said = now
+        self.get_logger().warning(f"not ready: waiting for {'; '.join(waits)}")
+        pub = getattr(self, "diag_pub", None)
+        if pub is not None:
+            pub.publish(ms.diagnostics_to_msg(
+                {"node": self.get_name(), "trial": -1, "waiting": list(waits)},
+                self.get_clock().now().nanoseconds, hardware_id=self.get_name()))
 
     @property
     def run_id(self) -> str:
@@ -213,48 +240,6 @@ class Diagnostics:
         self.ros_pub.publish(out)
 
 
-def warm_up(pb: Problem, unc: Uncertainty | None = None) -> None:
-    """Compile (or load from the numba cache) every kernel a node calls, with the node's
-    shapes, so the first sample is not late by seconds; with ``unc``, the plant's and the
-    links' draws too (the simulator and the link emulator draw at each trial's start: a
-    first draw there held the first sample of a run for 2-18 s on a loaded machine)."""
-    from formation_ilc.core.kinematics import step_into
-    from formation_ilc.core.law import command, learn
-    from formation_ilc.core.links import delivered_label
-    from formation_ilc.model.simulate import trial_errors
-
-    n, n_t, n_l = pb.n, pb.samples, pb.src.shape[1]
-    i = slice(0, 1)
-    out = np.zeros((1, 2))
-    eta = np.zeros((1, n_t + 1, 3))
-    command(0, pb.law, np.zeros((1, 2)), eta, pb.eta_d[i], np.zeros((1, n_l, 3)),
-            np.zeros((1, n_l), dtype=np.int64), pb.src[i], pb.weight[i], pb.eta_d,
-            np.zeros(1, dtype=np.int64), pb.leader[i], pb.gain_prime[i], pb.heading, out)
-    learn(pb.law, pb.memory, np.zeros((1, n_t, 2)), np.zeros((1, n_t, 2)), eta, pb.eta_d[i],
-          np.zeros((1, n_l, n_t + 1, 3)), pb.src[i], pb.weight[i], pb.eta_d, pb.leader[i],
-          pb.gain[i], pb.heading, np.zeros((1, n_t, 2)))
-    step_into(np.zeros((n, 3)), np.zeros((n, 2)), np.zeros((n, 2)), pb.dt, np.zeros((n, 3)))
-    # and as the plant calls it, on views of its (N, T+1, 3) arrays (numba's layout "A", a
-    # second specialisation: compiled at a run's first sample it held that sample 1-3 s)
-    xi, u = np.zeros((n, 2, 3)), np.zeros((n, 1, 2))
-    step_into(xi[:, 0], u[:, 0], u[:, 0], pb.dt, xi[:, 1])
-    trial_errors(pb.eta_d, pb.eta_d, pb.eta_d, pb.src, pb.weight, np.zeros(6))
-    delivered_label(0, 0)
-    if unc is not None:
-        warm_up_draws(pb, unc)
-
-
-def warm_up_draws(pb: Problem, unc: Uncertainty) -> None:
-    """Compile (or load) the plant's and the links' draws of ``unc`` with ``pb``'s shapes
-    (a draw of trial 0, which nothing keeps), and the links' delivered label (the link
-    emulator's first tick compiled it inside the first trial)."""
-    from formation_ilc.core.links import delivered_label
-
-    unc.draw_plant(0, 0, pb.n, pb.samples)
-    unc.draw_delays(0, 0, pb.n, pb.src.shape[1], pb.samples)
-    delivered_label(0, 0)
-
-
 def matched(pairs: Iterable[tuple[Any, int | Collection[str]]], node: Node | None = None
             ) -> bool:
     """True when every publisher has at least ``count`` matched subscriptions and every
@@ -265,8 +250,25 @@ def matched(pairs: Iterable[tuple[Any, int | Collection[str]]], node: Node | Non
     seen the writer, and a reliable reader drops what an unmatched writer sends; the
     sample then waits for the writer's next heartbeat (seconds). A node that says ready
     only once both sides of its per-sample topics are matched loses no first sample.
+
+    It stops at the first endpoint that is not matched, and asks the graph for named
+    readers (a query each) only once every count holds: a node polls this until it is
+    ready, and the simulator of a 50-robot team has about 150 endpoints to check.
     """
-    return not unmatched(pairs, node)
+    pairs = list(pairs)
+    for e, want in pairs:
+        if isinstance(want, int):
+            sub = isinstance(e, Subscription)
+            have = e.get_publisher_count() if sub else e.get_subscription_count()
+            if have < want:
+                return False
+    for e, want in pairs:
+        if not isinstance(want, int):
+            assert node is not None and not isinstance(e, Subscription), \
+                "named readers: a publisher and its node"
+            if readers_wanting(node, e, want):
+                return False
+    return True
 
 
 def unmatched(pairs: Iterable[tuple[Any, int | Collection[str]]], node: Node | None = None
@@ -397,6 +399,10 @@ def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
         return 2
     ns = parser.parse_args(own)
     die_with_parent()
+    try:
+        wait_at_gate()  # imports done; the launcher says when to join the domain
+    except KeyboardInterrupt:  # stopped at the gate: the run was refused
+        return 130
     # rclpy's own SIGINT handling raises KeyboardInterrupt inside whatever callback runs,
     # which aborts the process from C++; a flag for the spin loop is enough
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)

@@ -59,12 +59,6 @@ class LauncherHost:
         self._ex = EventsExecutor()
         self._ex.add_node(self.monitor)
 
-    def warm_up(self, pb: Any) -> None:
-        """Compile the kernels once, into the numba cache every node then loads."""
-        from formation_ilc.nodes.common import warm_up
-
-        warm_up(pb)
-
     def spin_once(self, timeout: float) -> None:
         self._ex.spin_once(timeout_sec=timeout)
 

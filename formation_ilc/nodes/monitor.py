@@ -140,6 +140,8 @@ class MonitorNode(Node):
         try:
             d = check_diagnostics(ms.msg_to_report(msg, ("node", "trial")))
             name, k = d["node"], d["trial"]
+            if "waiting" in d:  # a node not ready yet, for the leader's watchdog: no report
+                return
             if name == "virtual_leader":
                 # the leader's own word (its watchdog's findings too, before trial 0 and
                 # after it un-commits a trial): the launcher prints it

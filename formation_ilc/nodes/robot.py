@@ -53,7 +53,6 @@ its own memory) in one process on one executor.
 from __future__ import annotations
 
 import sys
-import time
 from collections import Counter
 from typing import Any
 
@@ -77,7 +76,6 @@ from formation_ilc.nodes.common import (
     robot_node_from_args,
     spin_main,
     unmatched,
-    warm_up,
 )
 from formation_ilc.nodes.params import ParameterError, check, declare, effective
 from formation_ilc.protocol.learner import RobotLearner
@@ -88,8 +86,6 @@ from msgs_schema import wire
 
 #: realtime: how long [dT] a robot waits for its links after its pose
 LINK_WAIT = 0.75
-#: how often [s] a robot not yet ready names the endpoints it waits for in its log
-MATCH_WARN = 10.0
 
 
 class RobotNode(ConfiguredNode):
@@ -157,7 +153,6 @@ class RobotNode(ConfiguredNode):
                                if r != lrn.i and lrn.i in pb.src[r])
         self.n_out = len(self.out_names)
         self.late: Counter[str] = Counter({"links": 0})
-        warm_up(pb)
 
         self.cmd_pub = self.create_publisher(Twist, ms.cmd_vel_topic(self.id), ms.SAMPLE_QOS)
         self.shared_pub = self.create_publisher(PoseStamped, ms.shared_pose_topic(self.id),
@@ -199,8 +194,7 @@ class RobotNode(ConfiguredNode):
             self._deadline = self.create_timer(LINK_WAIT * cfg.scenario.dt, self._on_deadline)
             self._deadline.cancel()
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
-        self._gate = self.create_timer(0.02, self._check_ready)
-        self._unmatched_warn = time.monotonic() + MATCH_WARN
+        self._gate = self.create_timer(0.05, self._check_ready)
         self.get_logger().info(f"{self.name}: {len(lrn.neighbours)} in-links"
                                f"{' + leader' if lrn.sees_leader else ''} ({cfg.links}), "
                                f"{self.n_out} out-neighbours, {pb.samples} samples")
@@ -219,11 +213,7 @@ class RobotNode(ConfiguredNode):
             self._gate.cancel()
             self._send_ready()
             return
-        now = time.monotonic()
-        if now >= self._unmatched_warn:  # say what it waits for (every MATCH_WARN s)
-            self._unmatched_warn = now + MATCH_WARN
-            waits = "; ".join(unmatched(need, self))
-            self.get_logger().warning(f"not ready: waiting for {waits}")
+        self.not_ready(unmatched(need, self))
 
     def _send_ready(self) -> None:
         """Idle: ready for the next iteration (the number of trials learned)."""

@@ -151,6 +151,8 @@ class Leader:
                    if self.sched.abort_pending is not None else ""))
         #: the last ready refused from each node, with why (named when the schedule waits)
         self.refused: dict[str, str] = {}
+        #: what a node not yet ready last said it waits for (its unmatched endpoints)
+        self.waiting: dict[str, str] = {}
         self.watch_reports = 0
         self.watchdog = Watchdog(Bounds.for_run(sc.dt, len(self.expected), cfg.mode,
                                                cfg.timeout, watchdog_scale))
@@ -194,16 +196,33 @@ class Leader:
                 self.refused[r.node] = f"{exc.reason}: {exc}"
             raise
         self.refused.pop(r.node, None)
+        self.waiting.pop(r.node, None)
         committed = self.sched.committed
+        first = r.node not in self.sched.ready
         why = self.sched.on_ready(r)
         why = self.sched.seen_unsent(r) or why
         self.last_change = self.monotonic()
         if self.sched.committed > committed:
             self.watchdog.moved(self.last_change, READY_PHASE)
+        elif first and self.watchdog.first_startup:
+            # a node's first ready before any trial: the team's start-up moves on
+            self.watchdog.moved(self.last_change, STARTUP)
         if why is not None:
             self.aborted(why)
         self._save()
         self.maybe_start()
+
+    def on_waiting(self, report: dict[str, Any]) -> None:
+        """A node's diagnostics report: keep what an expected node that has not said ready
+        waits for (its ``waiting``: unmatched endpoints, one phrase each), for the watchdog
+        to name; anything else is not the leader's business."""
+        name, waits = report.get("node"), report.get("waiting")
+        if (not isinstance(name, str) or name not in self.expected
+                or not isinstance(waits, list) or name in self.sched.ready):
+            return
+        text = "; ".join(str(w) for w in waits[:8])
+        self.waiting[name] = text[:600] + (f" and {len(waits) - 8} more" if len(waits) > 8
+                                           else "")
 
     def check_agreement(self, node: str, config: dict[str, Any]) -> None:
         """A node that configured itself from its own parameters runs ``config``
@@ -406,7 +425,7 @@ class Leader:
     def start_waits_for(self) -> list[str]:
         """Whom the next start waits for, one phrase each: the nodes not ready (or not
         answering an abort), else the endpoints of the start gate not yet matched."""
-        late = self.sched.explain_wait(self.refused)
+        late = self.sched.explain_wait(self.refused, self.waiting)
         return late or self.io.start_gate()
 
     def phase(self) -> str:
@@ -429,7 +448,7 @@ class Leader:
         if not self.watchdog.expired(now, phase):
             return
         wd = self.watchdog
-        bound = wd.bound(phase)
+        bound = wd.expired_bound
         waited = wd.waited(now)
         if phase == SAMPLE:
             who = ("the plant's /clock" if self.cfg.mode != "wallclock"
@@ -446,12 +465,18 @@ class Leader:
                     + "; ".join(late or ["nobody (its readers: the monitor, recorder)"]))
         if wd.gave_up:
             self._report(what, "giving up")
-            self.io.fail(f"stuck: {what} ({wd.retries} retries without progress)", STUCK)
+            tried = ("the readies read anew once" if wd.first_startup
+                     else f"{wd.retries} retries")
+            self.io.fail(f"stuck: {what} ({tried} without progress)", STUCK)
             return
         if not wd.acting:
             self._report(what, f"retries follow after {bound:.0f} s more")
             return
-        self._report(what, f"retry {wd.strikes - 1} of {wd.retries}")
+        if wd.first_startup:
+            self._report(what, f"reading the readies anew; giving up in "
+                               f"{wd.bound(phase):.0f} s if nothing moves")
+        else:
+            self._report(what, f"retry {wd.strikes - 1} of {wd.retries}")
         if s.running:
             s.begin_abort(f"no progress for {bound:.0f} s")
             self.aborted(s.why)

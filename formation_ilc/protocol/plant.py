@@ -103,6 +103,8 @@ class KinematicPlant:
         self.resends = 0
         self.trial_t0 = 0.0
         self.missed: Counter[str] = Counter()
+        #: realtime: the misses by sample of the trial (where in a trial they fall)
+        self.missed_at: Counter[int] = Counter()
         self.latency: list[float] = []   # [s] sample published -> every command in
         self.trial_time = 0.0            # [s] time inside trials
         self.samples_done = 0
@@ -255,9 +257,10 @@ class KinematicPlant:
             return False
         self.tick_lag.append(now - self.tick_due)
         self.tick_due += self.pb.dt
+        t = self.t
         for r in np.flatnonzero(~self.fresh):
             self.missed[robot_name(int(r) + 1)] += 1
-        t = self.t
+            self.missed_at[t] += 1
         self.u[:, t] = self.u_now  # newest command, or the held one for a robot that missed
         self.fresh[:] = False
         if not self.pending:
@@ -274,11 +277,15 @@ class KinematicPlant:
 
     # ------------------------------------------------------------------ report
     def report(self) -> dict[str, Any]:
-        """The trial's diagnostics: trial, slot, mode, missed samples per robot (realtime),
+        """The trial's diagnostics: trial, slot, mode, missed samples per robot (realtime;
+        ``missed_at``: the samples of a trial with most misses, at most 10, and how many),
         timing (``timing``)."""
-        return {"trial": self.iteration, "slot": self.k, "mode": self.cfg.mode,
-                "missed": dict(self.missed), "resends": self.resends,
-                "timing": self.timing(), **self.plant_report()}
+        out = {"trial": self.iteration, "slot": self.k, "mode": self.cfg.mode,
+               "missed": dict(self.missed), "resends": self.resends,
+               "timing": self.timing(), **self.plant_report()}
+        if self.realtime:  # the samples with most misses (at most 10): where in a trial
+            out["missed_at"] = {str(t): c for t, c in self.missed_at.most_common(10)}
+        return out
 
     def timing(self) -> dict[str, Any]:
         """Samples, seconds inside trials, and the command latency [ms] (lockstep: sample

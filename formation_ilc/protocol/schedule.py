@@ -592,9 +592,11 @@ class Schedule:
         """Expected nodes that are not (yet) idle for the next start."""
         return [n for n in self.expected if not self._idle(n)]
 
-    def explain_wait(self, refused: dict[str, str] | None = None) -> list[str]:
+    def explain_wait(self, refused: dict[str, str] | None = None,
+                     waiting: dict[str, str] | None = None) -> list[str]:
         """Whom the schedule waits for, each with why (``refused``: the last ready the
-        leader refused from a node, with its reason), for a user."""
+        leader refused from a node, with its reason; ``waiting``: what a node not yet
+        ready said it waits for, its endpoints not yet matched), for a user."""
         out = []
         names = self.acks_missing() if self.abort_pending is not None else self.waiting_for()
         for n in names:
@@ -609,6 +611,8 @@ class Schedule:
                        if r.seen < self.seq else "is not idle")
             if refused and n in refused:
                 why += f"; its last ready was refused: {refused[n]}"
+            if waiting and n in waiting:
+                why += f"; it waits for {waiting[n]}"
             out.append(f"{n} {why}")
         return out
 

@@ -21,7 +21,12 @@ Past a bound the leader says whom it waits for and why; past it again, it re-run
 running slot is aborted and its iteration runs again; a wait for readies is asked again (the
 latched readies read anew, a pending abort re-sent). After ``RETRIES`` re-runs in a row
 without progress the run stops (exit status ``STUCK``) naming the cause, and ``launch
---resume`` can continue it. A bound grows with the run's own pace (``SLACK`` times the
+--resume`` can continue it. The run's first start-up is the exception: nothing can be
+lost and re-sent before a trial ever ran (its nodes start, discover each other and match
+their endpoints), so past its bound the leader says whom it waits for and reads the readies
+anew at once, and stops ``FIRST_STARTUP_GRACE`` of the bound later if that did not help:
+within about its bound (a team whose discovery never completes waited five bounds, 801 s
+for 52 processes, before). A bound grows with the run's own pace (``SLACK`` times the
 longest wait of its phase so far), so a loaded machine does not look stuck.
 """
 
@@ -31,7 +36,8 @@ from dataclasses import dataclass, field
 
 from formation_ilc.system.exits import STUCK
 
-__all__ = ["Bounds", "Watchdog", "STUCK", "RETRIES", "STARTUP", "READY", "SAMPLE"]
+__all__ = ["Bounds", "Watchdog", "STUCK", "RETRIES", "STARTUP", "READY", "SAMPLE",
+           "FIRST_STARTUP_GRACE"]
 
 #: how many times in a row a phase may pass its bound before the run stops
 RETRIES = 3
@@ -81,6 +87,9 @@ class Bounds:
 #: a phase's bound is at least this many times the longest it took in this run when
 #: nothing was wrong: a loaded machine (every wait long) does not look stuck
 SLACK = 4.0
+#: the run's first start-up, past its bound once: the share of the bound it still waits
+#: (after reading the readies anew) before it stops
+FIRST_STARTUP_GRACE = 0.25
 
 
 @dataclass
@@ -91,7 +100,9 @@ class Watchdog:
     trial committed); ``expired(now, phase)`` says whether the phase has now waited past
     its bound (:meth:`bound`), and counts the expiry as a strike. The first strike only
     reports (``acting`` is False: a slow machine is not a stuck run); later ones act;
-    ``gave_up`` once ``retries`` acts passed without progress in between.
+    ``gave_up`` once ``retries`` acts passed without progress in between. In the run's
+    first start-up (``first_startup``) the first strike acts and the second, a quarter of
+    the bound later (FIRST_STARTUP_GRACE), gives up.
     """
 
     bounds: Bounds
@@ -104,11 +115,24 @@ class Watchdog:
     running: bool = False
     #: when the run last made progress (a sample, a commit), or None before the first call
     progress_at: float | None = None
+    #: the run has been in a phase other than start-up (a trial started)
+    started: bool = False
+    #: [s] the bound that expired last (what the report names)
+    expired_bound: float = 0.0
+
+    @property
+    def first_startup(self) -> bool:
+        """The run's first start-up: no trial has started yet."""
+        return self.phase == STARTUP and not self.started
 
     def bound(self, phase: str) -> float:
         """[s] the bound of ``phase``: its static bound, or SLACK times the longest wait
-        of that phase this run has seen go by without a strike."""
-        return max(self.bounds.of(phase), SLACK * self.longest.get(phase, 0.0))
+        of that phase this run has seen go by without a strike; in the first start-up
+        after a strike, FIRST_STARTUP_GRACE of it."""
+        b = max(self.bounds.of(phase), SLACK * self.longest.get(phase, 0.0))
+        if phase == STARTUP and not self.started and self.strikes:
+            return FIRST_STARTUP_GRACE * b
+        return b
 
     def moved(self, now: float, phase: str, progress: bool = True) -> None:
         """The run moved at ``now`` and is in ``phase``. ``progress``: a real step (a
@@ -120,6 +144,8 @@ class Watchdog:
         self.running = True
         self.since = now
         self.phase = phase
+        if phase != STARTUP:
+            self.started = True
         if progress or self.progress_at is None:
             self.strikes = 0
             self.progress_at = now
@@ -134,17 +160,20 @@ class Watchdog:
         if phase != self.phase:
             self.moved(now, phase, progress=False)
             return False
-        if now - self.since <= self.bound(phase):
+        bound = self.bound(phase)
+        if now - self.since <= bound:
             return False
         self.strikes += 1
         self.since = now
+        self.expired_bound = bound
         return True
 
     @property
     def acting(self) -> bool:
-        """Past the first strike: the watchdog re-runs (the first one only reports)."""
-        return self.strikes >= 2
+        """Past the first strike: the watchdog re-runs (the first one only reports; in the
+        first start-up the first one re-runs)."""
+        return self.strikes >= (1 if self.first_startup else 2)
 
     @property
     def gave_up(self) -> bool:
-        return self.strikes > self.retries + 1
+        return self.strikes > (1 if self.first_startup else self.retries + 1)

@@ -120,11 +120,12 @@ def run_physics(sc: Scenario, model: RobotModel, trials: int, *,
                 nb_eta[:] = eta[src, t]
                 nb_s[:] = np.where(valid, t, -1)
                 lead_s[:] = t
-                command(t, pb.law, mem[:, t], eta, pb.eta_d, nb_eta, nb_s, pb.src, pb.weight,
-                        pb.eta_d, lead_s, pb.leader, pb.gain_prime, pb.heading, u[:, t])
+                command.jit(t, pb.law, mem[:, t], eta, pb.eta_d, nb_eta, nb_s, pb.src,
+                            pb.weight, pb.eta_d, lead_s, pb.leader, pb.gain_prime, pb.heading,
+                            u[:, t])
                 if safety is not None:
-                    filter_team(t, u, eta, prev, 0.0, params, safety.window, nominal, flags,
-                                others, ages)
+                    filter_team.jit(t, u, eta, prev, 0.0, params, safety.window, nominal,
+                                    flags, others, ages)
                 world.step(u[:, t])
                 tilt = max(tilt, float(world.tilt().max()))
             res.seconds += time.perf_counter() - t0
@@ -132,14 +133,14 @@ def run_physics(sc: Scenario, model: RobotModel, trials: int, *,
             nb_full[:] = eta[src]
             start = mem
             if safety is not None:
-                learn_base(mode, mem, nominal, u, flags, base)
+                learn_base.jit(mode, mem, nominal, u, flags, base)
                 start = base
-            learn(pb.law, pb.memory, start, u, eta, pb.eta_d, nb_full, pb.src, pb.weight,
-                  pb.eta_d, pb.leader, pb.gain, pb.heading, nxt)
+            learn.jit(pb.law, pb.memory, start, u, eta, pb.eta_d, nb_full, pb.src, pb.weight,
+                      pb.eta_d, pb.leader, pb.gain, pb.heading, nxt)
             if safety is not None:
-                freeze_flagged(mode, mem, flags, nxt)
+                freeze_flagged.jit(mode, mem, flags, nxt)
             mem, nxt = nxt, mem
-            trial_errors(eta, xi, pb.eta_d, pb.src, pb.weight, row)
+            trial_errors.jit(eta, xi, pb.eta_d, pb.src, pb.weight, row)
             contacts = world.contacts()
             res.metrics[i, 0] = k
             res.metrics[i, 1:7] = row

@@ -14,6 +14,12 @@ the launcher lives it ends a slow node with SIGKILL; once it is gone nobody does
 process that starts to stop calls ``bound_the_stop()``: SIGALRM (default action:
 terminate) ends it ``STOP_GRACE`` seconds later wherever it is. Nothing is lost by that:
 every state a node keeps is written atomically as it changes.
+
+A launcher may also hold its processes at a gate (``GATE_ENV``): they start, import what
+they need (the longest part of a process's start), and call ``wait_at_gate()`` before they
+join DDS; the gate opens when the launcher closes their stdin (a pipe). So the processes
+start while the launcher still looks for another formation on the domain, and none of them
+joins a domain the launcher then refuses: it stops them at the gate.
 """
 
 from __future__ import annotations
@@ -22,10 +28,13 @@ import os
 import signal
 import sys
 
-__all__ = ["PARENT_ENV", "STOP_GRACE", "bound_the_stop", "die_with_parent", "parent_gone"]
+__all__ = ["PARENT_ENV", "GATE_ENV", "STOP_GRACE", "bound_the_stop", "die_with_parent",
+           "parent_gone", "wait_at_gate"]
 
 #: environment variable naming the pid of the launcher that supervises this process
 PARENT_ENV = "FORMATION_ILC_PARENT"
+#: environment variable: "stdin" holds the process until its stdin reaches its end
+GATE_ENV = "FORMATION_ILC_GATE"
 #: seconds a stopping process has to end cleanly before SIGALRM ends it
 STOP_GRACE = 10.0
 
@@ -44,6 +53,19 @@ def die_with_parent() -> None:
     if str(os.getppid()) != parent:
         print(f"launcher {parent} is gone: not starting", file=sys.stderr)
         raise SystemExit(1)
+
+
+def wait_at_gate() -> None:
+    """With ``GATE_ENV`` set to "stdin": return once stdin is at its end (the launcher
+    closed the pipe: go on), reading and dropping whatever comes. A signal while waiting
+    ends the process as it would anyway (the launcher refused the run)."""
+    if os.environ.get(GATE_ENV) != "stdin":
+        return
+    try:
+        while os.read(0, 4096):
+            pass
+    except OSError:  # no stdin at all: nothing to wait for
+        return
 
 
 def parent_gone() -> bool:

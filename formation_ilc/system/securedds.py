@@ -39,9 +39,12 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
+from formation_ilc.system.ddsxml import PROFILES_NS, Profiles, child
+
 __all__ = ["BUILD_COMMAND", "SECURITY_MARKER", "INSECURE_RMW_MARKER", "PROFILE_MARKER",
            "HANDSHAKE_PROPERTIES", "InsecureDds", "LoadedDds", "has_marker",
-           "loaded_libraries", "check", "keeps_profile_properties", "secure_profile", "main"]
+           "loaded_libraries", "check", "keeps_profile_properties", "secure_profile", "main",
+           "PROFILES_NS"]
 
 #: how a user gets a secure Fast DDS into the active venv
 BUILD_COMMAND = "bash scripts/build_secure_dds.sh (docs/security.md)"
@@ -60,8 +63,6 @@ HANDSHAKE_PROPERTIES = (
     ("dds.sec.auth.builtin.PKI-DH.initial_handshake_resend_period", "1000"),
     ("dds.sec.auth.builtin.PKI-DH.handshake_resend_period_gain", "1.0"),
 )
-#: the Fast DDS XML profiles' namespace
-PROFILES_NS = "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"
 #: what rmw_implementation loads for RMW_IMPLEMENTATION=rmw_fastrtps_cpp
 RMW_LIBRARY = "librmw_fastrtps_cpp.so"
 
@@ -130,54 +131,24 @@ def keeps_profile_properties(libs: LoadedDds) -> bool:
     return has_marker(libs.rmw_shared, PROFILE_MARKER)
 
 
-def _local(tag: str) -> str:
-    return tag.rsplit("}", 1)[-1]
-
-
-def _child(parent: ET.Element, name: str, ns: str) -> ET.Element:
-    """``parent``'s first child called ``name`` (any namespace), made if there is none."""
-    for c in parent:
-        if _local(c.tag) == name:
-            return c
-    return ET.SubElement(parent, f"{ns}{name}")
-
-
 def secure_profile(base: Path | None = None) -> str:
     """A Fast DDS XML profiles file for a secure run's processes: ``base``'s profiles (the
     user's FASTRTPS_DEFAULT_PROFILES_FILE, the lossy-links one, or none) with
     :data:`HANDSHAKE_PROPERTIES` in the default participant profile; a property ``base``
     sets itself keeps ``base``'s value. ValueError names a ``base`` that is not a profiles
     file."""
-    if base is None:
-        root = ET.Element(f"{{{PROFILES_NS}}}profiles")
-    else:
-        try:
-            root = ET.parse(base).getroot()
-        except (OSError, ET.ParseError) as exc:
-            raise ValueError(f"{base}: not a readable Fast DDS profiles file ({exc})") from None
-    profiles = root if _local(root.tag) == "profiles" else next(
-        (c for c in root if _local(c.tag) == "profiles"), None)
-    if profiles is None:
-        raise ValueError(f"{base}: no <profiles> element (a Fast DDS profiles file?)")
-    ns = profiles.tag[:profiles.tag.index("}") + 1] if profiles.tag.startswith("{") else ""
-    part = next((c for c in profiles if _local(c.tag) == "participant"
-                 and c.get("is_default_profile") == "true"), None)
-    if part is None:
-        part = ET.SubElement(profiles, f"{ns}participant",
-                             profile_name="formation_ilc_secure", is_default_profile="true")
-    props = _child(_child(_child(part, "rtps", ns), "propertiesPolicy", ns), "properties", ns)
+    doc = Profiles(base)
+    ns = doc.ns
+    part = doc.default_participant("formation_ilc_secure")
+    props = child(child(child(part, "rtps", ns), "propertiesPolicy", ns), "properties", ns)
     have = {(p.findtext(f"{ns}name") or "").strip() for p in props}
     for name, value in HANDSHAKE_PROPERTIES:
         if name not in have:
             prop = ET.SubElement(props, f"{ns}property")
             ET.SubElement(prop, f"{ns}name").text = name
             ET.SubElement(prop, f"{ns}value").text = value
-    ET.register_namespace("", ns.strip("{}") or PROFILES_NS)
-    ET.indent(root)
-    return ('<?xml version="1.0" encoding="UTF-8"?>\n'
-            "<!-- formation-ilc launch --secure: the authentication handshake retried every "
-            "second until it succeeds (docs/security.md) -->\n"
-            + ET.tostring(root, encoding="unicode") + "\n")
+    return doc.text("formation-ilc launch --secure: the authentication handshake retried "
+                    "every second until it succeeds (docs/security.md)")
 
 
 def _sha256(path: Path) -> str:

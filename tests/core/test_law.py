@@ -13,8 +13,8 @@ from formation_ilc.model.simulate import Problem
 
 def per_robot_trial(pb: Problem, memory, xi0, dist, noise, tau, tau0, interpreted=False):
     """A plain Python loop: each robot computes its own input from what it received."""
-    cmd = command.py_func if interpreted else command
-    lrn = learn.py_func if interpreted else learn
+    cmd = command.py_func if interpreted else command.jit
+    lrn = learn.py_func if interpreted else learn.jit
     n, n_t = pb.n, pb.samples
     n_links = pb.src.shape[1]
     xi = np.zeros((n, n_t + 1, 3))
@@ -88,6 +88,7 @@ def test_compiled_law_equals_interpreted_law():
     ref = per_robot_trial(pb, mem, *args, interpreted=True)
     for a, b in zip(got, ref, strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
+        assert a.tobytes() == b.tobytes()  # the same operations in the same order
 
 
 def _one_robot_command(law, eta_own, nb_eta, nb_s, lead_s, t=5, heading=0.3):

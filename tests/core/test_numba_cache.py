@@ -85,10 +85,12 @@ def test_every_kernel_is_cached_in_the_source_keyed_directory():
     found = []
     for mod in (kinematics, law, simulate, pcg, uncertainty):
         for name, obj in vars(mod).items():
-            if isinstance(obj, numba.core.dispatcher.Dispatcher) and \
-                    obj.py_func.__module__ == mod.__name__:
+            if isinstance(getattr(obj, "jit", None), _jit.Compiled) and \
+                    obj.__module__ == mod.__name__:
                 found.append(name)
-                assert obj._cache._cache_path.startswith(_jit.cache_dir() + os.sep), name
+                disp = obj.jit.dispatcher
+                assert isinstance(disp, numba.core.dispatcher.Dispatcher), name
+                assert disp._cache._cache_path.startswith(_jit.cache_dir() + os.sep), name
     assert {"command", "learn", "command_trig", "learn_trig", "heading_trig", "run_trial",
             "run_trials", "step_into", "trial_errors", "seed_state", "next_double",
             "fill_plant", "fill_delays"} <= set(found)

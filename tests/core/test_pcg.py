@@ -21,6 +21,10 @@ from formation_ilc.core.uncertainty import (
     PLANT_STREAM,
     Harmonic,
     Uncertainty,
+    delay_arrays,
+    fill_delays,
+    fill_plant,
+    plant_arrays,
 )
 from formation_ilc.model.simulate import (
     METRIC_COLUMNS,
@@ -128,23 +132,44 @@ MODELS = [DelayModel(), DelayModel("fixed", samples=3), DelayModel("uniform", lo
           DelayModel("table", values=(5, 0, 2), probabilities=(0.25, 0.0, 0.75))]
 
 
+def _compiled_plant(u: Uncertainty, seed: int, trial: int, n: int, n_t: int):
+    """The batch simulator's draws: the compiled kernel."""
+    shift, dist, noise = np.empty((n, 3)), np.empty((n, n_t, 2)), np.empty((n, n_t + 1, 3))
+    fill_plant.jit(seed_words(seed), trial, *plant_arrays(u, n_t),
+                   np.empty(STATE_SIZE, dtype=np.uint64), shift, dist, noise)
+    return shift, dist, noise
+
+
+def _compiled_delays(u: Uncertainty, seed: int, trial: int, n: int, n_links: int, n_t: int):
+    tau = np.empty((n, n_links, n_t + 1), dtype=np.int64)
+    tau0 = np.empty((n, n_t + 1), dtype=np.int64)
+    fill_delays.jit(seed_words(seed), trial, *delay_arrays(u),
+                    np.empty(STATE_SIZE, dtype=np.uint64), tau, tau0)
+    return tau, tau0
+
+
 @pytest.mark.parametrize("model", MODELS, ids=lambda m: f"{m.kind}-{m.values or m.high}")
 @pytest.mark.parametrize("leader", [True, False])
 @pytest.mark.parametrize("loss", [0.0, 0.3])
 def test_compiled_draws_follow_the_numpy_contract(model, leader, loss):
+    """The compiled kernels (the batch simulator's) and ``Uncertainty.draw_plant`` /
+    ``draw_delays`` (the nodes') both give the contract's numbers."""
     u = dataclasses.replace(BASE, delay=model, delay_leader=leader, link_loss=loss)
     for seed, trial, n, n_links, n_t in ((3, 0, 2, 4, 5), (2**40 + 3, 17, 6, 1, 300),
                                          (0, 2**33, 3, 0, 7)):
-        for got, ref in zip(u.draw_plant(seed, trial, n, n_t),
-                            _numpy_plant(u, seed, trial, n, n_t), strict=True):
-            assert got.shape == ref.shape and got.dtype == ref.dtype
-            np.testing.assert_array_equal(got, ref)
-            # bit for bit, signed zeros too (0 * a negative draw)
-            assert got.tobytes() == ref.tobytes()
+        ref_plant = _numpy_plant(u, seed, trial, n, n_t)
+        for draws in (u.draw_plant(seed, trial, n, n_t), _compiled_plant(u, seed, trial, n, n_t)):
+            for got, ref in zip(draws, ref_plant, strict=True):
+                assert got.shape == ref.shape and got.dtype == ref.dtype
+                np.testing.assert_array_equal(got, ref)
+                # bit for bit, signed zeros too (0 * a negative draw)
+                assert got.tobytes() == ref.tobytes()
         refs = _numpy_delays(u, seed, trial, n, n_links, n_t)
-        for got, ref in zip(u.draw_delays(seed, trial, n, n_links, n_t), refs, strict=True):
-            assert got.shape == ref.shape and got.dtype == ref.dtype == np.int64
-            np.testing.assert_array_equal(got, ref)
+        for draws in (u.draw_delays(seed, trial, n, n_links, n_t),
+                      _compiled_delays(u, seed, trial, n, n_links, n_t)):
+            for got, ref in zip(draws, refs, strict=True):
+                assert got.shape == ref.shape and got.dtype == ref.dtype == np.int64
+                np.testing.assert_array_equal(got, ref)
         if loss and refs[0].size > 100:
             assert (refs[0] == LOST).any()  # the loss stream was drawn
     with pytest.raises(ValueError):
@@ -152,7 +177,9 @@ def test_compiled_draws_follow_the_numpy_contract(model, leader, loss):
 
 
 def _reference_run(sc, trials: int, first: int = 0):
-    """simulate() as it was: numpy draws, one compiled trial per call, metrics per trial."""
+    """simulate() as it was: numpy draws, one trial per call, metrics per trial; the kernels
+    interpreted, as the nodes run them (so this also pins interpreted = compiled, bit for
+    bit)."""
     pb = Problem.from_scenario(sc)
     n, n_t, n_links = pb.n, pb.samples, pb.src.shape[1]
     memory = np.zeros((n, n_t, 2))

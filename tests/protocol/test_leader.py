@@ -369,3 +369,41 @@ def test_a_node_that_runs_another_configuration_is_named_with_both_values_and_st
     assert Ready.from_json(Ready("bridge_1", 0, config=bridge).to_json()).config == bridge
     with pytest.raises(Rejected):
         Ready.from_json({"node": "robot_1", "trial": 0, "config": {str(i): i for i in range(40)}})
+
+
+def test_a_first_start_up_that_cannot_complete_names_the_endpoints_and_stops_within_its_bound():
+    # robot_2 never matches its pose's writer: it says so in its diagnostics (waiting);
+    # the leader's first start-up has no retries: past the bound it names robot_2 with
+    # what it waits for and reads the readies anew, a quarter bound later it gives up
+    core, io, clk = leader()
+    core.on_waiting({"node": "robot_2", "waiting": ["/formation/robot_2/pose: 0 of 1 writers"]})
+    core.on_waiting({"node": "stranger", "waiting": ["x"]})  # not waited for: ignored
+    core.on_waiting({"node": "robot_3", "waiting": "not a list"})  # malformed: ignored
+    assert core.waiting == {"robot_2": "/formation/robot_2/pose: 0 of 1 writers"}
+    clk.now += FIRST_START_WAIT
+    for n in NODES:
+        if n != "robot_2":
+            core.on_ready(Ready(n, 0, "b0", passive=n == "monitor", run="rtest").to_json())
+    bound = core.watchdog.bound(core.phase())
+    clk.now += bound + 1
+    core.on_watchdog()
+    assert len(io.alerts) == 1 and io.failed is None and io.rereads == 1
+    assert ("robot_2 has not said ready (never seen); it waits for "
+            "/formation/robot_2/pose: 0 of 1 writers") in io.alerts[0], io.alerts
+    assert "reading the readies anew" in io.alerts[0]
+    clk.now += 0.25 * bound + 1
+    core.on_watchdog()
+    assert io.failed is not None and io.failed[1] == STUCK
+    assert "the readies read anew once without progress" in io.failed[0], io.failed
+
+
+def test_a_nodes_first_ready_is_progress_of_the_start_up_and_ends_its_waiting_report():
+    core, io, clk = leader()
+    core.on_waiting({"node": "robot_1", "waiting": ["/formation/robot_1/cmd_vel: 0 of 1 readers"]})
+    bound = core.watchdog.bound(core.phase())
+    clk.now += 0.9 * bound
+    core.on_ready(Ready("robot_1", 0, "b0", run="rtest").to_json())
+    assert "robot_1" not in core.waiting
+    clk.now += 0.9 * bound  # 1.8 bounds since the leader began, 0.9 since the last ready
+    core.on_watchdog()
+    assert io.alerts == [] and io.failed is None

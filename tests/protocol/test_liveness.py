@@ -98,11 +98,43 @@ def test_the_wait_is_explained_node_by_node():
                      "future: robot_2 ready for trial 5",
                      "robot_sim has not said ready (never seen)",
                      "monitor has not said ready (never seen)"]
+    # what a node not yet ready said it waits for (its diagnostics): its unmatched endpoints
+    lines = s.explain_wait(waiting={"robot_sim": "/formation/robot_2/cmd_vel: 0 of 1 writers"})
+    assert lines[1] == ("robot_sim has not said ready (never seen); it waits for "
+                        "/formation/robot_2/cmd_vel: 0 of 1 writers")
+    assert lines[0] == "robot_2 has not said ready (never seen)"
     ready_all(s, 0, -1)
     s.started(0)
     s.begin_abort("test")
     s.on_ready(Ready("robot_1", 0, "b0", s.seq))
     assert s.explain_wait()[0] == "robot_2 has not answered seq 1 (its last ready saw seq -1)"
+
+
+def test_the_first_start_up_stops_within_about_its_bound():
+    """Before any trial ran, re-running cannot help (nothing was lost to re-send): past its
+    bound the watchdog re-reads the readies at once and gives up a quarter bound later;
+    a node's first ready there is progress (a slow machine is not a stuck one)."""
+    b = Bounds.for_run(dt=0.1, nodes=52, mode="lockstep", timeout=30.0)
+    assert b.startup == 164.0
+    w = Watchdog(b)
+    w.moved(0.0, STARTUP)
+    assert w.first_startup
+    assert not w.expired(10.0, STARTUP)
+    w.moved(10.0, STARTUP)  # a node said ready: the bound runs from here
+    assert not w.expired(173.0, STARTUP)
+    assert w.expired(175.0, STARTUP) and w.acting and not w.gave_up  # acts at once
+    assert w.expired_bound == 164.0 and w.bound(STARTUP) == 41.0
+    assert not w.expired(215.0, STARTUP)
+    assert w.expired(217.0, STARTUP) and w.gave_up  # 1.25 bounds after the last progress
+    assert w.expired_bound == 41.0
+    # once a trial has run, a slot's start-up keeps the usual report / retries / give up
+    w = Watchdog(b)
+    w.moved(0.0, STARTUP)
+    w.moved(10.0, SAMPLE)
+    w.moved(20.0, STARTUP, progress=False)
+    assert not w.first_startup
+    assert w.expired(185.0, STARTUP) and not w.acting
+    assert w.expired(350.0, STARTUP) and w.acting and not w.gave_up
 
 
 def test_the_watchdog_reports_first_then_acts_then_gives_up():

@@ -189,8 +189,14 @@ def test_realtime_holds_missed_commands_and_counts_them():
     assert plant.sample().last and not plant.tick(NOW)  # no trial: the ticks may stop
     plant.command(0, u1, NOW)
     assert plant.late_cmds == 1
-    tim = plant.report()["timing"]
+    rep = plant.report()
+    tim = rep["timing"]
     assert tim["commands"] == 2 and tim["missed_total"] == sum(plant.missed.values())
+    # where in the trial: sample 0 (robot 3), then every robot at every later sample
+    # (nobody commanded after the first tick); the report names the ten worst samples
+    assert plant.missed_at[0] == 1 and plant.missed_at[1] == 3
+    assert sum(plant.missed_at.values()) == tim["missed_total"]
+    assert len(rep["missed_at"]) == 10 and set(rep["missed_at"].values()) == {3}
 
 
 def test_the_simulator_refuses_wallclock():

@@ -178,6 +178,30 @@ def test_a_run_waiting_for_a_node_that_never_comes_stops_naming_it(ros_env, tmp_
     assert "Traceback" not in out + err
 
 
+def test_a_start_up_that_cannot_complete_names_the_unmatched_endpoints(ros_env, tmp_path):
+    """The plant never starts: each robot waits for its pose's writer and its command's
+    reader and says so in its diagnostics; past the start-up bound the leader names them
+    with the endpoints they wait for, reads the readies anew once, and stops (its first
+    start-up has no retries: nothing was lost that a retry could bring back)."""
+    proc = launch(ros_env, tmp_path, "paper-triangle3", "--trials", "3", "--plant",
+                  "external", "--plant-nodes", "ghost_plant", "--watchdog-scale", "0.25")
+    try:
+        out, err = proc.communicate(timeout=600)
+    finally:
+        stop_group(proc)
+    assert proc.returncode == 4, out + err
+    named = [ln for ln in out.splitlines() if ln.startswith("virtual_leader: trial 0 has ")]
+    assert named, out
+    assert "reading the readies anew" in named[0], named
+    assert "robot_1 has not said ready" in named[0], named
+    robot_1 = named[0].split("robot_1 has not said ready", 1)[1].split("robot_2", 1)[0]
+    assert "it waits for " in robot_1, named
+    assert "/formation/robot_1/pose: 0 of 1 writers" in robot_1, named
+    assert "/formation/robot_1/cmd_vel: 0 of 1 readers" in robot_1, named
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "the readies read anew once without progress" in lines[0], err
+
+
 def test_a_full_disk_stops_the_run_with_one_line_and_the_resume_command(ros_env, tmp_path):
     """The run's folder is a small file system of its own (a tmpfs in a mount namespace of
     the launcher's); after two trials the test fills it. Before: every node died with

@@ -1,0 +1,114 @@
+"""Localhost discovery for large teams (formation_ilc/system/discovery.py): the profile that
+lists every participant's discovery port, built on the user's profiles, and the launch
+plans that use it (a team beyond what rmw_fastrtps's 32 localhost peers reach)."""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+
+import pytest
+
+from formation_ilc.cli.commands import build_parser
+from formation_ilc.cli.plan import NoRun, build_plan
+from formation_ilc.system.ddsxml import PROFILES_NS
+from formation_ilc.system.discovery import (
+    MARGIN,
+    MAX_IDS,
+    RMW_PEER_IDS,
+    discovery_port,
+    needs_peers,
+    peer_ids,
+    peers_profile,
+)
+
+NS = {"p": PROFILES_NS}
+
+
+def peers(text: str) -> list[tuple[str, int]]:
+    root = ET.fromstring(text.split("\n", 2)[2])  # after the declaration and the comment
+    part = [p for p in root.iter(f"{{{PROFILES_NS}}}participant")
+            if p.get("is_default_profile") == "true"]
+    assert len(part) == 1
+    return [(loc.findtext("p:udpv4/p:address", namespaces=NS),
+             int(loc.findtext("p:udpv4/p:port", namespaces=NS) or 0))
+            for loc in part[0].findall("p:rtps/p:builtin/p:initialPeersList/p:locator", NS)]
+
+
+def test_the_rtps_port_of_a_participant():
+    # RTPS 9.6.1.1 with Fast DDS's defaults: 7400 + 250 d + 10 + 2 id
+    assert discovery_port(0, 0) == 7410
+    assert discovery_port(21, 0) == 12660 and discovery_port(21, 31) == 12722
+    assert discovery_port(101, 119) == 7400 + 25250 + 10 + 238
+
+
+def test_every_id_a_team_may_take_is_a_peer_on_the_loopback():
+    got = peers(peers_profile(None, 21, 54))
+    assert got == [("127.0.0.1", discovery_port(21, i)) for i in range(54 + MARGIN)]
+    assert peer_ids(54) == 54 + MARGIN and peer_ids(500) == MAX_IDS
+
+
+def test_needed_only_beyond_what_the_rmw_reaches():
+    assert not needs_peers(RMW_PEER_IDS - MARGIN)
+    assert needs_peers(RMW_PEER_IDS - MARGIN + 1)
+
+
+def test_the_users_profiles_are_kept(tmp_path):
+    own = tmp_path / "own.xml"
+    own.write_text(f"""<dds><profiles xmlns="{PROFILES_NS}">
+      <participant profile_name="mine" is_default_profile="true"><rtps>
+        <builtin><initialPeersList><locator><udpv4><address>10.0.0.7</address></udpv4>
+        </locator></initialPeersList></builtin>
+        <name>kept</name></rtps></participant>
+      <data_writer profile_name="w" is_default_profile="true"><topic><resourceLimitsQos>
+        <allocated_samples>7</allocated_samples></resourceLimitsQos></topic></data_writer>
+    </profiles></dds>""")
+    text = peers_profile(own, 3, 20)
+    got = peers(text)
+    assert got[0] == ("10.0.0.7", 0)  # the user's peer first, as it was
+    assert got[1:] == [("127.0.0.1", discovery_port(3, i)) for i in range(20 + MARGIN)]
+    root = ET.fromstring(text.split("\n", 2)[2])
+    assert root.find(".//p:participant/p:rtps/p:name", NS).text == "kept"
+    assert root.find(".//p:data_writer", NS).get("profile_name") == "w"
+    assert root.find(".//p:data_writer/p:topic/p:resourceLimitsQos/p:allocated_samples",
+                     NS).text == "7"
+    bad = tmp_path / "bad.xml"
+    bad.write_text("<not-xml")
+    with pytest.raises(ValueError, match="not a readable Fast DDS profiles file"):
+        peers_profile(bad, 3, 20)
+
+
+def plan(tmp_path, *argv: str):
+    args = build_parser().parse_args(["launch", *argv, "--out", str(tmp_path / "run"),
+                                      "--domain-id", "21"])
+    return build_plan(args)
+
+
+def test_a_50_robot_launch_lists_every_participant_and_a_6_robot_one_does_not(
+        tmp_path, monkeypatch):
+    monkeypatch.delenv("FASTRTPS_DEFAULT_PROFILES_FILE", raising=False)
+    small = plan(tmp_path, "paper-hexagon6")
+    assert small.peers_profile is None
+    big = plan(tmp_path, "team50", "--links", "direct")
+    assert big.participants == len(big.nodes) + 1 == 50 + 3  # robots, leader, sim, monitor
+    assert big.peers_profile == big.out / "fastdds-discovery.xml" and big.peers_base is None
+    big.write_peers_profile()
+    assert len(peers(big.peers_profile.read_text())) == 53 + MARGIN
+    from formation_ilc.cli.launch import _node_env
+
+    env = _node_env(big)
+    assert env["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(big.peers_profile)
+    assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+    # container mode: few processes, nothing to add; --discovery inherit: the caller's
+    assert plan(tmp_path, "team50", "--container", "10").peers_profile is None
+    assert plan(tmp_path, "team50", "--discovery", "inherit").peers_profile is None
+
+
+def test_built_on_the_callers_profile_or_refused_when_it_is_none(tmp_path, monkeypatch):
+    own = tmp_path / "own.xml"
+    own.write_text(f'<profiles xmlns="{PROFILES_NS}"/>')
+    monkeypatch.setenv("FASTRTPS_DEFAULT_PROFILES_FILE", str(own))
+    assert plan(tmp_path, "team50").peers_base == own
+    monkeypatch.setenv("FASTRTPS_DEFAULT_PROFILES_FILE", str(tmp_path / "missing.xml"))
+    with pytest.raises(NoRun) as info:
+        plan(tmp_path, "team50")
+    assert "FASTRTPS_DEFAULT_PROFILES_FILE" in str(info.value)
