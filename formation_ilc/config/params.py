@@ -109,6 +109,10 @@ LEADER: tuple[Param, ...] = RUN + (
     Param("state_dir", "", "folder of the leader's schedule (leader.json); empty: none"),
     Param("watchdog_scale", 1.0, "every bound of the leader's watchdog times this",
           lo=1e-3, hi=1e6),
+    Param("clocks", "", "the clock estimator and emulated clocks of realtime and "
+          "wall-clock runs, broadcast in the run configuration: JSON of "
+          "formation_ilc.config.clocks.ClockSettings (sync, fallback, offset_ms, drift_ppm, "
+          "origin_ns); empty: the defaults (the estimator on, no emulation)"),
 )
 
 ROBOT: tuple[Param, ...] = (
@@ -158,6 +162,9 @@ BRIDGE: tuple[Param, ...] = (
           "as timed out", "s", lo=1e-3, hi=1e6),
     Param("initial_pose", [0.0], "x, y, theta [m, m, rad] where the robot is placed; "
           "[0.0]: the scenario's desired start"),
+    Param("clock_wait", 10.0, "before trial 0: the longest wait for the estimate of the "
+          "leader's clock to converge, then it samples on the fallback", "s", lo=0.0,
+          hi=1e6),
     _RUN["scenario"],
     Param("mode", "wallclock", "how the plant keeps time (a bridge needs wallclock)",
           choices=MODES),
