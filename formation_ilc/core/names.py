@@ -30,7 +30,8 @@ __all__ = ["NAMESPACE", "CLOCK", "LEADER_NODE", "SIM_NODE", "LINKS_NODE", "MONIT
            # topics and frames
            "CONFIG", "REFERENCE", "TRIAL_EVENTS", "READY", "DIAGNOSTICS", "LEADER",
            "WORLD_FRAME", "pose_topic", "cmd_vel_topic", "shared_pose_topic", "link_topic",
-           "trajectory_topic", "true_trajectory_topic", "absolute", "relative", "clock_topic",
+           "clock_ping_topic", "clock_pong_topic", "trajectory_topic", "true_trajectory_topic",
+           "absolute", "relative", "clock_topic",
            "recorded_topics", "MARKERS", "desired_pose_topic", "desired_path_topic",
            "tracking_error_topic", "trial_error_topic", "view_topics", "PREVIEW", "TEAM_POSES",
            # drivers
@@ -139,6 +140,18 @@ def shared_pose_topic(i: int) -> str:
 def link_topic(i: int, sender: str) -> str:
     """Emulated link ``sender -> robot_i``: one message per tick (0 or 1 pose)."""
     return f"{robot_name(i)}/links/{sender}"
+
+
+def clock_ping_topic(node: str) -> str:
+    """Questions for node ``node``'s clock (``robot_2``, ``leader``): sensor_msgs/
+    TimeReference, from whoever estimates it (``protocol.timesync``)."""
+    return f"{node}/clock/ping"
+
+
+def clock_pong_topic(node: str) -> str:
+    """The answers to node ``node``'s questions (``robot_2``, ``bridge_2``), from the
+    clocks it asked."""
+    return f"{node}/clock/pong"
 
 
 def trajectory_topic(i: int) -> str:

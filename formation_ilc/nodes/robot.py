@@ -69,6 +69,7 @@ from formation_ilc.core.clock import Rejected
 from formation_ilc.core.links import LEADER
 from formation_ilc.model.safety import spec_of
 from formation_ilc.model.simulate import Problem
+from formation_ilc.nodes.clocks import ClockExchange, node_clock
 from formation_ilc.nodes.common import (
     ConfiguredNode,
     RunConfig,
@@ -191,8 +192,19 @@ class RobotNode(ConfiguredNode):
             self.create_subscription(Path, ms.trajectory_topic(ms.robot_index(sender)),
                                      lambda m, s=sender: self._on_trajectory(m, s),
                                      ms.TRAJECTORY_READER_QOS, raw=True)
+        self.clocks: ClockExchange | None = None
+        clock = node_clock(cfg, self.id)
+        if cfg.clock_exchanges:
+            # the clocks this robot hears (its in-neighbours', the leader's if it sees it),
+            # and its own for the robots that hear it (protocol.timesync)
+            self.clocks = ClockExchange(
+                self, self.name, cfg, clock,
+                [*lrn.neighbours, *([LEADER] if lrn.sees_leader else [])], self.out_names,
+                self.drops, on_event=self._clock_event, on_report=self._clock_word)
         if self.realtime:
-            self._deadline = self.create_timer(LINK_WAIT * cfg.scenario.dt, self._on_deadline)
+            # the wait runs on the robot's own clock (an emulated one runs fast or slow)
+            self._deadline = self.create_timer(LINK_WAIT * cfg.scenario.dt * clock.scale,
+                                               self._on_deadline)
             self._deadline.cancel()
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
         self._gate = self.create_timer(0.02, self._check_ready)
@@ -401,10 +413,26 @@ class RobotNode(ConfiguredNode):
         d = self.learner.diagnostics()
         if self.realtime:
             d["late"] = dict(self.late)
+        if self.clocks is not None:
+            d["clock"] = self.clocks.report()
         d.update(self.drops.as_dict())
+        self._publish(d)
+
+    def _publish(self, d: dict[str, Any]) -> None:
         self.diag_pub.publish(ms.diagnostics_to_msg(
             d, self.get_clock().now().nanoseconds, self.cfg.scenario.dt, self.pb.samples,
             self.name))
+
+    def _clock_word(self, events: list[list[str]] | None = None) -> None:
+        """Where this robot's clock estimates are, as a word on diagnostics between its
+        reports (``clock_word``: the monitor prints its events, the recording keeps it)."""
+        assert self.clocks is not None
+        self._publish({"node": self.name, "trial": self.learner.iterations - 1,
+                       "clock": self.clocks.report(), "clock_word": {"events": events or []}})
+
+    def _clock_event(self, level: str, text: str) -> None:
+        if level == "warn":
+            self._clock_word([[level, text]])
 
 
 def main(args: list[str] | None = None) -> int:

@@ -1,0 +1,141 @@
+"""The clock exchanges of a node (robot, bridge, leader): the ROS side of
+``formation_ilc.protocol.timesync``.
+
+A node that estimates other clocks asks each of them on ``X/clock/ping`` and takes the
+answers on its own ``clock/pong``; a node whose clock others estimate answers the
+questions on its ``clock/ping`` (``msgs_schema.clocksync``). Every time is read here, on
+the node's clock (the machine's, or in an emulated run its robot's emulated clock over it:
+``config.clocks``), and passed to the core; what the core decides is published and logged.
+"""
+
+from __future__ import annotations
+
+import secrets
+import time
+from collections.abc import Callable, Iterable
+from typing import Any
+
+from rclpy.node import Node
+from sensor_msgs.msg import TimeReference
+
+import msgs_schema as ms
+from formation_ilc.config.runconfig import RunConfig
+from formation_ilc.core.clock import Rejected
+from formation_ilc.core.clocksync import EmulatedClock
+from formation_ilc.protocol.timesync import BURST_HZ, ClockSync, NodeClock
+
+__all__ = ["ClockExchange", "node_clock"]
+
+#: [s] how often a node with peers says where its estimates are (a word on diagnostics:
+#: the recording and analyze follow them over time)
+REPORT_EVERY_S = 2.0
+
+
+def node_clock(cfg: RunConfig, robot: int | None) -> NodeClock:
+    """The clock a node of robot ``robot`` (its robot node, its bridge; None: the leader,
+    the ground station's machine) reads in run ``cfg``."""
+    emulated: EmulatedClock | None = None
+    if robot is not None:
+        emulated = cfg.clocks.robot_clock(cfg.scenario.seed, robot)
+    return NodeClock(emulated)
+
+
+class ClockExchange:
+    """Node ``node``'s questions to ``peers`` and answers to ``askers``.
+
+    askers : the node names allowed to ask this node (their answers go to their
+        ``clock/pong``); None: nobody (this node's clock is not asked for); a callable:
+        whoever it admits (the leader answers any robot or bridge of the run).
+    on_event : called with ('info' | 'warn', text) for what the core says once (an
+        estimate converged, a clock step, no convergence, a silent peer).
+    on_report : called every ``REPORT_EVERY_S`` while there are peers (the node publishes
+        its clock block as a word on diagnostics).
+    """
+
+    def __init__(self, node: Node, me: str, cfg: RunConfig, clock: NodeClock,
+                 peers: Iterable[str], askers: Iterable[str] | Callable[[str], bool] | None,
+                 drops: Any, on_event: Callable[[str, str], None] | None = None,
+                 on_report: Callable[[], None] | None = None):
+        self.node, self.me, self.clock, self.drops = node, me, clock, drops
+        peers = list(peers)
+        self.sync = ClockSync(
+            me, peers, fallback=cfg.clocks.fallback, estimating=cfg.clocks.sync,
+            truth=cfg.clocks.truth(cfg.scenario.seed, cfg.scenario.n))
+        # numbers of another incarnation of this node cannot be taken for this one's
+        self.sync.seq = secrets.randbelow(1 << 40)
+        self.on_event, self.on_report = on_event, on_report
+        self.ping_pubs = {p: node.create_publisher(TimeReference, ms.clock_ping_topic(p),
+                                                   ms.CLOCK_SYNC_QOS) for p in peers}
+        self.subs = []
+        if peers:
+            self.subs.append(node.create_subscription(
+                TimeReference, ms.clock_pong_topic(me), self._on_pong, ms.CLOCK_SYNC_QOS))
+            self._timer = node.create_timer(clock.scale / BURST_HZ, self._on_timer)
+            self._report_due = 0.0
+        self.pong_pubs: dict[str, Any] = {}
+        self.admit: Callable[[str], bool] | None = None
+        if askers is not None:
+            if callable(askers):
+                self.admit = askers
+            else:
+                names = list(askers)
+                self.pong_pubs = {a: self._pong_pub(a) for a in names}
+                self.admit = names.__contains__
+            self.subs.append(node.create_subscription(
+                TimeReference, ms.clock_ping_topic(me), self._on_ping, ms.CLOCK_SYNC_QOS))
+
+    def now(self) -> int:
+        """This node's clock now [ns]."""
+        return self.clock.now(time.time_ns())
+
+    def _pong_pub(self, asker: str) -> Any:
+        return self.node.create_publisher(TimeReference, ms.clock_pong_topic(asker),
+                                          ms.CLOCK_SYNC_QOS)
+
+    # ------------------------------------------------------------------ asking
+    def _on_timer(self) -> None:
+        now = self.now()
+        for peer, seq in self.sync.questions(now):
+            self.ping_pubs[peer].publish(ms.ping_msg(seq, self.now(), self.me))
+        for level, text in self.sync.events(now):
+            log = self.node.get_logger()
+            (log.warning if level == "warn" else log.info)(text)
+            if self.on_event is not None:
+                self.on_event(level, text)
+        mono = time.monotonic()
+        if self.on_report is not None and mono >= self._report_due:
+            self._report_due = mono + REPORT_EVERY_S
+            self.on_report()
+
+    def _on_pong(self, msg: TimeReference) -> None:
+        t4 = self.now()
+        topic = ms.clock_pong_topic(self.me)
+        try:
+            peer, seq, t2, t3 = ms.read_pong(msg)
+            self.sync.on_answer(peer, seq, t2, t3, t4)
+        except Rejected as exc:
+            self.drops.reject(exc, topic)
+
+    # ------------------------------------------------------------------ answering
+    def _on_ping(self, msg: TimeReference) -> None:
+        t2 = self.now()
+        topic = ms.clock_ping_topic(self.me)
+        try:
+            asker, seq, _ = ms.read_ping(msg)
+            if self.admit is None or not self.admit(asker):
+                raise Rejected("unexpected", f"a clock question from {asker[:100]!r}")
+        except Rejected as exc:
+            self.drops.reject(exc, topic)
+            return
+        pub = self.pong_pubs.get(asker)
+        if pub is None:  # the leader: a publisher per asker, made when it first asks
+            pub = self.pong_pubs[asker] = self._pong_pub(asker)
+        pub.publish(ms.pong_msg(seq, t2, self.now(), self.me))
+
+    def report(self) -> dict[str, Any]:
+        """The diagnostics block (``ClockSync.report``) now."""
+        return self.sync.report(self.now())
+
+    def remote_time(self, peer: str) -> tuple[int, str]:
+        """``peer``'s clock now, and how it was had (``ClockSync.remote_time``)."""
+        return self.sync.remote_time(peer, self.now())
