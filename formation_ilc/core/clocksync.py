@@ -75,7 +75,7 @@ class ClockEstimate:
     interval the exchanges' bounds leave, plus the drift's bound times the time from the
     exchanges' centre to ``at_ns``), the exchanges behind it, the shortest round trip
     [ns], the clock steps seen, and whether it has converged (at least ``MIN_EXCHANGES``
-    and an uncertainty within ``CONVERGED_NS``)."""
+    and an uncertainty within the ``LinkClock``'s ``converged_ns``)."""
 
     at_ns: int
     offset_ns: float
@@ -102,13 +102,17 @@ class LinkClock:
 
     window : exchanges kept (the newest). gate : [ns] an exchange counts for the offset if
     its round trip is at most the shortest kept + gate. step_ns : an exchange inside the
-    gate this far off the line (and 5 uncertainties) is a clock step.
+    gate this far off the line (and 5 uncertainties) is a clock step. converged_ns : the
+    uncertainty an estimate has converged within (``CONVERGED_NS`` by default).
     """
 
-    def __init__(self, window: int = 64, gate: int = 1_000_000, step_ns: int = 20_000_000):
-        if window < MIN_EXCHANGES or gate < 0 or step_ns <= 0:
-            raise ValueError("window >= 4, gate >= 0 and step_ns > 0 are required")
+    def __init__(self, window: int = 64, gate: int = 1_000_000, step_ns: int = 20_000_000,
+                 converged_ns: int = CONVERGED_NS):
+        if window < MIN_EXCHANGES or gate < 0 or step_ns <= 0 or converged_ns <= 0:
+            raise ValueError("window >= 4, gate >= 0, step_ns > 0 and converged_ns > 0 are "
+                             "required")
         self.window, self.gate, self.step_ns = window, gate, step_ns
+        self.converged_ns = converged_ns
         #: (local midpoint, offset, round trip) of the exchanges kept
         self.kept: deque[tuple[int, float, int]] = deque(maxlen=window)
         self.steps = 0
@@ -153,7 +157,9 @@ class LinkClock:
         t0 = float(t.mean())
         b, k, bound = 0.0, 1.0, DRIFT_PRIOR
         fitted = self._drift(t, y, rtt, best)
-        if fitted is not None:
+        # a line no better than the prior (a jittery path, a short span) says less than
+        # the prior does: then the drift is taken as 0 within the prior's bound
+        if fitted is not None and t99(fitted[2]) * fitted[1] < DRIFT_PRIOR:
             b, se_b, dof = fitted
             k = t99(dof)
             bound = k * se_b
@@ -212,7 +218,7 @@ class LinkClock:
         unc = self._uncertainty(at_ns)
         return ClockEstimate(int(at_ns), a + b * (at_ns - t0), b, unc, len(self.kept), best,
                              self.steps, len(self.kept) >= MIN_EXCHANGES
-                             and unc <= CONVERGED_NS, self._err[1])
+                             and unc <= self.converged_ns, self._err[1])
 
     def to_local(self, remote_ns: int, at_ns: int) -> float | None:
         """A remote clock reading on the local clock (None without an estimate)."""

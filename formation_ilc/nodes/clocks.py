@@ -22,7 +22,7 @@ import msgs_schema as ms
 from formation_ilc.config.runconfig import RunConfig
 from formation_ilc.core.clock import Rejected
 from formation_ilc.core.clocksync import EmulatedClock
-from formation_ilc.protocol.timesync import BURST_HZ, ClockSync, NodeClock
+from formation_ilc.protocol.timesync import BURST_HZ, ClockSync, NodeClock, converged_for
 
 __all__ = ["ClockExchange", "node_clock"]
 
@@ -60,7 +60,8 @@ class ClockExchange:
         peers = list(peers)
         self.sync = ClockSync(
             me, peers, fallback=cfg.clocks.fallback, estimating=cfg.clocks.sync,
-            truth=cfg.clocks.truth(cfg.scenario.seed, cfg.scenario.n))
+            truth=cfg.clocks.truth(cfg.scenario.seed, cfg.scenario.n),
+            converged_ns=converged_for(cfg.clock.dt_ns))
         # numbers of another incarnation of this node cannot be taken for this one's
         self.sync.seq = secrets.randbelow(1 << 40)
         self.on_event, self.on_report = on_event, on_report

@@ -35,10 +35,16 @@ from typing import Any
 import numpy as np
 
 from formation_ilc.core.clock import Rejected
-from formation_ilc.core.clocksync import LONGEST_NS, ClockEstimate, EmulatedClock, LinkClock
+from formation_ilc.core.clocksync import (
+    CONVERGED_NS,
+    LONGEST_NS,
+    ClockEstimate,
+    EmulatedClock,
+    LinkClock,
+)
 
-__all__ = ["ClockSync", "NodeClock", "PING_HZ", "BURST_HZ", "BURST_S", "CONVERGE_WARN_S",
-           "SILENT_WARN_S", "OUTSTANDING", "DELAYS_KEPT", "answer"]
+__all__ = ["ClockSync", "NodeClock", "converged_for", "PING_HZ", "BURST_HZ", "BURST_S",
+           "CONVERGE_WARN_S", "SILENT_WARN_S", "OUTSTANDING", "DELAYS_KEPT", "answer"]
 
 #: questions a second to a peer in steady state, and for its first BURST_S seconds
 PING_HZ = 2.0
@@ -71,6 +77,14 @@ class NodeClock:
     @property
     def scale(self) -> float:
         return 1.0 if self.emulated is None else 1.0 / (1.0 + self.emulated.drift)
+
+
+def converged_for(dt_ns: int) -> int:
+    """The uncertainty [ns] within which a run's clock estimates have converged: 2 ms
+    (``CONVERGED_NS``), or a twentieth of its sample time when that is more (a tenth of
+    the half-sample margin that eq. 11 rounds with; on a path whose legs take 2 ms at
+    least, as over Wi-Fi, no two-way estimate can promise better than 2 ms)."""
+    return max(CONVERGED_NS, int(dt_ns) // 20)
 
 
 def answer(seq: int, t2: int, t3: int) -> tuple[int, int, int]:
@@ -108,16 +122,18 @@ class ClockSync:
     estimating : False: the estimator is off (``--no-clock-sync``): the answers measure
         the one-way delays as the clocks read, and nothing is estimated or corrected
         (``remote_time`` is this node's clock).
+    converged_ns : the uncertainty within which an estimate has converged (``converged_for``
+        gives the run's: 2 ms, or a twentieth of dT when that is more).
     """
 
     def __init__(self, me: str, peers: Iterable[str], *,
                  truth: Mapping[str, EmulatedClock] | None = None,
                  fallback: str = "estimate", estimating: bool = True,
-                 ping_hz: float = PING_HZ, burst_hz: float = BURST_HZ,
-                 burst_s: float = BURST_S):
+                 converged_ns: int = CONVERGED_NS, ping_hz: float = PING_HZ,
+                 burst_hz: float = BURST_HZ, burst_s: float = BURST_S):
         self.me = me
         self.estimating = estimating
-        self.links = {p: _Link(LinkClock()) for p in peers}
+        self.links = {p: _Link(LinkClock(converged_ns=converged_ns)) for p in peers}
         self.truth = truth
         self.fallback = fallback
         self.period_ns = int(S / ping_hz)

@@ -189,3 +189,36 @@ def test_an_emulated_clock_drifts_from_its_origin():
     t = origin + 123_456_789_012
     assert abs(c.true(c.read(t)) - t) <= 1
     assert EmulatedClock.seeded(7, 2, 300.0, 100.0, origin).origin_ns == origin
+
+
+def test_a_jittery_path_keeps_its_error_small_and_its_bound_honest():
+    """Uniform 50-150 ms a leg (netns with --net-delay-ms 100 --net-jitter-ms 50): no
+    estimate can promise better than half the shortest round trip (about 50 ms), and it
+    says so; a drift fitted through such exchanges would say less than the prior, so the
+    prior's bound is kept, and the offset itself stays within a few ms."""
+    rng = np.random.default_rng(2)
+    local = EmulatedClock.seeded(2, 1, 300.0, 100.0)
+    remote = EmulatedClock.seeded(2, 2, 300.0, 100.0)
+    lc = LinkClock()
+    t = 1_000 * MS
+    for _ in range(80):
+        t2 = t + int(rng.uniform(50, 150) * MS)
+        t4 = t2 + int(rng.uniform(50, 150) * MS)
+        lc.exchange(local.read(t), remote.read(t2), local.read(t4))
+        est = lc.estimate(local.read(t4))
+        truth = remote.read(t4) - local.read(t4)
+        assert est is not None and abs(est.offset_ns - truth) <= est.uncertainty_ns
+        t += 500 * MS
+    assert not est.converged and est.uncertainty_ns > 45 * MS
+    assert abs(est.offset_ns - truth) < 10 * MS
+
+
+def test_convergence_is_judged_against_the_links_threshold():
+    lc = LinkClock(converged_ns=10 * MS)
+    for k in range(8):  # 6 ms legs, symmetric: bound 6 ms, error 0
+        t1 = (1_000 + 100 * k) * MS
+        lc.exchange(t1, t1 + 6 * MS + 40 * MS, t1 + 12 * MS)
+    est = lc.estimate(t1 + 12 * MS)
+    assert est is not None and est.converged and 5 * MS < est.uncertainty_ns < 10 * MS
+    with pytest.raises(ValueError):
+        LinkClock(converged_ns=0)

@@ -199,3 +199,10 @@ def test_a_node_clock_reads_its_emulated_clock():
     nc = NodeClock(c)
     assert nc.now(ORIGIN + S) == c.read(ORIGIN + S) == ORIGIN + S + 300 * MS + 100_000
     assert nc.scale == pytest.approx(1 / 1.0001)
+
+
+def test_the_runs_convergence_threshold_follows_its_sample_time():
+    from formation_ilc.protocol.timesync import converged_for
+
+    assert converged_for(50 * MS) == 2_500_000 and converged_for(200 * MS) == 10 * MS
+    assert converged_for(10 * MS) == 2 * MS  # never below 2 ms
