@@ -31,11 +31,11 @@ robot_i/cmd_vel            geometry_msgs/Twist          robot i -> plant
 robot_i/shared_pose        geometry_msgs/PoseStamped    robot i -> out-neighbours (direct),
                                                         link emulator (emulated)
 robot_i/links/S            nav_msgs/Path (0 or 1 pose)  link emulator -> robot i (emulated)
-X/clock/ping               sensor_msgs/TimeReference    realtime and wallclock: questions
-                                                        for node X's clock (X robot_j or
-                                                        leader), from whoever hears X
-X/clock/pong               sensor_msgs/TimeReference    the answers to node X's questions
-                                                        (X robot_i or bridge_i)
+X/clock/ping               sensor_msgs/TimeReference    realtime and wallclock: node X's
+                                                        questions for the clocks it hears
+                                                        (X robot_i or bridge_i) -> them
+X/clock/pong               sensor_msgs/TimeReference    node X's answers (X robot_j or
+                                                        leader) -> the nodes that asked
 robot_i/trajectory         nav_msgs/Path (trial end)    robot i -> out-neighbours, monitor
 robot_i/true_trajectory    nav_msgs/Path (trial end)    simulator (optional) -> monitor
 /clock                     rosgraph_msgs/Clock          plant, in simulated time -> all

@@ -2,12 +2,13 @@
 answers as sensor_msgs/TimeReference, the standard message for "another clock's time at
 this stamp".
 
-A question for node X's clock, on ``X/clock/ping`` (``clock_ping_topic``):
-``header.stamp`` = t1 (the asker's clock when it sent it), ``header.frame_id`` = the
-question's number, ``source`` = the asker's node name. The answer, on the asker's
-``clock/pong`` (``clock_pong_topic``): ``header.stamp`` = t3 (the answerer's clock when it
-answered), ``time_ref`` = t2 (the answerer's clock when the question arrived),
-``header.frame_id`` = the question's number, ``source`` = the answerer's name.
+Each node publishes on topics of its own name only. A's question for B's clock, on
+``A/clock/ping`` (``clock_ping_topic``): ``header.stamp`` = t1 (A's clock when it sent it),
+``header.frame_id`` = the question's number, ``source`` = B (the clock asked). B's answer,
+on ``B/clock/pong`` (``clock_pong_topic``): ``header.stamp`` = t3 (B's clock when it
+answered), ``time_ref`` = t2 (B's clock when the question arrived), ``header.frame_id`` =
+the question's number, ``source`` = A (who asked). A node reads the questions of those
+allowed to ask it and the answers of the clocks it asks, and takes those naming it.
 
 Best effort: a lost question or answer is an exchange less; a repaired one would carry a
 round trip as long as the repair, which the estimate would only throw away.
@@ -32,16 +33,18 @@ CLOCK_SYNC_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=16,
 NAME_MAX = 100
 
 
-def ping_msg(seq: int, t1: int, asker: str) -> TimeReference:
-    msg = TimeReference(source=asker)
+def ping_msg(seq: int, t1: int, asked: str) -> TimeReference:
+    """A question for ``asked``'s clock, sent at t1."""
+    msg = TimeReference(source=asked)
     msg.header.frame_id = str(int(seq))
     ns_to_stamp(t1, msg.header.stamp)
     ns_to_stamp(t1, msg.time_ref)
     return msg
 
 
-def pong_msg(seq: int, t2: int, t3: int, answerer: str) -> TimeReference:
-    msg = TimeReference(source=answerer)
+def pong_msg(seq: int, t2: int, t3: int, asker: str) -> TimeReference:
+    """The answer to ``asker``'s question ``seq``, taken at t2, answered at t3."""
+    msg = TimeReference(source=asker)
     msg.header.frame_id = str(int(seq))
     ns_to_stamp(t3, msg.header.stamp)
     ns_to_stamp(t2, msg.time_ref)
@@ -62,10 +65,10 @@ def _name(msg: TimeReference) -> str:
 
 
 def read_ping(msg: TimeReference) -> tuple[str, int, int]:
-    """(asker, seq, t1); MalformedMessage if it is not a question."""
+    """(the clock asked, seq, t1); MalformedMessage if it is not a question."""
     return _name(msg), _seq(msg), stamp_to_ns(msg.header.stamp)
 
 
 def read_pong(msg: TimeReference) -> tuple[str, int, int, int]:
-    """(answerer, seq, t2, t3); MalformedMessage if it is not an answer."""
+    """(who asked, seq, t2, t3); MalformedMessage if it is not an answer."""
     return _name(msg), _seq(msg), stamp_to_ns(msg.time_ref), stamp_to_ns(msg.header.stamp)

@@ -67,10 +67,10 @@ the start's remainder by dT is the slot, so every stamp names its slot and sampl
 every plant samples its robot at the same instants: each bridge estimates the leader's
 clock and samples on it (``formation_ilc.protocol.timesync``).
 
-Clock questions (realtime and wallclock, unless ``clocks`` switches them off): the leader
-answers, on ``leader/clock/ping``, every robot and bridge of the run that asks for its
-time (a robot that sees the leader, every bridge), on the asker's ``clock/pong``; its
-clock is the team's reference (the ground station's machine clock, never emulated).
+Clock questions (realtime and wallclock): the leader answers, on ``leader/clock/pong``,
+the questions for its time on ``robot_i/clock/ping`` (a robot that sees the leader) and,
+in wall-clock trials, ``bridge_i/clock/ping`` (every bridge); its clock is the team's
+reference (the ground station's machine clock, never emulated).
 
 Every decision above is the pure core's (``formation_ilc.protocol.leader.Leader``, tested
 without ROS); this node declares the parameters, the publishers, subscriptions and timers,
@@ -109,13 +109,6 @@ from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.leader import NAME, Leader
 from formation_ilc.protocol.plant import RESEND_S
 from formation_ilc.protocol.schedule import TrialEvent
-
-
-def _asker(n: int) -> Any:
-    """Who may ask the leader's time: robot_i and bridge_i, i in 1..n."""
-    names = {ms.robot_name(i) for i in range(1, n + 1)} | {ms.bridge_name(i)
-                                                            for i in range(1, n + 1)}
-    return names.__contains__
 
 
 class LeaderNode(Node):
@@ -172,8 +165,11 @@ class LeaderNode(Node):
         if cfg.clock_exchanges:
             # the team's clock reference: robots that hear it and every bridge ask for its
             # time (the ground station's machine clock, never emulated)
+            askers = [ms.robot_name(i + 1) for i in range(sc.n) if sc.graph.leader[i] > 0]
+            if cfg.mode == "wallclock":  # the bridges sample on the leader's clock
+                askers += [ms.bridge_name(i + 1) for i in range(sc.n)]
             self.clocks = ClockExchange(self, ms.LEADER, cfg, node_clock(cfg, None), (),
-                                        _asker(sc.n), self.drops)
+                                        askers, self.drops)
         self.config_pub.publish(ms.json_to_msg(cfg.to_json()))
         self._gate = self.create_timer(0.05, self.core.maybe_start)
         self.create_timer(5.0, self.core.report_wait)

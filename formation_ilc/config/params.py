@@ -162,9 +162,9 @@ BRIDGE: tuple[Param, ...] = (
           "as timed out", "s", lo=1e-3, hi=1e6),
     Param("initial_pose", [0.0], "x, y, theta [m, m, rad] where the robot is placed; "
           "[0.0]: the scenario's desired start"),
-    Param("clock_wait", 10.0, "before trial 0: the longest wait for the estimate of the "
-          "leader's clock to converge, then it samples on the fallback", "s", lo=0.0,
-          hi=1e6),
+    Param("clock_wait", 10.0, "before trial 0: the longest wait, from the leader's first "
+          "clock answer, for the estimate of its clock to converge; then it samples on the "
+          "fallback", "s", lo=0.0, hi=1e6),
     _RUN["scenario"],
     Param("mode", "wallclock", "how the plant keeps time (a bridge needs wallclock)",
           choices=MODES),

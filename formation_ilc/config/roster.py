@@ -282,10 +282,11 @@ def roster(lineup: Lineup) -> Roster:
     leader_pub: list[str] = []
     leader_sub: list[str] = []
     if lineup.clocks:
-        leader_sub.append(nm.clock_ping_topic(nm.LEADER))
-        leader_pub += [nm.clock_pong_topic(nm.robot_name(i)) for i in robots if hears[i - 1]]
+        leader_sub += [nm.clock_ping_topic(nm.robot_name(i)) for i in robots if hears[i - 1]]
         if row.per_robot:
-            leader_pub += [nm.clock_pong_topic(nm.bridge_name(i)) for i in robots]
+            leader_sub += [nm.clock_ping_topic(nm.bridge_name(i)) for i in robots]
+        if leader_sub:
+            leader_pub.append(nm.clock_pong_topic(nm.LEADER))
     members.append(Member(
         nm.LEADER_NODE, "leader", "formation-ilc-leader", NEVER, False, nm.LEADER_NODE,
         (nm.CONFIG, nm.REFERENCE, nm.TRIAL_EVENTS, nm.DIAGNOSTICS, *leader_pub),
@@ -327,12 +328,15 @@ def _robot(i: int, senders: list[int], hears_leader: bool, lineup: Lineup,
         sub.append(nm.TEAM_POSES)
     pub = [nm.cmd_vel_topic(i), nm.shared_pose_topic(i), nm.trajectory_topic(i), nm.READY,
            nm.DIAGNOSTICS]
-    if lineup.clocks:
+    if lineup.clocks:  # each node publishes on topics of its own name only
         me = nm.robot_name(i)
-        pub += [nm.clock_ping_topic(nm.robot_name(j)) for j in senders]
-        pub += [nm.clock_ping_topic(nm.LEADER)] if hears_leader else []
-        pub += [nm.clock_pong_topic(nm.robot_name(j)) for j in hearers]
-        sub += [nm.clock_ping_topic(me), nm.clock_pong_topic(me)]
+        asks = [nm.robot_name(j) for j in senders] + ([nm.LEADER] if hears_leader else [])
+        if asks:
+            pub.append(nm.clock_ping_topic(me))
+            sub += [nm.clock_pong_topic(a) for a in asks]
+        if hearers:
+            pub.append(nm.clock_pong_topic(me))
+            sub += [nm.clock_ping_topic(nm.robot_name(k)) for k in hearers]
     return Member(nm.robot_name(i), "robot", "formation-ilc-robot", TRIAL, True,
                   nm.robot_name(i), tuple(pub), tuple(sub), robot=i)
 
@@ -371,8 +375,8 @@ def _plant(lineup: Lineup, row: Plant) -> list[Member]:
         bridge_pub = [nm.pose_topic(i), nm.READY, nm.DIAGNOSTICS, c]
         bridge_sub = [nm.cmd_vel_topic(i), nm.TRIAL_EVENTS, nm.CONFIG, o]
         if lineup.clocks:  # it asks the leader's time
-            bridge_pub.append(nm.clock_ping_topic(nm.LEADER))
-            bridge_sub.append(nm.clock_pong_topic(nm.bridge_name(i)))
+            bridge_pub.append(nm.clock_ping_topic(nm.bridge_name(i)))
+            bridge_sub.append(nm.clock_pong_topic(nm.LEADER))
         driver_pub, driver_sub = [o], [c]
         if row.driver == "pioneer":
             driver_pub.append(f"{ns}/{nm.FAKE_DRIVER_NODE}/truth")

@@ -143,14 +143,15 @@ def link_topic(i: int, sender: str) -> str:
 
 
 def clock_ping_topic(node: str) -> str:
-    """Questions for node ``node``'s clock (``robot_2``, ``leader``): sensor_msgs/
-    TimeReference, from whoever estimates it (``protocol.timesync``)."""
+    """Node ``node``'s questions for the clocks it estimates (``robot_2``, ``bridge_2``):
+    sensor_msgs/TimeReference, each naming the clock it asks (``protocol.timesync``). Every
+    node publishes only topics of its own name: the enclaves' permissions say who asked."""
     return f"{node}/clock/ping"
 
 
 def clock_pong_topic(node: str) -> str:
-    """The answers to node ``node``'s questions (``robot_2``, ``bridge_2``), from the
-    clocks it asked."""
+    """Node ``node``'s answers to the questions for its clock (``robot_1``, ``leader``),
+    each naming the node that asked."""
     return f"{node}/clock/pong"
 
 

@@ -1,9 +1,11 @@
 """The clock exchanges of a node (robot, bridge, leader): the ROS side of
 ``formation_ilc.protocol.timesync``.
 
-A node that estimates other clocks asks each of them on ``X/clock/ping`` and takes the
-answers on its own ``clock/pong``; a node whose clock others estimate answers the
-questions on its ``clock/ping`` (``msgs_schema.clocksync``). Every time is read here, on
+A node that estimates other clocks asks them on its own ``clock/ping`` and takes their
+answers on each one's ``clock/pong``; a node whose clock others estimate reads their
+questions on each one's ``clock/ping`` and answers on its own ``clock/pong``
+(``msgs_schema.clocksync``: each node publishes only topics of its name, so the enclaves'
+permissions say who asked and who answered). Every time is read here, on
 the node's clock (the machine's, or in an emulated run its robot's emulated clock over it:
 ``config.clocks``), and passed to the core; what the core decides is published and logged.
 """
@@ -43,9 +45,11 @@ def node_clock(cfg: RunConfig, robot: int | None) -> NodeClock:
 class ClockExchange:
     """Node ``node``'s questions to ``peers`` and answers to ``askers``.
 
-    askers : the node names allowed to ask this node (their answers go to their
-        ``clock/pong``); None: nobody (this node's clock is not asked for); a callable:
-        whoever it admits (the leader answers any robot or bridge of the run).
+    Every node publishes on topics of its own name only (``me/clock/ping``, its questions;
+    ``me/clock/pong``, its answers): it reads each peer's answers and each asker's
+    questions, and takes those that name it (``msgs_schema.clocksync``).
+
+    askers : the node names allowed to ask this node's clock (empty: nobody).
     on_event : called with ('info' | 'warn', text) for what the core says once (an
         estimate converged, a clock step, no convergence, a silent peer).
     on_report : called every ``REPORT_EVERY_S`` while there are peers (the node publishes
@@ -53,11 +57,11 @@ class ClockExchange:
     """
 
     def __init__(self, node: Node, me: str, cfg: RunConfig, clock: NodeClock,
-                 peers: Iterable[str], askers: Iterable[str] | Callable[[str], bool] | None,
-                 drops: Any, on_event: Callable[[str, str], None] | None = None,
+                 peers: Iterable[str], askers: Iterable[str], drops: Any,
+                 on_event: Callable[[str, str], None] | None = None,
                  on_report: Callable[[], None] | None = None):
         self.node, self.me, self.clock, self.drops = node, me, clock, drops
-        peers = list(peers)
+        peers, askers = list(peers), list(askers)
         self.sync = ClockSync(
             me, peers, fallback=cfg.clocks.fallback, estimating=cfg.clocks.sync,
             truth=cfg.clocks.truth(cfg.scenario.seed, cfg.scenario.n),
@@ -65,39 +69,33 @@ class ClockExchange:
         # numbers of another incarnation of this node cannot be taken for this one's
         self.sync.seq = secrets.randbelow(1 << 40)
         self.on_event, self.on_report = on_event, on_report
-        self.ping_pubs = {p: node.create_publisher(TimeReference, ms.clock_ping_topic(p),
-                                                   ms.CLOCK_SYNC_QOS) for p in peers}
         self.subs = []
+        self.ping_pub: Any = None
         if peers:
-            self.subs.append(node.create_subscription(
-                TimeReference, ms.clock_pong_topic(me), self._on_pong, ms.CLOCK_SYNC_QOS))
+            self.ping_pub = node.create_publisher(TimeReference, ms.clock_ping_topic(me),
+                                                  ms.CLOCK_SYNC_QOS)
+            self.subs += [node.create_subscription(
+                TimeReference, ms.clock_pong_topic(p), lambda m, p=p: self._on_pong(m, p),
+                ms.CLOCK_SYNC_QOS) for p in peers]
             self._timer = node.create_timer(clock.scale / BURST_HZ, self._on_timer)
             self._report_due = 0.0
-        self.pong_pubs: dict[str, Any] = {}
-        self.admit: Callable[[str], bool] | None = None
-        if askers is not None:
-            if callable(askers):
-                self.admit = askers
-            else:
-                names = list(askers)
-                self.pong_pubs = {a: self._pong_pub(a) for a in names}
-                self.admit = names.__contains__
-            self.subs.append(node.create_subscription(
-                TimeReference, ms.clock_ping_topic(me), self._on_ping, ms.CLOCK_SYNC_QOS))
+        self.pong_pub: Any = None
+        if askers:
+            self.pong_pub = node.create_publisher(TimeReference, ms.clock_pong_topic(me),
+                                                  ms.CLOCK_SYNC_QOS)
+            self.subs += [node.create_subscription(
+                TimeReference, ms.clock_ping_topic(a), lambda m, a=a: self._on_ping(m, a),
+                ms.CLOCK_SYNC_QOS) for a in askers]
 
     def now(self) -> int:
         """This node's clock now [ns]."""
         return self.clock.now(time.time_ns())
 
-    def _pong_pub(self, asker: str) -> Any:
-        return self.node.create_publisher(TimeReference, ms.clock_pong_topic(asker),
-                                          ms.CLOCK_SYNC_QOS)
-
     # ------------------------------------------------------------------ asking
     def _on_timer(self) -> None:
         now = self.now()
         for peer, seq in self.sync.questions(now):
-            self.ping_pubs[peer].publish(ms.ping_msg(seq, self.now(), self.me))
+            self.ping_pub.publish(ms.ping_msg(seq, self.now(), peer))
         for level, text in self.sync.events(now):
             log = self.node.get_logger()
             (log.warning if level == "warn" else log.info)(text)
@@ -108,30 +106,29 @@ class ClockExchange:
             self._report_due = mono + REPORT_EVERY_S
             self.on_report()
 
-    def _on_pong(self, msg: TimeReference) -> None:
+    def _on_pong(self, msg: TimeReference, peer: str) -> None:
+        """``peer``'s answer (its pong topic carries its answers to every asker)."""
         t4 = self.now()
-        topic = ms.clock_pong_topic(self.me)
         try:
-            peer, seq, t2, t3 = ms.read_pong(msg)
+            asker, seq, t2, t3 = ms.read_pong(msg)
+            if asker != self.me:
+                return  # an answer to another node's question
             self.sync.on_answer(peer, seq, t2, t3, t4)
         except Rejected as exc:
-            self.drops.reject(exc, topic)
+            self.drops.reject(exc, ms.clock_pong_topic(peer))
 
     # ------------------------------------------------------------------ answering
-    def _on_ping(self, msg: TimeReference) -> None:
+    def _on_ping(self, msg: TimeReference, asker: str) -> None:
+        """``asker``'s question (its ping topic carries its questions to every clock it
+        asks): answered when it asks this node's clock."""
         t2 = self.now()
-        topic = ms.clock_ping_topic(self.me)
         try:
-            asker, seq, _ = ms.read_ping(msg)
-            if self.admit is None or not self.admit(asker):
-                raise Rejected("unexpected", f"a clock question from {asker[:100]!r}")
+            asked, seq, _ = ms.read_ping(msg)
         except Rejected as exc:
-            self.drops.reject(exc, topic)
+            self.drops.reject(exc, ms.clock_ping_topic(asker))
             return
-        pub = self.pong_pubs.get(asker)
-        if pub is None:  # the leader: a publisher per asker, made when it first asks
-            pub = self.pong_pubs[asker] = self._pong_pub(asker)
-        pub.publish(ms.pong_msg(seq, t2, self.now(), self.me))
+        if asked == self.me:
+            self.pong_pub.publish(ms.pong_msg(seq, t2, self.now(), asker))
 
     def report(self) -> dict[str, Any]:
         """The diagnostics block (``ClockSync.report``) now."""

@@ -48,12 +48,14 @@ point-stabilisation law (formation_ilc.protocol.bridge.ReturnController): ``retu
 odometry-measured) goes into its ready message and diagnostics (``initial_shifts``).
 Ready for trial 0 once the driver's odometry arrives, the motors are enabled, the
 publishers are matched and its estimate of the leader's clock has converged (at most
-``clock_wait`` s, default 10; then it samples on the fallback and says so).
+``clock_wait`` s after the leader's first answer, default 10; then it samples on the
+fallback and says so; before any answer it does not wait).
 
 Clocks (realtime and wall-clock runs): the bridge asks the leader for its time
-(``leader/clock/ping``, answers on ``bridge_I/clock/pong``; ``formation_ilc.protocol.
-timesync``) and samples on the leader's clock as it estimates it: sample s is due when
-the leader's clock reads start_wall_ns + s * dT, whatever this robot's clock reads, so
+(its questions on ``bridge_I/clock/ping``, the leader's answers on
+``leader/clock/pong``; ``formation_ilc.protocol.timesync``) and samples on the leader's
+clock as it estimates it: sample s is due when the leader's clock reads
+start_wall_ns + s * dT, whatever this robot's clock reads, so
 every robot of the team samples at the same instants without a synchronised network.
 Until the estimate has converged it samples on the run's fallback (``clocks.fallback``:
 the estimate so far, or the robot's own clock); with ``clocks.sync`` off (``--no-clock-
@@ -202,9 +204,9 @@ class BridgeNode(ConfiguredNode):
         self.truth = cfg.clocks.robot_clock(cfg.scenario.seed, self.id)
         self.sample_lags: list[float] = []
         self.clock_wait = float(self.get_parameter("clock_wait").value)
-        self._clock_t0 = time.monotonic()
+        self._clock_t0: float | None = None  # when the leader's first answer was seen
         if cfg.clock_exchanges:
-            self.clocks = ClockExchange(self, self.name, cfg, self.wall, [ms.LEADER], None,
+            self.clocks = ClockExchange(self, self.name, cfg, self.wall, [ms.LEADER], (),
                                         self.drops, on_report=self._clock_word)
         self._tick = self.create_timer(TICK, self._on_tick)
         self._gate = self.create_timer(0.05, self._check_ready)
@@ -280,12 +282,19 @@ class BridgeNode(ConfiguredNode):
         return self.clocks.sync.remote_time(ms.LEADER, own)
 
     def _clock_settled(self) -> bool:
-        """Whether the estimate of the leader's clock may be sampled on: converged, or
-        ``clock_wait`` s passed (then the fallback, said once as a warning)."""
+        """Whether the bridge may say ready for trial 0 as far as its clock goes: its
+        estimate of the leader's clock converged, or ``clock_wait`` s passed since the
+        leader's first answer (then it samples on the fallback and says so once), or no
+        answer yet (no leader to wait for: it samples on the fallback until there is)."""
         if self.clocks is None or not self.cfg.clocks.sync:
             return True
         if self._team_ns()[1] == "converged":
             return True
+        first = self.clocks.sync.links[ms.LEADER].last_answer_ns
+        if first is None:
+            return True
+        if self._clock_t0 is None:
+            self._clock_t0 = time.monotonic()
         if time.monotonic() - self._clock_t0 < self.clock_wait:
             return False
         if not getattr(self, "_fallback_said", False):

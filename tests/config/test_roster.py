@@ -13,9 +13,9 @@ simulator and the Pioneer drivers. Each answer must stay what it was: keystores 
 stay valid, launches start the same processes with the same command lines. The one
 difference is what the safety filter (added at 88c1f6a) reads and its grants never had:
 every other robot's pose and the plant's ``team/poses`` (as main granted them from
-77a8d24 on); and the clock exchanges (``protocol.timesync``, issue 29): each
-``X/clock/ping`` and ``X/clock/pong`` the graph gives a node. Those permissions are added,
-and only those.
+77a8d24 on); and the clock exchanges (``protocol.timesync``, issue 29): a node's own
+``clock/ping`` and ``clock/pong`` as the graph gives them, and the ones of the nodes it
+asks or answers. Those permissions are added, and only those.
 """
 
 from __future__ import annotations
@@ -111,10 +111,12 @@ def test_every_enclave_keeps_its_grant(key):
 
 
 def _clock_grants(sc, namespace: str, bridges: bool) -> dict[str, tuple[set[str], set[str]]]:
-    """The clock exchanges' permissions by node, written out from the graph: robot i asks
-    every robot it hears (a_ij > 0) and the leader if it sees it, answers the robots that
-    hear it, and takes questions and answers on its own topics; the leader takes questions
-    and answers the robots that see it and every bridge; a bridge asks the leader."""
+    """The clock exchanges' permissions by node, written out from the graph: every node
+    publishes on topics of its own name only. Robot i publishes its questions (if it hears
+    a robot, a_ij > 0, or the leader) and its answers (if a robot hears it) and reads the
+    answers of the clocks it asks and the questions of the robots that ask it; the leader
+    reads the questions of the robots that see it and of every bridge, and answers; a
+    bridge asks the leader."""
     a, lead = sc.graph.adjacency, sc.graph.leader
     n = sc.n
 
@@ -124,17 +126,20 @@ def _clock_grants(sc, namespace: str, bridges: bool) -> dict[str, tuple[set[str]
     out: dict[str, tuple[set[str], set[str]]] = {}
     for i in range(n):
         me = f"robot_{i + 1}"
-        pub = {t(f"robot_{j + 1}/clock/ping") for j in range(n) if a[i, j] > 0}
-        pub |= {t(f"robot_{j + 1}/clock/pong") for j in range(n) if a[j, i] > 0}
-        if lead[i] > 0:
-            pub.add(t("leader/clock/ping"))
-        out[me] = (pub, {t(f"{me}/clock/ping"), t(f"{me}/clock/pong")})
-    leader_pub = {t(f"robot_{i + 1}/clock/pong") for i in range(n) if lead[i] > 0}
+        asks = [f"robot_{j + 1}" for j in range(n) if a[i, j] > 0] + (
+            ["leader"] if lead[i] > 0 else [])
+        hearers = [f"robot_{k + 1}" for k in range(n) if a[k, i] > 0]
+        pub = ({t(f"{me}/clock/ping")} if asks else set()) | (
+            {t(f"{me}/clock/pong")} if hearers else set())
+        sub = {t(f"{x}/clock/pong") for x in asks} | {t(f"{k}/clock/ping") for k in hearers}
+        out[me] = (pub, sub)
+    leader_sub = {t(f"robot_{i + 1}/clock/ping") for i in range(n) if lead[i] > 0}
     if bridges:
-        leader_pub |= {t(f"bridge_{i + 1}/clock/pong") for i in range(n)}
+        leader_sub |= {t(f"bridge_{i + 1}/clock/ping") for i in range(n)}
         for i in range(n):
-            out[f"bridge_{i + 1}"] = ({t("leader/clock/ping")}, {t(f"bridge_{i + 1}/clock/pong")})
-    out["virtual_leader"] = (leader_pub, {t("leader/clock/ping")})
+            out[f"bridge_{i + 1}"] = ({t(f"bridge_{i + 1}/clock/ping")},
+                                      {t("leader/clock/pong")})
+    out["virtual_leader"] = ({t("leader/clock/pong")}, leader_sub)
     return out
 
 
