@@ -15,7 +15,8 @@ answerer holds each question 0.05-0.5 ms), over paths of several kinds:
   reaches 2 ms.
 
 For each, at 1, 2, 5, 10, 20 and 40 s after the first exchange: the median and largest
-|error| of the offset over the seeds, the median stated uncertainty, the share converged,
+|error| of the offset over the seeds, the median stated uncertainty, the share converged
+within 2 ms and within 10 ms (a run at dT = 0.2 s: ``protocol.timesync.converged_for``),
 and how often the error exceeded the stated uncertainty (the bound must hold: 0).
 
 Cost: CPU per exchange taken (``LinkClock.exchange``: the refit over the window), per
@@ -45,6 +46,8 @@ MS = 1_000_000
 S = 1_000_000_000
 ORIGIN = 1_795_000_000 * S
 CHECK_S = (1, 2, 5, 10, 20, 40)
+#: [ns] a run's convergence threshold at dT = 0.2 s (``protocol.timesync.converged_for``)
+LOOSE = 10 * MS
 
 Leg = Callable[[np.random.Generator, bool], float]  # [ms]; True: out, False: back
 
@@ -73,7 +76,8 @@ def error_vs_time(leg: Leg, seeds: int, seconds: float) -> dict[int, dict[str, f
     """Per checkpoint [s]: the offset's |error| (median, max over seeds) [ms], the median
     uncertainty [ms], the share converged, and the exchanges whose error exceeded their
     stated uncertainty (over the whole run, all seeds)."""
-    at: dict[int, list[tuple[float, float, bool]]] = {c: [] for c in CHECK_S if c <= seconds}
+    at: dict[int, list[tuple[float, float, bool, bool]]] = {
+        c: [] for c in CHECK_S if c <= seconds}
     broken = total = 0
     for seed in range(seeds):
         rng = np.random.default_rng(seed)
@@ -95,7 +99,8 @@ def error_vs_time(leg: Leg, seeds: int, seconds: float) -> dict[int, dict[str, f
             broken += abs(err) > est.uncertainty_ns
             while marks and t4 - start >= marks[0] * S:
                 at[marks.pop(0)].append((abs(err) / MS, est.uncertainty_ns / MS,
-                                         est.converged))
+                                         est.converged,
+                                         est.exchanges >= 4 and est.uncertainty_ns <= LOOSE))
             rate = BURST_HZ if t - start < BURST_S * S else PING_HZ
             t += int(S / rate)
     out = {}
@@ -105,7 +110,8 @@ def error_vs_time(leg: Leg, seeds: int, seconds: float) -> dict[int, dict[str, f
         a = np.array([r[:2] for r in rows])
         out[c] = {"err_p50": float(np.median(a[:, 0])), "err_max": float(a[:, 0].max()),
                   "unc_p50": float(np.median(a[:, 1])),
-                  "converged": float(np.mean([r[2] for r in rows]))}
+                  "converged": float(np.mean([r[2] for r in rows])),
+                  "loose": float(np.mean([r[3] for r in rows]))}
     out[-1] = {"broken": float(broken), "total": float(total)}
     return out
 
@@ -174,17 +180,18 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\n{name}: error beyond the stated uncertainty in {int(tail['broken'])} of "
               f"{int(tail['total'])} exchanges")
         print(f"  {'t [s]':>6s} {'|err| p50 [ms]':>15s} {'|err| max [ms]':>15s} "
-              f"{'unc p50 [ms]':>13s} {'converged':>10s}")
+              f"{'unc p50 [ms]':>13s} {'conv. 2 ms':>11s} {'conv. 10 ms':>12s}")
         for c, r in res.items():
             print(f"  {c:6d} {r['err_p50']:15.3f} {r['err_max']:15.3f} {r['unc_p50']:13.3f} "
-                  f"{r['converged']:10.0%}")
+                  f"{r['converged']:11.0%} {r['loose']:12.0%}")
     print("\ncost per call, one process [us]:")
     for what, us in costs(args.calls).items():
         print(f"  {what:32s} {us:8.1f}")
     per_link = 2 * PING_HZ  # a question and an answer a second each way, steady state
-    c = costs(max(200, args.calls // 10))
-    cpu = (c.get("ping_msg (TimeReference)", 0) + c.get("read_ping", 0) + c.get("pong_msg", 0)
-           + c.get("read_pong", 0) + c["ClockSync question + on_answer"]) * PING_HZ
+    cost = costs(max(200, args.calls // 10))
+    cpu = (cost.get("ping_msg (TimeReference)", 0) + cost.get("read_ping", 0)
+           + cost.get("pong_msg", 0) + cost.get("read_pong", 0)
+           + cost["ClockSync question + on_answer"]) * PING_HZ
     print(f"steady state per link: {per_link:g} messages/s, about {cpu:.0f} us of Python CPU a "
           f"second (without DDS's own cost per message)")
     return 0

@@ -206,6 +206,9 @@ class BridgeNode(ConfiguredNode):
         self.clock_wait = float(self.get_parameter("clock_wait").value)
         self._clock_t0: float | None = None  # when the leader's first answer was seen
         if cfg.clock_exchanges:
+            # clock words on a writer of their own (the report's keeps one message)
+            self.word_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS,
+                                                  ms.LATCHED_QOS)
             self.clocks = ClockExchange(self, self.name, cfg, self.wall, [ms.LEADER], (),
                                         self.drops, on_report=self._clock_word)
         self._tick = self.create_timer(TICK, self._on_tick)
@@ -311,7 +314,7 @@ class BridgeNode(ConfiguredNode):
         """Where this bridge's estimate of the leader's clock is, as a word on diagnostics
         between its reports (``clock_word``)."""
         assert self.clocks is not None
-        self.diag_pub.publish(ms.diagnostics_to_msg(
+        self.word_pub.publish(ms.diagnostics_to_msg(
             {"node": self.name, "trial": self.core.iteration, "clock": self.clocks.report(),
              "clock_word": {"events": events or []}},
             self.get_clock().now().nanoseconds, self.cfg.scenario.dt,

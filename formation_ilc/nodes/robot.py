@@ -195,6 +195,11 @@ class RobotNode(ConfiguredNode):
         self.clocks: ClockExchange | None = None
         clock = node_clock(cfg, self.id)
         if cfg.clock_exchanges:
+            # its clock words go out on a writer of their own: the report's writer keeps
+            # one message (latched), and a word sent just after a report would replace it
+            # before a reader that was behind had taken it
+            self.word_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS,
+                                                  ms.LATCHED_QOS)
             # the clocks this robot hears (its in-neighbours', the leader's if it sees it),
             # and its own for the robots that hear it (protocol.timesync)
             self.clocks = ClockExchange(
@@ -416,10 +421,10 @@ class RobotNode(ConfiguredNode):
         if self.clocks is not None:
             d["clock"] = self.clocks.report()
         d.update(self.drops.as_dict())
-        self._publish(d)
+        self._publish(d, self.diag_pub)
 
-    def _publish(self, d: dict[str, Any]) -> None:
-        self.diag_pub.publish(ms.diagnostics_to_msg(
+    def _publish(self, d: dict[str, Any], pub: Any) -> None:
+        pub.publish(ms.diagnostics_to_msg(
             d, self.get_clock().now().nanoseconds, self.cfg.scenario.dt, self.pb.samples,
             self.name))
 
@@ -428,7 +433,8 @@ class RobotNode(ConfiguredNode):
         reports (``clock_word``: the monitor prints its events, the recording keeps it)."""
         assert self.clocks is not None
         self._publish({"node": self.name, "trial": self.learner.iterations - 1,
-                       "clock": self.clocks.report(), "clock_word": {"events": events or []}})
+                       "clock": self.clocks.report(), "clock_word": {"events": events or []}},
+                      self.word_pub)
 
     def _clock_event(self, level: str, text: str) -> None:
         if level == "warn":
