@@ -258,7 +258,7 @@ def roster(lineup: Lineup) -> Roster:
     w = np.zeros(n) if lineup.leader is None else np.asarray(lineup.leader, dtype=float)
     senders = [[int(j) + 1 for j in np.flatnonzero(a[i] > 0)] for i in range(n)]
     hears = [bool(w[i] > 0) for i in range(n)]
-    protocol = (nm.READY, nm.DIAGNOSTICS)
+    protocol = (nm.READY, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS)
     members: list[Member] = []
     if lineup.monitor:
         members.append(Member(
@@ -289,7 +289,8 @@ def roster(lineup: Lineup) -> Roster:
             leader_pub.append(nm.clock_pong_topic(nm.LEADER))
     members.append(Member(
         nm.LEADER_NODE, "leader", "formation-ilc-leader", NEVER, False, nm.LEADER_NODE,
-        (nm.CONFIG, nm.REFERENCE, nm.TRIAL_EVENTS, nm.DIAGNOSTICS, *leader_pub),
+        (nm.CONFIG, nm.REFERENCE, nm.TRIAL_EVENTS, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS,
+         *leader_pub),
         # its own events too: it re-asserts against a start or abort it did not send (a
         # buggy node's, or a lossy link's replay)
         (nm.READY, nm.CONFIG, nm.CLOCK, nm.TRIAL_EVENTS, *leader_sub)))
@@ -327,7 +328,7 @@ def _robot(i: int, senders: list[int], hears_leader: bool, lineup: Lineup,
         sub += [nm.pose_topic(j) for j in range(1, lineup.n + 1) if j != i]
         sub.append(nm.TEAM_POSES)
     pub = [nm.cmd_vel_topic(i), nm.shared_pose_topic(i), nm.trajectory_topic(i), nm.READY,
-           nm.DIAGNOSTICS]
+           nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS]
     if lineup.clocks:  # each node publishes on topics of its own name only
         me = nm.robot_name(i)
         asks = [nm.robot_name(j) for j in senders] + ([nm.LEADER] if hears_leader else [])
@@ -351,7 +352,7 @@ def _plant(lineup: Lineup, row: Plant) -> list[Member]:
             pub += [nm.true_trajectory_topic(i) for i in robots]
         if row.clock:
             pub.append(nm.CLOCK)
-        pub += [nm.READY, nm.DIAGNOSTICS]
+        pub += [nm.READY, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS]
         if row.true_state:
             pub.append(nm.PREVIEW)
         if lineup.sensing == "team":
@@ -367,12 +368,13 @@ def _plant(lineup: Lineup, row: Plant) -> list[Member]:
         out.append(Member(
             nm.BASES_NODE, "driver", "formation-ilc-physics-bases", NEVER, False,
             nm.BASES_NODE,
-            (*(f"{lineup.driver_namespace(i)}/{odom}" for i in robots), nm.DIAGNOSTICS),
+            (*(f"{lineup.driver_namespace(i)}/{odom}" for i in robots), nm.DIAGNOSTICS,
+             nm.ROS_DIAGNOSTICS),
             tuple(f"{lineup.driver_namespace(i)}/cmd_vel" for i in robots)))
     for i in robots:
         ns = lineup.driver_namespace(i)
         c, o, mo = f"{ns}/{cmd}", f"{ns}/{odom}", f"{ns}/{motors}"
-        bridge_pub = [nm.pose_topic(i), nm.READY, nm.DIAGNOSTICS, c]
+        bridge_pub = [nm.pose_topic(i), nm.READY, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS, c]
         bridge_sub = [nm.cmd_vel_topic(i), nm.TRIAL_EVENTS, nm.CONFIG, o]
         if lineup.clocks:  # it asks the leader's time
             bridge_pub.append(nm.clock_ping_topic(nm.bridge_name(i)))

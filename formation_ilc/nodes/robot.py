@@ -81,7 +81,7 @@ from formation_ilc.nodes.common import (
     unmatched,
     warm_up,
 )
-from formation_ilc.nodes.params import ParameterError, check, declare
+from formation_ilc.nodes.params import ParameterError, check, declare, effective
 from formation_ilc.protocol.learner import RobotLearner
 from formation_ilc.protocol.schedule import Follower
 from formation_ilc.store.memoryfile import MemoryFileError, load_memory
@@ -126,6 +126,12 @@ class RobotNode(ConfiguredNode):
     def configure(self, cfg: RunConfig) -> None:
         pb = Problem.from_scenario(cfg.scenario)
         self.cfg, self.pb = cfg, pb
+        sc = cfg.scenario
+        # the parameters read what runs: the leader's configuration overrides them
+        effective(self, {"scenario": cfg.scenario_param, "seed": sc.seed,
+                         "noise": sc.uncertainty.noisy,
+                         "delay": sc.uncertainty.delay.kind != "none", "links": cfg.links,
+                         "mode": cfg.mode})
         self.realtime = cfg.wall
         memory = None
         path = str(self.get_parameter("init_memory").value)
@@ -161,7 +167,6 @@ class RobotNode(ConfiguredNode):
         self.traj_pub = self.create_publisher(Path, ms.trajectory_topic(self.id),
                                               ms.TRAJECTORY_QOS)
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         # the per-sample messages as bytes (msgs_schema.wire: no message objects)
         self.sample_subs = [self.create_subscription(
             PoseStamped, ms.pose_topic(self.id), self._on_pose, ms.SAMPLE_QOS, raw=True)]

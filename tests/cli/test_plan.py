@@ -434,3 +434,13 @@ def test_emulated_clocks_reach_the_leader_and_are_refused_in_lockstep(tmp_path):
     with pytest.raises(SystemExit) as e:
         options("paper-triangle3", "--clock-offset-ms", "-3")
     assert e.value.code == 2
+
+
+def test_live_without_foxglove_sdk_is_refused_before_anything_starts(tmp_path, monkeypatch):
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "foxglove" else real(name, *a))
+    r = refusal(tmp_path, "paper-triangle3", "--live")
+    assert r.status == 2 and r.message.startswith("argument --live: needs foxglove-sdk")

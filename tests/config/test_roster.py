@@ -101,6 +101,12 @@ def test_every_enclave_keeps_its_grant(key):
         g["subscribe"] = [t for t in g["subscribe"] if t not in sub]
         if pub or sub:
             added[name] = (pub, sub)
+    # the standard diagnostics stream (issue 30), granted now to every node that reports
+    for g in got.values():
+        reports = absolute("diagnostics", namespace) in g["publish"]
+        assert ("/diagnostics" in g["publish"]) == reports, g
+        g["publish"] = [t for t in g["publish"] if t != "/diagnostics"]
+        g["dds_publish"] = [t for t in g["dds_publish"] if t != "rt/diagnostics"]
     assert got == _golden("grants")[key]
     team = absolute(TEAM_POSES, namespace)
     robots = {f"robot_{i}" for i in range(1, n + 1)}
