@@ -46,7 +46,8 @@ def test_robot_publishes_only_its_own_topics(grants):
         own = {f"{NS}/robot_{i}/{t}" for t in ("cmd_vel", "shared_pose", "trajectory",
                                                "clock/ping")}
         own |= {f"{NS}/robot_{i}/clock/pong"} if i in (1, 2) else set()
-        assert set(g.publish) == own | {f"{NS}/ready", f"{NS}/diagnostics"}
+        # the report and the standard stream (/diagnostics, absolute)
+        assert set(g.publish) == own | {f"{NS}/ready", f"{NS}/diagnostics", "/diagnostics"}
         others = [t for t in g.publish if "/robot_" in t and f"/robot_{i}/" not in t]
         assert others == []
 
@@ -91,7 +92,8 @@ def test_only_the_leader_publishes_config_reference_and_events(grants):
 def test_recorder_and_monitor_publish_only_protocol_topics(grants):
     # and the recorder the view topics of its observer (desired poses, errors, markers)
     view = {f"{NS}/{t}" for t in view_topics(3)}
-    assert set(grants[f"{NS}/recorder"].publish) == {f"{NS}/ready", f"{NS}/diagnostics", *view}
+    assert set(grants[f"{NS}/recorder"].publish) == {f"{NS}/ready", f"{NS}/diagnostics",
+                                                     "/diagnostics", *view}
     assert set(grants[f"{NS}/monitor"].publish) == {f"{NS}/ready"}
     assert f"{NS}/robot_3/cmd_vel" in grants[f"{NS}/recorder"].subscribe
 
