@@ -326,11 +326,11 @@ class BridgeNode(ConfiguredNode):
         """Where this bridge's estimate of the leader's clock is, as a word on diagnostics
         between its reports (``clock_word``)."""
         assert self.clocks is not None
-        self.word_pub.publish(ms.diagnostics_to_msg(
+        self.diag_pub.word(ms.diagnostics_to_msg(
             {"node": self.name, "trial": self.core.iteration, "clock": self.clocks.report(),
              "clock_word": {"events": events or []}},
             self.get_clock().now().nanoseconds, self.cfg.scenario.dt,
-            self.cfg.scenario.samples, ms.robot_name(self.id)))
+            self.cfg.scenario.samples, ms.robot_name(self.id)), self.word_pub, "clock")
 
     def _check_ready(self) -> None:
         if self.core.odom is None or not self.motors_on or not self._clock_settled():

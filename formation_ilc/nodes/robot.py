@@ -437,9 +437,11 @@ class RobotNode(ConfiguredNode):
         """Where this robot's clock estimates are, as a word on diagnostics between its
         reports (``clock_word``: the monitor prints its events, the recording keeps it)."""
         assert self.clocks is not None
-        self._publish({"node": self.name, "trial": self.learner.iterations - 1,
-                       "clock": self.clocks.report(), "clock_word": {"events": events or []}},
-                      self.word_pub)
+        self.diag_pub.word(ms.diagnostics_to_msg(
+            {"node": self.name, "trial": self.learner.iterations - 1,
+             "clock": self.clocks.report(), "clock_word": {"events": events or []}},
+            self.get_clock().now().nanoseconds, self.cfg.scenario.dt, self.pb.samples,
+            self.name), self.word_pub, "clock")
 
     def _clock_event(self, level: str, text: str) -> None:
         if level == "warn":
