@@ -31,6 +31,11 @@ robot_i/cmd_vel            geometry_msgs/Twist          robot i -> plant
 robot_i/shared_pose        geometry_msgs/PoseStamped    robot i -> out-neighbours (direct),
                                                         link emulator (emulated)
 robot_i/links/S            nav_msgs/Path (0 or 1 pose)  link emulator -> robot i (emulated)
+X/clock/ping               sensor_msgs/TimeReference    realtime and wallclock: node X's
+                                                        questions for the clocks it hears
+                                                        (X robot_i or bridge_i) -> them
+X/clock/pong               sensor_msgs/TimeReference    node X's answers (X robot_j or
+                                                        leader) -> the nodes that asked
 robot_i/trajectory         nav_msgs/Path (trial end)    robot i -> out-neighbours, monitor
 robot_i/true_trajectory    nav_msgs/Path (trial end)    simulator (optional) -> monitor
 /clock                     rosgraph_msgs/Clock          plant, in simulated time -> all
@@ -117,6 +122,8 @@ from formation_ilc.core.names import (
     DriverSpec,
     absolute,
     bridge_name,
+    clock_ping_topic,
+    clock_pong_topic,
     clock_topic,
     cmd_vel_topic,
     desired_path_topic,
@@ -136,6 +143,8 @@ from formation_ilc.core.names import (
 from formation_ilc.core.names import robot_number as robot_index
 from formation_ilc.protocol.schedule import ABORT, DONE, END, START
 from msgs_schema import wire
+from msgs_schema.clocksync import *  # noqa: F403
+from msgs_schema.clocksync import __all__ as _clocksync
 from msgs_schema.convert import *  # noqa: F403
 from msgs_schema.convert import __all__ as _convert
 from msgs_schema.diagnostics import *  # noqa: F403
@@ -169,5 +178,6 @@ __all__ = [
     # the protocol's events, the sample clock
     "START", "END", "ABORT", "DONE", "SampleClock",
     # this package's modules
-    "wire", *_qos, *_tables, *_convert, *_drivers, *_view, *_diagnostics,
+    "wire", *_qos, *_tables, *_convert, *_drivers, *_view, *_diagnostics, *_clocksync,
+    "clock_ping_topic", "clock_pong_topic",
 ]

@@ -85,7 +85,7 @@ def executor(context):
 #: needs the cores a third stack would take. Tests in one lane run in file order, so runs
 #: shared through tests/stack/shared.py are made before they are read.
 CLOCK_FILES = ("test_pioneer.py", "test_realtime.py", "test_base_physics.py",
-               "test_diagnostics.py")
+               "test_diagnostics.py", "test_clocks.py")
 CLOCK_TESTS = ("test_a_run_waiting_for_a_node_that_never_comes_stops_naming_it",
                "test_secure_pioneer_bridges_and_fake_drivers",
                "test_secure_bases_with_physics_bases_equal_the_insecure_run",

@@ -67,8 +67,13 @@ Wall-clock trials (``mode: wallclock``, real robots behind bridges; no node publ
 ``start_margin`` seconds ahead at which sample 0 is due; the leader publishes r(t) from its
 own wall timer at start_wall_ns + t * dT, stamped with that time (``core.clock.WallGrid``:
 the start's remainder by dT is the slot, so every stamp names its slot and sample), and
-every plant samples its robot at the same instants (the machines' clocks synchronised,
-e.g. chrony).
+every plant samples its robot at the same instants: each bridge estimates the leader's
+clock and samples on it (``formation_ilc.protocol.timesync``).
+
+Clock questions (realtime and wallclock): the leader answers, on ``leader/clock/pong``,
+the questions for its time on ``robot_i/clock/ping`` (a robot that sees the leader) and,
+in wall-clock trials, ``bridge_i/clock/ping`` (every bridge); its clock is the team's
+reference (the ground station's machine clock, never emulated).
 
 Every decision above is the pure core's (``formation_ilc.protocol.leader.Leader``, tested
 without ROS); this node declares the parameters, the publishers, subscriptions and timers,
@@ -77,6 +82,7 @@ and makes one call into it per event.
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from pathlib import Path
 from typing import Any
@@ -91,8 +97,9 @@ import msgs_schema as ms
 from formation_ilc.config import params
 from formation_ilc.config.plants import default_plant
 from formation_ilc.config.roster import Lineup, roster
-from formation_ilc.config.runconfig import PARAMS, RunConfig
+from formation_ilc.config.runconfig import PARAMS, RunConfig, clocks_param
 from formation_ilc.core.clock import Rejected
+from formation_ilc.nodes.clocks import ClockExchange, node_clock
 from formation_ilc.nodes.common import (
     Diagnostics,
     DropCounter,
@@ -120,7 +127,8 @@ class LeaderNode(Node):
         declare(self, params.LEADER)  # the run configuration's (runconfig) and the leader's
         g = lambda name: self.get_parameter(name).value  # noqa: E731
         _check_parameters(g)
-        self.cfg = cfg = RunConfig.from_params({name: g(name) for name in PARAMS})
+        cfg = RunConfig.from_params({name: g(name) for name in PARAMS})
+        self.cfg = cfg = dataclasses.replace(cfg, clocks=clocks_param(str(g("clocks"))))
         sc = cfg.scenario
         expected = [str(e) for e in g("nodes_expected") if e]
         if not expected:  # started alone: the team the launcher would name, no monitor
@@ -169,6 +177,14 @@ class LeaderNode(Node):
             self.clock_sub = self.create_subscription(Clock, ms.CLOCK, self._on_clock,
                                                       ms.CLOCK_QOS, raw=True)
             self.create_timer(RESEND_S / 8, self.core.start_again)
+        if cfg.clock_exchanges:
+            # the team's clock reference: robots that hear it and every bridge ask for its
+            # time (the ground station's machine clock, never emulated)
+            askers = [ms.robot_name(i + 1) for i in range(sc.n) if sc.graph.leader[i] > 0]
+            if cfg.mode == "wallclock":  # the bridges sample on the leader's clock
+                askers += [ms.bridge_name(i + 1) for i in range(sc.n)]
+            self.clocks = ClockExchange(self, ms.LEADER, cfg, node_clock(cfg, None), (),
+                                        askers, self.drops)
         self.config_pub.publish(ms.json_to_msg(cfg.to_json()))
         self._gate = self.create_timer(0.05, self.core.maybe_start)
         self.create_timer(5.0, self.core.report_wait)

@@ -84,8 +84,9 @@ def findings(rec: Recording) -> tuple[list[str], list[str]]:
 def delay_rows(rec: Recording) -> list[list[Any]]:
     """The rows of delays.csv (``formation_ilc.core.links.DELAY_COLUMNS``) of a recording."""
     if rec.config.get("links") == "direct":
-        return links.delay_rows(rec.delays, None, None)
-    return links.delay_rows(rec.delays, rec.injected, rec.scenario.uncertainty.delay.pmf())
+        return links.delay_rows(rec.delays, None, None, rec.clock_links)
+    return links.delay_rows(rec.delays, rec.injected, rec.scenario.uncertainty.delay.pmf(),
+                            rec.clock_links)
 
 
 def _plot_delays(rec: Recording, path: Path) -> Path | None:
@@ -115,6 +116,52 @@ def _plot_delays(rec: Recording, path: Path) -> Path | None:
         ax.axis("off")
     axes.flat[0].set_ylabel("fraction")
     axes.flat[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def plot_clocks(rec: Recording, path: Path) -> Path | None:
+    """Each link's clock estimate over the run (the receiver's estimate of the sender's
+    clock, with its uncertainty), and in an emulated run its error against the truth;
+    None when the recording holds no estimate (lockstep, or an older recording)."""
+    if not rec.clocks:
+        return None
+    from formation_ilc.recordings.plots import _plt
+
+    plt = _plt()
+    t0 = min(p.time_ns for p in rec.clocks)
+    series: dict[str, list[Any]] = {}
+    for p in rec.clocks:
+        series.setdefault(links.link_name(p.peer, p.node), []).append(p)
+    truth = any(np.isfinite(p.true_offset_ms) for p in rec.clocks)
+    fig, axes = plt.subplots(2 if truth else 1, 1, figsize=(8, 6 if truth else 3.5),
+                             squeeze=False)
+    top = axes[0, 0]
+    for name, pts in sorted(series.items()):
+        t = np.array([(p.time_ns - t0) / 1e9 for p in pts])
+        off = np.array([p.offset_ms for p in pts])
+        unc = np.array([p.uncertainty_ms for p in pts])
+        line = top.plot(t, off, ".-", ms=3, label=name)[0]
+        top.fill_between(t, off - unc, off + unc, color=line.get_color(), alpha=0.2)
+        if truth:
+            err = off - np.array([p.true_offset_ms for p in pts])
+            bottom = axes[1, 0]
+            bottom.plot(t, err, ".-", ms=3, color=line.get_color(), label=name)
+            bottom.fill_between(t, -unc, unc, color=line.get_color(), alpha=0.15)
+    top.set_ylabel("offset of the sender's clock [ms]")
+    top.set_title("clock estimates (shaded: the stated uncertainty)", fontsize=10)
+    top.legend(fontsize=7)
+    if truth:
+        bottom = axes[1, 0]
+        bottom.axhline(0.0, color="k", lw=0.5)
+        bottom.set_ylabel("estimate - truth [ms]")
+        lim = max(2.0, 1.2 * max(abs(p.offset_ms - p.true_offset_ms) for p in rec.clocks
+                                 if p.converged) if any(p.converged for p in rec.clocks)
+                  else 2.0)
+        bottom.set_ylim(-lim, lim)
+    axes[-1, 0].set_xlabel("time in the recording [s]")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -193,7 +240,7 @@ def _report(rec: Recording, src: Path, out: Path, figs: dict[str, Path | None],
                    f"{last[1]:.3g} m at trial {int(last[0])} (&times;{1 / ratio:.3g}); "
                    f"heading {first[2]:.3g} &rarr; {last[2]:.3g} rad.")
     per_link: dict[str, list[str]] = {}
-    for link, tau, meas, _inj, frac, prob in drows:
+    for link, tau, meas, _inj, frac, prob, *_ms in drows:
         model = "" if prob == "" else f"model {prob:.2f}, "
         per_link.setdefault(link, []).append(f"{tau}: {frac:.3f} ({model}n={meas})")
     delay_html = "".join(f"<li><b>{html.escape(a)}</b> &mdash; {'; '.join(b)}</li>"
@@ -218,6 +265,7 @@ delays {'on' if cfg.get('delay') else 'off'}; mode {html.escape(str(cfg.get('mod
 <h2>Formation</h2>{_img(figs.get('snapshots'))}{_img(figs.get('trajectories'))}
 <h2>Delays measured by the robots (eq. 11)</h2><ul>{delay_html or '<li>none</li>'}</ul>
 {_img(figs.get('delays'))}
+{'<h2>Clocks</h2>' + _img(figs['clocks']) if figs.get('clocks') else ''}
 </body></html>"""
     path = out / "report.html"
     path.write_text(page)
@@ -268,6 +316,7 @@ def analyze(src: Path | list[Path], out: Path, plots: bool = True) -> int:
         figs["snapshots"] = _plot_snapshots(rec, sorted({trials[0], trials[-1]}),
                                             out / "formation.png", edges)
         figs["delays"] = _plot_delays(rec, out / "delays.png")
+        figs["clocks"] = plot_clocks(rec, out / "clocks.png")
         rep = _report(rec, src, out, figs, drows)
         written += [f.name for f in figs.values() if f is not None] + [rep.name]
     k = len(m)

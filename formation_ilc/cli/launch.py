@@ -188,6 +188,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="with --live: the address to serve on (default 127.0.0.1, this "
                         "machine only; 0.0.0.0 serves every network)")
     add_host_arguments(p)
+    add_clock_arguments(p)
     from formation_ilc.cli import secure
 
     secure.add_arguments(p)
@@ -270,6 +271,29 @@ def add_safety_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--tilt-limit", type=positive_float, default=10.0, metavar="DEG",
                    help="with --plant physics: a robot tilted past this [deg] is treated "
                         "as a contact (default 10)")
+
+
+# --------------------------------------------------------------------------- clocks
+def add_clock_arguments(p: argparse.ArgumentParser) -> None:
+    from formation_ilc.config.clocks import FALLBACKS
+
+    g = p.add_argument_group("robots' clocks: realtime and wallclock runs "
+                             "(docs/distributed-stack.md, docs/real-robots.md)")
+    g.add_argument("--clock-offset-ms", type=nonneg_float, default=0.0, metavar="MS",
+                   help="emulate robots whose clocks disagree: robot i's clock (its robot "
+                        "node's and its bridge's) reads an offset drawn uniformly in "
+                        "[-MS, MS] from the run's seed (default 0: the machine's clock)")
+    g.add_argument("--clock-drift-ppm", type=nonneg_float, default=0.0, metavar="P",
+                   help="and runs a drift drawn uniformly in [-P, P] ppm fast (default 0)")
+    g.add_argument("--no-clock-sync", action="store_true",
+                   help="switch the clock estimator off: the robots still exchange stamps "
+                        "and measure each link's delay, but nothing estimates or corrects "
+                        "the clocks (the bridges sample on their own clocks, as before the "
+                        "estimator)")
+    g.add_argument("--clock-fallback", choices=FALLBACKS, default="estimate",
+                   help="what a bridge samples on before its estimate of the leader's "
+                        "clock has converged: estimate (default): the best estimate so "
+                        "far; own: the robot's own clock")
 
 
 # --------------------------------------------------------------------------- separate hosts
@@ -630,6 +654,10 @@ class _Session:
                   "continue": "going on"}.get(str(c.get("action")), "")
         print(f"contact: {str(c.get('line', ''))[:300]}: {action} ({node})", flush=True)
 
+    def on_clock(self, node: str, level: str, text: str) -> None:
+        """A node's clock event (a step, an estimate that does not converge), said once."""
+        print(f"{level.upper()}: {text[:500]}", flush=True)
+
     def _down(self, name: str, pid: int) -> None:
         """Tell the leader at once that a passive node died, so that no trial starts
         without it (the recorder: no trial unrecorded)."""
@@ -645,7 +673,7 @@ class _Session:
 
         signal.signal(signal.SIGTERM, on_term)
         self.host = LauncherHost(self.plan, self.on_trial, first=self.done,
-                                 on_contact=self.on_contact)
+                                 on_contact=self.on_contact, on_clock=self.on_clock)
         status = 0
         try:
             self.host.start()

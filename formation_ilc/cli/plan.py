@@ -16,8 +16,10 @@ from __future__ import annotations
 
 import argparse
 import functools
+import json
 import os
 import sys
+import time
 import uuid
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -27,9 +29,16 @@ from typing import Any
 
 from formation_ilc.cli.options import OptionError
 from formation_ilc.cli.secure import SecureRun
+from formation_ilc.config.clocks import ClockSettings
 from formation_ilc.config.plants import Plant, plant
 from formation_ilc.config.roster import Lineup, Member, Roster, Team, roster
-from formation_ilc.config.runconfig import RunConfig, make_config, param_text, scenario_reference
+from formation_ilc.config.runconfig import (
+    WALL_MODES,
+    RunConfig,
+    make_config,
+    param_text,
+    scenario_reference,
+)
 from formation_ilc.config.safety import SafetySettings, default_learning, default_margin
 from formation_ilc.config.scenario import Scenario, ScenarioError
 from formation_ilc.core.names import LEADER_NODE, NAMESPACE, namespace_remaps, robots_process_name
@@ -370,6 +379,7 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
     opts = effective_options(args)
     faults = _hosts_faults(opts)
     mode, links = _mode_and_links(opts, hosts=faults is not None)
+    clocks = _clocks(opts, mode)
     try:
         cfg = make_config(opts.scenario, seed=opts.seed, noise=not opts.no_noise,
                           delay=not opts.no_delay, trials=opts.trials, law=opts.law,
@@ -377,7 +387,7 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
                           timeout=opts.timeout, recorded=opts.record is not None,
                           links=links, run_id=opts.run_id,
                           headings=getattr(opts, "headings", None),
-                          time_scale=getattr(opts, "time_scale", None))
+                          time_scale=getattr(opts, "time_scale", None), clocks=clocks)
     except ScenarioError:
         raise
     except ValueError as exc:
@@ -420,7 +430,8 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
                            driver=bridge.driver, driver_ns=bridge.driver_ns, base=bridge.base,
                            fake_drivers=bridge.fake_drivers,
                            physics_bases=bridge.physics_bases)),
-                       sensing=None if safety is None else safety.sensing)
+                       sensing=None if safety is None else safety.sensing,
+                       clocks=cfg.clock_exchanges)
     plan = RunPlan(
         config=cfg, roster=roster(lineup), nodes=(), out=out, namespace=namespace, domain=domain,
         discovery=opts.discovery, plant=opts.plant, container=opts.container,
@@ -428,7 +439,8 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
         # bridges drive their robots back after the last trial too
         final_wait=3.0 + (bridge.return_timeout + 2.0 if bridge is not None else 0.0),
         plots=not opts.no_plots, resumed_at=resumed_at,
-        run_json=None if resumed_at is not None else _run_json(opts, mode, links, out),
+        run_json=None if resumed_at is not None else _run_json(opts, mode, links, out,
+                                                                clocks),
         init_memory=opts.init_memory, record=record, bridge=bridge,
         record_root=root.resolve() if root is not None else None,
         watchdog_scale=float(getattr(opts, "watchdog_scale", 1.0)),
@@ -904,12 +916,38 @@ def _resumed_at(out: Path, sc: Scenario) -> int:
     return done
 
 
-def _run_json(opts: argparse.Namespace, mode: str, links: str, out: Path) -> dict[str, Any]:
-    """The options ``--resume`` takes the run back with (paths as strings)."""
+def _run_json(opts: argparse.Namespace, mode: str, links: str, out: Path,
+              clocks: ClockSettings) -> dict[str, Any]:
+    """The options ``--resume`` takes the run back with (paths as strings; the emulated
+    clocks' origin, so that a resumed run's robots keep their clocks)."""
     d = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(opts).items()
          if k not in ("func", "command", "resume") and not k.endswith("_")}
     d.update(mode=mode, links=links, out=str(out))
+    if clocks.emulated:
+        d["clock_origin_ns"] = clocks.origin_ns
     return d
+
+
+def _clocks(opts: argparse.Namespace, mode: str) -> ClockSettings:
+    """The run's clock settings (``--clock-offset-ms --clock-drift-ppm --no-clock-sync
+    --clock-fallback``); NoRun for emulated clocks in lockstep, where no clock is read."""
+    offset = float(getattr(opts, "clock_offset_ms", 0.0) or 0.0)
+    drift = float(getattr(opts, "clock_drift_ppm", 0.0) or 0.0)
+    if (offset or drift) and mode not in WALL_MODES:
+        which = "--clock-offset-ms" if offset else "--clock-drift-ppm"
+        raise NoRun(f"argument {which}: emulated clocks need --mode realtime or wallclock "
+                    f"(in lockstep every node runs on the simulated clock and no robot's own "
+                    f"clock is read)")
+    origin = getattr(opts, "clock_origin_ns", None)
+    try:
+        return ClockSettings(sync=not getattr(opts, "no_clock_sync", False),
+                             fallback=getattr(opts, "clock_fallback", "estimate"),
+                             offset_ms=offset, drift_ppm=drift,
+                             origin_ns=int(origin) if isinstance(origin, int) and (
+                                 offset or drift) else (time.time_ns() if offset or drift
+                                                        else 0))
+    except ValueError as exc:
+        raise NoRun(f"argument --clock-offset-ms/--clock-drift-ppm: {exc}") from None
 
 
 def _live(opts: argparse.Namespace) -> tuple[str, int] | None:
@@ -1028,6 +1066,8 @@ def _launch(plan: RunPlan, m: Member, scenario: str, nsa: tuple[str, ...]) -> La
                   "nodes_expected": plan.team.expected}
         if plan.watchdog_scale != 1.0:
             leader["watchdog_scale"] = float(plan.watchdog_scale)
+        if cfg.clocks != ClockSettings():
+            leader["clocks"] = json.dumps(cfg.clocks.to_json())
         return (), nsa, tuple(leader.items())
     if m.role == "support":
         return (), nsa, ()

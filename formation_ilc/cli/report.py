@@ -20,7 +20,12 @@ import numpy as np
 from formation_ilc.cli.plan import RunPlan
 from formation_ilc.cli.supervisor import disk_full_line
 from formation_ilc.config.scenario import Scenario
-from formation_ilc.core.links import delay_rows, link_histograms, write_delays
+from formation_ilc.core.links import (
+    delay_rows,
+    link_clocks,
+    link_histograms,
+    write_delays,
+)
 from formation_ilc.core.names import SIM_NODE
 from formation_ilc.system.exits import DISK_FULL, is_disk_full
 
@@ -58,11 +63,35 @@ def summary_of(plan: RunPlan, rows: int, diagnostics: Mapping[str, Mapping[str, 
         summary["physics"] = {key: sim_diag.get(key) for key in PHYSICS_KEYS}
     if plan.init_memory is not None:
         summary["init_memory"] = str(plan.init_memory)
+    if cfg.clock_exchanges:
+        summary["clocks"] = clocks_summary(plan, diagnostics)
     if cfg.safety is not None:
         # the filter's settings, and what it changed over the run, by robot
         summary["safety"] = {**cfg.safety.to_json(), "filter_total": {
             r: diagnostics.get(r, {}).get("filter_total") for r in plan.team.robots}}
     return summary
+
+
+def clocks_summary(plan: RunPlan, diagnostics: Mapping[str, Mapping[str, Any]]
+                   ) -> dict[str, Any]:
+    """summary.json's ``clocks``: the settings, the emulated truth (each robot's clock: a
+    run can be scored), each link's last estimate and one-way delays, each bridge's
+    estimate of the leader's clock and the samples it took on it, and the warnings."""
+    cfg = plan.config
+    truth = cfg.clocks.truth(cfg.scenario.seed, cfg.scenario.n)
+    bridges = {}
+    for b in plan.team.plants if plan.bridged else ():
+        clock = diagnostics.get(b, {}).get("clock") or {}
+        bridges[b] = {**((clock.get("peers") or {}).get("leader") or {}),
+                      "sampled_on": clock.get("sampled_on", {}),
+                      **({"sample_lag_ms": clock["sample_lag_ms"]}
+                         if "sample_lag_ms" in clock else {})}
+    return {"settings": cfg.clocks.to_json(),
+            "truth": None if truth is None else {
+                n: c.to_json() for n, c in truth.items() if n.startswith("robot_")},
+            "links": link_clocks(diagnostics), "bridges": bridges,
+            "warn": {n: d["clock"]["warn"] for n, d in diagnostics.items()
+                     if isinstance(d.get("clock"), Mapping) and d["clock"].get("warn")}}
 
 
 def write_report(plan: RunPlan, rows: Sequence[Sequence[float]],
@@ -74,8 +103,9 @@ def write_report(plan: RunPlan, rows: Sequence[Sequence[float]],
     out = plan.out
     measured, injected = link_histograms(diagnostics)
     emulated = plan.config.links == "emulated"
+    clocks = link_clocks(diagnostics)
     dtab = delay_rows(measured, injected if emulated else None,
-                      plan.scenario.uncertainty.delay.pmf() if emulated else None)
+                      plan.scenario.uncertainty.delay.pmf() if emulated else None, clocks)
     summary = summary_of(plan, len(rows), diagnostics, restarts, seconds, startup)
     try:
         (out / "diagnostics.json").write_text(json.dumps(diagnostics, indent=2) + "\n")
@@ -157,6 +187,8 @@ def print_report(sc: Scenario, m: np.ndarray, dtab: list[list[Any]], summary: di
         print("true state: the plant publishes none; the true_ columns of metrics.csv are nan")
     if dtab:
         _print_delays(dtab, direct=summary.get("links") == "direct")
+    if summary.get("clocks"):
+        _print_clocks(summary["clocks"])
     drops = {n: sum(d.values()) for n, d in summary["dropped"].items() if sum(d.values())}
     if drops:
         print(f"dropped messages: {drops}")
@@ -180,7 +212,7 @@ def _print_delays(dtab: list[list[Any]], direct: bool) -> None:
     """The delay histogram of all links together (measured; injected and model too with
     emulated links), as fractions."""
     agg: dict[int, list[float]] = {}
-    for _link, tau, meas, inj, _, p in dtab:
+    for _link, tau, meas, inj, _, p, *_ms in dtab:
         a = agg.setdefault(tau, [0, 0, 0 if direct else p])
         a[0] += meas
         a[1] += 0 if direct else inj
@@ -192,3 +224,46 @@ def _print_delays(dtab: list[list[Any]], direct: bool) -> None:
     for tau, (meas, inj, p) in sorted(agg.items()):
         rest = "" if direct else f" {inj / tot:9.3f} {p:6.3f}"
         print(f"  {tau:4d} {meas / tot:9.3f}{rest}")
+
+
+def _ms(v: Any, fmt: str = "+.2f") -> str:
+    return format(v, fmt) if isinstance(v, (int, float)) else "?"
+
+
+def _print_clocks(clocks: Mapping[str, Any]) -> None:
+    """One line per link: the receiver's estimate of the sender's clock (and the truth in
+    an emulated run), the link's one-way delay as the clocks read it, corrected, true;
+    one per bridge: its estimate of the leader's clock and what it sampled on."""
+    est = clocks.get("settings", {}).get("sync", True)
+    print("clocks (the receiver's estimate of the sender's clock; one-way delays since it "
+          "converged):" if est else "clocks (estimator off, --no-clock-sync: one-way "
+                                    "delays as the clocks read them):")
+    for link, c in sorted((clocks.get("links") or {}).items()):
+        d = c.get("delay") or {}
+        line = f"  {link}:"
+        if est and "offset_ms" in c:
+            line += (f" offset {_ms(c['offset_ms'], '+.3f')} ms +- "
+                     f"{_ms(c.get('uncertainty_ms'), '.3f')}")
+            if "true_offset_ms" in c:
+                line += f" (true {_ms(c['true_offset_ms'], '+.3f')})"
+            line += f", drift {_ms(c.get('drift_ppm'), '+.1f')} ppm;"
+        line += f" delay measured {_ms(d.get('measured_ms'))} ms"
+        if "corrected_ms" in d:
+            line += f", corrected {_ms(d['corrected_ms'])} ms"
+        if "injected_ms" in d:
+            line += f", true {_ms(d['injected_ms'])} ms"
+        if "error_max_ms" in d:
+            line += f" (largest error {_ms(d['error_max_ms'], '.3f')} ms)"
+        print(line + f" [{d.get('n', 0)} answers]")
+    for b, c in sorted((clocks.get("bridges") or {}).items()):
+        print(f"  {b}: leader's clock offset {_ms(c.get('offset_ms'), '+.3f')} ms +- "
+              f"{_ms(c.get('uncertainty_ms'), '.3f')}"
+              + (f" (true {_ms(c['true_offset_ms'], '+.3f')})" if "true_offset_ms" in c
+                 else "")
+              + f", samples taken on: {c.get('sampled_on') or {}}"
+              + (f"; true time of its samples after the leader's instants: p50 "
+                 f"{_ms(c['sample_lag_ms'].get('p50'))} ms, "
+                 f"{_ms(c['sample_lag_ms'].get('min'))} .. "
+                 f"{_ms(c['sample_lag_ms'].get('max'))} ms" if "sample_lag_ms" in c else ""))
+    for node, warn in sorted((clocks.get("warn") or {}).items()):
+        print(f"  WARN {node}: {'; '.join(warn)}")

@@ -123,6 +123,10 @@ LEADER: tuple[Param, ...] = _LEADER_RUN + (
     Param("state_dir", "", "folder of the leader's schedule (leader.json); empty: none"),
     Param("watchdog_scale", 1.0, "every bound of the leader's watchdog times this",
           lo=1e-3, hi=1e6),
+    Param("clocks", "", "the clock estimator and emulated clocks of realtime and "
+          "wall-clock runs, broadcast in the run configuration: JSON of "
+          "formation_ilc.config.clocks.ClockSettings (sync, fallback, offset_ms, drift_ppm, "
+          "origin_ns); empty: the defaults (the estimator on, no emulation)"),
     Param("exit_when_done", False, "end the leader's process (status 0) once it has said "
           "done: a launch file stops the other nodes with it"),
 )
@@ -180,6 +184,9 @@ BRIDGE: tuple[Param, ...] = (
           "as timed out", "s", lo=1e-3, hi=1e6),
     Param("initial_pose", [0.0], "x, y, theta [m, m, rad] where the robot is placed; "
           "[0.0]: the scenario's desired start"),
+    Param("clock_wait", 10.0, "before trial 0: the longest wait, from the leader's first "
+          "clock answer, for the estimate of its clock to converge; then it samples on the "
+          "fallback", "s", lo=0.0, hi=1e6),
     replace(_RUN["scenario"], effective=_FROM_CONFIG),
     Param("mode", "wallclock", "how the plant keeps time (a bridge needs wallclock)",
           choices=MODES, effective=_FROM_CONFIG),

@@ -111,6 +111,9 @@ class Lineup:
     physics_bases : physics robots behind the bases' interface (the launcher starts them).
     sensing : the robots' safety filter, and how it hears the others ('team': the plant's
         ``team/poses``; 'peers': every other robot's pose), or None without a filter.
+    clocks : the clock exchanges of realtime and wall-clock runs (``protocol.timesync``):
+        each robot asks the clocks it hears (its in-neighbours', the leader's if it sees
+        it) and answers the robots that hear it; every bridge asks the leader's.
     """
 
     n: int
@@ -126,6 +129,7 @@ class Lineup:
     fake_drivers: bool = False
     physics_bases: bool = False
     sensing: str | None = None
+    clocks: bool = False
     adjacency: NDArray[np.float64] | None = field(default=None, compare=False)
     leader: NDArray[np.float64] | None = field(default=None, compare=False)
 
@@ -139,9 +143,10 @@ class Lineup:
     def for_keystore(self) -> Lineup:
         """Every member a run of this formation and plant may start, with every topic it
         may use: the link emulator, the recorder, the live view and the monitor too, and
-        the safety filter's hearing (a keystore serves every run)."""
+        the safety filter's hearing and the clock exchanges (a keystore serves every
+        run)."""
         return replace(self, links="emulated", record=True, live=True, monitor=True,
-                       sensing=self.row.sensing)
+                       sensing=self.row.sensing, clocks=True)
 
     @property
     def row(self) -> Plant:
@@ -272,12 +277,23 @@ def roster(lineup: Lineup) -> Roster:
             nm.LIVEVIEW_NODE, "liveview", "formation-ilc-liveview", NEVER, False,
             nm.LIVEVIEW_NODE, tuple(nm.view_topics(n)),
             (*nm.recorded_topics(n), *nm.view_topics(n), nm.PREVIEW), optional=True))
+    # the clocks' questions and answers (lineup.clocks): the leader answers the robots
+    # that see it and every bridge
+    leader_pub: list[str] = []
+    leader_sub: list[str] = []
+    if lineup.clocks:
+        leader_sub += [nm.clock_ping_topic(nm.robot_name(i)) for i in robots if hears[i - 1]]
+        if row.per_robot:
+            leader_sub += [nm.clock_ping_topic(nm.bridge_name(i)) for i in robots]
+        if leader_sub:
+            leader_pub.append(nm.clock_pong_topic(nm.LEADER))
     members.append(Member(
         nm.LEADER_NODE, "leader", "formation-ilc-leader", NEVER, False, nm.LEADER_NODE,
-        (nm.CONFIG, nm.REFERENCE, nm.TRIAL_EVENTS, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS),
+        (nm.CONFIG, nm.REFERENCE, nm.TRIAL_EVENTS, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS,
+         *leader_pub),
         # its own events too: it re-asserts against a start or abort it did not send (a
         # buggy node's, or a lossy link's replay)
-        (nm.READY, nm.CONFIG, nm.CLOCK, nm.TRIAL_EVENTS)))
+        (nm.READY, nm.CONFIG, nm.CLOCK, nm.TRIAL_EVENTS, *leader_sub)))
     members += _plant(lineup, row)
     if lineup.links == "emulated":
         links_pub = [nm.link_topic(i, nm.robot_name(j)) for i in robots
@@ -289,15 +305,19 @@ def roster(lineup: Lineup) -> Roster:
             # every robot's shared pose, the leaves' too
             (*(nm.shared_pose_topic(j) for j in robots), nm.REFERENCE, nm.TRIAL_EVENTS,
              nm.CONFIG, nm.CLOCK)))
+    hearers = [[i for i in robots if j in senders[i - 1]] for j in robots]
     for i in robots:
-        members.append(_robot(i, senders[i - 1], hears[i - 1], lineup))
+        members.append(_robot(i, senders[i - 1], hears[i - 1], lineup, hearers[i - 1]))
     return Roster(lineup, tuple(members))
 
 
-def _robot(i: int, senders: list[int], hears_leader: bool, lineup: Lineup) -> Member:
+def _robot(i: int, senders: list[int], hears_leader: bool, lineup: Lineup,
+           hearers: list[int]) -> Member:
     """Robot i (1-based): its own topics out; its pose, its links and its in-neighbours'
     shared poses and trajectories in (emulated and direct links both); with a safety filter
-    the others' poses too (the plant's ``team/poses``, or each other robot's pose)."""
+    the others' poses too (the plant's ``team/poses``, or each other robot's pose); with
+    the clock exchanges its questions to the clocks it hears (``senders``, the leader) and
+    its answers to the robots that hear it (``hearers``)."""
     sub = [nm.pose_topic(i), nm.CONFIG, nm.TRIAL_EVENTS]
     sub += [nm.link_topic(i, nm.robot_name(j)) for j in senders]
     sub += [nm.shared_pose_topic(j) for j in senders] + [nm.trajectory_topic(j)
@@ -309,6 +329,15 @@ def _robot(i: int, senders: list[int], hears_leader: bool, lineup: Lineup) -> Me
         sub.append(nm.TEAM_POSES)
     pub = [nm.cmd_vel_topic(i), nm.shared_pose_topic(i), nm.trajectory_topic(i), nm.READY,
            nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS]
+    if lineup.clocks:  # each node publishes on topics of its own name only
+        me = nm.robot_name(i)
+        asks = [nm.robot_name(j) for j in senders] + ([nm.LEADER] if hears_leader else [])
+        if asks:
+            pub.append(nm.clock_ping_topic(me))
+            sub += [nm.clock_pong_topic(a) for a in asks]
+        if hearers:
+            pub.append(nm.clock_pong_topic(me))
+            sub += [nm.clock_ping_topic(nm.robot_name(k)) for k in hearers]
     return Member(nm.robot_name(i), "robot", "formation-ilc-robot", TRIAL, True,
                   nm.robot_name(i), tuple(pub), tuple(sub), robot=i)
 
@@ -347,6 +376,9 @@ def _plant(lineup: Lineup, row: Plant) -> list[Member]:
         c, o, mo = f"{ns}/{cmd}", f"{ns}/{odom}", f"{ns}/{motors}"
         bridge_pub = [nm.pose_topic(i), nm.READY, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS, c]
         bridge_sub = [nm.cmd_vel_topic(i), nm.TRIAL_EVENTS, nm.CONFIG, o]
+        if lineup.clocks:  # it asks the leader's time
+            bridge_pub.append(nm.clock_ping_topic(nm.bridge_name(i)))
+            bridge_sub.append(nm.clock_pong_topic(nm.LEADER))
         driver_pub, driver_sub = [o], [c]
         if row.driver == "pioneer":
             driver_pub.append(f"{ns}/{nm.FAKE_DRIVER_NODE}/truth")

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from formation_ilc.config.clocks import ClockSettings
 from formation_ilc.config.safety import SafetySettings
 from formation_ilc.config.scenario import Scenario, load_scenario, scenario_from_text
 from formation_ilc.core.clock import Rejected, SampleClock, WallGrid
@@ -23,7 +24,7 @@ from formation_ilc.core.links import LINK_MODES
 from formation_ilc.core.names import MONITOR_NODE, RECORDER_NODE
 
 __all__ = ["RunConfig", "make_config", "MODES", "WALL_MODES", "PARAMS", "param_text",
-           "scenario_reference", "disagreement"]
+           "scenario_reference", "clocks_param", "disagreement"]
 
 MODES = ("lockstep", "realtime", "wallclock")
 #: modes in which the plant does not wait for commands (missed samples are held)
@@ -89,6 +90,8 @@ class RunConfig:
         configuration refuses another run's on the same domain and namespace.
     safety : the safety filter every robot's command goes through
         (``config.safety.SafetySettings``), or None: the learned command is sent as it is.
+    clocks : the clock exchanges of realtime and wall-clock runs, and emulated clocks
+        (``config.clocks.ClockSettings``).
     """
 
     scenario: Scenario
@@ -100,6 +103,7 @@ class RunConfig:
     run_id: str = ""
     recorded: bool = False
     safety: SafetySettings | None = None
+    clocks: ClockSettings = ClockSettings()
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -109,6 +113,17 @@ class RunConfig:
         if self.mode == "wallclock" and self.links != "direct":
             raise ValueError("mode wallclock needs links direct: the link emulator ticks on "
                              "/clock, which no node publishes in wall-clock trials")
+        if self.clocks.emulated and not self.wall:
+            raise ValueError("emulated clocks need mode realtime or wallclock: in lockstep "
+                             "every node runs on the simulated clock, and no robot's own "
+                             "clock is read")
+
+    @property
+    def clock_exchanges(self) -> bool:
+        """The robots and bridges exchange clock stamps with the nodes they hear:
+        realtime and wall-clock runs (in simulated time no node reads a clock). Whether
+        they estimate the clocks from them is ``clocks.sync``."""
+        return self.wall
 
     @property
     def wall(self) -> bool:
@@ -156,7 +171,8 @@ class RunConfig:
                 "links": self.links, "gap": self.gap, "monitored": self.monitored,
                 "recorded": self.recorded, "timeout": self.timeout, "run_id": self.run_id,
                 "headings": sc.headings, "time_scale": sc.time_scale,
-                "safety": None if self.safety is None else self.safety.to_json()}
+                "safety": None if self.safety is None else self.safety.to_json(),
+                "clocks": self.clocks.to_json()}
 
     @property
     def scenario_param(self) -> str:
@@ -182,7 +198,8 @@ class RunConfig:
     def to_params(self, scenario: str) -> dict[str, Any]:
         """The ROS parameters (PARAMS) of this configuration; ``scenario`` is the name or
         file its scenario was loaded from (``scenario_reference``). Every value is
-        explicit, so ``from_params`` gives this configuration back."""
+        explicit, so ``from_params`` gives this configuration back (but for ``clocks``:
+        the leader's own parameter of that name, ``clocks_param``)."""
         sc = self.scenario
         return {"scenario": scenario, "seed": sc.seed, "trials": sc.trials,
                 "law": sc.law.kind, "memory": sc.law.memory, **_switches(sc),
@@ -229,13 +246,29 @@ class RunConfig:
                                  headings=str(d.get("headings", sc.headings)),
                                  time_scale=float(d.get("time_scale", sc.time_scale)))
             safety = d.get("safety")
+            clocks = d.get("clocks")
             return cls(sc, str(d.get("mode", "lockstep")), int(d.get("gap", 20)),
                        bool(d.get("monitored", False)), float(d.get("timeout", 30.0)),
                        str(d.get("links", "emulated")), str(d.get("run_id", "")),
                        bool(d.get("recorded", False)),
-                       None if safety is None else SafetySettings.from_json(safety))
+                       None if safety is None else SafetySettings.from_json(safety),
+                       ClockSettings() if clocks is None else ClockSettings.from_json(clocks))
         except (KeyError, TypeError, ValueError) as exc:
             raise Rejected("malformed", f"bad run configuration: {exc}") from None
+
+
+def clocks_param(text: str) -> ClockSettings:
+    """The clock settings of the leader's ``clocks`` parameter (JSON of
+    ``config.clocks.ClockSettings``; empty: the defaults); ValueError naming what is
+    wrong. A parameter of the leader's beside PARAMS: a launch without clock options keeps
+    its command line."""
+    if not text:
+        return ClockSettings()
+    try:
+        return ClockSettings.from_json(json.loads(text))
+    except (ValueError, Rejected) as exc:
+        raise ValueError(f"parameter clocks: JSON of the clock settings "
+                         f"(formation_ilc.config.clocks), got {text[:80]!r}: {exc}") from None
 
 
 def disagreement(mine: dict[str, Any], theirs: dict[str, Any]) -> list[tuple[str, Any, Any]]:
@@ -255,9 +288,11 @@ def make_config(scenario: str, *, seed: int | None = None, noise: bool = True,
                 monitored: bool = False, timeout: float = 30.0,
                 links: str = "emulated", run_id: str = "", headings: str | None = None,
                 time_scale: float | None = None, recorded: bool = False,
-                safety: SafetySettings | None = None) -> RunConfig:
+                safety: SafetySettings | None = None,
+                clocks: ClockSettings | None = None) -> RunConfig:
     """The run configuration of a scenario name or file with command-line overrides."""
     sc = load_scenario(scenario).with_options(law=law, memory=memory, noise=noise,
                                               delay=delay, seed=seed, trials=trials,
                                               headings=headings, time_scale=time_scale)
-    return RunConfig(sc, mode, gap, monitored, timeout, links, run_id, recorded, safety)
+    return RunConfig(sc, mode, gap, monitored, timeout, links, run_id, recorded, safety,
+                     clocks or ClockSettings())

@@ -33,7 +33,7 @@ from formation_ilc.core.names import LEADER, robot_name, robot_number  # re-expo
 
 __all__ = ["LEADER", "LINK_MODES", "robot_name", "robot_number", "link_name",
            "delivered_label", "Delivery", "LinkInbox", "DELAY_COLUMNS", "link_histograms",
-           "delay_rows", "write_delays", "check_diagnostics"]
+           "delay_rows", "write_delays", "check_diagnostics", "link_clocks", "ONE_WAY"]
 
 #: sender name of the virtual leader's reference
 LINK_MODES = ("emulated", "direct")
@@ -154,9 +154,15 @@ class LinkInbox:
 
 #: delays.csv columns: per link and delay tau [samples], how often the receiver measured it
 #: (eq. 11), how often the link emulator injected it (empty with direct links: the network's
-#: delays are only known through the measurement), and the model's probability
+#: delays are only known through the measurement), and the model's probability; then, in
+#: realtime and wall-clock runs, the link's one-way delay [ms] as the receiver's clock
+#: exchanges measured it (``protocol.timesync``, the median since its estimate converged):
+#: as the two clocks read (``measured_ms``), corrected by the estimate (``corrected_ms``),
+#: and in an emulated run the true one (``injected_ms``), the same on each row of the link
 DELAY_COLUMNS = ("link", "tau", "measured", "injected", "measured_fraction",
-                 "model_probability")
+                 "model_probability", "measured_ms", "corrected_ms", "injected_ms")
+#: the per-link one-way delay columns, and the keys of a clock block's ``delay``
+ONE_WAY = ("measured_ms", "corrected_ms", "injected_ms")
 
 Histograms = dict[str, dict[int, int]]
 
@@ -184,7 +190,9 @@ def check_diagnostics(d: Mapping[str, Any]) -> dict[str, Any]:
     integer or integer counts, ``initial_shifts`` (x, y, theta) triples, ``watchdog`` (the
     leader's) an integer ``count`` and a text ``what``, ``filter`` (a robot's safety
     filter) integer counts with their ``slot``, ``contact_report`` (a plant with bodies)
-    its ``slot`` and a list of ``pairs``. Malformed naming
+    its ``slot`` and a list of ``pairs``, ``clock`` (clock estimates) a mapping of peers
+    and a list of texts ``warn``, ``clock_word`` a list of (level, text) ``events``.
+    Malformed naming
     the first field that is not; other fields pass as they are."""
     if not isinstance(d.get("node"), str):
         raise Malformed("diagnostics without a node name")
@@ -207,6 +215,16 @@ def check_diagnostics(d: Mapping[str, Any]) -> dict[str, Any]:
         # a plant with bodies: the slot of the trial and the pairs that touched in it
         "contact_report": lambda v: isinstance(v, dict) and _is_int(v.get("slot"))
         and isinstance(v.get("pairs"), list) and len(v["pairs"]) <= 10_000,
+        # clock estimates (protocol.timesync): per peer a mapping, the findings as texts
+        "clock": lambda v: isinstance(v, dict) and isinstance(v.get("peers", {}), dict)
+        and all(isinstance(p, dict) for p in v.get("peers", {}).values())
+        and isinstance(v.get("warn", []), list)
+        and all(isinstance(w, str) for w in v.get("warn", [])),
+        # a word between reports: the clock events to say, (level, text) pairs
+        "clock_word": lambda v: isinstance(v, dict) and isinstance(v.get("events"), list)
+        and len(v["events"]) <= 100 and all(
+            isinstance(e, list) and len(e) == 2 and all(isinstance(x, str) for x in e)
+            and len(e[1]) <= 2000 for e in v["events"]),
     }
     for key, ok in checks.items():
         if key in d and not ok(d[key]):
@@ -229,20 +247,39 @@ def link_histograms(diagnostics: Mapping[str, Mapping[str, Any]]
     return measured, injected
 
 
+def link_clocks(diagnostics: Mapping[str, Mapping[str, Any]]
+                ) -> dict[str, dict[str, Any]]:
+    """Each link's clock block (``protocol.timesync``) by link name: what the receiving
+    robot's last diagnostics say of the sender's clock (estimate, one-way ``delay``)."""
+    out: dict[str, dict[str, Any]] = {}
+    for node, d in diagnostics.items():
+        clock = d.get("clock")
+        if not isinstance(clock, Mapping) or not node.startswith("robot_"):
+            continue
+        for sender, block in (clock.get("peers") or {}).items():
+            if isinstance(block, Mapping):
+                out[link_name(sender, node)] = dict(block)
+    return out
+
+
 def delay_rows(measured: Histograms, injected: Histograms | None,
-               pmf: Mapping[int, float] | None) -> list[list[Any]]:
+               pmf: Mapping[int, float] | None,
+               clocks: Mapping[str, Mapping[str, Any]] | None = None) -> list[list[Any]]:
     """Rows of DELAY_COLUMNS for every link a robot measured. Direct links have no link
     emulator and no delay model: pass None for ``injected`` and ``pmf``, and those columns
-    are left empty."""
+    are left empty. ``clocks``: each link's clock block (``link_clocks``); its one-way
+    delays fill the last columns (empty where there is none)."""
     rows: list[list[Any]] = []
     for link in sorted(measured):
         hist = measured[link]
         inj = (injected or {}).get(link, {})
         total = sum(hist.values()) or 1
+        delay = (clocks or {}).get(link, {}).get("delay") or {}
+        one_way = [delay.get(k, "") for k in ONE_WAY]
         for tau in sorted({*hist, *inj, *(pmf or {})}):
             m = hist.get(tau, 0)
             rows.append([link, tau, m, "" if injected is None else inj.get(tau, 0),
-                         m / total, "" if pmf is None else pmf.get(tau, 0.0)])
+                         m / total, "" if pmf is None else pmf.get(tau, 0.0), *one_way])
     return rows
 
 

@@ -31,7 +31,8 @@ __all__ = ["NAMESPACE", "CLOCK", "LEADER_NODE", "SIM_NODE", "LINKS_NODE", "MONIT
            "CONFIG", "REFERENCE", "TRIAL_EVENTS", "READY", "DIAGNOSTICS", "ROS_DIAGNOSTICS",
            "LEADER",
            "WORLD_FRAME", "pose_topic", "cmd_vel_topic", "shared_pose_topic", "link_topic",
-           "trajectory_topic", "true_trajectory_topic", "absolute", "relative", "clock_topic",
+           "clock_ping_topic", "clock_pong_topic", "trajectory_topic", "true_trajectory_topic",
+           "absolute", "relative", "clock_topic",
            "recorded_topics", "MARKERS", "desired_pose_topic", "desired_path_topic",
            "tracking_error_topic", "trial_error_topic", "view_topics", "PREVIEW", "TEAM_POSES",
            # drivers
@@ -144,6 +145,19 @@ def shared_pose_topic(i: int) -> str:
 def link_topic(i: int, sender: str) -> str:
     """Emulated link ``sender -> robot_i``: one message per tick (0 or 1 pose)."""
     return f"{robot_name(i)}/links/{sender}"
+
+
+def clock_ping_topic(node: str) -> str:
+    """Node ``node``'s questions for the clocks it estimates (``robot_2``, ``bridge_2``):
+    sensor_msgs/TimeReference, each naming the clock it asks (``protocol.timesync``). Every
+    node publishes only topics of its own name: the enclaves' permissions say who asked."""
+    return f"{node}/clock/ping"
+
+
+def clock_pong_topic(node: str) -> str:
+    """Node ``node``'s answers to the questions for its clock (``robot_1``, ``leader``),
+    each naming the node that asked."""
+    return f"{node}/clock/pong"
 
 
 def trajectory_topic(i: int) -> str:

@@ -17,7 +17,7 @@ from collections.abc import Callable, Collection, Iterable
 from typing import Any, TypeVar
 
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -225,6 +225,8 @@ class Diagnostics:
         self.ros_pub = node.create_publisher(DiagnosticArray, ms.ROS_DIAGNOSTICS,
                                              ms.ROS_DIAGNOSTICS_QOS)
         self.statuses = [ms.starting_status(self.name, self.host, "running; no report yet")]
+        #: the standard statuses of the node's words between reports, by name
+        self.words: dict[str, list[DiagnosticStatus]] = {}
         node.create_timer(self.PERIOD, self.tick,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
 
@@ -233,10 +235,24 @@ class Diagnostics:
         self.statuses = ms.standard_statuses(msg, self.name, self.host)
         self.tick()
 
+    def word(self, msg: DiagnosticArray, writer: Any, task: str) -> None:
+        """A word between reports (a clock word: ``msg`` as ``diagnostics_to_msg`` makes
+        it) on ``writer``, a latched writer of its own (the report's keeps one message),
+        and on the standard stream as a status ``node: task`` beside the report's, with
+        the word's level (a clock warning is a WARN there at once, not at the trial's
+        end)."""
+        writer.publish(msg)
+        named = f"{self.name}: {task}"
+        own = ms.standard_statuses(msg, self.name, self.host)[:1]  # the node's own status
+        for st in own:
+            st.name = named
+        self.words[named] = own
+        self.tick()
+
     def tick(self) -> None:
         out = DiagnosticArray()
         out.header.stamp = self.node.get_clock().now().to_msg()
-        out.status = self.statuses
+        out.status = self.statuses + [st for sts in self.words.values() for st in sts]
         self.ros_pub.publish(out)
 
 

@@ -25,14 +25,17 @@ class LauncherHost:
     """rclpy, the monitor node and its executor for one run of ``plan``
     (``formation_ilc.cli.plan.RunPlan``); ``on_trial(k, row)`` gets each finished trial's
     metrics row (iterations from ``first``), ``on_contact(node, report)`` a plant's
-    contact the moment it is said."""
+    contact the moment it is said, ``on_clock(node, level, text)`` a node's clock event
+    (a clock step, an estimate that does not converge)."""
 
     def __init__(self, plan: Any, on_trial: Callable[[int, np.ndarray], None], first: int = 0,
-                 on_contact: Callable[[str, dict[str, Any]], None] | None = None):
+                 on_contact: Callable[[str, dict[str, Any]], None] | None = None,
+                 on_clock: Callable[[str, str, str], None] | None = None):
         self.plan = plan
         self.on_trial = on_trial
         self.first = first
         self.on_contact = on_contact
+        self.on_clock = on_clock
         self.monitor: Any = None
         self._down_pub: Any = None
         self._ex: Any = None
@@ -54,7 +57,7 @@ class LauncherHost:
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
         self.monitor = MonitorNode(plan.config, self.on_trial, true_state=plan.true_state,
                                    namespace=plan.namespace, first=self.first,
-                                   on_contact=self.on_contact)
+                                   on_contact=self.on_contact, on_clock=self.on_clock)
         self._down_pub = self.monitor.create_publisher(String, ms.READY, ms.LATCHED_QOS)
         self._ex = EventsExecutor()
         self._ex.add_node(self.monitor)

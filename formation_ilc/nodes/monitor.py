@@ -46,6 +46,7 @@ class MonitorNode(Node):
     def __init__(self, cfg: RunConfig, on_trial: Callable[[int, np.ndarray], None],
                  true_state: bool = True, first: int = 0,
                  on_contact: Callable[[str, dict[str, Any]], None] | None = None,
+                 on_clock: Callable[[str, str, str], None] | None = None,
                  **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(ms.MONITOR_NODE, **kwargs)
@@ -60,6 +61,10 @@ class MonitorNode(Node):
         self.slots = SlotRows(self.pb, true_state, first, safety=cfg.safety is not None)
         self.on_contact = on_contact
         self.contacts_seen: set[tuple[str, int, int]] = set()
+        #: a node's clock words (the last of each) and the events of them already said
+        self.on_clock = on_clock
+        self.clock_words: dict[str, dict[str, Any]] = {}
+        self.clock_seen: set[tuple[str, str]] = set()
         self.rows = self.slots.rows
         self.diagnostics: dict[str, dict[str, Any]] = {}
         self.events: list[dict[str, Any]] = []
@@ -157,6 +162,14 @@ class MonitorNode(Node):
             self.drops.reject(exc, ms.DIAGNOSTICS)
             return
         self.slots.note_diagnostics(d)
+        if "clock_word" in d:  # where a node's clock estimates are, between its reports
+            self.clock_words[name] = d
+            for level, text in d["clock_word"].get("events", []):
+                if (name, text) not in self.clock_seen:  # said once
+                    self.clock_seen.add((name, text))
+                    if self.on_clock is not None:
+                        self.on_clock(name, level, text)
+            return
         if "contact" in d and isinstance(d["contact"], dict):
             c = d["contact"]
             key = (name, int(d["trial"]), int(c.get("slot", -1)))

@@ -46,8 +46,22 @@ point-stabilisation law (formation_ilc.protocol.bridge.ReturnController): ``retu
 ``return_tol_heading`` [deg], ``return_timeout`` [s]. A timeout is logged and counted
 (``return_timeouts`` in diagnostics); the achieved initial shift (b_xi0 of Assumption 2,
 odometry-measured) goes into its ready message and diagnostics (``initial_shifts``).
-Ready for trial 0 once the driver's odometry arrives, the motors are enabled and the
-publishers are matched.
+Ready for trial 0 once the driver's odometry arrives, the motors are enabled, the
+publishers are matched and its estimate of the leader's clock has converged (at most
+``clock_wait`` s after the leader's first answer, default 10; then it samples on the
+fallback and says so; before any answer it does not wait).
+
+Clocks (realtime and wall-clock runs): the bridge asks the leader for its time
+(its questions on ``bridge_I/clock/ping``, the leader's answers on
+``leader/clock/pong``; ``formation_ilc.protocol.timesync``) and samples on the leader's
+clock as it estimates it: sample s is due when the leader's clock reads
+start_wall_ns + s * dT, whatever this robot's clock reads, so
+every robot of the team samples at the same instants without a synchronised network.
+Until the estimate has converged it samples on the run's fallback (``clocks.fallback``:
+the estimate so far, or the robot's own clock); with ``clocks.sync`` off (``--no-clock-
+sync``), on its own clock. Its diagnostics (``clock``) hold the estimate, its
+uncertainty and how many samples were taken on each (``sampled_on``). Commands to the
+driver are stamped with the robot's own clock (the driver's).
 
 What it obeys (the rest is dropped and counted in its diagnostics, with the reason): a
 ``start`` event only for the trial after the current one, once it said ready for it and is
@@ -67,8 +81,11 @@ import dataclasses
 import math
 import sys
 import time
+from collections import Counter
 from typing import Any
 
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist, TwistStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
@@ -78,6 +95,7 @@ import msgs_schema as ms
 from formation_ilc.config import params
 from formation_ilc.config.bases import LIMIT_KEYS, base_preset
 from formation_ilc.core.clock import Rejected
+from formation_ilc.nodes.clocks import ClockExchange, node_clock
 from formation_ilc.nodes.common import (
     ConfiguredNode,
     RunConfig,
@@ -188,6 +206,23 @@ class BridgeNode(ConfiguredNode):
                                              ms.DRIVER_CMD_QOS)
         self.create_subscription(Odometry, odom_t, self._on_odom, ms.ODOM_QOS)
         self._setup_motors(motors_t)
+        # the robot's clock (the machine's; in an emulated run its robot's), and the
+        # leader's as this bridge estimates it: samples are due on the team's time
+        self.wall = node_clock(cfg, self.id)
+        self.clocks: ClockExchange | None = None
+        self.sampled_on: Counter[str] = Counter()
+        # an emulated run's truth of this robot's clock: how far from the leader's instants
+        # (true time) each sample was taken, to score the run (the bridge never uses it)
+        self.truth = cfg.clocks.robot_clock(cfg.scenario.seed, self.id)
+        self.sample_lags: list[float] = []
+        self.clock_wait = float(self.get_parameter("clock_wait").value)
+        self._clock_t0: float | None = None  # when the leader's first answer was seen
+        if cfg.clock_exchanges:
+            # clock words on a writer of their own (the report's keeps one message)
+            self.word_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS,
+                                                  ms.LATCHED_QOS)
+            self.clocks = ClockExchange(self, self.name, cfg, self.wall, [ms.LEADER], (),
+                                        self.drops, on_report=self._clock_word)
         self._tick = self.create_timer(TICK, self._on_tick)
         self._gate = self.create_timer(0.05, self._check_ready)
         self.get_logger().info(f"{self.name}: driver {self.driver} ({cmd_t}, {odom_t}, "
@@ -249,8 +284,56 @@ class BridgeNode(ConfiguredNode):
             self.motors_on = True
             self.get_logger().info("motors enabled")
 
+    def _wall_ns(self) -> int:
+        """The robot's wall clock [ns]."""
+        return self.wall.now(time.time_ns())
+
+    def _team_ns(self) -> tuple[int, str]:
+        """The team's time (the leader's clock as this bridge estimates it) and how it was
+        had (``ClockSync.remote_time``: converged, estimate, own)."""
+        own = self._wall_ns()
+        if self.clocks is None or not self.cfg.clocks.sync:
+            return own, "own"
+        return self.clocks.sync.remote_time(ms.LEADER, own)
+
+    def _clock_settled(self) -> bool:
+        """Whether the bridge may say ready for trial 0 as far as its clock goes: its
+        estimate of the leader's clock converged, or ``clock_wait`` s passed since the
+        leader's first answer (then it samples on the fallback and says so once), or no
+        answer yet (no leader to wait for: it samples on the fallback until there is)."""
+        if self.clocks is None or not self.cfg.clocks.sync:
+            return True
+        if self._team_ns()[1] == "converged":
+            return True
+        first = self.clocks.sync.links[ms.LEADER].last_answer_ns
+        if first is None:
+            return True
+        if self._clock_t0 is None:
+            self._clock_t0 = time.monotonic()
+        if time.monotonic() - self._clock_t0 < self.clock_wait:
+            return False
+        if not getattr(self, "_fallback_said", False):
+            self._fallback_said = True
+            est = self.clocks.sync.estimate(ms.LEADER, self._wall_ns())
+            text = (f"{self.name}: the estimate of the leader's clock has not converged after "
+                    f"{self.clock_wait:g} s ({'no answer' if est is None else est.to_json()}): "
+                    f"sampling on the fallback ({self.cfg.clocks.fallback})")
+            self.get_logger().warning(text)
+            self._clock_word([["warn", text]])
+        return True
+
+    def _clock_word(self, events: list[list[str]] | None = None) -> None:
+        """Where this bridge's estimate of the leader's clock is, as a word on diagnostics
+        between its reports (``clock_word``)."""
+        assert self.clocks is not None
+        self.diag_pub.word(ms.diagnostics_to_msg(
+            {"node": self.name, "trial": self.core.iteration, "clock": self.clocks.report(),
+             "clock_word": {"events": events or []}},
+            self.get_clock().now().nanoseconds, self.cfg.scenario.dt,
+            self.cfg.scenario.samples, ms.robot_name(self.id)), self.word_pub, "clock")
+
     def _check_ready(self) -> None:
-        if self.core.odom is None or not self.motors_on:
+        if self.core.odom is None or not self.motors_on or not self._clock_settled():
             return
         if matched([(self.pose_pub, 1), (self.ready_pub, 1), (self.drv_pub, 1)]):
             self._gate.cancel()
@@ -271,7 +354,7 @@ class BridgeNode(ConfiguredNode):
         self.core.on_odom(pose, time.monotonic(), tilt)
 
     def _on_cmd(self, msg: Twist) -> None:
-        wall = time.time_ns()
+        wall = self._wall_ns()
         try:
             u = ms.twist_to_u(msg)
             cmd = self.core.on_cmd((float(u[0]), float(u[1])), time.monotonic(), wall)
@@ -283,17 +366,21 @@ class BridgeNode(ConfiguredNode):
     def _on_event(self, msg: String) -> None:
         core = self.core
         ev = self.take_event(msg, lambda ev: core.on_event(ev, time.monotonic(),
-                                                           time.time_ns()))
+                                                           self._team_ns()[0]))
         # an abort taken: the trial is dropped (the robot drives back, then says ready)
         if ev is not None and ev.event == ms.ABORT and core.answers_abort():
             self._say_ready(core.iteration + 1, "idle", core.shift())
 
     # ------------------------------------------------------------------ the tick
     def _on_tick(self) -> None:
-        wall = time.time_ns()
-        tick = self.core.tick(time.monotonic(), wall)
+        wall = self._wall_ns()
+        team, how = self._team_ns()
+        tick = self.core.tick(time.monotonic(), wall, team)
         if tick.sample is not None:
             ns, pose = tick.sample
+            self.sampled_on[how] += 1  # on the leader's time as estimated, or not
+            if self.truth is not None and len(self.sample_lags) < 100_000:
+                self.sample_lags.append((self.truth.true(wall) - ns) / 1e6)
             self.pose_pub.publish(ms.pose_to_msg(pose, ns, ms.WORLD_FRAME))
         if tick.returned is not None:
             self._returned(tick.returned)
@@ -325,7 +412,7 @@ class BridgeNode(ConfiguredNode):
         """Stop the robot on the way out (Ctrl-C, a failed run)."""
         if self.configured and hasattr(self, "drv_pub"):
             try:
-                self._send(self.core.stop(time.monotonic()), time.time_ns())
+                self._send(self.core.stop(time.monotonic()), self._wall_ns())
             except Exception:  # noqa: BLE001 - the context may already be shut down
                 pass
         super().destroy_node()
@@ -333,6 +420,15 @@ class BridgeNode(ConfiguredNode):
     def publish_diagnostics(self, trial: int) -> None:
         d: dict[str, Any] = {"node": self.name, "trial": trial, "driver": self.driver,
                              **self.core.report()}
+        if self.clocks is not None:
+            # the samples taken on the leader's time by a converged estimate, an estimate
+            # not yet converged, or the robot's own clock
+            d["clock"] = {**self.clocks.report(), "sampled_on": dict(self.sampled_on)}
+            if self.sample_lags:  # emulated: when, in true time, after the leader's instant
+                lag = np.array(self.sample_lags)
+                d["clock"]["sample_lag_ms"] = {
+                    "p50": round(float(np.median(lag)), 3), "min": round(float(lag.min()), 3),
+                    "max": round(float(lag.max()), 3), "n": int(lag.size)}
         d.update(self.drops.as_dict())
         self.diag_pub.publish(ms.diagnostics_to_msg(
             d, self.get_clock().now().nanoseconds, self.cfg.scenario.dt,

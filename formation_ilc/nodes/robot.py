@@ -56,6 +56,7 @@ import sys
 from collections import Counter
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist
 from nav_msgs.msg import Path
 from rclpy.node import Node
@@ -67,6 +68,7 @@ from formation_ilc.core.clock import Rejected
 from formation_ilc.core.links import LEADER
 from formation_ilc.model.safety import spec_of
 from formation_ilc.model.simulate import Problem
+from formation_ilc.nodes.clocks import ClockExchange, node_clock
 from formation_ilc.nodes.common import (
     ConfiguredNode,
     RunConfig,
@@ -190,8 +192,24 @@ class RobotNode(ConfiguredNode):
             self.create_subscription(Path, ms.trajectory_topic(ms.robot_index(sender)),
                                      lambda m, s=sender: self._on_trajectory(m, s),
                                      ms.TRAJECTORY_READER_QOS, raw=True)
+        self.clocks: ClockExchange | None = None
+        clock = node_clock(cfg, self.id)
+        if cfg.clock_exchanges:
+            # its clock words go out on a writer of their own: the report's writer keeps
+            # one message (latched), and a word sent just after a report would replace it
+            # before a reader that was behind had taken it
+            self.word_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS,
+                                                  ms.LATCHED_QOS)
+            # the clocks this robot hears (its in-neighbours', the leader's if it sees it),
+            # and its own for the robots that hear it (protocol.timesync)
+            self.clocks = ClockExchange(
+                self, self.name, cfg, clock,
+                [*lrn.neighbours, *([LEADER] if lrn.sees_leader else [])], self.out_names,
+                self.drops, on_event=self._clock_event, on_report=self._clock_word)
         if self.realtime:
-            self._deadline = self.create_timer(LINK_WAIT * cfg.scenario.dt, self._on_deadline)
+            # the wait runs on the robot's own clock (an emulated one runs fast or slow)
+            self._deadline = self.create_timer(LINK_WAIT * cfg.scenario.dt * clock.scale,
+                                               self._on_deadline)
             self._deadline.cancel()
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
         self._gate = self.create_timer(0.05, self._check_ready)
@@ -397,10 +415,29 @@ class RobotNode(ConfiguredNode):
         d = self.learner.diagnostics()
         if self.realtime:
             d["late"] = dict(self.late)
+        if self.clocks is not None:
+            d["clock"] = self.clocks.report()
         d.update(self.drops.as_dict())
-        self.diag_pub.publish(ms.diagnostics_to_msg(
+        self._publish(d, self.diag_pub)
+
+    def _publish(self, d: dict[str, Any], pub: Any) -> None:
+        pub.publish(ms.diagnostics_to_msg(
             d, self.get_clock().now().nanoseconds, self.cfg.scenario.dt, self.pb.samples,
             self.name))
+
+    def _clock_word(self, events: list[list[str]] | None = None) -> None:
+        """Where this robot's clock estimates are, as a word on diagnostics between its
+        reports (``clock_word``: the monitor prints its events, the recording keeps it)."""
+        assert self.clocks is not None
+        self.diag_pub.word(ms.diagnostics_to_msg(
+            {"node": self.name, "trial": self.learner.iterations - 1,
+             "clock": self.clocks.report(), "clock_word": {"events": events or []}},
+            self.get_clock().now().nanoseconds, self.cfg.scenario.dt, self.pb.samples,
+            self.name), self.word_pub, "clock")
+
+    def _clock_event(self, level: str, text: str) -> None:
+        if level == "warn":
+            self._clock_word([[level, text]])
 
 
 def main(args: list[str] | None = None) -> int:

@@ -251,11 +251,13 @@ class Bridge:
     2.5 dT). period : [s] the command is sent again at least this often (the driver's own
     watchdog). tol : return tolerances (position [m], heading [rad]) and timeout [s].
 
-    Times: ``now`` [s] on a monotonic clock, ``now_wall_ns`` [ns] on the (synchronised) wall
-    clock that the leader's agreed start refers to; a command sent at ``now_wall_ns`` is
-    stamped with it, and the acceleration limits hold on those stamps (a reader of
-    TwistStamped sees every change within a_max times the stamps' difference, whatever the
-    jitter of the caller).
+    Times: ``now`` [s] on a monotonic clock, ``now_wall_ns`` [ns] on the robot's wall
+    clock; a command sent at ``now_wall_ns`` is stamped with it, and the acceleration
+    limits hold on those stamps (a reader of TwistStamped sees every change within a_max
+    times the stamps' difference, whatever the jitter of the caller). ``team_ns`` [ns]:
+    the team's time, the leader's clock that the agreed start refers to, as this robot
+    estimates it (``protocol.timesync``); samples are due and starts checked on it (None:
+    the robot's wall clock is taken for it, as when the clocks are synchronised).
     """
 
     def __init__(self, cfg: RunConfig, robot: int, *, name: str, initial: Pose | None = None,
@@ -341,8 +343,8 @@ class Bridge:
     def on_event(self, ev: TrialEvent, now: float, now_wall_ns: int) -> TrialEvent | None:
         """The leader's event: the start or abort taken, or None (nothing to do); Rejected
         for a start the bridge must not obey (``schedule.Follower``, with its agreed
-        start checked against ``now_wall_ns``). An abort of the running trial stops the
-        sampling and drives the robot back."""
+        start checked against ``now_wall_ns``, the team's time). An abort of the running
+        trial stops the sampling and drives the robot back."""
         taken = self.follower.take(ev, idle=self.phase == IDLE, now_wall_ns=now_wall_ns)
         if taken is None:
             return None
@@ -368,12 +370,12 @@ class Bridge:
         self.follower.said_ready()
 
     # ------------------------------------------------------------------ the tick
-    def tick(self, now: float, now_wall_ns: int) -> BridgeTick:
-        """The control tick: the sample due on the wall clock, the return controller, the
-        watchdog, and the command sent again at least every ``period``."""
+    def tick(self, now: float, now_wall_ns: int, team_ns: int | None = None) -> BridgeTick:
+        """The control tick: the sample due on the team's time, the return controller,
+        the watchdog, and the command sent again at least every ``period``."""
         sample = None
         if self.phase == TRIAL and self.schedule is not None:
-            s = self.schedule.due(now_wall_ns)
+            s = self.schedule.due(now_wall_ns if team_ns is None else team_ns)
             if s is not None:
                 sample = self._sample(s, now)
         if self.phase == RETURN and self.returner is not None and self.odom is not None:

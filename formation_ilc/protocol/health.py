@@ -26,6 +26,9 @@ Thresholds (docs/ros-tools.md lists them for users):
   trial's report: WARN (the run acted on them).
 * commands the safety filter changed (a robot's ``filter``): OK, it is doing its work;
   a sample where no command in the limits kept every barrier (``infeasible``): WARN.
+* clocks (a robot's or a bridge's ``clock``, ``protocol.timesync``): an estimate not
+  converged 20 s after the first exchange, a clock that stepped, a peer silent for 10 s:
+  WARN.
 """
 
 from __future__ import annotations
@@ -209,6 +212,10 @@ def assess(d: Mapping[str, Any], dt: float | None = None, samples: int | None = 
     if isinstance(filt, Mapping) and _num(filt.get("infeasible")) > 0:
         found.append((WARN, f"safety filter: {_num(filt.get('infeasible')):g} samples braked "
                             f"(no command in the limits kept every barrier)"))
+    clock = d.get("clock")
+    warn = clock.get("warn") if isinstance(clock, Mapping) else None
+    if isinstance(warn, list) and warn:
+        found.append((WARN, f"clock: {'; '.join(str(w)[:100] for w in warn[:4])}"))
     if not found:
         return OK, "ok"
     level = max(lv for lv, _ in found)

@@ -17,7 +17,7 @@ import re
 import struct
 import sys
 from collections import Counter
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,7 +29,12 @@ from formation_ilc.config.runconfig import RunConfig
 from formation_ilc.config.scenario import Scenario
 from formation_ilc.core import names as ms
 from formation_ilc.core.clock import Malformed, Rejected
-from formation_ilc.core.links import check_diagnostics, delivered_label, link_histograms
+from formation_ilc.core.links import (
+    check_diagnostics,
+    delivered_label,
+    link_clocks,
+    link_histograms,
+)
 from formation_ilc.core.metrics import METRIC_COLUMNS
 from formation_ilc.model.simulate import Problem
 from formation_ilc.protocol import wire
@@ -179,6 +184,21 @@ class RecordingError(ValueError):
     """A file that holds no formation-ilc run (no readable run configuration)."""
 
 
+@dataclass(frozen=True)
+class ClockPoint:
+    """A node's estimate of a peer's clock as recorded: the recorder's time [ns], the node,
+    the peer, the offset and its uncertainty [ms], the emulation's truth [ms] (nan on
+    real machines), and whether it had converged."""
+
+    time_ns: int
+    node: str
+    peer: str
+    offset_ms: float
+    uncertainty_ms: float
+    true_offset_ms: float
+    converged: bool
+
+
 @dataclass
 class Recording:
     """What an analysis needs, read from one MCAP file.
@@ -219,6 +239,10 @@ class Recording:
     superseded: int = 0
     missing: list[int] = field(default_factory=list)
     ended: bool = False
+    #: every clock estimate the nodes said (realtime and wall-clock runs), in file order
+    clocks: list[ClockPoint] = field(default_factory=list)
+    #: each link's last clock block (``core.links.link_clocks``): delays.csv's one-way delays
+    clock_links: dict[str, dict[str, Any]] = field(default_factory=dict)
 
 
 def _path_outputs(data: bytes, ref_heading: NDArray[np.float64]
@@ -331,6 +355,7 @@ class _RunReader:
         self.eta: dict[int, NDArray[np.float64]] = {}
         self.xi: dict[int, NDArray[np.float64]] = {}
         self.diags: dict[str, dict[str, Any]] = {}
+        self.clocks: list[ClockPoint] = []
         self.events: list[dict[str, Any]] = []
         self.bad: Counter[str] = Counter()
         self.count = 0
@@ -418,7 +443,8 @@ class _RunReader:
             dg = check_diagnostics(node_report(read_statuses(wire.read_diagnostics(m.data)),
                                                ("node", "trial")))
             slots.note_diagnostics(dg)
-            if "contact" not in dg:  # a mid-trial word, not the node's report
+            self.note_clock(m.log_time, dg)
+            if "contact" not in dg and "clock_word" not in dg:  # a word, not the report
                 self.diags[dg["node"]] = dg
         elif m.topic in self.traj_topic:
             r, is_true = self.traj_topic[m.topic]
@@ -429,6 +455,20 @@ class _RunReader:
                                 f"run")
             self.true_seen = self.true_seen or is_true
             self.kept(slots.trajectory(k, r, is_true, eta))
+
+    def note_clock(self, log_time: int, dg: Mapping[str, Any]) -> None:
+        """Every estimate a node's diagnostics (its reports and its clock words) hold, at
+        the time the recorder took it: the estimates over time."""
+        clock = dg.get("clock")
+        if not isinstance(clock, Mapping) or not isinstance(clock.get("peers"), Mapping):
+            return
+        for peer, p in clock["peers"].items():
+            if isinstance(p, Mapping) and isinstance(p.get("offset_ms"), (int, float)):
+                self.clocks.append(ClockPoint(
+                    int(log_time), str(dg["node"]), str(peer), float(p["offset_ms"]),
+                    float(p.get("uncertainty_ms", float("nan"))),
+                    float(p.get("true_offset_ms", float("nan"))),
+                    bool(p.get("converged", False))))
 
     def dispatch(self, m: RawMessage) -> None:
         """``handle``, counting what it refuses: superseded, or skipped as undecodable."""
@@ -479,7 +519,8 @@ class _RunReader:
                                      if k not in rows],
                          messages=self.count, undecodable=dict(self.bad),
                          report=self.parts[0][1], parts=self.parts,
-                         superseded=self.superseded)
+                         superseded=self.superseded, clocks=self.clocks,
+                         clock_links=link_clocks(self.diags))
 
 
 def _same_run(part: Path, config: dict[str, Any], msg: RawMessage,

@@ -421,6 +421,35 @@ def test_the_callers_ros_domain_id_is_honoured(tmp_path, monkeypatch):
         plan_of(tmp_path, "paper-triangle3", "--trials", "2", out="d")
 
 
+def test_emulated_clocks_reach_the_leader_and_are_refused_in_lockstep(tmp_path):
+    """--clock-offset-ms / --clock-drift-ppm / --no-clock-sync / --clock-fallback: the
+    settings go to the leader (which broadcasts them in the configuration), with the
+    origin kept for --resume; without them the leader's command line is as before."""
+    plan = plan_of(tmp_path, "paper-triangle3", "--mode", "realtime", "--clock-offset-ms",
+                   "300", "--clock-drift-ppm", "100", "--clock-fallback", "own")
+    cs = plan.config.clocks
+    assert (cs.offset_ms, cs.drift_ppm, cs.fallback, cs.sync) == (300.0, 100.0, "own", True)
+    assert cs.origin_ns > 0 and plan.run_json is not None
+    assert plan.run_json["clock_origin_ns"] == cs.origin_ns
+    leader = params(plan.nodes[0])
+    assert json.loads(leader["clocks"]) == cs.to_json()
+    assert plan.roster.lineup.clocks  # the exchanges' topics are the robots' and leader's
+    plain = plan_of(tmp_path, "paper-triangle3", "--mode", "realtime", out="plain")
+    assert "clocks" not in params(plain.nodes[0]) and plain.config.clocks.sync
+    off = plan_of(tmp_path, "paper-triangle3", "--mode", "realtime", "--no-clock-sync",
+                  out="off")
+    assert json.loads(params(off.nodes[0])["clocks"])["sync"] is False
+    assert not plan_of(tmp_path, "paper-triangle3", out="lock").roster.lineup.clocks
+    exc = refusal(tmp_path, "paper-triangle3", "--clock-offset-ms", "300")
+    assert exc.status == 2 and exc.message.startswith(
+        "argument --clock-offset-ms: emulated clocks need --mode realtime or wallclock")
+    exc = refusal(tmp_path, "paper-triangle3", "--clock-drift-ppm", "5")
+    assert exc.message.startswith("argument --clock-drift-ppm:")
+    with pytest.raises(SystemExit) as e:
+        options("paper-triangle3", "--clock-offset-ms", "-3")
+    assert e.value.code == 2
+
+
 def test_live_without_foxglove_sdk_is_refused_before_anything_starts(tmp_path, monkeypatch):
     import importlib.util
 

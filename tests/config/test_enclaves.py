@@ -39,9 +39,14 @@ def grants():
 
 
 def test_robot_publishes_only_its_own_topics(grants):
+    # the clock exchanges (protocol.timesync): its questions if it hears a robot or the
+    # leader (all three do), its answers if a robot hears it (robots 1 and 2)
     for i in (1, 2, 3):
         g = grants[f"{NS}/robot_{i}"]
-        own = {f"{NS}/robot_{i}/{t}" for t in ("cmd_vel", "shared_pose", "trajectory")}
+        own = {f"{NS}/robot_{i}/{t}" for t in ("cmd_vel", "shared_pose", "trajectory",
+                                               "clock/ping")}
+        own |= {f"{NS}/robot_{i}/clock/pong"} if i in (1, 2) else set()
+        # the report and the standard stream (/diagnostics, absolute)
         assert set(g.publish) == own | {f"{NS}/ready", f"{NS}/diagnostics", "/diagnostics"}
         others = [t for t in g.publish if "/robot_" in t and f"/robot_{i}/" not in t]
         assert others == []
@@ -88,7 +93,7 @@ def test_recorder_and_monitor_publish_only_protocol_topics(grants):
     # and the recorder the view topics of its observer (desired poses, errors, markers)
     view = {f"{NS}/{t}" for t in view_topics(3)}
     assert set(grants[f"{NS}/recorder"].publish) == {f"{NS}/ready", f"{NS}/diagnostics",
-                                                       "/diagnostics", *view}
+                                                     "/diagnostics", *view}
     assert set(grants[f"{NS}/monitor"].publish) == {f"{NS}/ready"}
     assert f"{NS}/robot_3/cmd_vel" in grants[f"{NS}/recorder"].subscribe
 
@@ -108,11 +113,15 @@ def test_adding_a_robot_changes_only_the_grants_that_see_it(grants):
     assert set(bigger) - set(grants) == {f"{NS}/robot_4"}
     same = {p for p in grants if grants[p] == bigger[p]}
     assert same == {f"{NS}/virtual_leader"}
-    # the robots already there change only by reading robot 4's pose (their safety filter)
+    # the robots already there change only by reading robot 4's pose (their safety filter),
+    # and robot 3 by answering robot 4's clock questions (protocol.timesync)
     for i in (1, 2, 3):
-        extra = set(bigger[f"{NS}/robot_{i}"].subscribe) - set(grants[f"{NS}/robot_{i}"].subscribe)
-        assert extra == {f"{NS}/robot_4/pose"}
-        assert bigger[f"{NS}/robot_{i}"].publish == grants[f"{NS}/robot_{i}"].publish
+        old, new = grants[f"{NS}/robot_{i}"], bigger[f"{NS}/robot_{i}"]
+        asks = {f"{NS}/robot_4/clock/ping"} if i == 3 else set()
+        answers = {f"{NS}/robot_3/clock/pong"} if i == 3 else set()
+        assert set(new.subscribe) - set(old.subscribe) == {f"{NS}/robot_4/pose"} | asks
+        assert set(new.publish) - set(old.publish) == answers
+        assert set(old.publish) <= set(new.publish) and set(old.subscribe) <= set(new.subscribe)
 
 
 def test_pioneer_bridges_and_drivers(grants):

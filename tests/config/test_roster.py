@@ -13,7 +13,9 @@ simulator and the Pioneer drivers. Each answer must stay what it was: keystores 
 stay valid, launches start the same processes with the same command lines. The one
 difference is what the safety filter (added at 88c1f6a) reads and its grants never had:
 every other robot's pose and the plant's ``team/poses`` (as main granted them from
-77a8d24 on); those permissions are added, and only those.
+77a8d24 on); and the clock exchanges (``protocol.timesync``, issue 29): a node's own
+``clock/ping`` and ``clock/pong`` as the graph gives them, and the ones of the nodes it
+asks or answers. Those permissions are added, and only those.
 """
 
 from __future__ import annotations
@@ -81,8 +83,15 @@ def test_every_enclave_keeps_its_grant(key):
     # what the safety filter reads, granted now: the plant's team poses, or the peers' poses
     n = sc.n
     added: dict[str, tuple[set[str], set[str]]] = {}
+    clocks = _clock_grants(sc, namespace, bridges=plant == "pioneer")
     for path, g in got.items():
         name = path.rsplit("/", 1)[1]
+        # the clock exchanges (issue 29), granted now: exactly these, and only these
+        cpub = {t for t in g["publish"] if "/clock/p" in t}
+        csub = {t for t in g["subscribe"] if "/clock/p" in t}
+        assert (cpub, csub) == clocks.get(name, (set(), set())), name
+        g["publish"] = [t for t in g["publish"] if t not in cpub]
+        g["subscribe"] = [t for t in g["subscribe"] if t not in csub]
         pub = {t for t in g["publish"] if t == absolute(TEAM_POSES, namespace)}
         sub = {t for t in g["subscribe"] if t == absolute(TEAM_POSES, namespace)}
         if name.startswith("robot_") and name[6:].isdigit():
@@ -105,6 +114,39 @@ def test_every_enclave_keeps_its_grant(key):
                  if f"robot_{j}" != r} for r in robots}
     assert added == {**({"robot_sim": ({team}, set())} if plant == "sim" else {}),
                      **{r: (set(), {team} | peers[r]) for r in robots}}
+
+
+def _clock_grants(sc, namespace: str, bridges: bool) -> dict[str, tuple[set[str], set[str]]]:
+    """The clock exchanges' permissions by node, written out from the graph: every node
+    publishes on topics of its own name only. Robot i publishes its questions (if it hears
+    a robot, a_ij > 0, or the leader) and its answers (if a robot hears it) and reads the
+    answers of the clocks it asks and the questions of the robots that ask it; the leader
+    reads the questions of the robots that see it and of every bridge, and answers; a
+    bridge asks the leader."""
+    a, lead = sc.graph.adjacency, sc.graph.leader
+    n = sc.n
+
+    def t(name: str) -> str:
+        return absolute(name, namespace)
+
+    out: dict[str, tuple[set[str], set[str]]] = {}
+    for i in range(n):
+        me = f"robot_{i + 1}"
+        asks = [f"robot_{j + 1}" for j in range(n) if a[i, j] > 0] + (
+            ["leader"] if lead[i] > 0 else [])
+        hearers = [f"robot_{k + 1}" for k in range(n) if a[k, i] > 0]
+        pub = ({t(f"{me}/clock/ping")} if asks else set()) | (
+            {t(f"{me}/clock/pong")} if hearers else set())
+        sub = {t(f"{x}/clock/pong") for x in asks} | {t(f"{k}/clock/ping") for k in hearers}
+        out[me] = (pub, sub)
+    leader_sub = {t(f"robot_{i + 1}/clock/ping") for i in range(n) if lead[i] > 0}
+    if bridges:
+        leader_sub |= {t(f"bridge_{i + 1}/clock/ping") for i in range(n)}
+        for i in range(n):
+            out[f"bridge_{i + 1}"] = ({t(f"bridge_{i + 1}/clock/ping")},
+                                      {t("leader/clock/pong")})
+    out["virtual_leader"] = ({t("leader/clock/pong")}, leader_sub)
+    return out
 
 
 def _module(script: str) -> str:

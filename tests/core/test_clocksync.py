@@ -120,3 +120,105 @@ def test_emulated_clocks_are_seeded_and_invertible():
     t = 123_456_789_000
     assert abs(a.true(a.read(t)) - t) <= 1
     assert EmulatedClock.seeded(7, 2, 0.0, 0.0) == EmulatedClock()
+
+
+def exchanges4(local: EmulatedClock, remote: EmulatedClock, rng, seconds=40.0,
+               burst_s=3.0, start_ns=1_000 * MS):
+    """Exchanges as the nodes make them (``protocol.timesync``: 10 a second for the first
+    ``burst_s``, then 2): exponential jitter on each leg, a fifth of them queued up to
+    20 ms, and the answerer holding each question a while (t3 > t2). Yields (t1, t2, t3,
+    t4, true time of t4)."""
+    t = start_ns
+    while t < start_ns + seconds * 1e9:
+        legs = [0.1 + rng.exponential(0.3) + (rng.uniform(0, 20) if rng.random() < 0.2
+                                              else 0.0) for _ in range(2)]
+        held = 0.05 + rng.exponential(0.1)
+        t2 = t + int(legs[0] * MS)
+        t3 = t2 + int(held * MS)
+        t4 = t3 + int(legs[1] * MS)
+        yield local.read(t), remote.read(t2), remote.read(t3), local.read(t4), t4
+        t += int((0.1 if t - start_ns < burst_s * 1e9 else 0.5) * 1e9)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_the_bound_holds_from_the_first_exchange_on_through_drift(seed):
+    """300 ms and 100 ppm on each side: the stated uncertainty bounds the error at every
+    exchange, the first seconds (before a drift is fitted: the prior) included; converged
+    within 5 s; within 0.5 ms from then on."""
+    rng = np.random.default_rng(100 + seed)
+    origin = 1_795_000_000 * 10**9  # wall-clock times: the drift counts from the origin
+    local = EmulatedClock.seeded(seed, 1, 300.0, 100.0, origin)
+    remote = EmulatedClock.seeded(seed, 2, 300.0, 100.0, origin)
+    lc = LinkClock()
+    start = origin + 5 * 10**9
+    for t1, t2, t3, t4, true_t4 in exchanges4(local, remote, rng, start_ns=start):
+        assert lc.exchange(t1, t2, t4, t3)
+        est = lc.estimate(t4)
+        assert est is not None
+        truth = remote.read(true_t4) - local.read(true_t4)
+        assert abs(est.offset_ns - truth) <= est.uncertainty_ns, (true_t4 - start) / 1e9
+        if true_t4 - start > 5 * 10**9:
+            assert est.converged and abs(est.offset_ns - truth) < 0.5 * MS
+    assert abs(est.drift - (remote.drift - local.drift)) <= est.drift_uncertainty
+
+
+def test_the_time_an_answer_was_held_is_not_counted_as_round_trip():
+    """An answerer that holds every question 30 ms (a busy process): with t3 the round
+    trip is the network's (2 ms) and the estimate converges; taken as if t3 = t2 the
+    round trips are 32 ms and it cannot."""
+    local, remote = EmulatedClock(0), EmulatedClock(40 * MS)
+    with_t3, without = LinkClock(), LinkClock()
+    for k in range(20):
+        t1 = (1_000 + 100 * k) * MS
+        t2, t3, t4 = t1 + MS, t1 + 31 * MS, t1 + 32 * MS
+        with_t3.exchange(local.read(t1), remote.read(t2), local.read(t4), remote.read(t3))
+        without.exchange(local.read(t1), remote.read(t3), local.read(t4))
+    a, b = with_t3.estimate(t4), without.estimate(t4)
+    assert a is not None and b is not None
+    assert a.rtt_min_ns == 2 * MS and a.converged and abs(a.offset_ns - 40 * MS) < 0.01 * MS
+    assert b.rtt_min_ns == 32 * MS and not b.converged
+    assert not LinkClock().exchange(0, 10 * MS, 20 * MS, 5 * MS)  # answered before asked
+
+
+def test_an_emulated_clock_drifts_from_its_origin():
+    origin = 1_795_000_000 * 10**9
+    c = EmulatedClock(5 * MS, 1e-4, origin)
+    assert c.read(origin) == origin + 5 * MS
+    assert c.read(origin + 10 * 10**9) == origin + 10 * 10**9 + 5 * MS + MS  # 100 ppm of 10 s
+    assert c.offset_at(origin + 10 * 10**9) == 6 * MS
+    t = origin + 123_456_789_012
+    assert abs(c.true(c.read(t)) - t) <= 1
+    assert EmulatedClock.seeded(7, 2, 300.0, 100.0, origin).origin_ns == origin
+
+
+def test_a_jittery_path_keeps_its_error_small_and_its_bound_honest():
+    """Uniform 50-150 ms a leg (netns with --net-delay-ms 100 --net-jitter-ms 50): no
+    estimate can promise better than half the shortest round trip (about 50 ms), and it
+    says so; a drift fitted through such exchanges would say less than the prior, so the
+    prior's bound is kept, and the offset itself stays within a few ms."""
+    rng = np.random.default_rng(2)
+    local = EmulatedClock.seeded(2, 1, 300.0, 100.0)
+    remote = EmulatedClock.seeded(2, 2, 300.0, 100.0)
+    lc = LinkClock()
+    t = 1_000 * MS
+    for _ in range(80):
+        t2 = t + int(rng.uniform(50, 150) * MS)
+        t4 = t2 + int(rng.uniform(50, 150) * MS)
+        lc.exchange(local.read(t), remote.read(t2), local.read(t4))
+        est = lc.estimate(local.read(t4))
+        truth = remote.read(t4) - local.read(t4)
+        assert est is not None and abs(est.offset_ns - truth) <= est.uncertainty_ns
+        t += 500 * MS
+    assert not est.converged and est.uncertainty_ns > 45 * MS
+    assert abs(est.offset_ns - truth) < 10 * MS
+
+
+def test_convergence_is_judged_against_the_links_threshold():
+    lc = LinkClock(converged_ns=10 * MS)
+    for k in range(8):  # 6 ms legs, symmetric: bound 6 ms, error 0
+        t1 = (1_000 + 100 * k) * MS
+        lc.exchange(t1, t1 + 6 * MS + 40 * MS, t1 + 12 * MS)
+    est = lc.estimate(t1 + 12 * MS)
+    assert est is not None and est.converged and 5 * MS < est.uncertainty_ns < 10 * MS
+    with pytest.raises(ValueError):
+        LinkClock(converged_ns=0)

@@ -313,6 +313,8 @@ def test_fuzz_bridge_handlers(context):
                                      "start_wall_ns": time.time_ns() + 10**11}),
                  phase="idle", ready=True)
         @example(msg=ms.u_to_twist((0.2, 0.1)), phase="return", ready=True)
+        @example(msg=ms.json_to_msg({"event": "abort", "trial": 0, "seq": 0}),
+                 phase="idle", ready=False)  # answered at once: ready again, from odometry
         @given(msg=st.one_of(events, twists, st.builds(Odometry)), phase=st.sampled_from(
             ["idle", "trial", "return"]), ready=st.booleans())
         def prop(msg, phase, ready):
@@ -342,7 +344,69 @@ def test_fuzz_bridge_handlers(context):
                     taken = dropped(bridge) == before  # an end or done event: not for us
             assert taken != (dropped(bridge) == before + 1)
             seen(dropped(bridge) == before)
+        # the states prop sets (ready said for trial 0 or 1) come after the driver's
+        # odometry: a bridge says ready only once it has it, and an abort answered while
+        # idle says ready again from its odometry (the fuzzer's order decided before
+        # whether an Odometry came before the first abort)
+        bridge._on_odom(Odometry())
         prop()
         seen.check()
     finally:
         bridge.destroy_node()
+
+
+def test_fuzz_clock_question_and_answer_handlers(context):
+    """A robot's clock handlers (realtime: it asks robot 1's clock and answers nobody in
+    paper-triangle3, so robot 1 the asker of none and the answerer of robots 2 and 3):
+    whatever arrives, nothing escapes; an answer to one of its questions is taken, one
+    naming another node is passed over (or dropped, if it does not read as an answer),
+    and the rest is dropped and counted once."""
+    from sensor_msgs.msg import TimeReference
+
+    from formation_ilc.nodes.robot import RobotNode
+
+    params = [Parameter("robot_id", value=2), Parameter("scenario", value=SCENARIO),
+              Parameter("links", value="direct"), Parameter("mode", value="realtime"),
+              Parameter("noise", value=False), Parameter("seed", value=3)]
+    node = RobotNode(context=context, parameter_overrides=params)
+    seen = Outcomes()
+    names = st.sampled_from(["robot_2", "robot_3", "leader", "", "r\u00e9bot", "x" * 200])
+    frame = st.one_of(st.sampled_from(["", "-1", "0", "1" * 25, "abc"]),
+                      st.integers(0, 2**64).map(str))
+    stamp = st.tuples(st.integers(-2**31, 2**31 - 1), st.integers(0, 2**32 - 1))
+    try:
+        clocks = node.clocks
+        assert clocks is not None and clocks.sync.peers == ["robot_1"]
+
+        @FUZZ
+        @example(source="robot_2", seq="", t3=(0, 0), t2=(0, 0), asked=True)
+        @given(source=names, seq=frame, t3=stamp, t2=stamp, asked=st.booleans())
+        def prop(source, seq, t3, t2, asked):
+            if asked:  # the answer to a question asked 1 ms ago, held 0.1 ms
+                now = clocks.now()
+                clocks.sync.links["robot_1"].next_ns = 0
+                ((_, q),) = clocks.sync.questions(now - 1_000_000)
+                seq = str(q)
+                t2 = divmod(now - 500_000, 10**9)
+                t3 = divmod(now - 400_000, 10**9)
+            msg = TimeReference(source=source)
+            msg.header.frame_id = seq
+            msg.header.stamp.sec, msg.header.stamp.nanosec = t3
+            msg.time_ref.sec, msg.time_ref.nanosec = t2
+            before, answers = dropped(node), clocks.sync.links["robot_1"].answers
+            clocks._on_pong(msg, "robot_1")
+            taken = clocks.sync.links["robot_1"].answers == answers + 1
+            gone = dropped(node) - before
+            assert gone + taken <= 1
+            if source == "robot_2":  # for this robot: taken or dropped, once
+                assert gone + taken == 1
+            else:  # another node's answer is passed over, or dropped if it does not read
+                assert not taken
+            seen(taken)
+
+        prop()
+        seen.check()
+        # a question: robot 2 answers nobody here, so it reads no one's questions
+        assert clocks.pong_pub is None
+    finally:
+        node.destroy_node()

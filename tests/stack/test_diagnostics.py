@@ -150,6 +150,15 @@ def test_every_node_reports_and_a_stopped_robot_turns_warn(ros_env, tmp_path):
         assert not any(v.startswith('"') for v in values.values()), values
     robots = [st for _, st in standard[f"{ms.SIM_NODE}: robot_2"]]
     assert all(st.hardware_id == "robot_2" for st in robots)
+    # a realtime run's clock estimates, between the reports: each robot's ``robot_i:
+    # clock`` beside its learner's, with the estimate of every clock it hears
+    for i in (1, 2, 3):
+        got = standard.get(f"robot_{i}: clock")
+        assert got, (i, sorted(standard))
+        last = got[-1][1]
+        keys = {kv.key for kv in last.values}
+        assert last.hardware_id == f"robot_{i}", last
+        assert any(k.startswith("clock.peers.") for k in keys), keys
 
 
 def read_parameters(ex: Any, node: Any, name: str, names: list[str]) -> dict[str, Any]:

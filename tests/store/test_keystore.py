@@ -105,7 +105,8 @@ def test_a_robot_added_reissues_only_what_changed(ks):
     done = create(ks, four_robots())
     changed = {p for p, a in done.enclaves.items() if a != "unchanged"}
     # robot 4 reads robot 3; the plant, links, recorder, monitor and live view see robot 4,
-    # and robots 1 to 3 read its pose (their safety filters keep away from every robot)
+    # and robots 1 to 3 read its pose (their safety filters keep away from every robot;
+    # robot 3 also answers robot 4's clock questions)
     assert changed == {f"{NS}/robot_4", f"{NS}/robot_sim", f"{NS}/link_emulator",
                        f"{NS}/recorder", f"{NS}/monitor", f"{NS}/liveview",
                        f"{NS}/robot_1", f"{NS}/robot_2", f"{NS}/robot_3"}

@@ -1,0 +1,74 @@
+"""The clock exchanges on the wire (``formation_ilc.protocol.timesync``): questions and
+answers as sensor_msgs/TimeReference, the standard message for "another clock's time at
+this stamp".
+
+Each node publishes on topics of its own name only. A's question for B's clock, on
+``A/clock/ping`` (``clock_ping_topic``): ``header.stamp`` = t1 (A's clock when it sent it),
+``header.frame_id`` = the question's number, ``source`` = B (the clock asked). B's answer,
+on ``B/clock/pong`` (``clock_pong_topic``): ``header.stamp`` = t3 (B's clock when it
+answered), ``time_ref`` = t2 (B's clock when the question arrived), ``header.frame_id`` =
+the question's number, ``source`` = A (who asked). A node reads the questions of those
+allowed to ask it and the answers of the clocks it asks, and takes those naming it.
+
+Best effort: a lost question or answer is an exchange less; a repaired one would carry a
+round trip as long as the repair, which the estimate would only throw away.
+"""
+
+from __future__ import annotations
+
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import TimeReference
+
+from formation_ilc.core.clock import Malformed
+from msgs_schema.convert import ns_to_stamp, stamp_to_ns
+
+__all__ = ["CLOCK_SYNC_QOS", "ping_msg", "read_ping", "pong_msg", "read_pong",
+           "TIME_REFERENCE_TYPE"]
+
+TIME_REFERENCE_TYPE = "sensor_msgs/msg/TimeReference"
+CLOCK_SYNC_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=16,
+                            reliability=ReliabilityPolicy.BEST_EFFORT,
+                            durability=DurabilityPolicy.VOLATILE)
+#: the longest node name a question or answer may carry
+NAME_MAX = 100
+
+
+def ping_msg(seq: int, t1: int, asked: str) -> TimeReference:
+    """A question for ``asked``'s clock, sent at t1."""
+    msg = TimeReference(source=asked)
+    msg.header.frame_id = str(int(seq))
+    ns_to_stamp(t1, msg.header.stamp)
+    ns_to_stamp(t1, msg.time_ref)
+    return msg
+
+
+def pong_msg(seq: int, t2: int, t3: int, asker: str) -> TimeReference:
+    """The answer to ``asker``'s question ``seq``, taken at t2, answered at t3."""
+    msg = TimeReference(source=asker)
+    msg.header.frame_id = str(int(seq))
+    ns_to_stamp(t3, msg.header.stamp)
+    ns_to_stamp(t2, msg.time_ref)
+    return msg
+
+
+def _seq(msg: TimeReference) -> int:
+    text = msg.header.frame_id
+    if not (0 < len(text) <= 19 and text.isascii() and text.isdigit()):
+        raise Malformed(f"clock exchange number {text[:30]!r}")
+    return int(text)
+
+
+def _name(msg: TimeReference) -> str:
+    if not (0 < len(msg.source) <= NAME_MAX and msg.source.isascii()):
+        raise Malformed(f"clock exchange from {msg.source[:30]!r}")
+    return str(msg.source)
+
+
+def read_ping(msg: TimeReference) -> tuple[str, int, int]:
+    """(the clock asked, seq, t1); MalformedMessage if it is not a question."""
+    return _name(msg), _seq(msg), stamp_to_ns(msg.header.stamp)
+
+
+def read_pong(msg: TimeReference) -> tuple[str, int, int, int]:
+    """(who asked, seq, t2, t3); MalformedMessage if it is not an answer."""
+    return _name(msg), _seq(msg), stamp_to_ns(msg.time_ref), stamp_to_ns(msg.header.stamp)
