@@ -318,6 +318,7 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
 
     if plan.run_json is not None:
         _save_run(plan.out, plan.run_json)
+    _save_config(plan)
     if plan.secure is not None:
         plan.secure.write_profile()
     env = _node_env(plan)
@@ -393,9 +394,20 @@ def _save_run(out: Path, options: Any) -> None:
     save_run(out, d)
 
 
+def _save_config(plan: RunPlan) -> None:
+    """DIR/config.json: the run configuration (scenario text, options, run id), written
+    atomically at each launch of the run."""
+    import json
+
+    from formation_ilc.store.atomic import atomic_write_text
+    from formation_ilc.store.runfile import CONFIG_FILE
+
+    atomic_write_text(plan.out / CONFIG_FILE, json.dumps(plan.config.to_json()) + "\n")
+
+
 def _node_env(plan: RunPlan) -> dict[str, str]:
     """The environment of every node process: this one's, on the plan's domain."""
-    from formation_ilc.nodes.common import RUN_ENV
+    from formation_ilc.nodes.common import KEY_ENV, RUN_ENV
     from formation_ilc.system.lifetime import PARENT_ENV
 
     env = dict(os.environ)
@@ -405,6 +417,9 @@ def _node_env(plan: RunPlan) -> dict[str, str]:
     env["PYTHONUNBUFFERED"] = "1"
     env[PARENT_ENV] = str(os.getpid())  # every node ends with this launcher
     env[RUN_ENV] = plan.config.run_id  # and takes only this run's configuration
+    env.pop(KEY_ENV, None)
+    if plan.key is not None:  # and only the events this run's leader sealed
+        env[KEY_ENV] = plan.key.hex()
     return env
 
 

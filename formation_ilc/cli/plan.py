@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import functools
 import os
+import secrets
 import sys
 import uuid
 from collections.abc import Mapping, Sequence
@@ -33,7 +34,7 @@ from formation_ilc.config.runconfig import RunConfig, make_config, param_text, s
 from formation_ilc.config.safety import SafetySettings, default_learning, default_margin
 from formation_ilc.config.scenario import Scenario, ScenarioError
 from formation_ilc.core.names import NAMESPACE, namespace_remaps, robots_process_name
-from formation_ilc.protocol.schedule import DONE
+from formation_ilc.protocol.schedule import DONE, KEY_BYTES
 from formation_ilc.system.exits import NO_RESTART as EXIT_NO_RESTART
 from formation_ilc.system.netns import LinkFaults
 
@@ -275,6 +276,9 @@ class RunPlan:
     #: the batch simulator predicted no contact in this run's trials (a plant with bodies):
     #: the report warns if the plant saw one all the same
     predicted_clear: bool = False
+    #: the run key the leader seals its events with (``protocol.schedule.seal``), given to
+    #: every process this launch starts; a new one for each launch, kept nowhere
+    key: bytes | None = None
 
     @property
     def scenario(self) -> Scenario:
@@ -402,7 +406,8 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
         hosts=None if faults is None else HostsPlan(faults, opts.dds_profile or "lossy",
                                                     sc.seed),
         predicted_clear=any(n.startswith("the batch simulator predicts no contact")
-                            for n in notes))
+                            for n in notes),
+        key=secrets.token_bytes(KEY_BYTES))
     # the processes follow from the rest of the plan
     return _secured(replace(plan, nodes=node_specs(plan, scenario_reference(opts.scenario))),
                     getattr(opts, "secure", None))

@@ -29,11 +29,12 @@ from formation_ilc.config.runconfig import RunConfig, make_config
 from formation_ilc.core.clock import REASONS, Rejected
 from formation_ilc.core.uncertainty import Uncertainty
 from formation_ilc.model.simulate import Problem
-from formation_ilc.protocol.schedule import Follower, Ready, TrialEvent
+from formation_ilc.protocol.schedule import Follower, Ready, TrialEvent, parse_key
 from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, is_disk_full
 from formation_ilc.system.lifetime import PARENT_ENV, bound_the_stop, die_with_parent, parent_gone
 
-__all__ = ["PARENT_ENV", "DROP_REASONS", "DropCounter", "RunConfig", "make_config",
+__all__ = ["PARENT_ENV", "RUN_ENV", "KEY_ENV", "run_key", "DROP_REASONS", "DropCounter",
+           "RunConfig", "make_config",
            "config_from_msg", "ConfiguredNode", "warm_up", "warm_up_draws", "matched", "unmatched",
            "readers_wanting", "fail",
            "spin_main", "node_parser", "ros_param", "robot_node_from_args"]
@@ -42,6 +43,17 @@ R = TypeVar("R")
 
 #: environment variable with the run a launcher started this node for (its run_id)
 RUN_ENV = "FORMATION_ILC_RUN_ID"
+#: environment variable with the key the run's leader seals its events with (hex): the
+#: launcher gives it to every process it starts (``protocol.schedule.seal``)
+KEY_ENV = "FORMATION_ILC_RUN_KEY"
+
+
+def run_key() -> bytes | None:
+    """This process's run key (``KEY_ENV``), None without one; ValueError if unreadable."""
+    try:
+        return parse_key(os.environ.get(KEY_ENV))
+    except ValueError as exc:
+        raise ValueError(f"{KEY_ENV}: {exc}") from None
 
 #: reasons a message is dropped (the diagnostics counters)
 DROP_REASONS = REASONS
@@ -90,8 +102,10 @@ class ConfiguredNode(Node):
         self.configured = False
         #: this process's identity in ``ready`` (a new one tells the leader it restarted)
         self.boot = uuid.uuid4().hex[:12]
+        #: the run key: only events the run's leader sealed with it are taken
+        self.key = run_key()
         #: what this node takes of the leader's events (its core's, once configured)
-        self.follower = Follower(self.run_id)
+        self.follower = Follower(self.run_id, key=self.key)
 
     def ready_msg(self, trial: int, passive: bool = False, abort_slot: int = -1,
                   why: str = "") -> String:
@@ -126,6 +140,7 @@ class ConfiguredNode(Node):
                 self.configure(cfg)
             except ValueError as exc:  # a configuration this node cannot run
                 fail(self, str(exc), code=2)
+            self.follower.key = self.key  # its core's follower takes sealed events only
         else:
             self._cfg_sub = self.create_subscription(String, ms.CONFIG, self._on_config,
                                                      ms.LATCHED_QOS)

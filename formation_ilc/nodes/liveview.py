@@ -49,7 +49,7 @@ from std_msgs.msg import String
 import msgs_schema as ms
 from formation_ilc.core.clock import Rejected
 from formation_ilc.core.names import LIVEVIEW_NODE
-from formation_ilc.nodes.common import DropCounter, RunConfig, node_parser, spin_main
+from formation_ilc.nodes.common import DropCounter, RunConfig, node_parser, run_key, spin_main
 from formation_ilc.nodes.observer import Observer, msg_class
 from formation_ilc.recordings.mcap_io import message_definition
 
@@ -277,7 +277,8 @@ class LiveViewNode(Node):
         if self.observe or self.sampled:
             # with a recorder (which publishes the view topics on DDS) only to the viewers
             self.observer = Observer(self if self.observe else None, self.cfg,
-                                     self._view_sink, gate=self._take, sampled=self.sampled)
+                                     self._view_sink, gate=self._take, sampled=self.sampled,
+                                     key=run_key())
         self.server = self.start_server(_Viewers(self))
         self.get_logger().info(f"serving {len(self.channels)} topics on port "
                                f"{self.server.port}")
