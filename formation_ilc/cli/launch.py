@@ -402,7 +402,8 @@ def _save_config(plan: RunPlan) -> None:
     from formation_ilc.store.atomic import atomic_write_text
     from formation_ilc.store.runfile import CONFIG_FILE
 
-    atomic_write_text(plan.out / CONFIG_FILE, json.dumps(plan.config.to_json()) + "\n")
+    atomic_write_text(plan.out / CONFIG_FILE, json.dumps(
+        plan.config.to_json() | {"namespace": plan.namespace}) + "\n")
 
 
 def _node_env(plan: RunPlan) -> dict[str, str]:

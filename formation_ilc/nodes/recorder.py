@@ -32,7 +32,6 @@ trial the desired paths and the largest errors (``msgs_schema.view_topic_table``
 from __future__ import annotations
 
 import importlib
-import json
 import os
 import struct
 import sys
@@ -49,12 +48,12 @@ from std_msgs.msg import String
 import msgs_schema as ms
 from formation_ilc.core.clock import Rejected
 from formation_ilc.core.links import check_diagnostics
-from formation_ilc.nodes.common import DropCounter, RunConfig, node_parser, spin_main
+from formation_ilc.nodes.common import DropCounter, RunConfig, node_parser, run_key, spin_main
 from formation_ilc.nodes.observer import Observer
 from formation_ilc.nodes.params import declare
-from formation_ilc.protocol.schedule import Ready, TrialEvent
+from formation_ilc.protocol.schedule import Ready, TrialEvent, sealed
 from formation_ilc.recordings.mcap_io import CHUNK_BYTES, RosMcapWriter, type_hash
-from formation_ilc.recordings.recording import META_NAME, qos_of
+from formation_ilc.recordings.recording import CHANNEL_META, META_NAME, qos_of, run_metadata
 from formation_ilc.system.exits import is_disk_full
 
 #: types whose CDR starts with a header stamp (int32 sec, uint32 nanosec) right after the
@@ -83,6 +82,8 @@ class RecorderNode(Node):
         self.output = Path(output)
         #: this process in its ready (the launcher's ``down`` names it by its pid)
         self.boot = f"{os.getpid()}"
+        #: the run key: events it did not seal are recorded, never counted
+        self.key = run_key()
         self.writer = RosMcapWriter(self.output, flush_period=0.5, chunk_size=int(
             os.environ.get("FORMATION_ILC_RECORDER_CHUNK_BYTES", CHUNK_BYTES)))
         self.drops = DropCounter(self)      # not counted toward progress (still recorded)
@@ -131,22 +132,40 @@ class RecorderNode(Node):
             _msg_class(type_name), topic, lambda data, t=topic: self._on(t, data), reader_qos,
             raw=True)
 
-    def _channel(self, topic: str) -> str:
+    def _channel(self, topic: str, extra: dict[str, str] | None = None) -> str:
         """The channel of a topic, by its full name (namespace and remappings resolved),
-        with the offered QoS and type hash of the writer, as rosbag2 records them."""
+        with the offered QoS and type hash of the writer, as rosbag2 records them (and
+        ``extra`` metadata)."""
         name = self.resolve_topic_name(topic)
         info = self.get_publishers_info_by_topic(name)
         qos = info[0].qos_profile if info else self.qos[topic]
         type_hash = str(info[0].topic_type_hash) if info else ""
-        self.writer.channel(name, self.types[topic], qos_of(qos), type_hash)
+        self.writer.channel(name, self.types[topic], qos_of(qos), type_hash, extra)
         self.names[topic] = name
         return name
+
+    def _run_meta(self, data: bytes) -> dict[str, str]:
+        """What an analysis cannot do without, from the run configuration's message (its
+        JSON, its topic, the run key of the events), or {} for one that does not read."""
+        try:
+            conf = ms.msg_to_json(ms.deserialize(data, String))
+            RunConfig.from_json(conf)
+        except (Rejected, ValueError):
+            return {}
+        meta = run_metadata(conf, self.resolve_topic_name(ms.CONFIG), self.key)
+        return {CHANNEL_META + k: v for k, v in meta.items() if k != "topic"}
 
     def _on(self, topic: str, data: bytes) -> None:
         now = time.time_ns()
         try:
             sent = self._publish_time(topic, data, now)
-            self.writer.write(self.names.get(topic) or self._channel(topic), data, now, sent)
+            name = self.names.get(topic)
+            if name is None:
+                # the configuration's channel carries the configuration itself too: its
+                # copies outside the chunks and in the summary keep it when a chunk is lost
+                name = self._channel(topic, self._run_meta(data) if topic == ms.CONFIG
+                                     else None)
+            self.writer.write(name, data, now, sent)
         except Exception as exc:  # noqa: BLE001 - a recorder must outlive any one message
             if is_disk_full(exc):
                 raise  # not one message: nothing more can be recorded (spin_main says so)
@@ -233,6 +252,9 @@ class RecorderNode(Node):
                                                      ("event", "trial")))
             if ev.run and self.cfg.run_id and ev.run != self.cfg.run_id:
                 raise Rejected("foreign", f"event of run {ev.run}")
+            if not sealed(ev, self.key):
+                raise Rejected("foreign", f"{ev.event} of slot {ev.slot} not sealed by this "
+                                          f"run's leader")
             if ev.event == ms.START:
                 self.started = max(self.started, ev.slot)
                 self.iteration_of[ev.slot] = ev.trial
@@ -308,7 +330,9 @@ class RecorderNode(Node):
             self.drops.reject(exc, ms.CONFIG)
             self.get_logger().error(f"bad run configuration, recording it as is: {exc}")
             return
-        self.writer.metadata(META_NAME, {"config": json.dumps(conf)})
+        # kept: written now, after the first chunk, every REPEAT_BYTES and at the end
+        self.writer.keep(META_NAME, run_metadata(conf, self.resolve_topic_name(ms.CONFIG),
+                                                 self.key))
         n = self.cfg.scenario.n
         for topic, type_name, qos in ms.topic_table(n):
             self._subscribe(topic, type_name, qos)
@@ -321,7 +345,7 @@ class RecorderNode(Node):
         if self.observe:
             for topic, type_name, qos in ms.view_topic_table(n):
                 self.types[topic], self.qos[topic] = type_name, qos
-            self.observer = Observer(self, self.cfg, self._write_view)
+            self.observer = Observer(self, self.cfg, self._write_view, key=self.key)
 
     def _check_ready(self) -> None:
         if self.cfg is None or self.said_ready:

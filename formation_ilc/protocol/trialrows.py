@@ -206,25 +206,43 @@ class SlotRows:
         (``schedule.StartRepeat``); no news, and no refusal."""
         return is_repeat(ev, self.started, self.start_seq)
 
-    def infer(self) -> list[Row]:
+    def infer(self, identity: range | None = None) -> list[Row]:
         """For a recording: the iteration of a slot whose start event is not in the file (a
-        recorder killed just as it began), from its neighbours. Slots run one after the
-        other and each either commits or is aborted, so slot s runs the iteration of slot
-        s-1, plus one unless s-1 was aborted. That is taken only when the slot after s (or
-        the run's ``done``) confirms it by running the next iteration; when it runs the
-        same one, s was aborted and its trajectories are dropped. Returns the rows made."""
+        recorder killed just as it began, a damaged chunk), from the slots around it.
+        Slots run one after the other and each either commits or is aborted, so from the
+        nearest slot before it with a known iteration (l) to the nearest one after it (u,
+        or the run's ``done``) the iteration rises by one for each slot that committed.
+        When it rose by one for every slot between whose abort the file does not show,
+        they all committed, and slot s ran l's iteration plus the commits from l to s;
+        when it rose by one less and s is the only such slot, s was aborted and its
+        trajectories are dropped. Otherwise s is left unknown. ``identity``: the slots of
+        a batch simulation's recording (its trials), each of which ran the iteration of
+        its own number. Returns the rows made."""
         known = dict(self.iteration_of)
         if self.done_at is not None:
             known.setdefault(*self.done_at)
         done: list[Row] = []
         for s in sorted(set(self.eta) | set(self.xi)):
-            if s in self.iteration_of or s - 1 not in self.iteration_of or s + 1 not in known:
+            if s in self.iteration_of or s in self.aborted:
                 continue
-            guess = self.iteration_of[s - 1] + (0 if s - 1 in self.aborted else 1)
-            if known[s + 1] == guess + 1:
-                self.iteration_of[s] = guess
+            if identity is not None:
+                if s in identity:
+                    self.iteration_of[s] = s
+                    done += self._complete(s)
+                continue
+            lower = [q for q in self.iteration_of if q < s]
+            upper = [q for q in known if q > s]
+            if not lower or not upper:
+                continue
+            lo, hi = max(lower), min(upper)
+            aborted = sum(1 for q in range(lo, hi) if q in self.aborted)
+            rise = known[hi] - self.iteration_of[lo]
+            unknown = [q for q in range(lo + 1, hi) if q not in self.aborted]
+            if rise == hi - lo - aborted:
+                self.iteration_of[s] = self.iteration_of[lo] + sum(
+                    1 for q in range(lo, s) if q not in self.aborted)
                 done += self._complete(s)
-            elif known[s + 1] == guess:
+            elif rise == hi - lo - aborted - 1 and unknown == [s]:
                 self.aborted.add(s)
                 self.eta.pop(s, None)
                 self.xi.pop(s, None)

@@ -333,3 +333,32 @@ def test_an_abort_naming_a_committed_slot_restores_it():
     np.testing.assert_allclose(got[0].row, RUN.metrics[1], rtol=0, atol=1e-12)
     rows.event(TrialEvent("start", 2, 3, 4))       # the next trial, after slot 2's abort
     assert rows.iteration_of[3] == 2
+
+
+def test_several_lost_starts_in_a_row_follow_from_the_slots_around_them():
+    """A damaged chunk took the starts of slots 1 and 2 (their trajectories read back):
+    from slot 0 (trial 0) to slot 3 (trial 3) the iteration rose by one per slot, so both
+    committed: trials 1 and 2. With an abort known in between it rises by one less."""
+    rows = SlotRows(PB, strict=False)
+    rows.event(start(0, 0))
+    feed(rows, 0, 0)
+    feed(rows, 1, 1)
+    feed(rows, 2, 2)
+    rows.event(start(3, 3))
+    assert sorted(d.trial for d in rows.infer()) == [1, 2]
+    for k in range(3):
+        np.testing.assert_allclose(rows.rows[k], RUN.metrics[k], rtol=0, atol=1e-12)
+    rows = SlotRows(PB, strict=False)
+    rows.event(start(0, 0))
+    rows.event(abort(0, 0))                        # slot 0 aborted before its trajectories
+    feed(rows, 1, 0)
+    feed(rows, 2, 1)
+    rows.event(start(2, 3))
+    assert sorted(d.trial for d in rows.infer()) == [0, 1]
+    np.testing.assert_allclose(rows.rows[1], RUN.metrics[1], rtol=0, atol=1e-12)
+    # a batch simulation's recording: every slot runs its own number
+    rows = SlotRows(PB, strict=False)
+    feed(rows, 2, 2)
+    feed(rows, 9, 2)                               # not a trial of the run: not taken
+    assert [d.trial for d in rows.infer(identity=range(3))] == [2]
+    assert {s for s, _, _ in rows.unstarted()} == {9}
