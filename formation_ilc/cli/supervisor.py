@@ -20,6 +20,7 @@ from typing import IO
 
 from formation_ilc.cli.plan import NodeSpec, RunPlan
 from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, NO_RESTART, STUCK
+from formation_ilc.system.lifetime import early_argv
 
 __all__ = ["Stack", "Supervisor", "Failure", "exit_status", "metrics_rows", "resume_hint",
            "disk_full_line", "trial_ranges"]
@@ -53,7 +54,9 @@ class Stack:
         if extra is not None:
             self.extra[name] = extra
         env = {**self.env, **self.extra.get(name, {})}
-        self.procs[name] = subprocess.Popen(argv, env=env, stdout=fh,
+        # through the runner that sets the parent-death signal before the node's imports:
+        # a launcher killed while its nodes start takes them with it
+        self.procs[name] = subprocess.Popen(early_argv(argv), env=env, stdout=fh,
                                             stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
 
     def restart(self, name: str) -> str:

@@ -375,6 +375,7 @@ def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
     nodes: list[Node] = []
+    ex: Any = None
     try:
         try:
             nodes = build(ns, argv)
@@ -405,7 +406,21 @@ def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
         Exit.code = DISK_FULL
     finally:
         bound_the_stop()  # the teardown below, and the interpreter's exit after it
+        _linger(ex, nodes)
         for n in nodes:
             n.destroy_node()
         rclpy.try_shutdown()
     return Exit.code
+
+
+def _linger(ex: Any, nodes: list[Node]) -> None:
+    """Before a stopping process tears its nodes down: spin for the longest ``linger`` [s]
+    its nodes ask for, so that what has arrived is still taken (the recorder: a trial's
+    trajectories that came just before its launcher was killed reach the file)."""
+    linger = max((float(getattr(n, "linger", 0.0)) for n in nodes), default=0.0)
+    if ex is None or linger <= 0 or Exit.code == DISK_FULL or not rclpy.ok():
+        return
+    try:
+        ex.spin_until_future_complete(Future(), timeout_sec=linger)
+    except Exception:  # noqa: BLE001 - a teardown goes on whatever the last callbacks do
+        pass

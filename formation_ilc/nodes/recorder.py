@@ -84,6 +84,10 @@ class RecorderNode(Node):
         self.boot = f"{os.getpid()}"
         #: the run key: events it did not seal are recorded, never counted
         self.key = run_key()
+        #: [s] when the process stops, what has arrived until then is still recorded
+        #: (``nodes.common.spin_main``): a trial that ended just before its launcher was
+        #: killed reaches the file
+        self.linger = 0.5
         self.writer = RosMcapWriter(self.output, flush_period=0.5, chunk_size=int(
             os.environ.get("FORMATION_ILC_RECORDER_CHUNK_BYTES", CHUNK_BYTES)))
         self.drops = DropCounter(self)      # not counted toward progress (still recorded)
