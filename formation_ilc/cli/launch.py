@@ -343,16 +343,24 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
         clean_leftovers(fastdds_files() - shm_before)
         clean_leftovers(min_age=2.0)
     if status == 0 and plan.record_root is not None:
-        status = check_recording(plan.record_root, plan.scenario.trials)
+        status = check_recording(plan.record_root, plan.scenario.trials, plan.resumed_at,
+                                 plan.out / "metrics.csv")
     return write_report(plan, session.rows(), session.diagnostics,
                         session.supervisor.restarts, time.monotonic() - session.t_start,
                         status)
 
 
-def check_recording(root: Path, trials: int) -> int:
+def check_recording(root: Path, trials: int, resumed_at: int | None = None,
+                    metrics: Path | None = None) -> int:
     """0 when every trial of the run is complete in its recording (every part of it, read
     as ``analyze`` reads it); else say which trials are missing and why, and return 3: a
-    run whose recording lost a trial has not succeeded."""
+    run whose recording lost a trial has not succeeded.
+
+    A resumed run (``resumed_at`` trials learned before this launch) whose only missing
+    trials were learned before it, in a launch whose recorder stopped before it wrote them
+    (a trial that ended just before its launcher was killed), is whole all the same when
+    ``metrics`` has every trial's row and every row the recording has equals it: that is
+    said in a note, and the status is 0."""
     from formation_ilc.recordings.recording import (
         RecordingError,
         load_recording,
@@ -369,6 +377,11 @@ def check_recording(root: Path, trials: int) -> int:
     if not missing:
         return 0
     names = ", ".join(p.name for p in parts) or f"{root.name} (never written)"
+    if rec is not None and resumed_at and metrics is not None:
+        note = _learned_before(rec, missing, trials, resumed_at, metrics, names)
+        if note is not None:
+            print(f"note: {note}", flush=True)
+            return 0
     damaged = rec is not None and any(r.damaged for _, r in rec.parts)
     why = ("the files are damaged" if damaged else
            "no recorder had them: it was restarted or killed while they ran")
@@ -381,6 +394,34 @@ def check_recording(root: Path, trials: int) -> int:
 
 #: exit status of a run that finished but whose recording lacks trials
 INCOMPLETE = 3
+
+
+def _learned_before(rec: Any, missing: list[int], trials: int, resumed_at: int,
+                    metrics: Path, names: str) -> str | None:
+    """Why a resumed run is whole although its recording lacks ``missing``, or None: each
+    was learned before the resume (the interrupted launch's monitor wrote its row, its
+    recorder stopped before it wrote the trajectories), metrics.csv has every trial, and
+    every row the recording has is metrics.csv's to the last bit."""
+    from formation_ilc.core.metrics import format_row, read_metrics
+
+    if any(k >= resumed_at for k in missing):
+        return None
+    try:
+        rows = {int(r[0]): format_row(r) for r in read_metrics(metrics)}
+    except (OSError, ValueError):
+        return None
+    if set(range(trials)) - set(rows):
+        return None
+    recorded = {int(r[0]): format_row(r) for r in rec.metrics}
+    if any(rows[k] != row for k, row in recorded.items()):
+        return None
+    cut = [p.name for p, r in rec.parts if r.cut_short]
+    return (f"the recording ({names}) lacks {trial_ranges(missing)}: learned before this "
+            f"launch resumed the run (at {resumed_at} trials), by a launch that was stopped "
+            f"before its recorder wrote the trajectories"
+            + (f" ({', '.join(cut)} end{'s' * (len(cut) == 1)} cut short)" if cut else "")
+            + f"; metrics.csv has every trial's row, from that launch's monitor, and the "
+              f"recording's {len(recorded)} others equal metrics.csv to the last bit")
 
 
 def _save_run(out: Path, options: Any) -> None:
@@ -530,6 +571,11 @@ class _Session:
         self.supervisor = Supervisor(plan, env, place, on_down=self._down)
         self.host: Any = None
         self.diagnostics: dict[str, dict[str, Any]] = {}
+        #: the first trial whose errors were not finite (the loop stops the run)
+        self.diverged: int | None = None
+        #: a stop signal came while the executor ran a callback (the loop acts on it)
+        self.stop_signal: int | None = None
+        self.spinning = False
 
     def _metrics(self) -> tuple[list[Any], Any]:
         """metrics.csv, opened for the run: a resumed run's learned trials kept."""
@@ -558,10 +604,15 @@ class _Session:
         return list(self.kept) + [got[k] for k in sorted(got)]
 
     def on_trial(self, k: int, row: np.ndarray) -> None:
+        """A trial's row, from the monitor's callback: written; a row that is not finite
+        stops the run from the loop (an exception raised in a callback is rclpy's to log,
+        with a stack)."""
         self.writer.write(row)
         now = time.monotonic()
         if not np.isfinite(row[self.finite_cols]).all():
-            raise Diverged(k)
+            if self.diverged is None:
+                self.diverged = k
+            return
         print(progress_line(k, self.plan, row) + f"  [{now - self.t_start:.1f} s]",
               flush=True)
 
@@ -583,9 +634,14 @@ class _Session:
         from formation_ilc.nodes.host import LauncherHost
 
         def on_term(signum: int, frame: Any) -> None:
-            raise KeyboardInterrupt
+            # inside the executor an exception would end up in rclpy's log as a FATAL
+            # stack: the loop stops the run right after the callback instead
+            self.stop_signal = signum
+            if not self.spinning:
+                raise KeyboardInterrupt
 
         signal.signal(signal.SIGTERM, on_term)
+        signal.signal(signal.SIGINT, on_term)
         self.host = LauncherHost(self.plan, self.on_trial, first=self.done,
                                  on_contact=self.on_contact)
         status = 0
@@ -631,7 +687,15 @@ class _Session:
                                      plan.watchdog_scale), plan.out, len(plan.team.expected),
                       plan.scenario.trials)
         while True:
-            host.spin_once(0.05)
+            self.spinning = True
+            try:
+                host.spin_once(0.05)
+            finally:
+                self.spinning = False
+            if self.stop_signal is not None:
+                raise KeyboardInterrupt
+            if self.diverged is not None:
+                raise Diverged(self.diverged)
             stuck = watch.tick(monitor, time.monotonic())
             if stuck is not None:
                 print(f"error: {stuck}", file=sys.stderr)
