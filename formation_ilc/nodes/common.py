@@ -31,7 +31,13 @@ from formation_ilc.core.uncertainty import Uncertainty
 from formation_ilc.model.simulate import Problem
 from formation_ilc.protocol.schedule import Follower, Ready, TrialEvent, parse_key
 from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, is_disk_full
-from formation_ilc.system.lifetime import PARENT_ENV, bound_the_stop, die_with_parent, parent_gone
+from formation_ilc.system.lifetime import (
+    ORPHAN_GRACE,
+    PARENT_ENV,
+    bound_the_stop,
+    die_with_parent,
+    parent_gone,
+)
 
 __all__ = ["PARENT_ENV", "RUN_ENV", "KEY_ENV", "run_key", "DROP_REASONS", "DropCounter",
            "RunConfig", "make_config",
@@ -303,10 +309,19 @@ def make_executor(kind: str = "events") -> Any:
     return SingleThreadedExecutor()
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """argparse with its usage errors in one line: 'PROG: error: why (see PROG --help)',
+    status 2."""
+
+    def error(self, message: str) -> Any:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def node_parser(prog: str, doc: str | None) -> argparse.ArgumentParser:
     """The argument parser of a node's entry script: ``--help`` prints the node's docstring
-    (its parameters and topics) and exits before any ROS set-up."""
-    return argparse.ArgumentParser(
+    (its parameters and topics) and exits before any ROS set-up; a bad argument is one
+    line and status 2."""
+    return _OneLineParser(
         prog=prog, description=doc, formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="ROS arguments follow --ros-args, e.g. --ros-args -p NAME:=VALUE "
                "-r __ns:=/team2")
@@ -368,7 +383,9 @@ def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
     Exit.stop = Future()
 
     def on_signal(signum: int, frame: Any) -> None:
-        bound_the_stop()
+        # SIGTERM: the launcher died (PR_SET_PDEATHSIG) or gave up on a clean stop; either
+        # way nobody waits for a slow teardown (system.lifetime.ORPHAN_GRACE)
+        bound_the_stop(ORPHAN_GRACE if signum == signal.SIGTERM else None)
         if Exit.stop is not None and not Exit.stop.done():
             Exit.stop.set_result(0)
 
