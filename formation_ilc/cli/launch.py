@@ -316,6 +316,13 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
     from formation_ilc.model.simulate import Problem
     from formation_ilc.system.shm import clean_leftovers, fastdds_files
 
+    if plan.record is not None:  # the recorder makes no folder: it is the launcher's
+        try:
+            plan.record.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            print(f"error: argument --record: {plan.record.parent}: cannot create the "
+                  f"folder: {exc.strerror or exc}", file=sys.stderr)
+            return 2
     if plan.run_json is not None:
         _save_run(plan.out, plan.run_json)
     _save_config(plan)

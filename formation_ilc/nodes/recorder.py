@@ -376,6 +376,28 @@ class RecorderNode(Node):
         super().destroy_node()
 
 
+def output_problem(path: Path) -> str | None:
+    """Why the recorder cannot write its file at ``path``, or None: a folder, a device or
+    FIFO, a missing or unwritable folder (the recorder makes none: the launcher makes the
+    folder of ``--record`` before it starts the recorder)."""
+    import stat
+
+    try:
+        st = path.stat()
+    except OSError:
+        st = None
+    if st is not None and stat.S_ISDIR(st.st_mode):
+        return "is a folder, expected a file name"
+    if st is not None and not stat.S_ISREG(st.st_mode):
+        return "is not a regular file"
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        return f"the folder {folder} does not exist"
+    if not os.access(folder, os.W_OK | os.X_OK):
+        return f"the folder {folder} is not writable"
+    return None
+
+
 def _lower_priority() -> None:
     """Run below the control loop, before rclpy starts its threads: on Linux a niceness is
     per thread and only threads started later inherit it.
@@ -400,7 +422,9 @@ def main(args: list[str] | None = None) -> int:
     _lower_priority()
 
     def build(ns: Any, argv: list[str]) -> list[Node]:
-        ns.output.parent.mkdir(parents=True, exist_ok=True)
+        why = output_problem(ns.output)
+        if why is not None:  # one line and status 2 (spin_main), no folder made
+            raise ValueError(f"--output {ns.output}: {why}")
         return [RecorderNode(ns.output, observe=not ns.no_view)]
 
     return spin_main(build, parser, args)
