@@ -41,6 +41,7 @@ from formation_ilc.core.guards import DivergedError, format_bytes, memory_shortf
 from formation_ilc.core.topology import SpanningTreeError  # noqa: E402
 from formation_ilc.model.footprint import BODIES  # noqa: E402
 from formation_ilc.store.memoryfile import MemoryFileError, load_memory, save_memory  # noqa: E402
+from formation_ilc.system.exits import DISK_FULL, is_disk_full  # noqa: E402
 
 EXAMPLES = """\
 examples:
@@ -98,8 +99,9 @@ SIMULATE_CODES = """\
 exit status: 0 done; 2 bad input (one line on stderr: file or option, and why), or a run
 that would need more memory than is available (the estimate is printed); 3 the learning
 diverged (errors not finite: metrics.csv keeps the finished trials, memory.npz the last
-finite memory); 130 or 143 interrupted (Ctrl-C, SIGTERM): metrics.csv and memory.npz
-keep every finished trial, and the command to go on is printed.
+finite memory); 5 the disk is full (one line naming the file; metrics.csv and memory.npz
+keep what was written before); 130 or 143 interrupted (Ctrl-C, SIGTERM): metrics.csv and
+memory.npz keep every finished trial, and the command to go on is printed.
 """
 
 
@@ -1118,6 +1120,12 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     except OSError as exc:  # a full disk, a folder removed under a run, ...
         where = f"{exc.filename}: " if exc.filename else ""
+        if is_disk_full(exc):
+            # what was written before is kept (rows and memory are written as they come)
+            print(f"error: the disk is full: {args.command} could not write "
+                  f"{exc.filename or 'its outputs'}; what was written before is kept; free "
+                  f"some space, then run it again", file=sys.stderr)
+            return DISK_FULL
         print(f"error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
