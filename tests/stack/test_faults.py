@@ -227,6 +227,31 @@ def test_a_launcher_killed_while_its_nodes_start_takes_every_one_with_it(ros_env
     assert not left, f"node processes outlived their launcher killed at start-up: {left}"
 
 
+def test_a_launcher_stopped_by_sigterm_while_its_nodes_start_says_one_line(ros_env, tmp_path):
+    """Before: a SIGTERM while the monitor's callbacks ran was raised inside rclpy, which
+    printed a FATAL stack before the launcher's one line. Now the handler stops the run
+    from the launcher's loop: status 130, "interrupted", no stack, no node left."""
+    from ..procs import descendants, gone
+
+    proc = start(ros_env, tmp_path, "paper-triangle3", "--trials", "3")
+    started: set[int] = set()
+    try:
+        deadline = time.monotonic() + 120
+        while len(started) < 3 and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.communicate()[0]
+            started |= {p for p in descendants(proc.pid)
+                        if b"formation_ilc.system.lifetime" in _cmdline(p)}
+            time.sleep(0.01)  # polling the process table, bounded by the deadline
+        os.kill(proc.pid, signal.SIGTERM)
+        out, _ = proc.communicate(timeout=120)
+    finally:
+        stop_group(proc, signal.SIGKILL)
+    assert proc.returncode == 130, out
+    assert "interrupted: stopping every node" in out
+    assert "FATAL" not in out and "Traceback" not in out, out
+    assert all(gone(p) for p in started)
+
+
 def _cmdline(pid: int) -> bytes:
     try:
         return Path(f"/proc/{pid}/cmdline").read_bytes()
