@@ -1,39 +1,80 @@
-"""A formation of paper-triangle3 in lockstep, started by ``ros2 launch`` (a full ROS 2
-Jazzy install with this package built in its workspace):
+"""A formation run by ``ros2 launch`` (ROS 2 Jazzy with this package installed, see
+docs/ros-tools.md):
 
-    ros2 launch formation_ilc formation.launch.py
+    ros2 launch formation_ilc formation.launch.py scenario:=paper-hexagon6 trials:=10
+    ros2 launch formation_ilc formation.launch.py namespace:=/team2 record:=run.mcap live:=8765
 
-Every node takes its parameters from the example files in share/formation_ilc/params
-(--params-file, as a launch file passes them) and is named the way those files are keyed.
-``formation-ilc launch`` does more (a run folder, metrics, restarts, a recording); this file
-is for fitting the nodes into a ROS system of one's own.
+It starts the processes ``formation-ilc launch`` starts for the same options, with the same
+arguments and parameters (``formation_ilc.cli.plan.ros_launch_processes``): the virtual
+leader, the plant, the link emulator, the robots, and a recorder and the live view when
+asked. The leader ends its process after the last trial, and the launch stops every node
+with it. The launcher's own monitor (metrics.csv, the error table, restarts) is not part of
+a launch file's run: ``formation-ilc analyze RUN.mcap`` gives the metrics of a recording.
+
+Launch arguments (``ros2 launch formation_ilc formation.launch.py --show-args``):
+scenario, trials, namespace, robots_per_process, plant, mode, links, record, live,
+params_file, out.
 """
 
-import os
-
-from ament_index_python.packages import get_package_share_directory
+from launch.actions import DeclareLaunchArgument, OpaqueFunction, Shutdown
+from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from launch import LaunchDescription
 
-NAMESPACE = "formation"
-ROBOTS = (1, 2, 3)
+PACKAGE = "formation_ilc"
+
+#: (name, default, description): every option has the launcher's meaning
+ARGUMENTS = (
+    ("scenario", "paper-triangle3", "a built-in scenario or a scenario YAML file"),
+    ("trials", "0", "number of trials; 0 keeps the scenario's"),
+    ("namespace", "/formation", "the formation's ROS namespace (/clock is moved with it)"),
+    ("robots_per_process", "0", "robot nodes per process (0: one process per robot)"),
+    ("plant", "sim", "sim, physics, external, pioneer or base (formation-ilc launch --help)"),
+    ("mode", "", "lockstep, realtime or wallclock; empty: the plant's default"),
+    ("links", "", "emulated or direct; empty: the plant's default"),
+    ("record", "", "an MCAP file to record the run to; empty: no recording"),
+    ("live", "", "a port for the Foxglove live view (the 'live' extra); empty: none"),
+    ("params_file", "", "a --params-file given to every node before its own parameters "
+                        "(which win); empty: none"),
+    ("out", "formation_ilc_run", "folder of the nodes' state files (a restarted node goes "
+                                 "on from them)"),
+)
+
+
+def launcher_argv(get) -> list[str]:
+    """The ``formation-ilc launch`` options of the launch arguments (``get(name)``)."""
+    argv = [get("scenario"), "--namespace", get("namespace"), "--plant", get("plant"),
+            "--out", get("out")]
+    for option, name in (("--trials", "trials"), ("--container", "robots_per_process")):
+        if get(name) not in ("", "0"):
+            argv += [option, get(name)]
+    for option, name in (("--mode", "mode"), ("--links", "links"), ("--record", "record"),
+                         ("--live", "live")):
+        if get(name):
+            argv += [option, get(name)]
+    return argv
+
+
+def _nodes(context, *args, **kwargs):
+    from formation_ilc.cli.plan import ros_launch_processes
+
+    def get(name):
+        return LaunchConfiguration(name).perform(context)
+
+    extra = ["--params-file", get("params_file")] if get("params_file") else []
+    nodes = []
+    for p in ros_launch_processes(launcher_argv(get)):
+        nodes.append(Node(package=PACKAGE, executable=p["executable"],
+                          arguments=p["arguments"], ros_arguments=extra + p["ros_arguments"],
+                          output="screen",
+                          # the leader ends after the last trial: the whole launch ends
+                          on_exit=[Shutdown(reason="the run is done")] if p["ends_launch"]
+                          else None))
+    return nodes
 
 
 def generate_launch_description():
-    params = os.path.join(get_package_share_directory("formation_ilc"), "params")
-    nodes = [
-        Node(package="formation_ilc", executable="virtual_leader", name="virtual_leader",
-             namespace=NAMESPACE,
-             parameters=[os.path.join(params, "virtual_leader.yaml")]),
-        Node(package="formation_ilc", executable="robot_sim", name="robot_sim",
-             namespace=NAMESPACE, parameters=[os.path.join(params, "robot_sim.yaml")]),
-        Node(package="formation_ilc", executable="link_emulator", name="link_emulator",
-             namespace=NAMESPACE),
-    ]
-    for i in ROBOTS:
-        # the node's name follows robot_id (give both); without a scenario of its own a
-        # robot takes the run configuration from the leader's config topic
-        nodes.append(Node(package="formation_ilc", executable="robot", name=f"robot_{i}",
-                          namespace=NAMESPACE, parameters=[{"robot_id": i}]))
-    return LaunchDescription(nodes)
+    return LaunchDescription(
+        [DeclareLaunchArgument(name, default_value=default, description=text)
+         for name, default, text in ARGUMENTS] + [OpaqueFunction(function=_nodes)])

@@ -109,6 +109,7 @@ from formation_ilc.core.names import (
     READY,
     RECORDER_NODE,
     REFERENCE,
+    ROS_DIAGNOSTICS,
     SIM_NODE,
     TEAM_POSES,
     TRIAL_EVENTS,
@@ -156,6 +157,7 @@ LEADER_FRAME = LEADER
 __all__ = [
     # names (formation_ilc.core.names)
     "NAMESPACE", "CONFIG", "REFERENCE", "TRIAL_EVENTS", "READY", "DIAGNOSTICS", "CLOCK",
+    "ROS_DIAGNOSTICS",
     "WORLD_FRAME", "LEADER", "LEADER_FRAME", "robot_name", "robot_index", "link_name",
     "pose_topic", "cmd_vel_topic", "shared_pose_topic", "link_topic", "trajectory_topic",
     "true_trajectory_topic", "absolute", "relative", "clock_topic", "recorded_topics",

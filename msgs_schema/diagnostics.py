@@ -14,14 +14,17 @@ from formation_ilc.protocol.health import (
     DIAG_VALUES_MAX,
     Status,
     flatten,
+    hardware_of,
     node_report,
+    plain_value,
     read_statuses,
     statuses,
+    task_name,
 )
 from msgs_schema.convert import ns_to_stamp
 
 __all__ = ["DIAGNOSTICS_TYPE", "DIAG_STATUS_MAX", "DIAG_VALUES_MAX", "diagnostics_to_msg",
-           "msg_to_statuses", "msg_to_report"]
+           "msg_to_statuses", "msg_to_report", "standard_statuses", "starting_status"]
 
 DIAGNOSTICS_TYPE = "diagnostic_msgs/msg/DiagnosticArray"
 
@@ -39,6 +42,26 @@ def diagnostics_to_msg(report: dict[str, Any], stamp_ns: int, dt: float | None =
             values=[KeyValue(key=k, value=v) for k, v in flatten(st.values)]))
     return msg
 
+
+def standard_statuses(msg: DiagnosticArray, node: str, host: str) -> list[DiagnosticStatus]:
+    """The statuses of a node's report (``diagnostics_to_msg``) as the standard stream
+    carries them: the node's own named ``node: task`` (``health.task_name``), every status
+    with a hardware id (its robot, else the host), values as plain text (a string without
+    JSON's quotes)."""
+    out = []
+    for st in msg.status:
+        name = task_name(node) if st.name == node else st.name
+        out.append(DiagnosticStatus(
+            level=st.level, name=name, message=st.message,
+            hardware_id=st.hardware_id or hardware_of(node, host),
+            values=[KeyValue(key=kv.key, value=plain_value(kv.value)) for kv in st.values]))
+    return out
+
+
+def starting_status(node: str, host: str, message: str) -> DiagnosticStatus:
+    """A node's status before its first report (OK: it runs)."""
+    return DiagnosticStatus(level=bytes([0]), name=task_name(node), message=message,
+                            hardware_id=hardware_of(node, host))
 
 
 class _Pairs:

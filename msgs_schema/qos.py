@@ -5,7 +5,8 @@ from __future__ import annotations
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-__all__ = ["SAMPLE_QOS", "LATCHED_QOS", "LATCHED_READER_QOS", "TRAJECTORY_QOS",
+__all__ = ["SAMPLE_QOS", "ROS_DIAGNOSTICS_QOS", "LATCHED_QOS",
+           "LATCHED_READER_QOS", "TRAJECTORY_QOS",
            "TRAJECTORY_READER_QOS", "CLOCK_QOS", "ODOM_QOS", "DRIVER_CMD_QOS", "VIEW_QOS",
            "PREVIEW_HZ", "PREVIEW_QOS"]
 
@@ -18,6 +19,11 @@ SAMPLE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=512,
                         reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.VOLATILE)
 # Configuration, readiness and diagnostics: a late joiner gets the last word of each writer.
+# The standard diagnostics stream, as diagnostic_updater publishes it (reliable, volatile): a
+# reader that joins late has every node's status within a period of the stream (1 s)
+ROS_DIAGNOSTICS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                                 reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.VOLATILE)
 LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)

@@ -40,7 +40,6 @@ from __future__ import annotations
 import sys
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rosgraph_msgs.msg import Clock
@@ -85,7 +84,6 @@ class LinkEmulator(ConfiguredNode):
         self.out = [[self.create_publisher(Path, ms.link_topic(i + 1, s), ms.SAMPLE_QOS)
                      for s, _ in links] for i, links in enumerate(self.links.links)]
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         # the per-sample messages as bytes (msgs_schema.wire: no message objects)
         self.pose_subs = [
             self.create_subscription(PoseStamped, ms.shared_pose_topic(j + 1),

@@ -48,7 +48,6 @@ import sys
 import time
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist
 from nav_msgs.msg import Path
 from rosgraph_msgs.msg import Clock
@@ -66,7 +65,7 @@ from formation_ilc.nodes.common import (
     spin_main,
     warm_up,
 )
-from formation_ilc.nodes.params import declare
+from formation_ilc.nodes.params import declare, effective
 from formation_ilc.protocol.plant import RESEND_S, KinematicPlant, Sample
 
 #: the plant's node name (what it says ready as)
@@ -107,6 +106,7 @@ class SimNode(ConfiguredNode):
         n = plant.n
         timeout = float(self.get_parameter("timeout").value)
         self.timeout = timeout if timeout > 0 else cfg.timeout
+        effective(self, {"timeout": float(self.timeout)})  # the parameter reads what runs
         self.realtime = plant.realtime
         self.pose_pubs = [self.create_publisher(PoseStamped, ms.pose_topic(r + 1), ms.SAMPLE_QOS)
                           for r in range(n)]
@@ -119,7 +119,6 @@ class SimNode(ConfiguredNode):
         self.team_pub = (self.create_publisher(Path, ms.TEAM_POSES, ms.SAMPLE_QOS)
                          if cfg.safety is not None and cfg.safety.sensing == "team" else None)
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         self.cmd_subs = [  # bytes: msgs_schema.wire
             self.create_subscription(Twist, ms.cmd_vel_topic(r + 1),
                                      lambda m, r=r: self._on_cmd(m, r), ms.SAMPLE_QOS, raw=True)

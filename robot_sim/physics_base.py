@@ -30,7 +30,6 @@ import time
 from typing import Any
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
@@ -39,7 +38,7 @@ import msgs_schema as ms
 from formation_ilc.config.params import Param
 from formation_ilc.core.names import BASES_NODE
 from formation_ilc.model.physics import MODELS
-from formation_ilc.nodes.common import node_parser, spin_main
+from formation_ilc.nodes.common import Diagnostics, node_parser, spin_main
 from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.physics_plant import BaseRobots
 
@@ -90,8 +89,7 @@ class PhysicsBases(Node):
                                      functools.partial(self._on_cmd, i=i), ms.DRIVER_CMD_QOS)
             self.odom_pubs.append(self.create_publisher(Odometry, f"{ns}/{g('odom_topic')}",
                                                         ms.ODOM_QOS))
-        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS,
-                                               ms.LATCHED_QOS)
+        self.diag_pub = Diagnostics(self)  # per-trial report and /diagnostics
         self.create_timer(self.core.tick, self._on_tick)
         self.create_timer(1.0, self._report)
         world = self.core.world

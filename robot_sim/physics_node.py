@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 import sys
+import time
 from typing import Any
 
 import msgs_schema as ms
@@ -41,6 +42,7 @@ from formation_ilc.model.physics import DEFAULT_RATE, MODELS, POSE_SOURCES, RATE
 from formation_ilc.nodes.common import RunConfig, fail, node_parser, spin_main
 from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.physics_plant import ON_CONTACT, ContactEvent, PhysicsPlant
+from formation_ilc.protocol.plant import RESEND_S
 from formation_ilc.system.exits import CONTACT
 from robot_sim.node import SimNode
 
@@ -70,6 +72,7 @@ class PhysicsNode(SimNode):
     """All robots of the run in one PyBullet world."""
 
     def __init__(self, **kwargs: Any):
+        self._asked = 0.0  # when it last asked for a held trial's abort (monotonic) [s]
         super().__init__(NAME, **kwargs)  # the run configuration arrives later, on a topic
 
     def declare_plant_parameters(self) -> None:
@@ -97,7 +100,27 @@ class PhysicsNode(SimNode):
             ev = plant.take_contact()
             if ev is not None and not self._on_contact(plant, ev):
                 return  # the run ends here: no sample after the contact
+            if plant.held:
+                return  # the trial waits for the leader's abort (it asked): no sample
         super()._publish_sample()
+
+    def _resend(self) -> None:
+        """A held trial asks for its abort again (RESEND_S apart): a lost request must not
+        leave the run waiting for the watchdog."""
+        plant = self.plant
+        if isinstance(plant, PhysicsPlant) and plant.held and plant.contact is not None:
+            now = time.monotonic()
+            if now - self._asked >= RESEND_S:
+                self._ask_abort(plant.contact, plant)
+            return
+        super()._resend()
+
+    def _ask_abort(self, ev: ContactEvent, plant: PhysicsPlant) -> None:
+        """Ask the leader to abort the trial the robots touched in (its ready says why)."""
+        self._asked = time.monotonic()
+        line = ev.line(self.cfg.scenario.dt, plant.tilt_limit)
+        self.ready_pub.publish(self.ready_msg(ev.trial, abort_slot=ev.slot,
+                                              why=f"contact: {line}"))
 
     def _on_contact(self, plant: PhysicsPlant, ev: ContactEvent) -> bool:
         """Say it at once (log, diagnostics), then act: stop and re-run, or end the run.
@@ -118,8 +141,7 @@ class PhysicsNode(SimNode):
             d, self.get_clock().now().nanoseconds, self.cfg.scenario.dt,
             self.cfg.scenario.samples))
         if ev.action == "stop":
-            self.ready_pub.publish(self.ready_msg(ev.trial, abort_slot=ev.slot,
-                                                  why=f"contact: {line}"))
+            self._ask_abort(ev, plant)
         elif ev.action in ("abort", "give_up"):
             fail(self, f"contact: {line}; {then} (--on-contact, docs/safety.md)", CONTACT)
             return False

@@ -12,7 +12,8 @@ arc model) and the kinematic run without it:
 * triangle: paper-triangle3 on P3-DX-size robots (the paper's experiment);
 * hexagon: docs/examples/hexagon6-p3dx.yaml (paper-hexagon6 made to fit a P3-DX: a third
   of its speed, eased in from rest, twice its width, tuned gains);
-* husky: paper-triangle3 with its offsets doubled on the skid-steer Husky.
+* husky: paper-triangle3 with its offsets doubled on the skid-steer Husky; husky-imu: the
+  same on a Husky whose base closes velocity loops (docs/physics.md, "Skid steer").
 
 Writes docs/figures/safety.json (every curve) and docs/figures/safety_*.png (error per
 trial with and without the filter; the commands the filter changed per trial, physics
@@ -53,6 +54,7 @@ TEAMS = {
     "hexagon": (lambda: load_scenario(str(ROOT / "docs" / "examples" / "hexagon6-p3dx.yaml")),
                 "p3dx"),
     "husky": (husky_triangle, "husky"),
+    "husky-imu": (husky_triangle, "husky-imu"),
 }
 
 

@@ -31,6 +31,9 @@ run_id : str
     domain and namespace are refused (see ``formation-ilc launch``).
 watchdog_scale : float
     Every bound of the leader's watchdog times this (default 1.0; see below).
+exit_when_done : bool
+    End the process with status 0 once ``done`` is out (default false): a launch file
+    shuts the other nodes down with it (``launch/formation.launch.py``).
 
 The leader publishes the configuration on ``config`` (latched), waits until every node has
 reported ready for trial k, publishes ``start`` k on ``leader/trial_events``, then follows
@@ -78,7 +81,6 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
@@ -91,7 +93,9 @@ from formation_ilc.config.roster import Lineup, roster
 from formation_ilc.config.runconfig import PARAMS, RunConfig
 from formation_ilc.core.clock import Rejected
 from formation_ilc.nodes.common import (
+    Diagnostics,
     DropCounter,
+    Exit,
     fail,
     matched,
     node_parser,
@@ -99,7 +103,7 @@ from formation_ilc.nodes.common import (
     spin_main,
     unmatched,
 )
-from formation_ilc.nodes.params import declare
+from formation_ilc.nodes.params import declare, effective
 from formation_ilc.protocol.leader import NAME, Leader
 from formation_ilc.protocol.plant import RESEND_S
 from formation_ilc.protocol.schedule import TrialEvent
@@ -122,6 +126,12 @@ class LeaderNode(Node):
         if not expected:  # started alone: the team the launcher would name, no monitor
             expected = roster(Lineup(sc.n, plant=default_plant(cfg.mode), links=cfg.links,
                                      monitor=False)).team.expected
+        # the parameters that keep the scenario's read the scenario's; the team, whom
+        # the leader waits for
+        effective(self, {"seed": sc.seed, "trials": sc.trials, "law": sc.law.kind,
+                         "memory": sc.law.memory, "headings": sc.headings,
+                         "time_scale": float(sc.time_scale),
+                         "nodes_expected": list(expected)})
         # who reads the reference: the link emulator, or each robot that sees the leader
         # (none in lockstep with direct links: RunConfig.leader_in_step)
         self.ref_readers = (1 if cfg.links == "emulated"
@@ -140,7 +150,7 @@ class LeaderNode(Node):
         self.config_pub = self.create_publisher(String, ms.CONFIG, ms.LATCHED_QOS)
         self.ref_pub = self.create_publisher(PoseStamped, ms.REFERENCE, ms.SAMPLE_QOS)
         self.event_pub = self.create_publisher(String, ms.TRIAL_EVENTS, ms.SAMPLE_QOS)
-        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        self.diag_pub = Diagnostics(self)  # per-trial report and /diagnostics
         self.ready_sub = self.create_subscription(String, ms.READY, self._on_ready,
                                                   ms.LATCHED_READER_QOS)
         # its own events come back here too; a start or abort it did not send is re-asserted
@@ -158,10 +168,23 @@ class LeaderNode(Node):
         self.config_pub.publish(ms.json_to_msg(cfg.to_json()))
         self._gate = self.create_timer(0.05, self.core.maybe_start)
         self.create_timer(5.0, self.core.report_wait)
+        if g("exit_when_done"):
+            self.create_timer(0.5, self._exit_when_done)
         self.create_timer(1.0, self.core.on_watchdog)
         self.get_logger().info(f"{sc.name}: {sc.n} robots, {sc.trials} trials of "
                                f"{sc.samples} samples, {cfg.mode}, {cfg.links} links; "
                                f"waiting for {', '.join(expected)}")
+
+    def _exit_when_done(self) -> None:
+        """The run is over: end this process with status 0 (``exit_when_done``); the
+        ``done`` event went out at least one timer period before."""
+        if self.core.done_sent:
+            if getattr(self, "_done_seen", False):
+                self.get_logger().info("done: the leader exits (exit_when_done)")
+                Exit.code = 0
+                if Exit.stop is not None and not Exit.stop.done():
+                    Exit.stop.set_result(0)
+            self._done_seen = True
 
     @property
     def expected(self) -> list[str]:
@@ -215,7 +238,17 @@ class LeaderNode(Node):
             self.cfg.scenario.samples))
 
     def log(self, level: str, text: str) -> None:
-        getattr(self.get_logger(), level)(text)
+        # one call site per severity: rclpy refuses a call site whose severity changes
+        # ("Logger severity cannot be changed between calls")
+        lg = self.get_logger()
+        if level == "info":
+            lg.info(text)
+        elif level == "warning":
+            lg.warning(text)
+        elif level == "debug":
+            lg.debug(text)
+        else:
+            lg.error(text)
 
     def alert(self, text: str) -> None:
         self.get_logger().error(text)

@@ -211,9 +211,11 @@ def add_plant_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--params-file", type=Path, metavar="FILE",
                    help="with --plant pioneer or base: a ROS 2 parameters file for the "
                         "bridges (e.g. per-robot limits under /formation/bridge_I)")
-    p.add_argument("--robot-model", choices=("p3dx", "husky"), default="p3dx",
+    p.add_argument("--robot-model", choices=("p3dx", "husky", "husky-imu"), default="p3dx",
                    help="with --plant physics (or --physics-bases): P3-DX-size two-wheel "
-                        "drive (default) or the Husky of pybullet_data")
+                        "drive (default), the Husky of pybullet_data (wheel speeds open "
+                        "loop), or the Husky whose base tracks its commanded speed and turn "
+                        "rate (husky-imu: docs/physics.md)")
     p.add_argument("--pose", choices=("truth", "odometry"), default="truth",
                    help="with --plant physics: the robots' measured pose, the engine's ground "
                         "truth (a motion-capture stand-in, default) or wheel odometry")

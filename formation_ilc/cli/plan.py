@@ -34,6 +34,7 @@ from formation_ilc.config.runconfig import RunConfig, make_config, param_text, s
 from formation_ilc.config.safety import SafetySettings, default_learning, default_margin
 from formation_ilc.config.scenario import Scenario, ScenarioError
 from formation_ilc.core.names import (
+    LEADER_NODE,
     NAMESPACE,
     driver_ns_problem,
     namespace_remaps,
@@ -898,12 +899,17 @@ def _run_json(opts: argparse.Namespace, mode: str, links: str, out: Path) -> dic
 
 
 def _live(opts: argparse.Namespace) -> tuple[str, int] | None:
-    """``--live [PORT]`` on ``--live-host``: refused (NoRun) when the port is taken."""
+    """``--live [PORT]`` on ``--live-host``: refused (NoRun) without foxglove-sdk or when
+    the port is taken."""
+    import importlib.util
     import socket
 
     port = getattr(opts, "live", None)
     if port is None:
         return None
+    if importlib.util.find_spec("foxglove") is None:  # before anything starts, not 3 restarts
+        raise NoRun("argument --live: needs foxglove-sdk, the 'live' extra: pip install -c "
+                    "requirements.lock -e \".[live]\" (or pip install foxglove-sdk)")
     host = getattr(opts, "live_host", None) or "127.0.0.1"
     try:
         with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as s:
@@ -1057,3 +1063,50 @@ def _entry_modules() -> dict[str, str]:
 
     return {ep.name: ep.value.split(":")[0]
             for ep in entry_points(group="console_scripts") if ep.name.startswith("formation-ilc")}
+
+
+# --------------------------------------------------------------------------- ros2 launch
+
+#: the ``ros2 run formation_ilc`` executable of each node's entry script (``ros2_run/``)
+ROS2_RUN = {
+    "formation-ilc-leader": "virtual_leader", "formation-ilc-sim": "robot_sim",
+    "formation-ilc-physics": "physics_sim", "formation-ilc-links": "link_emulator",
+    "formation-ilc-robot": "robot", "formation-ilc-record": "recorder",
+    "formation-ilc-liveview": "liveview", "formation-ilc-bridge": "pioneer_bridge",
+    "formation-ilc-fake-pioneer": "fake_pioneer", "formation-ilc-physics-bases": "physics_bases",
+}
+
+
+def ros2_executable(module: str) -> str:
+    """The ``ros2 run formation_ilc`` executable that runs node module ``module``."""
+    script = {m: s for s, m in _entry_modules().items()}[module]
+    return ROS2_RUN[script]
+
+
+def ros_launch_processes(argv: list[str]) -> list[dict[str, Any]]:
+    """The processes ``formation-ilc launch ARGV`` starts, as a ROS launch file starts them
+    (``launch/formation.launch.py``): the same processes with the same arguments, ROS
+    arguments and parameters, but no monitor (the launcher's own node: nobody waits for
+    it), and the leader ends its process after the last trial (``exit_when_done``), which
+    ends the launch. Each entry: name, executable (``ros2 run formation_ilc``), arguments,
+    ros_arguments (remaps, params files, ``-p`` parameters), and whether the launch ends
+    with it. NoRun for options the launcher refuses."""
+    from formation_ilc.cli.commands import build_parser
+
+    plan = build_plan(build_parser().parse_args(["launch", *argv]))
+    lineup = replace(plan.roster.lineup, monitor=False)
+    plan = replace(plan, config=replace(plan.config, monitored=False),
+                   roster=roster(lineup))
+    opts = build_parser().parse_args(["launch", *argv])
+    out = []
+    for spec in node_specs(plan, scenario_reference(opts.scenario)):
+        params = dict(spec.params)
+        if spec.name == LEADER_NODE:
+            params["exit_when_done"] = True
+        ros = [*spec.remaps]
+        for k, v in params.items():
+            ros += ["-p", f"{k}:={param_text(v)}"]
+        out.append({"name": spec.name, "executable": ros2_executable(spec.module),
+                    "arguments": list(spec.args), "ros_arguments": ros,
+                    "ends_launch": spec.name == LEADER_NODE})
+    return out

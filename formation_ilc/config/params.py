@@ -9,7 +9,7 @@ would not apply a new value mid-run (a run configuration is agreed by every node
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from formation_ilc.config.bases import BASES
@@ -17,7 +17,7 @@ from formation_ilc.config.runconfig import MODES, PARAMS
 from formation_ilc.core.law import MEMORY_MODES
 
 __all__ = ["Param", "RUN", "ROBOT", "LEADER", "SIM", "BRIDGE", "FAKE_DRIVER", "by_name",
-           "describe"]
+           "describe", "PLANT_NAMES", "ROS_NAMES", "known_names", "unknown_key"]
 
 #: the largest integer a parameter range takes (rcl's ranges are int64)
 BIG = 2**62
@@ -35,6 +35,9 @@ class Param:
     lo: float | None = None
     hi: float | None = None
     choices: tuple[Any, ...] = ()
+    #: once the node runs, the parameter reads what the run uses, which the run
+    #: configuration (the leader's ``config`` topic, or a preset) may override
+    effective: str = ""
 
     def check(self, value: Any) -> str | None:
         """Why ``value`` is refused (what rclpy's descriptor does not check), or None."""
@@ -62,6 +65,8 @@ def describe(p: Param) -> str:
                      f"{p.hi if p.hi is not None else 'inf'}")
     if p.choices:
         extra.append(f"one of: {choice_text(p.choices)}")
+    if p.effective:
+        extra.append(f"reads the value in use once running: {p.effective}")
     return p.description + (f" ({'; '.join(extra)})" if extra else "")
 
 
@@ -107,20 +112,32 @@ RUN: tuple[Param, ...] = (
 
 _RUN = by_name(RUN)
 
-LEADER: tuple[Param, ...] = RUN + (
+#: what the leader's parameters that "keep the scenario's" read once it runs
+_SCENARIO_KEPT = "the scenario's value when it keeps the scenario's"
+_LEADER_RUN = tuple(
+    replace(p, effective=_SCENARIO_KEPT) if p.name in ("seed", "trials", "law", "memory",
+                                                        "headings", "time_scale") else p
+    for p in RUN)
+#: what a robot's or a bridge's run parameters read once the leader's configuration came
+_FROM_CONFIG = "the run configuration's (the leader's config topic), which overrides it"
+
+LEADER: tuple[Param, ...] = _LEADER_RUN + (
     Param("start_margin", 1.0, "wallclock: from the start event to the agreed start time",
           "s", lo=1e-3, hi=1e6),
     Param("nodes_expected", [""], "node names that must say ready before a trial starts; "
-          "empty: the default team"),
+          "empty: the default team", effective="the team waited for"),
     Param("state_dir", "", "folder of the leader's schedule (leader.json); empty: none"),
     Param("watchdog_scale", 1.0, "every bound of the leader's watchdog times this",
           lo=1e-3, hi=1e6),
+    Param("exit_when_done", False, "end the leader's process (status 0) once it has said "
+          "done: a launch file stops the other nodes with it"),
 )
 
 ROBOT: tuple[Param, ...] = (
     Param("robot_id", 1, "1-based robot number; the node is named robot_<id>", lo=1,
           hi=BIG),
-    *(_RUN[n] for n in ("scenario", "seed", "noise", "delay", "links", "mode")),
+    *(replace(_RUN[n], effective=_FROM_CONFIG)
+      for n in ("scenario", "seed", "noise", "delay", "links", "mode")),
     Param("init_memory", "", "memory.npz of formation-ilc simulate: start from this "
           "robot's row of learned memory"),
     Param("state_dir", "", "folder of the robot's learning state (robot_<id>.npz); "
@@ -129,31 +146,37 @@ ROBOT: tuple[Param, ...] = (
 
 SIM: tuple[Param, ...] = (
     Param("timeout", 0.0, "lockstep: how long the simulator waits for a robot's command; "
-          "0: the run configuration's", "s", lo=0.0, hi=1e6),
+          "0: the run configuration's", "s", lo=0.0, hi=1e6,
+          effective="the run configuration's when 0"),
 )
+
+#: a bridge's limit reads the limit in force (the preset's or the Pioneer's when 0)
+_LIMIT_USED = "the limit in force (the preset's or the Pioneer's when 0)"
 
 BRIDGE: tuple[Param, ...] = (
     Param("robot_id", 1, "1-based robot number; the node is named bridge_<id>", lo=1,
           hi=BIG),
     Param("driver", "rosaria", "the robot's driver (a base preset sets 'base')",
-          choices=("rosaria", "p2os2", "ros2aria", "base")),
+          choices=("rosaria", "p2os2", "ros2aria", "base"), effective="'base' with a preset"),
     Param("base", "", "a differential-drive base's preset (topics, message type, limits); "
           "empty: a Pioneer driver", choices=("", *BASES)),
-    Param("driver_ns", "", "namespace of the driver's topics; empty: the driver's usual"),
+    Param("driver_ns", "", "namespace of the driver's topics; empty: the driver's usual",
+          effective="the namespace used"),
     Param("cmd_type", "twist", "type of the driver's command",
-          choices=("twist", "twist_stamped")),
+          choices=("twist", "twist_stamped"), effective="a preset's type unless "
+          "twist_stamped is asked for"),
     Param("v_max", 0.0, "clamp of the linear speed; 0: the Pioneer's", "m/s", lo=0.0,
-          hi=100.0),
+          hi=100.0, effective=_LIMIT_USED),
     Param("omega_max", 0.0, "clamp of the turn rate; 0: the Pioneer's", "deg/s", lo=0.0,
-          hi=36000.0),
+          hi=36000.0, effective=_LIMIT_USED),
     Param("a_max", 0.0, "limit of the linear acceleration; 0: the preset's (none for a "
-          "Pioneer driver)", "m/s^2", lo=0.0, hi=1000.0),
+          "Pioneer driver)", "m/s^2", lo=0.0, hi=1000.0, effective=_LIMIT_USED),
     Param("alpha_max", 0.0, "limit of the angular acceleration; 0: the preset's (none for "
-          "a Pioneer driver)", "deg/s^2", lo=0.0, hi=1e6),
+          "a Pioneer driver)", "deg/s^2", lo=0.0, hi=1e6, effective=_LIMIT_USED),
     Param("max_tilt", 10.0, "largest roll or pitch of the odometry accepted (reported); "
           "beyond it the odometry is refused", "deg", lo=0.0, hi=90.0),
     Param("cmd_timeout", 0.0, "zero command once the robot node is silent this long; "
-          "0: 2.5 dT", "s", lo=0.0, hi=1e6),
+          "0: 2.5 dT", "s", lo=0.0, hi=1e6, effective="2.5 dT when 0"),
     Param("rate", 20.0, "rate the command is republished to the driver", "Hz", lo=0.1,
           hi=1000.0),
     Param("return_tol", 0.02, "between trials: position tolerance of the return", "m",
@@ -164,9 +187,9 @@ BRIDGE: tuple[Param, ...] = (
           "as timed out", "s", lo=1e-3, hi=1e6),
     Param("initial_pose", [0.0], "x, y, theta [m, m, rad] where the robot is placed; "
           "[0.0]: the scenario's desired start"),
-    _RUN["scenario"],
+    replace(_RUN["scenario"], effective=_FROM_CONFIG),
     Param("mode", "wallclock", "how the plant keeps time (a bridge needs wallclock)",
-          choices=MODES),
+          choices=MODES, effective=_FROM_CONFIG),
 )
 
 FAKE_DRIVER: tuple[Param, ...] = (
@@ -184,3 +207,34 @@ FAKE_DRIVER: tuple[Param, ...] = (
     Param("truth_period", 0.0, "tests: period of the truth report; 0: none", "s", lo=0.0,
           hi=1e6),
 )
+
+#: the parameters of the nodes whose tables live beside them (``robot_sim.physics_node``,
+#: ``robot_sim.physics_base``: their choices come from layers above this one); a test
+#: checks this list against those tables
+PLANT_NAMES = frozenset({
+    "model", "pose", "rate", "collide", "on_contact", "contact_retries", "tilt_limit",
+    "robots", "poses", "tick", "ns_pattern", "cmd_type", "odom_topic", "cmd_timeout"})
+#: parameters rclpy itself declares or reads on every node
+ROS_NAMES = frozenset({"use_sim_time", "start_type_description_service"})
+
+
+def known_names() -> frozenset[str]:
+    """Every parameter name some node of the stack takes (a ``/**`` section of a params
+    file may hold another node's)."""
+    tables = (RUN, LEADER, ROBOT, SIM, BRIDGE, FAKE_DRIVER)
+    return frozenset(p.name for t in tables for p in t) | PLANT_NAMES | ROS_NAMES
+
+
+def unknown_key(key: str, own: tuple[str, ...] | list[str]) -> str | None:
+    """Why ``key``, given to a node whose parameters are ``own``, is refused, naming the
+    closest known name; None for a name some node of the stack takes (another node's,
+    from a ``/**`` section, is left to that node) or one of ROS's."""
+    import difflib
+
+    if key in known_names() or key.startswith("qos_overrides."):
+        return None
+    close = (difflib.get_close_matches(key, list(own), n=1, cutoff=0.6)
+             or difflib.get_close_matches(key, sorted(known_names()), n=1, cutoff=0.6))
+    hint = f"did you mean {close[0]}?" if close else \
+        f"this node's are {', '.join(own) if own else 'none'}"
+    return f"parameter {key}: no node of formation-ilc has this parameter ({hint})"

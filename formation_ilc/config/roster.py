@@ -253,7 +253,7 @@ def roster(lineup: Lineup) -> Roster:
     w = np.zeros(n) if lineup.leader is None else np.asarray(lineup.leader, dtype=float)
     senders = [[int(j) + 1 for j in np.flatnonzero(a[i] > 0)] for i in range(n)]
     hears = [bool(w[i] > 0) for i in range(n)]
-    protocol = (nm.READY, nm.DIAGNOSTICS)
+    protocol = (nm.READY, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS)
     members: list[Member] = []
     if lineup.monitor:
         members.append(Member(
@@ -274,7 +274,7 @@ def roster(lineup: Lineup) -> Roster:
             (*nm.recorded_topics(n), *nm.view_topics(n), nm.PREVIEW), optional=True))
     members.append(Member(
         nm.LEADER_NODE, "leader", "formation-ilc-leader", NEVER, False, nm.LEADER_NODE,
-        (nm.CONFIG, nm.REFERENCE, nm.TRIAL_EVENTS, nm.DIAGNOSTICS),
+        (nm.CONFIG, nm.REFERENCE, nm.TRIAL_EVENTS, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS),
         # its own events too: it re-asserts against a start or abort it did not send (a
         # buggy node's, or a lossy link's replay)
         (nm.READY, nm.CONFIG, nm.CLOCK, nm.TRIAL_EVENTS)))
@@ -304,12 +304,11 @@ def _robot(i: int, senders: list[int], hears_leader: bool, lineup: Lineup) -> Me
                                                          for j in senders]
     if hears_leader:
         sub += [nm.link_topic(i, nm.LEADER), nm.REFERENCE]
-    if lineup.sensing == "team":
-        sub.append(nm.TEAM_POSES)
-    elif lineup.sensing == "peers":
+    if lineup.sensing is not None:  # every robot's pose, and the plant's team/poses
         sub += [nm.pose_topic(j) for j in range(1, lineup.n + 1) if j != i]
+        sub.append(nm.TEAM_POSES)
     pub = [nm.cmd_vel_topic(i), nm.shared_pose_topic(i), nm.trajectory_topic(i), nm.READY,
-           nm.DIAGNOSTICS]
+           nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS]
     return Member(nm.robot_name(i), "robot", "formation-ilc-robot", TRIAL, True,
                   nm.robot_name(i), tuple(pub), tuple(sub), robot=i)
 
@@ -324,7 +323,7 @@ def _plant(lineup: Lineup, row: Plant) -> list[Member]:
             pub += [nm.true_trajectory_topic(i) for i in robots]
         if row.clock:
             pub.append(nm.CLOCK)
-        pub += [nm.READY, nm.DIAGNOSTICS]
+        pub += [nm.READY, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS]
         if row.true_state:
             pub.append(nm.PREVIEW)
         if lineup.sensing == "team":
@@ -340,12 +339,13 @@ def _plant(lineup: Lineup, row: Plant) -> list[Member]:
         out.append(Member(
             nm.BASES_NODE, "driver", "formation-ilc-physics-bases", NEVER, False,
             nm.BASES_NODE,
-            (*(f"{lineup.driver_namespace(i)}/{odom}" for i in robots), nm.DIAGNOSTICS),
+            (*(f"{lineup.driver_namespace(i)}/{odom}" for i in robots), nm.DIAGNOSTICS,
+             nm.ROS_DIAGNOSTICS),
             tuple(f"{lineup.driver_namespace(i)}/cmd_vel" for i in robots)))
     for i in robots:
         ns = lineup.driver_namespace(i)
         c, o, mo = f"{ns}/{cmd}", f"{ns}/{odom}", f"{ns}/{motors}"
-        bridge_pub = [nm.pose_topic(i), nm.READY, nm.DIAGNOSTICS, c]
+        bridge_pub = [nm.pose_topic(i), nm.READY, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS, c]
         bridge_sub = [nm.cmd_vel_topic(i), nm.TRIAL_EVENTS, nm.CONFIG, o]
         driver_pub, driver_sub = [o], [c]
         if row.driver == "pioneer":

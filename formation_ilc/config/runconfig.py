@@ -23,7 +23,7 @@ from formation_ilc.core.links import LINK_MODES
 from formation_ilc.core.names import MONITOR_NODE, RECORDER_NODE
 
 __all__ = ["RunConfig", "make_config", "MODES", "WALL_MODES", "PARAMS", "param_text",
-           "scenario_reference"]
+           "scenario_reference", "disagreement"]
 
 MODES = ("lockstep", "realtime", "wallclock")
 #: modes in which the plant does not wait for commands (missed samples are held)
@@ -158,6 +158,27 @@ class RunConfig:
                 "headings": sc.headings, "time_scale": sc.time_scale,
                 "safety": None if self.safety is None else self.safety.to_json()}
 
+    @property
+    def scenario_param(self) -> str:
+        """The ``scenario`` parameter of this configuration: a built-in's name, or the file
+        it was loaded from."""
+        sc = self.scenario
+        return sc.name if sc.source.endswith("(built-in)") else sc.source
+
+    def agreement(self) -> dict[str, Any]:
+        """What every node of one run must agree on (its ``ready`` carries it): the
+        scenario (name and text), the draws, the law, the time grid, the links, the
+        filter. Two nodes that differ here would not run one team."""
+        import hashlib
+
+        sc = self.scenario
+        return {"scenario": sc.name,
+                "scenario_text": hashlib.sha256(sc.text.encode()).hexdigest()[:12],
+                "seed": sc.seed, **_switches(sc), "law": sc.law.kind,
+                "memory": sc.law.memory, "mode": self.mode, "links": self.links,
+                "gap": self.gap, "headings": sc.headings, "time_scale": float(sc.time_scale),
+                "safety": None if self.safety is None else self.safety.to_json()}
+
     def to_params(self, scenario: str) -> dict[str, Any]:
         """The ROS parameters (PARAMS) of this configuration; ``scenario`` is the name or
         file its scenario was loaded from (``scenario_reference``). Every value is
@@ -215,6 +236,12 @@ class RunConfig:
                        None if safety is None else SafetySettings.from_json(safety))
         except (KeyError, TypeError, ValueError) as exc:
             raise Rejected("malformed", f"bad run configuration: {exc}") from None
+
+
+def disagreement(mine: dict[str, Any], theirs: dict[str, Any]) -> list[tuple[str, Any, Any]]:
+    """The fields of two ``RunConfig.agreement`` on which they differ: (field, mine,
+    theirs), in the order of ``mine``; a field only one of them has is not compared."""
+    return [(k, v, theirs[k]) for k, v in mine.items() if k in theirs and theirs[k] != v]
 
 
 def _switches(sc: Scenario) -> dict[str, bool]:

@@ -32,9 +32,9 @@ __all__ = ["SafetySettings", "SENSING", "BODIES", "SKID_STEER", "default_learnin
 
 SENSING = ("team", "peers")
 #: bodies the filter knows (``model.footprint.BODIES``, kept here for the config layer)
-BODIES = ("p3dx", "husky", "turtlebot3", "turtlebot4", "jackal")
+BODIES = ("p3dx", "husky", "husky-imu", "turtlebot3", "turtlebot4", "jackal")
 #: the skid-steer bodies among them
-SKID_STEER = ("husky", "jackal")
+SKID_STEER = ("husky", "husky-imu", "jackal")
 
 
 def default_learning(body: str) -> str:

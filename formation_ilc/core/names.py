@@ -29,7 +29,8 @@ __all__ = ["NAMESPACE", "CLOCK", "LEADER_NODE", "SIM_NODE", "LINKS_NODE", "MONIT
            "robot_number", "bridge_name", "fake_driver_name", "robots_process_name",
            "namespace_remaps", "namespace_problem", "driver_ns_problem",
            # topics and frames
-           "CONFIG", "REFERENCE", "TRIAL_EVENTS", "READY", "DIAGNOSTICS", "LEADER",
+           "CONFIG", "REFERENCE", "TRIAL_EVENTS", "READY", "DIAGNOSTICS", "ROS_DIAGNOSTICS",
+           "LEADER",
            "WORLD_FRAME", "pose_topic", "cmd_vel_topic", "shared_pose_topic", "link_topic",
            "trajectory_topic", "true_trajectory_topic", "absolute", "relative", "clock_topic",
            "recorded_topics", "MARKERS", "desired_pose_topic", "desired_path_topic",
@@ -141,6 +142,10 @@ REFERENCE = "leader/reference"
 TRIAL_EVENTS = "leader/trial_events"
 READY = "ready"
 DIAGNOSTICS = "diagnostics"
+#: the standard diagnostics stream ROS tools read (diagnostic_aggregator, rqt_robot_monitor):
+#: every node's statuses about once a second, ``node: task`` names, plain values; absolute,
+#: remappable with ``-r /diagnostics:=TOPIC``
+ROS_DIAGNOSTICS = "/diagnostics"
 #: the leader as a sender: link names ``leader->robot_i``, the emulated link
 #: ``robot_i/links/leader``
 LEADER = "leader"

@@ -63,8 +63,9 @@ class Footprint:
 #: bodies the clearance is measured for, by name: a Pioneer 3-DX (and the physics model of
 #: its size) about its axle, the Husky about its turning point (docs/physics.md), and the
 #: bases' presets (``formation_ilc.config.bases``)
-BODIES = ("p3dx", "husky", "turtlebot3", "turtlebot4", "jackal")
-_OWN = {"p3dx": Footprint(0.455, 0.381, -0.045), "husky": Footprint(0.99, 0.67, 0.17)}
+BODIES = ("p3dx", "husky", "husky-imu", "turtlebot3", "turtlebot4", "jackal")
+_OWN = {"p3dx": Footprint(0.455, 0.381, -0.045), "husky": Footprint(0.99, 0.67, 0.17),
+        "husky-imu": Footprint(0.99, 0.67, 0.17)}
 
 
 def footprint_of(name: str) -> Footprint:

@@ -31,7 +31,7 @@ import os
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib import resources
 from typing import Any
 
@@ -112,6 +112,12 @@ class RobotModel:
     geometric_track: float = field(default=0.0)
     limits: Limits = field(default_factory=Limits)
     limits_source: str = ""
+    #: velocity loops on the base (the body's speed and turn rate, as an IMU-fused odometry
+    #: gives them, fed back at SENSE_RATE): the wheel speeds' mean and difference are
+    #: corrected by a proportional and an integral term of gain ``yaw_loop`` [1/s] on the
+    #: errors, so that the body drives and turns as commanded whatever its wheels slip
+    #: (what a skid-steer base's controller with an IMU can do); 0: open loop
+    yaw_loop: float = 0.0
 
 
 MODELS: dict[str, RobotModel] = {
@@ -135,6 +141,14 @@ MODELS: dict[str, RobotModel] = {
         limits_source="Husky datasheet 1.0 m/s; husky_control control.yaml: 2.0 rad/s, "
                       "3.0 m/s^2, 6.0 rad/s^2"),
 }
+
+
+# the Husky whose base closes velocity loops on the body's speed and turn rate (an IMU-fused
+# controller): it drives and turns as commanded whatever its wheels slip (docs/physics.md,
+# "Skid steer")
+MODELS["husky-imu"] = replace(
+    MODELS["husky"], name="husky-imu", yaw_loop=10.0,
+    source="pybullet_data husky/husky.urdf (Clearpath Husky) with velocity loops on the base")
 
 
 def robot_model(name: str, **changes: Any) -> RobotModel:
@@ -247,6 +261,7 @@ class PhysicsWorld:
         self._cmd = np.zeros((n, 2))
         #: commands the limits changed since ``place`` (``step``)
         self.limited = 0
+        self._loop_i = np.zeros((n, 2))  # the velocity loops' integrals [m/s, rad/s]
 
     # ------------------------------------------------------------------ state
     def place(self, poses: NDArray[np.float64]) -> None:
@@ -266,6 +281,7 @@ class PhysicsWorld:
         self.yaw[:] = np.asarray(poses, dtype=float)[:, 2]
         self._cmd[:] = 0.0
         self.limited = 0
+        self._loop_i[:] = 0.0
         # settle on the wheels without driving (a URDF's origin may sit above the floor)
         self._drive(np.zeros((self.n, 2)))
         for _ in range(self.substeps):
@@ -363,10 +379,16 @@ class PhysicsWorld:
         u = held
         self._cmd[:] = u
         self._drive(u)
+        loop = self.model.yaw_loop
         for k in range(1, self.substeps + 1):
             pb.stepSimulation(physicsClientId=c)
             if k % self.sense_every == 0 or k == self.substeps:
                 self._sense()
+                if loop > 0:  # the base's own velocity loops: P + I on speed and turn
+                    self.truth()  # the headings now (the body's forward direction)
+                    err = u - self.body_twist()
+                    self._loop_i += loop * loop / 4 * err * self.h * self.sense_every
+                    self._drive(u + 0.1 * loop * err + self._loop_i)
         self.steps += self.substeps
 
     def _sense(self) -> None:

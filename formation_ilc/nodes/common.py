@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import os
 import signal
+import socket
 import sys
 import uuid
 from collections import Counter
@@ -16,6 +17,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -40,7 +42,7 @@ from formation_ilc.system.lifetime import (
 )
 
 __all__ = ["PARENT_ENV", "RUN_ENV", "KEY_ENV", "run_key", "DROP_REASONS", "DropCounter",
-           "RunConfig", "make_config",
+           "Diagnostics", "RunConfig", "make_config",
            "config_from_msg", "ConfiguredNode", "warm_up", "warm_up_draws", "matched", "unmatched",
            "readers_wanting", "fail",
            "spin_main", "node_parser", "ros_param", "robot_node_from_args"]
@@ -105,6 +107,9 @@ class ConfiguredNode(Node):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(name, **kwargs)
         self.drops = DropCounter(self)
+        #: the per-trial report and the standard stream (from the start: a node that waits
+        #: for its configuration is alive)
+        self.diag_pub = Diagnostics(self)
         self.configured = False
         #: this process's identity in ``ready`` (a new one tells the leader it restarted)
         self.boot = uuid.uuid4().hex[:12]
@@ -121,7 +126,7 @@ class ConfiguredNode(Node):
         self.follower.said_ready()
         return ms.json_to_msg(Ready(self.get_name(), trial, self.boot, self.follower.seen,
                                     passive, self.run_id, abort_slot=abort_slot,
-                                    why=why).to_json())
+                                    why=why, config=self.own_config).to_json())
 
     @property
     def run_id(self) -> str:
@@ -138,9 +143,19 @@ class ConfiguredNode(Node):
             self.drops.reject(exc, ms.TRIAL_EVENTS)
             return None
 
-    def follow_config(self, cfg: RunConfig | None = None) -> None:
-        """Configure now from ``cfg``, or when the config topic delivers one."""
+    #: the fields of ``RunConfig.agreement`` this node runs with (None: all)
+    AGREES_ON: tuple[str, ...] | None = None
+    #: what a node that configured itself from its own parameters runs with (its readies
+    #: carry it; the leader names a difference and stops); None when it follows ``config``
+    own_config: dict[str, Any] | None = None
+
+    def follow_config(self, cfg: RunConfig | None = None, own: bool = True) -> None:
+        """Configure now from ``cfg`` (``own``: from the node's own parameters), or when the
+        config topic delivers one."""
         if cfg is not None:
+            if own:
+                self.own_config = {k: v for k, v in cfg.agreement().items()
+                                   if self.AGREES_ON is None or k in self.AGREES_ON}
             self.configured = True
             try:
                 self.configure(cfg)
@@ -178,10 +193,45 @@ class ConfiguredNode(Node):
                             f"node belongs to run {mine}")
             return
         self._config_json = ms.msg_to_json(msg)
-        self.follow_config(cfg)
+        self.follow_config(cfg, own=False)
 
     def configure(self, cfg: RunConfig) -> None:
         raise NotImplementedError
+
+
+class Diagnostics:
+    """A node's diagnostics, two ways. ``publish`` sends its report (``diagnostics_to_msg``)
+    on the formation's ``diagnostics`` (latched, at each trial's end: the launcher, the
+    recorder and analyze read it, values as JSON), and the standard stream repeats the
+    node's current statuses on ``/diagnostics`` every ``PERIOD`` seconds and at each
+    report, as diagnostic_updater does: ``node: task`` names, hardware ids, plain values,
+    so that the aggregator's staleness (5 s by default) sees a live node as live."""
+
+    PERIOD = 1.0
+
+    def __init__(self, node: Node):
+        from rclpy.clock import Clock, ClockType
+
+        self.node = node
+        self.name = node.get_name()
+        self.host = socket.gethostname()
+        self.pub = node.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        self.ros_pub = node.create_publisher(DiagnosticArray, ms.ROS_DIAGNOSTICS,
+                                             ms.ROS_DIAGNOSTICS_QOS)
+        self.statuses = [ms.starting_status(self.name, self.host, "running; no report yet")]
+        node.create_timer(self.PERIOD, self.tick,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def publish(self, msg: DiagnosticArray) -> None:
+        self.pub.publish(msg)
+        self.statuses = ms.standard_statuses(msg, self.name, self.host)
+        self.tick()
+
+    def tick(self) -> None:
+        out = DiagnosticArray()
+        out.header.stamp = self.node.get_clock().now().to_msg()
+        out.status = self.statuses
+        self.ros_pub.publish(out)
 
 
 def warm_up(pb: Problem, unc: Uncertainty | None = None) -> None:

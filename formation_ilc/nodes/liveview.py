@@ -51,6 +51,7 @@ from formation_ilc.core.clock import Rejected
 from formation_ilc.core.names import LIVEVIEW_NODE
 from formation_ilc.nodes.common import DropCounter, RunConfig, node_parser, run_key, spin_main
 from formation_ilc.nodes.observer import Observer, msg_class
+from formation_ilc.nodes.params import declare
 from formation_ilc.recordings.mcap_io import message_definition
 
 #: the default port of the live view (Foxglove's own default)
@@ -65,6 +66,8 @@ DEFAULT_RATE = 30.0
 #: how soon [s] the subscriptions follow a viewer's (the server's thread only flags it: the
 #: EventsExecutor takes no guard conditions)
 FOLLOW = 0.1
+#: the most writers a latched channel keeps a last message of (readies, diagnostics)
+LATCHED_WRITERS = 256
 #: how often [s] the bridge also looks whether DDS readers take the view topics it computes
 RECHECK = 1.0
 #: per-sample topics: a bridge that falls behind loses samples; the writers never wait
@@ -87,7 +90,7 @@ class _Viewers:
         self.node = node
 
     def on_subscribe(self, client: Any, channel: Any) -> None:
-        self.node.viewers_want(channel.topic, +1)
+        self.node.viewers_want(channel.topic, +1, client.id)
 
     def on_unsubscribe(self, client: Any, channel: Any) -> None:
         self.node.viewers_want(channel.topic, -1)
@@ -98,6 +101,7 @@ class LiveViewNode(Node):
                  preview: bool = False, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(LIVEVIEW_NODE, **kwargs)
+        declare(self, ())  # no parameters of its own; a misspelt one is refused
         import foxglove
 
         self.foxglove = foxglove
@@ -126,6 +130,11 @@ class LiveViewNode(Node):
         self.wanted: Counter[str] = Counter()
         self._lock = threading.Lock()
         self._changed = False
+        #: latched channels (relative topic) -> the last message of each writer, as
+        #: foxglove_bridge's per-client subscriptions give a late viewer (transient local)
+        self.latched: dict[str, dict[str, bytes]] = {}
+        #: (client id, absolute topic) of subscriptions that still get the latched state
+        self._joined: list[tuple[int, str]] = []
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(FOLLOW, self._follow, clock=steady)
         self.create_timer(RECHECK, self._reconcile, clock=steady)
@@ -146,6 +155,8 @@ class LiveViewNode(Node):
         a viewer wants it."""
         self._channel(topic, type_name)
         self.sources[topic] = frozenset({topic})
+        if qos.durability == DurabilityPolicy.TRANSIENT_LOCAL:
+            self.latched.setdefault(topic, {})
         if qos.durability == DurabilityPolicy.TRANSIENT_LOCAL or topic == ms.TRIAL_EVENTS:
             self._subscribe(topic, type_name, qos)
         else:
@@ -162,18 +173,57 @@ class LiveViewNode(Node):
         self.subs[topic] = self.create_subscription(msg_class(type_name), topic, on,
                                                     _reader_qos(qos), raw=True)
 
-    def viewers_want(self, absolute: str, change: int) -> None:
+    def viewers_want(self, absolute: str, change: int, client: int | None = None) -> None:
         """A viewer subscribed (+1) to a channel or left it (-1): the subscriptions follow
-        on the executor's thread."""
+        on the executor's thread, and a new subscriber gets the channel's latched state."""
         with self._lock:
             self.wanted[absolute] += change
             self._changed = True
+            if change > 0 and client is not None:
+                self._joined.append((client, absolute))
 
     def _follow(self) -> None:
         with self._lock:
             changed, self._changed = self._changed, False
+            joined, self._joined = self._joined, []
         if changed:
             self._reconcile()
+        for client, absolute in joined:
+            self._send_latched(client, absolute)
+        if self.server is not None:
+            self.server.broadcast_time(time.time_ns())  # the time capability: log times
+
+    def _send_latched(self, client: int, absolute: str) -> None:
+        """The last message of each writer of a latched channel, to one new subscriber
+        (the SDK logs to a single client by its id: ``sink_id``)."""
+        for topic, last in self.latched.items():
+            if self.resolve_topic_name(topic) != absolute:
+                continue
+            ch = self.channels.get(topic)
+            for data in list(last.values()):
+                ch.log(data, log_time=time.time_ns(), sink_id=client)
+
+    def _keep(self, topic: str, data: bytes) -> None:
+        """Keep ``data`` as the last word of its writer on a latched channel: readies and
+        diagnostics have a writer per node (told apart by the node they name), the others
+        one."""
+        last = self.latched.get(topic)
+        if last is None:
+            return
+        key = ""
+        try:
+            if topic == ms.READY:
+                key = str(ms.msg_to_json(ms.deserialize(data, String)).get("node", ""))
+            elif topic == ms.DIAGNOSTICS:
+                from diagnostic_msgs.msg import DiagnosticArray
+
+                sts = ms.deserialize(data, DiagnosticArray).status
+                key = sts[0].name if sts else ""
+        except Exception:  # noqa: BLE001 - a message that does not decode is not kept
+            return
+        if key not in last and len(last) >= LATCHED_WRITERS:
+            return  # bounded: a flood of made-up writers keeps no more
+        last[key] = data
 
     def _reconcile(self) -> None:
         """Take exactly the per-sample topics that the viewers' channels (and DDS readers of
@@ -224,6 +274,8 @@ class LiveViewNode(Node):
             return
         if channel is not None and (topic not in self.on_demand or self._take(topic)):
             channel.log(data, log_time=time.time_ns())
+        if topic in self.latched:
+            self._keep(topic, data)
         if topic == ms.CONFIG and self.cfg is None:
             self._configure(data)
         elif self.observer is not None:
@@ -253,6 +305,8 @@ class LiveViewNode(Node):
 
     def _view_sink(self, topic: str, data: bytes, stamp: int) -> None:
         self.channels[topic].log(data, log_time=time.time_ns())
+        if topic in self.latched:
+            self._keep(topic, data)
 
     def _configure(self, data: bytes) -> None:
         try:
@@ -274,6 +328,8 @@ class LiveViewNode(Node):
                 continue
             self._channel(topic, type_name)
             self.sources[topic] = frozenset(self._made_of(topic, poses, self.sampled))
+            if qos.durability == DurabilityPolicy.TRANSIENT_LOCAL:
+                self.latched.setdefault(topic, {})
         if self.observe or self.sampled:
             # with a recorder (which publishes the view topics on DDS) only to the viewers
             self.observer = Observer(self if self.observe else None, self.cfg,
@@ -334,9 +390,10 @@ def main(args: list[str] | None = None) -> int:
 
         def start(listener: Any) -> Any:
             try:
-                return foxglove.start_server(name="formation-ilc", host=ns.host,
-                                             port=ns.port, message_backlog_size=BACKLOG,
-                                             server_listener=listener)
+                return foxglove.start_server(
+                    name="formation-ilc", host=ns.host, port=ns.port,
+                    message_backlog_size=BACKLOG, server_listener=listener,
+                    capabilities=[foxglove.Capability.Time])
             except Exception as exc:  # noqa: BLE001 - the SDK's own error type: port in use
                 print(f"formation-ilc-liveview: cannot serve on {ns.host}:{ns.port}: {exc}",
                       file=sys.stderr)

@@ -26,9 +26,9 @@ from rcl_interfaces.msg import (
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from formation_ilc.config.params import BIG, Param, choice_text, describe
+from formation_ilc.config.params import BIG, Param, choice_text, describe, unknown_key
 
-__all__ = ["ParameterError", "declare", "probe_overrides", "SIM_TIME_REFUSED"]
+__all__ = ["ParameterError", "declare", "effective", "probe_overrides", "SIM_TIME_REFUSED"]
 
 SIM_TIME_REFUSED = ("use_sim_time is not supported: the stack keeps its own time (lockstep "
                     "labels on /clock are read as messages, wallclock is the system clock)")
@@ -116,6 +116,13 @@ def declare(node: Node, table: tuple[Param, ...] | list[Param], **given: Any) ->
     if node.get_parameter("use_sim_time").value:
         raise ParameterError(f"parameter {SIM_TIME_REFUSED}")
     overrides = node._parameter_overrides  # -p and --params-file, as rcl matched them
+    tables = getattr(node, "_formation_params", {})
+    tables.update({p.name: p for p in table})
+    node._formation_params = tables
+    for key in sorted(overrides):  # a misspelt key would silently leave its default
+        why = unknown_key(key, list(tables))
+        if why is not None:
+            raise ParameterError(why)
     for p in table:
         if p.name in given:
             value = check(p, given[p.name])
@@ -125,6 +132,29 @@ def declare(node: Node, table: tuple[Param, ...] | list[Param], **given: Any) ->
             value = p.default
         node.declare_parameter(p.name, value, descriptor(p), ignore_override=True)
     node.add_on_set_parameters_callback(_refuse_sim_time)
+
+
+def effective(node: Node, values: dict[str, Any]) -> None:
+    """Make the (read-only) parameters ``values`` read what the node runs with: the run
+    configuration it took from the leader, a preset's topics and limits, the scenario's
+    value where a parameter "keeps the scenario's". Their descriptions say so
+    (``Param.effective``); a parameter event goes out as for any change."""
+    table: dict[str, Param] = getattr(node, "_formation_params", {})
+    params, descriptors = [], {}
+    for name, value in values.items():
+        p = table.get(name)
+        if p is None or not node.has_parameter(name):
+            continue
+        v = _coerce(p, value)
+        if v == node.get_parameter(name).value:
+            continue
+        params.append(Parameter(name, value=v))
+        descriptors[name] = node.describe_parameter(name)
+    if params:
+        # rclpy's own path for a declaration (descriptors given: read-only is not checked)
+        res = node._set_parameters_atomically_common(params, descriptors)
+        if not res.successful:
+            raise ParameterError(f"parameters {', '.join(descriptors)}: {res.reason}")
 
 
 def _refuse_sim_time(params: list[Parameter]) -> SetParametersResult:

@@ -69,7 +69,6 @@ import sys
 import time
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist, TwistStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
@@ -88,7 +87,7 @@ from formation_ilc.nodes.common import (
     robot_node_from_args,
     spin_main,
 )
-from formation_ilc.nodes.params import ParameterError, check, declare
+from formation_ilc.nodes.params import ParameterError, check, declare, effective
 from formation_ilc.protocol.bridge import Bridge, CommandLimits, Returned, bridge_limits
 from formation_ilc.protocol.schedule import Ready
 from formation_ilc.protocol.wallclock import START_AHEAD_MAX
@@ -105,6 +104,9 @@ def _join(ns: str, name: str) -> str:
 
 class BridgeNode(ConfiguredNode):
     """The bridge of robot ``robot_id`` (parameter; ``**kwargs`` go to ``Node``)."""
+
+    #: what a bridge that took its own scenario runs with (its draws and links are not its)
+    AGREES_ON = ("scenario", "scenario_text", "mode", "gap")
 
     def __init__(self, robot_id: int | None = None, **kwargs: Any):
         if robot_id is None:
@@ -145,6 +147,14 @@ class BridgeNode(ConfiguredNode):
         ns = str(g("driver_ns")) or self.spec.default_ns
         self.driver_topics = (_join(ns, self.spec.cmd), _join(ns, self.spec.odom),
                               _join(ns, self.spec.motors))
+        # the parameters read what the bridge drives with: a preset's driver, topics,
+        # message type and limits
+        used = {"v_max": lim.v_max, "omega_max": math.degrees(lim.omega_max)}
+        if preset is not None:
+            used.update(a_max=lim.a_max, alpha_max=math.degrees(lim.alpha_max))
+        effective(self, {"driver": driver, "driver_ns": ns,
+                         "cmd_type": "twist_stamped" if self.stamped else "twist",
+                         **{k: float(v) for k, v in used.items() if math.isfinite(v)}})
         cfg = None
         if g("scenario"):
             cfg = make_config(str(g("scenario")), noise=False, delay=False, links="direct",
@@ -164,12 +174,13 @@ class BridgeNode(ConfiguredNode):
                  float(g("return_timeout"))))
         self.follower = core.follower
         self.cfg = cfg
+        effective(self, {"scenario": cfg.scenario_param, "mode": cfg.mode,
+                         "cmd_timeout": float(core.watchdog.timeout)})
         self.motors_on = False
 
         self.pose_pub = self.create_publisher(PoseStamped, ms.pose_topic(self.id),
                                               ms.SAMPLE_QOS)
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         self.create_subscription(Twist, ms.cmd_vel_topic(self.id), self._on_cmd, ms.SAMPLE_QOS)
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
         cmd_t, odom_t, motors_t = self.driver_topics

@@ -48,7 +48,14 @@ from std_msgs.msg import String
 import msgs_schema as ms
 from formation_ilc.core.clock import Rejected
 from formation_ilc.core.links import check_diagnostics
-from formation_ilc.nodes.common import DropCounter, RunConfig, node_parser, run_key, spin_main
+from formation_ilc.nodes.common import (
+    Diagnostics,
+    DropCounter,
+    RunConfig,
+    node_parser,
+    run_key,
+    spin_main,
+)
 from formation_ilc.nodes.observer import Observer
 from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.schedule import Ready, TrialEvent, sealed
@@ -103,7 +110,7 @@ class RecorderNode(Node):
         self.progress_topics: set[str] = set()  # what _progress reads (once configured)
         self.said_ready = False
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
+        self.diag_pub = Diagnostics(self)  # per-trial report and /diagnostics
         self.paths: dict[int, set[str]] = {}  # slot -> topics of its trajectories recorded
         self.iteration_of: dict[int, int] = {}  # slot -> iteration (start events)
         self.aborted: set[int] = set()

@@ -57,7 +57,6 @@ import time
 from collections import Counter
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist
 from nav_msgs.msg import Path
 from rclpy.node import Node
@@ -80,7 +79,7 @@ from formation_ilc.nodes.common import (
     unmatched,
     warm_up,
 )
-from formation_ilc.nodes.params import ParameterError, check, declare
+from formation_ilc.nodes.params import ParameterError, check, declare, effective
 from formation_ilc.protocol.learner import RobotLearner
 from formation_ilc.protocol.schedule import Follower
 from formation_ilc.store.memoryfile import MemoryFileError, load_memory
@@ -125,6 +124,12 @@ class RobotNode(ConfiguredNode):
     def configure(self, cfg: RunConfig) -> None:
         pb = Problem.from_scenario(cfg.scenario)
         self.cfg, self.pb = cfg, pb
+        sc = cfg.scenario
+        # the parameters read what runs: the leader's configuration overrides them
+        effective(self, {"scenario": cfg.scenario_param, "seed": sc.seed,
+                         "noise": sc.uncertainty.noisy,
+                         "delay": sc.uncertainty.delay.kind != "none", "links": cfg.links,
+                         "mode": cfg.mode})
         self.realtime = cfg.wall
         memory = None
         path = str(self.get_parameter("init_memory").value)
@@ -160,7 +165,6 @@ class RobotNode(ConfiguredNode):
         self.traj_pub = self.create_publisher(Path, ms.trajectory_topic(self.id),
                                               ms.TRAJECTORY_QOS)
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        self.diag_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS, ms.LATCHED_QOS)
         # the per-sample messages as bytes (msgs_schema.wire: no message objects)
         self.sample_subs = [self.create_subscription(
             PoseStamped, ms.pose_topic(self.id), self._on_pose, ms.SAMPLE_QOS, raw=True)]

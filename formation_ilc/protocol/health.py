@@ -36,8 +36,21 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from formation_ilc.core.clock import Malformed
+from formation_ilc.core.names import (
+    BASES_NODE,
+    BRIDGE_PREFIX,
+    LEADER_NODE,
+    LINKS_NODE,
+    LIVEVIEW_NODE,
+    MONITOR_NODE,
+    PHYSICS_NODE,
+    RECORDER_NODE,
+    ROBOT_PREFIX,
+    SIM_NODE,
+)
 
 __all__ = ["OK", "WARN", "ERROR", "Status", "flatten", "unflatten", "assess", "statuses",
+           "TASKS", "task_name", "plain_value", "hardware_of",
            "MISSED_ERROR", "LATENCY_WARN", "WARN_DROPS", "DIAG_STATUS_MAX", "DIAG_VALUES_MAX",
            "read_statuses", "node_report"]
 
@@ -77,6 +90,42 @@ def flatten(d: Mapping[str, Any], prefix: str = "") -> list[tuple[str, str]]:
         else:
             out.append((key, json.dumps(v, separators=(",", ":"))))
     return out
+
+
+#: the task each node's own status stands for (``node: task`` on the standard stream, as
+#: diagnostic_updater names a status)
+TASKS = {LEADER_NODE: "schedule", SIM_NODE: "plant", PHYSICS_NODE: "plant",
+         LINKS_NODE: "links", RECORDER_NODE: "recording", BASES_NODE: "bases",
+         MONITOR_NODE: "monitor", LIVEVIEW_NODE: "live view"}
+
+
+def task_name(node: str) -> str:
+    """The standard status name of ``node``'s own report: ``robot_2: learner``,
+    ``bridge_1: bridge``, ``virtual_leader: schedule``."""
+    for prefix, task in ((ROBOT_PREFIX, "learner"), (BRIDGE_PREFIX, "bridge")):
+        if node.startswith(prefix) and node[len(prefix):].isdigit():
+            return f"{node}: {task}"
+    return f"{node}: {TASKS.get(node, 'report')}"
+
+
+def hardware_of(node: str, host: str) -> str:
+    """The hardware a node's status is about: its robot (``robot_i`` for robot i's learner
+    and bridge), else the host it runs on."""
+    for prefix in (ROBOT_PREFIX, BRIDGE_PREFIX):
+        digits = node[len(prefix):]
+        if node.startswith(prefix) and digits.isdigit():
+            return f"{ROBOT_PREFIX}{digits}"
+    return host
+
+
+def plain_value(text: str) -> str:
+    """A key/value pair's value as ROS tools show it: a JSON string without its quotes, any
+    other value (number, true, list) as its JSON text."""
+    try:
+        v = json.loads(text)
+    except ValueError:
+        return text
+    return v if isinstance(v, str) else text
 
 
 def unflatten(pairs: Iterable[tuple[str, str]]) -> dict[str, Any]:

@@ -35,12 +35,13 @@ What it decides:
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol
 
-from formation_ilc.config.runconfig import RunConfig
+from formation_ilc.config.runconfig import RunConfig, disagreement
 from formation_ilc.core.clock import Rejected, WallGrid
 from formation_ilc.core.names import CONFIG, LEADER_NODE, TRIAL_EVENTS, robot_name
 from formation_ilc.protocol.plant import RESEND_S
@@ -69,6 +70,10 @@ ABORT_REPEAT = 1.0
 FIRST_START_WAIT = 2.0
 #: the leader's node name (its diagnostics name it)
 NAME = LEADER_NODE
+
+
+def _shown(value: Any) -> str:
+    return str(value) if not isinstance(value, (dict, list)) else json.dumps(value)[:200]
 
 
 class LeaderIO(Protocol):
@@ -187,6 +192,8 @@ class Leader:
             if r.trial > self.sched.committed + 1 and not r.passive:
                 raise Rejected("future", f"{r.node} ready for trial {r.trial}, but the "
                                          f"schedule has {self.sched.committed} trials learned")
+            if r.config is not None:
+                self.check_agreement(r.node, r.config)
         except Rejected as exc:
             if r is not None and r.node in self.expected and exc.reason != "foreign":
                 self.refused[r.node] = f"{exc.reason}: {exc}"
@@ -202,6 +209,21 @@ class Leader:
             self.aborted(why)
         self._save()
         self.maybe_start()
+
+    def check_agreement(self, node: str, config: dict[str, Any]) -> None:
+        """A node that configured itself from its own parameters runs ``config``
+        (``RunConfig.agreement``): where it differs from the leader's, the leader names
+        both values and stops (status 2; it adopts neither: a team of two configurations
+        would run trials that neither describes). Rejected after the stop."""
+        diff = disagreement(self.cfg.agreement(), config)
+        if not diff:
+            return
+        said = "; ".join(f"{k}: {node} runs {_shown(theirs)}, {NAME} {_shown(mine)}"
+                         for k, mine, theirs in diff)
+        self.io.fail(f"the nodes' configurations disagree: {said}. {NAME} stops: start "
+                     f"every node from the same parameters, or start {node} without a "
+                     f"scenario so that it takes the leader's configuration", 2)
+        raise Rejected("unexpected", f"{node} runs another configuration")
 
     def aborted(self, why: str) -> None:
         """An abort is pending (just begun): say so, save it, then publish it (saved first:

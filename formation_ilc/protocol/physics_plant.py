@@ -45,6 +45,7 @@ from formation_ilc.model.physics import (
     robot_model,
 )
 from formation_ilc.protocol.plant import KinematicPlant
+from formation_ilc.protocol.schedule import ABORT, TrialEvent
 
 __all__ = ["PhysicsPlant", "BaseRobots", "BaseOdometry", "physics_available", "ON_CONTACT",
            "ContactEvent"]
@@ -168,6 +169,21 @@ class PhysicsPlant(KinematicPlant):
         self.contact_trials += 1
         self.contact = self.fresh_contact = ContactEvent(
             i, self.k, t, tuple(pairs), float(tilts.max()), int(np.argmax(tilts)) + 1, action)
+
+    @property
+    def held(self) -> bool:
+        """The trial waits for the leader's abort: its robots touched and were stopped
+        (``stop``), so no further sample goes out, its last one included (a sample after
+        the contact would let the robots finish and learn from the trial the abort is to
+        take back). The abort of its slot releases it (``on_event``)."""
+        return self.contact is not None and self.contact.action == "stop"
+
+    def on_event(self, ev: TrialEvent, now: float) -> TrialEvent | None:
+        taken = super().on_event(ev, now)
+        if (taken is not None and taken.event == ABORT and self.contact is not None
+                and taken.slot == self.contact.slot):
+            self.contact = None  # the trial it held is gone
+        return taken
 
     def take_contact(self) -> ContactEvent | None:
         """The contact of this trial not yet taken (the node reports it once)."""

@@ -214,6 +214,10 @@ class Ready:
     #: robots touched: ``--on-contact stop``); -1: no request
     abort_slot: int = -1
     why: str = ""
+    #: what the node runs with, when it configured itself from its own parameters
+    #: (``RunConfig.agreement``, or the part of it the node uses): the leader compares it
+    #: with its own
+    config: dict[str, Any] | None = None
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> Ready:
@@ -223,9 +227,13 @@ class Ready:
         why = d.get("why", "")
         if not isinstance(why, str) or len(why) > 2000:
             raise Malformed("ready: why must be a text of at most 2000 characters")
+        config = d.get("config")
+        if config is not None and not (isinstance(config, dict) and len(config) <= 32
+                                       and len(json.dumps(config)) <= 4000):
+            raise Malformed("ready: config must be an object of at most 32 fields")
         return cls(node, _int(d, "trial"), str(d.get("boot", "")), _int(d, "seen", -1),
                    bool(d.get("passive", False)), str(d.get("run", "")),
-                   bool(d.get("down", False)), _int(d, "abort_slot", -1), why)
+                   bool(d.get("down", False)), _int(d, "abort_slot", -1), why, config)
 
     def to_json(self) -> dict[str, Any]:
         d: dict[str, Any] = {"node": self.node, "trial": self.trial, "boot": self.boot,
@@ -239,6 +247,8 @@ class Ready:
         if self.abort_slot >= 0:
             d["abort_slot"] = self.abort_slot
             d["why"] = self.why
+        if self.config is not None:
+            d["config"] = self.config
         return d
 
 

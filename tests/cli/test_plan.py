@@ -446,3 +446,13 @@ def test_values_no_run_can_have_are_refused_before_anything_starts(tmp_path):
     assert msg.startswith(f"--init-memory {huge}: robot 1's v at sample 0 is 1e+300, beyond "
                           f"1e+06 (m/s, rad/s)")
     assert not (tmp_path / "run" / "logs").exists()
+
+
+def test_live_without_foxglove_sdk_is_refused_before_anything_starts(tmp_path, monkeypatch):
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "foxglove" else real(name, *a))
+    r = refusal(tmp_path, "paper-triangle3", "--live")
+    assert r.status == 2 and r.message.startswith("argument --live: needs foxglove-sdk")

@@ -53,7 +53,10 @@ def test_robot_reads_its_in_neighbours_and_the_leader_only_if_it_hears_it(grants
         assert f"{NS}/robot_{j}/shared_pose" in g3 and f"{NS}/robot_{j}/trajectory" in g3
         assert f"{NS}/robot_3/links/robot_{j}" in g3
     assert f"{NS}/leader/reference" not in g3
-    assert f"{NS}/robot_3/pose" in g3 and f"{NS}/robot_1/pose" not in g3
+    # every robot's pose (behind bridges) and the plant's team/poses: the safety filter
+    # keeps it away from all of them, neighbours or not; reading is all it may do
+    assert {f"{NS}/robot_{j}/pose" for j in (1, 2, 3)} <= g3
+    assert f"{NS}/team/poses" in g3
     g2 = set(grants[f"{NS}/robot_2"].subscribe)
     assert f"{NS}/robot_3/shared_pose" not in g2  # 3 is not an in-neighbour of 2
     assert f"{NS}/robot_1/shared_pose" in g2
@@ -103,7 +106,12 @@ def test_adding_a_robot_changes_only_the_grants_that_see_it(grants):
     bigger = grants_of(adj, np.append(LEADER, 0.0))
     assert set(bigger) - set(grants) == {f"{NS}/robot_4"}
     same = {p for p in grants if grants[p] == bigger[p]}
-    assert same == {f"{NS}/robot_1", f"{NS}/robot_2", f"{NS}/robot_3", f"{NS}/virtual_leader"}
+    assert same == {f"{NS}/virtual_leader"}
+    # the robots already there change only by reading robot 4's pose (their safety filter)
+    for i in (1, 2, 3):
+        extra = set(bigger[f"{NS}/robot_{i}"].subscribe) - set(grants[f"{NS}/robot_{i}"].subscribe)
+        assert extra == {f"{NS}/robot_4/pose"}
+        assert bigger[f"{NS}/robot_{i}"].publish == grants[f"{NS}/robot_{i}"].publish
 
 
 def test_pioneer_bridges_and_drivers(grants):

@@ -12,8 +12,8 @@ kind, for every plant x links x record x live combination of paper-triangle3 and
 simulator and the Pioneer drivers. Each answer must stay what it was: keystores made before
 stay valid, launches start the same processes with the same command lines. The one
 difference is what the safety filter (added at 88c1f6a) reads and its grants never had:
-the plant's ``team/poses`` (robots on the simulator), each other robot's pose (robots
-behind bridges); those permissions are added, and only those.
+every other robot's pose and the plant's ``team/poses`` (as main granted them from
+77a8d24 on); those permissions are added, and only those.
 """
 
 from __future__ import annotations
@@ -85,22 +85,26 @@ def test_every_enclave_keeps_its_grant(key):
         name = path.rsplit("/", 1)[1]
         pub = {t for t in g["publish"] if t == absolute(TEAM_POSES, namespace)}
         sub = {t for t in g["subscribe"] if t == absolute(TEAM_POSES, namespace)}
-        if plant == "pioneer" and name.startswith("robot_"):
-            i = int(name.split("_")[1])
+        if name.startswith("robot_") and name[6:].isdigit():
+            i = int(name[6:])
             sub |= {absolute(pose_topic(j), namespace) for j in range(1, n + 1) if j != i}
         g["publish"] = [t for t in g["publish"] if t not in pub]
         g["subscribe"] = [t for t in g["subscribe"] if t not in sub]
         if pub or sub:
             added[name] = (pub, sub)
+    # the standard diagnostics stream (issue 30), granted now to every node that reports
+    for g in got.values():
+        reports = absolute("diagnostics", namespace) in g["publish"]
+        assert ("/diagnostics" in g["publish"]) == reports, g
+        g["publish"] = [t for t in g["publish"] if t != "/diagnostics"]
+        g["dds_publish"] = [t for t in g["dds_publish"] if t != "rt/diagnostics"]
     assert got == _golden("grants")[key]
     team = absolute(TEAM_POSES, namespace)
     robots = {f"robot_{i}" for i in range(1, n + 1)}
-    if plant == "sim":
-        assert added == {"robot_sim": ({team}, set()),
-                         **{r: (set(), {team}) for r in robots}}
-    else:
-        assert set(added) == robots and all(not p and len(s) == n - 1
-                                            for p, s in added.values())
+    peers = {r: {absolute(pose_topic(j), namespace) for j in range(1, n + 1)
+                 if f"robot_{j}" != r} for r in robots}
+    assert added == {**({"robot_sim": ({team}, set())} if plant == "sim" else {}),
+                     **{r: (set(), {team} | peers[r]) for r in robots}}
 
 
 def _module(script: str) -> str:

@@ -29,6 +29,10 @@ class FakeServer:
 
     def __init__(self, listener):
         self.listener = listener
+        self.times: list[int] = []
+
+    def broadcast_time(self, ns: int) -> None:  # the time capability
+        self.times.append(ns)
 
 
 def _per_sample(n: int) -> set[str]:

@@ -66,7 +66,10 @@ def test_a_robot_starts_from_a_node_keyed_params_file_under_its_launch_name(para
         assert d.integer_range[0].from_value == 1
         res = robot.set_parameters([Parameter("seed", value=7)])
         assert not res[0].successful and "read-only" in res[0].reason
-        assert robot.get_parameter("seed").value == -1
+        # seed -1 keeps the scenario's: the parameter reads the seed that runs, and says so
+        assert robot.get_parameter("seed").value == robot.cfg.scenario.seed == 1
+        assert "reads the value in use once running" in \
+            robot.describe_parameter("seed").description
         res = robot.set_parameters([Parameter("use_sim_time", value=True)])
         assert not res[0].successful and "use_sim_time is not supported" in res[0].reason
     finally:
@@ -99,7 +102,13 @@ def test_the_leader_and_the_simulator_start_from_their_example_files(params_cont
     try:
         assert leader.cfg.scenario.name == "paper-triangle3"
         assert "robot_1" in leader.expected and "" not in leader.expected
-        assert sim.get_parameter("timeout").value == 0.0
+        # the parameters read what runs: the scenario's values, the team waited for
+        assert leader.get_parameter("trials").value == leader.cfg.scenario.trials == 20
+        assert leader.get_parameter("law").value == 9  # 0 in the file: the scenario's
+        assert leader.get_parameter("seed").value == 1
+        assert leader.get_parameter("memory").value == "feedforward"
+        assert leader.get_parameter("nodes_expected").value == leader.expected
+        assert sim.get_parameter("timeout").value == 0.0  # until the configuration comes
     finally:
         leader.destroy_node()
         sim.destroy_node()
@@ -138,7 +147,7 @@ def run(module: str, *args: str, env=None) -> subprocess.CompletedProcess[str]:
     ("robot_sim.fake_pioneer", ["-p", "driver:=p2os2"],
      "fake_pioneer: parameter driver: one of rosaria, ros2aria; got 'p2os2'"),
     ("robot_sim.physics_node", ["-p", "model:=roomba"],
-     "formation-ilc-physics: parameter model: one of p3dx, husky; got 'roomba'"),
+     "formation-ilc-physics: parameter model: one of p3dx, husky, husky-imu; got 'roomba'"),
     ("robot_sim.physics_base", ["-p", "tick:=0.0"],
      "physics_bases: parameter tick: 0.0 is outside 0.0001 .. 10 (how often "
      "the world is stepped and odometry published)"),
@@ -258,3 +267,46 @@ def test_the_nodes_own_arguments_are_one_line_and_status_2(ros_env, tmp_path, ar
     assert [ln for ln in res.stderr.splitlines() if ln.strip()] == [
         line.replace("{tmp}", str(tmp_path))]
     assert not (tmp_path / "new").exists()
+
+
+@pytest.mark.parametrize("key, close", [("sceanrio", "scenario"), ("robotid", "robot_id"),
+                                        ("timout", "timeout"), ("drvier", "driver")])
+def test_a_misspelt_key_is_refused_naming_the_closest_known_name(key, close):
+    from formation_ilc.config.params import LEADER, ROBOT, unknown_key
+
+    why = unknown_key(key, [p.name for p in LEADER + ROBOT])
+    assert why == (f"parameter {key}: no node of formation-ilc has this parameter "
+                   f"(did you mean {close}?)")
+    # another node's parameter (a /** section holds the whole team's) is that node's
+    assert unknown_key("robot_id", [p.name for p in LEADER]) is None
+    assert unknown_key("qos_overrides./clock.subscription.depth", []) is None
+
+
+def test_the_plant_names_are_those_of_the_plant_nodes_tables():
+    from formation_ilc.config.params import PLANT_NAMES
+    from robot_sim import physics_base, physics_node
+
+    assert PLANT_NAMES == {p.name for p in physics_node.PARAMS + physics_base.PARAMS}
+
+
+def test_every_node_refuses_a_misspelt_parameter_in_a_params_file(params_context, tmp_path):
+    """A key no node takes, in a section keyed by the node or under ``/**``, is refused in
+    one line naming it and the closest name, by every node of the stack."""
+    from formation_ilc.nodes.params import ParameterError
+    from formation_ilc.nodes.pioneer_bridge import BridgeNode
+    from formation_ilc.nodes.robot import RobotNode
+    from robot_sim.link_emulator import LinkEmulator
+    from robot_sim.node import SimNode
+    from virtual_leader.node import LeaderNode
+
+    f = tmp_path / "typo.yaml"
+    f.write_text("/**:\n  ros__parameters:\n    scenario: paper-triangle3\n"
+                 "    sceanrio: paper-hexagon6\n")
+    ctx = params_context("--params-file", str(f))
+    for make in (lambda: LeaderNode(context=ctx), lambda: SimNode(context=ctx),
+                 lambda: LinkEmulator(context=ctx), lambda: RobotNode(1, context=ctx),
+                 lambda: BridgeNode(1, context=ctx)):
+        with pytest.raises(ParameterError) as exc:
+            make()
+        assert str(exc.value) == ("parameter sceanrio: no node of formation-ilc has this "
+                                  "parameter (did you mean scenario?)")

@@ -56,3 +56,22 @@ def test_the_plant_speaks_for_each_robot():
         ("robot_sim", "", WARN), ("robot_sim: robot_1", "robot_1", OK),
         ("robot_sim: robot_2", "robot_2", WARN)]
     assert st[2].values == {"robot": "robot_2", "trial": 1, "missed": 2}
+
+
+def test_standard_names_hardware_and_plain_values():
+    """The standard stream's form (``/diagnostics``): ``node: task`` as diagnostic_updater
+    names a status, the robot (or the host) as hardware, values as ROS tools show them."""
+    from formation_ilc.protocol.health import hardware_of, plain_value, task_name
+
+    assert task_name("robot_2") == "robot_2: learner"
+    assert task_name("bridge_1") == "bridge_1: bridge"
+    assert task_name("virtual_leader") == "virtual_leader: schedule"
+    assert task_name("robot_sim") == "robot_sim: plant"
+    assert task_name("link_emulator") == "link_emulator: links"
+    assert hardware_of("bridge_3", "host") == hardware_of("robot_3", "host") == "robot_3"
+    assert hardware_of("virtual_leader", "host") == "host"
+    pairs = dict(flatten({"node": "robot_1", "trial": 3, "ok": True, "why": "late 2",
+                          "seq": [1, 2], "text": "3"}))
+    assert {k: plain_value(v) for k, v in pairs.items()} == {
+        "node": "robot_1", "trial": "3", "ok": "true", "why": "late 2", "seq": "[1,2]",
+        "text": "3"}

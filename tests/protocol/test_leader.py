@@ -345,3 +345,27 @@ def test_a_leader_goes_on_from_its_state_file(tmp_path):
     state.write_text('{"committed": 999, "slot": 999, "seq": 999, "open": false}')
     with pytest.raises(ValueError, match="remove the file"):
         leader(state_file=state)
+
+
+def test_a_node_that_runs_another_configuration_is_named_with_both_values_and_stops_the_run():
+    """A robot started from its own parameters says in its ready what it runs; the leader
+    compares it with its own configuration and stops (status 2) naming the field and both
+    values; a node that runs the same is taken."""
+    core, io, clk = leader()
+    clk.now += FIRST_START_WAIT
+    same = core.cfg.agreement()
+    core.on_ready(Ready("robot_1", 0, "b0", run="rtest", config=same).to_json())
+    assert io.failed is None and "robot_1" not in core.refused
+    other = make_config("paper-triangle3", links="emulated", seed=7).agreement()
+    with pytest.raises(Rejected):
+        core.on_ready(Ready("robot_2", 0, "b0", run="rtest", config=other).to_json())
+    text, code = io.failed
+    assert code == 2
+    assert "seed: robot_2 runs 7, virtual_leader 1" in text
+    assert "links: robot_2 runs emulated, virtual_leader direct" in text
+    assert io.events == []  # no trial starts with robot_2's ready
+    # a bridge says only what it runs with; a ready's config is bounded
+    bridge = {k: same[k] for k in ("scenario", "scenario_text", "mode", "gap")}
+    assert Ready.from_json(Ready("bridge_1", 0, config=bridge).to_json()).config == bridge
+    with pytest.raises(Rejected):
+        Ready.from_json({"node": "robot_1", "trial": 0, "config": {str(i): i for i in range(40)}})

@@ -75,3 +75,43 @@ def test_bases_hold_commands_report_what_they_were_asked_and_stop_when_silent():
         assert bases.step(10.0)[0][1] == (0.0, 0.0)      # silent past cmd_timeout: zero
     finally:
         bases.close()
+
+
+@pytest.mark.parametrize(("policy", "retries", "actions"), [
+    ("stop", 1, ["stop", "give_up"]), ("abort", 2, ["abort"]), ("continue", 0, ["continue"])])
+def test_a_contact_stops_the_robots_holds_the_trial_and_counts_the_reruns(policy, retries,
+                                                                          actions):
+    """Two robots driven into each other: the first contact of a trial is one event, the
+    robots stand afterwards (stop, abort), the trial is held for the leader's abort (stop;
+    the abort of its slot releases it), and the re-runs of one iteration are counted."""
+    from formation_ilc.protocol.schedule import ABORT
+
+    plant = PhysicsPlant(short_config(), on_contact=policy, retries=retries)
+    try:
+        seen = []
+        for slot, seq in ((0, 0), (1, 2)):
+            plant.said_ready()
+            plant.on_event(TrialEvent(START, 0, slot, seq), 0.0)
+            # robots 2 and 3 (abeam, 1.2 m apart) turn towards each other at full speed
+            while not plant.sample().last:
+                plant.sent(0.0)
+                for r, u in enumerate(([0.0, 0.0], [0.6, -1.5], [0.6, 1.5])):
+                    plant.command(r, np.array(u), 0.0)
+                ev = plant.take_contact()
+                if ev is not None:
+                    seen.append(ev)
+                    assert (2, 3) in [(p[0], p[1]) for p in ev.pairs]
+                    assert plant.take_contact() is None  # said once
+                if plant.held:
+                    break
+            if seen[-1].action == "stop":
+                assert plant.held  # no sample after the contact until the abort
+                plant.on_event(TrialEvent(ABORT, 0, slot, seq + 1), 0.0)
+                assert not plant.held
+            if len(seen) == len(actions):
+                break
+        assert [e.action for e in seen] == actions
+        if policy != "continue":  # the robots stood after the contact
+            assert np.abs(plant.u[:, seen[-1].sample:]).max(initial=0.0) == 0.0
+    finally:
+        plant.close()

@@ -188,9 +188,24 @@ def test_live_view_serves_a_foxglove_client_during_a_lockstep_run(ros_env, tmp_p
         if result is None or not result.get("ok"):
             stop_group(stack)
             pytest.fail(f"{result}\n{_log(out)}\n{stack.communicate()[0][-3000:]}")
+        # a viewer that joins mid-run gets the latched state at once: the configuration
+        # (published once, before the first client came), readies, desired paths and
+        # diagnostics, as foxglove_bridge gives a late client transient-local topics
+        running = stack.poll() is None
+        late_topics = ["config", "ready", "robot_1/desired_path", "diagnostics"]
+        c = subprocess.run(["node", str(CLIENT / "client.js"), f"ws://127.0.0.1:{port}", "1",
+                            *late_topics], env=env, capture_output=True, text=True,
+                           timeout=150)
+        last = (c.stdout.strip().splitlines() or [""])[-1]
+        late = json.loads(last) if last.startswith("{") else {"error": c.stderr}
         stdout, _ = stack.communicate(timeout=240)
     finally:
         stop_group(stack)
+    assert running, "the run ended before the late viewer joined"
+    assert late.get("ok"), late
+    print(f"late viewer: first message after {late['first_ms']} ms")
+    for t in late_topics:
+        assert late["counts"][t] >= 1
     for t in topics:
         assert result["counts"][t] >= 20
         assert result["samples"][t]["topic"] == f"/formation/{t}"

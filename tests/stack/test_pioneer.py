@@ -89,10 +89,13 @@ def test_team_learns_through_bridges_and_fake_drivers(ros_env, tmp_path):
 def test_memory_learned_in_simulation_starts_the_robots_better(ros_env, tmp_path):
     """The paper's workflow: learn noise-free in simulation, carry the memory to the robots.
     The first trial on the (fake) robots from that memory has a smaller error than a cold
-    start through the same stack."""
+    start through the same stack. The robots' commands go through the safety filter (on by
+    default on robots), so the memory is learned through it too: a memory learned without
+    the base's acceleration limit asks for more than the robots may do."""
     sim = tmp_path / "sim"
     assert cli_main(["simulate", "paper-triangle3", "--trials", "100", "--no-noise",
-                     "--no-delay", "--no-plots", "--out", str(sim)]) == 0
+                     "--no-delay", "--no-plots", "--safety", "--body", "p3dx",
+                     "--out", str(sim)]) == 0
     memory = sim / "memory.npz"
     assert memory.is_file()
     out = tmp_path / "warm"

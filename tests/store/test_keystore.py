@@ -104,15 +104,19 @@ def test_a_robot_added_reissues_only_what_changed(ks):
     before = snapshot(ks)
     done = create(ks, four_robots())
     changed = {p for p, a in done.enclaves.items() if a != "unchanged"}
-    # robot 4 reads robot 3; the plant, links, recorder, monitor and live view see robot 4
+    # robot 4 reads robot 3; the plant, links, recorder, monitor and live view see robot 4,
+    # and robots 1 to 3 read its pose (their safety filters keep away from every robot)
     assert changed == {f"{NS}/robot_4", f"{NS}/robot_sim", f"{NS}/link_emulator",
-                       f"{NS}/recorder", f"{NS}/monitor", f"{NS}/liveview"}
+                       f"{NS}/recorder", f"{NS}/monitor", f"{NS}/liveview",
+                       f"{NS}/robot_1", f"{NS}/robot_2", f"{NS}/robot_3"}
+    assert done.enclaves[f"{NS}/robot_1"] == "permissions signed"
     assert done.enclaves[f"{NS}/robot_4"] == "new identity, permissions signed"
     assert done.enclaves[f"{NS}/robot_sim"] == "permissions signed"
     after = snapshot(ks)
     for rel, data in before.items():
         kept = not any(f"/{name}/" in rel for name in ("robot_sim", "link_emulator",
-                                                        "recorder", "monitor", "liveview"))
+                                                        "recorder", "monitor", "liveview",
+                                                        "robot_1", "robot_2", "robot_3"))
         if kept or rel.endswith(("cert.pem", "key.pem")):
             assert after[rel] == data, rel  # identities are kept
 

@@ -4,7 +4,8 @@
 // message with the channel's own schema, and exits 0 once every TOPIC has MIN decoded
 // messages; 1 when a message does not decode, a field is not a finite number, or nothing
 // (enough) arrives within 120 s (the timeout is not armed when MIN is 0: it decodes until
-// SIGTERM). Prints one JSON line: messages decoded per topic, samples.
+// SIGTERM). Prints one JSON line: messages decoded per topic, samples, and the milliseconds
+// from its subscription to each topic's first message (first_ms).
 "use strict";
 const { FoxgloveClient } = require("@foxglove/ws-protocol");
 const { parse } = require("@foxglove/rosmsg");
@@ -15,10 +16,12 @@ const [url, minText, ...wanted] = process.argv.slice(2);
 const min = Number(minText);
 const counts = Object.fromEntries(wanted.map((t) => [t, 0]));
 const samples = {};
+const firstMs = {}; // per TOPIC: ms from the subscription to the first decoded message
+let subscribedAt = 0;
 const readers = new Map(); // channel id -> {topic, key, reader}
 
 function fail(why) {
-  console.log(JSON.stringify({ ok: false, error: why, counts, samples }));
+  console.log(JSON.stringify({ ok: false, error: why, counts, samples, first_ms: firstMs }));
   process.exit(1);
 }
 
@@ -57,6 +60,7 @@ client.on("advertise", (channels) => {
     const reader = new MessageReader(parse(ch.schema, { ros2: true }));
     readers.set(client.subscribe(ch.id), { topic: ch.topic, key, reader, schema: ch.schemaName });
   }
+  subscribedAt = Date.now();
   console.error(`subscribed to ${readers.size} channels`); // a caller may wait for this
 });
 client.on("message", ({ subscriptionId, data }) => {
@@ -73,15 +77,16 @@ client.on("message", ({ subscriptionId, data }) => {
     fail(`${r.topic}: a field is not a finite number: ${JSON.stringify(m).slice(0, 300)}`);
   }
   counts[r.key] += 1;
+  if (!(r.key in firstMs)) firstMs[r.key] = Date.now() - subscribedAt;
   if (!(r.key in samples)) samples[r.key] = { topic: r.topic, schema: r.schema, numbers: nums.slice(0, 6) };
   if (min > 0 && wanted.every((t) => counts[t] >= min)) {
-    console.log(JSON.stringify({ ok: true, counts, samples }));
+    console.log(JSON.stringify({ ok: true, counts, samples, first_ms: firstMs }));
     process.exit(0);
   }
 });
 if (min > 0) setTimeout(() => fail("timed out"), 120000);
 // stopped from outside (a benchmark's run ended): what was decoded so far
 process.on("SIGTERM", () => {
-  console.log(JSON.stringify({ ok: false, error: "stopped", counts, samples }));
+  console.log(JSON.stringify({ ok: false, error: "stopped", counts, samples, first_ms: firstMs }));
   process.exit(0);
 });
