@@ -25,6 +25,7 @@ import sys
 import time
 
 import rclpy
+from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from std_msgs.msg import String
 
@@ -128,10 +129,9 @@ def main() -> int:
                 pub.publish(String(data=json.dumps(d)))
                 todo.discard("abort")
                 print(json.dumps({"forged": "abort", "count": 1, "event": d}), flush=True)
-        # stay a moment: a reliable writer that exits at once may not have delivered
-        end_at = time.monotonic() + 2.0
-        while time.monotonic() < end_at:
-            ex.spin_once(timeout_sec=0.05)
+        # a reliable writer that exits at once may not have delivered: wait until every
+        # reader acknowledged the forgeries (bounded; a reader that left is no longer waited for)
+        pub.wait_for_all_acked(Duration(seconds=10))
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
