@@ -203,8 +203,9 @@ class SlotRows:
     def repeat(self, ev: TrialEvent) -> bool:
         """Whether ``ev`` is the last start taken, again, with no abort of its slot since:
         the leader repeats a start while its slot does not move
-        (``schedule.StartRepeat``); no news, and no refusal."""
-        return is_repeat(ev, self.started, self.start_seq)
+        (``schedule.StartRepeat``); no news, and no refusal. An unsealed copy of it (with
+        the run key) is no repeat: ``event`` refuses it as foreign."""
+        return sealed(ev, self.key) and is_repeat(ev, self.started, self.start_seq)
 
     def infer(self, identity: range | None = None) -> list[Row]:
         """For a recording: the iteration of a slot whose start event is not in the file (a

@@ -298,6 +298,25 @@ def test_with_the_run_key_only_sealed_events_count():
     assert rows.foreign == 2
 
 
+def test_an_unsealed_copy_of_the_leaders_start_is_foreign_not_a_repeat():
+    """A forger that copies the leader's start (same slot and seq, no seal) after it came:
+    before, a recording's reader took it for the leader's repeat (no news) and did not
+    count it, so the forgeries counted depended on their order."""
+    from formation_ilc.protocol.schedule import seal
+
+    key = b"k" * 16
+    rows = SlotRows(PB, strict=True, key=key)
+    real = seal(TrialEvent("start", 0, 0, 0), key)
+    rows.event(real)
+    assert rows.repeat(real)                       # the leader's own repeat: no news
+    copy = TrialEvent("start", 0, 0, 0)
+    assert not rows.repeat(copy)
+    with pytest.raises(Rejected) as exc:
+        rows.event(copy)
+    assert exc.value.reason == "foreign" and rows.foreign == 1
+    assert [d.trial for d in feed(rows, 0, 0)] == [0]
+
+
 def test_a_recording_prefers_the_start_that_agrees_with_the_schedule():
     """A recording of a run without sealed events: a forged start of slot 1 naming trial 2
     came before the leader's (trial 1); the leader's replaces it while no row was made."""
