@@ -38,7 +38,7 @@ from typing import Any
 import msgs_schema as ms
 from formation_ilc.config.params import Param
 from formation_ilc.core.names import PHYSICS_NODE
-from formation_ilc.model.physics import DEFAULT_RATE, MODELS, POSE_SOURCES
+from formation_ilc.model.physics import DEFAULT_RATE, MODELS, POSE_SOURCES, RATE_RANGE
 from formation_ilc.nodes.common import RunConfig, fail, node_parser, spin_main
 from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.physics_plant import ON_CONTACT, ContactEvent, PhysicsPlant
@@ -55,8 +55,8 @@ PARAMS: tuple[Param, ...] = (
           choices=tuple(MODELS)),
     Param("pose", "truth", "what a robot's pose is: the body's true pose, or its "
           "odometry from the wheel encoders", choices=POSE_SOURCES),
-    Param("rate", DEFAULT_RATE, "engine steps per second (each sample is dT * rate steps)",
-          "Hz", lo=1.0, hi=1e5),
+    Param("rate", DEFAULT_RATE, "engine steps per second (each sample is dT * rate steps, "
+          "a whole number)", "Hz", lo=RATE_RANGE[0], hi=RATE_RANGE[1]),
     Param("collide", True, "robots collide with each other (false: they pass through)"),
     Param("on_contact", "stop", "when robots touch (or one tips past tilt_limit): stop them "
           "and run the trial again (at most contact_retries times), stop them and end the "

@@ -23,10 +23,23 @@ Liveness (``--liveness``), on the same run:
   recorder) SIGKILLed every 2-5 s (seeded), over ``--trials`` trials: status, kills, and
   the largest difference from batch.
 
+Start-up kills (``--startup``): with a busy loop on every core, the launcher is SIGKILLed
+1, 2, ... 8 s after it started (its nodes still importing, joining, compiling); every
+process it had started by then is followed until it is gone: the slowest death after the
+kill, and whether any outlived it by more than 30 s.
+
+Forgeries (``--forged``): a second process (tests/stack/forger.py) joins the run with the
+run id of the latched configuration and forges a burst of 72 schedule events the moment a
+trial ends, and an abort of the slot just committed with the seq the leader gives its next
+start: status, trials, the largest difference from batch, the foreign events the launcher
+counted, and ``analyze``'s status on the recording.
+
 Every process runs with localhost discovery and its own ROS_DOMAIN_ID.
 
   .venv/bin/python scripts/bench_faults.py [--trials 10] [--kinds robot leader ...]
   .venv/bin/python scripts/bench_faults.py --liveness [--chaos 3 --trials 30]
+  .venv/bin/python scripts/bench_faults.py --startup [--delays 1 2 3 4 5 6 7 8]
+  .venv/bin/python scripts/bench_faults.py --forged [--repeat 3]
 """
 
 from __future__ import annotations
@@ -142,8 +155,12 @@ def _launch(out: Path, domain: int, trials: int, *extra: str) -> subprocess.Pope
 def _max_diff(out: Path, trials: int) -> tuple[int, float]:
     got = read_metrics(out / "metrics.csv")
     ref = simulate(load_scenario("paper-triangle3").with_options(seed=5), trials=trials).metrics
-    return len(got), (float(np.abs(got[:, 1:] - ref[:len(got), 1:]).max()) if len(got)
-                      else float("nan"))
+    if not len(got):
+        return 0, float("nan")
+    a, b = got[:, 1:], ref[:len(got), 1:]
+    # a column neither has (contacts on a plant without bodies) is equal; one side only is not
+    d = np.where(np.isnan(a) & np.isnan(b), 0.0, np.abs(a - b))
+    return len(got), float(np.where(np.isnan(d), np.inf, d).max())
 
 
 def _lines(proc: subprocess.Popen[str], into: list[tuple[float, str]]) -> None:
@@ -285,6 +302,142 @@ def chaos(trials: int, domain: int, out: Path, seed: int) -> dict:
     return res
 
 
+def descendants(pid: int) -> set[int]:
+    """Every live process below ``pid`` (its children, theirs, ...)."""
+    out: set[int] = set()
+    todo = [pid]
+    while todo:
+        p = todo.pop()
+        try:
+            tasks = os.listdir(f"/proc/{p}/task")
+        except OSError:
+            continue
+        for t in tasks:
+            try:
+                kids = Path(f"/proc/{p}/task/{t}/children").read_text().split()
+            except OSError:
+                continue
+            for k in map(int, kids):
+                if k not in out:
+                    out.add(k)
+                    todo.append(k)
+    return out
+
+
+def gone(pid: int) -> bool:
+    """Whether process ``pid`` has ended (no such process, or a zombie nobody reaped)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
+    except (OSError, IndexError):
+        return True
+
+
+def startup_kill(delay: float, domain: int, out: Path, busy: int) -> dict:
+    """SIGKILL the launcher ``delay`` s after it started, with ``busy`` busy loops; follow
+    every process it had started until each is gone (at most 60 s)."""
+    loops = [subprocess.Popen([sys.executable, "-c", "while True: pass"])
+             for _ in range(busy)]
+    res: dict = {"delay": delay}
+    try:
+        proc = _launch(out, domain, 10)
+        seen: set[int] = set()
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < delay:
+            seen |= descendants(proc.pid)
+            time.sleep(0.01)
+        seen |= descendants(proc.pid)
+        started = [p for p in seen if not gone(p)]
+        os.kill(proc.pid, signal.SIGKILL)
+        t_kill = time.monotonic()
+        proc.wait()
+        deaths: dict[int, float] = {}
+        alive = set(started)
+        while alive and time.monotonic() - t_kill < 60:
+            for p in list(alive):
+                if gone(p):
+                    deaths[p] = time.monotonic() - t_kill
+                    alive.discard(p)
+            time.sleep(0.005)
+        for p in alive:
+            try:
+                os.kill(p, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+        res.update(processes=len(started), slowest=max(deaths.values(), default=0.0),
+                   left=len(alive),
+                   over_5s=sum(1 for t in deaths.values() if t > 5.0) + len(alive))
+    finally:
+        for lp in loops:
+            lp.kill()
+            lp.wait()
+    return res
+
+
+def startup(a: argparse.Namespace, domain: int) -> None:
+    print(f"launcher SIGKILLed during start-up (paper-triangle3, recorded), {a.busy} busy "
+          f"loop(s); load {os.getloadavg()[0]:.1f}")
+    print(f"{'after [s]':>9s} {'processes':>9s} {'slowest death [s]':>17s} "
+          f"{'over 5 s':>8s} {'left at 60 s':>12s}")
+    worst = 0.0
+    with tempfile.TemporaryDirectory() as tmp:
+        for i, delay in enumerate(a.delays):
+            r = startup_kill(delay, domain + i, Path(tmp) / f"k{i}", a.busy)
+            worst = max(worst, r["slowest"])
+            print(f"{delay:9.1f} {r['processes']:9d} {r['slowest']:17.2f} {r['over_5s']:8d} "
+                  f"{r['left']:12d}", flush=True)
+    print(f"slowest node death after the launcher: {worst:.2f} s (bound 5 s); load "
+          f"{os.getloadavg()[0]:.1f}")
+
+
+def forged(trials: int, domain: int, out: Path, burst_at: int, abort_at: int) -> dict:
+    """A run with a second process forging events (tests/stack/forger.py)."""
+    forger = Path(__file__).resolve().parents[1] / "tests" / "stack" / "forger.py"
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               ROS_DOMAIN_ID=str(domain))
+    proc = _launch(out, domain, trials, "--timeout", "20")
+    second = subprocess.Popen([sys.executable, str(forger), "--burst-at", str(burst_at),
+                               "--abort-committed", str(abort_at)], env=env,
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                              start_new_session=True)
+    t0 = time.monotonic()
+    try:
+        text, _ = proc.communicate(timeout=900)
+        said, _ = second.communicate(timeout=60)
+    finally:
+        for p in (proc, second):
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGKILL)
+    res: dict = {"status": proc.returncode, "wall_s": time.monotonic() - t0,
+                 "forged": [ln for ln in said.splitlines() if ln.startswith("{")]}
+    res["trials"], res["max_diff"] = _max_diff(out, trials)
+    try:
+        import json
+
+        summary = json.loads((out / "summary.json").read_text())
+        res["foreign"] = summary.get("foreign_events", {}).get("count", 0)
+    except (OSError, ValueError):
+        res["foreign"] = None
+    an = subprocess.run([sys.executable, "-m", "formation_ilc.cli", "analyze",
+                         str(out / "run.mcap"), "--out", str(out / "an"), "--no-plots"],
+                        env=env, capture_output=True, text=True)
+    res["analyze"] = an.returncode
+    res["tail"] = text.strip().splitlines()[-1:] if res["status"] else []
+    return res
+
+
+def forgeries(a: argparse.Namespace, domain: int) -> None:
+    print(f"paper-triangle3, {a.trials} trials, lockstep, emulated links, noise and delays, "
+          f"recorded; a second process forges a burst of 72 events as trial 2 ends and an "
+          f"abort of trial 4's slot once it is committed; load {os.getloadavg()[0]:.1f}")
+    with tempfile.TemporaryDirectory() as tmp:
+        for i in range(a.repeat):
+            r = forged(a.trials, domain + i, Path(tmp) / f"f{i}", 2, 4)
+            print(f"run {i + 1}: status {r['status']}, {r['trials']} trials, max |run - "
+                  f"batch| {r['max_diff']:.3g}, foreign events refused {r['foreign']}, "
+                  f"forgeries {len(r['forged'])}, analyze status {r['analyze']}, "
+                  f"{r['wall_s']:.0f} s {r['tail']}", flush=True)
+
+
 def liveness(a: argparse.Namespace, domain: int) -> None:
     print(f"paper-triangle3, {a.trials} trials, lockstep, emulated links, noise and delays, "
           f"recorded")
@@ -316,10 +469,25 @@ def main() -> int:
                    help="with --liveness: chaos runs, one per seed 0..SEEDS-1")
     p.add_argument("--scale", type=float, default=0.5,
                    help="with --liveness: --watchdog-scale of the stuck-phase run")
+    p.add_argument("--startup", action="store_true",
+                   help="SIGKILL the launcher during start-up, under busy loops")
+    p.add_argument("--delays", type=float, nargs="+", default=[1, 2, 3, 4, 5, 6, 7, 8],
+                   help="with --startup: seconds after the launcher's start")
+    p.add_argument("--busy", type=int, default=os.cpu_count() or 2,
+                   help="with --startup: busy loops beside the run (default: one a core)")
+    p.add_argument("--forged", action="store_true",
+                   help="a forged events burst and a forged abort from a second process")
+    p.add_argument("--repeat", type=int, default=1, help="with --forged: runs")
     a = p.parse_args()
     domain = 30 + os.getpid() % 60
     if a.liveness:
         liveness(a, domain)
+        return 0
+    if a.startup:
+        startup(a, domain)
+        return 0
+    if a.forged:
+        forgeries(a, domain)
         return 0
     print(f"paper-triangle3, {a.trials} trials, lockstep, emulated links, noise and delays, "
           f"recorded; SIGKILL after {a.after} trials")

@@ -107,6 +107,7 @@ from formation_ilc.nodes.common import (
     fail,
     matched,
     node_parser,
+    run_key,
     spin_main,
     unmatched,
 )
@@ -150,7 +151,7 @@ class LeaderNode(Node):
         self.core = Leader(cfg, expected, self, state_file=Path(sdir) / "leader.json"
                            if sdir else None, namespace=self.get_namespace(),
                            watchdog_scale=float(g("watchdog_scale")),
-                           start_margin=float(g("start_margin")))
+                           start_margin=float(g("start_margin")), key=run_key())
         if self.core.restored is not None:
             self.get_logger().info(self.core.restored)
         self.drops = DropCounter(self)

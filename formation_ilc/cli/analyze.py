@@ -78,6 +78,10 @@ def findings(rec: Recording) -> tuple[list[str], list[str]]:
     if rec.undecodable:
         note.append("skipped messages that do not decode: " + ", ".join(
             f"{t} {n}" for t, n in sorted(rec.undecodable.items())))
+    if rec.foreign:
+        note.append(f"{rec.foreign} trial events not the run leader's (not sealed with its "
+                    f"run key, or another run's) were set aside")
+    note += rec.notes
     return warn, note
 
 
@@ -272,15 +276,18 @@ delays {'on' if cfg.get('delay') else 'off'}; mode {html.escape(str(cfg.get('mod
     return path
 
 
-def analyze(src: Path | list[Path], out: Path, plots: bool = True) -> int:
+def analyze(src: Path | list[Path], out: Path, plots: bool = True,
+            fallback: dict[str, Any] | None = None) -> int:
     """Analyse the recording ``src`` (one file, or the parts of one run in order) into
-    ``out``; returns the exit status (0, DAMAGED, 2 when it is no recording)."""
+    ``out``; returns the exit status (0, DAMAGED, 2 when it is no recording).
+    ``fallback``: the run configuration of the run's folder, for files that lost every
+    copy of theirs (``load_recording``)."""
     files = [src] if isinstance(src, Path) else list(src)
     src = files[0]
     t0 = time.perf_counter()
     bar = Progress(None, f"reading {src.name}", "messages", interval=0.5)
     try:
-        rec = load_recording(files, progress=bar.to)
+        rec = load_recording(files, progress=bar.to, fallback=fallback)
     except RecordingError as exc:
         bar.close(clear=True)  # one line: in place of the progress bar if there is one
         print(f"error: {exc}", file=sys.stderr)

@@ -41,6 +41,7 @@ from formation_ilc.core.guards import DivergedError, format_bytes, memory_shortf
 from formation_ilc.core.topology import SpanningTreeError  # noqa: E402
 from formation_ilc.model.footprint import BODIES  # noqa: E402
 from formation_ilc.store.memoryfile import MemoryFileError, load_memory, save_memory  # noqa: E402
+from formation_ilc.system.exits import DISK_FULL, is_disk_full  # noqa: E402
 
 EXAMPLES = """\
 examples:
@@ -99,8 +100,9 @@ SIMULATE_CODES = """\
 exit status: 0 done; 2 bad input (one line on stderr: file or option, and why), or a run
 that would need more memory than is available (the estimate is printed); 3 the learning
 diverged (errors not finite: metrics.csv keeps the finished trials, memory.npz the last
-finite memory); 130 or 143 interrupted (Ctrl-C, SIGTERM): metrics.csv and memory.npz
-keep every finished trial, and the command to go on is printed.
+finite memory); 5 the disk is full (one line naming the file; metrics.csv and memory.npz
+keep what was written before); 130 or 143 interrupted (Ctrl-C, SIGTERM): metrics.csv and
+memory.npz keep every finished trial, and the command to go on is printed.
 """
 
 
@@ -331,6 +333,10 @@ def _add_analyze(sub: Any) -> None:
     p.add_argument("--no-plots", action="store_true", help="tables only")
     p.add_argument("--only-this-file", action="store_true",
                    help="read RUN.mcap alone, not the parts written after it")
+    p.add_argument("--run-dir", type=Path, metavar="DIR",
+                   help="the launched run's output folder: its config.json stands in for "
+                        "the run configuration when the files have lost every copy of it "
+                        "(default: the folder RUN.mcap is in, when it holds one)")
 
 
 def _add_mcap_repair(sub: Any) -> None:
@@ -339,10 +345,19 @@ def _add_mcap_repair(sub: Any) -> None:
                                    "its summary and footer; everything flushed before the "
                                    "kill still reads back (analyze reads such files as they "
                                    "are). This writes a complete copy that every MCAP tool "
-                                   "opens, keeping every message that reads back.")
+                                   "opens, keeping every message that reads back, and puts "
+                                   "back what it can rebuild: the run configuration's "
+                                   "message, from a copy in the file's metadata or the run's "
+                                   "folder, when the damage took it. A file of which nothing "
+                                   "reads back is refused (exit status 2) and nothing is "
+                                   "written.")
     p.add_argument("recording", type=Path, metavar="RUN.mcap")
     p.add_argument("-o", "--output", type=output_file_arg, metavar="FIXED.mcap",
                    help="default: RUN.repaired.mcap")
+    p.add_argument("--run-dir", type=Path, metavar="DIR",
+                   help="the launched run's output folder: its config.json stands in for "
+                        "the run configuration when the file has lost every copy of it "
+                        "(default: the folder RUN.mcap is in, when it holds one)")
 
 
 
@@ -1043,23 +1058,48 @@ def cmd_analyze(args: argparse.Namespace) -> int:
               file=sys.stderr)
     out = make_out_dir(args.out or args.recording.with_name(args.recording.stem + "-analysis"))
     try:
-        return analyze(files, out, plots=not args.no_plots)
+        return analyze(files, out, plots=not args.no_plots,
+                       fallback=_run_dir_config(args.run_dir, args.recording))
     except ValueError as exc:  # not a recording, or not one of ours
         raise ScenarioError(" ".join(str(exc).split())) from None
 
 
+def _run_dir_config(run_dir: Path | None, recording: Path) -> dict[str, Any] | None:
+    """The run configuration of a launched run's folder (``--run-dir``, else the folder the
+    recording is in, when it holds one), or None; OptionError for one that cannot be
+    read."""
+    from formation_ilc.store.runfile import CONFIG_FILE, RunFileError, load_config
+
+    folder = run_dir if run_dir is not None else recording.parent
+    try:
+        conf = load_config(folder / CONFIG_FILE)
+    except RunFileError as exc:
+        raise OptionError(f"argument --run-dir: {exc}") from None
+    if conf is None and run_dir is not None:
+        raise OptionError(f"argument --run-dir: {run_dir}: no {CONFIG_FILE} there (not the "
+                          f"output folder of a `formation-ilc launch` run)")
+    return conf
+
+
 def cmd_mcap_repair(args: argparse.Namespace) -> int:
-    from formation_ilc.recordings.mcap_io import ReadReport, repair
+    from formation_ilc.recordings.mcap_io import ReadReport, RepairError
+    from formation_ilc.recordings.recording import repair_run
 
     _regular_file(args.recording)
     dst = args.output or args.recording.with_suffix(".repaired.mcap")
     rep = ReadReport()
     try:
-        n = repair(args.recording, dst, rep)
+        n, rebuilt = repair_run(args.recording, dst, rep,
+                                fallback=_run_dir_config(args.run_dir, args.recording))
+    except RepairError as exc:
+        print(f"error: {args.recording}: {exc}", file=sys.stderr)
+        return 2
     except ValueError as exc:
         raise ScenarioError(" ".join(str(exc).split())) from None
     for line in rep.lines():
         print(f"note: {args.recording}: {line}")
+    for line in rebuilt:
+        print(f"note: {dst}: {line}")
     print(f"{dst}: {n} messages kept")
     return 0
 
@@ -1124,6 +1164,12 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     except OSError as exc:  # a full disk, a folder removed under a run, ...
         where = f"{exc.filename}: " if exc.filename else ""
+        if is_disk_full(exc):
+            # what was written before is kept (rows and memory are written as they come)
+            print(f"error: the disk is full: {args.command} could not write "
+                  f"{exc.filename or 'its outputs'}; what was written before is kept; free "
+                  f"some space, then run it again", file=sys.stderr)
+            return DISK_FULL
         print(f"error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

@@ -17,14 +17,13 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 from typing import Any
 
-from formation_ilc.cli.options import OptionError, int_range
+from formation_ilc.cli.options import OptionError, int_range, out_dir_arg
 from formation_ilc.config.enclaves import Grant
 from formation_ilc.config.plants import SECURE_PLANTS, plant
 from formation_ilc.config.roster import DRIVER_NS, Lineup, roster
-from formation_ilc.core.names import NAMESPACE
+from formation_ilc.core.names import NAMESPACE, driver_ns_problem
 
 __all__ = ["add_parser", "run", "grants_for"]
 
@@ -54,7 +53,7 @@ def add_parser(sub: Any) -> None:
     c = ks.add_parser("create", help="make or update a keystore for a scenario's formation",
                       description="Make DIR (or bring it up to date): CA, governance, one "
                                   "enclave per node with permissions from SCENARIO's graph.")
-    c.add_argument("keystore", type=Path, metavar="DIR")
+    c.add_argument("keystore", type=out_dir_arg, metavar="DIR")
     c.add_argument("scenario", metavar="SCENARIO",
                    help="built-in scenario name or YAML file: its graph sets the permissions")
     c.add_argument("--namespace", type=_namespace, default=None, metavar="NS",
@@ -94,9 +93,10 @@ def run(args: argparse.Namespace) -> int:
     if args.physics_bases and row.driver != "base":
         raise OptionError("--physics-bases goes with --plant base")
     driver_ns = args.driver_ns or DRIVER_NS.get(row.driver or "")
-    if row.driver is not None and driver_ns is not None and "{i}" not in driver_ns:
-        raise OptionError(f"--driver-ns {driver_ns!r}: needs {{i}} (one namespace per "
-                          f"robot)")
+    if row.driver is not None and driver_ns is not None:
+        why = driver_ns_problem(driver_ns)
+        if why is not None:  # before, permissions were written for an invalid name
+            raise OptionError(f"argument --driver-ns: {driver_ns!r}: {why}")
     grants = grants_for(sc, namespace, plant=args.plant, driver=args.driver,
                         driver_ns=driver_ns,
                         base=args.base if row.driver == "base" else None,

@@ -343,8 +343,16 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
     from formation_ilc.cli.report import write_report
     from formation_ilc.system.shm import clean_leftovers, fastdds_files
 
+    if plan.record is not None:  # the recorder makes no folder: it is the launcher's
+        try:
+            plan.record.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            print(f"error: argument --record: {plan.record.parent}: cannot create the "
+                  f"folder: {exc.strerror or exc}", file=sys.stderr)
+            return 2
     if plan.run_json is not None:
         _save_run(plan.out, plan.run_json)
+    _save_config(plan)
     plan.write_peers_profile()  # before the secure one, which builds on it
     if plan.secure is not None:
         plan.secure.write_profile()
@@ -370,16 +378,24 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
         clean_leftovers(fastdds_files() - shm_before)
         clean_leftovers(min_age=2.0)
     if status == 0 and plan.record_root is not None:
-        status = check_recording(plan.record_root, plan.scenario.trials)
+        status = check_recording(plan.record_root, plan.scenario.trials, plan.resumed_at,
+                                 plan.out / "metrics.csv")
     return write_report(plan, session.rows(), session.diagnostics,
                         session.supervisor.restarts, time.monotonic() - session.t_start,
                         status, startup=session.startup())
 
 
-def check_recording(root: Path, trials: int) -> int:
+def check_recording(root: Path, trials: int, resumed_at: int | None = None,
+                    metrics: Path | None = None) -> int:
     """0 when every trial of the run is complete in its recording (every part of it, read
     as ``analyze`` reads it); else say which trials are missing and why, and return 3: a
-    run whose recording lost a trial has not succeeded."""
+    run whose recording lost a trial has not succeeded.
+
+    A resumed run (``resumed_at`` trials learned before this launch) whose only missing
+    trials were learned before it, in a launch whose recorder stopped before it wrote them
+    (a trial that ended just before its launcher was killed), is whole all the same when
+    ``metrics`` has every trial's row and every row the recording has equals it: that is
+    said in a note, and the status is 0."""
     from formation_ilc.recordings.recording import (
         RecordingError,
         load_recording,
@@ -396,6 +412,11 @@ def check_recording(root: Path, trials: int) -> int:
     if not missing:
         return 0
     names = ", ".join(p.name for p in parts) or f"{root.name} (never written)"
+    if rec is not None and resumed_at and metrics is not None:
+        note = _learned_before(rec, missing, trials, resumed_at, metrics, names)
+        if note is not None:
+            print(f"note: {note}", flush=True)
+            return 0
     damaged = rec is not None and any(r.damaged for _, r in rec.parts)
     why = ("the files are damaged" if damaged else
            "no recorder had them: it was restarted or killed while they ran")
@@ -410,6 +431,34 @@ def check_recording(root: Path, trials: int) -> int:
 INCOMPLETE = 3
 
 
+def _learned_before(rec: Any, missing: list[int], trials: int, resumed_at: int,
+                    metrics: Path, names: str) -> str | None:
+    """Why a resumed run is whole although its recording lacks ``missing``, or None: each
+    was learned before the resume (the interrupted launch's monitor wrote its row, its
+    recorder stopped before it wrote the trajectories), metrics.csv has every trial, and
+    every row the recording has is metrics.csv's to the last bit."""
+    from formation_ilc.core.metrics import format_row, read_metrics
+
+    if any(k >= resumed_at for k in missing):
+        return None
+    try:
+        rows = {int(r[0]): format_row(r) for r in read_metrics(metrics)}
+    except (OSError, ValueError):
+        return None
+    if set(range(trials)) - set(rows):
+        return None
+    recorded = {int(r[0]): format_row(r) for r in rec.metrics}
+    if any(rows[k] != row for k, row in recorded.items()):
+        return None
+    cut = [p.name for p, r in rec.parts if r.cut_short]
+    return (f"the recording ({names}) lacks {trial_ranges(missing)}: learned before this "
+            f"launch resumed the run (at {resumed_at} trials), by a launch that was stopped "
+            f"before its recorder wrote the trajectories"
+            + (f" ({', '.join(cut)} end{'s' * (len(cut) == 1)} cut short)" if cut else "")
+            + f"; metrics.csv has every trial's row, from that launch's monitor, and the "
+              f"recording's {len(recorded)} others equal metrics.csv to the last bit")
+
+
 def _save_run(out: Path, options: Any) -> None:
     """DIR/run.json: paths into the run's folder relative to it (a copied folder resumes
     into itself), a scenario file by its absolute path (resumable from any folder)."""
@@ -421,9 +470,21 @@ def _save_run(out: Path, options: Any) -> None:
     save_run(out, d)
 
 
+def _save_config(plan: RunPlan) -> None:
+    """DIR/config.json: the run configuration (scenario text, options, run id), written
+    atomically at each launch of the run."""
+    import json
+
+    from formation_ilc.store.atomic import atomic_write_text
+    from formation_ilc.store.runfile import CONFIG_FILE
+
+    atomic_write_text(plan.out / CONFIG_FILE, json.dumps(
+        plan.config.to_json() | {"namespace": plan.namespace}) + "\n")
+
+
 def _node_env(plan: RunPlan) -> dict[str, str]:
     """The environment of every node process: this one's, on the plan's domain."""
-    from formation_ilc.nodes.common import RUN_ENV
+    from formation_ilc.nodes.common import KEY_ENV, RUN_ENV
     from formation_ilc.system.lifetime import PARENT_ENV
 
     env = dict(os.environ)
@@ -435,6 +496,9 @@ def _node_env(plan: RunPlan) -> dict[str, str]:
     env["PYTHONUNBUFFERED"] = "1"
     env[PARENT_ENV] = str(os.getpid())  # every node ends with this launcher
     env[RUN_ENV] = plan.config.run_id  # and takes only this run's configuration
+    env.pop(KEY_ENV, None)
+    if plan.key is not None:  # and only the events this run's leader sealed
+        env[KEY_ENV] = plan.key.hex()
     return env
 
 
@@ -607,6 +671,11 @@ class _Session:
         self.progress: StartupProgress | None = None
         self.host: Any = None
         self.diagnostics: dict[str, dict[str, Any]] = {}
+        #: the first trial whose errors were not finite (the loop stops the run)
+        self.diverged: int | None = None
+        #: a stop signal came while the executor ran a callback (the loop acts on it)
+        self.stop_signal: int | None = None
+        self.spinning = False
 
     def _metrics(self) -> tuple[list[Any], Any]:
         """metrics.csv, opened for the run: a resumed run's learned trials kept."""
@@ -640,10 +709,15 @@ class _Session:
         return list(self.kept) + [got[k] for k in sorted(got)]
 
     def on_trial(self, k: int, row: np.ndarray) -> None:
+        """A trial's row, from the monitor's callback: written; a row that is not finite
+        stops the run from the loop (an exception raised in a callback is rclpy's to log,
+        with a stack)."""
         self.writer.write(row)
         now = time.monotonic()
         if not np.isfinite(row[self.finite_cols]).all():
-            raise Diverged(k)
+            if self.diverged is None:
+                self.diverged = k
+            return
         print(progress_line(k, self.plan, row) + f"  [{now - self.t_start:.1f} s]",
               flush=True)
 
@@ -669,9 +743,14 @@ class _Session:
         from formation_ilc.nodes.host import LauncherHost
 
         def on_term(signum: int, frame: Any) -> None:
-            raise KeyboardInterrupt
+            # inside the executor an exception would end up in rclpy's log as a FATAL
+            # stack: the loop stops the run right after the callback instead
+            self.stop_signal = signum
+            if not self.spinning:
+                raise KeyboardInterrupt
 
         signal.signal(signal.SIGTERM, on_term)
+        signal.signal(signal.SIGINT, on_term)
         self.host = LauncherHost(self.plan, self.on_trial, first=self.done,
                                  on_contact=self.on_contact, on_clock=self.on_clock)
         status = 0
@@ -728,7 +807,11 @@ class _Session:
                                      plan.watchdog_scale), plan.out, len(plan.team.expected),
                       plan.scenario.trials)
         while True:
-            host.spin_once(0.05)
+            self.spinning = True
+            try:
+                host.spin_once(0.05)
+            finally:
+                self.spinning = False
             if progress.active:
                 now = time.monotonic()
                 if now - graph_at >= 0.5:  # a graph query: twice a second is enough
@@ -740,6 +823,10 @@ class _Session:
                                        any(e.get("event") == START for e in monitor.events))
                 if line:
                     print(line, flush=True)
+            if self.stop_signal is not None:
+                raise KeyboardInterrupt
+            if self.diverged is not None:
+                raise Diverged(self.diverged)
             stuck = watch.tick(monitor, time.monotonic())
             if stuck is not None:
                 print(f"error: {stuck}", file=sys.stderr)

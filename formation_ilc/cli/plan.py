@@ -18,6 +18,7 @@ import argparse
 import functools
 import json
 import os
+import secrets
 import sys
 import time
 import uuid
@@ -41,8 +42,14 @@ from formation_ilc.config.runconfig import (
 )
 from formation_ilc.config.safety import SafetySettings, default_learning, default_margin
 from formation_ilc.config.scenario import Scenario, ScenarioError
-from formation_ilc.core.names import LEADER_NODE, NAMESPACE, namespace_remaps, robots_process_name
-from formation_ilc.protocol.schedule import DONE
+from formation_ilc.core.names import (
+    LEADER_NODE,
+    NAMESPACE,
+    driver_ns_problem,
+    namespace_remaps,
+    robots_process_name,
+)
+from formation_ilc.protocol.schedule import DONE, KEY_BYTES
 from formation_ilc.system.exits import NO_RESTART as EXIT_NO_RESTART
 from formation_ilc.system.netns import LinkFaults
 
@@ -305,6 +312,9 @@ class RunPlan:
     #: the batch simulator predicted no contact in this run's trials (a plant with bodies):
     #: the report warns if the plant saw one all the same
     predicted_clear: bool = False
+    #: the run key the leader seals its events with (``protocol.schedule.seal``), given to
+    #: every process this launch starts; a new one for each launch, kept nowhere
+    key: bytes | None = None
 
     @property
     def participants(self) -> int:
@@ -418,6 +428,10 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
     if domain is None:
         domain = pick_domain()
     bridge = BridgeOptions.of(opts) if row.per_robot else None
+    if bridge is not None:
+        why = driver_ns_problem(bridge.driver_ns)
+        if why is not None:  # before, the bridges started with an invalid namespace
+            raise NoRun(f"argument --driver-ns: {bridge.driver_ns!r}: {why}")
     physics = (PhysicsOptions.of(opts) if row.physics
                or (bridge is not None and bridge.physics_bases) else None)
     safety = _safety(opts, row, sc, namespace, bridge, physics)
@@ -449,7 +463,8 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
         hosts=None if faults is None else HostsPlan(faults, opts.dds_profile or "lossy",
                                                     sc.seed),
         predicted_clear=any(n.startswith("the batch simulator predicts no contact")
-                            for n in notes))
+                            for n in notes),
+        key=secrets.token_bytes(KEY_BYTES))
     # the processes follow from the rest of the plan
     plan = _with_peers(replace(plan, nodes=node_specs(plan, scenario_reference(opts.scenario))))
     return _secured(plan, getattr(opts, "secure", None))
@@ -554,6 +569,12 @@ def _resume_options(args: argparse.Namespace) -> argparse.Namespace:
                     f"`formation-ilc launch` run)")
     if args.scenario is not None:
         raise NoRun("--resume takes the run's own scenario and options: give no SCENARIO")
+    given = _given_options(args) - RESUME_OPTIONS
+    if given:  # before, silently ignored (--domain-id among them; now honoured)
+        shown = ", ".join(f"--{k.replace('_', '-')}" for k in sorted(given))
+        raise NoRun(f"--resume takes the run's own options: {shown} cannot change a run "
+                    f"going on (with --resume: "
+                    f"{', '.join('--' + k.replace('_', '-') for k in sorted(RESUME_OPTIONS))})")
     try:
         require(d, out)
     except RunFileError as exc:
@@ -568,10 +589,28 @@ def _resume_options(args: argparse.Namespace) -> argparse.Namespace:
     ns.resume = out
     ns.max_restarts = args.max_restarts
     ns.watchdog_scale = getattr(args, "watchdog_scale", 1.0)
+    ns.no_plots = bool(getattr(args, "no_plots", False)) or bool(d.get("no_plots"))
+    if getattr(args, "domain_id", None) is not None:  # the resumed launch's domain
+        ns.domain_id = args.domain_id
     if ns.record is not None:
         ns.record_root_ = ns.record
         ns.record = resumed_part(ns.record)
     return ns
+
+
+#: the options a resumed launch takes from its own command line (the rest are the run's)
+RESUME_OPTIONS = frozenset({"max_restarts", "watchdog_scale", "domain_id", "no_plots"})
+
+
+def _given_options(args: argparse.Namespace) -> set[str]:
+    """The launch options ``args`` sets to something other than their defaults."""
+    from formation_ilc.cli.launch import add_arguments
+
+    p = argparse.ArgumentParser(add_help=False)
+    add_arguments(p)
+    defaults = vars(p.parse_args([]))
+    return {k for k, v in vars(args).items()
+            if k in defaults and k not in ("resume", "scenario") and v != defaults[k]}
 
 
 def resumed_part(root: Path) -> Path:
@@ -724,8 +763,12 @@ def _check_plant(opts: argparse.Namespace, row: Plant, sc: Scenario, namespace: 
     prediction covered."""
     notes: list[str] = []
     if physics is not None:
+        from formation_ilc.model.physics import rate_problem
         from formation_ilc.protocol.physics_plant import physics_available
 
+        why = rate_problem(physics.rate, sc.dt)
+        if why is not None:  # before, refused by the node after every node had started
+            raise NoRun(f"--physics-rate {physics.rate:g}: {why}")
         missing = physics_available()
         if missing is not None:
             raise NoRun(missing)

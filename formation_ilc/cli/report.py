@@ -26,7 +26,7 @@ from formation_ilc.core.links import (
     link_histograms,
     write_delays,
 )
-from formation_ilc.core.names import SIM_NODE
+from formation_ilc.core.names import MONITOR_NODE, SIM_NODE
 from formation_ilc.system.exits import DISK_FULL, is_disk_full
 
 __all__ = ["write_report", "summary_of", "print_report"]
@@ -56,6 +56,11 @@ def summary_of(plan: RunPlan, rows: int, diagnostics: Mapping[str, Mapping[str, 
         "timing": sim_diag.get("timing", {}), "missed": sim_diag.get("missed", {}),
         "dropped": {n: d.get("dropped", {}) for n, d in diagnostics.items()},
         "startup": dict(startup or {})}
+    monitor = diagnostics.get(MONITOR_NODE, {})
+    count = int(monitor.get("foreign_events", 0) or 0)
+    if count:  # schedule events of another writer (the monitor sees them all)
+        summary["foreign_events"] = {"count": count,
+                                     "writers": list(monitor.get("foreign_writers", []))}
     if plan.bridged:
         summary["bridges"] = {b: {key: diagnostics.get(b, {}).get(key) for key in BRIDGE_KEYS}
                               for b in plan.team.plants}
@@ -192,6 +197,11 @@ def print_report(sc: Scenario, m: np.ndarray, dtab: list[list[Any]], summary: di
     drops = {n: sum(d.values()) for n, d in summary["dropped"].items() if sum(d.values())}
     if drops:
         print(f"dropped messages: {drops}")
+    foreign = summary.get("foreign_events")
+    if foreign:
+        print(f"foreign trial events: {foreign['count']} not sealed by this run's leader, "
+              f"refused by every node (other writers of the topic: "
+              f"{', '.join(foreign['writers']) or 'gone before they were seen'})")
 
 
 def _print_timing(sc: Scenario, summary: dict[str, Any]) -> None:

@@ -21,7 +21,7 @@ from typing import IO
 
 from formation_ilc.cli.plan import NodeSpec, RunPlan
 from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, NO_RESTART, STUCK
-from formation_ilc.system.lifetime import GATE_ENV
+from formation_ilc.system.lifetime import GATE_ENV, early_argv
 
 __all__ = ["Stack", "Supervisor", "Failure", "exit_status", "metrics_rows", "resume_hint",
            "disk_full_line", "trial_ranges"]
@@ -72,8 +72,10 @@ class Stack:
         env = {**self.env, **self.extra.get(name, {})}
         if self.gate is not None:
             env[GATE_ENV] = "stdin"
+        # through the runner that sets the parent-death signal before the node's imports:
+        # a launcher killed while its nodes start takes them with it
         self.procs[name] = subprocess.Popen(
-            argv, env=env, stdout=fh, stderr=subprocess.STDOUT,
+            early_argv(argv), env=env, stdout=fh, stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL if self.gate is None else self.gate[0])
 
     def restart(self, name: str) -> str:
@@ -89,6 +91,15 @@ class Stack:
             argv[i] = str(first.with_suffix(f".part{n}.mcap"))
             self.argv.setdefault(f"{name}#first", self.argv[name])
             note = f"; the recording goes on in {argv[i]}"
+        if "--port" in argv:  # a server (the live view): on a port it can bind
+            i = argv.index("--port") + 1
+            host = argv[argv.index("--host") + 1] if "--host" in argv else "127.0.0.1"
+            port = int(argv[i])
+            if not bindable(host, port):
+                free = free_port(host)
+                if free is not None:
+                    argv[i] = str(free)
+                    note = f"; serving on port {free} now ({host}:{port} is taken)"
         self.start(name, argv)
         return note
 
@@ -121,6 +132,32 @@ class Stack:
         for fh in self.logs.values():
             fh.close()
         self.open_gate()  # after the signals: nothing stopped at the gate goes on
+
+
+def bindable(host: str, port: int) -> bool:
+    """Whether a server could listen on ``host``:``port`` now (as servers bind: with
+    SO_REUSEADDR, so that connections of a killed predecessor do not hold it)."""
+    import socket
+
+    try:
+        with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            s.bind((host, port))
+    except OSError:
+        return False
+    return True
+
+
+def free_port(host: str) -> int | None:
+    """A port free on ``host`` now (the system's pick), or None."""
+    import socket
+
+    try:
+        with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as s:
+            s.bind((host, 0))
+            return int(s.getsockname()[1])
+    except OSError:
+        return None
 
 
 def exit_status(code: int) -> str:
@@ -191,9 +228,11 @@ class Supervisor:
             if not spec.restart.allows(code, n):
                 if spec.optional:  # a viewer: the run goes on without it
                     self.stack.procs.pop(name)
+                    said = self.last_word(name)
                     print(f"{name} exited with {exit_status(code)}"
-                          f"{f' after {n} restarts' if n else ''}: the run goes on without "
-                          f"it (log: {self.stack.log_dir / (name + '.log')})", flush=True)
+                          f"{f' after {n} restarts' if n else ''}"
+                          f"{f' ({said})' if said else ''}: the run goes on without it "
+                          f"(log: {self.stack.log_dir / (name + '.log')})", flush=True)
                     continue
                 return Failure(spec, code)
             if spec.passive and self.on_down is not None:

@@ -14,6 +14,7 @@ from typing import Any
 
 from formation_ilc.config.bases import BASES
 from formation_ilc.config.runconfig import MODES, PARAMS
+from formation_ilc.core.law import MEMORY_MODES
 
 __all__ = ["Param", "RUN", "ROBOT", "LEADER", "SIM", "BRIDGE", "FAKE_DRIVER", "by_name",
            "describe", "PLANT_NAMES", "ROS_NAMES", "known_names", "unknown_key"]
@@ -33,7 +34,7 @@ class Param:
     units: str = ""
     lo: float | None = None
     hi: float | None = None
-    choices: tuple[str, ...] = ()
+    choices: tuple[Any, ...] = ()
     #: once the node runs, the parameter reads what the run uses, which the run
     #: configuration (the leader's ``config`` topic, or a preset) may override
     effective: str = ""
@@ -41,8 +42,13 @@ class Param:
     def check(self, value: Any) -> str | None:
         """Why ``value`` is refused (what rclpy's descriptor does not check), or None."""
         if self.choices and value not in self.choices:
-            return f"one of {', '.join(c or repr(c) for c in self.choices)}; got {value!r}"
+            return f"one of {choice_text(self.choices)}; got {value!r}"
         return None
+
+
+def choice_text(choices: tuple[Any, ...]) -> str:
+    """The choices of a parameter for a user: 'a, b' (an empty text shown as '')."""
+    return ", ".join(str(c) if c != "" else repr(c) for c in choices)
 
 
 def by_name(table: tuple[Param, ...]) -> dict[str, Param]:
@@ -58,7 +64,7 @@ def describe(p: Param) -> str:
         extra.append(f"range: {p.lo if p.lo is not None else '-inf'} .. "
                      f"{p.hi if p.hi is not None else 'inf'}")
     if p.choices:
-        extra.append(f"one of: {', '.join(c or repr(c) for c in p.choices)}")
+        extra.append(f"one of: {choice_text(p.choices)}")
     if p.effective:
         extra.append(f"reads the value in use once running: {p.effective}")
     return p.description + (f" ({'; '.join(extra)})" if extra else "")
@@ -74,10 +80,10 @@ RUN: tuple[Param, ...] = (
           lo=-1, hi=BIG),
     Param("trials", PARAMS["trials"], "number of trials; 0 keeps the scenario's",
           lo=0, hi=BIG),
-    Param("law", PARAMS["law"], "learning law of the paper (eq. 22 or 23); 0 keeps the "
-          "scenario's", lo=0, hi=BIG),
+    Param("law", PARAMS["law"], "learning law of the paper (eq. 9, 22 or 23); 0 keeps the "
+          "scenario's", lo=0, hi=BIG, choices=(0, 9, 22, 23)),
     Param("memory", PARAMS["memory"], "memory variant of the law; empty keeps the "
-          "scenario's"),
+          "scenario's", choices=("", *MEMORY_MODES)),
     Param("noise", PARAMS["noise"], "draw the scenario's disturbances and noises "
           "(false: --no-noise)"),
     Param("delay", PARAMS["delay"], "the scenario's link delays (false: --no-delay)"),

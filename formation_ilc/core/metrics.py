@@ -9,6 +9,7 @@ the ``true_`` columns empty (``nan``).
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
 from pathlib import Path
@@ -59,16 +60,28 @@ class MetricsWriter:
         self.path = Path(path)
         self._fh: IO[str] = self.path.open("a" if append else "w", newline="")
         self._w = csv.writer(self._fh)
-        if not append:
-            self._w.writerow(METRIC_COLUMNS)
-        self._fh.flush()
+        try:
+            if not append:
+                self._w.writerow(METRIC_COLUMNS)
+            self._fh.flush()
+        except OSError as exc:  # a full disk: the error names this file
+            with contextlib.suppress(OSError):  # its own flush fails the same way
+                self._fh.close()
+            raise OSError(exc.errno, exc.strerror, str(self.path)) from exc
 
     def write(self, row: NDArray[np.float64]) -> None:
-        self._w.writerow(format_row(row))
-        self._fh.flush()
+        """One row, flushed; an OSError (a full disk) names this file."""
+        try:
+            self._w.writerow(format_row(row))
+            self._fh.flush()
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror, str(self.path)) from exc
 
     def close(self) -> None:
-        self._fh.close()
+        try:
+            self._fh.close()
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror, str(self.path)) from exc
 
     def __enter__(self) -> MetricsWriter:
         return self

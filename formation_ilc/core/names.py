@@ -18,6 +18,7 @@ types and QoS is ``msgs_schema``'s docstring.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 from formation_ilc.core.clock import Malformed
@@ -26,7 +27,7 @@ __all__ = ["NAMESPACE", "CLOCK", "LEADER_NODE", "SIM_NODE", "LINKS_NODE", "MONIT
            "RECORDER_NODE", "FAKE_DRIVER_NODE", "PHYSICS_NODE", "BASES_NODE", "LIVEVIEW_NODE",
            "ROBOT_PREFIX", "BRIDGE_PREFIX", "robot_name",
            "robot_number", "bridge_name", "fake_driver_name", "robots_process_name",
-           "namespace_remaps",
+           "namespace_remaps", "namespace_problem", "driver_ns_problem",
            # topics and frames
            "CONFIG", "REFERENCE", "TRIAL_EVENTS", "READY", "DIAGNOSTICS", "ROS_DIAGNOSTICS",
            "LEADER",
@@ -99,6 +100,32 @@ def fake_driver_name(i: int) -> str:
 def robots_process_name(first: int, last: int) -> str:
     """The launcher's process (and log) name of a container of robots first..last."""
     return f"robots_{int(first)}-{int(last)}"
+
+
+_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def namespace_problem(namespace: str) -> str | None:
+    """Why ``namespace`` is no absolute ROS namespace (``/a/b_2``: tokens of letters,
+    digits and underscores, not starting with a digit), or None."""
+    if not namespace.startswith("/"):
+        return "an absolute ROS namespace starts with /"
+    if namespace == "/":
+        return None
+    bad = [t for t in namespace[1:].split("/") if not _TOKEN.fullmatch(t)]
+    if bad:
+        return (f"{bad[0]!r} is no ROS name (letters, digits and underscores, not starting "
+                f"with a digit)")
+    return None
+
+
+def driver_ns_problem(pattern: str) -> str | None:
+    """Why ``pattern`` (robot i's driver namespace, ``{i}`` replaced by the robot number)
+    names no valid namespace for every robot, or None."""
+    if "{i}" not in pattern:
+        return "needs {i} (one namespace per robot)"
+    why = namespace_problem(pattern.replace("{i}", "1"))
+    return None if why is None else f"robot 1's namespace {pattern.replace('{i}', '1')!r}: {why}"
 
 
 def namespace_remaps(namespace: str | None) -> list[str]:

@@ -44,7 +44,7 @@ from formation_ilc.core.names import robot_name
 from formation_ilc.model.footprint import Footprint, footprint_of
 
 __all__ = ["RobotModel", "MODELS", "PhysicsWorld", "robot_model", "DEFAULT_RATE",
-           "POSE_SOURCES"]
+           "POSE_SOURCES", "RATE_RANGE", "rate_problem"]
 
 #: where a robot's measured pose comes from: the engine's ground truth (a motion-capture
 #: stand-in) or its wheel odometry (drifts)
@@ -52,6 +52,29 @@ POSE_SOURCES = ("truth", "odometry")
 
 #: engine steps per second (PyBullet's default): 48 substeps per sample at dT = 0.2 s
 DEFAULT_RATE = 240.0
+#: [Hz] the engine rates a run may ask for (the physics plant's parameter range)
+RATE_RANGE = (1.0, 1e5)
+
+
+def rate_problem(rate: float, dt: float) -> str | None:
+    """Why the engine cannot step at ``rate`` [Hz] for samples of ``dt`` [s], or None:
+    outside RATE_RANGE, less than one step a sample (before, 1 Hz at dT = 0.2 s silently
+    ran one step a sample, 5 Hz), or not a whole number of steps a sample (the rate that
+    would run is named, and the two whole ones around it)."""
+    lo, hi = RATE_RANGE
+    if not (lo <= rate <= hi):
+        return f"{rate:g} Hz is outside {lo:g} .. {hi:g} engine steps a second"
+    steps = dt * rate
+    if steps < 1.0 - 1e-9:
+        return (f"{rate:g} Hz is {steps:.3g} engine steps a sample of {dt:g} s: at least one "
+                f"({1.0 / dt:g} Hz) is needed")
+    whole = round(steps)
+    if abs(steps - whole) > 1e-6 * steps:
+        below, above = math.floor(steps), math.ceil(steps)
+        return (f"{rate:g} Hz is {steps:.4g} engine steps a sample of {dt:g} s, which would "
+                f"run at {whole / dt:g} Hz: give a whole number of steps a sample, e.g. "
+                f"{below / dt:g} or {above / dt:g} Hz")
+    return None
 #: how often [Hz] wheel encoders are read and contacts checked: 50 Hz, the update rate of
 #: ROS 2's diff_drive_controller on the bases the stack drives; reading them at every
 #: substep cost more than the engine itself (3 robots)
@@ -176,6 +199,9 @@ class PhysicsWorld:
                  collide: bool = True):
         import pybullet as pb
 
+        why = rate_problem(rate, dt)
+        if why is not None:
+            raise ValueError(f"parameter rate: {why}")
         self.pb = pb
         self.model, self.n, self.dt = model, n, dt
         self.substeps = max(1, int(round(dt * rate)))

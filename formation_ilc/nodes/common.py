@@ -29,9 +29,10 @@ from std_msgs.msg import String
 import msgs_schema as ms
 from formation_ilc.config.runconfig import RunConfig, make_config
 from formation_ilc.core.clock import REASONS, Rejected
-from formation_ilc.protocol.schedule import Follower, Ready, TrialEvent
+from formation_ilc.protocol.schedule import Follower, Ready, TrialEvent, parse_key
 from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, is_disk_full
 from formation_ilc.system.lifetime import (
+    ORPHAN_GRACE,
     PARENT_ENV,
     bound_the_stop,
     die_with_parent,
@@ -39,7 +40,8 @@ from formation_ilc.system.lifetime import (
     wait_at_gate,
 )
 
-__all__ = ["PARENT_ENV", "DROP_REASONS", "DropCounter", "Diagnostics", "RunConfig", "make_config",
+__all__ = ["PARENT_ENV", "RUN_ENV", "KEY_ENV", "run_key", "DROP_REASONS", "DropCounter",
+           "Diagnostics", "RunConfig", "make_config",
            "config_from_msg", "ConfiguredNode", "matched", "unmatched",
            "readers_wanting", "fail",
            "spin_main", "node_parser", "ros_param", "robot_node_from_args"]
@@ -48,6 +50,17 @@ R = TypeVar("R")
 
 #: environment variable with the run a launcher started this node for (its run_id)
 RUN_ENV = "FORMATION_ILC_RUN_ID"
+#: environment variable with the key the run's leader seals its events with (hex): the
+#: launcher gives it to every process it starts (``protocol.schedule.seal``)
+KEY_ENV = "FORMATION_ILC_RUN_KEY"
+
+
+def run_key() -> bytes | None:
+    """This process's run key (``KEY_ENV``), None without one; ValueError if unreadable."""
+    try:
+        return parse_key(os.environ.get(KEY_ENV))
+    except ValueError as exc:
+        raise ValueError(f"{KEY_ENV}: {exc}") from None
 
 #: reasons a message is dropped (the diagnostics counters)
 DROP_REASONS = REASONS
@@ -106,8 +119,10 @@ class ConfiguredNode(Node):
         self._waiting_said = time.monotonic() - MATCH_WARN / 2
         #: this process's identity in ``ready`` (a new one tells the leader it restarted)
         self.boot = uuid.uuid4().hex[:12]
+        #: the run key: only events the run's leader sealed with it are taken
+        self.key = run_key()
         #: what this node takes of the leader's events (its core's, once configured)
-        self.follower = Follower(self.run_id)
+        self.follower = Follower(self.run_id, key=self.key)
 
     def ready_msg(self, trial: int, passive: bool = False, abort_slot: int = -1,
                   why: str = "") -> String:
@@ -168,6 +183,7 @@ class ConfiguredNode(Node):
                 self.configure(cfg)
             except ValueError as exc:  # a configuration this node cannot run
                 fail(self, str(exc), code=2)
+            self.follower.key = self.key  # its core's follower takes sealed events only
         else:
             self._cfg_sub = self.create_subscription(String, ms.CONFIG, self._on_config,
                                                      ms.LATCHED_QOS)
@@ -356,10 +372,19 @@ def make_executor(kind: str = "events") -> Any:
     return SingleThreadedExecutor()
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """argparse with its usage errors in one line: 'PROG: error: why (see PROG --help)',
+    status 2."""
+
+    def error(self, message: str) -> Any:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def node_parser(prog: str, doc: str | None) -> argparse.ArgumentParser:
     """The argument parser of a node's entry script: ``--help`` prints the node's docstring
-    (its parameters and topics) and exits before any ROS set-up."""
-    return argparse.ArgumentParser(
+    (its parameters and topics) and exits before any ROS set-up; a bad argument is one
+    line and status 2."""
+    return _OneLineParser(
         prog=prog, description=doc, formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="ROS arguments follow --ros-args, e.g. --ros-args -p NAME:=VALUE "
                "-r __ns:=/team2")
@@ -425,13 +450,16 @@ def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
     Exit.stop = Future()
 
     def on_signal(signum: int, frame: Any) -> None:
-        bound_the_stop()
+        # SIGTERM: the launcher died (PR_SET_PDEATHSIG) or gave up on a clean stop; either
+        # way nobody waits for a slow teardown (system.lifetime.ORPHAN_GRACE)
+        bound_the_stop(ORPHAN_GRACE if signum == signal.SIGTERM else None)
         if Exit.stop is not None and not Exit.stop.done():
             Exit.stop.set_result(0)
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
     nodes: list[Node] = []
+    ex: Any = None
     try:
         try:
             nodes = build(ns, argv)
@@ -462,7 +490,21 @@ def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
         Exit.code = DISK_FULL
     finally:
         bound_the_stop()  # the teardown below, and the interpreter's exit after it
+        _linger(ex, nodes)
         for n in nodes:
             n.destroy_node()
         rclpy.try_shutdown()
     return Exit.code
+
+
+def _linger(ex: Any, nodes: list[Node]) -> None:
+    """Before a stopping process tears its nodes down: spin for the longest ``linger`` [s]
+    its nodes ask for, so that what has arrived is still taken (the recorder: a trial's
+    trajectories that came just before its launcher was killed reach the file)."""
+    linger = max((float(getattr(n, "linger", 0.0)) for n in nodes), default=0.0)
+    if ex is None or linger <= 0 or Exit.code == DISK_FULL or not rclpy.ok():
+        return
+    try:
+        ex.spin_until_future_complete(Future(), timeout_sec=linger)
+    except Exception:  # noqa: BLE001 - a teardown goes on whatever the last callbacks do
+        pass

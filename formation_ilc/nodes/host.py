@@ -57,7 +57,8 @@ class LauncherHost:
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
         self.monitor = MonitorNode(plan.config, self.on_trial, true_state=plan.true_state,
                                    namespace=plan.namespace, first=self.first,
-                                   on_contact=self.on_contact, on_clock=self.on_clock)
+                                   on_contact=self.on_contact, on_clock=self.on_clock,
+                                   key=plan.key)
         self._down_pub = self.monitor.create_publisher(String, ms.READY, ms.LATCHED_QOS)
         self._ex = EventsExecutor()
         self._ex.add_node(self.monitor)
@@ -100,6 +101,7 @@ class LauncherHost:
         diagnostics: dict[str, dict[str, Any]] = {}
         if self.monitor is not None:
             diagnostics = dict(self.monitor.diagnostics)
+            diagnostics[self.monitor.get_name()] = self.monitor.report()
             self.monitor.destroy_node()
         rclpy.try_shutdown()
         return diagnostics

@@ -49,7 +49,7 @@ from std_msgs.msg import String
 import msgs_schema as ms
 from formation_ilc.core.clock import Rejected
 from formation_ilc.core.names import LIVEVIEW_NODE
-from formation_ilc.nodes.common import DropCounter, RunConfig, node_parser, spin_main
+from formation_ilc.nodes.common import DropCounter, RunConfig, node_parser, run_key, spin_main
 from formation_ilc.nodes.observer import Observer, msg_class
 from formation_ilc.nodes.params import declare
 from formation_ilc.recordings.mcap_io import message_definition
@@ -333,10 +333,24 @@ class LiveViewNode(Node):
         if self.observe or self.sampled:
             # with a recorder (which publishes the view topics on DDS) only to the viewers
             self.observer = Observer(self if self.observe else None, self.cfg,
-                                     self._view_sink, gate=self._take, sampled=self.sampled)
+                                     self._view_sink, gate=self._take, sampled=self.sampled,
+                                     key=run_key())
         self.server = self.start_server(_Viewers(self))
         self.get_logger().info(f"serving {len(self.channels)} topics on port "
                                f"{self.server.port}")
+
+
+def _port(text: str) -> int:
+    """An argparse type: a TCP port 1..65535 (one line and status 2 otherwise)."""
+    import argparse
+
+    try:
+        port = int(text, 10)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a port number, got {text!r}") from None
+    if not 1 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"a port is in 1..65535, got {port}")
+    return port
 
 
 def _lower_priority() -> None:
@@ -354,8 +368,8 @@ def main(args: list[str] | None = None) -> int:
     parser = node_parser("formation-ilc-liveview", __doc__)
     parser.add_argument("--host", default="127.0.0.1",
                         help="address to serve on (default 127.0.0.1: this machine only)")
-    parser.add_argument("--port", type=int, default=DEFAULT_PORT,
-                        help=f"WebSocket port (default {DEFAULT_PORT})")
+    parser.add_argument("--port", type=_port, default=DEFAULT_PORT,
+                        help=f"WebSocket port, 1..65535 (default {DEFAULT_PORT})")
     parser.add_argument("--rate", type=float, default=DEFAULT_RATE, metavar="HZ",
                         help=f"messages a second forwarded per per-sample topic (default "
                              f"{DEFAULT_RATE:g}; 0: every message). Latched and per-trial "
@@ -381,15 +395,20 @@ def main(args: list[str] | None = None) -> int:
                     message_backlog_size=BACKLOG, server_listener=listener,
                     capabilities=[foxglove.Capability.Time])
             except Exception as exc:  # noqa: BLE001 - the SDK's own error type: port in use
-                print(f"error: cannot serve on {ns.host}:{ns.port}: {exc}", file=sys.stderr)
+                print(f"formation-ilc-liveview: cannot serve on {ns.host}:{ns.port}: {exc}",
+                      file=sys.stderr)
                 raise SystemExit(2) from None
 
         try:  # a taken port is refused at once, before the run's channels exist
             with socket.socket(socket.AF_INET6 if ":" in ns.host else socket.AF_INET) as s:
+                # as the server binds it: a killed predecessor's connections in TIME_WAIT
+                # do not hold the port (before, a restarted live view exited "Address
+                # already in use" and stayed gone)
+                s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
                 s.bind((ns.host, ns.port))
         except OSError as exc:
-            print(f"error: cannot serve on {ns.host}:{ns.port}: {exc.strerror}",
-                  file=sys.stderr)
+            print(f"formation-ilc-liveview: cannot serve on {ns.host}:{ns.port}: "
+                  f"{exc.strerror}", file=sys.stderr)
             raise SystemExit(2) from None
         if not ns.rate >= 0:
             raise ValueError(f"--rate {ns.rate}: a rate >= 0 is required")

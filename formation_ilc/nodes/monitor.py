@@ -12,7 +12,10 @@ trajectories, and computes the metrics row with ``formation_ilc.model.simulate.t
 nan: a hardware plant has no ground truth.
 
 What it takes (the rest is dropped and counted, with the reason, in ``drops``): trial
-events in the leader's order (start k+1 after start k, end of the trial started, done);
+events the leader sealed with the run key (``protocol.schedule.seal``; any other writer's
+are ``foreign``: the graph names the writers, ``foreign_writers``), in the leader's order
+(start k+1 after start k, with the iteration the schedule runs there; end of the trial
+started; done);
 trajectories of a trial the leader has started and whose row is not complete, once per
 robot; diagnostics whose fields are what the launcher reads
 (``formation_ilc.core.links.check_diagnostics``), of a trial started, never older than the
@@ -22,6 +25,7 @@ node's last.
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -36,7 +40,7 @@ from formation_ilc.core.clock import Rejected
 from formation_ilc.core.links import check_diagnostics
 from formation_ilc.model.simulate import Problem
 from formation_ilc.nodes.common import DropCounter, RunConfig
-from formation_ilc.protocol.schedule import Ready, TrialEvent
+from formation_ilc.protocol.schedule import Ready, TrialEvent, sealed
 from formation_ilc.protocol.trialrows import Row, SlotRows
 
 
@@ -47,7 +51,7 @@ class MonitorNode(Node):
                  true_state: bool = True, first: int = 0,
                  on_contact: Callable[[str, dict[str, Any]], None] | None = None,
                  on_clock: Callable[[str, str, str], None] | None = None,
-                 **kwargs: Any):
+                 key: bytes | None = None, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(ms.MONITOR_NODE, **kwargs)
         self.cfg = cfg
@@ -58,7 +62,10 @@ class MonitorNode(Node):
         self.drops = DropCounter(self)
         n = self.pb.n
         # the rows, by iteration (with the counts the robots' filters and the plant report)
-        self.slots = SlotRows(self.pb, true_state, first, safety=cfg.safety is not None)
+        # only the leader's sealed events count (``key``: the run's, from the launcher)
+        self.slots = SlotRows(self.pb, true_state, first, safety=cfg.safety is not None,
+                              key=key)
+        self.slots.run = cfg.run_id
         self.on_contact = on_contact
         self.contacts_seen: set[tuple[str, int, int]] = set()
         #: a node's clock words (the last of each) and the events of them already said
@@ -68,6 +75,9 @@ class MonitorNode(Node):
         self.rows = self.slots.rows
         self.diagnostics: dict[str, dict[str, Any]] = {}
         self.events: list[dict[str, Any]] = []
+        #: writers of the trial events besides the leader, by node (from the graph)
+        self.foreign_seen: set[str] = set()
+        self._writers_at = -1e9
         self.path_subs = []
         for r in range(n):
             # raw: a trajectory longer than a trial is refused before it is deserialized
@@ -122,6 +132,26 @@ class MonitorNode(Node):
             return
         if r.node in self.readies or len(self.readies) < 256:  # a flood of names: bounded
             self.readies[r.node] = r
+
+    def _foreign_writers(self) -> None:
+        """Note the writers of the trial events other than the leader, by node, as the
+        graph names them when an unsealed event comes (DDS names no writer per sample:
+        ``protocol.schedule``), at most once a second."""
+        now = time.monotonic()
+        if now - self._writers_at < 1.0 or len(self.foreign_seen) >= 16:
+            return
+        self._writers_at = now
+        ns = self.get_namespace()
+        for i in self.get_publishers_info_by_topic(self.events_sub.topic_name):
+            if not (i.node_name == ms.LEADER_NODE and i.node_namespace == ns):
+                self.foreign_seen.add(f"{i.node_namespace.rstrip('/')}/{i.node_name}")
+
+    def report(self) -> dict[str, Any]:
+        """The monitor's own report for diagnostics.json: the trial events it refused as
+        foreign, and the other writers of the topic it saw."""
+        return {"node": ms.MONITOR_NODE,
+                "foreign_events": int(self.drops.by_topic[f"foreign:{ms.TRIAL_EVENTS}"]),
+                "foreign_writers": sorted(self.foreign_seen)}
 
     def leader_present(self) -> bool:
         """Whether a writer of the trial events (the leader) has been discovered."""
@@ -186,9 +216,13 @@ class MonitorNode(Node):
             ev = TrialEvent.from_json(d)
             if ev.run and ev.run != self.cfg.run_id:
                 raise Rejected("foreign", f"event of run {ev.run}")
-            ev.agree(self.clock)
+            if not sealed(ev, self.slots.key):
+                self._foreign_writers()
+                raise Rejected("foreign", f"{ev.event} of slot {ev.slot} (seq {ev.seq}) not "
+                                          f"sealed by this run's leader")
             if self.slots.repeat(ev):
                 return  # not progress: the launcher's backstop counts the events
+            ev.agree(self.clock)
             done = self.slots.event(ev)
         except Rejected as exc:
             self.drops.reject(exc, ms.TRIAL_EVENTS)

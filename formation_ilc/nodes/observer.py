@@ -34,7 +34,8 @@ from std_msgs.msg import String
 
 import msgs_schema as ms
 from formation_ilc.config.runconfig import RunConfig
-from formation_ilc.protocol.schedule import TrialEvent, is_repeat
+from formation_ilc.core.clock import Rejected
+from formation_ilc.protocol.schedule import TrialEvent, is_repeat, sealed
 from formation_ilc.protocol.view import TrackingView, graph_links, marker_every, outline_order
 from formation_ilc.recordings import cdr
 
@@ -54,7 +55,8 @@ class Observer:
     """Publishes the view topics of a run (``cfg``) on ``node``; see the module doc."""
 
     def __init__(self, node: Node | None, cfg: RunConfig, sink: Sink | None = None,
-                 gate: Callable[[str], bool] | None = None, *, sampled: bool = False):
+                 gate: Callable[[str], bool] | None = None, *, sampled: bool = False,
+                 key: bytes | None = None):
         """``node`` None: no publishers, every message only goes to ``sink`` (the batch
         simulator's recording). ``gate(topic)``: whether the sink takes this per-sample
         message (the live view's rate; asked once per message, None: it takes all).
@@ -64,6 +66,8 @@ class Observer:
         ``robot_i/trajectory``), not from every pose."""
         sc = cfg.scenario
         self.cfg, self.clock, self.sink, self.gate = cfg, cfg.clock, sink, gate
+        #: the run key: only the leader's sealed events move the view
+        self.key = key
         self.sampled = sampled
         eta_d = sc.desired.eta
         self.view = TrackingView(eta_d, 1 if sampled else marker_every(sc.dt))
@@ -128,8 +132,11 @@ class Observer:
         """A message its host received, as CDR: a trial event or a robot's pose is observed,
         any other topic ignored; Rejected if it cannot be read."""
         if topic == ms.TRIAL_EVENTS:
-            self.on_event(TrialEvent.from_json(ms.msg_to_json(
-                ms.deserialize(data, String), ("event", "trial"))))
+            ev = TrialEvent.from_json(ms.msg_to_json(ms.deserialize(data, String),
+                                                     ("event", "trial")))
+            if not sealed(ev, self.key) or ev.run and ev.run != self.cfg.run_id:
+                raise Rejected("foreign", f"{ev.event} not sealed by this run's leader")
+            self.on_event(ev)
         elif topic in self.pose_topics:
             self.on_pose(self.pose_topics[topic], data)
         elif topic in self.trajectory_topics:

@@ -26,7 +26,7 @@ from rcl_interfaces.msg import (
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from formation_ilc.config.params import BIG, Param, describe, unknown_key
+from formation_ilc.config.params import BIG, Param, choice_text, describe, unknown_key
 
 __all__ = ["ParameterError", "declare", "effective", "probe_overrides", "SIM_TIME_REFUSED"]
 
@@ -98,7 +98,7 @@ def check(p: Param, value: Any) -> Any:
 def descriptor(p: Param) -> ParameterDescriptor:
     d = ParameterDescriptor(name=p.name, description=describe(p), read_only=True)
     if p.choices:
-        d.additional_constraints = f"one of: {', '.join(p.choices)}"
+        d.additional_constraints = f"one of: {choice_text(p.choices)}"
     if isinstance(p.default, int) and not isinstance(p.default, bool):
         d.integer_range = [IntegerRange(from_value=int(p.lo if p.lo is not None else -BIG),
                                         to_value=int(p.hi if p.hi is not None else BIG))]

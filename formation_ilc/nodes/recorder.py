@@ -32,7 +32,6 @@ trial the desired paths and the largest errors (``msgs_schema.view_topic_table``
 from __future__ import annotations
 
 import importlib
-import json
 import os
 import struct
 import sys
@@ -54,13 +53,14 @@ from formation_ilc.nodes.common import (
     DropCounter,
     RunConfig,
     node_parser,
+    run_key,
     spin_main,
 )
 from formation_ilc.nodes.observer import Observer
 from formation_ilc.nodes.params import declare
-from formation_ilc.protocol.schedule import Ready, TrialEvent
+from formation_ilc.protocol.schedule import Ready, TrialEvent, sealed
 from formation_ilc.recordings.mcap_io import CHUNK_BYTES, RosMcapWriter, type_hash
-from formation_ilc.recordings.recording import META_NAME, qos_of
+from formation_ilc.recordings.recording import CHANNEL_META, META_NAME, qos_of, run_metadata
 from formation_ilc.system.exits import is_disk_full
 
 #: types whose CDR starts with a header stamp (int32 sec, uint32 nanosec) right after the
@@ -89,6 +89,12 @@ class RecorderNode(Node):
         self.output = Path(output)
         #: this process in its ready (the launcher's ``down`` names it by its pid)
         self.boot = f"{os.getpid()}"
+        #: the run key: events it did not seal are recorded, never counted
+        self.key = run_key()
+        #: [s] when the process stops, what has arrived until then is still recorded
+        #: (``nodes.common.spin_main``): a trial that ended just before its launcher was
+        #: killed reaches the file
+        self.linger = 0.5
         self.writer = RosMcapWriter(self.output, flush_period=0.5, chunk_size=int(
             os.environ.get("FORMATION_ILC_RECORDER_CHUNK_BYTES", CHUNK_BYTES)))
         self.drops = DropCounter(self)      # not counted toward progress (still recorded)
@@ -137,22 +143,40 @@ class RecorderNode(Node):
             _msg_class(type_name), topic, lambda data, t=topic: self._on(t, data), reader_qos,
             raw=True)
 
-    def _channel(self, topic: str) -> str:
+    def _channel(self, topic: str, extra: dict[str, str] | None = None) -> str:
         """The channel of a topic, by its full name (namespace and remappings resolved),
-        with the offered QoS and type hash of the writer, as rosbag2 records them."""
+        with the offered QoS and type hash of the writer, as rosbag2 records them (and
+        ``extra`` metadata)."""
         name = self.resolve_topic_name(topic)
         info = self.get_publishers_info_by_topic(name)
         qos = info[0].qos_profile if info else self.qos[topic]
         type_hash = str(info[0].topic_type_hash) if info else ""
-        self.writer.channel(name, self.types[topic], qos_of(qos), type_hash)
+        self.writer.channel(name, self.types[topic], qos_of(qos), type_hash, extra)
         self.names[topic] = name
         return name
+
+    def _run_meta(self, data: bytes) -> dict[str, str]:
+        """What an analysis cannot do without, from the run configuration's message (its
+        JSON, its topic, the run key of the events), or {} for one that does not read."""
+        try:
+            conf = ms.msg_to_json(ms.deserialize(data, String))
+            RunConfig.from_json(conf)
+        except (Rejected, ValueError):
+            return {}
+        meta = run_metadata(conf, self.resolve_topic_name(ms.CONFIG), self.key)
+        return {CHANNEL_META + k: v for k, v in meta.items() if k != "topic"}
 
     def _on(self, topic: str, data: bytes) -> None:
         now = time.time_ns()
         try:
             sent = self._publish_time(topic, data, now)
-            self.writer.write(self.names.get(topic) or self._channel(topic), data, now, sent)
+            name = self.names.get(topic)
+            if name is None:
+                # the configuration's channel carries the configuration itself too: its
+                # copies outside the chunks and in the summary keep it when a chunk is lost
+                name = self._channel(topic, self._run_meta(data) if topic == ms.CONFIG
+                                     else None)
+            self.writer.write(name, data, now, sent)
         except Exception as exc:  # noqa: BLE001 - a recorder must outlive any one message
             if is_disk_full(exc):
                 raise  # not one message: nothing more can be recorded (spin_main says so)
@@ -239,6 +263,9 @@ class RecorderNode(Node):
                                                      ("event", "trial")))
             if ev.run and self.cfg.run_id and ev.run != self.cfg.run_id:
                 raise Rejected("foreign", f"event of run {ev.run}")
+            if not sealed(ev, self.key):
+                raise Rejected("foreign", f"{ev.event} of slot {ev.slot} not sealed by this "
+                                          f"run's leader")
             if ev.event == ms.START:
                 self.started = max(self.started, ev.slot)
                 self.iteration_of[ev.slot] = ev.trial
@@ -314,7 +341,9 @@ class RecorderNode(Node):
             self.drops.reject(exc, ms.CONFIG)
             self.get_logger().error(f"bad run configuration, recording it as is: {exc}")
             return
-        self.writer.metadata(META_NAME, {"config": json.dumps(conf)})
+        # kept: written now, after the first chunk, every REPEAT_BYTES and at the end
+        self.writer.keep(META_NAME, run_metadata(conf, self.resolve_topic_name(ms.CONFIG),
+                                                 self.key))
         n = self.cfg.scenario.n
         for topic, type_name, qos in ms.topic_table(n):
             self._subscribe(topic, type_name, qos)
@@ -327,7 +356,7 @@ class RecorderNode(Node):
         if self.observe:
             for topic, type_name, qos in ms.view_topic_table(n):
                 self.types[topic], self.qos[topic] = type_name, qos
-            self.observer = Observer(self, self.cfg, self._write_view)
+            self.observer = Observer(self, self.cfg, self._write_view, key=self.key)
 
     def _check_ready(self) -> None:
         if self.cfg is None or self.said_ready:
@@ -354,6 +383,28 @@ class RecorderNode(Node):
         super().destroy_node()
 
 
+def output_problem(path: Path) -> str | None:
+    """Why the recorder cannot write its file at ``path``, or None: a folder, a device or
+    FIFO, a missing or unwritable folder (the recorder makes none: the launcher makes the
+    folder of ``--record`` before it starts the recorder)."""
+    import stat
+
+    try:
+        st = path.stat()
+    except OSError:
+        st = None
+    if st is not None and stat.S_ISDIR(st.st_mode):
+        return "is a folder, expected a file name"
+    if st is not None and not stat.S_ISREG(st.st_mode):
+        return "is not a regular file"
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        return f"the folder {folder} does not exist"
+    if not os.access(folder, os.W_OK | os.X_OK):
+        return f"the folder {folder} is not writable"
+    return None
+
+
 def _lower_priority() -> None:
     """Run below the control loop, before rclpy starts its threads: on Linux a niceness is
     per thread and only threads started later inherit it.
@@ -378,7 +429,9 @@ def main(args: list[str] | None = None) -> int:
     _lower_priority()
 
     def build(ns: Any, argv: list[str]) -> list[Node]:
-        ns.output.parent.mkdir(parents=True, exist_ok=True)
+        why = output_problem(ns.output)
+        if why is not None:  # one line and status 2 (spin_main), no folder made
+            raise ValueError(f"--output {ns.output}: {why}")
         return [RecorderNode(ns.output, observe=not ns.no_view)]
 
     return spin_main(build, parser, args)

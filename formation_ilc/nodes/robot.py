@@ -250,11 +250,15 @@ class RobotNode(ConfiguredNode):
             return
         if ev.event == ms.ABORT:
             rolled = self.learner.abort(ev.slot)
-            if rolled:
+            # the slot the leader last committed stands: a step undone on an abort the
+            # leader did not send is taken back
+            redone = ev.kept >= 0 and self.learner.redo(ev.kept)
+            if rolled or redone:
                 self._save_state()
+            back = f"; the step of slot {ev.kept} taken back" if redone else ""
             self.get_logger().warning(f"{self.name}: trial {ev.trial} (slot {ev.slot}) "
                                       f"aborted: {ev.why}"
-                                      f"{'; learning step undone' if rolled else ''}")
+                                      f"{'; learning step undone' if rolled else ''}{back}")
             if not self._gate.is_canceled():
                 return  # not yet ready at all: the gate says ready once it is
             self._send_ready()

@@ -55,6 +55,8 @@ from formation_ilc.protocol.schedule import (
     ScheduleError,
     StartRepeat,
     TrialEvent,
+    seal,
+    sealed,
 )
 from formation_ilc.protocol.wallclock import WallSchedule
 from formation_ilc.protocol.watchdog import READY as READY_PHASE
@@ -125,15 +127,18 @@ class Leader:
     namespace : the formation's, for messages. watchdog_scale : every liveness bound times
         this. start_margin : [s] wall-clock trials: from the start event to sample 0.
     monotonic, wall_ns : the clocks (seconds; Unix epoch, nanoseconds).
+    key : the run key its events are sealed with (``protocol.schedule.seal``), None: none.
     """
 
     def __init__(self, cfg: RunConfig, expected: list[str], io: LeaderIO, *,
                  state_file: Path | None = None, namespace: str = "",
                  watchdog_scale: float = 1.0, start_margin: float = 1.0,
                  monotonic: Callable[[], float] = time.monotonic,
-                 wall_ns: Callable[[], int] = time.time_ns):
+                 wall_ns: Callable[[], int] = time.time_ns, key: bytes | None = None):
         sc = cfg.scenario
         self.cfg, self.io, self.namespace = cfg, io, namespace
+        #: the run key every event is sealed with (``schedule.seal``; None: unsealed)
+        self.key = key
         self.monotonic, self.wall_ns = monotonic, wall_ns
         self.clock = cfg.clock
         self.T = sc.samples
@@ -253,12 +258,20 @@ class Leader:
 
     def on_event(self, data: dict[str, Any]) -> None:
         """An event on the leader's own topic (its JSON): its own come back; a start or
-        abort of this run that it did not send makes it re-assert its schedule."""
+        abort of this run that it did not send makes it re-assert its schedule. With a
+        run key, one it did not seal moved no follower: it is only counted."""
         try:
             ev = TrialEvent.from_json(data)
         except Rejected:
             return  # followers count it; the leader only watches for starts and aborts
         if ev.run and ev.run != self.run_id:
+            return
+        if not sealed(ev, self.key):
+            if ev.event in (START, ABORT):
+                self.sched.foreign_events += 1
+                self.io.drop("foreign", TRIAL_EVENTS, f"a {ev.event} of slot {ev.slot} "
+                                                      f"(seq {ev.seq}) not sealed by this "
+                                                      f"leader: no follower takes it")
             return
         why = self.sched.foreign(ev)
         if why is not None:
@@ -293,8 +306,14 @@ class Leader:
         s = self.sched
         assert s.abort_pending is not None
         self._abort_sent = self.monotonic()
-        self.io.publish_event(TrialEvent(ABORT, s.committed, s.abort_pending, s.seq,
-                                         why=s.why, run=self.run_id))
+        self._publish(TrialEvent(ABORT, s.committed, s.abort_pending, s.seq, why=s.why,
+                                 run=self.run_id, kept=s.kept))
+
+    def _publish(self, ev: TrialEvent) -> TrialEvent:
+        """Publish ``ev`` sealed with the run key (``schedule.seal``); returns it sealed."""
+        ev = seal(ev, self.key)
+        self.io.publish_event(ev)
+        return ev
 
     # ------------------------------------------------------------------ starts
     def maybe_start(self) -> None:
@@ -311,10 +330,14 @@ class Leader:
         if s.done:
             if not self.done_sent:
                 self.done_sent = True
-                self.io.publish_event(TrialEvent(DONE, s.committed, s.slot + 1, s.seq,
-                                                 run=self.run_id))
+                self._publish(TrialEvent(DONE, s.committed, s.slot + 1, s.seq,
+                                         run=self.run_id))
                 self.publish_diagnostics()
                 self.io.log("info", f"done: {self.trials} trials")
+            return
+        why = s.undone()  # a robot undid a committed step on an abort not ours
+        if why is not None:
+            self.aborted(why)
             return
         try:
             nxt = s.next_start()
@@ -347,9 +370,8 @@ class Leader:
             wall_ns = grid.start_for(q, self.wall_ns() + self.margin_ns)
             grid.agree(q, wall_ns)  # its stamps are wall time: start + t * dT
             self.wall = WallSchedule(wall_ns, self.clock.dt_ns, self.T)
-        start = TrialEvent(START, i, q, seq, self.clock.stamp_ns(q, 0), wall_ns,
-                           run=self.run_id)
-        self.io.publish_event(start)
+        start = self._publish(TrialEvent(START, i, q, seq, self.clock.stamp_ns(q, 0), wall_ns,
+                                         run=self.run_id))
         if wall_ns is None:  # simulated time: the plant's samples show that it moves
             self.repeat.sent(start, self.monotonic())
 
@@ -413,7 +435,7 @@ class Leader:
     def _end(self, slot: int) -> None:
         self.repeat.stop()
         s = self.sched
-        self.io.publish_event(TrialEvent(END, s.committed, slot, s.seq, run=self.run_id))
+        self._publish(TrialEvent(END, s.committed, slot, s.seq, run=self.run_id))
         committed = s.committed
         s.ended(slot)
         self.watchdog.moved(self.monotonic(), READY_PHASE, progress=s.committed > committed)

@@ -134,6 +134,9 @@ class RobotLearner:
         self.prev_learned = -1
         self.floor = -1         # labels of slots <= floor are refused (aborted or learned)
         self.restored = False   # restored from a state file, no trial entered since
+        #: learning steps undone by aborts, by slot: (memory, iterations) after the step and
+        #: the learned slot before it; a step the leader says stands is taken back (redo)
+        self.undone: dict[int, tuple[NDArray[np.float64], int, int]] = {}
         self.applied = np.zeros((1, n_t, 2))
         self.eta = np.zeros((1, n_t + 1, 3))
         self.have = np.zeros(n_t + 1, dtype=bool)
@@ -522,6 +525,8 @@ class RobotLearner:
             return False
         rolled = False
         if self.learned == slot:
+            self.undone = {slot: (self.memory.copy(), self.iterations, self.prev_learned),
+                           **{q: v for q, v in self.undone.items() if q < slot}}
             self.memory[:] = self.prev_memory
             self.iterations, self.learned = self.prev_iterations, self.prev_learned
             rolled = True
@@ -534,6 +539,22 @@ class RobotLearner:
         for box in self.inbox.values():
             box.clear()
         return rolled
+
+    def redo(self, slot: int) -> bool:
+        """The leader says ``slot`` is committed (an abort's ``kept``): if this robot undid
+        its learning step from it (on an abort the leader did not send) and has learned
+        nothing since, the step is taken back. Returns True if it was."""
+        got = self.undone.get(slot)
+        if got is None or self.learned != got[2]:
+            return False
+        memory, iterations, before = got
+        self.prev_memory[:] = self.memory
+        self.prev_iterations, self.prev_learned = self.iterations, self.learned
+        self.memory[:] = memory
+        self.iterations, self.learned = iterations, slot
+        self.finished = max(self.finished, slot)
+        del self.undone[slot]
+        return True
 
     def done_with(self, slot: int) -> bool:
         """Whether the robot holds nothing more of ``slot`` (-1: none): it has learned from

@@ -21,7 +21,21 @@ Protocol (JSON on ``leader/trial_events``; ``ready`` from every node):
   answered it with a ``ready``.
 Every event and ready also carries the run's identity (``run``, the configuration's
 ``run_id``): a node drops (``foreign``) those of another run on the same domain and
-namespace.
+namespace. An ``abort`` also names the slot the team last committed (``kept``): that slot
+stands, and a robot that undid its learning step on an abort the leader did not send
+(a forgery, without sealed events) takes the step back (``RobotLearner.redo``).
+
+**Sealed events.** DDS does not tell a reader which writer a sample came from: rclpy's
+message info has no publisher GID (measured on Jazzy: source and received timestamps and
+sequence numbers only, and the EventsExecutor the nodes spin cannot deliver it at all), and
+a latched configuration's writer cannot be told from an events writer by anything a
+sample carries. So the leader's events carry their writer's identity themselves: with a
+run key (``seal``: HMAC-SHA256 of the event's JSON, ``tag``), which the launcher gives
+every process it starts and nobody else. A follower with the key takes only events the key
+sealed; anything else on the topic (a stale or second leader, a buggy node, a forger with
+the run id) is ``foreign``. Without a key (nodes started by hand) events are taken
+unsealed, as before: then the rules below still keep a forgery from taking back a
+committed trial.
 
 * ``ready``  {node, trial, boot, seen[, passive]} from a node that is idle: ``trial`` is, for
   a robot, the iteration it is ready to run (the number of iterations it has learned);
@@ -48,9 +62,11 @@ write their memory at each learning step (``formation_ilc.store.robotstate``).
 
 from __future__ import annotations
 
+import hashlib
+import hmac
 import json
 from collections.abc import Container
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -60,10 +76,30 @@ from formation_ilc.store.atomic import atomic_write_text
 from formation_ilc.store.bounded import StateFileError, read_bounded
 
 __all__ = ["START", "END", "ABORT", "DONE", "TrialEvent", "Ready", "Schedule",
-           "ScheduleError", "Follower", "StartRepeat", "is_repeat", "unexplained_gap"]
+           "ScheduleError", "Follower", "StartRepeat", "is_repeat", "unexplained_gap",
+           "seal", "sealed", "parse_key", "KEY_BYTES"]
 
 START, END, ABORT, DONE = "start", "end", "abort", "done"
 EVENTS = (START, END, ABORT, DONE)
+
+
+#: bytes of a run key (``parse_key``); a tag is the first 16 bytes of the HMAC, in hex
+KEY_BYTES = 16
+_TAG_HEX = 32
+
+
+def parse_key(text: str | None) -> bytes | None:
+    """The run key written as hex (an environment variable's value), None when empty;
+    ValueError naming what is wrong otherwise."""
+    if not text:
+        return None
+    try:
+        key = bytes.fromhex(text.strip())
+    except ValueError:
+        raise ValueError("the run key must be hexadecimal") from None
+    if len(key) < KEY_BYTES:
+        raise ValueError(f"the run key must have at least {KEY_BYTES} bytes, got {len(key)}")
+    return key
 
 
 def _int(d: dict[str, Any], key: str, default: int | None = None) -> int:
@@ -87,6 +123,10 @@ class TrialEvent:
     start_wall_ns: int | None = None
     why: str = ""
     run: str = ""
+    #: an abort's: the slot the team last committed, which stands (-1: none known)
+    kept: int = -1
+    #: the leader's seal (``seal``); "" unsealed
+    tag: str = ""
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> TrialEvent:
@@ -100,10 +140,17 @@ class TrialEvent:
             raise Malformed(f"trial {trial}, slot {slot}: need 0 <= trial <= slot")
         stamp = d.get("stamp_ns")
         wall = d.get("start_wall_ns")
+        tag = d.get("tag", "")
+        if not isinstance(tag, str) or len(tag) > 128:
+            raise Malformed("'tag' must be a text of at most 128 characters")
+        kept = _int(d, "kept", -1)
+        if kept < -1 or kept >= slot and kept >= 0:
+            raise Malformed(f"kept slot {kept} of an event of slot {slot}: need -1 <= kept "
+                            f"< slot")
         return cls(str(ev), trial, slot, _int(d, "seq", -1),
                    None if stamp is None else _int(d, "stamp_ns"),
                    None if wall is None else _int(d, "start_wall_ns"), str(d.get("why", "")),
-                   str(d.get("run", "")))
+                   str(d.get("run", "")), kept, tag)
 
     def agree(self, clock: SampleClock | WallGrid) -> None:
         """A start of a wall-clock trial tells ``clock`` its slot's agreed start (then the
@@ -122,7 +169,33 @@ class TrialEvent:
             d["why"] = self.why
         if self.run:
             d["run"] = self.run
+        if self.kept >= 0:
+            d["kept"] = self.kept
+        if self.tag:
+            d["tag"] = self.tag
         return d
+
+
+def _tag(ev: TrialEvent, key: bytes) -> str:
+    body = ev.to_json()
+    body.pop("tag", None)
+    text = json.dumps(body, sort_keys=True, separators=(",", ":"))
+    return hmac.new(key, text.encode(), hashlib.sha256).hexdigest()[:_TAG_HEX]
+
+
+def seal(ev: TrialEvent, key: bytes | None) -> TrialEvent:
+    """``ev`` sealed with the run key (its ``tag``); unchanged without a key."""
+    if key is None:
+        return ev
+    return replace(ev, tag=_tag(ev, key))
+
+
+def sealed(ev: TrialEvent, key: bytes | None) -> bool:
+    """Whether ``ev`` carries the seal of ``key`` (always True without a key: a node
+    started without one takes events unsealed)."""
+    if key is None:
+        return True
+    return bool(ev.tag) and hmac.compare_digest(ev.tag, _tag(ev, key))
 
 
 @dataclass(frozen=True)
@@ -197,7 +270,8 @@ class Follower:
     every node has answered it), and raises Rejected, with the reason it is counted under,
     for an event the node must not obey:
 
-    * ``foreign``: of another run (``run``) on the same domain and namespace;
+    * ``foreign``: of another run (``run``) on the same domain and namespace, or (with the
+      run ``key``) not sealed by this run's leader;
     * ``stale``: a start whose ``seq`` was handled already, or of a slot not after the last
       one started here (the start taken, again, is the leader's repeat: None, not counted);
     * ``future``: a start beyond the next slot while a slot between was not aborted
@@ -217,6 +291,8 @@ class Follower:
     wall_trial_ns: int | None = None
     #: the node's sample grid: a start taken tells it the slot's agreed wall-clock start
     clock: SampleClock | WallGrid | None = None
+    #: the run key: only events it sealed are taken (None: unsealed ones too)
+    key: bytes | None = None
     seen: int = -1           # seq of the last start or abort taken
     start_seq: int = -1      # seq of the last start taken, while no abort followed it
     slot: int = -1           # the last slot started here (-1: none, any slot is next)
@@ -231,6 +307,9 @@ class Follower:
         the wall clock [ns], for wall-clock followers."""
         if ev.run and self.run and ev.run != self.run:
             raise Rejected("foreign", f"event of run {ev.run}")
+        if not sealed(ev, self.key):
+            raise Rejected("foreign", f"{ev.event} of slot {ev.slot} (seq {ev.seq}) not "
+                                      f"sealed by this run's leader")
         if ev.event not in (START, ABORT):
             return None
         if ev.seq <= self.seen:
@@ -372,7 +451,12 @@ def read_state(path: Path, trials: int) -> dict[str, Any] | None:
            f"seq {seq} below slot {q}: every slot's start took a seq" if seq < q else "")
     if why:
         raise ScheduleError(f"{path}: impossible schedule state: {why}")
-    return out | {"open": d["open"]}
+    kept = d.get("kept")  # the slot last committed (files written before it have none)
+    if kept is not None and (isinstance(kept, bool) or not isinstance(kept, int)
+                             or not -1 <= kept <= q):
+        raise ScheduleError(f"{path}: impossible schedule state: kept slot {kept!r} is not "
+                            f"in -1..{q}")
+    return out | {"open": d["open"], "kept": None if kept is None or kept < 0 else kept}
 
 
 @dataclass
@@ -401,15 +485,18 @@ class Schedule:
     answered: set[str] = field(default_factory=set)  # idle since the last start or abort
     #: what this leader process sent: seq -> (event, trial, slot)
     sent: dict[int, tuple[str, int, int]] = field(default_factory=dict)
-    #: the slot of the last committed iteration, when this process saw it commit
+    #: the slot of the last committed iteration (saved with the state), None: unknown
     committed_slot: int | None = None
     #: foreign starts and aborts seen (events this leader did not send)
     foreign_events: int = 0
+    #: robots asked to take back a learning step they undid, by (node, boot): asked once
+    redo_asked: set[tuple[str, str]] = field(default_factory=set)
 
     # ------------------------------------------------------------------ persistence
     def state(self) -> dict[str, Any]:
         return {"committed": self.committed, "slot": self.slot, "seq": self.seq,
-                "open": self.open or self.abort_pending is not None}
+                "open": self.open or self.abort_pending is not None,
+                "kept": -1 if self.committed_slot is None else self.committed_slot}
 
     def save(self, path: Path | None) -> None:
         if path is not None:
@@ -423,6 +510,7 @@ class Schedule:
         if st is None:
             return False
         self.committed, self.slot, self.seq = st["committed"], st["slot"], st["seq"]
+        self.committed_slot = st["kept"] if self.committed else None
         self.open = self.running = False
         if st["open"]:
             self.begin_abort("the leader restarted")
@@ -492,6 +580,30 @@ class Schedule:
         self.answered.clear()
         self.sent[self.seq] = (ABORT, self.committed, self.abort_pending)
 
+    @property
+    def kept(self) -> int:
+        """The slot the team last committed, which an abort names (-1: none known)."""
+        return -1 if self.committed_slot is None else self.committed_slot
+
+    def undone(self) -> str | None:
+        """Robots that report one trial fewer than the team committed, idle: each undid
+        the learning step of the committed slot on an abort the leader did not send (one
+        it never saw). They are asked once per process to take it back (an abort of the
+        next slot, naming the committed one as ``kept``); returns why, else None."""
+        if self.abort_pending is not None or self.open or self.running \
+                or self.committed_slot is None:
+            return None
+        behind = [n for n in sorted(self.robots) if n in self.ready
+                  and self.ready[n].trial == self.committed - 1 and self._idle(n)
+                  and (n, self.ready[n].boot) not in self.redo_asked]
+        if not behind:
+            return None
+        self.redo_asked.update((n, self.ready[n].boot) for n in behind)
+        why = (f"{', '.join(behind)} undid trial {self.committed - 1} (slot "
+               f"{self.committed_slot}), which every robot had learned: it stands")
+        self.begin_abort(why, self.slot + 1)
+        return why
+
     def foreign(self, ev: TrialEvent) -> str | None:
         """Check a start or abort of this run seen on the events topic. One this leader did
         not send (a forger, a buggy node: followers take it if its ``seq`` is new to them)
@@ -511,22 +623,17 @@ class Schedule:
         every node answers and the same iteration runs again in a fresh slot:
 
         * a slot open or being aborted: aborted (again);
-        * a start of a later slot (or an unknown event, seen only as a follower's ``seen``):
-          that slot, which the leader never started, is aborted and skipped;
-        * an abort of the slot the team last committed: robots that took it rolled that
-          learning step back (a robot keeps one step), so the leader un-commits it, aborts
-          the slot for every robot alike, and runs that iteration again (same draws, same
-          memory: the run stays equal to batch)."""
+        * a start of a later slot, an abort of a slot already committed, or an unknown
+          event (seen only as a follower's ``seen``): the next slot, which the leader never
+          started, is aborted and skipped.
+
+        A committed trial is never taken back: the abort names the slot the team last
+        committed (``kept``), and a robot that undid its learning step on a forged abort
+        of that slot takes the step back (``RobotLearner.redo``): the run goes on from
+        the trial every robot learned, equal to batch."""
         self.seq = max(self.seq, seq)
-        if ev is not None and ev.event == ABORT and ev.slot == self.committed_slot \
-                and self.committed > 0:
-            # robots that took it rolled back the step learned from that slot
-            self.committed -= 1
-            self.committed_slot = None
-            why += f": trial {self.committed} runs again"
-            if self.abort_pending is None and not (self.open or self.running):
-                self.begin_abort(why, ev.slot)
-                return why
+        if ev is not None and ev.event == ABORT and ev.slot == self.committed_slot:
+            why += f" (trial {self.committed - 1}, committed: it stands)"
         if self.abort_pending is not None:
             self.begin_abort(f"{self.why}; {why}", self.abort_pending)
         elif self.open or self.running:
@@ -624,10 +731,15 @@ class Schedule:
         robots = {n: self.ready[n].trial for n in self.robots}
         behind = {n: t for n, t in robots.items() if t < self.committed}
         if behind:
+            undid = [n for n in behind if (n, self.ready[n].boot) in self.redo_asked]
             raise ScheduleError(
                 "; ".join(f"{n} is ready for trial {t}" for n, t in sorted(behind.items()))
-                + f", but the team has learned {self.committed} trials: a robot came back "
-                  f"without its memory (give every robot the run's state_dir)")
+                + f", but the team has learned {self.committed} trials: "
+                + (f"{', '.join(sorted(undid))} undid a committed learning step on an abort "
+                   f"the leader did not send and could not take it back (run with the "
+                   f"launcher's sealed events, or SROS2)" if undid else
+                   "a robot came back without its memory (give every robot the run's "
+                   "state_dir)"))
         ahead = set(robots.values())
         if robots and ahead != {self.committed}:
             if len(ahead) == 1 and self.slot < 0:

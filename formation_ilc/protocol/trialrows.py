@@ -13,6 +13,18 @@ and the same memory, and its repetition is dropped as a duplicate.
 a slot not started yet; a recording (``strict=False``) is taken as the file gives it, and
 a trajectory that comes before its slot's start waits for it.
 
+**The schedule cross-checks every trial number.** Slots run one after the other, and each
+either commits or is aborted: the slot after one that ran iteration i runs i + 1 if it
+committed, i again if it was aborted (``expected``). A start that names another iteration
+cannot be the leader's schedule: the monitor refuses it (``unexpected``), so no sequence
+of events can file one trial's trajectories under another's number; a recording takes a
+later start of the same slot that agrees with the schedule in its place (an earlier one
+that disagreed, say a forgery in a run without sealed events, is dropped). With the run
+key (``key``) only events the leader sealed are taken at all (``schedule.seal``); the
+rest are ``foreign``. An abort names the slot the team last committed (``kept``): if an
+earlier abort of that slot was taken here (one the leader did not send), the slot stands
+again, with the trajectories it had.
+
 The counts of a row (``core.metrics.COUNT_COLUMNS``) come from the nodes' reports, noted
 as they arrive (``note_filtered``, ``note_contacts``): a robot reports what its safety
 filter changed before it sends its trajectory, the plant its contacts before its last
@@ -41,6 +53,7 @@ from formation_ilc.protocol.schedule import (
     START,
     TrialEvent,
     is_repeat,
+    sealed,
     unexplained_gap,
 )
 
@@ -65,11 +78,18 @@ class SlotRows:
     """The slots of one run and the rows they completed (``rows``: iteration -> row).
 
     ``first``: iterations below it are not reported (a resumed run has their rows already).
+    ``key``: the run key; only events it sealed are taken (None: any).
     """
 
     def __init__(self, pb: Problem, true_state: bool = True, first: int = 0,
-                 strict: bool = True, safety: bool = False):
+                 strict: bool = True, safety: bool = False, key: bytes | None = None):
         self.pb = pb
+        self.key = key
+        #: the last slot aborted here, with what it held (a ``kept`` may restore it)
+        self.limbo: tuple[int, dict[int, Any], dict[int, Any], dict[int, int] | None,
+                          int | None] | None = None
+        #: events refused as foreign (another run's, or not sealed by the leader)
+        self.foreign = 0
         self.safety = safety
         #: slot -> robot (0-based) -> commands its filter changed; slot -> contacts
         self.filtered: dict[int, dict[int, int]] = {}
@@ -77,18 +97,29 @@ class SlotRows:
         self.true_state = true_state
         self.first = first
         self.strict = strict
+        #: the run id (events of another run are foreign); "" takes any
+        self.run = ""
         self.iteration_of: dict[int, int] = {}  # slot -> iteration (start events)
         self.aborted: set[int] = set()
         self.started = -1                      # the last slot started
         self.start_seq = -1                    # the seq of its start
         self.done_at: tuple[int, int] | None = None  # (slot, trials) of the done event
         self.rows: dict[int, NDArray[np.float64]] = {}
+        #: iteration -> the slot its row was made from
+        self.made: dict[int, int] = {}
         self.eta: dict[int, dict[int, NDArray[np.float64]]] = {}
         self.xi: dict[int, dict[int, NDArray[np.float64]]] = {}
 
     def event(self, ev: TrialEvent) -> list[Row]:
         """Take a trial event; returns the rows it completes. Rejected (strict) if it is
         out of the leader's order."""
+        if ev.run and self.run and ev.run != self.run:
+            self.foreign += 1
+            raise Rejected("foreign", f"event of run {ev.run}")
+        if not sealed(ev, self.key):
+            self.foreign += 1
+            raise Rejected("foreign", f"{ev.event} of slot {ev.slot} (seq {ev.seq}) not "
+                                      f"sealed by this run's leader")
         if self.repeat(ev):
             return []
         if self.strict:
@@ -105,50 +136,114 @@ class SlotRows:
                 raise Rejected("unexpected", f"{ev.event} of slot {ev.slot}, slot "
                                              f"{self.started} started")
         if ev.event == START:
-            if ev.slot in self.iteration_of and self.iteration_of[ev.slot] != ev.trial:
-                raise Rejected("unexpected", f"slot {ev.slot} started as trial {ev.trial}, "
-                                             f"it runs trial {self.iteration_of[ev.slot]}")
+            exp = self.expected(ev.slot)
+            if self.strict and exp is not None and ev.trial != exp:
+                raise Rejected("unexpected", f"start of slot {ev.slot} as trial {ev.trial}: "
+                                             f"the schedule runs trial {exp} there")
+            had = self.iteration_of.get(ev.slot)
+            if had is not None and had != ev.trial:
+                if self.strict or exp is None or ev.trial != exp \
+                        or self._made_from(ev.slot):
+                    raise Rejected("unexpected", f"slot {ev.slot} started as trial "
+                                                 f"{ev.trial}, it runs trial {had}")
+                # a recording: the start that agrees with the schedule replaces one that
+                # does not (a forgery in a run without sealed events)
             if ev.slot >= self.started:
                 self.started, self.start_seq = ev.slot, ev.seq
             self.iteration_of[ev.slot] = ev.trial
             return self._complete(ev.slot)
         if ev.event == ABORT:
+            done = self._kept(ev.kept)
+            if ev.slot not in self.aborted:
+                self.limbo = (ev.slot, self.eta.pop(ev.slot, {}), self.xi.pop(ev.slot, {}),
+                              self.filtered.pop(ev.slot, None),
+                              self.contacts.pop(ev.slot, None))
             self.aborted.add(ev.slot)
             if ev.slot == self.started:  # a start of it again is a replay, not a repeat
                 self.start_seq = -1
-            self.eta.pop(ev.slot, None)
-            self.xi.pop(ev.slot, None)
-            self.filtered.pop(ev.slot, None)
-            self.contacts.pop(ev.slot, None)
+            return done
         if ev.event == DONE:  # the slot after the last, and the trials learned
             self.done_at = (ev.slot, ev.trial)
         return []
 
+    def expected(self, slot: int) -> int | None:
+        """The iteration the leader's schedule runs in ``slot``, from the last slot started
+        before it: that slot's iteration, plus one unless it was aborted (slots only run
+        after the one before committed or was aborted); None when no slot before it is
+        known."""
+        before = [q for q in self.iteration_of if q < slot]
+        if not before:
+            return None
+        p = max(before)
+        return self.iteration_of[p] + (0 if p in self.aborted else 1)
+
+    def _made_from(self, slot: int) -> bool:
+        """Whether a row was made from ``slot``'s trajectories."""
+        return slot in self.made.values()
+
+    def _kept(self, slot: int) -> list[Row]:
+        """An abort says ``slot`` was committed: if an abort of it was taken here (one the
+        leader did not send), it stands again, with what it held; returns the rows made."""
+        if slot < 0 or slot not in self.aborted:
+            return []
+        self.aborted.discard(slot)
+        if self.limbo is not None and self.limbo[0] == slot:
+            _, eta, xi, filtered, contacts = self.limbo
+            self.limbo = None
+            self.eta.setdefault(slot, {}).update(eta)
+            self.xi.setdefault(slot, {}).update(xi)
+            if filtered is not None:
+                self.filtered[slot] = filtered
+            if contacts is not None:
+                self.contacts[slot] = contacts
+        if slot == self.started:
+            self.start_seq = -1
+        return self._complete(slot)
+
     def repeat(self, ev: TrialEvent) -> bool:
         """Whether ``ev`` is the last start taken, again, with no abort of its slot since:
         the leader repeats a start while its slot does not move
-        (``schedule.StartRepeat``); no news, and no refusal."""
-        return is_repeat(ev, self.started, self.start_seq)
+        (``schedule.StartRepeat``); no news, and no refusal. An unsealed copy of it (with
+        the run key) is no repeat: ``event`` refuses it as foreign."""
+        return sealed(ev, self.key) and is_repeat(ev, self.started, self.start_seq)
 
-    def infer(self) -> list[Row]:
+    def infer(self, identity: range | None = None) -> list[Row]:
         """For a recording: the iteration of a slot whose start event is not in the file (a
-        recorder killed just as it began), from its neighbours. Slots run one after the
-        other and each either commits or is aborted, so slot s runs the iteration of slot
-        s-1, plus one unless s-1 was aborted. That is taken only when the slot after s (or
-        the run's ``done``) confirms it by running the next iteration; when it runs the
-        same one, s was aborted and its trajectories are dropped. Returns the rows made."""
+        recorder killed just as it began, a damaged chunk), from the slots around it.
+        Slots run one after the other and each either commits or is aborted, so from the
+        nearest slot before it with a known iteration (l) to the nearest one after it (u,
+        or the run's ``done``) the iteration rises by one for each slot that committed.
+        When it rose by one for every slot between whose abort the file does not show,
+        they all committed, and slot s ran l's iteration plus the commits from l to s;
+        when it rose by one less and s is the only such slot, s was aborted and its
+        trajectories are dropped. Otherwise s is left unknown. ``identity``: the slots of
+        a batch simulation's recording (its trials), each of which ran the iteration of
+        its own number. Returns the rows made."""
         known = dict(self.iteration_of)
         if self.done_at is not None:
             known.setdefault(*self.done_at)
         done: list[Row] = []
         for s in sorted(set(self.eta) | set(self.xi)):
-            if s in self.iteration_of or s - 1 not in self.iteration_of or s + 1 not in known:
+            if s in self.iteration_of or s in self.aborted:
                 continue
-            guess = self.iteration_of[s - 1] + (0 if s - 1 in self.aborted else 1)
-            if known[s + 1] == guess + 1:
-                self.iteration_of[s] = guess
+            if identity is not None:
+                if s in identity:
+                    self.iteration_of[s] = s
+                    done += self._complete(s)
+                continue
+            lower = [q for q in self.iteration_of if q < s]
+            upper = [q for q in known if q > s]
+            if not lower or not upper:
+                continue
+            lo, hi = max(lower), min(upper)
+            aborted = sum(1 for q in range(lo, hi) if q in self.aborted)
+            rise = known[hi] - self.iteration_of[lo]
+            unknown = [q for q in range(lo + 1, hi) if q not in self.aborted]
+            if rise == hi - lo - aborted:
+                self.iteration_of[s] = self.iteration_of[lo] + sum(
+                    1 for q in range(lo, s) if q not in self.aborted)
                 done += self._complete(s)
-            elif known[s + 1] == guess:
+            elif rise == hi - lo - aborted - 1 and unknown == [s]:
                 self.aborted.add(s)
                 self.eta.pop(s, None)
                 self.xi.pop(s, None)
@@ -242,4 +337,5 @@ class SlotRows:
         if i < self.first or i in self.rows:
             return []
         self.rows[i] = row
+        self.made[i] = slot
         return [Row(i, row, eta, xi)]

@@ -13,7 +13,12 @@
   or damaged in the middle: a record that does not parse, or a chunk whose CRC does not
   match, is skipped and reading resumes at the next valid record (``ReadReport`` says what
   was lost: byte ranges, chunks, messages, their log times).
-* ``repair``: rewrite a cut-short or damaged file with a complete summary and footer.
+* ``repair``: rewrite a cut-short or damaged file with a complete summary and footer, and
+  put back what it can rebuild (a lost message of the run configuration, from a copy).
+* ``keep``: a metadata record written again after the first chunk, every
+  ``REPEAT_BYTES`` of file after that, and at the end: what a reader cannot do without
+  (the run configuration) is in more than one place, so no single damaged chunk or record
+  loses it.
 * ``bag_metadata``: the ``rosbag2`` metadata record a closed file ends with, as rosbag2's
   MCAP storage writes it (``ros2 bag info`` reads the distro, topics and counts from it).
 """
@@ -28,7 +33,7 @@ import struct
 import sys
 import time
 import zlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from io import BytesIO
 from pathlib import Path
@@ -36,6 +41,7 @@ from typing import IO, Any
 
 __all__ = ["message_definition", "type_hash", "qos_yaml", "RosMcapWriter", "RawMessage",
            "read_messages", "repair", "read_metadata", "ReadReport", "Damage", "CHUNK_BYTES",
+           "FileInfo", "REPEAT_BYTES", "RepairError", "Repairing", "repair_with",
            "bag_metadata", "ROS_DISTRO"]
 
 #: the ROS distribution the stack's wheels are (rosbag2's ``ros_distro``)
@@ -47,6 +53,9 @@ BAG_METADATA_VERSION = 9
 #: simulator's recordings: what one damaged chunk loses at most (scripts/bench_record.py
 #: --chunks measures the trade-off against file size and write cost)
 CHUNK_BYTES = 64 * 1024
+
+#: [bytes of file] how far apart the copies of a kept metadata record are written at most
+REPEAT_BYTES = 1 << 20
 
 _SEPARATOR = "=" * 80
 
@@ -179,9 +188,24 @@ class RosMcapWriter:
         self._span: list[int] = []  # first and last log time [ns]
         self.count = 0
         self.closed = False
+        #: metadata records written again as the file grows (``keep``), and where the last
+        #: copies end (None: none since they were kept)
+        self._kept: dict[str, dict[str, str]] = {}
+        self._kept_at: int | None = None
+        self.repeat_bytes = REPEAT_BYTES
 
-    def channel(self, topic: str, type_name: str, qos: str, type_hash: str = "") -> int:
-        """Register (once) and return the channel id of ``topic``."""
+    def keep(self, name: str, data: dict[str, str]) -> None:
+        """Write metadata record ``name`` now and again: after the chunk in progress, then
+        every ``repeat_bytes`` of file, and before the summary at the end."""
+        self._kept[name] = {k: str(v) for k, v in data.items()}
+        self.metadata(name, self._kept[name])
+        self._kept_at = None
+
+    def channel(self, topic: str, type_name: str, qos: str, type_hash: str = "",
+                extra: dict[str, str] | None = None) -> int:
+        """Register (once) and return the channel id of ``topic``; ``extra``: metadata of
+        the channel beside its QoS and type hash (written with the channel in its chunk,
+        outside it, and in the summary)."""
         if topic in self._channels:
             return self._channels[topic]
         from mcap.records import Channel, Schema
@@ -194,6 +218,7 @@ class RosMcapWriter:
         meta = {"offered_qos_profiles": qos}
         if type_hash:
             meta["topic_type_hash"] = type_hash
+        meta.update(extra or {})
         sid = self._schemas[type_name]
         cid = self._w.register_channel(topic=topic, message_encoding="cdr", schema_id=sid,
                                        metadata=meta)
@@ -247,14 +272,27 @@ class RosMcapWriter:
                     rec.write(b)
                 self._fh.write(b.end())
                 self._copies = []
+            self._repeat()
             self._fh.flush()
         except OSError as exc:
             raise self._named(exc) from exc
         self._last_flush = time.monotonic()
 
+    def _repeat(self, now: bool = False) -> None:
+        """The kept metadata records again, when the file has grown by ``repeat_bytes``
+        since their last copies (or had none since they were kept), or ``now``."""
+        if not self._kept:
+            return
+        pos = self._fh.tell()
+        if now or self._kept_at is None or pos - self._kept_at >= self.repeat_bytes:
+            for name, data in self._kept.items():
+                self._w.add_metadata(name, data)
+            self._kept_at = self._fh.tell()
+
     def close(self) -> None:
         if not self.closed:
             self.flush()
+            self._repeat(now=True)
             self._w.add_metadata("rosbag2", {"serialized_metadata": bag_metadata(
                 self.path.name, self._topics, self._span)})
             self._w.finish()
@@ -636,11 +674,22 @@ def _walk(buf: Any, rep: ReadReport, summary: list[Any], ChunkIndex: Any,
                     d.covers(c.message_start_time, c.message_end_time)
 
 
+@dataclass
+class FileInfo:
+    """What a file says besides its messages, as far as it reads back: every metadata
+    record (name, data) in file order, and every channel's metadata by topic."""
+
+    metadata: list[tuple[str, dict[str, str]]] = field(default_factory=list)
+    channels: dict[str, dict[str, str]] = field(default_factory=dict)
+
+
 def read_messages(path: str | Path, topics: set[str] | None = None,
-                  report: ReadReport | None = None) -> Iterator[RawMessage]:
+                  report: ReadReport | None = None,
+                  info: FileInfo | None = None) -> Iterator[RawMessage]:
     """Messages in file order, as raw CDR bytes. Works on files without a summary, and on
-    damaged files (what reads back; ``report`` says what did not)."""
-    from mcap.records import Channel, Message, Schema
+    damaged files (what reads back; ``report`` says what did not). ``info`` gets the
+    metadata records and channel metadata before the first message is given."""
+    from mcap.records import Channel, Message, Metadata, Schema
 
     rep = report if report is not None else ReadReport()
     schemas: dict[int, str] = {}
@@ -653,6 +702,10 @@ def read_messages(path: str | Path, topics: set[str] | None = None,
     for rec in _records(Path(path), ReadReport()):
         if isinstance(rec, Channel):
             channels[rec.id] = (rec.topic, schemas.get(rec.schema_id, ""))
+            if info is not None and rec.metadata:
+                info.channels.setdefault(rec.topic, {}).update(dict(rec.metadata))
+        elif isinstance(rec, Metadata) and info is not None:
+            info.metadata.append((rec.name, dict(rec.metadata)))
     for rec in _records(Path(path), rep):
         if isinstance(rec, Schema):
             schemas[rec.id] = rec.name
@@ -677,11 +730,51 @@ def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
             if isinstance(rec, Metadata)}
 
 
-def repair(src: str | Path, dst: str | Path, report: ReadReport | None = None) -> int:
-    """Copy everything that reads back from ``src`` into a complete file ``dst``
-    (``report`` gets what did not).
+class RepairError(ValueError):
+    """A file ``repair`` cannot make a recording of (nothing reads back)."""
 
-    Returns the number of messages kept. ``src`` is not changed.
+
+@dataclass
+class Repairing:
+    """What ``repair`` copied, for a ``rebuild`` hook that puts back what was lost: the new
+    file's writer, the metadata records and channel metadata that read back
+    (``info``), the topics that kept a message, the earliest log time, and the new file's
+    channel and schema ids by topic and type name."""
+
+    writer: Any
+    info: FileInfo
+    topics: set[str]
+    first_log_time: int | None
+    channels: dict[str, int]
+    schemas: dict[str, int]
+
+    def channel(self, topic: str, type_name: str, metadata: dict[str, str]) -> int:
+        """The new file's channel of ``topic`` (registered, with ``metadata``, if none)."""
+        if topic in self.channels:
+            return self.channels[topic]
+        if type_name not in self.schemas:
+            self.schemas[type_name] = self.writer.register_schema(
+                type_name, "ros2msg", message_definition(type_name).encode())
+        self.channels[topic] = self.writer.register_channel(topic, "cdr",
+                                                            self.schemas[type_name], metadata)
+        return self.channels[topic]
+
+
+def repair(src: str | Path, dst: str | Path, report: ReadReport | None = None) -> int:
+    """``repair_with`` without a rebuild: the number of messages kept."""
+    return repair_with(src, dst, report)[0]
+
+
+def repair_with(src: str | Path, dst: str | Path, report: ReadReport | None = None,
+                rebuild: Callable[[Repairing], list[str]] | None = None
+                ) -> tuple[int, list[str]]:
+    """Copy everything that reads back from ``src`` into a complete file ``dst``
+    (``report`` gets what did not); ``rebuild`` then puts back what it can (its notes are
+    returned).
+
+    Returns (messages kept, notes). ``src`` is not changed. The copy is written beside
+    ``dst`` and moved into place once complete; RepairError, with nothing written, when no
+    record of ``src`` reads back (not an MCAP file, or nothing of it left).
     """
     from mcap.records import Channel, Message, Metadata, Schema
     from mcap.writer import Writer
@@ -689,23 +782,50 @@ def repair(src: str | Path, dst: str | Path, report: ReadReport | None = None) -
     src, dst = Path(src), Path(dst)
     if src.resolve() == dst.resolve():
         raise ValueError("repair writes a new file: give a different output path")
-    n = 0
-    with dst.open("wb") as fh:
-        w = Writer(fh)
-        w.start(profile="ros2", library="formation-ilc repair")
-        sid: dict[int, int] = {}
-        cid: dict[int, int] = {}
-        for rec in _records(src, report):
-            if isinstance(rec, Schema) and rec.id not in sid:
-                sid[rec.id] = w.register_schema(rec.name, rec.encoding, rec.data)
-            elif isinstance(rec, Channel) and rec.id not in cid:
-                cid[rec.id] = w.register_channel(rec.topic, rec.message_encoding,
-                                                 sid.get(rec.schema_id, 0), dict(rec.metadata))
-            elif isinstance(rec, Message) and rec.channel_id in cid:
-                w.add_message(cid[rec.channel_id], rec.log_time, rec.data, rec.publish_time,
-                              rec.sequence)
-                n += 1
-            elif isinstance(rec, Metadata):
-                w.add_metadata(rec.name, dict(rec.metadata))
-        w.finish()
-    return n
+    rep = report if report is not None else ReadReport()
+    n = records = 0
+    tmp = dst.with_name(f".{dst.name}.repairing")
+    notes: list[str] = []
+    try:
+        with tmp.open("wb") as fh:
+            w = Writer(fh)
+            w.start(profile="ros2", library="formation-ilc repair")
+            sid: dict[int, int] = {}
+            cid: dict[int, int] = {}
+            names: dict[int, str] = {}
+            state = Repairing(w, FileInfo(), set(), None, {}, {})
+            for rec in _records(src, rep):
+                records += 1
+                if isinstance(rec, Schema) and rec.id not in sid:
+                    sid[rec.id] = w.register_schema(rec.name, rec.encoding, rec.data)
+                    state.schemas.setdefault(rec.name, sid[rec.id])
+                elif isinstance(rec, Channel) and rec.id not in cid:
+                    cid[rec.id] = w.register_channel(rec.topic, rec.message_encoding,
+                                                     sid.get(rec.schema_id, 0),
+                                                     dict(rec.metadata))
+                    names[rec.id] = rec.topic
+                    state.channels.setdefault(rec.topic, cid[rec.id])
+                    if rec.metadata:
+                        state.info.channels.setdefault(rec.topic, {}).update(
+                            dict(rec.metadata))
+                elif isinstance(rec, Message) and rec.channel_id in cid:
+                    w.add_message(cid[rec.channel_id], rec.log_time, rec.data,
+                                  rec.publish_time, rec.sequence)
+                    state.topics.add(names[rec.channel_id])
+                    if state.first_log_time is None or rec.log_time < state.first_log_time:
+                        state.first_log_time = rec.log_time
+                    n += 1
+                elif isinstance(rec, Metadata):
+                    w.add_metadata(rec.name, dict(rec.metadata))
+                    state.info.metadata.append((rec.name, dict(rec.metadata)))
+            if not records:
+                raise RepairError("no MCAP record reads back (not an MCAP file, or nothing of "
+                                  "it is left): nothing written")
+            if rebuild is not None:
+                notes = rebuild(state)
+            w.finish()
+        os.replace(tmp, dst)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return n, notes

@@ -1,11 +1,20 @@
 """Runs as MCAP files: what the batch simulator writes, and what analysis reads back.
 
 A recording is self-contained: it carries the run configuration (the scenario's YAML text
-and overrides) on ``/formation/config`` and in a metadata record, the trial events, every
-robot's whole-trial measured trajectory (``robot_i/trajectory``, the message its
-neighbours learn from) and true trajectory, and the robots' diagnostics with the delays
-they measured (eq. 11). The distributed stack's recorder node writes the same topics as
-received; ``SimRecorder`` writes them from the batch simulator.
+and overrides) on ``/formation/config``, the trial events, every robot's whole-trial
+measured trajectory (``robot_i/trajectory``, the message its neighbours learn from) and
+true trajectory, and the robots' diagnostics with the delays they measured (eq. 11). The
+distributed stack's recorder node writes the same topics as received; ``SimRecorder``
+writes them from the batch simulator.
+
+What an analysis cannot do without is in more than one place, so that no single damaged
+chunk or record loses it (``run_metadata``): the run configuration, the topic it is on and
+the run key the leader sealed the events with are in a metadata record written when the
+configuration comes, again after the first chunk, every ``mcap_io.REPEAT_BYTES`` of file
+and at the end, and in the configuration channel's own metadata (the channel is written in
+its chunk, again outside it, and in the summary). The message on the topic is a fourth
+copy; a launched run's folder holds a fifth (``config.json``), which ``load_recording``
+takes when a file has none left (``fallback``).
 """
 
 from __future__ import annotations
@@ -43,19 +52,44 @@ from formation_ilc.protocol.schedule import DONE, END, START, TrialEvent
 from formation_ilc.protocol.trialrows import SlotRows
 from formation_ilc.recordings import cdr
 from formation_ilc.recordings.mcap_io import (
+    FileInfo,
     RawMessage,
     ReadReport,
+    Repairing,
     RosMcapWriter,
     qos_yaml,
     read_messages,
+    repair_with,
     type_hash,
 )
 
 __all__ = ["qos_of", "SimRecorder", "Recording", "RecordingError", "load_recording",
-           "recording_parts", "root_of"]
+           "recording_parts", "root_of", "run_metadata", "run_copies", "META_NAME",
+           "CHANNEL_META", "repair_run"]
 
 #: metadata record name holding the run configuration (same JSON as /formation/config)
 META_NAME = "formation_ilc"
+#: the configuration channel's metadata key prefix for the same (beside rosbag2's keys)
+CHANNEL_META = "formation_ilc."
+
+
+def run_metadata(conf: dict[str, Any], topic: str, key: bytes | None) -> dict[str, str]:
+    """The metadata record of a run (``META_NAME``): its configuration's JSON, the topic the
+    configuration is on (its namespace), and the run key its events are sealed with (hex;
+    "" for none)."""
+    return {"config": json.dumps(conf, separators=(",", ":")), "topic": topic,
+            "events_key": key.hex() if key else ""}
+
+
+def run_copies(info: FileInfo) -> list[dict[str, str]]:
+    """Every copy of the run's metadata a file holds (``run_metadata``'s fields), from its
+    metadata records and its configuration channel's metadata, in file order."""
+    out = [d for name, d in info.metadata if name == META_NAME and "config" in d]
+    for topic, meta in info.channels.items():
+        if CHANNEL_META + "config" in meta:
+            out.append({k[len(CHANNEL_META):]: v for k, v in meta.items()
+                        if k.startswith(CHANNEL_META)} | {"topic": topic})
+    return out
 
 
 def qos_of(profile: Any) -> str:
@@ -91,18 +125,21 @@ class SimRecorder:
         # what the stack's recorder adds beside them (formation_ilc.nodes.observer)
         self.full = {t: ms.absolute(t) for t in ms.recorded_topics(n) + ms.view_topics(n)}
         types = {topic: (typ, qos) for topic, typ, qos in table}
-        for topic, full in self.full.items():
-            # the type hash a ROS writer of the type offers, as the stack's recorder records it
-            typ, qos = types[topic]
-            self.w.channel(full, typ, qos_of(qos), type_hash(typ))
-        self.cfg = cfg
-        #: what the stack's recorder adds (``observe``); None: the formation's own topics
-        self.observer: Any = None
         # its trials are first_trial .. first_trial + trials - 1 (simulate --first-trial)
         conf = cfg.to_json() | {"recorded_by": "formation-ilc simulate",
                                 "first_trial": int(first_trial)}
+        meta = run_metadata(conf, self.full[ms.CONFIG], None)
+        for topic, full in self.full.items():
+            # the type hash a ROS writer of the type offers, as the stack's recorder records it
+            typ, qos = types[topic]
+            extra = ({CHANNEL_META + k: v for k, v in meta.items() if k != "topic"}
+                     if topic == ms.CONFIG else None)
+            self.w.channel(full, typ, qos_of(qos), type_hash(typ), extra)
+        self.cfg = cfg
+        #: what the stack's recorder adds (``observe``); None: the formation's own topics
+        self.observer: Any = None
         self._json(ms.CONFIG, conf, 0)
-        self.w.metadata(META_NAME, {"config": json.dumps(conf)})
+        self.w.keep(META_NAME, meta)
         self.delays: list[dict[str, Counter[int]]] = [{} for _ in range(n)]
         self.names = [ms.robot_name(i + 1) for i in range(n)]
 
@@ -243,6 +280,10 @@ class Recording:
     clocks: list[ClockPoint] = field(default_factory=list)
     #: each link's last clock block (``core.links.link_clocks``): delays.csv's one-way delays
     clock_links: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: trial events refused as foreign: another run's, or not sealed by the run's leader
+    foreign: int = 0
+    #: how the run configuration was found, when not from its own message
+    notes: list[str] = field(default_factory=list)
 
 
 def _path_outputs(data: bytes, ref_heading: NDArray[np.float64]
@@ -316,7 +357,8 @@ def root_of(part: str | Path) -> Path:
 
 def load_recording(path: str | Path | Sequence[str | Path],
                    keep: Callable[[int, int], bool] | None = None,
-                   progress: Callable[[int], None] | None = None) -> Recording:
+                   progress: Callable[[int], None] | None = None,
+                   fallback: dict[str, Any] | None = None) -> Recording:
     """Read a recording and compute its per-trial metrics exactly as the launcher does.
 
     ``path``: one file, or the files of one run in the order they were written
@@ -327,10 +369,15 @@ def load_recording(path: str | Path | Sequence[str | Path],
     Nothing in the file stops the reading: a message that does not decode is skipped and
     counted per topic (``undecodable``), damaged bytes are skipped up to the next readable
     chunk (``report``), and trials whose data is not all there are listed (``incomplete``).
-    RecordingError if no run configuration reads back.
+    The run configuration comes from whichever of its copies reads back first
+    (``run_metadata``); with the run key among them, only the events the leader sealed
+    count. RecordingError if none reads back and there is no ``fallback``.
 
     keep : (trial, total trials) -> whether to keep the trial's trajectories.
     progress : called with the number of messages read so far, now and then.
+    fallback : the run configuration to use when the files have none left (a launched
+        run's ``config.json``, its ``namespace`` beside it), checked against the run id of
+        the events the files hold.
     """
     paths = [Path(path)] if isinstance(path, (str, Path)) else [Path(p) for p in path]
     if not paths:
@@ -338,6 +385,8 @@ def load_recording(path: str | Path | Sequence[str | Path],
     reader = _RunReader(keep)
     for part in paths:
         reader.read(part, progress)
+    if reader.config is None and fallback is not None:
+        reader.rebuild(fallback)
     return reader.result(paths)
 
 
@@ -360,12 +409,19 @@ class _RunReader:
         self.bad: Counter[str] = Counter()
         self.count = 0
         self.superseded = 0
+        self.foreign = 0
         self.traj_topic: dict[str, tuple[int, bool]] = {}
         # the formation's namespace is where its config topic is
         self.events_topic = self.diag_topic = ""
         self.true_seen = False
         self.early: list[RawMessage] = []  # what came before the configuration (damage, a late one)
         self.last_seen = -1                # the latest trial with any data in the file
+        #: the run key of the part being read (its events are sealed with it), None: none
+        self.key: bytes | None = None
+        #: where the configuration came from, when not from its message (for the report)
+        self.notes: list[str] = []
+        self.copy_in = ""           # the part whose metadata gave the configuration
+        self.message_seen = False   # a configuration message read back
 
     def text(self, m: RawMessage, required: tuple[str, ...]) -> dict[str, Any]:
         """A JSON text message's fields (MalformedMessage if ``required`` are missing)."""
@@ -374,8 +430,13 @@ class _RunReader:
     def read(self, part: Path, progress: Callable[[int], None] | None) -> None:
         """Every message of one part, in file order."""
         report = ReadReport()
+        info = FileInfo()
         self.parts.append((part, report))
-        for msg in read_messages(part, report=report):
+        first = True
+        for msg in read_messages(part, report=report, info=info):
+            if first:  # the copies of the run's metadata, before any message
+                first = False
+                self._copies(part, info)
             self.count += 1
             if progress is not None and self.count % 5000 == 0:
                 progress(self.count)
@@ -387,33 +448,81 @@ class _RunReader:
             else:
                 self.dispatch(msg)
 
+    def _copies(self, part: Path, info: FileInfo) -> None:
+        """The copies of the run's metadata in ``part`` (``run_copies``): the run key of its
+        events, and the configuration when none has been read yet."""
+        self.key = None
+        for copy in run_copies(info):
+            try:
+                conf = json.loads(copy["config"])
+                if not isinstance(conf, dict):
+                    continue
+                if self.config is None:
+                    self.setup(conf, copy.get("topic", ""))
+                    self.copy_in = part.name
+                elif conf.get("run_id") != self.config.get("run_id"):
+                    continue
+                key = copy.get("events_key", "")
+                self.key = bytes.fromhex(key) if key else None
+            except (ValueError, TypeError):  # a damaged copy: the next one
+                continue
+            break
+        if self.slots is not None:
+            self.slots.key = self.key
+
+    def rebuild(self, conf: dict[str, Any]) -> None:
+        """No copy of the configuration read back: take ``conf`` (a run folder's), once
+        the events held say it is their run's; RecordingError if they are another's."""
+        runs = set()
+        for m in self.early:
+            if m.topic.endswith("/" + ms.TRIAL_EVENTS):
+                try:
+                    runs.add(str(self.text(m, ("event",)).get("run", "")))
+                except ValueError:
+                    pass
+        runs.discard("")
+        if runs and conf.get("run_id") not in runs:
+            raise RecordingError(f"the run folder's configuration is of run "
+                                 f"{conf.get('run_id')}, the recording's events of run "
+                                 f"{', '.join(sorted(runs))}")
+        ns = str(conf.get("namespace") or ms.NAMESPACE)
+        try:
+            self.setup(conf, ms.absolute(ms.CONFIG, ns))
+        except ValueError as exc:
+            raise RecordingError(f"the run folder's configuration does not load: "
+                                 f"{exc}") from None
+        self.notes.append("no copy of the run configuration read back from the files: "
+                          "taken from the run's folder (config.json)")
+
     def _on_config(self, part: Path, msg: RawMessage) -> None:
         """The first configuration sets the run up (and the messages held before it are
         read); a later part's must be the same run's."""
+        self.message_seen = True
         if self.config is not None:
             _same_run(part, self.config, msg, self.text)
             return
         try:
-            self.configure(msg)
+            self.setup(self.text(msg, ()), msg.topic)
         except ValueError:  # junk, or a configuration that does not load
             self.bad[msg.topic] += 1
-            return
-        for held in self.early:
-            self.dispatch(held)
-        self.early = []
 
-    def configure(self, m: RawMessage) -> None:
-        conf = self.text(m, ())
+    def setup(self, conf: dict[str, Any], topic: str) -> None:
+        """The run of configuration ``conf`` (on ``topic``: the formation's namespace);
+        the messages held before it are read. ValueError if it does not load."""
         c = RunConfig.from_json(conf)
         pb = Problem.from_scenario(c.scenario)
         self.config, self.cfg = conf, c
-        self.slots = SlotRows(pb, strict=False, safety=c.safety is not None)
-        namespace = m.topic[: -len(ms.CONFIG) - 1] or "/"
+        self.slots = SlotRows(pb, strict=False, safety=c.safety is not None, key=self.key)
+        self.slots.run = c.run_id
+        namespace = topic[: -len(ms.CONFIG) - 1] or "/"
         for r in range(pb.n):
             self.traj_topic[ms.absolute(ms.trajectory_topic(r + 1), namespace)] = (r, False)
             self.traj_topic[ms.absolute(ms.true_trajectory_topic(r + 1), namespace)] = (r, True)
         self.events_topic = ms.absolute(ms.TRIAL_EVENTS, namespace)
         self.diag_topic = ms.absolute(ms.DIAGNOSTICS, namespace)
+        held, self.early = self.early, []
+        for m in held:
+            self.dispatch(m)
 
     def kept(self, done: list[Any]) -> None:
         """Keep the trajectories of the trials just completed that ``keep`` asks for."""
@@ -432,13 +541,14 @@ class _RunReader:
             ev = TrialEvent.from_json(d)
             if ev.run and cfg.run_id and ev.run != cfg.run_id:
                 raise Rejected("foreign", f"event of run {ev.run}")
-            ev.agree(cfg.clock)
             if slots.repeat(ev):
                 return  # the leader's repeat of a stalled slot's start: not an event
+            done = slots.event(ev)  # Rejected (foreign) unless the leader sealed it
+            ev.agree(cfg.clock)
             if ev.event == START:
                 self.last_seen = max(self.last_seen, ev.trial)
             self.events.append(d)
-            self.kept(slots.event(ev))
+            self.kept(done)
         elif m.topic == self.diag_topic:
             dg = check_diagnostics(node_report(read_statuses(wire.read_diagnostics(m.data)),
                                                ("node", "trial")))
@@ -477,6 +587,8 @@ class _RunReader:
         except Rejected as exc:
             if exc.reason in ("stale", "duplicate"):
                 self.superseded += 1  # an aborted slot's, or a trial run again
+            elif exc.reason == "foreign":
+                self.foreign += 1     # not the leader's: recorded as evidence, not counted
             else:
                 self.bad[m.topic] += 1
         except (Malformed, ValueError) as exc:
@@ -488,7 +600,13 @@ class _RunReader:
         """The recording read from ``paths``; RecordingError if no configuration read."""
         slots, cfg, config = self.slots, self.cfg, self.config
         if slots is not None:
-            self.kept(slots.infer())  # slots whose start was lost with a killed recorder
+            # slots whose start was lost with a killed recorder or a damaged chunk; in a
+            # batch simulation's recording every slot runs its own number
+            sim = config is not None and config.get("recorded_by") == "formation-ilc simulate"
+            first = config.get("first_trial", 0) if config is not None else 0
+            first = first if isinstance(first, int) and not isinstance(first, bool) else 0
+            self.kept(slots.infer(identity=range(first, first + cfg.scenario.trials)
+                                  if sim and cfg is not None else None))
             if not self.true_seen:
                 # a plant without a true state (hardware): the true_ columns are nan
                 self.kept(slots.measured_only())
@@ -498,8 +616,13 @@ class _RunReader:
                      else "no MCAP record read back")
             where = paths[0] if len(paths) == 1 else f"{paths[0]} (and {len(paths) - 1} parts)"
             raise RecordingError(f"{where}: no readable run configuration on a "
-                                 f".../{ms.CONFIG} topic ({found}): not a formation-ilc "
-                                 f"recording, or cut or damaged before the run started")
+                                 f".../{ms.CONFIG} topic or in the file's metadata ({found}): "
+                                 f"not a formation-ilc recording, or cut or damaged before "
+                                 f"the run started (a launched run's folder holds a copy: "
+                                 f"--run-dir DIR)")
+        if self.copy_in and not self.message_seen:
+            self.notes.append(f"the run configuration's message did not read back: taken "
+                              f"from its copy in {self.copy_in}'s metadata")
         topic_of = {v: t for t, v in self.traj_topic.items()}
         for _, r, is_true in slots.unstarted():  # of no trial the run started
             self.bad[topic_of[(r, is_true)]] += 1
@@ -520,7 +643,52 @@ class _RunReader:
                          messages=self.count, undecodable=dict(self.bad),
                          report=self.parts[0][1], parts=self.parts,
                          superseded=self.superseded, clocks=self.clocks,
-                         clock_links=link_clocks(self.diags))
+                         clock_links=link_clocks(self.diags), foreign=self.foreign,
+                         notes=self.notes)
+
+
+def repair_run(src: Path, dst: Path, report: ReadReport | None = None,
+               fallback: dict[str, Any] | None = None) -> tuple[int, list[str]]:
+    """``mcap_io.repair_with`` for a recording of a run: a complete copy of what reads back,
+    and the run configuration's message put back when the damage took it (from a copy in
+    the file's metadata, else from ``fallback``, a run folder's ``config.json``), with its
+    metadata record. Returns (messages kept, what was rebuilt)."""
+
+    def rebuild(st: Repairing) -> list[str]:
+        if any(t.endswith("/" + ms.CONFIG) for t in st.topics):
+            return []
+        found: tuple[dict[str, Any], str, dict[str, str] | None, str] | None = None
+        for copy in run_copies(st.info):
+            try:
+                conf = json.loads(copy["config"])
+                RunConfig.from_json(conf)
+            except (ValueError, TypeError, Rejected):
+                continue
+            found = (conf, copy.get("topic") or ms.absolute(ms.CONFIG), copy, "its copy in "
+                     "the file's metadata")
+            break
+        if found is None and fallback is not None:
+            found = (fallback, ms.absolute(ms.CONFIG, str(fallback.get("namespace")
+                                                            or ms.NAMESPACE)),
+                     None, "the run's folder (config.json)")
+        if found is None:
+            return ["the run configuration's message is lost and no copy of it reads back "
+                    "(give --run-dir DIR, the launched run's folder)"]
+        conf, topic, kept, where = found
+        meta = kept if kept is not None else run_metadata(conf, topic, None)
+        extra = {CHANNEL_META + k: v for k, v in meta.items() if k not in ("topic",)}
+        cid = st.channel(topic, "std_msgs/msg/String",
+                         {"offered_qos_profiles": qos_yaml(durability="transient_local",
+                                                           depth=1), **extra})
+        t = st.first_log_time or 0
+        st.writer.add_message(cid, t, cdr.encode_string(json.dumps(conf,
+                                                                   separators=(",", ":"))),
+                              t, 0)
+        if not any(name == META_NAME for name, _ in st.info.metadata):
+            st.writer.add_metadata(META_NAME, {**meta, "topic": topic})
+        return [f"the run configuration's message on {topic} was lost: rebuilt from {where}"]
+
+    return repair_with(src, dst, report, rebuild)
 
 
 def _same_run(part: Path, config: dict[str, Any], msg: RawMessage,

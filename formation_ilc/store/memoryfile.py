@@ -142,6 +142,7 @@ def load_memory(path: Path | str, sc: Scenario) -> NDArray[np.float64]:
                                   f"{want} (robots, samples, [v, omega])")
         if not np.isfinite(data).all():
             raise MemoryFileError(f"{path}: memory holds non-finite values")
+        _check_magnitude(path, np.asarray(data, dtype=float))
         return np.asarray(data, dtype=float)
     with data:
         keys = set(data.files)
@@ -179,7 +180,25 @@ def load_memory(path: Path | str, sc: Scenario) -> NDArray[np.float64]:
     if memory.shape != want or not np.isfinite(memory).all():
         raise MemoryFileError(f"{path}: memory has shape {memory.shape} or non-finite values, "
                               f"{sc.name} needs finite {want}")
+    _check_magnitude(path, memory)
     return memory
+
+
+#: [m/s, rad/s] the largest command a memory may hold: beyond it no robot drives it, and a
+#: run from it only overflows (1e300 made every error infinite in the first trial)
+MEMORY_LIMIT = 1e6
+
+
+def _check_magnitude(path: Path, memory: NDArray[np.float64]) -> None:
+    """MemoryFileError naming the file, the robot and the sample when a command of the
+    memory is beyond MEMORY_LIMIT (the memory of a run that diverged)."""
+    big = np.abs(memory) > MEMORY_LIMIT
+    if big.any():
+        r, t, c = (int(x) for x in np.argwhere(big)[0])
+        raise MemoryFileError(f"{path}: robot {r + 1}'s {'v' if c == 0 else 'omega'} at sample "
+                              f"{t} is {memory[r, t, c]:.3g}, beyond {MEMORY_LIMIT:g} (m/s, "
+                              f"rad/s): no robot's command (the memory of a run that "
+                              f"diverged?)")
 
 
 def trials_learned(path: Path | str) -> int | None:

@@ -18,10 +18,15 @@ from typing import Any
 from formation_ilc.store.atomic import atomic_write_text
 from formation_ilc.store.bounded import StateFileError, read_bounded
 
-__all__ = ["RUN_FILE", "RUN_LIMIT", "RunFileError", "save_run", "load_run", "reroot",
-           "require", "PATH_KEYS"]
+__all__ = ["RUN_FILE", "CONFIG_FILE", "CONFIG_LIMIT", "load_config", "RUN_LIMIT",
+           "RunFileError", "save_run", "load_run", "reroot", "require", "PATH_KEYS"]
 
 RUN_FILE = "run.json"
+#: the run configuration every node shares (scenario text, options, run id), as JSON, in
+#: the run's folder: what a recording that lost every copy of it is rebuilt from
+CONFIG_FILE = "config.json"
+#: a configuration holds its scenario's text (at most 1 MiB, config.scenario) and options
+CONFIG_LIMIT = 2 << 20
 #: a run's options are a few dozen short values
 RUN_LIMIT = 64 << 10
 #: options that hold paths: re-rooted when they point into the run's folder
@@ -115,3 +120,21 @@ def reroot(d: dict[str, Any], folder: Path) -> dict[str, Any]:
                 pass
     out["out"] = str(folder)
     return out
+
+
+def load_config(path: Path) -> dict[str, Any] | None:
+    """The run configuration JSON object in ``path`` (a run folder's ``CONFIG_FILE``),
+    read bounded; None when there is none; RunFileError naming the file otherwise."""
+    try:
+        raw = read_bounded(path, CONFIG_LIMIT, "a run configuration")
+    except StateFileError as exc:
+        raise RunFileError(str(exc)) from None
+    if raw is None:
+        return None
+    try:
+        d = json.loads(raw)
+    except (ValueError, RecursionError) as exc:
+        raise RunFileError(f"{path}: not a run configuration: {exc}") from None
+    if not isinstance(d, dict) or "scenario_text" not in d:
+        raise RunFileError(f"{path}: not a run configuration (no scenario_text)")
+    return d

@@ -59,6 +59,10 @@ class NetnsError(RuntimeError):
     """A namespace, rule or delayer could not be set up (one line, names what)."""
 
 
+#: [ms] the longest delay (and jitter) the packet delayer holds a packet for
+MAX_DELAY_MS = 10_000.0
+
+
 @dataclass(frozen=True)
 class LinkFaults:
     """Delay, jitter [ms] and loss fraction per direction of each link between robots."""
@@ -72,6 +76,11 @@ class LinkFaults:
                             ("--net-jitter-ms", self.jitter_ms)):
             if not value >= 0.0:
                 raise NetnsError(f"{name}: must be >= 0, got {value}")
+            if not value <= MAX_DELAY_MS:
+                # a packet held longer is a link that never delivers: DDS repairs nothing
+                # and a run waits out every bound (1e12 ms was accepted and never moved)
+                raise NetnsError(f"{name}: at most {MAX_DELAY_MS:g} ms per direction, got "
+                                 f"{value:g}")
         if not 0.0 <= self.loss < 1.0:
             raise NetnsError(f"--net-loss: a fraction in [0, 1) is required, got {self.loss}")
         if self.jitter_ms > self.delay_ms:

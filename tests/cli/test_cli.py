@@ -134,3 +134,20 @@ def test_memory_file_is_versioned_checked_and_an_old_npy_still_reads(tmp_path):
 def test_launch_refuses_a_real_robot_run_it_cannot_do(tmp_path, capsys, args, message):
     assert main(["launch", "paper-triangle3", "--out", str(tmp_path), *args]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_simulate_on_a_full_disk_is_one_line_naming_the_file_and_status_5(tmp_path, capsys):
+    """Before: exit 1, a status simulate does not document. metrics.csv here is the full
+    device (every write fails with ENOSPC, as on a full disk)."""
+    import os
+
+    if not os.path.exists("/dev/full"):
+        pytest.skip("no /dev/full here")
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "metrics.csv").symlink_to("/dev/full")
+    assert main(["simulate", "paper-triangle3", "--trials", "2", "--out", str(out),
+                 "--no-plots"]) == 5
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"error: the disk is full: simulate could not write {out}/metrics.csv; "
+                   f"what was written before is kept; free some space, then run it again"]

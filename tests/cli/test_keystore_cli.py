@@ -248,3 +248,18 @@ def test_a_plant_without_grants_is_refused_secure(tmp_path):
     assert info.value.status == 2 and "--plant external" in info.value.message
     assert "sim, physics, pioneer, base" in info.value.message
     assert "\n" not in info.value.message
+
+
+def test_keystore_create_on_a_file_or_for_an_invalid_driver_namespace(tmp_path):
+    """Before: a file given as the keystore folder exited 1 ("afile/private: Not a
+    directory"), and --driver-ns 'x{i}{j}' wrote permissions for an invalid name."""
+    afile = tmp_path / "afile"
+    afile.write_text("hi\n")
+    res = cli("keystore", "create", str(afile), "paper-triangle3")
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+    assert f"{afile}: exists and is not a folder" in res.stderr
+    res = cli("keystore", "create", str(tmp_path / "ks"), "paper-triangle3", "--plant",
+              "pioneer", "--driver-ns", "x{i}{j}")
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+    assert res.stderr.startswith("error: argument --driver-ns: 'x{i}{j}': robot 1's namespace")
+    assert not (tmp_path / "ks").exists()

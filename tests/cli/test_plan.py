@@ -203,11 +203,17 @@ def test_resume_takes_the_runs_own_options(tmp_path):
                     "--record", str(tmp_path / "rec.mcap"))
     _save_run(first.out, first.run_json)
     (tmp_path / "rec.mcap").write_bytes(b"")
+    # an option of the run given again is refused, not silently ignored (it was)
+    with pytest.raises(NoRun) as exc:
+        build_plan(options("--resume", str(first.out), "--max-restarts", "1", "--seed", "9"))
+    assert exc.value.status == 2 and exc.value.message.startswith(
+        "--resume takes the run's own options: --seed cannot change a run going on")
+    # the launch's own options are honoured: --domain-id among them (it was ignored)
     again = build_plan(options("--resume", str(first.out), "--max-restarts", "1",
-                               "--seed", "9"))
+                               "--domain-id", "77"))
     assert again.config.to_json() == first.config.to_json()  # seed 4, same run id
     assert again.resumed_at == 0 and again.run_json is None
-    assert again.max_restarts == 1 and again.out == first.out
+    assert again.max_restarts == 1 and again.out == first.out and again.domain == 77
     assert again.record == (tmp_path / "rec.resumed1.mcap").resolve()
 
 
@@ -448,6 +454,41 @@ def test_emulated_clocks_reach_the_leader_and_are_refused_in_lockstep(tmp_path):
     with pytest.raises(SystemExit) as e:
         options("paper-triangle3", "--clock-offset-ms", "-3")
     assert e.value.code == 2
+
+
+def test_values_no_run_can_have_are_refused_before_anything_starts(tmp_path):
+    """Each was accepted before (issue 31): the physics plant refused its rate only after
+    every node had started (38 s), and ran 1 Hz as 5 Hz; a netns delay of 1e12 ms never
+    moved; an invalid driver namespace reached the bridges; a memory of 1e300 made the
+    monitor raise inside rclpy (a FATAL stack)."""
+    import numpy as np
+
+    from formation_ilc.config.scenario import load_scenario
+    from formation_ilc.store.memoryfile import save_memory
+
+    phys = ["paper-triangle3", "--plant", "physics", "--allow-contact"]
+    assert refusal(tmp_path, *phys, "--physics-rate", "1e9").message == (
+        "--physics-rate 1e+09: 1e+09 Hz is outside 1 .. 100000 engine steps a second")
+    assert refusal(tmp_path, *phys, "--physics-rate", "1").message == (
+        "--physics-rate 1: 1 Hz is 0.2 engine steps a sample of 0.2 s: at least one (5 Hz) "
+        "is needed")
+    assert "which would run at 240 Hz" in refusal(tmp_path, *phys, "--physics-rate",
+                                                  "241").message
+    delay = refusal(tmp_path, "paper-triangle3", "--hosts", "netns", "--net-delay-ms", "1e12")
+    assert delay.message == "--net-delay-ms: at most 10000 ms per direction, got 1e+12"
+    ns = refusal(tmp_path, "paper-triangle3", "--plant", "pioneer", "--fake-drivers",
+                 "--driver-ns", "x{i}{j}")
+    assert ns.message == ("argument --driver-ns: 'x{i}{j}': robot 1's namespace 'x1{j}': an "
+                          "absolute ROS namespace starts with /")
+    assert "'p1{j}' is no ROS name" in refusal(tmp_path, "paper-triangle3", "--plant",
+                                               "pioneer", "--driver-ns", "/p{i}{j}").message
+    sc = load_scenario("paper-triangle3")
+    huge = tmp_path / "huge.npz"
+    save_memory(huge, np.full((sc.n, sc.samples, 2), 1e300), sc)
+    msg = refusal(tmp_path, "paper-triangle3", "--init-memory", str(huge)).message
+    assert msg.startswith(f"--init-memory {huge}: robot 1's v at sample 0 is 1e+300, beyond "
+                          f"1e+06 (m/s, rad/s)")
+    assert not (tmp_path / "run" / "logs").exists()
 
 
 def test_live_without_foxglove_sdk_is_refused_before_anything_starts(tmp_path, monkeypatch):

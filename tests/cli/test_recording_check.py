@@ -48,3 +48,48 @@ def test_a_whole_recording_passes_and_one_without_a_trial_is_status_3(tmp_path, 
     # a recording never written: every trial is missing
     assert check_recording(tmp_path / "none.mcap", 4) == 3
     assert "none.mcap (never written)" in capsys.readouterr().err
+
+
+def test_a_resumed_run_whose_missing_trial_was_learned_before_it_is_whole_and_says_why(
+        tmp_path, capsys):
+    """Reported: a resumed run whose first trial ended 0.05 s before the launcher was
+    killed exited 3: that trial's trajectories reached no recorder, though its metrics row
+    is right. Now the resumed launch says exactly why, and exits 0 when metrics.csv has
+    every trial and every row the recording has equals it; otherwise status 3 as before."""
+    from formation_ilc.core.metrics import MetricsWriter
+
+    whole = record(tmp_path / "whole.mcap", 4)
+    ref = load_recording(whole).metrics
+    clock = RunConfig.from_json(load_recording(whole).config).clock
+    root = tmp_path / "run.mcap"
+    with RosMcapWriter(root, flush_period=0) as w:
+        for m in read_messages(whole):
+            if m.topic.endswith("trajectory") and \
+                    clock.decode(int(cdr.decode_path(m.data)[1][0]))[0] == 1:
+                continue
+            w.channel(m.topic, m.schema, "")
+            w.write(m.topic, m.data, m.log_time, m.publish_time)
+
+    def metrics(rows) -> object:
+        path = tmp_path / "metrics.csv"
+        path.unlink(missing_ok=True)
+        out = MetricsWriter(path)
+        for r in rows:
+            out.write(r)
+        out.close()
+        return path
+
+    path = metrics(ref)
+    capsys.readouterr()
+    assert check_recording(root, 4, resumed_at=2, metrics=path) == 0
+    out = capsys.readouterr().out
+    assert "lacks trial 1: learned before this launch resumed the run (at 2 trials)" in out
+    assert "the recording's 3 others equal metrics.csv to the last bit" in out
+    # learned in this launch: not explained by the resume
+    assert check_recording(root, 4, resumed_at=1, metrics=path) == INCOMPLETE
+    # metrics.csv without the row, or with a row the recording contradicts
+    assert check_recording(root, 4, resumed_at=2, metrics=metrics(ref[[0, 2, 3]])) == 3
+    wrong = ref.copy()
+    wrong[2, 1] += 1e-12
+    assert check_recording(root, 4, resumed_at=2, metrics=metrics(wrong)) == 3
+    assert check_recording(root, 4) == 3  # not a resumed run

@@ -319,10 +319,12 @@ def test_a_diverging_run_stops_and_keeps_the_finished_trials(tmp_path):
         f"started from (in {out}/); smaller gains? see `formation-ilc check {p}`")
     rows = list(csv.DictReader((out / "metrics.csv").open()))
     assert [row["trial"] for row in rows] == ["0"]
-    sc = load_scenario(p)
-    assert np.isfinite(load_memory(out / "memory.npz", sc)).all()
     with np.load(out / "memory.npz") as data:
         assert int(data["trials_learned"]) == 1
+        assert np.isfinite(data["memory"]).all()
+    # finite but far beyond any robot's command: loading it again is refused in one line
+    with pytest.raises(MemoryFileError, match=r"robot 1's v at sample 0 is .*beyond 1e\+06"):
+        load_memory(out / "memory.npz", load_scenario(p))
 
 
 def test_divergence_check_names_trial_robot_and_quantity():

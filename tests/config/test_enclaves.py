@@ -16,7 +16,7 @@ from formation_ilc.config.enclaves import (
     permissions_xml,
 )
 from formation_ilc.config.roster import Lineup, roster
-from formation_ilc.core.names import view_topics
+from formation_ilc.core.names import ROS_DIAGNOSTICS, view_topics
 
 NS = "/formation"
 
@@ -47,7 +47,7 @@ def test_robot_publishes_only_its_own_topics(grants):
                                                "clock/ping")}
         own |= {f"{NS}/robot_{i}/clock/pong"} if i in (1, 2) else set()
         # the report and the standard stream (/diagnostics, absolute)
-        assert set(g.publish) == own | {f"{NS}/ready", f"{NS}/diagnostics", "/diagnostics"}
+        assert set(g.publish) == own | {f"{NS}/ready", f"{NS}/diagnostics", ROS_DIAGNOSTICS}
         others = [t for t in g.publish if "/robot_" in t and f"/robot_{i}/" not in t]
         assert others == []
 
@@ -93,7 +93,7 @@ def test_recorder_and_monitor_publish_only_protocol_topics(grants):
     # and the recorder the view topics of its observer (desired poses, errors, markers)
     view = {f"{NS}/{t}" for t in view_topics(3)}
     assert set(grants[f"{NS}/recorder"].publish) == {f"{NS}/ready", f"{NS}/diagnostics",
-                                                     "/diagnostics", *view}
+                                                     ROS_DIAGNOSTICS, *view}
     assert set(grants[f"{NS}/monitor"].publish) == {f"{NS}/ready"}
     assert f"{NS}/robot_3/cmd_vel" in grants[f"{NS}/recorder"].subscribe
 

@@ -151,6 +151,10 @@ def run(module: str, *args: str, env=None) -> subprocess.CompletedProcess[str]:
     ("robot_sim.physics_base", ["-p", "tick:=0.0"],
      "physics_bases: parameter tick: 0.0 is outside 0.0001 .. 10 (how often "
      "the world is stepped and odometry published)"),
+    ("virtual_leader.node", ["-p", "scenario:=paper-triangle3", "-p", "law:=7"],
+     "formation-ilc-leader: parameter law: one of 0, 9, 22, 23; got 7"),
+    ("virtual_leader.node", ["-p", "scenario:=paper-triangle3", "-p", "memory:=xyz"],
+     "formation-ilc-leader: parameter memory: one of '', feedforward, literal; got 'xyz'"),
     ("formation_ilc.nodes.robot", ["--params-file", "/nonexistent/robot.yaml"],
      "formation-ilc-robot: Failed to parse ROS arguments: Couldn't parse params file: "
      "'--params-file /nonexistent/robot.yaml'. Error: Error opening YAML file"),
@@ -241,6 +245,28 @@ def test_every_example_file_is_installed_and_every_node_has_one():
     for node in ("robot", "bridge", "virtual_leader", "robot_sim", "fake_pioneer",
                  "physics_sim", "physics_bases"):
         assert (PARAMS / f"{node}.yaml").is_file()
+
+
+@pytest.mark.multiprocess
+@pytest.mark.parametrize("args, line", [
+    (["formation_ilc.nodes.liveview", "--port", "70000"],
+     "formation-ilc-liveview: error: argument --port: a port is in 1..65535, got 70000 "
+     "(see formation-ilc-liveview --help)"),
+    (["formation_ilc.nodes.recorder", "--output", "{tmp}"],
+     "formation-ilc-record: --output {tmp}: is a folder, expected a file name"),
+    (["formation_ilc.nodes.recorder", "--output", "{tmp}/new/run.mcap"],
+     "formation-ilc-record: --output {tmp}/new/run.mcap: the folder {tmp}/new does not "
+     "exist"),
+])
+def test_the_nodes_own_arguments_are_one_line_and_status_2(ros_env, tmp_path, args, line):
+    """Before: --port 70000 an OverflowError traceback; --output a folder an
+    IsADirectoryError traceback (exit 1); a missing folder was made (as root)."""
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in args]
+    res = run(argv[0], *argv[1:], env=ros_env)
+    assert res.returncode == 2, res.stdout + res.stderr
+    assert [ln for ln in res.stderr.splitlines() if ln.strip()] == [
+        line.replace("{tmp}", str(tmp_path))]
+    assert not (tmp_path / "new").exists()
 
 
 @pytest.mark.parametrize("key, close", [("sceanrio", "scenario"), ("robotid", "robot_id"),

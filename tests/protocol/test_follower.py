@@ -142,6 +142,8 @@ def robot_follower():
         got = robot.follower.take(ev, idle=lrn.done_with(robot.follower.slot))
         if got is not None and got.event == ABORT:
             lrn.abort(got.slot)
+            if got.kept >= 0:
+                lrn.redo(got.kept)
         return got
 
     return robot, take
@@ -209,3 +211,27 @@ def test_each_follower_says_when_it_is_inside_a_trial():
     assert not lrn.done_with(0)
     lrn.abort(0)
     assert lrn.done_with(0)
+
+
+@pytest.mark.parametrize("kind", list(FOLLOWERS))
+def test_with_the_run_key_every_follower_takes_only_the_leaders_sealed_events(kind):
+    """DDS names no writer to a reader (rclpy's message info has no publisher GID), so a
+    start or abort from any other writer with the run id looks like the leader's. With the
+    run key, a follower takes only what the key sealed: a forged or stale leader's events
+    are ``foreign`` and move nothing."""
+    from formation_ilc.protocol.schedule import seal
+
+    key = bytes(range(16))
+    core, take = FOLLOWERS[kind]()
+    f = core.follower
+    f.key = key
+    wall = {"start_wall_ns": 1000 * SEC} if kind == "bridge" else {}
+    f.said_ready()
+    forged = TrialEvent(START, 0, 0, 0, run=RUN, **wall)
+    assert reason(take, forged) == "foreign"
+    assert reason(take, seal(forged, b"\x01" * 16)) == "foreign"   # another key
+    assert reason(take, seal(TrialEvent(ABORT, 0, 0, 5, run=RUN), None)) == "foreign"
+    assert (f.slot, f.seen) == (-1, -1)                            # nothing moved
+    assert take(seal(forged, key)).slot == 0
+    assert reason(take, TrialEvent(ABORT, 0, 0, 1, run=RUN)) == "foreign"
+    assert (f.slot, f.seen) == (0, 0)

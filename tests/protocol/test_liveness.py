@@ -54,21 +54,73 @@ def test_a_forged_start_between_trials_is_aborted_and_its_slot_skipped():
     assert s.next_start() == (1, 2)
 
 
-def test_a_forged_abort_of_the_committed_slot_runs_that_trial_again():
-    """Robots that took it rolled back the step learned from it (they keep one): the
-    leader un-commits it and runs the same iteration again (same draws, same memory)."""
+def test_a_forged_abort_of_the_committed_slot_never_takes_the_trial_back():
+    """Without sealed events robots may take it and undo the step learned from it (they
+    keep one). Before, the leader un-committed the trial and waited for every robot to
+    roll back, which those that had not taken the forgery never did (status 4). Now the
+    trial stays committed: the leader aborts the next slot, naming the committed one as
+    ``kept``; a robot that undid its step takes it back, and the run goes on."""
     s = sched()
     ready_all(s, 0, -1)
     run_slot(s)
     run_slot(s)
     assert s.committed == 2 and s.committed_slot == 1
-    why = s.foreign(TrialEvent(ABORT, 2, 1, s.seq + 1))
-    assert "trial 1 runs again" in why
-    assert s.committed == 1 and s.abort_pending == 1
-    answer(s, 1)              # every robot rolled back to 1 learned trial
-    assert s.abort_done() and s.next_start() == (1, 2)
+    why = s.foreign(TrialEvent(ABORT, 1, 1, s.seq + 1))
+    assert why is not None and "committed: it stands" in why
+    assert s.committed == 2 and s.abort_pending == 2 and s.kept == 1
+    answer(s, 2)              # every robot is back at 2 learned trials
+    assert s.abort_done() and s.next_start() == (2, 3)
 
 
+def test_a_forged_abort_racing_the_next_start_aborts_the_running_slot_only():
+    """The forger gives its abort of the committed slot the seq of the leader's next
+    start: some followers take one, some the other. The leader aborts the running slot
+    (newer seq), naming the committed one; the trial is not taken back."""
+    s = sched()
+    ready_all(s, 0, -1)
+    run_slot(s)
+    seq = s.started(1)
+    why = s.foreign(TrialEvent(ABORT, 0, 0, seq))  # the same seq as its start of slot 1
+    assert why is not None and s.abort_pending == 1 and s.kept == 0 and s.committed == 1
+    assert s.seq == seq + 1 and s.sent[s.seq] == (ABORT, 1, 1)
+    answer(s, 1)
+    assert s.next_start() == (1, 2)
+
+
+def test_a_robot_that_undid_a_committed_step_unseen_is_asked_once_to_take_it_back():
+    """The leader never saw the forged abort (only its effect): a robot idle and one trial
+    behind the team. It aborts the next slot naming the committed one, once per robot
+    process; a robot that cannot take the step back stops the run with a clear error."""
+    s = sched()
+    ready_all(s, 0, -1)
+    run_slot(s)
+    assert s.undone() is None
+    s.on_ready(Ready("robot_2", 0, "b0", s.seq))  # robot_2 undid slot 0's step
+    why = s.undone()
+    assert why is not None and "robot_2 undid trial 0 (slot 0)" in why
+    assert s.abort_pending == 1 and s.kept == 0
+    answer(s, 1)
+    assert s.next_start() == (1, 2)
+    s.on_ready(Ready("robot_2", 0, "b0", s.seq))  # it could not take it back
+    assert s.undone() is None  # asked once
+    with pytest.raises(ScheduleError, match="robot_2 undid a committed learning step"):
+        s.next_start()
+
+
+def test_a_leader_seals_its_events_and_counts_unsealed_ones_without_moving():
+    """With a run key every event the leader publishes carries its seal; an unsealed start
+    or abort on its topic moved no follower: counted, not re-asserted."""
+    from formation_ilc.protocol.schedule import seal, sealed
+
+    key = bytes(range(16))
+    ev = TrialEvent(ABORT, 1, 1, 5, why="x", run="r", kept=0)
+    tagged = seal(ev, key)
+    assert sealed(tagged, key) and not sealed(ev, key) and sealed(ev, None)
+    assert TrialEvent.from_json(tagged.to_json()) == tagged
+    assert not sealed(seal(ev, bytes(16)), key)               # another key
+    for field, value in (("slot", 2), ("seq", 6), ("kept", -1), ("why", "y"), ("run", "q")):
+        forged = TrialEvent.from_json({**tagged.to_json(), field: value})
+        assert not sealed(forged, key), field                   # any field changed
 def test_a_ready_that_saw_an_unsent_seq_re_asserts_the_schedule():
     s = sched()
     ready_all(s, 0, -1)

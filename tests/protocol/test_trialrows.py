@@ -252,3 +252,132 @@ def test_rows_count_what_the_filter_changed_and_the_contacts_noted_before_them()
     plain.event(start(0, 0))
     (d,) = feed(plain, 0, 0)
     assert d.row[METRIC_COLUMNS.index("filter_active")] == 0
+
+
+def test_no_event_sequence_files_one_trial_under_another_number():
+    """The hostile peer's burst (before: a copy of trial 1 filed as trial 2, exit 0): a
+    start of the next slot naming the next iteration while the leader then aborts the
+    running slot and runs the same iteration again there. The monitor takes only the
+    starts the schedule can make: every row is its own trial's."""
+    rows = SlotRows(PB, strict=True)
+    rows.event(TrialEvent("start", 0, 0, 0))
+    assert [d.trial for d in feed(rows, 0, 0)] == [0]
+    rows.event(TrialEvent("start", 1, 1, 1))
+    assert [d.trial for d in feed(rows, 1, 1)] == [1]
+    # forged: slot 2 starts trial 3 (the schedule's next is 2); slot 1 again as trial 2
+    for ev in (TrialEvent("start", 3, 2, 2), TrialEvent("start", 2, 1, 2)):
+        with pytest.raises(Rejected) as exc:
+            rows.event(ev)
+        assert exc.value.reason in ("unexpected", "stale"), ev
+    # the leader's own: slot 1 aborted after its row was made, trial 1 runs again in 2
+    rows.event(TrialEvent("abort", 1, 1, 2))
+    with pytest.raises(Rejected, match="schedule runs trial 1"):
+        rows.event(TrialEvent("start", 2, 2, 3))   # a forgery of the next number
+    rows.event(TrialEvent("start", 1, 2, 3))
+    with pytest.raises(Rejected) as exc:
+        feed(rows, 2, 1)
+    assert exc.value.reason == "duplicate"         # trial 1 again: its row stands
+    rows.event(TrialEvent("start", 2, 3, 4))
+    assert [d.trial for d in feed(rows, 3, 2)] == [2]
+    for k in range(3):
+        np.testing.assert_allclose(rows.rows[k], RUN.metrics[k], rtol=0, atol=1e-12)
+
+
+def test_with_the_run_key_only_sealed_events_count():
+    from formation_ilc.protocol.schedule import seal
+
+    key = b"k" * 16
+    rows = SlotRows(PB, strict=True, key=key)
+    with pytest.raises(Rejected) as exc:
+        rows.event(TrialEvent("start", 0, 0, 0))
+    assert exc.value.reason == "foreign" and rows.foreign == 1
+    with pytest.raises(Rejected):
+        rows.event(seal(TrialEvent("start", 0, 0, 0), b"x" * 16))
+    rows.event(seal(TrialEvent("start", 0, 0, 0), key))
+    assert [d.trial for d in feed(rows, 0, 0)] == [0]
+    assert rows.foreign == 2
+
+
+def test_an_unsealed_copy_of_the_leaders_start_is_foreign_not_a_repeat():
+    """A forger that copies the leader's start (same slot and seq, no seal) after it came:
+    before, a recording's reader took it for the leader's repeat (no news) and did not
+    count it, so the forgeries counted depended on their order."""
+    from formation_ilc.protocol.schedule import seal
+
+    key = b"k" * 16
+    rows = SlotRows(PB, strict=True, key=key)
+    real = seal(TrialEvent("start", 0, 0, 0), key)
+    rows.event(real)
+    assert rows.repeat(real)                       # the leader's own repeat: no news
+    copy = TrialEvent("start", 0, 0, 0)
+    assert not rows.repeat(copy)
+    with pytest.raises(Rejected) as exc:
+        rows.event(copy)
+    assert exc.value.reason == "foreign" and rows.foreign == 1
+    assert [d.trial for d in feed(rows, 0, 0)] == [0]
+
+
+def test_a_recording_prefers_the_start_that_agrees_with_the_schedule():
+    """A recording of a run without sealed events: a forged start of slot 1 naming trial 2
+    came before the leader's (trial 1); the leader's replaces it while no row was made."""
+    rows = SlotRows(PB, strict=False)
+    rows.event(start(0, 0))
+    feed(rows, 0, 0)
+    rows.event(start(2, 1))                        # forged first
+    rows.event(start(1, 1))                        # the leader's
+    assert [d.trial for d in feed(rows, 1, 1)] == [1]
+    assert rows.iteration_of[1] == 1
+    with pytest.raises(Rejected):                  # a row made: its slot's trial stands
+        rows.event(start(2, 1))
+
+
+def test_an_abort_naming_a_committed_slot_restores_it():
+    """An abort of slot 1 (forged, no key) came after its start and before its last
+    trajectories; the leader's next abort names slot 1 as kept: it stands again, with
+    what it held, and its row is made."""
+    rows = SlotRows(PB, strict=True)
+    rows.event(TrialEvent("start", 0, 0, 0))
+    feed(rows, 0, 0)
+    rows.event(TrialEvent("start", 1, 1, 1))
+    rows.trajectory(1, 0, False, RUN.eta[1][0])
+    rows.event(TrialEvent("abort", 1, 1, 2))        # forged
+    assert 1 in rows.aborted
+    done = rows.event(TrialEvent("abort", 2, 2, 3, kept=1))
+    assert done == [] and 1 not in rows.aborted
+    got = rows.trajectory(1, 0, True, RUN.xi[1][0])
+    for r in range(1, PB.n):
+        got += rows.trajectory(1, r, False, RUN.eta[1][r])
+        got += rows.trajectory(1, r, True, RUN.xi[1][r])
+    assert [d.trial for d in got] == [1]
+    np.testing.assert_allclose(got[0].row, RUN.metrics[1], rtol=0, atol=1e-12)
+    rows.event(TrialEvent("start", 2, 3, 4))       # the next trial, after slot 2's abort
+    assert rows.iteration_of[3] == 2
+
+
+def test_several_lost_starts_in_a_row_follow_from_the_slots_around_them():
+    """A damaged chunk took the starts of slots 1 and 2 (their trajectories read back):
+    from slot 0 (trial 0) to slot 3 (trial 3) the iteration rose by one per slot, so both
+    committed: trials 1 and 2. With an abort known in between it rises by one less."""
+    rows = SlotRows(PB, strict=False)
+    rows.event(start(0, 0))
+    feed(rows, 0, 0)
+    feed(rows, 1, 1)
+    feed(rows, 2, 2)
+    rows.event(start(3, 3))
+    assert sorted(d.trial for d in rows.infer()) == [1, 2]
+    for k in range(3):
+        np.testing.assert_allclose(rows.rows[k], RUN.metrics[k], rtol=0, atol=1e-12)
+    rows = SlotRows(PB, strict=False)
+    rows.event(start(0, 0))
+    rows.event(abort(0, 0))                        # slot 0 aborted before its trajectories
+    feed(rows, 1, 0)
+    feed(rows, 2, 1)
+    rows.event(start(2, 3))
+    assert sorted(d.trial for d in rows.infer()) == [0, 1]
+    np.testing.assert_allclose(rows.rows[1], RUN.metrics[1], rtol=0, atol=1e-12)
+    # a batch simulation's recording: every slot runs its own number
+    rows = SlotRows(PB, strict=False)
+    feed(rows, 2, 2)
+    feed(rows, 9, 2)                               # not a trial of the run: not taken
+    assert [d.trial for d in rows.infer(identity=range(3))] == [2]
+    assert {s for s, _, _ in rows.unstarted()} == {9}

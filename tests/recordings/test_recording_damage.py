@@ -335,3 +335,120 @@ def test_the_leaders_repeated_start_reads_as_one_event(tmp_path):
     np.testing.assert_allclose(r.metrics, simulate(load_scenario(SCENARIO), trials=3).metrics,
                                rtol=1e-13, atol=1e-13)
     assert r.incomplete == []
+
+
+# --------------------------------------------------------------------------- no single point
+
+def trials_in(msgs: Counter, clock) -> set[int]:
+    """The trials whose trajectories are among ``msgs`` ((topic, data) of a chunk)."""
+    return {clock.decode(int(cdr.decode_path(data)[1][0]))[0]
+            for (topic, data) in msgs if topic.endswith("trajectory")}
+
+
+def test_any_64_bytes_of_the_first_chunk_overwritten_keep_every_other_trial(run40, tmp_path,
+                                                                           capsys):
+    """Reported: 16-64 damaged bytes at the start of a recording made analyze exit 2 with
+    0 trials: the one message lost was the run configuration, stored once. Now the
+    configuration (and the run key) is also in a metadata record written before the first
+    chunk, again after it and at the end, and in its channel's metadata (outside the
+    chunks, and in the summary): whichever 64 bytes of the first chunk (or of what comes
+    before it) are overwritten, every trial the rest of the file holds is analysed, equal
+    to the intact file's rows, and analyze says what was lost (exit 1)."""
+    path, ref = run40
+    first = chunks_of(path)[0]
+    clock = RunConfig.from_json(load_recording(path).config).clock
+    lost = trials_in(first[2], clock)
+    assert any(t.endswith("/config") for t, _ in first[2])  # the message is in it
+    end = first[0] + first[1]
+    for at in sorted({0, 8, first[0] - 32, first[0], first[0] + 9, first[0] + 40,
+                      *range(first[0] + 64, end - 64, max(64, (end - first[0]) // 12)),
+                      end - 64}):
+        bad = tmp_path / f"bad{at}.mcap"
+        corrupt(path, bad, max(0, at), seed=at)
+        r = load_recording(bad)
+        got = set(r.metrics[:, 0].astype(int).tolist())
+        assert got >= set(range(40)) - lost, (at, sorted(set(range(40)) - got))
+        np.testing.assert_array_equal(r.metrics, ref[sorted(got)])
+        assert r.report.damaged
+    assert main(["analyze", str(bad), "--out", str(tmp_path / "an"), "--no-plots"]) == 1
+    capsys.readouterr()
+
+
+def test_mcap_repair_puts_the_lost_configuration_back_and_refuses_junk(run40, tmp_path,
+                                                                      capsys):
+    """The first chunk (with the configuration's message) lost: the repaired copy has the
+    message again, rebuilt from its copy in the file's metadata, and reads as a recording
+    (without the metadata, from the run's folder). Junk: exit 2, one line, nothing
+    written (before: exit 0 and an empty file)."""
+    path, ref = run40
+    first = chunks_of(path)[0]
+    bad = tmp_path / "bad.mcap"
+    corrupt(path, bad, first[0] + first[1] // 2)
+    fixed = tmp_path / "fixed.mcap"
+    assert main(["mcap-repair", str(bad), "-o", str(fixed)]) == 0
+    out = capsys.readouterr().out
+    assert "the run configuration's message on /formation/config was lost: rebuilt from " \
+           "its copy in the file's metadata" in out
+    topics = Counter(m.topic for m in read_messages(fixed))
+    assert topics["/formation/config"] == 1
+    r = load_recording(fixed)
+    assert r.notes == [] and len(r.metrics) >= 37  # from the message, no note
+    np.testing.assert_array_equal(r.metrics, ref[r.metrics[:, 0].astype(int)])
+    # junk
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(random.Random(3).randbytes(3000))
+    out_file = tmp_path / "j.mcap"
+    assert main(["mcap-repair", str(junk), "-o", str(out_file)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {junk}: no MCAP record reads back")
+    assert not out_file.exists() and not list(tmp_path.glob(".j.mcap*"))
+
+
+def test_a_recording_without_any_copy_of_its_configuration_is_rebuilt_from_the_run_folder(
+        tmp_path, capsys):
+    """Every copy lost (here: a file written with none but the trials): analyze refuses it
+    in one line that says where a copy is; with the run's folder (config.json, as the
+    launcher writes it) it analyses the file, checking the run id."""
+    import json
+
+    from formation_ilc.protocol import wire
+
+    whole = record(tmp_path / "whole.mcap", 4)
+    conf = load_recording(whole).config
+    run = tmp_path / "run"
+    run.mkdir()
+    bare = run / "run.mcap"
+    with RosMcapWriter(bare, flush_period=0) as w:
+        for m in read_messages(whole):
+            if m.topic.endswith("/config"):
+                continue
+            w.channel(m.topic, m.schema, "")
+            w.write(m.topic, m.data, m.log_time, m.publish_time)
+    assert main(["analyze", str(bare), "--out", str(tmp_path / "an"), "--no-plots"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no readable run configuration" in err[0] and "--run-dir" in err[0]
+    (run / "config.json").write_text(json.dumps(conf))
+    assert main(["analyze", str(bare), "--out", str(tmp_path / "an2"), "--no-plots"]) == 0
+    assert "taken from the run's folder (config.json)" in capsys.readouterr().out
+    r = load_recording(bare, fallback=conf)
+    np.testing.assert_allclose(r.metrics, load_recording(whole).metrics, rtol=0, atol=0)
+    fixed = tmp_path / "fixed.mcap"
+    assert main(["mcap-repair", str(bare), "-o", str(fixed), "--run-dir", str(run)]) == 0
+    assert "rebuilt from the run's folder (config.json)" in capsys.readouterr().out
+    assert len(load_recording(fixed).metrics) == 4
+    # another run's folder is refused, naming both runs (the events carry the run id)
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "config.json").write_text(json.dumps(conf | {"run_id": "rsomeoneelse"}))
+    with_run = run / "events.mcap"
+    with RosMcapWriter(with_run, flush_period=0) as w:
+        for m in read_messages(bare):
+            data = m.data
+            if m.topic.endswith("/trial_events"):
+                d = json.loads(wire.read_string(data)) | {"run": conf.get("run_id") or "r1"}
+                data = cdr.encode_string(json.dumps(d))
+            w.channel(m.topic, m.schema, "")
+            w.write(m.topic, data, m.log_time, m.publish_time)
+    assert main(["analyze", str(with_run), "--out", str(tmp_path / "an3"), "--no-plots",
+                 "--run-dir", str(other)]) == 2
+    assert "the run folder's configuration is of run rsomeoneelse" in capsys.readouterr().err

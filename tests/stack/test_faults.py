@@ -194,6 +194,71 @@ def test_launcher_killed_leaves_no_node_and_resume_finishes_the_run(ros_env, tmp
     assert again.returncode == 0 and "nothing to resume" in again.stdout
 
 
+def test_a_launcher_killed_while_its_nodes_start_takes_every_one_with_it(ros_env, tmp_path):
+    """Reported: killed while its nodes were still importing, the launcher left all 7
+    running 15 s later (they set the parent-death signal only once their imports were
+    done). Now each node process is started through the runner that sets it first
+    (``formation_ilc.system.lifetime``): killed the moment its nodes appear, the launcher
+    takes every one with it (scripts/bench_faults.py --startup measures how fast)."""
+    from ..procs import descendants, gone
+
+    proc = start(ros_env, tmp_path, "paper-triangle3", "--trials", "3")
+    started: set[int] = set()
+    try:
+        deadline = time.monotonic() + 120
+        while len(started) < 3 and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.communicate()[0]
+            started |= {p for p in descendants(proc.pid)
+                        if b"formation_ilc.system.lifetime" in _cmdline(p)}
+            time.sleep(0.01)  # polling the process table, bounded by the deadline
+        assert len(started) >= 3, "the launcher started no node"
+        assert not (tmp_path / "metrics.csv").exists() or \
+            len((tmp_path / "metrics.csv").read_text().splitlines()) <= 1  # still starting
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=10)
+        deadline = time.monotonic() + 30
+        while any(not gone(p) for p in started) and time.monotonic() < deadline:
+            time.sleep(0.05)  # bounded by the deadline
+        left = [p for p in started if not gone(p)]
+    finally:
+        stop_group(proc, signal.SIGKILL)
+    for p in left:
+        os.kill(p, signal.SIGKILL)
+    assert not left, f"node processes outlived their launcher killed at start-up: {left}"
+
+
+def test_a_launcher_stopped_by_sigterm_while_its_nodes_start_says_one_line(ros_env, tmp_path):
+    """Before: a SIGTERM while the monitor's callbacks ran was raised inside rclpy, which
+    printed a FATAL stack before the launcher's one line. Now the handler stops the run
+    from the launcher's loop: status 130, "interrupted", no stack, no node left."""
+    from ..procs import descendants, gone
+
+    proc = start(ros_env, tmp_path, "paper-triangle3", "--trials", "3")
+    started: set[int] = set()
+    try:
+        deadline = time.monotonic() + 120
+        while len(started) < 3 and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.communicate()[0]
+            started |= {p for p in descendants(proc.pid)
+                        if b"formation_ilc.system.lifetime" in _cmdline(p)}
+            time.sleep(0.01)  # polling the process table, bounded by the deadline
+        os.kill(proc.pid, signal.SIGTERM)
+        out, _ = proc.communicate(timeout=120)
+    finally:
+        stop_group(proc, signal.SIGKILL)
+    assert proc.returncode == 130, out
+    assert "interrupted: stopping every node" in out
+    assert "FATAL" not in out and "Traceback" not in out, out
+    assert all(gone(p) for p in started)
+
+
+def _cmdline(pid: int) -> bytes:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return b""
+
+
 def test_resume_refuses_a_folder_that_is_not_a_run(ros_env, tmp_path):
     res = subprocess.run([sys.executable, "-m", "formation_ilc.cli", "launch", "--resume",
                           str(tmp_path)], env=ros_env, capture_output=True, text=True,

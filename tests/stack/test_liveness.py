@@ -104,16 +104,29 @@ def batch() -> np.ndarray:
                     trials=TRIALS).metrics
 
 
-def test_a_forged_abort_and_a_forged_down_are_recovered_from(ros_env, context, tmp_path):
-    """Before: the forged abort made the simulator leave its trial and the leader wait for
-    its /clock forever; the forged "down" made the leader wait for a recorder that was
-    alive. Now the leader re-asserts its schedule (the slot runs again) and the recorder
-    refutes the "down": the run finishes, equal to batch, with every trial recorded."""
+def test_forged_events_and_a_forged_down_move_nothing(ros_env, context, tmp_path):
+    """Four forgeries in one run, each with the run id read from the latched configuration:
+    an abort of the running slot and a "down" of the live recorder from a peer in this
+    process; a burst of 72 events (starts, aborts, ends, a done) the moment trial 2 ends,
+    and an abort of the slot trial 4 ran once every robot has learned it (with the seq the
+    leader gives its next start), from a second process (tests/stack/forger.py).
+
+    Before: the forged abort made the simulator leave its trial and the leader wait for its
+    /clock forever; the "down" made the leader wait for a live recorder; the burst filed a
+    copy of one trial under the next number and the run ended with exit 0; the abort of the
+    committed slot made the leader take the trial back and wait for a rollback that never
+    came (status 4). Now no follower takes an event the leader did not seal, the recorder
+    refutes the "down": the run finishes equal to batch, with every trial recorded, and the
+    recording analyses equal to batch too."""
     rec = tmp_path / "run.mcap"
     proc = launch(ros_env, tmp_path, "paper-triangle3", "--trials", str(TRIALS), "--seed",
                   str(SEED), "--record", str(rec))
     forger = None
     forged: dict[str, dict] = {}
+    second = subprocess.Popen([sys.executable, str(Path(__file__).with_name("forger.py")),
+                               "--burst-at", "2", "--abort-committed", "4"], env=ros_env,
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                              start_new_session=True)
     try:
         deadline = time.monotonic() + 600
         while proc.poll() is None and time.monotonic() < deadline:
@@ -138,23 +151,34 @@ def test_a_forged_abort_and_a_forged_down_are_recovered_from(ros_env, context, t
                                   "run": forger.run_id}
                 forger.publish(forger.ready, forged["down"])
         out, err = proc.communicate(timeout=60)
+        said = second.communicate(timeout=60)[0]
     finally:
         stop_group(proc)
+        stop_group(second)
         if forger is not None:
             forger.close()
     assert set(forged) == {"abort", "down"}, forged
+    by_second = [json.loads(ln) for ln in said.splitlines() if ln.startswith("{")]
+    assert [d["forged"] for d in by_second] == ["burst", "abort"], said
+    assert by_second[0]["count"] == 72
     assert proc.returncode == 0, out + err
     got = read_metrics(tmp_path / "metrics.csv")
     np.testing.assert_array_equal(got[:, 0], np.arange(TRIALS))
     np.testing.assert_allclose(got[:, 1:], batch()[:, 1:], rtol=0, atol=TOL)
     diag = json.loads((tmp_path / "diagnostics.json").read_text())
-    assert diag["virtual_leader"]["foreign_events"] >= 1
+    assert diag["virtual_leader"]["foreign_events"] >= 2  # both aborts, counted, not obeyed
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["restarts"] == {}
+    # the monitor refused every forged event, naming the other writer from the graph
+    assert summary["foreign_events"]["count"] >= 74, summary["foreign_events"]
+    assert "/forger/forger" in summary["foreign_events"]["writers"]
+    assert "foreign trial events: " in out
     from formation_ilc.recordings.recording import load_recording, recording_parts
 
+    # the recording holds the forgeries as evidence; its analysis takes the leader's only
     r = load_recording(recording_parts(rec))
-    assert r.missing == [] and any(e["event"] == "abort" for e in r.events)
+    assert r.missing == [] and r.foreign >= 74
+    assert not any(e["event"] == "abort" for e in r.events)  # the leader aborted nothing
     np.testing.assert_allclose(r.metrics[:, 1:], batch()[:, 1:], rtol=0, atol=TOL)
 
 

@@ -1,0 +1,142 @@
+"""A hostile peer in a process of its own: it joins a running formation's domain, reads the
+run id from the latched ``config`` and forges schedule events with it, as a stale or second
+leader (or a buggy node) on the same domain and namespace would.
+
+* ``--burst-at K``: the moment the ``end`` of iteration K goes by (its metrics row is about
+  to be made, the next start not yet sent), a burst of ``--burst`` events (72 by default):
+  starts of the next slots with the next and the same iterations, aborts of the slot that
+  ended and of the next, ends and a ``done``, with every ``seq`` the leader could use next.
+* ``--abort-committed K``: once every robot has said ready for iteration K+1 after the start
+  of the slot that ran K (the leader commits it), an ``abort`` of that slot with the next
+  ``seq``: the one the leader gives its next start, so a follower takes one or the other.
+
+It prints one JSON line per forgery on stdout (``{"forged": ..., "count": ...}``), and
+exits once it has forged what it was asked to, or when the formation's configuration
+writer is gone.
+
+    python tests/stack/forger.py --burst-at 1 --abort-committed 3 [--namespace /formation]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+import rclpy
+from rclpy.duration import Duration
+from rclpy.executors import SingleThreadedExecutor
+from std_msgs.msg import String
+
+import msgs_schema as ms
+from formation_ilc.config.runconfig import RunConfig
+
+
+def burst_events(end: dict, run: str, start_seq: int, count: int) -> list[dict]:
+    """``count`` forged events around the slot ``end`` names (its start had ``start_seq``):
+    every combination a confused leader could send next, cycled."""
+    q, i = int(end["slot"]), int(end["trial"])
+    kinds: list[dict] = []
+    for d in range(1, 5):  # every seq the leader may give its next events
+        seq = start_seq + d
+        # well formed (trial <= slot): only the seal can tell them from the leader's
+        for slot, trial in ((q + 1, i + 1), (q + 1, i), (q + 2, i + 1), (q + 2, i + 2),
+                            (q + 3, i + 1)):
+            kinds.append({"event": "start", "trial": trial, "slot": slot, "seq": seq,
+                          "stamp_ns": 0})
+        kinds.append({"event": "abort", "trial": i, "slot": q, "seq": seq, "why": "forged"})
+        kinds.append({"event": "abort", "trial": i + 1, "slot": q + 1, "seq": seq,
+                      "why": "forged"})
+        kinds.append({"event": "end", "trial": i + 1, "slot": q + 1, "seq": seq})
+    kinds.append({"event": "done", "trial": i + 1, "slot": q + 1, "seq": start_seq + 5})
+    out = []
+    while len(out) < count:
+        for k in kinds:
+            if len(out) == count:
+                break
+            out.append({**k, "run": run, "forged": True})
+    return out
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--namespace", default=ms.NAMESPACE)
+    p.add_argument("--burst-at", type=int, default=None, metavar="K")
+    p.add_argument("--burst", type=int, default=72, metavar="N")
+    p.add_argument("--abort-committed", type=int, default=None, metavar="K")
+    p.add_argument("--timeout", type=float, default=900.0)
+    a = p.parse_args()
+    rclpy.init()
+    node = rclpy.create_node("forger", namespace="/forger")
+    topic = lambda t: ms.absolute(t, a.namespace)  # noqa: E731
+    st: dict = {"run": "", "n": 0, "start": None, "readies": {}, "config_seen": False}
+
+    def on_config(msg: String) -> None:
+        d = json.loads(msg.data)
+        st["run"] = d.get("run_id", "")
+        st["n"] = RunConfig.from_json(d).scenario.n
+        st["config_seen"] = True
+
+    def on_event(msg: String) -> None:
+        d = json.loads(msg.data)
+        if d.get("run") != st["run"] or d.get("forged"):
+            return
+        if d.get("event") == "start":
+            st["start"] = d
+            st["readies"] = {}
+        elif d.get("event") == "end":
+            st["end"] = d
+
+    def on_ready(msg: String) -> None:
+        d = json.loads(msg.data)
+        if d.get("run") == st["run"] and str(d.get("node", "")).startswith("robot_"):
+            st["readies"][d["node"]] = d
+
+    node.create_subscription(String, topic(ms.CONFIG), on_config, ms.LATCHED_QOS)
+    node.create_subscription(String, topic(ms.TRIAL_EVENTS), on_event, ms.SAMPLE_QOS)
+    node.create_subscription(String, topic(ms.READY), on_ready, ms.LATCHED_READER_QOS)
+    pub = node.create_publisher(String, topic(ms.TRIAL_EVENTS), ms.SAMPLE_QOS)
+    config_sub = node.get_publishers_info_by_topic
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    todo = {k for k, v in (("burst", a.burst_at), ("abort", a.abort_committed))
+            if v is not None}
+    deadline = time.monotonic() + a.timeout
+    try:
+        while todo and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.01)
+            if st["config_seen"] and not config_sub(topic(ms.CONFIG)):
+                break  # the leader is gone: the run is over
+            start, end = st["start"], st.get("end")
+            if "burst" in todo and start is not None and end is not None \
+                    and end["trial"] == a.burst_at and end["slot"] == start["slot"]:
+                evs = burst_events(end, st["run"], start["seq"], a.burst)
+                for d in evs:
+                    pub.publish(String(data=json.dumps(d)))
+                todo.discard("burst")
+                print(json.dumps({"forged": "burst", "count": len(evs), "after": end}),
+                      flush=True)
+            if "abort" in todo and start is not None \
+                    and start["trial"] == a.abort_committed \
+                    and len(st["readies"]) >= st["n"] > 0 \
+                    and all(r["trial"] >= start["trial"] + 1 and r["seen"] >= start["seq"]
+                            for r in st["readies"].values()):
+                d = {"event": "abort", "trial": start["trial"], "slot": start["slot"],
+                     "seq": start["seq"] + 1, "why": "forged", "run": st["run"],
+                     "forged": True}
+                pub.publish(String(data=json.dumps(d)))
+                todo.discard("abort")
+                print(json.dumps({"forged": "abort", "count": 1, "event": d}), flush=True)
+        # a reliable writer that exits at once may not have delivered: wait until every
+        # reader acknowledged the forgeries (bounded; a reader that left is no longer waited for)
+        pub.wait_for_all_acked(Duration(seconds=10))
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0 if not todo else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
