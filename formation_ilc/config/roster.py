@@ -292,8 +292,9 @@ def roster(lineup: Lineup) -> Roster:
         (nm.CONFIG, nm.REFERENCE, nm.TRIAL_EVENTS, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS,
          *leader_pub),
         # its own events too: it re-asserts against a start or abort it did not send (a
-        # buggy node's, or a lossy link's replay)
-        (nm.READY, nm.CONFIG, nm.CLOCK, nm.TRIAL_EVENTS, *leader_sub)))
+        # buggy node's, or a lossy link's replay); the nodes' reports, for the endpoints
+        # a node still waits for at start-up (its watchdog names them)
+        (nm.READY, nm.CONFIG, nm.CLOCK, nm.TRIAL_EVENTS, nm.DIAGNOSTICS, *leader_sub)))
     members += _plant(lineup, row)
     if lineup.links == "emulated":
         links_pub = [nm.link_topic(i, nm.robot_name(j)) for i in robots
