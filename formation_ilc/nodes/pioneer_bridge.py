@@ -114,6 +114,8 @@ __all__ = ["BridgeNode", "main", "TICK", "START_AHEAD_MAX"]
 
 #: the bridge's control tick [s]: sampling, return controller, watchdog
 TICK = 0.01
+#: [s] a motor service call without an answer after this is made again (enabling is idempotent)
+MOTOR_RETRY_S = 3.0
 
 
 def _join(ns: str, name: str) -> str:
@@ -253,6 +255,7 @@ class BridgeNode(ConfiguredNode):
             self.motor_client = self.create_client(self.motor_srv, topic)
         self._motor_timer = self.create_timer(0.2, self._enable_motors)
         self._motor_wait = time.monotonic()
+        self._motor_sent = 0.0
 
     def _enable_motors(self) -> None:
         if self.motors_on:
@@ -269,10 +272,22 @@ class BridgeNode(ConfiguredNode):
                 if hasattr(req, "data"):
                     req.data = True
                 self.motor_future = self.motor_client.call_async(req)
+                self._motor_sent = time.monotonic()
             elif time.monotonic() - self._motor_wait > 5.0:
                 self._motor_wait = time.monotonic()
                 self.get_logger().warning(f"waiting for the driver's motor service "
                                           f"{self.driver_topics[2]}")
+            return
+        if not self.motor_future.done():
+            if time.monotonic() - self._motor_sent > MOTOR_RETRY_S:
+                # the driver took the call but its answer never came (a response writer
+                # not yet matched to this client's reader, as a secure handshake can leave
+                # it: "failed to send response (timeout)"); enabling the motors again is
+                # harmless, waiting forever is not
+                self.motor_client.remove_pending_request(self.motor_future)
+                self.motor_future = None
+                self.get_logger().warning(f"{self.driver_topics[2]}: no answer in "
+                                          f"{MOTOR_RETRY_S:g} s; asking again")
             return
         if self.motor_future.done():
             res = self.motor_future.result()

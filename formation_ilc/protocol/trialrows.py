@@ -137,6 +137,15 @@ class SlotRows:
                                              f"{self.started} started")
         if ev.event == START:
             exp = self.expected(ev.slot)
+            before = self._last_before(ev.slot)
+            if (self.key is not None and exp is not None and ev.trial == exp - 1
+                    and before is not None and before not in self.aborted):
+                # a start sealed by the run's leader that runs the last slot's iteration
+                # again: the leader does that only after aborting that slot, so its abort
+                # was lost here (a restarted leader's, sent before this reader matched it;
+                # the leader waits for no passive reader's answer)
+                self._abort(before)
+                exp = self.expected(ev.slot)
             if self.strict and exp is not None and ev.trial != exp:
                 raise Rejected("unexpected", f"start of slot {ev.slot} as trial {ev.trial}: "
                                              f"the schedule runs trial {exp} there")
@@ -154,17 +163,25 @@ class SlotRows:
             return self._complete(ev.slot)
         if ev.event == ABORT:
             done = self._kept(ev.kept)
-            if ev.slot not in self.aborted:
-                self.limbo = (ev.slot, self.eta.pop(ev.slot, {}), self.xi.pop(ev.slot, {}),
-                              self.filtered.pop(ev.slot, None),
-                              self.contacts.pop(ev.slot, None))
-            self.aborted.add(ev.slot)
-            if ev.slot == self.started:  # a start of it again is a replay, not a repeat
-                self.start_seq = -1
+            self._abort(ev.slot)
             return done
         if ev.event == DONE:  # the slot after the last, and the trials learned
             self.done_at = (ev.slot, ev.trial)
         return []
+
+    def _abort(self, slot: int) -> None:
+        """``slot`` is aborted: what it held waits in ``limbo`` (a ``kept`` may restore it)."""
+        if slot not in self.aborted:
+            self.limbo = (slot, self.eta.pop(slot, {}), self.xi.pop(slot, {}),
+                          self.filtered.pop(slot, None), self.contacts.pop(slot, None))
+        self.aborted.add(slot)
+        if slot == self.started:  # a start of it again is a replay, not a repeat
+            self.start_seq = -1
+
+    def _last_before(self, slot: int) -> int | None:
+        """The last slot started before ``slot`` (None: none known)."""
+        before = [q for q in self.iteration_of if q < slot]
+        return max(before) if before else None
 
     def expected(self, slot: int) -> int | None:
         """The iteration the leader's schedule runs in ``slot``, from the last slot started

@@ -381,3 +381,29 @@ def test_several_lost_starts_in_a_row_follow_from_the_slots_around_them():
     feed(rows, 9, 2)                               # not a trial of the run: not taken
     assert [d.trial for d in rows.infer(identity=range(3))] == [2]
     assert {s for s, _, _ in rows.unstarted()} == {9}
+
+
+def test_a_sealed_start_that_runs_the_last_iteration_again_explains_a_lost_abort():
+    """A restarted leader aborts the slot it left open before this reader has matched it
+    (the leader waits for no passive reader's answer), then starts the next slot with the
+    same iteration: sealed, that start can only follow an abort, which is taken as lost
+    (before: the monitor refused every later event and the run ended with no metrics for
+    trials 2-6, CI of 27 Nov). Without the key, or two iterations back, it stays refused."""
+    from formation_ilc.protocol.schedule import seal
+
+    key = b"k" * 16
+    rows = SlotRows(PB, strict=True, key=key)
+    rows.event(seal(TrialEvent("start", 0, 0, 0), key))
+    assert [d.trial for d in feed(rows, 0, 0)] == [0]
+    rows.event(seal(TrialEvent("start", 1, 1, 1), key))  # the leader is killed in it
+    with pytest.raises(Rejected, match="schedule runs trial 2"):
+        rows.event(seal(TrialEvent("start", 0, 2, 3), key))
+    rows.event(seal(TrialEvent("start", 1, 2, 3), key))  # its abort (seq 2) never came
+    assert 1 in rows.aborted
+    assert [d.trial for d in feed(rows, 2, 1)] == [1]
+    np.testing.assert_allclose(rows.rows[1], RUN.metrics[1], rtol=0, atol=1e-12)
+    bare = SlotRows(PB, strict=True)
+    bare.event(TrialEvent("start", 0, 0, 0))
+    bare.event(TrialEvent("start", 1, 1, 1))
+    with pytest.raises(Rejected, match="schedule runs trial 2"):
+        bare.event(TrialEvent("start", 1, 2, 3))
