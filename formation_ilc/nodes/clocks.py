@@ -97,8 +97,14 @@ class ClockExchange:
         for peer, seq in self.sync.questions(now):
             self.ping_pub.publish(ms.ping_msg(seq, self.now(), peer))
         for level, text in self.sync.events(now):
+            # one call site per severity: rclpy refuses a call site whose severity
+            # changes ("Logger severity cannot be changed between calls"), which killed
+            # nodes of a 50-robot run at their first estimate after a warning
             log = self.node.get_logger()
-            (log.warning if level == "warn" else log.info)(text)
+            if level == "warn":
+                log.warning(text)
+            else:
+                log.info(text)
             if self.on_event is not None:
                 self.on_event(level, text)
         mono = time.monotonic()

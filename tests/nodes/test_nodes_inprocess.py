@@ -103,3 +103,27 @@ def test_every_entry_script_prints_help_and_exits(module, words):
     for w in words:
         assert w in res.stdout, (w, res.stdout[:400])
     assert "--ros-args" in res.stdout
+
+
+def test_a_clock_exchange_says_a_warning_and_then_news_from_its_one_timer(context):
+    """The clock core's events come out of one timer callback at their own severities: a
+    warning, then an estimate that converged, then a warning again. rclpy refuses a call
+    site whose severity changes ("Logger severity cannot be changed between calls"): the
+    first estimate after a warning killed nodes of a 50-robot run."""
+    from formation_ilc.config.runconfig import make_config
+    from formation_ilc.nodes.clocks import ClockExchange, node_clock
+
+    cfg = make_config("paper-triangle3", mode="realtime")
+    node = rclpy.create_node("robot_9", namespace=ms.NAMESPACE, context=context)
+    try:
+        said: list[tuple[str, str]] = []
+        ex = ClockExchange(node, "robot_9", cfg, node_clock(cfg, None), ["robot_1"], [],
+                           drops=None, on_event=lambda lv, t: said.append((lv, t)))
+        words = [("warn", "w1"), ("info", "i1"), ("warn", "w2"), ("info", "i2")]
+        ex.sync.questions = lambda now: []  # type: ignore[method-assign]
+        ex.sync.events = lambda now: [words.pop(0)] if words else []  # type: ignore[method-assign]
+        for _ in range(4):
+            ex._on_timer()
+        assert said == [("warn", "w1"), ("info", "i1"), ("warn", "w2"), ("info", "i2")]
+    finally:
+        node.destroy_node()
