@@ -144,7 +144,11 @@ def test_wallclock_leader_agrees_the_start_and_publishes_the_reference_on_its_wa
         tester.create_subscription(PoseStamped, ms.REFERENCE, lambda m: refs.append(
             (time.time_ns(), ms.stamp_to_ns(m.header.stamp))), ms.SAMPLE_QOS)
         ready = tester.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        spin_until(ex, lambda: ready.get_subscription_count() >= 1)
+        # the tester's readers matched too: a reference sent before its reader matched is
+        # not delivered (volatile), and the test waited for 11 of 10 (CI of 27 Nov)
+        spin_until(ex, lambda: ready.get_subscription_count() >= 1
+                   and leader.ref_pub.get_subscription_count() >= 1
+                   and leader.event_pub.get_subscription_count() >= 2)  # tester and leader
         ready.publish(ms.json_to_msg({"node": "tester", "trial": 0}))
         spin_until(ex, lambda: any(e["event"] == ms.END for _, e in events) and len(refs) >= 11,
                    timeout=10)
