@@ -54,6 +54,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from procstat import children_of, gone
 
 from formation_ilc.config.scenario import load_scenario
 from formation_ilc.core.metrics import read_metrics
@@ -302,36 +303,6 @@ def chaos(trials: int, domain: int, out: Path, seed: int) -> dict:
     return res
 
 
-def descendants(pid: int) -> set[int]:
-    """Every live process below ``pid`` (its children, theirs, ...)."""
-    out: set[int] = set()
-    todo = [pid]
-    while todo:
-        p = todo.pop()
-        try:
-            tasks = os.listdir(f"/proc/{p}/task")
-        except OSError:
-            continue
-        for t in tasks:
-            try:
-                kids = Path(f"/proc/{p}/task/{t}/children").read_text().split()
-            except OSError:
-                continue
-            for k in map(int, kids):
-                if k not in out:
-                    out.add(k)
-                    todo.append(k)
-    return out
-
-
-def gone(pid: int) -> bool:
-    """Whether process ``pid`` has ended (no such process, or a zombie nobody reaped)."""
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
-    except (OSError, IndexError):
-        return True
-
-
 def startup_kill(delay: float, domain: int, out: Path, busy: int) -> dict:
     """SIGKILL the launcher ``delay`` s after it started, with ``busy`` busy loops; follow
     every process it had started until each is gone (at most 60 s)."""
@@ -343,9 +314,9 @@ def startup_kill(delay: float, domain: int, out: Path, busy: int) -> dict:
         seen: set[int] = set()
         t0 = time.monotonic()
         while time.monotonic() - t0 < delay:
-            seen |= descendants(proc.pid)
+            seen |= children_of(proc.pid)
             time.sleep(0.01)
-        seen |= descendants(proc.pid)
+        seen |= children_of(proc.pid)
         started = [p for p in seen if not gone(p)]
         os.kill(proc.pid, signal.SIGKILL)
         t_kill = time.monotonic()
