@@ -52,6 +52,19 @@ def ros_env(monkeypatch: pytest.MonkeyPatch) -> Iterator[dict[str, str]]:
 
 
 @pytest.fixture
+def netns_support() -> None:
+    """Robots in network namespaces can run here (root, ip, iptables): skips saying what is
+    missing, or fails where they are required (FORMATION_ILC_REQUIRE_NETNS=1: CI)."""
+    from formation_ilc.system.netns import support_problem
+
+    problem = support_problem()
+    if problem and os.environ.get("FORMATION_ILC_REQUIRE_NETNS") == "1":
+        pytest.fail(f"robots in network namespaces: {problem} (required here: CI)")
+    if problem:
+        pytest.skip(f"robots in network namespaces: {problem}")
+
+
+@pytest.fixture
 def context(ros_env):
     """A private rclpy Context for an in-process node test, shut down afterwards."""
     import rclpy

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -128,15 +127,8 @@ def test_realtime_clocks_that_disagree_are_estimated_and_change_nothing_learned(
     check_learning(raw, scen)
 
 
-def test_realtime_clocks_across_network_namespaces(ros_env, tmp_path):
+def test_realtime_clocks_across_network_namespaces(netns_support, ros_env, tmp_path):
     """The same with each robot on a simulated host of its own (UDP between them)."""
-    from formation_ilc.system.netns import support_problem
-
-    problem = support_problem()
-    if problem and os.environ.get("FORMATION_ILC_REQUIRE_NETNS") == "1":
-        pytest.fail(f"robots in network namespaces: {problem} (required here: CI)")
-    if problem:
-        pytest.skip(f"robots in network namespaces: {problem}")
     scen = short_scenario(tmp_path)
     out = tmp_path / "run"
     res = launch(ros_env, out, str(scen), "--trials", str(TRIALS), "--seed", str(SEED),

@@ -31,7 +31,7 @@ from formation_ilc.config.scenario import load_scenario
 from formation_ilc.core.metrics import read_metrics
 from formation_ilc.model.simulate import simulate
 from formation_ilc.system import delayer as dl
-from formation_ilc.system.netns import LinkFaults, NetnsError, hold_quantiles, support_problem
+from formation_ilc.system.netns import LinkFaults, NetnsError, hold_quantiles
 
 from ..procs import processes, stop_group
 from .test_realtime import SEED, short_scenario
@@ -139,15 +139,6 @@ def _ours(domain: str, out: Path) -> list[str]:
     """Command lines of live processes of this test: its ROS domain, or its run folder."""
     return [f"{pid}: {cmd}" for pid, cmd, env in processes()
             if f"ROS_DOMAIN_ID={domain}".encode() in env or str(out) in cmd]
-
-
-@pytest.fixture
-def netns_support():
-    problem = support_problem()
-    if problem and os.environ.get("FORMATION_ILC_REQUIRE_NETNS") == "1":
-        pytest.fail(f"robots in network namespaces: {problem} (required here: CI)")
-    if problem:
-        pytest.skip(f"robots in network namespaces: {problem}")
 
 
 @pytest.mark.ros

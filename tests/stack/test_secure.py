@@ -283,17 +283,10 @@ def test_secure_pioneer_bridges_and_fake_drivers(ros_env, tmp_path, secure_dds):
 
 
 @pytest.mark.slow
-def test_secure_robots_on_separate_hosts(ros_env, tmp_path, secure_dds):
+def test_secure_robots_on_separate_hosts(netns_support, ros_env, tmp_path, secure_dds):
     """Robots in network namespaces of their own (--hosts netns), each in its enclave."""
-    from formation_ilc.system.netns import support_problem
-
     from .test_realtime import short_scenario
 
-    problem = support_problem()
-    if problem and os.environ.get("FORMATION_ILC_REQUIRE_NETNS") == "1":
-        pytest.fail(f"robots in network namespaces: {problem} (required here: CI)")
-    if problem:
-        pytest.skip(f"robots in network namespaces: {problem}")
     scen = short_scenario(tmp_path)
     ks = make_keystore(tmp_path / "ks", str(scen))
     trials = 2
