@@ -200,17 +200,11 @@ def test_a_launcher_killed_while_its_nodes_start_takes_every_one_with_it(ros_env
     done). Now each node process is started through the runner that sets it first
     (``formation_ilc.system.lifetime``): killed the moment its nodes appear, the launcher
     takes every one with it (scripts/bench_faults.py --startup measures how fast)."""
-    from ..procs import descendants, gone
+    from ..procs import gone
 
     proc = start(ros_env, tmp_path, "paper-triangle3", "--trials", "3")
-    started: set[int] = set()
     try:
-        deadline = time.monotonic() + 120
-        while len(started) < 3 and time.monotonic() < deadline:
-            assert proc.poll() is None, proc.communicate()[0]
-            started |= {p for p in descendants(proc.pid)
-                        if b"formation_ilc.system.lifetime" in _cmdline(p)}
-            time.sleep(0.01)  # polling the process table, bounded by the deadline
+        started = _nodes_started(proc, 3)
         assert len(started) >= 3, "the launcher started no node"
         assert not (tmp_path / "metrics.csv").exists() or \
             len((tmp_path / "metrics.csv").read_text().splitlines()) <= 1  # still starting
@@ -231,17 +225,11 @@ def test_a_launcher_stopped_by_sigterm_while_its_nodes_start_says_one_line(ros_e
     """Before: a SIGTERM while the monitor's callbacks ran was raised inside rclpy, which
     printed a FATAL stack before the launcher's one line. Now the handler stops the run
     from the launcher's loop: status 130, "interrupted", no stack, no node left."""
-    from ..procs import descendants, gone
+    from ..procs import gone
 
     proc = start(ros_env, tmp_path, "paper-triangle3", "--trials", "3")
-    started: set[int] = set()
     try:
-        deadline = time.monotonic() + 120
-        while len(started) < 3 and time.monotonic() < deadline:
-            assert proc.poll() is None, proc.communicate()[0]
-            started |= {p for p in descendants(proc.pid)
-                        if b"formation_ilc.system.lifetime" in _cmdline(p)}
-            time.sleep(0.01)  # polling the process table, bounded by the deadline
+        started = _nodes_started(proc, 3)
         os.kill(proc.pid, signal.SIGTERM)
         out, _ = proc.communicate(timeout=120)
     finally:
@@ -257,6 +245,21 @@ def _cmdline(pid: int) -> bytes:
         return Path(f"/proc/{pid}/cmdline").read_bytes()
     except OSError:
         return b""
+
+def _nodes_started(proc, n: int) -> set[int]:
+    """The node processes (started through the lifetime runner) below launcher ``proc``,
+    once there are ``n`` of them or 120 s have passed."""
+    from ..procs import descendants
+
+    started: set[int] = set()
+    deadline = time.monotonic() + 120
+    while len(started) < n and time.monotonic() < deadline:
+        assert proc.poll() is None, proc.communicate()[0]
+        started |= {p for p in descendants(proc.pid)
+                    if b"formation_ilc.system.lifetime" in _cmdline(p)}
+        time.sleep(0.01)  # polling the process table, bounded by the deadline
+    return started
+
 
 
 def test_resume_refuses_a_folder_that_is_not_a_run(ros_env, tmp_path):
