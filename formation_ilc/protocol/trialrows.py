@@ -188,10 +188,9 @@ class SlotRows:
         before it: that slot's iteration, plus one unless it was aborted (slots only run
         after the one before committed or was aborted); None when no slot before it is
         known."""
-        before = [q for q in self.iteration_of if q < slot]
-        if not before:
+        p = self._last_before(slot)
+        if p is None:
             return None
-        p = max(before)
         return self.iteration_of[p] + (0 if p in self.aborted else 1)
 
     def _made_from(self, slot: int) -> bool:
