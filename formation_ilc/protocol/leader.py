@@ -172,6 +172,8 @@ class Leader:
         #: a sample, so that the follower has the start when the sample comes again
         self.repeat = StartRepeat(RESEND_S / 2)
         self.wall: WallSchedule | None = None
+        #: wall-clock trials: reference samples the timer fell behind past (never sent late)
+        self.missed_references = 0
         self.last_change = self.born
         self.watchdog.moved(self.last_change, STARTUP)
 
@@ -401,6 +403,7 @@ class Leader:
         self.watchdog.moved(self.last_change, SAMPLE)
         self.io.publish_reference(t, ns)
         if t == self.T:
+            self.missed_references += self.wall.skipped
             self.wall = None
             self._end(k)
 
@@ -540,6 +543,8 @@ class Leader:
                              "slot": self.sched.slot,
                              "foreign_events": self.sched.foreign_events,
                              "starts_repeated": self.repeat.count}
+        if self.cfg.mode == "wallclock":
+            d["missed_references"] = self.missed_references
         if watchdog is not None:
             d["watchdog"] = watchdog
         self.io.publish_diagnostics(d)

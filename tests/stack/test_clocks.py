@@ -163,10 +163,16 @@ def test_bridges_sample_at_the_leaders_instants_whatever_their_clocks_read(ros_e
     res = launch(ros_env, out, *args, timeout=300)
     assert res.returncode == 0, res.stdout
     lags = {}
+    diag = json.loads((out / "diagnostics.json").read_text())
     for b, c in bridges(out).items():
         assert c["converged"] and abs(c["offset_ms"] - c["true_offset_ms"]) <= WITHIN_MS
         assert set(c["sampled_on"]) == {"converged"}, c  # every sample on the estimate
-        assert c["sample_lag_ms"]["n"] == 61
+        # each of the 61 instants sampled once or counted missed: a control tick that fell
+        # behind past an instant (CI's three test processes on two cores: 3 of 61 once)
+        # skips it rather than sampling late; rare, or the lags below say nothing
+        missed = diag[b]["missed"]
+        assert c["sample_lag_ms"]["n"] + missed == 61, (c["sample_lag_ms"], missed)
+        assert missed <= 6, missed
         lags[b] = c["sample_lag_ms"]
     # each sample within a control tick (10 ms) and the estimate's error of the instant
     for b, lag in lags.items():

@@ -150,17 +150,26 @@ def test_wallclock_leader_agrees_the_start_and_publishes_the_reference_on_its_wa
                    and leader.ref_pub.get_subscription_count() >= 1
                    and leader.event_pub.get_subscription_count() >= 2)  # tester and leader
         ready.publish(ms.json_to_msg({"node": "tester", "trial": 0}))
-        spin_until(ex, lambda: any(e["event"] == ms.END for _, e in events) and len(refs) >= 11,
-                   timeout=10)
+        clock = leader.cfg.clock
+        spin_until(ex, lambda: any(e["event"] == ms.END for _, e in events)
+                   and any(clock.decode(label) == (0, 10) for _, label in refs), timeout=10)
+        last = clock.stamp_ns(0, 10)
         sent, start = next((t, e) for t, e in events if e["event"] == ms.START)
         t0 = start["start_wall_ns"]
         # the agreed start is the margin ahead of the event
         assert 0 < t0 - sent <= margin * 1e9 + 5e7
-        clock = leader.cfg.clock
         assert t0 % clock.dt_ns == 0  # slot 0 (the start's remainder by dT names the slot)
-        assert [label for _, label in refs] == [clock.stamp_ns(0, s) for s in range(11)]
+        # every sample's reference went out once, in order, or was counted missed: a timer
+        # that fell behind past a sample (a loaded machine, CI's three test processes on
+        # two cores) skips it rather than sending it late, and says so
+        labels = [label for _, label in refs]
+        assert labels == sorted(set(labels)) and labels[-1] == last
+        assert set(labels) <= {clock.stamp_ns(0, s) for s in range(11)}
+        assert len(labels) + leader.core.missed_references == 11
+        assert leader.core.missed_references <= 2, labels  # rare: most samples on time
         late = []
-        for s, (arrival, label) in enumerate(refs):
+        for arrival, label in refs:
+            s = clock.decode(label)[1]
             due = t0 + s * clock.dt_ns
             # stamped with the wall time of its sample, from which the label follows
             assert label == due and clock.decode(label) == (0, s)
