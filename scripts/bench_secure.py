@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -88,6 +89,7 @@ def main() -> int:
         print(check.stderr.strip(), file=sys.stderr)
         return 2
     dom = args.domain
+    failed = 0
     with tempfile.TemporaryDirectory() as td:
         tmp = Path(td)
         print(f"load before: {Path('/proc/loadavg').read_text().split()[:3]}", flush=True)
@@ -107,7 +109,11 @@ def main() -> int:
                                   ks if kind == "secure" else None, extra)
                     dom = 30 + (dom - 29) % 71
                     if "error" in res:
-                        print(f"{n} robots {kind}: FAILED\n{res['error']}", flush=True)
+                        kept = Path(tempfile.mkdtemp(prefix=f"bench-secure-{n}-{kind}-"))
+                        shutil.copytree(tmp / f"{n}-{kind}-{r}", kept, dirs_exist_ok=True)
+                        failed += 1
+                        print(f"{n} robots {kind}: FAILED (its output folder, logs and all, "
+                              f"kept in {kept})\n{res['error']}", flush=True)
                         continue
                     got[kind].append(res)
                     print(f"{n:3d} robots {kind:8s} start-up {res['startup']:6.2f} s  "
@@ -127,7 +133,7 @@ def main() -> int:
                       f"{worst:.1f} s (target <= {TARGET_24:.0f} s) -> "
                       f"{'MET' if worst <= TARGET_24 else 'MISSED'}", flush=True)
         print(f"load after: {Path('/proc/loadavg').read_text().split()[:3]}", flush=True)
-    return 0
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":
