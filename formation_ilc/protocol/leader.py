@@ -485,8 +485,11 @@ class Leader:
             late = self.start_waits_for()
             if s.running:
                 late = [f"the plant's first sample of slot {s.slot}"]
-            what = (f"trial {s.committed} has waited {waited:.0f} s in {phase} (bound "
-                    f"{bound:.0f} s) for: "
+            bounds = (f"bound {wd.full_bound(phase):.0f} s, then {bound:.0f} s after "
+                      f"reading the readies anew" if wd.first_startup and wd.strikes > 1
+                      else f"bound {bound:.0f} s")
+            what = (f"trial {s.committed} has waited {waited:.0f} s in {phase} ({bounds}) "
+                    f"for: "
                     + "; ".join(late or ["nobody (its readers: the monitor, recorder)"]))
         if wd.gave_up:
             self._report(what, "giving up")

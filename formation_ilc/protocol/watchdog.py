@@ -129,10 +129,15 @@ class Watchdog:
         """[s] the bound of ``phase``: its static bound, or SLACK times the longest wait
         of that phase this run has seen go by without a strike; in the first start-up
         after a strike, FIRST_STARTUP_GRACE of it."""
-        b = max(self.bounds.of(phase), SLACK * self.longest.get(phase, 0.0))
+        b = self.full_bound(phase)
         if phase == STARTUP and not self.started and self.strikes:
             return FIRST_STARTUP_GRACE * b
         return b
+
+    def full_bound(self, phase: str) -> float:
+        """[s] the bound of ``phase`` before any strike: its static bound, or SLACK times
+        the longest wait of that phase this run has seen go by without a strike."""
+        return max(self.bounds.of(phase), SLACK * self.longest.get(phase, 0.0))
 
     def moved(self, now: float, phase: str, progress: bool = True) -> None:
         """The run moved at ``now`` and is in ``phase``. ``progress``: a real step (a

@@ -395,6 +395,9 @@ def test_a_first_start_up_that_cannot_complete_names_the_endpoints_and_stops_wit
     core.on_watchdog()
     assert io.failed is not None and io.failed[1] == STUCK
     assert "the readies read anew once without progress" in io.failed[0], io.failed
+    # the give-up names the whole wait, not only its last quarter bound
+    assert (f"(bound {bound:.0f} s, then {0.25 * bound:.0f} s after reading the readies "
+            f"anew)") in io.failed[0], io.failed
 
 
 def test_a_nodes_first_ready_is_progress_of_the_start_up_and_ends_its_waiting_report():
