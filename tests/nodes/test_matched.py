@@ -83,3 +83,52 @@ def test_a_writer_waiting_for_named_readers_takes_no_other_reader_for_one(contex
     finally:
         for n in readers + [plant]:
             n.destroy_node()
+
+
+class _Info:
+    def __init__(self, name: str, ns: str = "/formation"):
+        self.node_name, self.node_namespace = name, ns
+
+
+class _Graph:
+    """A node's graph as readers_wanting reads it: the readers listed on a topic."""
+
+    def __init__(self, *names: str):
+        self.listed = [_Info(n) for n in names]
+
+    def get_subscriptions_info_by_topic(self, topic):
+        return self.listed
+
+    def get_namespace(self):
+        return "/formation"
+
+
+class _Writer:
+    topic_name = "/formation/robot_48/trajectory"
+
+    def __init__(self, matched: int):
+        self.matched = matched
+
+    def get_subscription_count(self):
+        return self.matched
+
+
+def test_a_reader_of_unknown_node_may_be_the_named_one_still_missing():
+    """Seen in a 50-robot run: the monitor's participant dropped on its lease and found
+    again; its reader is matched but the graph no longer names its node (rmw's
+    _NODE_NAME_UNKNOWN_), and robot_48 waited for the monitor for ten minutes. A reader
+    without a name counts for one missing name, never for more, and only once matched."""
+    from formation_ilc.nodes.common import UNKNOWN_NODE, readers_wanting
+
+    want = ("monitor",)
+    assert readers_wanting(_Graph(UNKNOWN_NODE), _Writer(1), want) == ""
+    # not matched yet: it waits, and says what the graph shows
+    assert readers_wanting(_Graph(UNKNOWN_NODE), _Writer(0), want) == (
+        "/formation/robot_48/trajectory: 0 of 1 readers (not yet discovered: monitor) "
+        "(1 of unknown node)")
+    # one unnamed reader cannot be both the monitor and the recorder
+    both = ("monitor", "recorder")
+    assert readers_wanting(_Graph(UNKNOWN_NODE, "liveview"), _Writer(2), both) != ""
+    assert readers_wanting(_Graph(UNKNOWN_NODE, "recorder"), _Writer(2), both) == ""
+    # a named reader of another node still stands in for nobody
+    assert readers_wanting(_Graph("liveview"), _Writer(1), want) != ""
