@@ -295,8 +295,15 @@ class LeaderNode(Node):
 
     def _gate_pairs(self) -> list[tuple[Any, int]]:
         """The endpoints a trial's start waits for, beside the readies: the reference's
-        readers, the events' reader, and (simulated time) a writer of /clock."""
-        need: list[tuple[Any, int]] = [(self.ref_pub, self.ref_readers), (self.event_pub, 1)]
+        readers, the events' readers, and (simulated time) a writer of /clock.
+
+        Every node waited for reads the trial events, and the leader its own: the start
+        waits until the events' writer has matched that many readers. A follower says
+        ready once *its* reader matched the leader's writer; the writer may match it
+        later (a secure team of 50: seconds later), and a volatile start sent before is
+        never delivered to it (the monitor of that run missed trial 0's start)."""
+        need: list[tuple[Any, int]] = [(self.ref_pub, self.ref_readers),
+                                       (self.event_pub, len(self.core.expected) + 1)]
         if self.cfg.mode != "wallclock":  # its /clock reader matched the plant's writer too
             need.append((self.clock_sub, 1))
         return need

@@ -53,6 +53,15 @@ def leader_and_tester(context, mode: str):
         tester.destroy_node()
 
 
+def read_events(leader, tester, on_event=lambda m: None) -> None:
+    """A reader of the trial events in the tester for each node the leader waits for (the
+    leader's start waits until its writer matched them all, and its own); ``on_event``
+    gets what the first one reads."""
+    tester.create_subscription(String, ms.TRIAL_EVENTS, on_event, ms.SAMPLE_QOS)
+    for _ in leader.expected[1:]:
+        tester.create_subscription(String, ms.TRIAL_EVENTS, lambda m: None, ms.SAMPLE_QOS)
+
+
 def all_ready(leader) -> None:
     """Every node the leader waits for says ready for trial 0."""
     from formation_ilc.protocol.schedule import Ready
@@ -73,9 +82,15 @@ def test_leader_names_the_endpoints_its_start_waits_for(context):
         ref = f"{ms.NAMESPACE}/{ms.REFERENCE}"
         assert f"{ref}: 0 of 1 readers" in waits  # robot 1 sees the leader
         assert "/clock: 0 of 1 writers" in waits  # no plant yet
+        # the events' writer has matched only the leader's own reader: a start now would
+        # not reach the followers its writer has not matched yet
+        events = f"{ms.NAMESPACE}/{ms.TRIAL_EVENTS}"
+        n = len(leader.expected) + 1
+        assert f"{events}: 1 of {n} readers" in waits
         # the readers come: each phrase goes with its endpoint
         tester.create_subscription(PoseStamped, ms.REFERENCE, lambda m: None, ms.SAMPLE_QOS)
-        spin_until(ex, lambda: not any(w.startswith(ref) for w in leader.core.start_waits_for()))
+        read_events(leader, tester)
+        spin_until(ex, lambda: leader.core.start_waits_for() == ["/clock: 0 of 1 writers"])
         assert leader.core.start_waits_for() == ["/clock: 0 of 1 writers"]
 
 
@@ -90,8 +105,7 @@ def test_leader_sends_a_start_again_while_its_slot_does_not_move(context):
 
     with leader_and_tester(context, "lockstep") as (leader, tester, ex):
         events: list[dict] = []
-        tester.create_subscription(String, ms.TRIAL_EVENTS,
-                                   lambda m: events.append(ms.msg_to_json(m)), ms.SAMPLE_QOS)
+        read_events(leader, tester, lambda m: events.append(ms.msg_to_json(m)))
         clock_pub = tester.create_publisher(Clock, ms.CLOCK, ms.CLOCK_QOS)
         all_ready(leader)
         starts = lambda: [e for e in events if e["event"] == "start"]  # noqa: E731
