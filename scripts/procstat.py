@@ -5,6 +5,9 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+# the launcher's process tree, as the tests read it too
+from formation_ilc.system.proctree import children_of, gone  # noqa: F401
+
 TICK = os.sysconf("SC_CLK_TCK")
 
 
@@ -33,37 +36,6 @@ def descendants(roots: list[int]) -> list[int]:
         out.append(p)
         todo.extend(c for c, pp in parent.items() if pp == p)
     return out
-
-
-def children_of(pid: int) -> set[int]:
-    """Every live process below ``pid`` (its children, theirs, ...), from each task's
-    ``children`` file: no scan of all of /proc, so a benchmark can poll it every 10 ms."""
-    out: set[int] = set()
-    todo = [pid]
-    while todo:
-        p = todo.pop()
-        try:
-            tasks = os.listdir(f"/proc/{p}/task")
-        except OSError:
-            continue
-        for t in tasks:
-            try:
-                kids = Path(f"/proc/{p}/task/{t}/children").read_text().split()
-            except OSError:
-                continue
-            for k in map(int, kids):
-                if k not in out:
-                    out.add(k)
-                    todo.append(k)
-    return out
-
-
-def gone(pid: int) -> bool:
-    """Whether process ``pid`` has ended (no such process, or a zombie nobody reaped)."""
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
-    except (OSError, IndexError):
-        return True
 
 
 def cmdline(pid: int) -> bytes:

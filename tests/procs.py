@@ -10,6 +10,9 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+# a launcher's process tree: the benchmarks read it through the same module
+from formation_ilc.system.proctree import children_of, gone  # noqa: F401
+
 
 def stop_group(proc: subprocess.Popen, first: int = signal.SIGINT, grace: float = 15.0) -> None:
     """Stop ``proc``'s process group (started with start_new_session=True) if it still
@@ -85,33 +88,3 @@ def wait_emulator_ready(ex, tester, emu) -> None:
             tester.create_subscription(PathMsg, ms.link_topic(i + 1, sender), lambda m: None,
                                        ms.SAMPLE_QOS)
     spin_until(ex, lambda: "link_emulator" in said)
-
-
-def descendants(pid: int) -> set[int]:
-    """Every live process below ``pid`` (its children, theirs, ...), from /proc."""
-    out: set[int] = set()
-    todo = [pid]
-    while todo:
-        p = todo.pop()
-        try:
-            tasks = os.listdir(f"/proc/{p}/task")
-        except OSError:
-            continue
-        for t in tasks:
-            try:
-                kids = Path(f"/proc/{p}/task/{t}/children").read_text().split()
-            except OSError:
-                continue
-            for k in map(int, kids):
-                if k not in out:
-                    out.add(k)
-                    todo.append(k)
-    return out
-
-
-def gone(pid: int) -> bool:
-    """Whether process ``pid`` has ended (no such process, or a zombie nobody reaped)."""
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
-    except (OSError, IndexError):
-        return True

@@ -14,7 +14,6 @@ marker its hits in UDP payloads and in shared memory.
 from __future__ import annotations
 
 import json
-import os
 import socket
 import subprocess
 import sys
@@ -22,23 +21,9 @@ import threading
 import time
 from pathlib import Path
 
+from formation_ilc.system.proctree import children_of
+
 ETH_P_ALL = 0x0003
-
-
-def descendants(root: int) -> set[int]:
-    parent: dict[int, int] = {}
-    for pid in os.listdir("/proc"):
-        if pid.isdigit():
-            try:
-                stat = Path(f"/proc/{pid}/stat").read_text()
-                parent[int(pid)] = int(stat.rsplit(")", 1)[1].split()[1])
-            except (OSError, ValueError, IndexError):
-                continue
-    out, frontier = set(), {root}
-    while frontier:
-        out |= frontier
-        frontier = {p for p, pp in parent.items() if pp in frontier and p not in out}
-    return out
 
 
 def shm_segments(pids: set[int]) -> set[str]:
@@ -93,7 +78,7 @@ def main() -> int:
                               daemon=True)
     reader.start()
     while proc.poll() is None:
-        for seg in shm_segments(descendants(proc.pid)):
+        for seg in shm_segments({proc.pid} | children_of(proc.pid)):
             try:
                 data = Path(seg).read_bytes()
             except OSError:

@@ -256,13 +256,13 @@ def _cmdline(pid: int) -> bytes:
 def _nodes_started(proc, n: int) -> set[int]:
     """The node processes (started through the lifetime runner) below launcher ``proc``,
     once there are ``n`` of them or 120 s have passed."""
-    from ..procs import descendants
+    from ..procs import children_of
 
     started: set[int] = set()
     deadline = time.monotonic() + 120
     while len(started) < n and time.monotonic() < deadline:
         assert proc.poll() is None, proc.communicate()[0]
-        started |= {p for p in descendants(proc.pid)
+        started |= {p for p in children_of(proc.pid)
                     if b"formation_ilc.system.lifetime" in _cmdline(p)}
         time.sleep(0.01)  # polling the process table, bounded by the deadline
     return started
