@@ -25,7 +25,9 @@ __all__ = ["LauncherHost", "CLOSE_S"]
 #: [s] how long the launcher's DDS teardown may take. Fast DDS can block for ever in it,
 #: pushing the graph's last update into the shared-memory port of a process that has
 #: ended (``SharedMemManager::Port::regenerate_port`` waiting on the port's mutex: seen
-#: once, after a 53-process run whose every trial was in).
+#: once, after a 53-process run whose every trial was in). Not the nodes' bound
+#: (``system.lifetime.bound_the_stop``, SIGALRM's default action): the launcher's exit
+#: status is the run's verdict, so it ends itself with it (``cli.launch.run``).
 CLOSE_S = 10.0
 
 

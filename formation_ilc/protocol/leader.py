@@ -105,8 +105,8 @@ class LeaderIO(Protocol):
 
     def start_gate(self) -> list[str]:
         """The endpoints a start still waits for, one phrase each (empty: all matched):
-        the reference's readers, the events' reader, and in simulated time a writer of
-        ``/clock``."""
+        the reference's readers, the events' readers (one per node waited for, and the
+        leader's own), and in simulated time a writer of ``/clock``."""
 
     def events_read(self) -> bool:
         """Whether the trial events have a reader."""
