@@ -83,6 +83,7 @@ and makes one call into it per event.
 from __future__ import annotations
 
 import dataclasses
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -151,7 +152,8 @@ class LeaderNode(Node):
         self.core = Leader(cfg, expected, self, state_file=Path(sdir) / "leader.json"
                            if sdir else None, namespace=self.get_namespace(),
                            watchdog_scale=float(g("watchdog_scale")),
-                           start_margin=float(g("start_margin")), key=run_key())
+                           start_margin=float(g("start_margin")), key=run_key(),
+                           secure=os.environ.get("ROS_SECURITY_ENABLE", "") == "true")
         if self.core.restored is not None:
             self.get_logger().info(self.core.restored)
         self.drops = DropCounter(self)

@@ -811,10 +811,10 @@ class _Session:
         progress = self.progress = StartupProgress(plan.team.expected, self.t_start)
         graph_at, found = 0.0, set()
         final_deadline: float | None = None
-        watch = Watch(Bounds.for_run(plan.scenario.dt, len(plan.team.expected),
-                                     plan.config.mode, plan.config.timeout,
-                                     plan.watchdog_scale), plan.out, len(plan.team.expected),
-                      plan.scenario.trials)
+        bounds = Bounds.for_run(plan.scenario.dt, len(plan.team.expected), plan.config.mode,
+                                plan.config.timeout, plan.watchdog_scale,
+                                secure=plan.secure is not None)
+        watch = Watch(bounds, plan.out, len(plan.team.expected), plan.scenario.trials)
         while True:
             self.spinning = True
             try:

@@ -128,13 +128,15 @@ class Leader:
         this. start_margin : [s] wall-clock trials: from the start event to sample 0.
     monotonic, wall_ns : the clocks (seconds; Unix epoch, nanoseconds).
     key : the run key its events are sealed with (``protocol.schedule.seal``), None: none.
+    secure : the team runs under SROS2 (a longer start-up bound: ``Bounds.for_run``).
     """
 
     def __init__(self, cfg: RunConfig, expected: list[str], io: LeaderIO, *,
                  state_file: Path | None = None, namespace: str = "",
                  watchdog_scale: float = 1.0, start_margin: float = 1.0,
                  monotonic: Callable[[], float] = time.monotonic,
-                 wall_ns: Callable[[], int] = time.time_ns, key: bytes | None = None):
+                 wall_ns: Callable[[], int] = time.time_ns, key: bytes | None = None,
+                 secure: bool = False):
         sc = cfg.scenario
         self.cfg, self.io, self.namespace = cfg, io, namespace
         #: the run key every event is sealed with (``schedule.seal``; None: unsealed)
@@ -160,7 +162,7 @@ class Leader:
         self.waiting: dict[str, str] = {}
         self.watch_reports = 0
         self.watchdog = Watchdog(Bounds.for_run(sc.dt, len(self.expected), cfg.mode,
-                                               cfg.timeout, watchdog_scale))
+                                               cfg.timeout, watchdog_scale, secure))
         self.margin_ns = int(start_margin * 1e9)
         self.done_sent = False
         self._abort_sent = 0.0

@@ -9,7 +9,9 @@ This module holds, without ROS, the bounds of every phase and the decision the l
 
 * **start-up** (before the first trial: processes start, load the compiled kernels, and
   discover each other; and from a slot's start to the plant's first sample of it, which
-  may load kernels too): ``STARTUP_S + STARTUP_PER_NODE_S`` per node;
+  may load kernels too): ``STARTUP_S + STARTUP_PER_NODE_S`` per node; a secure team
+  (SROS2) adds ``SECURE_PER_PAIR_S`` per pair of its participants, which authenticate
+  each other pair by pair;
 * **ready** (between trials: a trial's trajectories exchanged, every robot learned, every
   node said ready; or an abort answered; a restarted node comes back): ``READY_S +
   READY_PER_NODE_S`` per node;
@@ -37,7 +39,7 @@ from dataclasses import dataclass, field
 from formation_ilc.system.exits import STUCK
 
 __all__ = ["Bounds", "Watchdog", "STUCK", "RETRIES", "STARTUP", "READY", "SAMPLE",
-           "FIRST_STARTUP_GRACE"]
+           "FIRST_STARTUP_GRACE", "SECURE_PER_PAIR_S"]
 
 #: how many times in a row a phase may pass its bound before the run stops
 RETRIES = 3
@@ -48,6 +50,10 @@ STARTUP, READY, SAMPLE = "start-up", "ready", "sample"
 #: take 3-10 s; discovery of every writer a few more
 STARTUP_S = 60.0
 STARTUP_PER_NODE_S = 2.0
+#: [s] secure start-up, per pair of participants: each pair runs its handshake and key
+#: exchange; 52 secure processes (1,326 pairs) took 279 s to their first trial, 0.17 s a
+#: pair beyond the insecure start-up (docs/distributed-stack.md)
+SECURE_PER_PAIR_S = 0.2
 #: [s] between trials: a restarted node is back in 3-6 s (docs/reliability.md); learning
 #: and the trajectory exchange take milliseconds
 READY_S = 30.0
@@ -69,15 +75,18 @@ class Bounds:
 
     @classmethod
     def for_run(cls, dt: float, nodes: int, mode: str, timeout: float,
-                scale: float = 1.0) -> Bounds:
+                scale: float = 1.0, secure: bool = False) -> Bounds:
         """Bounds of a run with ``nodes`` nodes waited for, sample time ``dt`` [s], in
         ``mode`` ('lockstep', 'realtime', 'wallclock'), whose plant waits ``timeout`` [s]
         for a robot's command in lockstep; every bound times ``scale`` (``launch
         --watchdog-scale``: larger on a machine known to be slow, smaller to detect a
-        stuck run sooner)."""
+        stuck run sooner). ``secure``: the team runs under SROS2; its start-up bound grows
+        with the pairs of its participants (the nodes and the launcher's monitor)."""
         sample = (timeout + SAMPLE_MARGIN_S if mode == "lockstep"
                   else max(SAMPLE_MIN_S, SAMPLE_DTS * dt))
-        return cls(scale * (STARTUP_S + STARTUP_PER_NODE_S * nodes),
+        participants = nodes + 1
+        handshakes = SECURE_PER_PAIR_S * participants * (participants - 1) / 2 if secure else 0.0
+        return cls(scale * (STARTUP_S + STARTUP_PER_NODE_S * nodes + handshakes),
                    scale * (READY_S + READY_PER_NODE_S * nodes), scale * sample)
 
     def of(self, phase: str) -> float:

@@ -16,7 +16,7 @@ from formation_ilc.core.clock import Rejected
 from formation_ilc.protocol.leader import ABORT_REPEAT, FIRST_START_WAIT, Leader
 from formation_ilc.protocol.plant import RESEND_S
 from formation_ilc.protocol.schedule import Ready, TrialEvent
-from formation_ilc.protocol.watchdog import STUCK
+from formation_ilc.protocol.watchdog import STUCK, Bounds
 
 NODES = ["robot_1", "robot_2", "robot_3", "robot_sim", "monitor"]
 
@@ -263,6 +263,23 @@ def test_another_formations_configuration():
     fresh, io2, _ = leader()
     fresh.on_config({"run_id": "rother"})
     assert io2.failed is not None and io2.failed[1] == 2 and "run rother" in io2.failed[0]
+
+
+def test_a_secure_leader_waits_out_its_team_s_handshakes_before_it_acts():
+    """Under SROS2 the first start-up may take the pairs' handshakes longer: past the
+    insecure bound a secure leader is still quiet, an insecure one already says whom it
+    waits for."""
+    for secure in (False, True):
+        core, io, clk = leader(secure=secure)
+        core.on_watchdog()
+        plain = Bounds.for_run(core.cfg.scenario.dt, len(core.expected), core.cfg.mode,
+                               core.cfg.timeout)
+        clk.now += plain.startup + 1
+        core.on_watchdog()
+        assert (io.alerts == []) == secure, io.alerts
+        clk.now += core.watchdog.bounds.startup - plain.startup
+        core.on_watchdog()
+        assert len(io.alerts) >= 1 and "in start-up (bound" in io.alerts[0], io.alerts
 
 
 def test_the_watchdog_reports_then_retries_then_gives_up():

@@ -13,7 +13,14 @@ import pytest
 from formation_ilc.config.scenario import load_scenario
 from formation_ilc.protocol.resume import ResumeError, resume_point
 from formation_ilc.protocol.schedule import ABORT, START, Ready, ScheduleError, TrialEvent
-from formation_ilc.protocol.watchdog import READY, SAMPLE, STARTUP, Bounds, Watchdog
+from formation_ilc.protocol.watchdog import (
+    READY,
+    SAMPLE,
+    SECURE_PER_PAIR_S,
+    STARTUP,
+    Bounds,
+    Watchdog,
+)
 from formation_ilc.store.robotstate import RobotState, save_state, state_path
 
 from .test_schedule import ready_all, run_slot, sched
@@ -187,6 +194,19 @@ def test_the_first_start_up_stops_within_about_its_bound():
     assert not w.first_startup
     assert w.expired(185.0, STARTUP) and not w.acting
     assert w.expired(350.0, STARTUP) and w.acting and not w.gave_up
+
+
+def test_a_secure_team_s_start_up_bound_grows_with_its_pairs():
+    """SROS2 participants authenticate pair by pair: 52 secure nodes and the monitor (1,378
+    pairs) get SECURE_PER_PAIR_S each on top of the insecure start-up bound (the measured
+    50-robot secure start-up, 279 s, is inside it); the other phases are unchanged."""
+    plain = Bounds.for_run(dt=0.1, nodes=52, mode="realtime", timeout=30.0)
+    secure = Bounds.for_run(dt=0.1, nodes=52, mode="realtime", timeout=30.0, secure=True)
+    assert secure.startup == pytest.approx(164.0 + SECURE_PER_PAIR_S * 53 * 52 / 2)
+    assert secure.startup > 279.0 > plain.startup
+    assert (secure.ready, secure.sample) == (plain.ready, plain.sample)
+    small = Bounds.for_run(dt=0.1, nodes=3, mode="lockstep", timeout=30.0, secure=True, scale=2)
+    assert small.startup == pytest.approx(2 * (66.0 + SECURE_PER_PAIR_S * 6))
 
 
 def test_the_watchdog_reports_first_then_acts_then_gives_up():
