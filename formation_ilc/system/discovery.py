@@ -20,8 +20,11 @@ Tried and not kept: every reader and writer allocating one sample where Fast DDS
 preallocates 100 (``allocated_samples`` 1 in the default data writer and reader profiles).
 It halved what a reader or writer costs (one process, 200 PoseStamped writers of depth
 512: 88 KB each, 41 KB with it), but in 2 of 3 runs of 52 participants with it one
-participant's ROS graph stayed without a node (0 of 6 runs without it); the cause was not
-isolated.
+participant's ROS graph stayed without a node (0 of 6 runs without it). Most likely that
+was the lease-drop case found later (a participant lost on its lease and found again is
+matched, but its ``ros_discovery_info`` is not delivered again, so the graph never names its
+nodes; ``nodes.common.readers_wanting`` now counts such a reader): slower allocation makes
+lease drops likelier at this scale. The setting was not tried again.
 """
 
 from __future__ import annotations
