@@ -9,12 +9,17 @@ leader (or a buggy node) on the same domain and namespace would.
 * ``--abort-committed K``: once every robot has said ready for iteration K+1 after the start
   of the slot that ran K (the leader commits it), an ``abort`` of that slot with the next
   ``seq``: the one the leader gives its next start, so a follower takes one or the other.
+* ``--pose-flood K``: from the start of iteration K, for ``--flood-seconds`` (5), every
+  robot's ``pose`` and ``shared_pose`` topics flooded as fast as this process can publish
+  with replays of what they carried: every message of the earliest trial it heard (stale)
+  and each topic's newest (a duplicate), as a stale bag replay or a node stuck in a loop
+  would send them.
 
 It prints one JSON line per forgery on stdout (``{"forged": ..., "count": ...}``), and
 exits once it has forged what it was asked to, or when the formation's configuration
 writer is gone.
 
-    python tests/stack/forger.py --burst-at 1 --abort-committed 3 [--namespace /formation]
+    python tests/stack/forger.py --burst-at 1 --abort-committed 3 [--pose-flood 5]
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ import sys
 import time
 
 import rclpy
+from geometry_msgs.msg import PoseStamped
 from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from std_msgs.msg import String
@@ -59,6 +65,25 @@ def burst_events(end: dict, run: str, start_seq: int, count: int) -> list[dict]:
     return out
 
 
+#: messages of each pose topic the flood replays (with the topic's newest)
+REPLAYED = 200
+
+
+def _flood(heard: dict[str, list[bytes]], pubs: dict, seconds: float, alive) -> int:
+    """Publish, for ``seconds`` or until ``alive()`` is False, replays of ``heard`` on
+    their topics (``pubs``: topic -> publisher): each topic's first messages (stale by now)
+    and its newest (a duplicate of what the robots just took), round after round. Returns
+    the count published."""
+    rounds = [(pubs[t], m) for t, msgs in heard.items() for m in msgs]
+    count = 0
+    end = time.monotonic() + seconds
+    while rounds and time.monotonic() < end and alive():
+        for p, m in rounds:
+            p.publish(m)
+        count += len(rounds)
+    return count
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -66,6 +91,8 @@ def main() -> int:
     p.add_argument("--burst-at", type=int, default=None, metavar="K")
     p.add_argument("--burst", type=int, default=72, metavar="N")
     p.add_argument("--abort-committed", type=int, default=None, metavar="K")
+    p.add_argument("--pose-flood", type=int, default=None, metavar="K")
+    p.add_argument("--flood-seconds", type=float, default=5.0, metavar="S")
     p.add_argument("--timeout", type=float, default=900.0)
     a = p.parse_args()
     rclpy.init()
@@ -101,8 +128,19 @@ def main() -> int:
     config_sub = node.get_publishers_info_by_topic
     ex = SingleThreadedExecutor()
     ex.add_node(node)
-    todo = {k for k, v in (("burst", a.burst_at), ("abort", a.abort_committed))
-            if v is not None}
+    todo = {k for k, v in (("burst", a.burst_at), ("abort", a.abort_committed),
+                           ("flood", a.pose_flood)) if v is not None}
+    #: pose topic -> its first REPLAYED messages (stale by the flood) and its newest
+    heard: dict[str, list[bytes]] = {}
+    flood: dict[str, object] = {}  # pose topic -> publisher
+
+    def hear(t: str, m: bytes) -> None:
+        got = heard.setdefault(t, [])
+        if len(got) <= REPLAYED:
+            got.append(m)
+        else:
+            got[-1] = m  # the newest after the first REPLAYED
+
     deadline = time.monotonic() + a.timeout
     try:
         while todo and time.monotonic() < deadline:
@@ -110,6 +148,13 @@ def main() -> int:
             if st["config_seen"] and not config_sub(topic(ms.CONFIG)):
                 break  # the leader is gone: the run is over
             start, end = st["start"], st.get("end")
+            if "flood" in todo and st["n"] and not flood:  # the team's size is known
+                for i in range(1, st["n"] + 1):
+                    for t in (topic(ms.pose_topic(i)), topic(ms.shared_pose_topic(i))):
+                        node.create_subscription(PoseStamped, t,
+                                                 lambda m, t=t: hear(t, m), ms.SAMPLE_QOS,
+                                                 raw=True)
+                        flood[t] = node.create_publisher(PoseStamped, t, ms.SAMPLE_QOS)
             if "burst" in todo and start is not None and end is not None \
                     and end["trial"] == a.burst_at and end["slot"] == start["slot"]:
                 evs = burst_events(end, st["run"], start["seq"], a.burst)
@@ -129,6 +174,12 @@ def main() -> int:
                 pub.publish(String(data=json.dumps(d)))
                 todo.discard("abort")
                 print(json.dumps({"forged": "abort", "count": 1, "event": d}), flush=True)
+            if "flood" in todo and start is not None and start["trial"] >= a.pose_flood:
+                count = _flood(heard, flood, a.flood_seconds,
+                               lambda: bool(config_sub(topic(ms.CONFIG))))
+                todo.discard("flood")
+                print(json.dumps({"forged": "pose_flood", "count": count,
+                                  "topics": len(heard)}), flush=True)
         # a reliable writer that exits at once may not have delivered: wait until every
         # reader acknowledged the forgeries (bounded; a reader that left is no longer waited for)
         pub.wait_for_all_acked(Duration(seconds=10))
