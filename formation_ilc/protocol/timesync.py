@@ -315,7 +315,12 @@ def _round(v: Any) -> Any:
 
 
 def _delay_summary(d: np.ndarray, start: int | None) -> dict[str, Any]:
-    """Medians [ms] of the one-way delays from ``start`` on (none before it converged)."""
+    """Medians [ms] of the one-way delays from ``start`` on (none before it converged);
+    with the emulated truth, the largest error of a corrected delay and the largest by
+    which one came out shorter than the injected delay (``early_max_ms``). A loaded
+    machine makes a message later than its injected delay, never earlier: only the clock
+    estimate can make a corrected delay short, so ``early_max_ms`` is the estimate's own
+    error, whatever the load."""
     if start is None:
         return {"n": 0}
     d = d[d[:, 0] >= start]
@@ -330,4 +335,5 @@ def _delay_summary(d: np.ndarray, start: int | None) -> dict[str, Any]:
         out["injected_ms"] = _round(float(np.median(d[:, 3])) / 1e6)
         if len(c):
             out["error_max_ms"] = _round(float(np.max(np.abs(c[:, 2] - c[:, 3]))) / 1e6)
+            out["early_max_ms"] = _round(max(0.0, float(np.max(c[:, 3] - c[:, 2]))) / 1e6)
     return out

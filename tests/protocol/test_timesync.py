@@ -95,6 +95,7 @@ def test_every_link_is_estimated_and_its_corrected_delay_is_the_true_one():
         assert p["converged"] and rep["warn"] == []
         assert abs(p["offset_ms"] - p["true_offset_ms"]) <= p["uncertainty_ms"] <= 2.0
         assert p["delay"]["error_max_ms"] <= 2.0 and p["converged_after_s"] < 5.0
+        assert 0.0 <= p["delay"]["early_max_ms"] <= p["delay"]["error_max_ms"]
         t, how = sync.remote_time(peer, net.read(me, now))
         assert how == "converged" and abs(t - net.read(peer, now)) < 2 * MS
 

@@ -74,7 +74,9 @@ def check_learning(out: Path, scen: Path) -> np.ndarray:
 
 def check_estimated(out: Path) -> None:
     """Every link's corrected delay within WITHIN_MS of the true one: the median in
-    delays.csv, and every answer since the estimate converged (diagnostics)."""
+    delays.csv; and since the estimate converged, no answer's corrected delay shorter than
+    the injected one by more (diagnostics' ``early_max_ms``: a loaded machine delivers
+    late, never early, so only the estimate can err that way)."""
     cols = delay_columns(out)
     assert set(cols) == {"leader->robot_1", "robot_1->robot_2", "robot_1->robot_3"}
     offsets = true_offsets(out)
@@ -89,7 +91,7 @@ def check_estimated(out: Path) -> None:
         assert abs(measured - true + offsets[link]) <= WITHIN_MS, (link, c, offsets[link])
         block = diag[receiver]["clock"]["peers"][sender]
         assert block["converged"] and block["delay"]["n"] >= 20, block
-        assert block["delay"]["error_max_ms"] <= WITHIN_MS, block
+        assert block["delay"]["early_max_ms"] <= WITHIN_MS, block
         assert abs(block["offset_ms"] - block["true_offset_ms"]) <= block["uncertainty_ms"]
         assert diag[receiver]["clock"]["warn"] == []
 
