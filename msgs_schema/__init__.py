@@ -37,7 +37,9 @@ X/clock/ping               sensor_msgs/TimeReference    realtime and wallclock: 
 X/clock/pong               sensor_msgs/TimeReference    node X's answers (X robot_j or
                                                         leader) -> the nodes that asked
 robot_i/trajectory         nav_msgs/Path (trial end)    robot i -> out-neighbours, monitor
-robot_i/true_trajectory    nav_msgs/Path (trial end)    simulator (optional) -> monitor
+robot_i/true_trajectory    nav_msgs/Path (trial end)    simulator, physics plant, bridge
+                                                        of a physics base (optional) ->
+                                                        monitor
 /clock                     rosgraph_msgs/Clock          plant, in simulated time -> all
 preview/poses              nav_msgs/Path (every         simulator, <= PREVIEW_HZ while
                            robot's pose of a sample)    read -> live view (not recorded)
@@ -95,6 +97,7 @@ from __future__ import annotations
 from formation_ilc.core.clock import SampleClock
 from formation_ilc.core.links import link_name
 from formation_ilc.core.names import (
+    BASE_TRUTH,
     BASES_NODE,
     BRIDGE_PREFIX,
     CLOCK,
@@ -174,7 +177,7 @@ __all__ = [
     "trial_error_topic", "view_topics", "PREVIEW", "TEAM_POSES", "DriverSpec", "DRIVERS",
     "BRIDGE_PREFIX",
     "bridge_name", "LEADER_NODE", "SIM_NODE", "LINKS_NODE", "MONITOR_NODE", "RECORDER_NODE",
-    "FAKE_DRIVER_NODE", "PHYSICS_NODE", "BASES_NODE", "LIVEVIEW_NODE",
+    "FAKE_DRIVER_NODE", "PHYSICS_NODE", "BASES_NODE", "BASE_TRUTH", "LIVEVIEW_NODE",
     # the protocol's events, the sample clock
     "START", "END", "ABORT", "DONE", "SampleClock",
     # this package's modules

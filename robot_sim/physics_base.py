@@ -13,13 +13,18 @@ Robot i's topics are in ``ns_pattern`` with {i} replaced (default ``/base_{i}``)
 newest command of each robot (zero once it is older than ``cmd_timeout``, the base's own
 watchdog) and each robot's odometry is published.
 
+With ``truth:=true`` each robot's true pose goes out after every tick on ``truth`` in its
+namespace (PoseStamped, world frame, stamped with the wall time): the ground truth a
+simulator has and a real base has not, which the launcher gives the bridges for the
+metrics' true columns.
+
 It also publishes, on ``diagnostics`` in its own namespace (the launcher puts it in the
 formation's, so the recorder keeps it), what the robots were asked: per robot the largest
 |v|, |omega| and, between consecutive commands (by their header stamps when stamped),
 |dv/dt| and |domega/dt|, and the true poses' drift from the odometry. Everything it
 decides is in ``formation_ilc.protocol.physics_plant.BaseRobots``. Parameters:
 ``robots``, ``poses`` (x, y, theta per robot, flat: where each robot is placed), ``model``,
-``rate`` [Hz], ``collide``; the engine is deterministic.
+``rate`` [Hz], ``collide``, ``truth``; the engine is deterministic.
 """
 
 from __future__ import annotations
@@ -30,13 +35,13 @@ import time
 from typing import Any
 
 import numpy as np
-from geometry_msgs.msg import Twist, TwistStamped
+from geometry_msgs.msg import PoseStamped, Twist, TwistStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
 import msgs_schema as ms
 from formation_ilc.config.params import Param
-from formation_ilc.core.names import BASES_NODE
+from formation_ilc.core.names import BASE_TRUTH, BASES_NODE
 from formation_ilc.model.physics import MODELS
 from formation_ilc.nodes.common import Diagnostics, node_parser, spin_main
 from formation_ilc.nodes.params import declare
@@ -59,6 +64,8 @@ PARAMS: tuple[Param, ...] = (
     Param("odom_topic", "odom", "the odometry topic, relative to the base's namespace"),
     Param("cmd_timeout", 0.5, "a base stops when no command came for this long", "s",
           lo=1e-3, hi=1e3),
+    Param("truth", False, f"also publish each base's true pose on '{BASE_TRUTH}' in its "
+          "namespace (PoseStamped, world frame)"),
 )
 
 
@@ -82,13 +89,19 @@ class PhysicsBases(Node):
                                cmd_timeout=float(g("cmd_timeout")))
         stamped = str(g("cmd_type")) == "twist_stamped"
         self.odom_pubs = []
+        self.truth_pubs = []
         self.msgs = [Odometry() for _ in range(n)]
+        self.truth_msgs = [PoseStamped() for _ in range(n)]
         for i in range(n):
             ns = str(g("ns_pattern")).replace("{i}", str(i + 1)).rstrip("/")
             self.create_subscription(TwistStamped if stamped else Twist, f"{ns}/cmd_vel",
                                      functools.partial(self._on_cmd, i=i), ms.DRIVER_CMD_QOS)
             self.odom_pubs.append(self.create_publisher(Odometry, f"{ns}/{g('odom_topic')}",
                                                         ms.ODOM_QOS))
+            if bool(g("truth")):
+                self.truth_pubs.append(self.create_publisher(PoseStamped,
+                                                             f"{ns}/{BASE_TRUTH}",
+                                                             ms.ODOM_QOS))
         self.diag_pub = Diagnostics(self)  # per-trial report and /diagnostics
         self.create_timer(self.core.tick, self._on_tick)
         self.create_timer(1.0, self._report)
@@ -109,6 +122,9 @@ class PhysicsBases(Node):
         for i, (pose, twist, quat) in enumerate(odoms):
             self.odom_pubs[i].publish(ms.odometry_msg(pose, twist, stamp, out=self.msgs[i],
                                                       quat=quat))
+        for i, pub in enumerate(self.truth_pubs):
+            pub.publish(ms.pose_to_msg(self.core.truth[i], stamp, ms.WORLD_FRAME,
+                                       out=self.truth_msgs[i]))
 
     def _report(self) -> None:
         self.diag_pub.publish(ms.diagnostics_to_msg({"node": NAME, "trial": -1,

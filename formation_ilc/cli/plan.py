@@ -346,8 +346,9 @@ class RunPlan:
 
     @property
     def true_state(self) -> bool:
-        """The plant publishes the robots' true state (the simulator, the physics plant)."""
-        return self.row.true_state
+        """The robots' true trajectories are published: by the plant (the simulator, the
+        physics plant) or by the bridges of physics bases (``Lineup.true_state``)."""
+        return self.roster.lineup.true_state
 
     @property
     def bridged(self) -> bool:
@@ -1101,7 +1102,7 @@ def _launch(plan: RunPlan, m: Member, scenario: str, nsa: tuple[str, ...]) -> La
         return (("--host", plan.live[0], "--port", str(plan.live[1]),
                  *(("--observe",) if plan.record is None else ()),
                  # the simulator and the physics plant publish a preview
-                 *(("--preview",) if plan.true_state else ()),
+                 *(("--preview",) if plan.row.true_state else ()),
                  *(("--rate", repr(plan.live_rate)) if plan.live_rate is not None else ())),
                 nsa, ())
     if m.role == "leader":
@@ -1127,7 +1128,8 @@ def _launch(plan: RunPlan, m: Member, scenario: str, nsa: tuple[str, ...]) -> La
         assert bridge is not None and m.robot is not None
         # a params file goes with the ROS arguments, before the -p parameters (which win)
         pf = () if bridge.params_file is None else ("--params-file", str(bridge.params_file))
-        return (), nsa + pf, bridge.params(m.robot)
+        truth = (("truth", True),) if plan.roster.lineup.bases_truth else ()
+        return (), nsa + pf, bridge.params(m.robot) + truth
     if m.robot is not None:  # robot i's fake driver, in the driver's namespace
         assert bridge is not None
         return ((), ("-r", f"__ns:={bridge.namespace(m.robot)}"),
@@ -1141,7 +1143,7 @@ def _launch(plan: RunPlan, m: Member, scenario: str, nsa: tuple[str, ...]) -> La
     return (), nsa, (("robots", plan.scenario.n), ("poses", starts),
                      ("ns_pattern", bridge.driver_ns), ("cmd_type", bridge.sent_type),
                      ("odom_topic", preset.odom_topic), ("model", phys.model),
-                     ("collide", phys.collide))
+                     ("collide", phys.collide), ("truth", True))
 
 
 def entry_module(script: str) -> str:

@@ -46,7 +46,8 @@ def summary_of(plan: RunPlan, rows: int, diagnostics: Mapping[str, Mapping[str, 
     ``startup``: when the launcher found every node, saw every ready, saw the first start
     (seconds from its start)."""
     sc, cfg = plan.scenario, plan.config
-    sim_diag = diagnostics.get(plan.team.plants[0] if plan.true_state else SIM_NODE, {})
+    # the plant node's timing and missed samples (the simulator, the physics plant)
+    sim_diag = diagnostics.get(plan.team.plants[0] if plan.row.true_state else SIM_NODE, {})
     summary: dict[str, Any] = {
         "scenario": sc.name, "robots": sc.n, "trials_done": rows, "trials": sc.trials,
         "mode": cfg.mode, "links": cfg.links, "plant": list(plan.team.plants),

@@ -190,6 +190,9 @@ BRIDGE: tuple[Param, ...] = (
           "as timed out", "s", lo=1e-3, hi=1e6),
     Param("initial_pose", [0.0], "x, y, theta [m, m, rad] where the robot is placed; "
           "[0.0]: the scenario's desired start"),
+    Param("truth", False, "the base is simulated and publishes its true pose on 'truth' in "
+          "the driver namespace (formation-ilc-physics-bases -p truth:=true): the bridge "
+          "publishes each trial's true trajectory, for the metrics' true columns"),
     Param("clock_wait", 10.0, "before trial 0: the longest wait, from the leader's first "
           "clock answer, for the estimate of its clock to converge; then it samples on the "
           "fallback", "s", lo=0.0, hi=1e6),
@@ -219,7 +222,7 @@ FAKE_DRIVER: tuple[Param, ...] = (
 #: checks this list against those tables
 PLANT_NAMES = frozenset({
     "model", "pose", "rate", "collide", "on_contact", "contact_retries", "tilt_limit",
-    "robots", "poses", "tick", "ns_pattern", "cmd_type", "odom_topic", "cmd_timeout"})
+    "robots", "poses", "tick", "ns_pattern", "cmd_type", "odom_topic", "cmd_timeout", "truth"})
 #: parameters rclpy itself declares or reads on every node
 ROS_NAMES = frozenset({"use_sim_time", "start_type_description_service"})
 

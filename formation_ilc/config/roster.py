@@ -152,6 +152,18 @@ class Lineup:
     def row(self) -> Plant:
         return plant(self.plant)
 
+    @property
+    def true_state(self) -> bool:
+        """Whether the robots' true trajectories are published (the metrics' true
+        columns): by the plant (the simulator, the physics plant), or by each bridge of a
+        physics base (``physics_bases``: the simulated bases report their true poses)."""
+        return self.row.true_state or self.bases_truth
+
+    @property
+    def bases_truth(self) -> bool:
+        """The bridges drive physics bases, which tell them their true poses."""
+        return self.row.driver == "base" and self.physics_bases
+
     def driver_namespace(self, i: int) -> str:
         """Robot ``i``'s driver namespace (``{i}`` replaced; no trailing slash)."""
         pattern = self.driver_ns or DRIVER_NS.get(self.row.driver or "", "/")
@@ -365,18 +377,23 @@ def _plant(lineup: Lineup, row: Plant) -> list[Member]:
                 for name in lineup.external]
     out: list[Member] = []
     cmd, odom, motors, kind = _driver_topics(lineup)
-    if row.driver == "base" and lineup.physics_bases:
+    truth = lineup.bases_truth
+    if truth:
         out.append(Member(
             nm.BASES_NODE, "driver", "formation-ilc-physics-bases", NEVER, False,
             nm.BASES_NODE,
-            (*(f"{lineup.driver_namespace(i)}/{odom}" for i in robots), nm.DIAGNOSTICS,
-             nm.ROS_DIAGNOSTICS),
+            (*(f"{lineup.driver_namespace(i)}/{odom}" for i in robots),
+             *(f"{lineup.driver_namespace(i)}/{nm.BASE_TRUTH}" for i in robots),
+             nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS),
             tuple(f"{lineup.driver_namespace(i)}/cmd_vel" for i in robots)))
     for i in robots:
         ns = lineup.driver_namespace(i)
         c, o, mo = f"{ns}/{cmd}", f"{ns}/{odom}", f"{ns}/{motors}"
         bridge_pub = [nm.pose_topic(i), nm.READY, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS, c]
         bridge_sub = [nm.cmd_vel_topic(i), nm.TRIAL_EVENTS, nm.CONFIG, o]
+        if truth:  # the simulated base's true pose in, the trial's true trajectory out
+            bridge_pub.append(nm.true_trajectory_topic(i))
+            bridge_sub.append(f"{ns}/{nm.BASE_TRUTH}")
         if lineup.clocks:  # it asks the leader's time
             bridge_pub.append(nm.clock_ping_topic(nm.bridge_name(i)))
             bridge_sub.append(nm.clock_pong_topic(nm.LEADER))
@@ -389,7 +406,7 @@ def _plant(lineup: Lineup, row: Plant) -> list[Member]:
             driver_sub.append(mo)
         elif kind != "none":  # a service: requests from the bridge, replies from the driver
             rq, rr = f"rq{mo}Request", f"rr{mo}Reply"
-        if not (row.driver == "base" and lineup.physics_bases):
+        if not truth:
             fake = lineup.fake_drivers and row.driver == "pioneer"
             out.append(Member(
                 nm.fake_driver_name(i) if fake else driver_enclave(i), "driver",

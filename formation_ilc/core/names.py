@@ -24,8 +24,8 @@ from dataclasses import dataclass
 from formation_ilc.core.clock import Malformed
 
 __all__ = ["NAMESPACE", "CLOCK", "LEADER_NODE", "SIM_NODE", "LINKS_NODE", "MONITOR_NODE",
-           "RECORDER_NODE", "FAKE_DRIVER_NODE", "PHYSICS_NODE", "BASES_NODE", "LIVEVIEW_NODE",
-           "ROBOT_PREFIX", "BRIDGE_PREFIX", "robot_name",
+           "RECORDER_NODE", "FAKE_DRIVER_NODE", "PHYSICS_NODE", "BASES_NODE", "BASE_TRUTH",
+           "LIVEVIEW_NODE", "ROBOT_PREFIX", "BRIDGE_PREFIX", "robot_name",
            "robot_number", "bridge_name", "fake_driver_name", "robots_process_name",
            "namespace_remaps", "namespace_problem", "driver_ns_problem",
            # topics and frames
@@ -55,6 +55,9 @@ PHYSICS_NODE = "physics_sim"
 #: physics robots behind a base's interface (cmd_vel in, odometry out), for runs of the
 #: base bridges without robots
 BASES_NODE = "physics_bases"
+#: each physics base's true pose (PoseStamped, world frame), relative to the base's
+#: namespace: the simulator's ground truth, for the bridges' true trajectories
+BASE_TRUTH = "truth"
 #: the link emulator (emulated links)
 LINKS_NODE = "link_emulator"
 #: the launcher's monitor (metrics from the wire)

@@ -87,7 +87,7 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist, TwistStamped
-from nav_msgs.msg import Odometry
+from nav_msgs.msg import Odometry, Path
 from rclpy.node import Node
 from std_msgs.msg import String
 
@@ -167,6 +167,8 @@ class BridgeNode(ConfiguredNode):
         ns = str(g("driver_ns")) or self.spec.default_ns
         self.driver_topics = (_join(ns, self.spec.cmd), _join(ns, self.spec.odom),
                               _join(ns, self.spec.motors))
+        #: a simulated base's true pose (``truth``), or None
+        self.truth_topic = _join(ns, ms.BASE_TRUTH) if bool(g("truth")) else None
         # the parameters read what the bridge drives with: a preset's driver, topics,
         # message type and limits
         used = {"v_max": lim.v_max, "omega_max": math.degrees(lim.omega_max)}
@@ -191,7 +193,7 @@ class BridgeNode(ConfiguredNode):
             limits=self.limits, rate=self.rate, cmd_timeout=float(g("cmd_timeout")),
             period=self.period,
             tol=(float(g("return_tol")), math.radians(float(g("return_tol_heading"))),
-                 float(g("return_timeout"))))
+                 float(g("return_timeout"))), truth=self.truth_topic is not None)
         self.follower = core.follower
         self.cfg = cfg
         effective(self, {"scenario": cfg.scenario_param, "mode": cfg.mode,
@@ -207,6 +209,12 @@ class BridgeNode(ConfiguredNode):
         self.drv_pub = self.create_publisher(TwistStamped if self.stamped else Twist, cmd_t,
                                              ms.DRIVER_CMD_QOS)
         self.create_subscription(Odometry, odom_t, self._on_odom, ms.ODOM_QOS)
+        self.true_pub = None
+        if self.truth_topic is not None:
+            self.create_subscription(PoseStamped, self.truth_topic, self._on_truth,
+                                     ms.ODOM_QOS)
+            self.true_pub = self.create_publisher(Path, ms.true_trajectory_topic(self.id),
+                                                  ms.TRAJECTORY_QOS)
         self._setup_motors(motors_t)
         # the robot's clock (the machine's; in an emulated run its robot's), and the
         # leader's as this bridge estimates it: samples are due on the team's time
@@ -350,7 +358,12 @@ class BridgeNode(ConfiguredNode):
     def _check_ready(self) -> None:
         if self.core.odom is None or not self.motors_on or not self._clock_settled():
             return
-        if matched([(self.pose_pub, 1), (self.ready_pub, 1), (self.drv_pub, 1)]):
+        if self.true_pub is not None and self.core.truth is None:
+            return  # a simulated base's true pose: every trial's true trajectory needs one
+        need = [(self.pose_pub, 1), (self.ready_pub, 1), (self.drv_pub, 1)]
+        if self.true_pub is not None:  # every reader of the results, by name
+            need.append((self.true_pub, self.cfg.result_readers))
+        if matched(need, self):
             self._gate.cancel()
             self._say_ready(0, "placed", self.core.shift())
 
@@ -367,6 +380,17 @@ class BridgeNode(ConfiguredNode):
             self.drops.reject(exc, self.driver_topics[1])
             return
         self.core.on_odom(pose, time.monotonic(), tilt)
+
+    def _on_truth(self, msg: PoseStamped) -> None:
+        try:
+            eta, _, frame = ms.msg_to_pose(msg)
+            if frame != ms.WORLD_FRAME:
+                raise ms.MalformedMessage(f"true pose in frame {frame[:50]!r}, expected "
+                                          f"{ms.WORLD_FRAME!r}")
+        except Rejected as exc:
+            self.drops.reject(exc, str(self.truth_topic))
+            return
+        self.core.on_truth((float(eta[0]), float(eta[1]), float(eta[2])))
 
     def _on_cmd(self, msg: Twist) -> None:
         wall = self._wall_ns()
@@ -391,6 +415,12 @@ class BridgeNode(ConfiguredNode):
         wall = self._wall_ns()
         team, how = self._team_ns()
         tick = self.core.tick(time.monotonic(), wall, team)
+        if tick.true_path is not None and self.true_pub is not None:
+            # before the last sample's pose, as the simulator: the robots finish the trial
+            # on it, and a monitor that stops the run after their last word has this
+            poses, stamps = tick.true_path
+            self.true_pub.publish(ms.wire.path_bytes(np.asarray(poses), stamps,
+                                                     ms.WORLD_FRAME))
         if tick.sample is not None:
             ns, pose = tick.sample
             self.sampled_on[how] += 1  # on the leader's time as estimated, or not

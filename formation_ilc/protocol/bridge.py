@@ -238,6 +238,9 @@ class BridgeTick:
     sample: tuple[int, Pose] | None = None
     returned: Returned | None = None
     cmd: Command | None = None
+    #: at a trial's last sample, with ``truth``: the trial's true poses (T+1) and their
+    #: labels [ns], published before the sample's pose
+    true_path: tuple[list[Pose], list[int]] | None = None
 
 
 class Bridge:
@@ -250,6 +253,9 @@ class Bridge:
     drivers). cmd_timeout : [s] a zero command once the robot node is silent that long (0:
     2.5 dT). period : [s] the command is sent again at least this often (the driver's own
     watchdog). tol : return tolerances (position [m], heading [rad]) and timeout [s].
+    truth : the base reports its true pose (``on_truth``; a simulated base): each sample
+    keeps the newest, a sample the schedule skipped the one before it (or after it, at the
+    start), and the trial's last tick gives them all (``BridgeTick.true_path``).
 
     Times: ``now`` [s] on a monotonic clock, ``now_wall_ns`` [ns] on the robot's wall
     clock; a command sent at ``now_wall_ns`` is stamped with it, and the acceleration
@@ -264,7 +270,7 @@ class Bridge:
                  limits: CommandLimits | None = None, rate: Limits | None = None,
                  cmd_timeout: float = 0.0,
                  period: float = 0.05, tol: tuple[float, float, float] = (
-                     0.02, math.radians(2.0), 60.0)):
+                     0.02, math.radians(2.0), 60.0), truth: bool = False):
         if cfg.mode != "wallclock" or cfg.links != "direct":
             raise ValueError(f"{name}: a real robot runs wall-clock trials with direct "
                              f"links (mode wallclock, links direct), got mode {cfg.mode}, "
@@ -300,6 +306,10 @@ class Bridge:
         self.shifts: dict[str, list[float]] = {}
         self.returns: dict[str, dict[str, Any]] = {}
         self.ready_sent = -1   # the trial of the last ready (-1: none yet)
+        #: the base's newest true pose (with ``truth``), and the trial's at each sample
+        self.wants_truth = truth
+        self.truth: Pose | None = None
+        self.trail: list[Pose | None] = []
 
     @property
     def k(self) -> int:
@@ -326,6 +336,10 @@ class Bridge:
         self.odom = pose
         self.odom_time = now
         self.tilt_max = max(self.tilt_max, tilt)
+
+    def on_truth(self, pose: Pose) -> None:
+        """The simulated base's true world pose, the newest (``truth``)."""
+        self.truth = pose
 
     def on_cmd(self, u: tuple[float, float], now: float, now_wall_ns: int | None = None
                ) -> Command:
@@ -356,6 +370,7 @@ class Bridge:
         assert taken.start_wall_ns is not None  # checked by the follower
         self.schedule = WallSchedule(taken.start_wall_ns, self.clock.dt_ns, self.T)
         self.phase = TRIAL
+        self.trail = [None] * (self.T + 1)
         return taken
 
     def answers_abort(self) -> bool:
@@ -374,26 +389,31 @@ class Bridge:
         """The control tick: the sample due on the team's time, the return controller,
         the watchdog, and the command sent again at least every ``period``."""
         sample = None
+        true_path = None
         if self.phase == TRIAL and self.schedule is not None:
             s = self.schedule.due(now_wall_ns if team_ns is None else team_ns)
             if s is not None:
                 sample = self._sample(s, now)
+                if sample is not None and self.wants_truth:
+                    true_path = self._keep_truth(s)
         if self.phase == RETURN and self.returner is not None and self.odom is not None:
             stale = now - self.odom_time > self.odom_limit
             self.counts["stale_odometry"] += int(stale)
             st = self.returner.step(self.world(), now, stale)
             if st.done:
                 returned = self._returned(st.reached, now)
-                return BridgeTick(sample, returned, self.send((0.0, 0.0), now, now_wall_ns))
-            return BridgeTick(sample, None, self.send((st.v, st.omega), now, now_wall_ns))
+                return BridgeTick(sample, returned, self.send((0.0, 0.0), now, now_wall_ns),
+                                  true_path)
+            return BridgeTick(sample, None, self.send((st.v, st.omega), now, now_wall_ns),
+                              true_path)
         cmd = self.robot_cmd
         if self.watchdog.expired(now):
             if self.out_cmd != (0.0, 0.0) and self.phase == TRIAL:
                 self.counts["watchdog_zero"] += 1
             cmd = (0.0, 0.0)
         if cmd != self.out_cmd or now - self.last_out >= self.period:
-            return BridgeTick(sample, None, self.send(cmd, now, now_wall_ns))
-        return BridgeTick(sample)
+            return BridgeTick(sample, None, self.send(cmd, now, now_wall_ns), true_path)
+        return BridgeTick(sample, true_path=true_path)
 
     def stop(self, now: float) -> Command:
         """The zero command, to send on the way out (no limit holds it back)."""
@@ -428,6 +448,23 @@ class Bridge:
             self.schedule = None
             self._begin_return(now)
         return out
+
+    def _keep_truth(self, s: int) -> tuple[list[Pose], list[int]] | None:
+        """Keep the newest true pose as sample ``s``'s; at the last sample, the trial's
+        true poses (a skipped sample's: the one before it, or after it at the start) and
+        their labels."""
+        self.trail[s] = self.truth
+        if s < self.T:
+            return None
+        known = [p for p in self.trail if p is not None]
+        if not known:  # no true pose came in the whole trial (the ready waits for one)
+            return None
+        poses: list[Pose] = []
+        last = known[0]
+        for p in self.trail:
+            last = p if p is not None else last
+            poses.append(last)
+        return poses, [self.clock.stamp_ns(self.k, i) for i in range(self.T + 1)]
 
     def _begin_return(self, now: float) -> None:
         self.robot_cmd = (0.0, 0.0)

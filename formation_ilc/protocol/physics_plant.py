@@ -241,7 +241,9 @@ class BaseRobots:
     ``command(i, v, omega, stamp, now)``: robot i's (0-based) newest command, its stamp [s]
     (the message's, or the arrival time for one without) and arrival ``now`` [s, a
     monotonic clock]; ``step(now)`` advances the world one tick and gives every robot's
-    odometry; ``report()`` what the robots were asked, the odometry's drift, contacts.
+    odometry; ``truth`` every robot's true pose (N, 3) after the last step (world frame,
+    heading unwrapped); ``report()`` what the robots were asked, the odometry's drift,
+    contacts.
     """
 
     def __init__(self, model: str, starts: NDArray[np.float64], tick: float, *,
@@ -265,6 +267,7 @@ class BaseRobots:
         self.last: list[tuple[float, float, float] | None] = [None] * n
         self.stats = np.zeros((n, 4))  # max |v|, |omega|, |dv/dt|, |domega/dt|
         self.drift = np.zeros(n)
+        self.truth = self.world.truth()
 
     def command(self, i: int, v: float, omega: float, stamp: float, now: float) -> None:
         """Robot i's command (a non-finite one is ignored)."""
@@ -286,7 +289,7 @@ class BaseRobots:
         self.cmd[now - self.cmd_at > self.cmd_timeout] = 0.0
         world = self.world
         world.step(self.cmd)
-        truth = world.truth()
+        self.truth = truth = world.truth()
         self.drift = np.maximum(self.drift, np.hypot(*(truth[:, :2] - world.odom[:, :2]).T))
         tilts = world.roll_pitch()
         out: list[BaseOdometry] = []

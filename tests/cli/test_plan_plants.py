@@ -144,10 +144,12 @@ def test_base_bridges_refuse_a_scenario_beyond_the_preset_then_plan_it_stretched
     bases = dict(plan.nodes[1].params)
     assert bases["robots"] == 3 and len(bases["poses"]) == 9
     assert bases["ns_pattern"] == "/base_{i}" and bases["cmd_type"] == "twist_stamped"
+    # the physics bases tell each bridge their true pose: the metrics' true columns
+    assert bases["truth"] is True and plan.true_state
     assert dict(plan.nodes[3].params) == {"robot_id": 2, "driver_ns": "/base_2",
                                           "base": "turtlebot4", "return_timeout": 60.0,
-                                          "a_max": 2.0}
-    assert not plan.true_state and plan.bridged
+                                          "a_max": 2.0, "truth": True}
+    assert plan.bridged
     assert plan.reporters == ("bridge_1", "bridge_2", "bridge_3")
     assert dict(plan.nodes[0].params)["headings"] == "arc"
     assert BASES["turtlebot4"].limits.v_max == 0.306

@@ -15,7 +15,9 @@ difference is what the safety filter (added at 88c1f6a) reads and its grants nev
 every other robot's pose and the plant's ``team/poses`` (as main granted them from
 77a8d24 on); and the clock exchanges (``protocol.timesync``, issue 29): a node's own
 ``clock/ping`` and ``clock/pong`` as the graph gives them, and the ones of the nodes it
-asks or answers. Those permissions are added, and only those.
+asks or answers. Those permissions are added, and only those. And a run of physics bases
+has the true state (issue 33): the bases publish their true poses and each bridge the
+trial's true trajectory (``truth`` true in both nodes' parameters, ``_with_bases_truth``).
 """
 
 from __future__ import annotations
@@ -43,6 +45,18 @@ BODY_SCENARIO = Path(__file__).parents[2] / "docs" / "examples" / "hexagon6-p3dx
 
 def _golden(part: str) -> dict[str, dict]:
     return {k.split("|", 1)[1]: v for k, v in GOLDEN.items() if k.startswith(part + "|")}
+
+
+def _with_bases_truth(plan: dict) -> dict:
+    """The golden ``plan`` as a run of physics bases is planned since they tell their
+    bridges the true poses: ``truth`` true in the bases' and the bridges' parameters, and
+    the run has the true state."""
+    if not any(n["name"] == "physics_bases" for n in plan["nodes"]):
+        return plan
+    nodes = [{**n, "params": [*n["params"], ["truth", True]]}
+             if n["name"] == "physics_bases" or n["name"].startswith("bridge_") else n
+             for n in plan["nodes"]]
+    return {**plan, "true_state": True, "nodes": nodes}
 
 
 def _free_port() -> int:
@@ -203,7 +217,7 @@ def test_a_launch_plans_the_processes_it_planned(tmp_path, key):
                    "host": s.host, "env": s.env,
                    "restart": [s.restart.max_restarts, s.restart.refused]}
                   for s in plan.nodes]})
-    want = _golden("plans")[key]
+    want = _with_bases_truth(_golden("plans")[key])
     assert got == want
     # the roster names the same processes, each started by its entry script
     sc = plan.scenario
@@ -223,5 +237,5 @@ def test_a_launch_plans_the_processes_it_planned(tmp_path, key):
                                                             for n in want["nodes"]]
     assert r.team.expected == want["team"]["expected"]
     assert list(r.reporters) == want["reporters"]
-    assert r.plant.true_state == want["true_state"]
+    assert r.lineup.true_state == want["true_state"]
     assert r.plant.per_robot == want["bridged"]

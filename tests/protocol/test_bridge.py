@@ -223,6 +223,33 @@ def test_a_trial_samples_on_the_wall_clock_then_drives_back_and_says_ready():
     assert b.report()["missed"] == 2 and b.report()["returns"] == b.returns
 
 
+def test_behind_a_simulated_base_the_last_sample_gives_the_trials_true_poses():
+    """With ``truth`` each sample keeps the base's newest true pose; the tick of sample T
+    gives all T+1 with their labels (the skipped samples 1 and 2 hold sample 0's), and a
+    trial's trail starts empty; without ``truth`` there is none."""
+    for truth in (False, True):
+        b = wall_bridge(truth=truth)
+        dt_ns = b.clock.dt_ns
+        t0 = 50 * SEC
+        for k in range(2):
+            start = t0 + 1000 * k * SEC
+            b.said_ready(k, b.shift())
+            b.on_event(start_event(k, 2 * k, start, trial=k), 1.0, start - SEC)
+            paths = []
+            for s in (0, *range(3, b.T + 1)):
+                b.on_truth((float(k), float(s), 0.1 * s))
+                paths.append(b.tick(1.0, start + k + s * dt_ns).true_path)  # + slot: the grid
+            assert b.phase == IDLE
+            assert all(p is None for p in paths[:-1])
+            if not truth:
+                assert paths[-1] is None
+                continue
+            poses, stamps = paths[-1]
+            assert stamps == [b.clock.stamp_ns(k, s) for s in range(b.T + 1)]
+            assert poses[:4] == [(k, 0.0, 0.0)] * 3 + [(k, 3.0, 0.1 * 3)]
+            assert poses[-1] == (k, float(b.T), 0.1 * b.T) and len(poses) == b.T + 1
+
+
 def test_a_silent_robot_node_gets_a_zero_command_counted_once():
     b = wall_bridge(cmd_timeout=0.5)
     b.said_ready(0, b.shift())

@@ -1,16 +1,19 @@
 """Physics robots driven through the generic base bridge, in wall-clock trials.
 
 ``formation-ilc launch --plant base --physics-bases``: P3-DX-size physics robots expose
-``cmd_vel`` and wheel odometry like any base (no ground truth reaches the stack); one
-bridge per robot, with the TurtleBot 4 preset's limits, drives them. A scenario too fast
-for those limits is refused with one line; stretched with ``--time-scale`` it runs, it
-learns, and no command to a base exceeds the limits (read back from the recording).
+``cmd_vel`` and wheel odometry like any base; one bridge per robot, with the TurtleBot 4
+preset's limits, drives them. A scenario too fast for those limits is refused with one
+line; stretched with ``--time-scale`` it runs, it learns, and no command to a base exceeds
+the limits (read back from the recording). The robots learn from the odometry; the
+simulated bases also tell their bridges the true poses, so the metrics have their true
+columns, within the odometry's drift of the measured ones.
 """
 
 from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 pytest.importorskip("pybullet", reason="the physics extra: pip install -e .[physics]")
@@ -21,7 +24,7 @@ from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 import msgs_schema as ms  # noqa: E402
 from formation_ilc.config.bases import BASES  # noqa: E402
 from formation_ilc.config.scenario import load_scenario  # noqa: E402
-from formation_ilc.core.metrics import read_metrics  # noqa: E402
+from formation_ilc.core.metrics import METRIC_COLUMNS, read_metrics  # noqa: E402
 from formation_ilc.recordings.mcap_io import read_messages  # noqa: E402
 
 from .shared import RUNS  # noqa: E402
@@ -61,7 +64,14 @@ def test_too_fast_for_the_base_is_refused_then_runs_stretched(ros_env, tmp_path)
     # the insecure run a secure one is compared with (tests/stack/test_secure.py)
     RUNS[base_key(scen.read_text(), scale)] = got
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
-    assert summary["true_state"] is False  # a base gives the stack no ground truth
+    # the simulated bases' truth: the true columns, as far from the measured ones as the
+    # odometry drifted from the truth (the bases' diagnostics), and not equal to them
+    assert summary["true_state"] is True
+    assert "m true, " in res.stdout  # the console shows both
+    cols = {c: i for i, c in enumerate(METRIC_COLUMNS)}
+    true_pos, pos = got[:, cols["true_max_position_error"]], got[:, cols["max_position_error"]]
+    assert np.isfinite(true_pos).all() and np.isfinite(
+        got[:, cols["true_max_heading_error"]]).all()
     for b in summary["bridges"].values():
         # the P3-DX-size body pitches a few degrees as it brakes: inside the 10 deg bound
         assert b["limits"][0] == TB4.v_max and 0 < b["tilt_max_deg"] < 10.0
@@ -73,6 +83,11 @@ def test_too_fast_for_the_base_is_refused_then_runs_stretched(ros_env, tmp_path)
     assert bases, "the physics bases' diagnostics are in the recording"
     seen = bases[-1]["commands_max"]
     assert len(seen) == 3
+    drift = max(bases[-1]["odometry_drift"].values())
+    print(f"true vs measured max position error: {np.abs(true_pos - pos)}, drift {drift}")
+    # (+ 5 cm: a sample may pair a true pose and an odometry a tick or two apart)
+    assert 0 < drift and np.all(np.abs(true_pos - pos) <= drift + 0.05)
+    assert not np.array_equal(true_pos, pos)
     for c in seen.values():
         assert 0.1 < c["v"] <= TB4.v_max + 1e-12 and c["omega"] <= TB4.omega_max + 1e-12
         assert c["a"] <= TB4.a_max * (1 + 1e-9) and c["alpha"] <= TB4.alpha_max * (1 + 1e-9)
