@@ -28,6 +28,11 @@ away is simply gone. With ``--observe`` (a launch that does not record) it compu
 desired poses, errors and markers itself (``formation_ilc.nodes.observer``); otherwise the
 recorder does and it forwards them.
 
+Its parameters capability shows the run's parameters read-only, as foxglove_bridge names a
+node's (``/formation/virtual_leader.seed``; ``protocol.view.run_parameters``): a viewer's
+Parameters panel lists them, and a change asked for is answered with the value the run
+keeps (the run's configuration is fixed once its nodes started).
+
   formation-ilc-liveview [--host 127.0.0.1] [--port 8765] [--rate HZ] [--observe]
                          [--preview] [--ros-args ...]
 """
@@ -52,6 +57,7 @@ from formation_ilc.core.names import LIVEVIEW_NODE
 from formation_ilc.nodes.common import DropCounter, RunConfig, node_parser, run_key, spin_main
 from formation_ilc.nodes.observer import Observer, msg_class
 from formation_ilc.nodes.params import declare
+from formation_ilc.protocol.view import run_parameters
 from formation_ilc.recordings.mcap_io import message_definition
 
 #: the default port of the live view (Foxglove's own default)
@@ -95,6 +101,16 @@ class _Viewers:
     def on_unsubscribe(self, client: Any, channel: Any) -> None:
         self.node.viewers_want(channel.topic, -1)
 
+    def on_get_parameters(self, client: Any, param_names: list[str],
+                          request_id: str | None = None) -> list[Any]:
+        return self.node.parameters(param_names)
+
+    def on_set_parameters(self, client: Any, parameters: list[Any],
+                          request_id: str | None = None) -> list[Any]:
+        # read-only: each asked for as the run keeps it
+        self.node.refused_sets += len(parameters)
+        return self.node.parameters([p.name for p in parameters])
+
 
 class LiveViewNode(Node):
     def __init__(self, start_server: Any, observe: bool = False, rate: float = DEFAULT_RATE,
@@ -122,6 +138,8 @@ class LiveViewNode(Node):
         self.subs: dict[str, Any] = {}
         self.observer: Observer | None = None
         self.cfg: RunConfig | None = None
+        #: parameter changes viewers asked for (read-only: none taken)
+        self.refused_sets = 0
         #: per-sample DDS topics taken on demand: topic -> (type, offered QoS)
         self.on_demand: dict[str, tuple[str, QoSProfile]] = {}
         #: channel (relative topic) -> the DDS topics it is made of
@@ -308,6 +326,16 @@ class LiveViewNode(Node):
         if topic in self.latched:
             self._keep(topic, data)
 
+    def parameters(self, names: list[str]) -> list[Any]:
+        """The run's parameters ``names`` (none: all) as the server sends them; none
+        before the configuration came (the server starts after it)."""
+        if self.cfg is None:
+            return []
+        from foxglove.websocket import Parameter
+
+        got = run_parameters(self.cfg, self.get_namespace(), names)
+        return [Parameter(k, value=v) for k, v in got.items()]
+
     def _configure(self, data: bytes) -> None:
         try:
             self.cfg = RunConfig.from_json(ms.msg_to_json(ms.deserialize(data, String)))
@@ -393,7 +421,8 @@ def main(args: list[str] | None = None) -> int:
                 return foxglove.start_server(
                     name="formation-ilc", host=ns.host, port=ns.port,
                     message_backlog_size=BACKLOG, server_listener=listener,
-                    capabilities=[foxglove.Capability.Time])
+                    capabilities=[foxglove.Capability.Time,
+                                  foxglove.Capability.Parameters])
             except Exception as exc:  # noqa: BLE001 - the SDK's own error type: port in use
                 print(f"formation-ilc-liveview: cannot serve on {ns.host}:{ns.port}: {exc}",
                       file=sys.stderr)

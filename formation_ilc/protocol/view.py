@@ -8,18 +8,37 @@ measured pose (the quantities of ``formation_ilc.model.simulate.trial_errors``, 
 computed the same way); per robot and trial their largest magnitudes over samples 1..T, as
 the metrics take them (the largest over robots is the metrics row's). For the 3D view, the
 formation's outline (the desired positions joined around their centre) and the graph's
-links, at a marker sample.
+links, at a marker sample. And the run's parameters as a viewer's parameters panel lists
+them (``run_parameters``).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["TrackingView", "TrialPeak", "outline_order", "graph_links", "marker_every"]
+from formation_ilc.config.runconfig import RunConfig
+from formation_ilc.core.names import LEADER_NODE, absolute
+
+__all__ = ["TrackingView", "TrialPeak", "outline_order", "graph_links", "marker_every",
+           "run_parameters"]
+
+
+def run_parameters(cfg: RunConfig, namespace: str, names: Iterable[str] = ()
+                   ) -> dict[str, Any]:
+    """The parameters that configure the run, named as foxglove_bridge names a node's
+    (``/formation/virtual_leader.seed``): the leader's (``RunConfig.to_params``, which the
+    leader publishes to every node in the latched configuration). ``names``: only these
+    (none: all); a name the run has not is left out."""
+    leader = absolute(LEADER_NODE, namespace)
+    every = {f"{leader}.{k}": v for k, v in cfg.to_params(cfg.scenario_param).items()}
+    wanted = list(names)
+    return every if not wanted else {n: every[n] for n in wanted if n in every}
 
 
 def outline_order(eta_d0: NDArray[np.float64]) -> list[int]:

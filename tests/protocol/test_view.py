@@ -10,7 +10,13 @@ import numpy as np
 
 from formation_ilc.config.scenario import load_scenario
 from formation_ilc.model.simulate import simulate, trial_errors
-from formation_ilc.protocol.view import TrackingView, graph_links, marker_every, outline_order
+from formation_ilc.protocol.view import (
+    TrackingView,
+    graph_links,
+    marker_every,
+    outline_order,
+    run_parameters,
+)
 
 
 def test_peaks_of_a_simulated_trial_are_the_metrics_row():
@@ -72,3 +78,21 @@ def test_outline_links_and_marker_period():
     assert angles == sorted(angles) and sorted(order) == list(range(6))
     assert graph_links(np.array([[-1, -1], [0, -1], [0, 1]])) == [(0, 1), (0, 2), (1, 2)]
     assert marker_every(0.5) == 1 and marker_every(0.1) == 5 and marker_every(0.0) == 1
+
+
+def test_the_run_s_parameters_are_the_leader_s_named_as_foxglove_bridge_names_them():
+    """What the live view's parameters capability serves: the leader's parameters, which
+    give back the run's configuration (RunConfig.from_params), under /NS/virtual_leader."""
+    from formation_ilc.config.runconfig import RunConfig, make_config
+
+    cfg = make_config("paper-triangle3", trials=7, seed=3, run_id="rview")
+    got = run_parameters(cfg, "/formation")
+    assert got["/formation/virtual_leader.trials"] == 7
+    assert got["/formation/virtual_leader.seed"] == 3
+    assert got["/formation/virtual_leader.run_id"] == "rview"
+    prefix = "/formation/virtual_leader."
+    assert all(k.startswith(prefix) for k in got)
+    back = RunConfig.from_params({k[len(prefix):]: v for k, v in got.items()})
+    assert back.scenario.trials == 7 and back.run_id == "rview"
+    assert run_parameters(cfg, "/lab/", ["/lab/virtual_leader.seed", "/lab/nope"]) == {
+        "/lab/virtual_leader.seed": 3}

@@ -195,9 +195,10 @@ def test_live_view_serves_a_foxglove_client_during_a_lockstep_run(ros_env, tmp_p
         # (published once, before the first client came), readies, desired paths and
         # diagnostics, as foxglove_bridge gives a late client transient-local topics
         late_topics = ["config", "ready", "robot_1/desired_path", "diagnostics"]
+        # ... and the run's parameters, read-only
         c = subprocess.run(["node", str(CLIENT / "client.js"), f"ws://127.0.0.1:{port}", "1",
-                            *late_topics], env=env, capture_output=True, text=True,
-                           timeout=150)
+                            *late_topics, "@params"], env=env, capture_output=True,
+                           text=True, timeout=150)
         running = stack.poll() is None
         last = (c.stdout.strip().splitlines() or [""])[-1]
         late = json.loads(last) if last.startswith("{") else {"error": c.stderr}
@@ -211,6 +212,15 @@ def test_live_view_serves_a_foxglove_client_during_a_lockstep_run(ros_env, tmp_p
     print(f"late viewer: first message after {late['first_ms']} ms")
     for t in late_topics:
         assert late["counts"][t] >= 1
+    # the run's parameters as the leader has them, named as foxglove_bridge names them; a
+    # change is answered with the value the run keeps
+    params = late["params"]
+    assert params["/formation/virtual_leader.seed"] == 4
+    assert params["/formation/virtual_leader.trials"] == trials
+    assert params["/formation/virtual_leader.scenario"] == "paper-triangle3"
+    assert params["/formation/virtual_leader.mode"] == "lockstep"
+    (name, kept), = late["set_answer"].items()
+    assert kept == params[name], late["set_answer"]
     for t in topics:
         assert result["counts"][t] >= 20
         assert result["samples"][t]["topic"] == f"/formation/{t}"

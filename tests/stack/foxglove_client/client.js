@@ -19,10 +19,26 @@ const samples = {};
 const firstMs = {}; // per TOPIC: ms from the subscription to the first decoded message
 let subscribedAt = 0;
 const readers = new Map(); // channel id -> {topic, key, reader}
+const params = {};
+let setAnswer = null;
+const PARAMS = "@params";
+
+function report(ok, extra) {
+  const out = { ok, ...extra, counts, samples, first_ms: firstMs };
+  if (PARAMS in counts) Object.assign(out, { params, set_answer: setAnswer });
+  console.log(JSON.stringify(out));
+}
 
 function fail(why) {
-  console.log(JSON.stringify({ ok: false, error: why, counts, samples, first_ms: firstMs }));
+  report(false, { error: why });
   process.exit(1);
+}
+
+function done() {
+  if (min > 0 && wanted.every((t) => counts[t] >= min)) {
+    report(true, {});
+    process.exit(0);
+  }
 }
 
 // the numbers a plot or the 3D view takes from each kind of message
@@ -50,6 +66,23 @@ const client = new FoxgloveClient({
 });
 client.on("error", (e) => fail(`websocket: ${e && e.message}`));
 client.on("close", () => fail("the server closed the connection"));
+client.on("serverInfo", (info) => {
+  if (!(PARAMS in counts)) return;
+  if (!(info.capabilities || []).includes("parameters")) fail("no parameters capability");
+  client.getParameters([], "all");
+});
+client.on("parameterValues", ({ parameters, id }) => {
+  if (id === "all") {
+    for (const p of parameters) params[p.name] = p.value;
+    const first = parameters.find((p) => typeof p.value === "number");
+    if (first === undefined) fail("no numeric parameter to change");
+    client.setParameters([{ name: first.name, value: first.value + 1 }], "set");
+  } else if (id === "set") {
+    setAnswer = Object.fromEntries(parameters.map((p) => [p.name, p.value]));
+    counts[PARAMS] = Object.keys(params).length;
+    done();
+  }
+});
 client.on("advertise", (channels) => {
   for (const ch of channels) {
     const key = wanted.find((t) => ch.topic.endsWith(t));
@@ -79,14 +112,11 @@ client.on("message", ({ subscriptionId, data }) => {
   counts[r.key] += 1;
   if (!(r.key in firstMs)) firstMs[r.key] = Date.now() - subscribedAt;
   if (!(r.key in samples)) samples[r.key] = { topic: r.topic, schema: r.schema, numbers: nums.slice(0, 6) };
-  if (min > 0 && wanted.every((t) => counts[t] >= min)) {
-    console.log(JSON.stringify({ ok: true, counts, samples, first_ms: firstMs }));
-    process.exit(0);
-  }
+  done();
 });
 if (min > 0) setTimeout(() => fail("timed out"), 120000);
 // stopped from outside (a benchmark's run ended): what was decoded so far
 process.on("SIGTERM", () => {
-  console.log(JSON.stringify({ ok: false, error: "stopped", counts, samples, first_ms: firstMs }));
+  report(false, { error: "stopped" });
   process.exit(0);
 });
