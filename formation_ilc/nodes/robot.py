@@ -159,6 +159,8 @@ class RobotNode(ConfiguredNode):
         self.cmd_pub = self.create_publisher(Twist, ms.cmd_vel_topic(self.id), ms.SAMPLE_QOS)
         self.shared_pub = self.create_publisher(PoseStamped, ms.shared_pose_topic(self.id),
                                                 ms.SAMPLE_QOS)
+        #: (slot, the shared poses sent in it, in order): what a repeat sends again
+        self.shared_sent: tuple[int, list[bytes]] = (-1, [])
         self.traj_pub = self.create_publisher(Path, ms.trajectory_topic(self.id),
                                               ms.TRAJECTORY_QOS)
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
@@ -291,17 +293,29 @@ class RobotNode(ConfiguredNode):
         # has no reader, and a publish costs more CPU than the rest of the sample
         if self.shared_pub.get_subscription_count():
             self.shared_pub.publish(data)
+            if not self.realtime:
+                slot, sent = self.shared_sent
+                if slot != lrn.k:
+                    self.shared_sent = slot, sent = lrn.k, []
+                sent.append(data)
         if self.realtime:
             self._deadline.reset()
         self._maybe_command()
 
     def _repeat(self, data: bytes) -> None:
         """The plant sent the current sample again (lockstep; a command of it is still due):
-        while this robot has not commanded it, its shared pose goes out again, the same
-        bits (the links may have lost it). A command is never sent twice: ``cmd_vel`` carries
-        no label, and a second copy reaching the plant after it moved on would be taken as
-        the next sample's command."""
-        if not self.learner.commanded:
+        every shared pose this robot sent in the trial goes out again, the same bits, and
+        the current one if it was not sent yet. The links may have lost any of them: a
+        flood on a shared-pose topic overwrites the link emulator's reader history, and a
+        robot that commanded the current sample may hold up another whose delivery is an
+        earlier pose of its (the links drop what they have as duplicates). A command is
+        never sent twice: ``cmd_vel`` carries no label, and a second copy reaching the plant
+        after it moved on would be taken as the next sample's command."""
+        slot, sent = self.shared_sent
+        again = sent if slot == self.learner.k else []
+        for d in again:
+            self.shared_pub.publish(d)
+        if not self.learner.commanded and (not again or again[-1] != data):
             self.shared_pub.publish(data)
 
     def _on_link_pose(self, msg: PoseStamped | bytes, sender: str) -> None:

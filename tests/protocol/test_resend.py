@@ -1,8 +1,9 @@
 """Lockstep recovers a lost sample by sending it again: the plant re-sends a sample whose
 commands are not all in after RESEND_S (the time-out still counts from the first send), and
-a robot that gets its current sample again before it commanded shares it again -- a pose
-lost in a flood, or sent before a restarted reader matched, costs seconds, not the whole
-time-out (protocol.plant, protocol.learner)."""
+a robot that gets its current sample again shares again the poses it shared in the trial
+(nodes.robot; tests/stack/test_liveness.py floods them) -- a pose lost in a flood, or sent
+before a restarted reader matched, costs seconds, not the whole time-out (protocol.plant,
+protocol.learner)."""
 
 from __future__ import annotations
 
