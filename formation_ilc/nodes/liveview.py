@@ -108,7 +108,6 @@ class _Viewers:
     def on_set_parameters(self, client: Any, parameters: list[Any],
                           request_id: str | None = None) -> list[Any]:
         # read-only: each asked for as the run keeps it
-        self.node.refused_sets += len(parameters)
         return self.node.parameters([p.name for p in parameters])
 
 
@@ -138,8 +137,6 @@ class LiveViewNode(Node):
         self.subs: dict[str, Any] = {}
         self.observer: Observer | None = None
         self.cfg: RunConfig | None = None
-        #: parameter changes viewers asked for (read-only: none taken)
-        self.refused_sets = 0
         #: per-sample DDS topics taken on demand: topic -> (type, offered QoS)
         self.on_demand: dict[str, tuple[str, QoSProfile]] = {}
         #: channel (relative topic) -> the DDS topics it is made of

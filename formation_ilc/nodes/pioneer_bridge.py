@@ -383,10 +383,7 @@ class BridgeNode(ConfiguredNode):
 
     def _on_truth(self, msg: PoseStamped) -> None:
         try:
-            eta, _, frame = ms.msg_to_pose(msg)
-            if frame != ms.WORLD_FRAME:
-                raise ms.MalformedMessage(f"true pose in frame {frame[:50]!r}, expected "
-                                          f"{ms.WORLD_FRAME!r}")
+            eta, _ = ms.world_pose(msg)
         except Rejected as exc:
             self.drops.reject(exc, str(self.truth_topic))
             return

@@ -456,11 +456,10 @@ class Bridge:
         self.trail[s] = self.truth
         if s < self.T:
             return None
-        known = [p for p in self.trail if p is not None]
-        if not known:  # no true pose came in the whole trial (the ready waits for one)
+        last = next((p for p in self.trail if p is not None), None)
+        if last is None:  # no true pose came in the whole trial (the ready waits for one)
             return None
         poses: list[Pose] = []
-        last = known[0]
         for p in self.trail:
             last = p if p is not None else last
             poses.append(last)
