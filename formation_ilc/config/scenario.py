@@ -303,7 +303,7 @@ class Scenario:
     reference: NDArray[np.float64]  # (T+2, 3)
     frame: str
     offsets: NDArray[np.float64]  # (n, 2) at scale 1
-    scales: tuple[tr.Sinusoid, ...]  # one per robot
+    scales: tuple[tr.Sinusoid | tr.AxisScales, ...]  # one per robot
     law: LawSettings
     uncertainty: Uncertainty
     source: str = "<memory>"
@@ -822,7 +822,7 @@ def _desired_options(top: _Fields, time_scale: float | None) -> tuple[str, float
 
 
 def _formation(ff: _Fields, n: int, source: str
-               ) -> tuple[str, NDArray[np.float64], list[tr.Sinusoid]]:
+               ) -> tuple[str, NDArray[np.float64], list[tr.Sinusoid | tr.AxisScales]]:
     frame = ff.string("frame", choices=("world", "leader"))
     scales_raw = ff.get("scales", {})
     if not isinstance(scales_raw, dict):
@@ -838,17 +838,25 @@ def _formation(ff: _Fields, n: int, source: str
     if not isinstance(off_raw, dict):
         raise ff.fail("offsets", "expected a mapping robot -> {x, y, scale}")
     offsets = np.full((n, 2), np.nan)
-    robot_scales: list[tr.Sinusoid] = [tr.Sinusoid()] * n
+    robot_scales: list[tr.Sinusoid | tr.AxisScales] = [tr.Sinusoid()] * n
     for key, val in off_raw.items():
         r = ff.robot(key, f"offsets.{key}", n)
         of = _Fields(val, f"formation.offsets.{key}", source)
         offsets[r - 1] = (of.number("x"), of.number("y"))
         sname = of.get("scale", None)
         if sname is not None:
-            if not isinstance(sname, str) or sname not in scales:
-                raise of.fail("scale", f"no scale named {show(sname)} in formation.scales "
-                                       f"(have: {_one_line(', '.join(scales), 80) or 'none'})")
-            robot_scales[r - 1] = scales[sname]
+            # one scale, or [x, y]: one per axis of the offset
+            names = sname if isinstance(sname, list) else [sname]
+            if len(names) not in (1, 2):
+                raise of.fail("scale", f"a scale's name or a list of two [x, y], got "
+                                       f"{len(names)} names")
+            for k, name in enumerate(names):
+                if not isinstance(name, str) or name not in scales:
+                    where = "scale" if len(names) == 1 else f"scale[{k}]"
+                    raise of.fail(where, f"no scale named {show(name)} in formation.scales "
+                                         f"(have: {_one_line(', '.join(scales), 80) or 'none'})")
+            robot_scales[r - 1] = (scales[names[0]] if len(names) == 1
+                                   else tr.AxisScales(scales[names[0]], scales[names[1]]))
         of.finish()
     missing = [str(i + 1) for i in range(n) if np.isnan(offsets[i, 0])]
     if missing:

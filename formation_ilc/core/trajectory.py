@@ -54,6 +54,19 @@ class Sinusoid:
         return self.mean + self.amplitude * np.sin(2 * np.pi * s / self.period + self.phase)
 
 
+@dataclass(frozen=True)
+class AxisScales:
+    """An offset scaled along each of its axes by a scale of its own: value(t) has shape
+    (..., 2), (x(t), y(t)). A robot that keeps its place along the leader's heading and
+    moves across from one side to the other (x constant, y swinging) is one."""
+
+    x: Sinusoid
+    y: Sinusoid
+
+    def __call__(self, seconds: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.stack([self.x(seconds), self.y(seconds)], axis=-1)
+
+
 def path_headings(p: NDArray[np.float64], fallback: float = 0.0,
                   reverse: bool = False) -> NDArray[np.float64]:
     """Unwrapped tangent headings of a sampled path (paper-notes 3-4).
@@ -259,14 +272,15 @@ def formation_positions(
 
     reference : shape (M, 3) (x, y, heading). base : shape (n, 2), the offset of each robot
     at scale 1 in the world frame or in the leader's body frame (x ahead, y left).
-    scales : one callable per robot, seconds -> scale factor (s(t), D1(t), ...).
+    scales : one callable per robot, seconds -> scale factor (s(t), D1(t), ...), shape
+        (M,), or one factor per axis, shape (M, 2) (``AxisScales``).
     times : shape (M,), the seconds the scales are read at (default t * dt; a ramped
         start's warped seconds).
     """
     m = reference.shape[0]
     sec = np.arange(m, dtype=float) * dt if times is None else np.asarray(times, dtype=float)
-    s = np.stack([np.broadcast_to(f(sec), (m,)) for f in scales])  # (n, M)
-    d = s[:, :, None] * np.asarray(base, dtype=float)[:, None, :]  # (n, M, 2)
+    s = np.stack([np.broadcast_to(np.reshape(f(sec), (m, -1)), (m, 2)) for f in scales])
+    d = s * np.asarray(base, dtype=float)[:, None, :]  # (n, M, 2)
     if frame == "leader":
         c, sn = np.cos(reference[:, 2]), np.sin(reference[:, 2])
         d = np.stack([c * d[..., 0] - sn * d[..., 1], sn * d[..., 0] + c * d[..., 1]], -1)
