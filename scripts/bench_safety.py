@@ -8,7 +8,7 @@
    half the samples with the barrier binding): microseconds per call of
    ``core.safety.filter_command`` compiled by numba (``filter_command.jit``) and as plain
    Python (what a node runs: it loads no compiler), and of the robot's whole step as a node
-   runs it
+   runs it, in CPU time of this process (a busy machine slows the wall clock, not this)
    (``RobotLearner._filter``: the poses heard, their motion, the filter). Target: at most
    100 us per sample per robot with 6 robots in range.
 2. The physics plant with 6 robots through the filter (``studies.physics.run_physics``,
@@ -73,12 +73,12 @@ def time_filter(fn, sp, data, repeat: int) -> tuple[float, float]:
     bound = 0
     best = []
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         for nominal, own, prev, others in data:
             f = fn(nominal[0], nominal[1], own[0], own[1], own[2], prev[0], prev[1], others,
                    ages, len(others), params, out)
             bound += bool(f & 2)
-        best.append((time.perf_counter() - t0) / len(data) * 1e6)
+        best.append((time.process_time() - t0) / len(data) * 1e6)
     return float(np.median(best)), bound / (repeat * len(data))
 
 
@@ -100,12 +100,12 @@ def time_learner(n: int, sp, repeat: int) -> float:
             lrn.on_team_pose(j, clock.stamp_ns(0, t), pb.eta_d[j, t])
     runs = []
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         for t in range(1, samples):
             lrn.t = t
             lrn.u[0] = pb.eta_d[0, t, :2] * 0 + (0.5, 0.1)
             lrn._filter(t)
-        runs.append((time.perf_counter() - t0) / (samples - 1) * 1e6)
+        runs.append((time.process_time() - t0) / (samples - 1) * 1e6)
     return float(np.median(runs))
 
 

@@ -178,7 +178,7 @@ def _add_simulate(sub: Any) -> None:
     p.add_argument("--safety-margin", type=nonneg_float, default=None, metavar="M",
                    help="with --safety: the least gap [m] between two robots' covering discs "
                         "(default 0.1; 0.25 on skid steer)")
-    p.add_argument("--safety-learning", choices=("applied", "split", "freeze", "ignore"),
+    p.add_argument("--safety-learning", choices=("damped", "applied", "split", "freeze", "ignore"),
                    default=None,
                    help="with --safety: how the memory learns where the filter changed a "
                         "command (docs/safety.md)")
@@ -674,7 +674,7 @@ def _safety_spec(args: argparse.Namespace, sc: Any) -> Any:
     if args.safety_margin is None:
         args.safety_margin = default_margin(args.body)
     spec = spec_of(SafetySettings(args.body, body_limits(args.body), args.safety_margin,
-                                  args.safety_learning), sc.dt)
+                                  args.safety_learning), sc.dt, sc.uncertainty)
     dc = desired_clearance(sc, spec)
     if not dc.fits:
         raise OptionError(f"--safety: {dc.line(sc.dt)} ({args.body} bodies + "
@@ -905,8 +905,15 @@ def _motion_check(args: argparse.Namespace, sc: Scenario) -> list[str]:
     """``check``'s look at the desired motion: every robot's peaks, printed; what does
     not fit ``--base`` (its limits, its body under the safety filter), returned."""
     from formation_ilc.config.bases import fit_limits
-    from formation_ilc.config.safety import SafetySettings
-    from formation_ilc.model.safety import body_limits, desired_clearance, motion_peaks, spec_of
+    from formation_ilc.config.safety import SafetySettings, default_margin
+    from formation_ilc.model.safety import (
+        body_limits,
+        desired_clearance,
+        desired_through_filter,
+        motion_peaks,
+        spec_of,
+        what_fits,
+    )
 
     if args.base == "none":
         return []
@@ -923,11 +930,22 @@ def _motion_check(args: argparse.Namespace, sc: Scenario) -> list[str]:
     line = fit_limits(moved, [limits] * moved.n)
     if line is not None:
         problems.append(f"{body}: {line}")
-    dc = desired_clearance(moved, spec_of(SafetySettings(body, limits), moved.dt))
+    spec = spec_of(SafetySettings(body, limits, default_margin(body)), moved.dt)
+    dc = desired_clearance(moved, spec)
     print(f"  closest robots: {dc.line(moved.dt)}")
     if not dc.fits:
         problems.append(f"{body}: {dc.line(moved.dt)}: the safety filter would hold the "
                         f"robots off their formation; widen the offsets")
+        return problems
+    through = desired_through_filter(moved, spec)
+    print(f"  {through.line(moved.dt)}")
+    if not through.passes:
+        scale, spread = what_fits(moved, spec)
+        fixes = [f"--time-scale {moved.time_scale * scale:g} (slower)" if scale else "",
+                 f"the formation's offsets x {spread:g} (wider)" if spread else ""]
+        fix = " or ".join(f for f in fixes if f) or "no time scale up to 4 nor spread up to 2"
+        problems.append(f"{body}: {through.line(moved.dt)}; it would hold them off their "
+                        f"formation in every trial; what fits: {fix}")
     return problems
 
 

@@ -253,9 +253,10 @@ def add_safety_arguments(p: argparse.ArgumentParser) -> None:
                    help="least gap [m] between two robots' covering discs (default 0.1; "
                         "0.25 on skid steer, whose wheels slip: docs/safety.md)")
     g.add_argument("--safety-learning", choices=LEARNING, default=None,
-                   help="how the memory learns where the filter changed a command: applied "
-                        "(from the command the robot really drove; the default on two "
-                        "wheels), split (from it where a limit clipped the command, not at "
+                   help="how the memory learns where the filter changed a command: damped "
+                        "(takes in a share, 0.15, of the filter's change; the default on two "
+                        "wheels), applied (from the command the robot really drove), split "
+                        "(from it where a limit clipped the command, not at "
                         "all where a barrier moved it; the default on skid steer: husky, "
                         "jackal), freeze (no learning at those samples), ignore (as if "
                         "unchanged; winds up). docs/safety.md compares them")

@@ -818,7 +818,7 @@ def _formation_line(sc: Scenario, safety: SafetySettings) -> str | None:
     distance apart; else the line that says where it does not."""
     from formation_ilc.model.safety import desired_clearance, spec_of
 
-    dc = desired_clearance(sc, spec_of(safety, sc.dt))
+    dc = desired_clearance(sc, spec_of(safety, sc.dt, sc.uncertainty))
     if dc.fits:
         return None
     return (f"{dc.line(sc.dt)} ({safety.body} bodies + {safety.margin:g} m margin): the "
@@ -896,7 +896,7 @@ def _contact_line(opts: argparse.Namespace, sc: Scenario, bridge: BridgeOptions 
             else bridge.base if bridge is not None and bridge.base is not None else "p3dx")
     fp = footprint_of(body)
     memory = None if opts.init_memory is None else load_memory(opts.init_memory, sc)
-    spec = None if safety is None else spec_of(safety, sc.dt)
+    spec = None if safety is None else spec_of(safety, sc.dt, sc.uncertainty)
     found = predict_clearance(sc, fp, sc.trials, memory=memory, safety=spec)
     hit = first_overlap(found)
     start = "warm start" if memory is not None else "cold start (u_0 = 0)"

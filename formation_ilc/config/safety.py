@@ -39,8 +39,8 @@ SKID_STEER = ("husky", "husky-imu", "jackal")
 
 def default_learning(body: str) -> str:
     """How a team of ``body`` robots learns through its filter unless told otherwise
-    (docs/safety.md measured it): ``applied`` on two wheels, ``split`` on skid steer."""
-    return "split" if body in SKID_STEER else "applied"
+    (docs/safety.md measured it): ``damped`` on two wheels, ``split`` on skid steer."""
+    return "split" if body in SKID_STEER else "damped"
 
 
 def default_margin(body: str) -> float:
@@ -56,7 +56,7 @@ class SafetySettings:
     body: str = "p3dx"
     limits: Limits = Limits()
     margin: float = 0.1
-    learning: str = "applied"
+    learning: str = "damped"
     sensing: str = "team"
 
     def __post_init__(self) -> None:

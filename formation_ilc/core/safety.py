@@ -43,7 +43,12 @@ from, ``freeze_flagged`` restores it where nothing may be learned:
 * ``split``: ``applied`` where only a limit clipped the command (a saturation, the same
   from trial to trial: anti-windup is right), ``freeze`` where a barrier moved it (another
   robot was in the way: a state of this trial, not of the task);
-* ``ignore``: learns as if nothing had been changed (winds up; for comparison).
+* ``ignore``: learns as if nothing had been changed (winds up; for comparison);
+* ``damped``: m + DAMPING (u_applied - u_nominal): a sixth or so of ``applied``'s anti-
+  windup. ``applied`` carries every trim the filter made into the next trial, where it
+  holds the memory near the filter's boundary (an error that stays); ``ignore`` carries
+  none and winds up where two robots hold each other off trial after trial; a share of
+  it does neither (docs/safety.md measured it on the generated families).
 
 docs/safety.md has the measurements behind the default (``config.safety.default_learning``):
 ``applied`` for two-wheel bodies, where it learns fastest and the filter's work falls to
@@ -66,12 +71,14 @@ from formation_ilc.core._jit import njit
 from formation_ilc.core.limits import Limits
 
 __all__ = ["SafetySpec", "LEARNING", "CHANGED_LIMITS", "CHANGED_BARRIER", "INFEASIBLE",
-           "filter_command", "filter_team", "motion", "closing_speed", "learn_base",
+           "filter_command", "filter_team", "motion", "closing_speed", "learn_base", "DAMPING",
            "freeze_flagged", "learning_code", "PARAMS", "MAX_DISCS"]
 
 #: how the memory learns at samples the filter changed
-LEARNING = ("applied", "freeze", "ignore", "split")
-APPLIED, FREEZE, IGNORE, SPLIT = 0, 1, 2, 3
+LEARNING = ("applied", "freeze", "ignore", "split", "damped")
+APPLIED, FREEZE, IGNORE, SPLIT, DAMPED = 0, 1, 2, 3, 4
+#: ``damped``: the share of the filter's change the memory takes in
+DAMPING = 0.15
 
 #: flags of one filtered command (bitwise or)
 CHANGED_LIMITS = 1     # the learned command left the box of the base's limits
@@ -80,13 +87,17 @@ INFEASIBLE = 4         # no command in the limits keeps every barrier: the robot
 
 #: the order of ``SafetySpec.params()``
 PARAMS = ("distance", "discs", "gamma", "radius", "v_max", "omega_max", "a_max",
-          "alpha_max", "dt", "stale_speed", "weight", "speed_uncertainty", "brake_share")
+          "alpha_max", "dt", "stale_speed", "weight", "speed_uncertainty", "brake_share",
+          "lag")
 #: at most this many discs cover a body
 MAX_DISCS = 3
 _TOL = 1e-12
 #: a limit of inf is no limit: the box is cut at this [m/s, rad/s] instead (polygon
 #: clipping needs finite corners)
 _BIG = 1e6
+#: how far the split of a pair's slack leans towards the robot that heads towards the
+#: other (0: halves; 1: all of it; below 1 each robot keeps a share, 1 - _SPLIT of its half)
+_SPLIT = 0.9
 #: the share of a base's acceleration limit the barrier counts on for braking: a robot
 #: heading across the line to another closes in at less than its speed, and brakes that
 #: closing speed at less than its full deceleration
@@ -108,7 +119,9 @@ class SafetySpec:
         the axle can be moved sideways by turning; at offset 0 only by driving.
     distance : D [m], the least distance between the centres of two robots' discs (two
         disc radii plus a margin).
-    gamma : the share of the barrier that may be used up per sample, 0 < gamma <= 1.
+    gamma : the share of a pair's slack (the gap left when both robots brake) that one
+        robot may use up in a sample, 0 < gamma <= 0.5: each of two robots taking at most
+        half keeps the pair's slack from going negative.
     radius : robots whose tracked points are farther apart than this [m] are not
         constrained (the sensing radius).
     limits : the base's speed and acceleration limits.
@@ -134,13 +147,13 @@ class SafetySpec:
     speed_uncertainty: float = 0.0
     window: int = 3
     brake_share: float = 0.5
-    learning: str = "applied"
+    learning: str = "damped"
 
     def __post_init__(self) -> None:
         checks = (("discs", 1 <= len(self.discs) <= MAX_DISCS
                    and all(math.isfinite(x) for x in self.discs)),
                   ("distance", self.distance > 0 and math.isfinite(self.distance)),
-                  ("gamma", 0 < self.gamma <= 1),
+                  ("gamma", 0 < self.gamma <= 0.5),
                   ("radius", self.radius > 0),
                   ("dt", self.dt > 0 and math.isfinite(self.dt)),
                   ("stale_speed", self.stale_speed >= 0 and math.isfinite(self.stale_speed)),
@@ -148,7 +161,7 @@ class SafetySpec:
                   ("speed_uncertainty", self.speed_uncertainty >= 0
                    and math.isfinite(self.speed_uncertainty)),
                   ("window", isinstance(self.window, int) and self.window >= 0),
-                  ("brake_share", 0 <= self.brake_share <= 1))
+                  ("brake_share", 0 < self.brake_share <= 1))
         for name, ok in checks:
             if not ok:
                 raise ValueError(f"safety {name}: out of range, got {getattr(self, name)!r}")
@@ -160,30 +173,46 @@ class SafetySpec:
         return np.array([self.distance, float(len(self.discs)), self.gamma, self.radius,
                          lim.v_max, lim.omega_max, lim.a_max, lim.alpha_max, self.dt,
                          self.stale_speed, self.weight, self.speed_uncertainty, self.brake_share,
-                         *self.discs])
+                         0.5 * max(self.window - 1, 0) * self.dt, *self.discs])
 
 
 @njit(cache=True)
 def closing_speed(share: float, gamma: float, dt: float, a_brake: float) -> float:
-    """The fastest a robot may close in on another [m/s] when its share of the gap between
-    them is ``share`` [m]: it may use up ``gamma`` of its share in the next sample, and
-    must still be able to stop within it, braking at ``a_brake`` [m/s^2] in steps of
-    a_brake dT held for a sample each after holding this command for ``dt``. Such braking
-    covers w dT + w^2 / (2 a) + w dT / 2 (the steps cover half a sample more than braking
-    smoothly would): w (1.5 dT) + w^2 / (2 a) <= share. A gap already used up (share <= 0)
-    allows no closing at all."""
+    """The fastest a robot may close in on a standing obstacle [m/s] when ``share`` [m] of
+    the gap is its own: it may use up ``gamma`` of it in the next sample, and must still
+    be able to stop within it, braking at ``a_brake`` [m/s^2] in steps of a_brake dT held
+    for a sample each after holding this command for ``dt``: w (1.5 dT) + w^2 / (2 a) <=
+    share. A gap already used up (share <= 0) allows no closing at all. (A bound for
+    reports and checks; the filter itself keeps ``pair_slack``'s invariant.)"""
     if share <= 0.0:
         return 0.0
     w = gamma * share / dt
     if a_brake < 1e12:
         lag = 1.5 * dt
-        w = min(w, a_brake * (np.sqrt(lag * lag + 2.0 * share / a_brake) - lag))
+        w = min(w, a_brake * (math.sqrt(lag * lag + 2.0 * share / a_brake) - lag))
     return w
 
 
 @njit(cache=True)
 def _clip(a: float, lo: float, hi: float) -> float:
     return lo if a < lo else (hi if a > hi else a)
+
+
+@njit(cache=True)
+def _carry(v: float, dt: float, a: float) -> float:
+    """How far [m, or rad] a speed v carries: held for dt, then braked at a to a stop
+    (signed as v)."""
+    return v * dt + v * abs(v) / (2.0 * a)
+
+
+@njit(cache=True)
+def _toward_zero(x: float, step: float) -> float:
+    """x moved towards 0 by at most ``step`` (a sample of braking at the limit)."""
+    if x > step:
+        return x - step
+    if x < -step:
+        return x + step
+    return 0.0
 
 
 @njit(cache=True)
@@ -226,10 +255,28 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
     params : SafetySpec.params().
     Returns the flags (CHANGED_LIMITS | CHANGED_BARRIER | INFEASIBLE), 0 if ``out`` is the
     nominal command.
+
+    The barrier of a pair of discs (module docstring, "The guarantee"): with n the unit
+    vector from robot j's disc to robot i's and g the gap beyond D, robot i's closing
+    displacement X_i(u) (hold u for a sample, then brake at the limits) is at most
+    s_i(u) tau + rot_i, s_i(u) = -n^T M(th, l) u its closing speed, linear in u. Robot i
+    keeps X_i(u) <= B_i + share (g - B_i - B_j), B_i its own X when it brakes now, B_j an
+    upper bound of robot j's from its estimated motion: the braking command always keeps
+    it while the pair's slack g - B_i - B_j is not negative, and two robots that each take
+    their share (at most half) of the slack keep it not negative.
     """
-    dist, n_discs, gamma, radius = params[0], int(params[1]), params[2], params[3]
-    v_max, w_max, a_max, al_max, dt = params[4], params[5], params[6], params[7], params[8]
-    stale, c, sigma = params[9], params[10], params[11]
+    # Python floats (a node runs this uncompiled: numpy scalars cost 3x in arithmetic)
+    dist, n_discs, share, radius = (float(params[0]), int(params[1]), float(params[2]),
+                                    float(params[3]))
+    v_max, w_max, a_max, al_max, dt = (float(params[4]), float(params[5]), float(params[6]),
+                                       float(params[7]), float(params[8]))
+    stale, c, sigma, brake, lag = (float(params[9]), float(params[10]), float(params[11]),
+                                   float(params[12]), float(params[13]))
+    v_n, w_n, x, y, th = float(v_n), float(w_n), float(x), float(y), float(th)
+    v_prev, w_prev = float(v_prev), float(w_prev)
+    off0 = float(params[len(PARAMS)])
+    off1 = float(params[len(PARAMS) + 1]) if n_discs > 1 else 0.0
+    off2 = float(params[len(PARAMS) + 2]) if n_discs > 2 else 0.0
     # the box of the limits
     v_lo = max(-v_max, v_prev - a_max * dt, -_BIG)
     v_hi = min(v_max, v_prev + a_max * dt, _BIG)
@@ -242,86 +289,224 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
     flags = 0
     if v_n < v_lo - _TOL or v_n > v_hi + _TOL or w_n < w_lo - _TOL or w_n > w_hi + _TOL:
         flags |= CHANGED_LIMITS
+    # braking: the deceleration counted on (a share of the limit), and this robot's own
+    # braking command (a sample of braking from the previous command, inside the box)
+    a_b = brake * a_max if a_max < _BIG else _BIG
+    al_b = brake * al_max if al_max < _BIG else _BIG
+    vb = _clip(_toward_zero(v_prev, a_max * dt), v_lo, v_hi)
+    wb = _clip(_toward_zero(w_prev, al_max * dt), w_lo, w_hi)
+    # how far a command carries the robot: held for a sample, then braked to a stop,
+    # f(v) = v dT + v |v| / (2 a) along its heading, g(w) = w dT + w |w| / (2 alpha) of
+    # turn. Over the box each is replaced by its chord (slope k, offset e): the chord
+    # plus e bounds the function from above and minus e from below (|f''| <= 1 / a)
+    fv0, fv1 = _carry(v_lo, dt, a_b), _carry(v_hi, dt, a_b)
+    kv = (fv1 - fv0) / (v_hi - v_lo) if v_hi > v_lo else dt + abs(v_lo) / a_b
+    ev = (v_hi - v_lo) * (v_hi - v_lo) / (8.0 * a_b)
+    gw0, gw1 = _carry(w_lo, dt, al_b), _carry(w_hi, dt, al_b)
+    sv_hi = max(abs(v_lo), abs(v_hi))
+    sw_hi = max(abs(w_lo), abs(w_hi))
+    # the heading turns while the robot holds and brakes, by G(w). Its path (at most
+    # path_i = f(sv_hi) long) then strays sideways, towards the side it turns to, by up to
+    # its length x the turn (all of it if the turn ends first); a disc swings sideways by
+    # its offset x the turn; both to second order in the turn (at most ``turn``): q |G|.
+    # So X_i(u) <= a0 F(v) + max(sp G(w), sm G(w)), per pair sp = a1c + path_i max(b, 0)
+    # + q, sm = a1c + path_i min(b, 0) - q (b: the side the pair's direction lies on)
+    turn = _carry(sw_hi, dt, al_b)
+    path_i = _carry(sv_hi, dt, a_b)
+    l_max = max(abs(off0), abs(off1), abs(off2))
+    q_i = 0.5 * (path_i + l_max) * turn
+    f_b, g_b = _carry(vb, dt, a_b), _carry(wb, dt, al_b)
+    # G's chord on the box (slope kw, through (w_lo, G(w_lo))) and its error ew; on a box
+    # on one side of w = 0 only that side's line of the max counts
+    kw = (gw1 - gw0) / (w_hi - w_lo) if w_hi > w_lo else dt + abs(w_lo) / al_b
+    ew = (w_hi - w_lo) * (w_hi - w_lo) / (8.0 * al_b)
+    g_off = gw0 - kw * w_lo
+    lines_p = w_hi > 0.0
+    lines_m = w_lo < 0.0
+    # the most robot i's braking closes in (e_i) and the most a command of the box can
+    # change that (w_i), for the test that skips robots too far to matter
+    e_i = path_i + (l_max + path_i + q_i) * (turn + ew) + ev
+    w_i = kv * (v_hi - v_lo) + (l_max + path_i + q_i) * kw * (w_hi - w_lo)
     # in scaled coordinates (v, c omega) the cost is Euclidean
     zx, zy = v_n, c * w_n
     bx0, bx1, by0, by1 = v_lo, v_hi, c * w_lo, c * w_hi
-    # the barriers' half-planes a0 v + a1 (c omega) >= rhs that cut the box (one that holds
-    # at every corner of the box cannot change the answer: most of them, as the box is a
-    # sample's acceleration wide)
-    cap = count * n_discs * n_discs
-    ha0 = np.empty(cap)
-    ha1 = np.empty(cap)
-    hb = np.empty(cap)
+    cth, sth = math.cos(th), math.sin(th)
+    cap = 0
+    ha0 = np.empty(0)
+    ha1 = np.empty(0)
+    hb = np.empty(0)
     m = 0
-    cth, sth = np.cos(th), np.sin(th)
-    a_brake = params[12] * a_max if params[12] > 0.0 else np.inf
     barrier = False
+    infeasible = False
     for j in range(count):
-        gx, gy = x - others[j, 0], y - others[j, 1]
-        if gx * gx + gy * gy > radius * radius:
+        ox, oy = float(others[j, 0]), float(others[j, 1])
+        gx, gy = x - ox, y - oy
+        gg = gx * gx + gy * gy
+        if gg > radius * radius:
             continue
-        dj = dist + stale * ages[j]
-        cj, sj = np.cos(others[j, 2]), np.sin(others[j, 2])
+        age = float(ages[j])
+        dj = dist + stale * age
+        # robot j: its estimated speed, how wrong it may be, how far it closes in braking
+        vxj, vyj, wj = float(others[j, 3]), float(others[j, 4]), float(others[j, 5])
+        swj = abs(wj)
+        spj = math.sqrt(vxj * vxj + vyj * vyj)
+        # the estimate is a mean over the window, ``lag`` old: since then robot j's speed
+        # changed by at most a_max lag, its direction by |omega| lag
+        sig = sigma + a_max * (lag + age) + spj * swj * (lag + age + 0.5 * dt)
+        # robot j braking now covers f(v - a_max dT) along its heading: its closing speed
+        # lasts that over its speed, rho (at its fastest for a closing bound, its slowest,
+        # braking its hardest, for a receding one)
+        v_up, v_dn = spj + sig, spj - sig
+        tau_j = _carry(v_up - a_max * dt, dt, a_b) / v_up if v_up > a_max * dt else 0.0
+        tau_jlo = (_carry(v_dn - a_max * dt, dt, a_max) / v_dn if v_dn > a_max * dt
+                   else 0.0)
+        turn_j = _carry(swj + al_max * (lag + age), dt, al_b)
+        rot_j = (_carry(spj + sig, dt, a_b) + 0.5 * l_max * turn_j) * turn_j
+        e_j = v_up * tau_j + l_max * turn_j + rot_j
+        # so far apart that no command of the box can meet a barrier
+        gap0 = math.sqrt(gg) - 2.0 * l_max - dj
+        if share * (1.0 - _SPLIT) * (gap0 - e_i - e_j) >= w_i:
+            continue
+        oth = float(others[j, 2])
+        cj, sj = math.cos(oth), math.sin(oth)
+        # robot j's tracked point moves at (vxj, vyj); a disc at ellj also swings with wj
+        swx, swy = -wj * sj, wj * cj
         for a in range(n_discs):
-            ell = params[len(PARAMS) + a]
-            sx, sy = x + ell * cth, y + ell * sth
+            ell = off0 if a == 0 else (off1 if a == 1 else off2)
+            sx, sy = x + ell * cth - ox, y + ell * sth - oy
             for b in range(n_discs):
-                ellj = params[len(PARAMS) + b]
-                dx, dy = sx - others[j, 0] - ellj * cj, sy - others[j, 1] - ellj * sj
-                dd = np.sqrt(dx * dx + dy * dy)
+                ellj = off0 if b == 0 else (off1 if b == 1 else off2)
+                dx, dy = sx - ellj * cj, sy - ellj * sj
+                dd = math.sqrt(dx * dx + dy * dy)
                 if dd < 1e-9:  # coincident centres: no direction to keep
                     continue
+                if share * (1.0 - _SPLIT) * (dd - dj - e_i - e_j) >= w_i:
+                    continue  # this pair of discs is too far apart to matter
                 dx /= dd
                 dy /= dd
-                # robot j receding from i at r moves on at least r^2 / (2 a_max) before it
-                # can have stopped (it brakes no harder than its limit): room for robot i
-                # besides its half of the gap (the other half is robot j's). Its motion is
-                # an estimate (``motion``), taken as ``sigma`` slower than it looks.
-                recede = -(dx * others[j, 3] + dy * others[j, 4]) - sigma
-                share = 0.5 * (dd - dj)
-                if recede > 0.0 and a_max < _BIG:
-                    share += 0.5 * recede * recede / a_max
-                # own closing speed -d^T p'_i <= w: d^T M(th, ell) u >= -w,
-                # M = [[cos, -ell sin], [sin, ell cos]]
-                rhs = -closing_speed(share, gamma, dt, a_brake)
-                a0 = dx * cth + dy * sth
-                a1 = ell * (-dx * sth + dy * cth) / c
-                if (a0 * bx0 + a1 * by0 >= rhs and a0 * bx1 + a1 * by0 >= rhs
-                        and a0 * bx0 + a1 * by1 >= rhs and a0 * bx1 + a1 * by1 >= rhs):
-                    continue  # holds over the whole box
-                if a0 * zx + a1 * zy < rhs - _TOL:
-                    barrier = True
-                ha0[m] = a0
-                ha1[m] = a1
-                hb[m] = rhs
-                m += 1
+                # robot i's closing displacement X_i(u) <= a0 F(v) + |a0| ev + max(sp G,
+                # sm G) + max(|sp|, |sm|) ew: its disc moves along M(th, ell) = [[cos,
+                # -ell sin], [sin, ell cos]], a0 = -n^T M e_v, a1c = -n^T M e_w = ell b
+                a0 = -(dx * cth + dy * sth)
+                bside = dx * sth - dy * cth
+                a1c = ell * bside
+                sp = a1c + (path_i * bside if bside > 0.0 else 0.0) + q_i
+                sm = a1c + (path_i * bside if bside < 0.0 else 0.0) - q_i
+                # braking now (vb, wb) closes in by b_i, as f and g give it (the chords of
+                # a command may lie above: at a slack of 0 braking may be all that is
+                # left, and the robot brakes)
+                b_i = a0 * f_b + (sp * g_b if g_b >= 0.0 else sm * g_b)
+                # robot j's closing speed towards i (its disc moves with its tracked point
+                # and swings with omega), taken ``sig`` faster than it looks
+                s_j = dx * (vxj + ellj * swx) + dy * (vyj + ellj * swy) + sig
+                b_j = (s_j * tau_j if s_j >= 0.0 else s_j * tau_jlo) + abs(ellj) * turn_j + rot_j
+                slack = dd - dj - b_i - b_j
+                if slack < 0.0:
+                    infeasible = True
+                    slack = 0.0
+                # the pair's slack is split by the poses, which both robots see alike: the
+                # more a robot heads towards the other than the other towards it, the more
+                # is its own (19 parts in 20 for a robot behind another that drives away, 1
+                # for the one ahead, which brakes or drives on without closing in);
+                # the two shares add up to 2 gamma <= 1
+                mine = share * (1.0 + 0.5 * _SPLIT * (a0 - dx * cj - dy * sj))
+                # X_i(u) <= b_i + mine slack: h0 v + h1 (c w) <= lim, a half-plane per
+                # line of the max that the box reaches
+                h0 = a0 * kv
+                base = (b_i + mine * slack - a0 * (fv0 - kv * v_lo)
+                        - (a0 if a0 >= 0.0 else -a0) * ev
+                        - max(abs(sp), abs(sm)) * ew)
+                for li in range(2):
+                    if (li == 0 and not lines_p) or (li == 1 and not lines_m):
+                        continue
+                    slope = sp if li == 0 else sm
+                    h1 = slope * kw / c
+                    lim = base - slope * g_off
+                    # the largest h0 v + h1 (c w) over the box, at one of its corners
+                    if ((h0 * bx1 if h0 >= 0.0 else h0 * bx0)
+                            + (h1 * by1 if h1 >= 0.0 else h1 * by0)) <= lim:
+                        continue  # holds over the whole box
+                    if h0 * zx + h1 * zy > lim + _TOL:
+                        barrier = True
+                    if m == cap:
+                        cap = 2 * cap + 8
+                        n0, n1, n2 = np.empty(cap), np.empty(cap), np.empty(cap)
+                        n0[:m] = ha0[:m]
+                        n1[:m] = ha1[:m]
+                        n2[:m] = hb[:m]
+                        ha0, ha1, hb = n0, n1, n2
+                    ha0[m] = -h0
+                    ha1[m] = -h1
+                    hb[m] = -lim
+                    m += 1
     if not barrier and flags == 0:
         out[0] = v_n
         out[1] = w_n
         return 0
-    # the feasible set: the box clipped by the half-planes that cut it
-    px = np.empty(4 + m + 4)
-    py = np.empty(4 + m + 4)
-    qx = np.empty(4 + m + 4)
-    qy = np.empty(4 + m + 4)
-    px[0], py[0] = bx0, by0
-    px[1], py[1] = bx1, by0
-    px[2], py[2] = bx1, by1
-    px[3], py[3] = bx0, by1
-    n = 4
-    for k in range(m):
-        n = _clip_polygon(px, py, n, ha0[k], ha1[k], hb[k], qx, qy)
-        px, qx = qx, px
-        py, qy = qy, py
-        if n == 0:
-            break
-    if n == 0:
-        out[0] = _clip(0.0, v_lo, v_hi)
-        out[1] = _clip(w_n, w_lo, w_hi)
-        return flags | CHANGED_BARRIER | INFEASIBLE
     if barrier:
         flags |= CHANGED_BARRIER
-    # the nearest point of the polygon: the nominal point is outside it
+        if infeasible:
+            # a pair's slack was negative before this sample (a pose or a body off by more
+            # than the filter accounts for): this robot closes in no more than braking
+            flags |= INFEASIBLE
+    # the nearest feasible point. Most often one barrier binds: the nearest point of the
+    # box cut by that one half-plane is the answer when it keeps every other (the feasible
+    # set lies inside that cut box); else clip the box by every half-plane (exact)
+    bx, by = _clip(zx, bx0, bx1), _clip(zy, by0, by1)
+    found = _keeps(bx, by, ha0, ha1, hb, m)
+    qx4 = np.empty(5)
+    qy4 = np.empty(5)
+    box_x = np.array([bx0, bx1, bx1, bx0])
+    box_y = np.array([by0, by0, by1, by1])
+    for k in range(m):
+        if found:
+            break
+        if ha0[k] * zx + ha1[k] * zy >= hb[k] - _TOL:
+            continue  # z keeps this one: it cannot be the one that binds alone
+        n = _clip_polygon(box_x, box_y, 4, ha0[k], ha1[k], hb[k], qx4, qy4)
+        if n == 0:
+            continue
+        cx, cy = _nearest_on_polygon(qx4, qy4, n, zx, zy)
+        if _keeps(cx, cy, ha0, ha1, hb, m):
+            bx, by, found = cx, cy, True
+    if not found:
+        px = np.empty(4 + m + 4)
+        py = np.empty(4 + m + 4)
+        qx = np.empty(4 + m + 4)
+        qy = np.empty(4 + m + 4)
+        px[:4] = box_x
+        py[:4] = box_y
+        n = 4
+        for k in range(m):
+            n = _clip_polygon(px, py, n, ha0[k], ha1[k], hb[k], qx, qy)
+            px, qx = qx, px
+            py, qy = qy, py
+            if n == 0:
+                break
+        if n == 0:  # nothing in the box keeps every barrier (a slack used up): brake
+            out[0] = vb
+            out[1] = wb
+            return flags | CHANGED_BARRIER | INFEASIBLE
+        bx, by = _nearest_on_polygon(px, py, n, zx, zy)
+    out[0] = _clip(bx, v_lo, v_hi)
+    out[1] = _clip(by / c, w_lo, w_hi)
+    return flags
+
+
+@njit(cache=True)
+def _keeps(x: float, y: float, ha0: NDArray[np.float64], ha1: NDArray[np.float64],
+           hb: NDArray[np.float64], m: int) -> bool:
+    """Whether (x, y) keeps every half-plane ha0 x + ha1 y >= hb of the first m."""
+    for k in range(m):
+        if ha0[k] * x + ha1[k] * y < hb[k] - 1e-9:
+            return False
+    return True
+
+
+@njit(cache=True)
+def _nearest_on_polygon(px: NDArray[np.float64], py: NDArray[np.float64], n: int,
+                        zx: float, zy: float) -> tuple[float, float]:
+    """The nearest point to (zx, zy) of the boundary of the convex polygon (px, py)[:n]."""
     best = np.inf
     bx, by = zx, zy
     for k in range(n):
@@ -334,9 +519,7 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
         if d < best:
             best = d
             bx, by = cx, cy
-    out[0] = _clip(bx, v_lo, v_hi)
-    out[1] = _clip(by / c, w_lo, w_hi)
-    return flags
+    return bx, by
 
 
 @njit(cache=True)
@@ -408,8 +591,9 @@ def learn_base(mode: int, memory: NDArray[np.float64], nominal: NDArray[np.float
 
     memory, nominal, applied : shape (R, T, 2): the trial's memory, the learned commands
     and the commands the filter let through; flags : shape (R, T). ``applied`` (APPLIED):
-    memory + (applied - nominal); ``freeze`` and ``ignore``: the memory itself (freeze then
-    restores the old memory at flagged samples after the step, ``freeze_flagged``).
+    memory + (applied - nominal); ``damped``: memory + DAMPING (applied - nominal);
+    ``freeze`` and ``ignore``: the memory itself (freeze then restores the old memory at
+    flagged samples after the step, ``freeze_flagged``).
     """
     for r in range(memory.shape[0]):
         for t in range(memory.shape[1]):
@@ -418,6 +602,8 @@ def learn_base(mode: int, memory: NDArray[np.float64], nominal: NDArray[np.float
                 f = flags[r, t]
                 if f != 0 and (mode == APPLIED or (mode == SPLIT and f == CHANGED_LIMITS)):
                     x += applied[r, t, c] - nominal[r, t, c]
+                elif f != 0 and mode == DAMPED:
+                    x += DAMPING * (applied[r, t, c] - nominal[r, t, c])
                 out[r, t, c] = x
 
 

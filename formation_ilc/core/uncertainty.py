@@ -23,6 +23,7 @@ kernels (:func:`fill_plant`, :func:`fill_delays`) that reproduce numpy's numbers
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -104,6 +105,19 @@ class Uncertainty:
     def without_delay(self) -> Uncertainty:
         return Uncertainty(self.initial_shift, self.disturbance_fixed, self.disturbance_uniform,
                            self.noise_fixed, self.noise_uniform, DelayModel(), self.delay_leader)
+
+    def pose_bounds(self) -> tuple[float, float]:
+        """How far the difference of two robots' measured positions can be from the true
+        one [m], and how far one robot's measured position can move between two samples
+        beyond its true motion [m]: what the safety filter widens its distance and its
+        estimates of the other robots' speeds by. The fixed harmonics are the same for
+        every robot (``noise_fixed(t)``), so only the uniform half-widths part two robots'
+        positions (2 u per axis); from one sample to the next both the uniform part (2 u)
+        and the harmonics' largest step move a robot's."""
+        ux, uy = abs(self.noise_uniform[0]), abs(self.noise_uniform[1])
+        step = max(abs(h.amplitude * h.frequency) for h in self.noise_fixed[:2])
+        apart = math.hypot(2 * ux, 2 * uy)
+        return apart, apart + step
 
     @property
     def noisy(self) -> bool:

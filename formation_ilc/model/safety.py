@@ -23,11 +23,13 @@ from numpy.typing import NDArray
 from formation_ilc.config.safety import SafetySettings
 from formation_ilc.config.scenario import Scenario
 from formation_ilc.core.limits import Limits, input_rates
-from formation_ilc.core.safety import SafetySpec
+from formation_ilc.core.safety import SafetySpec, filter_team
+from formation_ilc.core.uncertainty import Uncertainty
 from formation_ilc.model.footprint import Footprint, footprint_of
 
 __all__ = ["MARGIN", "DISCS", "spec_for", "spec_of", "body_limits", "sensing_radius",
-           "DesiredClearance", "desired_clearance", "MotionPeaks", "motion_peaks"]
+           "DesiredClearance", "desired_clearance", "MotionPeaks", "motion_peaks",
+           "DesiredThroughFilter", "desired_through_filter", "what_fits", "TOLERANCE"]
 
 #: [m] added to two disc radii: the least gap the filter keeps between two bodies'
 #: covering discs (it covers the discs' excess over the rectangle, the arcs a robot drives
@@ -50,23 +52,36 @@ def sensing_radius(distance: float, limits: Limits, dt: float) -> float:
 
 
 def spec_for(fp: Footprint, limits: Limits, dt: float, *, margin: float = MARGIN,
-             learning: str = "applied", stale_speed: float | None = None,
+             learning: str = "damped", stale_speed: float | None = None,
              radius: float | None = None, discs: int = DISCS,
-             speed_uncertainty: float = 0.0) -> SafetySpec:
+             speed_uncertainty: float = 0.0, pose_error: float = 0.0,
+             pose_jitter: float = 0.0) -> SafetySpec:
     """The filter for robots of footprint ``fp`` on a base with ``limits`` at sample time
     ``dt`` [s]: ``discs`` discs cover the body; two robots' discs keep 2 radii + ``margin``
-    apart; a pose of another robot that is ``age`` s old widens that by ``stale_speed``
-    (default: the speed limit) x age; robots beyond ``radius`` (default
-    ``sensing_radius``) are not constrained."""
+    apart, + ``pose_error`` [m] (how far the difference of two robots' measured positions
+    may be from the true one); a pose of another robot that is ``age`` s old widens that by
+    ``stale_speed`` (default: the speed limit) x age; robots beyond ``radius`` (default
+    ``sensing_radius``) are not constrained.
+
+    Another robot's motion is estimated from two of its poses ``window`` samples apart:
+    one sample (no lag) when the poses are exact, more when they jitter by up to
+    ``pose_jitter`` [m] from one sample to the next (the window that makes the estimate's
+    worst error, a_max lag + jitter / (window dT), least); ``speed_uncertainty`` [m/s] is
+    that jitter's part plus any given."""
     offsets, r = fp.discs(discs)
-    distance = 2.0 * r + margin
+    distance = 2.0 * r + margin + pose_error
     if stale_speed is None:
         stale_speed = 0.0 if math.isinf(limits.v_max) else limits.v_max
     if radius is None:
         radius = sensing_radius(distance, limits, dt)
-    return SafetySpec(offsets, distance, gamma=1.0, radius=radius, limits=limits, dt=dt,
+    window = 1
+    if pose_jitter > 0:
+        a = limits.a_max if math.isfinite(limits.a_max) else 1.0
+        window = max(1, min(10, round(math.sqrt(2.0 * pose_jitter / (a * dt * dt)))))
+        speed_uncertainty += pose_jitter / (window * dt)
+    return SafetySpec(offsets, distance, gamma=0.5, radius=radius, limits=limits, dt=dt,
                       stale_speed=stale_speed, weight=0.1, speed_uncertainty=speed_uncertainty,
-                      window=3, brake_share=1.0, learning=learning)
+                      window=window, brake_share=1.0, learning=learning)
 
 
 def body_limits(body: str) -> Limits:
@@ -78,10 +93,14 @@ def body_limits(body: str) -> Limits:
     return MODELS[body].limits if body in MODELS else base_preset(body).limits
 
 
-def spec_of(settings: SafetySettings, dt: float) -> SafetySpec:
-    """The filter of a run's safety settings (``config.safety``) at sample time ``dt``."""
+def spec_of(settings: SafetySettings, dt: float,
+            noise: Uncertainty | None = None) -> SafetySpec:
+    """The filter of a run's safety settings (``config.safety``) at sample time ``dt``,
+    for poses measured with the output noise of ``noise`` (a scenario's uncertainty; None:
+    exact poses, ``Uncertainty.pose_bounds``)."""
+    error, jitter = (0.0, 0.0) if noise is None else noise.pose_bounds()
     return spec_for(footprint_of(settings.body), settings.limits, dt, margin=settings.margin,
-                    learning=settings.learning)
+                    learning=settings.learning, pose_error=error, pose_jitter=jitter)
 
 
 @dataclass(frozen=True)
@@ -169,3 +188,90 @@ def motion_peaks(sc: Scenario) -> list[MotionPeaks]:
         out.append(MotionPeaks(r + 1, peak(u[r, :, 0]), peak(u[r, :, 1]), peak(acc[r, :, 0]),
                                peak(acc[r, :, 1]), peak(steps[r])))
     return out
+
+
+@dataclass(frozen=True)
+class DesiredThroughFilter:
+    """Every robot's desired motion through the filter, no learning, exact poses: how many
+    commands it changed, the first (robot, sample) it changed, how far (|dv| [m/s],
+    |domega| [rad/s] at the largest change), and the pair of robots nearest each other
+    at that sample (1-based) and their distance [m] (tracked points)."""
+
+    changed: int
+    first: tuple[int, int] | None
+    largest: tuple[float, float]
+    nearest: tuple[int, int]
+    nearest_distance: float
+
+    @property
+    def passes(self) -> bool:
+        return self.changed == 0
+
+    def line(self, dt: float) -> str:
+        if self.first is None:
+            return "the safety filter lets every robot's desired motion through unchanged"
+        r, t = self.first
+        i, j = self.nearest
+        return (f"the safety filter changes the desired motion itself: {self.changed} "
+                f"commands, the first robot {r}'s at t = {t * dt:.1f} s (by up to "
+                f"{self.largest[0]:.3f} m/s, {self.largest[1]:.3f} rad/s), where robots {i} "
+                f"and {j} are {self.nearest_distance:.3f} m apart")
+
+
+#: changes of a desired command this small [m/s, rad/s] are below what a base's velocity
+#: loop holds: ``desired_through_filter`` lets them pass
+TOLERANCE = (0.01, 0.01)
+
+
+def desired_through_filter(sc: Scenario, spec: SafetySpec) -> DesiredThroughFilter:
+    """Run every robot's desired command through the filter at its desired pose, each
+    robot hearing the others' desired poses of the sample (age 0) as the batch simulator
+    does, without learning: a formation whose own motion the filter changes is one the
+    filter would fight in every trial (``check`` fails it). Changes within ``TOLERANCE``
+    do not count."""
+    d = sc.for_plant("arc").desired
+    eta = np.ascontiguousarray(d.eta)
+    n, n_t = d.u.shape[0], d.u.shape[1]
+    u = np.array(d.u, dtype=float)
+    nominal = np.empty_like(u)
+    flags = np.zeros((n, n_t), dtype=np.int64)
+    prev = np.zeros((n, 2))
+    params = spec.params()
+    others, ages = np.zeros((n, 6)), np.zeros(n)
+    for t in range(n_t):
+        filter_team.jit(t, u, eta, prev, 0.0, params, spec.window, nominal, flags, others, ages)
+        # each sample is judged on the desired motion alone: the next starts from the
+        # desired command, not the filtered one
+        prev[:] = d.u[:, t]
+    diff = np.abs(u - d.u)
+    changed = (flags != 0) & ((diff[..., 0] > TOLERANCE[0]) | (diff[..., 1] > TOLERANCE[1]))
+    count = int(changed.sum())
+    if count == 0:
+        return DesiredThroughFilter(0, None, (0.0, 0.0), (1, 1), math.inf)
+    rs, ts = np.nonzero(changed)
+    k = int(np.argmin(ts))
+    r, t = int(rs[k]), int(ts[k])
+    worst = np.unravel_index(int(np.argmax(diff[..., 0] + spec.weight * diff[..., 1])),
+                             diff.shape[:2])
+    p = eta[:, t, :2]
+    gap = np.hypot(p[:, None, 0] - p[None, :, 0], p[:, None, 1] - p[None, :, 1])
+    gap[np.diag_indices(n)] = np.inf
+    j = int(np.argmin(gap[r])) if n > 1 else r
+    return DesiredThroughFilter(count, (r + 1, t), (float(diff[worst][0]),
+                                                    float(diff[worst][1])),
+                                (min(r, j) + 1, max(r, j) + 1), float(gap[r, j]))
+
+
+def what_fits(sc: Scenario, spec: SafetySpec) -> tuple[float | None, float | None]:
+    """What would let a formation's desired motion through the filter: the least time
+    scale (slower) of 1.25, 1.5, 2, 3, 4 that does, and the least spread of its offsets
+    (wider) of 1.1, 1.25, 1.5, 2 that does; None for either where none does."""
+    from dataclasses import replace
+
+    scale = next((k for k in (1.25, 1.5, 2.0, 3.0, 4.0)
+                  if desired_through_filter(sc.with_options(time_scale=sc.time_scale * k),
+                                            spec).passes), None)
+    spread = next((k for k in (1.1, 1.25, 1.5, 2.0)
+                   if desired_through_filter(replace(sc, offsets=sc.offsets * k),
+                                             spec).passes), None)
+    return scale, spread

@@ -134,7 +134,8 @@ class RobotNode(ConfiguredNode):
         if path:
             memory = load_memory(path, cfg.scenario)[self.id - 1]
             self.get_logger().info(f"{self.name}: initial memory from {path}")
-        safety = None if cfg.safety is None else spec_of(cfg.safety, cfg.scenario.dt)
+        safety = (None if cfg.safety is None
+                  else spec_of(cfg.safety, cfg.scenario.dt, cfg.scenario.uncertainty))
         self.learner = lrn = RobotLearner(pb, self.id - 1, cfg.clock, realtime=self.realtime,
                                           direct=cfg.links == "direct", memory=memory,
                                           leader_in_step=cfg.leader_in_step, safety=safety)

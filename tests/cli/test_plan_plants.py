@@ -94,12 +94,14 @@ def test_the_safety_filter_is_on_with_bodies_and_lets_the_cold_start_run(tmp_pat
     # a skid-steer body keeps a wider margin by default: the paper's spacing has no room
     with pytest.raises(NoRun, match="jackal bodies \\+ 0.25 m margin"):
         plan_of(tmp_path / "t", "paper-triangle3", "--safety", "--body", "jackal")
+    # with 0.1 m and exact poses it fits (the paper's noise widens the distance the filter
+    # keeps by 7 cm: two robots' measured positions may be that far off each other)
     on = plan_of(tmp_path / "t", "paper-triangle3", "--safety", "--body", "jackal",
-                 "--safety-margin", "0.1")
+                 "--safety-margin", "0.1", "--no-noise")
     assert on.config.safety is not None and on.config.safety.body == "jackal"
     assert sf.margin == 0.1 and on.config.safety.margin == 0.1
     # how the memory learns through the filter: by body, as measured (docs/safety.md)
-    assert sf.learning == "applied" and on.config.safety.learning == "split"
+    assert sf.learning == "damped" and on.config.safety.learning == "split"
     told = plan_of(tmp_path / "u", "paper-triangle3", "--safety", "--safety-learning",
                    "freeze")
     assert told.config.safety is not None and told.config.safety.learning == "freeze"

@@ -1,0 +1,109 @@
+"""The safety filter judged on formations nobody tuned (``studies.families``).
+
+Generated crossing, following and swapping teams (4-6 robots, random spacing, speed, graph;
+the paper's delays; with and without the paper's noise), every one passing ``check --base
+p3dx``: through the batch filter from a cold start no two P3-DX footprints ever overlap,
+and the filter lets each formation's own motion through. The filter's guarantee and its
+assumptions are in docs/safety.md.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from formation_ilc.config.safety import SafetySettings, default_margin
+from formation_ilc.config.scenario import scenario_from_data
+from formation_ilc.core.trajectory import AxisScales
+from formation_ilc.model.footprint import clearance, footprint_of
+from formation_ilc.model.safety import (
+    body_limits,
+    desired_clearance,
+    desired_through_filter,
+    spec_of,
+)
+from formation_ilc.model.simulate import simulate
+from formation_ilc.studies.families import KINDS, family_scenario, fits, scenario_data
+
+FP = footprint_of("p3dx")
+#: cold trials per member: the overlaps of an unfiltered team happen in its first trials
+TRIALS = 6
+
+
+def _spec(sc):
+    return spec_of(SafetySettings("p3dx", body_limits("p3dx"), default_margin("p3dx")),
+                   sc.dt, sc.uncertainty)
+
+
+def _least_clearance(sc, spec) -> tuple[float, int]:
+    """The least footprint clearance of ``sc``'s first TRIALS cold trials through the
+    filter ``spec`` (None: no filter), and the filter's changes in them."""
+    least = [np.inf]
+
+    def on(k, xi, *rest):
+        least[0] = min(least[0], float(clearance(xi, FP).min()))
+
+    res = simulate(sc, TRIALS, plant="arc", safety=spec, on_trial_data=on)
+    changed = int(np.nansum(res.column("filter_active"))) if spec is not None else 0
+    return least[0], changed
+
+
+def test_a_hundred_generated_formations_never_overlap_through_the_filter():
+    """102 members: 34 of each kind, every third with the paper's noise. Without the
+    filter many of them overlap in their first trials (the reason for the filter); through
+    it none does."""
+    members = [(kind, seed, seed % 3 == 0) for kind in KINDS for seed in range(34)]
+    unfiltered_overlaps, acted = 0, 0
+    for kind, seed, noise in members:
+        sc = family_scenario(kind, seed, noise=noise)
+        spec = _spec(sc)
+        least, changed = _least_clearance(sc, spec)
+        assert least > 0.0, f"{kind} {seed} (noise {noise}): footprints overlap by {-least:.3f} m"
+        acted += changed > 0
+        if seed % 6 == 0:  # a sample without the filter, for the contrast
+            unfiltered_overlaps += _least_clearance(sc, None)[0] < 0.0
+    assert len(members) >= 100
+    assert acted > len(members) // 2  # the cold starts did put the filter to work
+    assert unfiltered_overlaps >= 3  # and without it, they collide
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_every_member_fits_a_pioneer_and_passes_the_filter_untouched(kind):
+    for seed in range(3):
+        sc = family_scenario(kind, seed)
+        spec = _spec(sc)
+        assert desired_clearance(sc, spec).fits
+        assert desired_through_filter(sc, spec).passes
+        assert 4 <= sc.n <= 6
+        assert sc.graph.leader.sum() > 0
+
+
+def test_the_families_are_what_they_say():
+    """Crossing robots pass through the formation's centre; following robots keep a
+    column behind the leader; swapping robots change sides (y in the leader's frame)."""
+    cross = scenario_from_data(scenario_data("crossing", 1), "", "<test>")
+    assert all(s.mean == 0.0 and s.amplitude > 0 for s in cross.scales)
+    follow = scenario_from_data(scenario_data("following", 1), "", "<test>")
+    assert np.all(follow.offsets[:, 0] < 0) and np.all(follow.offsets[:, 1] == 0)
+    swap = scenario_from_data(scenario_data("swapping", 1), "", "<test>")
+    assert all(isinstance(s, AxisScales) for s in swap.scales)
+    lead = swap.reference
+    rel = swap.desired.eta[..., :2] - lead[None, : swap.desired.eta.shape[1], :2]
+    c, s = np.cos(lead[: rel.shape[1], 2]), np.sin(lead[: rel.shape[1], 2])
+    side = -s * rel[..., 0] + c * rel[..., 1]  # y in the leader's frame
+    assert np.all(side.max(axis=1) > 0.5) and np.all(side.min(axis=1) < -0.5)
+
+
+def test_a_draw_that_does_not_fit_is_drawn_again():
+    # tight columns: some draws bring two bodies closer than the filter keeps them
+    tight = [s for s in range(30)
+             if not fits(scenario_from_data(scenario_data("following", s), "", "<t>"))]
+    assert tight, "every draw fit: the test no longer tests the redraw"
+    sc = family_scenario("following", tight[0])
+    assert fits(sc)
+    assert sc.name == f"following-{tight[0]}"
+
+
+def test_a_bad_kind_is_refused():
+    with pytest.raises(ValueError, match="crossing, following, swapping"):
+        scenario_data("zigzag", 1)
