@@ -705,6 +705,11 @@ def _safety(opts: argparse.Namespace, row: Plant, sc: Scenario, namespace: str,
         raise NoRun(f"--body goes with --plant sim; --plant {opts.plant} knows its robots' "
                     f"body")
     if physics is not None:  # the physics plant, or physics robots behind the bases
+        if physics.pose == "odometry":
+            raise NoRun("--pose odometry with the safety filter: wheel odometry drifts (1.4 m "
+                        "off the truth in 8 trials, docs/safety.md) and the filter keeps its "
+                        "distance only between poses it can trust; give the robots poses "
+                        "from motion capture or a localiser (--pose truth), or --no-safety")
         body = physics.model
         limits = MODELS[body].limits
     else:
@@ -885,9 +890,10 @@ def _limits_line(bridge: BridgeOptions, sc: Scenario, namespace: str) -> str | N
 def _contact_line(opts: argparse.Namespace, sc: Scenario, bridge: BridgeOptions | None,
                   physics: PhysicsOptions | None, safety: SafetySettings | None = None
                   ) -> tuple[str | None, str]:
-    """The batch simulator's prediction of a run on robots with bodies (noise-free, the arc
-    plant, from the initial memory, through the run's safety filter): (None, or the line
-    saying where two footprints first overlap; the note saying what it covered)."""
+    """The batch simulator's prediction of a run on robots with bodies (the arc plant, from
+    the initial memory, through the run's safety filter, with the run's own noise, delays
+    and seed: every trial of it): (None, or the line saying where two footprints first
+    overlap; the note saying what it covered)."""
     from formation_ilc.model.footprint import first_overlap, footprint_of, predict_clearance
     from formation_ilc.model.safety import spec_of
     from formation_ilc.store.memoryfile import load_memory
@@ -897,16 +903,21 @@ def _contact_line(opts: argparse.Namespace, sc: Scenario, bridge: BridgeOptions 
     fp = footprint_of(body)
     memory = None if opts.init_memory is None else load_memory(opts.init_memory, sc)
     spec = None if safety is None else spec_of(safety, sc.dt, sc.uncertainty)
-    found = predict_clearance(sc, fp, sc.trials, memory=memory, safety=spec)
+    found = predict_clearance(sc, fp, sc.trials, memory=memory, safety=spec, as_run=True)
     hit = first_overlap(found)
     start = "warm start" if memory is not None else "cold start (u_0 = 0)"
     through = " through the safety filter" if spec is not None else ""
+    drawn = ", ".join(w for w, on in (("noise", sc.uncertainty.noisy),
+                                      ("delays", sc.uncertainty.delay.kind != "none")) if on)
+    draws = (f"the run's {' and '.join(drawn.split(', '))}, seed {sc.seed}" if drawn
+             else "no noise nor delay, as the run")
     if hit is None:
         least = min(found, key=lambda c: c.value)
         return None, (f"the batch simulator predicts no contact in the {len(found)} trials "
-                      f"of this run{through} ({start}; least clearance "
-                      f"{least.value:.3f} m, trial {least.trial}); it does not look past "
-                      f"trial {sc.trials - 1}, and a plant with bodies reports what happens")
+                      f"of this run{through} ({start}; {draws}; exact-arc kinematics; least "
+                      f"clearance {least.value:.3f} m, trial {least.trial}); it does not look "
+                      f"past trial {sc.trials - 1}, and a plant with bodies reports what "
+                      f"happens")
     return (f"the batch simulator predicts contact from this {start}{through}: "
             f"{hit.line(sc.dt)} (footprint {fp.length} x {fp.width} m)"), ""
 

@@ -171,19 +171,23 @@ def trial_clearance(trial: int, xi: NDArray[np.float64], fp: Footprint) -> Clear
 
 def predict_clearance(sc: Scenario, fp: Footprint, trials: int,
                       memory: NDArray[np.float64] | None = None, plant: str = "arc",
-                      first_trial: int = 0, safety: Any = None) -> list[Clearance]:
+                      first_trial: int = 0, safety: Any = None,
+                      as_run: bool = False) -> list[Clearance]:
     """The batch simulator's prediction of a run: ``trials`` trials from ``memory``
-    (default u_0 = 0), without noise or delay, through the safety filter ``safety``
-    (``core.safety.SafetySpec``; None: none), and each trial's least clearance."""
+    (default u_0 = 0), through the safety filter ``safety`` (``core.safety.SafetySpec``;
+    None: none), and each trial's least clearance. Without noise or delay; with
+    ``as_run``, with ``sc``'s own noise and delays and seed: the draws of the run itself,
+    trial for trial (the stack draws what the batch simulator draws)."""
     from formation_ilc.model.simulate import simulate
 
-    quiet = sc.with_options(noise=False, delay=False, trials=trials)
+    run = (sc.with_options(trials=trials) if as_run
+           else sc.with_options(noise=False, delay=False, trials=trials))
     out: list[Clearance] = []
 
     def on_data(k: int, xi: NDArray[np.float64], *rest: object) -> None:
         out.append(trial_clearance(k, xi, fp))
 
-    simulate(quiet, initial_memory=memory, on_trial_data=on_data, plant=plant,
+    simulate(run, initial_memory=memory, on_trial_data=on_data, plant=plant,
              first_trial=first_trial, store_metrics=False, safety=safety)
     return out
 
