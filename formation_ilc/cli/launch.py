@@ -379,6 +379,7 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
     for note in plan.notes:
         print(note, flush=True)
     print(plan.banner(), flush=True)
+    print(legend_line(plan), flush=True)
     session = _Session(plan, env, place)
     try:
         status = session.run()
@@ -769,7 +770,7 @@ class _Session:
         except _Refused:
             status = 2
         except Diverged as exc:
-            print(f"error: trial {exc.trial + 1}: the errors are no longer finite (the "
+            print(f"error: trial {exc.trial}: the errors are no longer finite (the "
                   f"learning diverged; check the gains with `formation-ilc check`): "
                   f"stopping; the finished trials are in metrics.csv", file=sys.stderr)
             status = 1
@@ -867,6 +868,17 @@ class _Session:
             raise _Refused
 
 
+def legend_line(plan: RunPlan) -> str:
+    """The line under the header that says how to read each trial's line."""
+    text = ("each trial: its number (from 0, as in metrics.csv, the table and the plots) and "
+            "its largest error over robots and time; ")
+    if plan.true_state:
+        return text + ("'measured': of the poses the robots are given (what they learn "
+                       "from, noise and delays included); 'true': of where the plant really "
+                       "has them")
+    return text + "of the poses the robots are given (what they learn from)"
+
+
 def progress_line(k: int, plan: RunPlan, row: np.ndarray) -> str:
     """A trial's line on the console: its measured errors; where the plant knows the
     ground truth (the simulator, the physics plant) the true errors beside them; what
@@ -874,7 +886,7 @@ def progress_line(k: int, plan: RunPlan, row: np.ndarray) -> str:
     from formation_ilc.core.metrics import METRIC_COLUMNS
 
     col = {c: row[i] for i, c in enumerate(METRIC_COLUMNS)}
-    line = f"trial {k + 1}/{plan.scenario.trials}  max position "
+    line = f"trial {k} of 0..{plan.scenario.trials - 1}  max position "
     if plan.true_state:
         line += (f"{col['true_max_position_error']:.4g} m true, "
                  f"{col['max_position_error']:.4g} m measured  max heading "
