@@ -37,6 +37,7 @@ from formation_ilc.cli.options import (  # noqa: E402
     positive_int,
 )
 from formation_ilc.config.scenario import Scenario, ScenarioError, builtin_scenarios, load_scenario  # noqa: E402
+from formation_ilc.core._jit import cache_dir  # noqa: E402
 from formation_ilc.core.guards import DivergedError, format_bytes, memory_shortfall  # noqa: E402
 from formation_ilc.core.metrics import RobotCurves  # noqa: E402
 from formation_ilc.core.topology import SpanningTreeError  # noqa: E402
@@ -644,7 +645,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     previous = _sigterm_as_interrupt()
     try:
-        with compile_notes():
+        with compile_notes(where=cache_dir()):
             res = simulate(sc, keep=keep, progress=on_trial, initial_memory=init,
                            first_trial=first, on_trial_data=on_data, plant=plant,
                            stop_on_divergence=True, on_memory=keeper.update,
@@ -859,7 +860,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
                 bar(trial, row)
 
             try:
-                with compile_notes():
+                with compile_notes(where=cache_dir()):
                     simulate(sc, progress=on_trial, store_metrics=False)
             finally:
                 log.close()

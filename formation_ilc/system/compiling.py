@@ -25,8 +25,8 @@ __all__ = ["compile_notes"]
 
 
 class _Notes:
-    def __init__(self, file: IO[str], every: float, what: str):
-        self.file, self.every, self.what = file, every, what
+    def __init__(self, file: IO[str], every: float, what: str, where: str):
+        self.file, self.every, self.what, self.where = file, every, what, where
         self.t0: float | None = None  # when the first compile started
         self.last = 0.0  # when the last line was written
         self.done = 0  # kernels compiled
@@ -49,9 +49,7 @@ class _Notes:
             now = time.monotonic()
             if self.t0 is None:
                 self.t0 = now
-                from formation_ilc.core._jit import cache_dir
-
-                where = cache_dir()
+                where = self.where
                 self.say(f"compiling {self.what} with numba: once after an install or an "
                          f"update, then loaded from its cache"
                          + (f" ({where})" if where else "") + " ...")
@@ -95,12 +93,13 @@ def _name(event: Any) -> str:
 
 
 @contextmanager
-def compile_notes(what: str = "the batch simulator", every: float = 5.0,
+def compile_notes(what: str = "the batch simulator", where: str = "", every: float = 5.0,
                   file: IO[str] | None = None) -> Iterator[None]:
-    """Within it, numba's compiles are said on ``file`` (default stderr): see the module."""
+    """Within it, numba's compiles are said on ``file`` (default stderr): see the module.
+    where : the cache directory, said in the first line."""
     from numba.core import event as ev
 
-    notes = _Notes(sys.stderr if file is None else file, every, what)
+    notes = _Notes(sys.stderr if file is None else file, every, what, where)
 
     class Listener(ev.Listener):  # type: ignore[misc,unused-ignore]
         def on_start(self, event: Any) -> None:
