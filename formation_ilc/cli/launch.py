@@ -380,6 +380,8 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
         print(note, flush=True)
     print(plan.banner(), flush=True)
     print(legend_line(plan), flush=True)
+    if plan.live is not None:
+        print(live_line(*plan.live), flush=True)
     session = _Session(plan, env, place)
     try:
         status = session.run()
@@ -866,6 +868,17 @@ class _Session:
                   f"there (it would corrupt both); use --namespace or --domain-id",
                   file=sys.stderr)
             raise _Refused
+
+
+def live_line(host: str, port: int) -> str:
+    """Where the live view serves (``--live``): the address a viewer opens."""
+    if host in ("0.0.0.0", "::", ""):
+        import socket
+
+        return (f"live view: ws://{socket.gethostname()}:{port} (serving on every address "
+                f"of this machine; open it in Foxglove: docs/ros-tools.md)")
+    shown = f"[{host}]" if ":" in host else host
+    return f"live view: ws://{shown}:{port} (open it in Foxglove: docs/ros-tools.md)"
 
 
 def legend_line(plan: RunPlan) -> str:
