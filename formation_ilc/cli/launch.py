@@ -132,6 +132,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="with --plant pioneer: also start one fake RosAria driver per robot "
                         "(robot_sim.fake_pioneer: a unicycle in wall time with odometry "
                         "drift and noise), for a run without robots")
+    p.add_argument("--lifecycle", action="store_true",
+                   help="with --plant pioneer or base: the bridges are managed (lifecycle) "
+                        "nodes; the launcher configures and activates each through its "
+                        "change_state service, and deactivates them (their bases stop) at "
+                        "the end")
     p.add_argument("--return-timeout", type=positive_float, default=60.0, metavar="S",
                    help="with --plant pioneer: how long a bridge drives its robot back to the "
                         "initial pose between trials before it reports a timeout")
@@ -790,10 +795,21 @@ class _Session:
             if status == 0:
                 print(f"every trial is in: stopping the {len(self.plan.nodes)} processes "
                       f"[{time.monotonic() - self.t_start:.1f} s]", flush=True)
+            self._deactivate()
             self.supervisor.stop()
             self.writer.close()
             self.diagnostics = self.host.close()
         return status
+
+    def _deactivate(self) -> None:
+        """Managed bridges: deactivated (their bases stop) before their processes end."""
+        tr = self.host.transitions if self.host is not None else None
+        if tr is None:
+            return
+        silent = tr.deactivate(self.host.spin_once)
+        if silent:
+            print(f"warning: {', '.join(silent)} did not answer the deactivate request; "
+                  f"stopping the processes stops them too", file=sys.stderr)
 
     def _follow(self) -> int:
         """The monitor joins, the nodes start, and the run is followed until every trial
@@ -824,6 +840,9 @@ class _Session:
                 host.spin_once(0.05)
             finally:
                 self.spinning = False
+            if host.transitions is not None and not host.transitions.active:
+                for line in host.transitions.step():
+                    print(line, flush=True)
             if progress.active:
                 now = time.monotonic()
                 if now - graph_at >= 0.5:  # a graph query: twice a second is enough

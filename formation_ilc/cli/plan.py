@@ -103,6 +103,7 @@ class BridgeOptions:
         bridge's units), only those given (not 0).
     params_file : a ROS 2 parameters file every bridge reads (``--params-file``).
     physics_bases : also start physics robots behind the bases' interface.
+    lifecycle : the bridges are managed nodes, brought up by the launcher (``--lifecycle``).
     """
 
     driver: str = "rosaria"
@@ -114,6 +115,7 @@ class BridgeOptions:
     limits: tuple[tuple[str, float], ...] = ()
     params_file: Path | None = None
     physics_bases: bool = False
+    lifecycle: bool = False
 
     @classmethod
     def of(cls, opts: argparse.Namespace) -> BridgeOptions:
@@ -129,7 +131,8 @@ class BridgeOptions:
                    float(opts.return_timeout),
                    bool(opts.fake_drivers), base, tuple((k, v) for k, v in given if v != 0),
                    None if pf is None else Path(pf).resolve(),
-                   bool(getattr(opts, "physics_bases", False)))
+                   bool(getattr(opts, "physics_bases", False)),
+                   bool(getattr(opts, "lifecycle", False)))
 
     @property
     def sent_type(self) -> str:
@@ -154,7 +157,8 @@ class BridgeOptions:
         if self.base is not None and self.cmd_type is not None:  # the preset's, overridden
             kind += (("cmd_type", self.cmd_type),)
         return ((("robot_id", i), ("driver_ns", self.namespace(i))) + kind
-                + (("return_timeout", self.return_timeout),) + self.limits)
+                + (("return_timeout", self.return_timeout),) + self.limits
+                + ((("lifecycle", True),) if self.lifecycle else ()))
 
 
 @dataclass(frozen=True)
@@ -433,6 +437,12 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
         why = driver_ns_problem(bridge.driver_ns)
         if why is not None:  # before, the bridges started with an invalid namespace
             raise NoRun(f"argument --driver-ns: {bridge.driver_ns!r}: {why}")
+    if getattr(opts, "lifecycle", False):
+        if bridge is None:
+            raise NoRun("argument --lifecycle: only for bridges (--plant pioneer or base)")
+        if getattr(opts, "secure", None) is not None:
+            raise NoRun("argument --lifecycle: not with --secure (the enclaves' permissions "
+                        "grant no lifecycle services)")
     physics = (PhysicsOptions.of(opts) if row.physics
                or (bridge is not None and bridge.physics_bases) else None)
     safety = _safety(opts, row, sc, namespace, bridge, physics)
