@@ -32,13 +32,16 @@ with the simulator. Contacts are printed at once, counted in metrics.csv and act
 (--on-contact).
 
 Node entry points (also `ros2 run formation_ilc <exe>` on a full ROS 2 install):
-  formation-ilc-leader  virtual leader: --ros-args -p scenario:=NAME [-p trials:=K ...]
-  formation-ilc-sim     kinematic simulator, the plant (config from the config topic)
-  formation-ilc-physics the PyBullet physics plant (docs/physics.md)
-  formation-ilc-links   link emulator, for emulated links (config from the config topic)
-  formation-ilc-robot   one robot: --ros-args -p robot_id:=I; container: --robots 1 2 3
-  formation-ilc-bridge  a Pioneer 3-DX behind the plant contract: --ros-args -p robot_id:=I
-                        -p driver:=rosaria (docs/real-robots.md)
+  formation-ilc-virtual-leader  virtual leader: --ros-args -p scenario:=NAME [-p trials:=K]
+  formation-ilc-robot-sim       kinematic simulator, the plant (config from the config topic)
+  formation-ilc-physics-sim     the PyBullet physics plant (docs/physics.md)
+  formation-ilc-link-emulator   link emulator, for emulated links (config from the config topic)
+  formation-ilc-robot           one robot: --ros-args -p robot_id:=I; container: --robots 1 2 3
+  formation-ilc-bridge          any base's driver behind the plant contract (a Pioneer 3-DX,
+                                a TurtleBot, ...): --ros-args -p robot_id:=I -p driver:=rosaria
+                                (docs/real-robots.md)
+The old names (formation-ilc-sim, -physics, -links, -leader, -record) still work for one
+release, with a deprecation line.
 
 --live [PORT]: serve the running formation to Foxglove on ws://127.0.0.1:PORT (its own
 process, formation-ilc-liveview; docs/ros-tools.md).

@@ -1178,10 +1178,10 @@ def _entry_modules() -> dict[str, str]:
 
 #: the ``ros2 run formation_ilc`` executable of each node's entry script (``ros2_run/``)
 ROS2_RUN = {
-    "formation-ilc-leader": "virtual_leader", "formation-ilc-sim": "robot_sim",
-    "formation-ilc-physics": "physics_sim", "formation-ilc-links": "link_emulator",
-    "formation-ilc-robot": "robot", "formation-ilc-record": "recorder",
-    "formation-ilc-liveview": "liveview", "formation-ilc-bridge": "pioneer_bridge",
+    "formation-ilc-virtual-leader": "virtual_leader", "formation-ilc-robot-sim": "robot_sim",
+    "formation-ilc-physics-sim": "physics_sim", "formation-ilc-link-emulator": "link_emulator",
+    "formation-ilc-robot": "robot", "formation-ilc-recorder": "recorder",
+    "formation-ilc-liveview": "liveview", "formation-ilc-bridge": "bridge",
     "formation-ilc-fake-pioneer": "fake_pioneer", "formation-ilc-physics-bases": "physics_bases",
 }
 
@@ -1197,9 +1197,11 @@ def ros_launch_processes(argv: list[str]) -> list[dict[str, Any]]:
     (``launch/formation.launch.py``): the same processes with the same arguments, ROS
     arguments and parameters, but no monitor (the launcher's own node: nobody waits for
     it), and the leader ends its process after the last trial (``exit_when_done``), which
-    ends the launch. Each entry: name, executable (``ros2 run formation_ilc``), arguments,
-    ros_arguments (remaps, params files, ``-p`` parameters), and whether the launch ends
-    with it. NoRun for options the launcher refuses."""
+    ends the launch. Each entry: name, node_name (the node's name when the process is one
+    node of the roster, for ``Node(name=...)``; None for a container of robots or a node
+    outside the roster), executable (``ros2 run formation_ilc``), arguments, ros_arguments
+    (remaps, params files, ``-p`` parameters), and whether the launch ends with it. NoRun
+    for options the launcher refuses."""
     from formation_ilc.cli.commands import build_parser
 
     plan = build_plan(build_parser().parse_args(["launch", *argv]))
@@ -1207,6 +1209,7 @@ def ros_launch_processes(argv: list[str]) -> list[dict[str, Any]]:
     plan = replace(plan, config=replace(plan.config, monitored=False),
                    roster=roster(lineup))
     opts = build_parser().parse_args(["launch", *argv])
+    members = {m.name for m in plan.roster.members}
     out = []
     for spec in node_specs(plan, scenario_reference(opts.scenario)):
         params = dict(spec.params)
@@ -1215,7 +1218,9 @@ def ros_launch_processes(argv: list[str]) -> list[dict[str, Any]]:
         ros = [*spec.remaps]
         for k, v in params.items():
             ros += ["-p", f"{k}:={param_text(v)}"]
-        out.append({"name": spec.name, "executable": ros2_executable(spec.module),
+        single = spec.name in members and "--robots" not in spec.args
+        out.append({"name": spec.name, "node_name": spec.name if single else None,
+                    "executable": ros2_executable(spec.module),
                     "arguments": list(spec.args), "ros_arguments": ros,
                     "ends_launch": spec.name == LEADER_NODE})
     return out
