@@ -75,7 +75,8 @@ With ``lifecycle:=true`` it is a managed node (``rclpy.lifecycle``, the standard
 hardware driver: it starts unconfigured and sends the driver nothing; ``configure``
 succeeds only once the driver is there (a writer of its odometry, a reader of its
 commands, its motor service if it has one) and fails otherwise, naming what is missing;
-``activate`` lets commands through and lets the bridge say ready; ``deactivate`` and
+``activate`` enables the motors, lets commands through and lets the bridge say ready;
+``deactivate`` and
 ``shutdown`` send the driver one zero command at once and nothing after (the robot
 stops; the bridge keeps sampling its pose). ``formation-ilc launch --lifecycle`` drives
 the transitions itself.
@@ -330,6 +331,8 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
     def _enable_motors(self) -> None:
         if self.motors_on:
             self._motor_timer.cancel()
+            return
+        if not self.active:  # a managed bridge: the motors go on when it is activated
             return
         if self.spec.motors_kind == "p2os_motor_state":
             if self.motor_pub.get_subscription_count() > 0:

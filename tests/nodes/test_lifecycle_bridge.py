@@ -79,10 +79,12 @@ def test_a_managed_bridge_moves_its_base_only_while_active(context):
         assert transition(Transition.TRANSITION_CONFIGURE)
         assert state() == State.PRIMARY_STATE_INACTIVE
         assert quiet(0.5) == 0  # inactive: still nothing
+        assert not driver.motors
 
         assert transition(Transition.TRANSITION_ACTIVATE)
         assert state() == State.PRIMARY_STATE_ACTIVE
         spin_until(ex, lambda: len(got) >= 3)  # the bridge's commands flow (idle: zero)
+        spin_until(ex, lambda: driver.motors)  # activate: the motors go on
 
         assert transition(Transition.TRANSITION_DEACTIVATE)
         t_off = time.monotonic()
