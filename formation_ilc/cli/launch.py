@@ -329,12 +329,33 @@ def add_host_arguments(p: argparse.ArgumentParser) -> None:
 
 
 # --------------------------------------------------------------------------- running
+def _compile_notes(args: argparse.Namespace) -> Any:
+    """Robots with bodies: the plan runs the batch simulator to predict contacts, which
+    compiles it on a fresh install; that is said on the console while it lasts."""
+    import contextlib
+
+    from formation_ilc.config.plants import plant
+
+    try:
+        bodies = plant(str(getattr(args, "plant", "sim") or "sim")).bodies
+    except ValueError:
+        bodies = False  # the plan refuses it, in its words
+    if not bodies:
+        return contextlib.nullcontext()
+    from formation_ilc.core._jit import cache_dir
+    from formation_ilc.system.compiling import compile_notes
+
+    return compile_notes("the batch simulator (it predicts contacts before the run)",
+                         where=cache_dir())
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the stack; return the exit status (0 ok, 1 a node failed, 2 refused, 130
     interrupted): the plan, built once from the options, then its execution (with
     --hosts netns inside the robots' network namespaces)."""
     try:
-        plan = build_plan(args)
+        with _compile_notes(args):
+            plan = build_plan(args)
     except NoRun as stop:
         return stop.report()
     if plan.hosts is not None:
