@@ -245,6 +245,8 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
         if self.configured and hasattr(self, "drv_pub"):
             self.drv_pub.publish(ms.driver_twist(0.0, 0.0, self.stamped, self._wall_ns()))
             self.core.stop(time.monotonic())
+            self.get_logger().info(f"{self.name}: stopped: a zero command sent to "
+                                   f"{self.driver_topics[0]}, and no command after")
 
     # ------------------------------------------------------------------ set-up
     def configure(self, cfg: RunConfig) -> None:

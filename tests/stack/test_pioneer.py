@@ -49,6 +49,9 @@ def test_team_learns_through_bridges_and_fake_drivers(ros_env, tmp_path):
     for i in (1, 2, 3):
         assert f"/formation/bridge_{i}: configured and active (lifecycle)" in res.stdout
     assert "did not answer the deactivate request" not in res.stdout
+    for i in (1, 2, 3):  # the launcher deactivated each at the end: its base stopped
+        log = (out / "logs" / f"bridge_{i}.log").read_text()
+        assert f"bridge_{i}: stopped: a zero command sent to /pioneer_{i}/cmd_vel" in log
     got = read_metrics(out / "metrics.csv")
     assert got.shape == (TRIALS, 9)
     # no true state from a real robot: the true_ columns are nan, the rest finite; no
