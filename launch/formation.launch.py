@@ -4,12 +4,14 @@ docs/ros-tools.md):
     ros2 launch formation_ilc formation.launch.py scenario:=paper-hexagon6 trials:=10
     ros2 launch formation_ilc formation.launch.py namespace:=/team2 record:=run.mcap live:=8765
 
-It starts the processes ``formation-ilc launch`` starts for the same options, with the same
-arguments and parameters (``formation_ilc.cli.plan.ros_launch_processes``): the virtual
-leader, the plant, the link emulator, the robots, and a recorder and the live view when
-asked. The leader ends its process after the last trial, and the launch stops every node
-with it. The launcher's own monitor (metrics.csv, the error table, restarts) is not part of
-a launch file's run: ``formation-ilc analyze RUN.mcap`` gives the metrics of a recording.
+It starts the processes ``formation-ilc launch`` starts for the same options (its defaults
+too: 20 trials), each node under its own name, with the same arguments and parameters
+(``formation_ilc.cli.plan.ros_launch_processes``): the virtual leader, the plant, the link
+emulator, the robots, and a recorder and the live view when asked. One robot on its own
+computer: ``robot.launch.py``. The leader ends its process after the last trial, and the
+launch stops every node with it. The launcher's own monitor (metrics.csv, the error
+table, restarts) is not part of a launch file's run: ``formation-ilc analyze RUN.mcap``
+gives the metrics of a recording.
 
 Launch arguments (``ros2 launch formation_ilc formation.launch.py --show-args``):
 scenario, trials, namespace, robots_per_process, plant, mode, links, record, live,
@@ -27,7 +29,8 @@ PACKAGE = "formation_ilc"
 #: (name, default, description): every option has the launcher's meaning
 ARGUMENTS = (
     ("scenario", "paper-triangle3", "a built-in scenario or a scenario YAML file"),
-    ("trials", "0", "number of trials; 0 keeps the scenario's"),
+    ("trials", "20", "number of trials (formation-ilc launch's default); 0 keeps the "
+                     "scenario's"),
     ("namespace", "/formation", "the formation's ROS namespace (/clock is moved with it)"),
     ("robots_per_process", "0", "robot nodes per process (0: one process per robot)"),
     ("plant", "sim", "sim, physics, external, pioneer or base (formation-ilc launch --help)"),
@@ -65,7 +68,10 @@ def _nodes(context, *args, **kwargs):
     extra = ["--params-file", get("params_file")] if get("params_file") else []
     nodes = []
     for p in ros_launch_processes(launcher_argv(get)):
-        nodes.append(Node(package=PACKAGE, executable=p["executable"],
+        # each node under its own name (robot_1, virtual_leader, ...), as the launch prints
+        # it; a container of several robot nodes keeps theirs
+        named = {"name": p["node_name"]} if p["node_name"] else {}
+        nodes.append(Node(package=PACKAGE, executable=p["executable"], **named,
                           arguments=p["arguments"], ros_arguments=extra + p["ros_arguments"],
                           output="screen",
                           # the leader ends after the last trial: the whole launch ends

@@ -1,4 +1,5 @@
-"""Link emulator (``formation-ilc-links``): the scenario's delays on the robot-to-robot links.
+"""Link emulator (``formation-ilc-link-emulator``): the scenario's delays on the
+robot-to-robot links.
 
 Started only for ``links: emulated`` runs. It reads every robot's ``shared_pose`` and the
 leader's ``reference`` and, at tick t, delivers to robot i on each link (an in-neighbour j,
@@ -177,7 +178,7 @@ class LinkEmulator(ConfiguredNode):
 
 def main(args: list[str] | None = None) -> int:
     return spin_main(lambda ns, argv: [LinkEmulator()],
-                     node_parser("formation-ilc-links", __doc__), args)
+                     node_parser("formation-ilc-link-emulator", __doc__), args)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""Kinematic simulator (``formation-ilc-sim``): the plant of every robot, in one process.
+"""Kinematic simulator (``formation-ilc-robot-sim``): the plant of every robot, in one process.
 
 It speaks the plant contract of ``msgs_schema`` and nothing more: it integrates eq. (1) for
 every robot with the scenario's initial-state shifts, input disturbances and output noises
@@ -27,7 +27,7 @@ iteration (whose plant stream is drawn) and the slot (whose labels the poses car
 ``abort`` the simulator drops the trial and reports ready.
 
 The links between robots are not part of the plant: with ``links: emulated`` the link
-emulator (``formation-ilc-links``) is its own process; with ``links: direct`` the robots
+emulator (``formation-ilc-link-emulator``) is its own process; with ``links: direct`` the robots
 talk to each other.
 
 A ``start`` event is obeyed only for the trial after the current one, once the simulator
@@ -248,7 +248,7 @@ class SimNode(ConfiguredNode):
 
 
 def main(args: list[str] | None = None) -> int:
-    return spin_main(lambda ns, argv: [SimNode()], node_parser("formation-ilc-sim", __doc__),
+    return spin_main(lambda ns, argv: [SimNode()], node_parser("formation-ilc-robot-sim", __doc__),
                      args)
 
 

@@ -1,4 +1,4 @@
-"""Physics plant (``formation-ilc-physics``): every robot in a PyBullet world, in one process.
+"""Physics plant (``formation-ilc-physics-sim``): every robot in a PyBullet world, in one process.
 
 The same plant contract, schedule and timing as the kinematic simulator (``robot_sim.node``,
 whose node this one is), with the rigid-body world of ``formation_ilc.model.physics`` in
@@ -156,7 +156,7 @@ class PhysicsNode(SimNode):
 
 def main(args: list[str] | None = None) -> int:
     return spin_main(lambda ns, argv: [PhysicsNode()],
-                     node_parser("formation-ilc-physics", __doc__), args)
+                     node_parser("formation-ilc-physics-sim", __doc__), args)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""Virtual leader (``formation-ilc-leader``): the reference r(t), the trial schedule, the
+"""Virtual leader (``formation-ilc-virtual-leader``): the reference r(t), the trial schedule, the
 run configuration.
 
 Parameters
@@ -338,12 +338,12 @@ def _build(ns: Any, argv: list[str]) -> list[Node]:
     try:
         return [LeaderNode()]
     except ValueError as exc:  # a parameter, the scenario or the state file: one line
-        print(f"formation-ilc-leader: {exc}", file=sys.stderr, flush=True)
+        print(f"formation-ilc-virtual-leader: {exc}", file=sys.stderr, flush=True)
         raise SystemExit(2) from None
 
 
 def main(args: list[str] | None = None) -> int:
-    return spin_main(_build, node_parser("formation-ilc-leader", __doc__), args)
+    return spin_main(_build, node_parser("formation-ilc-virtual-leader", __doc__), args)
 
 
 if __name__ == "__main__":

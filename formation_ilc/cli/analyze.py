@@ -185,10 +185,15 @@ def _plot_snapshots(rec: Recording, trials: list[int], path: Path,
     fig, axes = plt.subplots(len(trials), len(times), figsize=(2.3 * len(times),
                                                               2.4 * len(trials)),
                              squeeze=False)
-    span = float(np.ptp(eta_d[:, :, :2] - eta_d[:, :, :2].mean(axis=0, keepdims=True),
-                        axis=0).max()) / 2 + 0.3
+    shape = float(np.ptp(eta_d[:, :, :2] - eta_d[:, :, :2].mean(axis=0, keepdims=True),
+                         axis=0).max()) / 2 + 0.3
     for row, k in enumerate(trials):
         eta = rec.eta[k]
+        # one scale per trial, wide enough for every robot at every shown instant (an early
+        # trial's robots can be metres from their places) and for the desired shape
+        far = max(float(np.abs(eta[:, t, :2] - eta_d[:, t, :2].mean(axis=0)).max())
+                  for t in times)
+        span = max(shape, 1.1 * far + 0.2)
         for col, t in enumerate(times):
             ax = axes[row, col]
             c = eta_d[:, t, :2].mean(axis=0)
@@ -209,7 +214,7 @@ def _plot_snapshots(rec: Recording, trials: list[int], path: Path,
             if row == 0:
                 ax.set_title(f"t = {t * rec.scenario.dt:.1f} s", fontsize=9)
             if col == 0:
-                ax.set_ylabel(f"trial {k}")
+                ax.set_ylabel(f"trial {k} (panels {2 * span:.3g} m wide)")
     fig.suptitle("formation snapshots: desired (open, dotted) vs measured (filled)")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
@@ -311,7 +316,13 @@ def analyze(src: Path | list[Path], out: Path, plots: bool = True,
         sc = rec.scenario
         title = f"{sc.name}: law ({sc.law.kind}), {sc.law.memory} memory (from {src.name})"
         figs: dict[str, Path | None] = {}
-        figs["errors"] = plot_errors(m[:, 0], m[:, 1], m[:, 2], out / "errors.png", title)
+        from formation_ilc.core.metrics import robot_errors
+
+        kept = sorted(k for k in rec.eta if k in set(int(x) for x in m[:, 0]))
+        per_robot = (np.array(kept, dtype=float),
+                     np.array([robot_errors(rec.eta[k], sc.desired.eta) for k in kept]))
+        figs["errors"] = plot_errors(m[:, 0], m[:, 1], m[:, 2], out / "errors.png", title,
+                                     per_robot=per_robot if kept else None)
         trials = [int(x) for x in m[:, 0]]
         n = len(trials)
         chosen = sorted({trials[0], trials[max(0, n // 10 - 1)], trials[max(0, 2 * n // 5 - 1)],

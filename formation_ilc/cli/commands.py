@@ -37,10 +37,13 @@ from formation_ilc.cli.options import (  # noqa: E402
     positive_int,
 )
 from formation_ilc.config.scenario import Scenario, ScenarioError, builtin_scenarios, load_scenario  # noqa: E402
+from formation_ilc.core._jit import cache_dir  # noqa: E402
 from formation_ilc.core.guards import DivergedError, format_bytes, memory_shortfall  # noqa: E402
+from formation_ilc.core.metrics import RobotCurves  # noqa: E402
 from formation_ilc.core.topology import SpanningTreeError  # noqa: E402
 from formation_ilc.model.footprint import BODIES  # noqa: E402
 from formation_ilc.store.memoryfile import MemoryFileError, load_memory, save_memory  # noqa: E402
+from formation_ilc.system.compiling import compile_notes  # noqa: E402
 from formation_ilc.system.exits import DISK_FULL, is_disk_full  # noqa: E402
 
 EXAMPLES = """\
@@ -419,19 +422,21 @@ def _add_launch(sub: Any) -> None:
 
 
 class Progress:
-    """simulate's and compare's progress: trials done, with the last trial's errors
-    (``formation_ilc.system.progress``: a bar on a terminal, a line every 10 % or 30 s in a
+    """simulate's and compare's progress: the share of trials done, with the last trial's
+    number (from 0, as in metrics.csv, the table and the plots) and errors
+    (``formation_ilc.system.progress``: a bar on a terminal, a line every 10 % or 10 s in a
     log)."""
 
     def __init__(self, total: int, label: str, first: int = 0):
         from formation_ilc.system.progress import Progress as Bar
 
         self.first = first
-        self.bar = Bar(total, label, "trials", tenths=True)
+        self.span = f"{first}..{first + total - 1}"
+        self.bar = Bar(total, label, "trials", tenths=True, count=False)
 
     def __call__(self, k: int, row: Any) -> None:
-        self.bar.to(k - self.first + 1,
-                    f"max position {row[1]:.4g} m  max heading {row[2]:.4g} rad")
+        self.bar.to(k - self.first + 1, f"trial {k} of {self.span}: max position "
+                                        f"{row[1]:.4g} m  max heading {row[2]:.4g} rad")
 
 
 class TrialLog:
@@ -635,13 +640,16 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     args.footprint = footprint = args.footprint or (args.body if safety is not None else None)
     on_data = _with_clearance(footprint, None if recorder is None else recorder.trial,
                               clear_rows)
+    curves = RobotCurves(sc.desired.eta, first, k)  # errors.png's per-robot curves
+    on_data = _with_curves(curves, on_data)
     t0 = time.perf_counter()
     previous = _sigterm_as_interrupt()
     try:
-        res = simulate(sc, keep=keep, progress=on_trial, initial_memory=init,
-                       first_trial=first, on_trial_data=on_data, plant=plant,
-                       stop_on_divergence=True, on_memory=keeper.update, store_metrics=False,
-                       safety=safety)
+        with compile_notes(where=cache_dir()):
+            res = simulate(sc, keep=keep, progress=on_trial, initial_memory=init,
+                           first_trial=first, on_trial_data=on_data, plant=plant,
+                           stop_on_divergence=True, on_memory=keeper.update,
+                           store_metrics=False, safety=safety)
         keeper.save()
     except DivergedError as exc:
         saved = keeper.save()
@@ -660,7 +668,17 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         if recorder is not None:
             recorder.close()
     return _simulate_outputs(args, sc, res, log, keeper, out, first,
-                             time.perf_counter() - t0, clear_rows)
+                             time.perf_counter() - t0, clear_rows, curves)
+
+
+def _with_curves(curves: Any, on_data: Any) -> Any:
+    """The per-trial callback that also gives each trial's outputs to ``curves``."""
+    def with_curves(k: int, xi: np.ndarray, eta: np.ndarray, *rest: Any) -> None:
+        curves.take(k, eta)
+        if on_data is not None:
+            on_data(k, xi, eta, *rest)
+
+    return with_curves
 
 
 def _safety_spec(args: argparse.Namespace, sc: Any) -> Any:
@@ -754,7 +772,7 @@ def _interrupted(args: argparse.Namespace, out: Path, log: TrialLog, keeper: Mem
 
 def _simulate_outputs(args: argparse.Namespace, sc: Scenario, res: Any, log: TrialLog,
                       keeper: MemoryKeeper, out: Path, first: int, elapsed: float,
-                      clear_rows: list[Any]) -> int:
+                      clear_rows: list[Any], curves: Any = None) -> int:
     """A finished simulation's trajectories.npz, summary.json, plots and printed lines."""
     from formation_ilc.model.checks import condition20
 
@@ -793,7 +811,10 @@ def _simulate_outputs(args: argparse.Namespace, sc: Scenario, res: Any, log: Tri
         title = (f"{sc.name}: law ({sc.law.kind}), {sc.law.memory} memory, "
                  f"{'noisy' if sc.uncertainty.noisy else 'noise-free'}, "
                  f"delay {sc.uncertainty.delay.kind}")
-        plot_errors(rows[:, 0], rows[:, 1], rows[:, 2], out / "errors.png", title)
+        print(f"  writing {out / 'errors.png'}, {out / 'trajectories.png'} ...",
+              file=sys.stderr, flush=True)
+        plot_errors(rows[:, 0], rows[:, 1], rows[:, 2], out / "errors.png", title,
+                    per_robot=None if curves is None else curves.arrays())
         edges = [(i, j) for i in range(sc.n) for j in sc.graph.neighbours(i)]
         plot_trajectories(_thin(sc.desired.eta), {t: _thin(r.eta) for t, r in
                                                   res.records.items()},
@@ -839,7 +860,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
                 bar(trial, row)
 
             try:
-                simulate(sc, progress=on_trial, store_metrics=False)
+                with compile_notes(where=cache_dir()):
+                    simulate(sc, progress=on_trial, store_metrics=False)
             finally:
                 log.close()
             assert log.first is not None and log.last is not None

@@ -32,13 +32,16 @@ with the simulator. Contacts are printed at once, counted in metrics.csv and act
 (--on-contact).
 
 Node entry points (also `ros2 run formation_ilc <exe>` on a full ROS 2 install):
-  formation-ilc-leader  virtual leader: --ros-args -p scenario:=NAME [-p trials:=K ...]
-  formation-ilc-sim     kinematic simulator, the plant (config from the config topic)
-  formation-ilc-physics the PyBullet physics plant (docs/physics.md)
-  formation-ilc-links   link emulator, for emulated links (config from the config topic)
-  formation-ilc-robot   one robot: --ros-args -p robot_id:=I; container: --robots 1 2 3
-  formation-ilc-bridge  a Pioneer 3-DX behind the plant contract: --ros-args -p robot_id:=I
-                        -p driver:=rosaria (docs/real-robots.md)
+  formation-ilc-virtual-leader  virtual leader: --ros-args -p scenario:=NAME [-p trials:=K]
+  formation-ilc-robot-sim       kinematic simulator, the plant (config from the config topic)
+  formation-ilc-physics-sim     the PyBullet physics plant (docs/physics.md)
+  formation-ilc-link-emulator   link emulator, for emulated links (config from the config topic)
+  formation-ilc-robot           one robot: --ros-args -p robot_id:=I; container: --robots 1 2 3
+  formation-ilc-bridge          any base's driver behind the plant contract (a Pioneer 3-DX,
+                                a TurtleBot, ...): --ros-args -p robot_id:=I -p driver:=rosaria
+                                (docs/real-robots.md)
+The old names (formation-ilc-sim, -physics, -links, -leader, -record) still work for one
+release, with a deprecation line.
 
 --live [PORT]: serve the running formation to Foxglove on ws://127.0.0.1:PORT (its own
 process, formation-ilc-liveview; docs/ros-tools.md).
@@ -132,6 +135,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="with --plant pioneer: also start one fake RosAria driver per robot "
                         "(robot_sim.fake_pioneer: a unicycle in wall time with odometry "
                         "drift and noise), for a run without robots")
+    p.add_argument("--lifecycle", action="store_true",
+                   help="with --plant pioneer or base: the bridges are managed (lifecycle) "
+                        "nodes; the launcher configures and activates each through its "
+                        "change_state service, and deactivates them (their bases stop) at "
+                        "the end")
     p.add_argument("--return-timeout", type=positive_float, default=60.0, metavar="S",
                    help="with --plant pioneer: how long a bridge drives its robot back to the "
                         "initial pose between trials before it reports a timeout")
@@ -322,12 +330,33 @@ def add_host_arguments(p: argparse.ArgumentParser) -> None:
 
 
 # --------------------------------------------------------------------------- running
+def _compile_notes(args: argparse.Namespace) -> Any:
+    """Robots with bodies: the plan runs the batch simulator to predict contacts, which
+    compiles it on a fresh install; that is said on the console while it lasts."""
+    import contextlib
+
+    from formation_ilc.config.plants import plant
+
+    try:
+        bodies = plant(str(getattr(args, "plant", "sim") or "sim")).bodies
+    except ValueError:
+        bodies = False  # the plan refuses it, in its words
+    if not bodies:
+        return contextlib.nullcontext()
+    from formation_ilc.core._jit import cache_dir
+    from formation_ilc.system.compiling import compile_notes
+
+    return compile_notes("the batch simulator (it predicts contacts before the run)",
+                         where=cache_dir())
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the stack; return the exit status (0 ok, 1 a node failed, 2 refused, 130
     interrupted): the plan, built once from the options, then its execution (with
     --hosts netns inside the robots' network namespaces)."""
     try:
-        plan = build_plan(args)
+        with _compile_notes(args):
+            plan = build_plan(args)
     except NoRun as stop:
         return stop.report()
     if plan.hosts is not None:
@@ -380,6 +409,9 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
     for note in plan.notes:
         print(note, flush=True)
     print(plan.banner(), flush=True)
+    print(legend_line(plan), flush=True)
+    if plan.live is not None:
+        print(live_line(*plan.live), flush=True)
     session = _Session(plan, env, place)
     try:
         status = session.run()
@@ -770,7 +802,7 @@ class _Session:
         except _Refused:
             status = 2
         except Diverged as exc:
-            print(f"error: trial {exc.trial + 1}: the errors are no longer finite (the "
+            print(f"error: trial {exc.trial}: the errors are no longer finite (the "
                   f"learning diverged; check the gains with `formation-ilc check`): "
                   f"stopping; the finished trials are in metrics.csv", file=sys.stderr)
             status = 1
@@ -788,10 +820,21 @@ class _Session:
             if status == 0:
                 print(f"every trial is in: stopping the {len(self.plan.nodes)} processes "
                       f"[{time.monotonic() - self.t_start:.1f} s]", flush=True)
+            self._deactivate()
             self.supervisor.stop()
             self.writer.close()
             self.diagnostics = self.host.close()
         return status
+
+    def _deactivate(self) -> None:
+        """Managed bridges: deactivated (their bases stop) before their processes end."""
+        tr = self.host.transitions if self.host is not None else None
+        if tr is None:
+            return
+        silent = tr.deactivate(self.host.spin_once)
+        if silent:
+            print(f"warning: {', '.join(silent)} did not answer the deactivate request; "
+                  f"stopping the processes stops them too", file=sys.stderr)
 
     def _follow(self) -> int:
         """The monitor joins, the nodes start, and the run is followed until every trial
@@ -822,6 +865,9 @@ class _Session:
                 host.spin_once(0.05)
             finally:
                 self.spinning = False
+            if host.transitions is not None and not host.transitions.active:
+                for line in host.transitions.step():
+                    print(line, flush=True)
             if progress.active:
                 now = time.monotonic()
                 if now - graph_at >= 0.5:  # a graph query: twice a second is enough
@@ -868,6 +914,28 @@ class _Session:
             raise _Refused
 
 
+def live_line(host: str, port: int) -> str:
+    """Where the live view serves (``--live``): the address a viewer opens."""
+    if host in ("0.0.0.0", "::", ""):
+        import socket
+
+        return (f"live view: ws://{socket.gethostname()}:{port} (serving on every address "
+                f"of this machine; open it in Foxglove: docs/ros-tools.md)")
+    shown = f"[{host}]" if ":" in host else host
+    return f"live view: ws://{shown}:{port} (open it in Foxglove: docs/ros-tools.md)"
+
+
+def legend_line(plan: RunPlan) -> str:
+    """The line under the header that says how to read each trial's line."""
+    text = ("each trial: its number (from 0, as in metrics.csv, the table and the plots) and "
+            "its largest error over robots and time; ")
+    if plan.true_state:
+        return text + ("'measured': of the poses the robots are given (what they learn "
+                       "from, noise and delays included); 'true': of where the plant really "
+                       "has them")
+    return text + "of the poses the robots are given (what they learn from)"
+
+
 def progress_line(k: int, plan: RunPlan, row: np.ndarray) -> str:
     """A trial's line on the console: its measured errors; where the plant knows the
     ground truth (the simulator, the physics plant) the true errors beside them; what
@@ -875,7 +943,7 @@ def progress_line(k: int, plan: RunPlan, row: np.ndarray) -> str:
     from formation_ilc.core.metrics import METRIC_COLUMNS
 
     col = {c: row[i] for i, c in enumerate(METRIC_COLUMNS)}
-    line = f"trial {k + 1}/{plan.scenario.trials}  max position "
+    line = f"trial {k} of 0..{plan.scenario.trials - 1}  max position "
     if plan.true_state:
         line += (f"{col['true_max_position_error']:.4g} m true, "
                  f"{col['max_position_error']:.4g} m measured  max heading "

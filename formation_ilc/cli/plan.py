@@ -103,6 +103,7 @@ class BridgeOptions:
         bridge's units), only those given (not 0).
     params_file : a ROS 2 parameters file every bridge reads (``--params-file``).
     physics_bases : also start physics robots behind the bases' interface.
+    lifecycle : the bridges are managed nodes, brought up by the launcher (``--lifecycle``).
     """
 
     driver: str = "rosaria"
@@ -114,6 +115,7 @@ class BridgeOptions:
     limits: tuple[tuple[str, float], ...] = ()
     params_file: Path | None = None
     physics_bases: bool = False
+    lifecycle: bool = False
 
     @classmethod
     def of(cls, opts: argparse.Namespace) -> BridgeOptions:
@@ -129,7 +131,8 @@ class BridgeOptions:
                    float(opts.return_timeout),
                    bool(opts.fake_drivers), base, tuple((k, v) for k, v in given if v != 0),
                    None if pf is None else Path(pf).resolve(),
-                   bool(getattr(opts, "physics_bases", False)))
+                   bool(getattr(opts, "physics_bases", False)),
+                   bool(getattr(opts, "lifecycle", False)))
 
     @property
     def sent_type(self) -> str:
@@ -154,7 +157,8 @@ class BridgeOptions:
         if self.base is not None and self.cmd_type is not None:  # the preset's, overridden
             kind += (("cmd_type", self.cmd_type),)
         return ((("robot_id", i), ("driver_ns", self.namespace(i))) + kind
-                + (("return_timeout", self.return_timeout),) + self.limits)
+                + (("return_timeout", self.return_timeout),) + self.limits
+                + ((("lifecycle", True),) if self.lifecycle else ()))
 
 
 @dataclass(frozen=True)
@@ -433,6 +437,12 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
         why = driver_ns_problem(bridge.driver_ns)
         if why is not None:  # before, the bridges started with an invalid namespace
             raise NoRun(f"argument --driver-ns: {bridge.driver_ns!r}: {why}")
+    if getattr(opts, "lifecycle", False):
+        if bridge is None:
+            raise NoRun("argument --lifecycle: only for bridges (--plant pioneer or base)")
+        if getattr(opts, "secure", None) is not None:
+            raise NoRun("argument --lifecycle: not with --secure (the enclaves' permissions "
+                        "grant no lifecycle services)")
     physics = (PhysicsOptions.of(opts) if row.physics
                or (bridge is not None and bridge.physics_bases) else None)
     safety = _safety(opts, row, sc, namespace, bridge, physics)
@@ -1179,10 +1189,10 @@ def _entry_modules() -> dict[str, str]:
 
 #: the ``ros2 run formation_ilc`` executable of each node's entry script (``ros2_run/``)
 ROS2_RUN = {
-    "formation-ilc-leader": "virtual_leader", "formation-ilc-sim": "robot_sim",
-    "formation-ilc-physics": "physics_sim", "formation-ilc-links": "link_emulator",
-    "formation-ilc-robot": "robot", "formation-ilc-record": "recorder",
-    "formation-ilc-liveview": "liveview", "formation-ilc-bridge": "pioneer_bridge",
+    "formation-ilc-virtual-leader": "virtual_leader", "formation-ilc-robot-sim": "robot_sim",
+    "formation-ilc-physics-sim": "physics_sim", "formation-ilc-link-emulator": "link_emulator",
+    "formation-ilc-robot": "robot", "formation-ilc-recorder": "recorder",
+    "formation-ilc-liveview": "liveview", "formation-ilc-bridge": "bridge",
     "formation-ilc-fake-pioneer": "fake_pioneer", "formation-ilc-physics-bases": "physics_bases",
 }
 
@@ -1198,9 +1208,11 @@ def ros_launch_processes(argv: list[str]) -> list[dict[str, Any]]:
     (``launch/formation.launch.py``): the same processes with the same arguments, ROS
     arguments and parameters, but no monitor (the launcher's own node: nobody waits for
     it), and the leader ends its process after the last trial (``exit_when_done``), which
-    ends the launch. Each entry: name, executable (``ros2 run formation_ilc``), arguments,
-    ros_arguments (remaps, params files, ``-p`` parameters), and whether the launch ends
-    with it. NoRun for options the launcher refuses."""
+    ends the launch. Each entry: name, node_name (the node's name when the process is one
+    node of the roster, for ``Node(name=...)``; None for a container of robots or a node
+    outside the roster), executable (``ros2 run formation_ilc``), arguments, ros_arguments
+    (remaps, params files, ``-p`` parameters), and whether the launch ends with it. NoRun
+    for options the launcher refuses."""
     from formation_ilc.cli.commands import build_parser
 
     plan = build_plan(build_parser().parse_args(["launch", *argv]))
@@ -1208,6 +1220,7 @@ def ros_launch_processes(argv: list[str]) -> list[dict[str, Any]]:
     plan = replace(plan, config=replace(plan.config, monitored=False),
                    roster=roster(lineup))
     opts = build_parser().parse_args(["launch", *argv])
+    members = {m.name for m in plan.roster.members}
     out = []
     for spec in node_specs(plan, scenario_reference(opts.scenario)):
         params = dict(spec.params)
@@ -1216,7 +1229,9 @@ def ros_launch_processes(argv: list[str]) -> list[dict[str, Any]]:
         ros = [*spec.remaps]
         for k, v in params.items():
             ros += ["-p", f"{k}:={param_text(v)}"]
-        out.append({"name": spec.name, "executable": ros2_executable(spec.module),
+        single = spec.name in members and "--robots" not in spec.args
+        out.append({"name": spec.name, "node_name": spec.name if single else None,
+                    "executable": ros2_executable(spec.module),
                     "arguments": list(spec.args), "ros_arguments": ros,
                     "ends_launch": spec.name == LEADER_NODE})
     return out

@@ -193,6 +193,9 @@ BRIDGE: tuple[Param, ...] = (
     Param("truth", False, "the base is simulated and publishes its true pose on 'truth' in "
           "the driver namespace (formation-ilc-physics-bases -p truth:=true): the bridge "
           "publishes each trial's true trajectory, for the metrics' true columns"),
+    Param("lifecycle", False, "a managed (lifecycle) node: it starts unconfigured; "
+          "configure checks the driver's topics, activate enables the motors and lets "
+          "commands through, deactivate and shutdown send zero and stop"),
     Param("clock_wait", 10.0, "before trial 0: the longest wait, from the leader's first "
           "clock answer, for the estimate of its clock to converge; then it samples on the "
           "fallback", "s", lo=0.0, hi=1e6),

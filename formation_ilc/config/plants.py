@@ -75,9 +75,9 @@ class Plant:
 
 #: every kind of plant, in the order ``--plant`` lists them
 PLANT_TABLE: tuple[Plant, ...] = (
-    Plant("sim", SIM_NODE, "formation-ilc-sim", true_state=True, clock=True, hosts=True,
+    Plant("sim", SIM_NODE, "formation-ilc-robot-sim", true_state=True, clock=True, hosts=True,
           help="start the kinematic simulator"),
-    Plant("physics", PHYSICS_NODE, "formation-ilc-physics", true_state=True, clock=True,
+    Plant("physics", PHYSICS_NODE, "formation-ilc-physics-sim", true_state=True, clock=True,
           physics=True, headings="arc", bodies=True,
           help="the PyBullet rigid-body plant (docs/physics.md)"),
     Plant("external", None, None, reports=False, secure=False,

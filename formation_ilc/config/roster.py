@@ -46,8 +46,9 @@ DRIVER_NS = {"pioneer": "/pioneer_{i}", "base": "/base_{i}"}
 
 #: the entry scripts of the processes the launcher starts (``pyproject.toml`` names their
 #: modules; ``formation_ilc.cli.plan`` starts each as ``python -m MODULE``)
-ENTRY_SCRIPTS = ("formation-ilc-leader", "formation-ilc-robot", "formation-ilc-sim",
-                 "formation-ilc-physics", "formation-ilc-links", "formation-ilc-record",
+ENTRY_SCRIPTS = ("formation-ilc-virtual-leader", "formation-ilc-robot",
+                 "formation-ilc-robot-sim", "formation-ilc-physics-sim",
+                 "formation-ilc-link-emulator", "formation-ilc-recorder",
                  "formation-ilc-liveview", "formation-ilc-bridge",
                  "formation-ilc-fake-pioneer", "formation-ilc-physics-bases")
 
@@ -281,7 +282,7 @@ def roster(lineup: Lineup) -> Roster:
              nm.TRIAL_EVENTS, nm.READY)))
     if lineup.record:
         members.append(Member(
-            nm.RECORDER_NODE, "recorder", "formation-ilc-record", ONCE, True,
+            nm.RECORDER_NODE, "recorder", "formation-ilc-recorder", ONCE, True,
             nm.RECORDER_NODE, (*protocol, *nm.view_topics(n)), tuple(nm.recorded_topics(n))))
     if lineup.live:
         # the live view reads what the recording holds and serves it on 127.0.0.1
@@ -300,7 +301,7 @@ def roster(lineup: Lineup) -> Roster:
         if leader_sub:
             leader_pub.append(nm.clock_pong_topic(nm.LEADER))
     members.append(Member(
-        nm.LEADER_NODE, "leader", "formation-ilc-leader", NEVER, False, nm.LEADER_NODE,
+        nm.LEADER_NODE, "leader", "formation-ilc-virtual-leader", NEVER, False, nm.LEADER_NODE,
         (nm.CONFIG, nm.REFERENCE, nm.TRIAL_EVENTS, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS,
          *leader_pub),
         # its own events too: it re-asserts against a start or abort it did not send (a
@@ -313,7 +314,7 @@ def roster(lineup: Lineup) -> Roster:
                      for j in senders[i - 1]]
         links_pub += [nm.link_topic(i, nm.LEADER) for i in robots if hears[i - 1]]
         members.append(Member(
-            nm.LINKS_NODE, "support", "formation-ilc-links", TRIAL, True, nm.LINKS_NODE,
+            nm.LINKS_NODE, "support", "formation-ilc-link-emulator", TRIAL, True, nm.LINKS_NODE,
             (*links_pub, *protocol),
             # every robot's shared pose, the leaves' too
             (*(nm.shared_pose_topic(j) for j in robots), nm.REFERENCE, nm.TRIAL_EVENTS,

@@ -20,7 +20,12 @@ from numpy.typing import NDArray
 
 __all__ = ["METRIC_COLUMNS", "TRUE_COLUMNS", "ERROR_COLUMNS", "COUNT_COLUMNS", "V1_COLUMNS",
            "MetricsWriter", "write_metrics", "read_metrics",
-           "format_row"]
+           "format_row", "TARGET_POSITION", "TARGET_HEADING", "robot_errors", "RobotCurves"]
+
+#: the levels a team has learned its formation at [m, rad]: what ``tune`` minimises the
+#: trials to, and the target lines of the error plots
+TARGET_POSITION = 1.0
+TARGET_HEADING = 0.1
 
 #: metrics.csv columns
 METRIC_COLUMNS = (
@@ -115,3 +120,39 @@ def read_metrics(path: str | Path) -> NDArray[np.float64]:
         except ValueError:
             raise ValueError(f"{path}: line {i + 2}: not numbers: {r}") from None
     return out
+
+
+def robot_errors(eta: NDArray[np.float64], eta_d: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Each robot's largest measured-output error of one trial over t in [1, T]: shape
+    (N, 2), position [m] and heading [rad] (the metrics' max over robots, per robot).
+    eta, eta_d : shape (N, T+1, 3)."""
+    d = eta_d[:, 1:] - eta[:, 1:]
+    pos = np.hypot(d[..., 0], d[..., 1]).max(axis=1)
+    from formation_ilc.core.kinematics import wrap_angle
+
+    head = np.abs(wrap_angle(d[..., 2])).max(axis=1)
+    return np.stack([pos, head], axis=1)
+
+
+class RobotCurves:
+    """Each robot's errors (``robot_errors``) of trials ``first`` .. ``first + total - 1``,
+    of every trial up to ``cap`` of them, else of every ``total // cap``-th (a plot's
+    worth of points, in bounded memory)."""
+
+    def __init__(self, eta_d: NDArray[np.float64], first: int, total: int, cap: int = 2000):
+        self.eta_d = eta_d
+        self.first = first
+        self.stride = max(1, -(-total // cap))
+        self.trials: list[int] = []
+        self.errors: list[NDArray[np.float64]] = []
+
+    def take(self, k: int, eta: NDArray[np.float64]) -> None:
+        if (k - self.first) % self.stride == 0:
+            self.trials.append(k)
+            self.errors.append(robot_errors(eta, self.eta_d))
+
+    def arrays(self) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """(trials, errors of shape (K, N, 2)), or None before any trial."""
+        if not self.trials:
+            return None
+        return np.array(self.trials, dtype=float), np.array(self.errors)

@@ -49,6 +49,8 @@ class LauncherHost:
         self.monitor: Any = None
         self._down_pub: Any = None
         self._ex: Any = None
+        #: managed bridges' lifecycle manager (``formation_ilc.nodes.lifecycle``), or None
+        self.transitions: Any = None
 
     def start(self) -> None:
         """Initialise rclpy (its signal handlers off: the launcher handles signals) in the
@@ -70,6 +72,13 @@ class LauncherHost:
                                    on_contact=self.on_contact, on_clock=self.on_clock,
                                    key=plan.key)
         self._down_pub = self.monitor.create_publisher(String, ms.READY, ms.LATCHED_QOS)
+        bridge = getattr(plan, "bridge", None)
+        if bridge is not None and bridge.lifecycle:
+            from formation_ilc.nodes.lifecycle import Transitions
+
+            self.transitions = Transitions(self.monitor, [
+                ms.absolute(ms.bridge_name(i), plan.namespace)
+                for i in range(1, plan.scenario.n + 1)])
         self._ex = EventsExecutor()
         self._ex.add_node(self.monitor)
 

@@ -28,10 +28,17 @@ away is simply gone. With ``--observe`` (a launch that does not record) it compu
 desired poses, errors and markers itself (``formation_ilc.nodes.observer``); otherwise the
 recorder does and it forwards them.
 
-Its parameters capability shows the run's parameters read-only, as foxglove_bridge names a
-node's (``/formation/virtual_leader.seed``; ``protocol.view.run_parameters``): a viewer's
-Parameters panel lists them, and a change asked for is answered with the value the run
-keeps (the run's configuration is fixed once its nodes started).
+Its parameters capability shows every node's parameters read-only, named as
+foxglove_bridge names them (``/formation/robot_1.robot``): each node of the run's namespace
+is asked once, through its standard parameter services, for all of its parameters; the
+run's configuration is listed under the leader (``/formation/virtual_leader.seed``;
+``protocol.view.run_parameters``) from the start. A viewer's Parameters panel lists them,
+and a change asked for is answered with the value the run keeps (the run's configuration
+is fixed once its nodes started).
+
+A viewer that joins in the middle of a trial gets that trial's start event at once (the
+last ``start`` on the trial events' channel), as it gets the latched topics' last messages,
+instead of learning which trial runs only at the next event.
 
   formation-ilc-liveview [--host 127.0.0.1] [--port 8765] [--rate HZ] [--observe]
                          [--preview] [--ros-args ...]
@@ -76,6 +83,8 @@ FOLLOW = 0.1
 LATCHED_WRITERS = 256
 #: how often [s] the bridge also looks whether DDS readers take the view topics it computes
 RECHECK = 1.0
+#: how often [s] it looks for nodes whose parameters it has not read yet
+PARAMS_EVERY = 2.0
 #: per-sample topics: a bridge that falls behind loses samples; the writers never wait
 _VIEWER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                          reliability=ReliabilityPolicy.BEST_EFFORT,
@@ -150,9 +159,13 @@ class LiveViewNode(Node):
         self.latched: dict[str, dict[str, bytes]] = {}
         #: (client id, absolute topic) of subscriptions that still get the latched state
         self._joined: list[tuple[int, str]] = []
+        #: every node's parameters (full node name -> {name: value}), read once per node
+        self.node_params: dict[str, dict[str, Any]] = {}
+        self._param_clients: dict[str, Any] = {}
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(FOLLOW, self._follow, clock=steady)
         self.create_timer(RECHECK, self._reconcile, clock=steady)
+        self.create_timer(PARAMS_EVERY, self._read_parameters, clock=steady)
         self._forward(ms.CONFIG, "std_msgs/msg/String", ms.LATCHED_QOS)
 
     def _channel(self, topic: str, type_name: str) -> Any:
@@ -170,8 +183,8 @@ class LiveViewNode(Node):
         a viewer wants it."""
         self._channel(topic, type_name)
         self.sources[topic] = frozenset({topic})
-        if qos.durability == DurabilityPolicy.TRANSIENT_LOCAL:
-            self.latched.setdefault(topic, {})
+        if qos.durability == DurabilityPolicy.TRANSIENT_LOCAL or topic == ms.TRIAL_EVENTS:
+            self.latched.setdefault(topic, {})  # trial events: the current trial's start
         if qos.durability == DurabilityPolicy.TRANSIENT_LOCAL or topic == ms.TRIAL_EVENTS:
             self._subscribe(topic, type_name, qos)
         else:
@@ -227,7 +240,11 @@ class LiveViewNode(Node):
             return
         key = ""
         try:
-            if topic == ms.READY:
+            if topic == ms.TRIAL_EVENTS:
+                event = ms.msg_to_json(ms.deserialize(data, String)).get("event")
+                if event != ms.START:
+                    return  # only the current trial's start is given to a late viewer
+            elif topic == ms.READY:
                 key = str(ms.msg_to_json(ms.deserialize(data, String)).get("node", ""))
             elif topic == ms.DIAGNOSTICS:
                 from diagnostic_msgs.msg import DiagnosticArray
@@ -324,14 +341,63 @@ class LiveViewNode(Node):
             self._keep(topic, data)
 
     def parameters(self, names: list[str]) -> list[Any]:
-        """The run's parameters ``names`` (none: all) as the server sends them; none
-        before the configuration came (the server starts after it)."""
+        """The parameters ``names`` (none: all) of every node read so far and the run's
+        configuration, as the server sends them; none before the configuration came (the
+        server starts after it)."""
         if self.cfg is None:
             return []
         from foxglove.websocket import Parameter
 
-        got = run_parameters(self.cfg, self.get_namespace(), names)
-        return [Parameter(k, value=v) for k, v in got.items()]
+        every = dict(run_parameters(self.cfg, self.get_namespace()))
+        with self._lock:
+            for node, params in self.node_params.items():
+                every.update({f"{node}.{k}": v for k, v in params.items()})
+        wanted = list(names)
+        got = every if not wanted else {n: every[n] for n in wanted if n in every}
+        return [Parameter(k, value=v) for k, v in sorted(got.items())]
+
+    def _read_parameters(self) -> None:
+        """Ask each node of the namespace not asked yet for all of its parameters (its
+        standard list and get services, once they are matched; answers come on the
+        executor's thread)."""
+        from rclpy.parameter_client import AsyncParameterClient
+
+        own = self.get_fully_qualified_name()
+        for name, ns in self.get_node_names_and_namespaces():
+            full = ms.absolute(name, ns)
+            if ns != self.get_namespace() or full == own or full in self._param_clients:
+                continue
+            services = {s for s, _ in self.get_service_names_and_types_by_node(name, ns)}
+            if f"{full}/list_parameters" in services:  # a node with parameter services
+                self._param_clients[full] = [AsyncParameterClient(self, full), False]
+        for full, entry in self._param_clients.items():
+            client, asked = entry
+            if not asked and client.services_are_ready():
+                entry[1] = True
+                client.list_parameters(
+                    callback=lambda f, c=client, n=full: self._listed(c, n, f))
+
+    def _listed(self, client: Any, node: str, future: Any) -> None:
+        try:
+            names = list(future.result().result.names)
+        except Exception:  # noqa: BLE001 - a node that went away: its parameters unknown
+            return
+        client.get_parameters(names, callback=lambda f: self._got(node, names, f))
+
+    def _got(self, node: str, names: list[str], future: Any) -> None:
+        from rclpy.parameter import parameter_value_to_python
+
+        try:
+            values = future.result().values
+        except Exception:  # noqa: BLE001
+            return
+        params: dict[str, Any] = {}
+        for name, value in zip(names, values, strict=False):
+            v = parameter_value_to_python(value)
+            params[name] = list(v) if isinstance(v, (tuple, bytes)) or hasattr(v, "tolist") \
+                else v
+        with self._lock:
+            self.node_params[node] = params
 
     def _configure(self, data: bytes) -> None:
         try:

@@ -70,6 +70,17 @@ end; ``cmd_vel`` only inside a trial (a command before a start or during the ret
 move the robot outside the protocol). Starts and aborts are taken by the rule every follower
 of the schedule applies (``formation_ilc.protocol.schedule.Follower``).
 
+With ``lifecycle:=true`` it is a managed node (``rclpy.lifecycle``, the standard
+``change_state`` service and its transitions), as a lab's lifecycle manager drives a
+hardware driver: it starts unconfigured and sends the driver nothing; ``configure``
+succeeds only once the driver is there (a writer of its odometry, a reader of its
+commands, its motor service if it has one) and fails otherwise, naming what is missing;
+``activate`` enables the motors, lets commands through and lets the bridge say ready;
+``deactivate`` and
+``shutdown`` send the driver one zero command at once and nothing after (the robot
+stops; the bridge keeps sampling its pose). ``formation-ilc launch --lifecycle`` drives
+the transitions itself.
+
 Everything it decides is in ``formation_ilc.protocol.bridge.Bridge``; this node reads its
 parameters, talks to the driver (its motors included) and makes one call into the bridge
 per event.
@@ -88,6 +99,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist, TwistStamped
 from nav_msgs.msg import Odometry, Path
+from rclpy.lifecycle import LifecycleNodeMixin, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from std_msgs.msg import String
 
@@ -122,11 +134,15 @@ def _join(ns: str, name: str) -> str:
     return f"{ns.rstrip('/')}/{name}" if ns not in ("", "/") else f"/{name}"
 
 
-class BridgeNode(ConfiguredNode):
-    """The bridge of robot ``robot_id`` (parameter; ``**kwargs`` go to ``Node``)."""
+class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
+    """The bridge of robot ``robot_id`` (parameter; ``**kwargs`` go to ``Node``); a managed
+    node with the ``lifecycle`` parameter (its state machine and services are made only
+    then)."""
 
     #: what a bridge that took its own scenario runs with (its draws and links are not its)
     AGREES_ON = ("scenario", "scenario_text", "mode", "gap")
+    #: commands go to the driver (a plain bridge always; a managed one while active)
+    active = True
 
     def __init__(self, robot_id: int | None = None, **kwargs: Any):
         if robot_id is None:
@@ -137,7 +153,8 @@ class BridgeNode(ConfiguredNode):
             raise ParameterError("parameter robot_id: a robot number >= 1 is required "
                                  "(--ros-args -p robot_id:=I)")
         robot_id = int(check(params.BRIDGE[0], robot_id))
-        super().__init__(ms.bridge_name(robot_id), **kwargs)
+        # not super(): the lifecycle mixin is set up below, and only for a managed bridge
+        ConfiguredNode.__init__(self, ms.bridge_name(robot_id), **kwargs)
         self.id = int(robot_id)
         self.name = ms.bridge_name(self.id)
         declare(self, params.BRIDGE, robot_id=self.id)
@@ -177,11 +194,59 @@ class BridgeNode(ConfiguredNode):
         effective(self, {"driver": driver, "driver_ns": ns,
                          "cmd_type": "twist_stamped" if self.stamped else "twist",
                          **{k: float(v) for k, v in used.items() if math.isfinite(v)}})
+        self.managed = bool(g("lifecycle"))
+        self.active = not self.managed
+        if self.managed:
+            LifecycleNodeMixin.__init__(self)
         cfg = None
         if g("scenario"):
             cfg = make_config(str(g("scenario")), noise=False, delay=False, links="direct",
                               mode=str(g("mode")))
         self.follow_config(cfg)
+
+    # ------------------------------------------------------------------ lifecycle
+    def driver_missing(self) -> list[str]:
+        """What of the driver is not there (empty: all of it): a writer of its odometry,
+        a reader of its commands, its motor service if it has one."""
+        cmd_t, odom_t, motors_t = self.driver_topics
+        missing = []
+        if self.count_publishers(odom_t) == 0:
+            missing.append(f"no writer of {odom_t}")
+        if self.count_subscribers(cmd_t) == 0:
+            missing.append(f"no reader of {cmd_t}")
+        if self.spec.motors_kind not in ("none", "p2os_motor_state") and motors_t not in {
+                name for name, _ in self.get_service_names_and_types()}:
+            missing.append(f"no service {motors_t}")
+        return missing
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        missing = self.driver_missing()
+        if missing:
+            self.get_logger().error(f"{self.name}: configure failed, the driver is not there: "
+                                    f"{'; '.join(missing)}")
+            return TransitionCallbackReturn.FAILURE
+        return super().on_configure(state)
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.active = True
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._halt()
+        return super().on_deactivate(state)
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._halt()
+        return super().on_shutdown(state)
+
+    def _halt(self) -> None:
+        """One zero command to the driver now, and no command after (until activated)."""
+        self.active = False
+        if self.configured and hasattr(self, "drv_pub"):
+            self.drv_pub.publish(ms.driver_twist(0.0, 0.0, self.stamped, self._wall_ns()))
+            self.core.stop(time.monotonic())
+            self.get_logger().info(f"{self.name}: stopped: a zero command sent to "
+                                   f"{self.driver_topics[0]}, and no command after")
 
     # ------------------------------------------------------------------ set-up
     def configure(self, cfg: RunConfig) -> None:
@@ -268,6 +333,8 @@ class BridgeNode(ConfiguredNode):
     def _enable_motors(self) -> None:
         if self.motors_on:
             self._motor_timer.cancel()
+            return
+        if not self.active:  # a managed bridge: the motors go on when it is activated
             return
         if self.spec.motors_kind == "p2os_motor_state":
             if self.motor_pub.get_subscription_count() > 0:
@@ -356,6 +423,8 @@ class BridgeNode(ConfiguredNode):
             self.cfg.scenario.samples, ms.robot_name(self.id)), self.word_pub, "clock")
 
     def _check_ready(self) -> None:
+        if not self.active:  # a managed bridge says ready once it is active
+            return
         if self.core.odom is None or not self.motors_on or not self._clock_settled():
             return
         if self.true_pub is not None and self.core.truth is None:
@@ -431,7 +500,9 @@ class BridgeNode(ConfiguredNode):
 
     def _send(self, cmd: tuple[float, float], stamp_ns: int) -> None:
         """Publish the driver's command, stamped ``stamp_ns`` (the wall time the bridge's
-        limits held it at)."""
+        limits held it at); none while a managed bridge is not active."""
+        if not self.active:
+            return
         self.drv_pub.publish(ms.driver_twist(cmd[0], cmd[1], self.stamped, stamp_ns))
 
     def _returned(self, r: Returned) -> None:

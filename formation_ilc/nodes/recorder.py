@@ -26,7 +26,7 @@ publishes and records the robot's desired pose, its tracking error and the marke
 trial the desired paths and the largest errors (``msgs_schema.view_topic_table``);
 ``--no-view`` records without them.
 
-  formation-ilc-record --output RUN.mcap [--ros-args ...]
+  formation-ilc-recorder --output RUN.mcap [--ros-args ...]
 """
 
 from __future__ import annotations
@@ -421,7 +421,7 @@ def _lower_priority() -> None:
 
 
 def main(args: list[str] | None = None) -> int:
-    parser = node_parser("formation-ilc-record", __doc__)
+    parser = node_parser("formation-ilc-recorder", __doc__)
     parser.add_argument("--output", "-o", type=Path, required=True, metavar="RUN.mcap")
     parser.add_argument("--no-view", action="store_true",
                         help="record only what the formation publishes: no desired poses, "

@@ -1,4 +1,5 @@
-"""The virtual leader as a pure core: every decision of ``formation-ilc-leader``, without ROS.
+"""The virtual leader as a pure core: every decision of ``formation-ilc-virtual-leader``,
+without ROS.
 
 The node (``virtual_leader.node``) declares parameters, publishers, subscriptions and
 timers, and makes one call into :class:`Leader` per event: a ready, a trial event on its

@@ -42,7 +42,7 @@ from typing import IO, Any
 __all__ = ["message_definition", "type_hash", "qos_yaml", "RosMcapWriter", "RawMessage",
            "read_messages", "repair", "read_metadata", "ReadReport", "Damage", "CHUNK_BYTES",
            "FileInfo", "REPEAT_BYTES", "RepairError", "Repairing", "repair_with",
-           "bag_metadata", "ROS_DISTRO"]
+           "bag_metadata", "ROS_DISTRO", "INFINITE_NS"]
 
 #: the ROS distribution the stack's wheels are (rosbag2's ``ros_distro``)
 ROS_DISTRO = "jazzy"
@@ -147,19 +147,27 @@ def type_hash(type_name: str) -> str:
     return store.hash_rihs01(f"{pkg}/msg/{name}")
 
 
-_INFINITE = {"sec": 2147483647, "nsec": 4294967295}
+#: rmw's RMW_DURATION_INFINITE [ns] (rmw/time.h: {9223372036 s, 854775807 ns}): what Fast DDS
+#: reports in the graph for a deadline, lifespan or lease a publisher leaves unspecified,
+#: and so what rosbag2 records for it
+INFINITE_NS = 2**63 - 1
 
 
 def qos_yaml(reliability: str = "reliable", durability: str = "volatile",
-             history: str = "keep_last", depth: int = 10) -> str:
-    """``offered_qos_profiles`` channel metadata (one publisher), rosbag2 Jazzy style."""
-    def t(v: dict[str, int]) -> str:
-        return f"\n    sec: {v['sec']}\n    nsec: {v['nsec']}"
+             history: str = "keep_last", depth: int = 10, deadline: int = INFINITE_NS,
+             lifespan: int = INFINITE_NS, liveliness: str = "automatic",
+             lease: int = INFINITE_NS, avoid_ros_namespace_conventions: bool = False) -> str:
+    """``offered_qos_profiles`` channel metadata (one publisher), as rosbag2 Jazzy writes it
+    (``serialize_rclcpp_qos_vector``, version 9: policies by name, times as rmw_time_t's
+    sec and nsec); durations in ns."""
+    def t(ns: int) -> str:
+        return f"\n    sec: {int(ns) // 10**9}\n    nsec: {int(ns) % 10**9}"
 
+    avoid = str(bool(avoid_ros_namespace_conventions)).lower()
     return (f"- history: {history}\n  depth: {int(depth)}\n  reliability: {reliability}\n"
-            f"  durability: {durability}\n  deadline:{t(_INFINITE)}\n  lifespan:{t(_INFINITE)}\n"
-            f"  liveliness: automatic\n  liveliness_lease_duration:{t(_INFINITE)}\n"
-            f"  avoid_ros_namespace_conventions: false")
+            f"  durability: {durability}\n  deadline:{t(deadline)}\n  lifespan:{t(lifespan)}\n"
+            f"  liveliness: {liveliness}\n  liveliness_lease_duration:{t(lease)}\n"
+            f"  avoid_ros_namespace_conventions: {avoid}")
 
 
 class RosMcapWriter:
@@ -309,7 +317,12 @@ class RosMcapWriter:
 def bag_metadata(name: str, topics: dict[str, list[Any]], span: list[int]) -> str:
     """rosbag2's metadata of one MCAP file (YAML, the ``serialized_metadata`` of the
     ``rosbag2`` record): ``topics`` maps a topic to [type, offered QoS YAML, type hash,
-    messages]; ``span`` is the first and last log time [ns] (empty: no message)."""
+    messages]; ``span`` is the first and last log time [ns] (empty: no message).
+
+    In the shape rosbag2 Jazzy's ``convert<BagMetadata>`` decodes at version 9: each
+    topic's ``offered_qos_profiles`` a sequence of QoS maps (the channel's metadata
+    keeps the same profiles as one YAML string, as rosbag2's MCAP storage writes it);
+    tests/recordings/rosbag2_jazzy.py decodes it with rosbag2's rules."""
     import yaml
 
     start, end = (span[0], span[1]) if span else (0, 0)
@@ -321,7 +334,8 @@ def bag_metadata(name: str, topics: dict[str, list[Any]], span: list[int]) -> st
         "message_count": count,
         "topics_with_message_count": [
             {"topic_metadata": {"name": topic, "type": ty, "serialization_format": "cdr",
-                                "offered_qos_profiles": qos, "type_description_hash": h},
+                                "offered_qos_profiles": yaml.safe_load(qos),
+                                "type_description_hash": h},
              "message_count": n}
             for topic, (ty, qos, h, n) in sorted(topics.items())],
         "compression_format": "", "compression_mode": "",
@@ -815,7 +829,9 @@ def repair_with(src: str | Path, dst: str | Path, report: ReadReport | None = No
                     if state.first_log_time is None or rec.log_time < state.first_log_time:
                         state.first_log_time = rec.log_time
                     n += 1
-                elif isinstance(rec, Metadata):
+                elif isinstance(rec, Metadata) and rec.name != "rosbag2":
+                    # rosbag2's record describes the original file (its counts and span):
+                    # left out of the copy rather than copied wrong
                     w.add_metadata(rec.name, dict(rec.metadata))
                     state.info.metadata.append((rec.name, dict(rec.metadata)))
             if not records:

@@ -24,17 +24,40 @@ def _plt():  # type: ignore[no-untyped-def]
 
 
 def plot_errors(trials: NDArray[np.float64], pos: NDArray[np.float64],
-                head: NDArray[np.float64], path: Path, title: str) -> Path:
-    """Max position [m] and heading [rad] error per trial, log scale."""
+                head: NDArray[np.float64], path: Path, title: str,
+                per_robot: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+                targets: tuple[float, float] | None = None) -> Path:
+    """Max position [m] and heading [rad] error per trial, log scale (the team's: black).
+
+    per_robot : (trials, errors of shape (K, N, 2)): each robot's own curve, thin and
+    coloured, labelled "robot i". targets : the levels [m, rad] drawn as dashed lines
+    (default ``TARGET_POSITION``, ``TARGET_HEADING``): where the team has learned.
+    """
+    from formation_ilc.core.metrics import TARGET_HEADING, TARGET_POSITION
+
     plt = _plt()
     fig, ax = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
-    ax[0].semilogy(trials, pos, color="k", lw=1)
+    if per_robot is not None and len(per_robot[0]):
+        k, e = per_robot
+        colors = plt.cm.tab10(np.arange(e.shape[1]) % 10)
+        for i in range(e.shape[1]):
+            for a, col in ((ax[0], 0), (ax[1], 1)):
+                a.semilogy(k, e[:, i, col], color=colors[i], lw=0.9, zorder=3,
+                           label=f"robot {i + 1}" if e.shape[1] <= 10 else None)
+    # the team's curve under the robots' (it is the highest of them at every trial)
+    ax[0].semilogy(trials, pos, color="k", lw=2.2, alpha=0.45, zorder=2,
+                   label="team (max over robots)")
+    ax[1].semilogy(trials, head, color="k", lw=2.2, alpha=0.45, zorder=2,
+                   label="team (max over robots)")
+    tp, th = targets if targets is not None else (TARGET_POSITION, TARGET_HEADING)
+    ax[0].axhline(tp, color="0.25", ls="--", lw=1, label=f"target {tp:g} m")
+    ax[1].axhline(th, color="0.25", ls="--", lw=1, label=f"target {th:g} rad")
     ax[0].set_ylabel("max position error [m]")
-    ax[1].semilogy(trials, head, color="k", lw=1)
     ax[1].set_ylabel("max heading error [rad]")
-    ax[1].set_xlabel("trial")
+    ax[1].set_xlabel("trial (from 0, as in metrics.csv)")
     for a in ax:
         a.grid(True, which="both", alpha=0.3)
+        a.legend(fontsize=7, ncol=3, loc="upper right")
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

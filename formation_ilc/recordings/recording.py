@@ -52,6 +52,7 @@ from formation_ilc.protocol.schedule import DONE, END, START, TrialEvent
 from formation_ilc.protocol.trialrows import SlotRows
 from formation_ilc.recordings import cdr
 from formation_ilc.recordings.mcap_io import (
+    INFINITE_NS,
     FileInfo,
     RawMessage,
     ReadReport,
@@ -93,10 +94,20 @@ def run_copies(info: FileInfo) -> list[dict[str, str]]:
 
 
 def qos_of(profile: Any) -> str:
-    """offered_qos_profiles YAML of an rclpy QoSProfile."""
+    """offered_qos_profiles YAML of an rclpy QoSProfile: a writer's, as the graph reports it
+    (what rosbag2 records), or a profile a publisher is created with (the batch
+    simulator's), whose unspecified (0) durations are what Fast DDS then offers: infinite."""
+    def ns(d: Any) -> int:
+        return int(d.nanoseconds) or INFINITE_NS
+
     return qos_yaml(reliability=profile.reliability.name.lower(),
                     durability=profile.durability.name.lower(),
-                    history=profile.history.name.lower(), depth=int(profile.depth))
+                    history=profile.history.name.lower(), depth=int(profile.depth),
+                    deadline=ns(profile.deadline), lifespan=ns(profile.lifespan),
+                    liveliness=profile.liveliness.name.lower(),
+                    lease=ns(profile.liveliness_lease_duration),
+                    avoid_ros_namespace_conventions=bool(
+                        profile.avoid_ros_namespace_conventions))
 
 
 class SimRecorder:

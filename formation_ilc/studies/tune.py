@@ -42,6 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from formation_ilc.config.scenario import Scenario, ScenarioError
+from formation_ilc.core.metrics import TARGET_HEADING, TARGET_POSITION
 from formation_ilc.model.checks import condition20, heading_map
 from formation_ilc.studies.study import apply_fields, point_id, scenario_text_with
 from formation_ilc.studies.sweep import close_pools, map_tasks, points_progress
@@ -86,8 +87,8 @@ class TuneOptions:
     scenario's own gains' value, at most MAX_GROWTH_CAP: no worse a transient); finalists:
     candidates verified; per_robot: one gain pair per graph depth (else one for all)."""
 
-    position_level: float = 1.0
-    heading_level: float = 0.1
+    position_level: float = TARGET_POSITION
+    heading_level: float = TARGET_HEADING
     seeds: tuple[int, ...] = (1, 2, 3, 4, 5)
     screen_trials: int = 60
     verify_trials: int = 300

@@ -3,9 +3,9 @@
 
 On a terminal, a tqdm bar rewritten in place. In a log file or a pipe tqdm's carriage
 returns would pile up into one garbled line, so the same text (tqdm's ``format_meter``,
-with an ASCII bar) is written there as whole lines, now and then: every ``every`` seconds,
-at each tenth of the total when asked (``tenths``), and at the end; nothing before the
-first step. A job that has nothing left to do shows nothing anywhere.
+with an ASCII bar) is written there as whole lines, now and then: every ``every`` seconds
+(default 10), at each tenth of the total when asked (``tenths``), and at the end; nothing
+before the first step. A job that has nothing left to do shows nothing anywhere.
 """
 
 from __future__ import annotations
@@ -25,6 +25,8 @@ _WITH_TOTAL = ("{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} {unit} "
                "[{elapsed}<{remaining}{postfix}]")
 #: without a total (analyze: messages read): no share, no bar, no time left
 _OPEN_ENDED = "{desc}: {n_fmt} {unit} [{elapsed}{postfix}]"
+#: steps with numbers of their own, said in the status (trials: 0..k-1): no count of them
+_UNCOUNTED = "{desc}: {percentage:3.0f}%|{bar}| [{elapsed}<{remaining}{postfix}]"
 
 
 class _Bar(tqdm):  # type: ignore[type-arg,misc,unused-ignore]
@@ -43,6 +45,9 @@ class Progress:
     interval : seconds between redraws on a terminal.
     every : seconds between lines elsewhere; tenths : a line also at each tenth of
         ``total`` there.
+    count : show the count of steps done ("4/20 trials"); off where the status names the
+        step by a number of its own (simulate's trials are numbered from 0), so that the
+        line shows one numbering, not two.
 
     ``step`` or ``to`` moves it, with an optional status shown after the times (the last
     trial's errors); reaching ``total`` closes it, leaving the last line. ``close`` ends it
@@ -50,12 +55,12 @@ class Progress:
     """
 
     def __init__(self, total: int | None, label: str, unit: str, *, initial: int = 0,
-                 interval: float = 0.1, every: float = 30.0, tenths: bool = False,
-                 file: IO[str] | None = None):
+                 interval: float = 0.1, every: float = 10.0, tenths: bool = False,
+                 count: bool = True, file: IO[str] | None = None):
         self.file = sys.stderr if file is None else file
         self.total, self.label, self.unit = total, label, unit
         self.initial = self.n = initial
-        self.every, self.tenths = every, tenths
+        self.every, self.tenths, self.count = every, tenths, count
         self.t0 = time.monotonic()
         self.last, self.last_tenth = -math.inf, -1  # the first step writes a line
         self.status = ""
@@ -72,7 +77,9 @@ class Progress:
                             bar_format=self._format())
 
     def _format(self) -> str:
-        return _OPEN_ENDED if self.total is None else _WITH_TOTAL
+        if self.total is None:
+            return _OPEN_ENDED
+        return _WITH_TOTAL if self.count else _UNCOUNTED
 
     def _tenth(self) -> int:
         return -1 if not self.total else (10 * self.n) // self.total

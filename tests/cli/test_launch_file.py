@@ -36,6 +36,10 @@ class Configuration:
 
 @pytest.fixture
 def launch_file(monkeypatch):
+    return _load(monkeypatch, FILE)
+
+
+def _load(monkeypatch, file):
     mods = {name: types.ModuleType(name) for name in
             ("launch", "launch.actions", "launch.substitutions", "launch_ros",
              "launch_ros.actions")}
@@ -46,7 +50,7 @@ def launch_file(monkeypatch):
     mods["launch_ros.actions"].Node = type("Node", (Recorded,), {})
     for name, mod in mods.items():
         monkeypatch.setitem(sys.modules, name, mod)
-    spec = importlib.util.spec_from_file_location("formation_launch", FILE)
+    spec = importlib.util.spec_from_file_location(file.stem.replace(".", "_"), file)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -87,6 +91,8 @@ def test_its_processes_are_the_launchers_for_the_same_arguments(launch_file, tmp
                                                        for s in plan.nodes]
     for node, spec in zip(nodes, plan.nodes, strict=True):
         assert node.kwargs["package"] == "formation_ilc"
+        # each node under its own name (a container of robots keeps its nodes' names)
+        assert node.kwargs.get("name") == (None if "--robots" in spec.args else spec.name)
         assert node.kwargs["arguments"] == list(spec.args)
         params = dict(spec.params)
         if spec.name == "virtual_leader":
@@ -114,3 +120,23 @@ def test_its_processes_are_the_launchers_for_the_same_arguments(launch_file, tmp
 def test_every_executable_is_a_ros2_run_shim():
     for script, exe in ROS2_RUN.items():
         assert f"from {entry_module(script)} import main" in (SHIMS / exe).read_text()
+
+
+def test_the_robot_file_starts_one_robot_and_its_bridge_under_their_names(monkeypatch):
+    """launch/robot.launch.py: what a robot's own computer runs (docs/real-robots.md)."""
+    file = FILE.with_name("robot.launch.py")
+    ast.parse(file.read_text())
+    mod = _load(monkeypatch, file)
+    ld = mod.generate_launch_description()
+    context = {name: default for name, default, _ in mod.ARGUMENTS}
+    context.update(robot_id="3", base="turtlebot4", lifecycle="true")
+    (opaque,) = [a for a in ld.args[0] if type(a).__name__ == "OpaqueFunction"]
+    robot, bridge = opaque.kwargs["function"](context)
+    assert (robot.kwargs["name"], robot.kwargs["executable"]) == ("robot_3", "robot")
+    assert (bridge.kwargs["name"], bridge.kwargs["executable"]) == ("bridge_3", "bridge")
+    assert robot.kwargs["namespace"] == bridge.kwargs["namespace"] == "/formation"
+    assert robot.kwargs["ros_arguments"] == ["-p", "robot_id:=3"]
+    assert bridge.kwargs["ros_arguments"] == ["-p", "robot_id:=3", "-p", "lifecycle:=true",
+                                              "-p", "base:=turtlebot4"]
+    for exe in ("robot", "bridge"):  # what ros2 run formation_ilc finds
+        assert (SHIMS / exe).exists()

@@ -184,7 +184,8 @@ def _module(script: str) -> str:
 
 
 def test_every_entry_script_is_installed():
-    assert {s: _module(s) for s in ENTRY_SCRIPTS}["formation-ilc-leader"] == "virtual_leader.node"
+    modules = {s: _module(s) for s in ENTRY_SCRIPTS}
+    assert modules["formation-ilc-virtual-leader"] == "virtual_leader.node"
 
 
 @pytest.mark.parametrize("key", sorted(_golden("plans")))

@@ -272,3 +272,19 @@ def test_simulate_bytes_by_hand(sc):
         "edges: [{from: 1, to: 2}, {from: 1, to: 3}, {from: 2, to: 3, weight: 0.5}]",
         "edges: []"))
     assert simulate_bytes(alone, 1) == 8 * (32 + 4) * per + 8 * 9
+
+
+def test_each_robots_errors_peak_at_the_teams_metrics():
+    """errors.png's per-robot curves: the largest of them is the metrics' team error."""
+    from formation_ilc.core.metrics import RobotCurves
+
+    sc = load_scenario("paper-triangle3")
+    curves = RobotCurves(sc.desired.eta, 0, 4, cap=2)  # every 2nd trial: 0 and 2
+    res = simulate(sc, trials=4, keep=[0, 1, 2, 3],
+                   on_trial_data=lambda k, xi, eta, *rest: curves.take(k, eta))
+    got = curves.arrays()
+    assert got is not None
+    trials, e = got
+    assert trials.tolist() == [0.0, 2.0] and e.shape == (2, 3, 2)
+    np.testing.assert_allclose(e.max(axis=1), res.metrics[[0, 2], 1:3], rtol=1e-12)
+    assert (e[:, :, 0] < e[:, :, 0].max(axis=1, keepdims=True)).any()  # robots differ

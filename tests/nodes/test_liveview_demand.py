@@ -252,3 +252,35 @@ def test_the_plants_preview_feeds_the_pose_channels_and_the_view(context, observ
         assert (peak.vector.x, peak.vector.z) == (pytest.approx(0.5, abs=1e-12), 0.0)
         server.listener.on_unsubscribe(SimpleNamespace(id=1), ch)
         assert _spin_until(ex, lambda: ms.PREVIEW not in live.subs)
+
+
+def test_a_late_viewer_gets_the_current_trials_start_and_every_nodes_parameters(context):
+    """What a viewer that joins mid-run is given at once: of the trial events only the
+    current trial's start (kept as a latched channel's last message is), and the
+    parameters of every node of the namespace (read through their parameter services)."""
+    from std_msgs.msg import String
+
+    with _configured(context, observe=False) as (live, other, ex, _cfg, _server):
+        pub = other.create_publisher(String, ms.TRIAL_EVENTS, ms.SAMPLE_QOS)
+        assert _spin_until(ex, lambda: pub.get_subscription_count() >= 1)
+        for event, trial in ((ms.START, 0), (ms.END, 0), (ms.START, 1)):
+            pub.publish(ms.json_to_msg({"event": event, "trial": trial}))
+        kept = live.latched[ms.TRIAL_EVENTS]
+
+        def last_trial():
+            if not kept:
+                return None
+            return ms.msg_to_json(ms.deserialize(next(iter(kept.values())), String))["trial"]
+
+        assert _spin_until(ex, lambda: last_trial() == 1)
+        pub.publish(ms.json_to_msg({"event": ms.END, "trial": 1}))  # an end keeps the start
+        _spin_until(ex, lambda: False, timeout=0.3)
+        assert len(kept) == 1 and last_trial() == 1
+        other.declare_parameter("answer", 42)
+        name = f"{ms.NAMESPACE}/other.answer"
+        assert _spin_until(ex, lambda: any(p.name == name for p in live.parameters([])),
+                           timeout=15)
+        (got,) = live.parameters([name])
+        assert got.get_value() == 42
+        # the run's own, under the leader, from the start
+        assert live.parameters([f"{ms.NAMESPACE}/virtual_leader.seed"])

@@ -122,11 +122,12 @@ def run(module: str, *args: str, env=None) -> subprocess.CompletedProcess[str]:
 @pytest.mark.multiprocess
 @pytest.mark.parametrize("module, args, line", [
     ("virtual_leader.node", ["-p", "scenario:=paper-triangle3", "-p", "trials:=abc"],
-     "formation-ilc-leader: parameter trials: expected an integer, got 'abc'"),
+     "formation-ilc-virtual-leader: parameter trials: expected an integer, got 'abc'"),
     ("virtual_leader.node", ["-p", "scenario:=paper-triangle3", "-p", "mode:=fast"],
-     "formation-ilc-leader: parameter mode: one of lockstep, realtime, wallclock; got 'fast'"),
+     "formation-ilc-virtual-leader: parameter mode: one of lockstep, realtime, wallclock; "
+     "got 'fast'"),
     ("virtual_leader.node", ["-p", "trials:=3"],
-     "formation-ilc-leader: parameter scenario: a scenario name or file is required"),
+     "formation-ilc-virtual-leader: parameter scenario: a scenario name or file is required"),
     ("formation_ilc.nodes.robot", ["-p", "robot_id:=1", "-p", "seed:=x"],
      "formation-ilc-robot: parameter seed: expected an integer, got 'x'"),
     ("formation_ilc.nodes.robot", ["-p", "robot_id:=0"],
@@ -136,25 +137,26 @@ def run(module: str, *args: str, env=None) -> subprocess.CompletedProcess[str]:
      "formation-ilc-robot: parameter robot_id: a robot number >= 1 is required (-p "
      "robot_id:=I, or robot_id in a --params-file under /** or the node's name)"),
     ("robot_sim.node", ["-p", "timeout:=-1.0"],
-     "formation-ilc-sim: parameter timeout: -1.0 is outside 0 .. 1e+06 (lockstep: how long "
+     "formation-ilc-robot-sim: parameter timeout: -1.0 is outside 0 .. 1e+06 (lockstep: how long "
      "the simulator waits for a robot's command; 0: the run configuration's)"),
     ("robot_sim.link_emulator", ["-p", "use_sim_time:=true"],
-     "formation-ilc-links: parameter use_sim_time is not supported: the stack keeps its own "
-     "time (lockstep labels on /clock are read as messages, wallclock is the system clock)"),
+     "formation-ilc-link-emulator: parameter use_sim_time is not supported: the stack "
+     "keeps its own time (lockstep labels on /clock are read as messages, wallclock is the "
+     "system clock)"),
     ("formation_ilc.nodes.pioneer_bridge", ["-p", "robot_id:=1", "-p", "rate:=0.0"],
      "formation-ilc-bridge: parameter rate: 0.0 is outside 0.1 .. 1000 (rate the command is "
      "republished to the driver)"),
     ("robot_sim.fake_pioneer", ["-p", "driver:=p2os2"],
      "fake_pioneer: parameter driver: one of rosaria, ros2aria; got 'p2os2'"),
     ("robot_sim.physics_node", ["-p", "model:=roomba"],
-     "formation-ilc-physics: parameter model: one of p3dx, husky, husky-imu; got 'roomba'"),
+     "formation-ilc-physics-sim: parameter model: one of p3dx, husky, husky-imu; got 'roomba'"),
     ("robot_sim.physics_base", ["-p", "tick:=0.0"],
      "physics_bases: parameter tick: 0.0 is outside 0.0001 .. 10 (how often "
      "the world is stepped and odometry published)"),
     ("virtual_leader.node", ["-p", "scenario:=paper-triangle3", "-p", "law:=7"],
-     "formation-ilc-leader: parameter law: one of 0, 9, 22, 23; got 7"),
+     "formation-ilc-virtual-leader: parameter law: one of 0, 9, 22, 23; got 7"),
     ("virtual_leader.node", ["-p", "scenario:=paper-triangle3", "-p", "memory:=xyz"],
-     "formation-ilc-leader: parameter memory: one of '', feedforward, literal; got 'xyz'"),
+     "formation-ilc-virtual-leader: parameter memory: one of '', feedforward, literal; got 'xyz'"),
     ("formation_ilc.nodes.robot", ["--params-file", "/nonexistent/robot.yaml"],
      "formation-ilc-robot: Failed to parse ROS arguments: Couldn't parse params file: "
      "'--params-file /nonexistent/robot.yaml'. Error: Error opening YAML file"),
@@ -253,9 +255,9 @@ def test_every_example_file_is_installed_and_every_node_has_one():
      "formation-ilc-liveview: error: argument --port: a port is in 1..65535, got 70000 "
      "(see formation-ilc-liveview --help)"),
     (["formation_ilc.nodes.recorder", "--output", "{tmp}"],
-     "formation-ilc-record: --output {tmp}: is a folder, expected a file name"),
+     "formation-ilc-recorder: --output {tmp}: is a folder, expected a file name"),
     (["formation_ilc.nodes.recorder", "--output", "{tmp}/new/run.mcap"],
-     "formation-ilc-record: --output {tmp}/new/run.mcap: the folder {tmp}/new does not "
+     "formation-ilc-recorder: --output {tmp}/new/run.mcap: the folder {tmp}/new does not "
      "exist"),
 ])
 def test_the_nodes_own_arguments_are_one_line_and_status_2(ros_env, tmp_path, args, line):

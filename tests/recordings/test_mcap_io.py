@@ -21,6 +21,7 @@ from rclpy.serialization import serialize_message  # noqa: E402
 import msgs_schema as ms  # noqa: E402
 from formation_ilc.recordings.mcap_io import (  # noqa: E402
     RosMcapWriter,
+    bag_metadata,
     message_definition,
     qos_yaml,
     read_messages,
@@ -28,6 +29,8 @@ from formation_ilc.recordings.mcap_io import (  # noqa: E402
     repair,
     type_hash,
 )
+
+from .rosbag2_jazzy import INFINITE, BadConversion, check_file, decode_bag_metadata  # noqa: E402
 
 
 def _path(n: int, k: int) -> Path:
@@ -86,15 +89,51 @@ def test_roundtrip_with_mcap_ros2_and_rosbags(tmp_path):
     assert got[0].linear.x == 0.5 and got[0].angular.z == -0.25  # log-time order
     assert len(got[3].poses) == 5 and got[3].poses[4].pose.position.x == 4.25
     assert read_metadata(f)["formation_ilc"]["scenario"] == "name: x"
-    # rosbag2's own record: what `ros2 bag info` reads (distro, counts per topic, span)
-    bag = yaml.safe_load(read_metadata(f)["rosbag2"]["serialized_metadata"])
-    assert bag["ros_distro"] == "jazzy" and bag["storage_identifier"] == "mcap"
+    # rosbag2's own record, decoded with rosbag2 Jazzy's rules: what `ros2 bag info` and
+    # `ros2 bag play` read on opening the file (distro, counts per topic, span, QoS)
+    bag = check_file(f)
     assert bag["message_count"] == 6 and bag["files"][0]["message_count"] == 6
     counts = {t["topic_metadata"]["name"]: t["message_count"]
               for t in bag["topics_with_message_count"]}
-    assert sum(counts.values()) == 6 and counts["/formation/robot_1/trajectory"] >= 1
-    assert bag["duration"]["nanoseconds"] == max(m.log_time for _, _, m, _ in decoded) - \
-        bag["starting_time"]["nanoseconds_since_epoch"]
+    assert counts == {"/formation/robot_1/cmd_vel": 3, "/formation/robot_1/trajectory": 3}
+    assert bag["duration"] == 202 - 100 and bag["starting_time"] == 100
+    qos = {t["topic_metadata"]["name"]: t["topic_metadata"]["offered_qos_profiles"]
+           for t in bag["topics_with_message_count"]}
+    assert qos["/formation/robot_1/trajectory"] == [{
+        "history": "keep_last", "depth": 1, "reliability": "reliable",
+        "durability": "transient_local", "liveliness": "automatic",
+        "deadline": INFINITE_T, "lifespan": INFINITE_T, "liveliness_lease_duration": INFINITE_T,
+        "avoid_ros_namespace_conventions": False}]
+    # a repaired copy leaves the record out rather than copy the original's counts
+    repair(f, tmp_path / "copy.mcap")
+    assert "rosbag2" not in read_metadata(tmp_path / "copy.mcap")
+    assert read_metadata(tmp_path / "copy.mcap")["formation_ilc"]["scenario"] == "name: x"
+
+
+INFINITE_T = (INFINITE["sec"], INFINITE["nsec"])
+
+
+def test_rosbag2_rules_refuse_what_rosbag2_refuses():
+    """The decoder is rosbag2's: the shape issue 40 found (a version-9 record whose QoS is
+    one YAML string) throws, and so do wrong scalar types."""
+    good = bag_metadata("x.mcap", {"/t": ["std_msgs/msg/String", qos_yaml(), "RIHS01_ab", 2]},
+                        [5, 9])
+    assert decode_bag_metadata(good)["topics_with_message_count"][0]["message_count"] == 2
+    doc = yaml.safe_load(good)
+    as_string = dict(doc)
+    as_string["topics_with_message_count"] = [
+        {"topic_metadata": {**t["topic_metadata"], "offered_qos_profiles": qos_yaml()},
+         "message_count": t["message_count"]} for t in doc["topics_with_message_count"]]
+    with pytest.raises(BadConversion, match="offered_qos_profiles: not a sequence"):
+        decode_bag_metadata(yaml.safe_dump(as_string))
+    for key, value, why in (("message_count", -1, "negative"), ("version", "nine", "integer"),
+                            ("duration", 5, "not a map"), ("relative_file_paths", "x.mcap",
+                                                            "not a sequence")):
+        with pytest.raises(BadConversion, match=why):
+            decode_bag_metadata(yaml.safe_dump({**doc, key: value}))
+    del doc["ros_distro"]
+    with pytest.raises(BadConversion, match="ros_distro: missing"):
+        decode_bag_metadata(yaml.safe_dump(doc))
 
 
 WRITER = textwrap.dedent("""

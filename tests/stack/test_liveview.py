@@ -194,7 +194,8 @@ def test_live_view_serves_a_foxglove_client_during_a_lockstep_run(ros_env, tmp_p
         # a viewer that joins mid-run gets the latched state at once: the configuration
         # (published once, before the first client came), readies, desired paths and
         # diagnostics, as foxglove_bridge gives a late client transient-local topics
-        late_topics = ["config", "ready", "robot_1/desired_path", "diagnostics"]
+        late_topics = ["config", "ready", "robot_1/desired_path", "diagnostics",
+                       "trial_events"]  # the current trial's start, not the next event
         # ... and the run's parameters, read-only
         c = subprocess.run(["node", str(CLIENT / "client.js"), f"ws://127.0.0.1:{port}", "1",
                             *late_topics, "@params"], env=env, capture_output=True,
@@ -219,6 +220,9 @@ def test_live_view_serves_a_foxglove_client_during_a_lockstep_run(ros_env, tmp_p
     assert params["/formation/virtual_leader.trials"] == trials
     assert params["/formation/virtual_leader.scenario"] == "paper-triangle3"
     assert params["/formation/virtual_leader.mode"] == "lockstep"
+    # ... and every node's own, read through its parameter services
+    for node in ("robot_1", "robot_3", "robot_sim"):
+        assert any(k.startswith(f"/formation/{node}.") for k in params), sorted(params)
     (name, kept), = late["set_answer"].items()
     assert kept == params[name], late["set_answer"]
     for t in topics:
@@ -227,6 +231,7 @@ def test_live_view_serves_a_foxglove_client_during_a_lockstep_run(ros_env, tmp_p
     assert result["samples"]["robot_2/tracking_error"]["schema"] == \
         "geometry_msgs/msg/Vector3Stamped"
     assert stack.returncode == 130, stdout
+    assert f"live view: ws://127.0.0.1:{port} (open it in Foxglove" in stdout  # the header
     # the view changed nothing: the trials the run finished equal the batch simulator's
     got = read_metrics(out / "metrics.csv")
     assert 1 <= len(got) < trials

@@ -38,10 +38,20 @@ def pioneer_args(*extra: str) -> list[str]:
 
 
 def test_team_learns_through_bridges_and_fake_drivers(ros_env, tmp_path):
+    """... managed bridges (--lifecycle): each starts unconfigured, and the launcher brings
+    it up through its change_state service (tests/nodes/test_lifecycle_bridge.py: each
+    transition on its own, and deactivate stopping the base)."""
     out = tmp_path / "run"
-    res = launch(ros_env, out, *pioneer_args("--trials", str(TRIALS)), timeout=400)
+    res = launch(ros_env, out, *pioneer_args("--trials", str(TRIALS), "--lifecycle"),
+                 timeout=400)
     assert res.returncode == 0, res.stdout
     assert "wallclock, direct links, plant bridge_1, bridge_2, bridge_3" in res.stdout
+    for i in (1, 2, 3):
+        assert f"/formation/bridge_{i}: configured and active (lifecycle)" in res.stdout
+    assert "did not answer the deactivate request" not in res.stdout
+    for i in (1, 2, 3):  # the launcher deactivated each at the end: its base stopped
+        log = (out / "logs" / f"bridge_{i}.log").read_text()
+        assert f"bridge_{i}: stopped: a zero command sent to /pioneer_{i}/cmd_vel" in log
     got = read_metrics(out / "metrics.csv")
     assert got.shape == (TRIALS, 9)
     # no true state from a real robot: the true_ columns are nan, the rest finite; no

@@ -28,6 +28,7 @@ from formation_ilc.recordings.mcap_io import read_messages, type_hash  # noqa: E
 from formation_ilc.recordings.recording import load_recording  # noqa: E402
 
 from ..procs import find_child, stop_group  # noqa: E402
+from ..recordings.rosbag2_jazzy import check_file  # noqa: E402
 from .test_stack import launch  # noqa: E402
 
 
@@ -90,6 +91,12 @@ def test_launch_record_then_analyze_reproduces_the_launcher_exactly(ros_env, tmp
     assert m.publish_time == stamp  # publish time = send label
     assert msg.header.frame_id == "map"  # REP-105: the world frame; the topic names the robot
 
+    # rosbag2's record, as `ros2 bag info` / `play` decode it; the writers' QoS as the graph
+    # reported it (history and depth unknown to the graph, times infinite)
+    bag = check_file(rec)
+    qos = bag["topics_with_message_count"][0]["topic_metadata"]["offered_qos_profiles"][0]
+    assert qos["history"] == "unknown" and qos["deadline"] == (9223372036, 854775807)
+
     # reader 2: rosbags
     from rosbags.highlevel import AnyReader
 
@@ -116,9 +123,9 @@ def test_sigkill_of_the_recorder_keeps_what_was_written(ros_env, tmp_path):
         while time.monotonic() < deadline:
             line = proc.stdout.readline()
             lines.append(line)
-            if line.startswith("trial 4/40"):
+            if line.startswith("trial 3 of 0..39"):
                 break
-        assert lines[-1].startswith("trial 4/40"), "".join(lines)
+        assert lines[-1].startswith("trial 3 of 0..39"), "".join(lines)
         pid = find_child(ros_env["ROS_DOMAIN_ID"], f"formation_ilc.nodes.recorder --output {rec}",
                          time.monotonic() + 10)
         os.kill(pid, signal.SIGKILL)
@@ -168,6 +175,7 @@ def test_simulate_record_analyses_to_the_simulators_metrics(tmp_path):
     assert by_topic["/formation/robot_2/trajectory"] == "nav_msgs/msg/Path"
     assert by_topic["/formation/robot_2/cmd_vel"] == "geometry_msgs/msg/Twist"
     assert r.delays["robot_1->robot_2"]  # the drawn delays, as the robots would count them
+    check_file(rec)  # rosbag2's record, as `ros2 bag info` / `play` decode it
     # what the stack's recorder adds: per kept trial (0, 1 and 5 of 6) the desired paths and
     # per pose its desired pose and error, the markers; per trial each robot's largest errors
     assert by_topic["/formation/markers"] == "visualization_msgs/msg/MarkerArray"

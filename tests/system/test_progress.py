@@ -140,3 +140,41 @@ def test_a_terminals_bar_is_wiped_for_a_message_and_an_abandoned_one_stays_quiet
     del bar
     gc.collect()
     assert "sweep" not in read().split("interrupted\n")[1]
+
+
+def test_simulates_bar_names_trials_by_their_number_only(clock):
+    """simulate's progress counts trials one way: their numbers from 0 (as metrics.csv, the
+    table and the plots), not a count from 1 beside them."""
+    from formation_ilc.cli.commands import Progress as TrialProgress
+
+    out = io.StringIO()
+    bar = TrialProgress(20, "paper-triangle3", first=0)
+    bar.bar.file = out
+    for k in range(20):
+        clock.now += 0.1
+        bar(k, [k, 1.0, 0.5])
+    lines = out.getvalue().splitlines()
+    assert lines[0].startswith("paper-triangle3:   5%|")
+    assert "trial 0 of 0..19: max position 1 m" in lines[0]
+    assert "trial 19 of 0..19" in lines[-1] and "/20" not in out.getvalue()
+
+
+def test_compile_notes_say_what_numba_compiles_and_a_warm_cache_says_nothing():
+    import numba
+
+    from formation_ilc.system.compiling import compile_notes
+
+    def add_one(x):  # noqa: ANN001, ANN202
+        return x + 1
+
+    out = io.StringIO()
+    fn = numba.njit(cache=False)(add_one)
+    with compile_notes("a test kernel", file=out):
+        assert fn(1) == 2
+    lines = out.getvalue().splitlines()
+    assert lines[0].startswith("compiling a test kernel with numba: once after an install")
+    assert re.fullmatch(r"  compiled \d+ functions in \d+\.\d s", lines[-1])
+    out = io.StringIO()
+    with compile_notes("a test kernel", file=out):
+        assert fn(2) == 3  # compiled already: nothing to say
+    assert out.getvalue() == ""

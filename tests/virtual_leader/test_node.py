@@ -275,7 +275,7 @@ def test_impossible_parameters_are_one_line_and_status_2(ros_env, param, why):
     res = leader(param, env=ros_env)
     assert res.returncode == 2, res.stdout + res.stderr
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
-    assert lines == [f"formation-ilc-leader: {why}"]
+    assert lines == [f"formation-ilc-virtual-leader: {why}"]
 
 
 def test_an_impossible_state_file_is_one_line_naming_it(ros_env, tmp_path):
@@ -285,6 +285,6 @@ def test_an_impossible_state_file_is_one_line_naming_it(ros_env, tmp_path):
     assert res.returncode == 2, res.stdout + res.stderr
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith(
-        f"formation-ilc-leader: {tmp_path}/leader.json: impossible schedule state: "
+        f"formation-ilc-virtual-leader: {tmp_path}/leader.json: impossible schedule state: "
         f"committed 999 is not in 0..10"), res.stderr
     assert "Traceback" not in res.stderr
