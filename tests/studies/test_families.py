@@ -107,3 +107,22 @@ def test_a_draw_that_does_not_fit_is_drawn_again():
 def test_a_bad_kind_is_refused():
     with pytest.raises(ValueError, match="crossing, following, swapping"):
         scenario_data("zigzag", 1)
+
+
+@pytest.mark.slow
+def test_a_sample_of_the_families_on_the_physics_plant_never_touches():
+    """Cold starts of a crossing and a swapping member on P3-DX bodies in the PyBullet
+    world (one process, lockstep, exact poses): the bodies never touch nor tilt, and the
+    error falls."""
+    pytest.importorskip("pybullet")
+    from formation_ilc.model.physics import MODELS
+    from formation_ilc.studies.physics import run_physics
+
+    for kind, seed in (("crossing", 0), ("swapping", 1)):
+        sc = family_scenario(kind, seed).with_options(delay=False)
+        res = run_physics(sc, MODELS["p3dx"], 4, safety=_spec(sc))
+        assert not any(res.contacts), f"{kind} {seed}: {res.contacts}"
+        assert min(c.value for c in res.clearance) > 0.0
+        assert max(res.tilt) < np.radians(2.0)
+        err = res.metrics[:, 3]  # the true error
+        assert err[-1] < 0.7 * err[0]
