@@ -10,28 +10,32 @@ inside
 
 * the base's limits: |v| <= v_max, |omega| <= omega_max, and the change from the previous
   command at most a_max dT and alpha_max dT (a box in (v, omega));
-* one half-plane per pair of discs of this robot and another robot j heard within
+* one or two half-planes per pair of discs of this robot and another robot j heard within
   ``radius``. Each body is covered by a few discs along its heading (two cover a
   Pioneer-size rectangle far more tightly than one circle); a disc at offset l from the
-  tracked point moves at p' = M(theta, l) u, M = [[cos, -l sin], [sin, l cos]], linear in
-  u. For two discs d = |p_i - p_j| apart, with D the least distance between their
-  centres, the robot keeps its own closing speed -d^T p'_i at most ``closing_speed`` of
-  its share of the gap: half of d - D, plus r^2 / (2 a_max) when robot j recedes at r (it
-  moves on that far at least before it can have stopped). Within its share a robot that
-  holds its command for one sample can still stop, braking at its acceleration limit: the
-  barrier is safe under the base's own limits, not only for an ideal unicycle. Each robot
-  of a pair keeps its half, none needs the other's command: every robot runs the filter.
+  tracked point moves at p' = M(theta, l) u, M = [[cos, -l sin], [sin, l cos]]. The pair
+  keeps a braking invariant: X_i + X_j <= g, X_k the disc's closing displacement if robot
+  k holds its command for a sample and then brakes at its limits, g the gap beyond D.
+  Robot i keeps X_i(u) <= B_i + s_i (g - B_i - B_j), B_i its own X when it brakes now,
+  B_j an upper bound of robot j's from its estimated motion, s_i its share of the slack
+  (split by the poses, s_i + s_j <= 1): the braking command keeps every barrier while the
+  slack is not negative, and two robots that each keep theirs keep it so (``filter_command``
+  has the details, docs/safety.md the assumptions). X_i is bounded by a linear function of
+  u over the sample's box of commands (chords of the carried distance and turn, with the
+  turn's bending of the path counted to second order). No robot needs another's command:
+  every robot runs the filter.
 
-D_ij = ``distance`` + ``stale_speed`` x (age of robot j's pose): a pose that is old by the
-link's delay is widened by how far robot j can have moved since. Robot j's motion is
-estimated from two of its poses ``window`` samples apart (``motion``).
+Robot j's motion is estimated from two of its poses ``window`` samples apart (``motion``).
+A pose of robot j that is old by the link's delay is moved on by that motion, and the
+distance widened by how wrong that can be (or by its speed limit ``stale_speed`` x the
+age, where that is less).
 
 The problem has two unknowns: the feasible set is the box clipped by the half-planes, a
 convex polygon (polygon clipping), and the answer is u_n if it lies inside, else the
 nearest point of the polygon's boundary. No solver, no iteration: exact to round-off, a
 few microseconds compiled. When the polygon is empty (no command in the limits keeps every
-barrier), the robot brakes as hard as its limits allow (v towards 0, omega as asked, both
-clipped to the box) and the sample is flagged ``INFEASIBLE``.
+barrier), the robot brakes as hard as its limits allow (v and omega towards 0) and the
+sample is flagged ``INFEASIBLE``.
 
 Learning through the filter (``LEARNING``): the memory must not wind up where the filter
 overrode the learned command. ``learn_base`` gives the memory the learning step starts
@@ -51,10 +55,9 @@ from, ``freeze_flagged`` restores it where nothing may be learned:
   it does neither (docs/safety.md measured it on the generated families).
 
 docs/safety.md has the measurements behind the default (``config.safety.default_learning``):
-``applied`` for two-wheel bodies, where it learns fastest and the filter's work falls to
-zero as the team converges; ``split`` for skid-steer bases (Husky, Jackal), whose
-acceleration limits let a barrier change a command by metres a second within a sample,
-and where ``applied`` then stalls.
+``damped`` for two-wheel bodies, where it learned the paper's triangle and the generated
+families best; ``split`` for skid-steer bases (Husky, Jackal), whose acceleration limits
+let a barrier change a command by metres a second within a sample.
 
 Units: metres, seconds, radians. Robots' poses (x, y, theta) are their tracked points.
 """
@@ -345,7 +348,6 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
         if gg > radius * radius:
             continue
         age = float(ages[j])
-        dj = dist + stale * age
         # robot j: its estimated speed, how wrong it may be, how far it closes in braking
         vxj, vyj, wj = float(others[j, 3]), float(others[j, 4]), float(others[j, 5])
         swj = abs(wj)
@@ -353,6 +355,16 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
         # the estimate is a mean over the window, ``lag`` old: since then robot j's speed
         # changed by at most a_max lag, its direction by |omega| lag
         sig = sigma + a_max * (lag + age) + spj * swj * (lag + age + 0.5 * dt)
+        # a pose ``age`` s old: robot j has moved on since, as its motion says, to within
+        # sig x age of there; or, if its speed limit (``stale``) says less, within that of
+        # where it was
+        ahead = age > 0.0 and not (0.0 < stale <= sig)
+        dj = dist + (sig if ahead or stale <= 0.0 else stale) * age
+        if ahead:
+            ox += vxj * age
+            oy += vyj * age
+            gx, gy = x - ox, y - oy
+            gg = gx * gx + gy * gy
         # robot j braking now covers f(v - a_max dT) along its heading: its closing speed
         # lasts that over its speed, rho (at its fastest for a closing bound, its slowest,
         # braking its hardest, for a receding one)
@@ -367,7 +379,7 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
         gap0 = math.sqrt(gg) - 2.0 * l_max - dj
         if share * (1.0 - _SPLIT) * (gap0 - e_i - e_j) >= w_i:
             continue
-        oth = float(others[j, 2])
+        oth = float(others[j, 2]) + (wj * age if ahead else 0.0)
         cj, sj = math.cos(oth), math.sin(oth)
         # robot j's tracked point moves at (vxj, vyj); a disc at ellj also swings with wj
         swx, swy = -wj * sj, wj * cj
