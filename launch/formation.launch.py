@@ -5,7 +5,7 @@ docs/ros-tools.md):
     ros2 launch formation_ilc formation.launch.py namespace:=/team2 record:=run.mcap live:=8765
 
 It starts the processes ``formation-ilc launch`` starts for the same options, with the same
-arguments and parameters (``formation_ilc.cli.plan.ros_launch_processes``): the virtual
+arguments and parameters (``formation_ilc.cli.roslaunch.ros_launch_processes``): the virtual
 leader, the plant, the link emulator, the robots, and a recorder and the live view when
 asked. The leader ends its process after the last trial, and the launch stops every node
 with it. The launcher's own monitor (metrics.csv, the error table, restarts) is not part of
@@ -57,7 +57,7 @@ def launcher_argv(get) -> list[str]:
 
 
 def _nodes(context, *args, **kwargs):
-    from formation_ilc.cli.plan import ros_launch_processes
+    from formation_ilc.cli.roslaunch import ros_launch_processes
 
     def get(name):
         return LaunchConfiguration(name).perform(context)

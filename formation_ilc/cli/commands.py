@@ -416,6 +416,7 @@ def _add_launch(sub: Any) -> None:
                        description=launch.__doc__,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     launch.add_arguments(p)
+    launch.without_defaults(p)
 
 
 class Progress:
@@ -1110,6 +1111,18 @@ def cmd_keystore(args: argparse.Namespace) -> int:
     return keystore.run(args)
 
 
+def _add_run_file(sub: Any) -> None:
+    from formation_ilc.cli import runfile
+
+    runfile.add_parser(sub)
+
+
+def cmd_run_file(args: argparse.Namespace) -> int:
+    from formation_ilc.cli import runfile
+
+    return runfile.run(args)
+
+
 def cmd_launch(args: argparse.Namespace) -> int:
     from formation_ilc.cli import launch
 
@@ -1141,6 +1154,7 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
     Command("analyze", _add_analyze, cmd_analyze),
     Command("mcap-repair", _add_mcap_repair, cmd_mcap_repair),
     Command("keystore", _add_keystore, cmd_keystore),
+    Command("run-file", _add_run_file, cmd_run_file),
     Command("launch", _add_launch, cmd_launch),
     Command("team", _add_team, cmd_team),
 )}

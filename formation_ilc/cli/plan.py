@@ -14,7 +14,6 @@ execution (``formation_ilc.cli.hosts``). Nothing here needs ROS.
 
 from __future__ import annotations
 
-import argparse
 import functools
 import json
 import os
@@ -44,19 +43,22 @@ from formation_ilc.config.safety import SafetySettings, default_learning, defaul
 from formation_ilc.config.scenario import Scenario, ScenarioError
 from formation_ilc.core.names import (
     LEADER_NODE,
+    MONITOR_NODE,
     NAMESPACE,
     driver_ns_problem,
     namespace_remaps,
     robots_process_name,
 )
+from formation_ilc.plan.options import LaunchOptions
 from formation_ilc.protocol.schedule import DONE, KEY_BYTES
 from formation_ilc.system.exits import NO_RESTART as EXIT_NO_RESTART
 from formation_ilc.system.netns import LinkFaults
 
 __all__ = ["RUN_FILE", "NO_RESTART", "NoRun", "BridgeOptions", "PhysicsOptions",
            "RestartPolicy", "NodeSpec",
-           "HostsPlan", "RunPlan", "build_plan", "effective_options", "node_specs",
-           "finished", "pick_domain", "resumed_part", "entry_module"]
+           "HostsPlan", "RunPlan", "build_plan", "hosted_members", "placed_members",
+           "effective_options", "node_specs",
+           "finished", "pick_domain", "entry_module"]
 
 #: the launch options a run is resumed with (DIR/run.json)
 RUN_FILE = "run.json"
@@ -116,20 +118,22 @@ class BridgeOptions:
     physics_bases: bool = False
 
     @classmethod
-    def of(cls, opts: argparse.Namespace) -> BridgeOptions:
+    def of(cls, opts: LaunchOptions) -> BridgeOptions:
         from formation_ilc.config.bases import LIMIT_KEYS
 
-        base = getattr(opts, "base", None) if plant(opts.plant).driver == "base" else None
+        base = opts.base if plant(opts.plant).driver == "base" else None
         ns = opts.driver_ns
         if base is not None and ns == PIONEER_NS:
             ns = BASE_NS
-        given = tuple((k, float(getattr(opts, k, 0.0) or 0.0)) for k in LIMIT_KEYS)
-        pf = getattr(opts, "params_file", None)
-        return cls(opts.driver, ns, getattr(opts, "cmd_type", None),
+        limits = {"v_max": opts.v_max, "omega_max": opts.omega_max, "a_max": opts.a_max,
+                  "alpha_max": opts.alpha_max}
+        given = tuple((k, float(limits[k] or 0.0)) for k in LIMIT_KEYS)
+        pf = opts.params_file
+        return cls(opts.driver, ns, opts.cmd_type,
                    float(opts.return_timeout),
                    bool(opts.fake_drivers), base, tuple((k, v) for k, v in given if v != 0),
                    None if pf is None else Path(pf).resolve(),
-                   bool(getattr(opts, "physics_bases", False)))
+                   bool(opts.physics_bases))
 
     @property
     def sent_type(self) -> str:
@@ -174,12 +178,12 @@ class PhysicsOptions:
     tilt_limit: float = 10.0
 
     @classmethod
-    def of(cls, opts: argparse.Namespace) -> PhysicsOptions:
-        return cls(getattr(opts, "robot_model", "p3dx"), getattr(opts, "pose", "truth"),
-                   not getattr(opts, "pass_through", False),
-                   float(getattr(opts, "physics_rate", 240.0)),
-                   getattr(opts, "on_contact", "stop"), int(getattr(opts, "contact_retries", 2)),
-                   float(getattr(opts, "tilt_limit", 10.0)))
+    def of(cls, opts: LaunchOptions) -> PhysicsOptions:
+        return cls(opts.robot_model, opts.pose,
+                   not opts.pass_through,
+                   float(opts.physics_rate),
+                   opts.on_contact, int(opts.contact_retries),
+                   float(opts.tilt_limit))
 
 
 @dataclass(frozen=True)
@@ -312,6 +316,8 @@ class RunPlan:
     #: the batch simulator predicted no contact in this run's trials (a plant with bodies):
     #: the report warns if the plant saw one all the same
     predicted_clear: bool = False
+    #: a run file's ``hosts:``: which host runs which members (empty: all on this one)
+    host_members: tuple[tuple[str, tuple[str, ...]], ...] = ()
     #: the run key the leader seals its events with (``protocol.schedule.seal``), given to
     #: every process this launch starts; a new one for each launch, kept nowhere
     key: bytes | None = None
@@ -384,10 +390,11 @@ def finished(plan: RunPlan, diagnostics: Mapping[str, Mapping[str, Any]],
 
 # --------------------------------------------------------------------------- building
 
-def build_plan(args: argparse.Namespace) -> RunPlan:
-    """The plan of ``formation-ilc launch`` options (``args`` is not changed); NoRun with
-    the refusal's one line and exit status; ScenarioError for a bad scenario."""
-    opts = effective_options(args)
+def build_plan(options: LaunchOptions) -> RunPlan:
+    """The plan of a launch's options; NoRun with the refusal's one line and exit status;
+    ScenarioError for a bad scenario."""
+    opts = effective_options(options)
+    assert opts.scenario is not None and opts.run_id is not None
     faults = _hosts_faults(opts)
     mode, links = _mode_and_links(opts, hosts=faults is not None)
     clocks = _clocks(opts, mode)
@@ -397,8 +404,8 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
                           memory=opts.memory, mode=mode, monitored=True,
                           timeout=opts.timeout, recorded=opts.record is not None,
                           links=links, run_id=opts.run_id,
-                          headings=getattr(opts, "headings", None),
-                          time_scale=getattr(opts, "time_scale", None), clocks=clocks)
+                          headings=opts.headings,
+                          time_scale=opts.time_scale, clocks=clocks)
     except ScenarioError:
         raise
     except ValueError as exc:
@@ -423,8 +430,8 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
     _ = sc.desired
     out = _out_folder(opts.out, sc)
     resumed_at = _resumed_at(out, sc) if opts.resume is not None else None
-    record = opts.record.resolve() if opts.record is not None else None
-    root = getattr(opts, "record_root_", None) or record
+    record = _in_run(opts.record, out)
+    root = opts.record_root or record
     domain = opts.domain_id if opts.domain_id is not None else caller_domain()
     if domain is None:
         domain = pick_domain()
@@ -458,7 +465,7 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
                                                                 clocks),
         init_memory=opts.init_memory, record=record, bridge=bridge,
         record_root=root.resolve() if root is not None else None,
-        watchdog_scale=float(getattr(opts, "watchdog_scale", 1.0)),
+        watchdog_scale=float(opts.watchdog_scale),
         physics=physics, notes=notes,
         live=live, live_rate=_live_rate(opts),
         hosts=None if faults is None else HostsPlan(faults, opts.dds_profile or "lossy",
@@ -468,7 +475,53 @@ def build_plan(args: argparse.Namespace) -> RunPlan:
         key=secrets.token_bytes(KEY_BYTES))
     # the processes follow from the rest of the plan
     plan = _with_peers(replace(plan, nodes=node_specs(plan, scenario_reference(opts.scenario))))
-    return _secured(plan, getattr(opts, "secure", None))
+    plan = replace(plan, host_members=placed_members(plan, dict(opts.host_members)))
+    return _secured(plan, opts.secure)
+
+
+def hosted_members(plan: RunPlan) -> tuple[tuple[str, int | None], ...]:
+    """(name, robot) of every member a host of the run runs: the launcher's processes and
+    its monitor, in start order."""
+    return ((MONITOR_NODE, None),) + tuple((m.name, m.robot) for m in plan.roster.processes)
+
+
+def placed_members(plan: RunPlan, hosts: Mapping[str, Sequence[str]]
+                   ) -> tuple[tuple[str, tuple[str, ...]], ...]:
+    """A run file's ``hosts:`` checked against the plan: every member on exactly one host,
+    the monitor with the leader; NoRun naming the first that is not."""
+    if not hosts:
+        return ()
+    if plan.container:
+        raise NoRun("hosts: robots on hosts of their own run one process per robot (no "
+                    "processes.container)")
+    names = [n for n, _ in hosted_members(plan)]
+    where: dict[str, str] = {}
+    for host, members in hosts.items():
+        for name in members:
+            if name not in names:
+                raise NoRun(f"hosts: {host}: {name!r} is no member of this run (its members: "
+                            f"{', '.join(names)})")
+            if name in where:
+                raise NoRun(f"hosts: {name!r} is on {where[name]} and on {host}")
+            where[name] = host
+    missing = [n for n in names if n not in where]
+    if missing:
+        raise NoRun(f"hosts: {', '.join(missing)} on no host (every member of the run on "
+                    f"one)")
+    if where[MONITOR_NODE] != where[LEADER_NODE]:
+        raise NoRun(f"hosts: the monitor goes with the leader (on {where[LEADER_NODE]}): "
+                    f"the ground station runs the checks and the report")
+    return tuple((h, tuple(m)) for h, m in hosts.items())
+
+
+def _in_run(path: Path | None, out: Path) -> Path | None:
+    """``path`` absolute; ``@run/REL`` (a stored run file's recording, launched again) in
+    the run's folder ``out``."""
+    if path is None:
+        return None
+    if path.parts[:1] == ("@run",):
+        return out.joinpath(*path.parts[1:])
+    return path.resolve()
 
 
 def _user_profile() -> Path | None:
@@ -536,101 +589,20 @@ def _enclave(plan: RunPlan, process: str) -> str:
     return plan.roster.enclave_of(process)
 
 
-def effective_options(args: argparse.Namespace) -> argparse.Namespace:
-    """The options a run goes with, as a copy: with ``--resume DIR`` the run's own (its
-    run.json), and a new run id when there is none; NoRun for what no run can have."""
-    if args.resume is not None:
-        opts = _resume_options(args)
-    elif args.scenario is None:
+def effective_options(opts: LaunchOptions) -> LaunchOptions:
+    """The options a run goes with: a new run id when there is none; NoRun for what no
+    run can have."""
+    if opts.scenario is None:
         raise NoRun("a SCENARIO is required (or --resume DIR)")
-    else:
-        opts = argparse.Namespace(**vars(args))
     if opts.max_restarts < 0:
         raise NoRun("--max-restarts must be >= 0")
-    if getattr(opts, "run_id", None) is None:
+    if opts.run_id is None:
         # a letter first: an all-digit id would reach the leader as an integer parameter
-        opts.run_id = "r" + uuid.uuid4().hex[:12]
+        return replace(opts, run_id="r" + uuid.uuid4().hex[:12])
     return opts
 
 
-def _resume_options(args: argparse.Namespace) -> argparse.Namespace:
-    """The options of the run in ``args.resume``: its run.json (read bounded and checked;
-    every path that pointed into the run's folder re-rooted in the folder being resumed,
-    so a copied folder resumes into itself: ``formation_ilc.store.runfile``), with this
-    call's output folder and --max-restarts, and where the resumed launch records."""
-    from formation_ilc.store.runfile import RunFileError, load_run, require
-
-    out = args.resume
-    try:
-        d = load_run(out)
-    except RunFileError as exc:
-        raise NoRun(f"--resume {exc}") from None
-    if d is None:
-        raise NoRun(f"--resume {out}: no {RUN_FILE} there (not the output folder of a "
-                    f"`formation-ilc launch` run)")
-    if args.scenario is not None:
-        raise NoRun("--resume takes the run's own scenario and options: give no SCENARIO")
-    given = _given_options(args) - RESUME_OPTIONS
-    if given:  # before, silently ignored (--domain-id among them; now honoured)
-        shown = ", ".join(f"--{k.replace('_', '-')}" for k in sorted(given))
-        raise NoRun(f"--resume takes the run's own options: {shown} cannot change a run "
-                    f"going on (with --resume: "
-                    f"{', '.join('--' + k.replace('_', '-') for k in sorted(RESUME_OPTIONS))})")
-    try:
-        require(d, out)
-    except RunFileError as exc:
-        raise NoRun(f"--resume {exc}") from None
-    ns = argparse.Namespace(**vars(args))
-    for k, v in d.items():
-        setattr(ns, k, v)
-    for k in ("out", "init_memory", "record", "params_file"):
-        if getattr(ns, k, None) is not None:
-            setattr(ns, k, Path(getattr(ns, k)))
-    ns.out = out
-    ns.resume = out
-    ns.max_restarts = args.max_restarts
-    ns.watchdog_scale = getattr(args, "watchdog_scale", 1.0)
-    ns.no_plots = bool(getattr(args, "no_plots", False)) or bool(d.get("no_plots"))
-    if getattr(args, "domain_id", None) is not None:  # the resumed launch's domain
-        ns.domain_id = args.domain_id
-    if ns.record is not None:
-        ns.record_root_ = ns.record
-        ns.record = resumed_part(ns.record)
-    return ns
-
-
-#: the options a resumed launch takes from its own command line (the rest are the run's)
-RESUME_OPTIONS = frozenset({"max_restarts", "watchdog_scale", "domain_id", "no_plots"})
-
-
-def _given_options(args: argparse.Namespace) -> set[str]:
-    """The launch options ``args`` sets to something other than their defaults."""
-    from formation_ilc.cli.launch import add_arguments
-
-    p = argparse.ArgumentParser(add_help=False)
-    add_arguments(p)
-    defaults = vars(p.parse_args([]))
-    return {k for k, v in vars(args).items()
-            if k in defaults and k not in ("resume", "scenario") and v != defaults[k]}
-
-
-def resumed_part(root: Path) -> Path:
-    """Where a resumed launch records: the run's first file when no part of its recording
-    exists yet (a launch killed before its recorder wrote it), else the next free
-    ``RUN.resumedN.mcap`` (every part stays as it was written)."""
-    from formation_ilc.recordings.recording import recording_parts
-
-    if not any(p.exists() for p in recording_parts(root)):
-        return root
-    stem = root.with_suffix("")
-    n = 1
-    while Path(f"{stem}.resumed{n}.mcap").exists() or any(
-            stem.parent.glob(f"{stem.name}.resumed{n}.part*.mcap")):
-        n += 1
-    return Path(f"{stem}.resumed{n}.mcap")
-
-
-def _hosts_faults(opts: argparse.Namespace) -> LinkFaults | None:
+def _hosts_faults(opts: LaunchOptions) -> LinkFaults | None:
     """``--hosts netns``: the faults on the links between robots, once the options and this
     machine allow it (None: every process on this machine's network)."""
     from formation_ilc.system import netns
@@ -656,7 +628,7 @@ def _hosts_faults(opts: argparse.Namespace) -> LinkFaults | None:
     return faults
 
 
-def _mode_and_links(opts: argparse.Namespace, hosts: bool) -> tuple[str, str]:
+def _mode_and_links(opts: LaunchOptions, hosts: bool) -> tuple[str, str]:
     """The run's mode and links: refuses what a plant cannot do, fills in the defaults."""
     row = plant(opts.plant)
     pioneer = row.per_robot
@@ -671,7 +643,7 @@ def _mode_and_links(opts: argparse.Namespace, hosts: bool) -> tuple[str, str]:
                     "lockstep or realtime")
     if opts.fake_drivers and row.driver != "pioneer":
         raise NoRun("--fake-drivers goes with --plant pioneer")
-    if getattr(opts, "physics_bases", False) and row.driver != "base":
+    if opts.physics_bases and row.driver != "base":
         raise NoRun("--physics-bases goes with --plant base")
     if opts.fake_drivers and opts.driver == "p2os2":
         raise NoRun("--fake-drivers speak rosaria or ros2aria, not p2os2 (its p2os_msgs are "
@@ -680,7 +652,7 @@ def _mode_and_links(opts: argparse.Namespace, hosts: bool) -> tuple[str, str]:
     return mode, links or ("direct" if pioneer or mode == "wallclock" else "emulated")
 
 
-def _safety(opts: argparse.Namespace, row: Plant, sc: Scenario, namespace: str,
+def _safety(opts: LaunchOptions, row: Plant, sc: Scenario, namespace: str,
             bridge: BridgeOptions | None, physics: PhysicsOptions | None
             ) -> SafetySettings | None:
     """The run's safety filter (``--safety``; on by default with a plant whose robots have
@@ -752,7 +724,7 @@ def _params_file(bridge: BridgeOptions) -> Any:
     return params
 
 
-def _check_plant(opts: argparse.Namespace, row: Plant, sc: Scenario, namespace: str,
+def _check_plant(opts: LaunchOptions, row: Plant, sc: Scenario, namespace: str,
                  bridge: BridgeOptions | None, physics: PhysicsOptions | None,
                  safety: SafetySettings | None = None) -> tuple[str, ...]:
     """Refuse a run the plant cannot do, before anything starts: no PyBullet for a physics
@@ -826,7 +798,7 @@ def _formation_line(sc: Scenario, safety: SafetySettings) -> str | None:
             f"offsets, lower --safety-margin, or --no-safety")
 
 
-def _memory_limits(opts: argparse.Namespace, sc: Scenario, physics: PhysicsOptions | None,
+def _memory_limits(opts: LaunchOptions, sc: Scenario, physics: PhysicsOptions | None,
                    safety: SafetySettings | None) -> str | None:
     """An initial memory whose commands leave the limits: refused without the filter on a
     plant with bodies (they would be sent); with it, a note (the filter holds them inside
@@ -882,7 +854,7 @@ def _limits_line(bridge: BridgeOptions, sc: Scenario, namespace: str) -> str | N
     return fit_limits(sc, limits)
 
 
-def _contact_line(opts: argparse.Namespace, sc: Scenario, bridge: BridgeOptions | None,
+def _contact_line(opts: LaunchOptions, sc: Scenario, bridge: BridgeOptions | None,
                   physics: PhysicsOptions | None, safety: SafetySettings | None = None
                   ) -> tuple[str | None, str]:
     """The batch simulator's prediction of a run on robots with bodies (noise-free, the arc
@@ -960,32 +932,31 @@ def _resumed_at(out: Path, sc: Scenario) -> int:
     return done
 
 
-def _run_json(opts: argparse.Namespace, mode: str, links: str, out: Path,
+def _run_json(opts: LaunchOptions, mode: str, links: str, out: Path,
               clocks: ClockSettings) -> dict[str, Any]:
     """The options ``--resume`` takes the run back with (paths as strings; the emulated
     clocks' origin, so that a resumed run's robots keep their clocks)."""
-    d = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(opts).items()
-         if k not in ("func", "command", "resume") and not k.endswith("_")}
+    d = {k: v for k, v in opts.stored().items() if k != "resume"}
     d.update(mode=mode, links=links, out=str(out))
     if clocks.emulated:
         d["clock_origin_ns"] = clocks.origin_ns
     return d
 
 
-def _clocks(opts: argparse.Namespace, mode: str) -> ClockSettings:
+def _clocks(opts: LaunchOptions, mode: str) -> ClockSettings:
     """The run's clock settings (``--clock-offset-ms --clock-drift-ppm --no-clock-sync
     --clock-fallback``); NoRun for emulated clocks in lockstep, where no clock is read."""
-    offset = float(getattr(opts, "clock_offset_ms", 0.0) or 0.0)
-    drift = float(getattr(opts, "clock_drift_ppm", 0.0) or 0.0)
+    offset = float(opts.clock_offset_ms or 0.0)
+    drift = float(opts.clock_drift_ppm or 0.0)
     if (offset or drift) and mode not in WALL_MODES:
         which = "--clock-offset-ms" if offset else "--clock-drift-ppm"
         raise NoRun(f"argument {which}: emulated clocks need --mode realtime or wallclock "
                     f"(in lockstep every node runs on the simulated clock and no robot's own "
                     f"clock is read)")
-    origin = getattr(opts, "clock_origin_ns", None)
+    origin = opts.clock_origin_ns
     try:
-        return ClockSettings(sync=not getattr(opts, "no_clock_sync", False),
-                             fallback=getattr(opts, "clock_fallback", "estimate"),
+        return ClockSettings(sync=not opts.no_clock_sync,
+                             fallback=opts.clock_fallback,
                              offset_ms=offset, drift_ppm=drift,
                              origin_ns=int(origin) if isinstance(origin, int) and (
                                  offset or drift) else (time.time_ns() if offset or drift
@@ -994,19 +965,19 @@ def _clocks(opts: argparse.Namespace, mode: str) -> ClockSettings:
         raise NoRun(f"argument --clock-offset-ms/--clock-drift-ppm: {exc}") from None
 
 
-def _live(opts: argparse.Namespace) -> tuple[str, int] | None:
+def _live(opts: LaunchOptions) -> tuple[str, int] | None:
     """``--live [PORT]`` on ``--live-host``: refused (NoRun) without foxglove-sdk or when
     the port is taken."""
     import importlib.util
     import socket
 
-    port = getattr(opts, "live", None)
+    port = opts.live
     if port is None:
         return None
     if importlib.util.find_spec("foxglove") is None:  # before anything starts, not 3 restarts
         raise NoRun("argument --live: needs foxglove-sdk, the 'live' extra: pip install -c "
                     "requirements.lock -e \".[live]\" (or pip install foxglove-sdk)")
-    host = getattr(opts, "live_host", None) or "127.0.0.1"
+    host = opts.live_host or "127.0.0.1"
     try:
         with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as s:
             s.bind((host, int(port)))
@@ -1015,12 +986,12 @@ def _live(opts: argparse.Namespace) -> tuple[str, int] | None:
     return host, int(port)
 
 
-def _live_rate(opts: argparse.Namespace) -> float | None:
+def _live_rate(opts: LaunchOptions) -> float | None:
     """``--live-rate HZ``: a rate >= 0 (NoRun otherwise, or without ``--live``)."""
-    rate = getattr(opts, "live_rate", None)
+    rate = opts.live_rate
     if rate is None:
         return None
-    if getattr(opts, "live", None) is None:
+    if opts.live is None:
         raise NoRun("--live-rate: only with --live")
     if not rate >= 0:
         raise NoRun(f"--live-rate {rate}: a rate >= 0 messages a second is required")
@@ -1180,32 +1151,3 @@ def ros2_executable(module: str) -> str:
     """The ``ros2 run formation_ilc`` executable that runs node module ``module``."""
     script = {m: s for s, m in _entry_modules().items()}[module]
     return ROS2_RUN[script]
-
-
-def ros_launch_processes(argv: list[str]) -> list[dict[str, Any]]:
-    """The processes ``formation-ilc launch ARGV`` starts, as a ROS launch file starts them
-    (``launch/formation.launch.py``): the same processes with the same arguments, ROS
-    arguments and parameters, but no monitor (the launcher's own node: nobody waits for
-    it), and the leader ends its process after the last trial (``exit_when_done``), which
-    ends the launch. Each entry: name, executable (``ros2 run formation_ilc``), arguments,
-    ros_arguments (remaps, params files, ``-p`` parameters), and whether the launch ends
-    with it. NoRun for options the launcher refuses."""
-    from formation_ilc.cli.commands import build_parser
-
-    plan = build_plan(build_parser().parse_args(["launch", *argv]))
-    lineup = replace(plan.roster.lineup, monitor=False)
-    plan = replace(plan, config=replace(plan.config, monitored=False),
-                   roster=roster(lineup))
-    opts = build_parser().parse_args(["launch", *argv])
-    out = []
-    for spec in node_specs(plan, scenario_reference(opts.scenario)):
-        params = dict(spec.params)
-        if spec.name == LEADER_NODE:
-            params["exit_when_done"] = True
-        ros = [*spec.remaps]
-        for k, v in params.items():
-            ros += ["-p", f"{k}:={param_text(v)}"]
-        out.append({"name": spec.name, "executable": ros2_executable(spec.module),
-                    "arguments": list(spec.args), "ros_arguments": ros,
-                    "ends_launch": spec.name == LEADER_NODE})
-    return out

@@ -14,7 +14,8 @@ from pathlib import Path
 import pytest
 
 from formation_ilc.cli.commands import build_parser
-from formation_ilc.cli.plan import ROS2_RUN, build_plan, entry_module, ros2_executable
+from formation_ilc.cli.plan import ROS2_RUN, entry_module, ros2_executable
+from formation_ilc.cli.runfile import plan_of
 from formation_ilc.config.runconfig import param_text
 
 FILE = Path(__file__).resolve().parents[2] / "launch" / "formation.launch.py"
@@ -81,7 +82,7 @@ def test_its_processes_are_the_launchers_for_the_same_arguments(launch_file, tmp
     nodes = opaque.kwargs["function"](context)
     # the launcher's plan for the same options: every process but its own monitor, with
     # the same arguments, ROS arguments and parameters; the leader also ends the launch
-    plan = build_plan(build_parser().parse_args(
+    plan = plan_of(build_parser().parse_args(
         ["launch", context["scenario"], *argv, "--out", str(tmp_path / "plan")]))
     assert [n.kwargs["executable"] for n in nodes] == [ros2_executable(s.module)
                                                        for s in plan.nodes]

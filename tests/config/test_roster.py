@@ -30,7 +30,7 @@ from pathlib import Path
 import pytest
 
 from formation_ilc.cli.commands import build_parser
-from formation_ilc.cli.plan import build_plan
+from formation_ilc.cli.runfile import plan_of
 from formation_ilc.config.roster import ENTRY_SCRIPTS, Lineup, roster
 from formation_ilc.config.scenario import load_scenario
 from formation_ilc.core.names import TEAM_POSES, absolute, pose_topic
@@ -200,7 +200,7 @@ def test_a_launch_plans_the_processes_it_planned(tmp_path, key):
         pytest.importorskip("pybullet")
     args = build_parser().parse_args(argv)
     args.run_id = "rgolden"
-    plan = build_plan(args)
+    plan = plan_of(args)
 
     def norm(x):
         text = json.dumps(x, default=str).replace(str(tmp_path), "<tmp>")
