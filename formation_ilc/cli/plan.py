@@ -49,7 +49,7 @@ from formation_ilc.core.names import (
     namespace_remaps,
     robots_process_name,
 )
-from formation_ilc.plan.options import LaunchOptions
+from formation_ilc.plan.options import LaunchOptions, unused_option
 from formation_ilc.protocol.schedule import DONE, KEY_BYTES
 from formation_ilc.system.exits import NO_RESTART as EXIT_NO_RESTART
 from formation_ilc.system.netns import LinkFaults
@@ -395,6 +395,9 @@ def build_plan(options: LaunchOptions) -> RunPlan:
     ScenarioError for a bad scenario."""
     opts = effective_options(options)
     assert opts.scenario is not None and opts.run_id is not None
+    unused = unused_option(opts, plant(opts.plant))
+    if unused is not None:  # before, run and said nothing
+        raise NoRun(unused)
     faults = _hosts_faults(opts)
     mode, links = _mode_and_links(opts, hosts=faults is not None)
     clocks = _clocks(opts, mode)

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["LaunchOptions", "RunKey", "RUN_KEYS", "FIELD_KEYS", "SECTIONS", "closest",
-           "option_fields", "PATH_FIELDS", "STORED_FIELDS"]
+           "option_fields", "PATH_FIELDS", "STORED_FIELDS", "PLANT_USES", "unused_option"]
 
 
 @dataclass(frozen=True)
@@ -215,3 +215,36 @@ def closest(word: str, choices: Iterable[str]) -> str:
     """`` (did you mean 'X'?)`` for the choice closest to ``word``, or empty."""
     found = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.6)
     return f" (did you mean {found[0]!r}?)" if found else ""
+
+
+#: the options only some plants use: field -> (whether plant row ``p`` with options ``o``
+#: uses it, the plants that do); a value other than the default on another plant is
+#: refused (it was ignored). (--allow-contact is a permission, not a setting: not here.)
+PLANT_USES: dict[str, tuple[Any, str]] = {
+    **{f: (lambda p, o: p.per_robot, "--plant pioneer or base")
+       for f in ("params_file", "v_max", "omega_max", "a_max", "alpha_max", "return_timeout",
+                 "driver_ns", "cmd_type")},
+    "driver": (lambda p, o: p.driver == "pioneer", "--plant pioneer"),
+    "base": (lambda p, o: p.driver == "base", "--plant base"),
+    "robot_model": (lambda p, o: p.physics or o.physics_bases,
+                    "--plant physics or --physics-bases"),
+    "pass_through": (lambda p, o: p.physics or o.physics_bases,
+                     "--plant physics or --physics-bases"),
+    "pose": (lambda p, o: p.physics, "--plant physics"),
+    "physics_rate": (lambda p, o: p.physics, "--plant physics"),
+    "on_contact": (lambda p, o: p.physics, "--plant physics: its bodies touch"),
+    "contact_retries": (lambda p, o: p.physics, "--plant physics: its bodies touch"),
+    "tilt_limit": (lambda p, o: p.physics, "--plant physics: its bodies tilt"),
+    "plant_nodes": (lambda p, o: p.entry is None, "--plant external"),
+}
+
+
+def unused_option(opts: LaunchOptions, row: Any) -> str | None:
+    """The one line refusing the first option ``opts`` sets that plant ``row``
+    (``config.plants.Plant``) does not use, or None."""
+    defaults = LaunchOptions()
+    for name, (uses, which) in PLANT_USES.items():
+        if getattr(opts, name) != getattr(defaults, name) and not uses(row, opts):
+            return (f"argument --{name.replace('_', '-')}: --plant {row.name} does not use "
+                    f"it (it goes with {which})")
+    return None

@@ -148,3 +148,19 @@ def test_the_options_value_is_frozen_and_typed():
         opts.seed = 3  # type: ignore[misc]
     with pytest.raises(NoRun, match="no run.yaml or run.json there"):
         plan_of(options("--resume", "/nonexistent-run-folder-38"))
+
+
+@pytest.mark.parametrize("argv, line", [
+    (("--params-file", "p.yaml"), "argument --params-file: --plant sim does not use it (it "
+                                  "goes with --plant pioneer or base)"),
+    (("--base", "jackal"), "argument --base: --plant sim does not use it (it goes with "
+                           "--plant base)"),
+    (("--v-max", "0.5"), "argument --v-max: --plant sim does not use it"),
+    (("--tilt-limit", "5"), "argument --tilt-limit: --plant sim does not use it (it goes "
+                            "with --plant physics: its bodies tilt)"),
+    (("--on-contact", "abort"), "argument --on-contact: --plant sim does not use it"),
+])
+def test_an_option_the_plant_does_not_use_is_refused(tmp_path, argv, line):
+    with pytest.raises(NoRun) as info:
+        plan_of(options("paper-triangle3", *argv, "--out", str(tmp_path / "run")))
+    assert info.value.status == 2 and info.value.message.startswith(line)
