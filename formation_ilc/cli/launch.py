@@ -71,7 +71,6 @@ from typing import Any
 import numpy as np
 
 from formation_ilc.cli.launchargs import add_arguments, launch_parser, without_defaults
-from formation_ilc.cli.plan import NodeSpec, NoRun, RunPlan, finished
 from formation_ilc.cli.supervisor import (
     Stack,
     Supervisor,
@@ -80,6 +79,7 @@ from formation_ilc.cli.supervisor import (
     resume_hint,
     trial_ranges,
 )
+from formation_ilc.plan.specs import NodeSpec, NoRun, RunPlan, finished
 from formation_ilc.protocol.watchdog import Bounds
 from formation_ilc.system.exits import DISK_FULL, STUCK, is_disk_full
 

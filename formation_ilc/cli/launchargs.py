@@ -136,9 +136,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "machine only; 0.0.0.0 serves every network)")
     add_host_arguments(p)
     add_clock_arguments(p)
-    from formation_ilc.cli import secure
-
-    secure.add_arguments(p)
+    p.add_argument("--secure", type=Path, default=None, metavar="DIR",
+                   help="run every node in its SROS2 enclave of the keystore DIR (`formation-"
+                        "ilc keystore create DIR SCENARIO`), with DDS-Security enforced; "
+                        "needs the Fast DDS built by scripts/build_secure_dds.sh "
+                        "(docs/security.md)")
 
 
 def add_plant_arguments(p: argparse.ArgumentParser) -> None:

@@ -16,6 +16,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
 
+from formation_ilc.plan.options import OptionError
+
 __all__ = ["OneLineParser", "int_range", "nonneg_int", "positive_int", "positive_float",
            "out_dir_arg", "output_file_arg", "make_out_dir", "OptionError", "MAX_TRIAL",
            "add_run_options", "special_path", "fs_type", "nonneg_float"]
@@ -26,8 +28,6 @@ MAX_TRIAL = 2 ** 53
 MAX_SEED = 2 ** 63 - 1
 
 
-class OptionError(ValueError):
-    """A command-line option that cannot be used; the message names the option and why."""
 
 
 class OneLineParser(argparse.ArgumentParser):

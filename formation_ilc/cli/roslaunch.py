@@ -7,11 +7,11 @@ from dataclasses import replace
 from typing import Any
 
 from formation_ilc.cli.launchargs import launch_parser
-from formation_ilc.cli.plan import node_specs, ros2_executable
 from formation_ilc.cli.runfile import launch_options, plan_of
 from formation_ilc.config.roster import roster
 from formation_ilc.config.runconfig import param_text, scenario_reference
 from formation_ilc.core.names import LEADER_NODE
+from formation_ilc.plan.processes import node_specs, ros2_executable
 
 __all__ = ["ros_launch_processes"]
 

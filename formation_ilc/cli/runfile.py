@@ -247,9 +247,10 @@ def launch_options(args: argparse.Namespace) -> LaunchOptions:
 
 
 def plan_of(args: argparse.Namespace) -> Any:
-    """The plan (``cli.plan.RunPlan``) of parsed launch options; NoRun (one line, exit
+    """The plan (``plan.specs.RunPlan``) of parsed launch options; NoRun (one line, exit
     status) for a run file or options that give no run."""
-    from formation_ilc.cli.plan import NoRun, build_plan
+    from formation_ilc.plan.build import build_plan
+    from formation_ilc.plan.specs import NoRun
 
     try:
         opts = launch_options(args)
@@ -407,7 +408,8 @@ def run(args: argparse.Namespace) -> int:
     (refused the same way), with the hosts asked for."""
     import tempfile
 
-    from formation_ilc.cli.plan import NoRun, build_plan, hosted_members
+    from formation_ilc.plan.build import build_plan, hosted_members
+    from formation_ilc.plan.specs import NoRun
     from formation_ilc.store.atomic import atomic_write_text
 
     opts = launch_options(args)

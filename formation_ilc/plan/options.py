@@ -1,6 +1,6 @@
 """The options of a launched run: one frozen value, every default in one place.
 
-``LaunchOptions`` is what the planner (``formation_ilc.cli.plan.build_plan``) reads. It is
+``LaunchOptions`` is what the planner (``formation_ilc.plan.build.build_plan``) reads. It is
 built from the command line (each option given overrides its field), from a run file (a
 YAML document whose keys ``RUN_KEYS`` maps to fields), from a stored run (the resolved
 ``run.yaml`` a launch writes into its output folder, or a ``run.json`` of launches before
@@ -16,8 +16,14 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-__all__ = ["LaunchOptions", "RunKey", "RUN_KEYS", "FIELD_KEYS", "SECTIONS", "closest",
-           "option_fields", "PATH_FIELDS", "STORED_FIELDS", "PLANT_USES", "unused_option"]
+__all__ = ["OptionError", "LaunchOptions", "RunKey", "RUN_KEYS", "FIELD_KEYS", "SECTIONS",
+           "closest", "option_fields", "PATH_FIELDS", "STORED_FIELDS", "PLANT_USES",
+           "unused_option"]
+
+
+class OptionError(ValueError):
+    """An option (on the command line or in a run file) that cannot be used; the message
+    names the option or the key, and why."""
 
 
 @dataclass(frozen=True)

@@ -14,9 +14,9 @@ from pathlib import Path
 import pytest
 
 from formation_ilc.cli.commands import build_parser
-from formation_ilc.cli.plan import ROS2_RUN, entry_module, ros2_executable
 from formation_ilc.cli.runfile import plan_of
 from formation_ilc.config.runconfig import param_text
+from formation_ilc.plan.processes import ROS2_RUN, entry_module, ros2_executable
 
 FILE = Path(__file__).resolve().parents[2] / "launch" / "formation.launch.py"
 SHIMS = Path(__file__).resolve().parents[2] / "ros2_run"

@@ -14,9 +14,9 @@ import pytest
 import yaml
 
 from formation_ilc.cli.commands import build_parser
-from formation_ilc.cli.plan import NO_RESTART, NoRun, RunPlan, finished
 from formation_ilc.cli.runfile import plan_of as plan_of_args
 from formation_ilc.config.runconfig import RunConfig
+from formation_ilc.plan.specs import NO_RESTART, NoRun, RunPlan, finished
 
 
 def options(*argv: str):
@@ -283,7 +283,7 @@ def _plan_running(tmp_path, *codes: str, max_restarts: int = 2) -> tuple[RunPlan
     """A plan whose processes are plain Python one-liners."""
     from dataclasses import replace
 
-    from formation_ilc.cli.plan import NodeSpec, RestartPolicy
+    from formation_ilc.plan.specs import NodeSpec, RestartPolicy
 
     plan = plan_of(tmp_path, "paper-triangle3")
     policy = RestartPolicy(max_restarts)

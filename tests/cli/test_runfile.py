@@ -12,9 +12,9 @@ import yaml
 
 from formation_ilc.cli.commands import build_parser, main
 from formation_ilc.cli.launch import _save_run
-from formation_ilc.cli.plan import NoRun
 from formation_ilc.cli.runfile import RUN_YAML, launch_options, plan_of
 from formation_ilc.plan.options import FIELD_KEYS, LaunchOptions, option_fields
+from formation_ilc.plan.specs import NoRun
 
 
 def options(*argv: str):

@@ -4,7 +4,7 @@
 ``data/make_roster_golden.py`` on a checkout of it), before the roster replaced its three
 separate rules: the leader's team (``config.team.Team.of``) for 1, 3 and
 6 robots on every plant, links, monitor and recorder; every process of ``formation-ilc
-launch`` (``cli.plan.node_specs`` through ``build_plan``: name, module, arguments, remaps,
+launch`` (``plan.processes.node_specs`` through ``build_plan``: name, module, arguments, remaps,
 parameters, restart policy, host) with the team, the awaited reporters and the plant's
 kind, for every plant x links x record x live combination of paper-triangle3 and more
 (containers, namespaces, drivers, fake drivers, physics bases); and the keystore's grants

@@ -9,8 +9,8 @@ import xml.etree.ElementTree as ET
 import pytest
 
 from formation_ilc.cli.commands import build_parser
-from formation_ilc.cli.plan import NoRun
 from formation_ilc.cli.runfile import plan_of
+from formation_ilc.plan.specs import NoRun
 from formation_ilc.system.ddsxml import PROFILES_NS
 from formation_ilc.system.discovery import (
     MARGIN,
