@@ -233,8 +233,10 @@ def _add_keystore(sub: Any) -> None:
 def _add_launch(sub: Any) -> None:
     from formation_ilc.cli import launch
 
+    first, _, rest = (launch.__doc__ or "").partition("\n\n")
     p = sub.add_parser("launch", help="run the distributed ROS 2 stack on localhost",
-                       description=launch.__doc__,
+                       usage="formation-ilc launch [SCENARIO | RUN.yaml] [options]",
+                       description=first, epilog=rest,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     launch.add_arguments(p)
     launch.without_defaults(p)

@@ -10,6 +10,10 @@ the model's), DIR/diagnostics.json, DIR/summary.json, DIR/errors.png and one log
 process in DIR/logs/. Stops every process on Ctrl-C, or when a node fails for good, and
 then exits non-zero naming it.
 
+Run files: `formation-ilc run-file SCENARIO [options] -o run.yaml` writes every option of
+a run to one commented YAML file, `formation-ilc launch run.yaml` runs it (an option given
+beside it overrides its key), and DIR/run.yaml keeps what ran, every default filled in.
+
 Faults: a node process that dies during the run is started again with the same
 parameters (at most --max-restarts times each); the robots and the leader keep their state
 in DIR/state/ (written atomically at every trial), the interrupted trial is aborted and run

@@ -22,7 +22,24 @@ from formation_ilc.config.plants import PLANT_TABLE, PLANTS
 from formation_ilc.config.runconfig import MODES
 from formation_ilc.core.links import LINK_MODES
 
-__all__ = ["add_arguments", "launch_parser", "without_defaults"]
+__all__ = ["add_arguments", "launch_parser", "without_defaults", "arrange_help", "COMMON"]
+
+#: the options most runs need: ``launch --help`` shows them first, on one screen; the rest
+#: sit under headings for special runs (a run file documents every key)
+COMMON = ("help", "scenario", "trials", "seed", "no_noise", "no_delay", "plant", "mode",
+          "links", "out", "record", "live", "resume", "init_memory", "max_restarts", "secure",
+          "host")
+#: the special runs' headings of the options that are not COMMON, by option
+SPECIAL = {
+    "the run's reference and learning law": ("law", "memory", "headings", "time_scale"),
+    "the plant's details (--plant)": (
+        "base", "physics_bases", "v_max", "omega_max", "a_max", "alpha_max", "params_file",
+        "robot_model", "pose", "pass_through", "physics_rate", "allow_contact", "driver",
+        "driver_ns", "cmd_type", "fake_drivers", "return_timeout", "plant_nodes"),
+    "processes, ROS and the live view": (
+        "namespace", "container", "domain_id", "discovery", "timeout", "watchdog_scale",
+        "no_plots", "live_rate", "live_host"),
+}
 
 
 def without_defaults(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -32,6 +49,27 @@ def without_defaults(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
         if action.dest != "help":
             action.default = argparse.SUPPRESS
     return p
+
+
+def arrange_help(p: argparse.ArgumentParser) -> None:
+    """``--help`` with the COMMON options first and every other under a heading for
+    special runs (the option groups of the safety filter, the clocks and netns hosts
+    among them)."""
+    main = p._optionals
+    specials = []
+    for title, dests in SPECIAL.items():
+        g = p.add_argument_group(f"for special runs: {title}")
+        moved = [a for a in main._group_actions if a.dest in dests]
+        for a in moved:
+            main._group_actions.remove(a)
+        g._group_actions.extend(moved)
+        specials.append(g)
+    main.title = "the options most runs need (the rest are for special runs, below)"
+    for g in p._action_groups:
+        if g not in (main, p._positionals, *specials) and not g.title.startswith("for special"):
+            g.title = f"for special runs: {g.title}"
+    rest = [g for g in p._action_groups if g not in (main, p._positionals)]
+    p._action_groups[:] = [p._positionals, main, *rest]
 
 
 def launch_parser() -> argparse.ArgumentParser:
@@ -45,8 +83,9 @@ def launch_parser() -> argparse.ArgumentParser:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenario", metavar="SCENARIO", nargs="?",
-                   help="built-in scenario name (formation-ilc scenarios) or a YAML file "
-                        "(not with --resume)")
+                   help="built-in scenario name (formation-ilc scenarios), a scenario YAML "
+                        "file, or a run file (formation-ilc run-file: every option of the "
+                        "run; an option given here overrides its key); not with --resume")
     add_run_options(p, trials=20, shape=True)
     p.add_argument("--mode", choices=MODES, default=None,
                    help="lockstep (default with the simulator): the simulator waits for every "
@@ -141,6 +180,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "ilc keystore create DIR SCENARIO`), with DDS-Security enforced; "
                         "needs the Fast DDS built by scripts/build_secure_dds.sh "
                         "(docs/security.md)")
+    p.add_argument("--host", metavar="NAME",
+                   help="with a run file whose hosts: places the members on machines: start "
+                        "and supervise only host NAME's members here (one launcher per "
+                        "machine; the host with the leader runs the checks, the monitor and "
+                        "the report); without it every member runs on this machine")
+    arrange_help(p)
 
 
 def add_plant_arguments(p: argparse.ArgumentParser) -> None:

@@ -94,6 +94,8 @@ class LaunchOptions:
     no_clock_sync: bool = False
     clock_fallback: str = "estimate"
     secure: Path | None = None
+    #: the host whose members this launcher starts (a run file's hosts:); None: all
+    host: str | None = None
     #: the run's identity (a new one for a new run; a stored run's own on --resume)
     run_id: str | None = None
     #: the emulated clocks' origin [ns] of a stored run (its robots keep their clocks)

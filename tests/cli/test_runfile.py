@@ -53,8 +53,8 @@ def test_every_launch_option_is_a_field_with_the_parsers_declared_default():
         want = getattr(defaults, action.dest)
         got = action.default
         assert (tuple(got) if isinstance(got, list) else got) == want, action.dest
-    # every field but the --resume folder and the hosts has a run file key
-    assert set(option_fields()) - set(FIELD_KEYS) == {"resume", "host_members"}
+    # every field but the --resume folder, the hosts and this launcher's host has a key
+    assert set(option_fields()) - set(FIELD_KEYS) == {"resume", "host_members", "host"}
 
 
 def test_a_written_run_file_plans_the_run_its_options_plan(tmp_path):
