@@ -101,6 +101,10 @@ def run(args: argparse.Namespace) -> int:
         plan = plan_of(args)
     except NoRun as stop:
         return stop.report()
+    if not plan.ground:  # a host of a run file's hosts: without the leader
+        from formation_ilc.cli.hostlaunch import run_member_host
+
+        return run_member_host(plan)
     if plan.hosts is not None:
         from formation_ilc.cli.hosts import run_on_hosts
 
@@ -161,6 +165,11 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
     if status == 0 and plan.record_root is not None:
         status = check_recording(plan.record_root, plan.scenario.trials, plan.resumed_at,
                                  plan.out / "metrics.csv")
+    if session.hosts is not None:  # the other hosts' launchers stop their members
+        from formation_ilc.cli.hostlaunch import print_hosts, write_ground
+
+        write_ground(plan, status)
+        print_hosts(session.hosts)
     return write_report(plan, session.rows(), session.diagnostics,
                         session.supervisor.restarts, time.monotonic() - session.t_start,
                         status, startup=session.startup())
@@ -468,6 +477,12 @@ class _Session:
         #: a stop signal came while the executor ran a callback (the loop acts on it)
         self.stop_signal: int | None = None
         self.spinning = False
+        #: with a run file's hosts: the other hosts as the ground station sees them
+        self.hosts: Any = None
+        if plan.host is not None:
+            from formation_ilc.cli.hostlaunch import HostWatch
+
+            self.hosts = HostWatch(plan)
 
     def _metrics(self) -> tuple[list[Any], Any]:
         """metrics.csv, opened for the run: a resumed run's learned trials kept."""
@@ -591,6 +606,11 @@ class _Session:
         self.supervisor.open_gate()
         print(f"none: the processes join; the leader waits for {len(plan.team.expected)} "
               f"nodes [{time.monotonic() - self.t_start:.1f} s]", flush=True)
+        hosts = self.hosts
+        if hosts is not None:  # the other hosts' launchers start their members now
+            from formation_ilc.cli.hostlaunch import write_ground
+
+            write_ground(plan)
         progress = self.progress = StartupProgress(plan.team.expected, self.t_start)
         graph_at, found = 0.0, set()
         final_deadline: float | None = None
@@ -604,15 +624,21 @@ class _Session:
                 host.spin_once(0.05)
             finally:
                 self.spinning = False
-            if progress.active:
+            if progress.active or hosts is not None:
                 now = time.monotonic()
                 if now - graph_at >= 0.5:  # a graph query: twice a second is enough
                     graph_at = now
                     found = {name for name, ns in monitor.get_node_names_and_namespaces()
                              if ns == plan.namespace}
+                    for line in hosts.update(now, found) if hosts is not None else ():
+                        print(line, flush=True)
+            if progress.active:
                 ready = set(monitor.readies)
                 line = progress.update(now, found | ready, ready,
                                        any(e.get("event") == START for e in monitor.events))
+                silent = hosts.silent(found | ready) if hosts is not None else []
+                if line and silent and not line.startswith("start-up done"):
+                    line += f"; not heard from host{'s' * (len(silent) > 1)} {', '.join(silent)}"
                 if line:
                     print(line, flush=True)
             if self.stop_signal is not None:

@@ -66,7 +66,8 @@ def arrange_help(p: argparse.ArgumentParser) -> None:
         specials.append(g)
     main.title = "the options most runs need (the rest are for special runs, below)"
     for g in p._action_groups:
-        if g not in (main, p._positionals, *specials) and not g.title.startswith("for special"):
+        special = (g.title or "").startswith("for special")
+        if g not in (main, p._positionals, *specials) and not special:
             g.title = f"for special runs: {g.title}"
     rest = [g for g in p._action_groups if g not in (main, p._positionals)]
     p._action_groups[:] = [p._positionals, main, *rest]

@@ -46,7 +46,8 @@ from formation_ilc.plan.specs import (
 from formation_ilc.protocol.schedule import KEY_BYTES
 from formation_ilc.system.netns import LinkFaults
 
-__all__ = ["build_plan", "effective_options", "hosted_members", "placed_members",
+__all__ = ["build_plan", "effective_options", "hosted_members", "placed_members", "HOSTS_DIR",
+           "with_ground",
            "pick_domain", "caller_domain"]
 
 
@@ -141,7 +142,47 @@ def build_plan(options: LaunchOptions) -> RunPlan:
     # the processes follow from the rest of the plan
     plan = _with_peers(replace(plan, nodes=node_specs(plan, scenario_reference(opts.scenario))))
     plan = replace(plan, host_members=placed_members(plan, dict(opts.host_members)))
-    return _secured(plan, opts.secure)
+    return _secured(_on_host(plan, opts.host), opts.secure)
+
+
+#: where a host launcher keeps its logs and its members' state: OUT/hosts/NAME; the
+#: ground station's handshake (the run's identity, domain and key) is OUT/hosts/ground.json
+HOSTS_DIR = "hosts"
+
+
+def _on_host(plan: RunPlan, host: str | None) -> RunPlan:
+    """``plan`` for the launcher of ``host`` (``--host``): only its members' processes; a
+    host without the leader keeps its logs and state in OUT/hosts/HOST. NoRun for a host
+    the run file does not name."""
+    if host is None:
+        return plan
+    if not plan.host_members:
+        raise NoRun(f"argument --host: {host}: the run has no hosts: mapping (write one with "
+                    f"formation-ilc run-file ... --host-per-robot)")
+    names = [h for h, _ in plan.host_members]
+    if host not in names:
+        raise NoRun(f"argument --host: {host!r} is no host of this run (its hosts: "
+                    f"{', '.join(names)})")
+    if plan.hosts is not None or plan.secure is not None:
+        raise NoRun("argument --host: not with --hosts netns or --secure (yet)")
+    plan = replace(plan, host=host)
+    if not plan.ground:
+        out = plan.out / HOSTS_DIR / host
+        out.mkdir(parents=True, exist_ok=True)
+        plan = replace(plan, out=out, record=None, run_json=None)
+    mine = set(plan.members_of(host))
+    # the other hosts' processes' parameters name their own folder (no leader among them)
+    nodes = plan.nodes if plan.ground else node_specs(plan, plan.config.scenario_param)
+    return replace(plan, nodes=tuple(s for s in nodes if s.name in mine))
+
+
+def with_ground(plan: RunPlan, run_id: str, domain: int, key: bytes) -> RunPlan:
+    """A host launcher's plan on the ground station's run: its identity, domain and key
+    (``OUT/hosts/ground.json``), its processes' parameters made anew."""
+    plan = replace(plan, config=replace(plan.config, run_id=run_id), domain=domain, key=key)
+    mine = set(plan.members_of(plan.host or ""))
+    nodes = node_specs(plan, plan.config.scenario_param)
+    return replace(plan, nodes=tuple(s for s in nodes if s.name in mine))
 
 
 def hosted_members(plan: RunPlan) -> tuple[tuple[str, int | None], ...]:

@@ -21,6 +21,7 @@ from formation_ilc.config.runconfig import (
     param_text,
 )
 from formation_ilc.config.scenario import Scenario
+from formation_ilc.core.names import LEADER_NODE
 from formation_ilc.plan.options import LaunchOptions
 from formation_ilc.plan.secure import SecureRun
 from formation_ilc.protocol.schedule import DONE
@@ -290,9 +291,25 @@ class RunPlan:
     predicted_clear: bool = False
     #: a run file's ``hosts:``: which host runs which members (empty: all on this one)
     host_members: tuple[tuple[str, tuple[str, ...]], ...] = ()
+    #: the host this launcher runs (``--host``), or None: every member here
+    host: str | None = None
     #: the run key the leader seals its events with (``protocol.schedule.seal``), given to
     #: every process this launch starts; a new one for each launch, kept nowhere
     key: bytes | None = None
+
+    @property
+    def ground(self) -> bool:
+        """This launcher runs the leader: the checks, the monitor and the report are its
+        (with ``--host``: the host the leader is on; without: the only launcher)."""
+        return self.host is None or LEADER_NODE in self.members_of(self.host)
+
+    def members_of(self, host: str) -> tuple[str, ...]:
+        """The members a run file's ``hosts:`` puts on ``host``."""
+        return dict(self.host_members).get(host, ())
+
+    def host_of(self, member: str) -> str | None:
+        """The host a member runs on, or None (no ``hosts:``)."""
+        return next((h for h, ms in self.host_members if member in ms), None)
 
     @property
     def participants(self) -> int:
