@@ -26,9 +26,11 @@ from typing import Any
 from formation_ilc.plan.build import HOSTS_DIR, with_ground
 from formation_ilc.plan.specs import RunPlan
 
-__all__ = ["GROUND_FILE", "write_ground", "run_member_host", "HostWatch"]
+__all__ = ["GROUND_FILE", "STARTING", "write_ground", "run_member_host", "HostWatch"]
 
 GROUND_FILE = "ground.json"
+#: the status of a ground station's run that is starting (the hosts wait for none)
+STARTING = "starting"
 
 
 def ground_file(plan: RunPlan) -> Path:
@@ -37,7 +39,7 @@ def ground_file(plan: RunPlan) -> Path:
     return root / HOSTS_DIR / GROUND_FILE
 
 
-def write_ground(plan: RunPlan, status: int | None = None) -> None:
+def write_ground(plan: RunPlan, status: int | str | None = None) -> None:
     """The ground station's handshake: the run's identity, domain and key, and, once the run
     has ended, its status (owner-only: the key seals the leader's events)."""
     from formation_ilc.store.atomic import atomic_write_text
@@ -60,14 +62,10 @@ def _read_ground(path: Path) -> dict[str, Any] | None:
 
 def run_member_host(plan: RunPlan, poll: float = 0.2) -> int:
     """Run host ``plan.host``'s members (not the ground station's): wait for the ground
-    station, start them, restart a member that dies (within its policy), stop them when the
-    ground station's run has ended; the exit status (0: the run ended, 130: interrupted,
-    else a member that failed for good)."""
-    from formation_ilc.cli.launch import _node_env
-    from formation_ilc.cli.supervisor import Supervisor
-
-    host = plan.host or ""
-    path = ground_file(plan)
+    station's run, start them, restart a member that dies (within its policy), stop them
+    when the ground station's run has ended (then return 0), or wait for the next run when
+    another replaces it (a ground station started again); 130 when interrupted, else the
+    status of a member that failed for good."""
     stop: list[int] = []
 
     def on_term(signum: int, frame: Any) -> None:
@@ -75,18 +73,43 @@ def run_member_host(plan: RunPlan, poll: float = 0.2) -> int:
 
     signal.signal(signal.SIGTERM, on_term)
     signal.signal(signal.SIGINT, on_term)
-    t0, said = time.monotonic(), -1.0
-    ground = _read_ground(path)
-    while ground is None or ground.get("status") is not None:
-        if stop:
+    while True:
+        ground = _wait_ground(plan, stop, poll)
+        if ground is None:
             return 130
+        status = _run_members(plan, ground, stop, poll)
+        if status is not None:
+            return status
+
+
+def _wait_ground(plan: RunPlan, stop: list[int], poll: float) -> dict[str, Any] | None:
+    """The ground station's handshake of a run going on, said each second while it is
+    waited for; None when interrupted."""
+    host, path = plan.host or "", ground_file(plan)
+    t0, said = time.monotonic(), -1.0
+    while True:
+        ground = _read_ground(path)
+        if ground is not None and ground.get("status") is None:
+            return ground
+        if stop:
+            return None
         now = time.monotonic() - t0
         if now - said >= 1.0:
             said = now
             print(f"host {host}: waiting for the ground station's run ({path}) "
                   f"[{now:.0f} s]", flush=True)
         time.sleep(poll)
-        ground = _read_ground(path)
+
+
+def _run_members(plan: RunPlan, ground: dict[str, Any], stop: list[int],
+                 poll: float) -> int | None:
+    """Run this host's members in the ground station's run ``ground`` until it ends (0),
+    a member fails for good (its status), this launcher is interrupted (130), or another
+    run replaces it (None)."""
+    from formation_ilc.cli.launch import _node_env
+    from formation_ilc.cli.supervisor import Supervisor
+
+    host, path = plan.host or "", ground_file(plan)
     plan = with_ground(plan, str(ground["run_id"]), int(ground["domain"]),
                        bytes.fromhex(str(ground["key"])))
     supervisor = Supervisor(plan, _node_env(plan))
@@ -94,27 +117,28 @@ def run_member_host(plan: RunPlan, poll: float = 0.2) -> int:
     print(f"host {host}: started {', '.join(s.name for s in plan.nodes)} on ROS_DOMAIN_ID="
           f"{plan.domain} for run {plan.config.run_id} (logs and state in {plan.out})",
           flush=True)
-    status = 0
     try:
         while not stop:
             failure = supervisor.watch()
             if failure is not None:
-                status = supervisor.report(failure)
-                break
+                return supervisor.report(failure)
             current = _read_ground(path)
             if current is None or current.get("run_id") != plan.config.run_id:
-                print(f"host {host}: the ground station's run is gone: stopping", flush=True)
-                break
+                print(f"host {host}: the ground station's run {plan.config.run_id} is gone: "
+                      f"stopping its members", flush=True)
+                return None
+            if current.get("status") == STARTING:  # the ground station starts again
+                print(f"host {host}: the ground station starts its run again: stopping its "
+                      f"members", flush=True)
+                return None
             if current.get("status") is not None:
                 print(f"host {host}: the ground station's run ended (status "
                       f"{current['status']}): stopping", flush=True)
-                break
+                return 0
             time.sleep(poll)
-        else:
-            status = 130
+        return 130
     finally:
         supervisor.stop()
-    return status
 
 
 class HostWatch:

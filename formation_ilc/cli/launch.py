@@ -156,6 +156,12 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
         print(note, flush=True)
     print(plan.banner(), flush=True)
     session = _Session(plan, env, place)
+    if session.hosts is not None:
+        from formation_ilc.cli.hostlaunch import STARTING, write_ground
+
+        # the other hosts stop what they run for an earlier run here before this one
+        # looks for another formation on its domain
+        write_ground(plan, STARTING)
     try:
         status = session.run()
     finally:
