@@ -13,7 +13,8 @@ a launch file's run: ``formation-ilc analyze RUN.mcap`` gives the metrics of a r
 
 Launch arguments (``ros2 launch formation_ilc formation.launch.py --show-args``):
 scenario, trials, namespace, robots_per_process, plant, mode, links, record, live,
-params_file, out.
+params_file, out, run_file (a run file of ``formation-ilc run-file``: the others override
+its keys).
 """
 
 from launch.actions import DeclareLaunchArgument, OpaqueFunction, Shutdown
@@ -39,11 +40,27 @@ ARGUMENTS = (
                         "(which win); empty: none"),
     ("out", "formation_ilc_run", "folder of the nodes' state files (a restarted node goes "
                                  "on from them)"),
+    ("run_file", "", "a run file (formation-ilc run-file): every option of the run; the "
+                     "arguments above given with it override its keys; empty: none"),
 )
 
 
 def launcher_argv(get) -> list[str]:
-    """The ``formation-ilc launch`` options of the launch arguments (``get(name)``)."""
+    """The ``formation-ilc launch`` options of the launch arguments (``get(name)``); with a
+    run file, the arguments given (other than their defaults) override its keys."""
+    if get("run_file"):
+        defaults = {name: default for name, default, _ in ARGUMENTS}
+        argv = [get("run_file")]
+        for option, name in (("--scenario", "scenario"), ("--namespace", "namespace"),
+                             ("--plant", "plant"), ("--out", "out"), ("--trials", "trials"),
+                             ("--container", "robots_per_process"), ("--mode", "mode"),
+                             ("--links", "links"), ("--record", "record"), ("--live", "live")):
+            if get(name) != defaults[name]:
+                if name == "scenario":
+                    raise ValueError("scenario:= and run_file:= both name the scenario: "
+                                     "give one")
+                argv += [option, get(name)]
+        return argv
     argv = [get("scenario"), "--namespace", get("namespace"), "--plant", get("plant"),
             "--out", get("out")]
     for option, name in (("--trials", "trials"), ("--container", "robots_per_process")):

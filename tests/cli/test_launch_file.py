@@ -59,7 +59,8 @@ def test_the_file_parses_and_declares_its_arguments(launch_file):
     declared = {a.args[0]: a.kwargs for a in ld.args[0]
                 if type(a).__name__ == "DeclareLaunchArgument"}
     assert set(declared) == {"scenario", "trials", "namespace", "robots_per_process", "plant",
-                             "mode", "links", "record", "live", "params_file", "out"}
+                             "mode", "links", "record", "live", "params_file", "out",
+                             "run_file"}
     assert all(d["description"] for d in declared.values())
 
 
@@ -115,3 +116,23 @@ def test_its_processes_are_the_launchers_for_the_same_arguments(launch_file, tmp
 def test_every_executable_is_a_ros2_run_shim():
     for script, exe in ROS2_RUN.items():
         assert f"from {entry_module(script)} import main" in (SHIMS / exe).read_text()
+
+
+def test_a_run_file_gives_the_processes_its_launch_gives(launch_file, tmp_path):
+    from formation_ilc.cli.commands import main
+
+    run_file = tmp_path / "run.yaml"
+    assert main(["run-file", "paper-hexagon6", "--links", "direct", "--trials", "3",
+                 "-o", str(run_file)]) == 0
+    context = {name: default for name, default, _ in launch_file.ARGUMENTS}
+    context.update(run_file=str(run_file), namespace="/team2", out=str(tmp_path / "out"))
+    assert launch_file.launcher_argv(context.__getitem__) == [
+        str(run_file), "--namespace", "/team2", "--out", str(tmp_path / "out")]
+    ld = launch_file.generate_launch_description()
+    (opaque,) = [a for a in ld.args[0] if type(a).__name__ == "OpaqueFunction"]
+    nodes = opaque.kwargs["function"](context)
+    plan = plan_of(build_parser().parse_args(
+        ["launch", str(run_file), "--namespace", "/team2", "--out", str(tmp_path / "plan")]))
+    assert [n.kwargs["executable"] for n in nodes] == [ros2_executable(s.module)
+                                                       for s in plan.nodes]
+    assert "robot_6" in [s.name for s in plan.nodes] and plan.config.links == "direct"
