@@ -112,6 +112,8 @@ def _run_members(plan: RunPlan, ground: dict[str, Any], stop: list[int],
     host, path = plan.host or "", ground_file(plan)
     plan = with_ground(plan, str(ground["run_id"]), int(ground["domain"]),
                        bytes.fromhex(str(ground["key"])))
+    if plan.secure is not None:
+        plan.secure.write_profile()
     supervisor = Supervisor(plan, _node_env(plan))
     supervisor.start()
     print(f"host {host}: started {', '.join(s.name for s in plan.nodes)} on ROS_DOMAIN_ID="

@@ -163,8 +163,8 @@ def _on_host(plan: RunPlan, host: str | None) -> RunPlan:
     if host not in names:
         raise NoRun(f"argument --host: {host!r} is no host of this run (its hosts: "
                     f"{', '.join(names)})")
-    if plan.hosts is not None or plan.secure is not None:
-        raise NoRun("argument --host: not with --hosts netns or --secure (yet)")
+    if plan.hosts is not None:
+        raise NoRun("argument --host: not with --hosts netns (that is one machine's hosts)")
     plan = replace(plan, host=host)
     if not plan.ground:
         out = plan.out / HOSTS_DIR / host
@@ -181,8 +181,12 @@ def with_ground(plan: RunPlan, run_id: str, domain: int, key: bytes) -> RunPlan:
     (``OUT/hosts/ground.json``), its processes' parameters made anew."""
     plan = replace(plan, config=replace(plan.config, run_id=run_id), domain=domain, key=key)
     mine = set(plan.members_of(plan.host or ""))
-    nodes = node_specs(plan, plan.config.scenario_param)
-    return replace(plan, nodes=tuple(s for s in nodes if s.name in mine))
+    nodes = tuple(s for s in node_specs(plan, plan.config.scenario_param) if s.name in mine)
+    sec = plan.secure
+    if sec is not None:  # each in its enclave, as _secured put them
+        nodes = tuple(replace(s, env=tuple(sec.variables(_enclave(plan, s.name)).items()))
+                      for s in nodes)
+    return replace(plan, nodes=nodes)
 
 
 def hosted_members(plan: RunPlan) -> tuple[tuple[str, int | None], ...]:
@@ -270,7 +274,7 @@ def _secured(plan: RunPlan, keystore: Path | str | None) -> RunPlan:
     try:
         sec = prepare(keystore, [_enclave(plan, s.name) for s in plan.nodes], plan.namespace,
                       container=plan.container, profile=plan.out / "fastdds-secure.xml",
-                      base_profile=base)
+                      base_profile=base, launcher=plan.ground)
     except OptionError as exc:
         raise NoRun(str(exc)) from None
     if sec is None:

@@ -82,8 +82,9 @@ class SecureRun:
 
 def prepare(keystore: Path | str | None, enclaves: Iterable[str], namespace: str, *,
             container: int = 0, profile: Path | None = None,
-            base_profile: Path | None = None) -> SecureRun | None:
-    """The secure run for processes in these ``enclaves`` (plus the launcher's monitor),
+            base_profile: Path | None = None, launcher: bool = True) -> SecureRun | None:
+    """The secure run for processes in these ``enclaves`` (plus, with ``launcher``, the
+    launcher's monitor: not on a host without the leader),
     or None without ``--secure``; OptionError (one line) if it cannot run secure. ``profile``,
     ``base_profile``: :class:`SecureRun`'s (a ``base_profile`` that is no profiles file is
     refused here)."""
@@ -102,7 +103,8 @@ def prepare(keystore: Path | str | None, enclaves: Iterable[str], namespace: str
                           "is one DDS participant, and each robot holds only its own "
                           "identity")
     ks = Path(keystore).resolve()
-    paths = [enclave_path(namespace, e) for e in [*enclaves, LAUNCHER_NODE]]
+    paths = [enclave_path(namespace, e)
+             for e in [*enclaves, *((LAUNCHER_NODE,) if launcher else ())]]
     try:
         verify(ks, paths)
         applies = keeps_profile_properties(check())

@@ -164,3 +164,26 @@ def test_an_option_the_plant_does_not_use_is_refused(tmp_path, argv, line):
     with pytest.raises(NoRun) as info:
         plan_of(options("paper-triangle3", *argv, "--out", str(tmp_path / "run")))
     assert info.value.status == 2 and info.value.message.startswith(line)
+
+
+def test_keystore_create_of_a_run_file_writes_one_bundle_per_host(tmp_path):
+    pytest.importorskip("cryptography")
+    from formation_ilc.store.keystore import verify
+
+    path = write_run_file(tmp_path, "paper-triangle3", "--host-per-robot")
+    ks = tmp_path / "keys"
+    assert main(["keystore", "create", str(ks), str(path), "--days", "2"]) == 0
+    held = {h: sorted(str(p.relative_to(ks / "bundles" / h / "enclaves"))
+                      for p in (ks / "bundles" / h / "enclaves").glob("*/*"))
+            for h in ("ground", "r1", "r2", "r3")}
+    assert held["r2"] == ["formation/robot_2"]
+    assert held["ground"] == ["formation/link_emulator", "formation/monitor",
+                              "formation/robot_sim", "formation/virtual_leader"]
+    for h in held:  # the CA's certificate, never its key
+        assert (ks / "bundles" / h / "public" / "ca.cert.pem").is_file()
+        assert not (ks / "bundles" / h / "private").exists()
+    verify(ks / "bundles" / "r2", ["/formation/robot_2"])
+    # a host launcher refuses a member whose enclave its bundle does not hold, naming it
+    with pytest.raises(NoRun, match=r"--secure: .*formation/robot_2: missing: no enclave "
+                                    r"for node /formation/robot_2"):
+        plan_of(options(str(path), "--host", "r2", "--secure", str(ks / "bundles" / "r1")))
