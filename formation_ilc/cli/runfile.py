@@ -187,11 +187,16 @@ def _fields(path: Path, values: Mapping[str, Any], base: Path | None) -> dict[st
 def load_run_file(path: Path) -> dict[str, Any]:
     """The fields a run file sets (its ``hosts:`` as ``host_members``); OptionError with the
     file, the key and why."""
+    import yaml
+
     values, hosts = _flatten(path, _read_yaml(path))
-    if not isinstance(values.get("scenario"), str):
-        raise OptionError(f"{path}: scenario: a built-in scenario's name or a scenario "
-                          f"file is required")
+    inline = values.pop("scenario") if isinstance(values.get("scenario"), dict) else None
+    if inline is None and not isinstance(values.get("scenario"), str):
+        raise OptionError(f"{path}: scenario: a built-in scenario's name, a scenario file, "
+                          f"or a scenario written here (a mapping) is required")
     out = _fields(path, values, path.resolve().parent)
+    if inline is not None:  # checked as a scenario file is, when the run is planned
+        out["scenario_text"] = yaml.safe_dump(inline, sort_keys=False)
     for name in STORED_FIELDS:  # a stored run's own: a launch of its file is a new run
         out.pop(name, None)
     if hosts:
@@ -342,6 +347,11 @@ def run_file_text(opts: LaunchOptions, *, folder: Path | None = None,
                         pass
             if k.field == "scenario" and isinstance(v, str) and Path(v).is_file():
                 v = str(Path(v).resolve())
+            if k.field == "scenario" and opts.scenario_text is not None:
+                lines.append(f"{indent}# SCENARIO: written here (a scenario file's keys)")
+                lines += yaml.safe_dump({"scenario": yaml.safe_load(opts.scenario_text)},
+                                        sort_keys=False, width=88).rstrip().splitlines()
+                continue
             action = actions.get(k.field)
             about_key = _help(action, k.negated) if action is not None else _STORED_HELP.get(
                 k.field, "")

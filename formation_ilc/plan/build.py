@@ -57,6 +57,8 @@ def build_plan(options: LaunchOptions) -> RunPlan:
     """The plan of a launch's options; NoRun with the refusal's one line and exit status;
     ScenarioError for a bad scenario."""
     opts = effective_options(options)
+    if opts.scenario_text is not None:
+        opts = _inline_scenario(opts)
     assert opts.scenario is not None and opts.run_id is not None
     unused = unused_option(opts, plant(opts.plant))
     if unused is not None:  # before, run and said nothing
@@ -299,10 +301,22 @@ def _enclave(plan: RunPlan, process: str) -> str:
     return plan.roster.enclave_of(process)
 
 
+def _inline_scenario(opts: LaunchOptions) -> LaunchOptions:
+    """``opts`` with its inline scenario written to the run's folder (``scenario.yaml``,
+    what the nodes load) and named by it; ScenarioError for a bad one."""
+    from formation_ilc.config.scenario import scenario_from_text
+    from formation_ilc.store.atomic import atomic_write_text
+
+    text = opts.scenario_text or ""
+    out = _out_folder(opts.out, scenario_from_text(text, "<the run file's scenario>"))
+    atomic_write_text(out / "scenario.yaml", text)
+    return replace(opts, scenario=str(out / "scenario.yaml"), scenario_text=None, out=out)
+
+
 def effective_options(opts: LaunchOptions) -> LaunchOptions:
     """The options a run goes with: a new run id when there is none; NoRun for what no
     run can have."""
-    if opts.scenario is None:
+    if opts.scenario is None and opts.scenario_text is None:
         raise NoRun("a SCENARIO is required (or --resume DIR)")
     if opts.max_restarts < 0:
         raise NoRun("--max-restarts must be >= 0")

@@ -33,6 +33,9 @@ class LaunchOptions:
     key). None keeps what the scenario or the plant decides."""
 
     scenario: str | None = None
+    #: a scenario written inline in a run file (its YAML text); the run's folder keeps it
+    #: as scenario.yaml, which the nodes load
+    scenario_text: str | None = None
     trials: int = 20
     law: int | None = None
     memory: str | None = None
@@ -250,9 +253,9 @@ PLANT_USES: dict[str, tuple[Any, str]] = {
 def unused_option(opts: LaunchOptions, row: Any) -> str | None:
     """The one line refusing the first option ``opts`` sets that plant ``row``
     (``config.plants.Plant``) does not use, or None."""
-    defaults = LaunchOptions()
+    given, defaults = vars(opts), vars(LaunchOptions())
     for name, (uses, which) in PLANT_USES.items():
-        if getattr(opts, name) != getattr(defaults, name) and not uses(row, opts):
+        if given[name] != defaults[name] and not uses(row, opts):
             return (f"argument --{name.replace('_', '-')}: --plant {row.name} does not use "
                     f"it (it goes with {which})")
     return None

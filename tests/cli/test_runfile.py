@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
 import pytest
 import yaml
 
@@ -54,7 +55,8 @@ def test_every_launch_option_is_a_field_with_the_parsers_declared_default():
         got = action.default
         assert (tuple(got) if isinstance(got, list) else got) == want, action.dest
     # every field but the --resume folder, the hosts and this launcher's host has a key
-    assert set(option_fields()) - set(FIELD_KEYS) == {"resume", "host_members", "host"}
+    assert set(option_fields()) - set(FIELD_KEYS) == {"resume", "host_members", "host",
+                                                      "scenario_text"}
 
 
 def test_a_written_run_file_plans_the_run_its_options_plan(tmp_path):
@@ -187,3 +189,26 @@ def test_keystore_create_of_a_run_file_writes_one_bundle_per_host(tmp_path):
     with pytest.raises(NoRun, match=r"--secure: .*formation/robot_2: missing: no enclave "
                                     r"for node /formation/robot_2"):
         plan_of(options(str(path), "--host", "r2", "--secure", str(ks / "bundles" / "r1")))
+
+
+def test_a_scenario_written_in_the_run_file_is_kept_in_the_runs_folder(tmp_path):
+    from formation_ilc.config.scenario import load_scenario
+
+    path = write_run_file(tmp_path, "paper-triangle3", "--trials", "2")
+    d = yaml.safe_load(path.read_text())
+    d["scenario"] = yaml.safe_load(load_scenario("paper-triangle3").text)
+    path.write_text(yaml.safe_dump(d))
+    inline = plan_of(options(str(path), "--out", str(tmp_path / "a")))
+    named = plan_of(options("paper-triangle3", "--trials", "2", "--out", str(tmp_path / "b")))
+    assert inline.scenario.name == "paper-triangle3" and inline.scenario.trials == 2
+    assert np.array_equal(inline.scenario.desired.eta, named.scenario.desired.eta)
+    kept = tmp_path / "a" / "scenario.yaml"
+    assert kept.is_file() and dict(params(inline, "virtual_leader"))["scenario"] == str(kept)
+    # a bad one is refused as a scenario file is
+    d["scenario"]["robots"] = 0
+    path.write_text(yaml.safe_dump(d))
+    assert main(["launch", str(path), "--out", str(tmp_path / "c")]) == 2
+
+
+def params(plan, name):
+    return next(s.params for s in plan.nodes if s.name == name)
