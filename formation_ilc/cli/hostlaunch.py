@@ -182,6 +182,19 @@ class HostWatch:
                 lines.append(f"host {h}: back after {away:.1f} s")
         return lines
 
+    def save(self, summary: Path) -> None:
+        """Add a row per host to the run's summary.json (``hosts``)."""
+        try:
+            d = json.loads(summary.read_text())
+        except (OSError, ValueError):
+            return
+        hosts: dict[str, dict[str, Any]] = {self.plan.host or "": {
+            "members": list(self.plan.members_of(self.plan.host or "")), "ground": True}}
+        for h, r in self.rows.items():
+            hosts[h] = {**r, "heard": h in self.heard}
+        d["hosts"] = hosts
+        summary.write_text(json.dumps(d, indent=2) + "\n")
+
     def report(self) -> list[str]:
         """A row per host for the report."""
         rows = [f"  {self.plan.host:<10} (this launcher: the ground station) "

@@ -176,9 +176,12 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
 
         write_ground(plan, status)
         print_hosts(session.hosts)
-    return write_report(plan, session.rows(), session.diagnostics,
-                        session.supervisor.restarts, time.monotonic() - session.t_start,
-                        status, startup=session.startup())
+    status = write_report(plan, session.rows(), session.diagnostics,
+                          session.supervisor.restarts, time.monotonic() - session.t_start,
+                          status, startup=session.startup())
+    if session.hosts is not None:
+        session.hosts.save(plan.out / "summary.json")
+    return status
 
 
 def check_recording(root: Path, trials: int, resumed_at: int | None = None,

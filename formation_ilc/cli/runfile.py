@@ -41,6 +41,8 @@ __all__ = ["RUN_YAML", "is_run_file", "load_run_file", "load_stored_run", "run_f
 RUN_YAML = "run.yaml"
 #: a run file is a few hundred short lines
 RUN_FILE_LIMIT = 1 << 20
+#: a run file key's field, by the key's path
+FIELD_KEYS_BY_PATH = {k.path: k.field for k in RUN_KEYS}
 #: the launch options a resumed launch takes from its own command line (the rest are the run's)
 RESUME_OPTIONS = frozenset({"max_restarts", "watchdog_scale", "domain_id", "no_plots"})
 
@@ -230,9 +232,6 @@ def load_stored_run(folder: Path) -> dict[str, Any] | None:
     except RunFileError as exc:
         raise OptionError(f"--resume {exc}") from None
     return d
-
-
-FIELD_KEYS_BY_PATH = {k.path: k.field for k in RUN_KEYS}
 
 
 def launch_options(args: argparse.Namespace) -> LaunchOptions:

@@ -8,6 +8,7 @@ interrupted runs again, and the run ends with status 0 and the simulator's metri
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -73,6 +74,8 @@ def test_four_host_launchers_run_the_team_and_a_killed_host_rejoins(ros_env, tmp
     assert "r1         robot_1: present throughout" in rows
     assert "r2         robot_2: left 1 time(s)" in rows
     assert "r3         robot_3: present throughout" in rows
+    hosts = json.loads((out / "summary.json").read_text())["hosts"]
+    assert hosts["r2"]["left"] == 1 and hosts["r1"]["left"] == 0 and hosts["ground"]["ground"]
     # each host's logs and its robot's state in its own folder
     assert (out / "hosts" / "r2" / "logs" / "robot_2.log").exists()
     assert (out / "hosts" / "r2" / "state").is_dir()
