@@ -89,7 +89,6 @@ def run(args: argparse.Namespace) -> int:
     """``keystore create``: exit 0, or 2 with one line on a bad scenario or keystore."""
     from formation_ilc.cli.runfile import is_run_file
     from formation_ilc.config.scenario import load_scenario
-    from formation_ilc.store.keystore import KeystoreError, create
 
     if is_run_file(args.scenario):
         return _run_file_keystore(args)
@@ -107,17 +106,29 @@ def run(args: argparse.Namespace) -> int:
                         driver_ns=driver_ns,
                         base=args.base if row.driver == "base" else None,
                         physics_bases=args.physics_bases)
+    if not _created(args, grants, sc, namespace):
+        return 2
+    print(f"{args.keystore}: run it with `formation-ilc launch {args.scenario} --secure "
+          f"{args.keystore}`")
+    return 0
+
+
+def _created(args: argparse.Namespace, grants: dict[str, Grant], sc: Any,
+             namespace: str) -> bool:
+    """Make or update the keystore ``args.keystore`` for ``grants``, saying what changed;
+    False (said in one line) when it cannot be."""
+    from formation_ilc.store.keystore import KeystoreError, create
+
     try:
         done = create(args.keystore, grants, days=args.days)
     except KeystoreError as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return False
     for line in done.lines():
         print(f"{args.keystore}: {line}")
     print(f"{args.keystore}: {len(grants)} enclaves for {sc.name} ({sc.n} robots) in "
-          f"{namespace}; run it with `formation-ilc launch {args.scenario} --secure "
-          f"{args.keystore}`")
-    return 0
+          f"{namespace}")
+    return True
 
 
 def _run_file_keystore(args: argparse.Namespace) -> int:
@@ -132,7 +143,7 @@ def _run_file_keystore(args: argparse.Namespace) -> int:
     from formation_ilc.core.names import MONITOR_NODE
     from formation_ilc.plan.build import build_plan
     from formation_ilc.plan.specs import NoRun
-    from formation_ilc.store.keystore import KeystoreError, bundle, create
+    from formation_ilc.store.keystore import bundle
 
     given = [k for k in ("namespace", "driver_ns", "physics_bases") if getattr(args, k)]
     if given or args.plant != SECURE_PLANTS[0] or args.base != "turtlebot4":
@@ -145,16 +156,8 @@ def _run_file_keystore(args: argparse.Namespace) -> int:
         except NoRun as stop:
             return stop.report()
     grants = roster(plan.roster.lineup.for_keystore()).grants(plan.namespace)
-    try:
-        done = create(args.keystore, grants, days=args.days)
-    except KeystoreError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    if not _created(args, grants, plan.scenario, plan.namespace):
         return 2
-    for line in done.lines():
-        print(f"{args.keystore}: {line}")
-    sc = plan.scenario
-    print(f"{args.keystore}: {len(grants)} enclaves for {sc.name} ({sc.n} robots) in "
-          f"{plan.namespace}")
     from formation_ilc.config.enclaves import enclave_path
 
     for host, members in plan.host_members:
