@@ -6,8 +6,8 @@ docs/ros-tools.md):
 
 It starts the processes ``formation-ilc launch`` starts for the same options (its defaults
 too: 20 trials), each node under its own name, with the same arguments and parameters
-(``formation_ilc.cli.plan.ros_launch_processes``): the virtual leader, the plant, the link
-emulator, the robots, and a recorder and the live view when asked. One robot on its own
+(``formation_ilc.cli.roslaunch.ros_launch_processes``): the virtual leader, the plant, the
+link emulator, the robots, and a recorder and the live view when asked. One robot on its own
 computer: ``robot.launch.py``. The leader ends its process after the last trial, and the
 launch stops every node with it. The launcher's own monitor (metrics.csv, the error
 table, restarts) is not part of a launch file's run: ``formation-ilc analyze RUN.mcap``
@@ -15,7 +15,8 @@ gives the metrics of a recording.
 
 Launch arguments (``ros2 launch formation_ilc formation.launch.py --show-args``):
 scenario, trials, namespace, robots_per_process, plant, mode, links, record, live,
-params_file, out.
+params_file, out, run_file (a run file of ``formation-ilc run-file``: the others override
+its keys).
 """
 
 from launch.actions import DeclareLaunchArgument, OpaqueFunction, Shutdown
@@ -42,11 +43,27 @@ ARGUMENTS = (
                         "(which win); empty: none"),
     ("out", "formation_ilc_run", "folder of the nodes' state files (a restarted node goes "
                                  "on from them)"),
+    ("run_file", "", "a run file (formation-ilc run-file): every option of the run; the "
+                     "arguments above given with it override its keys; empty: none"),
 )
 
 
 def launcher_argv(get) -> list[str]:
-    """The ``formation-ilc launch`` options of the launch arguments (``get(name)``)."""
+    """The ``formation-ilc launch`` options of the launch arguments (``get(name)``); with a
+    run file, the arguments given (other than their defaults) override its keys."""
+    if get("run_file"):
+        defaults = {name: default for name, default, _ in ARGUMENTS}
+        argv = [get("run_file")]
+        for option, name in (("--scenario", "scenario"), ("--namespace", "namespace"),
+                             ("--plant", "plant"), ("--out", "out"), ("--trials", "trials"),
+                             ("--container", "robots_per_process"), ("--mode", "mode"),
+                             ("--links", "links"), ("--record", "record"), ("--live", "live")):
+            if get(name) != defaults[name]:
+                if name == "scenario":
+                    raise ValueError("scenario:= and run_file:= both name the scenario: "
+                                     "give one")
+                argv += [option, get(name)]
+        return argv
     argv = [get("scenario"), "--namespace", get("namespace"), "--plant", get("plant"),
             "--out", get("out")]
     for option, name in (("--trials", "trials"), ("--container", "robots_per_process")):
@@ -60,7 +77,7 @@ def launcher_argv(get) -> list[str]:
 
 
 def _nodes(context, *args, **kwargs):
-    from formation_ilc.cli.plan import ros_launch_processes
+    from formation_ilc.cli.roslaunch import ros_launch_processes
 
     def get(name):
         return LaunchConfiguration(name).perform(context)

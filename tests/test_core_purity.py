@@ -23,7 +23,7 @@ ROOT = PACKAGE.parent
 #: one level never import each other), ``cli`` above everything
 LEVELS: list[tuple[str, ...]] = [
     ("system",), ("core",), ("config",), ("model",), ("store",), ("protocol",),
-    ("recordings",), ("studies",), ("msgs_schema",), ("nodes",),
+    ("recordings",), ("studies",), ("plan",), ("msgs_schema",), ("nodes",),
     ("robot_sim", "virtual_leader"), ("cli",)]
 LAYERS = [name for level in LEVELS for name in level]
 #: the project's own ROS packages (top-level, beside formation_ilc)

@@ -3,7 +3,7 @@
 The robots' processes run in network namespaces of their own, joined by veth links to a
 hub namespace (leader, simulator, the launcher itself), DDS over UDP with unicast
 discovery, the links between robots faulted as asked (docs/lossy-links.md). This wraps the
-execution of a ``RunPlan`` (``formation_ilc.cli.plan``): the namespaces, rules and
+execution of a ``RunPlan`` (``formation_ilc.plan.specs``): the namespaces, rules and
 delayers are set up around it and removed whatever happens, and summary.json gets what the
 delayers did. No ROS here.
 """
@@ -16,8 +16,8 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
-from formation_ilc.cli.plan import NodeSpec, RunPlan
 from formation_ilc.core.names import robot_name
+from formation_ilc.plan.specs import NodeSpec, RunPlan
 
 __all__ = ["run_on_hosts"]
 

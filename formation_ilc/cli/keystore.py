@@ -55,7 +55,10 @@ def add_parser(sub: Any) -> None:
                                   "enclave per node with permissions from SCENARIO's graph.")
     c.add_argument("keystore", type=out_dir_arg, metavar="DIR")
     c.add_argument("scenario", metavar="SCENARIO",
-                   help="built-in scenario name or YAML file: its graph sets the permissions")
+                   help="built-in scenario name or YAML file: its graph sets the permissions; "
+                        "or a run file (formation-ilc run-file): its scenario, plant, "
+                        "driver and namespace, and with its hosts: one bundle per host in "
+                        "DIR/bundles/HOST holding only that host's enclaves")
     c.add_argument("--namespace", type=_namespace, default=None, metavar="NS",
                    help="the formation's ROS namespace, as given to launch (default "
                         "/formation)")
@@ -84,9 +87,11 @@ def add_parser(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """``keystore create``: exit 0, or 2 with one line on a bad scenario or keystore."""
+    from formation_ilc.cli.runfile import is_run_file
     from formation_ilc.config.scenario import load_scenario
-    from formation_ilc.store.keystore import KeystoreError, create
 
+    if is_run_file(args.scenario):
+        return _run_file_keystore(args)
     sc = load_scenario(args.scenario)
     namespace = args.namespace or NAMESPACE
     row = plant(args.plant)
@@ -101,14 +106,66 @@ def run(args: argparse.Namespace) -> int:
                         driver_ns=driver_ns,
                         base=args.base if row.driver == "base" else None,
                         physics_bases=args.physics_bases)
+    if not _created(args, grants, sc, namespace):
+        return 2
+    print(f"{args.keystore}: run it with `formation-ilc launch {args.scenario} --secure "
+          f"{args.keystore}`")
+    return 0
+
+
+def _created(args: argparse.Namespace, grants: dict[str, Grant], sc: Any,
+             namespace: str) -> bool:
+    """Make or update the keystore ``args.keystore`` for ``grants``, saying what changed;
+    False (said in one line) when it cannot be."""
+    from formation_ilc.store.keystore import KeystoreError, create
+
     try:
         done = create(args.keystore, grants, days=args.days)
     except KeystoreError as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return False
     for line in done.lines():
         print(f"{args.keystore}: {line}")
     print(f"{args.keystore}: {len(grants)} enclaves for {sc.name} ({sc.n} robots) in "
-          f"{namespace}; run it with `formation-ilc launch {args.scenario} --secure "
-          f"{args.keystore}`")
+          f"{namespace}")
+    return True
+
+
+def _run_file_keystore(args: argparse.Namespace) -> int:
+    """``keystore create DIR RUN.yaml``: the keystore of the run a run file plans (its
+    members' enclaves and the launcher's), and with its ``hosts:`` one bundle per host in
+    DIR/bundles/HOST: the CA's certificate, the governance and that host's enclaves only
+    (the ground station's with the launcher's monitor), never the CA's private key."""
+    import tempfile
+    from pathlib import Path
+
+    from formation_ilc.cli.runfile import launch_options
+    from formation_ilc.core.names import MONITOR_NODE
+    from formation_ilc.plan.build import build_plan
+    from formation_ilc.plan.specs import NoRun
+    from formation_ilc.store.keystore import bundle
+
+    given = [k for k in ("namespace", "driver_ns", "physics_bases") if getattr(args, k)]
+    if given or args.plant != SECURE_PLANTS[0] or args.base != "turtlebot4":
+        raise OptionError("keystore create DIR RUN.yaml: the run file says the plant, the "
+                          "driver and the namespace (give only --days)")
+    opts = launch_options(argparse.Namespace(scenario=args.scenario))
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            plan = build_plan(opts.with_fields({"out": Path(tmp) / "run", "secure": None}))
+        except NoRun as stop:
+            return stop.report()
+    grants = roster(plan.roster.lineup.for_keystore()).grants(plan.namespace)
+    if not _created(args, grants, plan.scenario, plan.namespace):
+        return 2
+    from formation_ilc.config.enclaves import enclave_path
+
+    for host, members in plan.host_members:
+        names = {plan.roster.enclave_of(m) for m in members if m != MONITOR_NODE}
+        if MONITOR_NODE in members:
+            names.add(MONITOR_NODE)
+        held = bundle(args.keystore, Path(args.keystore) / "bundles" / host,
+                      [enclave_path(plan.namespace, n) for n in names])
+        print(f"{args.keystore}/bundles/{host}: {', '.join(held)} (copy it to host {host} "
+              f"as the run file's security.keystore)")
     return 0

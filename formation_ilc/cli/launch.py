@@ -10,6 +10,10 @@ the model's), DIR/diagnostics.json, DIR/summary.json, DIR/errors.png and one log
 process in DIR/logs/. Stops every process on Ctrl-C, or when a node fails for good, and
 then exits non-zero naming it.
 
+Run files: `formation-ilc run-file SCENARIO [options] -o run.yaml` writes every option of
+a run to one commented YAML file, `formation-ilc launch run.yaml` runs it (an option given
+beside it overrides its key), and DIR/run.yaml keeps what ran, every default filled in.
+
 Faults: a node process that dies during the run is started again with the same
 parameters (at most --max-restarts times each); the robots and the leader keep their state
 in DIR/state/ (written atomically at every trial), the interrupted trial is aborted and run
@@ -73,15 +77,7 @@ from typing import Any
 
 import numpy as np
 
-from formation_ilc.cli.options import (
-    add_run_options,
-    int_range,
-    nonneg_float,
-    out_dir_arg,
-    output_file_arg,
-    positive_float,
-)
-from formation_ilc.cli.plan import NodeSpec, NoRun, RunPlan, build_plan, finished
+from formation_ilc.cli.launchargs import add_arguments, launch_parser, without_defaults
 from formation_ilc.cli.supervisor import (
     Stack,
     Supervisor,
@@ -90,243 +86,11 @@ from formation_ilc.cli.supervisor import (
     resume_hint,
     trial_ranges,
 )
-from formation_ilc.config.plants import PLANT_TABLE, PLANTS
-from formation_ilc.config.runconfig import MODES
-from formation_ilc.core.links import LINK_MODES
+from formation_ilc.plan.specs import NodeSpec, NoRun, RunPlan, finished
 from formation_ilc.protocol.watchdog import Bounds
 from formation_ilc.system.exits import DISK_FULL, STUCK, is_disk_full
 
-__all__ = ["add_arguments", "run", "execute", "Stack"]
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scenario", metavar="SCENARIO", nargs="?",
-                   help="built-in scenario name (formation-ilc scenarios) or a YAML file "
-                        "(not with --resume)")
-    add_run_options(p, trials=20, shape=True)
-    p.add_argument("--mode", choices=MODES, default=None,
-                   help="lockstep (default with the simulator): the simulator waits for every "
-                        "robot (as fast as the processes allow, deterministic); realtime: the "
-                        "simulator ticks on the wall clock at dT; wallclock (default and "
-                        "required with --plant pioneer): no /clock, the trials run on the "
-                        "machines' synchronised wall clocks")
-    p.add_argument("--links", choices=LINK_MODES, default=None,
-                   help="emulated (default): a link emulator process puts the scenario's "
-                        "delays on the robot-to-robot links, in simulated time (a lockstep "
-                        "run equals `simulate`); direct: each robot subscribes to its "
-                        "neighbours, as on robots, and the delays are the network's (a "
-                        "lockstep run equals `simulate --no-delay`; the default and required "
-                        "with --plant pioneer)")
-    p.add_argument("--plant", choices=PLANTS, default=PLANTS[0],
-                   help="; ".join(f"{row.name}{' (default)' if row.name == PLANTS[0] else ''}: "
-                                  f"{row.help}" for row in PLANT_TABLE))
-    add_plant_arguments(p)
-    p.add_argument("--driver", choices=("rosaria", "p2os2", "ros2aria"), default="rosaria",
-                   help="with --plant pioneer: the robots' driver (default rosaria)")
-    p.add_argument("--driver-ns", default="/pioneer_{i}", metavar="PATTERN",
-                   help="with --plant pioneer: robot i's driver namespace, {i} replaced by "
-                        "the robot number (default /pioneer_{i}; with --plant base "
-                        "/base_{i})")
-    p.add_argument("--cmd-type", choices=("twist", "twist_stamped"), default=None,
-                   help="Twist or TwistStamped (diff_drive_controller) on the driver's "
-                        "cmd_vel; default: a --base preset's (docs/real-robots.md), Twist "
-                        "for a Pioneer driver")
-    p.add_argument("--fake-drivers", action="store_true",
-                   help="with --plant pioneer: also start one fake RosAria driver per robot "
-                        "(robot_sim.fake_pioneer: a unicycle in wall time with odometry "
-                        "drift and noise), for a run without robots")
-    p.add_argument("--lifecycle", action="store_true",
-                   help="with --plant pioneer or base: the bridges are managed (lifecycle) "
-                        "nodes; the launcher configures and activates each through its "
-                        "change_state service, and deactivates them (their bases stop) at "
-                        "the end")
-    p.add_argument("--return-timeout", type=positive_float, default=60.0, metavar="S",
-                   help="with --plant pioneer: how long a bridge drives its robot back to the "
-                        "initial pose between trials before it reports a timeout")
-    p.add_argument("--init-memory", type=Path, metavar="MEMORY.npz",
-                   help="every robot starts from its row of this memory file (written by "
-                        "`formation-ilc simulate`): the sim-to-real carry-over")
-    p.add_argument("--plant-nodes", nargs="+", default=["plant"], metavar="NAME",
-                   help="with --plant external: the node names the schedule waits for "
-                        "(default: plant)")
-    p.add_argument("--namespace", default=None, metavar="NS",
-                   help="ROS namespace of the whole formation (default /formation); two "
-                        "formations in different namespaces share a ROS domain without "
-                        "crosstalk (/clock is remapped into the namespace)")
-    p.add_argument("--container", type=int_range(0, 1024), default=0, metavar="N",
-                   help="N robot nodes per process on one executor (0: one process per "
-                        "robot, the default)")
-    p.add_argument("--out", type=out_dir_arg, metavar="DIR",
-                   help="output folder (default: runs/SCENARIO-launch-TIME)")
-    p.add_argument("--domain-id", type=int_range(0, 232), metavar="ID",
-                   help="ROS_DOMAIN_ID (default: the caller's ROS_DOMAIN_ID if set, else a "
-                        "free-looking one in 30..100)")
-    p.add_argument("--discovery", choices=("localhost", "inherit"), default="localhost",
-                   help="localhost (default): ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; "
-                        "inherit: keep the caller's discovery settings (multi-host runs)")
-    p.add_argument("--timeout", type=positive_float, default=30.0, metavar="S",
-                   help="lockstep: give up when a robot has not commanded for S seconds")
-    p.add_argument("--watchdog-scale", type=positive_float, default=1.0, metavar="F",
-                   help="every bound of the liveness watchdog times F (default 1): a phase "
-                        "that waits past its bound (start-up, readies, samples; derived from "
-                        "dT and the team size) is reported, then re-run, then the run stops "
-                        "naming the cause (docs/reliability.md)")
-    p.add_argument("--no-plots", action="store_true", help="write no figures")
-    p.add_argument("--resume", type=Path, metavar="DIR",
-                   help="continue the interrupted run whose output folder is DIR, with its "
-                        "options: the robots reload their memory from DIR/state/, the trial "
-                        "that was running is run again, and metrics.csv goes on")
-    p.add_argument("--max-restarts", type=int, default=3, metavar="N",
-                   help="restart a node process that dies at most N times (default 3; 0: "
-                        "a dead node ends the run)")
-    p.add_argument("--record", type=output_file_arg, metavar="RUN.mcap",
-                   help="record every formation topic to this MCAP file (its own recorder "
-                        "process; the run starts once it listens); analyse it with "
-                        "`formation-ilc analyze RUN.mcap`")
-    p.add_argument("--live", type=int_range(1, 65535), nargs="?", const=8765, default=None,
-                   metavar="PORT",
-                   help="serve the running formation to Foxglove over its WebSocket protocol "
-                        "on PORT (default 8765), with the recording's topics and schemas "
-                        "(its own process; a slow or absent viewer never holds the run back; "
-                        "docs/ros-tools.md)")
-    p.add_argument("--live-rate", type=float, default=None, metavar="HZ",
-                   help="with --live: messages a second forwarded per per-sample topic "
-                        "(default 30, what a screen shows; 0: every message)")
-    p.add_argument("--live-host", default="127.0.0.1", metavar="ADDR",
-                   help="with --live: the address to serve on (default 127.0.0.1, this "
-                        "machine only; 0.0.0.0 serves every network)")
-    add_host_arguments(p)
-    add_clock_arguments(p)
-    from formation_ilc.cli import secure
-
-    secure.add_arguments(p)
-
-
-def add_plant_arguments(p: argparse.ArgumentParser) -> None:
-    """The options of the physics plant and of the bridges' bases and limits."""
-    from formation_ilc.config.bases import BASES
-
-    p.add_argument("--base", choices=tuple(BASES), default="turtlebot4",
-                   help="with --plant base: the base's preset (topics, message type, limits; "
-                        "docs/real-robots.md), default turtlebot4")
-    p.add_argument("--physics-bases", action="store_true",
-                   help="with --plant base: also start physics robots that speak the base's "
-                        "interface (robot_sim.physics_base, --robot-model), for a run without "
-                        "robots")
-    for name, unit in (("v-max", "m/s"), ("omega-max", "deg/s"), ("a-max", "m/s^2"),
-                       ("alpha-max", "deg/s^2")):
-        p.add_argument(f"--{name}", type=float, default=0.0,
-                       metavar=unit.upper().replace("/", "_").replace("^", ""),
-                       help=f"with --plant pioneer or base: every bridge's {name.split('-')[0]}"
-                            f" limit [{unit}] (default: the preset's or the bridge's)")
-    p.add_argument("--params-file", type=Path, metavar="FILE",
-                   help="with --plant pioneer or base: a ROS 2 parameters file for the "
-                        "bridges (e.g. per-robot limits under /formation/bridge_I)")
-    p.add_argument("--robot-model", choices=("p3dx", "husky", "husky-imu"), default="p3dx",
-                   help="with --plant physics (or --physics-bases): P3-DX-size two-wheel "
-                        "drive (default), the Husky of pybullet_data (wheel speeds open "
-                        "loop), or the Husky whose base tracks its commanded speed and turn "
-                        "rate (husky-imu: docs/physics.md)")
-    p.add_argument("--pose", choices=("truth", "odometry"), default="truth",
-                   help="with --plant physics: the robots' measured pose, the engine's ground "
-                        "truth (a motion-capture stand-in, default) or wheel odometry")
-    p.add_argument("--pass-through", action="store_true",
-                   help="with --plant physics: robots pass through each other instead of "
-                        "colliding (contacts are then not reported)")
-    p.add_argument("--physics-rate", type=positive_float, default=240.0, metavar="HZ",
-                   help="with --plant physics: engine steps per second (default 240)")
-    p.add_argument("--allow-contact", action="store_true",
-                   help="run on a plant with bodies although the batch simulator predicts "
-                        "that the robots' footprints overlap")
-    add_safety_arguments(p)
-
-
-def add_safety_arguments(p: argparse.ArgumentParser) -> None:
-    """The safety filter's options (docs/safety.md)."""
-    from formation_ilc.config.safety import BODIES
-    from formation_ilc.core.safety import LEARNING
-
-    g = p.add_argument_group("the safety filter (docs/safety.md)")
-    g.add_argument("--safety", action=argparse.BooleanOptionalAction, default=None,
-                   help="put every robot's learned command through the safety filter: it "
-                        "keeps the robots' bodies a margin apart and the command inside the "
-                        "base's speed and acceleration limits, and the memory learns "
-                        "through it. Default: on with every plant with bodies (physics, "
-                        "pioneer, base), off with the kinematic simulator (the paper's "
-                        "reproduction is unchanged)")
-    g.add_argument("--body", choices=BODIES, default=None,
-                   help="with --plant sim --safety: the body the filter keeps apart "
-                        "(default p3dx); other plants know their own")
-    g.add_argument("--safety-margin", type=nonneg_float, default=None, metavar="M",
-                   help="least gap [m] between two robots' covering discs (default 0.1; "
-                        "0.25 on skid steer, whose wheels slip: docs/safety.md)")
-    g.add_argument("--safety-learning", choices=LEARNING, default=None,
-                   help="how the memory learns where the filter changed a command: damped "
-                        "(takes in a share, 0.15, of the filter's change; the default on two "
-                        "wheels), applied (from the command the robot really drove), split "
-                        "(from it where a limit clipped the command, not at "
-                        "all where a barrier moved it; the default on skid steer: husky, "
-                        "jackal), freeze (no learning at those samples), ignore (as if "
-                        "unchanged; winds up). docs/safety.md compares them")
-    g.add_argument("--on-contact", choices=("stop", "abort", "continue"), default="stop",
-                   help="with --plant physics, when two robots touch or one tilts past "
-                        "--tilt-limit: stop (default): stop the robots, abort the trial and "
-                        "run it again, at most --contact-retries times, then end the run "
-                        "(status 6) naming the pair; abort: stop the robots and end the run "
-                        "at once (status 6); continue: report it and go on")
-    g.add_argument("--contact-retries", type=int_range(0, 100), default=2, metavar="N",
-                   help="with --on-contact stop: how often one trial is run again after a "
-                        "contact (default 2)")
-    g.add_argument("--tilt-limit", type=positive_float, default=10.0, metavar="DEG",
-                   help="with --plant physics: a robot tilted past this [deg] is treated "
-                        "as a contact (default 10)")
-
-
-# --------------------------------------------------------------------------- clocks
-def add_clock_arguments(p: argparse.ArgumentParser) -> None:
-    from formation_ilc.config.clocks import FALLBACKS
-
-    g = p.add_argument_group("robots' clocks: realtime and wallclock runs "
-                             "(docs/distributed-stack.md, docs/real-robots.md)")
-    g.add_argument("--clock-offset-ms", type=nonneg_float, default=0.0, metavar="MS",
-                   help="emulate robots whose clocks disagree: robot i's clock (its robot "
-                        "node's and its bridge's) reads an offset drawn uniformly in "
-                        "[-MS, MS] from the run's seed (default 0: the machine's clock)")
-    g.add_argument("--clock-drift-ppm", type=nonneg_float, default=0.0, metavar="P",
-                   help="and runs a drift drawn uniformly in [-P, P] ppm fast (default 0)")
-    g.add_argument("--no-clock-sync", action="store_true",
-                   help="switch the clock estimator off: the robots still exchange stamps "
-                        "and measure each link's delay, but nothing estimates or corrects "
-                        "the clocks (the bridges sample on their own clocks, as before the "
-                        "estimator)")
-    g.add_argument("--clock-fallback", choices=FALLBACKS, default="estimate",
-                   help="what a bridge samples on before its estimate of the leader's "
-                        "clock has converged: estimate (default): the best estimate so "
-                        "far; own: the robot's own clock")
-
-
-# --------------------------------------------------------------------------- separate hosts
-def add_host_arguments(p: argparse.ArgumentParser) -> None:
-    g = p.add_argument_group("robots on separate hosts, one machine (root; "
-                             "docs/lossy-links.md)")
-    g.add_argument("--hosts", choices=("local", "netns"), default="local",
-                   help="local (default): every process on this machine's network; netns: "
-                        "each robot process in a network namespace of its own, joined by "
-                        "veth links to a hub namespace (leader, simulator, this launcher), "
-                        "DDS over UDP, unicast discovery; direct links. Needs root, iproute2 "
-                        "and iptables with NFQUEUE")
-    g.add_argument("--net-delay-ms", type=float, default=0.0, metavar="MS",
-                   help="with --hosts netns: mean delay of every link between robots, per "
-                        "direction (default 0)")
-    g.add_argument("--net-jitter-ms", type=float, default=0.0, metavar="MS",
-                   help="with --hosts netns: delays uniform in delay +- jitter (default 0)")
-    g.add_argument("--net-loss", type=float, default=0.0, metavar="P",
-                   help="with --hosts netns: fraction of the packets between robots "
-                        "dropped, per direction (default 0)")
-    g.add_argument("--dds-profile", choices=("lossy", "none"), default=None,
-                   help="with --hosts netns: lossy (default): the package's Fast DDS profile "
-                        "for lossy links (50 ms writer heartbeat: a lost sample is repaired "
-                        "within about a round trip); none: Fast DDS defaults (3 s)")
+__all__ = ["add_arguments", "run", "execute", "Stack", "launch_parser", "without_defaults"]
 
 
 # --------------------------------------------------------------------------- running
@@ -338,7 +102,7 @@ def _compile_notes(args: argparse.Namespace) -> Any:
     from formation_ilc.config.plants import plant
 
     try:
-        bodies = plant(str(getattr(args, "plant", "sim") or "sim")).bodies
+        bodies = plant(str(getattr(args, "plant", None) or "sim")).bodies
     except ValueError:
         bodies = False  # the plan refuses it, in its words
     if not bodies:
@@ -354,11 +118,17 @@ def run(args: argparse.Namespace) -> int:
     """Run the stack; return the exit status (0 ok, 1 a node failed, 2 refused, 130
     interrupted): the plan, built once from the options, then its execution (with
     --hosts netns inside the robots' network namespaces)."""
+    from formation_ilc.cli.runfile import plan_of
+
     try:
         with _compile_notes(args):
-            plan = build_plan(args)
+            plan = plan_of(args)
     except NoRun as stop:
         return stop.report()
+    if not plan.ground:  # a host of a run file's hosts: without the leader
+        from formation_ilc.cli.hostlaunch import run_member_host
+
+        return run_member_host(plan)
     if plan.hosts is not None:
         from formation_ilc.cli.hosts import run_on_hosts
 
@@ -413,6 +183,12 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
     if plan.live is not None:
         print(live_line(*plan.live), flush=True)
     session = _Session(plan, env, place)
+    if session.hosts is not None:
+        from formation_ilc.cli.hostlaunch import STARTING, write_ground
+
+        # the other hosts stop what they run for an earlier run here before this one
+        # looks for another formation on its domain
+        write_ground(plan, STARTING)
     try:
         status = session.run()
     finally:
@@ -422,9 +198,17 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
     if status == 0 and plan.record_root is not None:
         status = check_recording(plan.record_root, plan.scenario.trials, plan.resumed_at,
                                  plan.out / "metrics.csv")
-    return write_report(plan, session.rows(), session.diagnostics,
-                        session.supervisor.restarts, time.monotonic() - session.t_start,
-                        status, startup=session.startup())
+    if session.hosts is not None:  # the other hosts' launchers stop their members
+        from formation_ilc.cli.hostlaunch import print_hosts, write_ground
+
+        write_ground(plan, status)
+        print_hosts(session.hosts)
+    status = write_report(plan, session.rows(), session.diagnostics,
+                          session.supervisor.restarts, time.monotonic() - session.t_start,
+                          status, startup=session.startup())
+    if session.hosts is not None:
+        session.hosts.save(plan.out / "summary.json")
+    return status
 
 
 def check_recording(root: Path, trials: int, resumed_at: int | None = None,
@@ -502,14 +286,25 @@ def _learned_before(rec: Any, missing: list[int], trials: int, resumed_at: int,
 
 
 def _save_run(out: Path, options: Any) -> None:
-    """DIR/run.json: paths into the run's folder relative to it (a copied folder resumes
-    into itself), a scenario file by its absolute path (resumable from any folder)."""
+    """DIR/run.yaml, the resolved run file (every default filled in, the run's id), and
+    DIR/run.json, the same for the tools that read it: paths into the run's folder relative
+    to it (a copied folder resumes into itself), a scenario file by its absolute path
+    (resumable from any folder)."""
+    from formation_ilc.cli.runfile import RUN_YAML, run_file_text
+    from formation_ilc.plan.options import LaunchOptions
+    from formation_ilc.store.atomic import atomic_write_text
     from formation_ilc.store.runfile import save_run
 
     d = dict(options)
     if isinstance(d.get("scenario"), str) and Path(d["scenario"]).is_file():
         d["scenario"] = str(Path(d["scenario"]).resolve())
     save_run(out, d)
+    opts = LaunchOptions().with_fields({k: v for k, v in d.items() if k != "out"})
+    atomic_write_text(out / RUN_YAML, run_file_text(
+        opts, stored=out.resolve(),
+        title="what this run ran, every default filled in: formation-ilc launch --resume "
+              "THIS_FOLDER\ngoes on with it; formation-ilc launch run.yaml runs it again "
+              "as a new run"))
 
 
 def _save_config(plan: RunPlan) -> None:
@@ -718,6 +513,12 @@ class _Session:
         #: a stop signal came while the executor ran a callback (the loop acts on it)
         self.stop_signal: int | None = None
         self.spinning = False
+        #: with a run file's hosts: the other hosts as the ground station sees them
+        self.hosts: Any = None
+        if plan.host is not None:
+            from formation_ilc.cli.hostlaunch import HostWatch
+
+            self.hosts = HostWatch(plan)
 
     def _metrics(self) -> tuple[list[Any], Any]:
         """metrics.csv, opened for the run: a resumed run's learned trials kept."""
@@ -852,6 +653,11 @@ class _Session:
         self.supervisor.open_gate()
         print(f"none: the processes join; the leader waits for {len(plan.team.expected)} "
               f"nodes [{time.monotonic() - self.t_start:.1f} s]", flush=True)
+        hosts = self.hosts
+        if hosts is not None:  # the other hosts' launchers start their members now
+            from formation_ilc.cli.hostlaunch import write_ground
+
+            write_ground(plan)
         progress = self.progress = StartupProgress(plan.team.expected, self.t_start)
         graph_at, found = 0.0, set()
         final_deadline: float | None = None
@@ -868,15 +674,21 @@ class _Session:
             if host.transitions is not None and not host.transitions.active:
                 for line in host.transitions.step():
                     print(line, flush=True)
-            if progress.active:
+            if progress.active or hosts is not None:
                 now = time.monotonic()
                 if now - graph_at >= 0.5:  # a graph query: twice a second is enough
                     graph_at = now
                     found = {name for name, ns in monitor.get_node_names_and_namespaces()
                              if ns == plan.namespace}
+                    for line in hosts.update(now, found) if hosts is not None else ():
+                        print(line, flush=True)
+            if progress.active:
                 ready = set(monitor.readies)
                 line = progress.update(now, found | ready, ready,
                                        any(e.get("event") == START for e in monitor.events))
+                silent = hosts.silent(found | ready) if hosts is not None else []
+                if line and silent and not line.startswith("start-up done"):
+                    line += f"; not heard from host{'s' * (len(silent) > 1)} {', '.join(silent)}"
                 if line:
                     print(line, flush=True)
             if self.stop_signal is not None:

@@ -16,9 +16,12 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
 
+from formation_ilc.plan.options import OptionError
+
 __all__ = ["OneLineParser", "int_range", "nonneg_int", "positive_int", "positive_float",
            "out_dir_arg", "output_file_arg", "make_out_dir", "OptionError", "MAX_TRIAL",
-           "add_run_options", "special_path", "fs_type", "nonneg_float"]
+           "add_run_options", "special_path", "fs_type", "nonneg_float", "scenario_arg",
+           "paragraphs"]
 
 #: trial indices are stored as float64 in metrics rows: exact up to 2^53
 MAX_TRIAL = 2 ** 53
@@ -26,8 +29,6 @@ MAX_TRIAL = 2 ** 53
 MAX_SEED = 2 ** 63 - 1
 
 
-class OptionError(ValueError):
-    """A command-line option that cannot be used; the message names the option and why."""
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -234,3 +235,15 @@ def fail(message: str, status: int = 2) -> int:
     """Print 'error: message' on stderr and return ``status`` (for a command's return)."""
     print(f"error: {message}", file=sys.stderr)
     return status
+
+
+def paragraphs(text: str) -> str:
+    """Paragraphs (separated by blank lines) wrapped to 88 columns, for raw help text."""
+    import textwrap
+
+    return "\n\n".join(textwrap.fill(" ".join(par.split()), 88) for par in text.split("\n\n"))
+
+
+def scenario_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scenario", metavar="SCENARIO",
+                   help="built-in scenario name (formation-ilc scenarios) or a YAML file")

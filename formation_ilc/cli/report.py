@@ -17,7 +17,6 @@ from typing import Any
 
 import numpy as np
 
-from formation_ilc.cli.plan import RunPlan
 from formation_ilc.cli.supervisor import disk_full_line
 from formation_ilc.config.scenario import Scenario
 from formation_ilc.core.links import (
@@ -27,6 +26,7 @@ from formation_ilc.core.links import (
     write_delays,
 )
 from formation_ilc.core.names import MONITOR_NODE, SIM_NODE
+from formation_ilc.plan.specs import RunPlan
 from formation_ilc.system.exits import DISK_FULL, is_disk_full
 
 __all__ = ["write_report", "summary_of", "print_report"]

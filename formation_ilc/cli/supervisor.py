@@ -1,6 +1,6 @@
 """The supervisor of a launch: runs a plan's node processes.
 
-It starts every process of a ``RunPlan`` (``formation_ilc.cli.plan``), one log each in
+It starts every process of a ``RunPlan`` (``formation_ilc.plan.specs``), one log each in
 ``DIR/logs/``; when one dies it starts it again with the same command line, within the
 node's restart policy (a recorder goes on into a new file part), and tells whoever follows
 the run that a passive node went down; it stops them all (SIGINT, then SIGTERM, SIGKILL).
@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
-from formation_ilc.cli.plan import NodeSpec, RunPlan
+from formation_ilc.plan.specs import NodeSpec, RunPlan
 from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, NO_RESTART, STUCK
 from formation_ilc.system.lifetime import GATE_ENV, early_argv
 

@@ -7,7 +7,7 @@ the launcher waits for its last report, its enclave, and the topics it publishes
 subscribes. Everything else reads it:
 
 * the leader's team (``Team``, ``nodes_expected``): the members it waits for;
-* the launcher's processes (``formation_ilc.cli.plan.node_specs``): the members with an
+* the launcher's processes (``formation_ilc.plan.processes.node_specs``): the members with an
   entry script, in start order;
 * the keystore's permissions (``Roster.grants``, signed by ``formation_ilc.store.keystore``):
   each enclave may publish and subscribe exactly its members' topics (least privilege,
@@ -45,7 +45,7 @@ TRIAL, ONCE, NEVER = "trial", "once", "never"
 DRIVER_NS = {"pioneer": "/pioneer_{i}", "base": "/base_{i}"}
 
 #: the entry scripts of the processes the launcher starts (``pyproject.toml`` names their
-#: modules; ``formation_ilc.cli.plan`` starts each as ``python -m MODULE``)
+#: modules; ``formation_ilc.plan.processes`` starts each as ``python -m MODULE``)
 ENTRY_SCRIPTS = ("formation-ilc-virtual-leader", "formation-ilc-robot",
                  "formation-ilc-robot-sim", "formation-ilc-physics-sim",
                  "formation-ilc-link-emulator", "formation-ilc-recorder",

@@ -33,7 +33,7 @@ CLOSE_S = 10.0
 
 class LauncherHost:
     """rclpy, the monitor node and its executor for one run of ``plan``
-    (``formation_ilc.cli.plan.RunPlan``); ``on_trial(k, row)`` gets each finished trial's
+    (``formation_ilc.plan.specs.RunPlan``); ``on_trial(k, row)`` gets each finished trial's
     metrics row (iterations from ``first``), ``on_contact(node, report)`` a plant's
     contact the moment it is said, ``on_clock(node, level, text)`` a node's clock event
     (a clock step, an estimate that does not converge)."""

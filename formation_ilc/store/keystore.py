@@ -39,7 +39,7 @@ from formation_ilc.config.enclaves import Grant, governance_xml, permissions_xml
 from formation_ilc.store.atomic import atomic_write_text
 
 __all__ = ["KeystoreError", "Created", "CA_DAYS", "create", "verify", "enclave_dir",
-           "sign_smime", "subject_of"]
+           "sign_smime", "subject_of", "bundle"]
 
 #: the CA outlives the enclaves it signs; enclaves get ``days`` (``keystore create --days``)
 CA_DAYS = 3650
@@ -246,6 +246,25 @@ def create(keystore: Path, grants: Mapping[str, Grant], *, days: int = 365,
         shutil.rmtree(p)
         done["/" + str(p.relative_to(enclaves_root))] = "removed (no longer in the formation)"
     return Created(ca_action, gov_action, done)
+
+
+def bundle(keystore: Path, dest: Path, enclaves: Iterable[str]) -> list[str]:
+    """Write ``dest``: a keystore holding only ``enclaves`` (their keys and signed
+    permissions), the governance and the CA's certificate; never the CA's private key, nor
+    another enclave's key. What it held before is replaced. The enclaves it holds."""
+    keystore, dest = Path(keystore), Path(dest)
+    names = sorted(set(enclaves))
+    if dest.exists():
+        shutil.rmtree(dest)
+    (dest / "public").mkdir(parents=True)
+    (dest / "enclaves").mkdir()
+    shutil.copy2(keystore / "public" / "ca.cert.pem", dest / "public" / "ca.cert.pem")
+    for name in ("governance.xml", "governance.p7s"):
+        shutil.copy2(keystore / "enclaves" / name, dest / "enclaves" / name)
+    for enclave in names:
+        shutil.copytree(enclave_dir(keystore, enclave), enclave_dir(dest, enclave))
+        os.chmod(enclave_dir(dest, enclave) / "key.pem", 0o600)
+    return names
 
 
 def _p7s_signed_by(p7s: Path, ca_cert: Path) -> bool | None:

@@ -19,7 +19,7 @@ from formation_ilc.store.atomic import atomic_write_text
 from formation_ilc.store.bounded import StateFileError, read_bounded
 
 __all__ = ["RUN_FILE", "CONFIG_FILE", "CONFIG_LIMIT", "load_config", "RUN_LIMIT",
-           "RunFileError", "save_run", "load_run", "reroot", "require", "PATH_KEYS"]
+           "RunFileError", "save_run", "load_run", "reroot", "require", "PATH_KEYS", "relative"]
 
 RUN_FILE = "run.json"
 #: the run configuration every node shares (scenario text, options, run id), as JSON, in
@@ -52,6 +52,10 @@ def _relative(value: str, folder: Path) -> str:
         return str(PurePath("@run") / p.relative_to(folder))
     except ValueError:
         return value
+
+
+#: a path inside a run's folder as ``@run/REL`` (else unchanged)
+relative = _relative
 
 
 def save_run(folder: Path, options: dict[str, Any]) -> None:

@@ -13,10 +13,10 @@ import pytest
 
 import msgs_schema as ms
 from formation_ilc.cli import keystore as ks_cli
-from formation_ilc.cli.secure import SecureRun
 from formation_ilc.config.roster import Lineup, roster
 from formation_ilc.config.scenario import load_scenario
 from formation_ilc.core.names import clock_topic
+from formation_ilc.plan.secure import SecureRun
 from formation_ilc.store.keystore import create, enclave_dir
 
 
@@ -228,7 +228,7 @@ def test_a_secure_plan_keeps_the_users_profile_and_warns_of_an_unpatched_rmw(
     text = (plan.out / "fastdds-secure.xml").read_text()
     assert 'profile_name="mine"' in text and "handshake_resend_period_gain" in text
     own.write_text("not xml")
-    from formation_ilc.cli.plan import NoRun
+    from formation_ilc.plan.specs import NoRun
 
     with pytest.raises(NoRun) as info:
         plan_of(tmp_path, "paper-triangle3", "--secure", str(ks), out="again")
@@ -239,7 +239,7 @@ def test_a_secure_plan_keeps_the_users_profile_and_warns_of_an_unpatched_rmw(
 def test_a_plant_without_grants_is_refused_secure(tmp_path):
     """An external plant's nodes are not the formation's to grant: one line naming the plants
     that have grants (every other plant), before the keystore is even read."""
-    from formation_ilc.cli.plan import NoRun
+    from formation_ilc.plan.specs import NoRun
     from tests.cli.test_plan import plan_of
 
     with pytest.raises(NoRun) as info:

@@ -14,8 +14,9 @@ from pathlib import Path
 import pytest
 
 from formation_ilc.cli.commands import build_parser
-from formation_ilc.cli.plan import ROS2_RUN, build_plan, entry_module, ros2_executable
+from formation_ilc.cli.runfile import plan_of
 from formation_ilc.config.runconfig import param_text
+from formation_ilc.plan.processes import ROS2_RUN, entry_module, ros2_executable
 
 FILE = Path(__file__).resolve().parents[2] / "launch" / "formation.launch.py"
 SHIMS = Path(__file__).resolve().parents[2] / "ros2_run"
@@ -62,7 +63,8 @@ def test_the_file_parses_and_declares_its_arguments(launch_file):
     declared = {a.args[0]: a.kwargs for a in ld.args[0]
                 if type(a).__name__ == "DeclareLaunchArgument"}
     assert set(declared) == {"scenario", "trials", "namespace", "robots_per_process", "plant",
-                             "mode", "links", "record", "live", "params_file", "out"}
+                             "mode", "links", "record", "live", "params_file", "out",
+                             "run_file"}
     assert all(d["description"] for d in declared.values())
 
 
@@ -85,7 +87,7 @@ def test_its_processes_are_the_launchers_for_the_same_arguments(launch_file, tmp
     nodes = opaque.kwargs["function"](context)
     # the launcher's plan for the same options: every process but its own monitor, with
     # the same arguments, ROS arguments and parameters; the leader also ends the launch
-    plan = build_plan(build_parser().parse_args(
+    plan = plan_of(build_parser().parse_args(
         ["launch", context["scenario"], *argv, "--out", str(tmp_path / "plan")]))
     assert [n.kwargs["executable"] for n in nodes] == [ros2_executable(s.module)
                                                        for s in plan.nodes]
@@ -140,3 +142,23 @@ def test_the_robot_file_starts_one_robot_and_its_bridge_under_their_names(monkey
                                               "-p", "base:=turtlebot4"]
     for exe in ("robot", "bridge"):  # what ros2 run formation_ilc finds
         assert (SHIMS / exe).exists()
+
+
+def test_a_run_file_gives_the_processes_its_launch_gives(launch_file, tmp_path):
+    from formation_ilc.cli.commands import main
+
+    run_file = tmp_path / "run.yaml"
+    assert main(["run-file", "paper-hexagon6", "--links", "direct", "--trials", "3",
+                 "-o", str(run_file)]) == 0
+    context = {name: default for name, default, _ in launch_file.ARGUMENTS}
+    context.update(run_file=str(run_file), namespace="/team2", out=str(tmp_path / "out"))
+    assert launch_file.launcher_argv(context.__getitem__) == [
+        str(run_file), "--namespace", "/team2", "--out", str(tmp_path / "out")]
+    ld = launch_file.generate_launch_description()
+    (opaque,) = [a for a in ld.args[0] if type(a).__name__ == "OpaqueFunction"]
+    nodes = opaque.kwargs["function"](context)
+    plan = plan_of(build_parser().parse_args(
+        ["launch", str(run_file), "--namespace", "/team2", "--out", str(tmp_path / "plan")]))
+    assert [n.kwargs["executable"] for n in nodes] == [ros2_executable(s.module)
+                                                       for s in plan.nodes]
+    assert "robot_6" in [s.name for s in plan.nodes] and plan.config.links == "direct"

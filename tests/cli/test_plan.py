@@ -14,8 +14,9 @@ import pytest
 import yaml
 
 from formation_ilc.cli.commands import build_parser
-from formation_ilc.cli.plan import NO_RESTART, NoRun, RunPlan, build_plan, finished
+from formation_ilc.cli.runfile import plan_of as plan_of_args
 from formation_ilc.config.runconfig import RunConfig
+from formation_ilc.plan.specs import NO_RESTART, NoRun, RunPlan, finished
 
 
 def options(*argv: str):
@@ -23,7 +24,7 @@ def options(*argv: str):
 
 
 def plan_of(tmp_path, *argv: str, out: str = "run") -> RunPlan:
-    return build_plan(options(*argv, "--out", str(tmp_path / out)))
+    return plan_of_args(options(*argv, "--out", str(tmp_path / out)))
 
 
 def refusal(tmp_path, *argv: str) -> NoRun:
@@ -137,7 +138,7 @@ def test_an_initial_memory_reaches_every_robot_by_its_absolute_path(tmp_path, mo
     (["--mode", "wallclock"], "--mode wallclock is for real robots: use it with --plant "
                               "pioneer"),
     (["--fake-drivers"], "--fake-drivers goes with --plant pioneer"),
-    (["--lifecycle"], "argument --lifecycle: only for bridges (--plant pioneer or base)"),
+    (["--lifecycle"], "argument --lifecycle: --plant sim does not use it (it goes with --plant pioneer or base)"),
     (["--plant", "pioneer", "--fake-drivers", "--driver", "p2os2"],
      "--fake-drivers speak rosaria or ros2aria, not p2os2"),
     (["--max-restarts", "-1"], "--max-restarts must be >= 0"),
@@ -180,7 +181,7 @@ def test_a_memory_for_another_team_is_refused(tmp_path):
 
 def test_a_scenario_is_required(tmp_path):
     with pytest.raises(NoRun, match=r"a SCENARIO is required \(or --resume DIR\)"):
-        build_plan(options())
+        plan_of_args(options())
 
 
 def test_the_options_are_not_changed_and_run_json_holds_what_resume_needs(tmp_path):
@@ -188,7 +189,7 @@ def test_the_options_are_not_changed_and_run_json_holds_what_resume_needs(tmp_pa
     args = options("paper-triangle3", "--out", str(tmp_path / "run"), "--plant", "pioneer",
                    "--allow-contact")
     before = dict(vars(args))
-    plan = build_plan(args)
+    plan = plan_of_args(args)
     assert vars(args) == before
     d = plan.run_json
     assert d["mode"] == "wallclock" and d["links"] == "direct"
@@ -206,11 +207,11 @@ def test_resume_takes_the_runs_own_options(tmp_path):
     (tmp_path / "rec.mcap").write_bytes(b"")
     # an option of the run given again is refused, not silently ignored (it was)
     with pytest.raises(NoRun) as exc:
-        build_plan(options("--resume", str(first.out), "--max-restarts", "1", "--seed", "9"))
+        plan_of_args(options("--resume", str(first.out), "--max-restarts", "1", "--seed", "9"))
     assert exc.value.status == 2 and exc.value.message.startswith(
         "--resume takes the run's own options: --seed cannot change a run going on")
     # the launch's own options are honoured: --domain-id among them (it was ignored)
-    again = build_plan(options("--resume", str(first.out), "--max-restarts", "1",
+    again = plan_of_args(options("--resume", str(first.out), "--max-restarts", "1",
                                "--domain-id", "77"))
     assert again.config.to_json() == first.config.to_json()  # seed 4, same run id
     assert again.resumed_at == 0 and again.run_json is None
@@ -221,7 +222,7 @@ def test_resume_takes_the_runs_own_options(tmp_path):
 def test_resume_refusals(tmp_path):
     exc = refusal(tmp_path, "--resume", str(tmp_path))
     assert exc.status == 2 and exc.message == (
-        f"--resume {tmp_path}: no run.json there (not the output folder of a "
+        f"--resume {tmp_path}: no run.yaml or run.json there (not the output folder of a "
         f"`formation-ilc launch` run)")
     (tmp_path / "run.json").write_text("{not json")
     assert "run.json: unreadable:" in refusal(tmp_path, "--resume", str(tmp_path)).message
@@ -241,7 +242,7 @@ def test_resuming_a_finished_run_is_nothing_to_do(tmp_path, capsys):
     (first.out / "state").mkdir()
     s.save(first.out / "state" / "leader.json")
     with pytest.raises(NoRun) as info:
-        build_plan(options("--resume", str(first.out)))
+        plan_of_args(options("--resume", str(first.out)))
     assert info.value.status == 0
     assert info.value.report() == 0
     assert capsys.readouterr().out == f"{first.out}: all 2 trials are done; nothing to resume\n"
@@ -267,10 +268,10 @@ def test_a_plan_is_built_without_ros(tmp_path):
         "for m in ('rclpy', 'rclpy.node', 'geometry_msgs', 'nav_msgs', 'std_msgs'):\n"
         "    sys.modules[m] = None\n"
         "from formation_ilc.cli.commands import build_parser\n"
-        "from formation_ilc.cli.plan import build_plan\n"
+        "from formation_ilc.cli.runfile import plan_of\n"
         f"a = build_parser().parse_args(['launch', 'paper-triangle3', '--out', "
         f"{str(tmp_path / 'run')!r}])\n"
-        "print(len(build_plan(a).nodes))\n"
+        "print(len(plan_of(a).nodes))\n"
     )
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          timeout=120)
@@ -283,7 +284,7 @@ def _plan_running(tmp_path, *codes: str, max_restarts: int = 2) -> tuple[RunPlan
     """A plan whose processes are plain Python one-liners."""
     from dataclasses import replace
 
-    from formation_ilc.cli.plan import NodeSpec, RestartPolicy
+    from formation_ilc.plan.specs import NodeSpec, RestartPolicy
 
     plan = plan_of(tmp_path, "paper-triangle3")
     policy = RestartPolicy(max_restarts)

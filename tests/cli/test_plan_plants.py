@@ -7,14 +7,15 @@ from __future__ import annotations
 import pytest
 
 from formation_ilc.cli.commands import build_parser
-from formation_ilc.cli.plan import NoRun, RunPlan, build_plan
+from formation_ilc.cli.runfile import plan_of as plan_of_args
 from formation_ilc.config.bases import BASES
 from formation_ilc.config.runconfig import RunConfig
 from formation_ilc.config.scenario import load_scenario
+from formation_ilc.plan.specs import NoRun, RunPlan
 
 
 def plan_of(tmp_path, *argv: str) -> RunPlan:
-    return build_plan(build_parser().parse_args(["launch", *argv, "--out",
+    return plan_of_args(build_parser().parse_args(["launch", *argv, "--out",
                                                  str(tmp_path / "run")]))
 
 

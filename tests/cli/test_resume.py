@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from formation_ilc.cli.runfile import plan_of
 from formation_ilc.config.scenario import load_scenario
 from formation_ilc.store.robotstate import RobotState, save_state, state_path
 from formation_ilc.store.runfile import save_run
@@ -110,18 +111,17 @@ def test_a_copied_run_folder_resumes_into_itself(tmp_path):
     import shutil
 
     from formation_ilc.cli.commands import build_parser
-    from formation_ilc.cli.plan import build_plan
 
     out = run_folder(tmp_path, record=True)
     (out / "run.mcap").write_bytes(b"x")
     copy = tmp_path / "copy"
     shutil.copytree(out, copy)
-    plan = build_plan(build_parser().parse_args(["launch", "--resume", str(copy)]))
+    plan = plan_of(build_parser().parse_args(["launch", "--resume", str(copy)]))
     assert plan.out == copy.resolve() and plan.resumed_at == 3
     assert plan.record == (copy / "run.resumed1.mcap").resolve()
     assert plan.record_root == (copy / "run.mcap").resolve()
     assert all(str(out) not in " ".join(spec.command) for spec in plan.nodes)
     # a run whose first recording was never written records into it on resume
     (copy / "run.mcap").unlink()
-    plan = build_plan(build_parser().parse_args(["launch", "--resume", str(copy)]))
+    plan = plan_of(build_parser().parse_args(["launch", "--resume", str(copy)]))
     assert plan.record == (copy / "run.mcap").resolve()

@@ -25,11 +25,10 @@ from formation_ilc.cli.commands import (
     CHECK_OK,
     CHECK_TRANSIENT,
     CHECK_UNKNOWN,
-    MemoryKeeper,
-    TrialLog,
     check_status,
     main,
 )
+from formation_ilc.cli.simulate import MemoryKeeper, TrialLog
 from formation_ilc.config.scenario import (
     MAX_FILE_BYTES,
     MAX_YAML_DEPTH,

@@ -4,7 +4,7 @@
 ``data/make_roster_golden.py`` on a checkout of it), before the roster replaced its three
 separate rules: the leader's team (``config.team.Team.of``) for 1, 3 and
 6 robots on every plant, links, monitor and recorder; every process of ``formation-ilc
-launch`` (``cli.plan.node_specs`` through ``build_plan``: name, module, arguments, remaps,
+launch`` (``plan.processes.node_specs`` through ``build_plan``: name, module, arguments, remaps,
 parameters, restart policy, host) with the team, the awaited reporters and the plant's
 kind, for every plant x links x record x live combination of paper-triangle3 and more
 (containers, namespaces, drivers, fake drivers, physics bases); and the keystore's grants
@@ -30,7 +30,7 @@ from pathlib import Path
 import pytest
 
 from formation_ilc.cli.commands import build_parser
-from formation_ilc.cli.plan import build_plan
+from formation_ilc.cli.runfile import plan_of
 from formation_ilc.config.roster import ENTRY_SCRIPTS, Lineup, roster
 from formation_ilc.config.scenario import load_scenario
 from formation_ilc.core.names import TEAM_POSES, absolute, pose_topic
@@ -210,7 +210,7 @@ def test_a_launch_plans_the_processes_it_planned(tmp_path, key):
         pytest.importorskip("pybullet")
     args = build_parser().parse_args(argv)
     args.run_id = "rgolden"
-    plan = build_plan(args)
+    plan = plan_of(args)
 
     def norm(x):
         text = json.dumps(x, default=str).replace(str(tmp_path), "<tmp>")

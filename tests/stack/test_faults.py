@@ -274,7 +274,7 @@ def test_resume_refuses_a_folder_that_is_not_a_run(ros_env, tmp_path):
                           str(tmp_path)], env=ros_env, capture_output=True, text=True,
                          timeout=60)
     assert res.returncode == 2
-    assert f"--resume {tmp_path}: no run.json there" in res.stderr
+    assert f"--resume {tmp_path}: no run.yaml or run.json there" in res.stderr
 
 
 def test_a_second_formation_on_the_same_domain_and_namespace_is_refused(ros_env, tmp_path):

@@ -9,7 +9,8 @@ import xml.etree.ElementTree as ET
 import pytest
 
 from formation_ilc.cli.commands import build_parser
-from formation_ilc.cli.plan import NoRun, build_plan
+from formation_ilc.cli.runfile import plan_of
+from formation_ilc.plan.specs import NoRun
 from formation_ilc.system.ddsxml import PROFILES_NS
 from formation_ilc.system.discovery import (
     MARGIN,
@@ -80,7 +81,7 @@ def test_the_users_profiles_are_kept(tmp_path):
 def plan(tmp_path, *argv: str):
     args = build_parser().parse_args(["launch", *argv, "--out", str(tmp_path / "run"),
                                       "--domain-id", "21"])
-    return build_plan(args)
+    return plan_of(args)
 
 
 def test_a_50_robot_launch_lists_every_participant_and_a_6_robot_one_does_not(

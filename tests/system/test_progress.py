@@ -145,7 +145,7 @@ def test_a_terminals_bar_is_wiped_for_a_message_and_an_abandoned_one_stays_quiet
 def test_simulates_bar_names_trials_by_their_number_only(clock):
     """simulate's progress counts trials one way: their numbers from 0 (as metrics.csv, the
     table and the plots), not a count from 1 beside them."""
-    from formation_ilc.cli.commands import Progress as TrialProgress
+    from formation_ilc.cli.simulate import Progress as TrialProgress
 
     out = io.StringIO()
     bar = TrialProgress(20, "paper-triangle3", first=0)

@@ -15,7 +15,7 @@ from formation_ilc.config.team import Team  # type: ignore[import-not-found]
 
 from formation_ilc.cli.commands import build_parser
 from formation_ilc.cli.keystore import grants_for
-from formation_ilc.cli.plan import build_plan
+from formation_ilc.cli.runfile import plan_of
 from formation_ilc.config.scenario import load_scenario
 
 
@@ -72,7 +72,7 @@ def plan_answers(tmp):
                 argv += ["--live", str(port)]
             args = build_parser().parse_args(argv)
             args.run_id = "rgolden"
-            plan = build_plan(args)
+            plan = plan_of(args)
             def norm(x, port=port):
                 s = json.dumps(x, default=str)
                 s = s.replace(str(tmp), "<tmp>").replace(sys.executable, "<python>")

@@ -22,31 +22,22 @@ runs in the enclave ``driver_i`` as a real driver would).
 
 from __future__ import annotations
 
-import argparse
 import os
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
-from formation_ilc.cli.options import OptionError
 from formation_ilc.config.enclaves import enclave_path
 from formation_ilc.core.names import MONITOR_NODE
+from formation_ilc.plan.options import OptionError
 
-__all__ = ["SECURITY_ENV", "add_arguments", "SecureRun", "prepare"]
+__all__ = ["SECURITY_ENV", "SecureRun", "prepare"]
 
 #: what rcl reads; every variable a secure run sets
 SECURITY_ENV = ("ROS_SECURITY_KEYSTORE", "ROS_SECURITY_ENABLE", "ROS_SECURITY_STRATEGY",
                 "ROS_SECURITY_ENCLAVE_OVERRIDE")
 #: the launcher's own node (the monitor) runs in the launcher process
 LAUNCHER_NODE = MONITOR_NODE
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--secure", type=Path, default=None, metavar="DIR",
-                   help="run every node in its SROS2 enclave of the keystore DIR (`formation-"
-                        "ilc keystore create DIR SCENARIO`), with DDS-Security enforced; "
-                        "needs the Fast DDS built by scripts/build_secure_dds.sh "
-                        "(docs/security.md)")
 
 
 @dataclass(frozen=True)
@@ -91,8 +82,9 @@ class SecureRun:
 
 def prepare(keystore: Path | str | None, enclaves: Iterable[str], namespace: str, *,
             container: int = 0, profile: Path | None = None,
-            base_profile: Path | None = None) -> SecureRun | None:
-    """The secure run for processes in these ``enclaves`` (plus the launcher's monitor),
+            base_profile: Path | None = None, launcher: bool = True) -> SecureRun | None:
+    """The secure run for processes in these ``enclaves`` (plus, with ``launcher``, the
+    launcher's monitor: not on a host without the leader),
     or None without ``--secure``; OptionError (one line) if it cannot run secure. ``profile``,
     ``base_profile``: :class:`SecureRun`'s (a ``base_profile`` that is no profiles file is
     refused here)."""
@@ -111,7 +103,8 @@ def prepare(keystore: Path | str | None, enclaves: Iterable[str], namespace: str
                           "is one DDS participant, and each robot holds only its own "
                           "identity")
     ks = Path(keystore).resolve()
-    paths = [enclave_path(namespace, e) for e in [*enclaves, LAUNCHER_NODE]]
+    paths = [enclave_path(namespace, e)
+             for e in [*enclaves, *((LAUNCHER_NODE,) if launcher else ())]]
     try:
         verify(ks, paths)
         applies = keeps_profile_properties(check())

@@ -1,0 +1,214 @@
+"""One command per machine: ``formation-ilc launch RUN.yaml --host NAME``.
+
+A run file's ``hosts:`` puts the run's members on machines. The launcher of the host with
+the leader (the ground station) runs the pre-run checks for the whole team, its own
+members, the monitor and the report; it writes ``OUT/hosts/ground.json`` (the run's
+identity, ROS domain and run key, readable by its owner only) once no other formation
+runs on its domain, and the final status there when the run ends. The launcher of every
+other host waits for that file, then starts and supervises only its members (restarts,
+logs and their state in ``OUT/hosts/NAME``), and stops them when the ground station's run
+has ended. A host launcher that dies takes its members with it: the ground station names
+the host whose members left the ROS graph, the leader re-runs the trial they were in when
+they come back (their state is in the host's folder), and the run goes on.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sys
+import time
+from collections.abc import Collection
+from pathlib import Path
+from typing import Any
+
+from formation_ilc.plan.build import HOSTS_DIR, with_ground
+from formation_ilc.plan.specs import RunPlan
+
+__all__ = ["GROUND_FILE", "STARTING", "write_ground", "run_member_host", "HostWatch"]
+
+GROUND_FILE = "ground.json"
+#: the status of a ground station's run that is starting (the hosts wait for none)
+STARTING = "starting"
+
+
+def ground_file(plan: RunPlan) -> Path:
+    """The ground station's handshake file of ``plan`` (a ground's or a member host's)."""
+    root = plan.out if plan.ground else plan.out.parent.parent
+    return root / HOSTS_DIR / GROUND_FILE
+
+
+def write_ground(plan: RunPlan, status: int | str | None = None) -> None:
+    """The ground station's handshake: the run's identity, domain and key, and, once the run
+    has ended, its status (owner-only: the key seals the leader's events)."""
+    from formation_ilc.store.atomic import atomic_write_text
+
+    path = ground_file(plan)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(path, json.dumps({
+        "run_id": plan.config.run_id, "domain": plan.domain, "namespace": plan.namespace,
+        "key": (plan.key or b"").hex(), "pid": os.getpid(), "status": status}) + "\n")
+    os.chmod(path, 0o600)
+
+
+def _read_ground(path: Path) -> dict[str, Any] | None:
+    try:
+        d = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return d if isinstance(d, dict) and "run_id" in d else None
+
+
+def run_member_host(plan: RunPlan, poll: float = 0.2) -> int:
+    """Run host ``plan.host``'s members (not the ground station's): wait for the ground
+    station's run, start them, restart a member that dies (within its policy), stop them
+    when the ground station's run has ended (then return 0), or wait for the next run when
+    another replaces it (a ground station started again); 130 when interrupted, else the
+    status of a member that failed for good."""
+    stop: list[int] = []
+
+    def on_term(signum: int, frame: Any) -> None:
+        stop.append(signum)
+
+    signal.signal(signal.SIGTERM, on_term)
+    signal.signal(signal.SIGINT, on_term)
+    while True:
+        ground = _wait_ground(plan, stop, poll)
+        if ground is None:
+            return 130
+        status = _run_members(plan, ground, stop, poll)
+        if status is not None:
+            return status
+
+
+def _wait_ground(plan: RunPlan, stop: list[int], poll: float) -> dict[str, Any] | None:
+    """The ground station's handshake of a run going on, said each second while it is
+    waited for; None when interrupted."""
+    host, path = plan.host or "", ground_file(plan)
+    t0, said = time.monotonic(), -1.0
+    while True:
+        ground = _read_ground(path)
+        if ground is not None and ground.get("status") is None:
+            return ground
+        if stop:
+            return None
+        now = time.monotonic() - t0
+        if now - said >= 1.0:
+            said = now
+            print(f"host {host}: waiting for the ground station's run ({path}) "
+                  f"[{now:.0f} s]", flush=True)
+        time.sleep(poll)
+
+
+def _run_members(plan: RunPlan, ground: dict[str, Any], stop: list[int],
+                 poll: float) -> int | None:
+    """Run this host's members in the ground station's run ``ground`` until it ends (0),
+    a member fails for good (its status), this launcher is interrupted (130), or another
+    run replaces it (None)."""
+    from formation_ilc.cli.launch import _node_env
+    from formation_ilc.cli.supervisor import Supervisor
+
+    host, path = plan.host or "", ground_file(plan)
+    plan = with_ground(plan, str(ground["run_id"]), int(ground["domain"]),
+                       bytes.fromhex(str(ground["key"])))
+    if plan.secure is not None:
+        plan.secure.write_profile()
+    supervisor = Supervisor(plan, _node_env(plan))
+    supervisor.start()
+    print(f"host {host}: started {', '.join(s.name for s in plan.nodes)} on ROS_DOMAIN_ID="
+          f"{plan.domain} for run {plan.config.run_id} (logs and state in {plan.out})",
+          flush=True)
+    try:
+        while not stop:
+            failure = supervisor.watch()
+            if failure is not None:
+                return supervisor.report(failure)
+            current = _read_ground(path)
+            if current is None or current.get("run_id") != plan.config.run_id:
+                print(f"host {host}: the ground station's run {plan.config.run_id} is gone: "
+                      f"stopping its members", flush=True)
+                return None
+            if current.get("status") == STARTING:  # the ground station starts again
+                print(f"host {host}: the ground station starts its run again: stopping its "
+                      f"members", flush=True)
+                return None
+            if current.get("status") is not None:
+                print(f"host {host}: the ground station's run ended (status "
+                      f"{current['status']}): stopping", flush=True)
+                return 0
+            time.sleep(poll)
+        return 130
+    finally:
+        supervisor.stop()
+
+
+class HostWatch:
+    """The ground station's view of the other hosts: which of them it has not heard from
+    (none of their members in the ROS graph) while the run starts, and a host whose members
+    left the graph during the run (its launcher died, or its machine dropped off the
+    network) and came back; a row per host for the report."""
+
+    def __init__(self, plan: RunPlan):
+        self.plan = plan
+        self.remote = {h: set(ms) for h, ms in plan.host_members if h != plan.host}
+        self.heard: set[str] = set()
+        self.gone: dict[str, float] = {}
+        self.rows: dict[str, dict[str, Any]] = {
+            h: {"members": sorted(ms), "left": 0, "away_s": 0.0} for h, ms in self.remote.items()}
+
+    def silent(self, found: Collection[str]) -> list[str]:
+        """The hosts none of whose members is in the graph yet (start-up)."""
+        return [h for h, ms in self.remote.items() if not ms & set(found)]
+
+    def update(self, now: float, found: Collection[str]) -> list[str]:
+        """Lines to print: a host whose members all left the graph, or came back."""
+        lines = []
+        for h, ms in self.remote.items():
+            present = ms <= set(found)
+            if present:
+                self.heard.add(h)
+            if h not in self.heard:
+                continue
+            if not (ms & set(found)) and h not in self.gone:
+                self.gone[h] = now
+                self.rows[h]["left"] += 1
+                lines.append(f"host {h}: its members ({', '.join(sorted(ms))}) left the ROS "
+                             f"graph: its launcher died or its machine dropped off the "
+                             f"network; the trial they were in runs again when they are back")
+            elif present and h in self.gone:
+                away = now - self.gone.pop(h)
+                self.rows[h]["away_s"] += away
+                lines.append(f"host {h}: back after {away:.1f} s")
+        return lines
+
+    def save(self, summary: Path) -> None:
+        """Add a row per host to the run's summary.json (``hosts``)."""
+        try:
+            d = json.loads(summary.read_text())
+        except (OSError, ValueError):
+            return
+        hosts: dict[str, dict[str, Any]] = {self.plan.host or "": {
+            "members": list(self.plan.members_of(self.plan.host or "")), "ground": True}}
+        for h, r in self.rows.items():
+            hosts[h] = {**r, "heard": h in self.heard}
+        d["hosts"] = hosts
+        summary.write_text(json.dumps(d, indent=2) + "\n")
+
+    def report(self) -> list[str]:
+        """A row per host for the report."""
+        rows = [f"  {self.plan.host:<10} (this launcher: the ground station) "
+                f"{', '.join(self.plan.members_of(self.plan.host or ''))}"]
+        for h, r in self.rows.items():
+            rows.append(f"  {h:<10} {', '.join(r['members'])}: "
+                        + ("never heard from" if h not in self.heard else
+                           f"left {r['left']} time(s), away {r['away_s']:.1f} s"
+                           if r["left"] else "present throughout"))
+        return rows
+
+
+def print_hosts(watch: HostWatch) -> None:
+    print("hosts:", flush=True)
+    for line in watch.report():
+        print(line, flush=True)
+    sys.stdout.flush()

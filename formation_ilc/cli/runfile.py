@@ -1,0 +1,445 @@
+"""Run files: a launched run's every choice in one YAML document.
+
+``formation-ilc run-file SCENARIO [launch options] -o run.yaml`` writes one, complete and
+commented (every key, its value, what it means); ``formation-ilc launch run.yaml`` runs
+it, and each launch option given beside it overrides its key. A launch keeps the resolved
+run file (every default filled in, the run's id) in its output folder as ``run.yaml``;
+``launch --resume DIR`` reads it (or the ``run.json`` of launches before it).
+
+A run file is checked with the launch options' own rules: an unknown key is refused naming
+the closest one (``error: run.yaml: safety.margn: unknown key (did you mean 'margin'?)``),
+a bad value names its key and why, exit status 2, before anything starts. Paths in a run
+file are relative to its folder; in a stored one, ``@run/REL`` is relative to the run's
+folder wherever it is.
+"""
+
+from __future__ import annotations
+
+import argparse
+import textwrap
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from formation_ilc.cli.options import OptionError
+from formation_ilc.plan.options import (
+    FIELD_KEYS,
+    PATH_FIELDS,
+    RUN_KEYS,
+    SECTIONS,
+    STORED_FIELDS,
+    LaunchOptions,
+    closest,
+    option_fields,
+)
+
+__all__ = ["RUN_YAML", "is_run_file", "load_run_file", "load_stored_run", "run_file_text",
+           "launch_options", "RESUME_OPTIONS", "host_per_robot", "resumed_part",
+           "add_parser", "run", "plan_of"]
+
+#: the resolved run file in a run's output folder
+RUN_YAML = "run.yaml"
+#: a run file is a few hundred short lines
+RUN_FILE_LIMIT = 1 << 20
+#: a run file key's field, by the key's path
+FIELD_KEYS_BY_PATH = {k.path: k.field for k in RUN_KEYS}
+#: the launch options a resumed launch takes from its own command line (the rest are the run's)
+RESUME_OPTIONS = frozenset({"max_restarts", "watchdog_scale", "domain_id", "no_plots"})
+
+
+def _read_yaml(path: Path) -> Any:
+    import yaml
+
+    from formation_ilc.store.bounded import StateFileError, read_bounded
+
+    try:
+        raw = read_bounded(path, RUN_FILE_LIMIT, "a run file")
+    except StateFileError as exc:
+        raise OptionError(str(exc)) from None
+    if raw is None:
+        raise OptionError(f"{path}: no such file")
+    try:
+        return yaml.safe_load(raw)
+    except yaml.YAMLError as exc:
+        raise OptionError(f"{path}: not YAML: {' '.join(str(exc).split())[:160]}") from None
+
+
+def is_run_file(text: str | None) -> bool:
+    """Whether the SCENARIO argument ``text`` names a run file: a YAML file whose top level
+    has a ``scenario`` key (a scenario file has none)."""
+    if not text or not text.endswith((".yaml", ".yml")) or not Path(text).is_file():
+        return False
+    try:
+        d = _read_yaml(Path(text))
+    except OptionError:
+        return False
+    return isinstance(d, dict) and "scenario" in d
+
+
+def _flatten(path: Path, d: Any) -> tuple[dict[str, Any], dict[str, list[str]]]:
+    """The run file's values by field, and its ``hosts:`` mapping; OptionError naming the
+    first key that is not a run file's (with the closest that is)."""
+    if not isinstance(d, dict):
+        raise OptionError(f"{path}: expected a mapping of run file keys, got "
+                          f"{type(d).__name__}")
+    top = {k.path for k in RUN_KEYS if "." not in k.path} | set(SECTIONS) - {""} | {"hosts"}
+    values: dict[str, Any] = {}
+    hosts: dict[str, list[str]] = {}
+    for key, value in d.items():
+        key = str(key)
+        if key not in top:
+            raise OptionError(f"{path}: {key}: unknown key{closest(key, top)}")
+        if key == "hosts":
+            hosts = _hosts(path, value)
+        elif key in SECTIONS:
+            if value is None:
+                continue
+            if not isinstance(value, dict):
+                raise OptionError(f"{path}: {key}: expected a mapping ({SECTIONS[key]})")
+            keys = {k.path.split(".", 1)[1]: k for k in RUN_KEYS if k.path.startswith(key + ".")}
+            for sub, v in value.items():
+                sub = str(sub)
+                if sub not in keys:
+                    raise OptionError(f"{path}: {key}.{sub}: unknown key{closest(sub, keys)}")
+                values[keys[sub].path] = v
+        else:
+            values[key] = value
+    return values, hosts
+
+
+def _hosts(path: Path, value: Any) -> dict[str, list[str]]:
+    if value is None:
+        return {}
+    if not isinstance(value, dict) or not all(
+            isinstance(m, list) and all(isinstance(x, str) for x in m) for m in value.values()):
+        raise OptionError(f"{path}: hosts: expected a mapping of host names to lists of "
+                          f"member names (e.g. ground: [leader, sim])")
+    return {str(h): list(m) for h, m in value.items()}
+
+
+def _actions() -> dict[str, argparse.Action]:
+    from formation_ilc.cli.launchargs import launch_parser
+
+    return {a.dest: a for a in launch_parser()._actions}
+
+
+def _check(path: Path, key: str, field: str, negated: bool, value: Any,
+           actions: Mapping[str, argparse.Action]) -> Any:
+    """``value`` of run file key ``key`` as its field holds it, checked with the launch
+    option's own type and choices; OptionError naming the key and why."""
+
+    def bad(why: str) -> OptionError:
+        return OptionError(f"{path}: {key}: {why}")
+
+    if value is None:
+        return None
+    action = actions.get(field)
+    if action is None:  # a stored run's own: the run's id, the clocks' origin, ...
+        want: type = int if field == "clock_origin_ns" else str
+        if not isinstance(value, want) or isinstance(value, bool):
+            raise bad(f"expected {'an integer' if want is int else 'a string'}, got {value!r}")
+        return value
+    if action.nargs == 0 or isinstance(action, argparse.BooleanOptionalAction):
+        if not isinstance(value, bool):
+            raise bad(f"expected true or false, got {value!r}")
+        return (not value) if negated else value
+    if action.nargs == "+":
+        if not isinstance(value, list) or not value or not all(
+                isinstance(v, (str, int)) for v in value):
+            raise bad(f"expected a list of names, got {value!r}")
+        return [str(v) for v in value]
+    if isinstance(value, (dict, list)) or isinstance(value, bool):
+        raise bad(f"expected a single value, got {value!r}")
+    text = str(value)
+    try:
+        converted = action.type(text) if callable(action.type) else text
+    except (argparse.ArgumentTypeError, ValueError, TypeError) as exc:
+        raise bad(str(exc) if isinstance(exc, argparse.ArgumentTypeError)
+                  else f"invalid {getattr(action.type, '__name__', 'value')}: {text!r}") from None
+    if action.choices is not None and converted not in action.choices:
+        choices = [str(c) for c in action.choices]
+        raise bad(f"invalid choice: {converted!r} (choose from {', '.join(choices)})"
+                  f"{closest(text, choices)}")
+    return converted
+
+
+def _fields(path: Path, values: Mapping[str, Any], base: Path | None) -> dict[str, Any]:
+    """Each run file value (by key path) as its field's, checked; relative paths taken
+    from ``base`` (a run file's folder; None: as given)."""
+    actions = _actions()
+    by_path = {k.path: k for k in RUN_KEYS}
+    out: dict[str, Any] = {}
+    for key, value in values.items():
+        k = by_path[key]
+        if base is not None and isinstance(value, str) and k.field in PATH_FIELDS and (
+                not Path(value).is_absolute()):
+            parts = Path(value).parts
+            if parts[:1] == ("@run",) and k.field not in ("record", "out"):
+                # a stored run's file, launched again: its inputs are in its folder
+                value = str(base.joinpath(*parts[1:]))
+            elif parts[:1] != ("@run",):  # a recording of "@run" goes into the new run's
+                value = str(base / value)
+        if k.field == "scenario" and isinstance(value, str) and base is not None:
+            near = base / value
+            value = str(near) if near.is_file() else value
+        out[k.field] = _check(path, key, k.field, k.negated, value, actions)
+    return out
+
+
+def load_run_file(path: Path) -> dict[str, Any]:
+    """The fields a run file sets (its ``hosts:`` as ``host_members``); OptionError with the
+    file, the key and why."""
+    import yaml
+
+    values, hosts = _flatten(path, _read_yaml(path))
+    inline = values.pop("scenario") if isinstance(values.get("scenario"), dict) else None
+    if inline is None and not isinstance(values.get("scenario"), str):
+        raise OptionError(f"{path}: scenario: a built-in scenario's name, a scenario file, "
+                          f"or a scenario written here (a mapping) is required")
+    out = _fields(path, values, path.resolve().parent)
+    if inline is not None:  # checked as a scenario file is, when the run is planned
+        out["scenario_text"] = yaml.safe_dump(inline, sort_keys=False)
+    for name in STORED_FIELDS:  # a stored run's own: a launch of its file is a new run
+        out.pop(name, None)
+    if hosts:
+        out["host_members"] = hosts
+    return out
+
+
+def load_stored_run(folder: Path) -> dict[str, Any] | None:
+    """The fields of the run in ``folder``: its resolved ``run.yaml``, else the
+    ``run.json`` of a launch before run files; every path that pointed into the run's folder
+    re-rooted in ``folder``. None when there is neither; OptionError naming the file."""
+    from formation_ilc.store.runfile import RunFileError, load_run, require, reroot
+
+    path = folder / RUN_YAML
+    if path.is_file():
+        values, hosts = _flatten(path, _read_yaml(path))
+        values = reroot({FIELD_KEYS_BY_PATH[k]: v for k, v in values.items()}, folder)
+        d = _fields(path, {FIELD_KEYS[f].path: v for f, v in values.items()}, None)
+        if hosts:
+            d["host_members"] = hosts
+    else:
+        try:
+            legacy = load_run(folder)
+        except RunFileError as exc:
+            raise OptionError(f"--resume {exc}") from None
+        if legacy is None:
+            return None
+        d = {k: v for k, v in legacy.items() if k in option_fields()}
+    try:
+        require(d, folder)
+    except RunFileError as exc:
+        raise OptionError(f"--resume {exc}") from None
+    return d
+
+
+def launch_options(args: argparse.Namespace) -> LaunchOptions:
+    """The options of a launch: ``args`` holds only the options given on the command line
+    (the launch parser has no defaults); they override a run file named as SCENARIO, or
+    are all there is. With ``--resume DIR`` the stored run's own, and the few a resumed
+    launch may change. OptionError for what cannot be combined."""
+    given = {k: v for k, v in vars(args).items() if k in set(option_fields())}
+    resume = given.get("resume")
+    if resume is not None:
+        return _resumed(Path(resume), given)
+    scenario = given.get("scenario")
+    if scenario is not None and is_run_file(scenario):
+        given.pop("scenario")
+        return LaunchOptions().with_fields(load_run_file(Path(scenario))).with_fields(given)
+    return LaunchOptions().with_fields(given)
+
+
+def plan_of(args: argparse.Namespace) -> Any:
+    """The plan (``plan.specs.RunPlan``) of parsed launch options; NoRun (one line, exit
+    status) for a run file or options that give no run."""
+    from formation_ilc.plan.build import build_plan
+    from formation_ilc.plan.specs import NoRun
+
+    try:
+        opts = launch_options(args)
+    except OptionError as exc:
+        raise NoRun(str(exc)) from None
+    return build_plan(opts)
+
+
+def _resumed(out: Path, given: dict[str, Any]) -> LaunchOptions:
+    if given.get("scenario") is not None:
+        raise OptionError("--resume takes the run's own scenario and options: give no "
+                          "SCENARIO")
+    stored = load_stored_run(out)
+    if stored is None:
+        raise OptionError(f"--resume {out}: no {RUN_YAML} or run.json there (not the "
+                          f"output folder of a `formation-ilc launch` run)")
+    extra = set(given) - RESUME_OPTIONS - {"resume", "scenario"}
+    if extra:  # before, silently ignored (--domain-id among them; now honoured)
+        shown = ", ".join(f"--{k.replace('_', '-')}" for k in sorted(extra))
+        raise OptionError(
+            f"--resume takes the run's own options: {shown} cannot change a run going on "
+            f"(with --resume: "
+            f"{', '.join('--' + k.replace('_', '-') for k in sorted(RESUME_OPTIONS))})")
+    opts = LaunchOptions().with_fields(stored)
+    mine = {k: given[k] for k in RESUME_OPTIONS if k in given}
+    mine["no_plots"] = bool(given.get("no_plots")) or opts.no_plots
+    if opts.record is not None:
+        mine["record_root"] = opts.record_root or opts.record
+        mine["record"] = resumed_part(opts.record_root or opts.record)
+    return opts.with_fields({**mine, "out": out, "resume": out})
+
+
+def resumed_part(root: Path) -> Path:
+    """Where a resumed launch records: the run's first file when no part of its recording
+    exists yet (a launch killed before its recorder wrote it), else the next free
+    ``RUN.resumedN.mcap`` (every part stays as it was written)."""
+    from formation_ilc.recordings.recording import recording_parts
+
+    if not any(p.exists() for p in recording_parts(root)):
+        return root
+    stem = root.with_suffix("")
+    n = 1
+    while Path(f"{stem}.resumed{n}.mcap").exists() or any(
+            stem.parent.glob(f"{stem.name}.resumed{n}.part*.mcap")):
+        n += 1
+    return Path(f"{stem}.resumed{n}.mcap")
+
+
+# --------------------------------------------------------------------------- writing
+
+def host_per_robot(members: list[tuple[str, int | None]]) -> dict[str, list[str]]:
+    """``hosts:`` with robot i's processes (its node, its bridge, its fake driver) on host
+    ``r<i>`` and every other on ``ground``: ``members`` are (process name, robot number or
+    None)."""
+    hosts: dict[str, list[str]] = {"ground": []}
+    for name, robot in members:
+        hosts.setdefault("ground" if robot is None else f"r{robot}", []).append(name)
+    return hosts
+
+
+def run_file_text(opts: LaunchOptions, *, folder: Path | None = None,
+                  stored: Path | None = None, title: str = "") -> str:
+    """``opts`` as a run file: every key in its section, with its value and what it means
+    (the launch option's help). Paths relative to ``folder`` when they lie inside it; with
+    ``stored`` (a run's folder), paths inside it as ``@run/REL``."""
+    import yaml
+
+    from formation_ilc.store.runfile import relative
+
+    actions = _actions()
+    values = opts.stored()
+    lines = [f"# {line}" for line in title.splitlines()] if title else []
+    for section, about in SECTIONS.items():
+        keys = [k for k in RUN_KEYS if (k.path.split(".")[0] if "." in k.path else "") == section]
+        if section:
+            lines += ["", f"# {about}", f"{section}:"]
+        indent = "  " if section else ""
+        for k in keys:
+            v = values[k.field]
+            if k.negated and v is not None:
+                v = not v
+            if isinstance(v, str) and k.field in PATH_FIELDS:
+                if stored is not None:
+                    v = relative(v, stored)
+                elif folder is not None:
+                    try:
+                        v = str(Path(v).resolve().relative_to(folder.resolve()))
+                    except ValueError:
+                        pass
+            if k.field == "scenario" and isinstance(v, str) and Path(v).is_file():
+                v = str(Path(v).resolve())
+            if k.field == "scenario" and opts.scenario_text is not None:
+                lines.append(f"{indent}# SCENARIO: written here (a scenario file's keys)")
+                lines += yaml.safe_dump({"scenario": yaml.safe_load(opts.scenario_text)},
+                                        sort_keys=False, width=88).rstrip().splitlines()
+                continue
+            action = actions.get(k.field)
+            about_key = _help(action, k.negated) if action is not None else _STORED_HELP.get(
+                k.field, "")
+            for line in textwrap.wrap(about_key, 88 - len(indent) - 2):
+                lines.append(f"{indent}# {line}")
+            text = yaml.safe_dump({k.path.rsplit(".", 1)[-1]: v}, default_flow_style=True,
+                                  width=10_000).strip()
+            lines.append(f"{indent}{text[1:-1] if text.startswith('{') else text}")
+    lines += ["", "# which machine runs which members (formation-ilc launch RUN.yaml --host "
+                  "NAME on each);", "# none: every member on this machine"]
+    if opts.host_members:
+        dumped = yaml.safe_dump({"hosts": {h: list(m) for h, m in opts.host_members}},
+                                default_flow_style=None, sort_keys=False, width=88)
+        lines += dumped.rstrip().splitlines()
+    else:
+        lines.append("hosts: {}")
+    return "\n".join(lines) + "\n"
+
+
+_STORED_HELP = {
+    "run_id": "the run's identity (empty: a new one at each launch; a stored run keeps its own)",
+    "clock_origin_ns": "the emulated clocks' origin [ns] (a resumed run's robots keep "
+                       "their clocks)",
+    "record_root": "the run's first recording file (a resumed launch records a part of "
+                   "its own)",
+}
+
+
+def _help(action: argparse.Action, negated: bool) -> str:
+    text = " ".join((action.help or "").split())
+    if action.choices is not None and "(" not in text[:1]:
+        text = f"{' | '.join(map(str, action.choices))}: {text}"
+    flag = action.option_strings[0] if action.option_strings else "SCENARIO"
+    if negated:
+        return f"false is {flag}: {text}"
+    return f"{flag}: {text}"
+
+
+# --------------------------------------------------------------------------- the command
+
+def add_parser(sub: Any) -> None:
+    """``formation-ilc run-file SCENARIO [launch options] -o RUN.yaml [--host-per-robot]``."""
+    from formation_ilc.cli.launchargs import add_arguments, without_defaults
+    from formation_ilc.cli.options import output_file_arg
+
+    p = sub.add_parser(
+        "run-file", help="write a run file: a launch's every choice, commented",
+        description="Write a complete, commented run file of a launch's options (every key "
+                    "with its value: the options given, the defaults for the rest), checked "
+                    "as `launch` checks them. Run it with `formation-ilc launch RUN.yaml` "
+                    "(options given beside it override its keys).")
+    add_arguments(p)
+    without_defaults(p)
+    p.add_argument("-o", "--output", type=output_file_arg, required=True, metavar="RUN.yaml",
+                   help="the run file to write")
+    p.add_argument("--host-per-robot", action="store_true",
+                   help="a hosts: mapping with the leader, the plant, the link emulator, the "
+                        "recorder and the monitor on host 'ground' and robot i's node (with "
+                        "its bridge and driver where there are) on host 'r<i>'")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Write the run file ``args.output``: the options, planned as ``launch`` plans them
+    (refused the same way), with the hosts asked for."""
+    import tempfile
+
+    from formation_ilc.plan.build import build_plan, hosted_members
+    from formation_ilc.plan.specs import NoRun
+    from formation_ilc.store.atomic import atomic_write_text
+
+    opts = launch_options(args)
+    if opts.resume is not None:
+        raise OptionError("run-file: --resume: a stored run's file is its folder's run.yaml")
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            plan = build_plan(opts.with_fields({"out": Path(tmp) / "run"}))
+        except NoRun as stop:
+            return stop.report()
+    if args.host_per_robot:
+        opts = opts.with_fields({"host_members": host_per_robot(list(hosted_members(plan)))})
+    if opts.scenario is not None and Path(opts.scenario).is_file():
+        opts = opts.with_fields({"scenario": str(Path(opts.scenario).resolve())})
+    path: Path = args.output
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(path, run_file_text(
+        opts, folder=path.parent,
+        title=f"a formation-ilc run: formation-ilc launch {path.name} runs it "
+              f"(formation-ilc launch --help says what each key's option does)"))
+    hosts = f", hosts {', '.join(h for h, _ in opts.host_members)}" if opts.host_members else ""
+    print(f"wrote {path} ({plan.scenario.name}, {plan.scenario.n} robots, plant "
+          f"{opts.plant}{hosts}): formation-ilc launch {path}")
+    return 0

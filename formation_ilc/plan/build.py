@@ -1,0 +1,508 @@
+"""The planner of a ``formation-ilc launch``: ``build_plan`` turns the run's options
+(``formation_ilc.plan.options.LaunchOptions``: from the command line, a run file, a stored
+run or a launch file's arguments) into its ``RunPlan`` (``formation_ilc.plan.specs``),
+refusing what cannot run (``NoRun``: one line and the exit status, before anything
+starts); with ``--resume DIR`` the run's state decides where it goes on. The pre-run checks
+of the plant, the limits and the safety filter are in ``formation_ilc.plan.checks``, the
+processes in ``formation_ilc.plan.processes``. Pure: no parser, no ROS."""
+
+from __future__ import annotations
+
+import os
+import secrets
+import time
+import uuid
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+from formation_ilc.config.clocks import ClockSettings
+from formation_ilc.config.plants import plant
+from formation_ilc.config.roster import Lineup, roster
+from formation_ilc.config.runconfig import (
+    WALL_MODES,
+    make_config,
+    scenario_reference,
+)
+from formation_ilc.config.scenario import Scenario, ScenarioError
+from formation_ilc.core.names import (
+    LEADER_NODE,
+    MONITOR_NODE,
+    NAMESPACE,
+    driver_ns_problem,
+)
+from formation_ilc.plan.checks import _check_memory, _check_plant, _safety
+from formation_ilc.plan.options import LaunchOptions, OptionError, unused_option
+from formation_ilc.plan.processes import node_specs
+from formation_ilc.plan.specs import (
+    BridgeOptions,
+    HostsPlan,
+    NoRun,
+    PhysicsOptions,
+    RunPlan,
+)
+from formation_ilc.protocol.schedule import KEY_BYTES
+from formation_ilc.system.netns import LinkFaults
+
+__all__ = ["build_plan", "effective_options", "hosted_members", "placed_members", "HOSTS_DIR",
+           "with_ground",
+           "pick_domain", "caller_domain"]
+
+
+# --------------------------------------------------------------------------- building
+
+def build_plan(options: LaunchOptions) -> RunPlan:
+    """The plan of a launch's options; NoRun with the refusal's one line and exit status;
+    ScenarioError for a bad scenario."""
+    opts = effective_options(options)
+    if opts.scenario_text is not None:
+        opts = _inline_scenario(opts)
+    assert opts.scenario is not None and opts.run_id is not None
+    unused = unused_option(opts, plant(opts.plant))
+    if unused is not None:  # before, run and said nothing
+        raise NoRun(unused)
+    faults = _hosts_faults(opts)
+    mode, links = _mode_and_links(opts, hosts=faults is not None)
+    clocks = _clocks(opts, mode)
+    try:
+        cfg = make_config(opts.scenario, seed=opts.seed, noise=not opts.no_noise,
+                          delay=not opts.no_delay, trials=opts.trials, law=opts.law,
+                          memory=opts.memory, mode=mode, monitored=True,
+                          timeout=opts.timeout, recorded=opts.record is not None,
+                          links=links, run_id=opts.run_id,
+                          headings=opts.headings,
+                          time_scale=opts.time_scale, clocks=clocks)
+    except ScenarioError:
+        raise
+    except ValueError as exc:
+        # RunConfig owns its rules (e.g. wall-clock trials need direct links): a refusal
+        # in one line, not a traceback
+        raise NoRun(f"launch: {exc}") from None
+    # 'auto' headings: arc on the plants that drive arcs and came with the option (physics,
+    # base); chord for the kinematic simulator, and for the Pioneer bridges and external
+    # plants as before them (their runs and learned memories keep their numbers)
+    row = plant(opts.plant)
+    cfg = replace(cfg, scenario=cfg.scenario.for_plant(row.headings))
+    namespace = opts.namespace or NAMESPACE
+    if not namespace.startswith("/") or "//" in namespace:
+        raise NoRun(f"--namespace {namespace!r}: an absolute ROS namespace like /team2 is "
+                    f"required")
+    sc = cfg.scenario
+    if opts.init_memory is not None:
+        _check_memory(opts.init_memory, sc)
+    if sc.trials < 1:
+        raise NoRun("--trials must be at least 1")
+    # a formation too extreme for float64 is refused (ScenarioError) before anything is made
+    _ = sc.desired
+    out = _out_folder(opts.out, sc)
+    resumed_at = _resumed_at(out, sc) if opts.resume is not None else None
+    record = _in_run(opts.record, out)
+    root = opts.record_root or record
+    domain = opts.domain_id if opts.domain_id is not None else caller_domain()
+    if domain is None:
+        domain = pick_domain()
+    bridge = BridgeOptions.of(opts) if row.per_robot else None
+    if bridge is not None:
+        why = driver_ns_problem(bridge.driver_ns)
+        if why is not None:  # before, the bridges started with an invalid namespace
+            raise NoRun(f"argument --driver-ns: {bridge.driver_ns!r}: {why}")
+    if opts.lifecycle and opts.secure is not None:  # (without bridges: PLANT_USES)
+        raise NoRun("argument --lifecycle: not with --secure (the enclaves' permissions "
+                    "grant no lifecycle services)")
+    physics = (PhysicsOptions.of(opts) if row.physics
+               or (bridge is not None and bridge.physics_bases) else None)
+    safety = _safety(opts, row, sc, namespace, bridge, physics)
+    cfg = replace(cfg, safety=safety)
+    notes = _check_plant(opts, row, sc, namespace, bridge, physics, safety)
+    live = _live(opts)
+    lineup = Lineup.of(sc.graph, plant=row.name, links=links, record=opts.record is not None,
+                       live=live is not None, external=tuple(opts.plant_nodes),
+                       **({} if bridge is None else dict(
+                           driver=bridge.driver, driver_ns=bridge.driver_ns, base=bridge.base,
+                           fake_drivers=bridge.fake_drivers,
+                           physics_bases=bridge.physics_bases)),
+                       sensing=None if safety is None else safety.sensing,
+                       clocks=cfg.clock_exchanges)
+    plan = RunPlan(
+        config=cfg, roster=roster(lineup), nodes=(), out=out, namespace=namespace, domain=domain,
+        discovery=opts.discovery, plant=opts.plant, container=opts.container,
+        max_restarts=opts.max_restarts,
+        # bridges drive their robots back after the last trial too
+        final_wait=3.0 + (bridge.return_timeout + 2.0 if bridge is not None else 0.0),
+        plots=not opts.no_plots, resumed_at=resumed_at,
+        run_json=None if resumed_at is not None else _run_json(opts, mode, links, out,
+                                                                clocks),
+        init_memory=opts.init_memory, record=record, bridge=bridge,
+        record_root=root.resolve() if root is not None else None,
+        watchdog_scale=float(opts.watchdog_scale),
+        physics=physics, notes=notes,
+        live=live, live_rate=_live_rate(opts),
+        hosts=None if faults is None else HostsPlan(faults, opts.dds_profile or "lossy",
+                                                    sc.seed),
+        predicted_clear=any(n.startswith("the batch simulator predicts no contact")
+                            for n in notes),
+        key=secrets.token_bytes(KEY_BYTES))
+    # the processes follow from the rest of the plan
+    plan = _with_peers(replace(plan, nodes=node_specs(plan, scenario_reference(opts.scenario))))
+    plan = replace(plan, host_members=placed_members(plan, dict(opts.host_members)))
+    return _secured(_on_host(plan, opts.host), opts.secure)
+
+
+#: where a host launcher keeps its logs and its members' state: OUT/hosts/NAME; the
+#: ground station's handshake (the run's identity, domain and key) is OUT/hosts/ground.json
+HOSTS_DIR = "hosts"
+
+
+def _on_host(plan: RunPlan, host: str | None) -> RunPlan:
+    """``plan`` for the launcher of ``host`` (``--host``): only its members' processes; a
+    host without the leader keeps its logs and state in OUT/hosts/HOST. NoRun for a host
+    the run file does not name."""
+    if host is None:
+        return plan
+    if not plan.host_members:
+        raise NoRun(f"argument --host: {host}: the run has no hosts: mapping (write one with "
+                    f"formation-ilc run-file ... --host-per-robot)")
+    names = [h for h, _ in plan.host_members]
+    if host not in names:
+        raise NoRun(f"argument --host: {host!r} is no host of this run (its hosts: "
+                    f"{', '.join(names)})")
+    if plan.hosts is not None:
+        raise NoRun("argument --host: not with --hosts netns (that is one machine's hosts)")
+    plan = replace(plan, host=host)
+    if not plan.ground:
+        out = plan.out / HOSTS_DIR / host
+        out.mkdir(parents=True, exist_ok=True)
+        plan = replace(plan, out=out, record=None, run_json=None)
+    mine = set(plan.members_of(host))
+    # the other hosts' processes' parameters name their own folder (no leader among them)
+    nodes = plan.nodes if plan.ground else node_specs(plan, plan.config.scenario_param)
+    return replace(plan, nodes=tuple(s for s in nodes if s.name in mine))
+
+
+def with_ground(plan: RunPlan, run_id: str, domain: int, key: bytes) -> RunPlan:
+    """A host launcher's plan on the ground station's run: its identity, domain and key
+    (``OUT/hosts/ground.json``), its processes' parameters made anew."""
+    plan = replace(plan, config=replace(plan.config, run_id=run_id), domain=domain, key=key)
+    mine = set(plan.members_of(plan.host or ""))
+    nodes = tuple(s for s in node_specs(plan, plan.config.scenario_param) if s.name in mine)
+    sec = plan.secure
+    if sec is not None:  # each in its enclave, as _secured put them
+        nodes = tuple(replace(s, env=tuple(sec.variables(_enclave(plan, s.name)).items()))
+                      for s in nodes)
+    return replace(plan, nodes=nodes)
+
+
+def hosted_members(plan: RunPlan) -> tuple[tuple[str, int | None], ...]:
+    """(name, robot) of every member a host of the run runs: the launcher's processes and
+    its monitor, in start order."""
+    return ((MONITOR_NODE, None),) + tuple((m.name, m.robot) for m in plan.roster.processes)
+
+
+def placed_members(plan: RunPlan, hosts: Mapping[str, Sequence[str]]
+                   ) -> tuple[tuple[str, tuple[str, ...]], ...]:
+    """A run file's ``hosts:`` checked against the plan: every member on exactly one host,
+    the monitor with the leader; NoRun naming the first that is not."""
+    if not hosts:
+        return ()
+    if plan.container:
+        raise NoRun("hosts: robots on hosts of their own run one process per robot (no "
+                    "processes.container)")
+    names = [n for n, _ in hosted_members(plan)]
+    where: dict[str, str] = {}
+    for host, members in hosts.items():
+        for name in members:
+            if name not in names:
+                raise NoRun(f"hosts: {host}: {name!r} is no member of this run (its members: "
+                            f"{', '.join(names)})")
+            if name in where:
+                raise NoRun(f"hosts: {name!r} is on {where[name]} and on {host}")
+            where[name] = host
+    missing = [n for n in names if n not in where]
+    if missing:
+        raise NoRun(f"hosts: {', '.join(missing)} on no host (every member of the run on "
+                    f"one)")
+    if where[MONITOR_NODE] != where[LEADER_NODE]:
+        raise NoRun(f"hosts: the monitor goes with the leader (on {where[LEADER_NODE]}): "
+                    f"the ground station runs the checks and the report")
+    return tuple((h, tuple(m)) for h, m in hosts.items())
+
+
+def _in_run(path: Path | None, out: Path) -> Path | None:
+    """``path`` absolute; ``@run/REL`` (a stored run file's recording, launched again) in
+    the run's folder ``out``."""
+    if path is None:
+        return None
+    if path.parts[:1] == ("@run",):
+        return out.joinpath(*path.parts[1:])
+    return path.resolve()
+
+
+def _user_profile() -> Path | None:
+    """The caller's FASTRTPS_DEFAULT_PROFILES_FILE, or None."""
+    value = os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE")
+    return Path(value) if value else None
+
+
+def _with_peers(plan: RunPlan) -> RunPlan:
+    """``plan`` with a discovery profile when its processes are more than localhost
+    discovery reaches on its own (``system.discovery``); NoRun when the caller's
+    FASTRTPS_DEFAULT_PROFILES_FILE cannot be built on."""
+    from formation_ilc.system.discovery import needs_peers, peers_profile
+
+    if (plan.discovery != "localhost" or plan.hosts is not None
+            or not needs_peers(plan.participants)):
+        return plan
+    base = _user_profile()
+    try:
+        peers_profile(base, plan.domain, plan.participants)
+    except ValueError as exc:
+        raise NoRun(f"FASTRTPS_DEFAULT_PROFILES_FILE {exc}") from None
+    return replace(plan, peers_profile=plan.out / "fastdds-discovery.xml", peers_base=base)
+
+
+def _secured(plan: RunPlan, keystore: Path | str | None) -> RunPlan:
+    """``plan`` with every process in its enclave of ``keystore`` (``--secure``), checked
+    before anything starts: NoRun if the keystore or the loaded Fast DDS cannot run it."""
+    from formation_ilc.config.plants import SECURE_PLANTS
+    from formation_ilc.plan.secure import prepare
+
+    if keystore is not None and not plan.row.secure:
+        raise NoRun(f"--secure: the keystore's permissions cover the plants "
+                    f"{', '.join(SECURE_PLANTS)}, not --plant {plan.plant} (run it without "
+                    f"--secure, on a network you trust)")
+    # the handshake retries go into the profile the processes would load anyway: the
+    # lossy-links one on netns hosts, else the user's own (with the discovery peers of a
+    # large team, which are written next to it: checked here on the user's own)
+    base = plan.hosts.profile_file if plan.hosts is not None else _user_profile()
+    try:
+        sec = prepare(keystore, [_enclave(plan, s.name) for s in plan.nodes], plan.namespace,
+                      container=plan.container, profile=plan.out / "fastdds-secure.xml",
+                      base_profile=base, launcher=plan.ground)
+    except OptionError as exc:
+        raise NoRun(str(exc)) from None
+    if sec is None:
+        return plan
+    if plan.peers_profile is not None:
+        sec = replace(sec, base_profile=plan.peers_profile)
+    if not sec.handshake_applies:
+        from formation_ilc.system.securedds import BUILD_COMMAND
+
+        plan = replace(plan, notes=(*plan.notes, (
+            "note: this venv's rmw_fastrtps drops the authentication handshake's retry "
+            "settings (built before they were kept): a large secure team may not start; "
+            f"rebuild it: {BUILD_COMMAND}")))
+    return replace(plan, secure=sec, nodes=tuple(
+        replace(s, env=tuple(sec.variables(_enclave(plan, s.name)).items()))
+        for s in plan.nodes))
+
+
+def _enclave(plan: RunPlan, process: str) -> str:
+    """The enclave a process runs in: its member's (robot i's fake driver runs in
+    ``driver_i``, as a real driver would)."""
+    return plan.roster.enclave_of(process)
+
+
+def _inline_scenario(opts: LaunchOptions) -> LaunchOptions:
+    """``opts`` with its inline scenario written to the run's folder (``scenario.yaml``,
+    what the nodes load) and named by it; ScenarioError for a bad one."""
+    from formation_ilc.config.scenario import scenario_from_text
+    from formation_ilc.store.atomic import atomic_write_text
+
+    text = opts.scenario_text or ""
+    out = _out_folder(opts.out, scenario_from_text(text, "<the run file's scenario>"))
+    atomic_write_text(out / "scenario.yaml", text)
+    return replace(opts, scenario=str(out / "scenario.yaml"), scenario_text=None, out=out)
+
+
+def effective_options(opts: LaunchOptions) -> LaunchOptions:
+    """The options a run goes with: a new run id when there is none; NoRun for what no
+    run can have."""
+    if opts.scenario is None and opts.scenario_text is None:
+        raise NoRun("a SCENARIO is required (or --resume DIR)")
+    if opts.max_restarts < 0:
+        raise NoRun("--max-restarts must be >= 0")
+    if opts.run_id is None:
+        # a letter first: an all-digit id would reach the leader as an integer parameter
+        return replace(opts, run_id="r" + uuid.uuid4().hex[:12])
+    return opts
+
+
+def _hosts_faults(opts: LaunchOptions) -> LinkFaults | None:
+    """``--hosts netns``: the faults on the links between robots, once the options and this
+    machine allow it (None: every process on this machine's network)."""
+    from formation_ilc.system import netns
+
+    net = bool(opts.net_delay_ms or opts.net_jitter_ms or opts.net_loss
+               or opts.dds_profile is not None)
+    if opts.hosts != "netns" and not net:
+        return None
+    if opts.hosts != "netns":
+        raise NoRun("--net-delay-ms, --net-jitter-ms, --net-loss and --dds-profile go with "
+                    "--hosts netns")
+    try:
+        faults = netns.LinkFaults(opts.net_delay_ms, opts.net_jitter_ms, opts.net_loss)
+    except netns.NetnsError as exc:
+        raise NoRun(str(exc)) from None
+    if opts.container or not plant(opts.plant).hosts or opts.links == "emulated":
+        raise NoRun("--hosts netns runs one process per robot (no --container), the "
+                    "simulator as plant (--plant sim) and direct links (the links between "
+                    "robots are the network's; no --links emulated)")
+    problem = netns.support_problem()
+    if problem:
+        raise NoRun(f"--hosts netns: {problem}")
+    return faults
+
+
+def _mode_and_links(opts: LaunchOptions, hosts: bool) -> tuple[str, str]:
+    """The run's mode and links: refuses what a plant cannot do, fills in the defaults."""
+    row = plant(opts.plant)
+    pioneer = row.per_robot
+    links = "direct" if hosts else opts.links
+    if pioneer and (opts.mode not in (None, "wallclock") or links not in (None, "direct")):
+        raise NoRun(f"--plant {opts.plant} runs --mode wallclock with --links direct (real "
+                    f"robots have no simulated clock and no link emulator), got --mode "
+                    f"{opts.mode} --links {links}")
+    if opts.mode == "wallclock" and row.clock:
+        raise NoRun("--mode wallclock is for real robots: use it with --plant pioneer (or an "
+                    "external plant that samples on the wall clock); the simulator runs "
+                    "lockstep or realtime")
+    if opts.fake_drivers and row.driver != "pioneer":
+        raise NoRun("--fake-drivers goes with --plant pioneer")
+    if opts.physics_bases and row.driver != "base":
+        raise NoRun("--physics-bases goes with --plant base")
+    if opts.fake_drivers and opts.driver == "p2os2":
+        raise NoRun("--fake-drivers speak rosaria or ros2aria, not p2os2 (its p2os_msgs are "
+                    "not on PyPI)")
+    mode = opts.mode or ("wallclock" if pioneer else "lockstep")
+    return mode, links or ("direct" if pioneer or mode == "wallclock" else "emulated")
+
+
+def _out_folder(out: Path | None, sc: Scenario) -> Path:
+    """The output folder (made; absolute): ``out`` or runs/SCENARIO-launch-TIME."""
+    out = out or Path("runs") / f"{sc.name}-launch-{datetime.now():%Y%m%d-%H%M%S}"
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise NoRun(f"--out {out}: cannot create the folder: {exc.strerror}") from None
+    return out.resolve()
+
+
+def _resumed_at(out: Path, sc: Scenario) -> int:
+    """Iterations every robot has learned in the run in ``out``, decided before anything
+    of it changes: the leader's state and every robot's, read bounded, validated and
+    cross-checked (``formation_ilc.protocol.resume``), and its metrics.csv readable. NoRun
+    naming the file when they are damaged or disagree; with status 0 when every trial is
+    done."""
+    from formation_ilc.core.metrics import read_metrics
+    from formation_ilc.protocol.resume import ResumeError, resume_point
+    from formation_ilc.store.bounded import StateFileError, open_regular
+
+    try:
+        done = resume_point(out / "state", sc).committed
+    except ResumeError as exc:
+        raise NoRun(f"--resume: {exc}") from None
+    if done >= sc.trials:
+        raise NoRun(f"{out}: all {sc.trials} trials are done; nothing to resume", status=0)
+    path = out / "metrics.csv"
+    try:
+        # a few hundred bytes a row; a FIFO or a device is refused unread
+        with open_regular(path, 1024 * sc.trials + (1 << 20), "a metrics.csv") as fh:
+            present = fh is not None
+        if present:
+            read_metrics(path)
+    except (StateFileError, OSError, ValueError) as exc:
+        raise NoRun(f"--resume: {exc} (the run's metrics rows: restore the file, or move it "
+                    f"away to resume without them)") from None
+    return done
+
+
+def _run_json(opts: LaunchOptions, mode: str, links: str, out: Path,
+              clocks: ClockSettings) -> dict[str, Any]:
+    """The options ``--resume`` takes the run back with (paths as strings; the emulated
+    clocks' origin, so that a resumed run's robots keep their clocks)."""
+    d = {k: v for k, v in opts.stored().items() if k != "resume"}
+    d.update(mode=mode, links=links, out=str(out))
+    if clocks.emulated:
+        d["clock_origin_ns"] = clocks.origin_ns
+    return d
+
+
+def _clocks(opts: LaunchOptions, mode: str) -> ClockSettings:
+    """The run's clock settings (``--clock-offset-ms --clock-drift-ppm --no-clock-sync
+    --clock-fallback``); NoRun for emulated clocks in lockstep, where no clock is read."""
+    offset = float(opts.clock_offset_ms or 0.0)
+    drift = float(opts.clock_drift_ppm or 0.0)
+    if (offset or drift) and mode not in WALL_MODES:
+        which = "--clock-offset-ms" if offset else "--clock-drift-ppm"
+        raise NoRun(f"argument {which}: emulated clocks need --mode realtime or wallclock "
+                    f"(in lockstep every node runs on the simulated clock and no robot's own "
+                    f"clock is read)")
+    origin = opts.clock_origin_ns
+    try:
+        return ClockSettings(sync=not opts.no_clock_sync,
+                             fallback=opts.clock_fallback,
+                             offset_ms=offset, drift_ppm=drift,
+                             origin_ns=int(origin) if isinstance(origin, int) and (
+                                 offset or drift) else (time.time_ns() if offset or drift
+                                                        else 0))
+    except ValueError as exc:
+        raise NoRun(f"argument --clock-offset-ms/--clock-drift-ppm: {exc}") from None
+
+
+def _live(opts: LaunchOptions) -> tuple[str, int] | None:
+    """``--live [PORT]`` on ``--live-host``: refused (NoRun) without foxglove-sdk or when
+    the port is taken."""
+    import importlib.util
+    import socket
+
+    port = opts.live
+    if port is None:
+        return None
+    if importlib.util.find_spec("foxglove") is None:  # before anything starts, not 3 restarts
+        raise NoRun("argument --live: needs foxglove-sdk, the 'live' extra: pip install -c "
+                    "requirements.lock -e \".[live]\" (or pip install foxglove-sdk)")
+    host = opts.live_host or "127.0.0.1"
+    try:
+        with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as s:
+            s.bind((host, int(port)))
+    except OSError as exc:
+        raise NoRun(f"--live {port}: cannot serve on {host}:{port}: {exc.strerror}") from None
+    return host, int(port)
+
+
+def _live_rate(opts: LaunchOptions) -> float | None:
+    """``--live-rate HZ``: a rate >= 0 (NoRun otherwise, or without ``--live``)."""
+    rate = opts.live_rate
+    if rate is None:
+        return None
+    if opts.live is None:
+        raise NoRun("--live-rate: only with --live")
+    if not rate >= 0:
+        raise NoRun(f"--live-rate {rate}: a rate >= 0 messages a second is required")
+    return float(rate)
+
+
+def caller_domain() -> int | None:
+    """The caller's ``ROS_DOMAIN_ID`` (the launcher honours it), None when it is not set;
+    NoRun when it is not a domain id."""
+    text = os.environ.get("ROS_DOMAIN_ID", "").strip()
+    if not text:
+        return None
+    if not text.isdigit() or int(text) > 232:
+        raise NoRun(f"ROS_DOMAIN_ID={text[:20]!r}: a domain id 0..232 is required")
+    return int(text)
+
+
+def pick_domain() -> int:
+    """A ROS_DOMAIN_ID in 30..100, distinct per launcher process. The shared-memory locks
+    of Fast DDS name the domain port, so ids whose port files are held (another run on
+    this machine) are avoided."""
+    base = os.getpid() % 71
+    for off in range(71):
+        d = 30 + (base + off) % 71
+        port = 7400 + 250 * d
+        if not any(Path("/dev/shm").glob(f"fastrtps_port{port}*")):
+            return d
+    return 30 + base

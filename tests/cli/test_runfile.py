@@ -1,0 +1,214 @@
+"""Run files (formation_ilc.cli.runfile, formation_ilc.plan.options), without ROS: a run
+file written by ``run-file`` plans the run its options plan; a launch option beside it
+overrides its key; a misspelt key or a bad value is refused in one line naming the key;
+the resolved run file a launch keeps resumes the run, and so does a run.json of before."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import yaml
+
+from formation_ilc.cli.commands import build_parser, main
+from formation_ilc.cli.launch import _save_run
+from formation_ilc.cli.runfile import RUN_YAML, launch_options, plan_of
+from formation_ilc.plan.options import FIELD_KEYS, LaunchOptions, option_fields
+from formation_ilc.plan.specs import NoRun
+
+
+def options(*argv: str):
+    return build_parser().parse_args(["launch", *argv])
+
+
+def write_run_file(tmp_path, *argv: str, name: str = "run.yaml"):
+    path = tmp_path / name
+    assert main(["run-file", *argv, "-o", str(path)]) == 0
+    return path
+
+
+def same_run(a, b) -> None:
+    """Two plans of one run: the same configuration (but the run id) and processes."""
+    ja, jb = a.config.to_json(), b.config.to_json()
+    ja.pop("run_id"), jb.pop("run_id")
+    assert ja == jb
+    strip = {"run_id", "state_dir"}
+
+    def specs(plan):  # (the recording's path is the run folder's)
+        return [(s.name, s.module, s.args if s.name != "recorder" else (),
+                 tuple((k, v) for k, v in s.params if k not in strip)) for s in plan.nodes]
+
+    assert specs(a) == specs(b)
+
+
+def test_every_launch_option_is_a_field_with_the_parsers_declared_default():
+    from formation_ilc.cli.launchargs import add_arguments
+    from formation_ilc.cli.options import OneLineParser
+
+    p = OneLineParser(add_help=False)
+    add_arguments(p)
+    defaults = LaunchOptions()
+    for action in p._actions:
+        assert action.dest in option_fields(), action.dest
+        want = getattr(defaults, action.dest)
+        got = action.default
+        assert (tuple(got) if isinstance(got, list) else got) == want, action.dest
+    # every field but the --resume folder, the hosts and this launcher's host has a key
+    assert set(option_fields()) - set(FIELD_KEYS) == {"resume", "host_members", "host",
+                                                      "scenario_text"}
+
+
+def test_a_written_run_file_plans_the_run_its_options_plan(tmp_path):
+    argv = ("paper-triangle3", "--trials", "3", "--seed", "5", "--links", "direct",
+            "--record", str(tmp_path / "rec.mcap"))
+    path = write_run_file(tmp_path, *argv)
+    text = path.read_text()
+    assert "# --seed: random seed" in text and "  seed: 5\n" in text
+    assert "record: rec.mcap" in text  # relative to the run file's folder
+    direct = plan_of(options(*argv, "--out", str(tmp_path / "a")))
+    from_file = plan_of(options(str(path), "--out", str(tmp_path / "b")))
+    same_run(direct, from_file)
+    assert from_file.record == (tmp_path / "rec.mcap").resolve()
+    # an option given beside the run file overrides its key
+    seven = launch_options(options(str(path), "--seed", "7"))
+    assert seven.seed == 7 and seven.trials == 3 and seven.links == "direct"
+
+
+def test_host_per_robot_puts_each_robot_on_its_host_and_the_rest_on_ground(tmp_path):
+    path = write_run_file(tmp_path, "paper-triangle3", "--host-per-robot")
+    hosts = yaml.safe_load(path.read_text())["hosts"]
+    assert hosts == {"ground": ["monitor", "virtual_leader", "robot_sim", "link_emulator"],
+                     "r1": ["robot_1"], "r2": ["robot_2"], "r3": ["robot_3"]}
+    plan = plan_of(options(str(path), "--out", str(tmp_path / "run")))
+    assert dict(plan.host_members)["r2"] == ("robot_2",)
+    # bridges and fake drivers go with their robot
+    path = write_run_file(tmp_path, "paper-triangle3", "--plant", "pioneer", "--fake-drivers",
+                          "--allow-contact", "--host-per-robot", name="p.yaml")
+    hosts = yaml.safe_load(path.read_text())["hosts"]
+    assert hosts["ground"] == ["monitor", "virtual_leader"]
+    assert hosts["r1"] == ["fake_pioneer_1", "bridge_1", "robot_1"]
+
+
+@pytest.mark.parametrize("edit, line", [
+    (lambda d: d["safety"].update(margn=0.2),
+     "safety.margn: unknown key (did you mean 'margin'?)"),
+    (lambda d: d.update(trails=3), "trails: unknown key (did you mean 'trials'?)"),
+    (lambda d: d.update(safty={}), "safty: unknown key (did you mean 'safety'?)"),
+    (lambda d: d["safety"].update(margin=-1),
+     "safety.margin: must be a finite number >= 0, got -1"),
+    (lambda d: d["plant"].update(kind="simm"),
+     "plant.kind: invalid choice: 'simm' (choose from sim, physics, external, pioneer, base)"
+     " (did you mean 'sim'?)"),
+    (lambda d: d["run"].update(noise="no"), "run.noise: expected true or false, got 'no'"),
+    (lambda d: d.update(hosts={"ground": ["virtual_leader", "robot_sim", "link_emulator",
+                                          "robot_1", "robot_2", "robot_3"]}),
+     "hosts: monitor on no host (every member of the run on one)"),
+    (lambda d: d.update(hosts={"ground": ["monitor", "virtual_leader", "robot_sim",
+                                          "link_emulator", "robot_1", "robot_2", "robot_3",
+                                          "robot_4"]}),
+     "hosts: ground: 'robot_4' is no member of this run"),
+])
+def test_a_bad_run_file_is_refused_in_one_line_naming_the_key(tmp_path, capsys, edit, line):
+    path = write_run_file(tmp_path, "paper-triangle3")
+    d = yaml.safe_load(path.read_text())
+    edit(d)
+    path.write_text(yaml.safe_dump(d))
+    capsys.readouterr()
+    assert main(["launch", str(path), "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("error: ") and line in err, err
+    assert not (tmp_path / "run" / "logs").exists()  # nothing started
+
+
+def test_the_resolved_run_file_resumes_and_relaunches_the_run(tmp_path):
+    first = plan_of(options("paper-triangle3", "--trials", "4", "--seed", "2", "--out",
+                            str(tmp_path / "a"), "--record", str(tmp_path / "a" / "r.mcap")))
+    _save_run(first.out, first.run_json)
+    stored = first.out / RUN_YAML
+    text = stored.read_text()
+    assert "record: '@run/r.mcap'" in text and f"id: {first.config.run_id}" in text
+    assert "mode: lockstep" in text  # resolved: every default filled in
+    resumed = plan_of(options("--resume", str(first.out)))
+    assert resumed.config.to_json() == first.config.to_json()  # the same run id too
+    # launched as a run file: the same run, a new one (its own id, its own recording)
+    again = plan_of(options(str(stored), "--out", str(tmp_path / "b")))
+    same_run(first, again)
+    assert again.config.run_id != first.config.run_id
+    assert again.record == (tmp_path / "b" / "r.mcap").resolve()
+    # a run.json of a launch before run files resumes it as well
+    stored.unlink()
+    legacy = plan_of(options("--resume", str(first.out)))
+    assert legacy.config.to_json() == first.config.to_json()
+
+
+def test_the_options_value_is_frozen_and_typed():
+    opts = launch_options(options("paper-triangle3", "--plant-nodes", "a", "b",
+                                  "--init-memory", "m.npz"))
+    assert opts.plant_nodes == ("a", "b") and opts.init_memory is not None
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        opts.seed = 3  # type: ignore[misc]
+    with pytest.raises(NoRun, match="no run.yaml or run.json there"):
+        plan_of(options("--resume", "/nonexistent-run-folder-38"))
+
+
+@pytest.mark.parametrize("argv, line", [
+    (("--params-file", "p.yaml"), "argument --params-file: --plant sim does not use it (it "
+                                  "goes with --plant pioneer or base)"),
+    (("--base", "jackal"), "argument --base: --plant sim does not use it (it goes with "
+                           "--plant base)"),
+    (("--v-max", "0.5"), "argument --v-max: --plant sim does not use it"),
+    (("--tilt-limit", "5"), "argument --tilt-limit: --plant sim does not use it (it goes "
+                            "with --plant physics: its bodies tilt)"),
+    (("--on-contact", "abort"), "argument --on-contact: --plant sim does not use it"),
+])
+def test_an_option_the_plant_does_not_use_is_refused(tmp_path, argv, line):
+    with pytest.raises(NoRun) as info:
+        plan_of(options("paper-triangle3", *argv, "--out", str(tmp_path / "run")))
+    assert info.value.status == 2 and info.value.message.startswith(line)
+
+
+def test_keystore_create_of_a_run_file_writes_one_bundle_per_host(tmp_path):
+    pytest.importorskip("cryptography")
+    from formation_ilc.store.keystore import verify
+
+    path = write_run_file(tmp_path, "paper-triangle3", "--host-per-robot")
+    ks = tmp_path / "keys"
+    assert main(["keystore", "create", str(ks), str(path), "--days", "2"]) == 0
+    held = {h: sorted(str(p.relative_to(ks / "bundles" / h / "enclaves"))
+                      for p in (ks / "bundles" / h / "enclaves").glob("*/*"))
+            for h in ("ground", "r1", "r2", "r3")}
+    assert held["r2"] == ["formation/robot_2"]
+    assert held["ground"] == ["formation/link_emulator", "formation/monitor",
+                              "formation/robot_sim", "formation/virtual_leader"]
+    for h in held:  # the CA's certificate, never its key
+        assert (ks / "bundles" / h / "public" / "ca.cert.pem").is_file()
+        assert not (ks / "bundles" / h / "private").exists()
+    verify(ks / "bundles" / "r2", ["/formation/robot_2"])
+    # a host launcher refuses a member whose enclave its bundle does not hold, naming it
+    with pytest.raises(NoRun, match=r"--secure: .*formation/robot_2: missing: no enclave "
+                                    r"for node /formation/robot_2"):
+        plan_of(options(str(path), "--host", "r2", "--secure", str(ks / "bundles" / "r1")))
+
+
+def test_a_scenario_written_in_the_run_file_is_kept_in_the_runs_folder(tmp_path):
+    from formation_ilc.config.scenario import load_scenario
+
+    path = write_run_file(tmp_path, "paper-triangle3", "--trials", "2")
+    d = yaml.safe_load(path.read_text())
+    d["scenario"] = yaml.safe_load(load_scenario("paper-triangle3").text)
+    path.write_text(yaml.safe_dump(d))
+    inline = plan_of(options(str(path), "--out", str(tmp_path / "a")))
+    named = plan_of(options("paper-triangle3", "--trials", "2", "--out", str(tmp_path / "b")))
+    assert inline.scenario.name == "paper-triangle3" and inline.scenario.trials == 2
+    assert np.array_equal(inline.scenario.desired.eta, named.scenario.desired.eta)
+    kept = tmp_path / "a" / "scenario.yaml"
+    assert kept.is_file() and dict(params(inline, "virtual_leader"))["scenario"] == str(kept)
+    # a bad one is refused as a scenario file is
+    d["scenario"]["robots"] = 0
+    path.write_text(yaml.safe_dump(d))
+    assert main(["launch", str(path), "--out", str(tmp_path / "c")]) == 2
+
+
+def params(plan, name):
+    return next(s.params for s in plan.nodes if s.name == name)
