@@ -22,7 +22,7 @@ def _safety(opts: LaunchOptions, row: Plant, sc: Scenario, namespace: str,
     bodies: the plant table's ``bodies``): the body its robots have and the limits it
     keeps (the physics model's, the bridges' as they will read them, the base preset's),
     or None."""
-    on = getattr(opts, "safety", None)
+    on = opts.safety
     if on is None:
         on = row.bodies
     if not on:
@@ -32,7 +32,7 @@ def _safety(opts: LaunchOptions, row: Plant, sc: Scenario, namespace: str,
     from formation_ilc.model.physics import MODELS
     from formation_ilc.protocol.bridge import bridge_limits
 
-    body = getattr(opts, "body", None)
+    body = opts.body
     if row.entry is None:  # an external plant
         raise NoRun("--safety: with --plant external the launcher knows neither the robots' "
                     "bodies nor their limits; run the filter on the plant's side")
@@ -67,10 +67,10 @@ def _safety(opts: LaunchOptions, row: Plant, sc: Scenario, namespace: str,
             limits = limits.tighter(lim)
     limits = limits.tighter(Limits())
     try:
-        margin = getattr(opts, "safety_margin", None)
+        margin = opts.safety_margin
         return SafetySettings(body, limits,
                               default_margin(body) if margin is None else float(margin),
-                              getattr(opts, "safety_learning", None)
+                              opts.safety_learning
                               or default_learning(body),
                               "peers" if row.per_robot else "team")
     except ValueError as exc:
@@ -133,7 +133,7 @@ def _check_plant(opts: LaunchOptions, row: Plant, sc: Scenario, namespace: str,
     line, covered = _contact_line(opts, sc, bridge, physics, safety)
     if line is None:
         return (*notes, covered)
-    if getattr(opts, "allow_contact", False):
+    if opts.allow_contact:
         return (*notes, f"warning: {line}; running anyway (--allow-contact)")
     raise NoRun(f"{line}; put the robots through the safety filter (--safety), start from "
                 f"a learned memory (--init-memory, see docs/physics.md), widen the "
