@@ -95,6 +95,11 @@ def _add_simulate(sub: Any) -> None:
                    default=None,
                    help="with --safety: how the memory learns where the filter changed a "
                         "command (docs/safety.md)")
+    p.add_argument("--safety-age", type=nonneg_float, default=0.0, metavar="S",
+                   help="with --safety: how old [s] the other robots' poses are when a robot "
+                        "filters (default 0, lockstep); robots in real time on the wall "
+                        "clock hear each other a sample late: the memory is then learned "
+                        "through the filter they will run")
     p.add_argument("--out", type=out_dir_arg, metavar="DIR",
                    help="output folder (default: runs/SCENARIO-LAW-MEMORY-TIME)")
 
@@ -337,7 +342,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             res = simulate(sc, keep=keep, progress=on_trial, initial_memory=init,
                            first_trial=first, on_trial_data=on_data, plant=plant,
                            stop_on_divergence=True, on_memory=keeper.update,
-                           store_metrics=False, safety=safety)
+                           store_metrics=False, safety=safety,
+                           safety_age=args.safety_age if safety is not None else 0.0)
         keeper.save()
     except DivergedError as exc:
         saved = keeper.save()
