@@ -106,15 +106,14 @@ def _run_members(plan: RunPlan, ground: dict[str, Any], stop: list[int],
     """Run this host's members in the ground station's run ``ground`` until it ends (0),
     a member fails for good (its status), this launcher is interrupted (130), or another
     run replaces it (None)."""
-    from formation_ilc.cli.launch import _node_env
-    from formation_ilc.cli.supervisor import Supervisor
+    from formation_ilc.cli.supervisor import Supervisor, node_env
 
     host, path = plan.host or "", ground_file(plan)
     plan = with_ground(plan, str(ground["run_id"]), int(ground["domain"]),
                        bytes.fromhex(str(ground["key"])))
     if plan.secure is not None:
         plan.secure.write_profile()
-    supervisor = Supervisor(plan, _node_env(plan))
+    supervisor = Supervisor(plan, node_env(plan))
     supervisor.start()
     print(f"host {host}: started {', '.join(s.name for s in plan.nodes)} on ROS_DOMAIN_ID="
           f"{plan.domain} for run {plan.config.run_id} (logs and state in {plan.out})",

@@ -83,6 +83,7 @@ from formation_ilc.cli.supervisor import (
     Supervisor,
     disk_full_line,
     metrics_rows,
+    node_env,
     resume_hint,
     trial_ranges,
 )
@@ -165,7 +166,7 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
     plan.write_peers_profile()  # before the secure one, which builds on it
     if plan.secure is not None:
         plan.secure.write_profile()
-    env = _node_env(plan)
+    env = node_env(plan)
     # Fast DDS files that nodes killed earlier left behind (held by no process)
     stale = clean_leftovers(min_age=2.0)
     if stale:
@@ -317,26 +318,6 @@ def _save_config(plan: RunPlan) -> None:
 
     atomic_write_text(plan.out / CONFIG_FILE, json.dumps(
         plan.config.to_json() | {"namespace": plan.namespace}) + "\n")
-
-
-def _node_env(plan: RunPlan) -> dict[str, str]:
-    """The environment of every node process: this one's, on the plan's domain."""
-    from formation_ilc.nodes.common import KEY_ENV, RUN_ENV
-    from formation_ilc.system.lifetime import PARENT_ENV
-
-    env = dict(os.environ)
-    env["ROS_DOMAIN_ID"] = str(plan.domain)
-    if plan.discovery == "localhost":
-        env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    if plan.peers_profile is not None:  # a secure run's profile, built on it, comes later
-        env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(plan.peers_profile)
-    env["PYTHONUNBUFFERED"] = "1"
-    env[PARENT_ENV] = str(os.getpid())  # every node ends with this launcher
-    env[RUN_ENV] = plan.config.run_id  # and takes only this run's configuration
-    env.pop(KEY_ENV, None)
-    if plan.key is not None:  # and only the events this run's leader sealed
-        env[KEY_ENV] = plan.key.hex()
-    return env
 
 
 def _rewrite_metrics(path: Path, kept: list[Any]) -> None:

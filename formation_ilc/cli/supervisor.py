@@ -314,3 +314,24 @@ def disk_full_line(who: str, filename: str | None, out: Path) -> str:
             f"{out / 'metrics.csv'} with {len(metrics_rows(out))} trials and the state of "
             f"every trial learned ({out / 'state'}); free some space, then: "
             f"{resume_hint(out)}")
+
+
+def node_env(plan: RunPlan) -> dict[str, str]:
+    """The environment of every node process of ``plan`` (``plan.specs.RunPlan``): this
+    one's, on the plan's domain, bound to this launcher and to the run."""
+    from formation_ilc.nodes.common import KEY_ENV, RUN_ENV
+    from formation_ilc.system.lifetime import PARENT_ENV
+
+    env = dict(os.environ)
+    env["ROS_DOMAIN_ID"] = str(plan.domain)
+    if plan.discovery == "localhost":
+        env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    if plan.peers_profile is not None:  # a secure run's profile, built on it, comes later
+        env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(plan.peers_profile)
+    env["PYTHONUNBUFFERED"] = "1"
+    env[PARENT_ENV] = str(os.getpid())  # every node ends with this launcher
+    env[RUN_ENV] = plan.config.run_id  # and takes only this run's configuration
+    env.pop(KEY_ENV, None)
+    if plan.key is not None:  # and only the events this run's leader sealed
+        env[KEY_ENV] = plan.key.hex()
+    return env

@@ -138,7 +138,8 @@ def test_an_initial_memory_reaches_every_robot_by_its_absolute_path(tmp_path, mo
     (["--mode", "wallclock"], "--mode wallclock is for real robots: use it with --plant "
                               "pioneer"),
     (["--fake-drivers"], "--fake-drivers goes with --plant pioneer"),
-    (["--lifecycle"], "argument --lifecycle: --plant sim does not use it (it goes with --plant pioneer or base)"),
+    (["--lifecycle"], "argument --lifecycle: --plant sim does not use it (it goes with "
+                      "--plant pioneer or base)"),
     (["--plant", "pioneer", "--fake-drivers", "--driver", "p2os2"],
      "--fake-drivers speak rosaria or ros2aria, not p2os2"),
     (["--max-restarts", "-1"], "--max-restarts must be >= 0"),

@@ -94,9 +94,9 @@ def test_a_50_robot_launch_lists_every_participant_and_a_6_robot_one_does_not(
     assert big.peers_profile == big.out / "fastdds-discovery.xml" and big.peers_base is None
     big.write_peers_profile()
     assert len(peers(big.peers_profile.read_text())) == 53 + MARGIN
-    from formation_ilc.cli.launch import _node_env
+    from formation_ilc.cli.supervisor import node_env
 
-    env = _node_env(big)
+    env = node_env(big)
     assert env["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(big.peers_profile)
     assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
     # container mode: few processes, nothing to add; --discovery inherit: the caller's
