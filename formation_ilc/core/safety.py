@@ -74,7 +74,7 @@ from formation_ilc.core._jit import njit
 from formation_ilc.core.limits import Limits
 
 __all__ = ["SafetySpec", "LEARNING", "CHANGED_LIMITS", "CHANGED_BARRIER", "INFEASIBLE",
-           "filter_command", "filter_team", "motion", "closing_speed", "learn_base", "DAMPING",
+           "filter_command", "filter_team", "motion", "learn_base", "DAMPING",
            "freeze_flagged", "learning_code", "PARAMS", "MAX_DISCS"]
 
 #: how the memory learns at samples the filter changed
@@ -177,23 +177,6 @@ class SafetySpec:
                          lim.v_max, lim.omega_max, lim.a_max, lim.alpha_max, self.dt,
                          self.stale_speed, self.weight, self.speed_uncertainty, self.brake_share,
                          0.5 * max(self.window - 1, 0) * self.dt, *self.discs])
-
-
-@njit(cache=True)
-def closing_speed(share: float, gamma: float, dt: float, a_brake: float) -> float:
-    """The fastest a robot may close in on a standing obstacle [m/s] when ``share`` [m] of
-    the gap is its own: it may use up ``gamma`` of it in the next sample, and must still
-    be able to stop within it, braking at ``a_brake`` [m/s^2] in steps of a_brake dT held
-    for a sample each after holding this command for ``dt``: w (1.5 dT) + w^2 / (2 a) <=
-    share. A gap already used up (share <= 0) allows no closing at all. (A bound for
-    reports and checks; the filter itself keeps ``pair_slack``'s invariant.)"""
-    if share <= 0.0:
-        return 0.0
-    w = gamma * share / dt
-    if a_brake < 1e12:
-        lag = 1.5 * dt
-        w = min(w, a_brake * (math.sqrt(lag * lag + 2.0 * share / a_brake) - lag))
-    return w
 
 
 @njit(cache=True)

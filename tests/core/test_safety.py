@@ -22,7 +22,6 @@ from formation_ilc.core.safety import (
     INFEASIBLE,
     PARAMS,
     SafetySpec,
-    closing_speed,
     filter_command,
     freeze_flagged,
     learn_base,
@@ -181,20 +180,6 @@ def test_without_braking_room_the_robot_brakes_as_hard_as_it_can():
     out, flags = run(sp, (0.9, 0.0), (0.0, 0.0, 0.0), (0.9, 0.0), [0.5, 0.0, math.pi, 0, 0, 0])
     assert flags & INFEASIBLE
     assert out[0] == pytest.approx(0.9 - 0.3 * 0.2)
-
-
-def test_closing_speed_lets_a_robot_stop_within_its_share():
-    dt, a = 0.2, 0.3
-    for share in (0.01, 0.1, 0.5, 2.0):
-        w = closing_speed(share, 1.0, dt, a)
-        assert 1.5 * w * dt + w * w / (2 * a) <= share + 1e-12
-        # braking in steps of a dT from w, after one sample at w, stays within the share
-        v, covered = w, w * dt
-        while v > 0:
-            v = max(0.0, v - a * dt)
-            covered += v * dt
-        assert covered <= share + 1e-12
-    assert closing_speed(-0.1, 1.0, dt, a) == 0.0
 
 
 def test_a_receding_robot_leaves_room():
