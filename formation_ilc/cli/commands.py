@@ -121,9 +121,10 @@ def _add_check(sub: Any) -> None:
                    help="check the delay-free configuration (as run with --no-delay)")
     p.add_argument("--base", choices=(*BODIES, "none"), default="p3dx",
                    help="the robots the desired motion must fit: their speed and "
-                        "acceleration limits (a physics model's maker's, else the base "
-                        "preset's) and their body for the safety filter (default p3dx, the "
-                        "paper's Pioneer 3-DX; none: check the learning only)")
+                        "acceleration limits (the base's row of the one limits table the "
+                        "bridges, the physics models and the filter read) and their body "
+                        "for the safety filter (default p3dx, the paper's Pioneer 3-DX; "
+                        "none: check the learning only)")
     p.add_argument("--headings", choices=("auto", "chord", "arc"), default="arc",
                    help="the desired headings the motion is checked with (default arc: "
                         "robots that drive arcs)")
@@ -285,22 +286,14 @@ def cmd_check(args: argparse.Namespace) -> int:
 def _motion_check(args: argparse.Namespace, sc: Scenario) -> list[str]:
     """``check``'s look at the desired motion: every robot's peaks, printed; what does
     not fit ``--base`` (its limits, its body under the safety filter), returned."""
-    from formation_ilc.config.bases import fit_limits
-    from formation_ilc.config.safety import SafetySettings, default_margin
-    from formation_ilc.model.safety import (
-        body_limits,
-        desired_clearance,
-        desired_through_filter,
-        motion_peaks,
-        spec_of,
-        what_fits,
-    )
+    from formation_ilc.model.safety import motion_fit, motion_peaks, what_fits
 
     if args.base == "none":
         return []
     moved = sc.with_options(headings=args.headings, time_scale=args.time_scale)
     body = args.base
-    limits = body_limits(body)
+    fit = motion_fit(moved, body)
+    limits = fit.limits
     print(f"desired motion ({args.headings} headings"
           + (f", time scale {moved.time_scale:g}" if moved.time_scale != 1 else "")
           + f"; {body}: v <= {limits.v_max:g} m/s, omega <= {limits.omega_max:.3g} rad/s, "
@@ -308,20 +301,18 @@ def _motion_check(args: argparse.Namespace, sc: Scenario) -> list[str]:
     for p in motion_peaks(moved):
         print(f"  {p.line(moved.dt)}")
     problems = []
-    line = fit_limits(moved, [limits] * moved.n)
-    if line is not None:
-        problems.append(f"{body}: {line}")
-    spec = spec_of(SafetySettings(body, limits, default_margin(body)), moved.dt)
-    dc = desired_clearance(moved, spec)
+    if fit.limits_line is not None:
+        problems.append(f"{body}: {fit.limits_line}")
+    dc = fit.clearance
     print(f"  closest robots: {dc.line(moved.dt)}")
-    if not dc.fits:
+    if fit.through is None:
         problems.append(f"{body}: {dc.line(moved.dt)}: the safety filter would hold the "
                         f"robots off their formation; widen the offsets")
         return problems
-    through = desired_through_filter(moved, spec)
+    through = fit.through
     print(f"  {through.line(moved.dt)}")
     if not through.passes:
-        scale, spread = what_fits(moved, spec)
+        scale, spread = what_fits(moved, fit.spec)
         fixes = [f"--time-scale {moved.time_scale * scale:g} (slower)" if scale else "",
                  f"the formation's offsets x {spread:g} (wider)" if spread else ""]
         fix = " or ".join(f for f in fixes if f) or "no time scale up to 4 nor spread up to 2"

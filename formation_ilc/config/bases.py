@@ -20,6 +20,12 @@ Sizes (length x width): the same manufacturers' specifications.
 * p3dx (Pioneer 3-DX through this package's RosAria bridge): the bridge's defaults
   0.75 m/s and 100 deg/s (inside the robot's 1.2 m/s and 300 deg/s); ARIA's default
   accelerations 0.3 m/s^2 and 100 deg/s^2.
+
+This is the one limits table of a base: the bridges hold a preset's ``limits``, ``check
+--base`` and the launcher check a scenario against them, the safety filter keeps them, and
+the physics models of the same base (``model.physics.MODELS``: p3dx, husky, husky-imu)
+enforce them on every command. ``hardware`` keeps the maker's maxima, for the record: no
+part of the stack drives a base up to them.
 """
 
 from __future__ import annotations
@@ -49,6 +55,17 @@ class BasePreset:
     cmd_type: str = "twist"
     odom_topic: str = "odom"
     source: str = ""
+    #: the maker's maxima, where they are wider than ``limits`` (None: the same)
+    hardware: Limits | None = None
+
+    @property
+    def limits_line(self) -> str:
+        """The limits and where they come from, for a refusal: 'p3dx: 0.75 m/s, 100 deg/s,
+        0.3 m/s^2, 100 deg/s^2 (this package's Pioneer bridge; ARIA)'."""
+        v, w, a, al = self.limits.as_tuple()
+        return (f"{self.name}: {v:g} m/s, {math.degrees(w):.0f} deg/s, {a:g} m/s^2, "
+                f"{math.degrees(al):.0f} deg/s^2 "
+                f"({self.source})")
 
 
 BASES: dict[str, BasePreset] = {
@@ -69,7 +86,8 @@ BASES: dict[str, BasePreset] = {
                         odom_topic="platform/odom", source="husky_control control.yaml"),
     "p3dx": BasePreset("p3dx", Limits(0.75, math.radians(100), 0.3, math.radians(100)),
                        (0.455, 0.381),
-                       odom_topic="pose", source="this package's Pioneer bridge; ARIA"),
+                       odom_topic="pose", source="this package's Pioneer bridge; ARIA",
+                       hardware=Limits(1.2, math.radians(300), 0.3, math.radians(100))),
 }
 
 

@@ -91,8 +91,9 @@ class RobotModel:
     calibrated for skid steer). torque [N m]: each wheel motor's limit. tracked [m]: the
     tracked point's distance ahead of the base origin. footprint: the body, about the
     tracked point. caster: links whose friction is removed (a caster swivels freely).
-    limits: the maker's speed and acceleration limits, which the world enforces on every
-    command (``PhysicsWorld.step``) as the robot's own controller does.
+    base: the base preset (``config.bases``) whose speed and acceleration limits the world
+    enforces on every command (``PhysicsWorld.step``) as the robot's own controller does:
+    the one table the bridges, ``check`` and the safety filter read too (``limits``).
     """
 
     name: str
@@ -110,14 +111,29 @@ class RobotModel:
     spawn_z: float = 0.0
     source: str = ""
     geometric_track: float = field(default=0.0)
-    limits: Limits = field(default_factory=Limits)
-    limits_source: str = ""
+    #: the base whose limits the world enforces on every command, from the one table of
+    #: ``config.bases.BASES`` (what the bridges, ``check`` and the safety filter read)
+    base: str = ""
     #: velocity loops on the base (the body's speed and turn rate, as an IMU-fused odometry
     #: gives them, fed back at SENSE_RATE): the wheel speeds' mean and difference are
     #: corrected by a proportional and an integral term of gain ``yaw_loop`` [1/s] on the
     #: errors, so that the body drives and turns as commanded whatever its wheels slip
     #: (what a skid-steer base's controller with an IMU can do); 0: open loop
     yaw_loop: float = 0.0
+
+    @property
+    def limits(self) -> Limits:
+        """The speed and acceleration limits of the model's base (``config.bases``)."""
+        from formation_ilc.config.bases import base_preset
+
+        return base_preset(self.base).limits
+
+    @property
+    def limits_source(self) -> str:
+        """The limits and where they come from, in one line."""
+        from formation_ilc.config.bases import base_preset
+
+        return base_preset(self.base).limits_line
 
 
 MODELS: dict[str, RobotModel] = {
@@ -127,9 +143,7 @@ MODELS: dict[str, RobotModel] = {
         footprint=footprint_of("p3dx"), mass=9.0, caster=("caster_link",),
         spawn_z=0.002, geometric_track=0.33,
         source="Pioneer 3-DX datasheet dimensions; boxes and cylinders of this package",
-        limits=Limits(1.2, math.radians(300), 0.3, math.radians(100)),
-        limits_source="Pioneer 3-DX datasheet: 1.2 m/s, 300 deg/s; ARIA's default "
-                      "accelerations 0.3 m/s^2, 100 deg/s^2 (TransAccel, RotAccel)"),
+        base="p3dx"),
     # track and tracked point of both: ``calibrate`` at 240 Hz (docs/physics.md has the runs)
     "husky": RobotModel(
         "husky", "pybullet_data:husky/husky.urdf",
@@ -137,9 +151,7 @@ MODELS: dict[str, RobotModel] = {
         wheel_radius=0.17775, track=1.5, torque=30.0, tracked=-0.17,
         footprint=footprint_of("husky"), mass=44.0, spawn_z=0.02,
         geometric_track=0.5708, source="pybullet_data husky/husky.urdf (Clearpath Husky)",
-        limits=Limits(1.0, 2.0, 3.0, 6.0),
-        limits_source="Husky datasheet 1.0 m/s; husky_control control.yaml: 2.0 rad/s, "
-                      "3.0 m/s^2, 6.0 rad/s^2"),
+        base="husky"),
 }
 
 

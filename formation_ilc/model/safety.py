@@ -29,7 +29,8 @@ from formation_ilc.model.footprint import Footprint, footprint_of
 
 __all__ = ["MARGIN", "DISCS", "spec_for", "spec_of", "body_limits", "sensing_radius",
            "DesiredClearance", "desired_clearance", "MotionPeaks", "motion_peaks",
-           "DesiredThroughFilter", "desired_through_filter", "what_fits", "TOLERANCE"]
+           "DesiredThroughFilter", "desired_through_filter", "what_fits", "TOLERANCE",
+           "MotionFit", "motion_fit"]
 
 #: [m] added to two disc radii: the least gap the filter keeps between two bodies'
 #: covering discs (it covers the discs' excess over the rectangle, the arcs a robot drives
@@ -275,3 +276,40 @@ def what_fits(sc: Scenario, spec: SafetySpec) -> tuple[float | None, float | Non
                    if desired_through_filter(replace(sc, offsets=sc.offsets * k),
                                              spec).passes), None)
     return scale, spread
+
+
+@dataclass(frozen=True)
+class MotionFit:
+    """What ``check --base BODY`` asks of a scenario's desired motion (``motion_fit``): the
+    base's limits (one table, ``config.bases``), the line saying where the motion leaves
+    them (None: it fits), the least distance of two robots' discs against the filter's,
+    and the motion through the filter (None when the discs already come too close)."""
+
+    body: str
+    limits: Limits
+    spec: SafetySpec
+    limits_line: str | None
+    clearance: DesiredClearance
+    through: DesiredThroughFilter | None
+
+    @property
+    def fits(self) -> bool:
+        return (self.limits_line is None and self.clearance.fits
+                and self.through is not None and self.through.passes)
+
+
+def motion_fit(sc: Scenario, body: str, noise: Uncertainty | None = None) -> MotionFit:
+    """``sc``'s desired motion (arc headings where 'auto') against ``body`` robots: inside
+    the base's limits, its bodies kept the filter's distance apart, and let through the
+    filter unchanged, for poses as noisy as ``noise`` (None: exact poses). The one test
+    ``check --base`` and the generated families (``studies.families``) both apply."""
+    from formation_ilc.config.bases import fit_limits
+    from formation_ilc.config.safety import default_margin
+
+    sc = sc.for_plant("arc")
+    limits = body_limits(body)
+    spec = spec_of(SafetySettings(body, limits, default_margin(body)), sc.dt, noise)
+    line = fit_limits(sc, [limits] * sc.n)
+    clearance = desired_clearance(sc, spec)
+    through = desired_through_filter(sc, spec) if clearance.fits else None
+    return MotionFit(body, limits, spec, line, clearance, through)

@@ -46,18 +46,18 @@ def _safety(opts: LaunchOptions, row: Plant, sc: Scenario, namespace: str,
                         "distance only between poses it can trust; give the robots poses "
                         "from motion capture or a localiser (--pose truth), or --no-safety")
         body = physics.model
-        limits = MODELS[body].limits
+    elif bridge is not None and physics is None:
+        # the bridges' base (a Pioneer driver's without a preset)
+        body = bridge.base or "p3dx"
     else:
         body = body or "p3dx"
-        limits = MODELS[body].limits if body in MODELS else BASES[body].limits
+    # the one limits table (config.bases), which the physics models read too
+    limits = MODELS[body].limits if body in MODELS else BASES[body].limits
     if bridge is not None:
         # the bridges' limits, as they will read them; a Pioneer's acceleration is ARIA's
         base = bridge.base
         if base is None:
-            body = "p3dx" if physics is None else body
             limits = limits.tighter(BASES["p3dx"].limits)
-        elif physics is None:
-            body = base
         try:
             held = limits_from_params(bridge_limits(base), sc.n, _params_file(bridge),
                                       dict(bridge.limits), namespace)

@@ -44,11 +44,11 @@ __all__ = ["CommandLimits", "Watchdog", "compose", "odom_to_world", "wrap",
            "PIONEER_OMEGA_MAX", "Bridge", "BridgeTick", "Returned", "IDLE", "TRIAL", "RETURN",
            "bridge_limits"]
 
-# Pioneer 3-DX specification (Adept MobileRobots data sheet): max forward speed 1.2 m/s,
-# rotation 300 deg/s. The defaults stay well inside: |v| <= 0.75 m/s, |omega| <= 100 deg/s
-# (the drivers' own defaults are of that order; paper-triangle3 needs at most ~0.5 m/s).
-PIONEER_V_MAX = 0.75                     # [m/s]
-PIONEER_OMEGA_MAX = math.radians(100.0)  # [rad/s]
+# A Pioneer driver's limits: the p3dx row of the one limits table (config.bases): |v| <=
+# 0.75 m/s, |omega| <= 100 deg/s, well inside the robot's 1.2 m/s and 300 deg/s (the
+# drivers' own defaults are of that order; paper-triangle3 needs at most ~0.5 m/s)
+PIONEER_V_MAX = base_preset("p3dx").limits.v_max            # [m/s]
+PIONEER_OMEGA_MAX = base_preset("p3dx").limits.omega_max    # [rad/s]
 
 Pose = tuple[float, float, float]
 

@@ -33,10 +33,11 @@ from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
+import yaml
 
 from formation_ilc.config.scenario import Scenario, scenario_from_data
 
-__all__ = ["KINDS", "scenario_data", "family_scenario", "family", "DT", "SAMPLES"]
+__all__ = ["KINDS", "scenario_data", "draw", "family_scenario", "family", "DT", "SAMPLES"]
 
 KINDS = ("crossing", "following", "swapping")
 DT = 0.2
@@ -176,22 +177,19 @@ def fits(sc: Scenario, body: str = "p3dx") -> bool:
     robot's desired motion inside the base's limits, its bodies kept apart by the filter's
     distance along the desired motion, and that motion let through the filter unchanged
     (for poses as noisy as the scenario's)."""
-    from formation_ilc.config.safety import SafetySettings, default_margin
-    from formation_ilc.core.limits import check_inputs
-    from formation_ilc.model.safety import (
-        body_limits,
-        desired_clearance,
-        desired_through_filter,
-        spec_of,
-    )
+    from formation_ilc.model.safety import motion_fit
 
-    lim = body_limits(body)
-    spec = spec_of(SafetySettings(body=body, limits=lim, margin=default_margin(body)), sc.dt,
-                   sc.uncertainty)
-    u = sc.for_plant("arc").desired.u
-    if check_inputs(u, sc.dt, [lim] * sc.n):
-        return False
-    return desired_clearance(sc, spec).fits and desired_through_filter(sc, spec).passes
+    return motion_fit(sc, body, sc.uncertainty).fits
+
+
+def draw(kind: str, seed: int, *, name: str | None = None, **options: Any) -> Scenario:
+    """The scenario of ``scenario_data(kind, seed, **options)``, named ``name`` (default
+    ``KIND-SEED``), whether it fits a base or not. Its text is its data as YAML: it can be
+    stretched in time (a time scale reads the text again) and written out as a file."""
+    data = scenario_data(kind, seed, **options)
+    data["name"] = name or f"{kind}-{seed}"
+    return scenario_from_data(data, yaml.safe_dump(data, sort_keys=False),
+                              f"<family {kind} {seed}>")
 
 
 def family_scenario(kind: str, seed: int, *, robots: int | None = None, noise: bool = False,
@@ -201,10 +199,8 @@ def family_scenario(kind: str, seed: int, *, robots: int | None = None, noise: b
     the first of draws seed, seed + 10^6, seed + 2 10^6, ... that fits. ValueError when
     none of ``tries`` draws fits."""
     for k in range(tries):
-        data = scenario_data(kind, seed + k * 1_000_000, robots=robots, noise=noise,
-                             delay=delay, trials=trials)
-        data["name"] = f"{kind}-{seed}"
-        sc = scenario_from_data(data, "", f"<family {kind} {seed}>")
+        sc = draw(kind, seed + k * 1_000_000, robots=robots, noise=noise, delay=delay,
+                  trials=trials, name=f"{kind}-{seed}")
         if fits(sc, body):
             return sc
     raise ValueError(f"no draw of family {kind} seed {seed} fits {body} robots in {tries} tries")

@@ -83,7 +83,13 @@ def test_the_safety_filter_is_on_with_bodies_and_lets_the_cold_start_run(tmp_pat
     plan = plan_of(tmp_path, "paper-triangle3", "--plant", "physics", "--trials", "30")
     sf = plan.config.safety
     assert sf is not None and sf.body == "p3dx" and sf.sensing == "team"
-    assert sf.limits.v_max == 1.2 and sf.limits.a_max == 0.3  # the maker's, physics model
+    # the p3dx row of the one limits table, which the physics model enforces and a
+    # Pioneer bridge holds: 0.75 m/s, not the datasheet's 1.2 m/s
+    from formation_ilc.config.bases import BASES
+    from formation_ilc.model.physics import MODELS
+
+    assert sf.limits == BASES["p3dx"].limits == MODELS["p3dx"].limits
+    assert sf.limits.v_max == 0.75 and sf.limits.a_max == 0.3
     # the prediction went through the filter and says what it covered
     assert plan.notes[-1].startswith("the batch simulator predicts no contact in the 30 "
                                      "trials of this run through the safety filter")
@@ -113,7 +119,7 @@ def test_the_safety_filter_is_on_with_bodies_and_lets_the_cold_start_run(tmp_pat
      "the desired formation brings robots 1 and 3 to 0.559 m"),
     (("--plant", "physics", "--scenario", "paper-hexagon6"),
      "robot 2: desired acceleration 31.2 m/s^2 at t = 0.0 s exceeds its limit 0.3 m/s^2; "
-     "no time scale up to 20 fits (p3dx robots' limits: Pioneer 3-DX datasheet"),
+     "no time scale up to 20 fits (p3dx robots' limits: p3dx: 0.75 m/s, 100 deg/s"),
     (("--plant", "external", "--safety"), "--safety: with --plant external"),
     (("--plant", "physics", "--body", "husky"), "--body goes with --plant sim"),
 ])
@@ -180,7 +186,7 @@ def test_a_memory_past_the_limits_is_held_by_the_filter_or_refused(tmp_path):
     plan = plan_of(tmp_path / "a", "paper-triangle3", "--plant", "physics", "--trials", "2")
     sc = plan.scenario
     fast = np.zeros((sc.n, sc.samples, 2))
-    fast[1, 40:, 0] = 3.0  # robot 2 asked for 3 m/s from t = 8 s: past 1.2 m/s, and a step
+    fast[1, 40:, 0] = 3.0  # robot 2 asked for 3 m/s from t = 8 s: past 0.75 m/s, and a step
     mem = save_memory(tmp_path / "fast.npz", fast, sc)
     plan = plan_of(tmp_path / "b", "paper-triangle3", "--plant", "physics", "--trials", "2",
                    "--init-memory", str(mem), "--allow-contact")

@@ -23,7 +23,7 @@ from formation_ilc.model.safety import (
     spec_of,
 )
 from formation_ilc.model.simulate import simulate
-from formation_ilc.studies.families import KINDS, family_scenario, fits, scenario_data
+from formation_ilc.studies.families import KINDS, draw, family_scenario, fits, scenario_data
 
 FP = footprint_of("p3dx")
 #: cold trials per member: the overlaps of an unfiltered team happen in its first trials
@@ -96,8 +96,7 @@ def test_the_families_are_what_they_say():
 
 def test_a_draw_that_does_not_fit_is_drawn_again():
     # tight columns: some draws bring two bodies closer than the filter keeps them
-    tight = [s for s in range(30)
-             if not fits(scenario_from_data(scenario_data("following", s), "", "<t>"))]
+    tight = [s for s in range(30) if not fits(draw("following", s))]
     assert tight, "every draw fit: the test no longer tests the redraw"
     sc = family_scenario("following", tight[0])
     assert fits(sc)
