@@ -25,11 +25,22 @@ formation's, so the recorder keeps it), what the robots were asked: per robot th
 decides is in ``formation_ilc.protocol.physics_plant.BaseRobots``. Parameters:
 ``robots``, ``poses`` (x, y, theta per robot, flat: where each robot is placed), ``model``,
 ``rate`` [Hz], ``collide``, ``truth``; the engine is deterministic.
+
+In a run (the launcher's, whose configuration it reads) it follows the trials as the link
+emulator does (the leader waits for its ready) and watches the bodies: every contact
+between two robots and every robot tipped past ``tilt_limit``, in a trial or on the way
+back to the start poses, is logged and published at once in its diagnostics (the console
+says it), counted per trial (its trial report: ``contact_report``, the rows' ``contacts``)
+and per return, and acted on (``on_contact``, ``contact_retries``: as the physics plant;
+a return is not run again, so ``stop`` there ends the run): the robots are held at zero
+whatever they are sent, the leader is asked to abort the trial, or the process ends with
+status 6 (the run's).
 """
 
 from __future__ import annotations
 
 import functools
+import math
 import sys
 import time
 from typing import Any
@@ -37,15 +48,30 @@ from typing import Any
 import numpy as np
 from geometry_msgs.msg import PoseStamped, Twist, TwistStamped
 from nav_msgs.msg import Odometry
-from rclpy.node import Node
+from std_msgs.msg import String
 
 import msgs_schema as ms
 from formation_ilc.config.params import Param
 from formation_ilc.core.names import BASE_TRUTH, BASES_NODE
 from formation_ilc.model.physics import MODELS
-from formation_ilc.nodes.common import Diagnostics, node_parser, spin_main
+from formation_ilc.nodes.common import (
+    ConfiguredNode,
+    RunConfig,
+    fail,
+    node_parser,
+    spin_main,
+)
 from formation_ilc.nodes.params import declare
-from formation_ilc.protocol.physics_plant import BaseRobots
+from formation_ilc.protocol.physics_plant import (
+    CONTACT_PARAMS,
+    BaseRobots,
+    BaseTrials,
+    ContactEvent,
+    ContactWatch,
+    contact_then,
+)
+from formation_ilc.protocol.plant import RESEND_S
+from formation_ilc.system.exits import CONTACT
 
 NAME = BASES_NODE
 
@@ -66,16 +92,16 @@ PARAMS: tuple[Param, ...] = (
           lo=1e-3, hi=1e3),
     Param("truth", False, f"also publish each base's true pose on '{BASE_TRUTH}' in its "
           "namespace (PoseStamped, world frame)"),
+    *CONTACT_PARAMS,
 )
 
 
-class PhysicsBases(Node):
+class PhysicsBases(ConfiguredNode):
     """N physics robots, each a base with cmd_vel and odometry."""
 
     def __init__(self, **kwargs: Any):
         # in the formation's namespace (its diagnostics are recorded); the bases' own topics
         # are absolute
-        kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(NAME, **kwargs)
         declare(self, PARAMS)
         g = lambda name: self.get_parameter(name).value  # noqa: E731
@@ -102,12 +128,33 @@ class PhysicsBases(Node):
                 self.truth_pubs.append(self.create_publisher(PoseStamped,
                                                              f"{ns}/{BASE_TRUTH}",
                                                              ms.ODOM_QOS))
-        self.diag_pub = Diagnostics(self)  # per-trial report and /diagnostics
+        self.watch = ContactWatch(str(g("on_contact")), int(g("contact_retries")),
+                                  math.radians(float(g("tilt_limit"))))
+        #: the trials as followed, once the run's configuration came (None: not in a run)
+        self.trials: BaseTrials | None = None
+        self._asked = 0.0
         self.create_timer(self.core.tick, self._on_tick)
         self.create_timer(1.0, self._report)
         world = self.core.world
         self.get_logger().info(f"{n} physics bases ({world.model.name}), "
                                f"{world.substeps} engine steps per {self.core.tick} s tick")
+        self.follow_config()
+
+    def configure(self, cfg: RunConfig) -> None:
+        """A run: follow its trials, watch the bodies, say ready as the link emulator."""
+        self.cfg = cfg
+        self.trials = BaseTrials(cfg, self.core, self.watch)
+        self.follower = self.trials.follower
+        self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
+        self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
+        self.ready_pub.publish(self.ready_msg(0))
+
+    def _on_event(self, msg: String) -> None:
+        trials = self.trials
+        assert trials is not None
+        ev = self.take_event(msg, lambda ev: trials.on_event(ev, time.time_ns()))
+        if ev is not None and ev.event == ms.ABORT:
+            self.ready_pub.publish(self.ready_msg(trials.trial + 1))
 
     def _on_cmd(self, msg: Twist | TwistStamped, i: int) -> None:
         now = time.monotonic()
@@ -125,10 +172,56 @@ class PhysicsBases(Node):
         for i, pub in enumerate(self.truth_pubs):
             pub.publish(ms.pose_to_msg(self.core.truth[i], stamp, ms.WORLD_FRAME,
                                        out=self.truth_msgs[i]))
+        trials = self.trials
+        if trials is None:
+            return
+        ev, ended = trials.tick(stamp)
+        if ev is not None:
+            self._on_contact(ev)
+        elif (trials.held and trials.stopped is not None and trials.stopped.action == "stop"
+              and time.monotonic() - self._asked >= RESEND_S):
+            self._ask_abort(trials.stopped)  # a lost request must not leave the run waiting
+        if ended:
+            d = {"node": NAME, "trial": trials.trial, **trials.report(),
+                 **self.core.report()}
+            d.update(self.drops.as_dict())
+            self.diag_pub.publish(ms.diagnostics_to_msg(d, stamp))
+            trials.ended(stamp)
+            self.ready_pub.publish(self.ready_msg(trials.trial + 1))
+
+    def _on_contact(self, ev: ContactEvent) -> None:
+        """Say it at once (log, diagnostics: the console), then act on the first event of
+        a trial or a return: ask the leader to abort the trial, or end the run."""
+        trials = self.trials
+        assert trials is not None
+        dt, limit = self.cfg.scenario.dt, self.watch.tilt_limit
+        then = contact_then(ev, self.watch.reruns.get(ev.trial, 0), self.watch.retries)
+        line = ev.line(dt, limit)
+        self.get_logger().warning(f"contact: {line}: {then}")
+        self.diag_pub.publish(ms.diagnostics_to_msg(
+            {"node": NAME, "trial": ev.trial, "contact": ev.to_json(dt, limit)},
+            time.time_ns()))
+        if not ev.acts:
+            return
+        if ev.action == "stop":
+            self._ask_abort(ev)
+        elif ev.action in ("abort", "give_up"):
+            self._report()  # the counts, the ending contact's included, before the end
+            fail(self, f"contact: {line}; {then} (--on-contact, docs/safety.md)", CONTACT)
+
+    def _ask_abort(self, ev: ContactEvent) -> None:
+        """Ask the leader to abort the trial the robots touched in (its ready says why)."""
+        self._asked = time.monotonic()
+        line = ev.line(self.cfg.scenario.dt, self.watch.tilt_limit)
+        self.ready_pub.publish(self.ready_msg(ev.trial, abort_slot=ev.slot,
+                                              why=f"contact: {line}"))
 
     def _report(self) -> None:
+        extra: dict[str, Any] = {}
+        if self.trials is not None:
+            extra = {**self.trials.by_trial, "contact_events": self.watch.events}
         self.diag_pub.publish(ms.diagnostics_to_msg({"node": NAME, "trial": -1,
-                                                      **self.core.report()},
+                                                      **self.core.report(), **extra},
                                                      time.time_ns()))
 
     def destroy_node(self) -> None:

@@ -41,7 +41,12 @@ from formation_ilc.core.names import PHYSICS_NODE
 from formation_ilc.model.physics import DEFAULT_RATE, MODELS, POSE_SOURCES, RATE_RANGE
 from formation_ilc.nodes.common import RunConfig, fail, node_parser, spin_main
 from formation_ilc.nodes.params import declare
-from formation_ilc.protocol.physics_plant import ON_CONTACT, ContactEvent, PhysicsPlant
+from formation_ilc.protocol.physics_plant import (
+    CONTACT_PARAMS,
+    ContactEvent,
+    PhysicsPlant,
+    contact_then,
+)
 from formation_ilc.protocol.plant import RESEND_S
 from formation_ilc.system.exits import CONTACT
 from robot_sim.node import SimNode
@@ -58,13 +63,7 @@ PARAMS: tuple[Param, ...] = (
     Param("rate", DEFAULT_RATE, "engine steps per second (each sample is dT * rate steps, "
           "a whole number)", "Hz", lo=RATE_RANGE[0], hi=RATE_RANGE[1]),
     Param("collide", True, "robots collide with each other (false: they pass through)"),
-    Param("on_contact", "stop", "when robots touch (or one tips past tilt_limit): stop them "
-          "and run the trial again (at most contact_retries times), stop them and end the "
-          "run, or report and go on", choices=ON_CONTACT),
-    Param("contact_retries", 2, "how often one trial runs again after a contact", lo=0,
-          hi=100),
-    Param("tilt_limit", 10.0, "a robot tilted past this counts as a contact", "deg",
-          lo=0.1, hi=180.0),
+    *CONTACT_PARAMS,
 )
 
 
@@ -97,9 +96,9 @@ class PhysicsNode(SimNode):
     def _publish_sample(self) -> None:
         plant = self.plant
         if isinstance(plant, PhysicsPlant):
-            ev = plant.take_contact()
-            if ev is not None and not self._on_contact(plant, ev):
-                return  # the run ends here: no sample after the contact
+            for ev in plant.take_contacts():
+                if not self._on_contact(plant, ev):
+                    return  # the run ends here: no sample after the contact
             if plant.held:
                 return  # the trial waits for the leader's abort (it asked): no sample
         super()._publish_sample()
@@ -123,23 +122,19 @@ class PhysicsNode(SimNode):
                                               why=f"contact: {line}"))
 
     def _on_contact(self, plant: PhysicsPlant, ev: ContactEvent) -> bool:
-        """Say it at once (log, diagnostics), then act: stop and re-run, or end the run.
-        Returns whether the trial goes on (its robots standing, with ``stop``)."""
-        line = ev.line(self.cfg.scenario.dt, plant.tilt_limit)
-        then = {"stop": "robots stopped; the trial runs again "
-                        f"({plant.reruns.get(ev.trial, 0)} of {plant.retries})",
-                "continue": "going on (--on-contact continue)",
-                "abort": "robots stopped; ending the run (--on-contact abort)",
-                "give_up": f"robots stopped; the trial touched again after {plant.retries} "
-                           f"re-runs: ending the run"}[ev.action]
+        """Say it at once (log, diagnostics), then act on a trial's first event: stop and
+        re-run, or end the run. Returns whether the trial goes on (its robots standing,
+        with ``stop``)."""
+        dt = self.cfg.scenario.dt
+        then = contact_then(ev, plant.reruns.get(ev.trial, 0), plant.retries)
+        line = ev.line(dt, plant.tilt_limit)
         self.get_logger().warning(f"contact: {line}: {then}")
         d = {"node": self.get_name(), "trial": ev.trial,
-             "contact": {"slot": ev.slot, "sample": ev.sample, "line": line,
-                         "action": ev.action, "pairs": [list(p) for p in ev.pairs],
-                         "tilt": ev.tilt}}
+             "contact": ev.to_json(dt, plant.tilt_limit)}
         self.diag_pub.publish(ms.diagnostics_to_msg(
-            d, self.get_clock().now().nanoseconds, self.cfg.scenario.dt,
-            self.cfg.scenario.samples))
+            d, self.get_clock().now().nanoseconds, dt, self.cfg.scenario.samples))
+        if not ev.acts:
+            return True
         if ev.action == "stop":
             self._ask_abort(ev, plant)
         elif ev.action in ("abort", "give_up"):

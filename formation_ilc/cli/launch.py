@@ -66,6 +66,7 @@ keystore or the loaded Fast DDS cannot run it (docs/security.md).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
 import signal
@@ -206,7 +207,8 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
         print_hosts(session.hosts)
     status = write_report(plan, session.rows(), session.diagnostics,
                           session.supervisor.restarts, time.monotonic() - session.t_start,
-                          status, startup=session.startup())
+                          status, startup=session.startup(),
+                          ending_contact=session.ending_contact)
     if session.hosts is not None:
         session.hosts.save(plan.out / "summary.json")
     return status
@@ -491,6 +493,8 @@ class _Session:
         self.diagnostics: dict[str, dict[str, Any]] = {}
         #: the first trial whose errors were not finite (the loop stops the run)
         self.diverged: int | None = None
+        #: the contact (or tilt) that ends the run, as the plant said it (None: none)
+        self.ending_contact: dict[str, Any] | None = None
         #: a stop signal came while the executor ran a callback (the loop acts on it)
         self.stop_signal: int | None = None
         self.spinning = False
@@ -550,7 +554,22 @@ class _Session:
         action = {"stop": "the robots are stopped and the trial runs again",
                   "abort": "the run ends", "give_up": "the run ends (retries spent)",
                   "continue": "going on"}.get(str(c.get("action")), "")
+        if c.get("acts") is False and c.get("action") != "continue":
+            action = "the robots already stand"
         print(f"contact: {str(c.get('line', ''))[:300]}: {action} ({node})", flush=True)
+        if (c.get("action") in ("abort", "give_up") and c.get("acts") is not False
+                and self.ending_contact is None):
+            # the contact that ends the run: a field of summary.json, and its trial a row
+            # of metrics.csv (no errors: the robots stood; the pairs that touched)
+            from formation_ilc.core.metrics import METRIC_COLUMNS
+
+            self.ending_contact = {"node": node, **{k: c.get(k) for k in (
+                "trial", "slot", "sample", "phase", "line", "action", "pairs", "tilt")}}
+            row = np.full(len(METRIC_COLUMNS), np.nan)
+            row[0] = float(c.get("trial", -1))
+            row[METRIC_COLUMNS.index("contacts")] = float(len(c.get("pairs") or []))
+            with contextlib.suppress(OSError, ValueError):  # the run ends either way
+                self.writer.write(row)
 
     def on_clock(self, node: str, level: str, text: str) -> None:
         """A node's clock event (a step, an estimate that does not converge), said once."""

@@ -25,7 +25,7 @@ from formation_ilc.core.links import (
     link_histograms,
     write_delays,
 )
-from formation_ilc.core.names import MONITOR_NODE, SIM_NODE
+from formation_ilc.core.names import BASES_NODE, MONITOR_NODE, SIM_NODE
 from formation_ilc.plan.specs import RunPlan
 from formation_ilc.system.exits import DISK_FULL, is_disk_full
 
@@ -37,14 +37,19 @@ BRIDGE_KEYS = ("initial_shifts", "returns", "return_timeouts", "missed", "clippe
 #: the physics plant's diagnostics that go into summary.json
 PHYSICS_KEYS = ("model", "pose_source", "substeps", "contacts_by_trial", "tilt_by_trial",
                 "odometry_drift_by_trial", "limited")
+#: the physics bases' diagnostics (``--physics-bases``) that go into summary.json
+BASES_KEYS = ("contacts_by_trial", "return_contacts_by_trial", "tilt_by_trial",
+              "contact_events", "odometry_drift", "commands_max")
 
 
 def summary_of(plan: RunPlan, rows: int, diagnostics: Mapping[str, Mapping[str, Any]],
                restarts: Mapping[str, int], seconds: float,
-               startup: Mapping[str, float | None] | None = None) -> dict[str, Any]:
+               startup: Mapping[str, float | None] | None = None,
+               ending_contact: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """summary.json of a run of ``plan`` that finished ``rows`` trials in ``seconds``;
     ``startup``: when the launcher found every node, saw every ready, saw the first start
-    (seconds from its start)."""
+    (seconds from its start); ``ending_contact``: the contact or tilt that ended the run
+    (its plant's words: trial, slot, phase, line, action, pairs, tilt)."""
     sc, cfg = plan.scenario, plan.config
     # the plant node's timing and missed samples (the simulator, the physics plant)
     sim_diag = diagnostics.get(plan.team.plants[0] if plan.row.true_state else SIM_NODE, {})
@@ -67,6 +72,12 @@ def summary_of(plan: RunPlan, rows: int, diagnostics: Mapping[str, Mapping[str, 
                               for b in plan.team.plants}
     if plan.row.physics:
         summary["physics"] = {key: sim_diag.get(key) for key in PHYSICS_KEYS}
+    elif BASES_NODE in diagnostics or BASES_NODE in plan.team.support:
+        # the physics bases of a rehearsal: their contacts and tilts, by trial and return
+        bases = diagnostics.get(BASES_NODE, {})
+        summary["physics"] = {key: bases.get(key) for key in BASES_KEYS}
+    if ending_contact is not None:
+        summary["ended_by_contact"] = dict(ending_contact)
     if plan.init_memory is not None:
         summary["init_memory"] = str(plan.init_memory)
     if cfg.clock_exchanges:
@@ -103,7 +114,8 @@ def clocks_summary(plan: RunPlan, diagnostics: Mapping[str, Mapping[str, Any]]
 def write_report(plan: RunPlan, rows: Sequence[Sequence[float]],
                  diagnostics: Mapping[str, Mapping[str, Any]], restarts: Mapping[str, int],
                  seconds: float, status: int,
-                 startup: Mapping[str, float | None] | None = None) -> int:
+                 startup: Mapping[str, float | None] | None = None,
+                 ending_contact: Mapping[str, Any] | None = None) -> int:
     """Write the run's outputs into ``plan.out``; after a successful run (``status`` 0)
     also the figure and the printed report. Returns ``status``."""
     out = plan.out
@@ -112,7 +124,8 @@ def write_report(plan: RunPlan, rows: Sequence[Sequence[float]],
     clocks = link_clocks(diagnostics)
     dtab = delay_rows(measured, injected if emulated else None,
                       plan.scenario.uncertainty.delay.pmf() if emulated else None, clocks)
-    summary = summary_of(plan, len(rows), diagnostics, restarts, seconds, startup)
+    summary = summary_of(plan, len(rows), diagnostics, restarts, seconds, startup,
+                         ending_contact)
     try:
         (out / "diagnostics.json").write_text(json.dumps(diagnostics, indent=2) + "\n")
         write_delays(out / "delays.csv", dtab)

@@ -58,9 +58,9 @@ class Member:
     """One node of the formation.
 
     name : its node name; also the launcher's process and log name.
-    role : 'robot', 'plant', 'support' (the link emulator), 'leader', 'recorder',
-        'liveview', 'monitor' (in the launcher's process), 'driver' (a robot's driver or
-        the physics bases behind the bridges).
+    role : 'robot', 'plant', 'support' (the link emulator, the physics bases behind the
+        bridges), 'leader', 'recorder', 'liveview', 'monitor' (in the launcher's process),
+        'driver' (a robot's driver).
     entry : the entry script the launcher starts it with; None: no process of the
         launcher's (the monitor runs inside it; an external plant or a real driver is
         started by someone else).
@@ -380,13 +380,17 @@ def _plant(lineup: Lineup, row: Plant) -> list[Member]:
     cmd, odom, motors, kind = _driver_topics(lineup)
     truth = lineup.bases_truth
     if truth:
+        # the physics bases follow the trials (their contacts are counted per trial and
+        # return, and a contact asks the leader to abort its trial): the leader waits for
+        # them as for the link emulator
         out.append(Member(
-            nm.BASES_NODE, "driver", "formation-ilc-physics-bases", NEVER, False,
+            nm.BASES_NODE, "support", "formation-ilc-physics-bases", TRIAL, True,
             nm.BASES_NODE,
             (*(f"{lineup.driver_namespace(i)}/{odom}" for i in robots),
              *(f"{lineup.driver_namespace(i)}/{nm.BASE_TRUTH}" for i in robots),
-             nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS),
-            tuple(f"{lineup.driver_namespace(i)}/cmd_vel" for i in robots)))
+             nm.READY, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS),
+            (*(f"{lineup.driver_namespace(i)}/cmd_vel" for i in robots), nm.TRIAL_EVENTS,
+             nm.CONFIG)))
     for i in robots:
         ns = lineup.driver_namespace(i)
         c, o, mo = f"{ns}/{cmd}", f"{ns}/{odom}", f"{ns}/{motors}"

@@ -67,7 +67,7 @@ class MonitorNode(Node):
                               key=key)
         self.slots.run = cfg.run_id
         self.on_contact = on_contact
-        self.contacts_seen: set[tuple[str, int, int]] = set()
+        self.contacts_seen: set[tuple[str, int, int, int]] = set()
         #: a node's clock words (the last of each) and the events of them already said
         self.on_clock = on_clock
         self.clock_words: dict[str, dict[str, Any]] = {}
@@ -202,11 +202,12 @@ class MonitorNode(Node):
             return
         if "contact" in d and isinstance(d["contact"], dict):
             c = d["contact"]
-            key = (name, int(d["trial"]), int(c.get("slot", -1)))
+            # every event once (a plant numbers them: ``n``; an older plant said one a slot)
+            key = (name, int(d["trial"]), int(c.get("slot", -1)), int(c.get("n", 0) or 0))
             if key not in self.contacts_seen:  # said at once, once
                 self.contacts_seen.add(key)
                 if self.on_contact is not None:
-                    self.on_contact(name, c)
+                    self.on_contact(name, {**c, "trial": int(d["trial"])})
             return  # a mid-trial word, not the node's report
         self.diagnostics[name] = d
 

@@ -244,9 +244,12 @@ PLANT_USES: dict[str, tuple[Any, str]] = {
                      "--plant physics or --physics-bases"),
     "pose": (lambda p, o: p.physics, "--plant physics"),
     "physics_rate": (lambda p, o: p.physics, "--plant physics"),
-    "on_contact": (lambda p, o: p.physics, "--plant physics: its bodies touch"),
-    "contact_retries": (lambda p, o: p.physics, "--plant physics: its bodies touch"),
-    "tilt_limit": (lambda p, o: p.physics, "--plant physics: its bodies tilt"),
+    "on_contact": (lambda p, o: p.physics or o.physics_bases,
+                   "--plant physics or --physics-bases: their bodies touch"),
+    "contact_retries": (lambda p, o: p.physics or o.physics_bases,
+                        "--plant physics or --physics-bases: their bodies touch"),
+    "tilt_limit": (lambda p, o: p.physics or o.physics_bases,
+                   "--plant physics or --physics-bases: their bodies tilt"),
     "plant_nodes": (lambda p, o: p.entry is None, "--plant external"),
 }
 

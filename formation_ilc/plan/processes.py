@@ -11,6 +11,7 @@ from typing import Any
 from formation_ilc.config.clocks import ClockSettings
 from formation_ilc.config.roster import Member
 from formation_ilc.core.names import (
+    BASES_NODE,
     namespace_remaps,
     robots_process_name,
 )
@@ -81,9 +82,9 @@ def _launch(plan: RunPlan, m: Member, scenario: str, nsa: tuple[str, ...]) -> La
         if cfg.clocks != ClockSettings():
             leader["clocks"] = json.dumps(cfg.clocks.to_json())
         return (), nsa, tuple(leader.items())
-    if m.role == "support":
-        return (), nsa, ()
     bridge, phys = plan.bridge, plan.physics
+    if m.role == "support" and m.name != BASES_NODE:  # the link emulator
+        return (), nsa, ()
     if m.role == "plant" and m.robot is None:  # one node for the team
         params: tuple[tuple[str, Any], ...] = (("timeout", float(cfg.timeout)),)
         if plan.row.physics and phys is not None:
@@ -111,7 +112,9 @@ def _launch(plan: RunPlan, m: Member, scenario: str, nsa: tuple[str, ...]) -> La
     return (), nsa, (("robots", plan.scenario.n), ("poses", starts),
                      ("ns_pattern", bridge.driver_ns), ("cmd_type", bridge.sent_type),
                      ("odom_topic", preset.odom_topic), ("model", phys.model),
-                     ("collide", phys.collide), ("truth", True))
+                     ("collide", phys.collide), ("truth", True),
+                     ("on_contact", phys.on_contact), ("contact_retries", phys.contact_retries),
+                     ("tilt_limit", float(phys.tilt_limit)))
 
 
 def entry_module(script: str) -> str:

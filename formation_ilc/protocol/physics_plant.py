@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from formation_ilc.config.params import Param
 from formation_ilc.config.runconfig import RunConfig
 from formation_ilc.core.names import robot_name
 from formation_ilc.model.physics import (
@@ -48,19 +49,41 @@ from formation_ilc.protocol.plant import KinematicPlant
 from formation_ilc.protocol.schedule import ABORT, TrialEvent
 
 __all__ = ["PhysicsPlant", "BaseRobots", "BaseOdometry", "physics_available", "ON_CONTACT",
-           "ContactEvent"]
+           "ContactEvent", "ContactWatch", "PHASES", "BaseTrials", "contact_then",
+           "CONTACT_PARAMS"]
 
 #: what a physics plant does when robots touch: stop them and re-run the trial (at most
 #: ``retries`` times), stop them and end the run, or report and go on
 ON_CONTACT = ("stop", "abort", "continue")
 
 
+#: what a plant with bodies does about contacts: the physics plant's and the physics bases'
+#: parameters
+CONTACT_PARAMS: tuple[Param, ...] = (
+    Param("on_contact", "stop", "when robots touch (or one tips past tilt_limit): stop them "
+          "and run the trial again (at most contact_retries times), stop them and end the "
+          "run, or report and go on", choices=ON_CONTACT),
+    Param("contact_retries", 2, "how often one trial runs again after a contact", lo=0,
+          hi=100),
+    Param("tilt_limit", 10.0, "a robot tilted past this counts as a contact", "deg",
+          lo=0.1, hi=180.0),
+)
+
+#: where a contact happened: in a trial, or on the way back to the start poses (the bases'
+#: returns, which the bridges drive)
+PHASES = ("trial", "return")
+
+
 @dataclass(frozen=True)
 class ContactEvent:
-    """Robots touched (or tipped) in a trial: the iteration and slot, the sample, the pairs
-    (i, j 1-based, seconds in contact, deepest penetration [m]), the largest tilt [rad]
-    and its robot (1-based), and what the plant does about it (``action``: 'stop',
-    'abort', 'continue' or 'give_up': the retries are spent)."""
+    """Robots touched (or tipped) in a trial or its return: the iteration and slot, the
+    sample (in a trial; -1 in a return), the pairs new to this trial or return (i, j
+    1-based, seconds in contact, deepest penetration [m]), the largest tilt of the robots
+    newly past the limit [rad] (0: none) and its robot (1-based, 0: none), and what the
+    plant does about it (``action``: 'stop', 'abort', 'continue' or 'give_up': the retries
+    are spent). ``acts``: the first event of its trial or return, the one acted on; later
+    ones are said and counted under the same action. ``phase``: PHASES; ``seconds``: into
+    the return. ``n``: the plant's count of events so far (1-based)."""
 
     trial: int
     slot: int
@@ -69,14 +92,108 @@ class ContactEvent:
     tilt: float
     tilted: int
     action: str
+    phase: str = "trial"
+    seconds: float = 0.0
+    acts: bool = True
+    n: int = 1
 
     def line(self, dt: float, tilt_limit: float) -> str:
         what = [f"robots {i} and {j} in contact ({depth * 100:.1f} cm deep)"
                 for i, j, _, depth in self.pairs]
-        if self.tilt > tilt_limit:
+        if self.tilted and self.tilt > tilt_limit:
             what.append(f"robot {self.tilted} tilted {math.degrees(self.tilt):.1f} deg")
-        return (f"trial {self.trial} (slot {self.slot}), t = {self.sample * dt:.1f} s: "
-                f"{'; '.join(what)}")
+        when = (f"t = {self.sample * dt:.1f} s" if self.phase == "trial" else
+                f"{self.seconds:.1f} s into the return to the start poses")
+        return f"trial {self.trial} (slot {self.slot}), {when}: {'; '.join(what)}"
+
+    def to_json(self, dt: float, tilt_limit: float) -> dict[str, Any]:
+        """The diagnostics' ``contact`` field (the console says ``line``)."""
+        return {"slot": self.slot, "sample": self.sample, "line": self.line(dt, tilt_limit),
+                "action": self.action, "pairs": [list(p) for p in self.pairs],
+                "tilt": self.tilt, "phase": self.phase, "n": self.n, "acts": self.acts}
+
+
+class ContactWatch:
+    """Which contacts and tilts of a plant with bodies are news, and what the plant does.
+
+    Every pair that comes into contact and every robot that tips past ``tilt_limit`` [rad]
+    in a trial (or a return) is an event, said once per trial or return (``window`` starts
+    one). The first event of a window decides (``on_contact``, ON_CONTACT): ``stop`` stops
+    the robots and runs the trial again, at most ``retries`` times per iteration, then
+    ``give_up`` ends the run; ``abort`` ends it; ``continue`` goes on. A return is not run
+    again: ``stop`` there ends the run as ``abort`` does. ValueError for a bad setting."""
+
+    def __init__(self, on_contact: str = "stop", retries: int = 2,
+                 tilt_limit: float = math.radians(10.0)):
+        if on_contact not in ON_CONTACT:
+            raise ValueError(f"parameter on_contact: one of {', '.join(ON_CONTACT)}, got "
+                             f"{on_contact!r}")
+        if retries < 0:
+            raise ValueError(f"parameter contact_retries: >= 0, got {retries}")
+        if not 0 < tilt_limit <= math.pi:
+            raise ValueError(f"parameter tilt_limit: in (0, 180] deg, got "
+                             f"{math.degrees(tilt_limit):g}")
+        self.on_contact, self.retries, self.tilt_limit = on_contact, retries, tilt_limit
+        #: re-runs each iteration had
+        self.reruns: dict[int, int] = {}
+        #: events said, in all
+        self.events = 0
+        self.window()
+
+    def window(self, carry: bool = False) -> None:
+        """A trial or a return begins: its contacts are news again; ``carry``: except
+        those said in the window before (a return that begins with robots still touching
+        continues the trial's contact, it is not a new one)."""
+        if not carry or not hasattr(self, "said_pairs"):
+            self.said_pairs: set[tuple[int, int]] = set()
+            self.said_tilted: set[int] = set()
+        #: the window's first event (the one acted on), or None
+        self.first: ContactEvent | None = None
+
+    def check(self, trial: int, slot: int, sample: int,
+              pairs: list[tuple[int, int, float, float]], tilts: NDArray[np.float64],
+              phase: str = "trial", seconds: float = 0.0) -> ContactEvent | None:
+        """The event of what is new in ``pairs`` (the window's pairs that touched) and
+        ``tilts`` (each robot's tilt now), or None."""
+        new = tuple(p for p in pairs if (p[0], p[1]) not in self.said_pairs)
+        over = [r for r in range(len(tilts))
+                if tilts[r] > self.tilt_limit and r + 1 not in self.said_tilted]
+        if not new and not over:
+            return None
+        self.said_pairs.update((p[0], p[1]) for p in new)
+        self.said_tilted.update(r + 1 for r in over)
+        first = self.first is None
+        if self.first is None:
+            action = self.on_contact
+            if action == "stop" and phase == "return":
+                action = "abort"  # nothing to run again
+            if action == "stop":
+                self.reruns[trial] = self.reruns.get(trial, 0) + 1
+                if self.reruns[trial] > self.retries:
+                    action = "give_up"
+        else:
+            action = self.first.action
+        worst = max(over, key=lambda r: tilts[r]) if over else -1
+        self.events += 1
+        ev = ContactEvent(trial, slot, sample, new, float(tilts[worst]) if over else 0.0,
+                          worst + 1, action, phase, seconds, first, self.events)
+        if first:
+            self.first = ev
+        return ev
+
+
+def contact_then(ev: ContactEvent, reruns: int, retries: int) -> str:
+    """What the plant does about ``ev``, in words (its log)."""
+    if not ev.acts:
+        return ("going on (--on-contact continue)" if ev.action == "continue" else
+                "the robots already stand")
+    return {"stop": f"robots stopped; the trial runs again ({reruns} of {retries})",
+            "continue": "going on (--on-contact continue)",
+            "abort": ("robots stopped; ending the run (a return is not run again)"
+                      if ev.phase == "return" else
+                      "robots stopped; ending the run (--on-contact abort)"),
+            "give_up": f"robots stopped; the trial touched again after {retries} re-runs: "
+                       f"ending the run"}[ev.action]
 
 
 def physics_available() -> str | None:
@@ -107,20 +224,15 @@ class PhysicsPlant(KinematicPlant):
             raise ValueError(f"parameter pose: one of {', '.join(POSE_SOURCES)}, got {pose!r}")
         if not (rate > 0 and math.isfinite(rate)):
             raise ValueError(f"parameter rate: engine steps per second > 0, got {rate}")
-        if on_contact not in ON_CONTACT:
-            raise ValueError(f"parameter on_contact: one of {', '.join(ON_CONTACT)}, got "
-                             f"{on_contact!r}")
-        if retries < 0:
-            raise ValueError(f"parameter contact_retries: >= 0, got {retries}")
-        if not 0 < tilt_limit <= math.pi:
-            raise ValueError(f"parameter tilt_limit: in (0, 180] deg, got "
-                             f"{math.degrees(tilt_limit):g}")
+        self.watch = ContactWatch(on_contact, retries, tilt_limit)
         self.on_contact, self.retries, self.tilt_limit = on_contact, retries, tilt_limit
-        #: the trial's contact (None: none yet), and the re-runs each iteration had
+        #: the trial's acting contact (None: none yet), and the re-runs each iteration had
         self.contact: ContactEvent | None = None
-        self.reruns: dict[int, int] = {}
-        #: contacts (pairs that touched) of every trial, by iteration, for the report
+        self.reruns = self.watch.reruns
+        #: trials with contacts (the events acted on)
         self.contact_trials = 0
+        #: contact events not yet taken by the node (``take_contacts``)
+        self.fresh: list[ContactEvent] = []
         robot: RobotModel = robot_model(model)
         super().__init__(cfg)
         self.pose_source = pose
@@ -143,7 +255,8 @@ class PhysicsPlant(KinematicPlant):
         self.tilt_max = 0.0
         self.drift = 0.0
         self.contact = None
-        self.fresh_contact: ContactEvent | None = None
+        self.fresh = []
+        self.watch.window()
 
     def move(self, t: int) -> None:
         if self.contact is not None and self.contact.action != "continue":
@@ -152,23 +265,12 @@ class PhysicsPlant(KinematicPlant):
         self.xi[:, t + 1] = self.world.truth()
         tilts = self.world.tilt()
         self.tilt_max = max(self.tilt_max, float(tilts.max()))
-        if self.contact is None:
-            pairs = self.world.contact_pairs()
-            if pairs or tilts.max() > self.tilt_limit:
-                self._contact(t + 1, pairs, tilts)
-
-    def _contact(self, t: int, pairs: list[tuple[int, int, float, float]],
-                 tilts: NDArray[np.float64]) -> None:
-        """The trial's first contact (or tilt past the limit): what the plant does."""
-        i = self.iteration
-        action = self.on_contact
-        if action == "stop":
-            self.reruns[i] = self.reruns.get(i, 0) + 1
-            if self.reruns[i] > self.retries:
-                action = "give_up"
-        self.contact_trials += 1
-        self.contact = self.fresh_contact = ContactEvent(
-            i, self.k, t, tuple(pairs), float(tilts.max()), int(np.argmax(tilts)) + 1, action)
+        ev = self.watch.check(self.iteration, self.k, t + 1, self.world.contact_pairs(), tilts)
+        if ev is not None:
+            self.fresh.append(ev)
+            if ev.acts:
+                self.contact = ev
+                self.contact_trials += 1
 
     @property
     def held(self) -> bool:
@@ -185,10 +287,10 @@ class PhysicsPlant(KinematicPlant):
             self.contact = None  # the trial it held is gone
         return taken
 
-    def take_contact(self) -> ContactEvent | None:
-        """The contact of this trial not yet taken (the node reports it once)."""
-        ev, self.fresh_contact = self.fresh_contact, None
-        return ev
+    def take_contacts(self) -> list[ContactEvent]:
+        """This trial's contact events not yet taken (the node reports each once)."""
+        out, self.fresh = self.fresh, []
+        return out
 
     def measured(self, t: int) -> NDArray[np.float64]:
         odom = self.world.odom
@@ -268,6 +370,23 @@ class BaseRobots:
         self.stats = np.zeros((n, 4))  # max |v|, |omega|, |dv/dt|, |domega/dt|
         self.drift = np.zeros(n)
         self.truth = self.world.truth()
+        #: every robot held at zero whatever it is sent (a contact stopped them)
+        self.held = False
+        self._since: dict[tuple[int, int], float] = {}
+
+    def window(self) -> None:
+        """A trial or a return begins: ``window_pairs`` counts from now."""
+        self._since = {(i, j): secs for i, j, secs, _ in self.world.contact_pairs()}
+
+    def window_pairs(self) -> list[tuple[int, int, float, float]]:
+        """The pairs that touched since ``window``: (i, j) 1-based, seconds in contact
+        since, the deepest penetration of the run [m]."""
+        out = []
+        for i, j, secs, depth in self.world.contact_pairs():
+            before = self._since.get((i, j), 0.0)
+            if secs > before:
+                out.append((i, j, secs - before, depth))
+        return out
 
     def command(self, i: int, v: float, omega: float, stamp: float, now: float) -> None:
         """Robot i's command (a non-finite one is ignored)."""
@@ -287,6 +406,8 @@ class BaseRobots:
         """One tick under each robot's newest command (zero once older than cmd_timeout);
         every robot's odometry after it."""
         self.cmd[now - self.cmd_at > self.cmd_timeout] = 0.0
+        if self.held:
+            self.cmd[:] = 0.0
         world = self.world
         world.step(self.cmd)
         self.truth = truth = world.truth()
@@ -313,3 +434,119 @@ class BaseRobots:
 
     def close(self) -> None:
         self.world.close()
+
+
+class BaseTrials:
+    """The schedule as the physics bases see it (wall clock), for their contacts: which
+    trial the robots drive (from the leader's ``start`` to its agreed end) or which return
+    (from the trial's end or its abort to the next start), and what each contact means.
+
+    ``on_event(ev, now_ns)`` takes the leader's events by the rule every follower applies
+    (``schedule.Follower``; a wall-clock follower: the agreed start is checked); ``tick(
+    now_ns)``, after each step of ``robots``, gives the new contact event (``ContactWatch``)
+    and whether the trial just ended (its report is then ``report()``; the node says ready
+    for the next). ``held``: a contact stopped the robots, until the leader aborts the
+    trial (``stop``) or for good (``abort``, ``give_up``: the run ends); ``robots`` then
+    holds every robot at zero.
+    """
+
+    def __init__(self, cfg: RunConfig, robots: BaseRobots, watch: ContactWatch):
+        from formation_ilc.protocol.schedule import Follower
+
+        self.T = cfg.scenario.samples
+        self.dt_ns = cfg.clock.dt_ns
+        self.follower = Follower(cfg.run_id, wall_trial_ns=self.T * self.dt_ns,
+                                 clock=cfg.clock)
+        self.watch = watch
+        self.robots = robots
+        self.phase = "idle"
+        self.start_ns = 0
+        self.back_ns = 0
+        self.stopped: ContactEvent | None = None
+        #: per iteration: the pairs that touched in its trial ({pair: seconds}), in its
+        #: return, the largest tilt [rad] of its trial; and the events said
+        self.by_trial: dict[str, dict[str, Any]] = {
+            "contacts_by_trial": {}, "return_contacts_by_trial": {}, "tilt_by_trial": {}}
+        self.tilt_max = 0.0
+        self.window_pairs = []
+        self.window_contacts: dict[str, float] = {}
+
+    @property
+    def trial(self) -> int:
+        return self.follower.trial
+
+    @property
+    def slot(self) -> int:
+        return self.follower.slot
+
+    @property
+    def held(self) -> bool:
+        return self.stopped is not None and self.stopped.action != "continue"
+
+    def on_event(self, ev: TrialEvent, now_ns: int) -> TrialEvent | None:
+        """The start or abort taken (None: nothing to do; Rejected: not obeyed)."""
+        taken = self.follower.take(ev, idle=self.phase != "trial", now_wall_ns=now_ns)
+        if taken is None:
+            return None
+        if taken.event == ABORT:
+            if self.phase == "trial" and taken.slot == self.slot:
+                self._begin_return(now_ns)
+            return taken
+        assert taken.start_wall_ns is not None
+        self.phase, self.start_ns = "trial", int(taken.start_wall_ns)
+        self._window()
+        return taken
+
+    def _window(self, carry: bool = False) -> None:
+        self.watch.window(carry)
+        self.robots.window()
+        self.stopped = None if self.stopped is None or self.stopped.action in (
+            "stop", "continue") else self.stopped
+        self.robots.held = self.held
+        self.tilt_max = 0.0
+        self.window_pairs: list[tuple[int, int, float, float]] = []
+        self.window_contacts = {}
+
+    def _begin_return(self, now_ns: int) -> None:
+        self.phase, self.back_ns = "return", now_ns
+        self._window(carry=True)
+
+    def tick(self, now_ns: int) -> tuple[ContactEvent | None, bool]:
+        """(the new contact event of this tick or None, whether the trial just ended)."""
+        if self.phase == "idle":
+            return None, False
+        pairs, tilts = self.robots.window_pairs(), self.robots.world.tilt()
+        self.tilt_max = max(self.tilt_max, float(np.max(tilts, initial=0.0)))
+        self.window_pairs = list(pairs)
+        self.window_contacts = {f"{robot_name(i)}-{robot_name(j)}": secs
+                                for i, j, secs, _ in pairs}
+        k = str(self.trial)
+        if self.phase == "trial":
+            sample = int(min(self.T, max(0, (now_ns - self.start_ns) // self.dt_ns)))
+            ev = self.watch.check(self.trial, self.slot, sample, pairs, tilts)
+            self.by_trial["tilt_by_trial"][k] = self.tilt_max
+            if self.window_contacts:
+                self.by_trial["contacts_by_trial"][k] = dict(self.window_contacts)
+        else:
+            ev = self.watch.check(self.trial, self.slot, -1, pairs, tilts, "return",
+                                  (now_ns - self.back_ns) * 1e-9)
+            if self.window_contacts:
+                self.by_trial["return_contacts_by_trial"][k] = dict(self.window_contacts)
+        if ev is not None and ev.acts:
+            self.stopped = ev
+        self.robots.held = self.held
+        ended = (self.phase == "trial" and not self.held
+                 and now_ns >= self.start_ns + self.T * self.dt_ns)
+        return ev, ended
+
+    def report(self) -> dict[str, Any]:
+        """The trial's report (once it ended): its contacts for the metrics rows
+        (``contact_report``: its slot and the pairs that touched), the run's so far."""
+        return {"contact_report": {"slot": self.slot,
+                                   "pairs": [list(p) for p in self.window_pairs]},
+                "contacts": dict(self.window_contacts), "tilt_max": self.tilt_max,
+                "contact_events": self.watch.events, **self.by_trial}
+
+    def ended(self, now_ns: int) -> None:
+        """The trial's report is out: the robots are driven back."""
+        self._begin_return(now_ns)

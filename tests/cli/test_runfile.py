@@ -159,7 +159,7 @@ def test_the_options_value_is_frozen_and_typed():
                            "--plant base)"),
     (("--v-max", "0.5"), "argument --v-max: --plant sim does not use it"),
     (("--tilt-limit", "5"), "argument --tilt-limit: --plant sim does not use it (it goes "
-                            "with --plant physics: its bodies tilt)"),
+                            "with --plant physics or --physics-bases: their bodies tilt)"),
     (("--on-contact", "abort"), "argument --on-contact: --plant sim does not use it"),
 ])
 def test_an_option_the_plant_does_not_use_is_refused(tmp_path, argv, line):

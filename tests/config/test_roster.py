@@ -59,6 +59,38 @@ def _with_bases_truth(plan: dict) -> dict:
     return {**plan, "true_state": True, "nodes": nodes}
 
 
+def _with_bases_following_trials(plan: dict) -> dict:
+    """The golden ``plan`` of physics bases as planned since they follow the trials (issue
+    37: their contacts are counted per trial and return, and a contact asks the leader to
+    abort its trial): a support member the leader waits for (after the bridges, before the
+    passive nodes) and whose trial reports the launcher waits for (after the plants), with
+    the contact parameters of the physics plant; nothing else changed."""
+    if not any(n["name"] == "physics_bases" for n in plan["nodes"]):
+        return plan
+    name = "physics_bases"
+
+    def expected(names: list[str]) -> list[str]:
+        passive = [x for x in names if x in ("monitor", "recorder")]
+        return [x for x in names if x not in passive] + [name] + passive
+
+    team = dict(plan["team"])
+    team["support"] = [*team["support"], name]
+    team["expected"] = expected(team["expected"])
+    reporters = list(plan["reporters"])
+    plants = [r for r in reporters if r.startswith("bridge_")]
+    reporters = plants + [name] + [r for r in reporters if r not in plants]
+    nodes = []
+    for n in plan["nodes"]:
+        if n["name"] == name:
+            n = {**n, "params": [*n["params"], ["on_contact", "stop"],
+                                 ["contact_retries", 2], ["tilt_limit", 10.0]]}
+        elif n["name"] == "virtual_leader":
+            n = {**n, "params": [[k, expected(v) if k == "nodes_expected" else v]
+                                 for k, v in n["params"]]}
+        nodes.append(n)
+    return {**plan, "team": team, "reporters": reporters, "nodes": nodes}
+
+
 def _with_damped_learning(plan: dict) -> dict:
     """The golden ``plan`` with the safety filter's default learning on two wheels since
     it became ``damped`` (issue 37, docs/safety.md): the leader's ``safety`` parameter says
@@ -279,8 +311,8 @@ def test_a_launch_plans_the_processes_it_planned(tmp_path, key):
                    "host": s.host, "env": s.env,
                    "restart": [s.restart.max_restarts, s.restart.refused]}
                   for s in plan.nodes]})
-    want = _with_new_example(_with_one_limits_table(_with_damped_learning(
-        _with_bases_truth(_golden("plans")[key]))))
+    want = _with_bases_following_trials(_with_new_example(_with_one_limits_table(
+        _with_damped_learning(_with_bases_truth(_golden("plans")[key])))))
     assert got == want
     # the roster names the same processes, each started by its entry script
     sc = plan.scenario

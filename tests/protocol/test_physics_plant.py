@@ -81,9 +81,10 @@ def test_bases_hold_commands_report_what_they_were_asked_and_stop_when_silent():
     ("stop", 1, ["stop", "give_up"]), ("abort", 2, ["abort"]), ("continue", 0, ["continue"])])
 def test_a_contact_stops_the_robots_holds_the_trial_and_counts_the_reruns(policy, retries,
                                                                           actions):
-    """Two robots driven into each other: the first contact of a trial is one event, the
-    robots stand afterwards (stop, abort), the trial is held for the leader's abort (stop;
-    the abort of its slot releases it), and the re-runs of one iteration are counted."""
+    """Two robots driven into each other: the first contact of a trial is the event acted
+    on, the robots stand afterwards (stop, abort), the trial is held for the leader's abort
+    (stop; the abort of its slot releases it), and the re-runs of one iteration are
+    counted. A pair is said once a trial."""
     from formation_ilc.protocol.schedule import ABORT
 
     plant = PhysicsPlant(short_config(), on_contact=policy, retries=retries)
@@ -97,11 +98,12 @@ def test_a_contact_stops_the_robots_holds_the_trial_and_counts_the_reruns(policy
                 plant.sent(0.0)
                 for r, u in enumerate(([0.0, 0.0], [0.6, -1.5], [0.6, 1.5])):
                     plant.command(r, np.array(u), 0.0)
-                ev = plant.take_contact()
-                if ev is not None:
-                    seen.append(ev)
-                    assert (2, 3) in [(p[0], p[1]) for p in ev.pairs]
-                    assert plant.take_contact() is None  # said once
+                for ev in plant.take_contacts():
+                    assert ev.acts == (not seen or seen[-1].slot != slot)
+                    if ev.acts:
+                        seen.append(ev)
+                        assert (2, 3) in [(p[0], p[1]) for p in ev.pairs]
+                    assert plant.take_contacts() == []  # said once
                 if plant.held:
                     break
             if seen[-1].action == "stop":
@@ -111,7 +113,101 @@ def test_a_contact_stops_the_robots_holds_the_trial_and_counts_the_reruns(policy
             if len(seen) == len(actions):
                 break
         assert [e.action for e in seen] == actions
+        # every event of the trial so far names a pair not said before in it
+        said = [(p[0], p[1]) for ev in [seen[-1]] for p in ev.pairs]
+        assert len(said) == len(set(said))
         if policy != "continue":  # the robots stood after the contact
             assert np.abs(plant.u[:, seen[-1].sample:]).max(initial=0.0) == 0.0
     finally:
         plant.close()
+
+
+def test_every_new_contact_or_tilt_is_said_once_and_the_first_decides():
+    """``ContactWatch``: each pair that comes into contact and each robot tipped past the
+    limit is an event, once per trial or return; the first one of a window decides, later
+    ones carry its action; the re-runs of an iteration end in give_up; a return's stop ends
+    the run (nothing to run again); a return that begins with robots still touching does
+    not say that contact again."""
+    from formation_ilc.protocol.physics_plant import ContactWatch
+
+    flat = np.zeros(3)
+    w = ContactWatch("stop", retries=1, tilt_limit=math.radians(10))
+    a = w.check(0, 0, 5, [(2, 3, 0.01, 0.001)], flat)
+    assert a is not None and a.acts and a.action == "stop" and a.n == 1
+    assert w.check(0, 0, 6, [(2, 3, 0.02, 0.001)], flat) is None  # the same pair, again
+    b = w.check(0, 0, 7, [(2, 3, 0.03, 0.001), (1, 2, 0.01, 0.0)],
+                np.radians([0.0, 12.0, 3.0]))
+    assert b is not None and not b.acts and b.action == "stop"
+    assert [p[:2] for p in b.pairs] == [(1, 2)] and b.tilted == 2 and b.n == 2
+    assert "robot 2 tilted 12.0 deg" in b.line(0.2, w.tilt_limit)
+    assert b.line(0.2, w.tilt_limit).startswith("trial 0 (slot 0), t = 1.4 s: robots 1 and 2")
+    w.window()  # the trial runs again (slot 1): the same pair is news, the retry spent
+    c = w.check(0, 1, 4, [(2, 3, 0.01, 0.0)], flat)
+    assert c is not None and c.acts and c.action == "give_up" and w.reruns == {0: 2}
+    w.window(carry=True)  # its return: still touching is no news, a new pair is
+    assert w.check(0, 1, -1, [(2, 3, 0.5, 0.0)], flat, "return", 0.4) is None
+    d = w.check(0, 1, -1, [(2, 3, 0.5, 0.0), (1, 3, 0.1, 0.0)], flat, "return", 0.6)
+    assert d is not None and d.acts and d.action == "abort" and d.phase == "return"
+    assert d.line(0.2, w.tilt_limit) == ("trial 0 (slot 1), 0.6 s into the return to the "
+                                         "start poses: robots 1 and 3 in contact (0.0 cm "
+                                         "deep)")
+    with pytest.raises(ValueError, match="on_contact"):
+        ContactWatch("ignore")
+
+
+class _Bases:
+    """What ``BaseTrials`` reads of the physics bases: the window's pairs, the tilts."""
+
+    def __init__(self):
+        self.pairs: list[tuple[int, int, float, float]] = []
+        self.held = False
+        self.windows = 0
+        self.world = self
+
+    def window(self):
+        self.windows += 1
+        self.pairs = []
+
+    def window_pairs(self):
+        return list(self.pairs)
+
+    def tilt(self):
+        return np.zeros(3)
+
+
+def test_the_bases_count_contacts_per_trial_and_return_and_hold_the_robots():
+    """``BaseTrials``: a start opens the trial (its agreed wall start), a contact holds the
+    robots and waits for the leader's abort (``stop``), the abort begins the return, a
+    trial that runs to its end reports its contacts for the rows and begins its return."""
+    from formation_ilc.protocol.physics_plant import BaseTrials, ContactWatch
+    from formation_ilc.protocol.schedule import ABORT
+
+    cfg = short_config()
+    bases = _Bases()
+    trials = BaseTrials(cfg, bases, ContactWatch("stop", retries=2))  # type: ignore[arg-type]
+    dt_ns, t0 = cfg.clock.dt_ns, 10**18
+    trials.follower.said_ready()
+    assert trials.on_event(TrialEvent(START, 0, 0, 0, start_wall_ns=t0), t0) is not None
+    assert trials.phase == "trial" and bases.windows == 1
+    assert trials.tick(t0 + 3 * dt_ns) == (None, False)
+    bases.pairs = [(1, 2, 0.02, 0.001)]
+    ev, ended = trials.tick(t0 + 4 * dt_ns)
+    assert ev is not None and ev.sample == 4 and ev.action == "stop" and not ended
+    assert trials.held and bases.held  # the robots stand until the leader aborts
+    assert trials.tick(t0 + 30 * dt_ns) == (None, False)  # held: the trial does not end
+    assert trials.by_trial["contacts_by_trial"] == {"0": {"robot_1-robot_2": 0.02}}
+    assert trials.on_event(TrialEvent(ABORT, 0, 0, 1), t0 + 31 * dt_ns) is not None
+    assert trials.phase == "return" and not bases.held
+    trials.follower.said_ready()
+    t1 = t0 + 40 * dt_ns
+    assert trials.on_event(TrialEvent(START, 0, 1, 2, start_wall_ns=t1), t1) is not None
+    ev, ended = trials.tick(t1 + cfg.scenario.samples * dt_ns)
+    assert ev is None and ended  # no contact this time: it ran to its end
+    report = trials.report()
+    assert report["contact_report"] == {"slot": 1, "pairs": []}
+    trials.ended(t1 + cfg.scenario.samples * dt_ns)
+    bases.pairs = [(2, 3, 0.05, 0.0)]
+    ev, _ = trials.tick(t1 + (cfg.scenario.samples + 5) * dt_ns)
+    assert ev is not None and ev.phase == "return" and ev.action == "abort"
+    assert abs(ev.seconds - 5 * dt_ns * 1e-9) < 1e-9
+    assert trials.by_trial["return_contacts_by_trial"] == {"0": {"robot_2-robot_3": 0.05}}

@@ -91,3 +91,57 @@ def test_too_fast_for_the_base_is_refused_then_runs_stretched(ros_env, tmp_path)
     for c in seen.values():
         assert 0.1 < c["v"] <= TB4.v_max + 1e-12 and c["omega"] <= TB4.omega_max + 1e-12
         assert c["a"] <= TB4.a_max * (1 + 1e-9) and c["alpha"] <= TB4.alpha_max * (1 + 1e-9)
+
+
+def _collision_memory(sc):
+    """A memory that drives robots 2 and 3 of paper-triangle3 (side by side, 1.4 m
+    apart, both facing +x) on arcs into each other, inside a P3-DX's limits (speed and
+    turn rate ramped in); robot 1 (ahead of them, facing away) drives off, out of the
+    way of their returns."""
+    n_t = sc.samples
+    mem = np.zeros((sc.n, n_t, 2))
+    ramp = np.minimum(1.0, np.arange(n_t) / 8.0)
+    mem[0, :, 0] = 0.3 * ramp
+    mem[1, :, 0] = mem[2, :, 0] = 0.4 * ramp
+    mem[1, :, 1], mem[2, :, 1] = -0.6 * ramp, 0.6 * ramp
+    return mem
+
+
+def test_a_contact_of_the_physics_bases_is_said_counted_and_ends_the_run(ros_env, tmp_path):
+    """The rehearsal catches a contact (issue 37): two physics bases driven into each other
+    (no filter) are said on the console the moment they touch, the leader aborts the trial
+    the bases asked it to, the trial runs again and touches again, and with its retry spent
+    the run ends with status 6. The contacts are counted per trial (summary.json's
+    physics block; the ending contact a field of summary.json and a row of metrics.csv)."""
+    from formation_ilc.store.memoryfile import save_memory
+
+    scen = tmp_path / "short.yaml"
+    scen.write_text(load_scenario("paper-triangle3").text.replace("samples: 140",
+                                                                  "samples: 40"))
+    sc = load_scenario(str(scen)).with_options(noise=False)
+    mem = save_memory(tmp_path / "crash.npz", _collision_memory(sc), sc)
+    res = launch(ros_env, tmp_path / "run", str(scen), "--plant", "base", "--base", "p3dx",
+                 "--physics-bases", "--no-noise", "--no-safety", "--allow-contact",
+                 "--init-memory", str(mem), "--trials", "3", "--contact-retries", "1",
+                 "--return-timeout", "15", timeout=600.0)
+    out = res.stdout
+    assert res.returncode == 6, out
+    said = [x for x in out.splitlines() if x.startswith("contact: ")]
+    # the first contact of trial 0 (slot 0): stopped, the trial runs again (slot 1)
+    assert said and said[0].startswith("contact: trial 0 (slot 0), t = "), out
+    assert "robots 2 and 3 in contact" in said[0] and said[0].endswith(
+        "the robots are stopped and the trial runs again (physics_bases)"), out
+    ending = [x for x in said if "(slot 1)" in x and "the run ends (retries spent)" in x]
+    assert ending, out
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    ended = summary["ended_by_contact"]
+    assert ended["node"] == "physics_bases" and ended["action"] == "give_up"
+    assert ended["trial"] == 0 and ended["slot"] == 1 and ended["phase"] == "trial"
+    assert [p[:2] for p in ended["pairs"]] == [[2, 3]]
+    physics = summary["physics"]
+    assert "robot_2-robot_3" in physics["contacts_by_trial"]["0"]
+    assert physics["contact_events"] >= 2
+    rows = read_metrics(tmp_path / "run" / "metrics.csv")
+    cols = {c: i for i, c in enumerate(METRIC_COLUMNS)}
+    assert rows.shape[0] == 1 and rows[0, 0] == 0 and rows[0, cols["contacts"]] == 1
+    assert np.isnan(rows[0, cols["max_position_error"]])  # the robots stood: no errors
