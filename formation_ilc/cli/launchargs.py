@@ -262,17 +262,18 @@ def add_safety_arguments(p: argparse.ArgumentParser) -> None:
                         "jackal), freeze (no learning at those samples), ignore (as if "
                         "unchanged; winds up). docs/safety.md compares them")
     g.add_argument("--on-contact", choices=("stop", "abort", "continue"), default="stop",
-                   help="with --plant physics, when two robots touch or one tilts past "
-                        "--tilt-limit: stop (default): stop the robots, abort the trial and "
-                        "run it again, at most --contact-retries times, then end the run "
-                        "(status 6) naming the pair; abort: stop the robots and end the run "
-                        "at once (status 6); continue: report it and go on")
+                   help="with --plant physics or --physics-bases, when two robots touch "
+                        "or one tilts past --tilt-limit: stop (default): stop the robots, "
+                        "abort the trial and run it again, at most --contact-retries times, "
+                        "then end the run (status 6) naming the pair; abort: stop the robots "
+                        "and end the run at once (status 6); continue: report it and go on. "
+                        "A contact in a return (physics bases) ends the run unless continue")
     g.add_argument("--contact-retries", type=int_range(0, 100), default=2, metavar="N",
                    help="with --on-contact stop: how often one trial is run again after a "
                         "contact (default 2)")
     g.add_argument("--tilt-limit", type=positive_float, default=10.0, metavar="DEG",
-                   help="with --plant physics: a robot tilted past this [deg] is treated "
-                        "as a contact (default 10)")
+                   help="with --plant physics or --physics-bases: a robot tilted past this "
+                        "[deg] is treated as a contact (default 10)")
 
 
 # --------------------------------------------------------------------------- clocks

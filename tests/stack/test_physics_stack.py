@@ -144,4 +144,10 @@ def test_contacts_are_said_at_once_counted_and_acted_on(ros_env, tmp_path):
     assert len(err) == 1 and "robots 2 and 3 in contact" in err[0], res.stdout
     assert "ending the run" in err[0]
     got = read_metrics(tmp_path / "stop" / "metrics.csv")
-    assert [int(k) for k in got[:, 0]] == [0]  # trial 1 never finished
+    # trial 1 never finished: its row is the contact that ended the run (the pair that
+    # touched, no errors), and summary.json names it
+    assert [int(k) for k in got[:, 0]] == [0, 1]
+    assert got[1, 8] == 1 and np.isnan(got[1, 1:8]).all()
+    ended = json.loads((tmp_path / "stop" / "summary.json").read_text())["ended_by_contact"]
+    assert ended["trial"] == 1 and ended["slot"] == 2 and ended["action"] == "give_up"
+    assert ended["node"] == "physics_sim" and [p[:2] for p in ended["pairs"]] == [[2, 3]]
