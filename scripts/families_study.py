@@ -43,12 +43,15 @@ def member(kind: str, seed: int, noise: bool, trials: int) -> dict:
     clear: list[float] = []
     safe = simulate(sc, trials, plant="arc", safety=spec, on_trial_data=lambda k, xi, *r:
                     clear.append(trial_clearance(k, xi, FP).value))
-    free = simulate(sc, trials, plant="arc")
+    free_clear: list[float] = []
+    free = simulate(sc, trials, plant="arc", on_trial_data=lambda k, xi, *r:
+                    free_clear.append(trial_clearance(k, xi, FP).value))
     return {"kind": kind, "seed": seed, "noise": noise, "robots": sc.n,
             "safe": safe.column("max_position_error").tolist(),
             "free": free.column("max_position_error").tolist(),
             "changed": safe.column("filter_active").tolist(),
-            "overlaps": int(sum(c < 0 for c in clear)), "least": float(min(clear))}
+            "overlaps": int(sum(c < 0 for c in clear)), "least": float(min(clear)),
+            "free_overlaps": int(sum(c < 0 for c in free_clear))}
 
 
 def main() -> int:
@@ -84,7 +87,12 @@ def main() -> int:
               f"{sum(r['overlaps'] for r in part)} overlapping trials, within 2x of the "
               f"unfiltered run at the last trial: {within}, median filtered error "
               f"{np.median([r['safe'][-1] for r in part]):.3f} m (unfiltered "
-              f"{np.median([r['free'][-1] for r in part]):.3f} m)")
+              f"{np.median([r['free'][-1] for r in part]):.3f} m); without the filter "
+              f"{sum(r['free_overlaps'] for r in part)} overlapping trials, in "
+              f"{sum(r['free_overlaps'] > 0 for r in part)} members; the filter's changes, "
+              f"trial 0 / mean of the last 10 (medians): "
+              f"{np.median([r['changed'][0] for r in part]):.0f} / "
+              f"{np.median([np.mean(r['changed'][-10:]) for r in part]):.1f}")
     if args.no_write:
         return 0
     FIG.mkdir(parents=True, exist_ok=True)
