@@ -105,6 +105,7 @@ from formation_ilc.nodes.common import (
     Diagnostics,
     DropCounter,
     Exit,
+    GuardedNode,
     fail,
     matched,
     node_parser,
@@ -118,7 +119,7 @@ from formation_ilc.protocol.plant import RESEND_S
 from formation_ilc.protocol.schedule import TrialEvent
 
 
-class LeaderNode(Node):
+class LeaderNode(GuardedNode):
     """The leader's node: parameters, publishers, subscriptions, timers; its decisions are
     ``self.core``'s (``formation_ilc.protocol.leader.Leader``), and it is the core's
     ``LeaderIO``."""

@@ -596,7 +596,8 @@ class _Session:
         signal.signal(signal.SIGINT, on_term)
         self.host = LauncherHost(self.plan, self.on_trial, first=self.done,
                                  on_contact=self.on_contact, on_clock=self.on_clock)
-        status = 0
+        # 1 until the run is followed to its end: an error that escapes prints no success
+        status = 1
         try:
             self.host.start()
             status = self._follow()

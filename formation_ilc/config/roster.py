@@ -224,6 +224,15 @@ class Roster:
         return tuple(m for m in self.members if m.entry is not None)
 
     @property
+    def contact_watchers(self) -> tuple[str, ...]:
+        """The members that watch the robots' bodies and report contacts: the physics
+        plant's node, the physics bases (``physics_bases`` behind bridges)."""
+        out = [self.plant.node] if self.plant.physics and self.plant.node else []
+        if self.lineup.bases_truth:
+            out.append(nm.BASES_NODE)
+        return tuple(n for n in out if n is not None)
+
+    @property
     def reporters(self) -> tuple[str, ...]:
         """Members besides the robots whose last trial's diagnostics the launcher waits for
         (timing, missed samples, injected delays, the bridges' returns, the recording)."""

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import csv
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,7 +33,8 @@ from formation_ilc.core.names import LEADER, robot_name, robot_number  # re-expo
 
 __all__ = ["LEADER", "LINK_MODES", "robot_name", "robot_number", "link_name",
            "delivered_label", "Delivery", "LinkInbox", "DELAY_COLUMNS", "link_histograms",
-           "delay_rows", "write_delays", "check_diagnostics", "link_clocks", "ONE_WAY"]
+           "delay_rows", "write_delays", "check_diagnostics", "check_for_run",
+           "CONTACT_ACTIONS", "CONTACT_PHASES", "link_clocks", "ONE_WAY"]
 
 #: sender name of the virtual leader's reference
 LINK_MODES = ("emulated", "direct")
@@ -183,6 +184,49 @@ def _histograms(v: Any) -> bool:
         for h in v.values())
 
 
+#: what a plant does on a contact (``protocol.physics_plant``)
+CONTACT_ACTIONS = ("stop", "continue", "abort", "give_up")
+
+
+#: where a plant says a contact happened: in a trial, or on the way back to the start poses
+CONTACT_PHASES = ("trial", "return")
+
+
+def _contact(v: Any) -> bool:
+    return (isinstance(v, dict) and _is_int(v.get("slot")) and v["slot"] >= 0
+            and _is_int(v.get("sample", 0)) and isinstance(v.get("line", ""), str)
+            and len(v.get("line", "")) <= 2000 and v.get("action") in CONTACT_ACTIONS
+            and isinstance(v.get("pairs", []), list) and len(v.get("pairs", [])) <= 10_000
+            and (v.get("tilt") is None or _is_number(v.get("tilt")))
+            and v.get("phase", "trial") in CONTACT_PHASES
+            and _is_int(v.get("n", 0)) and isinstance(v.get("acts", True), bool))
+
+
+def check_for_run(d: Mapping[str, Any], trials: int, contacts_from: Collection[str] = ()
+                  ) -> None:
+    """Diagnostics (checked by ``check_diagnostics``) that this run can have, or Malformed:
+    a trial the run has (0 <= trial <= ``trials``, the leader's last word naming the
+    count; -1: a node not ready yet), no slot below 0, and contacts (``contact``,
+    ``contact_report``) only from ``contacts_from``, the nodes that watch this run's
+    bodies (the physics plant, the physics bases; empty: no member of this run has
+    bodies it watches)."""
+    name = str(d.get("node"))[:100]
+    k: Any = d.get("trial")
+    if not (_is_int(k) and -1 <= k <= trials):
+        raise Malformed(f"diagnostics of {name!r}: trial {k!r} is not one this run has "
+                        f"(0..{trials - 1})")
+    for key in ("contact", "contact_report"):
+        if key in d and d.get("node") not in contacts_from:
+            raise Malformed(f"diagnostics of {name!r}: {key} from a node that does not "
+                            f"watch this run's bodies"
+                            + (f" ({', '.join(contacts_from)})" if contacts_from
+                               else " (none)"))
+    for key in ("filter", "contact_report"):
+        v = d.get(key)
+        if isinstance(v, Mapping) and _is_int(v.get("slot")) and v["slot"] < 0:
+            raise Malformed(f"diagnostics of {name!r}: {key} of slot {v['slot']}")
+
+
 def check_diagnostics(d: Mapping[str, Any]) -> dict[str, Any]:
     """A node's diagnostics (a JSON object), checked where its readers rely on it: ``node``
     a name, ``trial`` an integer, the delay histograms (``delays``, ``injected``) integer
@@ -215,6 +259,9 @@ def check_diagnostics(d: Mapping[str, Any]) -> dict[str, Any]:
         # a plant with bodies: the slot of the trial and the pairs that touched in it
         "contact_report": lambda v: isinstance(v, dict) and _is_int(v.get("slot"))
         and isinstance(v.get("pairs"), list) and len(v["pairs"]) <= 10_000,
+        # a plant's contact, said the moment it happens: its slot and sample, the line
+        # the launcher prints, what the plant does, the pairs, the tilt [rad] if any
+        "contact": _contact,
         # clock estimates (protocol.timesync): per peer a mapping, the findings as texts
         "clock": lambda v: isinstance(v, dict) and isinstance(v.get("peers", {}), dict)
         and all(isinstance(p, dict) for p in v.get("peers", {}).values())

@@ -41,7 +41,7 @@ from formation_ilc.system.lifetime import (
 )
 
 __all__ = ["PARENT_ENV", "RUN_ENV", "KEY_ENV", "run_key", "DROP_REASONS", "DropCounter",
-           "Diagnostics", "RunConfig", "make_config",
+           "Diagnostics", "RunConfig", "make_config", "GuardedNode", "MESSAGE_ERRORS",
            "config_from_msg", "ConfiguredNode", "matched", "unmatched",
            "readers_wanting", "fail",
            "spin_main", "node_parser", "ros_param", "robot_node_from_args"]
@@ -98,12 +98,41 @@ class DropCounter:
         return {"dropped": dict(self.counts), "dropped_by_topic": dict(self.by_topic)}
 
 
+#: what a handler may raise on a message it did not foresee (a field of the wrong type, a
+#: key missing, a number out of range): counted as ``malformed``, never the node's end
+MESSAGE_ERRORS = (ValueError, TypeError, KeyError, IndexError, AttributeError,
+                  ArithmeticError)
+
+
+class GuardedNode(Node):
+    """A node none of whose subscription callbacks can raise on a message: each callback
+    is wrapped so that an error of ``MESSAGE_ERRORS`` drops the message, counted as
+    ``malformed`` on its topic (the node's ``drops``), and the node goes on. A node's own
+    decision to end (``fail``, a full disk) is not one of them."""
+
+    def create_subscription(self, msg_type: Any, topic: str, callback: Callable[..., Any],
+                            *args: Any, **kwargs: Any) -> Subscription:
+        def guarded(msg: Any) -> Any:
+            try:
+                return callback(msg)
+            except MESSAGE_ERRORS as exc:
+                drops = getattr(self, "drops", None)
+                why = f"{type(exc).__name__}: {str(exc)[:200]}"
+                if drops is not None:
+                    drops.drop("malformed", topic, why)
+                else:
+                    self.get_logger().warning(f"dropped malformed message on {topic}: {why}")
+                return None
+
+        return super().create_subscription(msg_type, topic, guarded, *args, **kwargs)
+
+
 #: how often [s] a node not yet ready names the endpoints it waits for (its log, and its
 #: diagnostics, which the leader's watchdog repeats)
 MATCH_WARN = 10.0
 
 
-class ConfiguredNode(Node):
+class ConfiguredNode(GuardedNode):
     """A node that builds itself (``configure``) from a run configuration: one given at
     start, or the latched one on the config topic (``follow_config``)."""
 

@@ -24,6 +24,7 @@ node's last.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 from collections.abc import Callable
@@ -32,29 +33,33 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Path
-from rclpy.node import Node
 from std_msgs.msg import String
 
 import msgs_schema as ms
 from formation_ilc.core.clock import Rejected
-from formation_ilc.core.links import check_diagnostics
+from formation_ilc.core.links import check_diagnostics, check_for_run
+from formation_ilc.core.text import printable, printable_tree
 from formation_ilc.model.simulate import Problem
-from formation_ilc.nodes.common import DropCounter, RunConfig
+from formation_ilc.nodes.common import DropCounter, GuardedNode, RunConfig
 from formation_ilc.protocol.schedule import Ready, TrialEvent, sealed
 from formation_ilc.protocol.trialrows import Row, SlotRows
 
 
-class MonitorNode(Node):
-    """Collects trial k's trajectories; calls ``on_trial(k, row)`` when all are in."""
+class MonitorNode(GuardedNode):
+    """Collects trial k's trajectories; calls ``on_trial(k, row)`` when all are in.
+    ``contacts_from``: the nodes that watch the run's bodies and report contacts (the
+    physics plant, the physics bases; empty: no contact report is this run's)."""
 
     def __init__(self, cfg: RunConfig, on_trial: Callable[[int, np.ndarray], None],
                  true_state: bool = True, first: int = 0,
                  on_contact: Callable[[str, dict[str, Any]], None] | None = None,
                  on_clock: Callable[[str, str, str], None] | None = None,
-                 key: bytes | None = None, **kwargs: Any):
+                 key: bytes | None = None, contacts_from: tuple[str, ...] = (),
+                 **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(ms.MONITOR_NODE, **kwargs)
         self.cfg = cfg
+        self.contacts_from = contacts_from
         self.pb = Problem.from_scenario(cfg.scenario)
         self.clock = cfg.clock
         self.on_trial = on_trial
@@ -124,6 +129,8 @@ class MonitorNode(Node):
         except Rejected as exc:
             self.drops.reject(exc, ms.READY)
             return
+        # the launcher names whom a run waits for: a node's name reaches the console
+        r = dataclasses.replace(r, node=printable(r.node, 200))
         if r.run and r.run != self.cfg.run_id:
             return
         if r.down and r.node == ms.MONITOR_NODE and r.boot == self.boot and self.said_ready:
@@ -174,6 +181,9 @@ class MonitorNode(Node):
     def _on_diag(self, msg: DiagnosticArray) -> None:
         try:
             d = check_diagnostics(ms.msg_to_report(msg, ("node", "trial")))
+            check_for_run(d, self.cfg.scenario.trials, self.contacts_from)
+            # every text in it may reach the console (contact lines, clock words, names)
+            d = printable_tree(d)
             name, k = d["node"], d["trial"]
             if "waiting" in d:  # a node not ready yet, for the leader's watchdog: no report
                 return

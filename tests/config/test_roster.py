@@ -334,3 +334,13 @@ def test_a_launch_plans_the_processes_it_planned(tmp_path, key):
     assert list(r.reporters) == want["reporters"]
     assert r.lineup.true_state == want["true_state"]
     assert r.plant.per_robot == want["bridged"]
+
+
+def test_contacts_come_from_the_members_that_watch_the_bodies():
+    """The monitor takes a contact only from the physics plant or the physics bases (issue
+    39): never from a robot, a kinematic simulator or a bridge."""
+    assert roster(Lineup(3, plant="physics")).contact_watchers == ("physics_sim",)
+    assert roster(Lineup(3, plant="base", physics_bases=True)).contact_watchers == (
+        "physics_bases",)
+    for lineup in (Lineup(3), Lineup(3, plant="pioneer"), Lineup(3, plant="base")):
+        assert roster(lineup).contact_watchers == ()

@@ -297,6 +297,51 @@ def test_monitor_takes_the_leaders_repeated_start_as_no_event(context):
         mon.destroy_node()
 
 
+def test_monitor_checks_every_field_of_a_report_and_prints_no_control_character(context):
+    """A forged report whose contact slot is text, a contact from a robot or from a plant
+    without bodies, a trial the run does not have: each dropped as malformed, none raises
+    (the launcher once printed success, then a traceback). A text with a terminal escape
+    reaches the launcher escaped."""
+    from formation_ilc.nodes.monitor import MonitorNode
+
+    said: list[dict] = []
+    mon = MonitorNode(CFG, lambda k, row: None, context=context,
+                      on_contact=lambda name, c: said.append(c),
+                      contacts_from=(ms.PHYSICS_NODE,))
+    kinematic = MonitorNode(CFG, lambda k, row: None, context=context)
+    try:
+        mon.slots.started = kinematic.slots.started = 1
+        contact = {"slot": 1, "sample": 3, "line": "\x1b[2Ktrial 99/99 \x1b[1A", "action": "stop",
+                   "pairs": [[1, 2]], "tilt": None}
+        bad = [{"node": ms.PHYSICS_NODE, "trial": 1, "contact": dict(contact, slot="boom")},
+               {"node": ms.PHYSICS_NODE, "trial": 1, "contact": dict(contact, action="x")},
+               {"node": "robot_2", "trial": 1, "contact": contact},
+               {"node": ms.PHYSICS_NODE, "trial": 10**6},
+               {"node": ms.PHYSICS_NODE, "trial": 1, "filter": {"slot": -3, "changed": 1}}]
+        for d in bad:
+            before = dropped(mon)
+            mon._on_diag(ms.diagnostics_to_msg(d, 0))
+            assert dropped(mon) == before + 1, d
+        assert said == [] and mon.drops.counts["malformed"] == len(bad)
+        # contacts in a run whose plant has no bodies are no report of it
+        kinematic._on_diag(ms.diagnostics_to_msg(
+            {"node": ms.SIM_NODE, "trial": 1, "contact_report": {"slot": 1, "pairs": [[1, 2]]}},
+            0))
+        assert dropped(kinematic) == 1 and ms.SIM_NODE not in kinematic.diagnostics
+        mon._on_diag(ms.diagnostics_to_msg({"node": ms.PHYSICS_NODE, "trial": 1,
+                                            "contact": contact}, 0))
+        assert len(said) == 1 and "\x1b" not in said[0]["line"]
+        assert said[0]["line"].startswith("\\x1b[2Ktrial 99/99")
+        # through the subscription: an error no check foresaw is a drop, not the end
+        sub = mon.create_subscription(String, "odd", lambda m: int(m.data), 1)
+        before = dropped(mon)
+        sub.callback(String(data="boom"))
+        assert dropped(mon) == before + 1 and mon.drops.by_topic["malformed:odd"] == 1
+    finally:
+        mon.destroy_node()
+        kinematic.destroy_node()
+
+
 def test_fuzz_bridge_handlers(context):
     from formation_ilc.nodes.pioneer_bridge import BridgeNode
 
