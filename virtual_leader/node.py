@@ -163,8 +163,9 @@ class LeaderNode(GuardedNode):
         self.ref_pub = self.create_publisher(PoseStamped, ms.REFERENCE, ms.SAMPLE_QOS)
         self.event_pub = self.create_publisher(String, ms.TRIAL_EVENTS, ms.SAMPLE_QOS)
         self.diag_pub = Diagnostics(self)  # per-trial report and /diagnostics
-        self.ready_sub = self.create_subscription(String, ms.READY, self._on_ready,
-                                                  ms.LATCHED_READER_QOS)
+        # every ready and report from the node it names (protocol.writers)
+        self.ready_sub = self.checked_subscription(String, ms.READY, self._on_ready_from,
+                                                   ms.LATCHED_READER_QOS, shared=True)
         # its own events come back here too; a start or abort it did not send is re-asserted
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
         # a second formation's latched configuration is what this reader is for: a depth
@@ -173,8 +174,8 @@ class LeaderNode(GuardedNode):
         self.create_subscription(String, ms.CONFIG, self._on_config, ms.LATCHED_READER_QOS)
         # a node not yet ready says what it waits for in its diagnostics: the watchdog
         # names it (discovery that does not complete shows as endpoints never matched)
-        self.create_subscription(DiagnosticArray, ms.DIAGNOSTICS, self._on_diagnostics,
-                                 ms.LATCHED_READER_QOS)
+        self.checked_subscription(DiagnosticArray, ms.DIAGNOSTICS, self._on_diagnostics_from,
+                                  ms.LATCHED_READER_QOS, shared=True)
         if cfg.mode == "wallclock":
             self._wall_timer = self.create_timer(0.005, self.core.on_wall_timer)
         else:
@@ -220,6 +221,25 @@ class LeaderNode(GuardedNode):
             self.core.on_ready(ms.msg_to_json(msg))
         except Rejected as exc:
             self.drops.reject(exc, ms.READY)
+
+    def _on_ready_from(self, msg: String, gid: bytes) -> None:
+        """A ready, taken only from the node it names (the monitor may say another is
+        down): a ready in another node's name no longer stops the run."""
+        try:
+            d = ms.msg_to_json(msg)
+        except Rejected as exc:
+            self.drops.reject(exc, ms.READY)
+            return
+        if self.from_named_writer(ms.READY, gid, d.get("node"), d.get("down") is True):
+            self._on_ready(msg)
+
+    def _on_diagnostics_from(self, msg: DiagnosticArray, gid: bytes) -> None:
+        try:
+            report = ms.msg_to_report(msg, ("node",))
+        except Rejected:
+            return  # the monitor counts malformed diagnostics
+        if self.from_named_writer(ms.DIAGNOSTICS, gid, report.get("node")):
+            self.core.on_waiting(report)
 
     def _on_event(self, msg: String) -> None:
         try:
@@ -292,9 +312,10 @@ class LeaderNode(GuardedNode):
         fail(self, text, code=code)
 
     def reread_readies(self) -> None:
-        self.destroy_subscription(self.ready_sub)
-        self.ready_sub = self.create_subscription(String, ms.READY, self._on_ready,
-                                                  ms.LATCHED_READER_QOS)
+        self.ready_sub.destroy()
+        self._checked.remove(self.ready_sub)
+        self.ready_sub = self.checked_subscription(String, ms.READY, self._on_ready_from,
+                                                   ms.LATCHED_READER_QOS, shared=True)
 
     def _gate_pairs(self) -> list[tuple[Any, int]]:
         """The endpoints a trial's start waits for, beside the readies: the reference's

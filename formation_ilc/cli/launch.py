@@ -548,6 +548,17 @@ class _Session:
             return
         print(progress_line(k, self.plan, row) + f"  [{now - self.t_start:.1f} s]",
               flush=True)
+        self._say_forged()
+
+    def _say_forged(self) -> None:
+        """Once a trial, when it changed: the messages refused for their writer."""
+        from formation_ilc.protocol.writers import forged_line
+
+        monitor = self.host.monitor if self.host is not None else None
+        line = forged_line(monitor.forged_reports()) if monitor is not None else ""
+        if line and line != getattr(self, "_forged_said", ""):
+            self._forged_said = line
+            print(line, flush=True)
 
     def on_contact(self, node: str, c: dict[str, Any]) -> None:
         """A plant's contact, said the moment it happened (the plant acts on it)."""

@@ -27,6 +27,7 @@ from formation_ilc.core.links import (
 )
 from formation_ilc.core.names import BASES_NODE, MONITOR_NODE, SIM_NODE
 from formation_ilc.plan.specs import RunPlan
+from formation_ilc.protocol.writers import forged_line
 from formation_ilc.system.exits import DISK_FULL, is_disk_full
 
 __all__ = ["write_report", "summary_of", "print_report"]
@@ -63,6 +64,10 @@ def summary_of(plan: RunPlan, rows: int, diagnostics: Mapping[str, Mapping[str, 
         "dropped": {n: d.get("dropped", {}) for n, d in diagnostics.items()},
         "startup": dict(startup or {})}
     monitor = diagnostics.get(MONITOR_NODE, {})
+    forged = forged_line({n: d.get("forged") or {} for n, d in diagnostics.items()})
+    if forged:  # messages refused for their writer, by every node (protocol.writers)
+        summary["forged"] = {n: d["forged"] for n, d in diagnostics.items() if d.get("forged")}
+        summary["forged_line"] = forged
     count = int(monitor.get("foreign_events", 0) or 0)
     if count:  # schedule events of another writer (the monitor sees them all)
         summary["foreign_events"] = {"count": count,
@@ -211,6 +216,8 @@ def print_report(sc: Scenario, m: np.ndarray, dtab: list[list[Any]], summary: di
     drops = {n: sum(d.values()) for n, d in summary["dropped"].items() if sum(d.values())}
     if drops:
         print(f"dropped messages: {drops}")
+    if summary.get("forged_line"):
+        print(summary["forged_line"])
     foreign = summary.get("foreign_events")
     if foreign:
         print(f"foreign trial events: {foreign['count']} not sealed by this run's leader, "

@@ -24,9 +24,10 @@ __all__ = ["Rejected", "Malformed", "SampleClock", "WallGrid", "REASONS", "Trial
 #: (beyond the window the node accepts now: a later trial, or too far ahead in this one),
 #: unexpected (well formed, but not what the node's protocol allows now: a command outside
 #: a trial, a ready from a node nobody waits for), foreign (of another run on the same
-#: domain and namespace: its configuration, events or readies)
+#: domain and namespace: its configuration, events or readies), forged (not from the writer
+#: its topic or its named sender has: ``protocol.writers``)
 REASONS = ("malformed", "stale", "out_of_order", "duplicate", "future", "unexpected",
-           "foreign")
+           "foreign", "forged")
 
 
 class Rejected(ValueError):

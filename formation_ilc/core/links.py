@@ -267,6 +267,10 @@ def check_diagnostics(d: Mapping[str, Any]) -> dict[str, Any]:
         and all(isinstance(p, dict) for p in v.get("peers", {}).values())
         and isinstance(v.get("warn", []), list)
         and all(isinstance(w, str) for w in v.get("warn", [])),
+        # messages refused for their writer (protocol.writers): topic -> sender -> count
+        "forged": lambda v: isinstance(v, dict) and len(v) <= 1000 and all(
+            isinstance(s, dict) and len(s) <= 1000
+            and all(_is_int(n) and n >= 0 for n in s.values()) for s in v.values()),
         # a word between reports: the clock events to say, (level, text) pairs
         "clock_word": lambda v: isinstance(v, dict) and isinstance(v.get("events"), list)
         and len(v["events"]) <= 100 and all(

@@ -30,6 +30,7 @@ import msgs_schema as ms
 from formation_ilc.config.runconfig import RunConfig, make_config
 from formation_ilc.core.clock import REASONS, Rejected
 from formation_ilc.protocol.schedule import Follower, Ready, TrialEvent, parse_key
+from formation_ilc.protocol.writers import OK, WriterTable
 from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, is_disk_full
 from formation_ilc.system.lifetime import (
     ORPHAN_GRACE,
@@ -95,7 +96,13 @@ class DropCounter:
         self.drop(exc.reason, topic, str(exc))
 
     def as_dict(self) -> dict[str, Any]:
-        return {"dropped": dict(self.counts), "dropped_by_topic": dict(self.by_topic)}
+        """The counts for a report; ``forged``: the messages the node's writer table
+        refused, by topic and sender (``protocol.writers``), when it refused any."""
+        out = {"dropped": dict(self.counts), "dropped_by_topic": dict(self.by_topic)}
+        writers = getattr(self._node, "writers", None)
+        if writers is not None and writers.total:
+            out["forged"] = writers.report()
+        return out
 
 
 #: what a handler may raise on a message it did not foresee (a field of the wrong type, a
@@ -116,15 +123,67 @@ class GuardedNode(Node):
             try:
                 return callback(msg)
             except MESSAGE_ERRORS as exc:
-                drops = getattr(self, "drops", None)
-                why = f"{type(exc).__name__}: {str(exc)[:200]}"
-                if drops is not None:
-                    drops.drop("malformed", topic, why)
-                else:
-                    self.get_logger().warning(f"dropped malformed message on {topic}: {why}")
+                self._malformed(topic, exc)
                 return None
 
         return super().create_subscription(msg_type, topic, guarded, *args, **kwargs)
+
+    def checked_subscription(self, msg_type: Any, topic: str,
+                             handler: Callable[[Any, bytes], None], qos: Any,
+                             raw: bool = False, shared: bool = False) -> Any:
+        """A subscription whose every message is judged by its writer first
+        (``nodes.writers.CheckedSubscription`` with this node's ``writers`` table):
+        ``handler(msg, gid)``, guarded like every callback here; a refused message is a
+        ``forged`` drop."""
+        from formation_ilc.nodes.writers import CheckedSubscription
+
+        if not hasattr(self, "writers"):
+            self.writers = WriterTable(self.get_namespace())
+        name = topic
+
+        def guarded(msg: Any, gid: bytes) -> None:
+            try:
+                handler(msg, gid)
+            except MESSAGE_ERRORS as exc:
+                self._malformed(name, exc)
+
+        sub = CheckedSubscription(self, msg_type, topic, qos, self.writers, guarded, raw=raw,
+                                  shared=shared, on_refused=lambda why: self._forged(name, why))
+        self._checked = [*getattr(self, "_checked", []), sub]
+        return sub
+
+    def from_named_writer(self, topic: str, gid: bytes, claimed: Any, down: bool = False
+                          ) -> bool:
+        """Whether the writer (``gid``) of a message on a shared topic is the node the
+        message names (``claimed``; the launcher's monitor may say another is ``down``);
+        a message that names no node is left to its handler (malformed there). Counted
+        as ``forged`` when not."""
+        if not isinstance(claimed, str):
+            return True
+        verdict = self.writers.claims(self.resolve_topic_name(topic), gid, claimed, down)
+        if verdict == OK:
+            return True
+        self._forged(topic, verdict)
+        return False
+
+    def _forged(self, topic: str, why: str) -> None:
+        drops = getattr(self, "drops", None)
+        if drops is not None:
+            drops.drop("forged", topic, why)
+
+    def _malformed(self, topic: str, exc: BaseException) -> None:
+        why = f"{type(exc).__name__}: {str(exc)[:200]}"
+        drops = getattr(self, "drops", None)
+        if drops is not None:
+            drops.drop("malformed", topic, why)
+        else:
+            self.get_logger().warning(f"dropped malformed message on {topic}: {why}")
+
+    def destroy_node(self) -> None:
+        for sub in getattr(self, "_checked", []):
+            sub.destroy()
+        self._checked = []
+        super().destroy_node()
 
 
 #: how often [s] a node not yet ready names the endpoints it waits for (its log, and its

@@ -102,9 +102,11 @@ class MonitorNode(GuardedNode):
         #: the last ready of each node (the launcher names whom a stuck run waits for)
         self.readies: dict[str, Ready] = {}
         self._gate = self.create_timer(0.05, self._check_ready)
-        self.create_subscription(DiagnosticArray, ms.DIAGNOSTICS, self._on_diag,
-                                 ms.LATCHED_READER_QOS)
-        self.create_subscription(String, ms.READY, self._on_ready, ms.LATCHED_READER_QOS)
+        # every report and ready from the node it names (protocol.writers)
+        self.checked_subscription(DiagnosticArray, ms.DIAGNOSTICS, self._on_diag_from,
+                                  ms.LATCHED_READER_QOS, shared=True)
+        self.checked_subscription(String, ms.READY, self._on_ready_from, ms.LATCHED_READER_QOS,
+                                  shared=True)
         self.events_sub = self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event,
                                                    ms.SAMPLE_QOS)
 
@@ -119,6 +121,24 @@ class MonitorNode(GuardedNode):
         return ms.json_to_msg({"node": ms.MONITOR_NODE, "passive": True,
                                "trial": self.cfg.scenario.trials, "boot": self.boot,
                                "run": self.cfg.run_id})
+
+    def _on_ready_from(self, msg: String, gid: bytes) -> None:
+        try:
+            d = ms.msg_to_json(msg)
+        except Rejected as exc:
+            self.drops.reject(exc, ms.READY)
+            return
+        if self.from_named_writer(ms.READY, gid, d.get("node"), d.get("down") is True):
+            self._on_ready(msg)
+
+    def _on_diag_from(self, msg: DiagnosticArray, gid: bytes) -> None:
+        try:
+            name = ms.msg_to_report(msg, ("node",)).get("node")
+        except Rejected as exc:
+            self.drops.reject(exc, ms.DIAGNOSTICS)
+            return
+        if self.from_named_writer(ms.DIAGNOSTICS, gid, name):
+            self._on_diag(msg)
 
     def _on_ready(self, msg: String) -> None:
         """Readies of every node: who is there (``readies``, for the launcher's watchdog);
@@ -158,7 +178,14 @@ class MonitorNode(GuardedNode):
         foreign, and the other writers of the topic it saw."""
         return {"node": ms.MONITOR_NODE,
                 "foreign_events": int(self.drops.by_topic[f"foreign:{ms.TRIAL_EVENTS}"]),
-                "foreign_writers": sorted(self.foreign_seen)}
+                "foreign_writers": sorted(self.foreign_seen),
+                "forged": self.writers.report()}
+
+    def forged_reports(self) -> dict[str, Any]:
+        """Every node's ``forged`` counts as its last report says, and the monitor's own."""
+        out = {n: d.get("forged") for n, d in self.diagnostics.items() if d.get("forged")}
+        out[ms.MONITOR_NODE] = self.writers.report()
+        return out
 
     def leader_present(self) -> bool:
         """Whether a writer of the trial events (the leader) has been discovered."""

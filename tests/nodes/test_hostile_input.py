@@ -342,6 +342,40 @@ def test_monitor_checks_every_field_of_a_report_and_prints_no_control_character(
         kinematic.destroy_node()
 
 
+@pytest.mark.parametrize("kind", ["events", "single"])
+def test_a_ready_is_taken_from_the_node_it_names_only(context, kind):
+    """The monitor takes robot_1's ready from robot_1's writer, and refuses the same ready
+    from robot_3's (counted by topic and sender, in its report too), on either executor
+    (the events executor passes no message info: nodes.writers takes the writer's GID from
+    rcl)."""
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.experimental import EventsExecutor
+
+    from formation_ilc.nodes.monitor import MonitorNode
+
+    mon = MonitorNode(CFG, lambda k, row: None, context=context)
+    one = rclpy.create_node("robot_1", namespace=ms.NAMESPACE, context=context)
+    three = rclpy.create_node("robot_3", namespace=ms.NAMESPACE, context=context)
+    ex = (EventsExecutor(context=context) if kind == "events"
+          else SingleThreadedExecutor(context=context))
+    try:
+        for n in (mon, one, three):
+            ex.add_node(n)
+        pubs = [n.create_publisher(String, ms.absolute(ms.READY), ms.LATCHED_QOS)
+                for n in (three, one)]
+        for p, boot in zip(pubs, ("forged", "real"), strict=True):
+            p.publish(ms.json_to_msg({"node": "robot_1", "trial": 0, "boot": boot,
+                                      "run": CFG.run_id}))
+        spin_until(ex, lambda: "robot_1" in mon.readies and mon.writers.total >= 1)
+        assert mon.readies["robot_1"].boot == "real"
+        assert mon.report()["forged"] == {"/formation/ready": {"/formation/robot_3": 1}}
+        assert mon.drops.counts["forged"] == 1
+    finally:
+        ex.shutdown()
+        for n in (mon, one, three):
+            n.destroy_node()
+
+
 def test_fuzz_bridge_handlers(context):
     from formation_ilc.nodes.pioneer_bridge import BridgeNode
 

@@ -15,6 +15,13 @@ leader (or a buggy node) on the same domain and namespace would.
   and each topic's newest (a duplicate), as a stale bag replay or a node stuck in a loop
   would send them.
 
+* ``--ready-as K``: once robot_1 said ready for iteration K, a copy of that ready in
+  robot_1's name with another seed in its configuration (before, the leader stopped the
+  run with status 2, blaming robot_1).
+* ``--bad-report K``: at the start of iteration K, diagnostics in the plant's name whose
+  contact slot is text (before, the launcher's monitor raised and the launcher ended with
+  a traceback), and one whose contact line carries terminal escapes.
+
 It prints one JSON line per forgery on stdout (``{"forged": ..., "count": ...}``), and
 exits once it has forged what it was asked to, or when the formation's configuration
 writer is gone.
@@ -30,6 +37,7 @@ import sys
 import time
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
@@ -93,6 +101,8 @@ def main() -> int:
     p.add_argument("--abort-committed", type=int, default=None, metavar="K")
     p.add_argument("--pose-flood", type=int, default=None, metavar="K")
     p.add_argument("--flood-seconds", type=float, default=5.0, metavar="S")
+    p.add_argument("--ready-as", type=int, default=None, metavar="K")
+    p.add_argument("--bad-report", type=int, default=None, metavar="K")
     p.add_argument("--timeout", type=float, default=900.0)
     a = p.parse_args()
     rclpy.init()
@@ -120,16 +130,20 @@ def main() -> int:
         d = json.loads(msg.data)
         if d.get("run") == st["run"] and str(d.get("node", "")).startswith("robot_"):
             st["readies"][d["node"]] = d
+            st.setdefault("last_ready", {})[d["node"]] = d
 
     node.create_subscription(String, topic(ms.CONFIG), on_config, ms.LATCHED_QOS)
     node.create_subscription(String, topic(ms.TRIAL_EVENTS), on_event, ms.SAMPLE_QOS)
     node.create_subscription(String, topic(ms.READY), on_ready, ms.LATCHED_READER_QOS)
     pub = node.create_publisher(String, topic(ms.TRIAL_EVENTS), ms.SAMPLE_QOS)
+    ready_pub = node.create_publisher(String, topic(ms.READY), ms.LATCHED_QOS)
+    diag_pub = node.create_publisher(DiagnosticArray, topic(ms.DIAGNOSTICS), ms.LATCHED_QOS)
     config_sub = node.get_publishers_info_by_topic
     ex = SingleThreadedExecutor()
     ex.add_node(node)
     todo = {k for k, v in (("burst", a.burst_at), ("abort", a.abort_committed),
-                           ("flood", a.pose_flood)) if v is not None}
+                           ("flood", a.pose_flood), ("ready", a.ready_as),
+                           ("report", a.bad_report)) if v is not None}
     #: pose topic -> its first REPLAYED messages (stale by the flood) and its newest
     heard: dict[str, list[bytes]] = {}
     flood: dict[str, object] = {}  # pose topic -> publisher
@@ -174,6 +188,27 @@ def main() -> int:
                 pub.publish(String(data=json.dumps(d)))
                 todo.discard("abort")
                 print(json.dumps({"forged": "abort", "count": 1, "event": d}), flush=True)
+            mine = st.get("last_ready", {}).get("robot_1")
+            if "ready" in todo and mine is not None and mine.get("trial", -1) >= a.ready_as:
+                cfg = dict(mine.get("config") or {})
+                d = {**mine, "config": {**cfg, "seed": 999}}
+                ready_pub.publish(String(data=json.dumps(d)))
+                todo.discard("ready")
+                print(json.dumps({"forged": "ready", "count": 1, "ready": d}), flush=True)
+            if "report" in todo and start is not None and start["trial"] >= a.bad_report:
+                plant = ms.SIM_NODE
+                k = int(start["trial"])
+                line = "\x1b[2K\rtrial 99/99 ... every trial is in\x1b[1A"
+                for contact in ({"slot": "boom", "line": "x", "action": "stop"},
+                                {"slot": int(start["slot"]), "sample": 1, "line": line,
+                                 "action": "continue", "pairs": [[1, 2]]}):
+                    diag_pub.publish(ms.diagnostics_to_msg(
+                        {"node": plant, "trial": k, "contact": contact}, 0))
+                diag_pub.publish(ms.diagnostics_to_msg(
+                    {"node": plant, "trial": k, "contact_report": {"slot": 0,
+                                                                   "pairs": [[1, 2]] * 7}}, 0))
+                todo.discard("report")
+                print(json.dumps({"forged": "report", "count": 3}), flush=True)
             if "flood" in todo and start is not None and start["trial"] >= a.pose_flood:
                 count = _flood(heard, flood, a.flood_seconds,
                                lambda: bool(config_sub(topic(ms.CONFIG))))
@@ -182,7 +217,8 @@ def main() -> int:
                                   "topics": len(heard)}), flush=True)
         # a reliable writer that exits at once may not have delivered: wait until every
         # reader acknowledged the forgeries (bounded; a reader that left is no longer waited for)
-        pub.wait_for_all_acked(Duration(seconds=10))
+        for w in (pub, ready_pub, diag_pub):
+            w.wait_for_all_acked(Duration(seconds=10))
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

@@ -105,11 +105,13 @@ def batch() -> np.ndarray:
 
 
 def test_forged_events_and_a_forged_down_move_nothing(ros_env, context, tmp_path):
-    """Four forgeries in one run, each with the run id read from the latched configuration:
+    """Six forgeries in one run, each with the run id read from the latched configuration:
     an abort of the running slot and a "down" of the live recorder from a peer in this
     process; a burst of 72 events (starts, aborts, ends, a done) the moment trial 2 ends,
     and an abort of the slot trial 4 ran once every robot has learned it (with the seq the
-    leader gives its next start), from a second process (tests/stack/forger.py).
+    leader gives its next start), a ready in robot_1's name with another seed and reports in
+    the plant's name (a contact slot that is text, a line of terminal escapes, contacts in a
+    run without bodies), from a second process (tests/stack/forger.py).
 
     Before: the forged abort made the simulator leave its trial and the leader wait for its
     /clock forever; the "down" made the leader wait for a live recorder; the burst filed a
@@ -124,7 +126,8 @@ def test_forged_events_and_a_forged_down_move_nothing(ros_env, context, tmp_path
     forger = None
     forged: dict[str, dict] = {}
     second = subprocess.Popen([sys.executable, str(Path(__file__).with_name("forger.py")),
-                               "--burst-at", "2", "--abort-committed", "4"], env=ros_env,
+                               "--burst-at", "2", "--abort-committed", "4",
+                               "--ready-as", "3", "--bad-report", "3"], env=ros_env,
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                               start_new_session=True)
     try:
@@ -160,8 +163,8 @@ def test_forged_events_and_a_forged_down_move_nothing(ros_env, context, tmp_path
             forger.close()
     assert set(forged) == {"abort", "down"}, forged
     by_second = [json.loads(ln) for ln in said.splitlines() if ln.startswith("{")]
-    assert [d["forged"] for d in by_second] == ["burst", "abort"], said
-    assert by_second[0]["count"] == 72
+    assert sorted(d["forged"] for d in by_second) == ["abort", "burst", "ready", "report"], said
+    assert [d["count"] for d in by_second if d["forged"] == "burst"] == [72]
     assert proc.returncode == 0, out + err
     got = read_metrics(tmp_path / "metrics.csv")
     np.testing.assert_array_equal(got[:, 0], np.arange(TRIALS))
@@ -174,6 +177,15 @@ def test_forged_events_and_a_forged_down_move_nothing(ros_env, context, tmp_path
     assert summary["foreign_events"]["count"] >= 74, summary["foreign_events"]
     assert "/forger/forger" in summary["foreign_events"]["writers"]
     assert "foreign trial events: " in out
+    # the ready in robot_1's name and the reports in the plant's, from another writer:
+    # refused by the leader and the monitor, counted by sender, said on the console;
+    # none of their text reached it unescaped
+    forged = summary["forged"]
+    assert forged["virtual_leader"]["/formation/ready"]["/forger/forger"] >= 1, forged
+    mon = forged["monitor"]
+    assert mon["/formation/diagnostics"]["/forger/forger"] >= 3, forged
+    assert mon["/formation/ready"]["/forger/forger"] >= 1, forged
+    assert "forged: " in out and "\x1b" not in out and "every trial is in" in out
     from formation_ilc.recordings.recording import load_recording, recording_parts
 
     # the recording holds the forgeries as evidence; its analysis takes the leader's only

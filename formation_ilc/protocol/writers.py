@@ -1,0 +1,179 @@
+"""Each topic from its own writer: the writers a node accepts a message from, by topic.
+
+DDS delivers to a reader every matched writer's samples; the ROS graph names each writer
+(its GID, 16 bytes) with the node that created it. A node that takes a message with its
+writer's GID (``formation_ilc.nodes.writers``) asks this table whether that writer may
+write the topic:
+
+* a topic of one owner (a robot's ``pose`` from the plant, the plant's ``team/poses``, a
+  base's ``truth`` from the physics bases): only writers of the owner's node, in the
+  formation's namespace (``owned``);
+* a shared topic (``ready``, ``diagnostics``: every node writes them, each in its own
+  name): only a writer of the node the message names (``claims``); the launcher's monitor
+  may also say that another node is ``down`` (it saw its process die).
+
+A writer the graph does not list yet, or lists without its node's name (the node's
+``ros_discovery_info`` comes after its endpoints), is ``UNKNOWN``: the caller holds the
+message, learns the topic's writers again (``learn``, at most every ``REFRESH`` seconds a
+topic) and asks again, for up to ``HOLD`` seconds.
+
+Without ``--secure``, the graph's node names are what each participant says of itself: a
+process that names its node after the owner passes. With ``--secure``, a writer exists
+only where its enclave's permissions grant the topic (the owners' topics), and the
+participant behind a GID is authenticated (docs/security.md).
+
+Everything refused is counted by topic and sender (``forged``), for the node's diagnostics,
+the launcher's console and the report. Pure: no ROS.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from formation_ilc.config.plants import PLANT_TABLE
+from formation_ilc.core import names as nm
+
+__all__ = ["WriterTable", "UNKNOWN", "OK", "REFRESH", "HOLD", "UNKNOWN_NODE", "full_name",
+           "plant_writers", "forged_line"]
+
+#: the verdicts besides a refusal's text
+OK, UNKNOWN = "ok", "unknown"
+#: [s] at most this often a topic's writers are asked of the graph again
+REFRESH = 0.05
+#: [s] a message of a writer the graph does not name yet is held this long, then refused
+HOLD = 5.0
+#: the node name the ROS graph gives an endpoint whose participant's node list it lacks
+#: (rmw_dds_common's GraphCache)
+UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"
+
+
+def full_name(namespace: str, name: str) -> str:
+    """``/ns/name`` of a node."""
+    return f"{namespace.rstrip('/')}/{name}"
+
+
+def plant_writers() -> frozenset[str]:
+    """The node names a plant of one node publishes the robots' poses and ``team/poses``
+    under (the plant table's rows with a node of their own)."""
+    return frozenset(r.node for r in PLANT_TABLE if r.node)
+
+
+@dataclass
+class WriterTable:
+    """The writers one node accepts, and what it refused.
+
+    namespace : the formation's namespace (a writer elsewhere is never an owner).
+    owners : topic (absolute) -> the node names that may write it; a topic not in it is
+        shared (each message names its node: ``claims``).
+    """
+
+    namespace: str
+    owners: dict[str, frozenset[str]] = field(default_factory=dict)
+    #: topic -> writer GID -> the writer's node, as the graph names it (``/ns/name``)
+    gids: dict[str, dict[bytes, str]] = field(default_factory=dict)
+    #: (topic, sender) -> messages refused; sender: the writer's node, "?" if never named
+    forged: Counter[tuple[str, str]] = field(default_factory=Counter)
+    _asked: dict[str, float] = field(default_factory=dict)
+
+    def own(self, topic: str, *nodes: str) -> None:
+        """Only ``nodes`` (names in the formation's namespace) may write ``topic``."""
+        self.owners[topic] = frozenset(nodes)
+
+    # -------------------------------------------------------------------- the graph
+    def due(self, topic: str, now: float) -> bool:
+        """Whether the graph may be asked for ``topic``'s writers again (at most every
+        REFRESH seconds), marking it asked."""
+        if now - self._asked.get(topic, -1e9) < REFRESH:
+            return False
+        self._asked[topic] = now
+        return True
+
+    def learn(self, topic: str, endpoints: Iterable[tuple[bytes, str, str]]) -> None:
+        """The graph's writers of ``topic``: (GID, node name, node namespace) each; a
+        writer it names without its node's name is left out (still unknown)."""
+        known = self.gids.setdefault(topic, {})
+        for gid, name, ns in endpoints:
+            if name and name != UNKNOWN_NODE:
+                known[bytes(gid)] = full_name(ns, name)
+        if len(known) > 4096:  # writers come and go over a long run: keep the newest
+            for g in list(known)[:len(known) - 4096]:
+                del known[g]
+
+    def writer(self, topic: str, gid: bytes) -> str | None:
+        """The node (``/ns/name``) of writer ``gid`` of ``topic``, None if not known."""
+        return self.gids.get(topic, {}).get(bytes(gid))
+
+    # -------------------------------------------------------------------- verdicts
+    def judge(self, topic: str, gid: bytes) -> str:
+        """OK when writer ``gid`` may write ``topic`` (an owned topic: one of its owners;
+        a shared one: any node of the formation's namespace, ``claims`` decides the
+        rest), UNKNOWN when the graph does not name it yet, else why not (counted)."""
+        who = self.writer(topic, gid)
+        if who is None:
+            return UNKNOWN
+        ns, _, name = who.rpartition("/")
+        if (ns or "/") != (self.namespace.rstrip("/") or "/"):
+            return self.refuse(topic, who, f"{topic} from {who}, outside the formation's "
+                                           f"namespace {self.namespace}")
+        owners = self.owners.get(topic)
+        if owners is not None and name not in owners:
+            return self.refuse(topic, who, f"{topic} from {who}: only "
+                                           f"{', '.join(sorted(owners))} write it")
+        return OK
+
+    def claims(self, topic: str, gid: bytes, claimed: str, down: bool = False) -> str:
+        """OK when the writer of a message on a shared topic is the node it names
+        (``claimed``), or the launcher's monitor saying that node is ``down``;
+        UNKNOWN or why not, as ``judge``."""
+        verdict = self.judge(topic, gid)
+        if verdict != OK:
+            return verdict
+        who = self.writer(topic, gid) or "?"
+        name = who.rpartition("/")[2]
+        if name == claimed or (down and name == nm.MONITOR_NODE):
+            return OK
+        return self.refuse(topic, who, f"{topic} in the name of {claimed[:100]!r} "
+                                       f"from {who}")
+
+    def refuse(self, topic: str, sender: str, why: str) -> str:
+        """Count a refused message of ``sender`` on ``topic``; returns ``why``."""
+        self.forged[(topic, sender[:200])] += 1
+        return why
+
+    def expire(self, topic: str) -> str:
+        """A message held HOLD seconds whose writer the graph never named: refused."""
+        return self.refuse(topic, "?", f"{topic} from a writer the graph never named "
+                                       f"within {HOLD:g} s")
+
+    # -------------------------------------------------------------------- reports
+    @property
+    def total(self) -> int:
+        return sum(self.forged.values())
+
+    def report(self) -> dict[str, dict[str, int]]:
+        """What was refused: {topic: {sender: count}} (diagnostics ``forged``)."""
+        out: dict[str, dict[str, int]] = {}
+        for (topic, sender), n in sorted(self.forged.items()):
+            out.setdefault(topic, {})[sender] = int(n)
+        return out
+
+
+def forged_line(reports: Mapping[str, Mapping[str, Any]]) -> str:
+    """One line for the console: the messages refused for their writer, by topic and
+    sender, summed over the nodes' ``forged`` reports ("" when none)."""
+    total: Counter[tuple[str, str]] = Counter()
+    for rep in reports.values():
+        for topic, senders in (rep or {}).items():
+            if isinstance(senders, Mapping):
+                for sender, n in senders.items():
+                    if isinstance(n, int) and not isinstance(n, bool) and n > 0:
+                        total[(str(topic), str(sender))] += n
+    if not total:
+        return ""
+    parts = [f"{n} on {t} from {s}" for (t, s), n in total.most_common(6)]
+    more = len(total) - len(parts)
+    return (f"forged: {sum(total.values())} messages refused, not from their topic's "
+            f"writer: {'; '.join(parts)}" + (f"; {more} more" if more > 0 else ""))
