@@ -29,6 +29,7 @@ from std_msgs.msg import String
 import msgs_schema as ms
 from formation_ilc.config.runconfig import RunConfig, make_config
 from formation_ilc.core.clock import REASONS, Rejected
+from formation_ilc.nodes.writers import CheckedSubscription
 from formation_ilc.protocol.schedule import Follower, Ready, TrialEvent, parse_key
 from formation_ilc.protocol.writers import OK, WriterTable
 from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, is_disk_full
@@ -130,16 +131,18 @@ class GuardedNode(Node):
 
     def checked_subscription(self, msg_type: Any, topic: str,
                              handler: Callable[[Any, bytes], None], qos: Any,
-                             raw: bool = False, shared: bool = False) -> Any:
+                             raw: bool = False, shared: bool = False,
+                             owners: Collection[str] = ()) -> Any:
         """A subscription whose every message is judged by its writer first
         (``nodes.writers.CheckedSubscription`` with this node's ``writers`` table):
         ``handler(msg, gid)``, guarded like every callback here; a refused message is a
-        ``forged`` drop."""
-        from formation_ilc.nodes.writers import CheckedSubscription
-
+        ``forged`` drop. ``owners``: the nodes that alone write the topic (``shared``: a
+        topic every node writes in its own name; the handler asks ``from_named_writer``)."""
         if not hasattr(self, "writers"):
             self.writers = WriterTable(self.get_namespace())
         name = topic
+        if owners:  # only these nodes (in the formation's namespace) write it
+            self.writers.own(self.resolve_topic_name(topic), *owners)
 
         def guarded(msg: Any, gid: bytes) -> None:
             try:
@@ -360,6 +363,11 @@ class Diagnostics:
         self.ros_pub.publish(out)
 
 
+def _reader(e: Any) -> bool:
+    """Whether endpoint ``e`` reads (rclpy's subscription, or a writer-checked one)."""
+    return isinstance(e, Subscription | CheckedSubscription)
+
+
 def matched(pairs: Iterable[tuple[Any, int | Collection[str]]], node: Node | None = None
             ) -> bool:
     """True when every publisher has at least ``count`` matched subscriptions and every
@@ -378,13 +386,13 @@ def matched(pairs: Iterable[tuple[Any, int | Collection[str]]], node: Node | Non
     pairs = list(pairs)
     for e, want in pairs:
         if isinstance(want, int):
-            sub = isinstance(e, Subscription)
+            sub = _reader(e)
             have = e.get_publisher_count() if sub else e.get_subscription_count()
             if have < want:
                 return False
     for e, want in pairs:
         if not isinstance(want, int):
-            assert node is not None and not isinstance(e, Subscription), \
+            assert node is not None and not _reader(e), \
                 "named readers: a publisher and its node"
             if readers_wanting(node, e, want):
                 return False
@@ -397,7 +405,7 @@ def unmatched(pairs: Iterable[tuple[Any, int | Collection[str]]], node: Node | N
     readers" (for a log line naming why a node is not ready)."""
     out = []
     for e, want in pairs:
-        sub = isinstance(e, Subscription)
+        sub = _reader(e)
         have = e.get_publisher_count() if sub else e.get_subscription_count()
         if isinstance(want, int):
             if have < want:

@@ -276,8 +276,11 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
         self.create_subscription(Odometry, odom_t, self._on_odom, ms.ODOM_QOS)
         self.true_pub = None
         if self.truth_topic is not None:
-            self.create_subscription(PoseStamped, self.truth_topic, self._on_truth,
-                                     ms.ODOM_QOS)
+            # from the physics bases only (protocol.writers): forged true poses made the
+            # true error read 63.9 m
+            self.checked_subscription(PoseStamped, self.truth_topic,
+                                      lambda m, gid: self._on_truth(m), ms.ODOM_QOS,
+                                      owners=(ms.BASES_NODE,))
             self.true_pub = self.create_publisher(Path, ms.true_trajectory_topic(self.id),
                                                   ms.TRAJECTORY_QOS)
         self._setup_motors(motors_t)

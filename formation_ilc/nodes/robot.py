@@ -82,6 +82,7 @@ from formation_ilc.nodes.common import (
 from formation_ilc.nodes.params import ParameterError, check, declare, effective
 from formation_ilc.protocol.learner import RobotLearner
 from formation_ilc.protocol.schedule import Follower
+from formation_ilc.protocol.writers import plant_writers
 from formation_ilc.store.memoryfile import MemoryFileError, load_memory
 from formation_ilc.store.robotstate import load_state, save_state, state_path
 from msgs_schema import wire
@@ -184,8 +185,11 @@ class RobotNode(ConfiguredNode):
                     ms.SAMPLE_QOS, raw=True))
         if cfg.safety is not None:  # the other robots' poses, for the safety filter
             if cfg.safety.sensing == "team":
-                self.sample_subs.append(self.create_subscription(
-                    Path, ms.TEAM_POSES, self._on_team, ms.SAMPLE_QOS, raw=True))
+                # from the plant only (protocol.writers): forged poses 1 km away switched
+                # the filter off
+                self.sample_subs.append(self.checked_subscription(
+                    Path, ms.TEAM_POSES, lambda m, gid: self._on_team(m), ms.SAMPLE_QOS,
+                    raw=True, owners=plant_writers()))
             else:
                 self.sample_subs += [self.create_subscription(
                     PoseStamped, ms.pose_topic(j + 1), lambda m, j=j: self._on_peer(m, j),

@@ -22,6 +22,10 @@ leader (or a buggy node) on the same domain and namespace would.
   contact slot is text (before, the launcher's monitor raised and the launcher ended with
   a traceback), and one whose contact line carries terminal escapes.
 
+* ``--team-poses K``: from the start of iteration K, for every ``team/poses`` the plant
+  sends, a copy for the next sample (its stamps one sample on) with every robot 1 km away,
+  sent before the plant's own (before, the robots' safety filters took them: filter off).
+
 It prints one JSON line per forgery on stdout (``{"forged": ..., "count": ...}``), and
 exits once it has forged what it was asked to, or when the formation's configuration
 writer is gone.
@@ -39,6 +43,7 @@ import time
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Path
 from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from std_msgs.msg import String
@@ -102,6 +107,7 @@ def main() -> int:
     p.add_argument("--pose-flood", type=int, default=None, metavar="K")
     p.add_argument("--flood-seconds", type=float, default=5.0, metavar="S")
     p.add_argument("--ready-as", type=int, default=None, metavar="K")
+    p.add_argument("--team-poses", type=int, default=None, metavar="K")
     p.add_argument("--bad-report", type=int, default=None, metavar="K")
     p.add_argument("--timeout", type=float, default=900.0)
     a = p.parse_args()
@@ -143,7 +149,38 @@ def main() -> int:
     ex.add_node(node)
     todo = {k for k, v in (("burst", a.burst_at), ("abort", a.abort_committed),
                            ("flood", a.pose_flood), ("ready", a.ready_as),
-                           ("report", a.bad_report)) if v is not None}
+                           ("report", a.bad_report), ("team", a.team_poses))
+            if v is not None}
+    team: dict = {"last": None, "count": 0, "pub": None}
+
+    def on_team(msg: Path) -> None:
+        """A copy of the plant's team poses one sample on, every robot 1 km away."""
+        start = st["start"]
+        if start is None or start["trial"] < a.team_poses:
+            return
+        stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        last, team["last"] = team["last"], stamp
+        if last is None or stamp <= last:
+            return
+        step = stamp - last
+        out = Path()
+        out.header = msg.header
+        for p in msg.poses:
+            q = PoseStamped()
+            q.header.frame_id = p.header.frame_id
+            ns = p.header.stamp.sec * 10**9 + p.header.stamp.nanosec + step
+            q.header.stamp.sec, q.header.stamp.nanosec = divmod(ns, 10**9)
+            q.pose = p.pose
+            q.pose.position.x += 1000.0
+            out.poses.append(q)
+        ns = stamp + step
+        out.header.stamp.sec, out.header.stamp.nanosec = divmod(ns, 10**9)
+        team["pub"].publish(out)
+        team["count"] += 1
+
+    if a.team_poses is not None:
+        team["pub"] = node.create_publisher(Path, topic(ms.TEAM_POSES), ms.SAMPLE_QOS)
+        node.create_subscription(Path, topic(ms.TEAM_POSES), on_team, ms.SAMPLE_QOS)
     #: pose topic -> its first REPLAYED messages (stale by the flood) and its newest
     heard: dict[str, list[bytes]] = {}
     flood: dict[str, object] = {}  # pose topic -> publisher
@@ -219,6 +256,9 @@ def main() -> int:
         # reader acknowledged the forgeries (bounded; a reader that left is no longer waited for)
         for w in (pub, ready_pub, diag_pub):
             w.wait_for_all_acked(Duration(seconds=10))
+        if team["count"]:  # it went on until the run ended
+            print(json.dumps({"forged": "team_poses", "count": team["count"]}), flush=True)
+            todo.discard("team")
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

@@ -8,6 +8,9 @@ cold start the batch simulator predicts will drive robots through each other.
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,6 +26,7 @@ from formation_ilc.model.simulate import simulate  # noqa: E402
 from formation_ilc.recordings.recording import load_recording  # noqa: E402
 from formation_ilc.studies.physics import run_physics  # noqa: E402
 
+from ..procs import stop_group  # noqa: E402
 from .shared import RUNS
 from .test_stack import launch  # noqa: E402
 
@@ -95,10 +99,22 @@ def test_a_cold_start_on_bodies_learns_through_the_safety_filter(ros_env, tmp_pa
     from formation_ilc.model.safety import spec_of
 
     rec = tmp_path / "run.mcap"
-    res = launch(ros_env, tmp_path / "run", "paper-triangle3", "--plant", "physics",
-                 "--trials", "3", "--no-noise", "--no-delay", "--record", str(rec),
-                 timeout=600.0)
+    # a second process sends, from trial 1 on, every robot's team poses 1 km away, one
+    # sample ahead of the plant (before, the filters took them and let robots 2 and 3
+    # touch): only the plant's are taken, the forgeries counted by sender
+    second = subprocess.Popen([sys.executable, str(Path(__file__).with_name("forger.py")),
+                               "--team-poses", "1"], env=ros_env, stdout=subprocess.PIPE,
+                              stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        res = launch(ros_env, tmp_path / "run", "paper-triangle3", "--plant", "physics",
+                     "--trials", "3", "--no-noise", "--no-delay", "--record", str(rec),
+                     timeout=600.0)
+        said = second.communicate(timeout=60)[0]
+    finally:
+        stop_group(second)
     assert res.returncode == 0, res.stdout
+    forged = [json.loads(ln) for ln in said.splitlines() if ln.startswith("{")]
+    assert [d["forged"] for d in forged] == ["team_poses"] and forged[0]["count"] > 20, said
     assert "predicts no contact in the 3 trials of this run through the safety filter" \
         in res.stdout
     got = read_metrics(tmp_path / "run" / "metrics.csv")
@@ -111,6 +127,11 @@ def test_a_cold_start_on_bodies_learns_through_the_safety_filter(ros_env, tmp_pa
     study = run_physics(sc, MODELS["p3dx"], 3, safety=spec)
     assert np.abs(got[:, 1:7] - study.metrics[:, 1:7]).max() < 0.02
     assert abs(filtered.sum() - sum(study.filtered)) <= 0.3 * sum(study.filtered)
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    for i in (1, 2, 3):
+        by = summary["forged"][f"robot_{i}"]["/formation/team/poses"]
+        assert by["/forger/forger"] >= forged[0]["count"] // 2, summary["forged"]
+    assert "forged: " in res.stdout
     # the recording gives the launcher's rows back, counts included
     assert main(["analyze", str(rec), "--out", str(tmp_path / "an")]) == 0
     np.testing.assert_array_equal(read_metrics(tmp_path / "an" / "metrics.csv"), got)
