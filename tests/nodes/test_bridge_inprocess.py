@@ -182,3 +182,34 @@ def test_p2os2_without_p2os_msgs_stops_with_a_clear_message(ros_env):
                        env=ros_env)
     assert r.returncode == 2, (r.stdout, r.stderr)
     assert "p2os_msgs" in r.stderr and "not on PyPI" in r.stderr
+
+
+def test_a_bases_truth_is_taken_from_the_physics_bases_only(context, executor):
+    """A true pose on the base's ``truth`` from any node but the physics bases is dropped
+    and counted by sender (forged truths once made the true error read 63.9 m)."""
+    from geometry_msgs.msg import PoseStamped
+
+    from formation_ilc.nodes.pioneer_bridge import BridgeNode
+
+    ex, nodes = executor
+    params = [Parameter("robot_id", value=1), Parameter("scenario", value="paper-triangle3"),
+              Parameter("driver", value="rosaria"), Parameter("driver_ns", value="/base_1"),
+              Parameter("truth", value=True)]
+    bridge = BridgeNode(context=context, parameter_overrides=params)
+    bases = rclpy.create_node(ms.BASES_NODE, namespace=ms.NAMESPACE, context=context)
+    forger = rclpy.create_node("forger", namespace=ms.NAMESPACE, context=context)
+    nodes += [bridge, bases, forger]
+    for n in nodes:
+        ex.add_node(n)
+    for node, x in ((forger, 1000.0), (bases, 1.0)):
+        pub = node.create_publisher(PoseStamped, "/base_1/truth", ms.ODOM_QOS)
+        spin_until(ex, lambda pub=pub: pub.get_subscription_count() >= 1)
+        msg = PoseStamped()
+        msg.header.frame_id = ms.WORLD_FRAME
+        msg.pose.position.x, msg.pose.position.y = x, 2.0
+        msg.pose.orientation.w = 1.0
+        pub.publish(msg)
+    spin_until(ex, lambda: bridge.core.truth is not None and bridge.writers.total >= 1)
+    spin_until(ex, lambda: bridge.core.truth[0] == 1.0, timeout=2.0)
+    assert bridge.writers.report() == {"/base_1/truth": {"/formation/forger": 1}}
+    assert bridge.drops.counts["forged"] == 1
