@@ -44,6 +44,7 @@ from formation_ilc.plan.specs import (
     RunPlan,
 )
 from formation_ilc.protocol.schedule import KEY_BYTES
+from formation_ilc.store.runfile import used_folder_line
 from formation_ilc.system.netns import LinkFaults
 
 __all__ = ["build_plan", "effective_options", "hosted_members", "placed_members", "HOSTS_DIR",
@@ -97,6 +98,8 @@ def build_plan(options: LaunchOptions) -> RunPlan:
     # a formation too extreme for float64 is refused (ScenarioError) before anything is made
     _ = sc.desired
     out = _out_folder(opts.out, sc)
+    if opts.resume is None and _is_ground(opts) and (used := used_folder_line(out)):
+        raise NoRun(used)  # one run, one folder
     resumed_at = _resumed_at(out, sc) if opts.resume is not None else None
     record = _in_run(opts.record, out)
     root = opts.record_root or record
@@ -377,6 +380,13 @@ def _mode_and_links(opts: LaunchOptions, hosts: bool) -> tuple[str, str]:
                     "not on PyPI)")
     mode = opts.mode or ("wallclock" if pioneer else "lockstep")
     return mode, links or ("direct" if pioneer or mode == "wallclock" else "emulated")
+
+
+def _is_ground(opts: LaunchOptions) -> bool:
+    """Whether this launcher runs the leader (``RunPlan.ground``, from the options): the
+    run's folder is its own. A member host keeps its members' state in OUT/hosts/HOST and
+    comes (back) into the ground station's run, whose folder holds its files."""
+    return opts.host is None or LEADER_NODE in dict(opts.host_members).get(opts.host, ())
 
 
 def _out_folder(out: Path | None, sc: Scenario) -> Path:

@@ -19,7 +19,8 @@ from formation_ilc.store.atomic import atomic_write_text
 from formation_ilc.store.bounded import StateFileError, read_bounded
 
 __all__ = ["RUN_FILE", "CONFIG_FILE", "CONFIG_LIMIT", "load_config", "RUN_LIMIT",
-           "RunFileError", "save_run", "load_run", "reroot", "require", "PATH_KEYS", "relative"]
+           "RunFileError", "save_run", "load_run", "reroot", "require", "PATH_KEYS", "relative",
+           "RUN_STATE", "run_state_in", "used_folder_line"]
 
 RUN_FILE = "run.json"
 #: the run configuration every node shares (scenario text, options, run id), as JSON, in
@@ -142,3 +143,37 @@ def load_config(path: Path) -> dict[str, Any] | None:
     if not isinstance(d, dict) or "scenario_text" not in d:
         raise RunFileError(f"{path}: not a run configuration (no scenario_text)")
     return d
+
+
+#: what a run leaves in its folder: its options, the nodes' state (what --resume goes on
+#: from), its metrics rows, its configuration and summary
+RUN_STATE = (RUN_FILE, "state", "metrics.csv", CONFIG_FILE, "summary.json")
+
+
+def run_state_in(folder: Path) -> list[str]:
+    """The names of ``RUN_STATE`` that ``folder`` holds (a folder ``state`` only when
+    something is in it): another run's, for a launch that is not its ``--resume``."""
+    found = []
+    for name in RUN_STATE:
+        p = folder / name
+        try:
+            if p.is_dir():
+                if any(p.iterdir()):
+                    found.append(f"{name}/")
+            elif p.exists():
+                found.append(name)
+        except OSError:  # unreadable: the folder is not a fresh one either
+            found.append(name)
+    return found
+
+
+def used_folder_line(folder: Path) -> str:
+    """Why a new run may not go into ``folder`` ("" when it may): it holds another run's
+    state, which a new run would mix with its own (the leader went on from the other run's
+    memory with this run's seed) and overwrite (its metrics rows)."""
+    found = run_state_in(folder)
+    if not found:
+        return ""
+    return (f"--out {folder}: holds another run ({', '.join(found)}); nothing was changed. "
+            f"Go on with that run with `formation-ilc launch --resume {folder}`, or give a "
+            f"fresh folder to --out")

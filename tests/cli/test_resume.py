@@ -125,3 +125,40 @@ def test_a_copied_run_folder_resumes_into_itself(tmp_path):
     (copy / "run.mcap").unlink()
     plan = plan_of(build_parser().parse_args(["launch", "--resume", str(copy)]))
     assert plan.record == (copy / "run.mcap").resolve()
+
+
+def test_a_new_launch_into_a_used_folder_is_refused_and_changes_nothing(tmp_path):
+    """A launch (not --resume) into a folder that holds another run: one line naming
+    --resume and a fresh folder, status 2, before anything starts; every file of the
+    other run as it was (before, the leader went on from its state with the new seed
+    and metrics.csv lost its rows)."""
+    out = run_folder(tmp_path)
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    res = subprocess.run([sys.executable, "-m", "formation_ilc.cli", "launch",
+                          "paper-triangle3", "--trials", "4", "--seed", "7", "--out",
+                          str(out), "--no-plots"], capture_output=True, text=True, timeout=180)
+    assert res.returncode == 2, res.stdout + res.stderr
+    lines = res.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: --out {out}: holds another run "
+                                                   f"(run.json, state/, metrics.csv)"), lines
+    assert f"--resume {out}" in lines[0] and "fresh folder" in lines[0]
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    assert not (out / "logs").exists()  # nothing started
+
+
+def test_a_member_host_comes_into_its_ground_stations_used_folder(tmp_path):
+    """One run, one folder is the ground station's rule: a member host's launcher (``launch
+    RUN.yaml --host r2``, started again after it died) plans into the run's folder, which
+    the ground station's files fill, and keeps its own in OUT/hosts/r2; the ground
+    station's launcher into the same folder is refused."""
+    from formation_ilc.cli.commands import build_parser, main
+    from formation_ilc.plan.specs import NoRun
+
+    path = tmp_path / "run.yaml"
+    assert main(["run-file", "paper-triangle3", "--host-per-robot", "-o", str(path)]) == 0
+    out = run_folder(tmp_path)
+    argv = ["launch", str(path), "--out", str(out), "--no-plots"]
+    plan = plan_of(build_parser().parse_args([*argv, "--host", "r2"]))
+    assert plan.out == (out / "hosts" / "r2").resolve() and not plan.ground
+    with pytest.raises(NoRun, match="holds another run"):
+        plan_of(build_parser().parse_args([*argv, "--host", "ground"]))
