@@ -30,7 +30,8 @@ from formation_ilc.core.names import (
 )
 
 __all__ = ["Grant", "ENCLAVE_NODES", "enclave_path", "driver_enclave", "dds_topic",
-           "housekeeping", "permissions_xml", "governance_xml", "DOMAIN_MAX"]
+           "housekeeping", "permissions_xml", "governance_xml", "DOMAIN_MAX",
+           "grant_topics", "permitted_topics", "lacking"]
 
 #: the ROS domain ids a keystore serves (every id ROS 2 allows on Linux)
 DOMAIN_MAX = 232
@@ -111,6 +112,48 @@ def _stamp(t: datetime) -> str:
     return t.strftime("%Y-%m-%dT%H:%M:%S")
 
 
+def grant_topics(grant: Grant) -> tuple[list[str], list[str]]:
+    """(publish, subscribe): the DDS topics ``grant``'s permissions allow."""
+    hk_pub, hk_sub = housekeeping(grant.node_namespace, grant.service_node or grant.node)
+    pub = [dds_topic(x) for x in grant.publish] + list(grant.dds_publish) + hk_pub
+    sub = [dds_topic(x) for x in grant.subscribe] + list(grant.dds_subscribe) + hk_sub
+    return pub, sub
+
+
+def permitted_topics(xml: str) -> tuple[set[str], set[str]]:
+    """(publish, subscribe): the DDS topics a permissions document allows (every grant's
+    allow rules); ValueError if it is not one."""
+    import xml.etree.ElementTree as ET
+
+    try:
+        root = ET.fromstring(xml)
+    except ET.ParseError as exc:
+        raise ValueError(f"not a permissions document: {exc}") from None
+    out: tuple[set[str], set[str]] = (set(), set())
+    for rule in root.iter("allow_rule"):
+        for i, kind in enumerate(("publish", "subscribe")):
+            for part in rule.iter(kind):
+                out[i].update((t.text or "").strip() for t in part.iter("topic"))
+    return out
+
+
+def lacking(grant: Grant, xml: str) -> list[str]:
+    """What ``grant`` needs that the permissions document ``xml`` does not allow: one
+    phrase a topic ("publish rt/formation/robot_3/cmd_vel"), sorted. A permitted topic
+    may be a pattern (DDS-Security's fnmatch)."""
+    from fnmatch import fnmatchcase
+
+    pub, sub = grant_topics(grant)
+    have = permitted_topics(xml)
+
+    def allowed(topic: str, patterns: set[str]) -> bool:
+        return topic in patterns or any(fnmatchcase(topic, p) for p in patterns)
+
+    return ([f"{kind} {t}" for kind, need, pats in (("publish", pub, have[0]),
+                                                     ("subscribe", sub, have[1]))
+             for t in sorted(set(need)) if not allowed(t, pats)])
+
+
 def permissions_xml(grant: Grant, subject: str, not_before: datetime, not_after: datetime
                     ) -> str:
     """The DDS-Security permissions document of one enclave (default DENY).
@@ -118,9 +161,7 @@ def permissions_xml(grant: Grant, subject: str, not_before: datetime, not_after:
     ``subject`` is the identity certificate's subject (RFC 4514, e.g. ``CN=/formation/
     robot_1``); the validity is the certificate's, in UTC.
     """
-    hk_pub, hk_sub = housekeeping(grant.node_namespace, grant.service_node or grant.node)
-    pub = [dds_topic(x) for x in grant.publish] + list(grant.dds_publish) + hk_pub
-    sub = [dds_topic(x) for x in grant.subscribe] + list(grant.dds_subscribe) + hk_sub
+    pub, sub = grant_topics(grant)
 
     def topics(names: list[str]) -> str:
         return "".join(f"\n            <topic>{escape(x)}</topic>"

@@ -282,7 +282,8 @@ def _secured(plan: RunPlan, keystore: Path | str | None) -> RunPlan:
     try:
         sec = prepare(keystore, [_enclave(plan, s.name) for s in plan.nodes], plan.namespace,
                       container=plan.container, profile=plan.out / "fastdds-secure.xml",
-                      base_profile=base, launcher=plan.ground)
+                      base_profile=base, launcher=plan.ground,
+                      grants=plan.roster.grants(plan.namespace))
     except OptionError as exc:
         raise NoRun(str(exc)) from None
     if sec is None:

@@ -11,7 +11,8 @@ bridges: ``ip netns exec`` keeps the environment). It refuses when
   all): the message gives the command that builds the secure one
   (``formation_ilc.system.securedds``);
 * the keystore is missing, expired, from another CA, or lacks the enclave of a node that
-  would start (``formation_ilc.store.keystore.verify``);
+  would start, or a topic one of them needs (a keystore made for another scenario or
+  plant: ``formation_ilc.store.keystore.verify``, against the run's roster);
 * robots would share a process (``--container``): one process is one DDS participant, and
   each robot must hold only its own identity.
 
@@ -23,11 +24,11 @@ runs in the enclave ``driver_i`` as a real driver would).
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from formation_ilc.config.enclaves import enclave_path
+from formation_ilc.config.enclaves import Grant, enclave_path
 from formation_ilc.core.names import MONITOR_NODE
 from formation_ilc.plan.options import OptionError
 
@@ -82,12 +83,14 @@ class SecureRun:
 
 def prepare(keystore: Path | str | None, enclaves: Iterable[str], namespace: str, *,
             container: int = 0, profile: Path | None = None,
-            base_profile: Path | None = None, launcher: bool = True) -> SecureRun | None:
+            base_profile: Path | None = None, launcher: bool = True,
+            grants: Mapping[str, Grant] | None = None) -> SecureRun | None:
     """The secure run for processes in these ``enclaves`` (plus, with ``launcher``, the
     launcher's monitor: not on a host without the leader),
     or None without ``--secure``; OptionError (one line) if it cannot run secure. ``profile``,
     ``base_profile``: :class:`SecureRun`'s (a ``base_profile`` that is no profiles file is
-    refused here)."""
+    refused here). ``grants``: what each enclave needs (the run's ``Roster.grants``),
+    compared with the keystore's signed permissions before anything starts."""
     if keystore is None:
         return None
     from formation_ilc.store.keystore import KeystoreError, verify
@@ -106,7 +109,7 @@ def prepare(keystore: Path | str | None, enclaves: Iterable[str], namespace: str
     paths = [enclave_path(namespace, e)
              for e in [*enclaves, *((LAUNCHER_NODE,) if launcher else ())]]
     try:
-        verify(ks, paths)
+        verify(ks, paths, grants=grants)
         applies = keeps_profile_properties(check())
         if profile is not None:
             secure_profile(base_profile)

@@ -35,7 +35,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.hazmat.primitives.serialization import pkcs7
 from cryptography.x509.oid import NameOID
 
-from formation_ilc.config.enclaves import Grant, governance_xml, permissions_xml
+from formation_ilc.config.enclaves import Grant, governance_xml, lacking, permissions_xml
 from formation_ilc.store.atomic import atomic_write_text
 
 __all__ = ["KeystoreError", "Created", "CA_DAYS", "create", "verify", "enclave_dir",
@@ -290,12 +290,15 @@ def _not_after(permissions: Path) -> datetime | None:
 
 
 def verify(keystore: Path, enclaves: Iterable[str], *, now: datetime | None = None,
-           smime: bool = True) -> None:
+           smime: bool = True, grants: Mapping[str, Grant] | None = None) -> None:
     """Check that ``keystore`` can run nodes in ``enclaves`` now; KeystoreError if not.
 
     Missing files, an expired or not yet valid certificate or permissions document, an
     enclave certificate or signature not from the keystore's CA, an enclave's CA copy that
     is another CA's. ``smime`` also verifies the signed documents (openssl, if present).
+    ``grants`` (by enclave path: the run's roster, ``Roster.grants``): each enclave's
+    permissions must allow every topic its grant needs (a keystore made for another
+    scenario or plant lacks some: the first enclave's missing grants are named).
     """
     keystore = Path(keystore)
     now = now or datetime.now(UTC)
@@ -310,6 +313,7 @@ def verify(keystore: Path, enclaves: Iterable[str], *, now: datetime | None = No
         raise KeystoreError(f"{gov}: missing")
     if smime and _p7s_signed_by(gov, ca_path) is False:
         raise KeystoreError(f"{gov}: not signed by the keystore's CA ({ca_path})")
+    granted: list[tuple[Path, Grant]] = []
     for enclave in enclaves:
         d = enclave_dir(keystore, enclave)
         if not d.is_dir():
@@ -335,6 +339,34 @@ def verify(keystore: Path, enclaves: Iterable[str], *, now: datetime | None = No
                 raise KeystoreError(f"{d / 'permissions.xml'}: expired on {end:%Y-%m-%d}")
         if smime and _p7s_signed_by(d / "permissions.p7s", ca_path) is False:
             raise KeystoreError(f"{d / 'permissions.p7s'}: not signed by the keystore's CA")
+        if grants is not None and enclave in grants:
+            granted.append((d, grants[enclave]))
+    for d, grant in granted:  # every enclave there first: a missing one is the plainer word
+        _check_grant(keystore, d, grant)
+
+
+def _check_grant(keystore: Path, d: Path, grant: Grant) -> None:
+    """KeystoreError naming what ``grant`` needs that the enclave ``d``'s signed
+    permissions do not allow."""
+    p7s = d / "permissions.p7s"
+    try:
+        text = p7s.read_bytes()[:4 << 20].decode("utf-8", "replace")
+    except OSError as exc:
+        raise KeystoreError(f"{p7s}: cannot read it: {exc.strerror}") from None
+    start, end = text.find("<?xml"), text.find("</dds>")
+    if start < 0 or end < 0:
+        raise KeystoreError(f"{p7s}: holds no permissions document")
+    try:
+        missing = lacking(grant, text[start:end + len("</dds>")])
+    except ValueError as exc:
+        raise KeystoreError(f"{p7s}: {exc}") from None
+    if missing:
+        more = f" and {len(missing) - 3} more" if len(missing) > 3 else ""
+        raise KeystoreError(
+            f"{p7s}: this run's {grant.enclave} needs what the permissions do not grant: "
+            f"{', '.join(missing[:3])}{more} (a keystore made for another scenario or "
+            f"plant: make this formation's with `formation-ilc keystore create {keystore} "
+            f"SCENARIO`, --plant as the run's)")
 
 
 def _check_validity(cert: x509.Certificate, path: Path, now: datetime) -> None:

@@ -134,6 +134,18 @@ def test_secure_launch_keystore_of_a_smaller_formation(tmp_path):
     one_line_refusal(res, "robot_4: missing: no enclave")
 
 
+def test_secure_launch_keystore_of_another_scenario_names_a_missing_grant(tmp_path):
+    """A paper-hexagon6 keystore has robots 1 to 3 too, with hexagon6's graph: a
+    paper-triangle3 run is refused before anything starts, naming a grant it lacks
+    (before, it started and the link emulator and robot_3 died three times each)."""
+    ks = tmp_path / "ks"
+    assert cli("keystore", "create", str(ks), "paper-hexagon6").returncode == 0
+    res = secure_launch(tmp_path, ks)
+    one_line_refusal(res, "needs what the permissions do not grant: ",
+                     "keystore create")
+    assert "publish rt/formation/" in res.stderr or "subscribe rt/formation/" in res.stderr
+
+
 def test_secure_launch_expired_keystore(tmp_path):
     ks = tmp_path / "ks"
     sc = load_scenario("paper-triangle3")
