@@ -129,8 +129,10 @@ def run(args: argparse.Namespace) -> int:
         return stop.report()
     if not plan.ground:  # a host of a run file's hosts: without the leader
         from formation_ilc.cli.hostlaunch import run_member_host
+        from formation_ilc.system.private import private
 
-        return run_member_host(plan)
+        with private(_run_files(plan)):  # its members' files too (a recorder among them)
+            return run_member_host(plan)
     if plan.hosts is not None:
         from formation_ilc.cli.hosts import run_on_hosts
 
@@ -147,11 +149,19 @@ def run(args: argparse.Namespace) -> int:
     return status
 
 
+def _run_files(plan: RunPlan) -> list[Path]:
+    """Where a run's files go: its folder, and its recording (which holds the key that
+    seals the leader's events: ``system.private`` keeps them the user's alone while the
+    run lives)."""
+    return [plan.out, *([plan.record] if plan.record else [])]
+
+
 def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None) -> int:
     """Run ``plan``: its processes under a supervisor, the trials followed by a monitor
     node, then the report; the exit status. ``place``: a process's command line (default
     its own)."""
     from formation_ilc.cli.report import write_report
+    from formation_ilc.system.private import private
     from formation_ilc.system.shm import clean_leftovers, fastdds_files
 
     if plan.record is not None:  # the recorder makes no folder: it is the launcher's
@@ -191,8 +201,11 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
         # the other hosts stop what they run for an earlier run here before this one
         # looks for another formation on its domain
         write_ground(plan, STARTING)
+    # the run's files, the recording with its events' key among them, are the user's
+    # alone while it lives (system.private)
     try:
-        status = session.run()
+        with private(_run_files(plan)):
+            status = session.run()
     finally:
         # the shared-memory files of nodes killed during the run, and older leftovers
         clean_leftovers(fastdds_files() - shm_before)

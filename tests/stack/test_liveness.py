@@ -7,8 +7,11 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
+import stat
 import subprocess
 import sys
+import tempfile
 import time
 from collections import Counter
 from pathlib import Path
@@ -104,6 +107,33 @@ def batch() -> np.ndarray:
                     trials=TRIALS).metrics
 
 
+def key_is_private(rec: Path) -> dict[str, object]:
+    """The recording's mode, and (as root) whether uid 65534 could read it, through a
+    hard link in a folder anyone may enter (only the file's own mode can refuse it)."""
+    out: dict[str, object] = {"mode": stat.S_IMODE(rec.stat().st_mode)}
+    if os.geteuid() != 0:
+        return out
+    pub = Path(tempfile.mkdtemp(prefix="formation-ilc-key-"))
+    try:
+        pub.chmod(0o755)
+        try:
+            os.link(rec, pub / rec.name)
+        except OSError:  # another file system: the mode alone is checked
+            return out
+
+        def drop() -> None:
+            os.setgid(65534)
+            os.setuid(65534)
+
+        res = subprocess.run(["head", "-c", "1", str(pub / rec.name)], preexec_fn=drop,
+                             capture_output=True, text=True, timeout=60, cwd="/")
+        out["other_uid"] = ("refused" if res.returncode and "denied" in res.stderr
+                            else "read" if res.returncode == 0 else res.stderr[-300:])
+    finally:
+        shutil.rmtree(pub, ignore_errors=True)
+    return out
+
+
 def test_forged_events_and_a_forged_down_move_nothing(ros_env, context, tmp_path):
     """Six forgeries in one run, each with the run id read from the latched configuration:
     an abort of the running slot and a "down" of the live recorder from a peer in this
@@ -130,6 +160,7 @@ def test_forged_events_and_a_forged_down_move_nothing(ros_env, context, tmp_path
                                "--ready-as", "3", "--bad-report", "3"], env=ros_env,
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                               start_new_session=True)
+    private: dict[str, object] = {}
     try:
         deadline = time.monotonic() + 600
         while proc.poll() is None and time.monotonic() < deadline:
@@ -143,6 +174,8 @@ def test_forged_events_and_a_forged_down_move_nothing(ros_env, context, tmp_path
             last = forger.starts[-1] if forger.starts else None
             if last is None or not forger.run_id:
                 continue
+            if not private and last["trial"] >= 1 and rec.exists():  # the run lives
+                private.update(key_is_private(rec))
             # the first running slot it sees from trial 1 on (under load it may join later)
             if "abort" not in forged and last["trial"] >= 1:
                 forged["abort"] = {"event": "abort", "trial": last["trial"],
@@ -162,6 +195,13 @@ def test_forged_events_and_a_forged_down_move_nothing(ros_env, context, tmp_path
         if forger is not None:
             forger.close()
     assert set(forged) == {"abort", "down"}, forged
+    # while the run lived its recording, which holds the events' key, was the user's alone
+    # (another uid could not read it); once over, it has the user's umask's modes again
+    assert private["mode"] & 0o077 == 0, private
+    assert private.get("other_uid", "refused") == "refused", private
+    umask = os.umask(0o022)
+    os.umask(umask)
+    assert rec.stat().st_mode & 0o077 == 0o666 & ~umask & 0o077
     by_second = [json.loads(ln) for ln in said.splitlines() if ln.startswith("{")]
     assert sorted(d["forged"] for d in by_second) == ["abort", "burst", "ready", "report"], said
     assert [d["count"] for d in by_second if d["forged"] == "burst"] == [72]
