@@ -153,7 +153,9 @@ class CheckedSubscription:
         if verdict == UNKNOWN:
             since = now if held_since is None else held_since
             if now - since >= HOLD:
-                verdict = self.table.expire(self.topic_name)
+                verdict = self.table.judge(self.topic_name, gid, patient=True)
+                if verdict == UNKNOWN:  # not even listed: never to be known
+                    verdict = self.table.expire(self.topic_name)
             else:
                 if held_since is None:
                     if len(self.held) >= HELD_MAX:  # a flood of unnamed writers

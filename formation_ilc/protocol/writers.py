@@ -15,7 +15,11 @@ write the topic:
 A writer the graph does not list yet, or lists without its node's name (the node's
 ``ros_discovery_info`` comes after its endpoints), is ``UNKNOWN``: the caller holds the
 message, learns the topic's writers again (``learn``, at most every ``REFRESH`` seconds a
-topic) and asks again, for up to ``HOLD`` seconds.
+topic) and asks again, for up to ``HOLD`` seconds. A writer the graph still lists without
+a name then (``patient``) is taken as the node the message is for only when no named writer
+of the topic can be that node: the graph loses a participant's node names for good when the
+participant is dropped on its lease and found again (``nodes.common.readers_wanting``), and
+a member must not be shut out of its run for that.
 
 Without ``--secure``, the graph's node names are what each participant says of itself: a
 process that names its node after the owner passes. With ``--secure``, a writer exists
@@ -74,6 +78,8 @@ class WriterTable:
     owners: dict[str, frozenset[str]] = field(default_factory=dict)
     #: topic -> writer GID -> the writer's node, as the graph names it (``/ns/name``)
     gids: dict[str, dict[bytes, str]] = field(default_factory=dict)
+    #: topic -> GIDs the graph lists without their node's name
+    unnamed: dict[str, set[bytes]] = field(default_factory=dict)
     #: (topic, sender) -> messages refused; sender: the writer's node, "?" if never named
     forged: Counter[tuple[str, str]] = field(default_factory=Counter)
     _asked: dict[str, float] = field(default_factory=dict)
@@ -95,9 +101,13 @@ class WriterTable:
         """The graph's writers of ``topic``: (GID, node name, node namespace) each; a
         writer it names without its node's name is left out (still unknown)."""
         known = self.gids.setdefault(topic, {})
+        unnamed = self.unnamed.setdefault(topic, set())
         for gid, name, ns in endpoints:
             if name and name != UNKNOWN_NODE:
                 known[bytes(gid)] = full_name(ns, name)
+                unnamed.discard(bytes(gid))
+            elif len(unnamed) < 4096:
+                unnamed.add(bytes(gid))
         if len(known) > 4096:  # writers come and go over a long run: keep the newest
             for g in list(known)[:len(known) - 4096]:
                 del known[g]
@@ -107,13 +117,26 @@ class WriterTable:
         return self.gids.get(topic, {}).get(bytes(gid))
 
     # -------------------------------------------------------------------- verdicts
-    def judge(self, topic: str, gid: bytes) -> str:
+    def _named(self, topic: str, node: str) -> bool:
+        """Whether a writer of ``topic`` the graph names is ``node`` (formation's
+        namespace)."""
+        return full_name(self.namespace, node) in self.gids.get(topic, {}).values()
+
+    def judge(self, topic: str, gid: bytes, patient: bool = False) -> str:
         """OK when writer ``gid`` may write ``topic`` (an owned topic: one of its owners;
         a shared one: any node of the formation's namespace, ``claims`` decides the
-        rest), UNKNOWN when the graph does not name it yet, else why not (counted)."""
+        rest), UNKNOWN when the graph does not name it yet, else why not (counted).
+        ``patient``: the message waited HOLD seconds; a writer the graph lists without a
+        name passes for an owner no named writer is (a shared topic: ``claims``)."""
         who = self.writer(topic, gid)
         if who is None:
-            return UNKNOWN
+            if not patient or bytes(gid) not in self.unnamed.get(topic, set()):
+                return UNKNOWN
+            owners = self.owners.get(topic)
+            if owners is None or not any(self._named(topic, o) for o in owners):
+                return OK
+            return self.refuse(topic, "(unnamed)", f"{topic} from a writer the graph does "
+                                                   f"not name, beside its named owner")
         ns, _, name = who.rpartition("/")
         if (ns or "/") != (self.namespace.rstrip("/") or "/"):
             return self.refuse(topic, who, f"{topic} from {who}, outside the formation's "
@@ -128,6 +151,13 @@ class WriterTable:
         """OK when the writer of a message on a shared topic is the node it names
         (``claimed``), or the launcher's monitor saying that node is ``down``;
         UNKNOWN or why not, as ``judge``."""
+        if self.writer(topic, gid) is None and bytes(gid) in self.unnamed.get(topic, set()):
+            # held HOLD seconds, still unnamed: only for a node no named writer is
+            if isinstance(claimed, str) and claimed and not self._named(topic, claimed):
+                return OK
+            return self.refuse(topic, "(unnamed)", f"{topic} in the name of "
+                                                   f"{str(claimed)[:100]!r} from a writer the "
+                                                   f"graph does not name")
         verdict = self.judge(topic, gid)
         if verdict != OK:
             return verdict

@@ -69,3 +69,22 @@ def test_the_console_line_sums_every_nodes_counts():
 
 def test_the_plants_of_one_node_own_the_team_poses():
     assert plant_writers() == {"robot_sim", "physics_sim"}
+
+
+def test_a_writer_the_graph_never_names_passes_only_for_a_node_no_named_writer_is():
+    """The graph loses a participant's node names for good when it is dropped on its
+    lease and found again: after HOLD its writer passes for a member that has no named
+    writer, never beside one that has."""
+    t = WriterTable(NS)
+    t.own(POSES, "physics_sim")
+    t.learn(READY, [(G1, "robot_1", NS), (G4, UNKNOWN_NODE, NS)])
+    t.learn(POSES, [(G4, UNKNOWN_NODE, NS)])
+    assert t.judge(READY, G4) == UNKNOWN and t.judge(POSES, G4) == UNKNOWN
+    assert t.judge(POSES, G4, patient=True) == OK  # no named physics_sim: it may be it
+    assert t.judge(READY, G4, patient=True) == OK
+    assert t.claims(READY, G4, "robot_2") == OK
+    assert "does not name" in t.claims(READY, G4, "robot_1")  # robot_1 is named: not it
+    assert t.judge(READY, b"\0" * 16, patient=True) == UNKNOWN  # never listed at all
+    t.learn(POSES, [(G1, "physics_sim", NS)])
+    assert t.judge(POSES, G4, patient=True) != OK
+    assert t.report() == {POSES: {"(unnamed)": 1}, READY: {"(unnamed)": 1}}
