@@ -22,6 +22,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
+from rclpy.clock import Clock, ClockType
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
@@ -110,9 +111,12 @@ class CheckedSubscription:
         alloc = rcutils.rcutils_get_default_allocator()
         rcutils.rcutils_uint8_array_init(ctypes.byref(self._buf), 1024, ctypes.byref(alloc))
         self._info = _Info()
-        self._timer = node.create_timer(0.0, self._drain)
+        # on the steady clock: a node on simulated time (lockstep) has no time passing
+        # between trials, when readies come
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._timer = node.create_timer(0.0, self._drain, clock=steady)
         self._timer.cancel()
-        self._hold_timer = node.create_timer(REFRESH_HELD, self._retry)
+        self._hold_timer = node.create_timer(REFRESH_HELD, self._retry, clock=steady)
         # rmw's thread: only re-arm the timer (the executor's thread does the rest)
         self._on_new = _ON_NEW(lambda user, count: self._timer.reset())
         rcl.rcl_subscription_set_on_new_message_callback(self.handle.pointer, self._on_new,
