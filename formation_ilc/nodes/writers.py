@@ -10,7 +10,9 @@ on the node's executor like any other, takes every waiting sample with
 ``rcl_take_serialized_message`` and its writer's GID, asks the table, and hands what is
 accepted to the handler (deserialized, or as bytes: ``raw``), with the writer's GID.
 
-A sample whose writer the graph does not name yet is held (``protocol.writers.HOLD``) and
+A steady timer also asks rcl every ``REFRESH_HELD`` seconds: under load the events
+executor was seen to miss the re-armed timer. A sample whose writer the graph does not name
+yet is held (``protocol.writers.HOLD``) and
 judged again as the graph learns it. Costs: ``scripts/bench_writers.py``.
 """
 
@@ -174,6 +176,9 @@ class CheckedSubscription:
         return True
 
     def _retry(self) -> None:
+        """Every REFRESH_HELD seconds: take what waits in rcl (a wake-up the executor
+        missed costs at most this period, never a stall) and judge the held again."""
+        self._drain()
         if not self.held:
             return
         now = time.monotonic()
@@ -197,5 +202,7 @@ class CheckedSubscription:
         rcutils.rcutils_uint8_array_fini(ctypes.byref(self._buf))
 
 
-#: [s] how often held samples are judged again
-REFRESH_HELD = 0.1
+#: [s] how often held samples are judged again, and rcl is asked for samples whose wake-up
+#: the executor may have missed (rclpy's events executor, with a timer re-armed from rmw's
+#: thread under load: seen as a ready taken only at the leader's next watchdog, 20 s on)
+REFRESH_HELD = 0.05
