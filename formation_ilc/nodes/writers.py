@@ -78,6 +78,7 @@ def _libs() -> tuple[Any, Any]:
             ctypes.c_void_p, ctypes.POINTER(_Bytes), ctypes.POINTER(_Info), ctypes.c_void_p]
         rcl.rcl_subscription_set_on_new_message_callback.argtypes = [
             ctypes.c_void_p, _ON_NEW, ctypes.c_void_p]
+        rcl.rcl_timer_reset.argtypes = [ctypes.c_void_p]
         _LIBS.update(rcl=rcl, rcutils=rcutils)
     return _LIBS["rcl"], _LIBS["rcutils"]
 
@@ -119,10 +120,15 @@ class CheckedSubscription:
         self._timer = node.create_timer(0.0, self._drain, clock=steady)
         self._timer.cancel()
         self._hold_timer = node.create_timer(REFRESH_HELD, self._retry, clock=steady)
-        # rmw's thread: only re-arm the timer (the executor's thread does the rest)
-        self._on_new = _ON_NEW(lambda user, count: self._timer.reset())
+        # rmw's thread only re-arms the timer, in C: rcl_timer_reset(timer) itself is the
+        # callback (its one argument is the callback's first, the user data), so rmw's
+        # thread never waits for the interpreter (a Python callback there must take the
+        # GIL while rmw holds its locks: runs under load stalled)
+        self._on_new = ctypes.cast(rcl.rcl_timer_reset, _ON_NEW)
+        with self._timer.handle:
+            timer_ptr = self._timer.handle.pointer
         rcl.rcl_subscription_set_on_new_message_callback(self.handle.pointer, self._on_new,
-                                                         None)
+                                                         ctypes.c_void_p(timer_ptr))
         self._drain()  # what came before the callback was set
 
     def get_publisher_count(self) -> int:
