@@ -102,9 +102,12 @@ class MonitorNode(GuardedNode):
         #: the last ready of each node (the launcher names whom a stuck run waits for)
         self.readies: dict[str, Ready] = {}
         self._gate = self.create_timer(0.05, self._check_ready)
-        # every report and ready from the node it names (protocol.writers)
-        self.checked_subscription(DiagnosticArray, ms.DIAGNOSTICS, self._on_diag_from,
-                                  ms.LATCHED_READER_QOS, shared=True)
+        # reports are checked field by field (core.links), not by writer: a robot's first
+        # report, held until the graph names its writer, came after its trajectory and
+        # its row lost its filter count; every ready from the node it names
+        # (protocol.writers)
+        self.create_subscription(DiagnosticArray, ms.DIAGNOSTICS, self._on_diag,
+                                 ms.LATCHED_READER_QOS)
         self.checked_subscription(String, ms.READY, self._on_ready_from, ms.LATCHED_READER_QOS,
                                   shared=True)
         self.events_sub = self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event,
@@ -130,15 +133,6 @@ class MonitorNode(GuardedNode):
             return
         if self.from_named_writer(ms.READY, gid, d.get("node"), d.get("down") is True):
             self._on_ready(msg)
-
-    def _on_diag_from(self, msg: DiagnosticArray, gid: bytes) -> None:
-        try:
-            name = ms.msg_to_report(msg, ("node",)).get("node")
-        except Rejected as exc:
-            self.drops.reject(exc, ms.DIAGNOSTICS)
-            return
-        if self.from_named_writer(ms.DIAGNOSTICS, gid, name):
-            self._on_diag(msg)
 
     def _on_ready(self, msg: String) -> None:
         """Readies of every node: who is there (``readies``, for the launcher's watchdog);

@@ -149,8 +149,8 @@ class CheckedSubscription:
         while (got := self._take()) is not None:
             self._judge(*got, time.monotonic())
 
-    def _refresh(self, now: float) -> None:
-        if self.table.due(self.topic_name, now):
+    def _refresh(self, now: float, gid: bytes | None = None) -> None:
+        if self.table.due(self.topic_name, now, gid):
             self.table.learn(self.topic_name, (
                 (bytes(i.endpoint_gid), i.node_name, i.node_namespace)
                 for i in self.node.get_publishers_info_by_topic(self.topic_name)))
@@ -160,7 +160,7 @@ class CheckedSubscription:
         """Hand ``data`` on, refuse it, or hold it; False when held (still unknown)."""
         verdict = self.table.judge(self.topic_name, gid)
         if verdict == UNKNOWN:
-            self._refresh(now)
+            self._refresh(now, gid)
             verdict = self.table.judge(self.topic_name, gid)
         if verdict == UNKNOWN:
             since = now if held_since is None else held_since

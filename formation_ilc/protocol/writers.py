@@ -83,16 +83,21 @@ class WriterTable:
     #: (topic, sender) -> messages refused; sender: the writer's node, "?" if never named
     forged: Counter[tuple[str, str]] = field(default_factory=Counter)
     _asked: dict[str, float] = field(default_factory=dict)
+    _first: set[tuple[str, bytes]] = field(default_factory=set)
 
     def own(self, topic: str, *nodes: str) -> None:
         """Only ``nodes`` (names in the formation's namespace) may write ``topic``."""
         self.owners[topic] = frozenset(nodes)
 
     # -------------------------------------------------------------------- the graph
-    def due(self, topic: str, now: float) -> bool:
+    def due(self, topic: str, now: float, gid: bytes | None = None) -> bool:
         """Whether the graph may be asked for ``topic``'s writers again (at most every
-        REFRESH seconds), marking it asked."""
-        if now - self._asked.get(topic, -1e9) < REFRESH:
+        REFRESH seconds; at once for a writer ``gid`` not asked about before, so that a
+        new writer's first message is not held), marking it asked."""
+        key = (topic, bytes(gid)) if gid is not None else None
+        if key is not None and key not in self._first and len(self._first) < 4096:
+            self._first.add(key)
+        elif now - self._asked.get(topic, -1e9) < REFRESH:
             return False
         self._asked[topic] = now
         return True
