@@ -124,6 +124,14 @@ def _created(args: argparse.Namespace, grants: dict[str, Grant], sc: Any,
     except KeystoreError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return False
+    except OSError as exc:  # a folder that cannot be made or written: the user's path
+        from formation_ilc.system.exits import is_disk_full
+
+        if is_disk_full(exc):
+            raise  # the command's disk-full status and line
+        print(f"error: {args.keystore}: cannot make the keystore there: "
+              f"{exc.strerror or exc}", file=sys.stderr)
+        return False
     for line in done.lines():
         print(f"{args.keystore}: {line}")
     print(f"{args.keystore}: {len(grants)} enclaves for {sc.name} ({sc.n} robots) in "

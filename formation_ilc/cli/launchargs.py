@@ -12,6 +12,7 @@ from pathlib import Path
 
 from formation_ilc.cli.options import (
     add_run_options,
+    float_range,
     int_range,
     nonneg_float,
     out_dir_arg,
@@ -21,6 +22,7 @@ from formation_ilc.cli.options import (
 from formation_ilc.config.plants import PLANT_TABLE, PLANTS
 from formation_ilc.config.runconfig import MODES
 from formation_ilc.core.links import LINK_MODES
+from formation_ilc.protocol.physics_plant import TILT_RANGE
 
 __all__ = ["add_arguments", "launch_parser", "without_defaults", "arrange_help", "COMMON"]
 
@@ -271,7 +273,8 @@ def add_safety_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--contact-retries", type=int_range(0, 100), default=2, metavar="N",
                    help="with --on-contact stop: how often one trial is run again after a "
                         "contact (default 2)")
-    g.add_argument("--tilt-limit", type=positive_float, default=10.0, metavar="DEG",
+    g.add_argument("--tilt-limit", type=float_range(*TILT_RANGE, unit="deg"), default=10.0,
+                   metavar="DEG",
                    help="with --plant physics or --physics-bases: a robot tilted past this "
                         "[deg] is treated as a contact (default 10)")
 

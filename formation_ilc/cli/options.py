@@ -75,6 +75,23 @@ def positive_float(text: str) -> float:
 positive_float.__name__ = "number"
 
 
+def float_range(lo: float, hi: float, unit: str = "") -> Callable[[str], float]:
+    """An argparse type: a finite number in [lo, hi] (``unit`` named in the error)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not (math.isfinite(value) and lo <= value <= hi):
+            raise argparse.ArgumentTypeError(
+                f"must be a number in {lo:g}..{hi:g}{' ' + unit if unit else ''}, got {text}")
+        return value
+
+    parse.__name__ = "number"
+    return parse
+
+
 def nonneg_float(text: str) -> float:
     """An argparse type: a finite number >= 0."""
     try:

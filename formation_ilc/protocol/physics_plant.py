@@ -50,12 +50,16 @@ from formation_ilc.protocol.schedule import ABORT, TrialEvent
 
 __all__ = ["PhysicsPlant", "BaseRobots", "BaseOdometry", "physics_available", "ON_CONTACT",
            "ContactEvent", "ContactWatch", "PHASES", "BaseTrials", "contact_then",
-           "CONTACT_PARAMS"]
+           "CONTACT_PARAMS", "TILT_RANGE"]
 
 #: what a physics plant does when robots touch: stop them and re-run the trial (at most
 #: ``retries`` times), stop them and end the run, or report and go on
 ON_CONTACT = ("stop", "abort", "continue")
 
+
+#: the tilt limits a plant takes [deg] (``tilt_limit``; the launcher checks
+#: ``--tilt-limit`` against the same range before any node starts)
+TILT_RANGE = (0.1, 180.0)
 
 #: what a plant with bodies does about contacts: the physics plant's and the physics bases'
 #: parameters
@@ -66,7 +70,7 @@ CONTACT_PARAMS: tuple[Param, ...] = (
     Param("contact_retries", 2, "how often one trial runs again after a contact", lo=0,
           hi=100),
     Param("tilt_limit", 10.0, "a robot tilted past this counts as a contact", "deg",
-          lo=0.1, hi=180.0),
+          lo=TILT_RANGE[0], hi=TILT_RANGE[1]),
 )
 
 #: where a contact happened: in a trial, or on the way back to the start poses (the bases'

@@ -212,3 +212,28 @@ def test_a_scenario_written_in_the_run_file_is_kept_in_the_runs_folder(tmp_path)
 
 def params(plan, name):
     return next(s.params for s in plan.nodes if s.name == name)
+
+
+@pytest.mark.parametrize("value", ["1e9", "0", "nan"])
+def test_a_tilt_limit_no_plant_takes_is_refused_before_any_node_starts(capsys, value):
+    """``--tilt-limit`` is checked by the launcher against the range the physics plant
+    and the physics bases take (issue 39: it used to start every process, then the
+    physics node refused it and the launch exited 1)."""
+    with pytest.raises(SystemExit) as info:
+        build_parser().parse_args(["launch", "paper-triangle3", "--plant", "physics",
+                                   "--tilt-limit", value])
+    assert info.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert f"argument --tilt-limit: must be a number in 0.1..180 deg, got {value}" in err
+
+
+def test_a_keystore_where_none_can_be_made_is_refused_in_one_line(tmp_path, capsys):
+    """``keystore create`` into a folder that cannot be made (in /proc, a folder whose
+    files are the kernel's, root or not): status 2 and one line naming the path (it used
+    to exit 1)."""
+    pytest.importorskip("cryptography")
+    where = "/proc/formation-ilc-keys"
+    assert main(["keystore", "create", where, "paper-triangle3"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {where}: cannot make the keystore "
+                                               f"there: ")
