@@ -164,8 +164,7 @@ class LeaderNode(GuardedNode):
         self.event_pub = self.create_publisher(String, ms.TRIAL_EVENTS, ms.SAMPLE_QOS)
         self.diag_pub = Diagnostics(self)  # per-trial report and /diagnostics
         # every ready and report from the node it names (protocol.writers)
-        self.ready_sub = self.checked_subscription(String, ms.READY, self._on_ready_from,
-                                                   ms.LATCHED_READER_QOS, shared=True)
+        self.ready_sub = self.checked_readies(self._on_ready)
         # its own events come back here too; a start or abort it did not send is re-asserted
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
         # a second formation's latched configuration is what this reader is for: a depth
@@ -221,17 +220,6 @@ class LeaderNode(GuardedNode):
             self.core.on_ready(ms.msg_to_json(msg))
         except Rejected as exc:
             self.drops.reject(exc, ms.READY)
-
-    def _on_ready_from(self, msg: String, gid: bytes) -> None:
-        """A ready, taken only from the node it names (the monitor may say another is
-        down): a ready in another node's name no longer stops the run."""
-        try:
-            d = ms.msg_to_json(msg)
-        except Rejected as exc:
-            self.drops.reject(exc, ms.READY)
-            return
-        if self.from_named_writer(ms.READY, gid, d.get("node"), d.get("down") is True):
-            self._on_ready(msg)
 
     def _on_diagnostics_from(self, msg: DiagnosticArray, gid: bytes) -> None:
         try:
@@ -314,8 +302,7 @@ class LeaderNode(GuardedNode):
     def reread_readies(self) -> None:
         self.ready_sub.destroy()
         self._checked.remove(self.ready_sub)
-        self.ready_sub = self.checked_subscription(String, ms.READY, self._on_ready_from,
-                                                   ms.LATCHED_READER_QOS, shared=True)
+        self.ready_sub = self.checked_readies(self._on_ready)
 
     def _gate_pairs(self) -> list[tuple[Any, int]]:
         """The endpoints a trial's start waits for, beside the readies: the reference's

@@ -155,6 +155,24 @@ class GuardedNode(Node):
         self._checked = [*getattr(self, "_checked", []), sub]
         return sub
 
+    def checked_readies(self, on_ready: Callable[[String], None]) -> Any:
+        """The ready topic, each ready handed to ``on_ready`` only when it comes from the
+        node it names (the launcher's monitor may say another is ``down``): a ready in
+        another node's name moves nothing. An undecodable one is dropped and counted."""
+        def taken(msg: String, gid: bytes) -> None:
+            try:
+                d = ms.msg_to_json(msg)
+            except Rejected as exc:
+                drops = getattr(self, "drops", None)
+                if drops is not None:
+                    drops.reject(exc, ms.READY)
+                return
+            if self.from_named_writer(ms.READY, gid, d.get("node"), d.get("down") is True):
+                on_ready(msg)
+
+        return self.checked_subscription(String, ms.READY, taken, ms.LATCHED_READER_QOS,
+                                         shared=True)
+
     def from_named_writer(self, topic: str, gid: bytes, claimed: Any, down: bool = False
                           ) -> bool:
         """Whether the writer (``gid``) of a message on a shared topic is the node the

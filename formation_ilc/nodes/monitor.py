@@ -108,8 +108,7 @@ class MonitorNode(GuardedNode):
         # (protocol.writers)
         self.create_subscription(DiagnosticArray, ms.DIAGNOSTICS, self._on_diag,
                                  ms.LATCHED_READER_QOS)
-        self.checked_subscription(String, ms.READY, self._on_ready_from, ms.LATCHED_READER_QOS,
-                                  shared=True)
+        self.checked_readies(self._on_ready)
         self.events_sub = self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event,
                                                    ms.SAMPLE_QOS)
 
@@ -124,15 +123,6 @@ class MonitorNode(GuardedNode):
         return ms.json_to_msg({"node": ms.MONITOR_NODE, "passive": True,
                                "trial": self.cfg.scenario.trials, "boot": self.boot,
                                "run": self.cfg.run_id})
-
-    def _on_ready_from(self, msg: String, gid: bytes) -> None:
-        try:
-            d = ms.msg_to_json(msg)
-        except Rejected as exc:
-            self.drops.reject(exc, ms.READY)
-            return
-        if self.from_named_writer(ms.READY, gid, d.get("node"), d.get("down") is True):
-            self._on_ready(msg)
 
     def _on_ready(self, msg: String) -> None:
         """Readies of every node: who is there (``readies``, for the launcher's watchdog);
