@@ -57,21 +57,18 @@ from formation_ilc.model.physics import MODELS
 from formation_ilc.nodes.common import (
     ConfiguredNode,
     RunConfig,
-    fail,
     node_parser,
     spin_main,
 )
+from formation_ilc.nodes.contacts import ContactActing
 from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.physics_plant import (
     CONTACT_PARAMS,
     BaseRobots,
     BaseTrials,
-    ContactEvent,
     ContactWatch,
-    contact_then,
 )
 from formation_ilc.protocol.plant import RESEND_S
-from formation_ilc.system.exits import CONTACT
 
 NAME = BASES_NODE
 
@@ -96,7 +93,7 @@ PARAMS: tuple[Param, ...] = (
 )
 
 
-class PhysicsBases(ConfiguredNode):
+class PhysicsBases(ContactActing, ConfiguredNode):
     """N physics robots, each a base with cmd_vel and odometry."""
 
     def __init__(self, **kwargs: Any):
@@ -132,7 +129,6 @@ class PhysicsBases(ConfiguredNode):
                                   math.radians(float(g("tilt_limit"))))
         #: the trials as followed, once the run's configuration came (None: not in a run)
         self.trials: BaseTrials | None = None
-        self._asked = 0.0
         self.create_timer(self.core.tick, self._on_tick)
         self.create_timer(1.0, self._report)
         world = self.core.world
@@ -177,10 +173,11 @@ class PhysicsBases(ConfiguredNode):
             return
         ev, ended = trials.tick(stamp)
         if ev is not None:
-            self._on_contact(ev)
+            self.act_on_contact(ev, self.watch, time.time_ns())
         elif (trials.held and trials.stopped is not None and trials.stopped.action == "stop"
               and time.monotonic() - self._asked >= RESEND_S):
-            self._ask_abort(trials.stopped)  # a lost request must not leave the run waiting
+            # a lost request must not leave the run waiting
+            self.ask_abort(trials.stopped, self.watch)
         if ended:
             d = {"node": NAME, "trial": trials.trial, **trials.report(),
                  **self.core.report()}
@@ -189,32 +186,8 @@ class PhysicsBases(ConfiguredNode):
             trials.ended(stamp)
             self.ready_pub.publish(self.ready_msg(trials.trial + 1))
 
-    def _on_contact(self, ev: ContactEvent) -> None:
-        """Say it at once (log, diagnostics: the console), then act on the first event of
-        a trial or a return: ask the leader to abort the trial, or end the run."""
-        trials = self.trials
-        assert trials is not None
-        dt, limit = self.cfg.scenario.dt, self.watch.tilt_limit
-        then = contact_then(ev, self.watch.reruns.get(ev.trial, 0), self.watch.retries)
-        line = ev.line(dt, limit)
-        self.get_logger().warning(f"contact: {line}: {then}")
-        self.diag_pub.publish(ms.diagnostics_to_msg(
-            {"node": NAME, "trial": ev.trial, "contact": ev.to_json(dt, limit)},
-            time.time_ns()))
-        if not ev.acts:
-            return
-        if ev.action == "stop":
-            self._ask_abort(ev)
-        elif ev.action in ("abort", "give_up"):
-            self._report()  # the counts, the ending contact's included, before the end
-            fail(self, f"contact: {line}; {then} (--on-contact, docs/safety.md)", CONTACT)
-
-    def _ask_abort(self, ev: ContactEvent) -> None:
-        """Ask the leader to abort the trial the robots touched in (its ready says why)."""
-        self._asked = time.monotonic()
-        line = ev.line(self.cfg.scenario.dt, self.watch.tilt_limit)
-        self.ready_pub.publish(self.ready_msg(ev.trial, abort_slot=ev.slot,
-                                              why=f"contact: {line}"))
+    def before_contact_end(self) -> None:
+        self._report()  # the counts, the ending contact's included, before the end
 
     def _report(self) -> None:
         extra: dict[str, Any] = {}

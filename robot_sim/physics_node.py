@@ -35,20 +35,17 @@ import sys
 import time
 from typing import Any
 
-import msgs_schema as ms
 from formation_ilc.config.params import Param
 from formation_ilc.core.names import PHYSICS_NODE
 from formation_ilc.model.physics import DEFAULT_RATE, MODELS, POSE_SOURCES, RATE_RANGE
-from formation_ilc.nodes.common import RunConfig, fail, node_parser, spin_main
+from formation_ilc.nodes.common import RunConfig, node_parser, spin_main
+from formation_ilc.nodes.contacts import ContactActing
 from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.physics_plant import (
     CONTACT_PARAMS,
-    ContactEvent,
     PhysicsPlant,
-    contact_then,
 )
 from formation_ilc.protocol.plant import RESEND_S
-from formation_ilc.system.exits import CONTACT
 from robot_sim.node import SimNode
 
 #: the physics plant's node name (what it says ready as)
@@ -67,11 +64,10 @@ PARAMS: tuple[Param, ...] = (
 )
 
 
-class PhysicsNode(SimNode):
+class PhysicsNode(ContactActing, SimNode):
     """All robots of the run in one PyBullet world."""
 
     def __init__(self, **kwargs: Any):
-        self._asked = 0.0  # when it last asked for a held trial's abort (monotonic) [s]
         super().__init__(NAME, **kwargs)  # the run configuration arrives later, on a topic
 
     def declare_plant_parameters(self) -> None:
@@ -97,7 +93,9 @@ class PhysicsNode(SimNode):
         plant = self.plant
         if isinstance(plant, PhysicsPlant):
             for ev in plant.take_contacts():
-                if not self._on_contact(plant, ev):
+                stamp = (self.get_clock().now().nanoseconds, self.cfg.scenario.dt,
+                         self.cfg.scenario.samples)
+                if not self.act_on_contact(ev, plant.watch, *stamp):
                     return  # the run ends here: no sample after the contact
             if plant.held:
                 return  # the trial waits for the leader's abort (it asked): no sample
@@ -110,37 +108,9 @@ class PhysicsNode(SimNode):
         if isinstance(plant, PhysicsPlant) and plant.held and plant.contact is not None:
             now = time.monotonic()
             if now - self._asked >= RESEND_S:
-                self._ask_abort(plant.contact, plant)
+                self.ask_abort(plant.contact, plant.watch)
             return
         super()._resend()
-
-    def _ask_abort(self, ev: ContactEvent, plant: PhysicsPlant) -> None:
-        """Ask the leader to abort the trial the robots touched in (its ready says why)."""
-        self._asked = time.monotonic()
-        line = ev.line(self.cfg.scenario.dt, plant.tilt_limit)
-        self.ready_pub.publish(self.ready_msg(ev.trial, abort_slot=ev.slot,
-                                              why=f"contact: {line}"))
-
-    def _on_contact(self, plant: PhysicsPlant, ev: ContactEvent) -> bool:
-        """Say it at once (log, diagnostics), then act on a trial's first event: stop and
-        re-run, or end the run. Returns whether the trial goes on (its robots standing,
-        with ``stop``)."""
-        dt = self.cfg.scenario.dt
-        then = contact_then(ev, plant.reruns.get(ev.trial, 0), plant.retries)
-        line = ev.line(dt, plant.tilt_limit)
-        self.get_logger().warning(f"contact: {line}: {then}")
-        d = {"node": self.get_name(), "trial": ev.trial,
-             "contact": ev.to_json(dt, plant.tilt_limit)}
-        self.diag_pub.publish(ms.diagnostics_to_msg(
-            d, self.get_clock().now().nanoseconds, dt, self.cfg.scenario.samples))
-        if not ev.acts:
-            return True
-        if ev.action == "stop":
-            self._ask_abort(ev, plant)
-        elif ev.action in ("abort", "give_up"):
-            fail(self, f"contact: {line}; {then} (--on-contact, docs/safety.md)", CONTACT)
-            return False
-        return True
 
     def destroy_node(self) -> None:
         plant = getattr(self, "plant", None)

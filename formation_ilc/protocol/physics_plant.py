@@ -472,8 +472,14 @@ class BaseTrials:
         self.by_trial: dict[str, dict[str, Any]] = {
             "contacts_by_trial": {}, "return_contacts_by_trial": {}, "tilt_by_trial": {}}
         self.tilt_max = 0.0
-        self.window_pairs = []
-        self.window_contacts: dict[str, float] = {}
+        #: the pairs that touched in this trial or return (``BaseRobots.window_pairs``)
+        self.window_pairs: list[tuple[int, int, float, float]] = []
+
+    @property
+    def contacts(self) -> dict[str, float]:
+        """This trial's or return's pairs that touched: seconds in contact, keyed
+        'robot_i-robot_j'."""
+        return {f"{robot_name(i)}-{robot_name(j)}": secs for i, j, secs, _ in self.window_pairs}
 
     @property
     def trial(self) -> int:
@@ -508,8 +514,7 @@ class BaseTrials:
             "stop", "continue") else self.stopped
         self.robots.held = self.held
         self.tilt_max = 0.0
-        self.window_pairs: list[tuple[int, int, float, float]] = []
-        self.window_contacts = {}
+        self.window_pairs = []
 
     def _begin_return(self, now_ns: int) -> None:
         self.phase, self.back_ns = "return", now_ns
@@ -521,21 +526,19 @@ class BaseTrials:
             return None, False
         pairs, tilts = self.robots.window_pairs(), self.robots.world.tilt()
         self.tilt_max = max(self.tilt_max, float(np.max(tilts, initial=0.0)))
-        self.window_pairs = list(pairs)
-        self.window_contacts = {f"{robot_name(i)}-{robot_name(j)}": secs
-                                for i, j, secs, _ in pairs}
+        self.window_pairs = pairs
         k = str(self.trial)
         if self.phase == "trial":
             sample = int(min(self.T, max(0, (now_ns - self.start_ns) // self.dt_ns)))
             ev = self.watch.check(self.trial, self.slot, sample, pairs, tilts)
             self.by_trial["tilt_by_trial"][k] = self.tilt_max
-            if self.window_contacts:
-                self.by_trial["contacts_by_trial"][k] = dict(self.window_contacts)
+            if pairs:
+                self.by_trial["contacts_by_trial"][k] = self.contacts
         else:
             ev = self.watch.check(self.trial, self.slot, -1, pairs, tilts, "return",
                                   (now_ns - self.back_ns) * 1e-9)
-            if self.window_contacts:
-                self.by_trial["return_contacts_by_trial"][k] = dict(self.window_contacts)
+            if pairs:
+                self.by_trial["return_contacts_by_trial"][k] = self.contacts
         if ev is not None and ev.acts:
             self.stopped = ev
         self.robots.held = self.held
@@ -548,7 +551,7 @@ class BaseTrials:
         (``contact_report``: its slot and the pairs that touched), the run's so far."""
         return {"contact_report": {"slot": self.slot,
                                    "pairs": [list(p) for p in self.window_pairs]},
-                "contacts": dict(self.window_contacts), "tilt_max": self.tilt_max,
+                "contacts": self.contacts, "tilt_max": self.tilt_max,
                 "contact_events": self.watch.events, **self.by_trial}
 
     def ended(self, now_ns: int) -> None:
