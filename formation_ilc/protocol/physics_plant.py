@@ -228,15 +228,12 @@ class PhysicsPlant(KinematicPlant):
             raise ValueError(f"parameter pose: one of {', '.join(POSE_SOURCES)}, got {pose!r}")
         if not (rate > 0 and math.isfinite(rate)):
             raise ValueError(f"parameter rate: engine steps per second > 0, got {rate}")
+        #: which contacts are news, what is done about them, the re-runs of each iteration
         self.watch = ContactWatch(on_contact, retries, tilt_limit)
-        self.on_contact, self.retries, self.tilt_limit = on_contact, retries, tilt_limit
-        #: the trial's acting contact (None: none yet), and the re-runs each iteration had
+        #: the trial's acting contact (None: none yet)
         self.contact: ContactEvent | None = None
-        self.reruns = self.watch.reruns
-        #: trials with contacts (the events acted on)
-        self.contact_trials = 0
         #: contact events not yet taken by the node (``take_contacts``)
-        self.fresh: list[ContactEvent] = []
+        self.new_contacts: list[ContactEvent] = []
         robot: RobotModel = robot_model(model)
         super().__init__(cfg)
         self.pose_source = pose
@@ -259,7 +256,7 @@ class PhysicsPlant(KinematicPlant):
         self.tilt_max = 0.0
         self.drift = 0.0
         self.contact = None
-        self.fresh = []
+        self.new_contacts = []
         self.watch.window()
 
     def move(self, t: int) -> None:
@@ -271,10 +268,9 @@ class PhysicsPlant(KinematicPlant):
         self.tilt_max = max(self.tilt_max, float(tilts.max()))
         ev = self.watch.check(self.iteration, self.k, t + 1, self.world.contact_pairs(), tilts)
         if ev is not None:
-            self.fresh.append(ev)
+            self.new_contacts.append(ev)
             if ev.acts:
                 self.contact = ev
-                self.contact_trials += 1
 
     @property
     def held(self) -> bool:
@@ -293,7 +289,7 @@ class PhysicsPlant(KinematicPlant):
 
     def take_contacts(self) -> list[ContactEvent]:
         """This trial's contact events not yet taken (the node reports each once)."""
-        out, self.fresh = self.fresh, []
+        out, self.new_contacts = self.new_contacts, []
         return out
 
     def measured(self, t: int) -> NDArray[np.float64]:

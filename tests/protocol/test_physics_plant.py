@@ -211,3 +211,24 @@ def test_the_bases_count_contacts_per_trial_and_return_and_hold_the_robots():
     assert ev is not None and ev.phase == "return" and ev.action == "abort"
     assert abs(ev.seconds - 5 * dt_ns * 1e-9) < 1e-9
     assert trials.by_trial["return_contacts_by_trial"] == {"0": {"robot_2-robot_3": 0.05}}
+
+
+def test_a_realtime_trial_of_the_physics_plant_keeps_its_commands_and_its_contacts_apart():
+    """In realtime the plant marks each robot whose command came this tick (the kinematic
+    plant's ``fresh``); the physics plant's contact events are a list of their own (a
+    list once took that name and a realtime trial broke on its first command)."""
+    from dataclasses import replace
+
+    plant = PhysicsPlant(replace(short_config(), mode="realtime"))
+    try:
+        plant.said_ready()
+        assert plant.on_event(TrialEvent(START, 0, 0, 0), 0.0) is not None
+        for t in range(3):
+            for r in range(plant.n):
+                plant.command(r, np.array([0.2, 0.0]), 0.01 + t * plant.pb.dt)
+            assert plant.tick((t + 1) * plant.pb.dt)
+        assert sum(plant.missed.values()) == 0  # every command came before its tick
+        assert plant.take_contacts() == []
+        np.testing.assert_allclose(plant.u[:, :3, 0], 0.2)
+    finally:
+        plant.close()
