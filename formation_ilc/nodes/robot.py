@@ -353,8 +353,13 @@ class RobotNode(ConfiguredNode):
     def _on_team(self, msg: Path | bytes) -> None:
         """Every robot's pose of a sample (the plant's ``team/poses``), for the filter."""
         lrn, heard = self.learner, False
+        data = wire.as_bytes(msg)
+        block = wire.read_pose_block(data, self.pb.n)
+        if block is not None and lrn.on_team_poses(*block):  # all at once: the common case
+            self._maybe_command()
+            return
         try:
-            _, poses = wire.read_pose_set(wire.as_bytes(msg), self.pb.n)
+            _, poses = wire.read_pose_set(data, self.pb.n)
         except Rejected as exc:
             self.drops.reject(exc, ms.TEAM_POSES)
             return

@@ -41,6 +41,7 @@ samples ahead of its own poses, so there only the trial window applies.
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from dataclasses import dataclass
 
@@ -358,6 +359,52 @@ class RobotLearner:
         self.team_eta[j, s] = eta
         self.team_have[j, s] = True
         self.team_last[j] = max(self.team_last[j], s)
+
+    def on_team_poses(self, labels: NDArray[np.int64], fields: NDArray[np.float64]) -> bool:
+        """Every robot's pose of one sample at once (``labels`` (n,), the seven doubles of
+        each pose (n, 7): ``protocol.wire.read_pose_block`` of the plant's ``team/poses``,
+        robot j in row j; this robot's own row is not read). True: all taken, exactly as
+        ``on_team_pose`` takes them one by one. False: nothing taken, because something in
+        the message needs a verdict per pose (an invalid pose, a label off the common
+        sample, a duplicate): ``on_team_pose`` then takes or refuses each. The checks are
+        those of ``on_team_pose`` and ``wire.world_eta``, on arrays; the headings are
+        computed with the same float operations, so the filter sees the same bits."""
+        if self.safety is None or len(labels) != self.pb.n or self.pb.n < 2:
+            return False
+        idx = self._other_idx
+        lab = labels[idx]
+        first = int(lab[0])
+        if not (lab == first).all():
+            return False
+        try:
+            self._fresh(first)
+            k, s = self.clock.decode(first)
+            self._window(k, "team pose")
+        except Rejected:
+            return False
+        if k < self.team_k or (k == self.team_k and self.team_have[idx, s].any()):
+            return False
+        f = fields[idx]
+        q = f[:, 3:]
+        with np.errstate(invalid="ignore", over="ignore"):
+            norm = np.sqrt((q * q).sum(axis=1))
+        if not (np.isfinite(f[:, :2]).all() and np.isfinite(q).all()
+                and (np.abs(norm - 1.0) <= 1e-6).all()
+                and (np.abs(q[:, :2]) <= 1e-6).all()):
+            return False
+        # wire.heading_from_quaternion, element by element (math.atan2: numpy's may differ
+        # in the last bit)
+        ref = self.pb.eta_d[idx, s, 2]
+        th = 2.0 * np.array([math.atan2(z, w) for z, w in zip(q[:, 2].tolist(),
+                                                              q[:, 3].tolist())])
+        d = th - ref
+        th = ref + (d - 2.0 * math.pi * np.ceil((d - math.pi) / (2.0 * math.pi)))
+        self._team_trial(k)
+        self.team_eta[idx, s, :2] = f[:, :2]
+        self.team_eta[idx, s, 2] = th
+        self.team_have[idx, s] = True
+        self.team_last[idx] = np.maximum(self.team_last[idx], s)
+        return True
 
     def _filter(self, t: int) -> None:
         """The safety filter on this sample's command ``self.u`` (in place): with the

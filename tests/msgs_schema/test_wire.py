@@ -80,6 +80,44 @@ def test_the_preview_holds_each_robots_pose_bytes():
         w.read_pose_set(data[:-8], 6)
 
 
+def test_a_pose_block_reads_the_preview_as_the_one_by_one_reader_does():
+    """``read_pose_block`` (the robots' reading of the plant's team/poses) gives every
+    label and double of ``read_pose_set``, and None (no verdict) for any bytes it does not
+    take whole: another frame, another byte order, a count past ``most``, a cut message, an
+    invalid stamp."""
+    for n in (1, 2, 6, 50):
+        poses = list(_poses(n, seed=n))
+        stamp = poses[0][1]
+        raw = [w.raw_pose(eta, ns) for eta, ns in poses]  # a label of its own each
+        data = w.pose_set_bytes(stamp, raw)
+        block = w.read_pose_block(data, n)
+        assert block is not None
+        labels, fields = block
+        assert labels.tolist() == [p.label_ns for p in raw]
+        assert [tuple(row) for row in fields.tolist()] == [p.fields for p in raw]
+    raw = [w.raw_pose(eta, ns) for eta, ns in _poses(4, seed=3)]
+    data = w.pose_set_bytes(7, raw)
+    assert w.read_pose_block(data, 3) is None  # more than ``most``
+    assert w.read_pose_block(data[:-8], 4) is None
+    assert w.read_pose_block(data + b"\0" * 8, 4) is None
+    assert w.read_pose_block(w.pose_set_bytes(7, []), 4) is None
+    other = raw[:2] + [raw[2]._replace(frame="robot_1")] + raw[3:]
+    assert w.read_pose_block(w.pose_set_bytes(7, other), 4) is None
+    # an out-of-range nanosecond in any pose's stamp, or in the path's own
+    for offset in (8, 28, 176):  # the path's nanosec, pose 0's, pose 2's
+        bad = bytearray(data)
+        bad[offset:offset + 4] = (2 * 10**9).to_bytes(4, "little")
+        assert w.read_pose_block(bytes(bad), 4) is None
+        with pytest.raises(ms.MalformedMessage):
+            w.read_pose_set(bytes(bad), 4)
+    msg = Path()
+    msg.header.frame_id = "map"
+    msg.poses = [ms.pose_to_msg(eta, ns, "map") for eta, ns in _poses(3, seed=1)]
+    big_endian = bytearray(serialize_message(msg))
+    big_endian[1] = 0  # the same header claimed big endian: no longer the stack's layout
+    assert w.read_pose_block(bytes(big_endian), 3) is None
+
+
 def test_reading_gives_the_converters_values():
     for eta, ns in _poses():
         for frame in ("map", "robot_2"):

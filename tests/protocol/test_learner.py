@@ -226,6 +226,93 @@ def test_team_poses_are_refused_with_a_reason():
     assert exc.value.reason == "unexpected"
 
 
+def _filtering_pair(robot: int = 2):
+    from formation_ilc.model.footprint import footprint_of
+    from formation_ilc.model.physics import MODELS
+    from formation_ilc.model.safety import spec_for
+
+    sc = load_scenario("paper-hexagon6")
+    sp = spec_for(footprint_of("p3dx"), MODELS["p3dx"].limits, sc.dt)
+    pb = Problem.from_scenario(sc, safety=sp)
+    clock = SampleClock.for_run(sc.dt, sc.samples)
+    team = [RobotLearner(pb, robot, clock, safety=sp) for _ in range(2)]
+    for lrn in team:
+        lrn.on_pose(clock.stamp_ns(0, 0), pb.eta_d[robot, 0])
+    return pb, clock, team
+
+
+def _team_message(pb, labels, etas):
+    from formation_ilc.protocol import wire
+
+    data = wire.pose_set_bytes(int(labels[0]), [wire.raw_pose(e, int(lab))
+                                                for e, lab in zip(etas, labels)])
+    return data, wire.read_pose_block(data, pb.n)
+
+
+def _one_by_one(lrn, data, n):
+    from formation_ilc.protocol import wire
+
+    reasons = []
+    for j, p in enumerate(wire.read_pose_set(data, n)[1]):
+        if j == lrn.i:
+            continue
+        try:
+            lrn.on_team_pose(j, p.label_ns, wire.world_eta(
+                p, lrn.expected_team_heading(j, p.label_ns)))
+        except Rejected as exc:
+            reasons.append(exc.reason)
+    return reasons
+
+
+def _same_team_state(a, b):
+    for name in ("team_eta", "team_have", "team_last"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    assert a.team_k == b.team_k
+
+
+def test_the_team_poses_taken_at_once_are_those_taken_one_by_one():
+    """The robot node's common case (``on_team_poses``, a whole ``team/poses`` message of
+    arrays) holds the same bits as the one-by-one reading, headings unwrapped the same way
+    however far the measured heading is from the desired one."""
+    pb, clock, (bulk, single) = _filtering_pair()
+    rng = np.random.default_rng(5)
+    for t in range(pb.samples + 1):
+        etas = pb.eta_d[:, t] + rng.normal(scale=(0.05, 0.05, 2.5), size=(pb.n, 3))
+        labels = np.full(pb.n, clock.stamp_ns(0, t))
+        data, block = _team_message(pb, labels, etas)
+        assert bulk.on_team_poses(*block)
+        assert _one_by_one(single, data, pb.n) == []
+    _same_team_state(bulk, single)
+    assert bulk.team_have.all()
+
+
+def test_a_team_message_with_anything_to_refuse_is_left_to_the_one_by_one_reading():
+    """Nothing is taken at once from a message that needs a verdict per pose: the one-by-one
+    reading then takes what it can and counts the rest under its reason."""
+    pb, clock, (bulk, single) = _filtering_pair()
+    good = pb.eta_d[:, 3].copy()
+    cases = []
+    labels = np.full(pb.n, clock.stamp_ns(0, 3))
+    labels[4] = clock.stamp_ns(0, 2)  # one robot's pose of another sample
+    cases.append((labels, good, []))
+    now = clock.stamp_ns(0, 4)
+    etas = good.copy()
+    etas[0, 0] = np.nan  # a non-finite position
+    cases.append((np.full(pb.n, now), etas, ["malformed"]))
+    cases.append((np.full(pb.n, clock.stamp_ns(5, 0)), good, ["future"] * (pb.n - 1)))
+    # heard already, but for robot 1, whose pose was refused
+    cases.append((np.full(pb.n, now), good, ["duplicate"] * (pb.n - 2)))
+    for labels, etas, reasons in cases:
+        data, block = _team_message(pb, labels, etas)
+        before = bulk.team_have.copy()
+        assert not bulk.on_team_poses(*block)
+        np.testing.assert_array_equal(bulk.team_have, before)
+        assert _one_by_one(bulk, data, pb.n) == _one_by_one(single, data, pb.n) == reasons
+    _same_team_state(bulk, single)
+    plain = RobotLearner(pb, 2, clock)  # no filter: nothing to hear
+    assert not plain.on_team_poses(*_team_message(pb, np.full(pb.n, now), good)[1])
+
+
 def test_realtime_missed_samples_are_held():
     sc = load_scenario("paper-triangle3").with_options(delay=False)
     pb = Problem.from_scenario(sc)
