@@ -20,6 +20,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from sensor_msgs.msg import TimeReference
 
 from formation_ilc.core.clock import Malformed
+from formation_ilc.protocol.wire import read_time_reference
 from msgs_schema.convert import ns_to_stamp, stamp_to_ns
 
 __all__ = ["CLOCK_SYNC_QOS", "ping_msg", "read_ping", "pong_msg", "read_pong",
@@ -51,24 +52,36 @@ def pong_msg(seq: int, t2: int, t3: int, asker: str) -> TimeReference:
     return msg
 
 
-def _seq(msg: TimeReference) -> int:
-    text = msg.header.frame_id
+def _fields(msg: TimeReference | bytes) -> tuple[int, str, int, str]:
+    """(header.stamp [ns], header.frame_id, time_ref [ns], source) of a message object or
+    of its bytes (a raw subscription: ``formation_ilc.protocol.wire.read_time_reference``)."""
+    if isinstance(msg, (bytes, bytearray, memoryview)):
+        return read_time_reference(bytes(msg))
+    return (stamp_to_ns(msg.header.stamp), msg.header.frame_id, stamp_to_ns(msg.time_ref),
+            msg.source)
+
+
+def _seq(text: str) -> int:
     if not (0 < len(text) <= 19 and text.isascii() and text.isdigit()):
         raise Malformed(f"clock exchange number {text[:30]!r}")
     return int(text)
 
 
-def _name(msg: TimeReference) -> str:
-    if not (0 < len(msg.source) <= NAME_MAX and msg.source.isascii()):
-        raise Malformed(f"clock exchange from {msg.source[:30]!r}")
-    return str(msg.source)
+def _name(source: str) -> str:
+    if not (0 < len(source) <= NAME_MAX and source.isascii()):
+        raise Malformed(f"clock exchange from {source[:30]!r}")
+    return str(source)
 
 
-def read_ping(msg: TimeReference) -> tuple[str, int, int]:
-    """(the clock asked, seq, t1); MalformedMessage if it is not a question."""
-    return _name(msg), _seq(msg), stamp_to_ns(msg.header.stamp)
+def read_ping(msg: TimeReference | bytes) -> tuple[str, int, int]:
+    """(the clock asked, seq, t1) of a question (a message object or its bytes);
+    MalformedMessage if it is not a question."""
+    stamp, frame, _, source = _fields(msg)
+    return _name(source), _seq(frame), stamp
 
 
-def read_pong(msg: TimeReference) -> tuple[str, int, int, int]:
-    """(who asked, seq, t2, t3); MalformedMessage if it is not an answer."""
-    return _name(msg), _seq(msg), stamp_to_ns(msg.time_ref), stamp_to_ns(msg.header.stamp)
+def read_pong(msg: TimeReference | bytes) -> tuple[str, int, int, int]:
+    """(who asked, seq, t2, t3) of an answer (a message object or its bytes);
+    MalformedMessage if it is not an answer."""
+    stamp, frame, time_ref, source = _fields(msg)
+    return _name(source), _seq(frame), time_ref, stamp

@@ -15,6 +15,7 @@ from __future__ import annotations
 import secrets
 import time
 from collections.abc import Callable, Iterable
+from functools import partial
 from typing import Any
 
 from rclpy.node import Node
@@ -74,9 +75,11 @@ class ClockExchange:
         if peers:
             self.ping_pub = node.create_publisher(TimeReference, ms.clock_ping_topic(me),
                                                   ms.CLOCK_SYNC_QOS)
+            # bytes: a clock's answer topic carries its answers to every asker, each of
+            # which reads them all (the leader of a 50-robot team answers 17 robots)
             self.subs += [node.create_subscription(
-                TimeReference, ms.clock_pong_topic(p), lambda m, p=p: self._on_pong(m, p),
-                ms.CLOCK_SYNC_QOS) for p in peers]
+                TimeReference, ms.clock_pong_topic(p), partial(self._on_pong, peer=p),
+                ms.CLOCK_SYNC_QOS, raw=True) for p in peers]
             self._timer = node.create_timer(clock.scale / BURST_HZ, self._on_timer)
             self._report_due = 0.0
         self.pong_pub: Any = None
@@ -84,8 +87,8 @@ class ClockExchange:
             self.pong_pub = node.create_publisher(TimeReference, ms.clock_pong_topic(me),
                                                   ms.CLOCK_SYNC_QOS)
             self.subs += [node.create_subscription(
-                TimeReference, ms.clock_ping_topic(a), lambda m, a=a: self._on_ping(m, a),
-                ms.CLOCK_SYNC_QOS) for a in askers]
+                TimeReference, ms.clock_ping_topic(a), partial(self._on_ping, asker=a),
+                ms.CLOCK_SYNC_QOS, raw=True) for a in askers]
 
     def now(self) -> int:
         """This node's clock now [ns]."""
@@ -112,7 +115,7 @@ class ClockExchange:
             self._report_due = mono + REPORT_EVERY_S
             self.on_report()
 
-    def _on_pong(self, msg: TimeReference, peer: str) -> None:
+    def _on_pong(self, msg: TimeReference | bytes, peer: str) -> None:
         """``peer``'s answer (its pong topic carries its answers to every asker)."""
         t4 = self.now()
         try:
@@ -124,7 +127,7 @@ class ClockExchange:
             self.drops.reject(exc, ms.clock_pong_topic(peer))
 
     # ------------------------------------------------------------------ answering
-    def _on_ping(self, msg: TimeReference, asker: str) -> None:
+    def _on_ping(self, msg: TimeReference | bytes, asker: str) -> None:
         """``asker``'s question (its ping topic carries its questions to every clock it
         asks): answered when it asks this node's clock."""
         t2 = self.now()
