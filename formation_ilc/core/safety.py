@@ -208,9 +208,11 @@ def _clip_polygon(px: NDArray[np.float64], py: NDArray[np.float64], n: int, a0: 
     """The convex polygon (px, py)[:n] cut by the half-plane a0 x + a1 y >= b, into
     (qx, qy); returns its vertex count (0: empty)."""
     m = 0
+    # Python floats: interpreted (the nodes), arithmetic on numpy scalars costs 3x
+    a0, a1, b = float(a0), float(a1), float(b)
     for k in range(n):
-        x0, y0 = px[k], py[k]
-        x1, y1 = px[(k + 1) % n], py[(k + 1) % n]
+        x0, y0 = float(px[k]), float(py[k])
+        x1, y1 = float(px[(k + 1) % n]), float(py[(k + 1) % n])
         s0 = a0 * x0 + a1 * y0 - b
         s1 = a0 * x1 + a1 * y1 - b
         if s0 >= 0.0:
@@ -492,8 +494,9 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
 def _keeps(x: float, y: float, ha0: NDArray[np.float64], ha1: NDArray[np.float64],
            hb: NDArray[np.float64], m: int) -> bool:
     """Whether (x, y) keeps every half-plane ha0 x + ha1 y >= hb of the first m."""
+    x, y = float(x), float(y)
     for k in range(m):
-        if ha0[k] * x + ha1[k] * y < hb[k] - 1e-9:
+        if float(ha0[k]) * x + float(ha1[k]) * y < float(hb[k]) - 1e-9:
             return False
     return True
 
@@ -503,10 +506,11 @@ def _nearest_on_polygon(px: NDArray[np.float64], py: NDArray[np.float64], n: int
                         zx: float, zy: float) -> tuple[float, float]:
     """The nearest point to (zx, zy) of the boundary of the convex polygon (px, py)[:n]."""
     best = np.inf
+    zx, zy = float(zx), float(zy)
     bx, by = zx, zy
     for k in range(n):
-        x0, y0 = px[k], py[k]
-        ex, ey = px[(k + 1) % n] - x0, py[(k + 1) % n] - y0
+        x0, y0 = float(px[k]), float(py[k])
+        ex, ey = float(px[(k + 1) % n]) - x0, float(py[(k + 1) % n]) - y0
         ee = ex * ex + ey * ey
         f = 0.0 if ee <= 0.0 else _clip(((zx - x0) * ex + (zy - y0) * ey) / ee, 0.0, 1.0)
         cx, cy = x0 + f * ex, y0 + f * ey
