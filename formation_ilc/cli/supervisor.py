@@ -27,6 +27,15 @@ __all__ = ["Stack", "Supervisor", "Failure", "exit_status", "metrics_rows", "res
            "disk_full_line", "trial_ranges"]
 
 
+def _a_child_exited() -> bool:
+    """Whether a child of this process has exited and waits to be reaped (left for its
+    owner to reap: ``WNOWAIT``). True when it cannot be told (no children at all)."""
+    try:
+        return os.waitid(os.P_ALL, 0, os.WEXITED | os.WNOHANG | os.WNOWAIT) is not None
+    except ChildProcessError:
+        return True
+
+
 class Stack:
     """The processes of one run; ``stop()`` ends them (SIGINT, then SIGTERM, SIGKILL)."""
 
@@ -104,6 +113,12 @@ class Stack:
         return note
 
     def dead(self) -> list[tuple[str, int]]:
+        """The processes that exited, with their status. The launcher asks after every
+        callback it spins: one ``waitid`` (is any child waiting to be reaped?) instead of a
+        ``waitpid`` per process, which was a fifth of the launcher's CPU at 50 robots."""
+        if (not any(p.returncode is not None for p in self.procs.values())
+                and not _a_child_exited()):
+            return []
         return [(n, p.returncode) for n, p in self.procs.items() if p.poll() is not None]
 
     def log_tail(self, name: str, lines: int = 15) -> str:

@@ -42,3 +42,28 @@ def test_node_processes_start_through_the_runner():
     assert early_argv(wrapped) == [*wrapped[:5], "-m", RUNNER, *wrapped[5:]]
     assert early_argv(early_argv(wrapped)) == early_argv(wrapped)
     assert early_argv(["bash", "-c", "true"]) == ["bash", "-c", "true"]
+
+
+def test_the_processes_that_died_are_told_without_asking_each(tmp_path):
+    """``Stack.dead``: none while every process lives; a process that exits is told with
+    its status, and still is once another owner reaped it; a child of someone else that
+    exited does not make a live process dead."""
+    import subprocess
+    import time
+
+    stack = Stack({}, tmp_path / "logs")
+    try:
+        stack.start("sleeper", [sys.executable, "-c", "import time; time.sleep(60)"])
+        stack.start("quitter", [sys.executable, "-c", "import sys; sys.exit(3)"])
+        other = subprocess.Popen([sys.executable, "-c", "pass"])  # not the stack's
+        deadline = time.monotonic() + 60
+        while not stack.dead() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert stack.dead() == [("quitter", 3)]
+        other.wait(timeout=60)
+        assert stack.dead() == [("quitter", 3)]
+        stack.procs["sleeper"].kill()
+        stack.procs["sleeper"].wait(timeout=60)  # reaped by another owner than dead()
+        assert sorted(stack.dead()) == [("quitter", 3), ("sleeper", -9)]
+    finally:
+        stack.stop()
