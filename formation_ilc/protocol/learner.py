@@ -86,6 +86,11 @@ class PoseEvent:
     last: bool
 
 
+#: from this many robots heard, those too far for the filter are dropped before it runs
+#: (``RobotLearner._near``): below it numpy's cost per call is more than it saves
+NEAR_FROM = 16
+
+
 class RobotLearner:
     """Robot ``index`` (0-based) of problem ``pb``.
 
@@ -415,12 +420,30 @@ class RobotLearner:
         m = self._heard(t, sp.window) if self.team_k == self.k else 0
         prev = self.applied[0, t - 1] if t > 0 else (0.0, 0.0)
         own = self.eta[0, t]
+        if m >= NEAR_FROM:
+            m = self._near(m, float(own[0]), float(own[1]))
         self.nominal[0, t] = self.u[0]
         self.flags[0, t] = filter_command(
             float(self.u[0, 0]), float(self.u[0, 1]), float(own[0]), float(own[1]),
             float(own[2]), float(prev[0]), float(prev[1]), self.others, self.ages, m,
             self.safety_params, self.out)
         self.u[0] = self.out
+
+    def _near(self, m: int, x: float, y: float) -> int:
+        """Keep, in order, those of the first ``m`` robots heard that ``filter_command``
+        does not skip for their distance (its own test, on arrays: the same bits); returns
+        how many. A robot of a large team hears every other, and in plain Python each one
+        costs the filter a few operations even when far."""
+        o = self.others[:m]
+        gx = x - o[:, 0]
+        gy = y - o[:, 1]
+        radius = float(self.safety_params[3])
+        keep = ~(gx * gx + gy * gy > radius * radius)
+        k = int(keep.sum())
+        if k < m:
+            self.others[:k] = o[keep]
+            self.ages[:k] = self.ages[:m][keep]
+        return k
 
     def _heard(self, t: int, window: int) -> int:
         """Fill ``others`` and ``ages`` with what this robot heard of the others up to

@@ -313,6 +313,40 @@ def test_a_team_message_with_anything_to_refuse_is_left_to_the_one_by_one_readin
     assert not plain.on_team_poses(*_team_message(pb, np.full(pb.n, now), good)[1])
 
 
+def test_robots_too_far_for_the_filter_are_dropped_before_it_without_a_change(monkeypatch):
+    """A large team's robot drops the robots beyond the filter's radius before the filter
+    runs (``_near``): the commands and flags are those of the filter given every robot."""
+    import formation_ilc.protocol.learner as learner_module
+    from formation_ilc.config.generate import team_yaml
+    from formation_ilc.config.scenario import scenario_from_text
+    from formation_ilc.model.footprint import footprint_of
+    from formation_ilc.model.physics import MODELS
+    from formation_ilc.model.safety import spec_for
+
+    sc = scenario_from_text(team_yaml(24))
+    sp = spec_for(footprint_of("p3dx"), MODELS["p3dx"].limits, sc.dt)
+    pb = Problem.from_scenario(sc, safety=sp)
+    clock = SampleClock.for_run(sc.dt, sc.samples)
+    runs = []
+    for near_from in (10**6, 2):
+        monkeypatch.setattr(learner_module, "NEAR_FROM", near_from)
+        lrn = RobotLearner(pb, 9, clock, safety=sp)
+        noise = np.random.default_rng(2).normal(scale=0.3, size=(pb.samples + 1, pb.n, 3))
+        for t in range(pb.samples):
+            lrn.on_pose(clock.stamp_ns(0, t), pb.eta_d[9, t] + noise[t, 9])
+            for j in range(pb.n):
+                if j != 9:
+                    lrn.on_team_pose(j, clock.stamp_ns(0, t), pb.eta_d[j, t] + noise[t, j])
+            lrn.t = t
+            lrn.u[0] = (0.4, 0.3) + noise[t, 9, :2]
+            lrn._filter(t)
+            lrn.applied[0, t] = lrn.u[0]
+        runs.append((lrn.applied.copy(), lrn.flags.copy()))
+    np.testing.assert_array_equal(runs[0][0], runs[1][0])
+    np.testing.assert_array_equal(runs[0][1], runs[1][1])
+    assert (runs[0][1] != 0).any()  # the filter acted: the equality covers it
+
+
 def test_realtime_missed_samples_are_held():
     sc = load_scenario("paper-triangle3").with_options(delay=False)
     pb = Problem.from_scenario(sc)
