@@ -30,8 +30,11 @@ from formation_ilc.protocol.timesync import BURST_HZ, ClockSync, NodeClock, conv
 __all__ = ["ClockExchange", "node_clock"]
 
 #: [s] how often a node with peers says where its estimates are (a word on diagnostics:
-#: the recording and analyze follow them over time)
+#: the recording and analyze follow them over time) until every estimate converged, and
+#: after: every robot's word is read by the leader, the monitor and the recorder (at 50
+#: robots, 25 words a second as message objects every 2 s)
 REPORT_EVERY_S = 2.0
+STEADY_REPORT_EVERY_S = 10.0
 
 
 def node_clock(cfg: RunConfig, robot: int | None) -> NodeClock:
@@ -53,7 +56,8 @@ class ClockExchange:
     askers : the node names allowed to ask this node's clock (empty: nobody).
     on_event : called with ('info' | 'warn', text) for what the core says once (an
         estimate converged, a clock step, no convergence, a silent peer).
-    on_report : called every ``REPORT_EVERY_S`` while there are peers (the node publishes
+    on_report : called every ``REPORT_EVERY_S`` while there are peers, every
+        ``STEADY_REPORT_EVERY_S`` once every estimate converged (the node publishes
         its clock block as a word on diagnostics).
     """
 
@@ -112,7 +116,8 @@ class ClockExchange:
                 self.on_event(level, text)
         mono = time.monotonic()
         if self.on_report is not None and mono >= self._report_due:
-            self._report_due = mono + REPORT_EVERY_S
+            steady = all(link.converged_ns is not None for link in self.sync.links.values())
+            self._report_due = mono + (STEADY_REPORT_EVERY_S if steady else REPORT_EVERY_S)
             self.on_report()
 
     def _on_pong(self, msg: TimeReference | bytes, peer: str) -> None:
