@@ -33,7 +33,8 @@ arrival after the tick p50/p99/max, and how late the simulator's timer fired.
 The scale curve (``--scale N ...``): for each team size, one launch of ``formation-ilc team
 N`` (paper-hexagon6 for 6) in realtime at dT = 0.1 s (``--scale-mode lockstep`` for
 lockstep), ``--scale-trials`` trials, one process per robot (``--scale-container C``: C
-robots per process; ``--scale-hosts``: robots on network-namespace hosts). It prints, per
+robots per process; ``--scale-hosts``: robots on network-namespace hosts;
+``--scale-safety``: every robot through the safety filter). It prints, per
 size: the time from the launch to the first trial's start (seen on the launcher's console),
 discovery (when the launcher's monitor had found every node, and every node was ready),
 the DDS participants, the resident memory (RSS) of every process at its peak, in all and
@@ -392,6 +393,8 @@ def scale_run(n: int, args: argparse.Namespace, tmp: Path, dom: int) -> dict:
             "--container", str(args.scale_container)]
     if args.scale_hosts:
         argv += ["--hosts", "netns"]
+    if args.scale_safety:
+        argv += ["--safety"]
     t0 = time.monotonic()
     proc = subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             text=True)
@@ -478,7 +481,8 @@ def scale_run(n: int, args: argparse.Namespace, tmp: Path, dom: int) -> dict:
 
 
 def scale_curve(args: argparse.Namespace, tmp: Path, dom: int) -> None:
-    print(f"load before: {Path('/proc/loadavg').read_text().split()[:3]}", flush=True)
+    print(f"load before: {Path('/proc/loadavg').read_text().split()[:3]}"
+          f"{'; safety filter on' if args.scale_safety else ''}", flush=True)
     rows = []
     for n in args.scale:
         r = scale_run(n, args, tmp, dom)
@@ -558,6 +562,9 @@ def main() -> int:
     ap.add_argument("--scale-container", type=int, default=0, metavar="C")
     ap.add_argument("--scale-hosts", action="store_true",
                     help="the curve's robots on network-namespace hosts (--hosts netns)")
+    ap.add_argument("--scale-safety", action="store_true",
+                    help="the curve's robots through the safety filter (--safety: each "
+                         "reads the whole team's poses every sample)")
     ap.add_argument("--timeout", type=float, default=3600.0,
                     help="[s] the longest one launch of the curve may take")
     ap.add_argument("--bare-node", type=float, help=argparse.SUPPRESS)
