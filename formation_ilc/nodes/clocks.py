@@ -116,8 +116,8 @@ class ClockExchange:
                 self.on_event(level, text)
         mono = time.monotonic()
         if self.on_report is not None and mono >= self._report_due:
-            steady = all(link.converged_ns is not None for link in self.sync.links.values())
-            self._report_due = mono + (STEADY_REPORT_EVERY_S if steady else REPORT_EVERY_S)
+            self._report_due = mono + (STEADY_REPORT_EVERY_S if self.sync.all_converged()
+                                       else REPORT_EVERY_S)
             self.on_report()
 
     def _on_pong(self, msg: TimeReference | bytes, peer: str) -> None:

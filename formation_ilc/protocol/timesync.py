@@ -164,6 +164,11 @@ class ClockSync:
             out.append((peer, self.seq))
         return out
 
+    def all_converged(self) -> bool:
+        """Whether the estimate of every peer's clock has converged (at some time: a clock
+        step later is warned of, not undone here)."""
+        return all(link.converged_ns is not None for link in self.links.values())
+
     def next_due(self) -> int:
         """When [ns, this node's clock] the next question is due."""
         return min((x.next_ns for x in self.links.values()), default=0)

@@ -78,7 +78,9 @@ def test_every_link_is_estimated_and_its_corrected_delay_is_the_true_one():
     truth, syncs = team()
     start = ORIGIN + 10 * S
     net = Net(truth, syncs, lan)
+    assert not any(sync.all_converged() for sync in syncs.values())
     net.run(start, 20.0)
+    assert all(sync.all_converged() for sync in syncs.values())
     now = start + 20 * S
     for me, sync in syncs.items():
         (peer,) = sync.peers
