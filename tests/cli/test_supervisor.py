@@ -52,10 +52,10 @@ def test_the_processes_that_died_are_told_without_asking_each(tmp_path):
     import time
 
     stack = Stack({}, tmp_path / "logs")
+    other = subprocess.Popen([sys.executable, "-c", "pass"])  # not the stack's
     try:
         stack.start("sleeper", [sys.executable, "-c", "import time; time.sleep(60)"])
         stack.start("quitter", [sys.executable, "-c", "import sys; sys.exit(3)"])
-        other = subprocess.Popen([sys.executable, "-c", "pass"])  # not the stack's
         deadline = time.monotonic() + 60
         while not stack.dead() and time.monotonic() < deadline:
             time.sleep(0.05)
@@ -67,3 +67,5 @@ def test_the_processes_that_died_are_told_without_asking_each(tmp_path):
         assert sorted(stack.dead()) == [("quitter", 3), ("sleeper", -9)]
     finally:
         stack.stop()
+        other.kill()
+        other.wait(timeout=60)
