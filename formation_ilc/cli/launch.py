@@ -271,6 +271,8 @@ def check_recording(root: Path, trials: int, resumed_at: int | None = None,
 
 #: exit status of a run that finished but whose recording lacks trials
 INCOMPLETE = 3
+#: how long the launcher still takes messages after a node failed for good [s]
+DRAIN_S = 0.3
 
 
 def _learned_before(rec: Any, missing: list[int], trials: int, resumed_at: int,
@@ -734,6 +736,12 @@ class _Session:
                     return 0
             failure = self.supervisor.watch()
             if failure is not None:
+                # a node that ends the run on purpose (a contact) has its last report
+                # acknowledged before it exits: take what is already here, which the exit
+                # overtook, so that summary.json and metrics.csv have it
+                drain = time.monotonic() + DRAIN_S
+                while time.monotonic() < drain:
+                    host.spin_once(0.05)
                 return self.supervisor.report(failure)
 
     def _refuse_foreign(self, wait: float) -> None:

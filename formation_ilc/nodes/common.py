@@ -360,6 +360,14 @@ class Diagnostics:
         self.statuses = ms.standard_statuses(msg, self.name, self.host)
         self.tick()
 
+    def wait_for_all_acked(self, timeout: float) -> bool:
+        """Wait up to ``timeout`` [s] until every reader matched on ``diagnostics`` (the
+        launcher's monitor, the recorder) acknowledged the reports sent; whether they did.
+        A node that ends the run says why in its last report: it must not be gone first."""
+        from rclpy.duration import Duration
+
+        return bool(self.pub.wait_for_all_acked(Duration(nanoseconds=int(timeout * 1e9))))
+
     def word(self, msg: DiagnosticArray, writer: Any, task: str) -> None:
         """A word between reports (a clock word: ``msg`` as ``diagnostics_to_msg`` makes
         it) on ``writer``, a latched writer of its own (the report's keeps one message),

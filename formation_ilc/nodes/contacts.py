@@ -16,6 +16,9 @@ from formation_ilc.system.exits import CONTACT
 
 __all__ = ["ContactActing"]
 
+#: how long a node that ends the run on a contact waits for its report to be taken [s]
+ACKED_WITHIN_S = 2.0
+
 
 class ContactActing:
     """A mixin for a ``ConfiguredNode`` with a ``diag_pub`` and a ``ready_pub``."""
@@ -44,6 +47,10 @@ class ContactActing:
             self.ask_abort(ev, watch)
         elif ev.action in ("abort", "give_up"):
             self.before_contact_end()
+            # the report is the run's record of the contact that ends it (summary.json,
+            # metrics.csv): the launcher must hold it before this process is gone; a
+            # loaded machine took the exit first (the report was lost, the status kept)
+            node.diag_pub.wait_for_all_acked(ACKED_WITHIN_S)
             fail(node, f"contact: {line}; {then} (--on-contact, docs/safety.md)", CONTACT)
             return False
         return True
