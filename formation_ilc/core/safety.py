@@ -202,6 +202,27 @@ def _toward_zero(x: float, step: float) -> float:
 
 
 @njit(cache=True)
+def _chord_errors(lo: float, hi: float, k: float, dt: float, a: float) -> tuple[float, float]:
+    """How far ``_carry(x, dt, a)`` lies above and below its chord over [lo, hi] (slope
+    ``k``, through both ends), each >= 0: the function is concave below 0 and convex above
+    (second derivative -+1 / a), so it lies above the chord only where the interval reaches
+    below 0, and below it only where it reaches above 0; each at the one point where its
+    slope is the chord's."""
+    if hi <= lo:
+        return 0.0, 0.0
+    f_lo = _carry(lo, dt, a)
+    up = 0.0
+    if lo < 0.0:  # concave part [lo, min(0, hi)]: its largest rise above the chord
+        x = _clip(a * (dt - k), lo, min(0.0, hi))
+        up = max(0.0, _carry(x, dt, a) - f_lo - k * (x - lo))
+    dn = 0.0
+    if hi > 0.0:  # convex part [max(0, lo), hi]: its deepest dip below the chord
+        x = _clip(a * (k - dt), max(0.0, lo), hi)
+        dn = max(0.0, f_lo + k * (x - lo) - _carry(x, dt, a))
+    return up, dn
+
+
+@njit(cache=True)
 def _clip_polygon(px: NDArray[np.float64], py: NDArray[np.float64], n: int, a0: float,
                   a1: float, b: float, qx: NDArray[np.float64],
                   qy: NDArray[np.float64]) -> int:
@@ -290,6 +311,7 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
     fv0, fv1 = _carry(v_lo, dt, a_b), _carry(v_hi, dt, a_b)
     kv = (fv1 - fv0) / (v_hi - v_lo) if v_hi > v_lo else dt + abs(v_lo) / a_b
     ev = (v_hi - v_lo) * (v_hi - v_lo) / (8.0 * a_b)
+    ev_up, ev_dn = _chord_errors(v_lo, v_hi, kv, dt, a_b)
     gw0, gw1 = _carry(w_lo, dt, al_b), _carry(w_hi, dt, al_b)
     sv_hi = max(abs(v_lo), abs(v_hi))
     sw_hi = max(abs(w_lo), abs(w_hi))
@@ -308,6 +330,7 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
     # on one side of w = 0 only that side's line of the max counts
     kw = (gw1 - gw0) / (w_hi - w_lo) if w_hi > w_lo else dt + abs(w_lo) / al_b
     ew = (w_hi - w_lo) * (w_hi - w_lo) / (8.0 * al_b)
+    ew_up, ew_dn = _chord_errors(w_lo, w_hi, kw, dt, al_b)
     g_off = gw0 - kw * w_lo
     lines_p = w_hi > 0.0
     lines_m = w_lo < 0.0
@@ -411,14 +434,14 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
                 # line of the max that the box reaches
                 h0 = a0 * kv
                 base = (b_i + mine * slack - a0 * (fv0 - kv * v_lo)
-                        - (a0 if a0 >= 0.0 else -a0) * ev
-                        - max(abs(sp), abs(sm)) * ew)
+                        - (a0 * ev_up if a0 >= 0.0 else -a0 * ev_dn))
                 for li in range(2):
                     if (li == 0 and not lines_p) or (li == 1 and not lines_m):
                         continue
                     slope = sp if li == 0 else sm
                     h1 = slope * kw / c
-                    lim = base - slope * g_off
+                    lim = (base - slope * g_off
+                           - (slope * ew_up if slope >= 0.0 else -slope * ew_dn))
                     # the largest h0 v + h1 (c w) over the box, at one of its corners
                     if ((h0 * bx1 if h0 >= 0.0 else h0 * bx0)
                             + (h1 * by1 if h1 >= 0.0 else h1 * by0)) <= lim:
