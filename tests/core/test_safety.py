@@ -334,3 +334,85 @@ def test_the_chords_errors_bound_the_carry_from_both_sides_and_no_more():
         if lo >= 0:
             assert up == 0.0  # convex there: the chord lies above
     assert _chord_errors(0.3, 0.3, 1.0, 0.2, 0.3) == (0.0, 0.0)
+
+
+def _brake_least(spec, poses, cmds) -> float:
+    """The least distance between two robots' covering discs when both hold ``cmds`` for
+    a sample and then brake at their limits (v and omega towards 0) to a stop: what the
+    invariant promises stays >= the filter's distance. Integrated in small steps."""
+    dt, a, al = spec.dt, spec.limits.a_max, spec.limits.alpha_max
+    (ax, ay, ath), (bx, by, bth) = poses
+    (va, wa), (vb, wb) = cmds
+    h = min(dt / 8, 0.01)
+    t, least = 0.0, math.inf
+
+    def toward0(x, s):
+        return x - s if x > s else (x + s if x < -s else 0.0)
+
+    while True:
+        ax += va * h * math.cos(ath + wa * h / 2)
+        ay += va * h * math.sin(ath + wa * h / 2)
+        ath += wa * h
+        bx += vb * h * math.cos(bth + wb * h / 2)
+        by += vb * h * math.sin(bth + wb * h / 2)
+        bth += wb * h
+        t += h
+        if t >= dt - 1e-12:
+            va, wa, vb, wb = toward0(va, a * h), toward0(wa, al * h), toward0(vb, a * h), \
+                toward0(wb, al * h)
+        for la in spec.discs:
+            for lb in spec.discs:
+                least = min(least, math.hypot(
+                    ax + la * math.cos(ath) - bx - lb * math.cos(bth),
+                    ay + la * math.sin(ath) - by - lb * math.sin(bth)))
+        if t > dt and va == wa == vb == wb == 0.0:
+            return least
+
+
+@pytest.mark.parametrize("dt", [0.2, 0.05])
+def test_the_invariant_carries_over_a_sample_for_pairs_that_pass_close(dt):
+    """The guarantee itself, on random pairs of P3-DXs within a metre of each other and
+    moving (side by side, one behind the other, crossing, head-on): where neither robot's
+    filter finds the pair's slack negative (its own assumption), both robots take their
+    filtered commands and then brake, and their discs never come closer than the filter's
+    distance. A fuzz of this found two gaps, both mended: a disc's swing was credited as a
+    speed for a whole straight braking (2.3 cm past D for two Pioneers returning side by
+    side), and a robot that stops later was credited for receding after the other had
+    already closed in (6 mm at dT 0.2 s)."""
+    from formation_ilc.config.bases import base_preset
+    from formation_ilc.config.safety import SafetySettings, default_margin
+    from formation_ilc.model.safety import spec_of
+
+    sp = spec_of(SafetySettings("p3dx", base_preset("p3dx").limits, default_margin("p3dx")),
+                 dt)
+    lim = sp.limits
+    rng = np.random.default_rng(37)
+    held = acted = 0
+    worst = 0.0
+    for case in range(1600):
+        th = rng.uniform(-math.pi, math.pi)
+        r, b = rng.uniform(0.55, 1.0), rng.uniform(-math.pi, math.pi)
+        kind = case % 4  # side by side / behind: near parallel; crossing; head-on
+        th_b = th + (rng.normal(0, 0.3) if kind < 2 else
+                     (math.pi / 2 if kind == 2 else math.pi) + rng.normal(0, 0.3))
+        poses = [(0.0, 0.0, th), (r * math.cos(b), r * math.sin(b), th_b)]
+        prev = [(rng.uniform(0.2, lim.v_max), rng.uniform(-0.5, 0.5)) for _ in range(2)]
+        new, flags = [], []
+        for i in range(2):
+            o, (v, w) = poses[1 - i], prev[1 - i]
+            other = [*o, v * math.cos(o[2]), v * math.sin(o[2]), w]
+            nominal = (prev[i][0] + rng.uniform(-0.2, 0.2), prev[i][1] + rng.uniform(-1, 1))
+            out, f = run(sp, nominal, poses[i], prev[i], [other])
+            new.append((float(out[0]), float(out[1])))
+            flags.append(f)
+        if any(f & INFEASIBLE for f in flags):
+            continue
+        braking = [(max(v - lim.a_max * dt, 0.0) if v > 0 else v,
+                    math.copysign(max(abs(w) - lim.alpha_max * dt, 0.0), w)) for v, w in prev]
+        if _brake_least(sp, poses, braking) < sp.distance:
+            continue  # the pair is already past braking apart: outside the invariant
+        held += 1
+        acted += any(f & CHANGED_BARRIER for f in flags)
+        worst = max(worst, sp.distance - _brake_least(sp, poses, new))
+    assert held > 500 and acted > 25  # the cases are close enough to matter
+    assert worst <= 1e-4, f"{worst * 1000:.2f} mm past the filter's distance"
