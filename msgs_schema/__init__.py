@@ -142,6 +142,7 @@ from formation_ilc.core.names import (
     trial_error_topic,
     true_trajectory_topic,
     view_topics,
+    whereabouts_topic,
 )
 from formation_ilc.core.names import robot_number as robot_index
 from formation_ilc.protocol.schedule import ABORT, DONE, END, START
@@ -172,7 +173,8 @@ __all__ = [
     "ROS_DIAGNOSTICS",
     "WORLD_FRAME", "LEADER", "LEADER_FRAME", "robot_name", "robot_index", "link_name",
     "pose_topic", "cmd_vel_topic", "shared_pose_topic", "link_topic", "trajectory_topic",
-    "true_trajectory_topic", "absolute", "relative", "clock_topic", "recorded_topics",
+    "whereabouts_topic", "true_trajectory_topic", "absolute", "relative", "clock_topic",
+    "recorded_topics",
     "MARKERS", "desired_pose_topic", "desired_path_topic", "tracking_error_topic",
     "trial_error_topic", "view_topics", "PREVIEW", "TEAM_POSES", "DriverSpec", "DRIVERS",
     "BRIDGE_PREFIX",

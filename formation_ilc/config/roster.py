@@ -408,6 +408,9 @@ def _plant(lineup: Lineup, row: Plant) -> list[Member]:
         if truth:  # the simulated base's true pose in, the trial's true trajectory out
             bridge_pub.append(nm.true_trajectory_topic(i))
             bridge_sub.append(f"{ns}/{nm.BASE_TRUTH}")
+        if lineup.sensing is not None:  # the returns' filter: where every robot is
+            bridge_pub.append(nm.whereabouts_topic(i))
+            bridge_sub += [nm.whereabouts_topic(j) for j in robots if j != i]
         if lineup.clocks:  # it asks the leader's time
             bridge_pub.append(nm.clock_ping_topic(nm.bridge_name(i)))
             bridge_sub.append(nm.clock_pong_topic(nm.LEADER))

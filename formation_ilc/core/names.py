@@ -32,6 +32,7 @@ __all__ = ["NAMESPACE", "CLOCK", "LEADER_NODE", "SIM_NODE", "LINKS_NODE", "MONIT
            "CONFIG", "REFERENCE", "TRIAL_EVENTS", "READY", "DIAGNOSTICS", "ROS_DIAGNOSTICS",
            "LEADER",
            "WORLD_FRAME", "pose_topic", "cmd_vel_topic", "shared_pose_topic", "link_topic",
+           "whereabouts_topic",
            "clock_ping_topic", "clock_pong_topic", "trajectory_topic", "true_trajectory_topic",
            "absolute", "relative", "clock_topic",
            "recorded_topics", "MARKERS", "desired_pose_topic", "desired_path_topic",
@@ -160,6 +161,13 @@ WORLD_FRAME = "map"
 def pose_topic(i: int) -> str:
     """Measured pose of robot ``i`` (plant -> robot)."""
     return f"{robot_name(i)}/pose"
+
+
+def whereabouts_topic(i: int) -> str:
+    """Where robot ``i``'s bridge has it between trials, while it drives back to its start
+    pose and once it stands there (bridge -> the other bridges, for their returns' safety
+    filter); never read by a robot node."""
+    return f"{robot_name(i)}/whereabouts"
 
 
 def cmd_vel_topic(i: int) -> str:

@@ -118,7 +118,13 @@ from formation_ilc.nodes.common import (
     spin_main,
 )
 from formation_ilc.nodes.params import ParameterError, check, declare, effective
-from formation_ilc.protocol.bridge import Bridge, CommandLimits, Returned, bridge_limits
+from formation_ilc.protocol.bridge import (
+    Bridge,
+    CommandLimits,
+    Returned,
+    bridge_limits,
+    return_filter,
+)
 from formation_ilc.protocol.schedule import Ready
 from formation_ilc.protocol.wallclock import START_AHEAD_MAX
 
@@ -252,13 +258,16 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
     def configure(self, cfg: RunConfig) -> None:
         g = lambda name: self.get_parameter(name).value  # noqa: E731
         init = [float(x) for x in g("initial_pose")]
+        # the run's safety filter keeps the returns apart too, decided every tick
+        safety = None if cfg.safety is None else return_filter(cfg.safety, TICK)
         self.core = core = Bridge(
             cfg, self.id, name=self.name,
             initial=(init[0], init[1], init[2]) if len(init) == 3 else None,
             limits=self.limits, rate=self.rate, cmd_timeout=float(g("cmd_timeout")),
             period=self.period,
             tol=(float(g("return_tol")), math.radians(float(g("return_tol_heading"))),
-                 float(g("return_timeout"))), truth=self.truth_topic is not None)
+                 float(g("return_timeout"))), truth=self.truth_topic is not None,
+            safety=safety)
         self.follower = core.follower
         self.cfg = cfg
         effective(self, {"scenario": cfg.scenario_param, "mode": cfg.mode,
@@ -274,6 +283,15 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
         self.drv_pub = self.create_publisher(TwistStamped if self.stamped else Twist, cmd_t,
                                              ms.DRIVER_CMD_QOS)
         self.create_subscription(Odometry, odom_t, self._on_odom, ms.ODOM_QOS)
+        self.where_pub = None
+        if safety is not None:  # between trials: where each robot is, for the returns
+            self.where_pub = self.create_publisher(PoseStamped, ms.whereabouts_topic(self.id),
+                                                   ms.SAMPLE_QOS)
+            for j in range(1, cfg.scenario.n + 1):
+                if j != self.id:
+                    self.create_subscription(PoseStamped, ms.whereabouts_topic(j),
+                                             lambda m, j=j: self._on_whereabouts(m, j),
+                                             ms.SAMPLE_QOS)
         self.true_pub = None
         if self.truth_topic is not None:
             # from the physics bases only (protocol.writers): forged true poses made the
@@ -453,6 +471,15 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
             return
         self.core.on_odom(pose, time.monotonic(), tilt)
 
+    def _on_whereabouts(self, msg: PoseStamped, robot: int) -> None:
+        try:
+            eta, ns = ms.world_pose(msg)
+        except Rejected as exc:
+            self.drops.reject(exc, ms.whereabouts_topic(robot))
+            return
+        self.core.on_peer(robot, (float(eta[0]), float(eta[1]), float(eta[2])), ns,
+                          time.monotonic())
+
     def _on_truth(self, msg: PoseStamped) -> None:
         try:
             eta, _ = ms.world_pose(msg)
@@ -496,6 +523,8 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
             if self.truth is not None and len(self.sample_lags) < 100_000:
                 self.sample_lags.append((self.truth.true(wall) - ns) / 1e6)
             self.pose_pub.publish(ms.pose_to_msg(pose, ns, ms.WORLD_FRAME))
+        if tick.whereabouts is not None and self.where_pub is not None:
+            self.where_pub.publish(ms.pose_to_msg(tick.whereabouts, wall, ms.WORLD_FRAME))
         if tick.returned is not None:
             self._returned(tick.returned)
         if tick.cmd is not None:

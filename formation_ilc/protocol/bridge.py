@@ -14,7 +14,9 @@ robot on top of a Pioneer driver. Everything it decides is here:
 * ``ReturnController``: point stabilisation of a unicycle to a goal pose in polar
   coordinates (Astolfi 1999; Aicardi et al. 1995; the form of Siegwart & Nourbakhsh,
   "Introduction to Autonomous Mobile Robots", sec. 3.6.2.4), with a tolerance and a
-  timeout, driving backwards when the goal is behind;
+  timeout, driving backwards when the goal is behind; with a safety filter in the run, its
+  command goes through the filter of the trials (``core.safety.filter_command``) against
+  the other robots' whereabouts, which every bridge publishes between trials;
 * ``initial_shift``: the achieved initial-state shift (b_xi0 of Assumption 2) of a trial;
 * ``Bridge``: the bridge's state machine (idle -> trial -> return -> idle), one call per
   event with the time it happened: the leader's start and abort (taken by
@@ -28,13 +30,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
+
+import numpy as np
 
 from formation_ilc.config.bases import base_preset, with_given
 from formation_ilc.config.runconfig import RunConfig
+from formation_ilc.config.safety import SafetySettings
 from formation_ilc.core.clock import Rejected
 from formation_ilc.core.limits import Limits, RateLimiter
+from formation_ilc.core.safety import INFEASIBLE, SafetySpec, filter_command, motion
 from formation_ilc.model.simulate import Problem
 from formation_ilc.protocol.schedule import ABORT, Follower, TrialEvent
 from formation_ilc.protocol.wallclock import WallSchedule
@@ -42,7 +48,7 @@ from formation_ilc.protocol.wallclock import WallSchedule
 __all__ = ["CommandLimits", "Watchdog", "compose", "odom_to_world", "wrap",
            "ReturnController", "ReturnStatus", "initial_shift", "PIONEER_V_MAX",
            "PIONEER_OMEGA_MAX", "Bridge", "BridgeTick", "Returned", "IDLE", "TRIAL", "RETURN",
-           "bridge_limits"]
+           "bridge_limits", "WHEREABOUTS_PERIOD", "PEER_SILENCE", "return_filter"]
 
 # A Pioneer driver's limits: the p3dx row of the one limits table (config.bases): |v| <=
 # 0.75 m/s, |omega| <= 100 deg/s, well inside the robot's 1.2 m/s and 300 deg/s (the
@@ -51,6 +57,8 @@ PIONEER_V_MAX = base_preset("p3dx").limits.v_max            # [m/s]
 PIONEER_OMEGA_MAX = base_preset("p3dx").limits.omega_max    # [rad/s]
 
 Pose = tuple[float, float, float]
+#: scratch row of ``core.safety.motion``
+_MOTION = np.zeros((1, 6))
 
 
 def bridge_limits(base: str | None, given: Mapping[str, float] | None = None) -> Limits:
@@ -241,6 +249,26 @@ class BridgeTick:
     #: at a trial's last sample, with ``truth``: the trial's true poses (T+1) and their
     #: labels [ns], published before the sample's pose
     true_path: tuple[list[Pose], list[int]] | None = None
+    #: between trials, with a safety filter: the robot's world pose, for the other
+    #: bridges' returns (every ``WHEREABOUTS_PERIOD``)
+    whereabouts: Pose | None = None
+
+
+#: how often a bridge says where its robot is between trials [s]
+WHEREABOUTS_PERIOD = 0.05
+#: a robot not heard for this long between trials is not filtered against [s]
+PEER_SILENCE = 1.0
+
+
+def return_filter(settings: SafetySettings, tick: float) -> SafetySpec:
+    """The filter of a run's returns (``settings``: the run's ``config.safety``) for a
+    bridge that decides a command every ``tick`` [s]: the trials' filter at that sample
+    time, with the other robots' motion read from whereabouts WHEREABOUTS_PERIOD apart
+    (so its estimate lags by half that, which the filter widens by)."""
+    from formation_ilc.model.safety import spec_of
+
+    spec = spec_of(settings, tick)
+    return replace(spec, window=math.ceil(WHEREABOUTS_PERIOD / tick - 1e-9) + 1)
 
 
 class Bridge:
@@ -256,6 +284,12 @@ class Bridge:
     truth : the base reports its true pose (``on_truth``; a simulated base): each sample
     keeps the newest, a sample the schedule skipped the one before it (or after it, at the
     start), and the trial's last tick gives them all (``BridgeTick.true_path``).
+    safety : the run's safety filter, for a sample time of the control tick (its ``dt``:
+    each tick's command is held until the next). With it the
+    bridge says where its robot is between trials (``BridgeTick.whereabouts``) and filters
+    its return's commands against the other robots' whereabouts (``on_peer``), as a robot
+    node filters its trial's: no two returning robots drive into each other, or into one
+    that already stands at its start. None: the return controller alone.
 
     Times: ``now`` [s] on a monotonic clock, ``now_wall_ns`` [ns] on the robot's wall
     clock; a command sent at ``now_wall_ns`` is stamped with it, and the acceleration
@@ -270,7 +304,8 @@ class Bridge:
                  limits: CommandLimits | None = None, rate: Limits | None = None,
                  cmd_timeout: float = 0.0,
                  period: float = 0.05, tol: tuple[float, float, float] = (
-                     0.02, math.radians(2.0), 60.0), truth: bool = False):
+                     0.02, math.radians(2.0), 60.0), truth: bool = False,
+                 safety: SafetySpec | None = None):
         if cfg.mode != "wallclock" or cfg.links != "direct":
             raise ValueError(f"{name}: a real robot runs wall-clock trials with direct "
                              f"links (mode wallclock, links direct), got mode {cfg.mode}, "
@@ -310,6 +345,15 @@ class Bridge:
         self.wants_truth = truth
         self.truth: Pose | None = None
         self.trail: list[Pose | None] = []
+        #: the return's filter, and what it knows of the other robots: by robot number,
+        #: (the time it was heard [s, monotonic], its pose, its stamp [ns], its motion)
+        self.safety = safety
+        self._params = None if safety is None else safety.params()
+        self.robot = robot
+        self.peers: dict[int, tuple[float, Pose, int, tuple[float, float, float]]] = {}
+        self._said_at = -math.inf   # when the whereabouts went out last
+        if safety is not None:
+            self.counts.update(return_filtered=0, return_infeasible=0)
 
     @property
     def k(self) -> int:
@@ -336,6 +380,24 @@ class Bridge:
         self.odom = pose
         self.odom_time = now
         self.tilt_max = max(self.tilt_max, tilt)
+
+    def on_peer(self, robot: int, pose: Pose, stamp_ns: int, now: float) -> None:
+        """Robot ``robot``'s whereabouts, stamped ``stamp_ns`` on its bridge's clock, heard
+        at ``now`` [s]: its motion comes from its last two (their stamps' difference; the
+        same clock), its age from when it was heard. An older or repeated stamp is not
+        news."""
+        if robot == self.robot or self.safety is None:
+            return
+        old = self.peers.get(robot)
+        vel = (0.0, 0.0, 0.0)
+        if old is not None:
+            if stamp_ns <= old[2]:
+                return
+            scratch = _MOTION
+            motion(pose[0], pose[1], pose[2], old[1][0], old[1][1], old[1][2],
+                   (stamp_ns - old[2]) * 1e-9, scratch, 0)
+            vel = (float(scratch[0, 3]), float(scratch[0, 4]), float(scratch[0, 5]))
+        self.peers[robot] = (now, pose, stamp_ns, vel)
 
     def on_truth(self, pose: Pose) -> None:
         """The simulated base's true world pose, the newest (``truth``)."""
@@ -403,17 +465,54 @@ class Bridge:
             if st.done:
                 returned = self._returned(st.reached, now)
                 return BridgeTick(sample, returned, self.send((0.0, 0.0), now, now_wall_ns),
-                                  true_path)
-            return BridgeTick(sample, None, self.send((st.v, st.omega), now, now_wall_ns),
-                              true_path)
+                                  true_path, self._whereabouts(now))
+            cmd = (st.v, st.omega) if stale else self._safe((st.v, st.omega), now)
+            return BridgeTick(sample, None, self.send(cmd, now, now_wall_ns), true_path,
+                              self._whereabouts(now))
         cmd = self.robot_cmd
         if self.watchdog.expired(now):
             if self.out_cmd != (0.0, 0.0) and self.phase == TRIAL:
                 self.counts["watchdog_zero"] += 1
             cmd = (0.0, 0.0)
+        where = self._whereabouts(now)
         if cmd != self.out_cmd or now - self.last_out >= self.period:
-            return BridgeTick(sample, None, self.send(cmd, now, now_wall_ns), true_path)
-        return BridgeTick(sample, true_path=true_path)
+            return BridgeTick(sample, None, self.send(cmd, now, now_wall_ns), true_path,
+                              where)
+        return BridgeTick(sample, true_path=true_path, whereabouts=where)
+
+    def _whereabouts(self, now: float) -> Pose | None:
+        """The robot's world pose to say now (with a filter, between trials, every
+        WHEREABOUTS_PERIOD), or None."""
+        if (self.safety is None or self.phase == TRIAL or self.odom is None
+                or now - self._said_at < WHEREABOUTS_PERIOD):
+            return None
+        self._said_at = now
+        return self.world()
+
+    def _safe(self, cmd: Command, now: float) -> Command:
+        """The return controller's ``cmd`` through the safety filter (its ``dt``: the
+        tick, how long a command is held before the next one), against every robot heard
+        between trials. A robot
+        never heard, or not for PEER_SILENCE (its bridge stopped: a pose that old would
+        widen into a wall), is not filtered against (as in a trial)."""
+        spec, params = self.safety, self._params
+        if spec is None or params is None:
+            return cmd
+        x, y, th = self.world()
+        heard = [p for p in self.peers.values() if now - p[0] <= PEER_SILENCE]
+        others = np.zeros((max(len(heard), 1), 6))
+        ages = np.zeros(len(others))
+        for m, (at, pose, _, vel) in enumerate(heard):
+            others[m, :3] = pose
+            others[m, 3:] = vel
+            ages[m] = max(0.0, now - at)
+        out = np.zeros(2)
+        flags = filter_command(cmd[0], cmd[1], x, y, th, self.out_cmd[0], self.out_cmd[1],
+                               others, ages, len(heard), params, out)
+        if flags:
+            self.counts["return_filtered"] += 1
+            self.counts["return_infeasible"] += int(bool(flags & INFEASIBLE))
+        return float(out[0]), float(out[1])
 
     def stop(self, now: float) -> Command:
         """The zero command, to send on the way out (no limit holds it back)."""

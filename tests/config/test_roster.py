@@ -33,7 +33,7 @@ from formation_ilc.cli.commands import build_parser
 from formation_ilc.cli.runfile import plan_of
 from formation_ilc.config.roster import ENTRY_SCRIPTS, Lineup, roster
 from formation_ilc.config.scenario import load_scenario
-from formation_ilc.core.names import TEAM_POSES, absolute, pose_topic
+from formation_ilc.core.names import TEAM_POSES, absolute, pose_topic, whereabouts_topic
 
 GOLDEN = json.loads((Path(__file__).parent / "data" / "roster_golden.json").read_text())
 
@@ -220,6 +220,21 @@ def test_every_enclave_keeps_its_grant(key):
     g = next(g for path, g in got.items() if path.endswith("/virtual_leader"))
     assert diag in g["subscribe"]
     g["subscribe"] = [t for t in g["subscribe"] if t != diag]
+    # the returns' safety filter (issue 37): each bridge says where its robot is between
+    # trials and reads every other bridge's, granted now; nobody else
+    for path, g in got.items():
+        name = path.rsplit("/", 1)[1]
+        wpub = {t for t in g["publish"] if t.endswith("/whereabouts")}
+        wsub = {t for t in g["subscribe"] if t.endswith("/whereabouts")}
+        if name.startswith("bridge_"):
+            i = int(name[7:])
+            assert wpub == {absolute(whereabouts_topic(i), namespace)}, name
+            assert wsub == {absolute(whereabouts_topic(j), namespace)
+                            for j in range(1, n + 1) if j != i}, name
+        else:
+            assert not wpub and not wsub, name
+        g["publish"] = [t for t in g["publish"] if t not in wpub]
+        g["subscribe"] = [t for t in g["subscribe"] if t not in wsub]
     assert got == _golden("grants")[key]
     team = absolute(TEAM_POSES, namespace)
     robots = {f"robot_{i}" for i in range(1, n + 1)}

@@ -335,3 +335,104 @@ def test_bridge_limits_take_the_preset_then_every_given_value():
         bridge_limits("roomba")
     with pytest.raises(ValueError, match="a_max: a limit >= 0 is required"):
         bridge_limits("jackal", {"a_max": -1.0})
+
+
+# --------------------------------------------------------------------------- filtered returns
+
+
+def _returning_pair(safety, starts, goals, seconds=40.0, tick=0.01):
+    """Bridges 1 and 2 of paper-triangle3 driving back from ``starts`` to ``goals`` (world
+    poses) on ideal unicycles, each hearing the other's whereabouts the moment it is said;
+    returns the least distance between their covering discs' centres, the returns, and
+    each bridge's counts."""
+    from formation_ilc.protocol.bridge import compose
+
+    cfg = make_config("paper-triangle3", links="direct", mode="wallclock", run_id="r")
+    bridges = [Bridge(cfg, i + 1, name=f"bridge_{i + 1}", period=0.05, initial=goals[i],
+                      tol=(0.05, math.radians(5.0), seconds), safety=safety)
+               for i in range(2)]
+    world = [tuple(s) for s in starts]
+
+    def odom(i):  # the odometry that puts robot i at world[i]: initial^-1 (x) world
+        gx, gy, gth = goals[i]
+        x, y, th = world[i]
+        c, s = math.cos(-gth), math.sin(-gth)
+        return (c * (x - gx) - s * (y - gy), s * (x - gx) + c * (y - gy), wrap(th - gth))
+
+    for i, b in enumerate(bridges):
+        b.on_odom(odom(i), 0.0)
+        b.said_ready(0, b.shift())
+        b.on_event(start_event(0, 0, 10 * SEC), 0.0, 10 * SEC)
+        b.on_event(TrialEvent(ABORT, 0, 0, 1), 0.0, 10 * SEC)  # drive back now
+        assert b.phase == RETURN
+    offsets = (-0.114, 0.114) if safety is None else safety.discs
+    least, done = math.inf, [None, None]
+    now = 0.0
+    while now < seconds + 1 and None in done:
+        now += tick
+        cmds = []
+        for i, b in enumerate(bridges):
+            b.on_odom(odom(i), now)
+            t = b.tick(now, int(now * SEC))
+            if t.whereabouts is not None:
+                bridges[1 - i].on_peer(i + 1, t.whereabouts, int(now * SEC), now)
+            if t.returned is not None:
+                done[i] = t.returned
+            cmds.append(b.out_cmd)
+        for i, (v, w) in enumerate(cmds):
+            x, y, th = world[i]
+            world[i] = compose((x, y, th), (v * tick * math.cos(w * tick / 2),
+                                            v * tick * math.sin(w * tick / 2), w * tick))
+        (ax, ay, ath), (bx, by, bth) = world
+        for la in offsets:
+            for lb in offsets:
+                least = min(least, math.hypot(ax + la * math.cos(ath) - bx - lb * math.cos(bth),
+                                              ay + la * math.sin(ath) - by - lb * math.sin(bth)))
+    return least, done, [b.counts for b in bridges]
+
+
+def _return_spec():
+    from formation_ilc.config.bases import base_preset
+    from formation_ilc.config.safety import SafetySettings, default_margin
+    from formation_ilc.protocol.bridge import return_filter
+
+    # the bridge node's: decided every tick of 0.01 s
+    return return_filter(SafetySettings("p3dx", base_preset("p3dx").limits,
+                                        default_margin("p3dx")), 0.01)
+
+
+def test_returns_through_the_filter_never_meet_head_on():
+    """Two robots whose returns run head-on along one line (each drives to where the other
+    starts): without the filter their discs meet; with it they never come closer than the
+    filter's distance, hold each other off, and (as measured) work their way round each
+    other: both returns end, each said (a timeout would be too)."""
+    starts, goals = [(0.0, 0.0, 0.0), (3.0, 0.0, math.pi)], [(3.0, 0.0, 0.0),
+                                                              (0.0, 0.0, math.pi)]
+    spec = _return_spec()
+    free, _, _ = _returning_pair(None, starts, goals, seconds=20.0)
+    assert free < spec.distance - 0.3  # they drive into each other
+    least, done, counts = _returning_pair(spec, starts, goals, seconds=20.0)
+    assert least >= spec.distance - 1e-6
+    assert all(d is not None for d in done)
+    assert all(c["return_filtered"] > 0 for c in counts)
+
+
+def test_returns_through_the_filter_cross_and_both_arrive():
+    """Two returns whose paths cross at right angles at the same moment: the filter keeps
+    the bodies apart and both robots still reach their start poses."""
+    starts = [(0.0, 0.0, 0.0), (2.0, -2.0, math.pi / 2)]
+    goals = [(4.0, 0.0, 0.0), (2.0, 2.0, math.pi / 2)]
+    spec = _return_spec()
+    free, _, _ = _returning_pair(None, starts, goals)
+    assert free < spec.distance  # unfiltered, their bodies meet at the crossing
+    least, done, counts = _returning_pair(spec, starts, goals)
+    assert least >= spec.distance - 1e-6
+    assert all(d is not None and d.reached for d in done)
+    assert sum(c["return_filtered"] for c in counts) > 0
+
+
+def test_a_bridge_without_a_filter_says_no_whereabouts_and_takes_none():
+    b = wall_bridge()
+    b.on_peer(2, (0.5, 0.0, 0.0), SEC, 0.0)
+    assert b.peers == {} and b.tick(0.0, 0).whereabouts is None
+    assert "return_filtered" not in b.counts
