@@ -139,9 +139,11 @@ def test_memory_learned_in_simulation_starts_the_robots_better(ros_env, tmp_path
     # fresh-clone CI): 0.933 m
     assert warm < 0.25 * _cold["first"], (warm, _cold["first"], starved)
     if not starved:  # the memory's own start, undisturbed: what the simulation reached
-        # (measured: warm 0.73 m against the simulation's 0.67 m; how far the simulation
-        # gets in 100 trials is the filter's business: poses a sample late keep it wider)
-        assert warm < sim_last + 0.15, (warm, sim_last)
+        # (measured: warm 0.73 m against the simulation's 0.67 m before the barrier's two
+        # gaps were mended, 2026-11-28; after, 0.77 and 0.80 m against 0.62 m: a receding
+        # robot's credit now depends on a test of rates that the stack's pose ages, never
+        # exactly the simulation's 0.2 s, can tip either way; docs/safety.md)
+        assert warm < sim_last + 0.25, (warm, sim_last)
 
 
 def test_a_memory_for_another_team_is_refused_before_anything_starts(ros_env, tmp_path):
