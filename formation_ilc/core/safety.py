@@ -403,9 +403,6 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
         tau_jsoon = (_receded(v_dn - a_max * dt, dt, a_max, t_close) / v_dn
                      if v_dn > a_max * dt else 0.0)
         turn_j = _carry(swj + al_max * (lag + age), dt, al_b)
-        # how fast robot j's turning can take from its receding speed: its speed x its
-        # turn rate (as estimated, widened by the estimate's lag and age)
-        bend = v_up * (swj + al_max * (lag + age))
         rot_j = (_carry(spj + sig, dt, a_b) + 0.5 * l_max * turn_j) * turn_j
         e_j = v_up * tau_j + l_max * turn_j + rot_j
         # so far apart that no command of the box can meet a barrier
@@ -448,16 +445,13 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
                 s_j = dx * vxj + dy * vyj + sig
                 # Robot j recedes (s_j < 0) while robot i may close in: the sum of their
                 # closings peaks at the end of both brakings only if robot i's closing
-                # slows no faster than robot j's receding does: i's closing factor x its
-                # deceleration, plus what j's turning can take from its receding speed,
-                # at most j's receding factor x its deceleration. Else it can peak while
-                # robot j still
-                # recedes, and j is credited only up to t_close (a fuzz of pairs found
-                # 6 mm past D at dT 0.2 s with the whole credit, 40 mm with a robot
-                # ahead turning hard back across the other's path)
+                # slows no faster than robot j's receding does (i's closing factor x its
+                # deceleration at most j's); else it can peak while robot j still recedes,
+                # and j is credited only up to t_close (a fuzz of pairs side by side found
+                # 6 mm past D at dT 0.2 s with the whole credit)
                 if s_j >= 0.0:
                     r_j = s_j * tau_j
-                elif v_dn > 0.0 and (a0 * a_b + bend) * v_dn <= -s_j * a_max:
+                elif v_dn > 0.0 and a0 * a_b * v_dn <= -s_j * a_max:
                     r_j = s_j * tau_jlo
                 else:
                     r_j = s_j * tau_jsoon
