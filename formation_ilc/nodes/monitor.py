@@ -232,19 +232,28 @@ class MonitorNode(GuardedNode):
 
     def _on_diag_from(self, msg: DiagnosticArray, gid: bytes) -> None:
         """A report, taken only from the writer (``gid``) of the node it names (else
-        ``forged``, counted by sender); then checked field by field (``_on_diag``)."""
+        ``forged``, counted by sender); then checked field by field (``_take_report``)."""
         try:
-            name = ms.msg_to_report(msg, ("node",)).get("node")
+            report = ms.msg_to_report(msg, ("node", "trial"))
         except Rejected as exc:
             self.drops.reject(exc, ms.DIAGNOSTICS)
             return
-        if self.from_named_writer(ms.DIAGNOSTICS, gid, name):
-            self._on_diag(msg)
+        if self.from_named_writer(ms.DIAGNOSTICS, gid, report.get("node")):
+            self._take_report(report)
 
     def _on_diag(self, msg: DiagnosticArray) -> None:
-        """A report whose writer is the node it names: checked field by field."""
+        """A report, its writer not asked (the handler the tests feed directly)."""
         try:
-            d = check_diagnostics(ms.msg_to_report(msg, ("node", "trial")))
+            report = ms.msg_to_report(msg, ("node", "trial"))
+        except Rejected as exc:
+            self.drops.reject(exc, ms.DIAGNOSTICS)
+            return
+        self._take_report(report)
+
+    def _take_report(self, report: dict[str, Any]) -> None:
+        """A report (from the writer of the node it names): checked field by field."""
+        try:
+            d = check_diagnostics(report)
             check_for_run(d, self.cfg.scenario.trials, self.contacts_from)
             # every text in it may reach the console (contact lines, clock words, names)
             d = printable_tree(d)
