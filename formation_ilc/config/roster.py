@@ -239,6 +239,14 @@ class Roster:
         return tuple(m.name for role in ("plant", "support", "recorder")
                      for m in self.members if m.role == role and m.reports)
 
+    @property
+    def report_writers(self) -> tuple[str, ...]:
+        """The members that write reports on the formation's ``diagnostics``, each in its
+        own name (the launcher's monitor takes a report only from the writer of the node
+        it names, and waits for the graph to name these writers before it says ready)."""
+        return tuple(m.name for m in self.members
+                     if nm.DIAGNOSTICS in m.publish and m.node_namespace is None)
+
     def enclave_of(self, process: str) -> str:
         """The enclave of a launcher process (a member's name), or ``process`` itself when
         no member has that name."""

@@ -17,9 +17,18 @@ are ``foreign``: the graph names the writers, ``foreign_writers``), in the leade
 (start k+1 after start k, with the iteration the schedule runs there; end of the trial
 started; done);
 trajectories of a trial the leader has started and whose row is not complete, once per
-robot; diagnostics whose fields are what the launcher reads
-(``formation_ilc.core.links.check_diagnostics``), of a trial started, never older than the
-node's last.
+robot; diagnostics from the writer of the node they name (``protocol.writers``: a report in
+another node's name is ``forged``, counted by sender) whose fields are what the launcher
+reads (``formation_ilc.core.links.check_diagnostics``), of a trial started, never older than
+the node's last.
+
+A report whose writer the graph does not name yet is held until it does (``nodes.writers``):
+held past its trial's trajectories, its counts would miss that trial's row. So the monitor
+says ready (and the first trial starts) only once the graph names a diagnostics writer of
+every node of ``report_writers`` (the roster's), or ``NAMES_WAIT`` seconds after everything
+else it waits for is there; and before it takes a trajectory it takes the reports that
+wait in rcl (a robot reports before it sends its trajectory, but the executor may run the
+trajectory's callback first).
 """
 
 from __future__ import annotations
@@ -44,22 +53,32 @@ from formation_ilc.nodes.common import DropCounter, GuardedNode, RunConfig
 from formation_ilc.protocol.schedule import Ready, TrialEvent, sealed
 from formation_ilc.protocol.trialrows import Row, SlotRows
 
+#: [s] how long the monitor's ready waits for the graph to name the report writers, once
+#: everything else it waits for is there (a node the graph lost the name of for good,
+#: dropped on its lease and found again, must not hold the run)
+NAMES_WAIT = 20.0
+
 
 class MonitorNode(GuardedNode):
     """Collects trial k's trajectories; calls ``on_trial(k, row)`` when all are in.
     ``contacts_from``: the nodes that watch the run's bodies and report contacts (the
-    physics plant, the physics bases; empty: no contact report is this run's)."""
+    physics plant, the physics bases; empty: no contact report is this run's).
+    ``report_writers``: the nodes whose diagnostics writers the graph must name before the
+    monitor says ready (the roster's ``report_writers``; empty: no wait)."""
 
     def __init__(self, cfg: RunConfig, on_trial: Callable[[int, np.ndarray], None],
                  true_state: bool = True, first: int = 0,
                  on_contact: Callable[[str, dict[str, Any]], None] | None = None,
                  on_clock: Callable[[str, str, str], None] | None = None,
                  key: bytes | None = None, contacts_from: tuple[str, ...] = (),
-                 **kwargs: Any):
+                 report_writers: tuple[str, ...] = (), **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(ms.MONITOR_NODE, **kwargs)
         self.cfg = cfg
         self.contacts_from = contacts_from
+        self.report_writers = tuple(w for w in report_writers if w != ms.MONITOR_NODE)
+        #: when the rest of the ready gate held first (the names' wait starts), or None
+        self._names_from: float | None = None
         self.pb = Problem.from_scenario(cfg.scenario)
         self.clock = cfg.clock
         self.on_trial = on_trial
@@ -101,23 +120,42 @@ class MonitorNode(GuardedNode):
         self.said_ready = False
         #: the last ready of each node (the launcher names whom a stuck run waits for)
         self.readies: dict[str, Ready] = {}
-        self._gate = self.create_timer(0.05, self._check_ready)
-        # reports are checked field by field (core.links), not by writer: a robot's first
-        # report, held until the graph names its writer, came after its trajectory and
-        # its row lost its filter count; every ready from the node it names
-        # (protocol.writers)
-        self.create_subscription(DiagnosticArray, ms.DIAGNOSTICS, self._on_diag,
-                                 ms.LATCHED_READER_QOS)
+        # every report and ready from the node it names (protocol.writers), a report then
+        # checked field by field (core.links)
+        self.diag_sub = self.checked_subscription(DiagnosticArray, ms.DIAGNOSTICS,
+                                                  self._on_diag_from, ms.LATCHED_READER_QOS,
+                                                  shared=True)
         self.checked_readies(self._on_ready)
+        self._gate = self.create_timer(0.05, self._check_ready)
         self.events_sub = self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event,
                                                    ms.SAMPLE_QOS)
 
     def _check_ready(self) -> None:
-        if all(s.get_publisher_count() >= 1 for s in self.path_subs) and \
-                self.ready_pub.get_subscription_count() >= 1:
-            self._gate.cancel()
-            self.said_ready = True
-            self.ready_pub.publish(self._ready_msg())
+        if not (all(s.get_publisher_count() >= 1 for s in self.path_subs)
+                and self.ready_pub.get_subscription_count() >= 1):
+            return
+        now = time.monotonic()
+        if self._names_from is None:
+            self._names_from = now
+        unnamed = self.unnamed_report_writers()
+        if unnamed:
+            if now - self._names_from < NAMES_WAIT:
+                return
+            self.get_logger().warning(
+                f"ready without the graph naming the diagnostics writer of "
+                f"{', '.join(unnamed[:8])} after {NAMES_WAIT:g} s: a first report of theirs "
+                f"is held until it does")
+        self._gate.cancel()
+        self.said_ready = True
+        self.ready_pub.publish(self._ready_msg())
+
+    def unnamed_report_writers(self) -> list[str]:
+        """The nodes of ``report_writers`` of which the graph names no diagnostics writer
+        yet (asked again at most every ``protocol.writers.REFRESH`` seconds)."""
+        if not self.report_writers:
+            return []
+        self.diag_sub.learn_writers()
+        return self.writers.not_named(self.diag_sub.topic_name, self.report_writers)
 
     def _ready_msg(self) -> String:
         return ms.json_to_msg({"node": ms.MONITOR_NODE, "passive": True,
@@ -176,6 +214,9 @@ class MonitorNode(GuardedNode):
         return bool(self.events_sub.get_publisher_count() >= 1)
 
     def _on_traj(self, data: bytes | Path, r: int, true: bool) -> None:
+        # a robot reports its slot's counts before it sends its trajectory: the reports
+        # that wait are taken first, whatever order the executor runs the callbacks in
+        self.diag_sub.take_waiting()
         topic = (ms.true_trajectory_topic if true else ms.trajectory_topic)(r + 1)
         try:
             k, eta, _ = ms.trial_trajectory(data, self.clock, self.pb.eta_d[r, :, 2])
@@ -189,9 +230,30 @@ class MonitorNode(GuardedNode):
         for d in done:
             self.on_trial(d.trial, d.row)
 
-    def _on_diag(self, msg: DiagnosticArray) -> None:
+    def _on_diag_from(self, msg: DiagnosticArray, gid: bytes) -> None:
+        """A report, taken only from the writer (``gid``) of the node it names (else
+        ``forged``, counted by sender); then checked field by field (``_take_report``)."""
         try:
-            d = check_diagnostics(ms.msg_to_report(msg, ("node", "trial")))
+            report = ms.msg_to_report(msg, ("node", "trial"))
+        except Rejected as exc:
+            self.drops.reject(exc, ms.DIAGNOSTICS)
+            return
+        if self.from_named_writer(ms.DIAGNOSTICS, gid, report.get("node")):
+            self._take_report(report)
+
+    def _on_diag(self, msg: DiagnosticArray) -> None:
+        """A report, its writer not asked (the handler the tests feed directly)."""
+        try:
+            report = ms.msg_to_report(msg, ("node", "trial"))
+        except Rejected as exc:
+            self.drops.reject(exc, ms.DIAGNOSTICS)
+            return
+        self._take_report(report)
+
+    def _take_report(self, report: dict[str, Any]) -> None:
+        """A report (from the writer of the node it names): checked field by field."""
+        try:
+            d = check_diagnostics(report)
             check_for_run(d, self.cfg.scenario.trials, self.contacts_from)
             # every text in it may reach the console (contact lines, clock words, names)
             d = printable_tree(d)

@@ -149,6 +149,15 @@ class CheckedSubscription:
         while (got := self._take()) is not None:
             self._judge(*got, time.monotonic())
 
+    def take_waiting(self) -> None:
+        """Take and judge at once what waits in rcl (a handler that must see this topic's
+        messages before another's: the executor may run the other's callback first)."""
+        self._drain()
+
+    def learn_writers(self) -> None:
+        """Ask the graph for the topic's writers now (at most every REFRESH seconds)."""
+        self._refresh(time.monotonic())
+
     def _refresh(self, now: float, gid: bytes | None = None) -> None:
         if self.table.due(self.topic_name, now, gid):
             self.table.learn(self.topic_name, (

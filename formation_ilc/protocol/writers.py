@@ -127,6 +127,11 @@ class WriterTable:
         namespace)."""
         return full_name(self.namespace, node) in self.gids.get(topic, {}).values()
 
+    def not_named(self, topic: str, nodes: Iterable[str]) -> list[str]:
+        """The ``nodes`` (formation's namespace) of which the graph names no writer of
+        ``topic`` yet (as last learnt)."""
+        return [n for n in nodes if not self._named(topic, n)]
+
     def judge(self, topic: str, gid: bytes, patient: bool = False) -> str:
         """OK when writer ``gid`` may write ``topic`` (an owned topic: one of its owners;
         a shared one: any node of the formation's namespace, ``claims`` decides the

@@ -359,3 +359,21 @@ def test_contacts_come_from_the_members_that_watch_the_bodies():
         "physics_bases",)
     for lineup in (Lineup(3), Lineup(3, plant="pioneer"), Lineup(3, plant="base")):
         assert roster(lineup).contact_watchers == ()
+
+
+def test_the_report_writers_are_the_members_that_report_in_the_formations_namespace():
+    """The launcher's monitor takes a report only from the writer of the node it names,
+    and says ready once the graph names these writers (issue 39): every member that
+    publishes the formation's diagnostics, never the monitor itself (it reads them), the
+    live view or a driver in a namespace of its own."""
+    got = roster(Lineup(3, record=True, live=True)).report_writers
+    assert got == ("recorder", "virtual_leader", "robot_sim", "link_emulator", "robot_1",
+                   "robot_2", "robot_3")
+    bridged = roster(Lineup(2, plant="pioneer", fake_drivers=True, links="direct"))
+    assert bridged.report_writers == ("virtual_leader", "bridge_1", "bridge_2", "robot_1",
+                                      "robot_2")
+    assert "physics_bases" in roster(Lineup(2, plant="base", physics_bases=True)
+                                     ).report_writers
+    # an external plant's nodes are the user's: nothing is known of their writers
+    assert roster(Lineup(2, plant="external", external=("x",))).report_writers == (
+        "virtual_leader", "link_emulator", "robot_1", "robot_2")

@@ -376,6 +376,125 @@ def test_a_ready_is_taken_from_the_node_it_names_only(context, kind):
             n.destroy_node()
 
 
+@pytest.fixture
+def other_participant(ros_env):
+    """A second rclpy context in this process: a DDS participant of its own, as a second
+    process on the domain has (its nodes' writers are named by the graph as its own)."""
+    from rclpy.context import Context
+
+    ctx = Context()
+    rclpy.init(context=ctx)
+    yield ctx
+    rclpy.try_shutdown(context=ctx)
+
+
+def test_a_report_is_taken_from_the_node_it_names_only(context, other_participant):
+    """A well-formed contact report in the physics plant's name, from a node of the
+    formation's namespace in another participant (a forger that does not take the plant's
+    name): the monitor refuses it, counted by topic and sender (its report, its drops),
+    and takes the plant's own report of the same contact after it (before, it took the
+    first of the two by its fields alone: the forged line reached the console, and the
+    plant's was a repeat)."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    from formation_ilc.nodes.monitor import MonitorNode
+
+    said: list[tuple[str, dict]] = []
+    mon = MonitorNode(CFG, lambda k, row: None, context=context,
+                      on_contact=lambda name, c: said.append((name, c)),
+                      contacts_from=(ms.PHYSICS_NODE,))
+    plant = rclpy.create_node(ms.PHYSICS_NODE, namespace=ms.NAMESPACE, context=context)
+    forger = rclpy.create_node("forger", namespace=ms.NAMESPACE, context=other_participant)
+    ex = SingleThreadedExecutor(context=context)
+    try:
+        ex.add_node(mon)
+        mon.slots.started = 1
+        contact = {"slot": 1, "sample": 3, "n": 1, "action": "continue", "pairs": [[1, 2]],
+                   "tilt": None}
+        pubs = [n.create_publisher(DiagnosticArray, ms.absolute(ms.DIAGNOSTICS),
+                                   ms.LATCHED_QOS) for n in (forger, plant)]
+        spin_until(ex, lambda: mon.diag_sub.get_publisher_count() >= 2)
+
+        def report(line: str) -> DiagnosticArray:
+            return ms.diagnostics_to_msg({"node": ms.PHYSICS_NODE, "trial": 1,
+                                          "contact": dict(contact, line=line)}, 0)
+
+        pubs[0].publish(report("forged"))
+        spin_until(ex, lambda: said or mon.writers.total >= 1)
+        assert said == []
+        assert mon.report()["forged"] == {
+            "/formation/diagnostics": {"/formation/forger": 1}}
+        assert mon.forged_reports()["monitor"] == mon.report()["forged"]
+        assert mon.drops.counts["forged"] == 1 and dropped(mon) == 1
+        pubs[1].publish(report("real"))
+        spin_until(ex, lambda: said)
+        assert [(name, c["line"]) for name, c in said] == [(ms.PHYSICS_NODE, "real")]
+        # the plant's end-of-trial report, from its own writer: the launcher's to read;
+        # the forger's in the plant's name is not
+        pubs[0].publish(ms.diagnostics_to_msg({"node": ms.PHYSICS_NODE, "trial": 1,
+                                               "late_s": 99.0}, 0))
+        spin_until(ex, lambda: mon.writers.total >= 2)
+        pubs[1].publish(ms.diagnostics_to_msg({"node": ms.PHYSICS_NODE, "trial": 1}, 0))
+        spin_until(ex, lambda: ms.PHYSICS_NODE in mon.diagnostics)
+        assert "late_s" not in mon.diagnostics[ms.PHYSICS_NODE]
+        assert mon.writers.report() == {"/formation/diagnostics": {"/formation/forger": 2}}
+        assert dropped(mon) == 2
+    finally:
+        ex.shutdown()
+        for n in (mon, plant, forger):
+            n.destroy_node()
+
+
+def test_the_monitor_says_ready_once_the_graph_names_every_report_writer(context,
+                                                                         monkeypatch):
+    """A robot's first report, held until the graph named its writer, once came after its
+    trajectory and its row lost its filter count: the monitor says ready (the first trial
+    waits for it) only once the graph names a diagnostics writer of every node of the
+    roster's ``report_writers``, or NAMES_WAIT seconds after the rest is there."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    from formation_ilc.nodes import monitor as monitor_mod
+    from formation_ilc.nodes.monitor import MonitorNode
+
+    ex = SingleThreadedExecutor(context=context)
+    mon = MonitorNode(CFG, lambda k, row: None, true_state=False, context=context,
+                      report_writers=("robot_1", ms.MONITOR_NODE))
+    peer = rclpy.create_node("robot_2", namespace=ms.NAMESPACE, context=context)
+    late: list = []
+    try:
+        readies: list[str] = []
+        peer.create_subscription(String, ms.absolute(ms.READY),
+                                 lambda m: readies.append(ms.msg_to_json(m)["node"]),
+                                 ms.LATCHED_READER_QOS)
+        trajs = [peer.create_publisher(Path, ms.absolute(ms.trajectory_topic(i + 1)),
+                                       ms.TRAJECTORY_QOS) for i in range(CFG.scenario.n)]
+        for n in (mon, peer):
+            ex.add_node(n)
+        assert trajs
+        # everything else the monitor waits for is there; robot_1 writes no report yet
+        spin_until(ex, lambda: mon._names_from is not None)
+        assert mon.unnamed_report_writers() == ["robot_1"] and not mon.said_ready
+        one = rclpy.create_node("robot_1", namespace=ms.NAMESPACE, context=context)
+        late.append(one)
+        one.create_publisher(DiagnosticArray, ms.absolute(ms.DIAGNOSTICS), ms.LATCHED_QOS)
+        spin_until(ex, lambda: "monitor" in readies)
+        assert mon.said_ready and mon.unnamed_report_writers() == []
+        assert time.monotonic() - mon._names_from < monitor_mod.NAMES_WAIT  # not the bound
+        # a node the graph never names holds the monitor's ready NAMES_WAIT seconds only
+        monkeypatch.setattr(monitor_mod, "NAMES_WAIT", 0.3)
+        bounded = MonitorNode(CFG, lambda k, row: None, true_state=False, context=context,
+                              report_writers=("robot_3",))
+        late.append(bounded)
+        ex.add_node(bounded)
+        spin_until(ex, lambda: bounded.said_ready)
+        assert bounded.unnamed_report_writers() == ["robot_3"]
+        assert time.monotonic() - bounded._names_from >= 0.3
+    finally:
+        ex.shutdown()
+        for n in (mon, peer, *late):
+            n.destroy_node()
+
+
 def test_fuzz_bridge_handlers(context):
     from formation_ilc.nodes.pioneer_bridge import BridgeNode
 

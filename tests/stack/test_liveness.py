@@ -217,14 +217,16 @@ def test_forged_events_and_a_forged_down_move_nothing(ros_env, context, tmp_path
     assert summary["foreign_events"]["count"] >= 74, summary["foreign_events"]
     assert "/forger/forger" in summary["foreign_events"]["writers"]
     assert "foreign trial events: " in out
-    # the ready in robot_1's name, from another writer: refused by the leader and the
-    # monitor, counted by sender, said on the console; the reports in the plant's name
-    # refused field by field (no contact in a run without bodies, a slot that is text):
-    # none of their text reached the console
+    # the ready in robot_1's name and the reports in the plant's, from another writer:
+    # refused by the leader and the monitor, counted by sender, said on the console (the
+    # reports' fields would refuse them too: no contact in a run without bodies, a slot
+    # that is text); none of their text reached the console. The forger's report writer
+    # keeps one message: the monitor may have missed some of the three
     forged = summary["forged"]
     assert forged["virtual_leader"]["/formation/ready"]["/forger/forger"] >= 1, forged
     mon = forged["monitor"]
     assert mon["/formation/ready"]["/forger/forger"] >= 1, forged
+    assert mon["/formation/diagnostics"]["/forger/forger"] >= 1, forged
     assert "forged: " in out and "\x1b" not in out and "every trial is in" in out
     from formation_ilc.recordings.recording import load_recording, recording_parts
 
