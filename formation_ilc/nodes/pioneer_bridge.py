@@ -287,11 +287,13 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
         if safety is not None:  # between trials: where each robot is, for the returns
             self.where_pub = self.create_publisher(PoseStamped, ms.whereabouts_topic(self.id),
                                                    ms.SAMPLE_QOS)
+            # each from its own bridge only (protocol.writers): a forged one, stamped
+            # ahead, would stand for that robot and hide where it really is
             for j in range(1, cfg.scenario.n + 1):
                 if j != self.id:
-                    self.create_subscription(PoseStamped, ms.whereabouts_topic(j),
-                                             lambda m, j=j: self._on_whereabouts(m, j),
-                                             ms.SAMPLE_QOS)
+                    self.checked_subscription(PoseStamped, ms.whereabouts_topic(j),
+                                              lambda m, gid, j=j: self._on_whereabouts(m, j),
+                                              ms.SAMPLE_QOS, owners=(ms.bridge_name(j),))
         self.true_pub = None
         if self.truth_topic is not None:
             # from the physics bases only (protocol.writers): forged true poses made the

@@ -213,3 +213,42 @@ def test_a_bases_truth_is_taken_from_the_physics_bases_only(context, executor):
     spin_until(ex, lambda: bridge.core.truth[0] == 1.0, timeout=2.0)
     assert bridge.writers.report() == {"/base_1/truth": {"/formation/forger": 1}}
     assert bridge.drops.counts["forged"] == 1
+
+
+def test_a_robots_whereabouts_are_taken_from_its_own_bridge_only(context, executor):
+    """With a safety filter the bridges read each other's whereabouts between trials; one
+    in robot 2's name from any node but bridge_2 is dropped and counted by sender (a forged
+    one, stamped ahead, would stand for robot 2 and hide where it really is)."""
+    from geometry_msgs.msg import PoseStamped
+    from std_msgs.msg import String
+
+    from formation_ilc.config.bases import base_preset
+    from formation_ilc.config.runconfig import make_config
+    from formation_ilc.config.safety import SafetySettings, default_margin
+    from formation_ilc.nodes.pioneer_bridge import BridgeNode
+
+    ex, nodes = executor
+    safety = SafetySettings("p3dx", base_preset("p3dx").limits, default_margin("p3dx"))
+    cfg = make_config("paper-triangle3", links="direct", mode="wallclock", safety=safety)
+    params = [Parameter("robot_id", value=1), Parameter("driver", value="rosaria"),
+              Parameter("driver_ns", value="/pioneer_1")]
+    bridge = BridgeNode(context=context, parameter_overrides=params)
+    leader = rclpy.create_node(ms.LEADER_NODE, namespace=ms.NAMESPACE, context=context)
+    other = rclpy.create_node(ms.bridge_name(2), namespace=ms.NAMESPACE, context=context)
+    forger = rclpy.create_node("forger", namespace=ms.NAMESPACE, context=context)
+    nodes += [bridge, leader, other, forger]
+    for n in nodes:
+        ex.add_node(n)
+    leader.create_publisher(String, ms.CONFIG, ms.LATCHED_QOS).publish(
+        ms.json_to_msg(cfg.to_json()))
+    spin_until(ex, lambda: bridge.configured)
+    assert bridge.core.safety is not None  # the run's filter: the returns are filtered
+    for node, x, stamp in ((forger, 1000.0, 10**18), (other, 1.0, 10**9)):
+        pub = node.create_publisher(PoseStamped, ms.whereabouts_topic(2), ms.SAMPLE_QOS)
+        spin_until(ex, lambda pub=pub: pub.get_subscription_count() >= 1)
+        pub.publish(ms.pose_to_msg((x, 2.0, 0.0), stamp, ms.WORLD_FRAME))
+    spin_until(ex, lambda: 2 in bridge.core.peers and bridge.writers.total >= 1)
+    assert bridge.core.peers[2][1] == (1.0, 2.0, 0.0)
+    assert bridge.writers.report() == {
+        f"/formation/{ms.whereabouts_topic(2)}": {"/formation/forger": 1}}
+    assert bridge.drops.counts["forged"] == 1
