@@ -233,22 +233,24 @@ class MonitorNode(GuardedNode):
     def _on_diag_from(self, msg: DiagnosticArray, gid: bytes) -> None:
         """A report, taken only from the writer (``gid``) of the node it names (else
         ``forged``, counted by sender); then checked field by field (``_take_report``)."""
-        try:
-            report = ms.msg_to_report(msg, ("node", "trial"))
-        except Rejected as exc:
-            self.drops.reject(exc, ms.DIAGNOSTICS)
-            return
-        if self.from_named_writer(ms.DIAGNOSTICS, gid, report.get("node")):
+        report = self._report_of(msg)
+        if report is not None and self.from_named_writer(ms.DIAGNOSTICS, gid,
+                                                         report.get("node")):
             self._take_report(report)
 
     def _on_diag(self, msg: DiagnosticArray) -> None:
         """A report, its writer not asked (the handler the tests feed directly)."""
+        report = self._report_of(msg)
+        if report is not None:
+            self._take_report(report)
+
+    def _report_of(self, msg: DiagnosticArray) -> dict[str, Any] | None:
+        """The report's JSON, or None (dropped and counted) when it does not decode."""
         try:
-            report = ms.msg_to_report(msg, ("node", "trial"))
+            return ms.msg_to_report(msg, ("node", "trial"))
         except Rejected as exc:
             self.drops.reject(exc, ms.DIAGNOSTICS)
-            return
-        self._take_report(report)
+            return None
 
     def _take_report(self, report: dict[str, Any]) -> None:
         """A report (from the writer of the node it names): checked field by field."""

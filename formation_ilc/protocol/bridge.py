@@ -285,11 +285,11 @@ class Bridge:
     keeps the newest, a sample the schedule skipped the one before it (or after it, at the
     start), and the trial's last tick gives them all (``BridgeTick.true_path``).
     safety : the run's safety filter, for a sample time of the control tick (its ``dt``:
-    each tick's command is held until the next). With it the
-    bridge says where its robot is between trials (``BridgeTick.whereabouts``) and filters
-    its return's commands against the other robots' whereabouts (``on_peer``), as a robot
-    node filters its trial's: no two returning robots drive into each other, or into one
-    that already stands at its start. None: the return controller alone.
+    each tick's command is held until the next). With it the bridge says where its robot
+    is between trials (``BridgeTick.whereabouts``) and filters its return's commands
+    against the other robots' whereabouts (``on_peer``), as a robot node filters its
+    trial's: no two returning robots drive into each other, or into one that already
+    stands at its start. None: the return controller alone.
 
     Times: ``now`` [s] on a monotonic clock, ``now_wall_ns`` [ns] on the robot's wall
     clock; a command sent at ``now_wall_ns`` is stamped with it, and the acceleration
@@ -492,11 +492,11 @@ class Bridge:
     def _safe(self, cmd: Command, now: float) -> Command:
         """The return controller's ``cmd`` through the safety filter (its ``dt``: the
         tick, how long a command is held before the next one), against every robot heard
-        between trials. A robot
-        never heard, or not for PEER_SILENCE (its bridge stopped: a pose that old would
-        widen into a wall), is not filtered against (as in a trial)."""
-        spec, params = self.safety, self._params
-        if spec is None or params is None:
+        between trials. A robot never heard, or not for PEER_SILENCE (its bridge stopped:
+        a pose that old would widen into a wall), is not filtered against (as in a
+        trial)."""
+        params = self._params
+        if params is None:
             return cmd
         x, y, th = self.world()
         heard = [p for p in self.peers.values() if now - p[0] <= PEER_SILENCE]
