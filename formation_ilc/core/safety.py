@@ -48,11 +48,15 @@ from, ``freeze_flagged`` restores it where nothing may be learned:
   from trial to trial: anti-windup is right), ``freeze`` where a barrier moved it (another
   robot was in the way: a state of this trial, not of the task);
 * ``ignore``: learns as if nothing had been changed (winds up; for comparison);
-* ``damped``: m + DAMPING (u_applied - u_nominal): a sixth or so of ``applied``'s anti-
-  windup. ``applied`` carries every trim the filter made into the next trial, where it
+* ``damped``: ``applied`` where only a limit clipped the command, m + DAMPING
+  (u_applied - u_nominal) where a barrier moved it: a sixth or so of ``applied``'s anti-
+  windup. ``applied`` carries every trim a barrier made into the next trial, where it
   holds the memory near the filter's boundary (an error that stays); ``ignore`` carries
   none and winds up where two robots hold each other off trial after trial; a share of
-  it does neither (docs/safety.md measured it on the generated families).
+  it does neither. A limit's clipping takes the full anti-windup: a memory learned as if
+  unclipped (or a share) winds up outside the limits, where the clipped commands jitter
+  on the acceleration bound trial after trial (docs/safety.md measured both on the
+  generated families).
 
 docs/safety.md has the measurements behind the default (``config.safety.default_learning``):
 ``damped`` for two-wheel bodies, where it learned the paper's triangle and the generated
@@ -80,7 +84,7 @@ __all__ = ["SafetySpec", "LEARNING", "CHANGED_LIMITS", "CHANGED_BARRIER", "INFEA
 #: how the memory learns at samples the filter changed
 LEARNING = ("applied", "freeze", "ignore", "split", "damped")
 APPLIED, FREEZE, IGNORE, SPLIT, DAMPED = 0, 1, 2, 3, 4
-#: ``damped``: the share of the filter's change the memory takes in
+#: ``damped``: the share of a barrier's change the memory takes in (a limit's, in full)
 DAMPING = 0.15
 
 #: flags of one filtered command (bitwise or)
@@ -649,16 +653,20 @@ def learn_base(mode: int, memory: NDArray[np.float64], nominal: NDArray[np.float
 
     memory, nominal, applied : shape (R, T, 2): the trial's memory, the learned commands
     and the commands the filter let through; flags : shape (R, T). ``applied`` (APPLIED):
-    memory + (applied - nominal); ``damped``: memory + DAMPING (applied - nominal);
-    ``freeze`` and ``ignore``: the memory itself (freeze then restores the old memory at
-    flagged samples after the step, ``freeze_flagged``).
+    memory + (applied - nominal); ``damped``: the same where only a limit clipped the
+    command (the anti-windup of learning with input saturation), memory + DAMPING
+    (applied - nominal) where a barrier moved it; ``split``: the same where only a limit
+    clipped it, the memory itself where a barrier moved it; ``freeze`` and ``ignore``: the
+    memory itself (freeze and split then restore the old memory at flagged samples after
+    the step, ``freeze_flagged``).
     """
     for r in range(memory.shape[0]):
         for t in range(memory.shape[1]):
             for c in range(2):
                 x = memory[r, t, c]
                 f = flags[r, t]
-                if f != 0 and (mode == APPLIED or (mode == SPLIT and f == CHANGED_LIMITS)):
+                if f != 0 and (mode == APPLIED or (f == CHANGED_LIMITS
+                                                   and (mode == SPLIT or mode == DAMPED))):
                     x += applied[r, t, c] - nominal[r, t, c]
                 elif f != 0 and mode == DAMPED:
                     x += DAMPING * (applied[r, t, c] - nominal[r, t, c])

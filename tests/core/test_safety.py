@@ -215,12 +215,16 @@ def test_learn_base_modes():
     freeze_flagged(3, mem, flags, learned)
     np.testing.assert_array_equal(learned[0, 0], 9.0)  # learned where a limit clipped
     np.testing.assert_array_equal(learned[0, 1:], 0.0)  # kept where a barrier acted
-    # damped: a share DAMPING of the filter's change, at every changed sample
+    # damped: a share DAMPING of a barrier's change; a limit's alone, in full (the memory
+    # must not wind up outside the base's limits)
     flags = np.array([[0, CHANGED_BARRIER, CHANGED_LIMITS]])
     learn_base(4, mem, nominal, applied, flags, out)
     np.testing.assert_allclose(out[0, 1], DAMPING * (0.25 - 1.0))
-    np.testing.assert_allclose(out[0, 2], DAMPING * (0.75 - 1.0))
+    np.testing.assert_allclose(out[0, 2], 0.75 - 1.0)
     np.testing.assert_array_equal(out[0, 0], 0.0)
+    flags = np.array([[0, CHANGED_BARRIER | CHANGED_LIMITS, 0]])
+    learn_base(4, mem, nominal, applied, flags, out)
+    np.testing.assert_allclose(out[0, 1], DAMPING * (0.25 - 1.0))
 
 
 def test_spec_validates_its_fields():
