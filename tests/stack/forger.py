@@ -28,7 +28,10 @@ leader (or a buggy node) on the same domain and namespace would.
 
 It prints one JSON line per forgery on stdout (``{"forged": ..., "count": ...}``), and
 exits once it has forged what it was asked to, or when the formation's configuration
-writer is gone.
+writer is gone. Run in an enclave of the formation (``--secure``), a writer or reader its
+permissions do not grant is refused at creation: it prints ``{"refused": TOPIC, "error":
+...}`` and drops the forgeries that needed it (a ready in robot_1's name is then made up
+from the trial events, as a robot's enclave reads no readies).
 
     python tests/stack/forger.py --burst-at 1 --abort-committed 3 [--pose-flood 5]
 """
@@ -46,6 +49,7 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
 from std_msgs.msg import String
 
 import msgs_schema as ms
@@ -112,7 +116,10 @@ def main() -> int:
     p.add_argument("--timeout", type=float, default=900.0)
     a = p.parse_args()
     rclpy.init()
-    node = rclpy.create_node("forger", namespace="/forger")
+    # no services: an enclave grants a node's services to its own node only
+    node = rclpy.create_node("forger", namespace="/forger", start_parameter_services=False,
+                             parameter_overrides=[Parameter("start_type_description_service",
+                                                            value=False)])
     topic = lambda t: ms.absolute(t, a.namespace)  # noqa: E731
     st: dict = {"run": "", "n": 0, "start": None, "readies": {}, "config_seen": False}
 
@@ -138,12 +145,22 @@ def main() -> int:
             st["readies"][d["node"]] = d
             st.setdefault("last_ready", {})[d["node"]] = d
 
+    def granted(make, *args):
+        """A reader or writer, or None where the enclave's permissions refuse it."""
+        try:
+            return make(*args)
+        except Exception as exc:  # noqa: BLE001 - refused at creation: a result
+            print(json.dumps({"refused": args[1], "error": str(exc)[:200]}), flush=True)
+            return None
+
     node.create_subscription(String, topic(ms.CONFIG), on_config, ms.LATCHED_QOS)
     node.create_subscription(String, topic(ms.TRIAL_EVENTS), on_event, ms.SAMPLE_QOS)
-    node.create_subscription(String, topic(ms.READY), on_ready, ms.LATCHED_READER_QOS)
-    pub = node.create_publisher(String, topic(ms.TRIAL_EVENTS), ms.SAMPLE_QOS)
-    ready_pub = node.create_publisher(String, topic(ms.READY), ms.LATCHED_QOS)
-    diag_pub = node.create_publisher(DiagnosticArray, topic(ms.DIAGNOSTICS), ms.LATCHED_QOS)
+    reads_readies = granted(node.create_subscription, String, topic(ms.READY), on_ready,
+                            ms.LATCHED_READER_QOS) is not None
+    pub = granted(node.create_publisher, String, topic(ms.TRIAL_EVENTS), ms.SAMPLE_QOS)
+    ready_pub = granted(node.create_publisher, String, topic(ms.READY), ms.LATCHED_QOS)
+    diag_pub = granted(node.create_publisher, DiagnosticArray, topic(ms.DIAGNOSTICS),
+                       ms.LATCHED_QOS)
     config_sub = node.get_publishers_info_by_topic
     ex = SingleThreadedExecutor()
     ex.add_node(node)
@@ -151,6 +168,10 @@ def main() -> int:
                            ("flood", a.pose_flood), ("ready", a.ready_as),
                            ("report", a.bad_report), ("team", a.team_poses))
             if v is not None}
+    for needs, w in ((("burst", "abort"), pub), (("ready",), ready_pub),
+                     (("report",), diag_pub)):
+        if w is None:
+            todo.difference_update(needs)
     team: dict = {"last": None, "count": 0, "pub": None}
 
     def on_team(msg: Path) -> None:
@@ -179,8 +200,12 @@ def main() -> int:
         team["count"] += 1
 
     if a.team_poses is not None:
-        team["pub"] = node.create_publisher(Path, topic(ms.TEAM_POSES), ms.SAMPLE_QOS)
-        node.create_subscription(Path, topic(ms.TEAM_POSES), on_team, ms.SAMPLE_QOS)
+        team["pub"] = granted(node.create_publisher, Path, topic(ms.TEAM_POSES),
+                              ms.SAMPLE_QOS)
+        if team["pub"] is None:
+            todo.discard("team")
+        else:
+            node.create_subscription(Path, topic(ms.TEAM_POSES), on_team, ms.SAMPLE_QOS)
     #: pose topic -> its first REPLAYED messages (stale by the flood) and its newest
     heard: dict[str, list[bytes]] = {}
     flood: dict[str, object] = {}  # pose topic -> publisher
@@ -226,6 +251,9 @@ def main() -> int:
                 todo.discard("abort")
                 print(json.dumps({"forged": "abort", "count": 1, "event": d}), flush=True)
             mine = st.get("last_ready", {}).get("robot_1")
+            if not reads_readies and start is not None:  # made up from the events
+                mine = {"node": "robot_1", "trial": int(start["trial"]) + 1,
+                        "seen": int(start["seq"]), "run": st["run"], "config": {}}
             if "ready" in todo and mine is not None and mine.get("trial", -1) >= a.ready_as:
                 cfg = dict(mine.get("config") or {})
                 d = {**mine, "config": {**cfg, "seed": 999}}
@@ -255,7 +283,8 @@ def main() -> int:
         # a reliable writer that exits at once may not have delivered: wait until every
         # reader acknowledged the forgeries (bounded; a reader that left is no longer waited for)
         for w in (pub, ready_pub, diag_pub):
-            w.wait_for_all_acked(Duration(seconds=10))
+            if w is not None:
+                w.wait_for_all_acked(Duration(seconds=10))
         if team["count"]:  # it went on until the run ended
             print(json.dumps({"forged": "team_poses", "count": team["count"]}), flush=True)
             todo.discard("team")

@@ -184,14 +184,42 @@ def test_grants_cover_what_the_nodes_do(ros_env, tmp_path, case):
 
 @pytest.mark.slow
 def test_secure_lockstep_equals_batch_simulator(ros_env, tmp_path, keystore):
+    """A secure lockstep run equals the batch simulator, while an insider holding robot 3's
+    enclave forges what it can (tests/stack/forger.py): a ready in robot_1's name with
+    another seed and reports in the plant's name (a contact slot that is text, a line of
+    terminal escapes, contacts in a run without bodies) are refused by their writer and
+    counted by sender; a burst of trial events and forged ``team/poses`` are refused by its
+    permissions when it creates their writers."""
     trials = 12
-    res = launch(ros_env, tmp_path, "paper-triangle3", "--trials", str(trials), "--seed", "5",
-                 "--secure", str(keystore))
+    forger = subprocess.Popen(
+        [sys.executable, str(HERE / "forger.py"), "--ready-as", "3", "--bad-report", "3",
+         "--burst-at", "2", "--team-poses", "2"],
+        env=identity(ros_env, keystore, "/formation/robot_3"), stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        res = launch(ros_env, tmp_path, "paper-triangle3", "--trials", str(trials), "--seed",
+                     "5", "--secure", str(keystore))
+        said = forger.communicate(timeout=60)[0]
+    finally:
+        stop_group(forger)
     assert res.returncode == 0, res.stdout
     got = read_metrics(tmp_path / "metrics.csv")
     ref = simulate(load_scenario("paper-triangle3").with_options(seed=5), trials=trials).metrics
     assert got.shape == ref.shape
     np.testing.assert_allclose(got[:, 1:], ref[:, 1:], rtol=0, atol=TOL)
+    lines = [json.loads(ln) for ln in said.splitlines() if ln.startswith("{")]
+    # robot 3's permissions grant it no writer of the leader's events nor of the plant's
+    # poses, nor a reader of the readies
+    refused = {d["refused"] for d in lines if "refused" in d}
+    assert {"/formation/leader/trial_events", "/formation/team/poses",
+            "/formation/ready"} <= refused, said
+    assert sorted(d["forged"] for d in lines if "forged" in d) == ["ready", "report"], said
+    # its ready and its reports in other nodes' names went out and were refused by writer
+    forged = json.loads((tmp_path / "summary.json").read_text())["forged"]
+    assert forged["virtual_leader"]["/formation/ready"]["/forger/forger"] >= 1, forged
+    assert forged["monitor"]["/formation/ready"]["/forger/forger"] >= 1, forged
+    assert forged["monitor"]["/formation/diagnostics"]["/forger/forger"] >= 1, forged
+    assert "\x1b" not in res.stdout
 
 
 def probe(env: dict[str, str], seconds: float, name: str, *ops: str) -> subprocess.Popen[str]:
