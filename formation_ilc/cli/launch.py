@@ -90,6 +90,7 @@ from formation_ilc.cli.supervisor import (
 )
 from formation_ilc.plan.specs import NodeSpec, NoRun, RunPlan, finished
 from formation_ilc.protocol.watchdog import Bounds
+from formation_ilc.system.discovery import SERVER_ENV
 from formation_ilc.system.exits import DISK_FULL, STUCK, is_disk_full
 
 __all__ = ["add_arguments", "run", "execute", "Stack", "launch_parser", "without_defaults"]
@@ -160,10 +161,6 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
     """Run ``plan``: its processes under a supervisor, the trials followed by a monitor
     node, then the report; the exit status. ``place``: a process's command line (default
     its own)."""
-    from formation_ilc.cli.report import write_report
-    from formation_ilc.system.private import private
-    from formation_ilc.system.shm import clean_leftovers, fastdds_files
-
     if plan.record is not None:  # the recorder makes no folder: it is the launcher's
         try:
             plan.record.parent.mkdir(parents=True, exist_ok=True)
@@ -178,6 +175,45 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
     if plan.secure is not None:
         plan.secure.write_profile()
     env = node_env(plan)
+    server = _discovery_server(plan, env)
+    if server is False:
+        return 2
+    try:
+        return _run_started(plan, env, place)
+    finally:
+        if server is not None:
+            server.stop()
+            os.environ.pop(SERVER_ENV, None)
+
+
+def _discovery_server(plan: RunPlan, env: dict[str, str]) -> Any:
+    """With ``discovery`` "server": Fast DDS's discovery server started on 127.0.0.1, its
+    address in ``env`` and in this process's environment (the monitor is a client too);
+    None without; False when it could not start (said on stderr)."""
+    if plan.discovery != "server":
+        if plan.discovery == "localhost":  # the monitor, like the nodes (node_env)
+            os.environ.pop(SERVER_ENV, None)
+        return None
+    from formation_ilc.system.discovery import DiscoveryServer, ServerError
+
+    server = DiscoveryServer(plan.out / "logs" / "discovery_server.log")
+    try:
+        env[SERVER_ENV] = os.environ[SERVER_ENV] = server.start()
+    except ServerError as exc:
+        print(f"error: --discovery server: {exc}", file=sys.stderr)
+        return False
+    print(f"discovery: through Fast DDS's discovery server on {env[SERVER_ENV]} "
+          f"({plan.participants} participants)", flush=True)
+    return server
+
+
+def _run_started(plan: RunPlan, env: dict[str, str],
+                 place: Callable[[NodeSpec], list[str]] | None) -> int:
+    """``run_plan`` once the environment is ready: the session, its report."""
+    from formation_ilc.cli.report import write_report
+    from formation_ilc.system.private import private
+    from formation_ilc.system.shm import clean_leftovers, fastdds_files
+
     # Fast DDS files that nodes killed earlier left behind (held by no process)
     stale = clean_leftovers(min_age=2.0)
     if stale:
@@ -185,7 +221,8 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
     shm_before = fastdds_files()
     # our own monitor node joins the same domain: set before rclpy initialises
     os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
-    for name in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):
+    for name in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE",
+                 "FASTDDS_BUILTIN_TRANSPORTS"):
         if name in env:
             os.environ[name] = env[name]
     for note in plan.notes:

@@ -148,9 +148,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--domain-id", type=int_range(0, 232), metavar="ID",
                    help="ROS_DOMAIN_ID (default: the caller's ROS_DOMAIN_ID if set, else a "
                         "free-looking one in 30..100)")
-    p.add_argument("--discovery", choices=("localhost", "inherit"), default="localhost",
-                   help="localhost (default): ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; "
-                        "inherit: keep the caller's discovery settings (multi-host runs)")
+    p.add_argument("--discovery", choices=("localhost", "server", "inherit"),
+                   default="localhost",
+                   help="localhost (default): ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, and "
+                        "from 64 processes through a Fast DDS discovery server the launcher "
+                        "starts on 127.0.0.1 (every participant announces itself to the "
+                        "server only: 100 robots, one process each, start on 2 cores); "
+                        "server: that server for any team on this machine; inherit: keep "
+                        "the caller's discovery settings (multi-host runs)")
     p.add_argument("--timeout", type=positive_float, default=30.0, metavar="S",
                    help="lockstep: give up when a robot has not commanded for S seconds")
     p.add_argument("--watchdog-scale", type=positive_float, default=1.0, metavar="F",

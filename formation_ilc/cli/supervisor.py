@@ -339,8 +339,13 @@ def node_env(plan: RunPlan) -> dict[str, str]:
 
     env = dict(os.environ)
     env["ROS_DOMAIN_ID"] = str(plan.domain)
-    if plan.discovery == "localhost":
+    if plan.discovery in ("localhost", "server"):  # (the server's address: execute)
         env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+        env.pop("ROS_DISCOVERY_SERVER", None)  # a server of the caller's may be elsewhere
+    if plan.discovery == "server":
+        # the clients' shared-memory ports collide at this scale ("open_and_lock_file
+        # failed", 74 of 102 nodes found after 110 s with them; every one in 80 s without)
+        env.setdefault("FASTDDS_BUILTIN_TRANSPORTS", "UDPv4")
     if plan.peers_profile is not None:  # a secure run's profile, built on it, comes later
         env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(plan.peers_profile)
     env["PYTHONUNBUFFERED"] = "1"

@@ -148,7 +148,9 @@ def build_plan(options: LaunchOptions) -> RunPlan:
                             for n in notes),
         key=secrets.token_bytes(KEY_BYTES))
     # the processes follow from the rest of the plan
-    plan = _with_peers(replace(plan, nodes=node_specs(plan, scenario_reference(opts.scenario))))
+    plan = replace(plan, nodes=node_specs(plan, scenario_reference(opts.scenario)))
+    plan = _with_peers(plan, secure=opts.secure is not None,
+                       one_host=not opts.host_members and opts.host is None)
     plan = replace(plan, host_members=placed_members(plan, dict(opts.host_members)))
     return _secured(_on_host(plan, opts.host), opts.secure)
 
@@ -248,18 +250,40 @@ def _user_profile() -> Path | None:
     return Path(value) if value else None
 
 
-def _with_peers(plan: RunPlan) -> RunPlan:
+def _with_peers(plan: RunPlan, secure: bool = False, one_host: bool = True) -> RunPlan:
     """``plan`` with a discovery profile when its processes are more than localhost
-    discovery reaches on its own (``system.discovery``); NoRun when the caller's
-    FASTRTPS_DEFAULT_PROFILES_FILE cannot be built on."""
-    from formation_ilc.system.discovery import needs_peers, peers_profile
+    discovery reaches on its own (``system.discovery``), and through the launcher's
+    discovery server from ``SERVER_FROM`` participants (or with ``--discovery server``) on
+    one host without ``--secure``; NoRun when the caller's FASTRTPS_DEFAULT_PROFILES_FILE
+    cannot be built on, or the server is asked for where it cannot serve."""
+    from formation_ilc.system.discovery import (
+        SERVER_FROM,
+        needs_peers,
+        peers_profile,
+        server_profile,
+    )
 
-    if (plan.discovery != "localhost" or plan.hosts is not None
+    if plan.discovery == "server":
+        why = ("--hosts (each network-namespace host finds its peers by unicast)"
+               if plan.hosts is not None else
+               "--secure (the server would run outside every enclave, and a secure "
+               "participant takes no discovery from it)" if secure else
+               "a run over several machines (it listens on 127.0.0.1)" if not one_host
+               else None)
+        if why is not None:
+            raise NoRun(f"argument --discovery server: not with {why}; leave --discovery "
+                        f"out")
+    elif (plan.discovery != "localhost" or plan.hosts is not None
             or not needs_peers(plan.participants)):
         return plan
+    elif plan.participants >= SERVER_FROM and one_host and not secure:
+        plan = replace(plan, discovery="server")
     base = _user_profile()
     try:
-        peers_profile(base, plan.domain, plan.participants)
+        if plan.discovery == "server":
+            server_profile(base, plan.participants)
+        else:
+            peers_profile(base, plan.domain, plan.participants)
     except ValueError as exc:
         raise NoRun(f"FASTRTPS_DEFAULT_PROFILES_FILE {exc}") from None
     return replace(plan, peers_profile=plan.out / "fastdds-discovery.xml", peers_base=base)

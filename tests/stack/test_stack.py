@@ -86,6 +86,22 @@ def test_lockstep_stack_equals_batch_simulator(ros_env, tmp_path, scenario, unce
         check_delay_histograms(tmp_path, sc)
 
 
+def test_through_the_launchers_discovery_server(ros_env, tmp_path):
+    """``--discovery server`` (the default from 64 processes: 100 robots, one process each,
+    start on 2 cores only so): every process a client of Fast DDS's discovery server, which
+    the launcher starts on 127.0.0.1 and stops. The run equals the batch simulator."""
+    trials = 4
+    res = launch(ros_env, tmp_path, "paper-triangle3", "--trials", str(trials), "--seed", "5",
+                 "--discovery", "server")
+    assert res.returncode == 0, res.stdout
+    assert "discovery: through Fast DDS's discovery server on 127.0.0.1:" in res.stdout
+    got = read_metrics(tmp_path / "metrics.csv")
+    ref = simulate(load_scenario("paper-triangle3").with_options(seed=5), trials=trials).metrics
+    np.testing.assert_allclose(got[:, 1:], ref[:, 1:], rtol=0, atol=TOL)
+    log = (tmp_path / "logs" / "discovery_server.log").read_text()
+    assert "Server is running" in log and "shut down" in log
+
+
 def assert_no_unexplained_drops(diag: dict, where: str = "") -> None:
     """No node dropped a message, except the copies of a sample the plant sent again (a
     command still due 2 s after the sample went out, on a loaded machine: the liveness

@@ -4,6 +4,7 @@ plans that use it (a team beyond what rmw_fastrtps's 32 localhost peers reach)."
 
 from __future__ import annotations
 
+import socket
 import xml.etree.ElementTree as ET
 
 import pytest
@@ -16,10 +17,14 @@ from formation_ilc.system.discovery import (
     MARGIN,
     MAX_IDS,
     RMW_PEER_IDS,
+    SERVER_FROM,
+    DiscoveryServer,
     discovery_port,
+    mutation_tries,
     needs_peers,
     peer_ids,
     peers_profile,
+    server_profile,
 )
 
 NS = {"p": PROFILES_NS}
@@ -113,3 +118,65 @@ def test_built_on_the_callers_profile_or_refused_when_it_is_none(tmp_path, monke
     with pytest.raises(NoRun) as info:
         plan(tmp_path, "team50")
     assert "FASTRTPS_DEFAULT_PROFILES_FILE" in str(info.value)
+
+
+def _builtin(text: str, tag: str) -> str | None:
+    root = ET.fromstring(text.split("\n", 2)[2])
+    part = [p for p in root.iter(f"{{{PROFILES_NS}}}participant")
+            if p.get("is_default_profile") == "true"]
+    return part[0].findtext(f"p:rtps/p:builtin/p:{tag}", namespaces=NS)
+
+
+def test_a_participant_tries_an_id_for_every_process_of_a_large_team():
+    """Fast DDS tries 100 ids beyond its first by default: a 102nd participant on one host
+    had no discovery port and was never found."""
+    assert mutation_tries(20) == 100
+    assert mutation_tries(103) == 103 + MARGIN
+    assert _builtin(peers_profile(None, 21, 103), "mutation_tries") == str(103 + MARGIN)
+    text = server_profile(None, 203)
+    assert _builtin(text, "mutation_tries") == str(203 + MARGIN)
+    assert peers(text) == []  # the server's clients list no peers
+
+
+def test_from_64_processes_the_launch_goes_through_a_discovery_server(tmp_path, monkeypatch):
+    monkeypatch.delenv("FASTRTPS_DEFAULT_PROFILES_FILE", raising=False)
+    monkeypatch.setenv("ROS_DISCOVERY_SERVER", "10.1.2.3:11811")  # a caller's, elsewhere
+    from formation_ilc.cli.supervisor import node_env
+
+    fifty = plan(tmp_path, "team50", "--links", "direct")
+    assert fifty.discovery == "localhost" and fifty.participants < SERVER_FROM
+    assert "ROS_DISCOVERY_SERVER" not in node_env(fifty)  # localhost means this machine
+    from formation_ilc.config.generate import team_yaml
+
+    (tmp_path / "team100.yaml").write_text(team_yaml(100))
+    hundred = plan(tmp_path, str(tmp_path / "team100.yaml"), "--links", "direct")
+    assert hundred.participants == 103 >= SERVER_FROM
+    assert hundred.discovery == "server"
+    hundred.write_peers_profile()
+    text = hundred.peers_profile.read_text()
+    assert peers(text) == [] and _builtin(text, "mutation_tries") == str(103 + MARGIN)
+    env = node_env(hundred)
+    assert env["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(hundred.peers_profile)
+    assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+    assert env["FASTDDS_BUILTIN_TRANSPORTS"] == "UDPv4"
+    assert "ROS_DISCOVERY_SERVER" not in env  # the launcher's own server's, once started
+    # asked for on a small team; refused where it cannot serve
+    assert plan(tmp_path, "paper-triangle3", "--discovery", "server").discovery == "server"
+    with pytest.raises(NoRun, match="--discovery server: not with --hosts"):
+        plan(tmp_path, "paper-triangle3", "--discovery", "server", "--hosts", "netns")
+
+
+def test_the_discovery_server_listens_on_the_loopback_and_stops(tmp_path):
+    server = DiscoveryServer(tmp_path / "server.log")
+    address = server.start()
+    try:
+        host, port = address.split(":")
+        assert host == "127.0.0.1"
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            with pytest.raises(OSError):
+                s.bind(("127.0.0.1", int(port)))  # the server holds it
+        assert server.proc is not None and server.proc.poll() is None
+    finally:
+        server.stop()
+    assert server.proc.returncode is not None
+    assert "Server is running" in (tmp_path / "server.log").read_text()
