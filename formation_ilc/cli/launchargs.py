@@ -262,12 +262,12 @@ def add_safety_arguments(p: argparse.ArgumentParser) -> None:
                         "0.25 on skid steer, whose wheels slip: docs/safety.md)")
     g.add_argument("--safety-learning", choices=LEARNING, default=None,
                    help="how the memory learns where the filter changed a command: damped "
-                        "(takes in a share, 0.15, of a barrier's change and all of a limit's; the "
-                        "default on two wheels), applied (from the command the robot really drove), split "
-                        "(from it where a limit clipped the command, not at "
-                        "all where a barrier moved it; the default on skid steer: husky, "
-                        "jackal), freeze (no learning at those samples), ignore (as if "
-                        "unchanged; winds up). docs/safety.md compares them")
+                        "(takes in a share, 0.15, of a barrier's change and all of a "
+                        "limit's; the default on two wheels), applied (from the command "
+                        "the robot really drove), split (from it where a limit clipped the "
+                        "command, not at all where a barrier moved it; the default on skid "
+                        "steer: husky, jackal), freeze (no learning at those samples), "
+                        "ignore (as if unchanged; winds up). docs/safety.md compares them")
     g.add_argument("--on-contact", choices=("stop", "abort", "continue"), default="stop",
                    help="with --plant physics or --physics-bases, when two robots touch "
                         "or one tilts past --tilt-limit: stop (default): stop the robots, "
