@@ -221,8 +221,7 @@ def _run_started(plan: RunPlan, env: dict[str, str],
     shm_before = fastdds_files()
     # our own monitor node joins the same domain: set before rclpy initialises
     os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
-    for name in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE",
-                 "FASTDDS_BUILTIN_TRANSPORTS"):
+    for name in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):
         if name in env:
             os.environ[name] = env[name]
     for note in plan.notes:

@@ -343,9 +343,10 @@ def node_env(plan: RunPlan) -> dict[str, str]:
         env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
         env.pop("ROS_DISCOVERY_SERVER", None)  # a server of the caller's may be elsewhere
     if plan.discovery == "server":
-        # the clients' shared-memory ports collide at this scale ("open_and_lock_file
-        # failed", 74 of 102 nodes found after 110 s with them; every one in 80 s without)
-        env.setdefault("FASTDDS_BUILTIN_TRANSPORTS", "UDPv4")
+        # rmw's LOCALHOST range would add shared memory, whose ports the clients took
+        # twice at this scale: the profile's one transport, UDP bound to 127.0.0.1, keeps
+        # every datagram on the loopback instead (system.discovery.server_profile)
+        env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SYSTEM_DEFAULT"
     if plan.peers_profile is not None:  # a secure run's profile, built on it, comes later
         env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(plan.peers_profile)
     env["PYTHONUNBUFFERED"] = "1"

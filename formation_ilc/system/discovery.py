@@ -57,7 +57,7 @@ from pathlib import Path
 
 from formation_ilc.system.ddsxml import Profiles, child
 
-__all__ = ["RMW_PEER_IDS", "MARGIN", "MAX_IDS", "SERVER_FROM", "SERVER_ENV",
+__all__ = ["RMW_PEER_IDS", "MARGIN", "MAX_IDS", "SERVER_FROM", "SERVER_ENV", "LOOPBACK_TRANSPORT",
            "discovery_port", "peer_ids", "needs_peers", "mutation_tries", "peers_profile",
            "server_profile", "DiscoveryServer", "ServerError"]
 
@@ -128,12 +128,35 @@ def peers_profile(base: Path | None, domain: int, participants: int) -> str:
                     f"this machine (formation_ilc/system/discovery.py)")
 
 
+#: the transport of a discovery server's clients: UDP on the loopback interface only
+LOOPBACK_TRANSPORT = "formation_ilc_loopback_udp"
+
+
 def server_profile(base: Path | None, participants: int) -> str:
     """A Fast DDS profiles file for the clients of a discovery server: ``base``'s profiles
-    (or none) with ``mutation_tries`` for ``participants`` on one host (the server's
-    address comes from ROS_DISCOVERY_SERVER). ValueError as :func:`peers_profile`."""
+    (or none) with ``mutation_tries`` for ``participants`` on one host, and one transport,
+    UDP bound to 127.0.0.1 (the server's address comes from ROS_DISCOVERY_SERVER).
+    rmw_fastrtps's LOCALHOST range would add shared memory, whose ports the clients of
+    one host took twice ("open_and_lock_file failed": 74 of 102 nodes found after 110 s),
+    so the clients run with the range SYSTEM_DEFAULT and this transport keeps every
+    datagram on the loopback. ValueError as :func:`peers_profile`."""
     doc = Profiles(base)
+    ns = doc.ns
     _builtin(doc, participants)
+    rtps = child(doc.default_participant("formation_ilc_discovery"), "rtps", ns)
+    descriptors = next((c for c in doc.profiles if c.tag.endswith("transport_descriptors")),
+                       None)
+    if descriptors is None:  # first: Fast DDS resolves a transport id as it reads
+        descriptors = ET.Element(f"{ns}transport_descriptors")
+        doc.profiles.insert(0, descriptors)
+    desc = ET.SubElement(descriptors, f"{ns}transport_descriptor")
+    ET.SubElement(desc, f"{ns}transport_id").text = LOOPBACK_TRANSPORT
+    ET.SubElement(desc, f"{ns}type").text = "UDPv4"
+    ET.SubElement(ET.SubElement(desc, f"{ns}interfaceWhiteList"),
+                  f"{ns}address").text = "127.0.0.1"
+    user = child(rtps, "userTransports", ns)
+    ET.SubElement(user, f"{ns}transport_id").text = LOOPBACK_TRANSPORT
+    child(rtps, "useBuiltinTransports", ns).text = "false"
     return doc.text(f"formation-ilc launch: a {participants}-process team on one host, "
                     f"every participant a client of the launcher's discovery server "
                     f"(formation_ilc/system/discovery.py)")

@@ -157,8 +157,13 @@ def test_from_64_processes_the_launch_goes_through_a_discovery_server(tmp_path, 
     assert peers(text) == [] and _builtin(text, "mutation_tries") == str(103 + MARGIN)
     env = node_env(hundred)
     assert env["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(hundred.peers_profile)
-    assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
-    assert env["FASTDDS_BUILTIN_TRANSPORTS"] == "UDPv4"
+    # no shared memory (rmw's LOCALHOST would add it): UDP bound to the loopback
+    assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "SYSTEM_DEFAULT"
+    root = ET.fromstring(text.split("\n", 2)[2])
+    desc = root.find("p:transport_descriptors/p:transport_descriptor", NS)
+    assert desc.findtext("p:type", namespaces=NS) == "UDPv4"
+    assert [a.text for a in desc.findall("p:interfaceWhiteList/p:address", NS)] == ["127.0.0.1"]
+    assert _builtin(text, "mutation_tries") and "useBuiltinTransports>false" in text
     assert "ROS_DISCOVERY_SERVER" not in env  # the launcher's own server's, once started
     # asked for on a small team; refused where it cannot serve
     assert plan(tmp_path, "paper-triangle3", "--discovery", "server").discovery == "server"
