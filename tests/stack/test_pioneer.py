@@ -95,7 +95,12 @@ def test_team_learns_through_bridges_and_fake_drivers(ros_env, tmp_path):
         assert b["clipped"] == 0, b["clipped"]
         for what in ("missed", "watchdog_zero", "stale_odometry"):
             assert b[what] <= rare, (what, b[what])
-        assert sum(b["dropped"].values()) == 0
+        # a command the robot sent so late that the bridge was already driving it back
+        # ("a command while return": refused, as it must be; 1 each on two bridges in a
+        # fresh-clone CI of 29 Nov), rarely; nothing else dropped
+        dropped = dict(b["dropped"])
+        assert dropped.pop("unexpected", 0) <= rare, b["dropped"]
+        assert sum(dropped.values()) == 0, b["dropped"]
         # every sample of every trial was commanded, on direct links measured by eq. (11)
         r = diag[f"robot_{i}"]
         assert r["commands"] >= 0.97 * TRIALS * sc.samples, r["commands"]
