@@ -780,11 +780,12 @@ def repair(src: str | Path, dst: str | Path, report: ReadReport | None = None) -
 
 
 def repair_with(src: str | Path, dst: str | Path, report: ReadReport | None = None,
-                rebuild: Callable[[Repairing], list[str]] | None = None
+                rebuild: Callable[[Repairing], list[str]] | None = None,
+                peek: Callable[[str, bytes], None] | None = None
                 ) -> tuple[int, list[str]]:
     """Copy everything that reads back from ``src`` into a complete file ``dst``
     (``report`` gets what did not); ``rebuild`` then puts back what it can (its notes are
-    returned).
+    returned). ``peek(topic, data)`` sees every message copied, before ``rebuild``.
 
     Returns (messages kept, notes). ``src`` is not changed. The copy is written beside
     ``dst`` and moved into place once complete; RepairError, with nothing written, when no
@@ -826,6 +827,8 @@ def repair_with(src: str | Path, dst: str | Path, report: ReadReport | None = No
                     w.add_message(cid[rec.channel_id], rec.log_time, rec.data,
                                   rec.publish_time, rec.sequence)
                     state.topics.add(names[rec.channel_id])
+                    if peek is not None:
+                        peek(names[rec.channel_id], rec.data)
                     if state.first_log_time is None or rec.log_time < state.first_log_time:
                         state.first_log_time = rec.log_time
                     n += 1

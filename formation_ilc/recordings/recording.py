@@ -56,6 +56,7 @@ from formation_ilc.recordings.mcap_io import (
     FileInfo,
     RawMessage,
     ReadReport,
+    RepairError,
     Repairing,
     RosMcapWriter,
     qos_yaml,
@@ -663,7 +664,20 @@ def repair_run(src: Path, dst: Path, report: ReadReport | None = None,
     """``mcap_io.repair_with`` for a recording of a run: a complete copy of what reads back,
     and the run configuration's message put back when the damage took it (from a copy in
     the file's metadata, else from ``fallback``, a run folder's ``config.json``), with its
-    metadata record. Returns (messages kept, what was rebuilt)."""
+    metadata record. Returns (messages kept, what was rebuilt). RepairError, with nothing
+    written, when ``fallback`` is another run's than the recording's events (as ``analyze``
+    refuses it)."""
+    runs: set[str] = set()
+
+    def peek(topic: str, data: bytes) -> None:
+        """The run ids of the recording's trial events."""
+        if topic.endswith("/" + ms.TRIAL_EVENTS):
+            try:
+                run = wire.json_object(wire.read_string(data), ("event",)).get("run")
+            except ValueError:
+                return
+            if isinstance(run, str) and run:
+                runs.add(run)
 
     def rebuild(st: Repairing) -> list[str]:
         if any(t.endswith("/" + ms.CONFIG) for t in st.topics):
@@ -679,6 +693,11 @@ def repair_run(src: Path, dst: Path, report: ReadReport | None = None,
                      "the file's metadata")
             break
         if found is None and fallback is not None:
+            if runs and fallback.get("run_id") not in runs:
+                raise RepairError(f"the run folder's configuration is of run "
+                                  f"{fallback.get('run_id')}, the recording's events of run "
+                                  f"{', '.join(sorted(runs))}: give --run-dir the folder "
+                                  f"of this recording's run; nothing written")
             found = (fallback, ms.absolute(ms.CONFIG, str(fallback.get("namespace")
                                                             or ms.NAMESPACE)),
                      None, "the run's folder (config.json)")
@@ -699,7 +718,7 @@ def repair_run(src: Path, dst: Path, report: ReadReport | None = None,
             st.writer.add_metadata(META_NAME, {**meta, "topic": topic})
         return [f"the run configuration's message on {topic} was lost: rebuilt from {where}"]
 
-    return repair_with(src, dst, report, rebuild)
+    return repair_with(src, dst, report, rebuild, peek)
 
 
 def _same_run(part: Path, config: dict[str, Any], msg: RawMessage,

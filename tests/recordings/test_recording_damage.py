@@ -452,3 +452,17 @@ def test_a_recording_without_any_copy_of_its_configuration_is_rebuilt_from_the_r
     assert main(["analyze", str(with_run), "--out", str(tmp_path / "an3"), "--no-plots",
                  "--run-dir", str(other)]) == 2
     assert "the run folder's configuration is of run rsomeoneelse" in capsys.readouterr().err
+    # and so does mcap-repair (it took any folder's configuration before), writing nothing
+    fixed2 = tmp_path / "fixed2.mcap"
+    assert main(["mcap-repair", str(with_run), "-o", str(fixed2), "--run-dir",
+                 str(other)]) == 2
+    err = capsys.readouterr().err
+    assert "the run folder's configuration is of run rsomeoneelse" in err, err
+    assert not fixed2.exists() and not list(tmp_path.glob(".fixed2*"))
+    same = tmp_path / "same"
+    same.mkdir()
+    (same / "config.json").write_text(json.dumps(conf | {"run_id": conf.get("run_id")
+                                                          or "r1"}))
+    assert main(["mcap-repair", str(with_run), "-o", str(fixed2), "--run-dir",
+                 str(same)]) == 0
+    assert len(load_recording(fixed2).metrics) == 4
