@@ -480,6 +480,12 @@ def scale_run(n: int, args: argparse.Namespace, tmp: Path, dom: int) -> dict:
             "cpu_kind": cpu_kind}
 
 
+def _num(x: float | None, digits: int) -> str:
+    """``x`` to ``digits`` decimals, or "n/a" for a figure the run did not give (a start-up
+    too quick to be reported in steps leaves no time for every node found)."""
+    return "n/a" if x is None else f"{x:.{digits}f}"
+
+
 def scale_curve(args: argparse.Namespace, tmp: Path, dom: int) -> None:
     print(f"load before: {Path('/proc/loadavg').read_text().split()[:3]}"
           f"{'; safety filter on' if args.scale_safety else ''}", flush=True)
@@ -493,10 +499,10 @@ def scale_curve(args: argparse.Namespace, tmp: Path, dom: int) -> None:
         rows.append(r)
         bare = max(r["kinds"].get("bare node", [float("nan")]))
         print(f"{n} robots, {r['participants']} participants: first trial "
-              f"{r['first']:.1f} s after the launch; every node found {r['found']:.1f} s, "
-              f"ready {r['ready']:.1f} s (launcher's clock); RSS in all "
-              f"{r['total_mb']:.0f} MB; CPU {r['cpu_ms']:.2f} ms per sample; "
-              f"missed {r['missed']} of {r['robot_samples']:.0f}", flush=True)
+              f"{_num(r['first'], 1)} s after the launch; every node found "
+              f"{_num(r['found'], 1)} s, ready {_num(r['ready'], 1)} s (launcher's clock); "
+              f"RSS in all {r['total_mb']:.0f} MB; CPU {_num(r['cpu_ms'], 2)} ms per "
+              f"sample; missed {r['missed']} of {r['robot_samples']:.0f}", flush=True)
         t = r["timing"]
         if args.scale_mode == "realtime":
             worst = sorted(r["missed_by"].items(), key=lambda kv: -kv[1])[:8]
@@ -521,9 +527,10 @@ def scale_curve(args: argparse.Namespace, tmp: Path, dom: int) -> None:
     for r in rows:
         bare = max(r["kinds"].get("bare node", [float("nan")]))
         robot = max(r["kinds"].get("robot", [float("nan")]))
-        print(f"| {r['robots']} | {r['participants']} | {r['first']:.1f} | {r['found']:.1f} "
-              f"/ {r['ready']:.1f} | {r['total_mb']:.0f} | {robot / bare:.2f} | "
-              f"{r['cpu_ms']:.2f} | {r['missed']} of {r['robot_samples']:.0f} |", flush=True)
+        print(f"| {r['robots']} | {r['participants']} | {_num(r['first'], 1)} | "
+              f"{_num(r['found'], 1)} / {_num(r['ready'], 1)} | {r['total_mb']:.0f} | "
+              f"{robot / bare:.2f} | {_num(r['cpu_ms'], 2)} | {r['missed']} of "
+              f"{r['robot_samples']:.0f} |", flush=True)
 
 
 def main() -> int:
