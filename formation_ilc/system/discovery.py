@@ -192,6 +192,18 @@ def _server_env() -> dict[str, str]:
     return env
 
 
+def _die_with_launcher() -> None:
+    """In the server's process, before it runs: SIGTERM when the launcher dies, however it
+    ends (``PR_SET_PDEATHSIG``; ``system.lifetime`` does the same for every node)."""
+    import ctypes
+    import signal
+
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM))
+    except (OSError, AttributeError):
+        pass
+
+
 def _free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
@@ -229,7 +241,8 @@ class DiscoveryServer:
                 self.proc = subprocess.Popen(
                     [str(binary), "-i", "0", "-l", "127.0.0.1", "-p", str(port)],
                     env=_server_env(), stdout=out, stderr=subprocess.STDOUT,
-                    stdin=subprocess.DEVNULL, start_new_session=True)
+                    stdin=subprocess.DEVNULL, start_new_session=True,
+                    preexec_fn=_die_with_launcher)
             except OSError as exc:
                 raise ServerError(f"{binary}: {exc.strerror or exc}") from None
         deadline = time.monotonic() + self.START_S

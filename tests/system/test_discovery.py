@@ -4,6 +4,7 @@ plans that use it (a team beyond what rmw_fastrtps's 32 localhost peers reach)."
 
 from __future__ import annotations
 
+import os
 import socket
 import xml.etree.ElementTree as ET
 
@@ -183,5 +184,35 @@ def test_the_discovery_server_listens_on_the_loopback_and_stops(tmp_path):
         assert server.proc is not None and server.proc.poll() is None
     finally:
         server.stop()
-    assert server.proc.returncode is not None
-    assert "Server is running" in (tmp_path / "server.log").read_text()
+    assert server.proc.returncode is not None  # stopped, not left behind
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", int(port)))  # and its port is free again
+
+
+def test_the_discovery_server_ends_with_a_launcher_killed_outright(tmp_path):
+    """A launcher that dies by SIGKILL cannot stop its server: the server ends with it
+    (PR_SET_PDEATHSIG), as every node does."""
+    import subprocess
+    import sys
+    import time
+
+    code = ("import sys, time; from pathlib import Path; "
+            "from formation_ilc.system.discovery import DiscoveryServer; "
+            "s = DiscoveryServer(Path(sys.argv[1])); s.start(); "
+            "print(s.proc.pid, flush=True); time.sleep(60)")
+    launcher = subprocess.Popen([sys.executable, "-c", code, str(tmp_path / "server.log")],
+                                stdout=subprocess.PIPE, text=True)
+    try:
+        pid = int(launcher.stdout.readline())
+        launcher.kill()
+        launcher.wait()
+        deadline = time.monotonic() + 20
+        while os.path.exists(f"/proc/{pid}") and time.monotonic() < deadline:
+            if open(f"/proc/{pid}/stat").read().split()[2] == "Z":
+                break  # ended; a zombie until its new parent reaps it
+            time.sleep(0.05)
+        alive = (os.path.exists(f"/proc/{pid}")
+                 and open(f"/proc/{pid}/stat").read().split()[2] != "Z")
+        assert not alive, f"the server {pid} outlived its launcher"
+    finally:
+        launcher.kill()
