@@ -485,18 +485,10 @@ class _RunReader:
     def rebuild(self, conf: dict[str, Any]) -> None:
         """No copy of the configuration read back: take ``conf`` (a run folder's), once
         the events held say it is their run's; RecordingError if they are another's."""
-        runs = set()
-        for m in self.early:
-            if m.topic.endswith("/" + ms.TRIAL_EVENTS):
-                try:
-                    runs.add(str(self.text(m, ("event",)).get("run", "")))
-                except ValueError:
-                    pass
-        runs.discard("")
-        if runs and conf.get("run_id") not in runs:
-            raise RecordingError(f"the run folder's configuration is of run "
-                                 f"{conf.get('run_id')}, the recording's events of run "
-                                 f"{', '.join(sorted(runs))}")
+        other = another_run(conf, (event_run(m.data) for m in self.early
+                                   if m.topic.endswith("/" + ms.TRIAL_EVENTS)))
+        if other is not None:
+            raise RecordingError(other)
         ns = str(conf.get("namespace") or ms.NAMESPACE)
         try:
             self.setup(conf, ms.absolute(ms.CONFIG, ns))
@@ -667,17 +659,12 @@ def repair_run(src: Path, dst: Path, report: ReadReport | None = None,
     metadata record. Returns (messages kept, what was rebuilt). RepairError, with nothing
     written, when ``fallback`` is another run's than the recording's events (as ``analyze``
     refuses it)."""
-    runs: set[str] = set()
+    runs: list[str] = []
 
     def peek(topic: str, data: bytes) -> None:
         """The run ids of the recording's trial events."""
         if topic.endswith("/" + ms.TRIAL_EVENTS):
-            try:
-                run = wire.json_object(wire.read_string(data), ("event",)).get("run")
-            except ValueError:
-                return
-            if isinstance(run, str) and run:
-                runs.add(run)
+            runs.append(event_run(data))
 
     def rebuild(st: Repairing) -> list[str]:
         if any(t.endswith("/" + ms.CONFIG) for t in st.topics):
@@ -693,11 +680,10 @@ def repair_run(src: Path, dst: Path, report: ReadReport | None = None,
                      "the file's metadata")
             break
         if found is None and fallback is not None:
-            if runs and fallback.get("run_id") not in runs:
-                raise RepairError(f"the run folder's configuration is of run "
-                                  f"{fallback.get('run_id')}, the recording's events of run "
-                                  f"{', '.join(sorted(runs))}: give --run-dir the folder "
-                                  f"of this recording's run; nothing written")
+            other = another_run(fallback, runs)
+            if other is not None:
+                raise RepairError(f"{other}: give --run-dir the folder of this "
+                                  f"recording's run; nothing written")
             found = (fallback, ms.absolute(ms.CONFIG, str(fallback.get("namespace")
                                                             or ms.NAMESPACE)),
                      None, "the run's folder (config.json)")
@@ -719,6 +705,25 @@ def repair_run(src: Path, dst: Path, report: ReadReport | None = None,
         return [f"the run configuration's message on {topic} was lost: rebuilt from {where}"]
 
     return repair_with(src, dst, report, rebuild, peek)
+
+
+def event_run(data: bytes) -> str:
+    """The run id a trial event (its bytes) carries; "" for none, or an event that does
+    not decode."""
+    try:
+        return str(wire.json_object(wire.read_string(data), ("event",)).get("run", ""))
+    except ValueError:
+        return ""
+
+
+def another_run(conf: Mapping[str, Any], runs: Iterable[str]) -> str | None:
+    """The line that refuses a run folder's configuration ``conf`` of another run than the
+    recording's events (their run ids ``runs``), or None (theirs, or no event says)."""
+    said = set(runs) - {""}
+    if said and conf.get("run_id") not in said:
+        return (f"the run folder's configuration is of run {conf.get('run_id')}, the "
+                f"recording's events of run {', '.join(sorted(said))}")
+    return None
 
 
 def _same_run(part: Path, config: dict[str, Any], msg: RawMessage,
