@@ -175,36 +175,24 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
     if plan.secure is not None:
         plan.secure.write_profile()
     env = node_env(plan)
-    server = _discovery_server(plan, env)
-    if server is False:
-        return 2
+    server = None
+    if plan.discovery == "server":  # every process a client, the monitor too
+        from formation_ilc.system.discovery import DiscoveryServer, ServerError
+
+        server = DiscoveryServer(plan.out / "logs" / "discovery_server.log")
+        try:
+            env[SERVER_ENV] = server.start()
+        except ServerError as exc:
+            print(f"error: --discovery server: {exc}", file=sys.stderr)
+            return 2
+        print(f"discovery: through Fast DDS's discovery server on {env[SERVER_ENV]} "
+              f"({plan.participants} participants)", flush=True)
     try:
         return _run_started(plan, env, place)
     finally:
         if server is not None:
             server.stop()
             os.environ.pop(SERVER_ENV, None)
-
-
-def _discovery_server(plan: RunPlan, env: dict[str, str]) -> Any:
-    """With ``discovery`` "server": Fast DDS's discovery server started on 127.0.0.1, its
-    address in ``env`` and in this process's environment (the monitor is a client too);
-    None without; False when it could not start (said on stderr)."""
-    if plan.discovery != "server":
-        if plan.discovery == "localhost":  # the monitor, like the nodes (node_env)
-            os.environ.pop(SERVER_ENV, None)
-        return None
-    from formation_ilc.system.discovery import DiscoveryServer, ServerError
-
-    server = DiscoveryServer(plan.out / "logs" / "discovery_server.log")
-    try:
-        env[SERVER_ENV] = os.environ[SERVER_ENV] = server.start()
-    except ServerError as exc:
-        print(f"error: --discovery server: {exc}", file=sys.stderr)
-        return False
-    print(f"discovery: through Fast DDS's discovery server on {env[SERVER_ENV]} "
-          f"({plan.participants} participants)", flush=True)
-    return server
 
 
 def _run_started(plan: RunPlan, env: dict[str, str],
@@ -224,6 +212,11 @@ def _run_started(plan: RunPlan, env: dict[str, str],
     for name in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):
         if name in env:
             os.environ[name] = env[name]
+    # the discovery server the nodes use, or none (node_env drops a caller's on localhost)
+    if SERVER_ENV in env:
+        os.environ[SERVER_ENV] = env[SERVER_ENV]
+    else:
+        os.environ.pop(SERVER_ENV, None)
     for note in plan.notes:
         print(note, flush=True)
     print(plan.banner(), flush=True)

@@ -340,13 +340,13 @@ def node_env(plan: RunPlan) -> dict[str, str]:
     env = dict(os.environ)
     env["ROS_DOMAIN_ID"] = str(plan.domain)
     if plan.discovery in ("localhost", "server"):  # (the server's address: execute)
-        env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+        # with the server, rmw's LOCALHOST range would add shared memory, whose ports the
+        # clients took twice at this scale: the profile's one transport, UDP bound to
+        # 127.0.0.1, keeps every datagram on the loopback instead
+        # (system.discovery.server_profile)
+        env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = ("LOCALHOST" if plan.discovery == "localhost"
+                                                else "SYSTEM_DEFAULT")
         env.pop("ROS_DISCOVERY_SERVER", None)  # a server of the caller's may be elsewhere
-    if plan.discovery == "server":
-        # rmw's LOCALHOST range would add shared memory, whose ports the clients took
-        # twice at this scale: the profile's one transport, UDP bound to 127.0.0.1, keeps
-        # every datagram on the loopback instead (system.discovery.server_profile)
-        env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SYSTEM_DEFAULT"
     if plan.peers_profile is not None:  # a secure run's profile, built on it, comes later
         env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(plan.peers_profile)
     env["PYTHONUNBUFFERED"] = "1"

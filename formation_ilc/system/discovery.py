@@ -55,7 +55,7 @@ import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from formation_ilc.system.ddsxml import Profiles, child
+from formation_ilc.system.ddsxml import Profiles, child, local
 
 __all__ = ["RMW_PEER_IDS", "MARGIN", "MAX_IDS", "SERVER_FROM", "SERVER_ENV", "LOOPBACK_TRANSPORT",
            "discovery_port", "peer_ids", "needs_peers", "mutation_tries", "peers_profile",
@@ -102,13 +102,13 @@ def mutation_tries(participants: int) -> int:
     return max(FASTDDS_MUTATION_TRIES, participants + MARGIN)
 
 
-def _builtin(doc: Profiles, participants: int) -> ET.Element:
-    """The default participant profile's ``builtin``, with ``mutation_tries`` set."""
-    ns = doc.ns
-    part = doc.default_participant("formation_ilc_discovery")
-    builtin = child(child(part, "rtps", ns), "builtin", ns)
-    child(builtin, "mutation_tries", ns).text = str(mutation_tries(participants))
-    return builtin
+def _rtps(doc: Profiles, participants: int) -> ET.Element:
+    """The default participant profile's ``rtps``, its ``builtin`` with ``mutation_tries``
+    for ``participants`` on one host."""
+    rtps = child(doc.default_participant("formation_ilc_discovery"), "rtps", doc.ns)
+    child(child(rtps, "builtin", doc.ns), "mutation_tries", doc.ns).text = str(
+        mutation_tries(participants))
+    return rtps
 
 
 def peers_profile(base: Path | None, domain: int, participants: int) -> str:
@@ -118,7 +118,7 @@ def peers_profile(base: Path | None, domain: int, participants: int) -> str:
     them. ValueError names a ``base`` that is not a profiles file."""
     doc = Profiles(base)
     ns = doc.ns
-    peers = child(_builtin(doc, participants), "initialPeersList", ns)
+    peers = child(child(_rtps(doc, participants), "builtin", ns), "initialPeersList", ns)
     for i in range(peer_ids(participants)):
         udp = ET.SubElement(ET.SubElement(peers, f"{ns}locator"), f"{ns}udpv4")
         ET.SubElement(udp, f"{ns}address").text = "127.0.0.1"
@@ -142,9 +142,8 @@ def server_profile(base: Path | None, participants: int) -> str:
     datagram on the loopback. ValueError as :func:`peers_profile`."""
     doc = Profiles(base)
     ns = doc.ns
-    _builtin(doc, participants)
-    rtps = child(doc.default_participant("formation_ilc_discovery"), "rtps", ns)
-    descriptors = next((c for c in doc.profiles if c.tag.endswith("transport_descriptors")),
+    rtps = _rtps(doc, participants)
+    descriptors = next((c for c in doc.profiles if local(c.tag) == "transport_descriptors"),
                        None)
     if descriptors is None:  # first: Fast DDS resolves a transport id as it reads
         descriptors = ET.Element(f"{ns}transport_descriptors")
