@@ -4,7 +4,9 @@ plans that use it (a team beyond what rmw_fastrtps's 32 localhost peers reach)."
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import socket
 import xml.etree.ElementTree as ET
 
@@ -202,6 +204,7 @@ def test_the_discovery_server_ends_with_a_launcher_killed_outright(tmp_path):
             "print(s.proc.pid, flush=True); time.sleep(60)")
     launcher = subprocess.Popen([sys.executable, "-c", code, str(tmp_path / "server.log")],
                                 stdout=subprocess.PIPE, text=True)
+    pid = None
     try:
         pid = int(launcher.stdout.readline())
         launcher.kill()
@@ -216,3 +219,7 @@ def test_the_discovery_server_ends_with_a_launcher_killed_outright(tmp_path):
         assert not alive, f"the server {pid} outlived its launcher"
     finally:
         launcher.kill()
+        launcher.wait()
+        if pid is not None:  # a server that outlived it is stopped here all the same
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
