@@ -3,6 +3,7 @@
 
     .venv/bin/python scripts/families_study.py [--seeds 10] [--noisy-seeds 4] [--trials 100]
                                               [--first-seed 0] [--no-write]
+    .venv/bin/python scripts/families_study.py --physics crossing-0 swapping-5 [--trials 40]
 
 For each family of ``studies.families`` (crossing, following, swapping) and each seed, the
 member that fits a Pioneer 3-DX (``check --base p3dx`` passes) learns from u = 0 in the
@@ -15,6 +16,12 @@ wide again). Writes docs/figures/families.json (every curve) and families.png (e
 filter changes per trial, each family's members). About 75 s on 2 cores. ``--first-seed``
 starts the seeds elsewhere: members no choice of the filter's was measured on (a held-out
 check of a change tuned on the default seeds; it writes nothing unless asked).
+
+``--physics KIND-SEED ...``: those members cold on the physics plant instead (PyBullet, one
+process, lockstep, no delay, exact poses, P3-DX bodies, the filter with ``damped``), beside
+the kinematic run without the filter: one row each with contacts, the largest tilt, the
+least clearance of the bodies, the true error at the first and last trial and the
+filter's changes in trial 1 and the last. A minute or two a member.
 """
 
 from __future__ import annotations
@@ -57,6 +64,27 @@ def member(kind: str, seed: int, noise: bool, trials: int) -> dict:
             "free_overlaps": int(sum(c < 0 for c in free_clear))}
 
 
+def on_physics(name: str, trials: int) -> str:
+    """One row of ``--physics``: member ``name`` (KIND-SEED) cold on the physics plant."""
+    from formation_ilc.model.physics import MODELS
+    from formation_ilc.studies.physics import run_physics
+
+    kind, _, seed = name.rpartition("-")
+    if kind not in KINDS or not seed.isdigit():
+        raise SystemExit(f"--physics: {name!r} is not KIND-SEED with KIND one of "
+                         f"{', '.join(KINDS)}")
+    sc = family_scenario(kind, int(seed), trials=trials).with_options(delay=False)
+    spec = spec_of(SafetySettings("p3dx", body_limits("p3dx"), default_margin("p3dx")),
+                   sc.dt, sc.uncertainty)
+    res = run_physics(sc, MODELS["p3dx"], trials, safety=spec)
+    true = res.column("true_max_position_error")
+    free = simulate(sc, trials, plant="arc").column("max_position_error")
+    contacts = sum(len(c) for c in res.contacts)
+    return (f"{name:<14} {contacts:>8} {np.degrees(max(res.tilt)):>7.2f} deg "
+            f"{min(c.value for c in res.clearance):>7.3f} m {true[0]:>7.3f} / {true[-1]:.3f} m "
+            f"{free[-1]:>9.3f} m {res.filtered[min(1, trials - 1)]:>8} / {res.filtered[-1]}")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -66,7 +94,18 @@ def main() -> int:
     ap.add_argument("--first-seed", type=int, default=0,
                     help="the first seed of each family (default 0, the documented members)")
     ap.add_argument("--no-write", action="store_true", help="print only")
+    ap.add_argument("--physics", nargs="+", metavar="KIND-SEED",
+                    help="run these members on the physics plant instead (e.g. crossing-0; "
+                         "--trials then defaults to 40)")
     args = ap.parse_args()
+    if args.physics:
+        trials = args.trials if "--trials" in sys.argv else 40
+        print(f"{'member':<14} {'contacts':>8} {'tilt':>11} {'least':>9} "
+              f"{'true error, first / last':>24} {'free, last':>11} "
+              f"{'changed, trial 1 / last':>24}")
+        for name in args.physics:
+            print(on_physics(name, trials), flush=True)
+        return 0
     rows = []
     print(f"{'member':<16} {'n':>2} {'free':>7} {'filtered':>9} {'ratio':>6} {'within 2x':>9} "
           f"{'overlaps':>8} {'least':>6} {'changed, first / last 10':>25}")

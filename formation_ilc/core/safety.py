@@ -58,6 +58,15 @@ from, ``freeze_flagged`` restores it where nothing may be learned:
   on the acceleration bound trial after trial (docs/safety.md measured both on the
   generated families).
 
+With ``damped``, a robot whose filter changed any of its commands in a trial learns that
+trial through a Q-filter (``smooth_learning``): the step its memory takes (the learned
+memory less the old one) is smoothed along the trial by a binomial kernel of standard
+deviation Q_SIGMA seconds. The filter's trims switch on and off from sample to sample;
+the paper's law carries that roughness into the memory and, on the generated families,
+either unlearns it slowly or lets it grow into a heading oscillation (a period of about
+2 s) that keeps the filter busy. A trial the filter left alone is learned by the paper's
+law unchanged, so the law is the paper's again once the filter falls idle.
+
 docs/safety.md has the measurements behind the default (``config.safety.default_learning``):
 ``damped`` for two-wheel bodies, where it learned the paper's triangle and the generated
 families best; ``split`` for skid-steer bases (Husky, Jackal), whose acceleration limits
@@ -79,13 +88,16 @@ from formation_ilc.core.limits import Limits
 
 __all__ = ["SafetySpec", "LEARNING", "CHANGED_LIMITS", "CHANGED_BARRIER", "INFEASIBLE",
            "filter_command", "filter_team", "motion", "learn_base", "DAMPING",
-           "freeze_flagged", "learning_code", "PARAMS", "MAX_DISCS"]
+           "freeze_flagged", "smooth_learning", "Q_SIGMA", "learning_code", "PARAMS",
+           "MAX_DISCS"]
 
 #: how the memory learns at samples the filter changed
 LEARNING = ("applied", "freeze", "ignore", "split", "damped")
 APPLIED, FREEZE, IGNORE, SPLIT, DAMPED = 0, 1, 2, 3, 4
 #: ``damped``: the share of a barrier's change the memory takes in (a limit's, in full)
 DAMPING = 0.15
+#: ``damped``: the Q-filter's standard deviation [s] (``smooth_learning``; 0: none)
+Q_SIGMA = 1.2
 
 #: flags of one filtered command (bitwise or)
 CHANGED_LIMITS = 1     # the learned command left the box of the base's limits
@@ -686,3 +698,45 @@ def freeze_flagged(mode: int, memory: NDArray[np.float64], flags: NDArray[np.int
             if (mode == FREEZE and f != 0) or (mode == SPLIT and f & CHANGED_BARRIER):
                 learned[r, t, 0] = memory[r, t, 0]
                 learned[r, t, 1] = memory[r, t, 1]
+
+
+@njit(cache=True)
+def smooth_learning(mode: int, dt: float, memory: NDArray[np.float64],
+                    flags: NDArray[np.int64], learned: NDArray[np.float64]) -> None:
+    """``damped``'s Q-filter, in place on ``learned`` (R, T, 2): for each robot the filter
+    changed a command of (a flag in ``flags`` (R, T)), the step ``learned - memory`` is
+    smoothed along the trial by a binomial kernel of standard deviation Q_SIGMA [s] at
+    sample time ``dt`` (its order the nearest even one to 4 (Q_SIGMA / dt)^2), cut at
+    three standard deviations and weighed again at the trial's ends. Its weights are
+    built by multiplications and divisions only: the same bits compiled and interpreted.
+    """
+    if mode != DAMPED or Q_SIGMA <= 0.0:
+        return
+    s = Q_SIGMA / dt
+    mid = max(1, int(2.0 * s * s + 0.5))  # half the kernel's order
+    half = min(mid, int(3.0 * s) + 1)
+    w = np.empty(2 * half + 1)
+    w[half] = 1.0
+    for j in range(1, half + 1):  # C(2 mid, mid + j) / C(2 mid, mid)
+        w[half + j] = w[half + j - 1] * (mid - j + 1) / (mid + j)
+        w[half - j] = w[half + j]
+    n_t = memory.shape[1]
+    step = np.empty(n_t)
+    for r in range(memory.shape[0]):
+        changed = False
+        for t in range(n_t):
+            if flags[r, t] != 0:
+                changed = True
+                break
+        if not changed:
+            continue
+        for c in range(2):
+            for t in range(n_t):
+                step[t] = learned[r, t, c] - memory[r, t, c]
+            for t in range(n_t):
+                acc = 0.0
+                total = 0.0
+                for j in range(max(-half, -t), min(half, n_t - 1 - t) + 1):
+                    acc += w[half + j] * step[t + j]
+                    total += w[half + j]
+                learned[r, t, c] = memory[r, t, c] + acc / total

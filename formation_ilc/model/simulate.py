@@ -34,6 +34,7 @@ from formation_ilc.core.safety import (
     filter_team,
     freeze_flagged,
     learn_base,
+    smooth_learning,
     learning_code,
 )
 from formation_ilc.core.uncertainty import (
@@ -261,6 +262,7 @@ def _trial(law: int, memory_mode: int, heading: int, plant: int, dt: float,
     learn_trig(law, memory_mode, sf[7], u, eta, eta_d, nb_full, src, weight, eta_d, leader,
                gain, trig, next_memory)
     freeze_flagged(mode, memory, sf[3], next_memory)
+    smooth_learning(mode, dt, memory, sf[3], next_memory)
     changed = 0
     for r in range(n):
         for t in range(n_t):

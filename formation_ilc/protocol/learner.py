@@ -60,6 +60,7 @@ from formation_ilc.core.safety import (
     filter_command,
     freeze_flagged,
     learn_base,
+    smooth_learning,
     learning_code,
     motion,
 )
@@ -580,6 +581,7 @@ class RobotLearner:
               pb.heading, self.next_memory)
         if self.safety is not None:
             freeze_flagged(self.safety_mode, self.memory, self.flags, self.next_memory)
+            smooth_learning(self.safety_mode, pb.dt, self.memory, self.flags, self.next_memory)
         self.memory, self.next_memory = self.next_memory, self.memory
         self.learned = k
         self.iterations += 1

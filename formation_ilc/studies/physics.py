@@ -29,6 +29,7 @@ from formation_ilc.core.safety import (
     filter_team,
     freeze_flagged,
     learn_base,
+    smooth_learning,
     learning_code,
 )
 from formation_ilc.model.footprint import Clearance, trial_clearance
@@ -139,6 +140,7 @@ def run_physics(sc: Scenario, model: RobotModel, trials: int, *,
                       pb.eta_d, pb.leader, pb.gain, pb.heading, nxt)
             if safety is not None:
                 freeze_flagged.jit(mode, mem, flags, nxt)
+                smooth_learning.jit(mode, pb.dt, mem, flags, nxt)
             mem, nxt = nxt, mem
             trial_errors.jit(eta, xi, pb.eta_d, pb.src, pb.weight, row)
             contacts = world.contacts()

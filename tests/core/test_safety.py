@@ -21,11 +21,13 @@ from formation_ilc.core.safety import (
     DAMPING,
     INFEASIBLE,
     PARAMS,
+    Q_SIGMA,
     SafetySpec,
     filter_command,
     freeze_flagged,
     learn_base,
     motion,
+    smooth_learning,
 )
 from formation_ilc.model.footprint import Footprint, footprint_of, trial_clearance
 from formation_ilc.model.safety import desired_clearance, spec_for
@@ -225,6 +227,54 @@ def test_learn_base_modes():
     flags = np.array([[0, CHANGED_BARRIER | CHANGED_LIMITS, 0]])
     learn_base(4, mem, nominal, applied, flags, out)
     np.testing.assert_allclose(out[0, 1], DAMPING * (0.25 - 1.0))
+
+
+def test_damped_smooths_the_step_of_a_robot_the_filter_changed():
+    """The Q-filter of ``damped``: a robot's step is smoothed along the trial only in a
+    trial the filter changed one of its commands; a smooth step passes, a step that flips
+    from sample to sample (what the filter's trims leave in the memory) is taken out; the
+    compiled and the interpreted kernel give the same bits (the robot node runs the
+    interpreted one, the batch simulator the compiled one)."""
+    dt, n_t = 0.2, 150
+    mem = np.random.default_rng(3).normal(size=(3, n_t, 2))
+    t = np.arange(n_t)
+    step = np.zeros((3, n_t, 2))
+    step[:, :, 0] = 0.3 + 0.01 * t[None, :] / n_t           # smooth
+    step[:, :, 1] = np.where(t % 2 == 0, 0.2, -0.2)[None, :]  # flips every sample
+    flags = np.zeros((3, n_t), dtype=np.int64)
+    flags[1, 40] = CHANGED_BARRIER
+    flags[2, 7] = CHANGED_LIMITS
+    learned = mem + step
+    before = learned.copy()
+    for mode in (0, 1, 2, 3):  # the other readings learn as the paper's law does
+        smooth_learning(mode, dt, mem, flags, learned)
+        np.testing.assert_array_equal(learned, before)
+    out = learned.copy()
+    smooth_learning(4, dt, mem, flags, out)
+    np.testing.assert_array_equal(out[0], before[0])  # the filter left robot 1 alone
+    for r in (1, 2):
+        got = out[r] - mem[r]
+        np.testing.assert_allclose(got[:, 0], step[r, :, 0], atol=1e-3)
+        assert np.abs(got[15:-15, 1]).max() < 1e-3  # 0.2 flipping: 200 times less
+    compiled = learned.copy()
+    smooth_learning.jit(4, dt, mem, flags, compiled)
+    np.testing.assert_array_equal(compiled, out)
+    # its width is in seconds: a sample time twice as fine takes twice as many samples
+    assert Q_SIGMA > 0.0
+    fine = np.zeros((1, 2 * n_t, 2))
+    fine[0, n_t] = 1.0
+    smooth_learning(4, dt / 2, np.zeros_like(fine), np.ones((1, 2 * n_t), np.int64), fine)
+    coarse = np.zeros((1, n_t, 2))
+    coarse[0, n_t // 2] = 1.0
+    smooth_learning(4, dt, np.zeros_like(coarse), np.ones((1, n_t), np.int64), coarse)
+
+    def spread(x: np.ndarray, h: float) -> float:
+        k = np.arange(x.size) * h
+        w = x / x.sum()
+        return float(np.sqrt((w * (k - (w * k).sum()) ** 2).sum()))
+
+    assert spread(fine[0, :, 0], dt / 2) == pytest.approx(Q_SIGMA, rel=0.05)
+    assert spread(coarse[0, :, 0], dt) == pytest.approx(Q_SIGMA, rel=0.05)
 
 
 def test_spec_validates_its_fields():
