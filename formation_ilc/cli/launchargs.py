@@ -263,7 +263,8 @@ def add_safety_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--safety-learning", choices=LEARNING, default=None,
                    help="how the memory learns where the filter changed a command: damped "
                         "(takes in a share, 0.15, of a barrier's change and all of a "
-                        "limit's; the default on two wheels), applied (from the command "
+                        "limit's, and smooths its step around the changes over "
+                        "1.2 s; the default on two wheels), applied (from the command "
                         "the robot really drove), split (from it where a limit clipped the "
                         "command, not at all where a barrier moved it; the default on skid "
                         "steer: husky, jackal), freeze (no learning at those samples), "

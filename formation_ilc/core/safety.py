@@ -58,14 +58,14 @@ from, ``freeze_flagged`` restores it where nothing may be learned:
   on the acceleration bound trial after trial (docs/safety.md measured both on the
   generated families).
 
-With ``damped``, a robot whose filter changed any of its commands in a trial learns that
-trial through a Q-filter (``smooth_learning``): the step its memory takes (the learned
-memory less the old one) is smoothed along the trial by a binomial kernel of standard
-deviation Q_SIGMA seconds. The filter's trims switch on and off from sample to sample;
-the paper's law carries that roughness into the memory and, on the generated families,
-either unlearns it slowly or lets it grow into a heading oscillation (a period of about
-2 s) that keeps the filter busy. A trial the filter left alone is learned by the paper's
-law unchanged, so the law is the paper's again once the filter falls idle.
+With ``damped``, a robot learns the stretch of a trial around the commands its filter
+changed through a Q-filter (``smooth_learning``): there the step its memory takes (the
+learned memory less the old one) is smoothed along the trial by a binomial kernel of
+standard deviation Q_SIGMA seconds, blended out within three deviations. The filter's trims
+switch on and off from sample to sample; the paper's law carries that roughness into the
+memory and, on the generated families, either unlearns it slowly or lets it grow into a
+heading oscillation (a period of about 2 s) that keeps the filter busy. Where the filter
+did not act, and in every trial it left alone, the law is the paper's unchanged.
 
 docs/safety.md has the measurements behind the default (``config.safety.default_learning``):
 ``damped`` for two-wheel bodies, where it learned the paper's triangle and the generated
@@ -703,12 +703,15 @@ def freeze_flagged(mode: int, memory: NDArray[np.float64], flags: NDArray[np.int
 @njit(cache=True)
 def smooth_learning(mode: int, dt: float, memory: NDArray[np.float64],
                     flags: NDArray[np.int64], learned: NDArray[np.float64]) -> None:
-    """``damped``'s Q-filter, in place on ``learned`` (R, T, 2): for each robot the filter
-    changed a command of (a flag in ``flags`` (R, T)), the step ``learned - memory`` is
+    """``damped``'s Q-filter, in place on ``learned`` (R, T, 2): around each command the
+    filter changed (a flag in ``flags`` (R, T)), the robot's step ``learned - memory`` is
     smoothed along the trial by a binomial kernel of standard deviation Q_SIGMA [s] at
-    sample time ``dt`` (its order the nearest even one to 4 (Q_SIGMA / dt)^2), cut at
-    three standard deviations and weighed again at the trial's ends. Its weights are
-    built by multiplications and divisions only: the same bits compiled and interpreted.
+    sample time ``dt`` (its order the nearest even one to 4 (Q_SIGMA / dt)^2, cut at three
+    standard deviations and weighed again at the trial's ends). A sample takes the
+    smoothed step by the kernel's weight (1 at its centre) from the nearest changed
+    command, and the paper's step beyond three deviations of every one: where the filter
+    did not act the law is the paper's. The weights are built by multiplications and
+    divisions only: the same bits compiled and interpreted.
     """
     if mode != DAMPED or Q_SIGMA <= 0.0:
         return
@@ -722,6 +725,7 @@ def smooth_learning(mode: int, dt: float, memory: NDArray[np.float64],
         w[half - j] = w[half + j]
     n_t = memory.shape[1]
     step = np.empty(n_t)
+    mix = np.empty(n_t)
     for r in range(memory.shape[0]):
         changed = False
         for t in range(n_t):
@@ -730,13 +734,24 @@ def smooth_learning(mode: int, dt: float, memory: NDArray[np.float64],
                 break
         if not changed:
             continue
+        # how much of the smoothed step each sample takes: the kernel's own weight (1 at
+        # its centre) from the nearest changed command, 0 beyond three deviations
+        for t in range(n_t):
+            mix[t] = 0.0
+        for f in range(n_t):
+            if flags[r, f] != 0:
+                for j in range(max(-half, -f), min(half, n_t - 1 - f) + 1):
+                    if w[half + j] > mix[f + j]:
+                        mix[f + j] = w[half + j]
         for c in range(2):
             for t in range(n_t):
                 step[t] = learned[r, t, c] - memory[r, t, c]
             for t in range(n_t):
+                if mix[t] == 0.0:
+                    continue  # the paper's step, bit for bit
                 acc = 0.0
                 total = 0.0
                 for j in range(max(-half, -t), min(half, n_t - 1 - t) + 1):
                     acc += w[half + j] * step[t + j]
                     total += w[half + j]
-                learned[r, t, c] = memory[r, t, c] + acc / total
+                learned[r, t, c] = memory[r, t, c] + step[t] + mix[t] * (acc / total - step[t])

@@ -229,20 +229,22 @@ def test_learn_base_modes():
     np.testing.assert_allclose(out[0, 1], DAMPING * (0.25 - 1.0))
 
 
-def test_damped_smooths_the_step_of_a_robot_the_filter_changed():
-    """The Q-filter of ``damped``: a robot's step is smoothed along the trial only in a
-    trial the filter changed one of its commands; a smooth step passes, a step that flips
-    from sample to sample (what the filter's trims leave in the memory) is taken out; the
-    compiled and the interpreted kernel give the same bits (the robot node runs the
-    interpreted one, the batch simulator the compiled one)."""
+def test_damped_smooths_the_step_where_the_filter_changed_a_command():
+    """The Q-filter of ``damped``: a robot's step is smoothed along the trial around the
+    commands the filter changed, and is the paper's, bit for bit, three standard
+    deviations away from them and in a robot the filter left alone; a smooth step passes,
+    a step that flips from sample to sample (what the filter's trims leave in the memory)
+    is taken out; the compiled and the interpreted kernel give the same bits (the robot
+    node runs the interpreted one, the batch simulator the compiled one)."""
     dt, n_t = 0.2, 150
+    reach = int(3.0 * Q_SIGMA / dt) + 1  # samples
     mem = np.random.default_rng(3).normal(size=(3, n_t, 2))
     t = np.arange(n_t)
     step = np.zeros((3, n_t, 2))
     step[:, :, 0] = 0.3 + 0.01 * t[None, :] / n_t           # smooth
     step[:, :, 1] = np.where(t % 2 == 0, 0.2, -0.2)[None, :]  # flips every sample
     flags = np.zeros((3, n_t), dtype=np.int64)
-    flags[1, 40] = CHANGED_BARRIER
+    flags[1, 40:71] = CHANGED_BARRIER
     flags[2, 7] = CHANGED_LIMITS
     learned = mem + step
     before = learned.copy()
@@ -252,10 +254,14 @@ def test_damped_smooths_the_step_of_a_robot_the_filter_changed():
     out = learned.copy()
     smooth_learning(4, dt, mem, flags, out)
     np.testing.assert_array_equal(out[0], before[0])  # the filter left robot 1 alone
-    for r in (1, 2):
-        got = out[r] - mem[r]
-        np.testing.assert_allclose(got[:, 0], step[r, :, 0], atol=1e-3)
-        assert np.abs(got[15:-15, 1]).max() < 1e-3  # 0.2 flipping: 200 times less
+    got = out - mem
+    np.testing.assert_allclose(got[1:, :, 0], step[1:, :, 0], atol=1e-3)
+    assert np.abs(got[1, 40:71, 1]).max() < 1e-3  # 0.2 flipping: 200 times less
+    assert np.abs(got[2, 7, 1]) < 0.01  # near the trial's start: 20 times less
+    np.testing.assert_array_equal(out[1, :40 - reach], before[1, :40 - reach])
+    np.testing.assert_array_equal(out[1, 71 + reach:], before[1, 71 + reach:])
+    np.testing.assert_array_equal(out[2, 8 + reach:], before[2, 8 + reach:])
+    assert np.abs(got[1, 40 - reach + 1:40, 1]).max() < 0.2  # blended out, not cut
     compiled = learned.copy()
     smooth_learning.jit(4, dt, mem, flags, compiled)
     np.testing.assert_array_equal(compiled, out)
