@@ -15,8 +15,17 @@ subscription, and the difference: the cost of the check per message. ``--topic``
   robots take the per-sample topics (their pose, a neighbour's shared pose, the reference,
   a link tick, ``team/poses``).
 
-``--apart``: the writer in a participant of its own (a second process's samples come
-through the transport, not Fast DDS's delivery within one participant).
+``--apart``: the writer in a participant of its own (its GID another participant's; Fast
+DDS still delivers within the process, not through a transport).
+
+``--process RATE``: the per-sample case as a run has it: the writer in a process of its
+own publishes ``--messages`` raw poses at RATE a second, and the reader's process counts
+the CPU time (``time.process_time``, all its threads: rmw's, the executor's) it spent from
+the first of them to the last, per message: the reader's whole cost of a message, its
+wake-ups included.
+
+``--idle N``: a reader with N subscriptions and no writer, 5 s a round: the CPU a second a
+checked subscription costs when nothing comes (its re-check every ``REFRESH_HELD`` s).
 
 ``--paced``: each message is published only once the one before was taken (the per-sample
 topics of a lockstep run: one message, then a wait), so every message pays its own
@@ -24,6 +33,8 @@ wake-up; without it the messages go out in a burst.
 
 Usage: python scripts/bench_writers.py [--messages 2000] [--repeats 5]
        [--topic ready|pose|both] [--paced] [--apart]
+       python scripts/bench_writers.py --process 1000 [--messages 2000] [--repeats 5]
+       python scripts/bench_writers.py --idle 50 [--repeats 5]
 (run it in a network namespace of its own, or with a ROS_DOMAIN_ID nobody else uses)
 """
 
@@ -120,6 +131,97 @@ def one_round(kind: str, checked: bool, n: int, topic: str = "ready",
         writer.destroy_node()
 
 
+def write_poses(n: int, rate: float) -> None:
+    """The writer of ``--process``: robot_1's raw poses, ``n`` after one to be named by,
+    at ``rate`` a second, once a reader matched; then it waits for them to be taken."""
+    from rclpy.duration import Duration
+
+    node = rclpy.create_node("robot_1", namespace="/formation")
+    qos = QoSProfile(depth=n + 10, history=HistoryPolicy.KEEP_LAST,
+                     reliability=ReliabilityPolicy.RELIABLE)
+    pub = node.create_publisher(PoseStamped, "robot_1/pose", qos)
+    data = serialize_message(POSE)
+    deadline = time.monotonic() + 30
+    while pub.get_subscription_count() < 1 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    time.sleep(1.0)  # the reader's graph names this node
+    pub.publish(data)
+    time.sleep(0.5)
+    t0 = time.monotonic()
+    for i in range(n):
+        time.sleep(max(0.0, t0 + i / rate - time.monotonic()))
+        pub.publish(data)
+    pub.wait_for_all_acked(Duration(seconds=10))
+    time.sleep(0.5)
+    node.destroy_node()
+
+
+def cross_round(kind: str, checked: bool, n: int, rate: float) -> float:
+    """CPU seconds the reader spent per message of ``n`` from a writer process."""
+    import subprocess
+    import sys
+
+    qos = QoSProfile(depth=n + 10, history=HistoryPolicy.KEEP_LAST,
+                     reliability=ReliabilityPolicy.RELIABLE)
+    reader = GuardedNode("reader", namespace="/formation")
+    got = [0]
+    cpu = [0.0, 0.0]
+
+    def take(msg: Any, gid: bytes | None = None) -> None:
+        got[0] += 1
+        if got[0] == 1:
+            cpu[0] = time.process_time()
+        elif got[0] == n + 1:
+            cpu[1] = time.process_time()
+
+    if checked:
+        reader.checked_subscription(PoseStamped, "robot_1/pose", take, qos, raw=True,
+                                    owners=("robot_1",))
+    else:
+        reader.create_subscription(PoseStamped, "robot_1/pose", take, qos, raw=True)
+    ex = EventsExecutor() if kind == "events" else SingleThreadedExecutor()
+    ex.add_node(reader)
+    proc = subprocess.Popen([sys.executable, __file__, "--write-poses", str(n),
+                             "--rate", str(rate)])
+    try:
+        deadline = time.monotonic() + 60 + n / rate
+        while got[0] < n + 1 and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.01)
+        assert got[0] == n + 1, f"{got[0] - 1} of {n} messages"
+        return (cpu[1] - cpu[0]) / n
+    finally:
+        proc.wait(timeout=30)
+        ex.shutdown()
+        reader.destroy_node()
+
+
+def idle_round(checked: bool, subs: int, seconds: float) -> float:
+    """CPU seconds a second of a reader node with ``subs`` subscriptions and no writer,
+    on the events executor (a checked one's re-check every REFRESH_HELD seconds)."""
+    qos = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST,
+                     reliability=ReliabilityPolicy.RELIABLE)
+    reader = GuardedNode("reader", namespace="/formation")
+    for i in range(subs):
+        if checked:
+            reader.checked_subscription(PoseStamped, f"robot_{i + 1}/pose",
+                                        lambda m, gid: None, qos, raw=True,
+                                        owners=(f"robot_{i + 1}",))
+        else:
+            reader.create_subscription(PoseStamped, f"robot_{i + 1}/pose",
+                                       lambda m: None, qos, raw=True)
+    ex = EventsExecutor()
+    ex.add_node(reader)
+    try:
+        ex.spin_once(timeout_sec=0.1)
+        c0, t0 = time.process_time(), time.monotonic()
+        while time.monotonic() - t0 < seconds:
+            ex.spin_once(timeout_sec=0.25)
+        return (time.process_time() - c0) / (time.monotonic() - t0)
+    finally:
+        ex.shutdown()
+        reader.destroy_node()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -130,15 +232,62 @@ def main() -> None:
                     help="each message once the one before was taken")
     ap.add_argument("--apart", action="store_true",
                     help="the writer in a participant of its own")
+    ap.add_argument("--process", type=float, metavar="RATE",
+                    help="the writer in a process of its own, RATE raw poses a second; "
+                         "the reader's CPU time per message")
+    ap.add_argument("--idle", type=int, metavar="N",
+                    help="CPU a second of N idle subscriptions (events executor)")
+    ap.add_argument("--executor", choices=("events", "single", "both"), default="both")
+    ap.add_argument("--write-poses", type=int, help=argparse.SUPPRESS)
+    ap.add_argument("--rate", type=float, default=1000.0, help=argparse.SUPPRESS)
     a = ap.parse_args()
+    kinds = ("events", "single") if a.executor == "both" else (a.executor,)
     rclpy.init()
+    if a.write_poses:  # the writer process of --process
+        try:
+            write_poses(a.write_poses, a.rate)
+        finally:
+            rclpy.try_shutdown()
+        return
+    if a.idle:
+        try:
+            idle: dict[bool, list[float]] = {False: [], True: []}
+            for _ in range(a.repeats):
+                for checked in (False, True):
+                    idle[checked].append(idle_round(checked, a.idle, 5.0))
+            plain, checked = (statistics.median(idle[c]) * 1e6 for c in (False, True))
+            print(f"{a.idle} idle subscriptions, events executor: CPU rclpy {plain:.0f} "
+                  f"us/s, checked {checked:.0f} us/s: {(checked - plain) / a.idle:+.1f} us "
+                  f"a second per subscription", flush=True)
+        finally:
+            rclpy.try_shutdown()
+        return
+    if a.process:
+        try:
+            for kind in kinds:
+                cross: dict[bool, list[float]] = {False: [], True: []}
+                for _ in range(a.repeats):
+                    for checked in (False, True):
+                        cross[checked].append(cross_round(kind, checked, a.messages,
+                                                          a.process))
+                plain, checked = (statistics.median(cross[c]) * 1e6 for c in (False, True))
+                spread = "; ".join(
+                    f"{'checked' if c else 'rclpy'} {min(cross[c]) * 1e6:.1f}-"
+                    f"{max(cross[c]) * 1e6:.1f}" for c in (False, True))
+                print(f" pose from a process at {a.process:g}/s {kind:>6} executor: reader "
+                      f"CPU rclpy subscription {plain:6.1f} us/message, checked "
+                      f"{checked:6.1f} us/message: {checked - plain:+.1f} us per message "
+                      f"(rounds: {spread})", flush=True)
+        finally:
+            rclpy.try_shutdown()
+        return
     apart = None
     if a.apart:
         apart = Context()
         rclpy.init(context=apart)
     try:
         for topic in (("ready", "pose") if a.topic == "both" else (a.topic,)):
-            for kind in ("events", "single"):
+            for kind in kinds:
                 times: dict[bool, list[float]] = {False: [], True: []}
                 for _ in range(a.repeats):
                     for checked in (False, True):  # taking turns: load drifts hit both
