@@ -25,7 +25,10 @@ the first of them to the last, per message: the reader's whole cost of a message
 wake-ups included.
 
 ``--idle N``: a reader with N subscriptions and no writer, 5 s a round: the CPU a second a
-checked subscription costs when nothing comes (its re-check every ``REFRESH_HELD`` s).
+checked subscription costs when nothing comes (its re-check every ``--poll`` s: 0.05, the
+``REFRESH_HELD`` of readies, reports and ``team/poses``; a robot's trajectories 0.25).
+Run it with ``PYTHONPATH`` at the checkout to measure (a script's directory comes first on
+its path, and an editable install may point at another checkout).
 
 ``--paced``: each message is published only once the one before was taken (the per-sample
 topics of a lockstep run: one message, then a wait), so every message pays its own
@@ -34,7 +37,7 @@ wake-up; without it the messages go out in a burst.
 Usage: python scripts/bench_writers.py [--messages 2000] [--repeats 5]
        [--topic ready|pose|both] [--paced] [--apart]
        python scripts/bench_writers.py --process 1000 [--messages 2000] [--repeats 5]
-       python scripts/bench_writers.py --idle 50 [--repeats 5]
+       python scripts/bench_writers.py --idle 50 [--poll 0.05] [--repeats 5]
 (run it in a network namespace of its own, or with a ROS_DOMAIN_ID nobody else uses)
 """
 
@@ -195,7 +198,7 @@ def cross_round(kind: str, checked: bool, n: int, rate: float) -> float:
         reader.destroy_node()
 
 
-def idle_round(checked: bool, subs: int, seconds: float) -> float:
+def idle_round(checked: bool, subs: int, seconds: float, poll: float = 0.05) -> float:
     """CPU seconds a second of a reader node with ``subs`` subscriptions and no writer,
     on the events executor (a checked one's re-check every REFRESH_HELD seconds)."""
     qos = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST,
@@ -205,7 +208,7 @@ def idle_round(checked: bool, subs: int, seconds: float) -> float:
         if checked:
             reader.checked_subscription(PoseStamped, f"robot_{i + 1}/pose",
                                         lambda m, gid: None, qos, raw=True,
-                                        owners=(f"robot_{i + 1}",))
+                                        owners=(f"robot_{i + 1}",), poll=poll)
         else:
             reader.create_subscription(PoseStamped, f"robot_{i + 1}/pose",
                                        lambda m: None, qos, raw=True)
@@ -237,6 +240,8 @@ def main() -> None:
                          "the reader's CPU time per message")
     ap.add_argument("--idle", type=int, metavar="N",
                     help="CPU a second of N idle subscriptions (events executor)")
+    ap.add_argument("--poll", type=float, default=0.05,
+                    help="--idle: the subscriptions' re-check period [s]")
     ap.add_argument("--executor", choices=("events", "single", "both"), default="both")
     ap.add_argument("--write-poses", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--rate", type=float, default=1000.0, help=argparse.SUPPRESS)
@@ -254,11 +259,12 @@ def main() -> None:
             idle: dict[bool, list[float]] = {False: [], True: []}
             for _ in range(a.repeats):
                 for checked in (False, True):
-                    idle[checked].append(idle_round(checked, a.idle, 5.0))
+                    idle[checked].append(idle_round(checked, a.idle, 5.0, a.poll))
             plain, checked = (statistics.median(idle[c]) * 1e6 for c in (False, True))
-            print(f"{a.idle} idle subscriptions, events executor: CPU rclpy {plain:.0f} "
-                  f"us/s, checked {checked:.0f} us/s: {(checked - plain) / a.idle:+.1f} us "
-                  f"a second per subscription", flush=True)
+            print(f"{a.idle} idle subscriptions (re-checked every {a.poll:g} s), events "
+                  f"executor: CPU rclpy {plain:.0f} us/s, checked {checked:.0f} us/s: "
+                  f"{(checked - plain) / a.idle:+.1f} us a second per subscription",
+                  flush=True)
         finally:
             rclpy.try_shutdown()
         return

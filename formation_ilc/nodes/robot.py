@@ -83,6 +83,7 @@ from formation_ilc.nodes.common import (
     unmatched,
 )
 from formation_ilc.nodes.params import ParameterError, check, declare, effective
+from formation_ilc.nodes.writers import REFRESH_TRIAL
 from formation_ilc.protocol.learner import RobotLearner
 from formation_ilc.protocol.schedule import Follower
 from formation_ilc.protocol.writers import plant_writers
@@ -209,7 +210,7 @@ class RobotNode(ConfiguredNode):
             self.checked_subscription(
                 Path, ms.trajectory_topic(ms.robot_index(sender)),
                 lambda m, gid, s=sender: self._on_trajectory(m, s),
-                ms.TRAJECTORY_READER_QOS, raw=True, owners=(sender,))
+                ms.TRAJECTORY_READER_QOS, raw=True, owners=(sender,), poll=REFRESH_TRIAL)
         self.clocks: ClockExchange | None = None
         clock = node_clock(cfg, self.id)
         if cfg.clock_exchanges:
