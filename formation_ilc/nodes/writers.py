@@ -13,10 +13,10 @@ accepted to the handler (deserialized, or as bytes: ``raw``), with the writer's 
 A steady timer also asks rcl every ``REFRESH_HELD`` seconds (``poll``): under load the
 events executor was seen to miss the re-armed timer. A node with several checked
 subscriptions runs one such timer for all of them (``GuardedNode.checked_subscription``):
-each timer's callback costs a wake-up of the executor, 20 times a second. A sample whose
-writer the graph does not name
-yet is held (``protocol.writers.HOLD``) and
-judged again as the graph learns it. Costs: ``scripts/bench_writers.py``.
+each timer's callback costs a wake-up of the executor, 20 times a second; a topic of one
+message a trial is polled every ``REFRESH_TRIAL`` seconds. A sample whose writer the graph
+does not name yet is held (``protocol.writers.HOLD``) and judged again as the graph learns
+it. Costs: ``scripts/bench_writers.py``.
 """
 
 from __future__ import annotations
@@ -100,8 +100,8 @@ class CheckedSubscription:
     (``table``: ``judge``, or, with ``shared``, the handler itself calls ``claims`` with
     the GID it gets) before ``handler(msg, gid)`` sees it. Refusals are counted in the
     table; ``on_refused(why)`` (the node's log) hears each. Without ``own_poll`` the
-    caller calls ``poll`` every ``REFRESH_HELD`` seconds (one timer for a node's
-    subscriptions)."""
+    caller calls ``poll`` (every ``REFRESH_HELD`` or ``REFRESH_TRIAL`` seconds: one timer
+    for a node's subscriptions)."""
 
     def __init__(self, node: Node, msg_type: Any, topic: str, qos: Any, table: WriterTable,
                  handler: Callable[[Any, bytes], None], raw: bool = False,
@@ -198,8 +198,9 @@ class CheckedSubscription:
         return True
 
     def poll(self) -> None:
-        """Every REFRESH_HELD seconds: take what waits in rcl (a wake-up the executor
-        missed costs at most this period, never a stall) and judge the held again."""
+        """Every REFRESH_HELD (or REFRESH_TRIAL) seconds: take what waits in rcl (a
+        wake-up the executor missed costs at most this period, never a stall) and judge
+        the held again."""
         self._drain()
         if not self.held:
             return
@@ -230,6 +231,6 @@ class CheckedSubscription:
 #: thread under load: seen as a ready taken only at the leader's next watchdog, 20 s on)
 REFRESH_HELD = 0.05
 #: [s] the same for a topic of one message a trial (a robot's trajectory): a missed
-#: wake-up costs its reader at most this once in a while, and a robot's re-checks cost a
-#: quarter of REFRESH_HELD's
+#: wake-up costs its reader at most this once in a while, and a robot's re-checks wake
+#: its executor a fifth as often as REFRESH_HELD's
 REFRESH_TRIAL = 0.25
