@@ -232,9 +232,9 @@ def robot_node(context, links: str = "direct"):
     return RobotNode(context=context, parameter_overrides=params)
 
 
-def base_learner(node, direct: bool, finished: bool) -> RobotLearner:
+def base_learner(node, direct: bool, finished: bool, learned: bool = True) -> RobotLearner:
     """Robot 2 in trial 0 at sample 1 (``finished``: trial 0 done and learned, so trial 1
-    is open)."""
+    is open; without ``learned``: done, robot_1's trajectory of it still awaited)."""
     lrn = RobotLearner(node.pb, 1, CLOCK, direct=direct)
     steps = T + 1 if finished else 2
     for s in range(steps):
@@ -249,7 +249,7 @@ def base_learner(node, direct: bool, finished: bool) -> RobotLearner:
             lrn.on_link_tick("robot_1", ns, None)
         if s < steps - 1:
             lrn.command()
-    if finished:
+    if finished and learned:
         stamps_ns = np.array(lrn.trajectory_stamps(0))
         assert lrn.on_trajectory("robot_1", stamps_ns, PB.eta_d[0])
     return lrn

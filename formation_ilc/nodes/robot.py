@@ -44,7 +44,10 @@ sample T it sends its whole trajectory on ``trajectory``; when it has its in-nei
 trajectories of trial k it calls ``law.learn`` and reports ready for trial k+1. Malformed, stale,
 out-of-order, duplicate and future-labelled messages, and any label outside the robot's
 window (its current trial; the next one once it has learned the current one: see
-``formation_ilc.protocol.learner``), are dropped and counted (``diagnostics``).
+``formation_ilc.protocol.learner``), are dropped and counted (``diagnostics``). A
+neighbour's trajectory is taken from that robot's own writer only (``robot_j`` writes
+``robot_j/trajectory``; ``protocol.writers``), the plant's ``team/poses`` from the plant's:
+any other writer's is refused unread and counted as ``forged``, by topic and sender.
 
 Container mode: ``formation-ilc-robot --robots 1 2 3`` runs three robot nodes (each with
 its own memory) in one process on one executor.
@@ -80,6 +83,7 @@ from formation_ilc.nodes.common import (
     unmatched,
 )
 from formation_ilc.nodes.params import ParameterError, check, declare, effective
+from formation_ilc.nodes.writers import REFRESH_TRIAL
 from formation_ilc.protocol.learner import RobotLearner
 from formation_ilc.protocol.schedule import Follower
 from formation_ilc.protocol.writers import plant_writers
@@ -199,10 +203,14 @@ class RobotNode(ConfiguredNode):
                     PoseStamped, ms.pose_topic(j + 1), lambda m, j=j: self._on_peer(m, j),
                     ms.SAMPLE_QOS, raw=True) for j in range(pb.n) if j != lrn.i]
         for sender in lrn.neighbours:
-            # raw: a trajectory longer than a trial is refused before it is deserialized
-            self.create_subscription(Path, ms.trajectory_topic(ms.robot_index(sender)),
-                                     lambda m, s=sender: self._on_trajectory(m, s),
-                                     ms.TRAJECTORY_READER_QOS, raw=True)
+            # raw: a trajectory longer than a trial is refused before it is deserialized;
+            # from robot j's own writer only (protocol.writers): a trajectory another
+            # writer sends in robot j's topic is refused and counted as forged, never
+            # learned from
+            self.checked_subscription(
+                Path, ms.trajectory_topic(ms.robot_index(sender)),
+                lambda m, gid, s=sender: self._on_trajectory(m, s),
+                ms.TRAJECTORY_READER_QOS, raw=True, owners=(sender,), poll=REFRESH_TRIAL)
         self.clocks: ClockExchange | None = None
         clock = node_clock(cfg, self.id)
         if cfg.clock_exchanges:

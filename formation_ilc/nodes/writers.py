@@ -10,10 +10,13 @@ on the node's executor like any other, takes every waiting sample with
 ``rcl_take_serialized_message`` and its writer's GID, asks the table, and hands what is
 accepted to the handler (deserialized, or as bytes: ``raw``), with the writer's GID.
 
-A steady timer also asks rcl every ``REFRESH_HELD`` seconds: under load the events
-executor was seen to miss the re-armed timer. A sample whose writer the graph does not name
-yet is held (``protocol.writers.HOLD``) and
-judged again as the graph learns it. Costs: ``scripts/bench_writers.py``.
+A steady timer also asks rcl every ``REFRESH_HELD`` seconds (``poll``): under load the
+events executor was seen to miss the re-armed timer. A node with several checked
+subscriptions runs one such timer for all of them (``GuardedNode.checked_subscription``):
+each timer's callback costs a wake-up of the executor, 20 times a second; a topic of one
+message a trial is polled every ``REFRESH_TRIAL`` seconds. A sample whose writer the graph
+does not name yet is held (``protocol.writers.HOLD``) and judged again as the graph learns
+it. Costs: ``scripts/bench_writers.py``.
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ from rclpy.type_support import check_is_valid_msg_type
 
 from formation_ilc.protocol.writers import HOLD, OK, UNKNOWN, WriterTable
 
-__all__ = ["CheckedSubscription", "gid_take_available"]
+__all__ = ["CheckedSubscription", "gid_take_available", "REFRESH_HELD", "REFRESH_TRIAL"]
 
 #: rmw_gid_t's storage in Jazzy (RMW_GID_STORAGE_SIZE)
 GID_SIZE = 16
@@ -96,11 +99,14 @@ class CheckedSubscription:
     """A subscription of ``node`` to ``topic`` whose every sample is judged by its writer
     (``table``: ``judge``, or, with ``shared``, the handler itself calls ``claims`` with
     the GID it gets) before ``handler(msg, gid)`` sees it. Refusals are counted in the
-    table; ``on_refused(why)`` (the node's log) hears each."""
+    table; ``on_refused(why)`` (the node's log) hears each. Without ``own_poll`` the
+    caller calls ``poll`` (every ``REFRESH_HELD`` or ``REFRESH_TRIAL`` seconds: one timer
+    for a node's subscriptions)."""
 
     def __init__(self, node: Node, msg_type: Any, topic: str, qos: Any, table: WriterTable,
                  handler: Callable[[Any, bytes], None], raw: bool = False,
-                 shared: bool = False, on_refused: Callable[[str], None] | None = None):
+                 shared: bool = False, on_refused: Callable[[str], None] | None = None,
+                 own_poll: bool = True):
         rcl, rcutils = _libs()
         check_is_valid_msg_type(msg_type)
         self.node, self.msg_type, self.raw, self.shared = node, msg_type, raw, shared
@@ -119,7 +125,8 @@ class CheckedSubscription:
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._timer = node.create_timer(0.0, self._drain, clock=steady)
         self._timer.cancel()
-        self._hold_timer = node.create_timer(REFRESH_HELD, self._retry, clock=steady)
+        self._hold_timer = (node.create_timer(REFRESH_HELD, self.poll, clock=steady)
+                            if own_poll else None)
         # rmw's thread only re-arms the timer, in C: rcl_timer_reset(timer) itself is the
         # callback (its one argument is the callback's first, the user data), so rmw's
         # thread never waits for the interpreter (a Python callback there must take the
@@ -190,9 +197,10 @@ class CheckedSubscription:
         self.handler(data if self.raw else deserialize_message(data, self.msg_type), gid)
         return True
 
-    def _retry(self) -> None:
-        """Every REFRESH_HELD seconds: take what waits in rcl (a wake-up the executor
-        missed costs at most this period, never a stall) and judge the held again."""
+    def poll(self) -> None:
+        """Every REFRESH_HELD (or REFRESH_TRIAL) seconds: take what waits in rcl (a
+        wake-up the executor missed costs at most this period, never a stall) and judge
+        the held again."""
         self._drain()
         if not self.held:
             return
@@ -213,7 +221,8 @@ class CheckedSubscription:
                                                              _ON_NEW(), None)
         self.handle.destroy_when_not_in_use()
         self.node.destroy_timer(self._timer)
-        self.node.destroy_timer(self._hold_timer)
+        if self._hold_timer is not None:
+            self.node.destroy_timer(self._hold_timer)
         rcutils.rcutils_uint8_array_fini(ctypes.byref(self._buf))
 
 
@@ -221,3 +230,7 @@ class CheckedSubscription:
 #: the executor may have missed (rclpy's events executor, with a timer re-armed from rmw's
 #: thread under load: seen as a ready taken only at the leader's next watchdog, 20 s on)
 REFRESH_HELD = 0.05
+#: [s] the same for a topic of one message a trial (a robot's trajectory): a missed
+#: wake-up costs its reader at most this once in a while, and a robot's re-checks wake
+#: its executor a fifth as often as REFRESH_HELD's
+REFRESH_TRIAL = 0.25

@@ -445,6 +445,61 @@ def test_a_report_is_taken_from_the_node_it_names_only(context, other_participan
             n.destroy_node()
 
 
+@pytest.mark.parametrize("kind", ["events", "single"])
+def test_a_trajectory_is_taken_from_its_robots_writer_only(context, other_participant,
+                                                           kind):
+    """Robot 2 learns from robot_1's trajectory only as robot_1's writer sends it: the
+    same trial's trajectory, every pose 1 km off, from robot_3 in another participant (an
+    insider that does not take robot_1's name), sent first, is refused and counted by
+    topic and sender (drops, diagnostics), and robot 2's learning is what robot_1's own
+    trajectory makes it (before, it learned from the first of the two: the forged one)."""
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.experimental import EventsExecutor
+    from rclpy.serialization import serialize_message
+
+    from tests.hostile import PB, T, base_learner
+
+    node = robot_node(context, "direct")
+    one = rclpy.create_node("robot_1", namespace=ms.NAMESPACE, context=context)
+    forger = rclpy.create_node("robot_3", namespace=ms.NAMESPACE, context=other_participant)
+    ex = (EventsExecutor(context=context) if kind == "events"
+          else SingleThreadedExecutor(context=context))
+    try:
+        ex.add_node(node)
+        node.learner = base_learner(node, True, True, learned=False)
+        twin = base_learner(node, True, True, learned=False)
+        assert node.learner.learned < 0 and node.learner.finished == 0
+        stamps_ns = node.learner.trajectory_stamps(0)
+        real = ms.trajectory_to_path(PB.eta_d[0], stamps_ns, ms.WORLD_FRAME)
+        # what robot 2 reads of it (the wire's headings round to the last bit)
+        eta, _, _ = ms.trajectory_from_raw(serialize_message(real), T + 1, PB.eta_d[0, :, 2])
+        assert twin.on_trajectory("robot_1", np.array(stamps_ns), eta)
+        pubs = [n.create_publisher(Path, ms.absolute(ms.trajectory_topic(1)),
+                                   ms.TRAJECTORY_QOS) for n in (forger, one)]
+        topic = "/formation/robot_1/trajectory"
+        spin_until(ex, lambda: node.count_publishers(topic) >= 2
+                   and all(p.get_subscription_count() >= 1 for p in pubs))
+        far = PB.eta_d[0].copy()
+        far[:, :2] += 1000.0
+        fooled = base_learner(node, True, True, learned=False)  # what the forgery makes
+        assert fooled.on_trajectory("robot_1", np.array(stamps_ns), far)
+        assert not np.array_equal(fooled.memory, twin.memory)
+        pubs[0].publish(ms.trajectory_to_path(far, stamps_ns, ms.WORLD_FRAME))
+        spin_until(ex, lambda: dropped(node) >= 1 or node.learner.learned >= 0)
+        assert node.learner.learned < 0 and not node.learner.trajs
+        assert node.drops.counts["forged"] == 1 and dropped(node) == 1
+        assert node.writers.report() == {topic: {"/formation/robot_3": 1}}
+        assert node.drops.as_dict()["forged"] == node.writers.report()
+        pubs[1].publish(real)
+        spin_until(ex, lambda: node.learner.learned >= 0)
+        assert node.learner.learned == 0 and dropped(node) == 1
+        np.testing.assert_array_equal(node.learner.memory, twin.memory)
+    finally:
+        ex.shutdown()
+        for n in (node, one, forger):
+            n.destroy_node()
+
+
 def test_the_monitor_says_ready_once_the_graph_names_every_report_writer(context,
                                                                          monkeypatch):
     """A robot's first report, held until the graph named its writer, once came after its
