@@ -247,6 +247,23 @@ class Roster:
         return tuple(m.name for m in self.members
                      if nm.DIAGNOSTICS in m.publish and m.node_namespace is None)
 
+    def writers_of(self, topic: str) -> tuple[str, ...]:
+        """The members in the formation's namespace that publish ``topic`` (relative to
+        the namespace): the nodes a reader takes it from (``protocol.writers``)."""
+        return tuple(m.name for m in self.members
+                     if topic in m.publish and m.node_namespace is None)
+
+    def trajectory_writers(self) -> dict[str, tuple[str, ...]]:
+        """Each robot's ``trajectory`` and ``true_trajectory`` topic -> its writers: the
+        launcher's monitor takes a trial's rows from them only."""
+        out = {}
+        for i in range(1, self.lineup.n + 1):
+            for topic in (nm.trajectory_topic(i), nm.true_trajectory_topic(i)):
+                writers = self.writers_of(topic)
+                if writers:
+                    out[topic] = writers
+        return out
+
     def enclave_of(self, process: str) -> str:
         """The enclave of a launcher process (a member's name), or ``process`` itself when
         no member has that name."""

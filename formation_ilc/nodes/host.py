@@ -71,7 +71,8 @@ class LauncherHost:
                                    namespace=plan.namespace, first=self.first,
                                    on_contact=self.on_contact, on_clock=self.on_clock,
                                    key=plan.key, contacts_from=plan.roster.contact_watchers,
-                                   report_writers=plan.roster.report_writers)
+                                   report_writers=plan.roster.report_writers,
+                                   trajectory_writers=plan.roster.trajectory_writers())
         self._down_pub = self.monitor.create_publisher(String, ms.READY, ms.LATCHED_QOS)
         bridge = getattr(plan, "bridge", None)
         if bridge is not None and bridge.lifecycle:

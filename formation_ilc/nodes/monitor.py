@@ -50,6 +50,7 @@ from formation_ilc.core.links import check_diagnostics, check_for_run
 from formation_ilc.core.text import printable, printable_tree
 from formation_ilc.model.simulate import Problem
 from formation_ilc.nodes.common import DropCounter, GuardedNode, RunConfig
+from formation_ilc.nodes.writers import REFRESH_TRIAL
 from formation_ilc.protocol.schedule import Ready, TrialEvent, sealed
 from formation_ilc.protocol.trialrows import Row, SlotRows
 
@@ -64,14 +65,18 @@ class MonitorNode(GuardedNode):
     ``contacts_from``: the nodes that watch the run's bodies and report contacts (the
     physics plant, the physics bases; empty: no contact report is this run's).
     ``report_writers``: the nodes whose diagnostics writers the graph must name before the
-    monitor says ready (the roster's ``report_writers``; empty: no wait)."""
+    monitor says ready (the roster's ``report_writers``; empty: no wait).
+    ``trajectory_writers``: a trajectory topic (relative) -> the nodes that alone write it
+    (the roster's ``trajectory_writers``): a trajectory from any other writer is refused
+    and counted as ``forged``; a topic not in it is taken from any writer."""
 
     def __init__(self, cfg: RunConfig, on_trial: Callable[[int, np.ndarray], None],
                  true_state: bool = True, first: int = 0,
                  on_contact: Callable[[str, dict[str, Any]], None] | None = None,
                  on_clock: Callable[[str, str, str], None] | None = None,
                  key: bytes | None = None, contacts_from: tuple[str, ...] = (),
-                 report_writers: tuple[str, ...] = (), **kwargs: Any):
+                 report_writers: tuple[str, ...] = (),
+                 trajectory_writers: dict[str, tuple[str, ...]] | None = None, **kwargs: Any):
         kwargs.setdefault("namespace", ms.NAMESPACE)
         super().__init__(ms.MONITOR_NODE, **kwargs)
         self.cfg = cfg
@@ -102,16 +107,24 @@ class MonitorNode(GuardedNode):
         #: writers of the trial events besides the leader, by node (from the graph)
         self.foreign_seen: set[str] = set()
         self._writers_at = -1e9
-        self.path_subs = []
+        self.path_subs: list[Any] = []
+        owners = trajectory_writers or {}
         for r in range(n):
-            # raw: a trajectory longer than a trial is refused before it is deserialized
-            self.path_subs.append(self.create_subscription(
-                Path, ms.trajectory_topic(r + 1), lambda m, r=r: self._on_traj(m, r, False),
-                ms.TRAJECTORY_READER_QOS, raw=True))
-            if true_state:
-                self.path_subs.append(self.create_subscription(
-                    Path, ms.true_trajectory_topic(r + 1),
-                    lambda m, r=r: self._on_traj(m, r, True), ms.TRAJECTORY_READER_QOS, raw=True))
+            for true in (False, True) if true_state else (False,):
+                topic = (ms.true_trajectory_topic if true else ms.trajectory_topic)(r + 1)
+                # raw: a trajectory longer than a trial is refused before it is
+                # deserialized; from its writers only where the roster names them (a
+                # forged trajectory taken first would be a row of metrics.csv)
+                if owners.get(topic):
+                    sub = self.checked_subscription(
+                        Path, topic, lambda m, gid, r=r, true=true: self._on_traj(m, r, true),
+                        ms.TRAJECTORY_READER_QOS, raw=True, owners=owners[topic],
+                        poll=REFRESH_TRIAL)
+                else:
+                    sub = self.create_subscription(
+                        Path, topic, lambda m, r=r, true=true: self._on_traj(m, r, true),
+                        ms.TRAJECTORY_READER_QOS, raw=True)
+                self.path_subs.append(sub)
         # the schedule waits for the monitor too ("monitor" in the leader's nodes_expected):
         # a writer's match count cannot tell a monitor from a recorder, and a monitor matched
         # after trial 1 would miss trial 0 (trajectories are latched 2 deep)

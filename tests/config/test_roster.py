@@ -377,3 +377,17 @@ def test_the_report_writers_are_the_members_that_report_in_the_formations_namesp
     # an external plant's nodes are the user's: nothing is known of their writers
     assert roster(Lineup(2, plant="external", external=("x",))).report_writers == (
         "virtual_leader", "link_emulator", "robot_1", "robot_2")
+
+
+def test_the_trajectory_writers_are_each_robot_and_its_plant():
+    """The launcher's monitor makes metrics.csv from these topics, each from its writers
+    only (issue 39): a robot's trajectory from the robot, its true trajectory from the
+    plant that knows the truth (the simulator, or the robot's bridge over physics bases);
+    a plant without the truth names no true-trajectory writer (nothing is taken there)."""
+    got = roster(Lineup(2)).trajectory_writers()
+    assert got == {"robot_1/trajectory": ("robot_1",), "robot_1/true_trajectory": ("robot_sim",),
+                   "robot_2/trajectory": ("robot_2",), "robot_2/true_trajectory": ("robot_sim",)}
+    bases = roster(Lineup(2, plant="base", physics_bases=True)).trajectory_writers()
+    assert bases["robot_2/true_trajectory"] == ("bridge_2",)
+    bridged = roster(Lineup(2, plant="pioneer", fake_drivers=True)).trajectory_writers()
+    assert bridged == {"robot_1/trajectory": ("robot_1",), "robot_2/trajectory": ("robot_2",)}

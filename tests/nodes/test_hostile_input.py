@@ -500,6 +500,42 @@ def test_a_trajectory_is_taken_from_its_robots_writer_only(context, other_partic
             n.destroy_node()
 
 
+def test_the_monitor_takes_a_trajectory_from_its_writer_only(context, other_participant,
+                                                            executor):
+    """The launcher's monitor makes a trial's row of metrics.csv from each robot's
+    trajectory: a well-formed one in robot_1's topic, every pose 1 km off, sent first by
+    robot_3 from another participant, is refused and counted by topic and sender, and the
+    row is made from robot_1's own (before, the first trajectory of the slot was taken and
+    the real one dropped as a duplicate)."""
+    from formation_ilc.nodes.monitor import MonitorNode
+    from tests.hostile import PB
+
+    ex, nodes = executor
+    topic = ms.trajectory_topic(1)
+    mon = MonitorNode(CFG, lambda k, row: None, true_state=False, context=context,
+                      trajectory_writers={topic: ("robot_1",)})
+    one = rclpy.create_node("robot_1", namespace=ms.NAMESPACE, context=context)
+    forger = rclpy.create_node("robot_3", namespace=ms.NAMESPACE, context=other_participant)
+    nodes += [mon, one, forger]
+    ex.add_node(mon)
+    pubs = [n.create_publisher(Path, topic, ms.TRAJECTORY_QOS) for n in (forger, one)]
+    spin_until(ex, lambda: mon.count_publishers(ms.absolute(topic)) >= 2
+               and all(p.get_subscription_count() >= 1 for p in pubs))
+    mon.slots.started, mon.slots.iteration_of = 1, {0: 0, 1: 1}
+    far = ms.trajectory_to_path(PB.eta_d[0] + [1000.0, 1000.0, 0.0],
+                                [CLOCK.stamp_ns(1, s) for s in range(PB.samples + 1)],
+                                ms.WORLD_FRAME)
+    pubs[0].publish(far)
+    spin_until(ex, lambda: mon.writers.total >= 1 or mon.slots.eta.get(1))
+    assert not mon.slots.eta.get(1)
+    assert mon.writers.report() == {ms.absolute(topic): {"/formation/robot_3": 1}}
+    pubs[1].publish(_path(1))
+    spin_until(ex, lambda: mon.slots.eta.get(1))
+    assert list(mon.slots.eta[1]) == [0]
+    np.testing.assert_allclose(mon.slots.eta[1][0][:, :2], PB.eta_d[0][:, :2], atol=1e-6)
+    assert mon.writers.total == 1
+
+
 def test_the_monitor_says_ready_once_the_graph_names_every_report_writer(context,
                                                                          monkeypatch):
     """A robot's first report, held until the graph named its writer, once came after its
