@@ -51,7 +51,11 @@ def test_a_blocked_teardown_returns_the_diagnostics_after_its_bound_and_says_so(
     try:
         diag = h.close()
     finally:
-        block.set()  # let the teardown thread end
+        block.set()  # let the teardown thread end, and wait for it: ended later, it
+        # called the next test's stand-in of rclpy.try_shutdown (seen beside a busy loop)
+        for t in threading.enumerate():
+            if t.name == "dds-teardown":
+                t.join()
     assert diag == {"robot_1": {"node": "robot_1", "trial": 1},
                     "monitor": {"node": "monitor", "foreign_events": 0}}
     assert mod.LauncherHost.teardown_hung
