@@ -137,10 +137,15 @@ def run(kind: str | None, trials: int, domain: int, out: Path, after: int) -> di
     res["restarts"] = text.count("starting it again")
     # a column neither side has (contacts on a plant without bodies) is equal: nan before
     res["trials"], res["max_diff"] = _max_diff(metrics.parent, trials)
-    summary = out / "summary.json"
-    res["foreign"] = (int((json.loads(summary.read_text()).get("foreign_events") or {})
-                          .get("count", 0)) if summary.exists() else -1)
-    res["aborts"] = text.count("aborted")
+    # the leader's last report (a restarted leader's own): the starts and aborts it took
+    # for another's; and the slots it aborted, as its log says each (a restarted leader
+    # aborts the slot its predecessor left open as it starts)
+    diag = out / "diagnostics.json"
+    leader = (json.loads(diag.read_text()).get("virtual_leader") or {}) if diag.exists() else {}
+    res["foreign"] = int(leader.get("foreign_events", -1))
+    log = out / "logs" / "virtual_leader.log"
+    said = log.read_text(errors="replace") if log.exists() else ""
+    res["aborts"] = said.count(") aborted: ") + said.count("was open and is aborted")
     return res
 
 
