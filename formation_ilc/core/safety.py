@@ -39,7 +39,8 @@ sample is flagged ``INFEASIBLE``.
 
 Learning through the filter (``LEARNING``): the memory must not wind up where the filter
 overrode the learned command. ``learn_base`` gives the memory the learning step starts
-from, ``freeze_flagged`` restores it where nothing may be learned:
+from, ``freeze_flagged`` restores it where nothing may be learned (``after_learning``
+runs it and the Q-filter below after the step):
 
 * ``applied``: m + (u_applied - u_nominal) at every changed sample, so the memory learns
   from the command the robot really drove (the anti-windup of ILC with input saturation);
@@ -88,8 +89,8 @@ from formation_ilc.core.limits import Limits
 
 __all__ = ["SafetySpec", "LEARNING", "CHANGED_LIMITS", "CHANGED_BARRIER", "INFEASIBLE",
            "filter_command", "filter_team", "motion", "learn_base", "DAMPING",
-           "freeze_flagged", "smooth_learning", "Q_SIGMA", "learning_code", "PARAMS",
-           "MAX_DISCS"]
+           "freeze_flagged", "smooth_learning", "after_learning", "Q_SIGMA",
+           "learning_code", "PARAMS", "MAX_DISCS"]
 
 #: how the memory learns at samples the filter changed
 LEARNING = ("applied", "freeze", "ignore", "split", "damped")
@@ -727,22 +728,19 @@ def smooth_learning(mode: int, dt: float, memory: NDArray[np.float64],
     step = np.empty(n_t)
     mix = np.empty(n_t)
     for r in range(memory.shape[0]):
-        changed = False
-        for t in range(n_t):
-            if flags[r, t] != 0:
-                changed = True
-                break
-        if not changed:
-            continue
         # how much of the smoothed step each sample takes: the kernel's own weight (1 at
         # its centre) from the nearest changed command, 0 beyond three deviations
+        changed = False
         for t in range(n_t):
             mix[t] = 0.0
         for f in range(n_t):
             if flags[r, f] != 0:
+                changed = True
                 for j in range(max(-half, -f), min(half, n_t - 1 - f) + 1):
                     if w[half + j] > mix[f + j]:
                         mix[f + j] = w[half + j]
+        if not changed:
+            continue
         for c in range(2):
             for t in range(n_t):
                 step[t] = learned[r, t, c] - memory[r, t, c]
@@ -755,3 +753,14 @@ def smooth_learning(mode: int, dt: float, memory: NDArray[np.float64],
                     acc += w[half + j] * step[t + j]
                     total += w[half + j]
                 learned[r, t, c] = memory[r, t, c] + step[t] + mix[t] * (acc / total - step[t])
+
+
+@njit(cache=True)
+def after_learning(mode: int, dt: float, memory: NDArray[np.float64],
+                   flags: NDArray[np.int64], learned: NDArray[np.float64]) -> None:
+    """What a learning reading does to the learned memory ``learned`` (R, T, 2) after the
+    law's step from ``learn_base``: ``freeze_flagged``, then ``damped``'s Q-filter
+    (``smooth_learning``). The batch simulator, the robot node and the physics study each
+    call this once per trial."""
+    freeze_flagged(mode, memory, flags, learned)
+    smooth_learning(mode, dt, memory, flags, learned)

@@ -31,10 +31,9 @@ from formation_ilc.core.metrics import METRIC_COLUMNS
 from formation_ilc.core.pcg import STATE_SIZE
 from formation_ilc.core.safety import (
     SafetySpec,
+    after_learning,
     filter_team,
-    freeze_flagged,
     learn_base,
-    smooth_learning,
     learning_code,
 )
 from formation_ilc.core.uncertainty import (
@@ -261,8 +260,7 @@ def _trial(law: int, memory_mode: int, heading: int, plant: int, dt: float,
     learn_base(mode, memory, sf[2], u, sf[3], sf[7])
     learn_trig(law, memory_mode, sf[7], u, eta, eta_d, nb_full, src, weight, eta_d, leader,
                gain, trig, next_memory)
-    freeze_flagged(mode, memory, sf[3], next_memory)
-    smooth_learning(mode, dt, memory, sf[3], next_memory)
+    after_learning(mode, dt, memory, sf[3], next_memory)
     changed = 0
     for r in range(n):
         for t in range(n_t):

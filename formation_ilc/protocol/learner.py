@@ -57,10 +57,9 @@ from formation_ilc.core.safety import (
     CHANGED_LIMITS,
     INFEASIBLE,
     SafetySpec,
+    after_learning,
     filter_command,
-    freeze_flagged,
     learn_base,
-    smooth_learning,
     learning_code,
     motion,
 )
@@ -580,8 +579,8 @@ class RobotLearner:
               self.nb_full, pb.src[sl], pb.weight[sl], pb.eta_d, pb.leader[sl], pb.gain[sl],
               pb.heading, self.next_memory)
         if self.safety is not None:
-            freeze_flagged(self.safety_mode, self.memory, self.flags, self.next_memory)
-            smooth_learning(self.safety_mode, pb.dt, self.memory, self.flags, self.next_memory)
+            after_learning(self.safety_mode, pb.dt, self.memory, self.flags,
+                           self.next_memory)
         self.memory, self.next_memory = self.next_memory, self.memory
         self.learned = k
         self.iterations += 1

@@ -26,10 +26,9 @@ from formation_ilc.core.law import command, learn
 from formation_ilc.core.metrics import METRIC_COLUMNS
 from formation_ilc.core.safety import (
     SafetySpec,
+    after_learning,
     filter_team,
-    freeze_flagged,
     learn_base,
-    smooth_learning,
     learning_code,
 )
 from formation_ilc.model.footprint import Clearance, trial_clearance
@@ -139,8 +138,7 @@ def run_physics(sc: Scenario, model: RobotModel, trials: int, *,
             learn.jit(pb.law, pb.memory, start, u, eta, pb.eta_d, nb_full, pb.src, pb.weight,
                       pb.eta_d, pb.leader, pb.gain, pb.heading, nxt)
             if safety is not None:
-                freeze_flagged.jit(mode, mem, flags, nxt)
-                smooth_learning.jit(mode, pb.dt, mem, flags, nxt)
+                after_learning.jit(mode, pb.dt, mem, flags, nxt)
             mem, nxt = nxt, mem
             trial_errors.jit(eta, xi, pb.eta_d, pb.src, pb.weight, row)
             contacts = world.contacts()
