@@ -156,10 +156,9 @@ class GuardedNode(Node):
 
         sub = CheckedSubscription(self, msg_type, topic, qos, self.writers, guarded, raw=raw,
                                   shared=shared, on_refused=lambda why: self._forged(name, why),
-                                  own_poll=False)
+                                  own_poll=False, period=poll)
         self._checked = [*getattr(self, "_checked", []), sub]
-        self._poll_of = {**getattr(self, "_poll_of", {}), id(sub): [float(poll), 0.0]}
-        period = min(p for p, _ in self._poll_of.values())
+        period = min(s.period for s in self._checked)
         timer = getattr(self, "_checked_poll", None)
         if timer is None or period < self._poll_period:
             # one timer for all: its wake-up costs more than asking rcl (a timer of each
@@ -180,10 +179,9 @@ class GuardedNode(Node):
         again."""
         now = time.monotonic()
         for sub in list(getattr(self, "_checked", [])):
-            due = self._poll_of.get(id(sub))
-            if due is None or now < due[1]:
+            if now < sub.next_poll:
                 continue
-            due[1] = now + due[0] - self._poll_period / 2  # a late tick skips no period
+            sub.next_poll = now + sub.period - self._poll_period / 2  # a late tick skips none
             sub.poll()
 
     def checked_readies(self, on_ready: Callable[[String], None]) -> Any:

@@ -99,14 +99,15 @@ class CheckedSubscription:
     """A subscription of ``node`` to ``topic`` whose every sample is judged by its writer
     (``table``: ``judge``, or, with ``shared``, the handler itself calls ``claims`` with
     the GID it gets) before ``handler(msg, gid)`` sees it. Refusals are counted in the
-    table; ``on_refused(why)`` (the node's log) hears each. Without ``own_poll`` the
-    caller calls ``poll`` (every ``REFRESH_HELD`` or ``REFRESH_TRIAL`` seconds: one timer
-    for a node's subscriptions)."""
+    table; ``on_refused(why)`` (the node's log) hears each. ``poll`` is due every
+    ``period`` seconds (``REFRESH_HELD``, or ``REFRESH_TRIAL`` for a topic of one message
+    a trial), from ``next_poll`` on; without ``own_poll`` the caller calls it (one timer
+    for a node's subscriptions: ``GuardedNode.checked_subscription``)."""
 
     def __init__(self, node: Node, msg_type: Any, topic: str, qos: Any, table: WriterTable,
                  handler: Callable[[Any, bytes], None], raw: bool = False,
                  shared: bool = False, on_refused: Callable[[str], None] | None = None,
-                 own_poll: bool = True):
+                 own_poll: bool = True, period: float = 0.0):
         rcl, rcutils = _libs()
         check_is_valid_msg_type(msg_type)
         self.node, self.msg_type, self.raw, self.shared = node, msg_type, raw, shared
@@ -125,7 +126,10 @@ class CheckedSubscription:
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._timer = node.create_timer(0.0, self._drain, clock=steady)
         self._timer.cancel()
-        self._hold_timer = (node.create_timer(REFRESH_HELD, self.poll, clock=steady)
+        self.period = float(period) if period > 0.0 else REFRESH_HELD
+        #: [s, monotonic] when ``poll`` is next due (``GuardedNode``'s timer)
+        self.next_poll = 0.0
+        self._hold_timer = (node.create_timer(self.period, self.poll, clock=steady)
                             if own_poll else None)
         # rmw's thread only re-arms the timer, in C: rcl_timer_reset(timer) itself is the
         # callback (its one argument is the callback's first, the user data), so rmw's
