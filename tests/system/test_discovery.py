@@ -209,14 +209,16 @@ def test_the_discovery_server_ends_with_a_launcher_killed_outright(tmp_path):
         pid = int(launcher.stdout.readline())
         launcher.kill()
         launcher.wait()
+        def alive() -> bool:  # neither reaped nor a zombie waiting for its new parent
+            try:
+                return open(f"/proc/{pid}/stat").read().split()[2] != "Z"
+            except FileNotFoundError:  # reaped (between any two looks, too)
+                return False
+
         deadline = time.monotonic() + 20
-        while os.path.exists(f"/proc/{pid}") and time.monotonic() < deadline:
-            if open(f"/proc/{pid}/stat").read().split()[2] == "Z":
-                break  # ended; a zombie until its new parent reaps it
+        while alive() and time.monotonic() < deadline:
             time.sleep(0.05)
-        alive = (os.path.exists(f"/proc/{pid}")
-                 and open(f"/proc/{pid}/stat").read().split()[2] != "Z")
-        assert not alive, f"the server {pid} outlived its launcher"
+        assert not alive(), f"the server {pid} outlived its launcher"
     finally:
         launcher.kill()
         launcher.wait()
