@@ -193,7 +193,11 @@ def cross_round(kind: str, checked: bool, n: int, rate: float) -> float:
         assert got[0] == n + 1, f"{got[0] - 1} of {n} messages"
         return (cpu[1] - cpu[0]) / n
     finally:
-        proc.wait(timeout=30)
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:  # a writer left waiting: stopped all the same
+            proc.kill()
+            proc.wait()
         ex.shutdown()
         reader.destroy_node()
 
