@@ -36,9 +36,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from formation_ilc.config.safety import SafetySettings, default_margin  # noqa: E402
 from formation_ilc.model.footprint import footprint_of, trial_clearance  # noqa: E402
-from formation_ilc.model.safety import body_limits, spec_of  # noqa: E402
+from formation_ilc.model.safety import body_spec  # noqa: E402
 from formation_ilc.model.simulate import simulate  # noqa: E402
 from formation_ilc.studies.families import KINDS, family_scenario  # noqa: E402
 
@@ -48,8 +47,7 @@ FP = footprint_of("p3dx")
 
 def member(kind: str, seed: int, noise: bool, trials: int) -> dict:
     sc = family_scenario(kind, seed, noise=noise, trials=trials)
-    spec = spec_of(SafetySettings("p3dx", body_limits("p3dx"), default_margin("p3dx")),
-                   sc.dt, sc.uncertainty)
+    spec = body_spec("p3dx", sc.dt, sc.uncertainty)
     clear: list[float] = []
     safe = simulate(sc, trials, plant="arc", safety=spec, on_trial_data=lambda k, xi, *r:
                     clear.append(trial_clearance(k, xi, FP).value))
@@ -74,8 +72,7 @@ def on_physics(name: str, trials: int) -> str:
         raise SystemExit(f"--physics: {name!r} is not KIND-SEED with KIND one of "
                          f"{', '.join(KINDS)}")
     sc = family_scenario(kind, int(seed), trials=trials).with_options(delay=False)
-    spec = spec_of(SafetySettings("p3dx", body_limits("p3dx"), default_margin("p3dx")),
-                   sc.dt, sc.uncertainty)
+    spec = body_spec("p3dx", sc.dt, sc.uncertainty)
     res = run_physics(sc, MODELS["p3dx"], trials, safety=spec)
     true = res.column("true_max_position_error")
     free = simulate(sc, trials, plant="arc").column("max_position_error")

@@ -27,7 +27,8 @@ from formation_ilc.core.safety import SafetySpec, filter_team
 from formation_ilc.core.uncertainty import Uncertainty
 from formation_ilc.model.footprint import Footprint, footprint_of
 
-__all__ = ["MARGIN", "DISCS", "spec_for", "spec_of", "body_limits", "sensing_radius",
+__all__ = ["MARGIN", "DISCS", "spec_for", "spec_of", "body_spec", "body_limits",
+           "sensing_radius",
            "DesiredClearance", "desired_clearance", "MotionPeaks", "motion_peaks",
            "DesiredThroughFilter", "desired_through_filter", "what_fits", "TOLERANCE",
            "MotionFit", "motion_fit"]
@@ -102,6 +103,15 @@ def spec_of(settings: SafetySettings, dt: float,
     error, jitter = (0.0, 0.0) if noise is None else noise.pose_bounds()
     return spec_for(footprint_of(settings.body), settings.limits, dt, margin=settings.margin,
                     learning=settings.learning, pose_error=error, pose_jitter=jitter)
+
+
+def body_spec(body: str, dt: float, noise: Uncertainty | None = None) -> SafetySpec:
+    """The filter ``body`` robots run by default (``check --base BODY`` judges a team by
+    it): the base's one limits table, its default margin and learning reading, at sample
+    time ``dt``, for poses as noisy as ``noise`` (None: exact)."""
+    from formation_ilc.config.safety import default_margin
+
+    return spec_of(SafetySettings(body, body_limits(body), default_margin(body)), dt, noise)
 
 
 @dataclass(frozen=True)
@@ -304,11 +314,10 @@ def motion_fit(sc: Scenario, body: str, noise: Uncertainty | None = None) -> Mot
     filter unchanged, for poses as noisy as ``noise`` (None: exact poses). The one test
     ``check --base`` and the generated families (``studies.families``) both apply."""
     from formation_ilc.config.bases import fit_limits
-    from formation_ilc.config.safety import default_margin
 
     sc = sc.for_plant("arc")
     limits = body_limits(body)
-    spec = spec_of(SafetySettings(body, limits, default_margin(body)), sc.dt, noise)
+    spec = body_spec(body, sc.dt, noise)
     line = fit_limits(sc, [limits] * sc.n)
     clearance = desired_clearance(sc, spec)
     through = desired_through_filter(sc, spec) if clearance.fits else None

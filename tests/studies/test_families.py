@@ -12,16 +12,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from formation_ilc.config.safety import SafetySettings, default_margin
 from formation_ilc.config.scenario import scenario_from_data
 from formation_ilc.core.trajectory import AxisScales
 from formation_ilc.model.footprint import clearance, footprint_of
-from formation_ilc.model.safety import (
-    body_limits,
-    desired_clearance,
-    desired_through_filter,
-    spec_of,
-)
+from formation_ilc.model.safety import body_spec, desired_clearance, desired_through_filter
 from formation_ilc.model.simulate import simulate
 from formation_ilc.studies.families import KINDS, draw, family_scenario, fits, scenario_data
 
@@ -31,8 +25,7 @@ TRIALS = 6
 
 
 def _spec(sc):
-    return spec_of(SafetySettings("p3dx", body_limits("p3dx"), default_margin("p3dx")),
-                   sc.dt, sc.uncertainty)
+    return body_spec("p3dx", sc.dt, sc.uncertainty)
 
 
 def _least_clearance(sc, spec) -> tuple[float, int]:
