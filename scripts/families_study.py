@@ -62,16 +62,22 @@ def member(kind: str, seed: int, noise: bool, trials: int) -> dict:
             "free_overlaps": int(sum(c < 0 for c in free_clear))}
 
 
-def on_physics(name: str, trials: int) -> str:
-    """One row of ``--physics``: member ``name`` (KIND-SEED) cold on the physics plant."""
+def member_name(text: str) -> tuple[str, int]:
+    """``--physics``'s KIND-SEED as (kind, seed); argparse's one-line error (exit 2) else."""
+    kind, _, seed = text.rpartition("-")
+    if kind not in KINDS or not seed.isdigit():
+        raise argparse.ArgumentTypeError(f"{text!r} is not KIND-SEED with KIND one of "
+                                         f"{', '.join(KINDS)} and SEED a whole number")
+    return kind, int(seed)
+
+
+def on_physics(kind: str, seed: int, trials: int) -> str:
+    """One row of ``--physics``: member ``kind``-``seed`` cold on the physics plant."""
     from formation_ilc.model.physics import MODELS
     from formation_ilc.studies.physics import run_physics
 
-    kind, _, seed = name.rpartition("-")
-    if kind not in KINDS or not seed.isdigit():
-        raise SystemExit(f"--physics: {name!r} is not KIND-SEED with KIND one of "
-                         f"{', '.join(KINDS)}")
-    sc = family_scenario(kind, int(seed), trials=trials).with_options(delay=False)
+    name = f"{kind}-{seed}"
+    sc = family_scenario(kind, seed, trials=trials).with_options(delay=False)
     spec = body_spec("p3dx", sc.dt, sc.uncertainty)
     res = run_physics(sc, MODELS["p3dx"], trials, safety=spec)
     true = res.column("true_max_position_error")
@@ -87,29 +93,33 @@ def main() -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--noisy-seeds", type=int, default=4)
-    ap.add_argument("--trials", type=int, default=100)
+    ap.add_argument("--trials", type=int, default=None,
+                    help="cold trials a member (default 100; 40 with --physics)")
     ap.add_argument("--first-seed", type=int, default=0,
                     help="the first seed of each family (default 0, the documented members)")
     ap.add_argument("--no-write", action="store_true", help="print only")
-    ap.add_argument("--physics", nargs="+", metavar="KIND-SEED",
+    ap.add_argument("--physics", nargs="+", metavar="KIND-SEED", type=member_name,
                     help="run these members on the physics plant instead (e.g. crossing-0; "
                          "--trials then defaults to 40)")
     args = ap.parse_args()
+    if args.trials is not None and args.trials < 1:
+        ap.error(f"argument --trials: {args.trials} is not a positive number of trials")
     if args.physics:
-        trials = args.trials if "--trials" in sys.argv else 40
+        trials = args.trials or 40
         print(f"{'member':<14} {'contacts':>8} {'tilt':>11} {'least':>9} "
               f"{'true error, first / last':>24} {'free, last':>11} "
               f"{'changed, trial 1 / last':>24}")
-        for name in args.physics:
-            print(on_physics(name, trials), flush=True)
+        for kind, seed in args.physics:
+            print(on_physics(kind, seed, trials), flush=True)
         return 0
+    trials = args.trials or 100
     rows = []
     print(f"{'member':<16} {'n':>2} {'free':>7} {'filtered':>9} {'ratio':>6} {'within 2x':>9} "
           f"{'overlaps':>8} {'least':>6} {'changed, first / last 10':>25}")
     for kind in KINDS:
         for noise, seeds in ((False, args.seeds), (True, args.noisy_seeds)):
             for seed in range(args.first_seed, args.first_seed + seeds):
-                r = member(kind, seed, noise, args.trials)
+                r = member(kind, seed, noise, trials)
                 rows.append(r)
                 last_safe, last_free = r["safe"][-1], r["free"][-1]
                 ok = last_safe <= 2 * last_free
