@@ -35,7 +35,10 @@ convex polygon (polygon clipping), and the answer is u_n if it lies inside, else
 nearest point of the polygon's boundary. No solver, no iteration: exact to round-off, a
 few microseconds compiled. When the polygon is empty (no command in the limits keeps every
 barrier), the robot brakes as hard as its limits allow (v and omega towards 0) and the
-sample is flagged ``INFEASIBLE``.
+sample is flagged ``INFEASIBLE``; so is a sample at which a pair's slack was already
+negative (the pair past braking apart as the filter counts it: outside the guarantee),
+whether or not the filter changed the command. ``CHANGED`` masks the flags of a changed
+command.
 
 Learning through the filter (``LEARNING``): the memory must not wind up where the filter
 overrode the learned command. ``learn_base`` gives the memory the learning step starts
@@ -88,6 +91,7 @@ from formation_ilc.core._jit import njit
 from formation_ilc.core.limits import Limits
 
 __all__ = ["SafetySpec", "LEARNING", "CHANGED_LIMITS", "CHANGED_BARRIER", "INFEASIBLE",
+           "CHANGED",
            "filter_command", "filter_team", "motion", "learn_base", "DAMPING",
            "freeze_flagged", "smooth_learning", "after_learning", "Q_SIGMA",
            "learning_code", "PARAMS", "MAX_DISCS"]
@@ -103,7 +107,10 @@ Q_SIGMA = 1.2
 #: flags of one filtered command (bitwise or)
 CHANGED_LIMITS = 1     # the learned command left the box of the base's limits
 CHANGED_BARRIER = 2    # a barrier moved it
-INFEASIBLE = 4         # no command in the limits keeps every barrier: the robot braked
+INFEASIBLE = 4         # outside the guarantee: a pair's slack was negative, or no command
+#                        in the limits kept every barrier (the robot braked)
+#: the flags of a command the filter changed (INFEASIBLE alone leaves it as it was)
+CHANGED = CHANGED_LIMITS | CHANGED_BARRIER
 
 #: the order of ``SafetySpec.params()``
 PARAMS = ("distance", "discs", "gamma", "radius", "v_max", "omega_max", "a_max",
@@ -292,8 +299,11 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
         zeros when not known); ages : shape (>= count,), how old each pose is [s] (0 when
         it is of this sample).
     params : SafetySpec.params().
-    Returns the flags (CHANGED_LIMITS | CHANGED_BARRIER | INFEASIBLE), 0 if ``out`` is the
-    nominal command.
+    Returns the flags (CHANGED_LIMITS | CHANGED_BARRIER | INFEASIBLE); ``out`` is the
+    nominal command where ``flags & CHANGED`` is 0. INFEASIBLE: a pair's slack was
+    negative before this sample (a pose or a body off by more than the filter accounts
+    for; the command then closes in no more than braking), or nothing in the box keeps
+    every barrier (the robot brakes).
 
     The barrier of a pair of discs (module docstring, "The guarantee"): with n the unit
     vector from robot j's disc to robot i's and g the gap beyond D, robot i's closing
@@ -512,16 +522,17 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
                     ha1[m] = -h1
                     hb[m] = -lim
                     m += 1
-    if not barrier and flags == 0:
+    if infeasible:
+        # a pair's slack was negative before this sample (a pose or a body off by more
+        # than the filter accounts for): outside the guarantee, flagged even where the
+        # command closes in no more than braking and passes unchanged
+        flags |= INFEASIBLE
+    if not barrier and flags & CHANGED == 0:
         out[0] = v_n
         out[1] = w_n
-        return 0
+        return flags
     if barrier:
         flags |= CHANGED_BARRIER
-        if infeasible:
-            # a pair's slack was negative before this sample (a pose or a body off by more
-            # than the filter accounts for): this robot closes in no more than braking
-            flags |= INFEASIBLE
     # the nearest feasible point. Most often one barrier binds: the nearest point of the
     # box cut by that one half-plane is the answer when it keeps every other (the feasible
     # set lies inside that cut box); else clip the box by every half-plane (exact)
@@ -670,14 +681,14 @@ def learn_base(mode: int, memory: NDArray[np.float64], nominal: NDArray[np.float
     command (the anti-windup of learning with input saturation), memory + DAMPING
     (applied - nominal) where a barrier moved it; ``split``: the same where only a limit
     clipped it, the memory itself where a barrier moved it; ``freeze`` and ``ignore``: the
-    memory itself (freeze and split then restore the old memory at flagged samples after
+    memory itself (freeze and split then restore the old memory at changed samples after
     the step, ``freeze_flagged``).
     """
     for r in range(memory.shape[0]):
         for t in range(memory.shape[1]):
             for c in range(2):
                 x = memory[r, t, c]
-                f = flags[r, t]
+                f = flags[r, t] & CHANGED
                 if f != 0 and (mode == APPLIED or (f == CHANGED_LIMITS
                                                    and (mode == SPLIT or mode == DAMPED))):
                     x += applied[r, t, c] - nominal[r, t, c]
@@ -689,14 +700,14 @@ def learn_base(mode: int, memory: NDArray[np.float64], nominal: NDArray[np.float
 @njit(cache=True)
 def freeze_flagged(mode: int, memory: NDArray[np.float64], flags: NDArray[np.int64],
                    learned: NDArray[np.float64]) -> None:
-    """``freeze``: the learned memory keeps the old one at every flagged sample; ``split``:
+    """``freeze``: the learned memory keeps the old one at every changed sample; ``split``:
     at every sample where a barrier acted."""
     if mode != FREEZE and mode != SPLIT:
         return
     for r in range(memory.shape[0]):
         for t in range(memory.shape[1]):
             f = flags[r, t]
-            if (mode == FREEZE and f != 0) or (mode == SPLIT and f & CHANGED_BARRIER):
+            if (mode == FREEZE and f & CHANGED) or (mode == SPLIT and f & CHANGED_BARRIER):
                 learned[r, t, 0] = memory[r, t, 0]
                 learned[r, t, 1] = memory[r, t, 1]
 
@@ -705,10 +716,11 @@ def freeze_flagged(mode: int, memory: NDArray[np.float64], flags: NDArray[np.int
 def smooth_learning(mode: int, dt: float, memory: NDArray[np.float64],
                     flags: NDArray[np.int64], learned: NDArray[np.float64]) -> None:
     """``damped``'s Q-filter, in place on ``learned`` (R, T, 2): around each command the
-    filter changed (a flag in ``flags`` (R, T)), the robot's step ``learned - memory`` is
-    smoothed along the trial by a binomial kernel of standard deviation Q_SIGMA [s] at
-    sample time ``dt`` (its order the nearest even one to 4 (Q_SIGMA / dt)^2, cut at three
-    standard deviations and weighed again at the trial's ends). A sample takes the
+    filter changed (a ``CHANGED`` flag in ``flags`` (R, T)), the robot's step
+    ``learned - memory`` is smoothed along the trial by a binomial kernel of standard
+    deviation Q_SIGMA [s] at sample time ``dt`` (its order the nearest even one to
+    4 (Q_SIGMA / dt)^2, cut at three standard deviations and weighed again at the trial's
+    ends). A sample takes the
     smoothed step by the kernel's weight (1 at its centre) from the nearest changed
     command, and the paper's step beyond three deviations of every one: where the filter
     did not act the law is the paper's. The weights are built by multiplications and
@@ -734,7 +746,7 @@ def smooth_learning(mode: int, dt: float, memory: NDArray[np.float64],
         for t in range(n_t):
             mix[t] = 0.0
         for f in range(n_t):
-            if flags[r, f] != 0:
+            if flags[r, f] & CHANGED:
                 changed = True
                 for j in range(max(-half, -f), min(half, n_t - 1 - f) + 1):
                     if w[half + j] > mix[f + j]:

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 from formation_ilc.config.safety import SafetySettings
 from formation_ilc.config.scenario import Scenario
 from formation_ilc.core.limits import Limits, input_rates
-from formation_ilc.core.safety import SafetySpec, filter_team
+from formation_ilc.core.safety import CHANGED, SafetySpec, filter_team
 from formation_ilc.core.uncertainty import Uncertainty
 from formation_ilc.model.footprint import Footprint, footprint_of
 
@@ -255,7 +255,8 @@ def desired_through_filter(sc: Scenario, spec: SafetySpec) -> DesiredThroughFilt
         # desired command, not the filtered one
         prev[:] = d.u[:, t]
     diff = np.abs(u - d.u)
-    changed = (flags != 0) & ((diff[..., 0] > TOLERANCE[0]) | (diff[..., 1] > TOLERANCE[1]))
+    changed = ((flags & CHANGED != 0)
+               & ((diff[..., 0] > TOLERANCE[0]) | (diff[..., 1] > TOLERANCE[1])))
     count = int(changed.sum())
     if count == 0:
         return DesiredThroughFilter(0, None, (0.0, 0.0), (1, 1), math.inf)

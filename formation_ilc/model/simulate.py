@@ -30,6 +30,7 @@ from formation_ilc.core.links import delivered_label
 from formation_ilc.core.metrics import METRIC_COLUMNS
 from formation_ilc.core.pcg import STATE_SIZE
 from formation_ilc.core.safety import (
+    CHANGED,
     SafetySpec,
     after_learning,
     filter_team,
@@ -264,7 +265,7 @@ def _trial(law: int, memory_mode: int, heading: int, plant: int, dt: float,
     changed = 0
     for r in range(n):
         for t in range(n_t):
-            if sf[3][r, t] != 0:
+            if sf[3][r, t] & CHANGED:
                 changed += 1
     return changed
 

@@ -40,7 +40,7 @@ from formation_ilc.config.runconfig import RunConfig
 from formation_ilc.config.safety import SafetySettings
 from formation_ilc.core.clock import Rejected
 from formation_ilc.core.limits import Limits, RateLimiter
-from formation_ilc.core.safety import INFEASIBLE, SafetySpec, filter_command, motion
+from formation_ilc.core.safety import CHANGED, INFEASIBLE, SafetySpec, filter_command, motion
 from formation_ilc.model.simulate import Problem
 from formation_ilc.protocol.schedule import ABORT, Follower, TrialEvent
 from formation_ilc.protocol.wallclock import WallSchedule
@@ -509,9 +509,8 @@ class Bridge:
         out = np.zeros(2)
         flags = filter_command(cmd[0], cmd[1], x, y, th, self.out_cmd[0], self.out_cmd[1],
                                others, ages, len(heard), params, out)
-        if flags:
-            self.counts["return_filtered"] += 1
-            self.counts["return_infeasible"] += int(bool(flags & INFEASIBLE))
+        self.counts["return_filtered"] += int(bool(flags & CHANGED))
+        self.counts["return_infeasible"] += int(bool(flags & INFEASIBLE))
         return float(out[0]), float(out[1])
 
     def stop(self, now: float) -> Command:

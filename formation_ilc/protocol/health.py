@@ -25,7 +25,8 @@ Thresholds (docs/ros-tools.md lists them for users):
 * contact between robots, or a robot tipped (a plant with bodies): ERROR; contacts in the
   trial's report: WARN (the run acted on them).
 * commands the safety filter changed (a robot's ``filter``): OK, it is doing its work;
-  a sample where no command in the limits kept every barrier (``infeasible``): WARN.
+  a sample outside the filter's guarantee (``infeasible``: a pair already past braking
+  apart, or no command in the limits kept every barrier): WARN.
 * clocks (a robot's or a bridge's ``clock``, ``protocol.timesync``): an estimate not
   converged 20 s after the first exchange, a clock that stepped, a peer silent for 10 s:
   WARN.
@@ -210,8 +211,9 @@ def assess(d: Mapping[str, Any], dt: float | None = None, samples: int | None = 
         found.append((WARN, f"{len(report['pairs'])} pairs of robots touched in the trial"))
     filt = d.get("filter")
     if isinstance(filt, Mapping) and _num(filt.get("infeasible")) > 0:
-        found.append((WARN, f"safety filter: {_num(filt.get('infeasible')):g} samples braked "
-                            f"(no command in the limits kept every barrier)"))
+        found.append((WARN, f"safety filter: {_num(filt.get('infeasible')):g} samples outside "
+                            f"its guarantee (a pair already past braking apart, or no "
+                            f"command in the limits kept every barrier)"))
     clock = d.get("clock")
     warn = clock.get("warn") if isinstance(clock, Mapping) else None
     if isinstance(warn, list) and warn:

@@ -53,6 +53,7 @@ from formation_ilc.core.delays import measure_delay_ns
 from formation_ilc.core.law import command, learn
 from formation_ilc.core.links import LEADER, Delivery, LinkInbox, link_name, robot_name
 from formation_ilc.core.safety import (
+    CHANGED,
     CHANGED_BARRIER,
     CHANGED_LIMITS,
     INFEASIBLE,
@@ -529,7 +530,7 @@ class RobotLearner:
         self.finished = self.k
         if self.safety is not None:
             f = self.flags[0]
-            counts = {"changed": int(np.count_nonzero(f)),
+            counts = {"changed": int(np.count_nonzero(f & CHANGED)),
                       "limits": int(np.count_nonzero(f & CHANGED_LIMITS)),
                       "barrier": int(np.count_nonzero(f & CHANGED_BARRIER)),
                       "infeasible": int(np.count_nonzero(f & INFEASIBLE))}

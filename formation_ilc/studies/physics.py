@@ -25,6 +25,7 @@ from formation_ilc.config.scenario import Scenario
 from formation_ilc.core.law import command, learn
 from formation_ilc.core.metrics import METRIC_COLUMNS
 from formation_ilc.core.safety import (
+    CHANGED,
     SafetySpec,
     after_learning,
     filter_team,
@@ -144,7 +145,7 @@ def run_physics(sc: Scenario, model: RobotModel, trials: int, *,
             contacts = world.contacts()
             res.metrics[i, 0] = k
             res.metrics[i, 1:7] = row
-            res.metrics[i, 7] = int(np.count_nonzero(flags)) if safety is not None else 0
+            res.metrics[i, 7] = int(np.count_nonzero(flags & CHANGED)) if safety is not None else 0
             res.metrics[i, 8] = len(contacts)
             res.filtered.append(int(res.metrics[i, 7]))
             res.limited.append(world.limited)

@@ -184,6 +184,20 @@ def test_without_braking_room_the_robot_brakes_as_hard_as_it_can():
     assert out[0] == pytest.approx(0.9 - 0.3 * 0.2)
 
 
+def test_a_pair_already_past_braking_apart_is_flagged_though_the_command_passes():
+    """Inside the distance already (a pose or a body off by more than the filter
+    accounts for), a robot that backs away from the other needs no change; its command
+    passes unchanged, yet the sample is outside the guarantee and says so."""
+    sp = spec()
+    inside = [0.5 * sp.distance, 0.0, math.pi, 0, 0, 0]  # a robot ahead, too close
+    out, flags = run(sp, (-0.05, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0), [inside])
+    assert flags == INFEASIBLE  # not CHANGED: the learning step treats it as untouched
+    assert tuple(out) == (-0.05, 0.0)
+    # far apart, the same command is nothing to report
+    out, flags = run(sp, (-0.05, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0), [[5.0, 0, math.pi, 0, 0, 0]])
+    assert flags == 0
+
+
 def test_a_receding_robot_leaves_room():
     sp = spec()
     ahead = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0]
