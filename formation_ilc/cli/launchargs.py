@@ -244,7 +244,7 @@ def add_plant_arguments(p: argparse.ArgumentParser) -> None:
 def add_safety_arguments(p: argparse.ArgumentParser) -> None:
     """The safety filter's options (docs/safety.md)."""
     from formation_ilc.config.safety import BODIES
-    from formation_ilc.core.safety import LEARNING
+    from formation_ilc.core.safety import DAMPING, LEARNING, Q_SIGMA
 
     g = p.add_argument_group("the safety filter (docs/safety.md)")
     g.add_argument("--safety", action=argparse.BooleanOptionalAction, default=None,
@@ -262,9 +262,9 @@ def add_safety_arguments(p: argparse.ArgumentParser) -> None:
                         "0.25 on skid steer, whose wheels slip: docs/safety.md)")
     g.add_argument("--safety-learning", choices=LEARNING, default=None,
                    help="how the memory learns where the filter changed a command: damped "
-                        "(takes in a share, 0.15, of a barrier's change and all of a "
-                        "limit's, and smooths its step around the changes over "
-                        "1.2 s; the default on two wheels), applied (from the command "
+                        f"(takes in a share, {DAMPING:g}, of a barrier's change and all "
+                        "of a limit's, and smooths its step around the changes over "
+                        f"{Q_SIGMA:g} s; the default on two wheels), applied (from the command "
                         "the robot really drove), split (from it where a limit clipped the "
                         "command, not at all where a barrier moved it; the default on skid "
                         "steer: husky, jackal), freeze (no learning at those samples), "

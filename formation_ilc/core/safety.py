@@ -100,7 +100,7 @@ __all__ = ["SafetySpec", "LEARNING", "CHANGED_LIMITS", "CHANGED_BARRIER", "INFEA
 LEARNING = ("applied", "freeze", "ignore", "split", "damped")
 APPLIED, FREEZE, IGNORE, SPLIT, DAMPED = 0, 1, 2, 3, 4
 #: ``damped``: the share of a barrier's change the memory takes in (a limit's, in full)
-DAMPING = 0.15
+DAMPING = 0.05
 #: ``damped``: the Q-filter's standard deviation [s] (``smooth_learning``; 0: none)
 Q_SIGMA = 1.2
 
