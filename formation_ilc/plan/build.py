@@ -254,8 +254,11 @@ def _with_peers(plan: RunPlan, secure: bool = False, one_host: bool = True) -> R
     """``plan`` with a discovery profile when its processes are more than localhost
     discovery reaches on its own (``system.discovery``), and through the launcher's
     discovery server from ``SERVER_FROM`` participants (or with ``--discovery server``) on
-    one host without ``--secure``; NoRun when the caller's FASTRTPS_DEFAULT_PROFILES_FILE
-    cannot be built on, or the server is asked for where it cannot serve."""
+    one host, its robots on network namespaces of their own or not, without ``--secure``;
+    NoRun when the caller's FASTRTPS_DEFAULT_PROFILES_FILE cannot be built on, or the
+    server is asked for where it cannot serve. On ``--hosts netns`` the profiles build on
+    the run's (``HostsPlan.profile_file``), and each robot's processes load their own,
+    bound to their namespace's address (``RunPlan.robot_profile``)."""
     from formation_ilc.system.discovery import (
         SERVER_FROM,
         needs_peers,
@@ -264,21 +267,21 @@ def _with_peers(plan: RunPlan, secure: bool = False, one_host: bool = True) -> R
     )
 
     if plan.discovery == "server":
-        why = ("--hosts (each network-namespace host finds its peers by unicast)"
-               if plan.hosts is not None else
-               "--secure (the server would run outside every enclave, and a secure "
+        why = ("--secure (the server would run outside every enclave, and a secure "
                "participant takes no discovery from it)" if secure else
-               "a run over several machines (it listens on 127.0.0.1)" if not one_host
+               "a run over several machines (it listens on this machine only)" if not one_host
                else None)
         if why is not None:
             raise NoRun(f"argument --discovery server: not with {why}; leave --discovery "
                         f"out")
-    elif (plan.discovery != "localhost" or plan.hosts is not None
-            or not needs_peers(plan.participants)):
+    elif plan.discovery != "localhost":
         return plan
     elif plan.participants >= SERVER_FROM and one_host and not secure:
         plan = replace(plan, discovery="server")
-    base = _user_profile()
+    elif plan.hosts is not None or not needs_peers(plan.participants):
+        # (on hosts of their own the robots find their peers by unicast: ROS_STATIC_PEERS)
+        return plan
+    base = plan.hosts.profile_file if plan.hosts is not None else _user_profile()
     try:
         if plan.discovery == "server":
             server_profile(base, plan.participants)
@@ -286,7 +289,13 @@ def _with_peers(plan: RunPlan, secure: bool = False, one_host: bool = True) -> R
             peers_profile(base, plan.domain, plan.participants)
     except ValueError as exc:
         raise NoRun(f"FASTRTPS_DEFAULT_PROFILES_FILE {exc}") from None
-    return replace(plan, peers_profile=plan.out / "fastdds-discovery.xml", peers_base=base)
+    plan = replace(plan, peers_profile=plan.out / "fastdds-discovery.xml", peers_base=base)
+    if plan.hosts is None:
+        return plan
+    return replace(plan, nodes=tuple(
+        s if s.host is None else replace(s, env=(*s.env, (
+            "FASTRTPS_DEFAULT_PROFILES_FILE", str(plan.robot_profile(s.host)))))
+        for s in plan.nodes))
 
 
 def _secured(plan: RunPlan, keystore: Path | str | None) -> RunPlan:
