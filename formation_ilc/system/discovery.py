@@ -146,6 +146,16 @@ def server_profile(base: Path | None, participants: int, address: str = LOOPBACK
     its namespace's address on the bridge instead (``netns.Hosts``): the only address its
     peers and the server in the hub reach it at. ValueError as :func:`peers_profile`."""
     doc = Profiles(base)
+    _bound_transport(doc, participants, address)
+    where = "one host" if address == LOOPBACK else f"hosts on one bridge, this one {address}"
+    return doc.text(f"formation-ilc launch: a {participants}-process team on {where}, "
+                    f"every participant a client of the launcher's discovery server "
+                    f"(formation_ilc/system/discovery.py)")
+
+
+def _bound_transport(doc: Profiles, participants: int, address: str) -> None:
+    """Into ``doc``'s default participant profile: ``mutation_tries`` for
+    ``participants``, and one transport, UDP bound to ``address``."""
     ns = doc.ns
     rtps = _rtps(doc, participants)
     descriptors = next((c for c in doc.profiles if local(c.tag) == "transport_descriptors"),
@@ -161,10 +171,30 @@ def server_profile(base: Path | None, participants: int, address: str = LOOPBACK
     user = child(rtps, "userTransports", ns)
     ET.SubElement(user, f"{ns}transport_id").text = LOOPBACK_TRANSPORT
     child(rtps, "useBuiltinTransports", ns).text = "false"
-    where = "one host" if address == LOOPBACK else f"hosts on one bridge, this one {address}"
-    return doc.text(f"formation-ilc launch: a {participants}-process team on {where}, "
-                    f"every participant a client of the launcher's discovery server "
-                    f"(formation_ilc/system/discovery.py)")
+
+
+#: the GUID prefix of the server of id 0, the first of ROS_DISCOVERY_SERVER (Fast DDS's
+#: ``44.53.<id>.5f.45.50.52.4f.53.49.4d.41``; its clients expect that one)
+SERVER_PREFIX = "44.53.00.5f.45.50.52.4f.53.49.4d.41"
+
+
+def _own_profile(host: str, port: int) -> str:
+    """The discovery server's own profile: a SERVER listening on ``host``:``port``, its
+    one transport UDP bound to ``host`` (``fast-discovery-server -x``; without it the
+    server's sockets listen on 0.0.0.0, every interface, however ``-l`` is given)."""
+    doc = Profiles(None)
+    ns = doc.ns
+    _bound_transport(doc, 1, host)
+    rtps = child(doc.default_participant("formation_ilc_discovery"), "rtps", ns)
+    child(rtps, "prefix", ns).text = SERVER_PREFIX
+    builtin = child(rtps, "builtin", ns)
+    child(child(builtin, "discovery_config", ns), "discoveryProtocol", ns).text = "SERVER"
+    udp = ET.SubElement(ET.SubElement(child(builtin, "metatrafficUnicastLocatorList", ns),
+                                      f"{ns}locator"), f"{ns}udpv4")
+    ET.SubElement(udp, f"{ns}address").text = host
+    ET.SubElement(udp, f"{ns}port").text = str(port)
+    return doc.text(f"formation-ilc launch: the run's discovery server, on {host}:{port} "
+                    f"alone (formation_ilc/system/discovery.py)")
 
 
 class ServerError(RuntimeError):
@@ -235,6 +265,8 @@ class DiscoveryServer:
 
     def __init__(self, log: Path, host: str = LOOPBACK) -> None:
         self.log = log
+        #: the server's own Fast DDS profile, written beside its log
+        self.profile = log.with_suffix(".xml")
         self.host = host
         self.proc: subprocess.Popen[bytes] | None = None
         self.address = ""
@@ -247,11 +279,16 @@ class DiscoveryServer:
             raise ServerError(f"no UDP port free on {self.host}: "
                               f"{exc.strerror or exc}") from None
         self.log.parent.mkdir(parents=True, exist_ok=True)
+        # its sockets bound to the host alone: without this Fast DDS binds 0.0.0.0 (every
+        # interface) and only announces the host
+        self.profile.write_text(_own_profile(self.host, port))
+        env = dict(_server_env(), FASTRTPS_DEFAULT_PROFILES_FILE=str(self.profile))
         with open(self.log, "wb") as out:
             try:
                 self.proc = subprocess.Popen(
-                    [str(binary), "-i", "0", "-l", self.host, "-p", str(port)],
-                    env=_server_env(), stdout=out, stderr=subprocess.STDOUT,
+                    [str(binary), "-i", "0", "-l", self.host, "-p", str(port),
+                     "-x", str(self.profile)],
+                    env=env, stdout=out, stderr=subprocess.STDOUT,
                     stdin=subprocess.DEVNULL, start_new_session=True,
                     preexec_fn=_die_with_launcher)
             except OSError as exc:
