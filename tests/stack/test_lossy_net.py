@@ -200,6 +200,40 @@ def test_lossy_links_across_namespaces(netns_support, ros_env, tmp_path):
 
 @pytest.mark.ros
 @pytest.mark.multiprocess
+def test_through_the_discovery_server_in_the_hub(netns_support, ros_env, tmp_path):
+    """``--hosts netns --discovery server`` (the default from 64 participants: 100 robots on
+    hosts of their own did not start without it): every process a client of the server
+    the launcher starts in the hub, on the hub's address; the robots' data still goes
+    robot to robot, through the faulted links. Lockstep with direct links: the run is the
+    batch simulator's without delay."""
+    from .test_stack import TOL
+
+    trials, delay = 3, 10.0
+    out = tmp_path / "run"
+    res = launch(ros_env, out, "paper-triangle3", "--trials", str(trials), "--seed", "5",
+                 "--hosts", "netns", "--discovery", "server", "--net-delay-ms", str(delay),
+                 timeout=120)
+    assert res.returncode == 0, res.stdout
+    assert "discovery: through Fast DDS's discovery server on 10.77.0.1:" in res.stdout
+    got = read_metrics(out / "metrics.csv")
+    ref = simulate(load_scenario("paper-triangle3").with_options(delay=False, seed=5),
+                   trials=trials).metrics
+    np.testing.assert_array_equal(got[:, 0], ref[:, 0])
+    np.testing.assert_allclose(got[:, 1:], ref[:, 1:], rtol=0, atol=TOL)
+    # robot 2's process ran in its namespace, a client of the server with its own profile
+    log = (out / "logs" / "discovery_server.log").read_text()
+    assert "Participant Type:   SERVER" in log and "[10.77.0.1]" in log
+    assert 'address>10.77.0.12<' in (out / "hosts" / "fastdds-discovery-r2.xml").read_text()
+    # what robot 1 sent the other robots went through its delayer: robot to robot
+    summary = json.loads((out / "summary.json").read_text())
+    d1 = summary["hosts"]["delayers"]["robot_1"]
+    assert d1["packets"] > 100 and hold_quantiles(d1["hold_ms"])[0] >= delay - 1, d1
+    assert not set(summary["hosts"]["namespaces"]) & _namespaces()
+    assert not _ours(ros_env["ROS_DOMAIN_ID"], out)
+
+
+@pytest.mark.ros
+@pytest.mark.multiprocess
 def test_a_stopped_launcher_leaves_no_namespace_behind(netns_support, ros_env, tmp_path):
     """SIGTERM while the namespaces are being set up or the nodes start: the launcher
     still removes every namespace, rule and delayer."""
