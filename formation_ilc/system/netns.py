@@ -70,6 +70,16 @@ def robot_address(i: int) -> str:
     return f"{SUBNET}.{ROBOT_HOST0 + i}"
 
 
+def hub_mac() -> str:
+    """The link-layer address of the hub's bridge (locally administered, fixed)."""
+    return "02:77:00:00:00:01"
+
+
+def robot_mac(i: int) -> str:
+    """The link-layer address of robot ``i``'s eth0."""
+    return f"02:77:00:00:01:{i:02x}"
+
+
 class NetnsError(RuntimeError):
     """A namespace, rule or delayer could not be set up (one line, names what)."""
 
@@ -266,7 +276,8 @@ class Hosts:
                              f"killed? `ip netns del {clash[0]}`)")
         hub = self.hub
         self._add(hub)
-        _run(["ip", "-n", hub, "link", "add", "br0", "type", "bridge"], "bridge")
+        _run(["ip", "-n", hub, "link", "add", "br0", "address", hub_mac(), "type", "bridge"],
+             "bridge")
         _run(["ip", "-n", hub, "addr", "add", f"{self.hub_address}/24", "dev", "br0"], "address")
         _run(["ip", "-n", hub, "link", "set", "br0", "up"], "bridge up")
         for i in range(1, self.n + 1):
@@ -275,14 +286,42 @@ class Hosts:
             # created inside the hub, its peer directly inside the robot's namespace: no
             # interface ever exists in the caller's namespace
             _run(["ip", "-n", hub, "link", "add", f"v{i}", "type", "veth", "peer", "name",
-                  "eth0", "netns", ns], "veth")
+                  "eth0", "address", robot_mac(i), "netns", ns], "veth")
             _run(["ip", "-n", hub, "link", "set", f"v{i}", "master", "br0", "up"], "veth up")
             _run(["ip", "-n", ns, "addr", "add", f"{self.address(i)}/24", "dev", "eth0"],
                  "address")
             _run(["ip", "-n", ns, "link", "set", "eth0", "up"], "veth up")
+        self._static_neighbours()
         if self.faults.active:
             for i in range(1, self.n + 1):
                 self._fault_links(i)
+
+    def _static_neighbours(self) -> None:
+        """Every namespace knows the link-layer address of every other one's: no ARP.
+
+        The kernel's ARP table is one for all network namespaces, and holds at most
+        ``net.ipv4.neigh.default.gc_thresh3`` entries (1024 by default) that it may
+        collect; a team whose processes talk to each other needs about n^2. At 100 robots
+        it was full ("neighbor table overflow" in the kernel log, 1024 entries over the
+        run's namespaces), and a robot that came later could not resolve even the hub:
+        every datagram it sent failed (SndbufErrors), 68 robots were never found.
+        Permanent entries are not counted against that limit, and are set here, at once
+        for each namespace (``ip -batch``), to addresses fixed at creation."""
+        everyone = [(hub_address(), hub_mac())] + [
+            (robot_address(i), robot_mac(i)) for i in range(1, self.n + 1)]
+        for ns, dev, own in ([(self.hub, "br0", hub_address())]
+                             + [(self.robot_ns(i), "eth0", robot_address(i))
+                                for i in range(1, self.n + 1)]):
+            lines = "".join(f"neigh replace {addr} lladdr {mac} dev {dev} nud permanent\n"
+                            for addr, mac in everyone if addr != own)
+            if not lines:
+                continue
+            res = subprocess.run(["ip", "-n", ns, "-batch", "-"], input=lines,
+                                 capture_output=True, text=True)
+            if res.returncode != 0:
+                msg = (res.stderr or res.stdout).strip().splitlines()
+                raise NetnsError(f"static neighbours in {ns}: "
+                                 f"{msg[-1] if msg else res.returncode}")
 
     def _add(self, ns: str) -> None:
         # recorded before it exists: a signal during `ip netns add` may leave it created, and

@@ -198,6 +198,29 @@ def test_lossy_links_across_namespaces(netns_support, ros_env, tmp_path):
     assert got[-1, 1] <= 2 * clean[-1, 1], (got[:, 1], clean[:, 1])
 
 
+def test_every_namespace_knows_every_others_link_address(netns_support, tmp_path):
+    """No ARP between the namespaces: the kernel's ARP table, one for all of them, held at
+    most 1024 entries it may collect, and 100 robots needed about 100^2 (those started
+    last could send nothing). Every entry is permanent, set when the namespaces are."""
+    from formation_ilc.system.netns import Hosts, hub_mac, robot_mac
+
+    def neigh(ns: str) -> set[tuple[str, str, str]]:
+        out = subprocess.run(["ip", "-4", "-n", ns, "neigh", "show", "nud", "all"],
+                             capture_output=True, text=True).stdout
+        return {(f[0], f[4], f[-1]) for f in (ln.split() for ln in out.splitlines())
+                if f[0].startswith("10.77.0.")}  # (not the multicast groups' own)
+
+    with Hosts(3, LinkFaults(), log_dir=tmp_path) as hosts:
+        assert neigh(hosts.robot_ns(2)) == {
+            ("10.77.0.1", hub_mac(), "PERMANENT"), ("10.77.0.11", robot_mac(1), "PERMANENT"),
+            ("10.77.0.13", robot_mac(3), "PERMANENT")}
+        assert neigh(hosts.hub) == {(f"10.77.0.{10 + i}", robot_mac(i), "PERMANENT")
+                                    for i in (1, 2, 3)}
+        link = subprocess.run(["ip", "-n", hosts.robot_ns(3), "link", "show", "eth0"],
+                              capture_output=True, text=True).stdout
+        assert f"link/ether {robot_mac(3)} " in link
+
+
 @pytest.mark.ros
 @pytest.mark.multiprocess
 def test_through_the_discovery_server_in_the_hub(netns_support, ros_env, tmp_path):
