@@ -395,6 +395,8 @@ def scale_run(n: int, args: argparse.Namespace, tmp: Path, dom: int) -> dict:
         argv += ["--hosts", "netns"]
     if args.scale_discovery:
         argv += ["--discovery", args.scale_discovery]
+    if args.scale_dds_profile:
+        argv += ["--dds-profile", args.scale_dds_profile]
     if args.scale_safety:
         argv += ["--safety"]
     t0 = time.monotonic()
@@ -579,6 +581,9 @@ def main() -> int:
     ap.add_argument("--scale-discovery", choices=("localhost", "server"), default=None,
                     help="the curve's launches with --discovery this (default: the "
                          "launcher's, the discovery server from 64 participants)")
+    ap.add_argument("--scale-dds-profile", choices=("lossy", "none"), default=None,
+                    help="with --scale-hosts: the launches' --dds-profile (default: the "
+                         "launcher's, lossy)")
     ap.add_argument("--scale-safety", action="store_true",
                     help="the curve's robots through the safety filter (--safety: each "
                          "reads the whole team's poses every sample)")

@@ -330,4 +330,6 @@ def add_host_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--dds-profile", choices=("lossy", "none"), default=None,
                    help="with --hosts netns: lossy (default): the package's Fast DDS profile "
                         "for lossy links (50 ms writer heartbeat: a lost sample is repaired "
-                        "within about a round trip); none: Fast DDS defaults (3 s)")
+                        "within about a round trip); none: Fast DDS defaults (3 s), the "
+                        "default through the discovery server (64 participants and more) "
+                        "without --net-loss")

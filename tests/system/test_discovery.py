@@ -204,9 +204,10 @@ def test_robots_on_hosts_of_their_own_go_through_the_server_in_the_hub(
     small = plan(tmp_path, "paper-triangle3", "--hosts", "netns")
     assert small.discovery == "localhost" and small.peers_profile is None
     assert all(not s.env for s in small.nodes)  # unicast to every host, as before
-    run = plan(tmp_path, "paper-triangle3", "--hosts", "netns", "--discovery", "server")
+    run = plan(tmp_path, "paper-triangle3", "--hosts", "netns", "--discovery", "server",
+               "--dds-profile", "lossy")
     assert run.discovery == "server" and run.server_host == "10.77.0.1"
-    assert run.peers_base == lossy_profile()
+    assert run.peers_base == lossy_profile() and run.hosts.profile == "lossy"
     robots = {s.host: dict(s.env) for s in run.nodes if s.host is not None}
     assert sorted(robots) == [1, 2, 3]
     for i, env in robots.items():
@@ -229,6 +230,12 @@ def test_robots_on_hosts_of_their_own_go_through_the_server_in_the_hub(
     (tmp_path / "big.yaml").write_text(team_yaml(SERVER_FROM - 3))
     big = plan(tmp_path, str(tmp_path / "big.yaml"), "--hosts", "netns")
     assert big.participants == SERVER_FROM and big.discovery == "server"
+    # without loss to repair, Fast DDS's defaults: the lossy profile's 50 ms heartbeat kept
+    # 100 robots from starting; with --net-loss, or asked for, the lossy one
+    assert big.hosts.profile == "none" and big.peers_base is None
+    assert plan(tmp_path, str(tmp_path / "big.yaml"), "--hosts", "netns", "--net-loss",
+                "0.01").peers_base == lossy_profile()
+    assert small.hosts.profile == "lossy"  # not through the server: as before
     assert sum(dict(s.env).get("FASTRTPS_DEFAULT_PROFILES_FILE") == str(big.robot_profile(s.host))
                for s in big.nodes if s.host is not None) == SERVER_FROM - 3
     # refused where it cannot serve: a secure run stays on unicast to every host
