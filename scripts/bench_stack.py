@@ -393,6 +393,10 @@ def scale_run(n: int, args: argparse.Namespace, tmp: Path, dom: int) -> dict:
             "--container", str(args.scale_container)]
     if args.scale_hosts:
         argv += ["--hosts", "netns"]
+    if args.scale_discovery:
+        argv += ["--discovery", args.scale_discovery]
+    if args.scale_dds_profile:
+        argv += ["--dds-profile", args.scale_dds_profile]
     if args.scale_safety:
         argv += ["--safety"]
     t0 = time.monotonic()
@@ -421,13 +425,15 @@ def scale_run(n: int, args: argparse.Namespace, tmp: Path, dom: int) -> dict:
     while proc.poll() is None and time.monotonic() - t0 < args.timeout:
         if bare is None and "started" in marks:
             # the bare node loads the run's Fast DDS profile too, if it has one (written
-            # before the processes start)
+            # before the processes start), but not on hosts of their own: there it binds
+            # the hub's address, which this namespace has not
             team = out / "fastdds-discovery.xml"
+            own = team.exists() and not args.scale_hosts
             bare = subprocess.Popen(
                 [sys.executable, str(Path(__file__).resolve()), "--bare-node",
                  str(args.timeout)],
                 env={**env, **({"FASTRTPS_DEFAULT_PROFILES_FILE": str(team)}
-                               if team.exists() else {})},
+                               if own else {})},
                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         for pid in descendants([proc.pid] + ([bare.pid] if bare is not None else [])):
             kind = kind_of(pid)
@@ -469,6 +475,8 @@ def scale_run(n: int, args: argparse.Namespace, tmp: Path, dom: int) -> dict:
     return {"start_cpu": sum(start_cpu), "start_cpu_median": float(np.median(start_cpu))
             if start_cpu else float("nan"),
             "robots": n, "participants": len(peak) - 1,  # the bare node is no part
+            "discovery": "server" if any(ln.startswith("discovery: through")
+                                         for ln in lines) else "localhost",
             "first": marks.get("first"), "found": startup.get("all_found_s"),
             "ready": startup.get("all_ready_s"), "kinds": by_kind,
             "total_mb": sum(mb for k, mb in peak.values() if k != "bare node"),
@@ -498,7 +506,8 @@ def scale_curve(args: argparse.Namespace, tmp: Path, dom: int) -> None:
             continue
         rows.append(r)
         bare = max(r["kinds"].get("bare node", [float("nan")]))
-        print(f"{n} robots, {r['participants']} participants: first trial "
+        print(f"{n} robots, {r['participants']} participants, discovery {r['discovery']}: "
+              f"first trial "
               f"{_num(r['first'], 1)} s after the launch; every node found "
               f"{_num(r['found'], 1)} s, ready {_num(r['ready'], 1)} s (launcher's clock); "
               f"RSS in all {r['total_mb']:.0f} MB; CPU {_num(r['cpu_ms'], 2)} ms per "
@@ -569,6 +578,12 @@ def main() -> int:
     ap.add_argument("--scale-container", type=int, default=0, metavar="C")
     ap.add_argument("--scale-hosts", action="store_true",
                     help="the curve's robots on network-namespace hosts (--hosts netns)")
+    ap.add_argument("--scale-discovery", choices=("localhost", "server"), default=None,
+                    help="the curve's launches with --discovery this (default: the "
+                         "launcher's, the discovery server from 64 participants)")
+    ap.add_argument("--scale-dds-profile", choices=("lossy", "none"), default=None,
+                    help="with --scale-hosts: the launches' --dds-profile (default: the "
+                         "launcher's, lossy)")
     ap.add_argument("--scale-safety", action="store_true",
                     help="the curve's robots through the safety filter (--safety: each "
                          "reads the whole team's poses every sample)")

@@ -43,18 +43,20 @@ def run_on_hosts(plan: RunPlan, execute: Execute) -> int:
             return spec.command
         return hosts.exec_argv(hosts.robot_ns(spec.host), spec.command)
 
+    how = ("through the discovery server in the hub" if plan.discovery == "server"
+           else "by unicast to every host")
     saved = dict(os.environ)
     status = 1
     try:
         with hosts:
-            os.environ.update(hosts.ros_env())
+            os.environ.update(hosts.ros_env(server=plan.discovery == "server"))
             os.environ.pop("FASTRTPS_DEFAULT_PROFILES_FILE", None)
             if plan.hosts.profile_file is not None:
                 os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(plan.hosts.profile_file)
             print(f"hosts: robot i in network namespace {hosts.robot_ns(1)[:-1]}i "
                   f"({netns.SUBNET}.{netns.ROBOT_HOST0}+i), the rest in {hosts.hub} "
                   f"({hosts.hub_address}); links between robots: {faults.describe()}; "
-                  f"Fast DDS profile {profile}", flush=True)
+                  f"Fast DDS profile {profile}; discovery {how}", flush=True)
             with hosts.entered_hub():
                 status = execute(plan, place)
             stats = hosts.stop_delayers()

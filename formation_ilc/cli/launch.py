@@ -179,7 +179,9 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
     if plan.discovery == "server":  # every process a client, the monitor too
         from formation_ilc.system.discovery import DiscoveryServer, ServerError
 
-        server = DiscoveryServer(plan.out / "logs" / "discovery_server.log")
+        # (with --hosts netns this runs in the hub's namespace: the server listens on the
+        # hub's address on the bridge, which every robot's namespace reaches)
+        server = DiscoveryServer(plan.out / "logs" / "discovery_server.log", plan.server_host)
         try:
             env[SERVER_ENV] = server.start()
         except ServerError as exc:

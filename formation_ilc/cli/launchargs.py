@@ -152,8 +152,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    default="localhost",
                    help="localhost (default): ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, and "
                         "from 64 processes through a Fast DDS discovery server the launcher "
-                        "starts on 127.0.0.1 (every participant announces itself to the "
-                        "server only: 100 robots, one process each, start on 2 cores); "
+                        "starts on 127.0.0.1, or with --hosts netns on the hub's address "
+                        "(every participant announces itself to the server only: 100 robots, "
+                        "one process each, start on 2 cores); "
                         "server: that server for any team on this machine; inherit: keep "
                         "the caller's discovery settings (multi-host runs)")
     p.add_argument("--timeout", type=positive_float, default=30.0, metavar="S",
@@ -329,4 +330,6 @@ def add_host_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--dds-profile", choices=("lossy", "none"), default=None,
                    help="with --hosts netns: lossy (default): the package's Fast DDS profile "
                         "for lossy links (50 ms writer heartbeat: a lost sample is repaired "
-                        "within about a round trip); none: Fast DDS defaults (3 s)")
+                        "within about a round trip); none: Fast DDS defaults (3 s), the "
+                        "default through the discovery server (64 participants and more) "
+                        "without --net-loss")

@@ -321,15 +321,40 @@ class RunPlan:
         monitor (one per process; ``--hosts netns`` robots are on hosts of their own)."""
         return len(self.nodes) + 1
 
+    @property
+    def server_host(self) -> str:
+        """Where the launcher's discovery server (``discovery`` "server") listens and its
+        clients here bind: 127.0.0.1, or with ``--hosts netns`` the hub's address on the
+        namespaces' bridge."""
+        from formation_ilc.system.discovery import LOOPBACK
+        from formation_ilc.system.netns import hub_address
+
+        return LOOPBACK if self.hosts is None else hub_address()
+
+    def robot_profile(self, robot: int) -> Path:
+        """``--hosts netns`` through the discovery server: the profiles file of robot
+        ``robot``'s processes, its UDP bound to its namespace's address."""
+        return self.out / "hosts" / f"fastdds-discovery-r{robot}.xml"
+
     def write_peers_profile(self) -> None:
-        """Write ``peers_profile`` (when the plan has one)."""
+        """Write ``peers_profile`` (when the plan has one), and with ``--hosts netns``
+        through the discovery server each robot namespace's (``robot_profile``)."""
         from formation_ilc.system.discovery import peers_profile, server_profile
+        from formation_ilc.system.netns import robot_address
 
         if self.peers_profile is None:
             return
+        if self.discovery != "server":
+            self.peers_profile.write_text(
+                peers_profile(self.peers_base, self.domain, self.participants))
+            return
         self.peers_profile.write_text(
-            server_profile(self.peers_base, self.participants) if self.discovery == "server"
-            else peers_profile(self.peers_base, self.domain, self.participants))
+            server_profile(self.peers_base, self.participants, self.server_host))
+        for robot in sorted({s.host for s in self.nodes if s.host is not None}):
+            path = self.robot_profile(robot)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(server_profile(self.peers_base, self.participants,
+                                           robot_address(robot)))
 
     @property
     def scenario(self) -> Scenario:

@@ -41,6 +41,11 @@ starts Fast DDS's discovery server on 127.0.0.1 instead (``fast-discovery-server
 with the venv's Fast DDS: :class:`DiscoveryServer`), and every process is its client
 (``ROS_DISCOVERY_SERVER``): each announces itself to the server only, which tells each
 client of the endpoints it matches. 100 robots then started in 80 s and ran.
+
+With ``--hosts netns`` (each robot in a network namespace of its own) the same server runs
+in the hub namespace on the hub's bridge address, and each namespace's clients bind their
+own address (:func:`server_profile`'s ``address``; ``system.netns``). The server's own
+sockets are bound to its address alone (:func:`_own_profile`).
 """
 
 from __future__ import annotations
@@ -58,8 +63,8 @@ from pathlib import Path
 from formation_ilc.system.ddsxml import Profiles, child, local
 
 __all__ = ["RMW_PEER_IDS", "MARGIN", "MAX_IDS", "SERVER_FROM", "SERVER_ENV", "LOOPBACK_TRANSPORT",
-           "discovery_port", "peer_ids", "needs_peers", "mutation_tries", "peers_profile",
-           "server_profile", "DiscoveryServer", "ServerError"]
+           "LOOPBACK", "discovery_port", "peer_ids", "needs_peers", "mutation_tries",
+           "peers_profile", "server_profile", "DiscoveryServer", "ServerError"]
 
 #: participant ids that rmw_fastrtps's LOCALHOST peer reaches (its maxInitialPeersRange)
 RMW_PEER_IDS = 32
@@ -128,19 +133,34 @@ def peers_profile(base: Path | None, domain: int, participants: int) -> str:
                     f"this machine (formation_ilc/system/discovery.py)")
 
 
-#: the transport of a discovery server's clients: UDP on the loopback interface only
+#: the transport of a discovery server's clients: UDP on one interface only (the loopback
+#: on one host; a namespace's bridge address with ``--hosts netns``)
 LOOPBACK_TRANSPORT = "formation_ilc_loopback_udp"
+#: where a one-host run's server listens and its clients bind
+LOOPBACK = "127.0.0.1"
 
 
-def server_profile(base: Path | None, participants: int) -> str:
+def server_profile(base: Path | None, participants: int, address: str = LOOPBACK) -> str:
     """A Fast DDS profiles file for the clients of a discovery server: ``base``'s profiles
     (or none) with ``mutation_tries`` for ``participants`` on one host, and one transport,
-    UDP bound to 127.0.0.1 (the server's address comes from ROS_DISCOVERY_SERVER).
+    UDP bound to ``address`` (the server's address comes from ROS_DISCOVERY_SERVER).
     rmw_fastrtps's LOCALHOST range would add shared memory, whose ports the clients of
     one host took twice ("open_and_lock_file failed": 74 of 102 nodes found after 110 s),
     so the clients run with the range SYSTEM_DEFAULT and this transport keeps every
-    datagram on the loopback. ValueError as :func:`peers_profile`."""
+    datagram on the loopback. A client in a network namespace of ``--hosts netns`` binds
+    its namespace's address on the bridge instead (``netns.Hosts``): the only address its
+    peers and the server in the hub reach it at. ValueError as :func:`peers_profile`."""
     doc = Profiles(base)
+    _bound_transport(doc, participants, address)
+    where = "one host" if address == LOOPBACK else f"hosts on one bridge, this one {address}"
+    return doc.text(f"formation-ilc launch: a {participants}-process team on {where}, "
+                    f"every participant a client of the launcher's discovery server "
+                    f"(formation_ilc/system/discovery.py)")
+
+
+def _bound_transport(doc: Profiles, participants: int, address: str) -> None:
+    """Into ``doc``'s default participant profile: ``mutation_tries`` for
+    ``participants``, and one transport, UDP bound to ``address``."""
     ns = doc.ns
     rtps = _rtps(doc, participants)
     descriptors = next((c for c in doc.profiles if local(c.tag) == "transport_descriptors"),
@@ -152,13 +172,34 @@ def server_profile(base: Path | None, participants: int) -> str:
     ET.SubElement(desc, f"{ns}transport_id").text = LOOPBACK_TRANSPORT
     ET.SubElement(desc, f"{ns}type").text = "UDPv4"
     ET.SubElement(ET.SubElement(desc, f"{ns}interfaceWhiteList"),
-                  f"{ns}address").text = "127.0.0.1"
+                  f"{ns}address").text = address
     user = child(rtps, "userTransports", ns)
     ET.SubElement(user, f"{ns}transport_id").text = LOOPBACK_TRANSPORT
     child(rtps, "useBuiltinTransports", ns).text = "false"
-    return doc.text(f"formation-ilc launch: a {participants}-process team on one host, "
-                    f"every participant a client of the launcher's discovery server "
-                    f"(formation_ilc/system/discovery.py)")
+
+
+#: the GUID prefix of the server of id 0, the first of ROS_DISCOVERY_SERVER (Fast DDS's
+#: ``44.53.<id>.5f.45.50.52.4f.53.49.4d.41``; its clients expect that one)
+SERVER_PREFIX = "44.53.00.5f.45.50.52.4f.53.49.4d.41"
+
+
+def _own_profile(host: str, port: int) -> str:
+    """The discovery server's own profile: a SERVER listening on ``host``:``port``, its
+    one transport UDP bound to ``host`` (``fast-discovery-server -x``; without it the
+    server's sockets listen on 0.0.0.0, every interface, however ``-l`` is given)."""
+    doc = Profiles(None)
+    ns = doc.ns
+    _bound_transport(doc, 1, host)
+    rtps = child(doc.default_participant("formation_ilc_discovery"), "rtps", ns)
+    child(rtps, "prefix", ns).text = SERVER_PREFIX
+    builtin = child(rtps, "builtin", ns)
+    child(child(builtin, "discovery_config", ns), "discoveryProtocol", ns).text = "SERVER"
+    udp = ET.SubElement(ET.SubElement(child(builtin, "metatrafficUnicastLocatorList", ns),
+                                      f"{ns}locator"), f"{ns}udpv4")
+    ET.SubElement(udp, f"{ns}address").text = host
+    ET.SubElement(udp, f"{ns}port").text = str(port)
+    return doc.text(f"formation-ilc launch: the run's discovery server, on {host}:{port} "
+                    f"alone (formation_ilc/system/discovery.py)")
 
 
 class ServerError(RuntimeError):
@@ -203,59 +244,72 @@ def _die_with_launcher() -> None:
         pass
 
 
-def _free_udp_port() -> int:
+def _free_udp_port(host: str) -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
+        s.bind((host, 0))
         return int(s.getsockname()[1])
 
 
-def _port_taken(port: int) -> bool:
+def _port_taken(host: str, port: int) -> bool:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         try:
-            s.bind(("127.0.0.1", port))
+            s.bind((host, port))
         except OSError as exc:
             return exc.errno == errno.EADDRINUSE
         return False
 
 
 class DiscoveryServer:
-    """Fast DDS's discovery server on 127.0.0.1, for one run: ``start`` returns the
-    ROS_DISCOVERY_SERVER value of its clients once the server listens; ``stop`` ends it.
-    Its console goes to ``log``."""
+    """Fast DDS's discovery server for one run, listening on ``host`` (127.0.0.1; with
+    ``--hosts netns`` the hub's address on the namespaces' bridge, started from inside the
+    hub): ``start`` returns the ROS_DISCOVERY_SERVER value of its clients once the server
+    listens; ``stop`` ends it. Its console goes to ``log``."""
 
     #: how long the server may take to open its port
     START_S = 10.0
 
-    def __init__(self, log: Path) -> None:
+    def __init__(self, log: Path, host: str = LOOPBACK) -> None:
         self.log = log
+        #: the server's own Fast DDS profile, written beside its log
+        self.profile = log.with_suffix(".xml")
+        self.host = host
         self.proc: subprocess.Popen[bytes] | None = None
         self.address = ""
 
     def start(self) -> str:
         binary = _server_binary()
-        port = _free_udp_port()
+        try:  # (the caller's network namespace must hold the address)
+            port = _free_udp_port(self.host)
+        except OSError as exc:
+            raise ServerError(f"no UDP port free on {self.host}: "
+                              f"{exc.strerror or exc}") from None
         self.log.parent.mkdir(parents=True, exist_ok=True)
+        # its sockets bound to the host alone: without this Fast DDS binds 0.0.0.0 (every
+        # interface) and only announces the host
+        self.profile.write_text(_own_profile(self.host, port))
+        env = dict(_server_env(), FASTRTPS_DEFAULT_PROFILES_FILE=str(self.profile))
         with open(self.log, "wb") as out:
             try:
                 self.proc = subprocess.Popen(
-                    [str(binary), "-i", "0", "-l", "127.0.0.1", "-p", str(port)],
-                    env=_server_env(), stdout=out, stderr=subprocess.STDOUT,
+                    [str(binary), "-i", "0", "-l", self.host, "-p", str(port),
+                     "-x", str(self.profile)],
+                    env=env, stdout=out, stderr=subprocess.STDOUT,
                     stdin=subprocess.DEVNULL, start_new_session=True,
                     preexec_fn=_die_with_launcher)
             except OSError as exc:
                 raise ServerError(f"{binary}: {exc.strerror or exc}") from None
         deadline = time.monotonic() + self.START_S
-        while not _port_taken(port):
+        while not _port_taken(self.host, port):
             if self.proc.poll() is not None:
                 tail = self.log.read_text(errors="replace").strip().splitlines()[-1:]
                 raise ServerError(f"{binary} exited with status {self.proc.returncode}"
                                   f"{': ' + tail[0] if tail else ''} (its console: {self.log})")
             if time.monotonic() > deadline:
                 self.stop()
-                raise ServerError(f"{binary} did not open 127.0.0.1:{port} within "
+                raise ServerError(f"{binary} did not open {self.host}:{port} within "
                                   f"{self.START_S:.0f} s (its console: {self.log})")
             time.sleep(0.02)
-        self.address = f"127.0.0.1:{port}"
+        self.address = f"{self.host}:{port}"
         return self.address
 
     def stop(self) -> None:

@@ -11,13 +11,17 @@ Nothing is created in the namespace of the caller and nothing attaches to a real
 interface: the only non-loopback links of every namespace are these veths, so no packet
 can leave the machine. Across namespaces DDS speaks UDP (``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``:
 shared memory would bypass the links), and discovery is unicast to the listed addresses
-(``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` plus ``ROS_STATIC_PEERS``; see ``ros_env``).
+(``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` plus ``ROS_STATIC_PEERS``; see ``ros_env``),
+or, for a large team (``--discovery server``), through Fast DDS's discovery server in
+the hub, listening on the hub's address: each process announces itself to the server
+only, over its own veth, and its data still goes straight to the robots it talks to.
 
 Faults (``LinkFaults``) go on the links between robots, per direction: in each robot's
 namespace an iptables rule queues the UDP packets it sends to the other robots
 (``NFQUEUE --queue-num 0 --queue-bypass``) and a delayer process (``formation_ilc.system.delayer``)
 holds each for a drawn delay or drops it. The links between a robot and the hub stand
-for the robot's own wiring (its plant, the ground station's schedule) and are not faulted.
+for the robot's own wiring (its plant, the ground station's schedule) and are not faulted,
+nor is a robot's discovery traffic to the server in the hub.
 
 ``Hosts`` is a context manager: leaving it (normally, on an exception, or on SIGTERM /
 SIGHUP, which it turns into SystemExit while it is active) stops the delayers, ends every
@@ -44,7 +48,7 @@ from pathlib import Path
 from typing import IO, Any
 
 __all__ = ["LinkFaults", "NetnsError", "Hosts", "support_problem", "SUBNET",
-           "lossy_profile", "hold_quantiles"]
+           "lossy_profile", "hold_quantiles", "hub_address", "robot_address"]
 
 #: the /24 every run's namespaces share (they are isolated, so runs never collide)
 SUBNET = "10.77.0"
@@ -53,6 +57,27 @@ ROBOT_HOST0 = 10
 CLONE_NEWNET = 0x40000000
 #: how long a delayer may take to bind its queue [s]
 DELAYER_START = 15.0
+
+
+def hub_address() -> str:
+    """The hub's address on the bridge (the ground station's processes, and the discovery
+    server of ``--discovery server``)."""
+    return f"{SUBNET}.{HUB_HOST}"
+
+
+def robot_address(i: int) -> str:
+    """Robot ``i``'s (1-based) address, its namespace's only one besides the loopback."""
+    return f"{SUBNET}.{ROBOT_HOST0 + i}"
+
+
+def hub_mac() -> str:
+    """The link-layer address of the hub's bridge (locally administered, fixed)."""
+    return "02:77:00:00:00:01"
+
+
+def robot_mac(i: int) -> str:
+    """The link-layer address of robot ``i``'s eth0."""
+    return f"02:77:00:00:01:{i:02x}"
 
 
 class NetnsError(RuntimeError):
@@ -183,10 +208,10 @@ class Hosts:
 
     @property
     def hub_address(self) -> str:
-        return f"{SUBNET}.{HUB_HOST}"
+        return hub_address()
 
     def address(self, i: int) -> str:
-        return f"{SUBNET}.{ROBOT_HOST0 + i}"
+        return robot_address(i)
 
     def namespaces(self) -> list[str]:
         return [self.hub] + [self.robot_ns(i) for i in range(1, self.n + 1)]
@@ -195,9 +220,14 @@ class Hosts:
         """``argv`` run inside namespace ``ns`` (``ip netns exec`` execs it: same pid)."""
         return ["ip", "netns", "exec", ns, *argv]
 
-    def ros_env(self) -> dict[str, str]:
+    def ros_env(self, server: bool = False) -> dict[str, str]:
         """Environment for every ROS process of the run: UDP only, unicast discovery of the
-        hub and every robot."""
+        hub and every robot; with ``server``, no peers: every process is a client of the
+        discovery server in the hub (its address, ROS_DISCOVERY_SERVER, and each
+        namespace's profile, bound to its own address, are the launcher's: see
+        ``system.discovery.server_profile``)."""
+        if server:
+            return {"FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}
         peers = [self.hub_address] + [self.address(i) for i in range(1, self.n + 1)]
         return {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
                 "ROS_STATIC_PEERS": ";".join(peers),
@@ -246,7 +276,8 @@ class Hosts:
                              f"killed? `ip netns del {clash[0]}`)")
         hub = self.hub
         self._add(hub)
-        _run(["ip", "-n", hub, "link", "add", "br0", "type", "bridge"], "bridge")
+        _run(["ip", "-n", hub, "link", "add", "br0", "address", hub_mac(), "type", "bridge"],
+             "bridge")
         _run(["ip", "-n", hub, "addr", "add", f"{self.hub_address}/24", "dev", "br0"], "address")
         _run(["ip", "-n", hub, "link", "set", "br0", "up"], "bridge up")
         for i in range(1, self.n + 1):
@@ -255,14 +286,42 @@ class Hosts:
             # created inside the hub, its peer directly inside the robot's namespace: no
             # interface ever exists in the caller's namespace
             _run(["ip", "-n", hub, "link", "add", f"v{i}", "type", "veth", "peer", "name",
-                  "eth0", "netns", ns], "veth")
+                  "eth0", "address", robot_mac(i), "netns", ns], "veth")
             _run(["ip", "-n", hub, "link", "set", f"v{i}", "master", "br0", "up"], "veth up")
             _run(["ip", "-n", ns, "addr", "add", f"{self.address(i)}/24", "dev", "eth0"],
                  "address")
             _run(["ip", "-n", ns, "link", "set", "eth0", "up"], "veth up")
+        self._static_neighbours()
         if self.faults.active:
             for i in range(1, self.n + 1):
                 self._fault_links(i)
+
+    def _static_neighbours(self) -> None:
+        """Every namespace knows the link-layer address of every other one's: no ARP.
+
+        The kernel's ARP table is one for all network namespaces, and holds at most
+        ``net.ipv4.neigh.default.gc_thresh3`` entries (1024 by default) that it may
+        collect; a team whose processes talk to each other needs about n^2. At 100 robots
+        it was full ("neighbor table overflow" in the kernel log, 1024 entries over the
+        run's namespaces), and a robot that came later could not resolve even the hub:
+        every datagram it sent failed (SndbufErrors), 68 robots were never found.
+        Permanent entries are not counted against that limit, and are set here, at once
+        for each namespace (``ip -batch``), to addresses fixed at creation."""
+        everyone = [(hub_address(), hub_mac())] + [
+            (robot_address(i), robot_mac(i)) for i in range(1, self.n + 1)]
+        for ns, dev, own in ([(self.hub, "br0", hub_address())]
+                             + [(self.robot_ns(i), "eth0", robot_address(i))
+                                for i in range(1, self.n + 1)]):
+            lines = "".join(f"neigh replace {addr} lladdr {mac} dev {dev} nud permanent\n"
+                            for addr, mac in everyone if addr != own)
+            if not lines:
+                continue
+            res = subprocess.run(["ip", "-n", ns, "-batch", "-"], input=lines,
+                                 capture_output=True, text=True)
+            if res.returncode != 0:
+                msg = (res.stderr or res.stdout).strip().splitlines()
+                raise NetnsError(f"static neighbours in {ns}: "
+                                 f"{msg[-1] if msg else res.returncode}")
 
     def _add(self, ns: str) -> None:
         # recorded before it exists: a signal during `ip netns add` may leave it created, and

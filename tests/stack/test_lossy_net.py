@@ -198,6 +198,63 @@ def test_lossy_links_across_namespaces(netns_support, ros_env, tmp_path):
     assert got[-1, 1] <= 2 * clean[-1, 1], (got[:, 1], clean[:, 1])
 
 
+def test_every_namespace_knows_every_others_link_address(netns_support, tmp_path):
+    """No ARP between the namespaces: the kernel's ARP table, one for all of them, held at
+    most 1024 entries it may collect, and 100 robots needed about 100^2 (those started
+    last could send nothing). Every entry is permanent, set when the namespaces are."""
+    from formation_ilc.system.netns import Hosts, hub_mac, robot_mac
+
+    def neigh(ns: str) -> set[tuple[str, str, str]]:
+        out = subprocess.run(["ip", "-4", "-n", ns, "neigh", "show", "nud", "all"],
+                             capture_output=True, text=True).stdout
+        return {(f[0], f[4], f[-1]) for f in (ln.split() for ln in out.splitlines())
+                if f[0].startswith("10.77.0.")}  # (not the multicast groups' own)
+
+    with Hosts(3, LinkFaults(), log_dir=tmp_path) as hosts:
+        assert neigh(hosts.robot_ns(2)) == {
+            ("10.77.0.1", hub_mac(), "PERMANENT"), ("10.77.0.11", robot_mac(1), "PERMANENT"),
+            ("10.77.0.13", robot_mac(3), "PERMANENT")}
+        assert neigh(hosts.hub) == {(f"10.77.0.{10 + i}", robot_mac(i), "PERMANENT")
+                                    for i in (1, 2, 3)}
+        link = subprocess.run(["ip", "-n", hosts.robot_ns(3), "link", "show", "eth0"],
+                              capture_output=True, text=True).stdout
+        assert f"link/ether {robot_mac(3)} " in link
+
+
+@pytest.mark.ros
+@pytest.mark.multiprocess
+def test_through_the_discovery_server_in_the_hub(netns_support, ros_env, tmp_path):
+    """``--hosts netns --discovery server`` (the default from 64 participants: 100 robots on
+    hosts of their own did not start without it): every process a client of the server
+    the launcher starts in the hub, on the hub's address; the robots' data still goes
+    robot to robot, through the faulted links. Lockstep with direct links: the run is the
+    batch simulator's without delay."""
+    from .test_stack import TOL
+
+    trials, delay = 3, 10.0
+    out = tmp_path / "run"
+    res = launch(ros_env, out, "paper-triangle3", "--trials", str(trials), "--seed", "5",
+                 "--hosts", "netns", "--discovery", "server", "--net-delay-ms", str(delay),
+                 timeout=120)
+    assert res.returncode == 0, res.stdout
+    assert "discovery: through Fast DDS's discovery server on 10.77.0.1:" in res.stdout
+    got = read_metrics(out / "metrics.csv")
+    ref = simulate(load_scenario("paper-triangle3").with_options(delay=False, seed=5),
+                   trials=trials).metrics
+    np.testing.assert_array_equal(got[:, 0], ref[:, 0])
+    np.testing.assert_allclose(got[:, 1:], ref[:, 1:], rtol=0, atol=TOL)
+    # robot 2's process ran in its namespace, a client of the server with its own profile
+    log = (out / "logs" / "discovery_server.log").read_text()
+    assert "Participant Type:   SERVER" in log and "[10.77.0.1]" in log
+    assert 'address>10.77.0.12<' in (out / "hosts" / "fastdds-discovery-r2.xml").read_text()
+    # what robot 1 sent the other robots went through its delayer: robot to robot
+    summary = json.loads((out / "summary.json").read_text())
+    d1 = summary["hosts"]["delayers"]["robot_1"]
+    assert d1["packets"] > 100 and hold_quantiles(d1["hold_ms"])[0] >= delay - 1, d1
+    assert not set(summary["hosts"]["namespaces"]) & _namespaces()
+    assert not _ours(ros_env["ROS_DOMAIN_ID"], out)
+
+
 @pytest.mark.ros
 @pytest.mark.multiprocess
 def test_a_stopped_launcher_leaves_no_namespace_behind(netns_support, ros_env, tmp_path):

@@ -168,10 +168,92 @@ def test_from_64_processes_the_launch_goes_through_a_discovery_server(tmp_path, 
     assert [a.text for a in desc.findall("p:interfaceWhiteList/p:address", NS)] == ["127.0.0.1"]
     assert _builtin(text, "mutation_tries") and "useBuiltinTransports>false" in text
     assert "ROS_DISCOVERY_SERVER" not in env  # the launcher's own server's, once started
-    # asked for on a small team; refused where it cannot serve
+    # asked for on a small team
     assert plan(tmp_path, "paper-triangle3", "--discovery", "server").discovery == "server"
-    with pytest.raises(NoRun, match="--discovery server: not with --hosts"):
-        plan(tmp_path, "paper-triangle3", "--discovery", "server", "--hosts", "netns")
+
+
+def whitelist(text: str) -> list[str | None]:
+    root = ET.fromstring(text.split("\n", 2)[2])
+    desc = root.findall("p:transport_descriptors/p:transport_descriptor", NS)
+    assert len(desc) == 1 and desc[0].findtext("p:type", namespaces=NS) == "UDPv4"
+    return [a.text for a in desc[0].findall("p:interfaceWhiteList/p:address", NS)]
+
+
+def test_a_client_on_a_host_of_its_own_binds_its_own_address():
+    assert whitelist(server_profile(None, 9)) == ["127.0.0.1"]
+    text = server_profile(None, 9, "10.77.0.12")
+    assert whitelist(text) == ["10.77.0.12"]
+    assert peers(text) == [] and "useBuiltinTransports>false" in text
+
+
+def test_robots_on_hosts_of_their_own_go_through_the_server_in_the_hub(
+        tmp_path, monkeypatch, netns_support):
+    """``--hosts netns --discovery server``: every process a client of the server in the
+    hub, each robot's bound to its namespace's address, the hub's to the hub's; the
+    default from SERVER_FROM participants as on one host; refused with --secure and over
+    several machines."""
+    from dataclasses import replace
+
+    from formation_ilc.cli.supervisor import node_env
+    from formation_ilc.config.generate import team_yaml
+    from formation_ilc.plan.build import _with_peers
+    from formation_ilc.system.netns import Hosts, LinkFaults, lossy_profile
+
+    # the caller's profile is not the run's on hosts of their own (HostsPlan.profile_file)
+    monkeypatch.setenv("FASTRTPS_DEFAULT_PROFILES_FILE", str(tmp_path / "missing.xml"))
+    small = plan(tmp_path, "paper-triangle3", "--hosts", "netns")
+    assert small.discovery == "localhost" and small.peers_profile is None
+    assert all(not s.env for s in small.nodes)  # unicast to every host, as before
+    run = plan(tmp_path, "paper-triangle3", "--hosts", "netns", "--discovery", "server",
+               "--dds-profile", "lossy")
+    assert run.discovery == "server" and run.server_host == "10.77.0.1"
+    assert run.peers_base == lossy_profile() and run.hosts.profile == "lossy"
+    robots = {s.host: dict(s.env) for s in run.nodes if s.host is not None}
+    assert sorted(robots) == [1, 2, 3]
+    for i, env in robots.items():
+        assert env == {"FASTRTPS_DEFAULT_PROFILES_FILE": str(run.robot_profile(i))}
+    assert all(not s.env for s in run.nodes if s.host is None)  # the hub's: the run's
+    run.write_peers_profile()
+    assert whitelist(run.peers_profile.read_text()) == ["10.77.0.1"]
+    for i in robots:
+        text = run.robot_profile(i).read_text()
+        assert whitelist(text) == [f"10.77.0.{10 + i}"]
+        assert "heartbeatPeriod" in text  # built on the lossy-links profile
+    env = node_env(run)
+    assert env["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(run.peers_profile)
+    assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "SYSTEM_DEFAULT"
+    hosts = Hosts(3, LinkFaults())
+    assert "ROS_STATIC_PEERS" not in hosts.ros_env(server=True)
+    assert "ROS_AUTOMATIC_DISCOVERY_RANGE" not in hosts.ros_env(server=True)
+    assert hosts.ros_env()["ROS_STATIC_PEERS"].split(";")[:2] == ["10.77.0.1", "10.77.0.11"]
+    # the default from SERVER_FROM participants on hosts too
+    (tmp_path / "big.yaml").write_text(team_yaml(SERVER_FROM - 3))
+    big = plan(tmp_path, str(tmp_path / "big.yaml"), "--hosts", "netns")
+    assert big.participants == SERVER_FROM and big.discovery == "server"
+    # without loss to repair, Fast DDS's defaults: the lossy profile's 50 ms heartbeat kept
+    # 100 robots from starting; with --net-loss, or asked for, the lossy one
+    assert big.hosts.profile == "none" and big.peers_base is None
+    assert plan(tmp_path, str(tmp_path / "big.yaml"), "--hosts", "netns", "--net-loss",
+                "0.01").peers_base == lossy_profile()
+    assert small.hosts.profile == "lossy"  # not through the server: as before
+    assert sum(dict(s.env).get("FASTRTPS_DEFAULT_PROFILES_FILE") == str(big.robot_profile(s.host))
+               for s in big.nodes if s.host is not None) == SERVER_FROM - 3
+    # refused where it cannot serve: a secure run stays on unicast to every host
+    unplanned = replace(big, discovery="localhost", peers_profile=None, peers_base=None)
+    assert _with_peers(unplanned, secure=True).discovery == "localhost"
+    with pytest.raises(NoRun, match="--discovery server: not with --secure"):
+        _with_peers(replace(unplanned, discovery="server"), secure=True)
+    with pytest.raises(NoRun, match="--discovery server: not with a run over several"):
+        _with_peers(replace(unplanned, discovery="server"), one_host=False)
+
+
+def held(pid: int, where: list[str]) -> list[str]:
+    """The local addresses of the UDP sockets process ``pid`` holds (``ss`` run with the
+    command prefix ``where``: in a network namespace)."""
+    import subprocess
+
+    ss = subprocess.run([*where, "ss", "-ulpnH"], capture_output=True, text=True).stdout
+    return [ln.split()[3] for ln in ss.splitlines() if f"pid={pid}," in ln]
 
 
 def test_the_discovery_server_listens_on_the_loopback_and_stops(tmp_path):
@@ -180,6 +262,11 @@ def test_the_discovery_server_listens_on_the_loopback_and_stops(tmp_path):
     try:
         host, port = address.split(":")
         assert host == "127.0.0.1"
+        assert server.proc is not None
+        # on the loopback alone: Fast DDS binds 0.0.0.0 (every interface) unless told
+        assert address in held(server.proc.pid, [])
+        assert f"0.0.0.0:{port}" not in held(server.proc.pid, [])
+        assert "SERVER" in server.profile.read_text()
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
             with pytest.raises(OSError):
                 s.bind(("127.0.0.1", int(port)))  # the server holds it
@@ -189,6 +276,30 @@ def test_the_discovery_server_listens_on_the_loopback_and_stops(tmp_path):
     assert server.proc.returncode is not None  # stopped, not left behind
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", int(port)))  # and its port is free again
+
+
+def test_the_discovery_server_listens_in_the_hub_on_its_bridge_address(tmp_path,
+                                                                      netns_support):
+
+    from formation_ilc.system.discovery import ServerError
+    from formation_ilc.system.netns import Hosts, LinkFaults
+
+    with pytest.raises(ServerError, match="no UDP port free on 192.0.2.1"):
+        DiscoveryServer(tmp_path / "none.log", "192.0.2.1").start()  # none of this machine's
+    with Hosts(1, LinkFaults(), log_dir=tmp_path / "hosts") as hosts:
+        with hosts.entered_hub():
+            server = DiscoveryServer(tmp_path / "server.log", hosts.hub_address)
+            address = server.start()
+        try:
+            assert address.startswith("10.77.0.1:")
+            assert server.proc is not None
+            # in the hub, on its address alone (Fast DDS binds 0.0.0.0 unless told)
+            assert f"{address}" in held(server.proc.pid, hosts.exec_argv(hosts.hub, []))
+            assert "0.0.0.0:" + address.split(":")[1] not in held(
+                server.proc.pid, hosts.exec_argv(hosts.hub, []))
+        finally:
+            server.stop()
+    assert server.proc.returncode is not None
 
 
 def test_the_discovery_server_ends_with_a_launcher_killed_outright(tmp_path):
