@@ -89,7 +89,12 @@ def test_realtime_run_accounts_for_every_sample(ros_env, tmp_path):
     missed = sum(sim["missed"].values())
     assert tim["samples"] == TRIALS * n_t
     assert tim["commands"] + missed == n * TRIALS * n_t, (tim, sim["missed"])
-    assert 0 < tim["p50_ms"] <= tim["p99_ms"] < 1e3 * sc.dt
+    # a command counts when it came before the next tick fired: its latency from its own
+    # tick's due time is under dT plus how late a tick fired (under load a tick can fire
+    # late, and a command after its due time is still in time; how often is
+    # scripts/bench_stack.py's to measure, not a test's)
+    assert 0 < tim["p50_ms"] <= tim["p99_ms"] <= tim["max_ms"]
+    assert tim["max_ms"] < 1e3 * sc.dt + tim["tick_lag_max_ms"], tim
     # the ticks follow the wall clock: TRIALS * T ticks of dT in about TRIALS * T * dT
     assert tim["seconds"] == pytest.approx(TRIALS * n_t * sc.dt, rel=0.05)
     for node, d in diag.items():
