@@ -720,11 +720,10 @@ def smooth_learning(mode: int, dt: float, memory: NDArray[np.float64],
     ``learned - memory`` is smoothed along the trial by a binomial kernel of standard
     deviation Q_SIGMA [s] at sample time ``dt`` (its order the nearest even one to
     4 (Q_SIGMA / dt)^2, cut at three standard deviations and weighed again at the trial's
-    ends). A sample takes the
-    smoothed step by the kernel's weight (1 at its centre) from the nearest changed
-    command, and the paper's step beyond three deviations of every one: where the filter
-    did not act the law is the paper's. The weights are built by multiplications and
-    divisions only: the same bits compiled and interpreted.
+    ends). A sample takes the smoothed step by the kernel's weight (1 at its centre) from
+    the nearest changed command, and the paper's step beyond three deviations of every
+    one: where the filter did not act the law is the paper's. The weights are built by
+    multiplications and divisions only: the same bits compiled and interpreted.
     """
     if mode != DAMPED or Q_SIGMA <= 0.0:
         return
