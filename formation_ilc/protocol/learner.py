@@ -402,7 +402,8 @@ class RobotLearner:
         # in the last bit)
         ref = self.pb.eta_d[idx, s, 2]
         th = 2.0 * np.array([math.atan2(z, w) for z, w in zip(q[:, 2].tolist(),
-                                                              q[:, 3].tolist())])
+                                                              q[:, 3].tolist(),
+                                                              strict=True)])
         d = th - ref
         th = ref + (d - 2.0 * math.pi * np.ceil((d - math.pi) / (2.0 * math.pi)))
         self._team_trial(k)

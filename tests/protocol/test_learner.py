@@ -245,7 +245,7 @@ def _team_message(pb, labels, etas):
     from formation_ilc.protocol import wire
 
     data = wire.pose_set_bytes(int(labels[0]), [wire.raw_pose(e, int(lab))
-                                                for e, lab in zip(etas, labels)])
+                                                for e, lab in zip(etas, labels, strict=True)])
     return data, wire.read_pose_block(data, pb.n)
 
 
