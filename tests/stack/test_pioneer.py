@@ -32,6 +32,14 @@ BATCH_ATOL = 0.2
 _cold: dict[str, float] = {}
 
 
+def _kept_real_time(out) -> bool:
+    """Whether every robot of the run in ``out`` commanded every sample in time (its
+    diagnostics' ``missed``)."""
+    diag = json.loads((out / "diagnostics.json").read_text())
+    return all(d.get("missed", 0) == 0 for node, d in diag.items()
+               if node.startswith("robot_"))
+
+
 def pioneer_args(*extra: str) -> list[str]:
     return ["paper-triangle3", "--plant", "pioneer", "--fake-drivers", "--no-noise",
             "--no-delay", "--return-timeout", "40", *extra]
@@ -45,6 +53,15 @@ def test_team_learns_through_bridges_and_fake_drivers(ros_env, tmp_path):
     res = launch(ros_env, out, *pioneer_args("--trials", str(TRIALS), "--lifecycle"),
                  timeout=400)
     assert res.returncode == 0, res.stdout
+    if not _kept_real_time(out):
+        # a robot missed a sample: its peers' poses came late, and the filter, which widens
+        # a late pose's distance, held the robots apart where the batch simulator does not
+        # (seen under CI load: 212 commands changed in trial 1 against 31, no learning in 3
+        # trials). The comparison below needs wall-clock trials that kept time: once more
+        out = tmp_path / "again"
+        res = launch(ros_env, out, *pioneer_args("--trials", str(TRIALS), "--lifecycle"),
+                     timeout=400)
+        assert res.returncode == 0, res.stdout
     assert "wallclock, direct links, plant bridge_1, bridge_2, bridge_3" in res.stdout
     for i in (1, 2, 3):
         assert f"/formation/bridge_{i}: configured and active (lifecycle)" in res.stdout
