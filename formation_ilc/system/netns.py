@@ -127,8 +127,8 @@ def lossy_profile() -> Path:
     return Path(__file__).with_name("dds") / "lossy-links.xml"
 
 
-def _run(argv: list[str], what: str) -> str:
-    res = subprocess.run(argv, capture_output=True, text=True)
+def _run(argv: list[str], what: str, input: str | None = None) -> str:
+    res = subprocess.run(argv, input=input, capture_output=True, text=True)
     if res.returncode != 0:
         msg = (res.stderr or res.stdout).strip().splitlines()
         raise NetnsError(f"{what}: {' '.join(argv)}: {msg[-1] if msg else res.returncode}")
@@ -316,12 +316,7 @@ class Hosts:
                             for addr, mac in everyone if addr != own)
             if not lines:
                 continue
-            res = subprocess.run(["ip", "-n", ns, "-batch", "-"], input=lines,
-                                 capture_output=True, text=True)
-            if res.returncode != 0:
-                msg = (res.stderr or res.stdout).strip().splitlines()
-                raise NetnsError(f"static neighbours in {ns}: "
-                                 f"{msg[-1] if msg else res.returncode}")
+            _run(["ip", "-n", ns, "-batch", "-"], f"static neighbours in {ns}", input=lines)
 
     def _add(self, ns: str) -> None:
         # recorded before it exists: a signal during `ip netns add` may leave it created, and
