@@ -243,9 +243,12 @@ def test_through_the_discovery_server_in_the_hub(netns_support, ros_env, tmp_pat
                    trials=trials).metrics
     np.testing.assert_array_equal(got[:, 0], ref[:, 0])
     np.testing.assert_allclose(got[:, 1:], ref[:, 1:], rtol=0, atol=TOL)
-    # robot 2's process ran in its namespace, a client of the server with its own profile
-    log = (out / "logs" / "discovery_server.log").read_text()
-    assert "Participant Type:   SERVER" in log and "[10.77.0.1]" in log
+    # the server ran from its own profile, a SERVER on the hub's address (without the
+    # protocol in that profile the tool ran as a SIMPLE participant); robot 2's process
+    # ran in its namespace, a client of the server with its own profile
+    own = (out / "logs" / "discovery_server.xml").read_text()
+    assert "<discoveryProtocol>SERVER</discoveryProtocol>" in own
+    assert "<address>10.77.0.1</address>" in own
     assert 'address>10.77.0.12<' in (out / "hosts" / "fastdds-discovery-r2.xml").read_text()
     # what robot 1 sent the other robots went through its delayer: robot to robot
     summary = json.loads((out / "summary.json").read_text())
