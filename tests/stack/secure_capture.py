@@ -7,14 +7,16 @@ with a raw packet socket (in a namespace of its own, nothing but COMMAND's traff
 there), and meanwhile reads every shared-memory file (``/dev/shm/*``: Fast DDS's transport
 segments and data-sharing pools) that COMMAND's processes have mapped. Each marker (hex,
 comma-separated) is counted where it is seen in clear. Prints one JSON line: the command's
-exit status, its output, UDP packets and bytes seen, shared-memory segments read, and per
-marker its hits in UDP payloads and in shared memory.
+exit status, its output, UDP packets and bytes seen, datagrams the kernel dropped before the
+capture read them, shared-memory segments read, and per marker its hits in UDP payloads and
+in shared memory.
 """
 
 from __future__ import annotations
 
 import json
 import socket
+import struct
 import subprocess
 import sys
 import threading
@@ -24,6 +26,10 @@ from pathlib import Path
 from formation_ilc.system.proctree import children_of
 
 ETH_P_ALL = 0x0003
+SOL_PACKET = 263
+PACKET_STATISTICS = 6  # struct tpacket_stats: packets, drops (reading resets them)
+SO_RCVBUFFORCE = 33
+CAPTURE_BUFFER = 256 << 20  # a loaded machine's bursts must not overflow the socket
 
 
 def shm_segments(pids: set[int]) -> set[str]:
@@ -46,6 +52,9 @@ def main() -> int:
     subprocess.run(["ip", "link", "set", "lo", "up", "multicast", "on"], check=True)
     subprocess.run(["ip", "route", "add", "224.0.0.0/4", "dev", "lo"], check=True)
     sock = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.ntohs(ETH_P_ALL))
+    # root may exceed rmem_max: a start-up burst on a loaded machine fills the default
+    # buffer before the capture thread reads it, and the kernel drops what does not fit
+    sock.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, CAPTURE_BUFFER)
     sock.bind(("lo", 0))
     sock.settimeout(0.2)
     stop = threading.Event()
@@ -93,8 +102,10 @@ def main() -> int:
     time.sleep(0.5)  # the last datagrams
     stop.set()
     t.join(timeout=5)
+    _, drops = struct.unpack("II", sock.getsockopt(SOL_PACKET, PACKET_STATISTICS, 8))
     print(json.dumps({"status": proc.returncode, "output": getattr(proc, "output", ""),
-                      **stats, "shm_segments": len(shm_seen), "udp_hits": udp_hits,
+                      **stats, "udp_dropped": drops, "shm_segments": len(shm_seen),
+                      "udp_hits": udp_hits,
                       "shm_hits": shm_hits}))
     return 0
 
