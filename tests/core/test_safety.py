@@ -423,6 +423,12 @@ def _brake_least(spec, poses, cmds) -> float:
     def toward0(x, s):
         return x - s if x > s else (x + s if x < -s else 0.0)
 
+    def closest() -> float:
+        return min(math.hypot(ax + la * math.cos(ath) - bx - lb * math.cos(bth),
+                              ay + la * math.sin(ath) - by - lb * math.sin(bth))
+                   for la in spec.discs for lb in spec.discs)
+
+    least = closest()  # where they start: a pair already inside is past braking apart
     while True:
         ax += va * h * math.cos(ath + wa * h / 2)
         ay += va * h * math.sin(ath + wa * h / 2)
@@ -434,11 +440,7 @@ def _brake_least(spec, poses, cmds) -> float:
         if t >= dt - 1e-12:
             va, wa, vb, wb = toward0(va, a * h), toward0(wa, al * h), toward0(vb, a * h), \
                 toward0(wb, al * h)
-        for la in spec.discs:
-            for lb in spec.discs:
-                least = min(least, math.hypot(
-                    ax + la * math.cos(ath) - bx - lb * math.cos(bth),
-                    ay + la * math.sin(ath) - by - lb * math.sin(bth)))
+        least = min(least, closest())
         if t > dt and va == wa == vb == wb == 0.0:
             return least
 
