@@ -26,7 +26,10 @@ Thresholds (docs/ros-tools.md lists them for users):
   trial's report: WARN (the run acted on them).
 * commands the safety filter changed (a robot's ``filter``): OK, it is doing its work;
   a sample outside the filter's guarantee (``infeasible``: a pair already past braking
-  apart, or no command in the limits kept every barrier): WARN.
+  apart, or no command in the limits kept every barrier): WARN; so are samples it braked
+  or flagged on another robot's pose more than a sample old (``late``: the filter widens
+  its distance by the age, so a late machine or network holds robots apart, and learning
+  stalls).
 * clocks (a robot's or a bridge's ``clock``, ``protocol.timesync``): an estimate not
   converged 20 s after the first exchange, a clock that stepped, a peer silent for 10 s:
   WARN.
@@ -214,6 +217,12 @@ def assess(d: Mapping[str, Any], dt: float | None = None, samples: int | None = 
         found.append((WARN, f"safety filter: {_num(filt.get('infeasible')):g} samples outside "
                             f"its guarantee (a pair already past braking apart, or no "
                             f"command in the limits kept every barrier)"))
+    if isinstance(filt, Mapping) and _num(filt.get("late")) > 0:
+        found.append((WARN, f"safety filter: {_num(filt.get('late')):g} samples braked or "
+                            f"flagged on poses more than a sample old (up to "
+                            f"{_num(filt.get('late_ms')):g} ms): it widens its distance by "
+                            f"the other robot's speed x age, so a late machine or network "
+                            f"holds robots apart and slows their learning"))
     clock = d.get("clock")
     warn = clock.get("warn") if isinstance(clock, Mapping) else None
     if isinstance(warn, list) and warn:

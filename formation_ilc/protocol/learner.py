@@ -173,6 +173,9 @@ class RobotLearner:
             self.team_last = np.full(n, -1, dtype=np.int64)  # newest sample heard
             self.nominal = np.zeros((1, n_t, 2))        # the law's commands
             self.flags = np.zeros((1, n_t), dtype=np.int64)
+            #: per sample, the age [s] of the oldest pose of another robot in range (0:
+            #: every pose of the sample itself)
+            self.late = np.zeros(n_t)
             self.base = np.zeros((1, n_t, 2))
             self.others = np.zeros((n, 6))
             self.ages = np.zeros(n)
@@ -181,7 +184,7 @@ class RobotLearner:
             #: the commands the filter changed in the last trial finished, and in all
             self.filtered: dict[str, int] = {}
             self.filtered_total = Counter({"changed": 0, "limits": 0, "barrier": 0,
-                                           "infeasible": 0})
+                                           "infeasible": 0, "stale": 0, "late": 0})
 
     # ------------------------------------------------------------------ own poses
     def expected_heading(self, sender: str, label_ns: int) -> float | None:
@@ -291,6 +294,7 @@ class RobotLearner:
         if self.safety is not None:
             self.nominal[:] = 0.0
             self.flags[:] = 0
+            self.late[:] = 0.0
             self._team_trial(k)
 
     def _hold(self, t: int) -> None:
@@ -429,6 +433,8 @@ class RobotLearner:
             float(self.u[0, 0]), float(self.u[0, 1]), float(own[0]), float(own[1]),
             float(own[2]), float(prev[0]), float(prev[1]), self.others, self.ages, m,
             self.safety_params, self.out)
+        if m:
+            self.late[t] = float(self.ages[:m].max())
         self.u[0] = self.out
 
     def _near(self, m: int, x: float, y: float) -> int:
@@ -531,11 +537,22 @@ class RobotLearner:
         self.finished = self.k
         if self.safety is not None:
             f = self.flags[0]
+            old = self.late > 0.0
+            acted = (f & (CHANGED_BARRIER | INFEASIBLE)) != 0
+            # a sample older than the one before: later than a wall-clock team hears its
+            # peers (bridges tick on their own clocks; a pose of the sample before is usual)
+            later = self.late > 1.5 * self.pb.dt
             counts = {"changed": int(np.count_nonzero(f & CHANGED)),
                       "limits": int(np.count_nonzero(f & CHANGED_LIMITS)),
                       "barrier": int(np.count_nonzero(f & CHANGED_BARRIER)),
-                      "infeasible": int(np.count_nonzero(f & INFEASIBLE))}
-            self.filtered = {"slot": self.k, **counts}
+                      "infeasible": int(np.count_nonzero(f & INFEASIBLE)),
+                      # samples with a pose of another robot in range not of the sample
+                      # itself (the filter widens its distance by its age), and those a
+                      # barrier changed or flagged on a pose older than the sample before
+                      "stale": int(np.count_nonzero(old)),
+                      "late": int(np.count_nonzero(later & acted))}
+            self.filtered = {"slot": self.k, **counts, "late_ms": int(round(
+                1000.0 * float(self.late[later & acted].max(initial=0.0))))}
             self.filtered_total.update(counts)
         return self.k, self.eta[0]
 

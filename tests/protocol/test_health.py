@@ -43,6 +43,12 @@ def test_pairs_that_are_not_a_report_are_refused():
      "4 commands clipped; 1 return time-outs"),
     ({"node": "virtual_leader", "trial": 0, "watchdog": {"count": 1, "what": "stuck"}}, WARN,
      "watchdog: stuck"),
+    ({"node": "robot_2", "trial": 0, "filter": {"slot": 0, "changed": 30, "barrier": 30,
+                                                "infeasible": 0, "stale": 140, "late": 0}},
+     OK, "ok"),  # poses a sample old, as bridges on their own clocks hear each other
+    ({"node": "robot_2", "trial": 0, "filter": {"slot": 0, "changed": 30, "barrier": 30,
+                                                "infeasible": 0, "late": 12, "late_ms": 600}},
+     WARN, "12 samples braked or flagged on poses more than a sample old (up to 600 ms)"),
 ])
 def test_levels_follow_the_thresholds(report, level, words):
     lv, message = assess(report, dt=0.1, samples=40)
