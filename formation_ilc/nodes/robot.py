@@ -191,13 +191,19 @@ class RobotNode(ConfiguredNode):
                 self.sample_subs.append(self.create_subscription(
                     PoseStamped, topic, lambda m, s=sender: self._on_link_pose(m, s),
                     ms.SAMPLE_QOS, raw=True))
+        #: realtime with the plant's team/poses: taken before each command (below)
+        self._team_sub: Any = None
+        self._taking_team = False
         if cfg.safety is not None:  # the other robots' poses, for the safety filter
             if cfg.safety.sensing == "team":
                 # from the plant only (protocol.writers): forged poses 1 km away switched
                 # the filter off
-                self.sample_subs.append(self.checked_subscription(
+                team = self.checked_subscription(
                     Path, ms.TEAM_POSES, lambda m, gid: self._on_team(m), ms.SAMPLE_QOS,
-                    raw=True, owners=plant_writers()))
+                    raw=True, owners=plant_writers())
+                self.sample_subs.append(team)
+                if self.realtime:
+                    self._team_sub = team
             else:
                 self.sample_subs += [self.create_subscription(
                     PoseStamped, ms.pose_topic(j + 1), lambda m, j=j: self._on_peer(m, j),
@@ -402,13 +408,31 @@ class RobotNode(ConfiguredNode):
         self._maybe_command()
 
     def _maybe_command(self) -> None:
-        if self.learner.can_command():
+        if self._taking_team or not self.learner.can_command():
+            return
+        self._take_team()
+        if self.learner.can_command():  # (still: nothing taken commands meanwhile)
             self._command()
+
+    def _take_team(self) -> None:
+        """Realtime: the plant's team/poses of this tick, which it sends before the robots'
+        own poses, taken from rcl before the command. Its writer-checked subscription is
+        served by a timer the executor may run after this pose's callback: the filter then
+        had only the poses of the tick before, a sample old, and widened its distance by
+        the other robots' speed over it at every sample (a realtime triangle braked or
+        flagged 30-40 samples a trial on poses 200 ms old and did not learn)."""
+        if self._team_sub is not None:
+            self._taking_team = True
+            try:
+                self._team_sub.take_waiting()
+            finally:
+                self._taking_team = False
 
     def _on_deadline(self) -> None:
         self._deadline.cancel()
         if not self.learner.commanded:
             self.late["links"] += 1
+            self._take_team()
             self._command()
 
     def _command(self) -> None:

@@ -20,6 +20,7 @@ import yaml
 
 from formation_ilc.config.scenario import load_scenario
 from formation_ilc.core.metrics import read_metrics
+from formation_ilc.model.safety import body_spec
 from formation_ilc.model.simulate import Problem, simulate
 from tests.stack.test_stack import TOL, launch
 
@@ -66,10 +67,13 @@ def expected_deliveries(sc, trials: int) -> dict[str, Counter[int]]:
 
 
 def test_realtime_run_accounts_for_every_sample(ros_env, tmp_path):
+    """Through the safety filter (the plant's team/poses): each robot must filter with the
+    other robots' poses of the sample itself, as lockstep and the batch simulator do (it
+    took them a sample late, and widened its distance by what a robot may move in one)."""
     scen = short_scenario(tmp_path)
     out = tmp_path / "run"
     res = launch(ros_env, out, str(scen), "--trials", str(TRIALS), "--seed", str(SEED),
-                 "--mode", "realtime", timeout=120)
+                 "--mode", "realtime", "--safety", timeout=120)
     assert res.returncode == 0, res.stdout
     sc = load_scenario(str(scen)).with_options(seed=SEED)
     n, n_t = sc.n, sc.samples
@@ -126,9 +130,15 @@ def test_realtime_run_accounts_for_every_sample(ros_env, tmp_path):
         if unused[name] == 0:
             assert meas == inj, name
     late_robots = sum(diag[f"robot_{i + 1}"]["late"]["links"] for i in range(n))
+    # the filter acted, and on poses of the sample itself unless a robot missed its own
+    filt = [diag[f"robot_{i + 1}"]["filter_total"] for i in range(n)]
+    assert sum(f["changed"] for f in filt) > 0, filt
+    stale = sum(f["stale"] for f in filt)
+    if missed == 0:
+        assert stale == 0, filt
 
-    ref = simulate(sc, trials=TRIALS).metrics
-    if missed == 0 and late_links == 0 and late_robots == 0:
+    ref = simulate(sc, trials=TRIALS, safety=body_spec("p3dx", sc.dt, sc.uncertainty)).metrics
+    if missed == 0 and late_links == 0 and late_robots == 0 and stale == 0:
         # nothing late: the realtime run is the batch run
         np.testing.assert_allclose(got[:, 1:], ref[:, 1:], rtol=0, atol=TOL)
     else:
