@@ -97,8 +97,9 @@ def _add_simulate(sub: Any) -> None:
                         "command (docs/safety.md)")
     p.add_argument("--safety-age", type=nonneg_float, default=0.0, metavar="S",
                    help="with --safety: how old [s] the other robots' poses are when a robot "
-                        "filters (default 0, lockstep); robots in real time on the wall "
-                        "clock hear each other a sample late: the memory is then learned "
+                        "filters (default 0: lockstep, and the simulator in real time); "
+                        "robots behind bridges (pioneer, base), each base on its own clock, "
+                        "hear each other up to a sample late: the memory is then learned "
                         "through the filter they will run")
     p.add_argument("--out", type=out_dir_arg, metavar="DIR",
                    help="output folder (default: runs/SCENARIO-LAW-MEMORY-TIME)")
