@@ -175,7 +175,7 @@ class RobotLearner:
             self.flags = np.zeros((1, n_t), dtype=np.int64)
             #: per sample, the age [s] of the oldest pose of another robot in range (0:
             #: every pose of the sample itself)
-            self.late = np.zeros(n_t)
+            self.pose_age = np.zeros(n_t)
             self.base = np.zeros((1, n_t, 2))
             self.others = np.zeros((n, 6))
             self.ages = np.zeros(n)
@@ -294,7 +294,7 @@ class RobotLearner:
         if self.safety is not None:
             self.nominal[:] = 0.0
             self.flags[:] = 0
-            self.late[:] = 0.0
+            self.pose_age[:] = 0.0
             self._team_trial(k)
 
     def _hold(self, t: int) -> None:
@@ -434,7 +434,7 @@ class RobotLearner:
             float(own[2]), float(prev[0]), float(prev[1]), self.others, self.ages, m,
             self.safety_params, self.out)
         if m:
-            self.late[t] = float(self.ages[:m].max())
+            self.pose_age[t] = float(self.ages[:m].max())
         self.u[0] = self.out
 
     def _near(self, m: int, x: float, y: float) -> int:
@@ -537,11 +537,11 @@ class RobotLearner:
         self.finished = self.k
         if self.safety is not None:
             f = self.flags[0]
-            old = self.late > 0.0
+            old = self.pose_age > 0.0
             acted = (f & (CHANGED_BARRIER | INFEASIBLE)) != 0
             # a sample older than the one before: later than a wall-clock team hears its
             # peers (bridges tick on their own clocks; a pose of the sample before is usual)
-            later = self.late > 1.5 * self.pb.dt
+            later = self.pose_age > 1.5 * self.pb.dt
             counts = {"changed": int(np.count_nonzero(f & CHANGED)),
                       "limits": int(np.count_nonzero(f & CHANGED_LIMITS)),
                       "barrier": int(np.count_nonzero(f & CHANGED_BARRIER)),
@@ -552,7 +552,7 @@ class RobotLearner:
                       "stale": int(np.count_nonzero(old)),
                       "late": int(np.count_nonzero(later & acted))}
             self.filtered = {"slot": self.k, **counts, "late_ms": int(round(
-                1000.0 * float(self.late[later & acted].max(initial=0.0))))}
+                1000.0 * float(self.pose_age[later & acted].max(initial=0.0))))}
             self.filtered_total.update(counts)
         return self.k, self.eta[0]
 
