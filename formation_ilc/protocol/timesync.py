@@ -140,6 +140,10 @@ class ClockSync:
         self.burst_ns = int(S / burst_hz)
         self.burst_for_ns = int(burst_s * S)
         self.seq = 0
+        #: [ns] a question due within this much after the asking time is asked then: a
+        #: caller that wakes once a question period (the wake-up may come a little before
+        #: the question it made a period ago is due) skips none
+        self.early_ns = 0
 
     @property
     def peers(self) -> list[str]:
@@ -148,10 +152,11 @@ class ClockSync:
     # ------------------------------------------------------------------ questions
     def questions(self, now: int) -> list[tuple[str, int]]:
         """The questions due at ``now`` (this node's clock): (peer, seq) each, sent at
-        ``now`` (t1)."""
+        ``now`` (t1); with ``early_ns``, those due within that much after ``now`` too."""
         out = []
+        early_ns = self.early_ns
         for peer, link in self.links.items():
-            if now < link.next_ns:
+            if now + early_ns < link.next_ns:
                 continue
             if link.first_ns is None:
                 link.first_ns = now
@@ -168,6 +173,12 @@ class ClockSync:
         """Whether the estimate of every peer's clock has converged (at some time: a clock
         step later is warned of, not undone here)."""
         return all(link.converged_ns is not None for link in self.links.values())
+
+    def bursting(self, now: int) -> bool:
+        """Whether a peer is not asked yet or still in its first ``burst_s`` (questions
+        ``burst_hz`` a second); once none is, they come ``ping_hz`` a second."""
+        return any(link.first_ns is None or now - link.first_ns < self.burst_for_ns
+                   for link in self.links.values())
 
     def next_due(self) -> int:
         """When [ns, this node's clock] the next question is due."""

@@ -196,6 +196,27 @@ def test_questions_go_out_fast_at_first_then_at_the_steady_rate():
     assert sync.next_due() > 10 * S - 500 * MS
 
 
+def test_a_caller_that_wakes_once_a_period_after_the_burst_skips_no_question():
+    """The nodes' clock timer wakes BURST_HZ a second while a peer bursts, then once a
+    question period (``nodes.clocks``); a wake-up a little before the question it made a
+    period ago is due asks it all the same (``early_ns``)."""
+    sync = ClockSync("a", ["b", "c"])
+    t, sent = 0, 0
+    while sync.bursting(t):
+        sent += len(sync.questions(t))
+        t += 100 * MS
+    assert 3 * S <= t <= 3 * S + 100 * MS
+    assert sent == pytest.approx(2 * 30, abs=2)
+    sync.early_ns = sync.period_ns // 2
+    steady = 0
+    for _ in range(20):  # 10 s of wake-ups, each 1 ms earlier than a period after the last
+        t += sync.period_ns - MS
+        asked = sync.questions(t)
+        assert sorted(p for p, _ in asked) == ["b", "c"]
+        steady += len(asked)
+    assert steady == 2 * 20
+
+
 def test_a_node_clock_reads_its_emulated_clock():
     c = EmulatedClock(300 * MS, 1e-4, ORIGIN)
     assert NodeClock().now(ORIGIN) == ORIGIN and NodeClock().scale == 1.0
