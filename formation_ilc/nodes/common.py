@@ -173,6 +173,23 @@ class GuardedNode(Node):
                 period, self._poll_checked, clock=Clock(clock_type=ClockType.STEADY_TIME))
         return sub
 
+    def poll_period(self) -> float:
+        """[s] how often the checked subscriptions are re-checked (inf: none)."""
+        return float(getattr(self, "_poll_period", float("inf")))
+
+    def polls_idle(self, idle: bool) -> None:
+        """Stop the checked subscriptions' re-check (``idle``) while nothing they carry can
+        be due (a robot inside a trial whose checked topics are trajectories only: a
+        wake-up of its executor every 0.25 s for nothing), or start it again; a message
+        that came meanwhile was taken on its own wake-up, or is at the first re-check."""
+        timer = getattr(self, "_checked_poll", None)
+        if timer is None or timer.is_canceled() == idle:
+            return
+        if idle:
+            timer.cancel()
+        else:
+            timer.reset()
+
     def _poll_checked(self) -> None:
         """The node's re-check: each checked subscription whose period has come takes
         what waits in rcl (a wake-up the executor missed) and judges its held samples

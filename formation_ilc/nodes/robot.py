@@ -231,11 +231,16 @@ class RobotNode(ConfiguredNode):
                 self, self.name, cfg, clock,
                 [*lrn.neighbours, *([LEADER] if lrn.sees_leader else [])], self.out_names,
                 self.drops, on_event=self._clock_event, on_report=self._clock_word)
+        #: whether the deadline timer runs (realtime: from a pose whose links are not in)
+        self._armed = False
         if self.realtime:
             # the wait runs on the robot's own clock (an emulated one runs fast or slow)
             self._deadline = self.create_timer(LINK_WAIT * cfg.scenario.dt * clock.scale,
                                                self._on_deadline)
             self._deadline.cancel()
+        #: the checked subscriptions carry trajectories only (no safety filter's
+        #: team/poses): their re-check sleeps inside a trial (``polls_idle``)
+        self._idle_polls = self.poll_period() >= REFRESH_TRIAL
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
         self._gate = self.create_timer(0.05, self._check_ready)
         self.get_logger().info(f"{self.name}: {len(lrn.neighbours)} in-links"
@@ -274,6 +279,8 @@ class RobotNode(ConfiguredNode):
         if ev is None:
             return
         if ev.event == ms.ABORT:
+            if self._idle_polls:
+                self.polls_idle(False)
             rolled = self.learner.abort(ev.slot)
             # the slot the leader last committed stands: a step undone on an abort the
             # leader did not send is taken back
@@ -307,9 +314,10 @@ class RobotNode(ConfiguredNode):
             if lrn.is_repeat(ns):
                 self._repeat(data)
             return
+        if ev.new_trial and self._idle_polls:
+            self.polls_idle(True)  # a trial runs: no trajectory is due before its end
         if ev.last:
-            if self.realtime:
-                self._deadline.cancel()
+            self._disarm()
             self._finish_trial()
             return
         # the same bits, the same label St; with direct links a robot without out-neighbours
@@ -321,9 +329,12 @@ class RobotNode(ConfiguredNode):
                 if slot != lrn.k:
                     self.shared_sent = slot, sent = lrn.k, []
                 sent.append(data)
-        if self.realtime:
-            self._deadline.reset()
         self._maybe_command()
+        if self.realtime and not self.learner.commanded:
+            # armed only when the links are not in yet: a reset and a cancel of a timer
+            # each sample wake the executor's timer thread twice
+            self._deadline.reset()
+            self._armed = True
 
     def _repeat(self, data: bytes) -> None:
         """The plant sent the current sample again (lockstep; a command of it is still due):
@@ -429,21 +440,27 @@ class RobotNode(ConfiguredNode):
                 self._taking_team = False
 
     def _on_deadline(self) -> None:
-        self._deadline.cancel()
+        self._disarm()
         if not self.learner.commanded:
             self.late["links"] += 1
             self._take_team()
             self._command()
 
+    def _disarm(self) -> None:
+        if self._armed:
+            self._deadline.cancel()
+            self._armed = False
+
     def _command(self) -> None:
         u = self.learner.command()
         self.cmd_pub.publish(wire.twist_bytes(u))
-        if self.realtime:
-            self._deadline.cancel()
+        self._disarm()
 
     # ------------------------------------------------------------------ trial end
     def _finish_trial(self) -> None:
         lrn = self.learner
+        if self._idle_polls:
+            self.polls_idle(False)  # the in-neighbours' trajectories are due
         k, eta = lrn.finish_trial()
         if lrn.safety is not None:
             # what the filter changed in this trial, before the trajectory that completes
