@@ -520,9 +520,12 @@ def scale_curve(args: argparse.Namespace, tmp: Path, dom: int) -> None:
                   f"p99 {t.get('tick_lag_p99_ms', 0):.1f} max {t.get('tick_lag_max_ms', 0):.1f} "
                   f"ms; missed by robot (most first) {dict(worst)}; by sample of a trial "
                   f"(most first) {r['missed_at']}", flush=True)
+        # several of a kind (the robots): mean, median and max (before 2026-11-29 this
+        # line printed the max and the median only, as "robot MAX (median M)")
         print("  CPU per sample in trials, per process [ms]: " + ", ".join(
-            f"{k} {max(v):.2f}" + (f" (median {float(np.median(v)):.2f})" if len(v) > 1 else "")
-            for k, v in sorted(r["cpu_kind"].items())), flush=True)
+            f"{k} {max(v):.2f}" if len(v) == 1 else
+            f"{k} mean {float(np.mean(v)):.2f}, median {float(np.median(v)):.2f}, max "
+            f"{max(v):.2f}" for k, v in sorted(r["cpu_kind"].items())), flush=True)
         print(f"  CPU used by the first trial's start: {r['start_cpu']:.1f} s in all, median "
               f"{r['start_cpu_median']:.2f} s per process", flush=True)
         print(f"  RSS, bare rclpy node {bare:.1f} MB; per kind, max [ratio to bare]: "
