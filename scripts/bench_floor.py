@@ -22,8 +22,11 @@ as ``nodes.common.spin_main`` does, one of two patterns:
   second and reads every answer on that clock's answer topic (the plant answers for the
   leader); answers its out-neighbours' questions; the 1 Hz ``/diagnostics`` stream
   (``nodes.common.Diagnostics``); a 4 Hz steady timer (the checked subscriptions' poll
-  of the trajectories) with nothing to do. No learner, no law, no message is decoded
-  beyond a pose's bytes being handed on.
+  of the trajectories) with nothing to do; spun in 0.25 s slices. No learner, no law, no
+  message is decoded beyond a pose's bytes being handed on. That is ``robot0``, the robot
+  before issue 41's cuts (2026-11-29); ``robot`` is the robot since: the clock timer at
+  2 Hz, the deadline armed only when a link is not in at the pose, no re-check inside a
+  trial, 1 s spin slices (``nodes.common.SPIN_SLICE``).
 
 Every robot process's CPU (user + system, ``/proc``: ``scripts/procstat.py``) is read over
 ``--seconds`` after every process matched its topics and ``--warm`` seconds ran; it prints
@@ -79,15 +82,16 @@ def team_graph(n: int) -> tuple[list[int], list[list[int]]]:
     return src, outs
 
 
-def _spin(node: object, stop: object) -> None:
+def _spin(node: object, stop: object, slice_s: float | None = None) -> None:
     import rclpy
 
-    from formation_ilc.nodes.common import make_executor
+    from formation_ilc.nodes.common import SPIN_SLICE, make_executor
 
     ex = make_executor("events")
     ex.add_node(node)
     while rclpy.ok() and not stop.done():  # type: ignore[attr-defined]
-        ex.spin_until_future_complete(stop, timeout_sec=0.25)  # as spin_main does
+        # as spin_main does
+        ex.spin_until_future_complete(stop, timeout_sec=slice_s or SPIN_SLICE)
 
 
 def plant(n: int, src: list[int], pattern: str) -> int:
@@ -141,7 +145,7 @@ def plant(n: int, src: list[int], pattern: str) -> int:
             if ((pattern == "idle"
                  or all(p.get_subscription_count() >= 1 for p in pose_pubs))
                     and all(s.get_publisher_count() >= 1 for s in cmd_subs)
-                    and (pattern != "robot"
+                    and (not pattern.startswith("robot")
                          or ref_pub.get_subscription_count() >= len(askers))):
                 state["matched"] = True
                 print("matched", flush=True)
@@ -193,6 +197,7 @@ def robot(i: int, pattern: str, src: list[int], outs: list[list[int]]) -> int:
         return 0
 
     steady = Clock(clock_type=ClockType.STEADY_TIME)
+    before = pattern == "robot0"  # the robot before issue 41's cuts
     st = {"pose": False, "link": False, "done": False}
     shared = (node.create_publisher(PoseStamped, ms.shared_pose_topic(i + 1), ms.SAMPLE_QOS)
               if outs[i] else None)
@@ -207,10 +212,13 @@ def robot(i: int, pattern: str, src: list[int], outs: list[list[int]]) -> int:
         st["pose"], st["done"] = True, False
         if shared is not None and shared.get_subscription_count():
             shared.publish(data)
-        deadline.reset()
         if st["link"]:
+            if before:
+                deadline.reset()
             st["pose"] = st["link"] = False
             command()
+        else:
+            deadline.reset()
 
     def on_link(data: bytes) -> None:
         wire.read_pose(data)
@@ -245,10 +253,11 @@ def robot(i: int, pattern: str, src: list[int], outs: list[list[int]]) -> int:
 
     def on_clock() -> None:
         clock["n"] += 1
-        if clock["n"] % 5 == 0:  # 2 questions a second (protocol.timesync.PING_HZ)
+        if not before or clock["n"] % 5 == 0:  # 2 questions a second (PING_HZ)
             ping.publish(ms.ping_msg(clock["n"], time.time_ns(), peer))
 
-    node.create_timer(DT, on_clock)  # protocol.timesync.BURST_HZ
+    # protocol.timesync.BURST_HZ before; the question rate PING_HZ since (nodes.clocks)
+    node.create_timer(DT if before else 5 * DT, on_clock)
     if outs[i]:
         pong = node.create_publisher(TimeReference, ms.clock_pong_topic(me),
                                      ms.CLOCK_SYNC_QOS)
@@ -265,8 +274,9 @@ def robot(i: int, pattern: str, src: list[int], outs: list[list[int]]) -> int:
                                      lambda m, a=a: on_ping(m, a), ms.CLOCK_SYNC_QOS,
                                      raw=True)
     Diagnostics(node)  # the 1 Hz standard stream
-    node.create_timer(0.25, lambda: None, clock=steady)  # the checked subscriptions' poll
-    _spin(node, stop)
+    if before:  # the checked subscriptions' poll; since, it sleeps inside a trial
+        node.create_timer(0.25, lambda: None, clock=steady)
+    _spin(node, stop, 0.25 if before else None)
     node.destroy_node()
     rclpy.try_shutdown()
     return 0
@@ -359,8 +369,8 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--robots", type=int, default=50)
-    ap.add_argument("--patterns", nargs="+", choices=("idle", "minimal", "robot"),
-                    default=["idle", "minimal", "robot"])
+    ap.add_argument("--patterns", nargs="+", choices=("idle", "minimal", "robot0", "robot"),
+                    default=["idle", "minimal", "robot0", "robot"])
     ap.add_argument("--seconds", type=float, default=30.0,
                     help="the CPU window [s] (default 30: 300 samples)")
     ap.add_argument("--warm", type=float, default=5.0,
