@@ -6,13 +6,13 @@ robot-sample at 50 robots).
 A plant process publishes, every 100 ms on a wall timer, each robot's pose (bytes of a
 PoseStamped on ``robot_<i>/pose``) and the leader's reference (``leader/reference``), and
 reads every ``cmd_vel``. Each of N robot processes does, with the stack's topics, QoS
-(``msgs_schema``), raw takes and publishes and the EventsExecutor spun in 0.25 s slices
-as ``nodes.common.spin_main`` does, one of two patterns:
+(``msgs_schema``), raw takes and publishes and the EventsExecutor spun in slices as
+``nodes.common.spin_main`` does, one of these patterns:
 
 * ``idle``: a node with the ``cmd_vel`` publisher only, spinning: 0 in, 0 out (what a
   process of the run costs with no message of its own: discovery, the spin slices).
 * ``minimal``: takes its pose, publishes a Twist (the bytes) at once: 1 in, 1 out.
-* ``robot``: what a robot of ``formation-ilc team N`` does per sample in realtime with
+* ``robot0``: what a robot of ``formation-ilc team N`` did per sample in realtime with
   direct links and the clock exchange on, counted from ``nodes/robot.py``,
   ``nodes/clocks.py`` and ``nodes/common.py``: takes its pose and its one in-link (its
   in-neighbour's ``shared_pose``, or the leader's reference); publishes its pose on
@@ -23,15 +23,16 @@ as ``nodes.common.spin_main`` does, one of two patterns:
   leader); answers its out-neighbours' questions; the 1 Hz ``/diagnostics`` stream
   (``nodes.common.Diagnostics``); a 4 Hz steady timer (the checked subscriptions' poll
   of the trajectories) with nothing to do; spun in 0.25 s slices. No learner, no law, no
-  message is decoded beyond a pose's bytes being handed on. That is ``robot0``, the robot
-  before issue 41's cuts (2026-11-29); ``robot`` is the robot since: the clock timer at
-  2 Hz, the deadline armed only when a link is not in at the pose, no re-check inside a
-  trial, 1 s spin slices (``nodes.common.SPIN_SLICE``).
+  message is decoded beyond a pose's bytes being handed on: the robot before issue 41's
+  cuts (2026-11-29).
+* ``robot``: the same as the robot does since: the clock timer at 2 Hz, the deadline
+  armed only when a link is not in at the pose, no re-check inside a trial, 1 s spin
+  slices (``nodes.common.SPIN_SLICE``).
 
 Every robot process's CPU (user + system, ``/proc``: ``scripts/procstat.py``) is read over
 ``--seconds`` after every process matched its topics and ``--warm`` seconds ran; it prints
 per pattern the CPU per robot-sample (mean, median, min, max), the commands the plant
-received per robot-sample in that window (about 1: the pattern ran), the ratio of the
+received per robot and tick in that window (about 1: the pattern ran), the ratio of the
 median to the 0.6 ms target, and the load average before and after.
 
     python scripts/bench_floor.py                     # 50 robots, every pattern
