@@ -37,6 +37,8 @@ median to the 0.6 ms target, and the load average before and after.
 
     python scripts/bench_floor.py                     # 50 robots, every pattern
     python scripts/bench_floor.py --robots 50 --patterns robot --seconds 30
+    python scripts/bench_floor.py --patterns minimal --best-effort   # per-sample topics
+                                                                   # best effort
 
 Run it in a network namespace of its own (the ROS processes' discovery stays there).
 """
@@ -61,6 +63,22 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 TARGET_MS = 0.6
 DT = 0.1
 NS = "/bench_floor"
+#: the per-sample topics' QoS: msgs_schema's SAMPLE_QOS, or (``--best-effort``) the same
+#: best effort, to price a reliable writer's per-sample work
+_QOS: list = []
+
+
+def _sample_qos(best_effort: bool) -> object:
+    import copy
+
+    from rclpy.qos import ReliabilityPolicy
+
+    import msgs_schema as ms
+
+    qos = copy.copy(ms.SAMPLE_QOS)
+    if best_effort:
+        qos.reliability = ReliabilityPolicy.BEST_EFFORT
+    return qos
 
 
 def team_graph(n: int) -> tuple[list[int], list[list[int]]]:
@@ -113,9 +131,9 @@ def plant(n: int, src: list[int], pattern: str) -> int:
     stop = Future()
     signal.signal(signal.SIGTERM, lambda *_: stop.done() or stop.set_result(0))
     node = Node("floor_plant", namespace=NS)
-    pose_pubs = [node.create_publisher(PoseStamped, ms.pose_topic(i + 1), ms.SAMPLE_QOS)
+    pose_pubs = [node.create_publisher(PoseStamped, ms.pose_topic(i + 1), _QOS[0])
                  for i in range(n)]
-    ref_pub = node.create_publisher(PoseStamped, ms.REFERENCE, ms.SAMPLE_QOS)
+    ref_pub = node.create_publisher(PoseStamped, ms.REFERENCE, _QOS[0])
     counts = [0] * n
 
     def on_cmd(i: int) -> object:
@@ -124,7 +142,7 @@ def plant(n: int, src: list[int], pattern: str) -> int:
         return cb
 
     cmd_subs = [node.create_subscription(Twist, ms.cmd_vel_topic(i + 1), on_cmd(i),
-                                         ms.SAMPLE_QOS, raw=True) for i in range(n)]
+                                         _QOS[0], raw=True) for i in range(n)]
     askers = [i for i in range(n) if src[i] < 0]
     pong = node.create_publisher(TimeReference, ms.clock_pong_topic(ms.LEADER_NODE),
                                  ms.CLOCK_SYNC_QOS)
@@ -185,12 +203,12 @@ def robot(i: int, pattern: str, src: list[int], outs: list[list[int]]) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.done() or stop.set_result(0))
     me = ms.robot_name(i + 1)
     node = Node(me, namespace=NS)
-    cmd_pub = node.create_publisher(Twist, ms.cmd_vel_topic(i + 1), ms.SAMPLE_QOS)
+    cmd_pub = node.create_publisher(Twist, ms.cmd_vel_topic(i + 1), _QOS[0])
     cmd = wire.twist_bytes((0.1, 0.0))
     if pattern in ("idle", "minimal"):
         if pattern == "minimal":
             node.create_subscription(PoseStamped, ms.pose_topic(i + 1),
-                                     lambda m: cmd_pub.publish(cmd), ms.SAMPLE_QOS,
+                                     lambda m: cmd_pub.publish(cmd), _QOS[0],
                                      raw=True)
         _spin(node, stop)
         node.destroy_node()
@@ -200,7 +218,7 @@ def robot(i: int, pattern: str, src: list[int], outs: list[list[int]]) -> int:
     steady = Clock(clock_type=ClockType.STEADY_TIME)
     before = pattern == "robot0"  # the robot before issue 41's cuts
     st = {"pose": False, "link": False, "done": False}
-    shared = (node.create_publisher(PoseStamped, ms.shared_pose_topic(i + 1), ms.SAMPLE_QOS)
+    shared = (node.create_publisher(PoseStamped, ms.shared_pose_topic(i + 1), _QOS[0])
               if outs[i] else None)
 
     def command() -> None:
@@ -235,11 +253,11 @@ def robot(i: int, pattern: str, src: list[int], outs: list[list[int]]) -> int:
 
     deadline = node.create_timer(0.75 * DT, on_deadline)
     deadline.cancel()
-    node.create_subscription(PoseStamped, ms.pose_topic(i + 1), on_pose, ms.SAMPLE_QOS,
+    node.create_subscription(PoseStamped, ms.pose_topic(i + 1), on_pose, _QOS[0],
                              raw=True)
     j = src[i]
     node.create_subscription(PoseStamped, ms.REFERENCE if j < 0
-                             else ms.shared_pose_topic(j + 1), on_link, ms.SAMPLE_QOS,
+                             else ms.shared_pose_topic(j + 1), on_link, _QOS[0],
                              raw=True)
     # the clock exchange: questions to the in-link's clock, answers to the out-neighbours
     peer = ms.LEADER_NODE if j < 0 else ms.robot_name(j + 1)
@@ -299,8 +317,10 @@ def measure(n: int, pattern: str, args: argparse.Namespace, tmp: Path) -> dict:
         prof = tmp / "fastdds-discovery.xml"
         prof.write_text(peers_profile(None, args.domain, n + 1))
         env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(prof)
-    me = [sys.executable, str(Path(__file__).resolve()), "--robots", str(n)]
-    out: dict = {"pattern": pattern, "robots": n, "load_before": load()}
+    me = [sys.executable, str(Path(__file__).resolve()), "--robots", str(n),
+          *(["--best-effort"] if args.best_effort else [])]
+    out: dict = {"pattern": pattern + (" best effort" if args.best_effort else ""),
+                 "robots": n, "load_before": load()}
     robots = [subprocess.Popen(me + ["--role", "robot", "--index", str(i), "--patterns",
                                      pattern], env=env, stdout=subprocess.DEVNULL)
               for i in range(n)]
@@ -379,9 +399,12 @@ def main() -> int:
     ap.add_argument("--match-timeout", type=float, default=180.0,
                     help="[s] to wait for every endpoint to match")
     ap.add_argument("--domain", type=int, default=30 + os.getpid() % 60)
+    ap.add_argument("--best-effort", action="store_true",
+                    help="the per-sample topics best effort (the stack's are reliable)")
     ap.add_argument("--role", choices=("plant", "robot"), help=argparse.SUPPRESS)
     ap.add_argument("--index", type=int, default=0, help=argparse.SUPPRESS)
     args = ap.parse_args()
+    _QOS.append(_sample_qos(args.best_effort))
     if args.role:
         src, outs = team_graph(args.robots)
         if args.role == "plant":
