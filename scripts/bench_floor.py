@@ -26,8 +26,8 @@ reads every ``cmd_vel``. Each of N robot processes does, with the stack's topics
   message is decoded beyond a pose's bytes being handed on: the robot before issue 41's
   cuts (2026-11-29).
 * ``robot``: the same as the robot does since: the clock timer at 2 Hz, the deadline
-  armed only when a link is not in at the pose, no re-check inside a trial, 1 s spin
-  slices (``nodes.common.SPIN_SLICE``).
+  armed only when a link is not in at the pose, no re-check inside a trial, spun in the
+  node's slices (``nodes.common.SPIN_SLICE``; the figures in the docs: 1 s).
 
 Every robot process's CPU (user + system, ``/proc``: ``scripts/procstat.py``) is read over
 ``--seconds`` after every process matched its topics and ``--warm`` seconds ran; it prints

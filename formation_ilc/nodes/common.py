@@ -531,6 +531,11 @@ def readers_wanting(node: Node, pub: Any, names: Collection[str]) -> str:
             + (f" ({unnamed} of unknown node)" if unnamed else ""))
 
 
+#: [s] how long the executor spins before the process's loop looks at its stop again (1 s
+#: saved an idle node 0.034 ms of CPU per 100 ms, but a stop waits for the slice's end)
+SPIN_SLICE = 0.25
+
+
 class Exit:
     """Exit status a node asks for; ``stop`` is done when the process should end."""
 
@@ -658,7 +663,7 @@ def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
         # EventsExecutor.spin() never returns to Python, so SIGINT would go unseen: spin in
         # slices, which costs one return to the interpreter every 0.25 s
         while rclpy.ok() and not Exit.stop.done():
-            ex.spin_until_future_complete(Exit.stop, timeout_sec=0.25)
+            ex.spin_until_future_complete(Exit.stop, timeout_sec=SPIN_SLICE)
             if parent_gone():  # its SIGTERM was missed: the launcher is gone all the same
                 break
     except (KeyboardInterrupt, ExternalShutdownException):
