@@ -230,10 +230,12 @@ def main() -> int:
             got[-1] = m  # the newest after the first REPLAYED
 
     deadline = time.monotonic() + a.timeout
+    over = False
     try:
         while todo and time.monotonic() < deadline:
             ex.spin_once(timeout_sec=0.01)
             if st["config_seen"] and not config_sub(topic(ms.CONFIG)):
+                over = True
                 break  # the leader is gone: the run is over
             start, end = st["start"], st.get("end")
             if a.impostor and impostor is None and start is not None:
@@ -308,9 +310,11 @@ def main() -> int:
                 print(json.dumps({"forged": "pose_flood", "count": count,
                                   "topics": len(heard)}), flush=True)
         # a reliable writer that exits at once may not have delivered: wait until every
-        # reader acknowledged the forgeries (bounded; a reader that left is no longer waited for)
+        # reader acknowledged the forgeries (bounded; a reader that left is no longer waited
+        # for). Not once the run is over: a reader killed at its end is waited for until
+        # its lease runs out, and there is no one left to forge for
         for w in (pub, ready_pub, diag_pub, impostor_pub):
-            if w is not None:
+            if w is not None and not over:
                 w.wait_for_all_acked(Duration(seconds=10))
         if impostor_pub is not None and "ready" not in todo:  # it stayed until the end
             todo.discard("impostor")
