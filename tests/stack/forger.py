@@ -17,7 +17,11 @@ leader (or a buggy node) on the same domain and namespace would.
 
 * ``--ready-as K``: once robot_1 said ready for iteration K, a copy of that ready in
   robot_1's name with another seed in its configuration (before, the leader stopped the
-  run with status 2, blaming robot_1).
+  run with status 2, blaming robot_1). With ``--impostor NAME``, the same copy also from a
+  second node of this process named NAME in the formation's namespace (``robot_1``: the
+  graph names its writer as robot_1's; before, the leader took it and stopped). The node
+  is made once the first trial started, and stays until the run ends: its message is
+  judged as the readers' graph names its writer, which a participant that left is not.
 * ``--bad-report K``: at the start of iteration K, diagnostics in the plant's name whose
   contact slot is text (before, the launcher's monitor raised and the launcher ended with
   a traceback), and one whose contact line carries terminal escapes.
@@ -113,6 +117,7 @@ def main() -> int:
     p.add_argument("--ready-as", type=int, default=None, metavar="K")
     p.add_argument("--team-poses", type=int, default=None, metavar="K")
     p.add_argument("--bad-report", type=int, default=None, metavar="K")
+    p.add_argument("--impostor", default=None, metavar="NAME")
     p.add_argument("--timeout", type=float, default=900.0)
     a = p.parse_args()
     rclpy.init()
@@ -159,6 +164,11 @@ def main() -> int:
                             ms.LATCHED_READER_QOS) is not None
     pub = granted(node.create_publisher, String, topic(ms.TRIAL_EVENTS), ms.SAMPLE_QOS)
     ready_pub = granted(node.create_publisher, String, topic(ms.READY), ms.LATCHED_QOS)
+    #: the node named after a member (``--impostor``), made once a trial started: a member's
+    #: name in the graph before the launch makes the launcher refuse to start (a second
+    #: formation)
+    impostor = None
+    impostor_pub = None
     diag_pub = granted(node.create_publisher, DiagnosticArray, topic(ms.DIAGNOSTICS),
                        ms.LATCHED_QOS)
     config_sub = node.get_publishers_info_by_topic
@@ -172,6 +182,8 @@ def main() -> int:
                      (("report",), diag_pub)):
         if w is None:
             todo.difference_update(needs)
+    if a.impostor and "ready" in todo:
+        todo.add("impostor")  # until the run ends
     team: dict = {"last": None, "count": 0, "pub": None}
 
     def on_team(msg: Path) -> None:
@@ -218,12 +230,24 @@ def main() -> int:
             got[-1] = m  # the newest after the first REPLAYED
 
     deadline = time.monotonic() + a.timeout
+    over = False
     try:
         while todo and time.monotonic() < deadline:
             ex.spin_once(timeout_sec=0.01)
             if st["config_seen"] and not config_sub(topic(ms.CONFIG)):
+                over = True
                 break  # the leader is gone: the run is over
             start, end = st["start"], st.get("end")
+            if a.impostor and impostor is None and start is not None:
+                # once the first trial started (the launcher's check for a second
+                # formation is behind), so that the readers have matched its writer
+                # before it forges
+                impostor = rclpy.create_node(
+                    a.impostor, namespace=a.namespace, start_parameter_services=False,
+                    parameter_overrides=[Parameter("start_type_description_service",
+                                                   value=False)])
+                impostor_pub = granted(impostor.create_publisher, String, topic(ms.READY),
+                                       ms.LATCHED_QOS)
             if "flood" in todo and st["n"] and not flood:  # the team's size is known
                 for i in range(1, st["n"] + 1):
                     for t in (topic(ms.pose_topic(i)), topic(ms.shared_pose_topic(i))):
@@ -260,6 +284,11 @@ def main() -> int:
                 ready_pub.publish(String(data=json.dumps(d)))
                 todo.discard("ready")
                 print(json.dumps({"forged": "ready", "count": 1, "ready": d}), flush=True)
+                if impostor_pub is not None:
+                    impostor_pub.publish(String(data=json.dumps(d)))
+                    print(json.dumps({"forged": "ready_as_node", "count": 1,
+                                      "node": impostor.get_fully_qualified_name()}),
+                          flush=True)
             if "report" in todo and start is not None and start["trial"] >= a.bad_report:
                 plant = ms.SIM_NODE
                 k = int(start["trial"])
@@ -281,14 +310,20 @@ def main() -> int:
                 print(json.dumps({"forged": "pose_flood", "count": count,
                                   "topics": len(heard)}), flush=True)
         # a reliable writer that exits at once may not have delivered: wait until every
-        # reader acknowledged the forgeries (bounded; a reader that left is no longer waited for)
-        for w in (pub, ready_pub, diag_pub):
-            if w is not None:
+        # reader acknowledged the forgeries (bounded; a reader that left is no longer waited
+        # for). Not once the run is over: a reader killed at its end is waited for until
+        # its lease runs out, and there is no one left to forge for
+        for w in (pub, ready_pub, diag_pub, impostor_pub):
+            if w is not None and not over:
                 w.wait_for_all_acked(Duration(seconds=10))
+        if impostor_pub is not None and "ready" not in todo:  # it stayed until the end
+            todo.discard("impostor")
         if team["count"]:  # it went on until the run ended
             print(json.dumps({"forged": "team_poses", "count": team["count"]}), flush=True)
             todo.discard("team")
     finally:
+        if impostor is not None:
+            impostor.destroy_node()
         node.destroy_node()
         rclpy.try_shutdown()
     return 0 if not todo else 1
