@@ -130,12 +130,13 @@ def test_realtime_run_accounts_for_every_sample(ros_env, tmp_path):
         if unused[name] == 0:
             assert meas == inj, name
     late_robots = sum(diag[f"robot_{i + 1}"]["late"]["links"] for i in range(n))
-    # the filter acted, and on poses of the sample itself unless a robot missed its own
+    # the filter acted, and on poses of the sample itself: the plant sends team/poses
+    # before the robots' own poses (before, every sample with a robot in range was stale,
+    # 242 here); one the transport had to send again on a loaded machine may come after
     filt = [diag[f"robot_{i + 1}"]["filter_total"] for i in range(n)]
     assert sum(f["changed"] for f in filt) > 0, filt
     stale = sum(f["stale"] for f in filt)
-    if missed == 0:
-        assert stale == 0, filt
+    assert stale <= 0.02 * n * TRIALS * n_t, filt
 
     ref = simulate(sc, trials=TRIALS, safety=body_spec("p3dx", sc.dt, sc.uncertainty)).metrics
     if missed == 0 and late_links == 0 and late_robots == 0 and stale == 0:
