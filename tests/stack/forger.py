@@ -29,6 +29,9 @@ leader (or a buggy node) on the same domain and namespace would.
 * ``--team-poses K``: from the start of iteration K, for every ``team/poses`` the plant
   sends, a copy for the next sample (its stamps one sample on) with every robot 1 km away,
   sent before the plant's own (before, the robots' safety filters took them: filter off).
+* ``--truth K``: from the start of iteration K, for every true pose a simulated base sends
+  on its ``truth`` (every topic named so in the graph), a copy 1 km away (before, the
+  bridges took them: the true error read 63.9 m, exit 0).
 
 It prints one JSON line per forgery on stdout (``{"forged": ..., "count": ...}``), and
 exits once it has forged what it was asked to, or when the formation's configuration
@@ -117,6 +120,7 @@ def main() -> int:
     p.add_argument("--ready-as", type=int, default=None, metavar="K")
     p.add_argument("--team-poses", type=int, default=None, metavar="K")
     p.add_argument("--bad-report", type=int, default=None, metavar="K")
+    p.add_argument("--truth", type=int, default=None, metavar="K")
     p.add_argument("--impostor", default=None, metavar="NAME")
     p.add_argument("--timeout", type=float, default=900.0)
     a = p.parse_args()
@@ -176,7 +180,8 @@ def main() -> int:
     ex.add_node(node)
     todo = {k for k, v in (("burst", a.burst_at), ("abort", a.abort_committed),
                            ("flood", a.pose_flood), ("ready", a.ready_as),
-                           ("report", a.bad_report), ("team", a.team_poses))
+                           ("report", a.bad_report), ("team", a.team_poses),
+                           ("truth", a.truth))
             if v is not None}
     for needs, w in ((("burst", "abort"), pub), (("ready",), ready_pub),
                      (("report",), diag_pub)):
@@ -218,6 +223,17 @@ def main() -> int:
             todo.discard("team")
         else:
             node.create_subscription(Path, topic(ms.TEAM_POSES), on_team, ms.SAMPLE_QOS)
+    truth: dict = {"pubs": {}, "count": 0}
+
+    def on_truth(msg: PoseStamped, t: str) -> None:
+        """A copy of a base's true pose, 1 km away."""
+        start = st["start"]
+        if start is None or start["trial"] < a.truth:
+            return
+        msg.pose.position.x += 1000.0
+        truth["pubs"][t].publish(msg)
+        truth["count"] += 1
+
     #: pose topic -> its first REPLAYED messages (stale by the flood) and its newest
     heard: dict[str, list[bytes]] = {}
     flood: dict[str, object] = {}  # pose topic -> publisher
@@ -248,6 +264,15 @@ def main() -> int:
                                                    value=False)])
                 impostor_pub = granted(impostor.create_publisher, String, topic(ms.READY),
                                        ms.LATCHED_QOS)
+            if "truth" in todo and st["n"] and len(truth["pubs"]) < st["n"]:
+                # the bases' truth topics, as the graph lists them (under the bases'
+                # driver namespaces): each read, and written 1 km away
+                for t, _ in node.get_topic_names_and_types():
+                    if t.endswith("/" + ms.BASE_TRUTH) and t not in truth["pubs"]:
+                        truth["pubs"][t] = node.create_publisher(PoseStamped, t,
+                                                                 ms.ODOM_QOS)
+                        node.create_subscription(PoseStamped, t,
+                                                 lambda m, t=t: on_truth(m, t), ms.ODOM_QOS)
             if "flood" in todo and st["n"] and not flood:  # the team's size is known
                 for i in range(1, st["n"] + 1):
                     for t in (topic(ms.pose_topic(i)), topic(ms.shared_pose_topic(i))):
@@ -321,6 +346,10 @@ def main() -> int:
         if team["count"]:  # it went on until the run ended
             print(json.dumps({"forged": "team_poses", "count": team["count"]}), flush=True)
             todo.discard("team")
+        if truth["count"]:  # it went on until the run ended
+            print(json.dumps({"forged": "truth", "count": truth["count"],
+                              "topics": sorted(truth["pubs"])}), flush=True)
+            todo.discard("truth")
     finally:
         if impostor is not None:
             impostor.destroy_node()

@@ -6,12 +6,16 @@ preset's limits, drives them. A scenario too fast for those limits is refused wi
 line; stretched with ``--time-scale`` it runs, it learns, and no command to a base exceeds
 the limits (read back from the recording). The robots learn from the odometry; the
 simulated bases also tell their bridges the true poses, so the metrics have their true
-columns, within the odometry's drift of the measured ones.
+columns, within the odometry's drift of the measured ones, though a second process sends
+every base's true pose again 1 km away (refused, counted by sender).
 """
 
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -27,6 +31,7 @@ from formation_ilc.config.scenario import load_scenario  # noqa: E402
 from formation_ilc.core.metrics import METRIC_COLUMNS, read_metrics  # noqa: E402
 from formation_ilc.recordings.mcap_io import read_messages  # noqa: E402
 
+from ..procs import stop_group  # noqa: E402
 from .shared import RUNS  # noqa: E402
 from .test_stack import launch  # noqa: E402
 
@@ -56,14 +61,31 @@ def test_too_fast_for_the_base_is_refused_then_runs_stretched(ros_env, tmp_path)
     scale = errors[0].rsplit("--time-scale ", 1)[1].split()[0]
 
     rec = tmp_path / "run.mcap"
-    res = launch(ros_env, tmp_path / "run", *common, "--time-scale", scale,
-                 "--return-timeout", "40", "--record", str(rec), timeout=900.0)
+    # a second process sends, from trial 1 on, a copy of every base's true pose 1 km away
+    # (before, the bridges took them: the true error read 63.9 m, exit 0): only the
+    # physics bases' are taken, the forgeries counted by sender
+    second = subprocess.Popen([sys.executable, str(Path(__file__).with_name("forger.py")),
+                               "--truth", "1"], env=ros_env, stdout=subprocess.PIPE,
+                              stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        res = launch(ros_env, tmp_path / "run", *common, "--time-scale", scale,
+                     "--return-timeout", "40", "--record", str(rec), timeout=900.0)
+        said = second.communicate(timeout=60)[0]
+    finally:
+        stop_group(second)
     assert res.returncode == 0, res.stdout
+    forged = [json.loads(ln) for ln in said.splitlines() if ln.startswith("{")]
+    assert [d["forged"] for d in forged] == ["truth"] and forged[0]["count"] > 20, said
+    truth_topics = forged[0]["topics"]
+    assert len(truth_topics) == 3, said
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    refused = sum(by.get("/forger/forger", 0) for rep in summary["forged"].values()
+                  for t, by in rep.items() if t in truth_topics)
+    assert refused >= forged[0]["count"] // 2, summary["forged"]
     got = read_metrics(tmp_path / "run" / "metrics.csv")
     assert len(got) == 3 and got[-1, 1] < got[0, 1]  # it learns from the odometry pose
     # the insecure run a secure one is compared with (tests/stack/test_secure.py)
     RUNS[base_key(scen.read_text(), scale)] = got
-    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     # the simulated bases' truth: the true columns, as far from the measured ones as the
     # odometry drifted from the truth (the bases' diagnostics), and not equal to them
     assert summary["true_state"] is True
