@@ -172,14 +172,14 @@ def test_lossy_links_across_namespaces(netns_support, ros_env, tmp_path):
     # least 50 ms after their sample, later than a robot waits for them (0.75 dT =
     # 37.5 ms): at delay 0 only where the reader itself came that late to its own sample
     # (a robot process starved for 50 ms on a loaded machine: 1 of 417 samples once, CI
-    # of 27 Nov), and on average about (delay - wait) rounded up to samples (1.75 dT with
-    # no loss; a repaired loss holds the link back a little). The leader's link to robot
-    # 1 is not faulted: delay 0.
+    # of 27 Nov; 3 of 282 in a CI of 29 Nov), and on average about (delay - wait) rounded
+    # up to samples (1.75 dT with no loss; a repaired loss holds the link back a little).
+    # The leader's link to robot 1 is not faulted: delay 0.
     diag = json.loads((out / "diagnostics.json").read_text())
     for r in ("robot_2", "robot_3"):
         hist = {int(t): c for t, c in diag[r]["delays"]["robot_1"].items()}
         mean_ms = dt_ms * sum(t * c for t, c in hist.items()) / sum(hist.values())
-        assert hist.get(0, 0) <= 0.01 * sum(hist.values()), (r, hist)
+        assert hist.get(0, 0) <= 0.02 * sum(hist.values()), (r, hist)
         assert DELAY - JITTER - LINK_WAIT * dt_ms <= mean_ms <= DELAY + JITTER + 2 * dt_ms, (
             r, hist)
         # reliable DDS delivers in order, once: nothing out of order or duplicated; a

@@ -143,7 +143,10 @@ def test_realtime_run_accounts_for_every_sample(ros_env, tmp_path):
         # nothing late: the realtime run is the batch run
         np.testing.assert_allclose(got[:, 1:], ref[:, 1:], rtol=0, atol=TOL)
     else:
-        np.testing.assert_allclose(got[:, 1:], ref[:, 1:], rtol=0, atol=MISS_ATOL)
+        # the errors stay near; the filter's count of changed commands moves by a few (a
+        # late pose or command changes what the filter sees: 6 against 4 in a CI trial)
+        np.testing.assert_allclose(got[:, 1:7], ref[:, 1:7], rtol=0, atol=MISS_ATOL)
+        assert (np.abs(got[:, 7] - ref[:, 7]) <= 3 + 0.5 * ref[:, 7]).all(), (got, ref)
 
 
 @pytest.mark.slow
