@@ -633,8 +633,10 @@ class _Session:
         print(f"{level.upper()}: {text[:500]}", flush=True)
 
     def _down(self, name: str, pid: int) -> None:
-        """Tell the leader at once that a passive node died, so that no trial starts
-        without it (the recorder: no trial unrecorded)."""
+        """Tell the leader at once that a node died and is started again: a passive one,
+        so that no trial starts without it (the recorder: no trial unrecorded); any, so
+        that its successor's new participant takes its name at once (its predecessor's
+        stays in the graph until its lease runs out: ``protocol.writers``)."""
         self.host.down(name, pid)
 
     def run(self) -> int:

@@ -207,7 +207,8 @@ class Supervisor:
 
     place : the command line of a process (``--hosts netns``: inside its robot's network
         namespace); default its own.
-    on_down : called with (name, pid) when a passive process died and is started again.
+    on_down : called with (name, pid) when a process died and is started again (before
+        it is).
     """
 
     def __init__(self, plan: RunPlan, env: dict[str, str],
@@ -250,8 +251,9 @@ class Supervisor:
                           f"(log: {self.stack.log_dir / (name + '.log')})", flush=True)
                     continue
                 return Failure(spec, code)
-            if spec.passive and self.on_down is not None:
-                # a passive node's death is not seen otherwise until it is back
+            if self.on_down is not None:
+                # a passive node's death is not seen otherwise until it is back; every
+                # node's name is free for its successor's participant (protocol.writers)
                 self.on_down(name, self.stack.procs[name].pid)
             note = self.stack.restart(name)
             what = ("" if spec.passive or spec.optional

@@ -88,8 +88,12 @@ class LauncherHost:
         self._ex.spin_once(timeout_sec=timeout)
 
     def down(self, name: str, pid: int) -> None:
-        """Tell the leader that the passive node ``name`` (process ``pid``) died, so that no
-        trial starts without it (the recorder: no trial unrecorded)."""
+        """Tell the leader that node ``name`` (process ``pid``) died and is started again:
+        a passive one, so that no trial starts without it (the recorder: no trial
+        unrecorded); any, so that the readers of shared topics free its name for its
+        successor's participant (``protocol.writers``). The boot it names is the pid: an
+        active node's ready has another, so its down moves no schedule (its restart
+        shows in its new ready)."""
         import msgs_schema as ms
         from formation_ilc.protocol.schedule import Ready
 

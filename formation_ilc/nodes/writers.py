@@ -16,7 +16,8 @@ subscriptions runs one such timer for all of them (``GuardedNode.checked_subscri
 each timer's callback costs a wake-up of the executor, 20 times a second; a topic of one
 message a trial is polled every ``REFRESH_TRIAL`` seconds. A sample whose writer the graph
 does not name yet is held (``protocol.writers.HOLD``) and judged again as the graph learns
-it. Costs: ``scripts/bench_writers.py``.
+it; so is one of a second participant under a node name another holds (``PIN_HOLD``).
+Costs: ``scripts/bench_writers.py``.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from rclpy.type_support import check_is_valid_msg_type
 
-from formation_ilc.protocol.writers import HOLD, OK, UNKNOWN, WriterTable
+from formation_ilc.protocol.writers import OK, UNKNOWN, WriterTable
 
 __all__ = ["CheckedSubscription", "gid_take_available", "REFRESH_HELD", "REFRESH_TRIAL"]
 
@@ -184,7 +185,7 @@ class CheckedSubscription:
             verdict = self.table.judge(self.topic_name, gid)
         if verdict == UNKNOWN:
             since = now if held_since is None else held_since
-            if now - since >= HOLD:
+            if now - since >= self.table.hold_for(self.topic_name, gid):
                 verdict = self.table.judge(self.topic_name, gid, patient=True)
                 if verdict == UNKNOWN:  # not even listed: never to be known
                     verdict = self.table.expire(self.topic_name)

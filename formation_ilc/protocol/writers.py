@@ -21,10 +21,25 @@ of the topic can be that node: the graph loses a participant's node names for go
 participant is dropped on its lease and found again (``nodes.common.readers_wanting``), and
 a member must not be shut out of its run for that.
 
-Without ``--secure``, the graph's node names are what each participant says of itself: a
-process that names its node after the owner passes. With ``--secure``, a writer exists
-only where its enclave's permissions grant the topic (the owners' topics), and the
-participant behind a GID is authenticated (docs/security.md).
+The graph's node names are what each participant says of itself: a second process may
+name its node after another (``robot_1``). On a shared topic each node name is therefore
+pinned to one DDS participant (the first 12 bytes of a writer's GID, its GUID prefix in
+Fast DDS; one rclpy context, one participant): the participant first seen writing under a
+name holds it while the graph lists it on that topic. A writer of another participant
+under the same name is held (UNKNOWN) while the holder is listed: a restarted node's new
+participant comes while its killed predecessor is still listed, until that one's lease
+runs out (20 s, measured). It is refused as an impostor (sender ``NAME (second
+participant)``, and every later message of its participant under that name) as soon as
+the holder is heard again after it came (the holder lives), or after ``PIN_HOLD`` seconds
+of the holder still listed; it takes the name when the holder leaves the graph first, or
+when the launcher's monitor says the name's node is ``down`` (it restarts it). Owned
+topics are judged by name only: a restarted plant's samples must not wait for its
+predecessor's lease, and no ``down`` reaches the robots.
+
+With ``--secure``, a writer exists only where its enclave's permissions grant the topic
+(the owners' topics), and the participant behind a GID is authenticated: an insider with
+one robot's enclave that names its node after another robot is a second participant
+(docs/security.md).
 
 Everything refused is counted by topic and sender (``forged``), for the node's diagnostics,
 the launcher's console and the report. Pure: no ROS.
@@ -40,8 +55,8 @@ from typing import Any
 from formation_ilc.config.plants import PLANT_TABLE
 from formation_ilc.core import names as nm
 
-__all__ = ["WriterTable", "UNKNOWN", "OK", "REFRESH", "HOLD", "UNKNOWN_NODE", "full_name",
-           "plant_writers", "forged_line"]
+__all__ = ["WriterTable", "UNKNOWN", "OK", "REFRESH", "HOLD", "PIN_HOLD", "UNKNOWN_NODE",
+           "full_name", "participant", "plant_writers", "forged_line"]
 
 #: the verdicts besides a refusal's text
 OK, UNKNOWN = "ok", "unknown"
@@ -49,6 +64,15 @@ OK, UNKNOWN = "ok", "unknown"
 REFRESH = 0.05
 #: [s] a message of a writer the graph does not name yet is held this long, then refused
 HOLD = 5.0
+#: [s] a message of a second participant under a held node name is held this long while the
+#: holder is listed and silent (longer than Fast DDS's participant lease, 20 s: a killed
+#: node's participant stays listed that long after its restart)
+PIN_HOLD = 30.0
+#: bytes of a GID that name its participant (Fast DDS: the GUID prefix; the last 4 are the
+#: entity id; measured: the writers of one rclpy context share them, two processes do not)
+PARTICIPANT = 12
+#: participants, pins and impostors a table keeps at most (a flood of fake participants)
+_MAX = 4096
 #: the node name the ROS graph gives an endpoint whose participant's node list it lacks
 #: (rmw_dds_common's GraphCache)
 UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"
@@ -57,6 +81,11 @@ UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"
 def full_name(namespace: str, name: str) -> str:
     """``/ns/name`` of a node."""
     return f"{namespace.rstrip('/')}/{name}"
+
+
+def participant(gid: bytes) -> bytes:
+    """The participant of writer ``gid`` (its GUID prefix)."""
+    return bytes(gid[:PARTICIPANT])
 
 
 def plant_writers() -> frozenset[str]:
@@ -82,6 +111,18 @@ class WriterTable:
     unnamed: dict[str, set[bytes]] = field(default_factory=dict)
     #: (topic, sender) -> messages refused; sender: the writer's node, "?" if never named
     forged: Counter[tuple[str, str]] = field(default_factory=Counter)
+    #: topic -> the participants of its writers, as last learnt
+    listed: dict[str, set[bytes]] = field(default_factory=dict)
+    #: (topic, node /ns/name) -> the participant that holds the node's name on a shared topic
+    holders: dict[tuple[str, str], bytes] = field(default_factory=dict)
+    #: node /ns/name -> participants refused as impostors under its name
+    impostors: dict[str, set[bytes]] = field(default_factory=dict)
+    #: (node /ns/name, participant) -> the message count when a second participant's first
+    #: message under the name was held
+    pending: dict[tuple[str, bytes], int] = field(default_factory=dict)
+    #: participant -> the message count of the last message taken from it as a holder
+    spoke: dict[bytes, int] = field(default_factory=dict)
+    _count: int = 0
     _asked: dict[str, float] = field(default_factory=dict)
     _first: set[tuple[str, bytes]] = field(default_factory=set)
 
@@ -107,6 +148,10 @@ class WriterTable:
         writer it names without its node's name is left out (still unknown)."""
         known = self.gids.setdefault(topic, {})
         unnamed = self.unnamed.setdefault(topic, set())
+        endpoints = list(endpoints)
+        # the participants listed now: a holder not among them has left (a named or an
+        # unnamed writer of it keeps it)
+        self.listed[topic] = {participant(g) for g, _, _ in endpoints[:_MAX]}
         for gid, name, ns in endpoints:
             if name and name != UNKNOWN_NODE:
                 known[bytes(gid)] = full_name(ns, name)
@@ -155,7 +200,64 @@ class WriterTable:
         if owners is not None and name not in owners:
             return self.refuse(topic, who, f"{topic} from {who}: only "
                                            f"{', '.join(sorted(owners))} write it")
+        if owners is None:  # a shared topic: the name is its participant's
+            return self._pinned(topic, gid, who, patient)
         return OK
+
+    def _pinned(self, topic: str, gid: bytes, who: str, patient: bool) -> str:
+        """OK when writer ``gid``'s participant holds node name ``who`` on ``topic`` (or
+        takes it: nobody holds it, or its holder left the graph); UNKNOWN while a second
+        participant's message waits for its holder to leave; else it is an impostor."""
+        self._count += 1
+        p = participant(gid)
+        if p in self.impostors.get(who, ()):
+            return self._impostor(topic, who, p, "")
+        key = (topic, who)
+        holder = self.holders.get(key)
+        if holder is None or holder == p or holder not in self.listed.get(topic, ()):
+            if holder != p and len(self.holders) < _MAX:
+                self.holders[key] = p
+            self.pending.pop((who, p), None)
+            if len(self.spoke) < _MAX or p in self.spoke:
+                self.spoke[p] = self._count
+            return OK
+        since = self.pending.get((who, p))
+        if since is None:
+            if len(self.pending) >= _MAX:
+                return self._impostor(topic, who, p, "")
+            since = self.pending[(who, p)] = self._count
+        if self.spoke.get(holder, -1) > since:
+            return self._impostor(topic, who, p, ": its holder spoke after it came")
+        if not patient:
+            return UNKNOWN
+        return self._impostor(topic, who, p, f": its holder is still listed after "
+                                             f"{PIN_HOLD:g} s")
+
+    def _impostor(self, topic: str, who: str, p: bytes, why: str) -> str:
+        """Refuse (and count) a message of participant ``p`` under node name ``who``,
+        which another participant holds; ``p`` is an impostor of ``who`` from now on."""
+        self.pending.pop((who, p), None)
+        known = self.impostors.setdefault(who, set())
+        if len(known) < _MAX:
+            known.add(p)
+        return self.refuse(topic, f"{who} (second participant)",
+                           f"{topic} from a second participant named {who} "
+                           f"({p.hex()}){why}")
+
+    def hold_for(self, topic: str, gid: bytes) -> float:
+        """[s] how long a message of writer ``gid`` that ``judge`` found UNKNOWN is held:
+        PIN_HOLD for a second participant under a held name, else HOLD."""
+        who = self.writer(topic, gid)
+        return PIN_HOLD if who is not None and (who, participant(gid)) in self.pending \
+            else HOLD
+
+    def release(self, node: str) -> None:
+        """Node ``node`` (formation's namespace) went down and is started again: its name
+        is free on every topic (the next participant seen under it that is no impostor
+        takes it)."""
+        who = full_name(self.namespace, node)
+        for key in [k for k in self.holders if k[1] == who]:
+            del self.holders[key]
 
     def claims(self, topic: str, gid: bytes, claimed: str, down: bool = False) -> str:
         """OK when the writer of a message on a shared topic is the node it names
@@ -173,7 +275,11 @@ class WriterTable:
             return verdict
         who = self.writer(topic, gid) or "?"
         name = who.rpartition("/")[2]
-        if name == claimed or (down and name == nm.MONITOR_NODE):
+        if name == claimed:
+            return OK
+        if down and name == nm.MONITOR_NODE:
+            # the launcher starts it again: its next participant takes the name
+            self.release(claimed)
             return OK
         return self.refuse(topic, who, f"{topic} in the name of {claimed[:100]!r} "
                                        f"from {who}")

@@ -321,6 +321,31 @@ def test_the_supervisor_restarts_within_the_policy(tmp_path, capsys):
     assert sup.stack.procs["p1"].poll() is not None  # stopped
 
 
+def test_the_supervisor_says_down_for_an_active_process_it_starts_again(tmp_path):
+    """Every restart is announced (the launcher's monitor then says the node is down, and
+    the readers of shared topics free its name for its successor's participant:
+    protocol.writers), not only a passive process's."""
+    from formation_ilc.cli.supervisor import Supervisor
+
+    plan, codes = _plan_running(tmp_path, "import time; time.sleep(60)",
+                                "raise SystemExit(1)", max_restarts=1)
+    downs = []
+    sup = Supervisor(plan, dict(os.environ),
+                     place=lambda s: [sys.executable, "-c", codes[s.name]],
+                     on_down=lambda name, pid: downs.append((name, pid)))
+    sup.start()
+    try:
+        first = sup.stack.procs["p1"].pid
+        failure = None
+        while failure is None:
+            sup.stack.procs["p1"].wait(timeout=30)
+            failure = sup.watch()
+        assert failure.spec.name == "p1" and not failure.spec.passive
+        assert downs == [("p1", first)]  # the pid of the process that died
+    finally:
+        sup.stop()
+
+
 def test_an_optional_node_that_keeps_failing_is_left_behind(tmp_path, capsys):
     """The live view is optional: its failures end nothing; the run goes on without it."""
     from dataclasses import replace

@@ -5,11 +5,13 @@ from __future__ import annotations
 from formation_ilc.protocol.writers import (
     HOLD,
     OK,
+    PIN_HOLD,
     REFRESH,
     UNKNOWN,
     UNKNOWN_NODE,
     WriterTable,
     forged_line,
+    participant,
     plant_writers,
 )
 
@@ -88,3 +90,109 @@ def test_a_writer_the_graph_never_names_passes_only_for_a_node_no_named_writer_i
     t.learn(POSES, [(G1, "physics_sim", NS)])
     assert t.judge(POSES, G4, patient=True) != OK
     assert t.report() == {POSES: {"(unnamed)": 1}, READY: {"(unnamed)": 1}}
+
+
+def gid(part: int, entity: int = 1) -> bytes:
+    """A writer's GID: 12 bytes of its participant, 4 of its entity (Fast DDS's GUID)."""
+    return bytes([part]) * 12 + entity.to_bytes(4, "big")
+
+
+R1, R1B, IMP, NEW, MON = gid(1), gid(1, 2), gid(9), gid(7), gid(4)
+IMPOSTOR = "/formation/robot_1 (second participant)"
+
+
+def pinned() -> WriterTable:
+    """robot_1 (participant 1) has said ready; a second participant named robot_1 (9)
+    is listed beside it, and the launcher's monitor (4)."""
+    t = WriterTable(NS)
+    t.learn(READY, [(R1, "robot_1", NS), (MON, "monitor", NS)])
+    assert t.claims(READY, R1, "robot_1") == OK
+    t.learn(READY, [(R1, "robot_1", NS), (MON, "monitor", NS), (IMP, "robot_1", NS),
+                    (R1B, "robot_1", NS)])
+    return t
+
+
+def test_a_participant_is_its_gids_first_twelve_bytes():
+    assert participant(R1) == participant(R1B) != participant(IMP)
+
+
+def test_a_second_participant_under_a_held_name_is_an_impostor_once_the_holder_speaks():
+    t = pinned()
+    # held while the holder is listed: it may be a killed holder's successor
+    assert t.judge(READY, IMP) == UNKNOWN and t.hold_for(READY, IMP) == PIN_HOLD
+    assert t.hold_for(READY, R1) == HOLD
+    assert t.judge(READY, R1B) == OK  # another writer of the holder's participant
+    assert t.claims(READY, R1, "robot_1") == OK  # the holder lives
+    why = t.judge(READY, IMP)
+    assert "second participant named /formation/robot_1" in why and "spoke" in why
+    # from now on at once, in its own name or not, and after the holder left
+    assert t.claims(READY, IMP, "robot_1") != OK
+    t.learn(READY, [(IMP, "robot_1", NS)])
+    assert t.judge(READY, IMP) != OK
+    assert t.report() == {READY: {IMPOSTOR: 3}}
+
+
+def test_a_silent_holder_still_listed_after_pin_hold_makes_the_second_an_impostor():
+    t = pinned()
+    assert t.judge(READY, IMP) == UNKNOWN
+    assert "still listed" in t.judge(READY, IMP, patient=True)
+    assert t.forged[(READY, IMPOSTOR)] == 1
+
+
+def test_the_name_passes_to_the_next_participant_when_its_holder_left_the_graph():
+    """A killed robot's participant stays listed until its lease runs out; its restarted
+    successor's messages wait until then, and are taken."""
+    t = pinned()
+    t.learn(READY, [(R1, "robot_1", NS), (NEW, "robot_1", NS)])
+    assert t.judge(READY, NEW) == UNKNOWN  # the predecessor is still listed
+    t.learn(READY, [(NEW, "robot_1", NS)])  # its lease ran out
+    assert t.claims(READY, NEW, "robot_1") == OK
+    assert t.holders[(READY, "/formation/robot_1")] == participant(NEW)
+    assert t.total == 0
+
+
+def test_the_monitors_down_frees_the_name_at_once():
+    t = pinned()
+    t.learn(READY, [(R1, "robot_1", NS), (MON, "monitor", NS), (NEW, "robot_1", NS)])
+    assert t.judge(READY, NEW) == UNKNOWN
+    assert t.claims(READY, MON, "robot_1", down=True) == OK  # the launcher restarts it
+    assert t.claims(READY, NEW, "robot_1") == OK  # its predecessor still listed
+    assert t.claims(READY, R1, "robot_1") != OK  # the predecessor's name is taken
+    # a down from anyone else frees nothing
+    assert t.claims(READY, NEW, "robot_1", down=True) == OK
+    t.learn(READY, [(NEW, "robot_1", NS), (MON, "monitor", NS), (IMP, "robot_1", NS)])
+    assert t.claims(READY, IMP, "robot_2", down=True) != OK
+    assert t.holders[(READY, "/formation/robot_1")] == participant(NEW)
+
+
+def test_an_impostor_stays_one_when_the_holder_restarts():
+    t = pinned()
+    t.judge(READY, IMP)
+    t.claims(READY, R1, "robot_1")
+    assert t.judge(READY, IMP) != OK
+    t.learn(READY, [(IMP, "robot_1", NS), (NEW, "robot_1", NS)])  # the holder left
+    assert t.judge(READY, IMP) != OK
+    assert t.claims(READY, NEW, "robot_1") == OK
+
+
+def test_a_holder_listed_without_its_name_is_still_there():
+    """The graph may list a participant's endpoints without its node's name (before its
+    ros_discovery_info, or after a lease drop): its pin holds."""
+    t = WriterTable(NS)
+    t.learn(READY, [(R1, UNKNOWN_NODE, NS)])
+    assert t.judge(READY, R1) == UNKNOWN
+    t.learn(READY, [(R1, "robot_1", NS)])
+    assert t.claims(READY, R1, "robot_1") == OK  # first seen once named: it holds
+    t.learn(READY, [(R1B, UNKNOWN_NODE, NS), (IMP, "robot_1", NS)])
+    assert t.judge(READY, IMP) == UNKNOWN
+    assert t.judge(READY, IMP, patient=True) != OK
+
+
+def test_each_topic_pins_on_its_own_and_owned_topics_are_judged_by_name():
+    t = pinned()
+    diag = "/formation/diagnostics"
+    t.learn(diag, [(IMP, "robot_1", NS)])  # the impostor came first on this topic
+    assert t.claims(diag, IMP, "robot_1") == OK
+    t.own(POSES, "physics_sim")
+    t.learn(POSES, [(R1, "physics_sim", NS), (IMP, "physics_sim", NS)])
+    assert t.judge(POSES, R1) == OK and t.judge(POSES, IMP) == OK

@@ -139,9 +139,10 @@ def test_forged_events_and_a_forged_down_move_nothing(ros_env, context, tmp_path
     an abort of the running slot and a "down" of the live recorder from a peer in this
     process; a burst of 72 events (starts, aborts, ends, a done) the moment trial 2 ends,
     and an abort of the slot trial 4 ran once every robot has learned it (with the seq the
-    leader gives its next start), a ready in robot_1's name with another seed and reports in
-    the plant's name (a contact slot that is text, a line of terminal escapes, contacts in a
-    run without bodies), from a second process (tests/stack/forger.py).
+    leader gives its next start), a ready in robot_1's name with another seed (from a node
+    of its own, and from a node it names robot_1 in the formation's namespace) and reports
+    in the plant's name (a contact slot that is text, a line of terminal escapes, contacts
+    in a run without bodies), from a second process (tests/stack/forger.py).
 
     Before: the forged abort made the simulator leave its trial and the leader wait for its
     /clock forever; the "down" made the leader wait for a live recorder; the burst filed a
@@ -157,7 +158,8 @@ def test_forged_events_and_a_forged_down_move_nothing(ros_env, context, tmp_path
     forged: dict[str, dict] = {}
     second = subprocess.Popen([sys.executable, str(Path(__file__).with_name("forger.py")),
                                "--burst-at", "2", "--abort-committed", "4",
-                               "--ready-as", "3", "--bad-report", "3"], env=ros_env,
+                               "--ready-as", "3", "--bad-report", "3",
+                               "--impostor", "robot_1"], env=ros_env,
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                               start_new_session=True)
     private: dict[str, object] = {}
@@ -203,7 +205,8 @@ def test_forged_events_and_a_forged_down_move_nothing(ros_env, context, tmp_path
     os.umask(umask)
     assert rec.stat().st_mode & 0o077 == 0o666 & ~umask & 0o077
     by_second = [json.loads(ln) for ln in said.splitlines() if ln.startswith("{")]
-    assert sorted(d["forged"] for d in by_second) == ["abort", "burst", "ready", "report"], said
+    assert sorted(d["forged"] for d in by_second) == ["abort", "burst", "ready",
+                                                      "ready_as_node", "report"], said
     assert [d["count"] for d in by_second if d["forged"] == "burst"] == [72]
     assert proc.returncode == 0, out + err
     got = read_metrics(tmp_path / "metrics.csv")
@@ -226,6 +229,11 @@ def test_forged_events_and_a_forged_down_move_nothing(ros_env, context, tmp_path
     assert forged["virtual_leader"]["/formation/ready"]["/forger/forger"] >= 1, forged
     mon = forged["monitor"]
     assert mon["/formation/ready"]["/forger/forger"] >= 1, forged
+    # the node it named robot_1: the graph names its writer as robot_1's, but its
+    # participant is not the one robot_1 said ready from (refused once robot_1 spoke again)
+    impostor = "/formation/robot_1 (second participant)"
+    assert forged["virtual_leader"]["/formation/ready"][impostor] >= 1, forged
+    assert mon["/formation/ready"][impostor] >= 1, forged
     assert mon["/formation/diagnostics"]["/forger/forger"] >= 1, forged
     assert "forged: " in out and "\x1b" not in out and "every trial is in" in out
     from formation_ilc.recordings.recording import load_recording, recording_parts

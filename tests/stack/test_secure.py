@@ -186,14 +186,15 @@ def test_grants_cover_what_the_nodes_do(ros_env, tmp_path, case):
 def test_secure_lockstep_equals_batch_simulator(ros_env, tmp_path, keystore):
     """A secure lockstep run equals the batch simulator, while an insider holding robot 3's
     enclave forges what it can (tests/stack/forger.py): a ready in robot_1's name with
-    another seed and reports in the plant's name (a contact slot that is text, a line of
+    another seed (from its own node, and from a node it names robot_1 in the formation's
+    namespace) and reports in the plant's name (a contact slot that is text, a line of
     terminal escapes, contacts in a run without bodies) are refused by their writer and
     counted by sender; a burst of trial events and forged ``team/poses`` are refused by its
     permissions when it creates their writers."""
     trials = 12
     forger = subprocess.Popen(
         [sys.executable, str(HERE / "forger.py"), "--ready-as", "3", "--bad-report", "3",
-         "--burst-at", "2", "--team-poses", "2"],
+         "--burst-at", "2", "--team-poses", "2", "--impostor", "robot_1"],
         env=identity(ros_env, keystore, "/formation/robot_3"), stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:
@@ -213,12 +214,17 @@ def test_secure_lockstep_equals_batch_simulator(ros_env, tmp_path, keystore):
     refused = {d["refused"] for d in lines if "refused" in d}
     assert {"/formation/leader/trial_events", "/formation/team/poses",
             "/formation/ready"} <= refused, said
-    assert sorted(d["forged"] for d in lines if "forged" in d) == ["ready", "report"], said
+    assert sorted(d["forged"] for d in lines if "forged" in d) == ["ready", "ready_as_node",
+                                                                   "report"], said
     # its ready and its reports in other nodes' names went out and were refused by writer
     forged = json.loads((tmp_path / "summary.json").read_text())["forged"]
     assert forged["virtual_leader"]["/formation/ready"]["/forger/forger"] >= 1, forged
     assert forged["monitor"]["/formation/ready"]["/forger/forger"] >= 1, forged
     assert forged["monitor"]["/formation/diagnostics"]["/forger/forger"] >= 1, forged
+    # its node named robot_1: authenticated as robot 3's participant, not robot_1's
+    impostor = "/formation/robot_1 (second participant)"
+    assert forged["virtual_leader"]["/formation/ready"][impostor] >= 1, forged
+    assert forged["monitor"]["/formation/ready"][impostor] >= 1, forged
     assert "\x1b" not in res.stdout
 
 
