@@ -213,21 +213,23 @@ class GuardedNode(Node):
                 if drops is not None:
                     drops.reject(exc, ms.READY)
                 return
-            if self.from_named_writer(ms.READY, gid, d.get("node"), d.get("down") is True):
+            if self.from_named_writer(ms.READY, gid, d.get("node"), d.get("down") is True,
+                                      str(d.get("boot", ""))[:64]):
                 on_ready(msg)
 
         return self.checked_subscription(String, ms.READY, taken, ms.LATCHED_READER_QOS,
                                          shared=True)
 
-    def from_named_writer(self, topic: str, gid: bytes, claimed: Any, down: bool = False
-                          ) -> bool:
+    def from_named_writer(self, topic: str, gid: bytes, claimed: Any, down: bool = False,
+                          boot: str = "") -> bool:
         """Whether the writer (``gid``) of a message on a shared topic is the node the
         message names (``claimed``; the launcher's monitor may say another is ``down``);
         a message that names no node is left to its handler (malformed there). Counted
         as ``forged`` when not."""
         if not isinstance(claimed, str):
             return True
-        verdict = self.writers.claims(self.resolve_topic_name(topic), gid, claimed, down)
+        verdict = self.writers.claims(self.resolve_topic_name(topic), gid, claimed, down,
+                                      boot)
         if verdict == OK:
             return True
         self._forged(topic, verdict)

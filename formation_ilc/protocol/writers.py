@@ -117,6 +117,13 @@ class WriterTable:
     holders: dict[tuple[str, str], bytes] = field(default_factory=dict)
     #: node /ns/name -> participants refused as impostors under its name
     impostors: dict[str, set[bytes]] = field(default_factory=dict)
+    #: node /ns/name -> participants that held the name until the node went ``down``: the
+    #: last messages of a killed predecessor, still in a reader's queue, are its own and
+    #: taken, but never take the name back from its successor
+    retired: dict[str, set[bytes]] = field(default_factory=dict)
+    #: (node /ns/name, boot) of every down taken: a latched down heard again (a reader that
+    #: matched its writer anew) frees the name of the node's successor no more
+    downs: set[tuple[str, str]] = field(default_factory=set)
     #: (node /ns/name, participant) -> the message count when a second participant's first
     #: message under the name was held
     pending: dict[tuple[str, bytes], int] = field(default_factory=dict)
@@ -212,6 +219,8 @@ class WriterTable:
         p = participant(gid)
         if p in self.impostors.get(who, ()):
             return self._impostor(topic, who, p, "")
+        if p in self.retired.get(who, ()):
+            return OK
         key = (topic, who)
         holder = self.holders.get(key)
         if holder is None or holder == p or holder not in self.listed.get(topic, ()):
@@ -251,18 +260,28 @@ class WriterTable:
         return PIN_HOLD if who is not None and (who, participant(gid)) in self.pending \
             else HOLD
 
-    def release(self, node: str) -> None:
-        """Node ``node`` (formation's namespace) went down and is started again: its name
+    def release(self, node: str, boot: str = "") -> None:
+        """Node ``node`` (formation's namespace; its process ``boot``, as the launcher's
+        down names it: once for each) went down and is started again: its name
         is free on every topic (the next participant seen under it that is no impostor
-        takes it)."""
+        takes it); what its holder's participant still sends under it is its last words,
+        taken but holding nothing (``retired``)."""
         who = full_name(self.namespace, node)
+        if boot:
+            if (who, boot) in self.downs or len(self.downs) >= _MAX:
+                return
+            self.downs.add((who, boot))
+        retired = self.retired.setdefault(who, set())
         for key in [k for k in self.holders if k[1] == who]:
+            if len(retired) < _MAX:
+                retired.add(self.holders[key])
             del self.holders[key]
 
-    def claims(self, topic: str, gid: bytes, claimed: str, down: bool = False) -> str:
+    def claims(self, topic: str, gid: bytes, claimed: str, down: bool = False,
+               boot: str = "") -> str:
         """OK when the writer of a message on a shared topic is the node it names
-        (``claimed``), or the launcher's monitor saying that node is ``down``;
-        UNKNOWN or why not, as ``judge``."""
+        (``claimed``), or the launcher's monitor saying that node (its process ``boot``)
+        is ``down``; UNKNOWN or why not, as ``judge``."""
         if self.writer(topic, gid) is None and bytes(gid) in self.unnamed.get(topic, set()):
             # held HOLD seconds, still unnamed: only for a node no named writer is
             if isinstance(claimed, str) and claimed and not self._named(topic, claimed):
@@ -279,7 +298,7 @@ class WriterTable:
             return OK
         if down and name == nm.MONITOR_NODE:
             # the launcher starts it again: its next participant takes the name
-            self.release(claimed)
+            self.release(claimed, boot)
             return OK
         return self.refuse(topic, who, f"{topic} in the name of {claimed[:100]!r} "
                                        f"from {who}")

@@ -157,12 +157,41 @@ def test_the_monitors_down_frees_the_name_at_once():
     assert t.judge(READY, NEW) == UNKNOWN
     assert t.claims(READY, MON, "robot_1", down=True) == OK  # the launcher restarts it
     assert t.claims(READY, NEW, "robot_1") == OK  # its predecessor still listed
-    assert t.claims(READY, R1, "robot_1") != OK  # the predecessor's name is taken
+    # the predecessor's last words, still in the reader's queue, are taken but hold nothing
+    assert t.claims(READY, R1, "robot_1") == OK
+    assert t.holders[(READY, "/formation/robot_1")] == participant(NEW)
     # a down from anyone else frees nothing
     assert t.claims(READY, NEW, "robot_1", down=True) == OK
     t.learn(READY, [(NEW, "robot_1", NS), (MON, "monitor", NS), (IMP, "robot_1", NS)])
     assert t.claims(READY, IMP, "robot_2", down=True) != OK
     assert t.holders[(READY, "/formation/robot_1")] == participant(NEW)
+
+
+def test_a_killed_holders_late_message_does_not_take_its_name_back():
+    """The launcher's down can be taken before the last report of the node it restarts:
+    that report must not pin the name to a dead participant, whose successor would then
+    be held until the lease of the dead one runs out."""
+    t = pinned()
+    t.learn(READY, [(R1, "robot_1", NS), (MON, "monitor", NS), (NEW, "robot_1", NS)])
+    assert t.claims(READY, MON, "robot_1", down=True) == OK
+    assert t.claims(READY, R1, "robot_1") == OK  # late, after the down
+    assert t.claims(READY, NEW, "robot_1") == OK  # at once, not held
+    assert t.total == 0
+
+
+def test_a_down_heard_again_does_not_free_the_successors_name():
+    """The down is latched: a reader that matches its writer anew hears it again. The
+    successor that took the name keeps it; a down of its own process frees it."""
+    t = pinned()
+    t.learn(READY, [(R1, "robot_1", NS), (MON, "monitor", NS), (NEW, "robot_1", NS),
+                    (IMP, "robot_1", NS)])
+    assert t.claims(READY, MON, "robot_1", down=True, boot="101") == OK
+    assert t.claims(READY, NEW, "robot_1") == OK
+    assert t.claims(READY, MON, "robot_1", down=True, boot="101") == OK  # heard again
+    assert t.holders[(READY, "/formation/robot_1")] == participant(NEW)
+    assert t.judge(READY, IMP) == UNKNOWN  # held: the name is NEW's
+    assert t.claims(READY, MON, "robot_1", down=True, boot="202") == OK  # NEW died
+    assert (READY, "/formation/robot_1") not in t.holders
 
 
 def test_an_impostor_stays_one_when_the_holder_restarts():
