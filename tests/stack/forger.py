@@ -223,7 +223,7 @@ def main() -> int:
             todo.discard("team")
         else:
             node.create_subscription(Path, topic(ms.TEAM_POSES), on_team, ms.SAMPLE_QOS)
-    truth: dict = {"pubs": {}, "count": 0}
+    truth: dict = {"pubs": {}, "count": 0, "tried": set()}
 
     def on_truth(msg: PoseStamped, t: str) -> None:
         """A copy of a base's true pose, 1 km away."""
@@ -264,15 +264,19 @@ def main() -> int:
                                                    value=False)])
                 impostor_pub = granted(impostor.create_publisher, String, topic(ms.READY),
                                        ms.LATCHED_QOS)
-            if "truth" in todo and st["n"] and len(truth["pubs"]) < st["n"]:
+            if "truth" in todo and st["n"] and len(truth["tried"]) < st["n"]:
                 # the bases' truth topics, as the graph lists them (under the bases'
-                # driver namespaces): each read, and written 1 km away
+                # driver namespaces): each read, and written 1 km away, where granted
                 for t, _ in node.get_topic_names_and_types():
-                    if t.endswith("/" + ms.BASE_TRUTH) and t not in truth["pubs"]:
-                        truth["pubs"][t] = node.create_publisher(PoseStamped, t,
-                                                                 ms.ODOM_QOS)
-                        node.create_subscription(PoseStamped, t,
-                                                 lambda m, t=t: on_truth(m, t), ms.ODOM_QOS)
+                    if t.endswith("/" + ms.BASE_TRUTH) and t not in truth["tried"]:
+                        truth["tried"].add(t)
+                        w = granted(node.create_publisher, PoseStamped, t, ms.ODOM_QOS)
+                        if w is not None and granted(
+                                node.create_subscription, PoseStamped, t,
+                                lambda m, t=t: on_truth(m, t), ms.ODOM_QOS) is not None:
+                            truth["pubs"][t] = w
+                if len(truth["tried"]) >= st["n"] and not truth["pubs"]:
+                    todo.discard("truth")  # every one refused by the permissions
             if "flood" in todo and st["n"] and not flood:  # the team's size is known
                 for i in range(1, st["n"] + 1):
                     for t in (topic(ms.pose_topic(i)), topic(ms.shared_pose_topic(i))):

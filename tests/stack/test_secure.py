@@ -469,7 +469,9 @@ def test_secure_bases_with_physics_bases_equal_the_insecure_run(ros_env, tmp_pat
     errors equal the insecure run's within BATCH_ATOL (what a bridge run of the Pioneer
     bridges gets against the batch simulator), it learns as the insecure run does, and an
     unsecured participant receives nothing. (The run is stopped once the probe is done:
-    its report, written after the bridges' last return, is not waited for.)"""
+    its report, written after the bridges' last return, is not waited for.) An insider
+    holding robot 3's enclave tries to send every base's true pose 1 km away (forger.py
+    ``--truth``): its permissions refuse it each writer at creation."""
     pytest.importorskip("pybullet")
     from .test_base_physics import base_key
     from .test_pioneer import BATCH_ATOL
@@ -486,10 +488,24 @@ def test_secure_bases_with_physics_bases_equal_the_insecure_run(ros_env, tmp_pat
     assert refused.returncode == 2, refused.stdout
     scale = refused.stdout.rsplit("--time-scale ", 1)[1].split()[0]
     common += ["--time-scale", scale]
-    got, out, alive = _secure_run_probed(ros_env, tmp_path / "secure", ks,
-                                         [*common, "--trials", "30"], first_rows=2)
+    forger = subprocess.Popen(
+        [sys.executable, str(HERE / "forger.py"), "--truth", "0", "--timeout", "600"],
+        env=identity(ros_env, ks, "/formation/robot_3"), stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        got, out, alive = _secure_run_probed(ros_env, tmp_path / "secure", ks,
+                                             [*common, "--trials", "30"], first_rows=2)
+        said = forger.communicate(timeout=60)[0]
+    finally:
+        stop_group(forger)
     assert alive, out
     _nothing_received(got)
+    # it found every base's truth topic and was refused a writer on each
+    lines = [json.loads(ln) for ln in said.splitlines() if ln.startswith("{")]
+    refused = {d["refused"] for d in lines if "refused" in d}
+    assert len({t for t in refused if t.endswith("/truth")}) == 3, said
+    assert not any("forged" in d for d in lines), said
+    assert forger.returncode == 0, said
     secure = read_metrics(tmp_path / "secure" / "metrics.csv")
     assert len(secure) >= 2, out
     # the insecure run of the same options: test_base_physics's (3 trials), else our own
