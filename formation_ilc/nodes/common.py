@@ -42,9 +42,9 @@ from formation_ilc.system.lifetime import (
     wait_at_gate,
 )
 
-__all__ = ["PARENT_ENV", "RUN_ENV", "KEY_ENV", "run_key", "DROP_REASONS", "DropCounter",
-           "Diagnostics", "RunConfig", "make_config", "GuardedNode", "MESSAGE_ERRORS",
-           "config_from_msg", "ConfiguredNode", "matched", "unmatched",
+__all__ = ["PARENT_ENV", "RUN_ENV", "KEY_ENV", "run_key", "secure_enclaves", "DROP_REASONS",
+           "DropCounter", "Diagnostics", "RunConfig", "make_config", "GuardedNode",
+           "MESSAGE_ERRORS", "config_from_msg", "ConfiguredNode", "matched", "unmatched",
            "readers_wanting", "fail",
            "spin_main", "node_parser", "ros_param", "robot_node_from_args"]
 
@@ -66,6 +66,18 @@ def run_key() -> bytes | None:
 
 #: reasons a message is dropped (the diagnostics counters)
 DROP_REASONS = REASONS
+
+
+def secure_enclaves(namespace: str) -> dict[str, bytes]:
+    """Under ``--secure`` (rcl's security variables: enabled, a keystore): node
+    ``/ns/name`` -> the GUID prefix of a participant authenticated in its enclave, for the
+    writer tables (``protocol.writers.WriterTable.enclaves``); empty otherwise."""
+    keystore = os.environ.get("ROS_SECURITY_KEYSTORE", "")
+    if os.environ.get("ROS_SECURITY_ENABLE", "").lower() != "true" or not keystore:
+        return {}
+    from formation_ilc.store.keystore import enclave_prefixes
+
+    return enclave_prefixes(keystore, namespace)
 
 
 def config_from_msg(msg: String, drops: DropCounter) -> RunConfig | None:
@@ -143,7 +155,8 @@ class GuardedNode(Node):
         judges its held samples again (``CheckedSubscription.poll``); one timer of the
         node, at the shortest of its subscriptions' periods, polls them all."""
         if not hasattr(self, "writers"):
-            self.writers = WriterTable(self.get_namespace())
+            self.writers = WriterTable(self.get_namespace(),
+                                       enclaves=secure_enclaves(self.get_namespace()))
         name = topic
         if owners:  # only these nodes (in the formation's namespace) write it
             self.writers.own(self.resolve_topic_name(topic), *owners)

@@ -37,9 +37,12 @@ topics are judged by name only: a restarted plant's samples must not wait for it
 predecessor's lease, and no ``down`` reaches the robots.
 
 With ``--secure``, a writer exists only where its enclave's permissions grant the topic
-(the owners' topics), and the participant behind a GID is authenticated: an insider with
-one robot's enclave that names its node after another robot is a second participant
-(docs/security.md).
+(the owners' topics), and the participant behind a GID is authenticated: its GUID prefix
+begins with bits of its certificate's subject (``enclave_prefix``), which the handshake
+checks. A table given the formation's enclaves (``enclaves``) pins each of those names
+to its enclave instead of to a first participant: an insider with one robot's enclave
+that names its node after another robot is refused at its first message, and a
+restarted node is taken at once (docs/security.md).
 
 Everything refused is counted by topic and sender (``forged``), for the node's diagnostics,
 the launcher's console and the report. Pure: no ROS.
@@ -47,6 +50,7 @@ the launcher's console and the report. Pure: no ROS.
 
 from __future__ import annotations
 
+import hashlib
 from collections import Counter
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -56,7 +60,7 @@ from formation_ilc.config.plants import PLANT_TABLE
 from formation_ilc.core import names as nm
 
 __all__ = ["WriterTable", "UNKNOWN", "OK", "REFRESH", "HOLD", "PIN_HOLD", "UNKNOWN_NODE",
-           "full_name", "participant", "plant_writers", "forged_line"]
+           "full_name", "participant", "enclave_prefix", "plant_writers", "forged_line"]
 
 #: the verdicts besides a refusal's text
 OK, UNKNOWN = "ok", "unknown"
@@ -86,6 +90,19 @@ def full_name(namespace: str, name: str) -> str:
 def participant(gid: bytes) -> bytes:
     """The participant of writer ``gid`` (its GUID prefix)."""
     return bytes(gid[:PARTICIPANT])
+
+
+def enclave_prefix(subject_der: bytes) -> bytes:
+    """The first 6 bytes of the GUID prefix of every DDS-Security participant whose
+    certificate has the subject ``subject_der`` (the DER of its X.509 name): a 1 bit, then
+    the first 47 bits of the name's SHA-256. DDS-Security 1.1, 9.3.3; Fast DDS sets them
+    so (PKIDH ``adjust_participant_key``), and a handshake with a participant whose GUID
+    does not carry its certificate's bits fails (PKIDH: "Bad participant_key's 47bits"):
+    under ``--secure`` they name the participant's enclave, authenticated."""
+    md = hashlib.sha256(subject_der).digest()
+    out = [0x80 | (md[0] >> 1)]
+    out += [((md[i - 1] << 7) | (md[i] >> 1)) & 0xFF for i in range(1, 6)]
+    return bytes(out)
 
 
 def plant_writers() -> frozenset[str]:
@@ -121,6 +138,10 @@ class WriterTable:
     #: last messages of a killed predecessor, still in a reader's queue, are its own and
     #: taken, but never take the name back from its successor
     retired: dict[str, set[bytes]] = field(default_factory=dict)
+    #: node /ns/name -> the GUID prefix bytes of a participant authenticated in the
+    #: node's enclave (``enclave_prefix``; ``--secure``: ``store.keystore.enclave_prefixes``):
+    #: such a node's name is pinned to its enclave, not to the first participant
+    enclaves: dict[str, bytes] = field(default_factory=dict)
     #: (node /ns/name, boot) of every down taken: a latched down heard again (a reader that
     #: matched its writer anew) frees the name of the node's successor no more
     downs: set[tuple[str, str]] = field(default_factory=set)
@@ -214,11 +235,18 @@ class WriterTable:
     def _pinned(self, topic: str, gid: bytes, who: str, patient: bool) -> str:
         """OK when writer ``gid``'s participant holds node name ``who`` on ``topic`` (or
         takes it: nobody holds it, or its holder left the graph); UNKNOWN while a second
-        participant's message waits for its holder to leave; else it is an impostor."""
+        participant's message waits for its holder to leave; else it is an impostor.
+        Where ``enclaves`` names the node's enclave (``--secure``), only a participant
+        authenticated in it is the node, from its first message on."""
         self._count += 1
         p = participant(gid)
         if p in self.impostors.get(who, ()):
             return self._impostor(topic, who, p, "")
+        expected = self.enclaves.get(who)
+        if expected is not None:
+            if p[:len(expected)] == expected:
+                return OK
+            return self._impostor(topic, who, p, ": not authenticated in its enclave")
         if p in self.retired.get(who, ()):
             return OK
         key = (topic, who)

@@ -39,7 +39,7 @@ from formation_ilc.config.enclaves import Grant, governance_xml, lacking, permis
 from formation_ilc.store.atomic import atomic_write_text
 
 __all__ = ["KeystoreError", "Created", "CA_DAYS", "create", "verify", "enclave_dir",
-           "sign_smime", "subject_of", "bundle"]
+           "sign_smime", "subject_of", "bundle", "enclave_prefixes"]
 
 #: the CA outlives the enclaves it signs; enclaves get ``days`` (``keystore create --days``)
 CA_DAYS = 3650
@@ -75,6 +75,23 @@ def enclave_dir(keystore: Path, enclave: str) -> Path:
 def subject_of(enclave: str) -> str:
     """The subject of an enclave's certificate, as its permissions name it (SROS2's)."""
     return f"CN={enclave}"
+
+
+def enclave_prefixes(keystore: Path | str, namespace: str) -> dict[str, bytes]:
+    """Node ``/ns/name`` -> the GUID prefix bytes of a participant authenticated in the
+    enclave of that path (``protocol.writers.enclave_prefix`` of its certificate's
+    subject), for every enclave of ``namespace`` in ``keystore`` whose certificate can be
+    read (a host given only its own enclaves knows only those)."""
+    from formation_ilc.protocol.writers import enclave_prefix
+
+    out: dict[str, bytes] = {}
+    for cert in sorted(enclave_dir(Path(keystore), namespace).glob("*/cert.pem")):
+        try:
+            subject = _read_cert(cert).subject.public_bytes()
+        except KeystoreError:
+            continue
+        out[f"{namespace.rstrip('/')}/{cert.parent.name}"] = enclave_prefix(subject)
+    return out
 
 
 def _key_pem(key: ec.EllipticCurvePrivateKey) -> bytes:

@@ -10,6 +10,7 @@ from formation_ilc.protocol.writers import (
     UNKNOWN,
     UNKNOWN_NODE,
     WriterTable,
+    enclave_prefix,
     forged_line,
     participant,
     plant_writers,
@@ -225,3 +226,43 @@ def test_each_topic_pins_on_its_own_and_owned_topics_are_judged_by_name():
     t.own(POSES, "physics_sim")
     t.learn(POSES, [(R1, "physics_sim", NS), (IMP, "physics_sim", NS)])
     assert t.judge(POSES, R1) == OK and t.judge(POSES, IMP) == OK
+
+
+def secure_gid(enclave: str, rest: int, entity: int = 1) -> bytes:
+    """A writer's GID under DDS-Security: its participant's first 6 bytes from the
+    certificate subject of ``enclave`` (here a stand-in DER), the other 6 ``rest``."""
+    return (enclave_prefix(f"CN={enclave}".encode()) + bytes([rest]) * 6
+            + entity.to_bytes(4, "big"))
+
+
+def test_an_enclave_prefix_is_a_one_bit_and_47_bits_of_the_subjects_sha256():
+    import hashlib
+
+    der = b"0\x1d1\x1b0\x19\x06\x03U\x04\x03\x0c\x12/formation/robot_1"
+    md = hashlib.sha256(der).digest()
+    bits = int.from_bytes(md[:6], "big") >> 1  # the first 47 bits
+    assert enclave_prefix(der) == ((1 << 47) | bits).to_bytes(6, "big")
+    assert enclave_prefix(der)[0] & 0x80
+
+
+def test_under_secure_a_name_is_its_enclaves_from_the_first_message():
+    """No first-writer window: an insider in robot 3's enclave that names its node
+    robot_1 is refused at once, even before robot_1 ever spoke; robot_1's participant,
+    and a restarted robot_1 (a new participant of the same enclave), at once too."""
+    t = WriterTable(NS, enclaves={f"{NS}/robot_{i}": enclave_prefix(f"CN={NS}/robot_{i}"
+                                                                     .encode())
+                                  for i in (1, 2, 3)})
+    insider, real, restarted = (secure_gid(f"{NS}/robot_3", 5), secure_gid(f"{NS}/robot_1", 6),
+                                secure_gid(f"{NS}/robot_1", 7))
+    t.learn(READY, [(insider, "robot_1", NS), (real, "robot_1", NS),
+                    (restarted, "robot_1", NS)])
+    why = t.claims(READY, insider, "robot_1")
+    assert "not authenticated in its enclave" in why
+    assert t.claims(READY, real, "robot_1") == OK
+    assert t.claims(READY, restarted, "robot_1") == OK  # no lease to wait out
+    assert t.claims(READY, real, "robot_1") == OK  # and both stay the node's
+    assert t.report() == {READY: {IMPOSTOR: 1}}
+    # a name without an enclave in the keystore keeps the first participant's pin
+    t.learn(READY, [(gid(2), "recorder", NS), (gid(3), "recorder", NS)])
+    assert t.claims(READY, gid(2), "recorder") == OK
+    assert t.judge(READY, gid(3)) == UNKNOWN

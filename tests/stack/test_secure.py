@@ -187,10 +187,10 @@ def test_secure_lockstep_equals_batch_simulator(ros_env, tmp_path, keystore):
     """A secure lockstep run equals the batch simulator, while an insider holding robot 3's
     enclave forges what it can (tests/stack/forger.py): a ready in robot_1's name with
     another seed (from its own node, and from a node it names robot_1 in the formation's
-    namespace) and reports in the plant's name (a contact slot that is text, a line of
-    terminal escapes, contacts in a run without bodies) are refused by their writer and
-    counted by sender; a burst of trial events and forged ``team/poses`` are refused by its
-    permissions when it creates their writers."""
+    namespace: refused at once, by its enclave) and reports in the plant's name (a contact
+    slot that is text, a line of terminal escapes, contacts in a run without bodies) are
+    refused by their writer and counted by sender; a burst of trial events and forged
+    ``team/poses`` are refused by its permissions when it creates their writers."""
     trials = 12
     forger = subprocess.Popen(
         [sys.executable, str(HERE / "forger.py"), "--ready-as", "3", "--bad-report", "3",
@@ -221,10 +221,13 @@ def test_secure_lockstep_equals_batch_simulator(ros_env, tmp_path, keystore):
     assert forged["virtual_leader"]["/formation/ready"]["/forger/forger"] >= 1, forged
     assert forged["monitor"]["/formation/ready"]["/forger/forger"] >= 1, forged
     assert forged["monitor"]["/formation/diagnostics"]["/forger/forger"] >= 1, forged
-    # its node named robot_1: authenticated as robot 3's participant, not robot_1's
+    # its node named robot_1: authenticated in robot 3's enclave, not robot_1's, which the
+    # GID of its writer says from its first message (no wait for robot_1 to speak again)
     impostor = "/formation/robot_1 (second participant)"
     assert forged["virtual_leader"]["/formation/ready"][impostor] >= 1, forged
     assert forged["monitor"]["/formation/ready"][impostor] >= 1, forged
+    log = (tmp_path / "logs" / "virtual_leader.log").read_text()
+    assert "named /formation/robot_1" in log and "not authenticated in its enclave" in log
     assert "\x1b" not in res.stdout
 
 

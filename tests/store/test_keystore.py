@@ -18,6 +18,7 @@ from formation_ilc.store.keystore import (
     KeystoreError,
     create,
     enclave_dir,
+    enclave_prefixes,
     verify,
 )
 from tests.config.test_enclaves import ADJ, LEADER, NS, grants_of
@@ -91,6 +92,22 @@ def test_enclave_certificate(ks):
     text = (enclave_dir(ks, ROBOT2) / "permissions.xml").read_text()
     assert f"<subject_name>CN={ROBOT2}</subject_name>" in text
     assert f"<not_after>{cert.not_valid_after_utc:%Y-%m-%dT%H:%M:%S}</not_after>" in text
+
+
+def test_each_enclave_gives_the_guid_prefix_of_its_participants(ks):
+    """What a node compares a shared topic's writers with under --secure
+    (protocol.writers.WriterTable.enclaves): the prefix Fast DDS derives from the subject
+    as the certificate carries it (OpenSSL hashes the name's DER as encoded there)."""
+    from formation_ilc.protocol.writers import enclave_prefix
+
+    got = enclave_prefixes(ks, NS)
+    assert set(got) == {f"{NS}/{d.name}" for d in (ks / "enclaves" / "formation").iterdir()}
+    cert = x509.load_pem_x509_certificate((enclave_dir(ks, ROBOT2) / "cert.pem").read_bytes())
+    der = cert.subject.public_bytes()
+    assert der in cert.tbs_certificate_bytes
+    assert got[ROBOT2] == enclave_prefix(der)
+    assert len(set(got.values())) == len(got)  # one participant prefix an enclave
+    assert enclave_prefixes(ks, "/elsewhere") == {}
 
 
 def test_rerun_changes_nothing(ks):
