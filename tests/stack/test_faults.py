@@ -93,6 +93,11 @@ def test_a_killed_node_is_restarted_and_nothing_is_lost(ros_env, tmp_path, kind)
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["restarts"] == {NODE[kind]: 1}, out
     assert summary["trials_done"] == TRIALS
+    # every event of the run is the leader's own: a restarted leader's, sealed with the
+    # launch's key, are its predecessor's to it, and no node's forged count holds any
+    diagnostics = json.loads((tmp_path / "diagnostics.json").read_text())
+    assert diagnostics["virtual_leader"]["foreign_events"] == 0, diagnostics["virtual_leader"]
+    assert "foreign_events" not in summary and "forged" not in summary, summary
     # the robots' memory on disk is the memory of the last trial, for every robot
     for r in range(1, 4):
         with np.load(tmp_path / "state" / f"robot_{r}.npz") as st:
