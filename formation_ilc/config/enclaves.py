@@ -14,6 +14,7 @@ writes them.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from datetime import datetime
 from xml.sax.saxutils import escape
@@ -29,8 +30,8 @@ from formation_ilc.core.names import (
     SIM_NODE,
 )
 
-__all__ = ["Grant", "ENCLAVE_NODES", "enclave_path", "driver_enclave", "dds_topic",
-           "housekeeping", "permissions_xml", "governance_xml", "DOMAIN_MAX",
+__all__ = ["Grant", "ENCLAVE_NODES", "enclave_path", "enclave_prefix", "driver_enclave",
+           "dds_topic", "housekeeping", "permissions_xml", "governance_xml", "DOMAIN_MAX",
            "grant_topics", "permitted_topics", "lacking"]
 
 #: the ROS domain ids a keystore serves (every id ROS 2 allows on Linux)
@@ -88,6 +89,19 @@ def enclave_path(namespace: str, name: str) -> str:
     """``/formation/robot_1``: the enclave of node ``name`` of the formation in
     ``namespace``."""
     return f"{namespace.rstrip('/')}/{name}"
+
+
+def enclave_prefix(subject_der: bytes) -> bytes:
+    """The first 6 bytes of the GUID prefix of every DDS-Security participant whose
+    certificate has the subject ``subject_der`` (the DER of its X.509 name): a 1 bit, then
+    the first 47 bits of the name's SHA-256. DDS-Security 1.1, 9.3.3; Fast DDS sets them
+    so (PKIDH ``adjust_participant_key``), and a handshake with a participant whose GUID
+    does not carry its certificate's bits fails (PKIDH: "Bad participant_key's 47bits"):
+    under ``--secure`` they name the participant's enclave, authenticated."""
+    md = hashlib.sha256(subject_der).digest()
+    out = [0x80 | (md[0] >> 1)]
+    out += [((md[i - 1] << 7) | (md[i] >> 1)) & 0xFF for i in range(1, 6)]
+    return bytes(out)
 
 
 def dds_topic(ros_name: str) -> str:

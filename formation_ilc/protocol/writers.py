@@ -50,12 +50,12 @@ the launcher's console and the report. Pure: no ROS.
 
 from __future__ import annotations
 
-import hashlib
 from collections import Counter
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from formation_ilc.config.enclaves import enclave_prefix
 from formation_ilc.config.plants import PLANT_TABLE
 from formation_ilc.core import names as nm
 
@@ -90,19 +90,6 @@ def full_name(namespace: str, name: str) -> str:
 def participant(gid: bytes) -> bytes:
     """The participant of writer ``gid`` (its GUID prefix)."""
     return bytes(gid[:PARTICIPANT])
-
-
-def enclave_prefix(subject_der: bytes) -> bytes:
-    """The first 6 bytes of the GUID prefix of every DDS-Security participant whose
-    certificate has the subject ``subject_der`` (the DER of its X.509 name): a 1 bit, then
-    the first 47 bits of the name's SHA-256. DDS-Security 1.1, 9.3.3; Fast DDS sets them
-    so (PKIDH ``adjust_participant_key``), and a handshake with a participant whose GUID
-    does not carry its certificate's bits fails (PKIDH: "Bad participant_key's 47bits"):
-    under ``--secure`` they name the participant's enclave, authenticated."""
-    md = hashlib.sha256(subject_der).digest()
-    out = [0x80 | (md[0] >> 1)]
-    out += [((md[i - 1] << 7) | (md[i] >> 1)) & 0xFF for i in range(1, 6)]
-    return bytes(out)
 
 
 def plant_writers() -> frozenset[str]:

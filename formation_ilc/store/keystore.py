@@ -35,7 +35,13 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.hazmat.primitives.serialization import pkcs7
 from cryptography.x509.oid import NameOID
 
-from formation_ilc.config.enclaves import Grant, governance_xml, lacking, permissions_xml
+from formation_ilc.config.enclaves import (
+    Grant,
+    enclave_prefix,
+    governance_xml,
+    lacking,
+    permissions_xml,
+)
 from formation_ilc.store.atomic import atomic_write_text
 
 __all__ = ["KeystoreError", "Created", "CA_DAYS", "create", "verify", "enclave_dir",
@@ -82,8 +88,6 @@ def enclave_prefixes(keystore: Path | str, namespace: str) -> dict[str, bytes]:
     enclave of that path (``protocol.writers.enclave_prefix`` of its certificate's
     subject), for every enclave of ``namespace`` in ``keystore`` whose certificate can be
     read (a host given only its own enclaves knows only those)."""
-    from formation_ilc.protocol.writers import enclave_prefix
-
     out: dict[str, bytes] = {}
     for cert in sorted(enclave_dir(Path(keystore), namespace).glob("*/cert.pem")):
         try:
