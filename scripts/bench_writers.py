@@ -30,6 +30,10 @@ checked subscription costs when nothing comes (its re-check every ``--poll`` s: 
 Run it with ``PYTHONPATH`` at the checkout to measure (a script's directory comes first on
 its path, and an editable install may point at another checkout).
 
+``--table N``: the writer table alone, no ROS: what a ready's ``claims`` costs among N
+members when each name is pinned to its first participant, and when it is pinned to its
+enclave (``--secure``: ``WriterTable.enclaves``).
+
 ``--paced``: each message is published only once the one before was taken (the per-sample
 topics of a lockstep run: one message, then a wait), so every message pays its own
 wake-up; without it the messages go out in a burst.
@@ -38,6 +42,7 @@ Usage: python scripts/bench_writers.py [--messages 2000] [--repeats 5]
        [--topic ready|pose|both] [--paced] [--apart]
        python scripts/bench_writers.py --process 1000 [--messages 2000] [--repeats 5]
        python scripts/bench_writers.py --idle 50 [--poll 0.05] [--repeats 5]
+       python scripts/bench_writers.py --table 8
 (run it in a network namespace of its own, or with a ROS_DOMAIN_ID nobody else uses)
 """
 
@@ -229,6 +234,30 @@ def idle_round(checked: bool, subs: int, seconds: float, poll: float = 0.05) -> 
         reader.destroy_node()
 
 
+def table_round(writers: int, secure: bool, n: int) -> float:
+    """[s] per ``claims`` of a ready in robot_3's name from its own writer, by a table of
+    ``writers`` members that pins each name to its first participant, or (``secure``) to
+    its enclave (``WriterTable.enclaves``); the best of 5 runs of ``n``."""
+    import timeit
+
+    from formation_ilc.config.enclaves import enclave_prefix
+    from formation_ilc.protocol.writers import WriterTable
+
+    ns, topic = "/formation", "/formation/ready"
+    names = [f"robot_{i}" for i in range(1, writers + 1)]
+    prefix = {m: enclave_prefix(f"CN={ns}/{m}".encode()) for m in names}
+    gids = {m: prefix[m] + bytes([i]) * 6 + (1).to_bytes(4, "big")
+            for i, m in enumerate(names)}
+    table = WriterTable(ns, enclaves={f"{ns}/{m}": prefix[m] for m in names} if secure
+                        else {})
+    table.learn(topic, [(gids[m], m, ns) for m in names])
+    for m in names:
+        assert table.claims(topic, gids[m], m) == "ok"
+    gid = gids["robot_3"]
+    return min(timeit.repeat(lambda: table.claims(topic, gid, "robot_3"), number=n,
+                             repeat=5)) / n
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -247,10 +276,18 @@ def main() -> None:
     ap.add_argument("--poll", type=float, default=0.05,
                     help="--idle: the subscriptions' re-check period [s]")
     ap.add_argument("--executor", choices=("events", "single", "both"), default="both")
+    ap.add_argument("--table", type=int, metavar="N",
+                    help="the writer table alone (no ROS): a ready's claims among N "
+                         "members, the participant pin against the enclave pin (--secure)")
     ap.add_argument("--write-poses", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--rate", type=float, default=1000.0, help=argparse.SUPPRESS)
     a = ap.parse_args()
     kinds = ("events", "single") if a.executor == "both" else (a.executor,)
+    if a.table:
+        pin, enclave = (table_round(a.table, secure, 100_000) * 1e6 for secure in (False, True))
+        print(f"a ready's claims among {a.table} members: participant pin {pin:.2f} us, "
+              f"enclave pin (--secure) {enclave:.2f} us: {enclave - pin:+.2f} us", flush=True)
+        return
     rclpy.init()
     if a.write_poses:  # the writer process of --process
         try:
