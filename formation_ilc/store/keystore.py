@@ -51,6 +51,8 @@ __all__ = ["KeystoreError", "Created", "CA_DAYS", "create", "verify", "enclave_d
 CA_DAYS = 3650
 CA_NAME = "formation-ilc CA"
 #: files of an enclave that Fast DDS reads (ROS_SECURITY_ENCLAVE_OVERRIDE -> this folder)
+#: where a host's bundle keeps the other members' certificates (``bundle``)
+MEMBER_CERTS = Path("public") / "enclaves"
 ENCLAVE_FILES = ("cert.pem", "key.pem", "permissions.p7s", "governance.p7s",
                  "identity_ca.cert.pem", "permissions_ca.cert.pem")
 
@@ -85,16 +87,27 @@ def subject_of(enclave: str) -> str:
 
 def enclave_prefixes(keystore: Path | str, namespace: str) -> dict[str, bytes]:
     """Node ``/ns/name`` -> the GUID prefix bytes of a participant authenticated in the
-    enclave of that path (``protocol.writers.enclave_prefix`` of its certificate's
+    enclave of that path (``config.enclaves.enclave_prefix`` of its certificate's
     subject), for every enclave of ``namespace`` in ``keystore`` whose certificate can be
-    read (a host given only its own enclaves knows only those)."""
+    read: its own enclaves, and the other members' certificates a host's bundle carries
+    (``bundle``; those only if the keystore's CA signed them for the enclave they are filed
+    under). A keystore copied without them knows only the enclaves it holds."""
+    keystore = Path(keystore)
     out: dict[str, bytes] = {}
-    for cert in sorted(enclave_dir(Path(keystore), namespace).glob("*/cert.pem")):
-        try:
-            subject = _read_cert(cert).subject.public_bytes()
-        except KeystoreError:
-            continue
-        out[f"{namespace.rstrip('/')}/{cert.parent.name}"] = enclave_prefix(subject)
+    ca: x509.Certificate | None = None
+    for root, checked in ((keystore / MEMBER_CERTS, True), (keystore / "enclaves", False)):
+        for cert_path in sorted((root / namespace.strip("/")).glob("*/cert.pem")):
+            try:
+                cert = _read_cert(cert_path)
+                name = f"{namespace.rstrip('/')}/{cert_path.parent.name}"
+                if checked:  # the CA's, and issued to the enclave it is filed under
+                    ca = ca or _read_cert(keystore / "public" / "ca.cert.pem")
+                    cert.verify_directly_issued_by(ca)
+                    if cert.subject.rfc4514_string() != subject_of(name):
+                        continue
+            except (KeystoreError, ValueError, TypeError, InvalidSignature):
+                continue
+            out[name] = enclave_prefix(cert.subject.public_bytes())
     return out
 
 
@@ -272,7 +285,9 @@ def create(keystore: Path, grants: Mapping[str, Grant], *, days: int = 365,
 def bundle(keystore: Path, dest: Path, enclaves: Iterable[str]) -> list[str]:
     """Write ``dest``: a keystore holding only ``enclaves`` (their keys and signed
     permissions), the governance and the CA's certificate; never the CA's private key, nor
-    another enclave's key. What it held before is replaced. The enclaves it holds."""
+    another enclave's key. Every other enclave's certificate (public) goes to
+    ``public/enclaves/``: a host's nodes pin each member's name to its enclave
+    (``enclave_prefixes``). What it held before is replaced. The enclaves it holds."""
     keystore, dest = Path(keystore), Path(dest)
     names = sorted(set(enclaves))
     if dest.exists():
@@ -285,6 +300,11 @@ def bundle(keystore: Path, dest: Path, enclaves: Iterable[str]) -> list[str]:
     for enclave in names:
         shutil.copytree(enclave_dir(keystore, enclave), enclave_dir(dest, enclave))
         os.chmod(enclave_dir(dest, enclave) / "key.pem", 0o600)
+    for cert in sorted((keystore / "enclaves").rglob("cert.pem")):
+        path = cert.parent.relative_to(keystore / "enclaves")
+        if "/" + path.as_posix() not in names:
+            (dest / MEMBER_CERTS / path).mkdir(parents=True, exist_ok=True)
+            shutil.copy2(cert, dest / MEMBER_CERTS / path / "cert.pem")
     return names
 
 

@@ -168,6 +168,11 @@ def test_an_option_the_plant_does_not_use_is_refused(tmp_path, argv, line):
     assert info.value.status == 2 and info.value.message.startswith(line)
 
 
+def full_paths(prefixes: dict[str, bytes]) -> list[str]:
+    """The enclave folders (``formation/robot_1``) of ``enclave_prefixes``' names."""
+    return [name.strip("/") for name in prefixes]
+
+
 def test_keystore_create_of_a_run_file_writes_one_bundle_per_host(tmp_path):
     pytest.importorskip("cryptography")
     from formation_ilc.store.keystore import verify
@@ -185,6 +190,27 @@ def test_keystore_create_of_a_run_file_writes_one_bundle_per_host(tmp_path):
         assert (ks / "bundles" / h / "public" / "ca.cert.pem").is_file()
         assert not (ks / "bundles" / h / "private").exists()
     verify(ks / "bundles" / "r2", ["/formation/robot_2"])
+    # every host pins every member's name to its enclave: the other members' certificates
+    # (never a key) ride in its bundle's public part
+    from formation_ilc.store.keystore import MEMBER_CERTS, enclave_prefixes
+
+    full = enclave_prefixes(ks, "/formation")
+    for h in held:
+        public = ks / "bundles" / h / MEMBER_CERTS
+        assert not list(public.rglob("key.pem"))
+        assert sorted(str(p.parent.relative_to(public)) for p in public.rglob("cert.pem")) \
+            == sorted(set(full_paths(full)) - set(held[h]))
+        assert enclave_prefixes(ks / "bundles" / h, "/formation") == full
+    # a certificate of another CA, or one filed under another enclave, is not taken
+    other = tmp_path / "other"
+    assert main(["keystore", "create", str(other), str(path), "--days", "2"]) == 0
+    public = ks / "bundles" / "r2" / MEMBER_CERTS / "formation"
+    (public / "robot_1" / "cert.pem").write_bytes(
+        (other / "enclaves" / "formation" / "robot_1" / "cert.pem").read_bytes())
+    (public / "robot_3" / "cert.pem").write_bytes(
+        (public / "virtual_leader" / "cert.pem").read_bytes())
+    got = enclave_prefixes(ks / "bundles" / "r2", "/formation")
+    assert set(full) - set(got) == {"/formation/robot_1", "/formation/robot_3"}
     # a host launcher refuses a member whose enclave its bundle does not hold, naming it
     with pytest.raises(NoRun, match=r"--secure: .*formation/robot_2: missing: no enclave "
                                     r"for node /formation/robot_2"):
