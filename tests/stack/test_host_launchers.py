@@ -31,8 +31,10 @@ TRIALS = 6
 SEED = 5
 
 
-def launcher(env: dict[str, str], run_file: Path, host: str, log: Path) -> subprocess.Popen:
-    argv = [sys.executable, "-m", "formation_ilc.cli", "launch", str(run_file), "--host", host]
+def launcher(env: dict[str, str], run_file: Path, host: str, log: Path, *extra: str
+             ) -> subprocess.Popen:
+    argv = [sys.executable, "-m", "formation_ilc.cli", "launch", str(run_file), "--host", host,
+            *extra]
     return subprocess.Popen(argv, env=env, stdout=log.open("w"), stderr=subprocess.STDOUT,
                             start_new_session=True)
 

@@ -520,3 +520,50 @@ def test_secure_bases_with_physics_bases_equal_the_insecure_run(ros_env, tmp_pat
     k = min(len(secure), len(insecure))
     assert k >= 2 and insecure[k - 1, 1] < insecure[0, 1] and secure[k - 1, 1] < secure[0, 1]
     np.testing.assert_allclose(secure[:k, 1:3], insecure[:k, 1:3], rtol=0, atol=BATCH_ATOL)
+
+
+@pytest.mark.slow
+def test_secure_host_launchers_each_with_its_bundle(ros_env, tmp_path, secure_dds):
+    """One command per machine under --secure, four machines on one: ``keystore create DIR
+    RUN.yaml`` makes a bundle per host, and each host's launcher runs with its own bundle
+    only (``--secure DIR/bundles/HOST``). The run equals the batch simulator. An insider
+    holding robot 3's bundle names a node robot_1 and says ready from it: the ground
+    station's leader knows robot_1's certificate from its bundle's public part alone, and
+    refuses the ready at once as not of robot_1's enclave."""
+    from formation_ilc.cli.commands import main
+
+    from .test_host_launchers import launcher
+
+    trials = 4
+    run_file, out, ks = tmp_path / "run.yaml", tmp_path / "run", tmp_path / "keys"
+    assert main(["run-file", "paper-triangle3", "--trials", str(trials), "--seed", "5",
+                 "--no-plots", "--domain-id", ros_env["ROS_DOMAIN_ID"], "--out", str(out),
+                 "--host-per-robot", "-o", str(run_file)]) == 0
+    assert main(["keystore", "create", str(ks), str(run_file)]) == 0
+    hosts = ("r1", "r2", "r3", "ground")
+    forger = subprocess.Popen(
+        [sys.executable, str(HERE / "forger.py"), "--ready-as", "1", "--impostor", "robot_1"],
+        env=identity(ros_env, ks / "bundles" / "r3", "/formation/robot_3"),
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    procs: dict[str, subprocess.Popen] = {}
+    try:
+        for h in hosts:
+            procs[h] = launcher(ros_env, run_file, h, tmp_path / f"{h}.log",
+                                "--secure", str(ks / "bundles" / h))
+        assert procs["ground"].wait(timeout=300) == 0, (tmp_path / "ground.log").read_text()
+        for h in hosts[:3]:
+            assert procs[h].wait(timeout=30) == 0, (tmp_path / f"{h}.log").read_text()
+        said = forger.communicate(timeout=60)[0]
+    finally:
+        for p in [forger, *procs.values()]:
+            stop_group(p)
+    got = read_metrics(out / "metrics.csv")
+    ref = simulate(load_scenario("paper-triangle3").with_options(seed=5), trials=trials).metrics
+    np.testing.assert_allclose(got[:, 1:7], ref[:, 1:7], rtol=0, atol=TOL)
+    assert any(json.loads(ln).get("forged") == "ready_as_node"
+               for ln in said.splitlines() if ln.startswith("{")), said
+    forged = json.loads((out / "summary.json").read_text())["forged"]
+    impostor = "/formation/robot_1 (second participant)"
+    assert forged["virtual_leader"]["/formation/ready"][impostor] >= 1, forged
+    log = (out / "logs" / "virtual_leader.log").read_text()
+    assert "named /formation/robot_1" in log and "not authenticated in its enclave" in log
