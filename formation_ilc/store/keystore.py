@@ -45,16 +45,16 @@ from formation_ilc.config.enclaves import (
 from formation_ilc.store.atomic import atomic_write_text
 
 __all__ = ["KeystoreError", "Created", "CA_DAYS", "create", "verify", "enclave_dir",
-           "sign_smime", "subject_of", "bundle", "enclave_prefixes"]
+           "sign_smime", "subject_of", "bundle", "enclave_prefixes", "MEMBER_CERTS"]
 
 #: the CA outlives the enclaves it signs; enclaves get ``days`` (``keystore create --days``)
 CA_DAYS = 3650
 CA_NAME = "formation-ilc CA"
 #: files of an enclave that Fast DDS reads (ROS_SECURITY_ENCLAVE_OVERRIDE -> this folder)
-#: where a host's bundle keeps the other members' certificates (``bundle``)
-MEMBER_CERTS = Path("public") / "enclaves"
 ENCLAVE_FILES = ("cert.pem", "key.pem", "permissions.p7s", "governance.p7s",
                  "identity_ca.cert.pem", "permissions_ca.cert.pem")
+#: where a host's bundle keeps the other members' certificates (``bundle``)
+MEMBER_CERTS = Path("public") / "enclaves"
 
 
 class KeystoreError(ValueError):
