@@ -57,6 +57,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from formation_ilc.system.proctree import terminate_all
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 #: issue 41's target [ms] of CPU per robot-sample at 50 robots
@@ -356,14 +358,7 @@ def measure(n: int, pattern: str, args: argparse.Namespace, tmp: Path) -> dict:
         except subprocess.TimeoutExpired:
             pl.kill()
             pl.communicate()
-        for p in robots:
-            p.terminate()
-        for p in robots:
-            try:
-                p.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        terminate_all(robots, 15)
     samples = window / DT
     per = [1000.0 * (c1[p] - c0[p]) / samples for p in c0
            if c0[p] is not None and c1[p] is not None]
