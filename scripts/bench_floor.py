@@ -57,8 +57,6 @@ import tempfile
 import time
 from pathlib import Path
 
-from formation_ilc.system.proctree import terminate_all
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 #: issue 41's target [ms] of CPU per robot-sample at 50 robots
@@ -358,7 +356,14 @@ def measure(n: int, pattern: str, args: argparse.Namespace, tmp: Path) -> dict:
         except subprocess.TimeoutExpired:
             pl.kill()
             pl.communicate()
-        terminate_all(robots, 15)
+        for p in robots:
+            p.terminate()
+        for p in robots:
+            try:
+                p.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
     samples = window / DT
     per = [1000.0 * (c1[p] - c0[p]) / samples for p in c0
            if c0[p] is not None and c1[p] is not None]

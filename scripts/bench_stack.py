@@ -61,7 +61,6 @@ import numpy as np
 import yaml
 
 from formation_ilc.config.scenario import load_scenario
-from formation_ilc.system.proctree import terminate_all
 
 
 def team_scenario(n: int, tmp: Path, samples: int | None, dt: float | None = None) -> str:
@@ -224,7 +223,14 @@ def floor(n: int, domain: int, ticks: int, warm: int = 200, timeout: float = 300
     except subprocess.TimeoutExpired:
         return {"error": "the floor's ticker timed out"}
     finally:
-        terminate_all(responders, 15)
+        for p in responders:
+            p.terminate()
+        for p in responders:
+            try:
+                p.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
     lines = [ln for ln in res.stdout.splitlines() if ln.startswith("{")]
     if res.returncode or not lines:
         return {"error": (res.stdout + res.stderr)[-800:]}

@@ -56,7 +56,6 @@ from formation_ilc.config.scenario import load_scenario
 from formation_ilc.model.simulate import simulate
 from formation_ilc.studies.study import apply_fields
 from formation_ilc.studies.sweep import close_pools, load_spec, run_sweep
-from formation_ilc.system.proctree import terminate_all
 
 SPEC = """\
 scenario: paper-hexagon6
@@ -254,7 +253,14 @@ def main() -> int:
         print(f"load average after: {_load()}")
     finally:
         close_pools()
-        terminate_all(reversed(procs), 20)
+        for p in reversed(procs):
+            p.terminate()
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
         shutil.rmtree(tmp, ignore_errors=True)
     return 0
 

@@ -1,15 +1,13 @@
 """A process's tree as /proc shows it: the live processes below it, and whether one has
 ended. Read by the multi-process tests and the benchmarks (a launcher's nodes must end
-with it). And the benchmarks' stop of the processes they started (``terminate_all``)."""
+with it)."""
 
 from __future__ import annotations
 
 import os
-import subprocess
-from collections.abc import Iterable
 from pathlib import Path
 
-__all__ = ["children_of", "gone", "terminate_all"]
+__all__ = ["children_of", "gone"]
 
 
 def children_of(pid: int) -> set[int]:
@@ -41,17 +39,3 @@ def gone(pid: int) -> bool:
         return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
     except (OSError, IndexError):
         return True
-
-
-def terminate_all(procs: Iterable[subprocess.Popen], grace: float) -> None:
-    """SIGTERM every process of ``procs`` at once, then wait for each in turn up to
-    ``grace`` seconds, and SIGKILL (and reap) one that is still there."""
-    procs = list(procs)
-    for p in procs:
-        p.terminate()
-    for p in procs:
-        try:
-            p.wait(timeout=grace)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
