@@ -367,9 +367,16 @@ class Scenario:
             src = Path(self.source)
             base = src.parent if src.suffix in (".yaml", ".yml") else None
             again = scenario_from_text(self.text, self.source, base, time_scale=time_scale)
+            # the text knows nothing of the overrides this copy already carries (a law,
+            # a seed, a number of trials, noise or delays taken out): keep them
+            was, now = self.uncertainty, again.uncertainty
             return replace(again, headings=self.headings).with_options(
-                law=law, memory=memory, noise=noise, delay=delay, seed=seed, trials=trials,
-                headings=headings)
+                law=self.law.kind if law is None else law,
+                memory=self.law.memory if memory is None else memory,
+                noise=noise and (was.noisy or not now.noisy),
+                delay=delay and (was.delay != DelayModel() or now.delay == DelayModel()),
+                seed=self.seed if seed is None else seed,
+                trials=self.trials if trials is None else trials, headings=headings)
         if headings is not None and headings not in ("auto",) + tr.HEADINGS:
             raise ScenarioError(f"{self.source}: desired.headings: must be one of auto, "
                                 f"{', '.join(tr.HEADINGS)}; got {show(headings)}")

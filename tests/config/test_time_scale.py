@@ -53,3 +53,22 @@ desired: {time_scale: 2}
     with pytest.raises(ScenarioError, match="reference.kind: a sampled reference cannot be "
                                             "stretched"):
         scenario_from_text(text, "s.yaml")
+
+
+def test_a_new_time_scale_keeps_the_overrides_already_applied():
+    """simulate applies --trials, --seed, --no-noise, --no-delay, --law, then --time-scale,
+    which reads the scenario's text again: the overrides must survive that (they were
+    lost: `simulate paper-triangle3 --trials 7 --time-scale 1.25` ran the file's 300)."""
+    assert TRI.uncertainty.noisy and TRI.uncertainty.delay.kind != "none"
+    bare = TRI.with_options(trials=7, seed=5, noise=False, delay=False, law=22,
+                            memory="feedback")
+    slow = bare.with_options(time_scale=1.25)
+    assert slow.time_scale == 1.25 and slow.samples > TRI.samples
+    assert (slow.trials, slow.seed) == (7, 5)
+    assert not slow.uncertainty.noisy and slow.uncertainty.delay.kind == "none"
+    assert (slow.law.kind, slow.law.memory) == (22, "feedback")
+    # and an override given with the time scale still wins
+    again = slow.with_options(time_scale=1.5, trials=9)
+    assert (again.trials, again.seed, again.time_scale) == (9, 5, 1.5)
+    # a copy that kept its noise keeps it
+    assert TRI.with_options(time_scale=1.25).uncertainty.noisy
