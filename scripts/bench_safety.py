@@ -37,7 +37,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from formation_ilc.core.clock import SampleClock  # noqa: E402
-from formation_ilc.core.safety import filter_command  # noqa: E402
+from formation_ilc.core.safety import OTHER_FIELDS, filter_command  # noqa: E402
 from formation_ilc.model.physics import MODELS  # noqa: E402
 from formation_ilc.model.safety import spec_for  # noqa: E402
 from formation_ilc.studies.physics import run_physics  # noqa: E402
@@ -52,7 +52,7 @@ def cases(n: int, count: int, seed: int = 1) -> list[tuple]:
     rng = np.random.default_rng(seed)
     out = []
     for _ in range(count):
-        others = np.zeros((n - 1, 6))
+        others = np.zeros((n - 1, OTHER_FIELDS))
         ang = np.linspace(0, 2 * math.pi, n - 1, endpoint=False) + rng.uniform(0, 1)
         rad = rng.uniform(0.9, 1.6, n - 1)
         others[:, 0] = rad * np.cos(ang)

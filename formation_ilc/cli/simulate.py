@@ -95,6 +95,12 @@ def _add_simulate(sub: Any) -> None:
                    default=None,
                    help="with --safety: how the memory learns where the filter changed a "
                         "command (docs/safety.md)")
+    p.add_argument("--safety-motion", choices=("poses", "commands"), default="poses",
+                   help="with --safety: where a robot takes the other robots' speeds from: "
+                        "poses (default, as the ROS stack does: estimated from two of their "
+                        "poses, widened by what the scenario's noise allows) or commands "
+                        "(every robot tells the others the command it applies; with noisy "
+                        "poses the filter then needs far less room: docs/safety.md)")
     p.add_argument("--safety-age", type=nonneg_float, default=0.0, metavar="S",
                    help="with --safety: how old [s] the other robots' poses are when a robot "
                         "filters (default 0: lockstep, and the simulator in real time); "
@@ -387,7 +393,9 @@ def _safety_spec(args: argparse.Namespace, sc: Any) -> Any:
     if args.safety_margin is None:
         args.safety_margin = default_margin(args.body)
     spec = spec_of(SafetySettings(args.body, body_limits(args.body), args.safety_margin,
-                                  args.safety_learning), sc.dt, sc.uncertainty)
+                                  args.safety_learning,
+                                  motion=getattr(args, "safety_motion", "poses")),
+                   sc.dt, sc.uncertainty)
     dc = desired_clearance(sc, spec)
     if not dc.fits:
         raise OptionError(f"--safety: {dc.line(sc.dt)} ({args.body} bodies + "
@@ -494,7 +502,8 @@ def _simulate_outputs(args: argparse.Namespace, sc: Scenario, res: Any, log: Tri
     }
     if getattr(args, "safety", False):
         summary["safety"] = {"body": args.body, "margin": args.safety_margin,
-                             "learning": args.safety_learning}
+                             "learning": args.safety_learning,
+                             "motion": getattr(args, "safety_motion", "poses")}
     files = ["metrics.csv", "summary.json", "trajectories.npz", "memory.npz"]
     clear_line = None
     if clear_rows:

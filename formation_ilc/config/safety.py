@@ -15,6 +15,11 @@ learning : how the memory learns where the filter changed a command (``core.safe
 sensing : how a robot hears the other robots' poses: 'team' (the plant's ``team/poses``,
     every robot's pose of a sample in one message) or 'peers' (every other robot's
     ``pose`` topic: plants of one bridge per robot).
+motion : where a robot takes the other robots' speeds from: 'poses' (estimated from two
+    of their poses, widened by what the poses' noise allows) or 'commands' (each robot
+    tells the others the command it applies: the speed is known, only its direction comes
+    from a pose; the batch simulator and the one-process physics study, where every
+    robot's command is at hand; the ROS stack does not carry commands yet).
 """
 
 from __future__ import annotations
@@ -27,10 +32,12 @@ from formation_ilc.core.clock import Rejected
 from formation_ilc.core.limits import Limits
 from formation_ilc.core.safety import LEARNING
 
-__all__ = ["SafetySettings", "SENSING", "BODIES", "SKID_STEER", "default_learning",
+__all__ = ["SafetySettings", "SENSING", "MOTION", "BODIES", "SKID_STEER", "default_learning",
            "default_margin"]
 
 SENSING = ("team", "peers")
+#: where a robot takes another robot's speed from
+MOTION = ("poses", "commands")
 #: bodies the filter knows (``model.footprint.BODIES``, kept here for the config layer)
 BODIES = ("p3dx", "husky", "husky-imu", "turtlebot3", "turtlebot4", "jackal")
 #: the skid-steer bodies among them
@@ -58,6 +65,7 @@ class SafetySettings:
     margin: float = 0.1
     learning: str = "damped"
     sensing: str = "team"
+    motion: str = "poses"
 
     def __post_init__(self) -> None:
         if self.body not in BODIES:
@@ -70,10 +78,14 @@ class SafetySettings:
         if self.sensing not in SENSING:
             raise ValueError(f"safety sensing: one of {', '.join(SENSING)}, got "
                              f"{self.sensing!r}")
+        if self.motion not in MOTION:
+            raise ValueError(f"safety motion: one of {', '.join(MOTION)}, got "
+                             f"{self.motion!r}")
 
     def to_json(self) -> dict[str, Any]:
         return {"body": self.body, "limits": [_num(x) for x in self.limits.as_tuple()],
-                "margin": self.margin, "learning": self.learning, "sensing": self.sensing}
+                "margin": self.margin, "learning": self.learning, "sensing": self.sensing,
+                "motion": self.motion}
 
     @classmethod
     def from_json(cls, d: Any) -> SafetySettings:
@@ -82,8 +94,9 @@ class SafetySettings:
             lim = [math.inf if x is None else float(x) for x in d["limits"]]
             if len(lim) != 4:
                 raise ValueError("limits: 4 numbers")
+            # a run stored before "motion" existed took the speeds from poses
             return cls(str(d["body"]), Limits(*lim), float(d["margin"]),
-                       str(d["learning"]), str(d["sensing"]))
+                       str(d["learning"]), str(d["sensing"]), str(d.get("motion", "poses")))
         except (KeyError, TypeError, ValueError) as exc:
             raise Rejected("malformed", f"bad safety settings: {exc}") from None
 

@@ -94,7 +94,7 @@ __all__ = ["SafetySpec", "LEARNING", "CHANGED_LIMITS", "CHANGED_BARRIER", "INFEA
            "CHANGED",
            "filter_command", "filter_team", "motion", "learn_base", "DAMPING",
            "freeze_flagged", "smooth_learning", "after_learning", "Q_SIGMA",
-           "learning_code", "PARAMS", "MAX_DISCS"]
+           "learning_code", "PARAMS", "MAX_DISCS", "OTHER_FIELDS", "told"]
 
 #: how the memory learns at samples the filter changed
 LEARNING = ("applied", "freeze", "ignore", "split", "damped")
@@ -115,7 +115,11 @@ CHANGED = CHANGED_LIMITS | CHANGED_BARRIER
 #: the order of ``SafetySpec.params()``
 PARAMS = ("distance", "discs", "gamma", "radius", "v_max", "omega_max", "a_max",
           "alpha_max", "dt", "stale_speed", "weight", "speed_uncertainty", "brake_share",
-          "lag")
+          "lag", "commands", "own_bound", "told_uncertainty")
+#: the columns of a robot heard (``filter_command``'s ``others``): pose (x, y, theta),
+#: motion (vx, vy, omega), and 1 where that motion is the command the robot told (``told``),
+#: 0 where it is estimated from its poses (``motion``)
+OTHER_FIELDS = 7
 #: at most this many discs cover a body
 MAX_DISCS = 3
 _TOL = 1e-12
@@ -160,6 +164,10 @@ class SafetySpec:
         (from its poses' noise over the estimate's window): closing speeds count it.
     window : how many samples apart the two poses are that estimate another robot's
         velocity (``motion``).
+    commands : the robots tell each other the command they apply (``told``), and the
+        batch simulator's ``filter_team`` takes every other robot's speed from it.
+    told_uncertainty : [m/s] how wrong a told robot's velocity may be (its direction comes
+        from its measured heading).
     learning : how the memory learns where the filter changed the command (LEARNING).
     """
 
@@ -175,6 +183,8 @@ class SafetySpec:
     window: int = 3
     brake_share: float = 0.5
     learning: str = "damped"
+    commands: bool = False
+    told_uncertainty: float = 0.0
 
     def __post_init__(self) -> None:
         checks = (("discs", 1 <= len(self.discs) <= MAX_DISCS
@@ -187,6 +197,8 @@ class SafetySpec:
                   ("weight", self.weight > 0 and math.isfinite(self.weight)),
                   ("speed_uncertainty", self.speed_uncertainty >= 0
                    and math.isfinite(self.speed_uncertainty)),
+                  ("told_uncertainty", self.told_uncertainty >= 0
+                   and math.isfinite(self.told_uncertainty)),
                   ("window", isinstance(self.window, int) and self.window >= 0),
                   ("brake_share", 0 < self.brake_share <= 1))
         for name, ok in checks:
@@ -195,12 +207,16 @@ class SafetySpec:
         learning_code(self.learning)
 
     def params(self) -> NDArray[np.float64]:
-        """The numbers the kernels take, in the order of PARAMS, then the disc offsets."""
+        """The numbers the kernels take, in the order of PARAMS, then the disc offsets.
+        ``commands``: 1 where the robots tell each other their commands (``told``);
+        ``own_bound``: 1, a learned command that keeps its own bound passes (0: it is judged
+        by the chords of the sample's box alone, the polygon the answer is projected on)."""
         lim = self.limits
         return np.array([self.distance, float(len(self.discs)), self.gamma, self.radius,
                          lim.v_max, lim.omega_max, lim.a_max, lim.alpha_max, self.dt,
                          self.stale_speed, self.weight, self.speed_uncertainty, self.brake_share,
-                         0.5 * max(self.window - 1, 0) * self.dt, *self.discs])
+                         0.5 * max(self.window - 1, 0) * self.dt, float(self.commands),
+                         1.0, self.told_uncertainty, *self.discs])
 
 
 @njit(cache=True)
@@ -294,10 +310,12 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
 
     v_n, w_n : the learned (nominal) command. x, y, th : the robot's own pose.
     v_prev, w_prev : its previous command (0, 0 at a trial's start: it stands).
-    others : shape (>= count, 6), the robots it hears: pose (x, y, theta) and motion
-        (vx, vy [m/s] of the tracked point in the world frame, omega [rad/s]; ``motion``;
-        zeros when not known); ages : shape (>= count,), how old each pose is [s] (0 when
-        it is of this sample).
+    others : shape (>= count, OTHER_FIELDS), the robots it hears: pose (x, y, theta) and
+        motion (vx, vy [m/s] of the tracked point in the world frame, omega [rad/s]; zeros
+        when not known), estimated from its poses (``motion``, column 6 is 0: as wrong as
+        ``speed_uncertainty`` and ``lag`` allow) or the command it told (``told``, column 6
+        is 1: as wrong as ``told_uncertainty``); ages : shape (>= count,), how old each
+        pose is [s] (0 when it is of this sample).
     params : SafetySpec.params().
     Returns the flags (CHANGED_LIMITS | CHANGED_BARRIER | INFEASIBLE); ``out`` is the
     nominal command where ``flags & CHANGED`` is 0. INFEASIBLE: a pair's slack was
@@ -323,6 +341,8 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
                                    float(params[12]), float(params[13]))
     v_n, w_n, x, y, th = float(v_n), float(w_n), float(x), float(y), float(th)
     v_prev, w_prev = float(v_prev), float(w_prev)
+    own_bound = float(params[15]) > 0.0
+    told_sigma = float(params[16])
     off0 = float(params[len(PARAMS)])
     off1 = float(params[len(PARAMS) + 1]) if n_discs > 1 else 0.0
     off2 = float(params[len(PARAMS) + 2]) if n_discs > 2 else 0.0
@@ -336,7 +356,9 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
     if w_lo > w_hi:
         w_lo = w_hi = w_max if w_prev > 0 else -w_max
     flags = 0
-    if v_n < v_lo - _TOL or v_n > v_hi + _TOL or w_n < w_lo - _TOL or w_n > w_hi + _TOL:
+    inside = not (v_n < v_lo - _TOL or v_n > v_hi + _TOL or w_n < w_lo - _TOL
+                  or w_n > w_hi + _TOL)
+    if not inside:
         flags |= CHANGED_LIMITS
     # braking: the deceleration counted on (a share of the limit), and this robot's own
     # braking command (a sample of braking from the previous command, inside the box)
@@ -405,8 +427,12 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
         swj = abs(wj)
         spj = math.sqrt(vxj * vxj + vyj * vyj)
         # the estimate is a mean over the window, ``lag`` old: since then robot j's speed
-        # changed by at most a_max lag, its direction by |omega| lag
-        sig = sigma + a_max * (lag + age) + spj * swj * (lag + age + 0.5 * dt)
+        # changed by at most a_max lag, its direction by |omega| lag; a told command is
+        # the speed itself (no lag), its direction as good as the pose's heading
+        told_j = float(others[j, 6]) > 0.0
+        lag_j = 0.0 if told_j else lag
+        sig = ((told_sigma if told_j else sigma) + a_max * (lag_j + age)
+               + spj * swj * (lag_j + age + 0.5 * dt))
         # a pose ``age`` s old: robot j has moved on since, as its motion says, to within
         # sig x age of there; or, if its speed limit (``stale``) says less, within that of
         # where it was
@@ -429,7 +455,7 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
                    else 0.0)
         tau_jsoon = (_receded(v_dn - a_max * dt, dt, a_max, t_close) / v_dn
                      if v_dn > a_max * dt else 0.0)
-        turn_j = _carry(swj + al_max * (lag + age), dt, al_b)
+        turn_j = _carry(swj + al_max * (lag_j + age), dt, al_b)
         rot_j = (_carry(spj + sig, dt, a_b) + 0.5 * l_max * turn_j) * turn_j
         e_j = v_up * tau_j + l_max * turn_j + rot_j
         # so far apart that no command of the box can meet a barrier
@@ -493,6 +519,22 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
                 # for the one ahead, which brakes or drives on without closing in);
                 # the two shares add up to 2 gamma <= 1
                 mine = share * (1.0 + 0.5 * _SPLIT * (a0 - dx * cj - dy * sj))
+                # the learned command's own closing, bounded as above but with its own
+                # path and turn in place of the box's largest: the chords below, which make
+                # the feasible set a polygon, hold for every command of the box and lie
+                # above it. A learned command that keeps its own bound keeps the invariant,
+                # and passes (the paper's triangle on Pioneers: its desired motion kept it
+                # where the chords were off by 2-3 mm)
+                keeps = False
+                if inside and own_bound:
+                    g_n = _carry(w_n, dt, al_b)
+                    path_n = _carry(abs(v_n), dt, a_b)
+                    q_n = 0.5 * (path_n + l_max) * abs(g_n)
+                    bend = path_n * bside
+                    x_n = a0 * _carry(v_n, dt, a_b) + (
+                        (a1c + (bend if bside > 0.0 else 0.0) + q_n) * g_n if g_n >= 0.0
+                        else (a1c + (bend if bside < 0.0 else 0.0) - q_n) * g_n)
+                    keeps = x_n <= b_i + mine * slack + _TOL
                 # X_i(u) <= b_i + mine slack: h0 v + h1 (c w) <= lim, a half-plane per
                 # line of the max that the box reaches
                 h0 = a0 * kv
@@ -509,7 +551,7 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
                     if ((h0 * bx1 if h0 >= 0.0 else h0 * bx0)
                             + (h1 * by1 if h1 >= 0.0 else h1 * by0)) <= lim:
                         continue  # holds over the whole box
-                    if h0 * zx + h1 * zy > lim + _TOL:
+                    if not keeps and h0 * zx + h1 * zy > lim + _TOL:
                         barrier = True
                     if m == cap:
                         cap = 2 * cap + 8
@@ -533,18 +575,34 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
         return flags
     if barrier:
         flags |= CHANGED_BARRIER
-    # the nearest feasible point. Most often one barrier binds: the nearest point of the
-    # box cut by that one half-plane is the answer when it keeps every other (the feasible
-    # set lies inside that cut box); else clip the box by every half-plane (exact)
+    # the nearest feasible point (``_nearest``)
+    bx, by, ok = _nearest(zx, zy, bx0, bx1, by0, by1, ha0, ha1, hb, m)
+    if not ok:  # nothing in the box keeps every barrier (a slack used up): brake
+        out[0] = vb
+        out[1] = wb
+        return flags | CHANGED_BARRIER | INFEASIBLE
+    out[0] = _clip(bx, v_lo, v_hi)
+    out[1] = _clip(by / c, w_lo, w_hi)
+    return flags
+
+
+@njit(cache=True)
+def _nearest(zx: float, zy: float, bx0: float, bx1: float, by0: float, by1: float,
+             ha0: NDArray[np.float64], ha1: NDArray[np.float64], hb: NDArray[np.float64],
+             m: int) -> tuple[float, float, bool]:
+    """The nearest point to (zx, zy) of the box [bx0, bx1] x [by0, by1] cut by the first
+    m half-planes ha0 x + ha1 y >= hb, and whether there is one. Most often one barrier
+    binds: the nearest point of the box cut by that one half-plane is the answer when it
+    keeps every other (the feasible set lies inside that cut box); else the box is clipped
+    by every half-plane (exact)."""
     bx, by = _clip(zx, bx0, bx1), _clip(zy, by0, by1)
-    found = _keeps(bx, by, ha0, ha1, hb, m)
+    if _keeps(bx, by, ha0, ha1, hb, m):
+        return bx, by, True
     qx4 = np.empty(5)
     qy4 = np.empty(5)
     box_x = np.array([bx0, bx1, bx1, bx0])
     box_y = np.array([by0, by0, by1, by1])
     for k in range(m):
-        if found:
-            break
         if ha0[k] * zx + ha1[k] * zy >= hb[k] - _TOL:
             continue  # z keeps this one: it cannot be the one that binds alone
         n = _clip_polygon(box_x, box_y, 4, ha0[k], ha1[k], hb[k], qx4, qy4)
@@ -552,29 +610,22 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
             continue
         cx, cy = _nearest_on_polygon(qx4, qy4, n, zx, zy)
         if _keeps(cx, cy, ha0, ha1, hb, m):
-            bx, by, found = cx, cy, True
-    if not found:
-        px = np.empty(4 + m + 4)
-        py = np.empty(4 + m + 4)
-        qx = np.empty(4 + m + 4)
-        qy = np.empty(4 + m + 4)
-        px[:4] = box_x
-        py[:4] = box_y
-        n = 4
-        for k in range(m):
-            n = _clip_polygon(px, py, n, ha0[k], ha1[k], hb[k], qx, qy)
-            px, qx = qx, px
-            py, qy = qy, py
-            if n == 0:
-                break
-        if n == 0:  # nothing in the box keeps every barrier (a slack used up): brake
-            out[0] = vb
-            out[1] = wb
-            return flags | CHANGED_BARRIER | INFEASIBLE
-        bx, by = _nearest_on_polygon(px, py, n, zx, zy)
-    out[0] = _clip(bx, v_lo, v_hi)
-    out[1] = _clip(by / c, w_lo, w_hi)
-    return flags
+            return cx, cy, True
+    px = np.empty(4 + m + 4)
+    py = np.empty(4 + m + 4)
+    qx = np.empty(4 + m + 4)
+    qy = np.empty(4 + m + 4)
+    px[:4] = box_x
+    py[:4] = box_y
+    n = 4
+    for k in range(m):
+        n = _clip_polygon(px, py, n, ha0[k], ha1[k], hb[k], qx, qy)
+        px, qx = qx, px
+        py, qy = qy, py
+        if n == 0:
+            return bx, by, False
+    bx, by = _nearest_on_polygon(px, py, n, zx, zy)
+    return bx, by, True
 
 
 @njit(cache=True)
@@ -612,7 +663,8 @@ def _nearest_on_polygon(px: NDArray[np.float64], py: NDArray[np.float64], n: int
 def motion(x1: float, y1: float, th1: float, x0: float, y0: float, th0: float,
            span: float, out: NDArray[np.float64], at: int) -> None:
     """A robot's motion from two of its poses ``span`` [s] apart (pose 1 the newer), into
-    out[at, 3:6]: (vx, vy [m/s], omega [rad/s]); zeros when span <= 0."""
+    out[at, 3:7]: (vx, vy [m/s], omega [rad/s], 0: estimated); zeros when span <= 0."""
+    out[at, 6] = 0.0
     if span <= 0.0:
         out[at, 3] = 0.0
         out[at, 4] = 0.0
@@ -626,23 +678,36 @@ def motion(x1: float, y1: float, th1: float, x0: float, y0: float, th0: float,
 
 
 @njit(cache=True)
+def told(th: float, v: float, w: float, out: NDArray[np.float64], at: int) -> None:
+    """A robot's motion from the command it tells it applies over the sample (v [m/s],
+    omega [rad/s]) and its measured heading ``th``, into out[at, 3:7] (1: told)."""
+    out[at, 3] = v * math.cos(th)
+    out[at, 4] = v * math.sin(th)
+    out[at, 5] = w
+    out[at, 6] = 1.0
+
+
+@njit(cache=True)
 def filter_team(t: int, u: NDArray[np.float64], eta: NDArray[np.float64],
                 prev: NDArray[np.float64], age: float, params: NDArray[np.float64],
                 window: int, nominal: NDArray[np.float64], flags: NDArray[np.int64],
                 others: NDArray[np.float64], ages: NDArray[np.float64]) -> None:
     """Every robot's filter at sample t, as the batch simulator runs it: robot r hears
     every other robot's measured pose eta[j, t], ``age`` seconds old, and estimates its
-    motion from eta[j, t - window] (``motion``; from sample 0 before that).
+    motion from eta[j, t - window] (``motion``; from sample 0 before that), or, where the
+    robots tell each other their commands (params ``commands``), takes it from the
+    command robot j applied over the sample before (``told``).
 
     u : shape (N, >= t+1, 2), the learned commands at column t on entry, the safe ones on
         return (the nominal ones are copied into ``nominal`` (N, >= t+1, 2) first).
     eta : shape (N, >= t+1, 3), measured poses. prev : shape (N, 2), the previous
         commands (updated to the safe ones). flags : shape (N, >= t+1), written at t.
-    others, ages : scratch of shape (N, 6) and (N,).
+    others, ages : scratch of shape (N, OTHER_FIELDS) and (N,).
     """
     n = u.shape[0]
     res = np.empty(2)
     dt = params[8]
+    commands = params[14] > 0.0  # PARAMS: "commands"
     back = max(0, t - window) if window > 0 else t
     for r in range(n):
         nominal[r, t, 0] = u[r, t, 0]
@@ -655,8 +720,11 @@ def filter_team(t: int, u: NDArray[np.float64], eta: NDArray[np.float64],
             others[m, 0] = eta[j, t, 0]
             others[m, 1] = eta[j, t, 1]
             others[m, 2] = eta[j, t, 2]
-            motion(eta[j, t, 0], eta[j, t, 1], eta[j, t, 2], eta[j, back, 0],
-                   eta[j, back, 1], eta[j, back, 2], (t - back) * dt, others, m)
+            if commands:
+                told(eta[j, t, 2], prev[j, 0], prev[j, 1], others, m)
+            else:
+                motion(eta[j, t, 0], eta[j, t, 1], eta[j, t, 2], eta[j, back, 0],
+                       eta[j, back, 1], eta[j, back, 2], (t - back) * dt, others, m)
             ages[m] = age
             m += 1
         flags[r, t] = filter_command(nominal[r, t, 0], nominal[r, t, 1], eta[r, t, 0],

@@ -119,6 +119,11 @@ class Uncertainty:
         apart = math.hypot(2 * ux, 2 * uy)
         return apart, apart + step
 
+    def heading_bound(self) -> float:
+        """How far one robot's measured heading can be from its true one [rad]: its
+        uniform half-width and its fixed harmonic's amplitude."""
+        return abs(self.noise_uniform[2]) + abs(self.noise_fixed[2].amplitude)
+
     @property
     def noisy(self) -> bool:
         return bool(

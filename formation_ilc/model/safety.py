@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 from formation_ilc.config.safety import SafetySettings
 from formation_ilc.config.scenario import Scenario
 from formation_ilc.core.limits import Limits, input_rates
-from formation_ilc.core.safety import CHANGED, SafetySpec, filter_team
+from formation_ilc.core.safety import CHANGED, OTHER_FIELDS, SafetySpec, filter_team
 from formation_ilc.core.uncertainty import Uncertainty
 from formation_ilc.model.footprint import Footprint, footprint_of
 
@@ -57,7 +57,8 @@ def spec_for(fp: Footprint, limits: Limits, dt: float, *, margin: float = MARGIN
              learning: str = "damped", stale_speed: float | None = None,
              radius: float | None = None, discs: int = DISCS,
              speed_uncertainty: float = 0.0, pose_error: float = 0.0,
-             pose_jitter: float = 0.0) -> SafetySpec:
+             pose_jitter: float = 0.0, commands: bool = False,
+             heading_error: float = 0.0) -> SafetySpec:
     """The filter for robots of footprint ``fp`` on a base with ``limits`` at sample time
     ``dt`` [s]: ``discs`` discs cover the body; two robots' discs keep 2 radii + ``margin``
     apart, + ``pose_error`` [m] (how far the difference of two robots' measured positions
@@ -69,7 +70,9 @@ def spec_for(fp: Footprint, limits: Limits, dt: float, *, margin: float = MARGIN
     one sample (no lag) when the poses are exact, more when they jitter by up to
     ``pose_jitter`` [m] from one sample to the next (the window that makes the estimate's
     worst error, a_max lag + jitter / (window dT), least); ``speed_uncertainty`` [m/s] is
-    that jitter's part plus any given."""
+    that jitter's part plus any given. With ``commands`` the robots tell each other the
+    command they apply (``core.safety.told``): another robot's speed is known, and only its
+    direction comes from its measured heading, off by up to ``heading_error`` [rad]."""
     offsets, r = fp.discs(discs)
     distance = 2.0 * r + margin + pose_error
     if stale_speed is None:
@@ -77,13 +80,18 @@ def spec_for(fp: Footprint, limits: Limits, dt: float, *, margin: float = MARGIN
     if radius is None:
         radius = sensing_radius(distance, limits, dt)
     window = 1
+    # a told command is the speed itself; only its direction comes from a pose, off by up
+    # to ``heading_error``: the velocity by up to the speed limit x that angle's chord
+    told = (0.0 if math.isinf(limits.v_max)
+            else limits.v_max * 2.0 * math.sin(0.5 * min(heading_error, math.pi)))
     if pose_jitter > 0:
         a = limits.a_max if math.isfinite(limits.a_max) else 1.0
         window = max(1, min(10, round(math.sqrt(2.0 * pose_jitter / (a * dt * dt)))))
         speed_uncertainty += pose_jitter / (window * dt)
     return SafetySpec(offsets, distance, gamma=0.5, radius=radius, limits=limits, dt=dt,
                       stale_speed=stale_speed, weight=0.1, speed_uncertainty=speed_uncertainty,
-                      window=window, brake_share=1.0, learning=learning)
+                      window=window, brake_share=1.0, learning=learning, commands=commands,
+                      told_uncertainty=told)
 
 
 def body_limits(body: str) -> Limits:
@@ -101,17 +109,21 @@ def spec_of(settings: SafetySettings, dt: float,
     for poses measured with the output noise of ``noise`` (a scenario's uncertainty; None:
     exact poses, ``Uncertainty.pose_bounds``)."""
     error, jitter = (0.0, 0.0) if noise is None else noise.pose_bounds()
+    heading = 0.0 if noise is None else noise.heading_bound()
     return spec_for(footprint_of(settings.body), settings.limits, dt, margin=settings.margin,
-                    learning=settings.learning, pose_error=error, pose_jitter=jitter)
+                    learning=settings.learning, pose_error=error, pose_jitter=jitter,
+                    commands=settings.motion == "commands", heading_error=heading)
 
 
-def body_spec(body: str, dt: float, noise: Uncertainty | None = None) -> SafetySpec:
+def body_spec(body: str, dt: float, noise: Uncertainty | None = None,
+              motion: str = "poses") -> SafetySpec:
     """The filter ``body`` robots run by default (``check --base BODY`` judges a team by
     it): the base's one limits table, its default margin and learning reading, at sample
     time ``dt``, for poses as noisy as ``noise`` (None: exact)."""
     from formation_ilc.config.safety import default_margin
 
-    return spec_of(SafetySettings(body, body_limits(body), default_margin(body)), dt, noise)
+    return spec_of(SafetySettings(body, body_limits(body), default_margin(body),
+                                  motion=motion), dt, noise)
 
 
 @dataclass(frozen=True)
@@ -248,7 +260,7 @@ def desired_through_filter(sc: Scenario, spec: SafetySpec) -> DesiredThroughFilt
     flags = np.zeros((n, n_t), dtype=np.int64)
     prev = np.zeros((n, 2))
     params = spec.params()
-    others, ages = np.zeros((n, 6)), np.zeros(n)
+    others, ages = np.zeros((n, OTHER_FIELDS)), np.zeros(n)
     for t in range(n_t):
         filter_team.jit(t, u, eta, prev, 0.0, params, spec.window, nominal, flags, others, ages)
         # each sample is judged on the desired motion alone: the next starts from the

@@ -31,6 +31,7 @@ from formation_ilc.core.metrics import METRIC_COLUMNS
 from formation_ilc.core.pcg import STATE_SIZE
 from formation_ilc.core.safety import (
     CHANGED,
+    OTHER_FIELDS,
     SafetySpec,
     after_learning,
     filter_team,
@@ -154,7 +155,7 @@ def safety_arrays(pb: Problem) -> SafetyArrays:
         meta = np.array([learning_code(pb.safety.learning), pb.safety_age,
                          pb.safety.window])
     return (params, meta, np.zeros((n, n_t, 2)), np.zeros((n, n_t), dtype=np.int64),
-            np.zeros((n, 2)), np.zeros((n, 6)), np.zeros(n), np.zeros((n, n_t, 2)))
+            np.zeros((n, 2)), np.zeros((n, OTHER_FIELDS)), np.zeros(n), np.zeros((n, n_t, 2)))
 
 
 @njit(cache=True)

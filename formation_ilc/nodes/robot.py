@@ -143,6 +143,10 @@ class RobotNode(ConfiguredNode):
         if path:
             memory = load_memory(path, cfg.scenario)[self.id - 1]
             self.get_logger().info(f"{self.name}: initial memory from {path}")
+        if cfg.safety is not None and cfg.safety.motion != "poses":
+            # a filter that trusted told speeds the node never hears would keep no room
+            raise ValueError(f"safety motion {cfg.safety.motion!r}: the stack carries no "
+                             f"robot's command to the others; only 'poses'")
         safety = (None if cfg.safety is None
                   else spec_of(cfg.safety, cfg.scenario.dt, cfg.scenario.uncertainty))
         self.learner = lrn = RobotLearner(pb, self.id - 1, cfg.clock, realtime=self.realtime,

@@ -40,7 +40,14 @@ from formation_ilc.config.runconfig import RunConfig
 from formation_ilc.config.safety import SafetySettings
 from formation_ilc.core.clock import Rejected
 from formation_ilc.core.limits import Limits, RateLimiter
-from formation_ilc.core.safety import CHANGED, INFEASIBLE, SafetySpec, filter_command, motion
+from formation_ilc.core.safety import (
+    CHANGED,
+    INFEASIBLE,
+    OTHER_FIELDS,
+    SafetySpec,
+    filter_command,
+    motion,
+)
 from formation_ilc.model.simulate import Problem
 from formation_ilc.protocol.schedule import ABORT, Follower, TrialEvent
 from formation_ilc.protocol.wallclock import WallSchedule
@@ -58,7 +65,7 @@ PIONEER_OMEGA_MAX = base_preset("p3dx").limits.omega_max    # [rad/s]
 
 Pose = tuple[float, float, float]
 #: scratch row of ``core.safety.motion``
-_MOTION = np.zeros((1, 6))
+_MOTION = np.zeros((1, OTHER_FIELDS))
 
 
 def bridge_limits(base: str | None, given: Mapping[str, float] | None = None) -> Limits:
@@ -500,11 +507,11 @@ class Bridge:
             return cmd
         x, y, th = self.world()
         heard = [p for p in self.peers.values() if now - p[0] <= PEER_SILENCE]
-        others = np.zeros((max(len(heard), 1), 6))
+        others = np.zeros((max(len(heard), 1), OTHER_FIELDS))
         ages = np.zeros(len(others))
         for m, (at, pose, _, vel) in enumerate(heard):
             others[m, :3] = pose
-            others[m, 3:] = vel
+            others[m, 3:6] = vel
             ages[m] = max(0.0, now - at)
         out = np.zeros(2)
         flags = filter_command(cmd[0], cmd[1], x, y, th, self.out_cmd[0], self.out_cmd[1],

@@ -57,6 +57,7 @@ from formation_ilc.core.safety import (
     CHANGED_BARRIER,
     CHANGED_LIMITS,
     INFEASIBLE,
+    OTHER_FIELDS,
     SafetySpec,
     after_learning,
     filter_command,
@@ -177,7 +178,7 @@ class RobotLearner:
             #: every pose of the sample itself)
             self.pose_age = np.zeros(n_t)
             self.base = np.zeros((1, n_t, 2))
-            self.others = np.zeros((n, 6))
+            self.others = np.zeros((n, OTHER_FIELDS))
             self.ages = np.zeros(n)
             self.out = np.zeros(2)
             self._other_idx = np.array([j for j in range(n) if j != index], dtype=np.int64)
@@ -472,7 +473,8 @@ class RobotLearner:
             with np.errstate(invalid="ignore", divide="ignore"):
                 d = e1 - e0
                 d[:, 2] -= 2.0 * np.pi * np.floor((d[:, 2] + np.pi) / (2.0 * np.pi))
-                o[:m, 3:] = np.where(span[:, None] > 0, d / span[:, None], 0.0)
+                o[:m, 3:6] = np.where(span[:, None] > 0, d / span[:, None], 0.0)
+                o[:m, 6] = 0.0
             self.ages[:m] = (t - last) * dt
             return m
         m = 0

@@ -26,6 +26,7 @@ from formation_ilc.core.law import command, learn
 from formation_ilc.core.metrics import METRIC_COLUMNS
 from formation_ilc.core.safety import (
     CHANGED,
+    OTHER_FIELDS,
     SafetySpec,
     after_learning,
     filter_team,
@@ -101,7 +102,7 @@ def run_physics(sc: Scenario, model: RobotModel, trials: int, *,
         nominal = np.zeros((n, n_t, 2))
         flags = np.zeros((n, n_t), dtype=np.int64)
         prev = np.zeros((n, 2))
-        others, ages = np.zeros((n, 6)), np.zeros(n)
+        others, ages = np.zeros((n, OTHER_FIELDS)), np.zeros(n)
         base = np.zeros((n, n_t, 2))
     with PhysicsWorld(model, n, pb.dt, rate=rate, collide=collide) as world:
         for i in range(trials):

@@ -100,6 +100,17 @@ def _with_damped_learning(plan: dict) -> dict:
     return json.loads(text)
 
 
+def _with_motion_from_poses(plan: dict) -> dict:
+    """The golden ``plan`` since the safety settings say where a robot takes the other
+    robots' speeds from (issue 52: ``motion``, 'poses' in every launch): the leader's
+    ``safety`` parameter carries it after ``sensing``; nothing else of the plan changed."""
+    text = json.dumps(plan)
+    for sensing in ("team", "peers"):
+        text = text.replace(f'\\"sensing\\": \\"{sensing}\\"}}',
+                            f'\\"sensing\\": \\"{sensing}\\", \\"motion\\": \\"poses\\"}}')
+    return json.loads(text)
+
+
 def _with_one_limits_table(plan: dict) -> dict:
     """The golden ``plan`` as the filter reads its limits since each base has one limits
     table (issue 37, ``config.bases``): the leader's ``safety`` parameter holds its body's
@@ -326,8 +337,9 @@ def test_a_launch_plans_the_processes_it_planned(tmp_path, key):
                    "host": s.host, "env": s.env,
                    "restart": [s.restart.max_restarts, s.restart.refused]}
                   for s in plan.nodes]})
-    want = _with_bases_following_trials(_with_new_example(_with_one_limits_table(
-        _with_damped_learning(_with_bases_truth(_golden("plans")[key])))))
+    want = _with_motion_from_poses(_with_bases_following_trials(_with_new_example(
+        _with_one_limits_table(_with_damped_learning(_with_bases_truth(
+            _golden("plans")[key]))))))
     assert got == want
     # the roster names the same processes, each started by its entry script
     sc = plan.scenario

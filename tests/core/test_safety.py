@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 import pytest
+from numpy.typing import NDArray
 
 from formation_ilc.config.scenario import load_scenario
 from formation_ilc.core.kinematics import arc_step
@@ -20,6 +21,7 @@ from formation_ilc.core.safety import (
     CHANGED_LIMITS,
     DAMPING,
     INFEASIBLE,
+    OTHER_FIELDS,
     PARAMS,
     Q_SIGMA,
     SafetySpec,
@@ -41,12 +43,17 @@ def spec(**kw) -> SafetySpec:
     return spec_for(FP, kw.pop("limits", P3), kw.pop("dt", 0.2), **kw)
 
 
-def run(sp: SafetySpec, nominal, own, prev, others, ages=None):
-    others = np.asarray(others, dtype=float).reshape(-1, 6)
+def run(sp: SafetySpec, nominal, own, prev, others, ages=None, params=None):
+    others = np.asarray(others, dtype=float)
+    if others.shape[-1] == 6:  # pose and motion; column 6: estimated from poses (0)
+        others = others.reshape(-1, 6)
+        others = np.hstack([others, np.zeros((len(others), OTHER_FIELDS - 6))])
+    others = others.reshape(-1, OTHER_FIELDS)
     ages = np.zeros(len(others)) if ages is None else np.asarray(ages, dtype=float)
     out = np.zeros(2)
     flags = filter_command(nominal[0], nominal[1], own[0], own[1], own[2], prev[0], prev[1],
-                           others, ages, len(others), sp.params(), out)
+                           others, ages, len(others),
+                           sp.params() if params is None else params, out)
     return out, flags
 
 
@@ -84,10 +91,19 @@ def test_a_limit_of_inf_is_no_limit():
     assert flags == 0 and tuple(out) == (50.0, -9.0)
 
 
+def polygon_only(sp: SafetySpec) -> NDArray[np.float64]:
+    """The filter's numbers with ``own_bound`` off: a command passes only inside the
+    polygon of the chords (the set the answer is projected on)."""
+    params = sp.params()
+    params[PARAMS.index("own_bound")] = 0.0
+    return params
+
+
 def brute(sp: SafetySpec, nominal, own, prev, others):
     """The nearest point of a fine grid over the box that keeps every half-plane the
-    filter builds (the same half-planes: evaluated by calling the filter with that point
-    as the nominal command, which it must leave unchanged)."""
+    filter builds (the same half-planes: evaluated by calling the filter, judging by the
+    polygon alone, with that point as the nominal command, which it must leave
+    unchanged)."""
     lim, dt, c = sp.limits, sp.dt, sp.weight
     vs = np.linspace(max(-lim.v_max, prev[0] - lim.a_max * dt),
                      min(lim.v_max, prev[0] + lim.a_max * dt), 121)
@@ -96,7 +112,7 @@ def brute(sp: SafetySpec, nominal, own, prev, others):
     best, arg = math.inf, None
     for v in vs:
         for w in ws:
-            _, f = run(sp, (v, w), own, prev, others)
+            _, f = run(sp, (v, w), own, prev, others, params=polygon_only(sp))
             if f & CHANGED_BARRIER:
                 continue
             d = (v - nominal[0]) ** 2 + c * c * (w - nominal[1]) ** 2
@@ -143,7 +159,7 @@ def head_on(sp: SafetySpec, speed: float, steps: int = 120):
         for r in range(2):
             o = 1 - r
             back = hist[max(0, len(hist) - 1 - sp.window)]
-            other = np.zeros((1, 6))
+            other = np.zeros((1, OTHER_FIELDS))
             other[0, :3] = poses[o]
             span = (len(hist) - 1 - max(0, len(hist) - 1 - sp.window)) * dt
             motion(poses[o, 0], poses[o, 1], poses[o, 2], back[o, 0], back[o, 1], back[o, 2],
@@ -492,3 +508,71 @@ def test_the_invariant_carries_over_a_sample_for_pairs_that_pass_close(dt):
         worst = max(worst, sp.distance - _brake_least(sp, poses, new))
     assert held > 500 and acted > 25  # the cases are close enough to matter
     assert worst <= 1e-4, f"{worst * 1000:.2f} mm past the filter's distance"
+
+
+def test_filter_team_takes_a_told_command_as_the_other_robots_motion():
+    """With the robots' commands (``SafetySpec.commands``), robot j's motion is the command
+    it applied over the sample before (``prev``), along its measured heading, and marked
+    told; without them, it is estimated from two of its poses."""
+    from formation_ilc.core.safety import filter_team
+
+    eta = np.zeros((2, 3, 3))
+    eta[0, :, :] = [[0.0, 0.0, 0.3], [0.1, 0.0, 0.3], [0.2, 0.0, 0.3]]
+    eta[1, :, :] = [[4.0, 0.0, 2.0], [4.0, 0.2, 2.0], [4.0, 0.4, 2.0]]
+    for told in (True, False):
+        sp = spec(dt=0.2, commands=told)
+        u = np.full((2, 3, 2), 0.1)
+        prev = np.array([[0.4, 0.1], [0.3, -0.2]])
+        others, ages = np.zeros((2, OTHER_FIELDS)), np.zeros(2)
+        filter_team(2, u, eta, prev, 0.0, sp.params(), sp.window, np.zeros_like(u),
+                    np.zeros((2, 3), dtype=np.int64), others, ages)
+        # the scratch holds what the last robot (1) heard of robot 0
+        if told:
+            np.testing.assert_allclose(others[0, 3:], [0.4 * math.cos(0.3),
+                                                       0.4 * math.sin(0.3), 0.1, 1.0])
+        else:
+            np.testing.assert_allclose(others[0, 3:], [0.5, 0.0, 0.0, 0.0])
+
+
+def test_a_told_speed_needs_less_room_than_one_estimated_from_noisy_poses():
+    """With the paper's noise, a speed estimated from poses is wrong by up to 0.12 m/s and
+    the filter keeps room for it; a told command is the speed itself, its direction off by
+    the heading's noise: the filter never changes a command more, and often less."""
+    from formation_ilc.config.bases import base_preset
+    from formation_ilc.config.safety import SafetySettings
+    from formation_ilc.model.safety import spec_of
+
+    noise = load_scenario("paper-triangle3").uncertainty
+    settings = SafetySettings("p3dx", base_preset("p3dx").limits, 0.1)
+    sp = spec_of(settings, 0.2, noise)
+    assert sp.speed_uncertainty > 0.1 and 0 < sp.told_uncertainty < 0.01
+    rng = np.random.default_rng(5)
+    less = 0
+    for _ in range(400):
+        th = rng.uniform(-math.pi, math.pi)
+        r, b = rng.uniform(0.7, 1.6), rng.uniform(-math.pi, math.pi)
+        own = (0.0, 0.0, th)
+        prev = (rng.uniform(0.1, 0.7), rng.uniform(-0.3, 0.3))
+        v, th_j = rng.uniform(0.1, 0.7), th + rng.normal(0, 1.0)
+        other = [r * math.cos(b), r * math.sin(b), th_j, v * math.cos(th_j),
+                 v * math.sin(th_j), rng.uniform(-0.3, 0.3)]
+        nominal = (prev[0] + rng.uniform(-0.06, 0.06), prev[1] + rng.uniform(-0.3, 0.3))
+        moved = []
+        for told in (0.0, 1.0):
+            out, _ = run(sp, nominal, own, prev, [*other, told])
+            moved.append(math.hypot(out[0] - nominal[0], sp.weight * (out[1] - nominal[1])))
+        assert moved[1] <= moved[0] + 1e-9
+        less += moved[1] < moved[0] - 1e-6
+    assert less > 20
+
+
+def test_the_safety_settings_carry_where_speeds_come_from():
+    from formation_ilc.config.safety import SafetySettings
+
+    s = SafetySettings(motion="commands")
+    assert SafetySettings.from_json(s.to_json()) == s
+    old = s.to_json()
+    del old["motion"]  # a run stored before the choice existed took speeds from poses
+    assert SafetySettings.from_json(old).motion == "poses"
+    with pytest.raises(ValueError, match="motion"):
+        SafetySettings(motion="telepathy")
