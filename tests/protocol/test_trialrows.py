@@ -94,8 +94,8 @@ def test_a_slot_aborted_after_it_was_complete_keeps_its_row_and_the_repeat_is_a_
 
 def test_strict_refuses_events_out_of_order_and_trajectories_of_slots_not_started():
     rows = SlotRows(PB, strict=True)
-    with pytest.raises(Rejected, match="slot 0") as exc:
-        rows.trajectory(0, 0, False, RUN.eta[0][0])
+    with pytest.raises(Rejected, match="slot 1") as exc:  # after the next slot
+        rows.trajectory(1, 0, False, RUN.eta[0][0])
     assert exc.value.reason == "future"
     rows.event(start(0, 0))
     for ev, reason in ((start(0, 0), "stale"), (start(2, 2), "future"),
@@ -107,6 +107,25 @@ def test_strict_refuses_events_out_of_order_and_trajectories_of_slots_not_starte
         rows.trajectory(0, 0, False, RUN.eta[0][0])
         rows.trajectory(0, 0, False, RUN.eta[0][0])
     assert exc.value.reason == "duplicate"
+
+
+def test_strict_keeps_the_next_slots_trajectories_until_its_start_comes():
+    """The trajectories and the events are two topics: a loaded monitor took robots'
+    trajectories of trial 14 before its start, refused them as future and the run stopped
+    as stuck. A trajectory of the next slot is kept; the start completes its row."""
+    rows = SlotRows(PB, strict=True)
+    rows.event(start(0, 0))
+    assert [d.trial for d in feed(rows, 0, 0)] == [0]
+    assert feed(rows, 1, 1) == []                  # slot 1 not started yet: kept
+    done = rows.event(start(1, 1))
+    assert [d.trial for d in done] == [1]
+    with pytest.raises(Rejected) as exc:            # two slots ahead: still refused
+        rows.trajectory(3, 0, False, RUN.eta[0][0])
+    assert exc.value.reason == "future"
+    # kept for a slot that is then aborted: dropped with it, and no row is made
+    feed(rows, 2, 2)
+    rows.event(abort(2, 2))
+    assert 2 not in rows.eta and 2 not in rows.rows
 
 
 def test_the_leaders_repeat_of_a_start_is_no_news_and_not_a_refusal():
