@@ -27,6 +27,7 @@ from formation_ilc.core.links import (
 )
 from formation_ilc.core.names import BASES_NODE, MONITOR_NODE, SIM_NODE
 from formation_ilc.plan.specs import RunPlan
+from formation_ilc.protocol.health import filter_warnings
 from formation_ilc.protocol.writers import forged_line
 from formation_ilc.system.exits import DISK_FULL, is_disk_full
 
@@ -213,6 +214,11 @@ def print_report(sc: Scenario, m: np.ndarray, dtab: list[list[Any]], summary: di
         _print_delays(dtab, direct=summary.get("links") == "direct")
     if summary.get("clocks"):
         _print_clocks(summary["clocks"])
+    safety = summary.get("safety")
+    if safety and k:
+        for line in filter_warnings([float(x) for x in m[:, 7]],
+                                    safety.get("filter_total") or {}, sc.n * sc.samples):
+            print(line)
     drops = {n: sum(d.values()) for n, d in summary["dropped"].items() if sum(d.values())}
     if drops:
         print(f"dropped messages: {drops}")

@@ -59,7 +59,7 @@ from formation_ilc.core.names import (
 __all__ = ["OK", "WARN", "ERROR", "Status", "flatten", "unflatten", "assess", "statuses",
            "TASKS", "task_name", "plain_value", "hardware_of",
            "MISSED_ERROR", "LATENCY_WARN", "WARN_DROPS", "DIAG_STATUS_MAX", "DIAG_VALUES_MAX",
-           "read_statuses", "node_report"]
+           "read_statuses", "node_report", "filter_warnings", "FILTER_WINDOW"]
 
 OK, WARN, ERROR = 0, 1, 2
 LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR"}
@@ -282,3 +282,48 @@ def node_report(found: Sequence[Status], required: Sequence[str] = ()) -> dict[s
                 raise Malformed(f"diagnostics lack {missing}")
             return st.values
     raise Malformed("diagnostics without a node's report")
+
+
+#: trials compared at each end of a run by ``filter_warnings``
+FILTER_WINDOW = 10
+
+
+def filter_warnings(changed: Sequence[float], totals: Mapping[str, Any],
+                    commands_per_trial: int) -> list[str]:
+    """The console's warnings on a run's safety filter, the causes of a stall a person
+    should see without reading ``/diagnostics``: ``changed`` the commands it changed in
+    each trial (``metrics.csv``'s filter_active), ``totals`` every robot's ``filter_total``
+    (its counts over the run; None for one that never reported), ``commands_per_trial``
+    robots x samples.
+
+    * it kept acting: over the last FILTER_WINDOW trials (half the run, if shorter) it
+      changed more than half as many commands a trial as over the first, and more than
+      one in 200: learning through a filter that keeps acting is held back;
+    * samples outside its guarantee (``infeasible``), on poses more than a sample old
+      (``late``), or without another robot's told command (``untold``), by robot."""
+    out = []
+    k = len(changed)
+    w = min(FILTER_WINDOW, k // 2)
+    if w >= 1:
+        first = sum(changed[:w]) / w
+        last = sum(changed[-w:]) / w
+        if last > 0.5 * first and last > commands_per_trial / 200:
+            out.append(f"warning: the safety filter kept acting: {last:.0f} commands a "
+                       f"trial over the last {w} trials against {first:.0f} over the first "
+                       f"(of {commands_per_trial}): the robots are held near its bounds and "
+                       f"learn slowly; `formation-ilc check` says whether the desired motion "
+                       f"itself fits (noisy poses, speeds, spacing: docs/safety.md)")
+    why = {"infeasible": "outside its guarantee (a pair already past braking apart as it "
+                         "counts)",
+           "late": "acted on another robot's pose more than a sample old (a loaded machine "
+                   "or a slow network holds robots apart)",
+           "untold": "filtered against a robot whose told command was not in (its speed "
+                     "estimated from its poses)"}
+    for key, text in why.items():
+        by = {r: int(t.get(key, 0) or 0) for r, t in sorted(totals.items())
+              if isinstance(t, Mapping)}
+        by = {r: c for r, c in by.items() if c > 0}
+        if by:
+            each = ", ".join(f"{r} {c}" for r, c in by.items())
+            out.append(f"warning: samples the safety filter {text}: {each}")
+    return out

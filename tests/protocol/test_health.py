@@ -81,3 +81,22 @@ def test_standard_names_hardware_and_plain_values():
     assert {k: plain_value(v) for k, v in pairs.items()} == {
         "node": "robot_1", "trial": "3", "ok": "true", "why": "late 2", "seq": "[1,2]",
         "text": "3"}
+
+
+def test_the_console_warns_of_a_filter_that_keeps_acting_and_why():
+    from formation_ilc.protocol.health import filter_warnings
+
+    falling = [300, 250, 200, 120, 60, 30, 10, 4, 2, 1, 0, 0]
+    assert filter_warnings(falling, {}, 450) == []
+    # the paper's triangle with noise, from poses: 115-150 a trial from trial 3 on
+    stuck = [20, 90, 110, 130, 140, 125, 150, 118, 133, 141, 129, 137]
+    (line,) = filter_warnings(stuck, {"robot_1": None}, 450)
+    assert "kept acting" in line and "137" not in line and "over the last 6 trials" in line
+    # a few commands a trial is no stall: fewer than one in 200
+    assert filter_warnings([4, 2, 3, 2], {}, 900) == []
+    totals = {"robot_2": {"infeasible": 3, "late": 0, "untold": 0},
+              "robot_1": {"infeasible": 1, "late": 0, "untold": 7}, "robot_3": None}
+    lines = filter_warnings([0, 0], totals, 450)
+    assert len(lines) == 2
+    assert "outside its guarantee" in lines[0] and "robot_1 1, robot_2 3" in lines[0]
+    assert "told command" in lines[1] and "robot_1 7" in lines[1]
