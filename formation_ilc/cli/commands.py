@@ -292,7 +292,9 @@ def _motion_check(args: argparse.Namespace, sc: Scenario) -> list[str]:
         return []
     moved = sc.with_options(headings=args.headings, time_scale=args.time_scale)
     body = args.base
-    fit = motion_fit(moved, body)
+    # the filter as the run will have it: room for the scenario's noise, tried on it
+    noise = moved.uncertainty if moved.uncertainty.noisy else None
+    fit = motion_fit(moved, body, noise)
     limits = fit.limits
     print(f"desired motion ({args.headings} headings"
           + (f", time scale {moved.time_scale:g}" if moved.time_scale != 1 else "")
@@ -312,7 +314,7 @@ def _motion_check(args: argparse.Namespace, sc: Scenario) -> list[str]:
     through = fit.through
     print(f"  {through.line(moved.dt)}")
     if not through.passes:
-        scale, spread = what_fits(moved, fit.spec)
+        scale, spread = what_fits(moved, fit.spec, fit.noisy)
         fixes = [f"--time-scale {moved.time_scale * scale:g} (slower)" if scale else "",
                  f"the formation's offsets x {spread:g} (wider)" if spread else ""]
         fix = " or ".join(f for f in fixes if f) or "no time scale up to 4 nor spread up to 2"

@@ -244,7 +244,7 @@ def add_plant_arguments(p: argparse.ArgumentParser) -> None:
 
 def add_safety_arguments(p: argparse.ArgumentParser) -> None:
     """The safety filter's options (docs/safety.md)."""
-    from formation_ilc.config.safety import BODIES
+    from formation_ilc.config.safety import BODIES, MOTION, TOLD_UP_TO
     from formation_ilc.core.safety import DAMPING, LEARNING, Q_SIGMA
 
     g = p.add_argument_group("the safety filter (docs/safety.md)")
@@ -270,6 +270,15 @@ def add_safety_arguments(p: argparse.ArgumentParser) -> None:
                         "command, not at all where a barrier moved it; the default on skid "
                         "steer: husky, jackal), freeze (no learning at those samples), "
                         "ignore (as if unchanged; winds up). docs/safety.md compares them")
+    g.add_argument("--safety-motion", choices=MOTION, default=None,
+                   help="where a robot's filter takes the other robots' speeds from: "
+                        "commands (every robot tells the others the command it applies, on "
+                        "robot_i/applied; only its direction comes from its noisy pose) or "
+                        "poses (estimated from two of their poses, widened by what the "
+                        "scenario's noise allows: 0.12 m/s with the paper's noise, which "
+                        "holds robots off their own motion). Default: commands up to "
+                        f"{TOLD_UP_TO} robots, poses beyond (N (N - 1) messages a sample). "
+                        "docs/safety.md")
     g.add_argument("--on-contact", choices=("stop", "abort", "continue"), default="stop",
                    help="with --plant physics or --physics-bases, when two robots touch "
                         "or one tilts past --tilt-limit: stop (default): stop the robots, "

@@ -95,12 +95,13 @@ def _add_simulate(sub: Any) -> None:
                    default=None,
                    help="with --safety: how the memory learns where the filter changed a "
                         "command (docs/safety.md)")
-    p.add_argument("--safety-motion", choices=("poses", "commands"), default="poses",
+    p.add_argument("--safety-motion", choices=("poses", "commands"), default=None,
                    help="with --safety: where a robot takes the other robots' speeds from: "
-                        "poses (default, as the ROS stack does: estimated from two of their "
-                        "poses, widened by what the scenario's noise allows) or commands "
-                        "(every robot tells the others the command it applies; with noisy "
-                        "poses the filter then needs far less room: docs/safety.md)")
+                        "commands (every robot tells the others the command it applies; "
+                        "with noisy poses the filter needs far less room) or poses "
+                        "(estimated from two of their poses, widened by what the "
+                        "scenario's noise allows). Default: as a launch takes it, commands "
+                        "up to 12 robots, poses beyond (docs/safety.md)")
     p.add_argument("--safety-age", type=nonneg_float, default=0.0, metavar="S",
                    help="with --safety: how old [s] the other robots' poses are when a robot "
                         "filters (default 0: lockstep, and the simulator in real time); "
@@ -386,15 +387,20 @@ def _safety_spec(args: argparse.Namespace, sc: Any) -> Any:
     """``simulate --safety``: the filter of ``--body`` with its own limits, or None."""
     if not getattr(args, "safety", False):
         return None
-    from formation_ilc.config.safety import SafetySettings, default_learning, default_margin
+    from formation_ilc.config.safety import (
+        SafetySettings,
+        default_learning,
+        default_margin,
+        default_motion,
+    )
     from formation_ilc.model.safety import body_limits, desired_clearance, spec_of
 
     args.safety_learning = args.safety_learning or default_learning(args.body)
     if args.safety_margin is None:
         args.safety_margin = default_margin(args.body)
+    args.safety_motion = getattr(args, "safety_motion", None) or default_motion(sc.n)
     spec = spec_of(SafetySettings(args.body, body_limits(args.body), args.safety_margin,
-                                  args.safety_learning,
-                                  motion=getattr(args, "safety_motion", "poses")),
+                                  args.safety_learning, motion=args.safety_motion),
                    sc.dt, sc.uncertainty)
     dc = desired_clearance(sc, spec)
     if not dc.fits:
@@ -503,7 +509,7 @@ def _simulate_outputs(args: argparse.Namespace, sc: Scenario, res: Any, log: Tri
     if getattr(args, "safety", False):
         summary["safety"] = {"body": args.body, "margin": args.safety_margin,
                              "learning": args.safety_learning,
-                             "motion": getattr(args, "safety_motion", "poses")}
+                             "motion": args.safety_motion}
     files = ["metrics.csv", "summary.json", "trajectories.npz", "memory.npz"]
     clear_line = None
     if clear_rows:

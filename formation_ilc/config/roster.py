@@ -372,11 +372,14 @@ def _robot(i: int, senders: list[int], hears_leader: bool, lineup: Lineup,
                                                          for j in senders]
     if hears_leader:
         sub += [nm.link_topic(i, nm.LEADER), nm.REFERENCE]
+    pub = [nm.cmd_vel_topic(i), nm.shared_pose_topic(i), nm.trajectory_topic(i), nm.READY,
+           nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS]
     if lineup.sensing is not None:  # every robot's pose, and the plant's team/poses
         sub += [nm.pose_topic(j) for j in range(1, lineup.n + 1) if j != i]
         sub.append(nm.TEAM_POSES)
-    pub = [nm.cmd_vel_topic(i), nm.shared_pose_topic(i), nm.trajectory_topic(i), nm.READY,
-           nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS]
+        # the commands the robots tell each other (``safety.motion: commands``)
+        sub += [nm.applied_topic(j) for j in range(1, lineup.n + 1) if j != i]
+        pub.append(nm.applied_topic(i))
     if lineup.clocks:  # each node publishes on topics of its own name only
         me = nm.robot_name(i)
         asks = [nm.robot_name(j) for j in senders] + ([nm.LEADER] if hears_leader else [])

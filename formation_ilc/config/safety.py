@@ -17,9 +17,9 @@ sensing : how a robot hears the other robots' poses: 'team' (the plant's ``team/
     ``pose`` topic: plants of one bridge per robot).
 motion : where a robot takes the other robots' speeds from: 'poses' (estimated from two
     of their poses, widened by what the poses' noise allows) or 'commands' (each robot
-    tells the others the command it applies: the speed is known, only its direction comes
-    from a pose; the batch simulator and the one-process physics study, where every
-    robot's command is at hand; the ROS stack does not carry commands yet).
+    tells the others the command it applies, on ``robot_i/applied``: the speed is known,
+    only its direction comes from a pose; a robot whose command is not heard is estimated
+    from its poses).
 """
 
 from __future__ import annotations
@@ -32,12 +32,22 @@ from formation_ilc.core.clock import Rejected
 from formation_ilc.core.limits import Limits
 from formation_ilc.core.safety import LEARNING
 
-__all__ = ["SafetySettings", "SENSING", "MOTION", "BODIES", "SKID_STEER", "default_learning",
-           "default_margin"]
+__all__ = ["SafetySettings", "SENSING", "MOTION", "TOLD_UP_TO", "default_motion", "BODIES",
+           "SKID_STEER", "default_learning", "default_margin"]
 
 SENSING = ("team", "peers")
 #: where a robot takes another robot's speed from
 MOTION = ("poses", "commands")
+#: teams up to this size tell each other their commands unless told otherwise (every
+#: robot hears every other's: N (N - 1) messages a sample); larger teams estimate speeds
+#: from the poses they already hear (docs/safety.md, "Speeds told, not guessed")
+TOLD_UP_TO = 12
+
+
+def default_motion(n: int) -> str:
+    """Where a team of ``n`` robots takes the others' speeds from unless told otherwise:
+    'commands' up to TOLD_UP_TO robots, 'poses' beyond."""
+    return "commands" if n <= TOLD_UP_TO else "poses"
 #: bodies the filter knows (``model.footprint.BODIES``, kept here for the config layer)
 BODIES = ("p3dx", "husky", "husky-imu", "turtlebot3", "turtlebot4", "jackal")
 #: the skid-steer bodies among them

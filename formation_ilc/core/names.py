@@ -31,7 +31,8 @@ __all__ = ["NAMESPACE", "CLOCK", "LEADER_NODE", "SIM_NODE", "LINKS_NODE", "MONIT
            # topics and frames
            "CONFIG", "REFERENCE", "TRIAL_EVENTS", "READY", "DIAGNOSTICS", "ROS_DIAGNOSTICS",
            "LEADER",
-           "WORLD_FRAME", "pose_topic", "cmd_vel_topic", "shared_pose_topic", "link_topic",
+           "WORLD_FRAME", "pose_topic", "cmd_vel_topic", "applied_topic", "shared_pose_topic",
+           "link_topic",
            "whereabouts_topic",
            "clock_ping_topic", "clock_pong_topic", "trajectory_topic", "true_trajectory_topic",
            "absolute", "relative", "clock_topic",
@@ -173,6 +174,12 @@ def whereabouts_topic(i: int) -> str:
 def cmd_vel_topic(i: int) -> str:
     """Robot ``i``'s command (robot -> plant)."""
     return f"{robot_name(i)}/cmd_vel"
+
+
+def applied_topic(i: int) -> str:
+    """The command robot ``i`` applied over a sample (stamp = the sample's label), for the
+    other robots' safety filters (``safety.motion: commands``: its speed, told)."""
+    return f"{robot_name(i)}/applied"
 
 
 def shared_pose_topic(i: int) -> str:

@@ -215,16 +215,18 @@ def motion_peaks(sc: Scenario) -> list[MotionPeaks]:
 
 @dataclass(frozen=True)
 class DesiredThroughFilter:
-    """Every robot's desired motion through the filter, no learning, exact poses: how many
-    commands it changed, the first (robot, sample) it changed, how far (|dv| [m/s],
-    |domega| [rad/s] at the largest change), and the pair of robots nearest each other
-    at that sample (1-based) and their distance [m] (tracked points)."""
+    """Every robot's desired motion through the filter, no learning: how many commands it
+    changed, the first (robot, sample) it changed, how far (|dv| [m/s], |domega| [rad/s]
+    at the largest change), and the pair of robots nearest each other at that sample
+    (1-based) and their distance [m] (tracked points); ``how``: the poses and speeds the
+    filter had (exact or as noisy as the scenario's; speeds told or estimated)."""
 
     changed: int
     first: tuple[int, int] | None
     largest: tuple[float, float]
     nearest: tuple[int, int]
     nearest_distance: float
+    how: str = "exact poses"
 
     @property
     def passes(self) -> bool:
@@ -232,13 +234,14 @@ class DesiredThroughFilter:
 
     def line(self, dt: float) -> str:
         if self.first is None:
-            return "the safety filter lets every robot's desired motion through unchanged"
+            return (f"the safety filter lets every robot's desired motion through unchanged "
+                    f"({self.how})")
         r, t = self.first
         i, j = self.nearest
-        return (f"the safety filter changes the desired motion itself: {self.changed} "
-                f"commands, the first robot {r}'s at t = {t * dt:.1f} s (by up to "
-                f"{self.largest[0]:.3f} m/s, {self.largest[1]:.3f} rad/s), where robots {i} "
-                f"and {j} are {self.nearest_distance:.3f} m apart")
+        return (f"the safety filter changes the desired motion itself ({self.how}): "
+                f"{self.changed} commands, the first robot {r}'s at t = {t * dt:.1f} s (by "
+                f"up to {self.largest[0]:.3f} m/s, {self.largest[1]:.3f} rad/s), where "
+                f"robots {i} and {j} are {self.nearest_distance:.3f} m apart")
 
 
 #: changes of a desired command this small [m/s, rad/s] are below what a base's velocity
@@ -246,14 +249,21 @@ class DesiredThroughFilter:
 TOLERANCE = (0.01, 0.01)
 
 
-def desired_through_filter(sc: Scenario, spec: SafetySpec) -> DesiredThroughFilter:
+def desired_through_filter(sc: Scenario, spec: SafetySpec,
+                           noisy: bool = False) -> DesiredThroughFilter:
     """Run every robot's desired command through the filter at its desired pose, each
     robot hearing the others' desired poses of the sample (age 0) as the batch simulator
     does, without learning: a formation whose own motion the filter changes is one the
-    filter would fight in every trial (``check`` fails it). Changes within ``TOLERANCE``
-    do not count."""
+    filter would fight in every trial (``check`` fails it). ``noisy``: every pose as the
+    robots measure it, with the scenario's output noise (its first trial's draw, from its
+    seed): the room the filter keeps for noise is then tried on the noise itself. Changes
+    within ``TOLERANCE`` do not count."""
     d = sc.for_plant("arc").desired
     eta = np.ascontiguousarray(d.eta)
+    noisy = noisy and sc.uncertainty.noisy
+    if noisy:
+        noise = sc.uncertainty.draw_plant(sc.seed, 0, eta.shape[0], d.u.shape[1])[2]
+        eta = np.ascontiguousarray(eta + noise)
     n, n_t = d.u.shape[0], d.u.shape[1]
     u = np.array(d.u, dtype=float)
     nominal = np.empty_like(u)
@@ -270,8 +280,10 @@ def desired_through_filter(sc: Scenario, spec: SafetySpec) -> DesiredThroughFilt
     changed = ((flags & CHANGED != 0)
                & ((diff[..., 0] > TOLERANCE[0]) | (diff[..., 1] > TOLERANCE[1])))
     count = int(changed.sum())
+    how = ((f"poses as noisy as the scenario's (seed {sc.seed})" if noisy else "exact poses")
+           + (", speeds told" if spec.commands else ", speeds from poses"))
     if count == 0:
-        return DesiredThroughFilter(0, None, (0.0, 0.0), (1, 1), math.inf)
+        return DesiredThroughFilter(0, None, (0.0, 0.0), (1, 1), math.inf, how)
     rs, ts = np.nonzero(changed)
     k = int(np.argmin(ts))
     r, t = int(rs[k]), int(ts[k])
@@ -283,21 +295,23 @@ def desired_through_filter(sc: Scenario, spec: SafetySpec) -> DesiredThroughFilt
     j = int(np.argmin(gap[r])) if n > 1 else r
     return DesiredThroughFilter(count, (r + 1, t), (float(diff[worst][0]),
                                                     float(diff[worst][1])),
-                                (min(r, j) + 1, max(r, j) + 1), float(gap[r, j]))
+                                (min(r, j) + 1, max(r, j) + 1), float(gap[r, j]), how)
 
 
-def what_fits(sc: Scenario, spec: SafetySpec) -> tuple[float | None, float | None]:
-    """What would let a formation's desired motion through the filter: the least time
-    scale (slower) of 1.25, 1.5, 2, 3, 4 that does, and the least spread of its offsets
-    (wider) of 1.1, 1.25, 1.5, 2 that does; None for either where none does."""
+def what_fits(sc: Scenario, spec: SafetySpec,
+              noisy: bool = False) -> tuple[float | None, float | None]:
+    """What would let a formation's desired motion through the filter (``noisy``: as
+    ``desired_through_filter``): the least time scale (slower) of 1.25, 1.5, 2, 3, 4 that
+    does, and the least spread of its offsets (wider) of 1.1, 1.25, 1.5, 2 that does; None
+    for either where none does."""
     from dataclasses import replace
 
     scale = next((k for k in (1.25, 1.5, 2.0, 3.0, 4.0)
                   if desired_through_filter(sc.with_options(time_scale=sc.time_scale * k),
-                                            spec).passes), None)
+                                            spec, noisy).passes), None)
     spread = next((k for k in (1.1, 1.25, 1.5, 2.0)
                    if desired_through_filter(replace(sc, offsets=sc.offsets * k),
-                                             spec).passes), None)
+                                             spec, noisy).passes), None)
     return scale, spread
 
 
@@ -314,6 +328,7 @@ class MotionFit:
     limits_line: str | None
     clearance: DesiredClearance
     through: DesiredThroughFilter | None
+    noisy: bool = False
 
     @property
     def fits(self) -> bool:
@@ -321,17 +336,23 @@ class MotionFit:
                 and self.through is not None and self.through.passes)
 
 
-def motion_fit(sc: Scenario, body: str, noise: Uncertainty | None = None) -> MotionFit:
+def motion_fit(sc: Scenario, body: str, noise: Uncertainty | None = None,
+               motion: str | None = None) -> MotionFit:
     """``sc``'s desired motion (arc headings where 'auto') against ``body`` robots: inside
     the base's limits, its bodies kept the filter's distance apart, and let through the
-    filter unchanged, for poses as noisy as ``noise`` (None: exact poses). The one test
-    ``check --base`` and the generated families (``studies.families``) both apply."""
+    filter unchanged, for poses as noisy as ``noise`` (None: exact poses; else the filter
+    keeps room for it, and is tried on the scenario's own noise), the other robots' speeds
+    taken as ``motion`` says (default: as a launch of ``sc`` takes them,
+    ``config.safety.default_motion``). The one test ``check --base`` and the generated
+    families (``studies.families``) both apply."""
     from formation_ilc.config.bases import fit_limits
+    from formation_ilc.config.safety import default_motion
 
     sc = sc.for_plant("arc")
     limits = body_limits(body)
-    spec = body_spec(body, sc.dt, noise)
+    spec = body_spec(body, sc.dt, noise, motion or default_motion(sc.n))
     line = fit_limits(sc, [limits] * sc.n)
     clearance = desired_clearance(sc, spec)
-    through = desired_through_filter(sc, spec) if clearance.fits else None
-    return MotionFit(body, limits, spec, line, clearance, through)
+    through = (desired_through_filter(sc, spec, noisy=noise is not None)
+               if clearance.fits else None)
+    return MotionFit(body, limits, spec, line, clearance, through, noise is not None)

@@ -60,7 +60,7 @@ from collections import Counter
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseStamped, Twist
+from geometry_msgs.msg import PoseStamped, Twist, TwistStamped
 from nav_msgs.msg import Path
 from rclpy.node import Node
 from std_msgs.msg import String
@@ -143,10 +143,6 @@ class RobotNode(ConfiguredNode):
         if path:
             memory = load_memory(path, cfg.scenario)[self.id - 1]
             self.get_logger().info(f"{self.name}: initial memory from {path}")
-        if cfg.safety is not None and cfg.safety.motion != "poses":
-            # a filter that trusted told speeds the node never hears would keep no room
-            raise ValueError(f"safety motion {cfg.safety.motion!r}: the stack carries no "
-                             f"robot's command to the others; only 'poses'")
         safety = (None if cfg.safety is None
                   else spec_of(cfg.safety, cfg.scenario.dt, cfg.scenario.uncertainty))
         self.learner = lrn = RobotLearner(pb, self.id - 1, cfg.clock, realtime=self.realtime,
@@ -212,6 +208,21 @@ class RobotNode(ConfiguredNode):
                 self.sample_subs += [self.create_subscription(
                     PoseStamped, ms.pose_topic(j + 1), lambda m, j=j: self._on_peer(m, j),
                     ms.SAMPLE_QOS, raw=True) for j in range(pb.n) if j != lrn.i]
+        #: told commands (``safety.motion: commands``): this robot's, out; the others', in
+        self.applied_pub: Any = None
+        self._told_subs: list[Any] = []
+        if cfg.safety is not None and cfg.safety.motion == "commands":
+            self.applied_pub = self.create_publisher(TwistStamped, ms.applied_topic(self.id),
+                                                     ms.SAMPLE_QOS)
+            self._base_frame = f"{self.name}/base_link"
+            # from robot j's own writer only (protocol.writers): a command another writer
+            # tells in robot j's name would let the filter keep less room than j needs;
+            # taken before each realtime command, as the plant's team/poses
+            self._told_subs = [self.checked_subscription(
+                TwistStamped, ms.applied_topic(j + 1),
+                lambda m, gid, j=j: self._on_told(m, j), ms.SAMPLE_QOS, raw=True,
+                owners=(ms.robot_name(j + 1),)) for j in range(pb.n) if j != lrn.i]
+            self.sample_subs += self._told_subs
         for sender in lrn.neighbours:
             # raw: a trajectory longer than a trial is refused before it is deserialized;
             # from robot j's own writer only (protocol.writers): a trajectory another
@@ -261,6 +272,8 @@ class RobotNode(ConfiguredNode):
         need = [(self.cmd_pub, 1), (self.shared_pub, shared_readers), (self.ready_pub, 1),
                 (self.traj_pub, self.out_names + self.cfg.result_readers)]
         need += [(sub, 1) for sub in self.sample_subs]
+        if self.applied_pub is not None:  # every other robot filters with it
+            need.append((self.applied_pub, self.pb.n - 1))
         if matched(need, self):
             self._gate.cancel()
             self._send_ready()
@@ -422,6 +435,16 @@ class RobotNode(ConfiguredNode):
             return
         self._maybe_command()
 
+    def _on_told(self, msg: TwistStamped | bytes, j: int) -> None:
+        """The command robot j (0-based) applied over a sample, for the filter."""
+        try:
+            label, v, w = wire.read_applied(wire.as_bytes(msg))
+            self.learner.on_told(j, label, v, w)
+        except Rejected as exc:
+            self.drops.reject(exc, ms.applied_topic(j + 1))
+            return
+        self._maybe_command()
+
     def _maybe_command(self) -> None:
         if self._taking_team or not self.learner.can_command():
             return
@@ -436,10 +459,14 @@ class RobotNode(ConfiguredNode):
         had only the poses of the tick before, a sample old, and widened its distance by
         the other robots' speed over it at every sample (a realtime triangle braked or
         flagged 30-40 samples a trial on poses 200 ms old and did not learn)."""
-        if self._team_sub is not None:
+        if self._team_sub is not None or self._told_subs:
             self._taking_team = True
             try:
-                self._team_sub.take_waiting()
+                if self._team_sub is not None:
+                    self._team_sub.take_waiting()
+                if self.realtime:  # the others' told commands of the sample before
+                    for sub in self._told_subs:
+                        sub.take_waiting()
             finally:
                 self._taking_team = False
 
@@ -458,6 +485,9 @@ class RobotNode(ConfiguredNode):
     def _command(self) -> None:
         u = self.learner.command()
         self.cmd_pub.publish(wire.twist_bytes(u))
+        if self.applied_pub is not None:
+            self.applied_pub.publish(wire.applied_bytes(u, self.learner.rt_ns,
+                                                        self._base_frame))
         self._disarm()
 
     # ------------------------------------------------------------------ trial end

@@ -9,7 +9,12 @@ from pathlib import Path
 from typing import Any
 
 from formation_ilc.config.plants import Plant
-from formation_ilc.config.safety import SafetySettings, default_learning, default_margin
+from formation_ilc.config.safety import (
+    SafetySettings,
+    default_learning,
+    default_margin,
+    default_motion,
+)
 from formation_ilc.config.scenario import Scenario
 from formation_ilc.plan.options import LaunchOptions
 from formation_ilc.plan.specs import BridgeOptions, NoRun, PhysicsOptions
@@ -72,7 +77,8 @@ def _safety(opts: LaunchOptions, row: Plant, sc: Scenario, namespace: str,
                               default_margin(body) if margin is None else float(margin),
                               opts.safety_learning
                               or default_learning(body),
-                              "peers" if row.per_robot else "team")
+                              "peers" if row.per_robot else "team",
+                              opts.safety_motion or default_motion(sc.n))
     except ValueError as exc:
         raise NoRun(f"--safety: {exc}") from None
 

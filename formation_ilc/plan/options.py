@@ -63,6 +63,7 @@ class LaunchOptions:
     body: str | None = None
     safety_margin: float | None = None
     safety_learning: str | None = None
+    safety_motion: str | None = None
     on_contact: str = "stop"
     contact_retries: int = 2
     tilt_limit: float = 10.0
@@ -200,6 +201,7 @@ RUN_KEYS: tuple[RunKey, ...] = (
     RunKey("plant.allow_contact", "allow_contact"), RunKey("plant.nodes", "plant_nodes"),
     RunKey("safety.enabled", "safety"), RunKey("safety.body", "body"),
     RunKey("safety.margin", "safety_margin"), RunKey("safety.learning", "safety_learning"),
+    RunKey("safety.motion", "safety_motion"),
     RunKey("safety.on_contact", "on_contact"),
     RunKey("safety.contact_retries", "contact_retries"),
     RunKey("safety.tilt_limit", "tilt_limit"),

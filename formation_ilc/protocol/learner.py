@@ -64,6 +64,7 @@ from formation_ilc.core.safety import (
     learn_base,
     learning_code,
     motion,
+    told,
 )
 from formation_ilc.model.simulate import Problem
 from formation_ilc.store.robotstate import RobotState
@@ -172,11 +173,18 @@ class RobotLearner:
             self.team_eta = np.zeros((n, n_t + 1, 3))   # other robots' poses heard
             self.team_have = np.zeros((n, n_t + 1), dtype=bool)
             self.team_last = np.full(n, -1, dtype=np.int64)  # newest sample heard
+            #: the commands the other robots told they applied over each sample
+            #: (``safety.commands``), and which are in
+            self.told_u = np.zeros((n, n_t, 2))
+            self.told_have = np.zeros((n, n_t), dtype=bool)
             self.nominal = np.zeros((1, n_t, 2))        # the law's commands
             self.flags = np.zeros((1, n_t), dtype=np.int64)
             #: per sample, the age [s] of the oldest pose of another robot in range (0:
             #: every pose of the sample itself)
             self.pose_age = np.zeros(n_t)
+            #: per sample, how many robots in range were filtered against without their
+            #: told command (``safety.commands``: its speed estimated from its poses)
+            self.untold = np.zeros(n_t, dtype=np.int64)
             self.base = np.zeros((1, n_t, 2))
             self.others = np.zeros((n, OTHER_FIELDS))
             self.ages = np.zeros(n)
@@ -185,7 +193,8 @@ class RobotLearner:
             #: the commands the filter changed in the last trial finished, and in all
             self.filtered: dict[str, int] = {}
             self.filtered_total = Counter({"changed": 0, "limits": 0, "barrier": 0,
-                                           "infeasible": 0, "stale": 0, "late": 0})
+                                           "infeasible": 0, "stale": 0, "late": 0,
+                                           "untold": 0})
 
     # ------------------------------------------------------------------ own poses
     def expected_heading(self, sender: str, label_ns: int) -> float | None:
@@ -296,6 +305,7 @@ class RobotLearner:
             self.nominal[:] = 0.0
             self.flags[:] = 0
             self.pose_age[:] = 0.0
+            self.untold[:] = 0
             self._team_trial(k)
 
     def _hold(self, t: int) -> None:
@@ -340,7 +350,11 @@ class RobotLearner:
             return False
         if self.safety is None or self.realtime:
             return True
-        return self.team_k == self.k and bool(self.team_have[:, self.t].all())
+        if self.team_k != self.k or not self.team_have[:, self.t].all():
+            return False
+        # told commands: every other robot's of the sample before (a trial starts at rest)
+        return (not self.safety.commands or self.t == 0
+                or bool(self.told_have[:, self.t - 1].all()))
 
     # ------------------------------------------------------------------ safety filter
     def _team_trial(self, k: int) -> None:
@@ -351,6 +365,8 @@ class RobotLearner:
             self.team_have[:] = False
             self.team_have[self.i] = True
             self.team_last[:] = -1
+            self.told_have[:] = False
+            self.told_have[self.i] = True
 
     def on_team_pose(self, j: int, label_ns: int, eta: NDArray[np.float64]) -> None:
         """Robot ``j``'s (0-based) pose labelled ``label_ns``, for the safety filter.
@@ -370,6 +386,34 @@ class RobotLearner:
         self.team_eta[j, s] = eta
         self.team_have[j, s] = True
         self.team_last[j] = max(self.team_last[j], s)
+
+    def on_told(self, j: int, label_ns: int, v: float, w: float) -> None:
+        """Robot ``j``'s (0-based) command (v [m/s], omega [rad/s]) applied over the sample
+        labelled ``label_ns``, as it told it (``safety.commands``), for the safety filter.
+        Rejected: no filter taking told commands, or the robot itself (unexpected); a
+        command outside the base's limits, which no robot of the run applies (malformed);
+        and as ``on_team_pose`` for its label (stale, outside the window, duplicate)."""
+        sp = self.safety
+        if sp is None or not sp.commands or j == self.i or not 0 <= j < self.pb.n:
+            raise Rejected("unexpected", f"told command of robot index {j}")
+        self._fresh(label_ns)
+        k, s = self.clock.decode(label_ns)
+        self._window(k, "told command")
+        if s >= self.T:
+            raise Rejected("unexpected", f"robot {j + 1}'s command for sample {s}: a trial "
+                                         f"commands samples 0..{self.T - 1}")
+        lim = sp.limits
+        if not (abs(v) <= lim.v_max * (1.0 + 1e-9) and abs(w) <= lim.omega_max * (1.0 + 1e-9)):
+            raise Rejected("malformed", f"robot {j + 1}'s command ({v!r}, {w!r}) outside the "
+                                        f"limits")
+        if k < self.team_k:
+            raise Rejected("stale", f"told command of trial {k} after trial {self.team_k}")
+        self._team_trial(k)
+        if self.told_have[j, s]:
+            raise Rejected("duplicate", f"robot {j + 1}'s command of sample {s}")
+        self.told_u[j, s, 0] = v
+        self.told_u[j, s, 1] = w
+        self.told_have[j, s] = True
 
     def on_team_poses(self, labels: NDArray[np.int64], fields: NDArray[np.float64]) -> bool:
         """Every robot's pose of one sample at once (``labels`` (n,), the seven doubles of
@@ -436,6 +480,8 @@ class RobotLearner:
             self.safety_params, self.out)
         if m:
             self.pose_age[t] = float(self.ages[:m].max())
+            if sp.commands:
+                self.untold[t] = int(np.count_nonzero(self.others[:m, 6] == 0.0))
         self.u[0] = self.out
 
     def _near(self, m: int, x: float, y: float) -> int:
@@ -476,6 +522,9 @@ class RobotLearner:
                 o[:m, 3:6] = np.where(span[:, None] > 0, d / span[:, None], 0.0)
                 o[:m, 6] = 0.0
             self.ages[:m] = (t - last) * dt
+            if self.safety is not None and self.safety.commands:
+                for mm in range(m):
+                    self._told(mm, int(idx[mm]), int(last[mm]))
             return m
         m = 0
         for j in idx:
@@ -491,9 +540,22 @@ class RobotLearner:
             e1, e0 = self.team_eta[j, sj], self.team_eta[j, sb]
             self.others[m, :3] = e1
             motion(e1[0], e1[1], e1[2], e0[0], e0[1], e0[2], (sj - sb) * dt, self.others, m)
+            if self.safety is not None and self.safety.commands:
+                self._told(m, int(j), sj)
             self.ages[m] = (t - sj) * dt
             m += 1
         return m
+
+    def _told(self, m: int, j: int, s: int) -> None:
+        """Row ``m`` of ``others`` (robot ``j``'s pose of sample ``s``): its motion from the
+        command it told it applied over the sample before (``core.safety.told``, as the
+        batch simulator's ``filter_team``; at rest at a trial's start), where that is in;
+        else the estimate from its poses stays."""
+        if s == 0:
+            told(float(self.others[m, 2]), 0.0, 0.0, self.others, m)
+        elif self.told_have[j, s - 1]:
+            told(float(self.others[m, 2]), float(self.told_u[j, s - 1, 0]),
+                 float(self.told_u[j, s - 1, 1]), self.others, m)
 
     def command(self) -> NDArray[np.float64]:
         """u(t) = (v [m/s], omega [rad/s]) of the current sample from what the links
@@ -552,7 +614,9 @@ class RobotLearner:
                       # itself (the filter widens its distance by its age), and those a
                       # barrier changed or flagged on a pose older than the sample before
                       "stale": int(np.count_nonzero(old)),
-                      "late": int(np.count_nonzero(later & acted))}
+                      "late": int(np.count_nonzero(later & acted)),
+                      # samples filtered against a robot whose told command was not in
+                      "untold": int(np.count_nonzero(self.untold))}
             self.filtered = {"slot": self.k, **counts, "late_ms": int(round(
                 1000.0 * float(self.pose_age[later & acted].max(initial=0.0))))}
             self.filtered_total.update(counts)

@@ -37,6 +37,7 @@ from formation_ilc.core.clock import Malformed
 
 __all__ = ["RawPose", "pose_bytes", "read_pose", "raw_pose_bytes", "pose_eta",
            "world_eta", "twist_bytes", "read_twist", "clock_bytes", "read_clock",
+           "applied_bytes", "read_applied",
            "link_tick_bytes", "read_link_tick", "path_bytes", "read_trajectory",
            "raw_pose", "pose_set_bytes", "read_pose_set", "read_pose_block",
            "read_time_reference",
@@ -175,6 +176,18 @@ def read_twist(data: bytes) -> NDArray[np.float64]:
     else:
         lx, ly, lz, ax, ay, az = _Reader(data).take("6d", 48, 8)
     return check_twist(lx, az, (ly, lz, ax, ay))
+
+
+def read_applied(data: bytes) -> tuple[int, float, float]:
+    """(label [ns], v [m/s], omega [rad/s]) of a geometry_msgs/TwistStamped: the command a
+    robot applied over the sample its stamp labels; MalformedMessage if the bytes do not
+    decode, the stamp is out of range, or the command is not a finite planar one."""
+    r = _Reader(data)
+    label = r.stamp()
+    r.string()  # the frame: the robot's base, not read
+    lx, ly, lz, ax, ay, az = r.take("6d", 48, 8)
+    v, w = check_twist(lx, az, (ly, lz, ax, ay))
+    return label, float(v), float(w)
 
 
 def read_clock(data: bytes) -> int:
@@ -380,6 +393,18 @@ def path_bytes(eta: NDArray[np.float64], stamps_ns: Sequence[int], frame_id: str
 def twist_bytes(u: Sequence[float] | NDArray[np.float64]) -> bytes:
     """The bytes of ``u_to_twist(u)``: linear.x = v [m/s], angular.z = omega [rad/s]."""
     return _LE + _TWIST.pack(float(u[0]), 0.0, 0.0, 0.0, 0.0, float(u[1]))
+
+
+def applied_bytes(u: Sequence[float] | NDArray[np.float64], stamp_ns: int,
+                  frame_id: str) -> bytes:
+    """The bytes of a geometry_msgs/TwistStamped stamped ``stamp_ns`` in ``frame_id``:
+    linear.x = v [m/s], angular.z = omega [rad/s] (what ``read_applied`` reads)."""
+    sec, nsec = _stamp(stamp_ns)
+    frame = frame_id.encode() + b"\x00"
+    head = struct.pack("<iII", sec, nsec, len(frame)) + frame
+    pad = (-len(head)) % 8
+    return (_LE + head + b"\x00" * pad
+            + _TWIST.pack(float(u[0]), 0.0, 0.0, 0.0, 0.0, float(u[1])))
 
 
 def clock_bytes(ns: int) -> bytes:

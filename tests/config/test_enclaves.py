@@ -44,7 +44,7 @@ def test_robot_publishes_only_its_own_topics(grants):
     for i in (1, 2, 3):
         g = grants[f"{NS}/robot_{i}"]
         own = {f"{NS}/robot_{i}/{t}" for t in ("cmd_vel", "shared_pose", "trajectory",
-                                               "clock/ping")}
+                                               "clock/ping", "applied")}
         own |= {f"{NS}/robot_{i}/clock/pong"} if i in (1, 2) else set()
         # the report and the standard stream (/diagnostics, absolute)
         assert set(g.publish) == own | {f"{NS}/ready", f"{NS}/diagnostics", ROS_DIAGNOSTICS}
@@ -113,13 +113,15 @@ def test_adding_a_robot_changes_only_the_grants_that_see_it(grants):
     assert set(bigger) - set(grants) == {f"{NS}/robot_4"}
     same = {p for p in grants if grants[p] == bigger[p]}
     assert same == {f"{NS}/virtual_leader"}
-    # the robots already there change only by reading robot 4's pose (their safety filter),
-    # and robot 3 by answering robot 4's clock questions (protocol.timesync)
+    # the robots already there change only by reading robot 4's pose and the command it
+    # tells (their safety filter), and robot 3 by answering robot 4's clock questions
+    # (protocol.timesync)
     for i in (1, 2, 3):
         old, new = grants[f"{NS}/robot_{i}"], bigger[f"{NS}/robot_{i}"]
         asks = {f"{NS}/robot_4/clock/ping"} if i == 3 else set()
         answers = {f"{NS}/robot_3/clock/pong"} if i == 3 else set()
-        assert set(new.subscribe) - set(old.subscribe) == {f"{NS}/robot_4/pose"} | asks
+        assert set(new.subscribe) - set(old.subscribe) == {f"{NS}/robot_4/pose",
+                                                            f"{NS}/robot_4/applied"} | asks
         assert set(new.publish) - set(old.publish) == answers
         assert set(old.publish) <= set(new.publish) and set(old.subscribe) <= set(new.subscribe)
 

@@ -32,8 +32,15 @@ import pytest
 from formation_ilc.cli.commands import build_parser
 from formation_ilc.cli.runfile import plan_of
 from formation_ilc.config.roster import ENTRY_SCRIPTS, Lineup, roster
+from formation_ilc.config.safety import default_motion
 from formation_ilc.config.scenario import load_scenario
-from formation_ilc.core.names import TEAM_POSES, absolute, pose_topic, whereabouts_topic
+from formation_ilc.core.names import (
+    TEAM_POSES,
+    absolute,
+    applied_topic,
+    pose_topic,
+    whereabouts_topic,
+)
 
 GOLDEN = json.loads((Path(__file__).parent / "data" / "roster_golden.json").read_text())
 
@@ -100,14 +107,15 @@ def _with_damped_learning(plan: dict) -> dict:
     return json.loads(text)
 
 
-def _with_motion_from_poses(plan: dict) -> dict:
+def _with_motion(plan: dict, motion: str) -> dict:
     """The golden ``plan`` since the safety settings say where a robot takes the other
-    robots' speeds from (issue 52: ``motion``, 'poses' in every launch): the leader's
-    ``safety`` parameter carries it after ``sensing``; nothing else of the plan changed."""
+    robots' speeds from (issue 52: ``motion``, by default 'commands' up to 12 robots): the
+    leader's ``safety`` parameter carries it after ``sensing``; nothing else of the plan
+    changed."""
     text = json.dumps(plan)
     for sensing in ("team", "peers"):
         text = text.replace(f'\\"sensing\\": \\"{sensing}\\"}}',
-                            f'\\"sensing\\": \\"{sensing}\\", \\"motion\\": \\"poses\\"}}')
+                            f'\\"sensing\\": \\"{sensing}\\", \\"motion\\": \\"{motion}\\"}}')
     return json.loads(text)
 
 
@@ -246,6 +254,22 @@ def test_every_enclave_keeps_its_grant(key):
             assert not wpub and not wsub, name
         g["publish"] = [t for t in g["publish"] if t not in wpub]
         g["subscribe"] = [t for t in g["subscribe"] if t not in wsub]
+    # the commands the robots tell each other for their filters (issue 52): each robot
+    # publishes its own robot_i/applied and reads every other robot's, where the robots
+    # have a filter to hear the others with; nobody else
+    for path, g in got.items():
+        name = path.rsplit("/", 1)[1]
+        apub = {t for t in g["publish"] if t.endswith("/applied")}
+        asub = {t for t in g["subscribe"] if t.endswith("/applied")}
+        if name.startswith("robot_") and name[6:].isdigit() and lineup.sensing is not None:
+            i = int(name[6:])
+            assert apub == {absolute(applied_topic(i), namespace)}, name
+            assert asub == {absolute(applied_topic(j), namespace)
+                            for j in range(1, n + 1) if j != i}, name
+        else:
+            assert not apub and not asub, name
+        g["publish"] = [t for t in g["publish"] if t not in apub]
+        g["subscribe"] = [t for t in g["subscribe"] if t not in asub]
     assert got == _golden("grants")[key]
     team = absolute(TEAM_POSES, namespace)
     robots = {f"robot_{i}" for i in range(1, n + 1)}
@@ -337,9 +361,9 @@ def test_a_launch_plans_the_processes_it_planned(tmp_path, key):
                    "host": s.host, "env": s.env,
                    "restart": [s.restart.max_restarts, s.restart.refused]}
                   for s in plan.nodes]})
-    want = _with_motion_from_poses(_with_bases_following_trials(_with_new_example(
+    want = _with_motion(_with_bases_following_trials(_with_new_example(
         _with_one_limits_table(_with_damped_learning(_with_bases_truth(
-            _golden("plans")[key]))))))
+            _golden("plans")[key]))))), default_motion(plan.scenario.n))
     assert got == want
     # the roster names the same processes, each started by its entry script
     sc = plan.scenario

@@ -341,3 +341,26 @@ def test_texts_and_reports_read_from_bytes_as_the_message_converters_read_them()
         w.read_diagnostics(huge)
     with pytest.raises(ms.MalformedMessage):
         w.read_string(data[:6])
+
+
+def test_a_told_command_is_a_twist_stamped_both_ways():
+    """``robot_i/applied``: the command a robot applied over a sample, stamped with the
+    sample's label; our bytes decode as rclpy's TwistStamped and rclpy's as ours."""
+    from geometry_msgs.msg import TwistStamped
+
+    for eta, ns in _poses(100):
+        u = (eta[0] / 60.0, eta[2] / 30.0)
+        for frame in ("robot_3/base_link", "r", ""):
+            ours = w.applied_bytes(u, ns, frame)
+            msg = TwistStamped()
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 10**9)
+            msg.header.frame_id = frame
+            msg.twist.linear.x, msg.twist.angular.z = u
+            assert _same(ours, msg)
+            assert w.read_applied(serialize_message(msg)) == (ns, u[0], u[1])
+    bad = TwistStamped()
+    bad.twist.linear.y = 0.1  # not a planar command
+    with pytest.raises(ms.MalformedMessage):
+        w.read_applied(serialize_message(bad))
+    with pytest.raises(ms.MalformedMessage):
+        w.read_applied(w.applied_bytes((0.1, 0.0), 5, "robot_1/base_link")[:30])  # cut short

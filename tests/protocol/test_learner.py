@@ -7,6 +7,9 @@ modes; refused inputs carry the reason they are counted under.
 
 from __future__ import annotations
 
+import math
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -105,6 +108,9 @@ def run_team(pb: Problem, clock: SampleClock, memory, draws, direct: bool,
                     if j != r:
                         assert not lrn.can_command()  # lockstep: it waits for them
                         lrn.on_team_pose(j, clock.stamp_ns(k, t), eta[j, t])
+                        if pb.safety.commands and t > 0:  # and what each applied before
+                            assert not lrn.can_command()
+                            lrn.on_told(j, clock.stamp_ns(k, t - 1), *u_ref[j, t - 1])
             for ell, j in enumerate(pb.src[r]):
                 if j < 0:
                     continue
@@ -168,11 +174,13 @@ def test_a_team_of_learners_equals_the_batch_trial(scenario, law, direct, in_ste
                 assert sum(hist.values()) == int((np.arange(pb.samples) - d >= 0).sum())
 
 
+@pytest.mark.parametrize("commands", [False, True], ids=["poses", "told"])
 @pytest.mark.parametrize("direct", [False, True], ids=["emulated", "direct"])
-def test_a_team_of_learners_with_a_safety_filter_equals_the_batch_trials(direct):
+def test_a_team_of_learners_with_a_safety_filter_equals_the_batch_trials(direct, commands):
     """Cold start on P3-DX-size bodies, where the filter acts: each robot filters with the
-    team's poses of its sample and learns through the filter, exactly as the batch
-    simulator does, trial after trial."""
+    team's poses of its sample (and, told, every other robot's command of the sample
+    before) and learns through the filter, exactly as the batch simulator does, trial
+    after trial."""
     from dataclasses import replace
 
     from formation_ilc.model.footprint import footprint_of
@@ -182,7 +190,8 @@ def test_a_team_of_learners_with_a_safety_filter_equals_the_batch_trials(direct)
     sc = load_scenario("paper-triangle3").with_options(delay=not direct)
     m = MODELS["p3dx"]
     pb = Problem.from_scenario(sc.for_plant("arc"), "arc",
-                               spec_for(footprint_of("p3dx"), m.limits, sc.dt))
+                               spec_for(footprint_of("p3dx"), m.limits, sc.dt,
+                                        commands=commands))
     clock = SampleClock.for_run(sc.dt, sc.samples)
     mem = np.zeros((pb.n, pb.samples, 2))
     acted = 0
@@ -223,6 +232,40 @@ def test_team_poses_are_refused_with_a_reason():
     plain = RobotLearner(pb, 1, clock)  # no filter: nothing to hear
     with pytest.raises(Rejected) as exc:
         plain.on_team_pose(0, clock.stamp_ns(0, 0), pb.eta_d[0, 0])
+    assert exc.value.reason == "unexpected"
+
+
+def test_told_commands_are_refused_with_a_reason():
+    """What another robot tells it applied is checked before the filter uses it: its
+    label, its limits, the robot itself, a filter that takes no told commands."""
+    from formation_ilc.model.footprint import footprint_of
+    from formation_ilc.model.physics import MODELS
+    from formation_ilc.model.safety import spec_for
+
+    sc = load_scenario("paper-triangle3")
+    sp = spec_for(footprint_of("p3dx"), MODELS["p3dx"].limits, sc.dt, commands=True)
+    pb = Problem.from_scenario(sc, safety=sp)
+    clock = SampleClock.for_run(sc.dt, sc.samples)
+    lrn = RobotLearner(pb, 1, clock, safety=sp)
+    lrn.on_pose(clock.stamp_ns(0, 0), pb.eta_d[1, 0])
+    lrn.on_told(0, clock.stamp_ns(0, 0), 0.2, -0.1)
+    v_max = sp.limits.v_max
+    cases = [((0, clock.stamp_ns(0, 0), 0.2, 0.0), "duplicate"),
+             ((1, clock.stamp_ns(0, 1), 0.2, 0.0), "unexpected"),   # itself
+             ((7, clock.stamp_ns(0, 1), 0.2, 0.0), "unexpected"),
+             ((2, clock.stamp_ns(0, sc.samples), 0.2, 0.0), "unexpected"),  # no such command
+             ((2, clock.stamp_ns(3, 0), 0.2, 0.0), "future"),
+             ((2, clock.stamp_ns(0, 1), 2.0 * v_max, 0.0), "malformed"),
+             ((2, clock.stamp_ns(0, 1), math.nan, 0.0), "malformed"),
+             ((2, -5, 0.2, 0.0), "malformed")]
+    for (j, label, v, w), reason in cases:
+        with pytest.raises(Rejected) as exc:
+            lrn.on_told(j, label, v, w)
+        assert exc.value.reason == reason, (j, label, v)
+    assert lrn.told_have[0, 0] and not lrn.told_have[2].any()
+    poses = RobotLearner(pb, 1, clock, safety=replace(sp, commands=False))
+    with pytest.raises(Rejected) as exc:  # a filter that estimates speeds from poses
+        poses.on_told(0, clock.stamp_ns(0, 0), 0.2, 0.0)
     assert exc.value.reason == "unexpected"
 
 

@@ -95,7 +95,7 @@ def test_a_cold_start_on_bodies_learns_through_the_safety_filter(ros_env, tmp_pa
     """paper-triangle3 from u = 0 on P3-DX-size bodies, the filter on (the default with
     bodies): no contact, the filter acts in the transient, and the stack's errors and
     filter counts are the one-process physics study's through the same filter."""
-    from formation_ilc.config.safety import SafetySettings
+    from formation_ilc.config.safety import SafetySettings, default_motion
     from formation_ilc.model.safety import spec_of
 
     rec = tmp_path / "run.mcap"
@@ -123,7 +123,9 @@ def test_a_cold_start_on_bodies_learns_through_the_safety_filter(ros_env, tmp_pa
     assert filtered[0] == 0 and filtered[1:].sum() > 0
     assert "true," in res.stdout and "filtered" in res.stdout  # truth beside measured
     sc = load_scenario("paper-triangle3").with_options(noise=False, delay=False)
-    spec = spec_of(SafetySettings("p3dx", MODELS["p3dx"].limits), sc.dt)
+    # the launch's filter: speeds told (``default_motion``), on robot_i/applied
+    spec = spec_of(SafetySettings("p3dx", MODELS["p3dx"].limits, motion=default_motion(3)),
+                   sc.dt)
     study = run_physics(sc, MODELS["p3dx"], 3, safety=spec)
     assert np.abs(got[:, 1:7] - study.metrics[:, 1:7]).max() < 0.02
     assert abs(filtered.sum() - sum(study.filtered)) <= 0.3 * sum(study.filtered)

@@ -357,6 +357,34 @@ def test_lockstep_direct_links_equal_batch_without_delay(ros_env, tmp_path, scen
     assert_no_unexplained_drops(json.loads((tmp_path / "diagnostics.json").read_text()))
 
 
+def test_told_commands_cross_the_graph_and_the_filter_uses_them(ros_env, tmp_path):
+    """With the paper's noise, each robot tells the others the command it applied
+    (``robot_i/applied``, the default up to 12 robots) and their filters take the others'
+    speeds from it, waiting in lockstep for every one: the run through the filter is the
+    batch simulator's with told speeds, to round-off, and not the one with speeds
+    estimated from poses (the filter acts on both, differently)."""
+    from formation_ilc.model.safety import body_spec
+
+    trials = 4
+    res = launch(ros_env, tmp_path, "paper-triangle3", "--trials", str(trials), "--seed", "5",
+                 "--safety")
+    assert res.returncode == 0, res.stdout
+    got = read_metrics(tmp_path / "metrics.csv")
+    sc = load_scenario("paper-triangle3").with_options(seed=5)
+    told = simulate(sc, trials=trials,
+                    safety=body_spec("p3dx", sc.dt, sc.uncertainty, "commands")).metrics
+    guessed = simulate(sc, trials=trials,
+                       safety=body_spec("p3dx", sc.dt, sc.uncertainty, "poses")).metrics
+    np.testing.assert_allclose(got[:, 1:], told[:, 1:], rtol=0, atol=TOL)
+    assert told[:, 7].sum() > 0 and np.abs(told[:, 1:8] - guessed[:, 1:8]).max() > 1e-3
+    diag = json.loads((tmp_path / "diagnostics.json").read_text())
+    for i in range(1, sc.n + 1):
+        assert diag[f"robot_{i}"]["filter_total"]["untold"] == 0, diag[f"robot_{i}"]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["safety"]["motion"] == "commands"
+    assert_no_unexplained_drops(diag)
+
+
 def test_two_formations_share_a_domain_under_two_namespaces(ros_env, tmp_path):
     """Two launches on one ROS_DOMAIN_ID at the same time, in /team_a (emulated links) and
     /team_b (direct links): each equals its own batch run, so nothing crossed over."""
