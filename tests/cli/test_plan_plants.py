@@ -98,6 +98,8 @@ def test_the_safety_filter_is_on_with_bodies_and_lets_the_cold_start_run(tmp_pat
     assert RunConfig.from_params(leader).safety == sf
     # off on the kinematic simulator unless asked for
     assert plan_of(tmp_path / "s", "paper-triangle3").config.safety is None
+    # the physics plant's poses are its own (motion capture's stand-in): no word on them
+    assert not [x for x in plan.notes if "odometry" in x]
     # a skid-steer body keeps a wider margin by default: the paper's spacing has no room
     with pytest.raises(NoRun, match="jackal bodies \\+ 0.25 m margin"):
         plan_of(tmp_path / "t", "paper-triangle3", "--safety", "--body", "jackal")
@@ -112,6 +114,21 @@ def test_the_safety_filter_is_on_with_bodies_and_lets_the_cold_start_run(tmp_pat
     told = plan_of(tmp_path / "u", "paper-triangle3", "--safety", "--safety-learning",
                    "freeze")
     assert told.config.safety is not None and told.config.safety.learning == "freeze"
+
+
+def test_behind_bridges_the_plan_says_which_poses_the_filter_trusts(tmp_path):
+    """A rehearsal behind bridges puts the filter on the drivers' wheel odometry, which
+    drifts: said in one line before the run, not found out by a contact."""
+    plan = plan_of(tmp_path, "paper-triangle3", "--plant", "pioneer", "--fake-drivers",
+                   "--trials", "2")
+    assert plan.config.safety is not None and plan.config.safety.sensing == "peers"
+    (note,) = [x for x in plan.notes if "odometry" in x]
+    assert note.startswith("note: the safety filter keeps the robots apart where their "
+                           "bridges say they are: each driver's wheel odometry")
+    assert "\n" not in note
+    bare = plan_of(tmp_path / "n", "paper-triangle3", "--plant", "pioneer", "--fake-drivers",
+                   "--trials", "2", "--no-safety")
+    assert not [x for x in bare.notes if "odometry" in x]
 
 
 @pytest.mark.parametrize(("args", "says"), [
