@@ -90,6 +90,36 @@ def test_host_per_robot_puts_each_robot_on_its_host_and_the_rest_on_ground(tmp_p
     assert hosts["r1"] == ["fake_pioneer_1", "bridge_1", "robot_1"]
 
 
+def test_a_run_file_for_the_robots_is_rehearsed_with_its_stand_ins_beside_them(tmp_path):
+    # written for the robots (no fake drivers), rehearsed on one machine with them: each
+    # fake driver goes on its robot's host by itself (it was "fake_pioneer_1, ... on no
+    # host"), and a launch of one host starts its robot's fake driver with it
+    path = write_run_file(tmp_path, "paper-triangle3", "--plant", "pioneer", "--allow-contact",
+                          "--host-per-robot")
+    assert "fake_pioneer" not in yaml.safe_load(path.read_text())["hosts"]["r1"]
+    plan = plan_of(options(str(path), "--fake-drivers", "--out", str(tmp_path / "run")))
+    assert plan.host is None and plan.ground
+    assert dict(plan.host_members)["r2"] == ("bridge_2", "robot_2", "fake_pioneer_2")
+    assert {s.name for s in plan.nodes} >= {"fake_pioneer_1", "fake_pioneer_2",
+                                            "fake_pioneer_3", "bridge_1", "robot_1"}
+    r2 = plan_of(options(str(path), "--fake-drivers", "--host", "r2", "--out",
+                         str(tmp_path / "run2")))
+    assert sorted(s.name for s in r2.nodes) == ["bridge_2", "fake_pioneer_2", "robot_2"]
+    # a rehearsal's file (fake drivers on the robots' hosts) runs the real drivers too
+    path = write_run_file(tmp_path, "paper-triangle3", "--plant", "pioneer", "--fake-drivers",
+                          "--allow-contact", "--host-per-robot", name="f.yaml")
+    d = yaml.safe_load(path.read_text())
+    d["plant"]["fake_drivers"] = False
+    path.write_text(yaml.safe_dump(d))
+    real = plan_of(options(str(path), "--out", str(tmp_path / "run3")))
+    assert dict(real.host_members)["r1"] == ("bridge_1", "robot_1")
+    # the physics bases go beside the leader
+    path = write_run_file(tmp_path, "paper-triangle3", "--plant", "base", "--time-scale",
+                          "1.85", "--allow-contact", "--host-per-robot", name="b.yaml")
+    bases = plan_of(options(str(path), "--physics-bases", "--out", str(tmp_path / "run4")))
+    assert "physics_bases" in dict(bases.host_members)["ground"]
+
+
 @pytest.mark.parametrize("edit, line", [
     (lambda d: d["safety"].update(margn=0.2),
      "safety.margn: unknown key (did you mean 'margin'?)"),
