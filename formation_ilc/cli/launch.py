@@ -12,7 +12,7 @@ then exits non-zero naming it.
 
 Run files: `formation-ilc run-file SCENARIO [options] -o run.yaml` writes every option of
 a run to one commented YAML file, `formation-ilc launch run.yaml` runs it (an option given
-beside it overrides its key), and DIR/run.yaml keeps what ran, every default filled in.
+beside it overrides its key), and DIR/run.yaml keeps what ran, every key with its value.
 
 Faults: a node process that dies during the run is started again with the same
 parameters (at most --max-restarts times each); the robots and the leader keep their state
@@ -169,7 +169,7 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
                   f"folder: {exc.strerror or exc}", file=sys.stderr)
             return 2
     if plan.run_json is not None:
-        _save_run(plan.out, plan.run_json)
+        _save_run(plan.out, plan.run_json, plan)
     _save_config(plan)
     plan.write_peers_profile()  # before the secure one, which builds on it
     if plan.secure is not None:
@@ -334,13 +334,12 @@ def _learned_before(rec: Any, missing: list[int], trials: int, resumed_at: int,
               f"recording's {len(recorded)} others equal metrics.csv to the last bit")
 
 
-def _save_run(out: Path, options: Any) -> None:
-    """DIR/run.yaml, the resolved run file (every default filled in, the run's id), and
-    DIR/run.json, the same for the tools that read it: paths into the run's folder relative
-    to it (a copied folder resumes into itself), a scenario file by its absolute path
-    (resumable from any folder)."""
-    from formation_ilc.cli.runfile import RUN_YAML, run_file_text
-    from formation_ilc.plan.options import LaunchOptions
+def _save_run(out: Path, options: Any, plan: RunPlan) -> None:
+    """DIR/run.yaml, the resolved run file (every key with the value the run went with,
+    the run's id; ``cli.runfile.stored_run_text``), and DIR/run.json, the same for the tools
+    that read it: paths into the run's folder relative to it (a copied folder resumes into
+    itself), others relative to it in run.yaml and absolute in run.json."""
+    from formation_ilc.cli.runfile import RUN_YAML, stored_run_text
     from formation_ilc.store.atomic import atomic_write_text
     from formation_ilc.store.runfile import save_run
 
@@ -348,12 +347,11 @@ def _save_run(out: Path, options: Any) -> None:
     if isinstance(d.get("scenario"), str) and Path(d["scenario"]).is_file():
         d["scenario"] = str(Path(d["scenario"]).resolve())
     save_run(out, d)
-    opts = LaunchOptions().with_fields({k: v for k, v in d.items() if k != "out"})
-    atomic_write_text(out / RUN_YAML, run_file_text(
-        opts, stored=out.resolve(),
-        title="what this run ran, every default filled in: formation-ilc launch --resume "
-              "THIS_FOLDER\ngoes on with it; formation-ilc launch run.yaml runs it again "
-              "as a new run"))
+    atomic_write_text(out / RUN_YAML, stored_run_text(
+        plan, d,
+        title="what this run ran, every key with the value it went with: formation-ilc "
+              "launch --resume\nTHIS_FOLDER goes on with it; formation-ilc launch run.yaml "
+              "--out NEW runs it again as a new run"))
 
 
 def _save_config(plan: RunPlan) -> None:

@@ -37,7 +37,7 @@ from formation_ilc.core.names import (
     robot_name,
 )
 from formation_ilc.plan.checks import _check_memory, _check_plant, _safety
-from formation_ilc.plan.options import LaunchOptions, OptionError, unused_option
+from formation_ilc.plan.options import PATH_FIELDS, LaunchOptions, OptionError, unused_option
 from formation_ilc.plan.processes import node_specs
 from formation_ilc.plan.specs import (
     BridgeOptions,
@@ -510,6 +510,11 @@ def _run_json(opts: LaunchOptions, mode: str, links: str, out: Path,
     clocks' origin, so that a resumed run's robots keep their clocks)."""
     d = {k: v for k, v in opts.stored().items() if k != "resume"}
     d.update(mode=mode, links=links, out=str(out))
+    for k in PATH_FIELDS:  # absolute: a path given relative to the caller's folder is
+        v = d.get(k)       # not one relative to the run's (where run.yaml reads it from)
+        if isinstance(v, str) and k not in ("out", "resume"):
+            p = _in_run(Path(v), out)
+            d[k] = str(p) if p is not None else v
     if clocks.emulated:
         d["clock_origin_ns"] = clocks.origin_ns
     return d

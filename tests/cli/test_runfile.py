@@ -154,7 +154,7 @@ def test_a_bad_run_file_is_refused_in_one_line_naming_the_key(tmp_path, capsys, 
 def test_the_resolved_run_file_resumes_and_relaunches_the_run(tmp_path):
     first = plan_of(options("paper-triangle3", "--trials", "4", "--seed", "2", "--out",
                             str(tmp_path / "a"), "--record", str(tmp_path / "a" / "r.mcap")))
-    _save_run(first.out, first.run_json)
+    _save_run(first.out, first.run_json, first)
     stored = first.out / RUN_YAML
     text = stored.read_text()
     assert "record: '@run/r.mcap'" in text and f"id: {first.config.run_id}" in text
@@ -170,6 +170,74 @@ def test_the_resolved_run_file_resumes_and_relaunches_the_run(tmp_path):
     stored.unlink()
     legacy = plan_of(options("--resume", str(first.out)))
     assert legacy.config.to_json() == first.config.to_json()
+
+
+@pytest.mark.parametrize("argv", [
+    ("paper-triangle3", "--trials", "3"),
+    ("paper-triangle3", "--plant", "pioneer", "--fake-drivers", "--allow-contact"),
+    ("paper-triangle3", "--plant", "base", "--base", "turtlebot3", "--time-scale", "2.3",
+     "--physics-bases", "--allow-contact", "--alpha-max", "150"),
+    ("paper-triangle3", "--plant", "physics", "--allow-contact", "--safety-margin", "0.05"),
+    ("paper-triangle3", "--safety", "--time-scale", "1.25", "--mode", "realtime"),
+])
+def test_a_stored_run_file_holds_every_key_with_its_value_and_plans_the_same_run(
+        tmp_path, argv):
+    first = plan_of(options(*argv, "--out", str(tmp_path / "a")))
+    _save_run(first.out, first.run_json, first)
+    text = (first.out / RUN_YAML).read_text()
+    d = yaml.safe_load(text)
+
+    def leaves(x, path=""):
+        if isinstance(x, dict):
+            for k, v in x.items():
+                yield from leaves(v, f"{path}.{k}" if path else str(k))
+        else:
+            yield path, x
+
+    values = dict(leaves({k: v for k, v in d.items() if k != "hosts"}))
+    assert [k for k, v in values.items() if v is None] == [], text
+    # no 0 standing for "the preset's" or "the scenario's"
+    assert [k for k, v in values.items() if type(v) in (int, float) and v == 0
+            and k.startswith(("plant.", "run."))] == []
+    assert values["run.seed"] == first.config.scenario.seed and values["out"] == "."
+    assert values["network.domain_id"] == first.domain
+    assert values["network.namespace"] == first.namespace
+    # launched again elsewhere: the same run
+    again = plan_of(options(str(first.out / RUN_YAML), "--out", str(tmp_path / "b")))
+    same_run(first, again)
+    assert again.config.safety == first.config.safety
+
+
+def test_a_stored_run_files_paths_are_its_own_wherever_it_was_launched_from(
+        tmp_path, monkeypatch):
+    # given relative to the caller's folder, they were written so, and read relative to the
+    # stored file: a launch of OUT/run.yaml recorded into OUT/runs/a/...
+    (tmp_path / "work").mkdir()
+    monkeypatch.chdir(tmp_path / "work")
+    memory = tmp_path / "work" / "sim" / "memory.npz"
+    from formation_ilc.cli.commands import main as cli
+
+    assert cli(["simulate", "paper-triangle3", "--trials", "1", "--no-plots", "--out",
+                "sim"]) == 0
+    assert memory.is_file()
+    first = plan_of(options("paper-triangle3", "--trials", "2", "--out", "runs/a",
+                            "--record", "runs/a/run.mcap", "--init-memory", "sim/memory.npz"))
+    _save_run(first.out, first.run_json, first)
+    d = yaml.safe_load((first.out / RUN_YAML).read_text())
+    assert d["recording"]["record"] == "@run/run.mcap"
+    assert d["run"]["init_memory"] == "../../sim/memory.npz"  # relative to the file
+    monkeypatch.chdir(tmp_path)
+    before = sorted(p.relative_to(first.out) for p in first.out.rglob("*"))
+    again = plan_of(options(str(first.out / RUN_YAML), "--out", "new"))
+    assert again.out == (tmp_path / "new").resolve()
+    assert again.record == (tmp_path / "new" / "run.mcap").resolve()
+    assert again.init_memory is not None and again.init_memory.resolve() == memory.resolve()
+    assert sorted(p.relative_to(first.out) for p in first.out.rglob("*")) == before
+    resumed = plan_of(options("--resume", str(first.out)))
+    assert resumed.record == first.record and resumed.init_memory.resolve() == memory
+    # launched again without --out: its folder is the run's, which is taken
+    with pytest.raises(NoRun, match="holds another run"):
+        plan_of(options(str(first.out / RUN_YAML)))
 
 
 def test_the_options_value_is_frozen_and_typed():
