@@ -75,9 +75,10 @@ def run_member_host(plan: RunPlan, poll: float = 0.2) -> int:
     signal.signal(signal.SIGINT, on_term)
     while True:
         ground = _wait_ground(plan, stop, poll)
-        if ground is None:
-            return 130
-        status = _run_members(plan, ground, stop, poll)
+        status = 130 if ground is None else _run_members(plan, ground, stop, poll)
+        if status == 130:
+            print(f"host {plan.host}: interrupted: its members stopped; to rejoin the run: "
+                  f"{host_command(plan.host or '')}", file=sys.stderr, flush=True)
         if status is not None:
             return status
 
@@ -181,6 +182,23 @@ class HostWatch:
                 lines.append(f"host {h}: back after {away:.1f} s")
         return lines
 
+    def cause(self, found: Collection[str], now: float) -> str | None:
+        """What a stuck run waits for, cause first and what to do: the hosts never heard
+        from, or gone, with the command that starts each; None when every host is here."""
+        found = set(found)
+        never = [h for h, ms in self.remote.items() if h not in self.heard and not ms & found]
+        gone = [h for h in self.remote if h in self.gone]
+        parts = []
+        for h in never:
+            parts.append(f"host {h} ({', '.join(sorted(self.remote[h]))}) never joined: "
+                         f"start `{host_command(h)}` on it (on the run's ROS domain "
+                         f"{self.plan.domain}, its discovery reaching this machine)")
+        for h in gone:
+            parts.append(f"host {h} ({', '.join(sorted(self.remote[h]))}) left "
+                         f"{now - self.gone[h]:.0f} s ago: start `{host_command(h)}` on it "
+                         f"again (its robot goes on from its state)")
+        return "; ".join(parts) or None
+
     def save(self, summary: Path) -> None:
         """Add a row per host to the run's summary.json (``hosts``)."""
         try:
@@ -204,6 +222,24 @@ class HostWatch:
                            f"left {r['left']} time(s), away {r['away_s']:.1f} s"
                            if r["left"] else "present throughout"))
         return rows
+
+
+def host_command(host: str, argv: list[str] | None = None) -> str:
+    """The command that starts host ``host``'s launcher: this launcher's own (``argv``,
+    default ``sys.argv``) with ``--host`` naming ``host``."""
+    import shlex
+
+    args = list(sys.argv[1:] if argv is None else argv)
+    for i, a in enumerate(args):
+        if a == "--host" and i + 1 < len(args):
+            args[i + 1] = host
+            break
+        if a.startswith("--host="):
+            args[i] = f"--host={host}"
+            break
+    else:
+        args = [*args, "--host", host]
+    return shlex.join(["formation-ilc", *args])
 
 
 def print_hosts(watch: HostWatch) -> None:

@@ -467,6 +467,9 @@ class Watch:
         self.since = time.monotonic()
         self.leader = False
         self.done_at: float | None = None
+        #: what a finding of the leader's comes from, said before it (a host that is not
+        #: there: ``cli.hostlaunch.HostWatch.cause``), or None
+        self.cause: Callable[[], str | None] | None = None
 
     def tick(self, monitor: Any, now: float) -> str | None:
         """Print a new finding of the leader's; why the run is given up, or None."""
@@ -477,6 +480,9 @@ class Watch:
         if count > self.seen:
             self.seen = count
             text = "".join(c if c.isprintable() else "?" for c in str(report.get("what")))
+            first = self.cause() if self.cause is not None else None
+            if first:
+                print(f"error: {first}", flush=True)
             print(f"{LEADER_NODE}: {text[:1000]}", flush=True)
         if not self.leader and monitor.leader_present():
             self.leader, self.since = True, now  # its own watchdog runs from here
@@ -666,8 +672,8 @@ class _Session:
                   f"stopping; the finished trials are in metrics.csv", file=sys.stderr)
             status = 1
         except KeyboardInterrupt:
-            print("\ninterrupted: stopping every node; finished trials are in metrics.csv",
-                  file=sys.stderr)
+            print(f"\ninterrupted: stopping every node; finished trials are in metrics.csv; "
+                  f"to go on: {resume_hint(self.plan.out)}", file=sys.stderr)
             status = 130
         except OSError as exc:
             if not is_disk_full(exc):
@@ -717,12 +723,14 @@ class _Session:
 
             write_ground(plan)
         progress = self.progress = StartupProgress(plan.team.expected, self.t_start)
-        graph_at, found = 0.0, set()
+        graph_at, found = 0.0, set[str]()
         final_deadline: float | None = None
         bounds = Bounds.for_run(plan.scenario.dt, len(plan.team.expected), plan.config.mode,
                                 plan.config.timeout, plan.watchdog_scale,
                                 secure=plan.secure is not None)
         watch = Watch(bounds, plan.out, len(plan.team.expected), plan.scenario.trials)
+        if hosts is not None:  # a stuck run's first line: the host that is not there
+            watch.cause = lambda: hosts.cause(found, time.monotonic())
         while True:
             self.spinning = True
             try:
@@ -755,6 +763,9 @@ class _Session:
                 raise Diverged(self.diverged)
             stuck = watch.tick(monitor, time.monotonic())
             if stuck is not None:
+                first = watch.cause() if watch.cause is not None else None
+                if first:
+                    print(f"error: {first}", file=sys.stderr)
                 print(f"error: {stuck}", file=sys.stderr)
                 return STUCK
             if len(monitor.rows) == plan.scenario.trials - self.done:
