@@ -19,7 +19,7 @@ import os
 import signal
 import sys
 import time
-from collections.abc import Collection
+from collections.abc import Collection, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -154,15 +154,25 @@ class HostWatch:
         self.remote = {h: set(ms) for h, ms in plan.host_members if h != plan.host}
         self.heard: set[str] = set()
         self.gone: dict[str, float] = {}
+        #: the launcher each host's members last said ready from (``boot_launcher``)
+        self.launcher: dict[str, str] = {}
+        #: hosts whose departure the graph showed, their new launcher not yet heard
+        self.returning: set[str] = set()
         self.rows: dict[str, dict[str, Any]] = {
-            h: {"members": sorted(ms), "left": 0, "away_s": 0.0} for h, ms in self.remote.items()}
+            h: {"members": sorted(ms), "left": 0, "away_s": 0.0, "quick_returns": 0}
+            for h, ms in self.remote.items()}
 
     def silent(self, found: Collection[str]) -> list[str]:
         """The hosts none of whose members is in the graph yet (start-up)."""
         return [h for h, ms in self.remote.items() if not ms & set(found)]
 
-    def update(self, now: float, found: Collection[str]) -> list[str]:
-        """Lines to print: a host whose members all left the graph, or came back."""
+    def update(self, now: float, found: Collection[str],
+               readies: Mapping[str, Any] | None = None) -> list[str]:
+        """Lines to print: a host whose members all left the graph, or came back; a host
+        whose members say ready from a new launcher (``readies``: the last ready of each
+        node, ``protocol.schedule.Ready``) although the graph never showed them gone: its
+        launcher was started again within the DDS lease (the old members' participants
+        still in the graph), which counts as a departure and a return too."""
         lines = []
         for h, ms in self.remote.items():
             present = ms <= set(found)
@@ -173,6 +183,7 @@ class HostWatch:
             if not (ms & set(found)) and h not in self.gone:
                 self.gone[h] = now
                 self.rows[h]["left"] += 1
+                self.returning.add(h)
                 lines.append(f"host {h}: its members ({', '.join(sorted(ms))}) left the ROS "
                              f"graph: its launcher died or its machine dropped off the "
                              f"network; the trial they were in runs again when they are back")
@@ -180,7 +191,32 @@ class HostWatch:
                 away = now - self.gone.pop(h)
                 self.rows[h]["away_s"] += away
                 lines.append(f"host {h}: back after {away:.1f} s")
+            lines += self._launcher(h, ms, readies or {})
         return lines
+
+    def _launcher(self, h: str, ms: Collection[str], readies: Mapping[str, Any]) -> list[str]:
+        """The launcher host ``h``'s members said ready from last; a line when it is a new
+        one the graph did not show coming (its members' new participants took over the
+        names of the old ones before their lease ran out)."""
+        from formation_ilc.protocol.schedule import boot_launcher
+
+        tags = {t for m in ms if (r := readies.get(m)) is not None and not r.down
+                and (t := boot_launcher(str(r.boot))) is not None}
+        known = self.launcher.get(h)
+        if not tags or known in tags:
+            return []
+        tag = sorted(tags)[0]
+        self.launcher[h] = tag
+        if known is None:
+            return []
+        if h in self.returning:  # the graph showed it go: counted then
+            self.returning.discard(h)
+            return []
+        self.rows[h]["left"] += 1
+        self.rows[h]["quick_returns"] += 1
+        return [f"host {h}: its launcher was started again (its members, "
+                f"{', '.join(sorted(ms))}, said ready from a new one) before the ROS graph "
+                f"saw it go: it left and came back; the trial they were in runs again"]
 
     def cause(self, found: Collection[str], now: float) -> str | None:
         """What a stuck run waits for, cause first and what to do: the hosts never heard
@@ -217,9 +253,14 @@ class HostWatch:
         rows = [f"  {self.plan.host:<10} (this launcher: the ground station) "
                 f"{', '.join(self.plan.members_of(self.plan.host or ''))}"]
         for h, r in self.rows.items():
+            quick = r["quick_returns"]
+            seen = (f", away {r['away_s']:.1f} s" if r["left"] > quick else "")
             rows.append(f"  {h:<10} {', '.join(r['members'])}: "
                         + ("never heard from" if h not in self.heard else
-                           f"left {r['left']} time(s), away {r['away_s']:.1f} s"
+                           f"left {r['left']} time(s){seen}"
+                           + (f" ({quick} of them back before the ROS graph saw it go: "
+                              f"its launcher started again within the DDS lease)"
+                              if quick else "")
                            if r["left"] else "present throughout"))
         return rows
 

@@ -746,7 +746,8 @@ class _Session:
                     graph_at = now
                     found = {name for name, ns in monitor.get_node_names_and_namespaces()
                              if ns == plan.namespace}
-                    for line in hosts.update(now, found) if hosts is not None else ():
+                    for line in (hosts.update(now, found, monitor.readies)
+                                 if hosts is not None else ()):
                         print(line, flush=True)
             if progress.active:
                 ready = set(monitor.readies)

@@ -38,3 +38,45 @@ def test_a_stuck_runs_cause_names_the_missing_host_first_and_what_to_do(tmp_path
     watch.update(10.0, here)  # r2 left
     cause = watch.cause(here, 40.0)
     assert cause is not None and cause.startswith("host r2 (robot_2) left 30 s ago: start `")
+
+
+def ready(node: str, boot: str, down: bool = False):
+    from formation_ilc.protocol.schedule import Ready
+
+    return Ready(node, 3, boot, down=down)
+
+
+def test_a_host_restarted_faster_than_the_graph_sees_it_go_left_once(tmp_path):
+    """r2's launcher SIGKILLed and started again within the DDS lease: robot_2's name never
+    leaves the graph (the old participant's lease still runs), but its ready comes from a
+    new launcher: the host left once (it said "present throughout")."""
+    from formation_ilc.protocol.schedule import boot_id, boot_launcher
+
+    a, b = boot_id("aaaa1111"), boot_id("bbbb2222")
+    assert boot_launcher(a) == "aaaa1111" and boot_launcher(boot_id()) is None
+    watch = HostWatch(ground_plan(tmp_path))
+    every = {"virtual_leader", "monitor", "robot_sim", "link_emulator", "robot_1", "robot_2",
+             "robot_3"}
+    readies = {"robot_1": ready("robot_1", boot_id("11")), "robot_2": ready("robot_2", a),
+               "robot_3": ready("robot_3", boot_id("33"))}
+    assert watch.update(0.0, every, readies) == []
+    # robot_2 restarted by its own launcher (the same one): no departure of the host
+    readies["robot_2"] = ready("robot_2", boot_id("aaaa1111"))
+    assert watch.update(1.0, every, readies) == []
+    # a down said of it, with a pid for a boot: nothing
+    readies["robot_2"] = ready("robot_2", "4242", down=True)
+    assert watch.update(1.5, every, readies) == []
+    readies["robot_2"] = ready("robot_2", b)  # a new launcher
+    lines = watch.update(2.0, every, readies)
+    assert len(lines) == 1 and lines[0].startswith("host r2: its launcher was started again")
+    assert watch.update(3.0, every, readies) == []  # said once
+    rows = watch.report()
+    assert any(r.startswith("  r2 ") and "robot_2: left 1 time(s)" in r for r in rows), rows
+    assert any(r.startswith("  r1 ") and "present throughout" in r for r in rows), rows
+    # a departure the graph shows, then the new launcher's ready: still one more, not two
+    gone = every - {"robot_2"}
+    assert watch.update(4.0, gone, readies)[0].startswith("host r2: its members (robot_2) left")
+    assert watch.update(9.0, every, readies) == ["host r2: back after 5.0 s"]
+    readies["robot_2"] = ready("robot_2", boot_id("cccc3333"))
+    assert watch.update(9.5, every, readies) == []
+    assert watch.rows["r2"]["left"] == 2 and watch.rows["r2"]["quick_returns"] == 1

@@ -70,8 +70,11 @@ def test_four_host_launchers_run_the_team_and_a_killed_host_rejoins(ros_env, tmp
             stop_group(p)
     ground = (tmp_path / "ground.log").read_text()
     assert "not heard from host" in ground  # start-up names the hosts it waits for
-    assert "host r2: its members (robot_2) left the ROS graph" in ground
-    assert "host r2: back after" in ground
+    # the graph shows r2 gone and back, or (restarted within the DDS lease: the old
+    # participant still in the graph) its robot says ready from a new launcher
+    assert ("host r2: its members (robot_2) left the ROS graph" in ground
+            and "host r2: back after" in ground) or (
+        "host r2: its launcher was started again" in ground), ground
     rows = ground[ground.index("\nhosts:\n"):]
     assert "r1         robot_1: present throughout" in rows
     assert "r2         robot_2: left 1 time(s)" in rows
