@@ -2,12 +2,14 @@
 
 A run file's ``hosts:`` puts the run's members on machines. The launcher of the host with
 the leader (the ground station) runs the pre-run checks for the whole team, its own
-members, the monitor and the report; it writes ``OUT/hosts/ground.json`` (the run's
-identity, ROS domain and run key, readable by its owner only) once no other formation
-runs on its domain, and the final status there when the run ends. The launcher of every
-other host waits for that file, then starts and supervises only its members (restarts,
-logs and their state in ``OUT/hosts/NAME``), and stops them when the ground station's run
-has ended. A host launcher that dies takes its members with it: the ground station names
+members, the monitor and the report; once no other formation runs on its domain it
+publishes the run's description on the ROS graph (``nodes.hostlink``: the run's identity,
+ROS domain and run key; under ``--secure``, whose enclaves grant no such topic yet, it
+writes ``OUT/hosts/ground.json``, readable by its owner only, in a folder the hosts share),
+and the final status there when the run ends. The launcher of every other host waits for
+it, then starts and supervises only its members (restarts, logs and their state in
+``OUT/hosts/NAME`` on its own disk), and stops them when the ground station's run has
+ended. A host launcher that dies takes its members with it: the ground station names
 the host whose members left the ROS graph, the leader re-runs the trial they were in when
 they come back (their state is in the host's folder), and the run goes on.
 """
@@ -46,10 +48,32 @@ def write_ground(plan: RunPlan, status: int | str | None = None) -> None:
 
     path = ground_file(plan)
     path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(path, json.dumps({
-        "run_id": plan.config.run_id, "domain": plan.domain, "namespace": plan.namespace,
-        "key": (plan.key or b"").hex(), "pid": os.getpid(), "status": status}) + "\n")
+    atomic_write_text(path, json.dumps(description(plan, status)) + "\n")
     os.chmod(path, 0o600)
+
+
+def over_graph(plan: RunPlan) -> bool:
+    """Whether the hosts of ``plan`` hand the run over the ROS graph (``nodes.hostlink``),
+    or, under ``--secure`` (whose enclaves grant no such topic yet), through
+    ``OUT/hosts/ground.json`` in a folder they share."""
+    return plan.secure is None
+
+
+def description(plan: RunPlan, status: int | str | None = None) -> dict[str, Any]:
+    """The ground station's run as the other hosts take it (its identity, domain, namespace
+    and key; ``status``: None while it goes on, STARTING, or its exit status)."""
+    return {"run_id": plan.config.run_id, "domain": plan.domain, "namespace": plan.namespace,
+            "key": (plan.key or b"").hex(), "pid": os.getpid(), "status": status}
+
+
+def describe(plan: RunPlan, host: Any, status: int | str | None = None) -> None:
+    """Tell the other hosts where the ground station's run is (``status`` as in
+    :func:`description`): on the graph through the launcher's ROS host ``host``
+    (``nodes.host.LauncherHost``), or in the handshake file under ``--secure``."""
+    if not over_graph(plan):
+        write_ground(plan, status)
+    elif host is not None and host.monitor is not None:
+        host.describe(description(plan, status))
 
 
 def _read_ground(path: Path) -> dict[str, Any] | None:
@@ -73,23 +97,65 @@ def run_member_host(plan: RunPlan, poll: float = 0.2) -> int:
 
     signal.signal(signal.SIGTERM, on_term)
     signal.signal(signal.SIGINT, on_term)
-    while True:
-        ground = _wait_ground(plan, stop, poll)
-        status = 130 if ground is None else _run_members(plan, ground, stop, poll)
-        if status == 130:
-            print(f"host {plan.host}: interrupted: its members stopped; to rejoin the run: "
-                  f"{host_command(plan.host or '')}", file=sys.stderr, flush=True)
-        if status is not None:
-            return status
+    source = _Source(plan)
+    try:
+        while True:
+            ground = _wait_ground(plan, source, stop, poll)
+            status = 130 if ground is None else _run_members(plan, ground, source, stop, poll)
+            if status == 130:
+                print(f"host {plan.host}: interrupted: its members stopped; to rejoin the "
+                      f"run: {host_command(plan.host or '')}", file=sys.stderr, flush=True)
+            if status is not None:
+                return status
+    finally:
+        source.close()
 
 
-def _wait_ground(plan: RunPlan, stop: list[int], poll: float) -> dict[str, Any] | None:
-    """The ground station's handshake of a run going on, said each second while it is
-    waited for; None when interrupted."""
-    host, path = plan.host or "", ground_file(plan)
+class _Source:
+    """Where a host's launcher reads the ground station's run: the graph (a node of its
+    own, ``nodes.hostlink.RunListener``, on the run's domain) or, under ``--secure``, the
+    handshake file in the shared folder."""
+
+    def __init__(self, plan: RunPlan):
+        self.listener: Any = None
+        self.path = ground_file(plan)
+        if over_graph(plan):
+            from formation_ilc.cli.supervisor import node_env
+            from formation_ilc.nodes.hostlink import RunListener
+
+            env = node_env(plan)
+            for name in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE",
+                         "FASTRTPS_DEFAULT_PROFILES_FILE"):
+                if name in env:
+                    os.environ[name] = env[name]
+            self.listener = RunListener(plan.host or "", plan.namespace)
+
+    @property
+    def where(self) -> str:
+        if self.listener is not None:
+            return f"on {self.listener.topic}, ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID')}"
+        return str(self.path)
+
+    def read(self, timeout: float) -> dict[str, Any] | None:
+        if self.listener is not None:
+            return self.listener.read(timeout)  # type: ignore[no-any-return]
+        time.sleep(timeout)
+        return _read_ground(self.path)
+
+    def close(self) -> None:
+        if self.listener is not None:
+            self.listener.close()
+            self.listener = None
+
+
+def _wait_ground(plan: RunPlan, source: _Source, stop: list[int], poll: float
+                 ) -> dict[str, Any] | None:
+    """The ground station's run going on, said each second while it is waited for; None
+    when interrupted."""
+    host = plan.host or ""
     t0, said = time.monotonic(), -1.0
     while True:
-        ground = _read_ground(path)
+        ground = source.read(poll)
         if ground is not None and ground.get("status") is None:
             return ground
         if stop:
@@ -97,19 +163,18 @@ def _wait_ground(plan: RunPlan, stop: list[int], poll: float) -> dict[str, Any] 
         now = time.monotonic() - t0
         if now - said >= 1.0:
             said = now
-            print(f"host {host}: waiting for the ground station's run ({path}) "
+            print(f"host {host}: waiting for the ground station's run ({source.where}) "
                   f"[{now:.0f} s]", flush=True)
-        time.sleep(poll)
 
 
-def _run_members(plan: RunPlan, ground: dict[str, Any], stop: list[int],
+def _run_members(plan: RunPlan, ground: dict[str, Any], source: _Source, stop: list[int],
                  poll: float) -> int | None:
     """Run this host's members in the ground station's run ``ground`` until it ends (0),
     a member fails for good (its status), this launcher is interrupted (130), or another
     run replaces it (None)."""
     from formation_ilc.cli.supervisor import Supervisor, node_env
 
-    host, path = plan.host or "", ground_file(plan)
+    host = plan.host or ""
     plan = with_ground(plan, str(ground["run_id"]), int(ground["domain"]),
                        bytes.fromhex(str(ground["key"])))
     if plan.secure is not None:
@@ -124,7 +189,7 @@ def _run_members(plan: RunPlan, ground: dict[str, Any], stop: list[int],
             failure = supervisor.watch()
             if failure is not None:
                 return supervisor.report(failure)
-            current = _read_ground(path)
+            current = source.read(poll)
             if current is None or current.get("run_id") != plan.config.run_id:
                 print(f"host {host}: the ground station's run {plan.config.run_id} is gone: "
                       f"stopping its members", flush=True)
@@ -137,7 +202,6 @@ def _run_members(plan: RunPlan, ground: dict[str, Any], stop: list[int],
                 print(f"host {host}: the ground station's run ended (status "
                       f"{current['status']}): stopping", flush=True)
                 return 0
-            time.sleep(poll)
         return 130
     finally:
         supervisor.stop()

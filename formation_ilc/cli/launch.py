@@ -227,11 +227,12 @@ def _run_started(plan: RunPlan, env: dict[str, str],
         print(live_line(*plan.live), flush=True)
     session = _Session(plan, env, place)
     if session.hosts is not None:
-        from formation_ilc.cli.hostlaunch import STARTING, write_ground
+        from formation_ilc.cli.hostlaunch import STARTING, over_graph, write_ground
 
         # the other hosts stop what they run for an earlier run here before this one
-        # looks for another formation on its domain
-        write_ground(plan, STARTING)
+        # looks for another formation on its domain (over the graph: once it joined it)
+        if not over_graph(plan):
+            write_ground(plan, STARTING)
     # the run's files, the recording with its events' key among them, are the user's
     # alone while it lives (system.private)
     try:
@@ -245,9 +246,10 @@ def _run_started(plan: RunPlan, env: dict[str, str],
         status = check_recording(plan.record_root, plan.scenario.trials, plan.resumed_at,
                                  plan.out / "metrics.csv")
     if session.hosts is not None:  # the other hosts' launchers stop their members
-        from formation_ilc.cli.hostlaunch import print_hosts, write_ground
+        from formation_ilc.cli.hostlaunch import over_graph, print_hosts, write_ground
 
-        write_ground(plan, status)
+        if not over_graph(plan):  # (over the graph: said before the launcher left it)
+            write_ground(plan, status)
         print_hosts(session.hosts)
     status = write_report(plan, session.rows(), session.diagnostics,
                           session.supervisor.restarts, time.monotonic() - session.t_start,
@@ -688,6 +690,12 @@ class _Session:
             self._deactivate()
             self.supervisor.stop()
             self.writer.close()
+            if self.hosts is not None:  # the other hosts' launchers stop their members
+                from formation_ilc.cli.hostlaunch import describe, over_graph
+
+                if over_graph(self.plan) and self.host.monitor is not None:
+                    describe(self.plan, self.host, status)
+                    self.host.described(3.0)
             self.diagnostics = self.host.close()
         return status
 
@@ -708,6 +716,12 @@ class _Session:
 
         plan, host = self.plan, self.host
         monitor = host.monitor
+        hosts = self.hosts
+        if hosts is not None:  # the other hosts stop what they run for an earlier run
+            from formation_ilc.cli.hostlaunch import STARTING, describe, over_graph
+
+            if over_graph(plan):
+                describe(plan, host, STARTING)
         # the processes start (imports are most of their start) while the monitor looks for
         # another formation here; they join the domain only once there is none
         self.supervisor.start(gated=True)
@@ -717,11 +731,8 @@ class _Session:
         self.supervisor.open_gate()
         print(f"none: the processes join; the leader waits for {len(plan.team.expected)} "
               f"nodes [{time.monotonic() - self.t_start:.1f} s]", flush=True)
-        hosts = self.hosts
         if hosts is not None:  # the other hosts' launchers start their members now
-            from formation_ilc.cli.hostlaunch import write_ground
-
-            write_ground(plan)
+            describe(plan, host)
         progress = self.progress = StartupProgress(plan.team.expected, self.t_start)
         graph_at, found = 0.0, set[str]()
         final_deadline: float | None = None

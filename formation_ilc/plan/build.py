@@ -107,6 +107,11 @@ def build_plan(options: LaunchOptions) -> RunPlan:
     record = _in_run(opts.record, out)
     root = opts.record_root or record
     domain = opts.domain_id if opts.domain_id is not None else caller_domain()
+    if domain is None and opts.host is not None:
+        # the hosts find each other on the graph: one domain, known to every machine
+        raise NoRun("network.domain_id: a run over several machines needs its ROS domain "
+                    "on every one: write it in the run file (formation-ilc run-file ... "
+                    "--domain-id N) or set ROS_DOMAIN_ID on each machine")
     if domain is None:
         domain = pick_domain()
     bridge = BridgeOptions.of(opts) if row.per_robot else None

@@ -11,7 +11,8 @@ from formation_ilc.cli.runfile import plan_of
 
 def ground_plan(tmp_path):
     path = tmp_path / "team.yaml"
-    assert main(["run-file", "paper-triangle3", "--host-per-robot", "-o", str(path)]) == 0
+    assert main(["run-file", "paper-triangle3", "--host-per-robot", "--domain-id", "42", "-o",
+                 str(path)]) == 0
     args = build_parser().parse_args(["launch", str(path), "--host", "ground", "--out",
                                       str(tmp_path / "run")])
     return plan_of(args)
@@ -80,3 +81,37 @@ def test_a_host_restarted_faster_than_the_graph_sees_it_go_left_once(tmp_path):
     readies["robot_2"] = ready("robot_2", boot_id("cccc3333"))
     assert watch.update(9.5, every, readies) == []
     assert watch.rows["r2"]["left"] == 2 and watch.rows["r2"]["quick_returns"] == 1
+
+
+def test_a_host_launcher_needs_the_runs_domain_known_to_every_machine(tmp_path, monkeypatch):
+    import pytest
+
+    from formation_ilc.plan.specs import NoRun
+
+    path = tmp_path / "team.yaml"
+    assert main(["run-file", "paper-triangle3", "--host-per-robot", "-o", str(path)]) == 0
+    monkeypatch.delenv("ROS_DOMAIN_ID", raising=False)
+    for host in ("ground", "r2"):
+        args = build_parser().parse_args(["launch", str(path), "--host", host, "--out",
+                                          str(tmp_path / host)])
+        with pytest.raises(NoRun) as info:
+            plan_of(args)
+        assert info.value.message.startswith("network.domain_id: a run over several machines")
+    monkeypatch.setenv("ROS_DOMAIN_ID", "42")
+    args = build_parser().parse_args(["launch", str(path), "--host", "r2", "--out",
+                                      str(tmp_path / "r2")])
+    assert plan_of(args).domain == 42
+    # the rehearsal (no --host) picks a free one, as a launch does
+    args = build_parser().parse_args(["launch", str(path), "--out", str(tmp_path / "all")])
+    monkeypatch.delenv("ROS_DOMAIN_ID")
+    assert plan_of(args).domain is not None
+
+
+def test_the_run_goes_to_the_other_hosts_over_the_graph_but_under_secure(tmp_path):
+    from formation_ilc.cli.hostlaunch import description, over_graph
+
+    plan = ground_plan(tmp_path)
+    assert over_graph(plan)
+    d = description(plan)
+    assert d["run_id"] == plan.config.run_id and d["domain"] == plan.domain
+    assert bytes.fromhex(d["key"]) == plan.key and d["status"] is None

@@ -95,7 +95,7 @@ def test_a_run_file_for_the_robots_is_rehearsed_with_its_stand_ins_beside_them(t
     # fake driver goes on its robot's host by itself (it was "fake_pioneer_1, ... on no
     # host"), and a launch of one host starts its robot's fake driver with it
     path = write_run_file(tmp_path, "paper-triangle3", "--plant", "pioneer", "--allow-contact",
-                          "--host-per-robot")
+                          "--host-per-robot", "--domain-id", "7")
     assert "fake_pioneer" not in yaml.safe_load(path.read_text())["hosts"]["r1"]
     plan = plan_of(options(str(path), "--fake-drivers", "--out", str(tmp_path / "run")))
     assert plan.host is None and plan.ground
@@ -275,7 +275,7 @@ def test_keystore_create_of_a_run_file_writes_one_bundle_per_host(tmp_path):
     pytest.importorskip("cryptography")
     from formation_ilc.store.keystore import verify
 
-    path = write_run_file(tmp_path, "paper-triangle3", "--host-per-robot")
+    path = write_run_file(tmp_path, "paper-triangle3", "--host-per-robot", "--domain-id", "7")
     ks = tmp_path / "keys"
     assert main(["keystore", "create", str(ks), str(path), "--days", "2"]) == 0
     held = {h: sorted(str(p.relative_to(ks / "bundles" / h / "enclaves"))
