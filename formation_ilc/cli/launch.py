@@ -733,7 +733,9 @@ class _Session:
               f"nodes [{time.monotonic() - self.t_start:.1f} s]", flush=True)
         if hosts is not None:  # the other hosts' launchers start their members now
             describe(plan, host)
-        progress = self.progress = StartupProgress(plan.team.expected, self.t_start)
+        # on a terminal a line a second; in a log a line when the counts move, else one in 10 s
+        progress = self.progress = StartupProgress(
+            plan.team.expected, self.t_start, every=1.0 if sys.stdout.isatty() else 10.0)
         graph_at, found = 0.0, set[str]()
         final_deadline: float | None = None
         bounds = Bounds.for_run(plan.scenario.dt, len(plan.team.expected), plan.config.mode,
@@ -790,6 +792,9 @@ class _Session:
                     return 0
             failure = self.supervisor.watch()
             if failure is not None:
+                first = watch.cause() if watch.cause is not None else None
+                if first:  # the cause first: a host that is not there
+                    print(f"error: {first}", file=sys.stderr, flush=True)
                 # a node that ends the run on purpose (a contact) has its last report
                 # acknowledged before it exits: take what is already here, which the exit
                 # overtook, so that summary.json and metrics.csv have it

@@ -126,3 +126,35 @@ def test_four_host_launchers_run_the_team_and_a_killed_host_rejoins(ros_env, tmp
                     trials=TRIALS).metrics
     assert got.shape[0] == TRIALS
     np.testing.assert_allclose(got[:, 1:7], want[:, 1:7], rtol=0, atol=1e-9)
+
+
+def test_a_host_that_never_starts_is_named_first_with_the_command_that_starts_it(
+        ros_env, tmp_path):
+    """r2's launcher never starts: the ground station's first error line names r2 and the
+    command to run there (the leader's long finding named the host last), its start-up lines
+    come when a count moves, not each second, and the run ends stuck (4)."""
+    from formation_ilc.cli.commands import main
+
+    run_file = tmp_path / "run.yaml"
+    out = tmp_path / "run"
+    assert main(["run-file", "paper-triangle3", "--trials", "2", "--no-plots",
+                 "--watchdog-scale", "0.2", "--domain-id", ros_env["ROS_DOMAIN_ID"], "--out",
+                 str(out), "--host-per-robot", "-o", str(run_file)]) == 0
+    procs = {h: launcher(ros_env, run_file, h, tmp_path / f"{h}.log")
+             for h in ("r1", "r3", "ground")}
+    try:
+        assert procs["ground"].wait(timeout=240) == 4, (tmp_path / "ground.log").read_text()
+    finally:
+        for p in procs.values():
+            stop_group(p)
+    ground = (tmp_path / "ground.log").read_text()
+    errors = [line for line in ground.splitlines()
+              if line.startswith("error:") or line.startswith("virtual_leader:")]
+    assert errors and errors[0].startswith(
+        f"error: host r2 (robot_2) never joined: start `formation-ilc launch {run_file} "
+        f"--host r2` on it"), ground
+    assert "r2         robot_2: never heard from" in ground
+    startup = [line for line in ground.splitlines() if line.startswith("start-up [")]
+    seconds = float(startup[-1].split("[", 1)[1].split(" s]", 1)[0])
+    # (a line a second before: one line per second of start-up)
+    assert len(startup) <= seconds / 10 + 12, startup
