@@ -674,8 +674,11 @@ class _Session:
                   f"stopping; the finished trials are in metrics.csv", file=sys.stderr)
             status = 1
         except KeyboardInterrupt:
+            go_on = (f"to go on: {resume_hint(self.plan.out)}" if self.hosts is None else
+                     "a run over several machines does not resume yet (its robots' learned "
+                     "state is on their machines): start a new one with --out NEW")
             print(f"\ninterrupted: stopping every node; finished trials are in metrics.csv; "
-                  f"to go on: {resume_hint(self.plan.out)}", file=sys.stderr)
+                  f"{go_on}", file=sys.stderr)
             status = 130
         except OSError as exc:
             if not is_disk_full(exc):
