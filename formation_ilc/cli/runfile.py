@@ -253,8 +253,30 @@ def launch_options(args: argparse.Namespace) -> LaunchOptions:
     scenario = given.get("scenario")
     if scenario is not None and is_run_file(scenario):
         given.pop("scenario")
-        return LaunchOptions().with_fields(load_run_file(Path(scenario))).with_fields(given)
+        from_file = load_run_file(Path(scenario))
+        opts = LaunchOptions().with_fields(from_file).with_fields(given)
+        _unused_key(Path(scenario), opts, set(from_file) - set(given))
+        return opts
     return LaunchOptions().with_fields(given)
+
+
+def _unused_key(path: Path, opts: LaunchOptions, from_file: set[str]) -> None:
+    """OptionError naming the run file's key (``plant.base``, not ``--base``) of the first
+    option the file sets that the run's plant does not use (the planner refuses the same
+    given on the command line, naming the flag)."""
+    from formation_ilc.config.plants import plant
+    from formation_ilc.plan.options import PLANT_USES
+
+    try:
+        row = plant(opts.plant)
+    except ValueError:
+        return  # an unknown plant: refused in its own words
+    defaults = LaunchOptions()
+    for name, (uses, which) in PLANT_USES.items():
+        if (name in from_file and name in FIELD_KEYS
+                and getattr(opts, name) != getattr(defaults, name) and not uses(row, opts)):
+            raise OptionError(f"{path}: {FIELD_KEYS[name].path}: --plant {row.name} does not "
+                              f"use it (it goes with {which})")
 
 
 def plan_of(args: argparse.Namespace) -> Any:

@@ -131,6 +131,8 @@ def test_a_run_file_for_the_robots_is_rehearsed_with_its_stand_ins_beside_them(t
      "plant.kind: invalid choice: 'simm' (choose from sim, physics, external, pioneer, base)"
      " (did you mean 'sim'?)"),
     (lambda d: d["run"].update(noise="no"), "run.noise: expected true or false, got 'no'"),
+    (lambda d: d["plant"].update(kind="pioneer", base="jackal"),
+     "plant.base: --plant pioneer does not use it (it goes with --plant base)"),
     (lambda d: d.update(hosts={"ground": ["virtual_leader", "robot_sim", "link_emulator",
                                           "robot_1", "robot_2", "robot_3"]}),
      "hosts: monitor on no host (every member of the run on one)"),
