@@ -745,6 +745,13 @@ class _Session:
                                 plan.config.timeout, plan.watchdog_scale,
                                 secure=plan.secure is not None)
         watch = Watch(bounds, plan.out, len(plan.team.expected), plan.scenario.trials)
+        trial_progress = None
+        if plan.config.mode == "wallclock":  # a trial in real time: said while it runs
+            from formation_ilc.cli.trialprogress import TrialProgress
+
+            trial_progress = TrialProgress(plan.scenario.samples * plan.scenario.dt,
+                                           plan.scenario.trials,
+                                           every=5.0 if sys.stdout.isatty() else 10.0)
         if hosts is not None:  # a stuck run's first line: the host that is not there
             watch.cause = lambda: hosts.cause(found, time.monotonic())
         while True:
@@ -772,6 +779,10 @@ class _Session:
                 silent = hosts.silent(found | ready) if hosts is not None else []
                 if line and silent and not line.startswith("start-up done"):
                     line += f"; not heard from host{'s' * (len(silent) > 1)} {', '.join(silent)}"
+                if line:
+                    print(line, flush=True)
+            if trial_progress is not None and not progress.active:
+                line = trial_progress.update(time.time_ns(), monitor.events, monitor.rows)
                 if line:
                     print(line, flush=True)
             if self.stop_signal is not None:
