@@ -12,7 +12,7 @@ then exits non-zero naming it.
 
 Run files: `formation-ilc run-file SCENARIO [options] -o run.yaml` writes every option of
 a run to one commented YAML file, `formation-ilc launch run.yaml` runs it (an option given
-beside it overrides its key), and DIR/run.yaml keeps what ran, every default filled in.
+beside it overrides its key), and DIR/run.yaml keeps what ran, every key with its value.
 
 Faults: a node process that dies during the run is started again with the same
 parameters (at most --max-restarts times each); the robots and the leader keep their state
@@ -169,7 +169,7 @@ def execute(plan: RunPlan, place: Callable[[NodeSpec], list[str]] | None = None)
                   f"folder: {exc.strerror or exc}", file=sys.stderr)
             return 2
     if plan.run_json is not None:
-        _save_run(plan.out, plan.run_json)
+        _save_run(plan.out, plan.run_json, plan)
     _save_config(plan)
     plan.write_peers_profile()  # before the secure one, which builds on it
     if plan.secure is not None:
@@ -227,11 +227,12 @@ def _run_started(plan: RunPlan, env: dict[str, str],
         print(live_line(*plan.live), flush=True)
     session = _Session(plan, env, place)
     if session.hosts is not None:
-        from formation_ilc.cli.hostlaunch import STARTING, write_ground
+        from formation_ilc.cli.hostlaunch import STARTING, over_graph, write_ground
 
         # the other hosts stop what they run for an earlier run here before this one
-        # looks for another formation on its domain
-        write_ground(plan, STARTING)
+        # looks for another formation on its domain (over the graph: once it joined it)
+        if not over_graph(plan):
+            write_ground(plan, STARTING)
     # the run's files, the recording with its events' key among them, are the user's
     # alone while it lives (system.private)
     try:
@@ -245,9 +246,10 @@ def _run_started(plan: RunPlan, env: dict[str, str],
         status = check_recording(plan.record_root, plan.scenario.trials, plan.resumed_at,
                                  plan.out / "metrics.csv")
     if session.hosts is not None:  # the other hosts' launchers stop their members
-        from formation_ilc.cli.hostlaunch import print_hosts, write_ground
+        from formation_ilc.cli.hostlaunch import over_graph, print_hosts, write_ground
 
-        write_ground(plan, status)
+        if not over_graph(plan):  # (over the graph: said before the launcher left it)
+            write_ground(plan, status)
         print_hosts(session.hosts)
     status = write_report(plan, session.rows(), session.diagnostics,
                           session.supervisor.restarts, time.monotonic() - session.t_start,
@@ -334,13 +336,12 @@ def _learned_before(rec: Any, missing: list[int], trials: int, resumed_at: int,
               f"recording's {len(recorded)} others equal metrics.csv to the last bit")
 
 
-def _save_run(out: Path, options: Any) -> None:
-    """DIR/run.yaml, the resolved run file (every default filled in, the run's id), and
-    DIR/run.json, the same for the tools that read it: paths into the run's folder relative
-    to it (a copied folder resumes into itself), a scenario file by its absolute path
-    (resumable from any folder)."""
-    from formation_ilc.cli.runfile import RUN_YAML, run_file_text
-    from formation_ilc.plan.options import LaunchOptions
+def _save_run(out: Path, options: Any, plan: RunPlan) -> None:
+    """DIR/run.yaml, the resolved run file (every key with the value the run went with,
+    the run's id; ``cli.runfile.stored_run_text``), and DIR/run.json, the same for the tools
+    that read it: paths into the run's folder relative to it (a copied folder resumes into
+    itself), others relative to it in run.yaml and absolute in run.json."""
+    from formation_ilc.cli.runfile import RUN_YAML, stored_run_text
     from formation_ilc.store.atomic import atomic_write_text
     from formation_ilc.store.runfile import save_run
 
@@ -348,12 +349,11 @@ def _save_run(out: Path, options: Any) -> None:
     if isinstance(d.get("scenario"), str) and Path(d["scenario"]).is_file():
         d["scenario"] = str(Path(d["scenario"]).resolve())
     save_run(out, d)
-    opts = LaunchOptions().with_fields({k: v for k, v in d.items() if k != "out"})
-    atomic_write_text(out / RUN_YAML, run_file_text(
-        opts, stored=out.resolve(),
-        title="what this run ran, every default filled in: formation-ilc launch --resume "
-              "THIS_FOLDER\ngoes on with it; formation-ilc launch run.yaml runs it again "
-              "as a new run"))
+    atomic_write_text(out / RUN_YAML, stored_run_text(
+        plan, d,
+        title="what this run ran, every key with the value it went with: formation-ilc "
+              "launch --resume\nTHIS_FOLDER goes on with it; formation-ilc launch run.yaml "
+              "--out NEW runs it again as a new run"))
 
 
 def _save_config(plan: RunPlan) -> None:
@@ -469,6 +469,9 @@ class Watch:
         self.since = time.monotonic()
         self.leader = False
         self.done_at: float | None = None
+        #: what a finding of the leader's comes from, said before it (a host that is not
+        #: there: ``cli.hostlaunch.HostWatch.cause``), or None
+        self.cause: Callable[[], str | None] | None = None
 
     def tick(self, monitor: Any, now: float) -> str | None:
         """Print a new finding of the leader's; why the run is given up, or None."""
@@ -479,6 +482,9 @@ class Watch:
         if count > self.seen:
             self.seen = count
             text = "".join(c if c.isprintable() else "?" for c in str(report.get("what")))
+            first = self.cause() if self.cause is not None else None
+            if first:
+                print(f"error: {first}", flush=True)
             print(f"{LEADER_NODE}: {text[:1000]}", flush=True)
         if not self.leader and monitor.leader_present():
             self.leader, self.since = True, now  # its own watchdog runs from here
@@ -668,8 +674,11 @@ class _Session:
                   f"stopping; the finished trials are in metrics.csv", file=sys.stderr)
             status = 1
         except KeyboardInterrupt:
-            print("\ninterrupted: stopping every node; finished trials are in metrics.csv",
-                  file=sys.stderr)
+            go_on = (f"to go on: {resume_hint(self.plan.out)}" if self.hosts is None else
+                     "a run over several machines does not resume yet (its robots' learned "
+                     "state is on their machines): start a new one with --out NEW")
+            print(f"\ninterrupted: stopping every node; finished trials are in metrics.csv; "
+                  f"{go_on}", file=sys.stderr)
             status = 130
         except OSError as exc:
             if not is_disk_full(exc):
@@ -684,6 +693,12 @@ class _Session:
             self._deactivate()
             self.supervisor.stop()
             self.writer.close()
+            if self.hosts is not None:  # the other hosts' launchers stop their members
+                from formation_ilc.cli.hostlaunch import describe, over_graph
+
+                if over_graph(self.plan) and self.host.monitor is not None:
+                    describe(self.plan, self.host, status)
+                    self.host.described(3.0)
             self.diagnostics = self.host.close()
         return status
 
@@ -704,6 +719,12 @@ class _Session:
 
         plan, host = self.plan, self.host
         monitor = host.monitor
+        hosts = self.hosts
+        if hosts is not None:  # the other hosts stop what they run for an earlier run
+            from formation_ilc.cli.hostlaunch import STARTING, describe, over_graph
+
+            if over_graph(plan):
+                describe(plan, host, STARTING)
         # the processes start (imports are most of their start) while the monitor looks for
         # another formation here; they join the domain only once there is none
         self.supervisor.start(gated=True)
@@ -713,18 +734,26 @@ class _Session:
         self.supervisor.open_gate()
         print(f"none: the processes join; the leader waits for {len(plan.team.expected)} "
               f"nodes [{time.monotonic() - self.t_start:.1f} s]", flush=True)
-        hosts = self.hosts
         if hosts is not None:  # the other hosts' launchers start their members now
-            from formation_ilc.cli.hostlaunch import write_ground
-
-            write_ground(plan)
-        progress = self.progress = StartupProgress(plan.team.expected, self.t_start)
-        graph_at, found = 0.0, set()
+            describe(plan, host)
+        # on a terminal a line a second; in a log a line when the counts move, else one in 10 s
+        progress = self.progress = StartupProgress(
+            plan.team.expected, self.t_start, every=1.0 if sys.stdout.isatty() else 10.0)
+        graph_at, found = 0.0, set[str]()
         final_deadline: float | None = None
         bounds = Bounds.for_run(plan.scenario.dt, len(plan.team.expected), plan.config.mode,
                                 plan.config.timeout, plan.watchdog_scale,
                                 secure=plan.secure is not None)
         watch = Watch(bounds, plan.out, len(plan.team.expected), plan.scenario.trials)
+        trial_progress = None
+        if plan.config.mode == "wallclock":  # a trial in real time: said while it runs
+            from formation_ilc.cli.trialprogress import TrialProgress
+
+            trial_progress = TrialProgress(plan.scenario.samples * plan.scenario.dt,
+                                           plan.scenario.trials,
+                                           every=5.0 if sys.stdout.isatty() else 10.0)
+        if hosts is not None:  # a stuck run's first line: the host that is not there
+            watch.cause = lambda: hosts.cause(found, time.monotonic())
         while True:
             self.spinning = True
             try:
@@ -740,7 +769,8 @@ class _Session:
                     graph_at = now
                     found = {name for name, ns in monitor.get_node_names_and_namespaces()
                              if ns == plan.namespace}
-                    for line in hosts.update(now, found) if hosts is not None else ():
+                    for line in (hosts.update(now, found, monitor.readies)
+                                 if hosts is not None else ()):
                         print(line, flush=True)
             if progress.active:
                 ready = set(monitor.readies)
@@ -751,12 +781,19 @@ class _Session:
                     line += f"; not heard from host{'s' * (len(silent) > 1)} {', '.join(silent)}"
                 if line:
                     print(line, flush=True)
+            if trial_progress is not None and not progress.active:
+                line = trial_progress.update(time.time_ns(), monitor.events, monitor.rows)
+                if line:
+                    print(line, flush=True)
             if self.stop_signal is not None:
                 raise KeyboardInterrupt
             if self.diverged is not None:
                 raise Diverged(self.diverged)
             stuck = watch.tick(monitor, time.monotonic())
             if stuck is not None:
+                first = watch.cause() if watch.cause is not None else None
+                if first:
+                    print(f"error: {first}", file=sys.stderr)
                 print(f"error: {stuck}", file=sys.stderr)
                 return STUCK
             if len(monitor.rows) == plan.scenario.trials - self.done:
@@ -769,6 +806,9 @@ class _Session:
                     return 0
             failure = self.supervisor.watch()
             if failure is not None:
+                first = watch.cause() if watch.cause is not None else None
+                if first:  # the cause first: a host that is not there
+                    print(f"error: {first}", file=sys.stderr, flush=True)
                 # a node that ends the run on purpose (a contact) has its last report
                 # acknowledged before it exits: take what is already here, which the exit
                 # overtook, so that summary.json and metrics.csv have it

@@ -3,14 +3,16 @@
 ``formation-ilc run-file SCENARIO [launch options] -o run.yaml`` writes one, complete and
 commented (every key, its value, what it means); ``formation-ilc launch run.yaml`` runs
 it, and each launch option given beside it overrides its key. A launch keeps the resolved
-run file (every default filled in, the run's id) in its output folder as ``run.yaml``;
-``launch --resume DIR`` reads it (or the ``run.json`` of launches before it).
+run file (every key with the value the run went with, none null, the run's id:
+:func:`stored_run_text`) in its output folder as ``run.yaml``; ``launch --resume DIR``
+reads it (or the ``run.json`` of launches before it).
 
 A run file is checked with the launch options' own rules: an unknown key is refused naming
 the closest one (``error: run.yaml: safety.margn: unknown key (did you mean 'margin'?)``),
 a bad value names its key and why, exit status 2, before anything starts. Paths in a run
-file are relative to its folder; in a stored one, ``@run/REL`` is relative to the run's
-folder wherever it is.
+file are relative to its folder; in a stored one, ``@run/REL`` (the run's outputs: its
+recording) is relative to the run's folder wherever it is: ``launch OUT/run.yaml --out NEW``
+records into NEW.
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ from formation_ilc.plan.options import (
 
 __all__ = ["RUN_YAML", "is_run_file", "load_run_file", "load_stored_run", "run_file_text",
            "launch_options", "RESUME_OPTIONS", "host_per_robot", "resumed_part",
-           "add_parser", "run", "plan_of"]
+           "add_parser", "run", "plan_of", "effective_values", "stored_run_text"]
 
 #: the resolved run file in a run's output folder
 RUN_YAML = "run.yaml"
@@ -216,7 +218,12 @@ def load_stored_run(folder: Path) -> dict[str, Any] | None:
     if path.is_file():
         values, hosts = _flatten(path, _read_yaml(path))
         values = reroot({FIELD_KEYS_BY_PATH[k]: v for k, v in values.items()}, folder)
-        d = _fields(path, {FIELD_KEYS[f].path: v for f, v in values.items()}, None)
+        for f in PATH_FIELDS:  # every path the run's own, relative to its folder
+            v = values.get(f)
+            if isinstance(v, str) and Path(v).parts[:1] == ("@run",):
+                values[f] = str(folder.resolve().joinpath(*Path(v).parts[1:]))
+        d = _fields(path, {FIELD_KEYS[f].path: v for f, v in values.items()},
+                    folder.resolve())
         if hosts:
             d["host_members"] = hosts
     else:
@@ -246,8 +253,30 @@ def launch_options(args: argparse.Namespace) -> LaunchOptions:
     scenario = given.get("scenario")
     if scenario is not None and is_run_file(scenario):
         given.pop("scenario")
-        return LaunchOptions().with_fields(load_run_file(Path(scenario))).with_fields(given)
+        from_file = load_run_file(Path(scenario))
+        opts = LaunchOptions().with_fields(from_file).with_fields(given)
+        _unused_key(Path(scenario), opts, set(from_file) - set(given))
+        return opts
     return LaunchOptions().with_fields(given)
+
+
+def _unused_key(path: Path, opts: LaunchOptions, from_file: set[str]) -> None:
+    """OptionError naming the run file's key (``plant.base``, not ``--base``) of the first
+    option the file sets that the run's plant does not use (the planner refuses the same
+    given on the command line, naming the flag)."""
+    from formation_ilc.config.plants import plant
+    from formation_ilc.plan.options import PLANT_USES
+
+    try:
+        row = plant(opts.plant)
+    except ValueError:
+        return  # an unknown plant: refused in its own words
+    defaults = LaunchOptions()
+    for name, (uses, which) in PLANT_USES.items():
+        if (name in from_file and name in FIELD_KEYS
+                and getattr(opts, name) != getattr(defaults, name) and not uses(row, opts)):
+            raise OptionError(f"{path}: {FIELD_KEYS[name].path}: --plant {row.name} does not "
+                              f"use it (it goes with {which})")
 
 
 def plan_of(args: argparse.Namespace) -> Any:
@@ -316,29 +345,46 @@ def host_per_robot(members: list[tuple[str, int | None]]) -> dict[str, list[str]
 
 
 def run_file_text(opts: LaunchOptions, *, folder: Path | None = None,
-                  stored: Path | None = None, title: str = "") -> str:
+                  stored: Path | None = None, title: str = "",
+                  effective: Mapping[str, Any] | None = None) -> str:
     """``opts`` as a run file: every key in its section, with its value and what it means
     (the launch option's help). Paths relative to ``folder`` when they lie inside it; with
-    ``stored`` (a run's folder), paths inside it as ``@run/REL``."""
+    ``stored`` (a run's folder, where the file goes), the run's outputs inside it as
+    ``@run/REL`` (a launch of the file elsewhere writes into its own folder), its own
+    folder as ``.`` and every other path relative to it. With ``effective`` (field ->
+    value, :func:`effective_values`) those values, and only the keys that have one."""
+    import os
+
     import yaml
 
     from formation_ilc.store.runfile import relative
 
     actions = _actions()
-    values = opts.stored()
+    values = opts.stored() if effective is None else dict(effective)
     lines = [f"# {line}" for line in title.splitlines()] if title else []
     for section, about in SECTIONS.items():
-        keys = [k for k in RUN_KEYS if (k.path.split(".")[0] if "." in k.path else "") == section]
+        keys = [k for k in RUN_KEYS if (k.path.split(".")[0] if "." in k.path else "") == section
+                and (effective is None or values.get(k.field) is not None
+                     or (k.field == "scenario" and opts.scenario_text is not None))]
+        if section and not keys:
+            continue
         if section:
             lines += ["", f"# {about}", f"{section}:"]
         indent = "  " if section else ""
         for k in keys:
-            v = values[k.field]
+            v = values.get(k.field)
             if k.negated and v is not None:
                 v = not v
             if isinstance(v, str) and k.field in PATH_FIELDS:
                 if stored is not None:
-                    v = relative(v, stored)
+                    p = Path(v)
+                    if k.field == "out" and p.resolve() == stored.resolve():
+                        v = "."
+                    elif k.field in ("record", "record_root"):
+                        v = relative(str(p.resolve()) if p.parts[:1] != ("@run",) else v,
+                                     stored.resolve())
+                    elif p.is_absolute():
+                        v = os.path.relpath(p, stored.resolve())
                 elif folder is not None:
                     try:
                         v = str(Path(v).resolve().relative_to(folder.resolve()))
@@ -346,6 +392,8 @@ def run_file_text(opts: LaunchOptions, *, folder: Path | None = None,
                         pass
             if k.field == "scenario" and isinstance(v, str) and Path(v).is_file():
                 v = str(Path(v).resolve())
+                if stored is not None:
+                    v = os.path.relpath(v, stored.resolve())
             if k.field == "scenario" and opts.scenario_text is not None:
                 lines.append(f"{indent}# SCENARIO: written here (a scenario file's keys)")
                 lines += yaml.safe_dump({"scenario": yaml.safe_load(opts.scenario_text)},
@@ -368,6 +416,85 @@ def run_file_text(opts: LaunchOptions, *, folder: Path | None = None,
     else:
         lines.append("hosts: {}")
     return "\n".join(lines) + "\n"
+
+
+def effective_values(plan: Any, options: Mapping[str, Any]) -> dict[str, Any]:
+    """The stored run's keys, field -> the value the run went with (``options``: the
+    plan's ``run_json``; ``plan``: ``plan.specs.RunPlan``): what a default left to the
+    scenario, the plant, the preset or the machine (seed, law, headings, the limits, the
+    safety filter's settings, the namespace and ROS domain, ...) became; None for a key
+    the run has no value of (no recording, no live view, an option its plant does not
+    use): the key is left out, not written as null or as a 0 meaning "the preset's"."""
+    import math
+
+    from formation_ilc.config.bases import LIMIT_KEYS
+    from formation_ilc.config.plants import plant
+    from formation_ilc.plan.options import PLANT_USES
+    from formation_ilc.protocol.bridge import bridge_limits
+
+    d = dict(options)
+    opts = LaunchOptions().with_fields({k: v for k, v in d.items() if k in option_fields()})
+    cfg, sc = plan.config, plan.config.scenario
+    row = plant(opts.plant)
+    for name, (uses, _) in PLANT_USES.items():
+        if not uses(row, opts):
+            d[name] = None
+    if not row.per_robot:  # the stand-ins of the bridges' drivers
+        d.update(fake_drivers=None, physics_bases=None)
+    d.update(trials=sc.trials, seed=sc.seed, law=sc.law.kind, memory=sc.law.memory,
+             headings=sc.headings, time_scale=sc.time_scale, mode=cfg.mode, links=cfg.links,
+             run_id=cfg.run_id, namespace=plan.namespace, domain_id=plan.domain)
+    bridge = plan.bridge
+    if bridge is not None:
+        d.update(driver_ns=bridge.driver_ns, cmd_type=bridge.sent_type)
+        given = dict(bridge.limits)
+        held = bridge_limits(bridge.base, given)
+        for key, x in zip(LIMIT_KEYS, held.as_tuple(), strict=True):
+            # a parameters file may set a robot's own: only what was given is the run's
+            known = bridge.params_file is None or key in given
+            d[key] = (_in_option_units(key, x) if known and math.isfinite(x) else None)
+    safety = cfg.safety
+    d["safety"] = safety is not None
+    d.update(body=None, safety_margin=None, safety_learning=None)
+    if safety is not None:
+        d.update(safety_margin=safety.margin, safety_learning=safety.learning)
+        if not row.bodies:  # (a plant with bodies knows its own: --body is refused there)
+            d["body"] = safety.body
+    if plan.live is None:
+        d.update(live=None, live_rate=None, live_host=None)
+    else:
+        d["live_rate"] = plan.live_rate
+    if d.get("record") is None:
+        d["record_root"] = None
+    if not cfg.clocks.emulated:
+        d["clock_origin_ns"] = None
+    return d
+
+
+def _in_option_units(key: str, x: float) -> float:
+    """A limit [SI] in its option's units (deg/s, deg/s^2 for the angular ones): the
+    float that the option reads back as ``x`` exactly."""
+    import math
+
+    if key not in ("omega_max", "alpha_max"):
+        return float(x)
+    deg = math.degrees(x)
+    for candidate in (round(deg, 12), deg, math.nextafter(deg, math.inf),
+                      math.nextafter(deg, -math.inf)):
+        if math.radians(candidate) == x:
+            return candidate
+    return deg
+
+
+def stored_run_text(plan: Any, options: Mapping[str, Any], title: str) -> str:
+    """The resolved run file a launch keeps in its output folder: every key with the value
+    the run went with (:func:`effective_values`), none null, paths relative to the folder."""
+    d = effective_values(plan, options)
+    if isinstance(d.get("scenario"), str) and Path(d["scenario"]).is_file():
+        d["scenario"] = str(Path(d["scenario"]).resolve())
+    opts = LaunchOptions().with_fields({k: v for k, v in d.items()
+                                        if k in option_fields() and k != "out"})
+    return run_file_text(opts, stored=plan.out.resolve(), title=title, effective=d)
 
 
 _STORED_HELP = {

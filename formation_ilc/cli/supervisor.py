@@ -14,6 +14,7 @@ import signal
 import subprocess
 import sys
 import time
+import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -333,10 +334,15 @@ def disk_full_line(who: str, filename: str | None, out: Path) -> str:
             f"{resume_hint(out)}")
 
 
+#: this launcher's identity, in every node's ``boot`` (``protocol.schedule.boot_id``): new
+#: for each launcher process
+LAUNCHER_ID = uuid.uuid4().hex[:8]
+
+
 def node_env(plan: RunPlan) -> dict[str, str]:
     """The environment of every node process of ``plan`` (``plan.specs.RunPlan``): this
     one's, on the plan's domain, bound to this launcher and to the run."""
-    from formation_ilc.nodes.common import KEY_ENV, RUN_ENV
+    from formation_ilc.nodes.common import KEY_ENV, LAUNCHER_ENV, RUN_ENV
     from formation_ilc.system.lifetime import PARENT_ENV
 
     env = dict(os.environ)
@@ -354,6 +360,7 @@ def node_env(plan: RunPlan) -> dict[str, str]:
     env["PYTHONUNBUFFERED"] = "1"
     env[PARENT_ENV] = str(os.getpid())  # every node ends with this launcher
     env[RUN_ENV] = plan.config.run_id  # and takes only this run's configuration
+    env[LAUNCHER_ENV] = LAUNCHER_ID  # its readies name this launcher (a host's restart)
     env.pop(KEY_ENV, None)
     if plan.key is not None:  # and only the events this run's leader sealed
         env[KEY_ENV] = plan.key.hex()

@@ -30,7 +30,7 @@ __all__ = ["NAMESPACE", "CLOCK", "LEADER_NODE", "SIM_NODE", "LINKS_NODE", "MONIT
            "namespace_remaps", "namespace_problem", "driver_ns_problem",
            # topics and frames
            "CONFIG", "REFERENCE", "TRIAL_EVENTS", "READY", "DIAGNOSTICS", "ROS_DIAGNOSTICS",
-           "LEADER",
+           "LEADER", "HOSTS_RUN", "HOSTS_NAMESPACE",
            "WORLD_FRAME", "pose_topic", "cmd_vel_topic", "applied_topic", "shared_pose_topic",
            "link_topic",
            "whereabouts_topic",
@@ -144,6 +144,11 @@ def namespace_remaps(namespace: str | None) -> list[str]:
 # --------------------------------------------------------------------------- topics
 
 CONFIG = "config"
+#: the ground station's run description for the other hosts' launchers (latched JSON:
+#: the run's id, domain, namespace, key and, once it ended, its status)
+HOSTS_RUN = "hosts/run"
+#: the namespace, below the formation's, of the other hosts' launchers' own node
+HOSTS_NAMESPACE = "hosts"
 REFERENCE = "leader/reference"
 TRIAL_EVENTS = "leader/trial_events"
 READY = "ready"

@@ -11,7 +11,6 @@ import signal
 import socket
 import sys
 import time
-import uuid
 from collections import Counter
 from collections.abc import Callable, Collection, Iterable
 from typing import Any, TypeVar
@@ -30,7 +29,7 @@ import msgs_schema as ms
 from formation_ilc.config.runconfig import RunConfig, make_config
 from formation_ilc.core.clock import REASONS, Rejected
 from formation_ilc.nodes.writers import REFRESH_HELD, CheckedSubscription
-from formation_ilc.protocol.schedule import Follower, Ready, TrialEvent, parse_key
+from formation_ilc.protocol.schedule import Follower, Ready, TrialEvent, boot_id, parse_key
 from formation_ilc.protocol.writers import OK, WriterTable
 from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, is_disk_full
 from formation_ilc.system.lifetime import (
@@ -42,7 +41,8 @@ from formation_ilc.system.lifetime import (
     wait_at_gate,
 )
 
-__all__ = ["PARENT_ENV", "RUN_ENV", "KEY_ENV", "run_key", "secure_enclaves", "DROP_REASONS",
+__all__ = ["PARENT_ENV", "RUN_ENV", "KEY_ENV", "LAUNCHER_ENV", "run_key", "secure_enclaves",
+           "DROP_REASONS",
            "DropCounter", "Diagnostics", "RunConfig", "make_config", "GuardedNode",
            "MESSAGE_ERRORS", "config_from_msg", "ConfiguredNode", "matched", "unmatched",
            "readers_wanting", "fail",
@@ -55,6 +55,9 @@ RUN_ENV = "FORMATION_ILC_RUN_ID"
 #: environment variable with the key the run's leader seals its events with (hex): the
 #: launcher gives it to every process it starts (``protocol.schedule.seal``)
 KEY_ENV = "FORMATION_ILC_RUN_KEY"
+#: environment variable with the identity of the launcher that started this node: part of
+#: its ``boot`` (``protocol.schedule.boot_id``)
+LAUNCHER_ENV = "FORMATION_ILC_LAUNCHER"
 
 
 def run_key() -> bytes | None:
@@ -288,7 +291,7 @@ class ConfiguredNode(GuardedNode):
         # the first word half a period in: a node that matches in a few seconds says none
         self._waiting_said = time.monotonic() - MATCH_WARN / 2
         #: this process's identity in ``ready`` (a new one tells the leader it restarted)
-        self.boot = uuid.uuid4().hex[:12]
+        self.boot = boot_id(os.environ.get(LAUNCHER_ENV))
         #: the run key: only events the run's leader sealed with it are taken
         self.key = run_key()
         #: what this node takes of the leader's events (its core's, once configured)

@@ -48,6 +48,7 @@ class LauncherHost:
         self.on_clock = on_clock
         self.monitor: Any = None
         self._down_pub: Any = None
+        self._describe_pub: Any = None
         self._ex: Any = None
         #: managed bridges' lifecycle manager (``formation_ilc.nodes.lifecycle``), or None
         self.transitions: Any = None
@@ -101,6 +102,31 @@ class LauncherHost:
         self._down_pub.publish(ms.json_to_msg(Ready(
             name, cfg.scenario.trials, str(pid), passive=True, run=cfg.run_id,
             down=True).to_json()))
+
+    def describe(self, description: dict[str, Any]) -> None:
+        """Publish the run's description for the other hosts' launchers (latched:
+        ``nodes.hostlink``)."""
+        import json
+
+        from std_msgs.msg import String
+
+        import msgs_schema as ms
+        from formation_ilc.core.names import HOSTS_RUN, absolute
+
+        if self._describe_pub is None:
+            self._describe_pub = self.monitor.create_publisher(
+                String, absolute(HOSTS_RUN, self.plan.namespace), ms.LATCHED_QOS)
+        msg = String()
+        msg.data = json.dumps(description)
+        self._describe_pub.publish(msg)
+
+    def described(self, timeout: float) -> bool:
+        """Whether every listener has the last description, waiting at most ``timeout``
+        seconds (before this launcher leaves the graph)."""
+        from rclpy.duration import Duration
+
+        pub = self._describe_pub
+        return pub is None or bool(pub.wait_for_all_acked(Duration(seconds=timeout)))
 
     def foreign(self, wait: float, allowed: set[str]) -> list[str]:
         """Nodes of another formation in the plan's namespace on this domain (other than

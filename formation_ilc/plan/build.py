@@ -28,13 +28,16 @@ from formation_ilc.config.runconfig import (
 )
 from formation_ilc.config.scenario import Scenario, ScenarioError
 from formation_ilc.core.names import (
+    BASES_NODE,
     LEADER_NODE,
     MONITOR_NODE,
     NAMESPACE,
     driver_ns_problem,
+    fake_driver_name,
+    robot_name,
 )
 from formation_ilc.plan.checks import _check_memory, _check_plant, _safety
-from formation_ilc.plan.options import LaunchOptions, OptionError, unused_option
+from formation_ilc.plan.options import PATH_FIELDS, LaunchOptions, OptionError, unused_option
 from formation_ilc.plan.processes import node_specs
 from formation_ilc.plan.specs import (
     BridgeOptions,
@@ -104,6 +107,11 @@ def build_plan(options: LaunchOptions) -> RunPlan:
     record = _in_run(opts.record, out)
     root = opts.record_root or record
     domain = opts.domain_id if opts.domain_id is not None else caller_domain()
+    if domain is None and opts.host is not None:
+        # the hosts find each other on the graph: one domain, known to every machine
+        raise NoRun("network.domain_id: a run over several machines needs its ROS domain "
+                    "on every one: write it in the run file (formation-ilc run-file ... "
+                    "--domain-id N) or set ROS_DOMAIN_ID on each machine")
     if domain is None:
         domain = pick_domain()
     bridge = BridgeOptions.of(opts) if row.per_robot else None
@@ -216,15 +224,24 @@ def placed_members(plan: RunPlan, hosts: Mapping[str, Sequence[str]]
         raise NoRun("hosts: robots on hosts of their own run one process per robot (no "
                     "processes.container)")
     names = [n for n, _ in hosted_members(plan)]
+    stand_ins = _stand_ins(plan)
     where: dict[str, str] = {}
+    placed: dict[str, list[str]] = {h: [] for h in hosts}
     for host, members in hosts.items():
         for name in members:
             if name not in names:
+                if _is_stand_in(name):  # a rehearsal's, in a run without it: real drivers
+                    continue
                 raise NoRun(f"hosts: {host}: {name!r} is no member of this run (its members: "
                             f"{', '.join(names)})")
             if name in where:
                 raise NoRun(f"hosts: {name!r} is on {where[name]} and on {host}")
             where[name] = host
+            placed[host].append(name)
+    for name, beside in stand_ins.items():  # a rehearsal's stand-ins: beside their robot
+        if name not in where and beside in where:
+            where[name] = where[beside]
+            placed[where[beside]].append(name)
     missing = [n for n in names if n not in where]
     if missing:
         raise NoRun(f"hosts: {', '.join(missing)} on no host (every member of the run on "
@@ -232,7 +249,27 @@ def placed_members(plan: RunPlan, hosts: Mapping[str, Sequence[str]]
     if where[MONITOR_NODE] != where[LEADER_NODE]:
         raise NoRun(f"hosts: the monitor goes with the leader (on {where[LEADER_NODE]}): "
                     f"the ground station runs the checks and the report")
-    return tuple((h, tuple(m)) for h, m in hosts.items())
+    return tuple((h, tuple(m)) for h, m in placed.items())
+
+
+def _stand_ins(plan: RunPlan) -> dict[str, str]:
+    """The run's stand-ins for the real world (a fake driver, the physics bases), each
+    with the member it goes beside when a run file's ``hosts:`` does not place it: robot
+    I's fake driver beside robot I's node, the physics bases beside the leader. A run file
+    written for the robots is rehearsed with ``--fake-drivers`` or ``--physics-bases``."""
+    out: dict[str, str] = {}
+    for m in plan.roster.processes:
+        if m.name == BASES_NODE:
+            out[m.name] = LEADER_NODE
+        elif m.role == "driver" and m.robot is not None:
+            out[m.name] = robot_name(m.robot)
+    return out
+
+
+def _is_stand_in(name: str) -> bool:
+    """Whether ``name`` is a stand-in's of some run (a fake driver, the physics bases)."""
+    prefix = fake_driver_name(1)[:-1]
+    return name == BASES_NODE or (name.startswith(prefix) and name[len(prefix):].isdigit())
 
 
 def _in_run(path: Path | None, out: Path) -> Path | None:
@@ -478,6 +515,11 @@ def _run_json(opts: LaunchOptions, mode: str, links: str, out: Path,
     clocks' origin, so that a resumed run's robots keep their clocks)."""
     d = {k: v for k, v in opts.stored().items() if k != "resume"}
     d.update(mode=mode, links=links, out=str(out))
+    for k in PATH_FIELDS:  # absolute: a path given relative to the caller's folder is
+        v = d.get(k)       # not one relative to the run's (where run.yaml reads it from)
+        if isinstance(v, str) and k not in ("out", "resume"):
+            p = _in_run(Path(v), out)
+            d[k] = str(p) if p is not None else v
     if clocks.emulated:
         d["clock_origin_ns"] = clocks.origin_ns
     return d

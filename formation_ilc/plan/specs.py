@@ -8,6 +8,7 @@ supervisor (``formation_ilc.cli.supervisor``) runs it, the report writer
 
 from __future__ import annotations
 
+import contextlib
 import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -62,6 +63,20 @@ PIONEER_NS = "/pioneer_{i}"
 BASE_NS = "/base_{i}"
 
 
+def _is_default(base: str | None, key: str, value: float) -> bool:
+    """Whether limit ``key`` given as ``value`` (its option's units) is the one the bridge
+    holds without it: a stored run file writes every limit the run went with, and a launch
+    of it is the same run (the same parameters) as the launch that wrote it."""
+    from formation_ilc.config.bases import with_given
+    from formation_ilc.protocol.bridge import bridge_limits
+
+    try:
+        default = bridge_limits(base)
+        return bool(getattr(with_given(default, {key: value}), key) == getattr(default, key))
+    except ValueError:
+        return False  # refused where the limits are read, in its words
+
+
 @dataclass(frozen=True)
 class BridgeOptions:
     """How the bridges reach their drivers (``--plant pioneer`` or ``base``; the
@@ -103,10 +118,18 @@ class BridgeOptions:
         limits = {"v_max": opts.v_max, "omega_max": opts.omega_max, "a_max": opts.a_max,
                   "alpha_max": opts.alpha_max}
         given = tuple((k, float(limits[k] or 0.0)) for k in LIMIT_KEYS)
+        given = tuple((k, v) for k, v in given if v != 0 and not _is_default(base, k, v))
         pf = opts.params_file
-        return cls(opts.driver, ns, opts.cmd_type,
+        cmd_type = opts.cmd_type
+        if base is not None and cmd_type is not None:
+            from formation_ilc.config.bases import base_preset
+
+            with contextlib.suppress(ValueError):  # (an unknown preset: refused in its words)
+                if base_preset(base).cmd_type == cmd_type:
+                    cmd_type = None  # the preset's own: the same run as without it
+        return cls(opts.driver, ns, cmd_type,
                    float(opts.return_timeout),
-                   bool(opts.fake_drivers), base, tuple((k, v) for k, v in given if v != 0),
+                   bool(opts.fake_drivers), base, given,
                    None if pf is None else Path(pf).resolve(),
                    bool(opts.physics_bases), bool(opts.lifecycle))
 

@@ -77,7 +77,7 @@ from formation_ilc.store.bounded import StateFileError, read_bounded
 
 __all__ = ["START", "END", "ABORT", "DONE", "TrialEvent", "Ready", "Schedule",
            "ScheduleError", "Follower", "StartRepeat", "is_repeat", "unexplained_gap",
-           "seal", "sealed", "parse_key", "KEY_BYTES"]
+           "seal", "sealed", "parse_key", "KEY_BYTES", "boot_id", "boot_launcher"]
 
 START, END, ABORT, DONE = "start", "end", "abort", "done"
 EVENTS = (START, END, ABORT, DONE)
@@ -196,6 +196,25 @@ def sealed(ev: TrialEvent, key: bytes | None) -> bool:
     if key is None:
         return True
     return bool(ev.tag) and hmac.compare_digest(ev.tag, _tag(ev, key))
+
+
+def boot_id(launcher: str | None = None) -> str:
+    """A new node process's ``boot`` (``Ready.boot``): new for each process and, when a
+    launcher started it, ``LAUNCHER.PROCESS`` with the launcher's own identity, so that a
+    ground station tells a host whose launcher started again (every member's launcher
+    new, even when it came back faster than the graph saw it go) from a member that host's
+    launcher restarted (the same launcher)."""
+    import uuid
+
+    own = uuid.uuid4().hex[:12]
+    tag = "".join(c for c in (launcher or "") if c.isalnum())[:16]
+    return f"{tag}.{own}" if tag else own
+
+
+def boot_launcher(boot: str) -> str | None:
+    """The launcher's identity in a ``boot`` (:func:`boot_id`), or None."""
+    tag, dot, _ = boot.partition(".")
+    return tag if dot and tag else None
 
 
 @dataclass(frozen=True)

@@ -204,7 +204,7 @@ def test_resume_takes_the_runs_own_options(tmp_path):
 
     first = plan_of(tmp_path, "paper-triangle3", "--trials", "6", "--seed", "4",
                     "--record", str(tmp_path / "rec.mcap"))
-    _save_run(first.out, first.run_json)
+    _save_run(first.out, first.run_json, first)
     (tmp_path / "rec.mcap").write_bytes(b"")
     # an option of the run given again is refused, not silently ignored (it was)
     with pytest.raises(NoRun) as exc:
@@ -237,7 +237,7 @@ def test_resuming_a_finished_run_is_nothing_to_do(tmp_path, capsys):
     from formation_ilc.protocol.schedule import Schedule
 
     first = plan_of(tmp_path, "paper-triangle3", "--trials", "2")
-    _save_run(first.out, first.run_json)
+    _save_run(first.out, first.run_json, first)
     s = Schedule(["robot_1"], {"robot_1"}, 2)
     s.committed = 2
     (first.out / "state").mkdir()

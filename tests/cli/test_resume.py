@@ -155,7 +155,8 @@ def test_a_member_host_comes_into_its_ground_stations_used_folder(tmp_path):
     from formation_ilc.plan.specs import NoRun
 
     path = tmp_path / "run.yaml"
-    assert main(["run-file", "paper-triangle3", "--host-per-robot", "-o", str(path)]) == 0
+    assert main(["run-file", "paper-triangle3", "--host-per-robot", "--domain-id", "7", "-o",
+                 str(path)]) == 0
     out = run_folder(tmp_path)
     argv = ["launch", str(path), "--out", str(out), "--no-plots"]
     plan = plan_of(build_parser().parse_args([*argv, "--host", "r2"]))

@@ -90,6 +90,36 @@ def test_host_per_robot_puts_each_robot_on_its_host_and_the_rest_on_ground(tmp_p
     assert hosts["r1"] == ["fake_pioneer_1", "bridge_1", "robot_1"]
 
 
+def test_a_run_file_for_the_robots_is_rehearsed_with_its_stand_ins_beside_them(tmp_path):
+    # written for the robots (no fake drivers), rehearsed on one machine with them: each
+    # fake driver goes on its robot's host by itself (it was "fake_pioneer_1, ... on no
+    # host"), and a launch of one host starts its robot's fake driver with it
+    path = write_run_file(tmp_path, "paper-triangle3", "--plant", "pioneer", "--allow-contact",
+                          "--host-per-robot", "--domain-id", "7")
+    assert "fake_pioneer" not in yaml.safe_load(path.read_text())["hosts"]["r1"]
+    plan = plan_of(options(str(path), "--fake-drivers", "--out", str(tmp_path / "run")))
+    assert plan.host is None and plan.ground
+    assert dict(plan.host_members)["r2"] == ("bridge_2", "robot_2", "fake_pioneer_2")
+    assert {s.name for s in plan.nodes} >= {"fake_pioneer_1", "fake_pioneer_2",
+                                            "fake_pioneer_3", "bridge_1", "robot_1"}
+    r2 = plan_of(options(str(path), "--fake-drivers", "--host", "r2", "--out",
+                         str(tmp_path / "run2")))
+    assert sorted(s.name for s in r2.nodes) == ["bridge_2", "fake_pioneer_2", "robot_2"]
+    # a rehearsal's file (fake drivers on the robots' hosts) runs the real drivers too
+    path = write_run_file(tmp_path, "paper-triangle3", "--plant", "pioneer", "--fake-drivers",
+                          "--allow-contact", "--host-per-robot", name="f.yaml")
+    d = yaml.safe_load(path.read_text())
+    d["plant"]["fake_drivers"] = False
+    path.write_text(yaml.safe_dump(d))
+    real = plan_of(options(str(path), "--out", str(tmp_path / "run3")))
+    assert dict(real.host_members)["r1"] == ("bridge_1", "robot_1")
+    # the physics bases go beside the leader
+    path = write_run_file(tmp_path, "paper-triangle3", "--plant", "base", "--time-scale",
+                          "1.85", "--allow-contact", "--host-per-robot", name="b.yaml")
+    bases = plan_of(options(str(path), "--physics-bases", "--out", str(tmp_path / "run4")))
+    assert "physics_bases" in dict(bases.host_members)["ground"]
+
+
 @pytest.mark.parametrize("edit, line", [
     (lambda d: d["safety"].update(margn=0.2),
      "safety.margn: unknown key (did you mean 'margin'?)"),
@@ -101,6 +131,8 @@ def test_host_per_robot_puts_each_robot_on_its_host_and_the_rest_on_ground(tmp_p
      "plant.kind: invalid choice: 'simm' (choose from sim, physics, external, pioneer, base)"
      " (did you mean 'sim'?)"),
     (lambda d: d["run"].update(noise="no"), "run.noise: expected true or false, got 'no'"),
+    (lambda d: d["plant"].update(kind="pioneer", base="jackal"),
+     "plant.base: --plant pioneer does not use it (it goes with --plant base)"),
     (lambda d: d.update(hosts={"ground": ["virtual_leader", "robot_sim", "link_emulator",
                                           "robot_1", "robot_2", "robot_3"]}),
      "hosts: monitor on no host (every member of the run on one)"),
@@ -124,7 +156,7 @@ def test_a_bad_run_file_is_refused_in_one_line_naming_the_key(tmp_path, capsys, 
 def test_the_resolved_run_file_resumes_and_relaunches_the_run(tmp_path):
     first = plan_of(options("paper-triangle3", "--trials", "4", "--seed", "2", "--out",
                             str(tmp_path / "a"), "--record", str(tmp_path / "a" / "r.mcap")))
-    _save_run(first.out, first.run_json)
+    _save_run(first.out, first.run_json, first)
     stored = first.out / RUN_YAML
     text = stored.read_text()
     assert "record: '@run/r.mcap'" in text and f"id: {first.config.run_id}" in text
@@ -140,6 +172,74 @@ def test_the_resolved_run_file_resumes_and_relaunches_the_run(tmp_path):
     stored.unlink()
     legacy = plan_of(options("--resume", str(first.out)))
     assert legacy.config.to_json() == first.config.to_json()
+
+
+@pytest.mark.parametrize("argv", [
+    ("paper-triangle3", "--trials", "3"),
+    ("paper-triangle3", "--plant", "pioneer", "--fake-drivers", "--allow-contact"),
+    ("paper-triangle3", "--plant", "base", "--base", "turtlebot3", "--time-scale", "2.3",
+     "--physics-bases", "--allow-contact", "--alpha-max", "150"),
+    ("paper-triangle3", "--plant", "physics", "--allow-contact", "--safety-margin", "0.05"),
+    ("paper-triangle3", "--safety", "--time-scale", "1.25", "--mode", "realtime"),
+])
+def test_a_stored_run_file_holds_every_key_with_its_value_and_plans_the_same_run(
+        tmp_path, argv):
+    first = plan_of(options(*argv, "--out", str(tmp_path / "a")))
+    _save_run(first.out, first.run_json, first)
+    text = (first.out / RUN_YAML).read_text()
+    d = yaml.safe_load(text)
+
+    def leaves(x, path=""):
+        if isinstance(x, dict):
+            for k, v in x.items():
+                yield from leaves(v, f"{path}.{k}" if path else str(k))
+        else:
+            yield path, x
+
+    values = dict(leaves({k: v for k, v in d.items() if k != "hosts"}))
+    assert [k for k, v in values.items() if v is None] == [], text
+    # no 0 standing for "the preset's" or "the scenario's"
+    assert [k for k, v in values.items() if type(v) in (int, float) and v == 0
+            and k.startswith(("plant.", "run."))] == []
+    assert values["run.seed"] == first.config.scenario.seed and values["out"] == "."
+    assert values["network.domain_id"] == first.domain
+    assert values["network.namespace"] == first.namespace
+    # launched again elsewhere: the same run
+    again = plan_of(options(str(first.out / RUN_YAML), "--out", str(tmp_path / "b")))
+    same_run(first, again)
+    assert again.config.safety == first.config.safety
+
+
+def test_a_stored_run_files_paths_are_its_own_wherever_it_was_launched_from(
+        tmp_path, monkeypatch):
+    # given relative to the caller's folder, they were written so, and read relative to the
+    # stored file: a launch of OUT/run.yaml recorded into OUT/runs/a/...
+    (tmp_path / "work").mkdir()
+    monkeypatch.chdir(tmp_path / "work")
+    memory = tmp_path / "work" / "sim" / "memory.npz"
+    from formation_ilc.cli.commands import main as cli
+
+    assert cli(["simulate", "paper-triangle3", "--trials", "1", "--no-plots", "--out",
+                "sim"]) == 0
+    assert memory.is_file()
+    first = plan_of(options("paper-triangle3", "--trials", "2", "--out", "runs/a",
+                            "--record", "runs/a/run.mcap", "--init-memory", "sim/memory.npz"))
+    _save_run(first.out, first.run_json, first)
+    d = yaml.safe_load((first.out / RUN_YAML).read_text())
+    assert d["recording"]["record"] == "@run/run.mcap"
+    assert d["run"]["init_memory"] == "../../sim/memory.npz"  # relative to the file
+    monkeypatch.chdir(tmp_path)
+    before = sorted(p.relative_to(first.out) for p in first.out.rglob("*"))
+    again = plan_of(options(str(first.out / RUN_YAML), "--out", "new"))
+    assert again.out == (tmp_path / "new").resolve()
+    assert again.record == (tmp_path / "new" / "run.mcap").resolve()
+    assert again.init_memory is not None and again.init_memory.resolve() == memory.resolve()
+    assert sorted(p.relative_to(first.out) for p in first.out.rglob("*")) == before
+    resumed = plan_of(options("--resume", str(first.out)))
+    assert resumed.record == first.record and resumed.init_memory.resolve() == memory
+    # launched again without --out: its folder is the run's, which is taken
+    with pytest.raises(NoRun, match="holds another run"):
+        plan_of(options(str(first.out / RUN_YAML)))
 
 
 def test_the_options_value_is_frozen_and_typed():
@@ -177,7 +277,7 @@ def test_keystore_create_of_a_run_file_writes_one_bundle_per_host(tmp_path):
     pytest.importorskip("cryptography")
     from formation_ilc.store.keystore import verify
 
-    path = write_run_file(tmp_path, "paper-triangle3", "--host-per-robot")
+    path = write_run_file(tmp_path, "paper-triangle3", "--host-per-robot", "--domain-id", "7")
     ks = tmp_path / "keys"
     assert main(["keystore", "create", str(ks), str(path), "--days", "2"]) == 0
     held = {h: sorted(str(p.relative_to(ks / "bundles" / h / "enclaves"))

@@ -64,3 +64,16 @@ def test_a_resumed_run_waits_only_for_its_own_rows(tmp_path: Path):
 def test_trial_ranges():
     assert trial_ranges([4]) == "trial 4"
     assert trial_ranges([9, 0, 1, 2, 5, 7, 8]) == "trials 0-2, 5, 7-9"
+
+
+def test_a_finding_of_the_leader_comes_after_its_cause(tmp_path: Path, capsys):
+    """A host that never joined: the leader's long finding names it last; the launcher says
+    the cause first, with what to do."""
+    w = Watch(BOUNDS, tmp_path, nodes=6, trials=4)
+    w.cause = lambda: "host r2 (robot_2) never joined: start `formation-ilc launch ...`"
+    mon = FakeMonitor(diagnostics={"virtual_leader": {"watchdog": {
+        "count": 1, "what": "stuck: waiting for ready of " + "x" * 900 + " robot_2"}}})
+    assert w.tick(mon, 0.0) is None
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "error: host r2 (robot_2) never joined: start `formation-ilc launch ...`"
+    assert lines[1].startswith("virtual_leader: stuck")

@@ -252,6 +252,29 @@ def test_a_launcher_stopped_by_sigterm_while_its_nodes_start_says_one_line(ros_e
     assert all(gone(p) for p in started)
 
 
+def test_ctrl_c_during_a_run_says_how_to_go_on_and_the_resume_finishes_it(ros_env, tmp_path):
+    """SIGINT (Ctrl-C) once a trial is in: status 130, and the command that goes on; that
+    command finishes the run."""
+    proc = start(ros_env, tmp_path, "paper-triangle3", "--trials", "40", "--seed", str(SEED))
+    try:
+        wait_rows(proc, tmp_path / "metrics.csv", 1)
+        os.killpg(proc.pid, signal.SIGINT)  # as a terminal's Ctrl-C: the whole group
+        out, _ = proc.communicate(timeout=120)
+    finally:
+        stop_group(proc, signal.SIGKILL)
+    assert proc.returncode == 130, out
+    hint = f"to go on: formation-ilc launch --resume {tmp_path}"
+    assert hint in out, out
+    assert "Traceback" not in out, out
+    done = len((tmp_path / "metrics.csv").read_text().splitlines()) - 1
+    assert 1 <= done < 40
+    res = subprocess.run([sys.executable, "-m", "formation_ilc.cli", "launch", "--resume",
+                          str(tmp_path), "--no-plots"], env=ros_env, capture_output=True,
+                         text=True, timeout=300)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert len((tmp_path / "metrics.csv").read_text().splitlines()) == 41
+
+
 def _cmdline(pid: int) -> bytes:
     try:
         return Path(f"/proc/{pid}/cmdline").read_bytes()

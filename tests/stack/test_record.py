@@ -198,3 +198,39 @@ def test_simulate_record_analyses_to_the_simulators_metrics(tmp_path):
     np.testing.assert_allclose(peaks.max(axis=1), ref[:, 1:3], rtol=1e-12, atol=1e-15)
     assert main(["analyze", str(rec), "--out", str(tmp_path / "an")]) == 0
     assert (tmp_path / "an" / "report.html").exists()
+
+
+@pytest.mark.ros
+@pytest.mark.multiprocess
+def test_a_stored_run_file_launched_again_records_into_its_new_folder(ros_env, tmp_path):
+    """A recorded run's run.yaml has no null; launched again with --out NEW it records under
+    NEW and writes nothing into the old run's folder (its recording's path, given relative
+    to the caller's folder, went to OUT/runs/... before)."""
+    import yaml
+
+    def run(*args: str) -> subprocess.CompletedProcess[str]:
+        argv = [sys.executable, "-m", "formation_ilc.cli", "launch", *args, "--no-plots",
+                "--timeout", "20"]
+        proc = subprocess.Popen(argv, env=ros_env, cwd=tmp_path, stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT, text=True, start_new_session=True)
+        try:
+            out, _ = proc.communicate(timeout=240)
+        finally:
+            stop_group(proc)
+        return subprocess.CompletedProcess(argv, proc.returncode, out, "")
+
+    first = run("paper-triangle3", "--trials", "1", "--seed", "3", "--out", "runs/a",
+                "--record", "runs/a/run.mcap", "--domain-id", ros_env["ROS_DOMAIN_ID"])
+    assert first.returncode == 0, first.stdout
+    old = tmp_path / "runs" / "a"
+    text = (old / "run.yaml").read_text()
+    assert "null" not in text and "record: '@run/run.mcap'" in text, text
+    assert yaml.safe_load(text)["network"]["domain_id"] == int(ros_env["ROS_DOMAIN_ID"])
+    before = {p: p.stat().st_mtime_ns for p in old.rglob("*")}
+    again = run("runs/a/run.yaml", "--out", "runs/new")
+    assert again.returncode == 0, again.stdout
+    assert (tmp_path / "runs" / "new" / "run.mcap").is_file()
+    assert {p: p.stat().st_mtime_ns for p in old.rglob("*")} == before
+    a = read_metrics(old / "metrics.csv")
+    b = read_metrics(tmp_path / "runs" / "new" / "metrics.csv")
+    np.testing.assert_allclose(np.array(a)[:, 1:7], np.array(b)[:, 1:7], rtol=0, atol=1e-9)
