@@ -455,9 +455,10 @@ def effective_values(plan: Any, options: Mapping[str, Any]) -> dict[str, Any]:
             d[key] = (_in_option_units(key, x) if known and math.isfinite(x) else None)
     safety = cfg.safety
     d["safety"] = safety is not None
-    d.update(body=None, safety_margin=None, safety_learning=None)
+    d.update(body=None, safety_margin=None, safety_learning=None, safety_motion=None)
     if safety is not None:
-        d.update(safety_margin=safety.margin, safety_learning=safety.learning)
+        d.update(safety_margin=safety.margin, safety_learning=safety.learning,
+                 safety_motion=safety.motion)
         if not row.bodies:  # (a plant with bodies knows its own: --body is refused there)
             d["body"] = safety.body
     if plan.live is None:

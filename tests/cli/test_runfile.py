@@ -208,6 +208,8 @@ def test_a_stored_run_file_holds_every_key_with_its_value_and_plans_the_same_run
     again = plan_of(options(str(first.out / RUN_YAML), "--out", str(tmp_path / "b")))
     same_run(first, again)
     assert again.config.safety == first.config.safety
+    if first.config.safety is not None:  # where the speeds came from, as the run took it
+        assert values["safety.motion"] == first.config.safety.motion
 
 
 def test_a_stored_run_files_paths_are_its_own_wherever_it_was_launched_from(
