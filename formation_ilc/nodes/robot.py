@@ -210,6 +210,7 @@ class RobotNode(ConfiguredNode):
                     ms.SAMPLE_QOS, raw=True) for j in range(pb.n) if j != lrn.i]
         #: told commands (``safety.motion: commands``): this robot's, out; the others', in
         self.applied_pub: Any = None
+        self.applied_sent = b""  # the last command told, sent again with a repeat
         self._told_subs: list[Any] = []
         if cfg.safety is not None and cfg.safety.motion == "commands":
             self.applied_pub = self.create_publisher(TwistStamped, ms.applied_topic(self.id),
@@ -368,6 +369,10 @@ class RobotNode(ConfiguredNode):
             self.shared_pub.publish(d)
         if not self.learner.commanded and (not again or again[-1] != data):
             self.shared_pub.publish(data)
+        if self.applied_pub is not None and self.applied_sent:
+            # the command it told last (labelled: a second copy is a duplicate, refused):
+            # another robot's filter may be waiting for it
+            self.applied_pub.publish(self.applied_sent)
 
     def _on_link_pose(self, msg: PoseStamped | bytes, sender: str) -> None:
         topic = f"{sender}/shared_pose" if sender != LEADER else ms.REFERENCE
@@ -486,8 +491,8 @@ class RobotNode(ConfiguredNode):
         u = self.learner.command()
         self.cmd_pub.publish(wire.twist_bytes(u))
         if self.applied_pub is not None:
-            self.applied_pub.publish(wire.applied_bytes(u, self.learner.rt_ns,
-                                                        self._base_frame))
+            self.applied_sent = wire.applied_bytes(u, self.learner.rt_ns, self._base_frame)
+            self.applied_pub.publish(self.applied_sent)
         self._disarm()
 
     # ------------------------------------------------------------------ trial end
