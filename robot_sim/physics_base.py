@@ -190,10 +190,15 @@ class PhysicsBases(ContactActing, ConfiguredNode):
         self._report()  # the counts, the ending contact's included, before the end
 
     def _report(self) -> None:
+        # of the trial whose trial or return the contact ended: a report of trial -1 after
+        # that trial's own was refused as stale by the launcher's monitor, and the
+        # contact that ended a run in a return was missing from return_contacts_by_trial
         extra: dict[str, Any] = {}
+        trial = -1
         if self.trials is not None:
             extra = {**self.trials.by_trial, "contact_events": self.watch.events}
-        self.diag_pub.publish(ms.diagnostics_to_msg({"node": NAME, "trial": -1,
+            trial = self.trials.trial
+        self.diag_pub.publish(ms.diagnostics_to_msg({"node": NAME, "trial": trial,
                                                       **self.core.report(), **extra},
                                                      time.time_ns()))
 
