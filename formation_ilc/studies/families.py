@@ -53,7 +53,8 @@ import yaml
 
 from formation_ilc.config.scenario import Scenario, scenario_from_data
 
-__all__ = ["KINDS", "TEAMS", "scenario_data", "draw", "family_scenario", "family", "DT", "SAMPLES"]
+__all__ = ["KINDS", "TEAMS", "scenario_data", "scenario_of", "draw", "family_data",
+           "family_scenario", "family", "DT", "SAMPLES"]
 
 KINDS = ("crossing", "following", "swapping", "orbit", "gate", "lanes", "tusi", "grid")
 DT = 0.2
@@ -388,8 +389,27 @@ def draw(kind: str, seed: int, *, name: str | None = None, **options: Any) -> Sc
     stretched in time (a time scale reads the text again) and written out as a file."""
     data = scenario_data(kind, seed, **options)
     data["name"] = name or f"{kind}-{seed}"
-    return scenario_from_data(data, yaml.safe_dump(data, sort_keys=False),
-                              f"<family {kind} {seed}>")
+    return scenario_of(data, f"<family {kind} {seed}>")
+
+
+def scenario_of(data: dict[str, Any], where: str = "<family>") -> Scenario:
+    """The scenario of scenario-file ``data``, its text the data as YAML."""
+    return scenario_from_data(data, yaml.safe_dump(data, sort_keys=False), where)
+
+
+def family_data(kind: str, seed: int, *, robots: int | None = None, noise: bool = False,
+                delay: bool = True, trials: int = 100, body: str = "p3dx",
+                tries: int = 50) -> tuple[dict[str, Any], Scenario]:
+    """``family_scenario``'s member with its data (a study may edit that and check it
+    again with ``fits(scenario_of(data))``)."""
+    for k in range(tries):
+        data = scenario_data(kind, seed + k * 1_000_000, robots=robots, noise=noise,
+                             delay=delay, trials=trials)
+        data["name"] = f"{kind}-{seed}"
+        sc = scenario_of(data, f"<family {kind} {seed + k * 1_000_000}>")
+        if fits(sc, body):
+            return data, sc
+    raise ValueError(f"no draw of family {kind} seed {seed} fits {body} robots in {tries} tries")
 
 
 def family_scenario(kind: str, seed: int, *, robots: int | None = None, noise: bool = False,
@@ -398,12 +418,8 @@ def family_scenario(kind: str, seed: int, *, robots: int | None = None, noise: b
     """The scenario of family ``kind`` for ``seed`` that fits ``body`` robots (``fits``):
     the first of draws seed, seed + 10^6, seed + 2 10^6, ... that fits. ValueError when
     none of ``tries`` draws fits."""
-    for k in range(tries):
-        sc = draw(kind, seed + k * 1_000_000, robots=robots, noise=noise, delay=delay,
-                  trials=trials, name=f"{kind}-{seed}")
-        if fits(sc, body):
-            return sc
-    raise ValueError(f"no draw of family {kind} seed {seed} fits {body} robots in {tries} tries")
+    return family_data(kind, seed, robots=robots, noise=noise, delay=delay, trials=trials,
+                       body=body, tries=tries)[1]
 
 
 def family(kind: str, seeds: range | list[int], **options: Any) -> Iterator[Scenario]:
