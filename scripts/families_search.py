@@ -62,13 +62,15 @@ def main() -> int:
         print(f"  {m.name:<28} n={m.data['robots']:<2} {m.safe:7.3f} / {m.free:7.3f} m  "
               f"ratio {m.ratio:6.2f}  log speed/spacing/period {moved}")
     worst = judged[0]
-    head = (f"# The worst member found by scripts/families_search.py --seed {args.seed} "
-            f"--trial {args.trial} --motion {args.motion}\n"
-            f"# ({args.random} random, {args.local} local steps): {worst.name}, "
-            f"error at trial {args.trial} through the filter {worst.safe:.3f} m against "
-            f"{worst.free:.3f} m without it (ratio {worst.ratio:.2f}).\n"
-            f"# Perturbation of the drawn member (studies.family_search.perturb): "
-            f"{[round(v, 4) for v in worst.x]}\n")
+    head = (f"# The worst member found by scripts/families_search.py --seed {args.seed}\n"
+            f"#   --trial {args.trial} --motion {args.motion} --random {args.random} "
+            f"--local {args.local} --starts {args.starts}\n"
+            f"#   --noise-share {args.noise_share} --kinds {' '.join(args.kinds)}\n"
+            f"# {worst.name}: error at trial {args.trial} through the filter "
+            f"{worst.safe:.3f} m against {worst.free:.3f} m without it "
+            f"(ratio {worst.ratio:.2f}).\n"
+            f"# Perturbation of the drawn member (studies.family_search.perturb):\n"
+            f"#   {[round(v, 4) for v in worst.x]}\n")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(head + yaml.safe_dump(worst.data, sort_keys=False))
     print(f"wrote {args.out}")
