@@ -10,7 +10,7 @@ Random members of the families (``studies.families``, with and without the paper
 noise, each fitting a P3-DX team), then a local search over the worst few's continuous
 parameters (speed, spacing, periods, phases; every step must still fit), judged by the
 error through the filter over the error without it at trial ``--trial`` (0-based), cold
-starts in the batch simulator (``studies.family_search``). Prints every member judged, the
+starts in the batch simulator (``studies.families.search``). Prints every member judged, the
 worst ``--show`` with their ratios, and writes the worst member's scenario file to
 ``--out``. Deterministic for ``--seed``. About 0.5-2 s a member on 2 cores.
 """
@@ -26,8 +26,7 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from formation_ilc.studies.families import KINDS  # noqa: E402
-from formation_ilc.studies.family_search import search  # noqa: E402
+from formation_ilc.studies.families import KINDS, search  # noqa: E402
 
 
 def main() -> int:
@@ -69,7 +68,7 @@ def main() -> int:
             f"# {worst.name}: error at trial {args.trial} through the filter "
             f"{worst.safe:.3f} m against {worst.free:.3f} m without it "
             f"(ratio {worst.ratio:.2f}).\n"
-            f"# Perturbation of the drawn member (studies.family_search.perturb):\n"
+            f"# Perturbation of the drawn member (studies.families.perturb):\n"
             f"#   {[round(v, 4) for v in worst.x]}\n")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(head + yaml.safe_dump(worst.data, sort_keys=False))
