@@ -26,6 +26,7 @@ import json
 import socket
 from importlib.metadata import entry_points
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -195,6 +196,27 @@ def test_the_team_is_the_one_the_leader_waited_for(key):
                                want["passive"], want["expected"]]
 
 
+def _take_own_and_peers(got: dict, suffix: str, prefix: str | None, topic: Any,
+                        namespace: str, n: int) -> None:
+    """Check and take out of the grants ``got`` the topics ending in ``/suffix``: node
+    ``PREFIX``i publishes ``topic(i)`` and reads every other member's ``topic(j)``; no
+    other node touches them (None: no node at all)."""
+    for path, g in got.items():
+        name = path.rsplit("/", 1)[1]
+        pub = {t for t in g["publish"] if t.endswith(f"/{suffix}")}
+        sub = {t for t in g["subscribe"] if t.endswith(f"/{suffix}")}
+        tail = name[len(prefix):] if prefix is not None and name.startswith(prefix) else ""
+        if tail.isdigit():
+            i = int(tail)
+            assert pub == {absolute(topic(i), namespace)}, name
+            assert sub == {absolute(topic(j), namespace)
+                           for j in range(1, n + 1) if j != i}, name
+        else:
+            assert not pub and not sub, name
+        g["publish"] = [t for t in g["publish"] if t not in pub]
+        g["subscribe"] = [t for t in g["subscribe"] if t not in sub]
+
+
 @pytest.mark.parametrize("key", sorted(_golden("grants")))
 def test_every_enclave_keeps_its_grant(key):
     scenario, namespace, plant, driver, driver_ns = key.split("|")
@@ -241,35 +263,12 @@ def test_every_enclave_keeps_its_grant(key):
     g["subscribe"] = [t for t in g["subscribe"] if t != diag]
     # the returns' safety filter (issue 37): each bridge says where its robot is between
     # trials and reads every other bridge's, granted now; nobody else
-    for path, g in got.items():
-        name = path.rsplit("/", 1)[1]
-        wpub = {t for t in g["publish"] if t.endswith("/whereabouts")}
-        wsub = {t for t in g["subscribe"] if t.endswith("/whereabouts")}
-        if name.startswith("bridge_"):
-            i = int(name[7:])
-            assert wpub == {absolute(whereabouts_topic(i), namespace)}, name
-            assert wsub == {absolute(whereabouts_topic(j), namespace)
-                            for j in range(1, n + 1) if j != i}, name
-        else:
-            assert not wpub and not wsub, name
-        g["publish"] = [t for t in g["publish"] if t not in wpub]
-        g["subscribe"] = [t for t in g["subscribe"] if t not in wsub]
+    _take_own_and_peers(got, "whereabouts", "bridge_", whereabouts_topic, namespace, n)
     # the commands the robots tell each other for their filters (issue 52): each robot
     # publishes its own robot_i/applied and reads every other robot's, where the robots
     # have a filter to hear the others with; nobody else
-    for path, g in got.items():
-        name = path.rsplit("/", 1)[1]
-        apub = {t for t in g["publish"] if t.endswith("/applied")}
-        asub = {t for t in g["subscribe"] if t.endswith("/applied")}
-        if name.startswith("robot_") and name[6:].isdigit() and lineup.sensing is not None:
-            i = int(name[6:])
-            assert apub == {absolute(applied_topic(i), namespace)}, name
-            assert asub == {absolute(applied_topic(j), namespace)
-                            for j in range(1, n + 1) if j != i}, name
-        else:
-            assert not apub and not asub, name
-        g["publish"] = [t for t in g["publish"] if t not in apub]
-        g["subscribe"] = [t for t in g["subscribe"] if t not in asub]
+    _take_own_and_peers(got, "applied", "robot_" if lineup.sensing is not None else None,
+                        applied_topic, namespace, n)
     assert got == _golden("grants")[key]
     team = absolute(TEAM_POSES, namespace)
     robots = {f"robot_{i}" for i in range(1, n + 1)}
