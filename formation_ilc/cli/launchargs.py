@@ -277,7 +277,8 @@ def add_safety_arguments(p: argparse.ArgumentParser) -> None:
                         "poses (estimated from two of their poses, widened by what the "
                         "scenario's noise allows: 0.12 m/s with the paper's noise, which "
                         "holds robots off their own motion). Default: commands up to "
-                        f"{TOLD_UP_TO} robots, poses beyond (N (N - 1) messages a sample). "
+                        f"{TOLD_UP_TO} robots, poses beyond (N (N - 1) messages a sample) and "
+                        "behind bridges (pioneer, base: each on its own clock). "
                         "docs/safety.md")
     g.add_argument("--on-contact", choices=("stop", "abort", "continue"), default="stop",
                    help="with --plant physics or --physics-bases, when two robots touch "

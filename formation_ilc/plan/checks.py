@@ -78,7 +78,8 @@ def _safety(opts: LaunchOptions, row: Plant, sc: Scenario, namespace: str,
                               opts.safety_learning
                               or default_learning(body),
                               "peers" if row.per_robot else "team",
-                              opts.safety_motion or default_motion(sc.n))
+                              opts.safety_motion
+                              or default_motion(sc.n, bridged=row.per_robot))
     except ValueError as exc:
         raise NoRun(f"--safety: {exc}") from None
 

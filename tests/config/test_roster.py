@@ -362,7 +362,8 @@ def test_a_launch_plans_the_processes_it_planned(tmp_path, key):
                   for s in plan.nodes]})
     want = _with_motion(_with_bases_following_trials(_with_new_example(
         _with_one_limits_table(_with_damped_learning(_with_bases_truth(
-            _golden("plans")[key]))))), default_motion(plan.scenario.n))
+            _golden("plans")[key]))))),
+        default_motion(plan.scenario.n, bridged=plan.row.per_robot))
     assert got == want
     # the roster names the same processes, each started by its entry script
     sc = plan.scenario
