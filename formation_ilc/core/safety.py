@@ -404,6 +404,12 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
     # carried distance f(v) over its speed, dT + |v| / (2 a), at the box's least |v|
     v_least = 0.0 if v_lo <= 0.0 <= v_hi else min(abs(v_lo), abs(v_hi))
     t_close = dt + v_least / (2.0 * a_b) if a_b < _BIG else dt
+    # the learned command's own carried distance, turn and path (``keeps`` below), once
+    judge_own = inside and own_bound
+    f_n = _carry(v_n, dt, a_b)
+    g_n = _carry(w_n, dt, al_b)
+    path_n = _carry(abs(v_n), dt, a_b)
+    q_n = 0.5 * (path_n + l_max) * abs(g_n)
     # in scaled coordinates (v, c omega) the cost is Euclidean
     zx, zy = v_n, c * w_n
     bx0, bx1, by0, by1 = v_lo, v_hi, c * w_lo, c * w_hi
@@ -526,12 +532,9 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
                 # and passes (the paper's triangle on Pioneers: its desired motion kept it
                 # where the chords were off by 2-3 mm)
                 keeps = False
-                if inside and own_bound:
-                    g_n = _carry(w_n, dt, al_b)
-                    path_n = _carry(abs(v_n), dt, a_b)
-                    q_n = 0.5 * (path_n + l_max) * abs(g_n)
+                if judge_own:
                     bend = path_n * bside
-                    x_n = a0 * _carry(v_n, dt, a_b) + (
+                    x_n = a0 * f_n + (
                         (a1c + (bend if bside > 0.0 else 0.0) + q_n) * g_n if g_n >= 0.0
                         else (a1c + (bend if bside < 0.0 else 0.0) - q_n) * g_n)
                     keeps = x_n <= b_i + mine * slack + _TOL
