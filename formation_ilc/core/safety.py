@@ -88,13 +88,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from formation_ilc.core._jit import njit
+from formation_ilc.core.estimate import box_centre, box_error, box_start, box_step
 from formation_ilc.core.limits import Limits
 
 __all__ = ["SafetySpec", "LEARNING", "CHANGED_LIMITS", "CHANGED_BARRIER", "INFEASIBLE",
            "CHANGED",
            "filter_command", "filter_team", "motion", "learn_base", "DAMPING",
            "freeze_flagged", "smooth_learning", "after_learning", "Q_SIGMA",
-           "learning_code", "PARAMS", "MAX_DISCS", "OTHER_FIELDS", "told"]
+           "learning_code", "PARAMS", "MAX_DISCS", "OTHER_FIELDS", "told", "team_boxes"]
 
 #: how the memory learns at samples the filter changed
 LEARNING = ("applied", "freeze", "ignore", "split", "damped")
@@ -115,11 +116,15 @@ CHANGED = CHANGED_LIMITS | CHANGED_BARRIER
 #: the order of ``SafetySpec.params()``
 PARAMS = ("distance", "discs", "gamma", "radius", "v_max", "omega_max", "a_max",
           "alpha_max", "dt", "stale_speed", "weight", "speed_uncertainty", "brake_share",
-          "lag", "commands", "own_bound", "told_uncertainty")
+          "lag", "commands", "own_bound", "told_uncertainty", "pose_error", "noise",
+          "process", "heading_error")
 #: the columns of a robot heard (``filter_command``'s ``others``): pose (x, y, theta),
-#: motion (vx, vy, omega), and 1 where that motion is the command the robot told (``told``),
-#: 0 where it is estimated from its poses (``motion``)
-OTHER_FIELDS = 7
+#: motion (vx, vy, omega), 1 where that motion is the command the robot told (``told``),
+#: 0 where it is estimated from its poses (``motion``), and how far this robot's position
+#: and robot j's, as the filter has them, can be off together [m] (the pair's distance
+#: grows by it: ``pose_error`` for raw poses, two boxes' half-diagonals for estimates,
+#: ``core.estimate``)
+OTHER_FIELDS = 8
 #: at most this many discs cover a body
 MAX_DISCS = 3
 _TOL = 1e-12
@@ -168,6 +173,13 @@ class SafetySpec:
         batch simulator's ``filter_team`` takes every other robot's speed from it.
     told_uncertainty : [m/s] how wrong a told robot's velocity may be (its direction comes
         from its measured heading).
+    pose_error : [m] how far the difference of two robots' measured positions can be from
+        the true one: the distance grows by it where positions are the raw poses.
+    noise, process, heading_error : where robots tell their commands, each robot's
+        position is estimated (``core.estimate``): poses off by up to ``noise`` [m] per
+        axis, motion off the told command by up to ``process`` [m] per axis a sample, the
+        heading by up to ``heading_error`` [rad]; the distance then grows by the two
+        estimates' bounds instead of ``pose_error``.
     learning : how the memory learns where the filter changed the command (LEARNING).
     """
 
@@ -185,6 +197,10 @@ class SafetySpec:
     learning: str = "damped"
     commands: bool = False
     told_uncertainty: float = 0.0
+    pose_error: float = 0.0
+    noise: float = 0.0
+    process: float = 0.0
+    heading_error: float = 0.0
 
     def __post_init__(self) -> None:
         checks = (("discs", 1 <= len(self.discs) <= MAX_DISCS
@@ -199,6 +215,8 @@ class SafetySpec:
                    and math.isfinite(self.speed_uncertainty)),
                   ("told_uncertainty", self.told_uncertainty >= 0
                    and math.isfinite(self.told_uncertainty)),
+                  *((name, getattr(self, name) >= 0 and math.isfinite(getattr(self, name)))
+                    for name in ("pose_error", "noise", "process", "heading_error")),
                   ("window", isinstance(self.window, int) and self.window >= 0),
                   ("brake_share", 0 < self.brake_share <= 1))
         for name, ok in checks:
@@ -216,7 +234,8 @@ class SafetySpec:
                          lim.v_max, lim.omega_max, lim.a_max, lim.alpha_max, self.dt,
                          self.stale_speed, self.weight, self.speed_uncertainty, self.brake_share,
                          0.5 * max(self.window - 1, 0) * self.dt, float(self.commands),
-                         1.0, self.told_uncertainty, *self.discs])
+                         1.0, self.told_uncertainty, self.pose_error, self.noise, self.process,
+                         self.heading_error, *self.discs])
 
 
 @njit(cache=True)
@@ -443,7 +462,7 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
         # sig x age of there; or, if its speed limit (``stale``) says less, within that of
         # where it was
         ahead = age > 0.0 and not (0.0 < stale <= sig)
-        dj = dist + (sig if ahead or stale <= 0.0 else stale) * age
+        dj = dist + float(others[j, 7]) + (sig if ahead or stale <= 0.0 else stale) * age
         if ahead:
             ox += vxj * age
             oy += vyj * age
@@ -694,23 +713,29 @@ def told(th: float, v: float, w: float, out: NDArray[np.float64], at: int) -> No
 def filter_team(t: int, u: NDArray[np.float64], eta: NDArray[np.float64],
                 prev: NDArray[np.float64], age: float, params: NDArray[np.float64],
                 window: int, nominal: NDArray[np.float64], flags: NDArray[np.int64],
-                others: NDArray[np.float64], ages: NDArray[np.float64]) -> None:
+                others: NDArray[np.float64], ages: NDArray[np.float64],
+                boxes: NDArray[np.float64]) -> int:
     """Every robot's filter at sample t, as the batch simulator runs it: robot r hears
     every other robot's measured pose eta[j, t], ``age`` seconds old, and estimates its
     motion from eta[j, t - window] (``motion``; from sample 0 before that), or, where the
     robots tell each other their commands (params ``commands``), takes it from the
-    command robot j applied over the sample before (``told``).
+    command robot j applied over the sample before (``told``), and every position from
+    its box (``team_boxes``).
 
     u : shape (N, >= t+1, 2), the learned commands at column t on entry, the safe ones on
         return (the nominal ones are copied into ``nominal`` (N, >= t+1, 2) first).
     eta : shape (N, >= t+1, 3), measured poses. prev : shape (N, 2), the previous
         commands (updated to the safe ones). flags : shape (N, >= t+1), written at t.
-    others, ages : scratch of shape (N, OTHER_FIELDS) and (N,).
+    others, ages : scratch of shape (N, OTHER_FIELDS) and (N,). boxes : shape (N, 4),
+        each robot's box (``core.estimate``), moved on to sample t here (called once a
+        sample, t = 0, 1, ... of a trial). Returns how many poses missed their box.
     """
     n = u.shape[0]
     res = np.empty(2)
     dt = params[8]
     commands = params[14] > 0.0  # PARAMS: "commands"
+    pose_error = params[17]
+    missed = team_boxes(t, eta, prev, params, boxes) if commands else 0
     back = max(0, t - window) if window > 0 else t
     for r in range(n):
         nominal[r, t, 0] = u[r, t, 0]
@@ -720,24 +745,49 @@ def filter_team(t: int, u: NDArray[np.float64], eta: NDArray[np.float64],
         for j in range(n):
             if j == r:
                 continue
-            others[m, 0] = eta[j, t, 0]
-            others[m, 1] = eta[j, t, 1]
             others[m, 2] = eta[j, t, 2]
             if commands:
+                others[m, 0], others[m, 1] = box_centre(boxes, j)
+                others[m, 7] = box_error(boxes, j) + box_error(boxes, r)
                 told(eta[j, t, 2], prev[j, 0], prev[j, 1], others, m)
             else:
+                others[m, 0] = eta[j, t, 0]
+                others[m, 1] = eta[j, t, 1]
+                others[m, 7] = pose_error
                 motion(eta[j, t, 0], eta[j, t, 1], eta[j, t, 2], eta[j, back, 0],
                        eta[j, back, 1], eta[j, back, 2], (t - back) * dt, others, m)
             ages[m] = age
             m += 1
-        flags[r, t] = filter_command(nominal[r, t, 0], nominal[r, t, 1], eta[r, t, 0],
-                                     eta[r, t, 1], eta[r, t, 2], prev[r, 0], prev[r, 1],
-                                     others, ages, m, params, res)
+        if commands:
+            x, y = box_centre(boxes, r)
+        else:
+            x, y = eta[r, t, 0], eta[r, t, 1]
+        flags[r, t] = filter_command(nominal[r, t, 0], nominal[r, t, 1], x, y, eta[r, t, 2],
+                                     prev[r, 0], prev[r, 1], others, ages, m, params, res)
         u[r, t, 0] = res[0]
         u[r, t, 1] = res[1]
     for r in range(n):
         prev[r, 0] = u[r, t, 0]
         prev[r, 1] = u[r, t, 1]
+    return missed
+
+
+@njit(cache=True)
+def team_boxes(t: int, eta: NDArray[np.float64], prev: NDArray[np.float64],
+               params: NDArray[np.float64], boxes: NDArray[np.float64]) -> int:
+    """Every robot's box (``core.estimate``) moved on to sample t: from its pose alone at
+    t = 0, else by the command it applied over the sample before (``prev``, what it
+    told) from its heading then, cut by its pose of t. Returns how many poses missed
+    their box (each starts afresh)."""
+    noise, process, heading = params[18], params[19], params[20]
+    missed = 0
+    for r in range(eta.shape[0]):
+        if t == 0:
+            box_start(boxes, r, eta[r, 0, 0], eta[r, 0, 1], noise)
+        elif not box_step(boxes, r, eta[r, t - 1, 2], prev[r, 0], prev[r, 1], params[8],
+                          eta[r, t, 0], eta[r, t, 1], noise, process, heading):
+            missed += 1
+    return missed
 
 
 @njit(cache=True)
