@@ -229,8 +229,10 @@ def add_plant_arguments(p: argparse.ArgumentParser) -> None:
                         "loop), or the Husky whose base tracks its commanded speed and turn "
                         "rate (husky-imu: docs/physics.md)")
     p.add_argument("--pose", choices=("truth", "odometry"), default="truth",
-                   help="with --plant physics: the robots' measured pose, the engine's ground "
-                        "truth (a motion-capture stand-in, default) or wheel odometry")
+                   help="with --plant physics or --physics-bases: the robots' measured pose, "
+                        "the engine's ground truth (a motion-capture stand-in, default; the "
+                        "bridges' pose_topic) or wheel odometry (refused under the safety "
+                        "filter: it drifts)")
     p.add_argument("--pass-through", action="store_true",
                    help="with --plant physics: robots pass through each other instead of "
                         "colliding (contacts are then not reported)")

@@ -244,7 +244,7 @@ PLANT_USES: dict[str, tuple[Any, str]] = {
                     "--plant physics or --physics-bases"),
     "pass_through": (lambda p, o: p.physics or o.physics_bases,
                      "--plant physics or --physics-bases"),
-    "pose": (lambda p, o: p.physics, "--plant physics"),
+    "pose": (lambda p, o: p.physics or o.physics_bases, "--plant physics or --physics-bases"),
     "physics_rate": (lambda p, o: p.physics, "--plant physics"),
     "on_contact": (lambda p, o: p.physics or o.physics_bases,
                    "--plant physics or --physics-bases: their bodies touch"),
