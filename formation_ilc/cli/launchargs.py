@@ -247,7 +247,8 @@ def add_plant_arguments(p: argparse.ArgumentParser) -> None:
 def add_safety_arguments(p: argparse.ArgumentParser) -> None:
     """The safety filter's options (docs/safety.md)."""
     from formation_ilc.config.safety import BODIES, MOTION, TOLD_UP_TO
-    from formation_ilc.core.safety import DAMPING, LEARNING, Q_SIGMA
+    from formation_ilc.core.safety import LEARNING
+    from formation_ilc.core.through import DAMPING, Q_SIGMA
 
     g = p.add_argument_group("the safety filter (docs/safety.md)")
     g.add_argument("--safety", action=argparse.BooleanOptionalAction, default=None,

@@ -30,15 +30,8 @@ from formation_ilc.core.law import (
 from formation_ilc.core.links import delivered_label
 from formation_ilc.core.metrics import METRIC_COLUMNS
 from formation_ilc.core.pcg import STATE_SIZE
-from formation_ilc.core.safety import (
-    CHANGED,
-    OTHER_FIELDS,
-    SafetySpec,
-    after_learning,
-    filter_team,
-    learn_base,
-    learning_code,
-)
+from formation_ilc.core.safety import CHANGED, OTHER_FIELDS, SafetySpec, filter_team
+from formation_ilc.core.through import after_learning, learn_base, learning_code
 from formation_ilc.core.uncertainty import (
     DelayArrays,
     PlantArrays,

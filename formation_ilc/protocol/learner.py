@@ -14,7 +14,7 @@ comes back. Everything that decides what the robot does lives here, with no ROS 
 * with a safety filter (``core.safety``), the other robots' poses it hears
   (``on_team_pose``), the filter between the law's command and the plant
   (``safety.filter_command``, the batch simulator's), and learning through it
-  (``safety.learn_base``): in lockstep it waits for every robot's pose of its sample, as
+  (``through.learn_base``): in lockstep it waits for every robot's pose of its sample, as
   the batch simulator filters with them.
 
 Event order for trial k: ``on_pose`` per sample (the robot's own measured pose, whose label
@@ -60,13 +60,11 @@ from formation_ilc.core.safety import (
     INFEASIBLE,
     OTHER_FIELDS,
     SafetySpec,
-    after_learning,
     filter_command,
-    learn_base,
-    learning_code,
     motion,
     told,
 )
+from formation_ilc.core.through import after_learning, learn_base, learning_code
 from formation_ilc.model.simulate import Problem
 from formation_ilc.store.robotstate import RobotState
 

@@ -25,15 +25,8 @@ from formation_ilc.config.scenario import Scenario
 from formation_ilc.core.estimate import BOX
 from formation_ilc.core.law import command, learn
 from formation_ilc.core.metrics import METRIC_COLUMNS
-from formation_ilc.core.safety import (
-    CHANGED,
-    OTHER_FIELDS,
-    SafetySpec,
-    after_learning,
-    filter_team,
-    learn_base,
-    learning_code,
-)
+from formation_ilc.core.safety import CHANGED, OTHER_FIELDS, SafetySpec, filter_team
+from formation_ilc.core.through import after_learning, learn_base, learning_code
 from formation_ilc.model.footprint import Clearance, trial_clearance
 from formation_ilc.model.physics import DEFAULT_RATE, POSE_SOURCES, PhysicsWorld, RobotModel
 from formation_ilc.model.simulate import Problem, trial_errors

@@ -19,16 +19,18 @@ from formation_ilc.core.limits import Limits
 from formation_ilc.core.safety import (
     CHANGED_BARRIER,
     CHANGED_LIMITS,
-    DAMPING,
     INFEASIBLE,
     OTHER_FIELDS,
     PARAMS,
-    Q_SIGMA,
     SafetySpec,
     filter_command,
+    motion,
+)
+from formation_ilc.core.through import (
+    DAMPING,
+    Q_SIGMA,
     freeze_flagged,
     learn_base,
-    motion,
     smooth_learning,
 )
 from formation_ilc.model.footprint import Footprint, footprint_of, trial_clearance
