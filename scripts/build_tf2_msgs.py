@@ -7,7 +7,8 @@ tf2_msgs is not among the ROS 2 Jazzy wheels on PyPI, but the code generators an
 support libraries are (they come with rclpy). This script does what colcon and ament_cmake
 do for an interface package, without them:
 
-1. ``scripts/tf2_msgs/msg/TFMessage.msg`` (the upstream definition,
+1. ``scripts/tf2_msgs/msg/TFMessage.msg`` (the upstream definition, byte for byte: ros2/geometry2,
+   jazzy, tf2_msgs/msg/TFMessage.msg,
    ``geometry_msgs/TransformStamped[] transforms``) to IDL (rosidl_adapter);
 2. the C structures, the type description and its hash (rosidl_generator_c), the
    ``rosidl_typesupport_c`` dispatch, the Fast DDS C type support (CDR), the introspection
@@ -149,7 +150,7 @@ def compile_all(gen: pathlib.Path, stage: pathlib.Path, venv: pathlib.Path) -> N
     incs.append(f"-I{vinc}")
     incs += [f"-I{gen / g}" for g in ("c", "ts_c", "fastrtps_c", "introspection_c")]
     incs += [f"-I{sysconfig.get_paths()['include']}", f"-I{numpy.get_include()}"]
-    libdirs = [f"-L{lib}", f"-L{venv / 'lib'}", f"-Wl,-rpath,$ORIGIN"]
+    libdirs = [f"-L{lib}", f"-L{venv / 'lib'}", "-Wl,-rpath,$ORIGIN"]
     cc = [os.environ.get("CC", "gcc"), "-O2", "-fPIC", "-shared", "-std=c11", *incs]
     cxx = [os.environ.get("CXX", "g++"), "-O2", "-fPIC", "-shared", "-std=c++17", *incs]
     base = [f"-l{d}__rosidl_generator_c" for d in DEPS] + ["-lrosidl_runtime_c", "-lrcutils"]

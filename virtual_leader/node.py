@@ -90,9 +90,11 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
-from std_msgs.msg import String
+from std_msgs.msg import Bool, String
+from std_srvs.srv import Trigger
 
 import msgs_schema as ms
 from formation_ilc.config import params
@@ -101,6 +103,7 @@ from formation_ilc.config.roster import Lineup, roster
 from formation_ilc.config.runconfig import PARAMS, RunConfig, clocks_param
 from formation_ilc.core.clock import Rejected
 from formation_ilc.nodes.clocks import ClockExchange, node_clock
+from formation_ilc.nodes.frames import Frame, Frames
 from formation_ilc.nodes.common import (
     Diagnostics,
     DropCounter,
@@ -117,6 +120,11 @@ from formation_ilc.nodes.params import declare, effective
 from formation_ilc.protocol.leader import NAME, Leader
 from formation_ilc.protocol.plant import RESEND_S
 from formation_ilc.protocol.schedule import TrialEvent
+from formation_ilc.system.exits import STOPPED
+
+#: [s] how long a stopped leader waits for every reader of the e-stop to acknowledge it
+#: before its process ends (the bridges hold zero on their own meanwhile and after)
+STOP_ACK_S = 1.0
 
 
 class LeaderNode(GuardedNode):
@@ -163,6 +171,7 @@ class LeaderNode(GuardedNode):
         self.ref_pub = self.create_publisher(PoseStamped, ms.REFERENCE, ms.SAMPLE_QOS)
         self.event_pub = self.create_publisher(String, ms.TRIAL_EVENTS, ms.SAMPLE_QOS)
         self.diag_pub = Diagnostics(self)  # per-trial report and /diagnostics
+        self.frames = Frames(self)  # map -> leader, the reference (nodes.frames)
         # every ready and report from the node it names (protocol.writers)
         self.ready_sub = self.checked_readies(self._on_ready)
         # its own events come back here too; a start or abort it did not send is re-asserted
@@ -189,6 +198,12 @@ class LeaderNode(GuardedNode):
                 askers += [ms.bridge_name(i + 1) for i in range(sc.n)]
             self.clocks = ClockExchange(self, ms.LEADER, cfg, node_clock(cfg, None), (),
                                         askers, self.drops)
+        # the stop button: a call stops every robot and ends the run (status 7); an e-stop
+        # someone else latched ends it too
+        self.stopped_by: str | None = None
+        self.estop_pub = self.create_publisher(Bool, ms.ESTOP, ms.LATCHED_QOS)
+        self.create_service(Trigger, ms.STOP_SERVICE, self._on_stop)
+        self.create_subscription(Bool, ms.ESTOP, self._on_estop, ms.LATCHED_READER_QOS)
         self.config_pub.publish(ms.json_to_msg(cfg.to_json()))
         self._gate = self.create_timer(0.05, self.core.maybe_start)
         self.create_timer(5.0, self.core.report_wait)
@@ -213,6 +228,67 @@ class LeaderNode(GuardedNode):
     @property
     def expected(self) -> list[str]:
         return self.core.expected
+
+    # ------------------------------------------------------------------ the stop button
+    def _on_stop(self, request: Trigger.Request, response: Trigger.Response
+                 ) -> Trigger.Response:
+        """``stop`` called: every robot commands zero at once (the e-stop, latched), and the
+        run ends with status 7, naming who called."""
+        srv = self.resolve_service_name(ms.STOP_SERVICE)
+        callers = self._clients_of(srv)
+        who = (", ".join(callers) if callers else "a client the graph does not name yet")
+        if self.stopped_by is None:
+            self._stop(f"{srv} called by {who}")
+            response.message = (f"stopped: every robot commands zero; the run ends with "
+                                f"status {STOPPED}")
+        else:
+            response.message = f"already stopped ({self.stopped_by})"
+        response.success = True
+        return response
+
+    def _on_estop(self, msg: Bool) -> None:
+        if not msg.data or self.stopped_by is not None:
+            return
+        topic = self.resolve_topic_name(ms.ESTOP)
+        writers = sorted({f"{i.node_namespace.rstrip('/')}/{i.node_name}"
+                          for i in self.get_publishers_info_by_topic(topic)
+                          if i.node_name != self.get_name()})
+        self._stop(f"an e-stop on {topic} from {', '.join(writers) or 'a writer now gone'}")
+
+    def _clients_of(self, service: str) -> list[str]:
+        """The nodes with a client of ``service`` (the graph's word: rclpy gives a service
+        callback no caller)."""
+        out = []
+        for name, ns in self.get_node_names_and_namespaces():
+            try:
+                clients = self.get_client_names_and_types_by_node(name, ns)
+            except Exception:  # noqa: BLE001 - a node gone between the two queries
+                continue
+            if any(c == service for c, _ in clients):
+                out.append(f"{ns.rstrip('/')}/{name}")
+        return sorted(out)
+
+    def _stop(self, who: str) -> None:
+        """Latch the e-stop (every bridge sends its driver zero and holds it, every robot
+        commands zero), start no trial, and end the process with ``STOPPED`` once the
+        e-stop's readers have it."""
+        self.stopped_by = who
+        self.estop_pub.publish(Bool(data=True))
+        self._gate.cancel()
+        if hasattr(self, "_wall_timer"):
+            self._wall_timer.cancel()
+        text = (f"stopped by {who}: every robot commands zero (e-stop latched on "
+                f"{self.resolve_topic_name(ms.ESTOP)}); the run ends with status {STOPPED}")
+        self.get_logger().warning(text)
+        print(f"{NAME}: {text}", file=sys.stderr, flush=True)
+        # the answer goes out before the process ends: the exit is a timer later
+        self._stop_timer = self.create_timer(0.05, self._stop_exit)
+
+    def _stop_exit(self) -> None:
+        self._stop_timer.cancel()
+        self.estop_pub.wait_for_all_acked(Duration(seconds=STOP_ACK_S))
+        fail(self, f"stopped by {self.stopped_by}; every robot was commanded zero "
+                   f"(status {STOPPED}, docs/real-robots.md, \"Stopping\")", STOPPED)
 
     # ------------------------------------------------------------------ callbacks
     def _on_ready(self, msg: String) -> None:
@@ -265,6 +341,8 @@ class LeaderNode(GuardedNode):
 
     def publish_reference(self, t: int, stamp_ns: int) -> None:
         ref = self.cfg.scenario.reference[t]
+        self.frames.publish(stamp_ns, [Frame(ms.WORLD_FRAME, ms.LEADER_FRAME_ID,
+                                             float(ref[0]), float(ref[1]), float(ref[2]))])
         if self.cfg.mode == "wallclock":
             self.ref_pub.publish(ms.pose_to_msg(ref, stamp_ns, ms.WORLD_FRAME, self.ref_msg))
         else:  # bytes, as the per-sample messages are

@@ -101,13 +101,14 @@ from geometry_msgs.msg import PoseStamped, Twist, TwistStamped
 from nav_msgs.msg import Odometry, Path
 from rclpy.lifecycle import LifecycleNodeMixin, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
-from std_msgs.msg import String
+from std_msgs.msg import Bool, String
 
 import msgs_schema as ms
 from formation_ilc.config import params
 from formation_ilc.config.bases import LIMIT_KEYS, base_preset
 from formation_ilc.core.clock import Rejected
 from formation_ilc.nodes.clocks import ClockExchange, node_clock
+from formation_ilc.nodes.frames import BRIDGE_TF_HZ, Frame, Frames
 from formation_ilc.nodes.common import (
     ConfiguredNode,
     RunConfig,
@@ -279,6 +280,8 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
         self.create_subscription(Twist, ms.cmd_vel_topic(self.id), self._on_cmd, ms.SAMPLE_QOS)
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
+        # the e-stop, obeyed from whoever latches it, with or without a leader
+        self.create_subscription(Bool, ms.ESTOP, self._on_estop, ms.LATCHED_READER_QOS)
         cmd_t, odom_t, motors_t = self.driver_topics
         self.drv_pub = self.create_publisher(TwistStamped if self.stamped else Twist, cmd_t,
                                              ms.DRIVER_CMD_QOS)
@@ -304,6 +307,11 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
             self.true_pub = self.create_publisher(Path, ms.true_trajectory_topic(self.id),
                                                   ms.TRAJECTORY_QOS)
         self._setup_motors(motors_t)
+        # the frames: robot_i/odom where the robot was placed, robot_i/base_link in it as
+        # the driver's odometry has it (nodes.frames)
+        x0, y0, th0 = core.initial
+        self.frames = Frames(self, [Frame(ms.WORLD_FRAME, ms.odom_frame(self.id), x0, y0, th0)])
+        self._tf_due = 0.0
         # the robot's clock (the machine's; in an emulated run its robot's), and the
         # leader's as this bridge estimates it: samples are due on the team's time
         self.wall = node_clock(cfg, self.id)
@@ -471,7 +479,12 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
         except Rejected as exc:
             self.drops.reject(exc, self.driver_topics[1])
             return
-        self.core.on_odom(pose, time.monotonic(), tilt)
+        now = time.monotonic()
+        self.core.on_odom(pose, now, tilt)
+        if now >= self._tf_due:
+            self._tf_due = now + 1.0 / BRIDGE_TF_HZ
+            self.frames.publish(self._team_ns()[0], [
+                Frame(ms.odom_frame(self.id), ms.base_frame(self.id), *pose)])
 
     def _on_whereabouts(self, msg: PoseStamped, robot: int) -> None:
         try:
@@ -499,6 +512,17 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
             self.drops.reject(exc, ms.cmd_vel_topic(self.id))
             return
         self._send(cmd, wall)
+
+    def _on_estop(self, msg: Bool) -> None:
+        was = self.core.estopped
+        cmd = self.core.estop(bool(msg.data), time.monotonic())
+        if cmd is not None:  # zero to the driver now, not at the next tick
+            self._send(cmd, self._wall_ns())
+        if bool(msg.data) != was:
+            topic = self.resolve_topic_name(ms.ESTOP)
+            self.get_logger().warning(
+                f"{self.name}: e-stop on {topic}: zero to {self.driver_topics[0]}, held until "
+                f"released" if msg.data else f"{self.name}: e-stop released on {topic}")
 
     def _on_event(self, msg: String) -> None:
         core = self.core
