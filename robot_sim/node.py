@@ -54,7 +54,6 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 import msgs_schema as ms
-from formation_ilc.nodes.frames import Frame, Frames
 from formation_ilc.config import params
 from formation_ilc.core.clock import Rejected
 from formation_ilc.nodes.common import (
@@ -66,6 +65,7 @@ from formation_ilc.nodes.common import (
     spin_main,
     unmatched,
 )
+from formation_ilc.nodes.frames import Frame, Frames
 from formation_ilc.nodes.params import declare, effective
 from formation_ilc.protocol.plant import RESEND_S, KinematicPlant, Sample
 

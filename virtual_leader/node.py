@@ -103,7 +103,6 @@ from formation_ilc.config.roster import Lineup, roster
 from formation_ilc.config.runconfig import PARAMS, RunConfig, clocks_param
 from formation_ilc.core.clock import Rejected
 from formation_ilc.nodes.clocks import ClockExchange, node_clock
-from formation_ilc.nodes.frames import Frame, Frames
 from formation_ilc.nodes.common import (
     Diagnostics,
     DropCounter,
@@ -116,6 +115,7 @@ from formation_ilc.nodes.common import (
     spin_main,
     unmatched,
 )
+from formation_ilc.nodes.frames import Frame, Frames
 from formation_ilc.nodes.params import declare, effective
 from formation_ilc.protocol.leader import NAME, Leader
 from formation_ilc.protocol.plant import RESEND_S

@@ -108,7 +108,6 @@ from formation_ilc.config import params
 from formation_ilc.config.bases import LIMIT_KEYS, base_preset
 from formation_ilc.core.clock import Rejected
 from formation_ilc.nodes.clocks import ClockExchange, node_clock
-from formation_ilc.nodes.frames import BRIDGE_TF_HZ, Frame, Frames
 from formation_ilc.nodes.common import (
     ConfiguredNode,
     RunConfig,
@@ -118,6 +117,7 @@ from formation_ilc.nodes.common import (
     robot_node_from_args,
     spin_main,
 )
+from formation_ilc.nodes.frames import BRIDGE_TF_HZ, Frame, Frames
 from formation_ilc.nodes.params import ParameterError, check, declare, effective
 from formation_ilc.protocol.bridge import (
     Bridge,

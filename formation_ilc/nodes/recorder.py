@@ -74,6 +74,8 @@ _READER_DEPTH = 20000
 NICENESS = 5
 #: topics written by many nodes (not waited for before saying ready)
 _MANY_WRITERS = {ms.READY, ms.DIAGNOSTICS}
+#: topics recorded when written, never waited for: the e-stop, the frames
+_UNWAITED = {ms.ESTOP, ms.TF, ms.TF_STATIC}
 
 
 def _msg_class(type_name: str) -> Any:
@@ -130,6 +132,11 @@ class RecorderNode(Node):
     def _subscribe(self, topic: str, type_name: str, qos: Any) -> None:
         if topic in self.subs:
             return
+        try:
+            cls = _msg_class(type_name)
+        except (ImportError, AttributeError):  # tf2_msgs not built: no frames to record
+            self.get_logger().warning(f"{topic} not recorded: {type_name} is not installed")
+            return
         self.types[topic] = type_name
         self.qos[topic] = qos
         if topic in _MANY_WRITERS:
@@ -140,7 +147,7 @@ class RecorderNode(Node):
             reader_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=_READER_DEPTH,
                                     reliability=qos.reliability, durability=qos.durability)
         self.subs[topic] = self.create_subscription(
-            _msg_class(type_name), topic, lambda data, t=topic: self._on(t, data), reader_qos,
+            cls, topic, lambda data, t=topic: self._on(t, data), reader_qos,
             raw=True)
 
     def _channel(self, topic: str, extra: dict[str, str] | None = None) -> str:
@@ -364,7 +371,7 @@ class RecorderNode(Node):
         # in wall-clock trials no node publishes /clock: waiting for it would block the run
         absent = {ms.CLOCK} if self.cfg.mode == "wallclock" else set()
         single = [t for t in self.subs if t not in _MANY_WRITERS and t != ms.CONFIG
-                  and t not in self.optional and t not in absent]
+                  and t not in self.optional and t not in absent and t not in _UNWAITED]
         if all(self.subs[t].get_publisher_count() >= 1 for t in single) and \
                 self.ready_pub.get_subscription_count() >= 1:
             self.said_ready = True

@@ -137,6 +137,16 @@ class SimRecorder:
         # what the stack's recorder adds beside them (formation_ilc.nodes.observer)
         self.full = {t: ms.absolute(t) for t in ms.recorded_topics(n) + ms.view_topics(n)}
         types = {topic: (typ, qos) for topic, typ, qos in table}
+        # no e-stop in a batch run; the frames where tf2_msgs is installed (its definition
+        # is the channel's schema; scripts/build_tf2_msgs.py)
+        self.full.pop(ms.ESTOP)
+        try:
+            type_hash(types[ms.TF][0])
+            self.frames = True
+        except FileNotFoundError:
+            self.frames = False
+            self.full.pop(ms.TF)
+            self.full.pop(ms.TF_STATIC)
         # its trials are first_trial .. first_trial + trials - 1 (simulate --first-trial)
         conf = cfg.to_json() | {"recorded_by": "formation-ilc simulate",
                                 "first_trial": int(first_trial)}
@@ -151,6 +161,10 @@ class SimRecorder:
         #: what the stack's recorder adds (``observe``); None: the formation's own topics
         self.observer: Any = None
         self._json(ms.CONFIG, conf, 0)
+        if self.frames:  # the simulator's: robot_i/odom is map
+            self._write(ms.TF_STATIC, wire.tf_bytes(0, [
+                wire.Frame(ms.WORLD_FRAME, ms.odom_frame(r + 1), 0.0, 0.0, 0.0)
+                for r in range(n)]), 0)
         self.w.keep(META_NAME, meta)
         self.delays: list[dict[str, Counter[int]]] = [{} for _ in range(n)]
         self.names = [ms.robot_name(i + 1) for i in range(n)]
@@ -186,6 +200,12 @@ class SimRecorder:
                 ns = int(stamps[t])
                 self._write(ms.CLOCK, cdr.encode_clock(ns), ns)
                 self._write(ms.REFERENCE, cdr.encode_pose_stamped(ref[t], ns, world), ns)
+                if self.frames:  # as the leader's and the simulator's (nodes.frames)
+                    self._write(ms.TF, wire.tf_bytes(ns, [
+                        wire.Frame(world, ms.LEADER_FRAME_ID, *map(float, ref[t]))]), ns)
+                    self._write(ms.TF, wire.tf_bytes(ns, [
+                        wire.Frame(ms.odom_frame(r + 1), ms.base_frame(r + 1),
+                                   *map(float, eta[r, t])) for r in range(n)]), ns)
                 for r in range(n):
                     pose = cdr.encode_pose_stamped(eta[r, t], ns, world)
                     self._write(ms.pose_topic(r + 1), pose, ns)
