@@ -59,6 +59,7 @@ from formation_ilc.nodes.common import (
 from formation_ilc.nodes.observer import Observer
 from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.schedule import Ready, TrialEvent, sealed
+from formation_ilc.recordings.bagmeta import METADATA, write_bag_metadata
 from formation_ilc.recordings.mcap_io import CHUNK_BYTES, RosMcapWriter, type_hash
 from formation_ilc.recordings.recording import CHANNEL_META, META_NAME, qos_of, run_metadata
 from formation_ilc.system.exits import is_disk_full
@@ -384,6 +385,11 @@ class RecorderNode(Node):
         try:
             self.writer.close()
             self.get_logger().info(f"closed {self.output}: {self.writer.count} messages")
+            # its folder opens as a rosbag2 bag (ros2 bag info, rosbags)
+            meta = write_bag_metadata(self.output)
+            self.get_logger().info(f"wrote {meta}")
+        except ValueError as exc:  # no summary to describe
+            self.get_logger().error(f"no {METADATA} for {self.output}: {exc}")
         except OSError as exc:  # a full disk: what was flushed before reads back
             self.get_logger().error(f"could not close {self.output}: {exc.strerror}; the "
                                     f"chunks written before read back")

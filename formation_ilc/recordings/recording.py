@@ -51,6 +51,7 @@ from formation_ilc.protocol.health import flatten, node_report, read_statuses, s
 from formation_ilc.protocol.schedule import DONE, END, START, TrialEvent
 from formation_ilc.protocol.trialrows import SlotRows
 from formation_ilc.recordings import cdr
+from formation_ilc.recordings.bagmeta import write_bag_metadata
 from formation_ilc.recordings.mcap_io import (
     INFINITE_NS,
     FileInfo,
@@ -244,6 +245,7 @@ class SimRecorder:
 
     def close(self) -> None:
         self.w.close()
+        write_bag_metadata(self.w.path)  # its folder opens as a rosbag2 bag
 
 
 # --------------------------------------------------------------------------- reading
