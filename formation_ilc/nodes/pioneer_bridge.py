@@ -226,25 +226,43 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
             missing.append(f"no service {motors_t}")
         return missing
 
+    def _transition(self, name: str, state: LifecycleState, to: str,
+                    result: TransitionCallbackReturn) -> TransitionCallbackReturn:
+        """Log a transition at INFO, one line, as nav2's lifecycle nodes do (a failed one
+        says what failed before)."""
+        if result == TransitionCallbackReturn.SUCCESS:
+            self.get_logger().info(f"{self.name}: lifecycle: {name}: {state.label} -> {to}")
+        else:
+            self.get_logger().info(f"{self.name}: lifecycle: {name} from {state.label} "
+                                   f"failed ({result.name.lower()})")
+        return result
+
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         missing = self.driver_missing()
         if missing:
             self.get_logger().error(f"{self.name}: configure failed, the driver is not there: "
                                     f"{'; '.join(missing)}")
-            return TransitionCallbackReturn.FAILURE
-        return super().on_configure(state)
+            return self._transition("configure", state, "inactive",
+                                    TransitionCallbackReturn.FAILURE)
+        return self._transition("configure", state, "inactive", super().on_configure(state))
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self.active = True
-        return super().on_activate(state)
+        return self._transition("activate", state, "active", super().on_activate(state))
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._halt()
-        return super().on_deactivate(state)
+        return self._transition("deactivate", state, "inactive", super().on_deactivate(state))
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        return self._transition("cleanup", state, "unconfigured", super().on_cleanup(state))
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._halt()
-        return super().on_shutdown(state)
+        return self._transition("shutdown", state, "finalized", super().on_shutdown(state))
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        return self._transition("error", state, "unconfigured", super().on_error(state))
 
     def _halt(self) -> None:
         """One zero command to the driver now, and no command after (until activated)."""
