@@ -15,8 +15,8 @@ pytestmark = pytest.mark.ros
 rclpy = pytest.importorskip("rclpy")
 from geometry_msgs.msg import Twist  # noqa: E402
 from lifecycle_msgs.msg import State, Transition  # noqa: E402
-from rcl_interfaces.msg import Log  # noqa: E402
 from lifecycle_msgs.srv import ChangeState, GetState  # noqa: E402
+from rcl_interfaces.msg import Log  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
