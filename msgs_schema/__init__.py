@@ -28,6 +28,8 @@ diagnostics                diagnostic_msgs/             all -> monitor, recorder
                            DiagnosticArray              ROS tools (latched)
 robot_i/pose               geometry_msgs/PoseStamped    plant -> robot i
 robot_i/cmd_vel            geometry_msgs/Twist          robot i -> plant
+robot_i/robot_description  std_msgs/String (URDF,       plant (simulator, physics plant,
+                           latched)                     bridge i) -> viewers
 robot_i/shared_pose        geometry_msgs/PoseStamped    robot i -> out-neighbours (direct),
                                                         link emulator (emulated)
 robot_i/links/S            nav_msgs/Path (0 or 1 pose)  link emulator -> robot i (emulated)
@@ -148,6 +150,7 @@ from formation_ilc.core.names import (
     pose_topic,
     recorded_topics,
     relative,
+    robot_description_topic,
     robot_name,
     service_dds_topics,
     shared_pose_topic,
@@ -185,7 +188,7 @@ __all__ = [
     # names (formation_ilc.core.names)
     "NAMESPACE", "CONFIG", "REFERENCE", "TRIAL_EVENTS", "READY", "DIAGNOSTICS", "CLOCK",
     "ROS_DIAGNOSTICS", "ESTOP", "STOP_SERVICE", "service_dds_topics", "TF", "TF_STATIC",
-    "LEADER_FRAME_ID", "odom_frame", "base_frame",
+    "LEADER_FRAME_ID", "odom_frame", "base_frame", "robot_description_topic",
     "WORLD_FRAME", "LEADER", "LEADER_FRAME", "robot_name", "robot_index", "link_name",
     "pose_topic", "cmd_vel_topic", "applied_topic", "shared_pose_topic", "link_topic",
     "trajectory_topic",

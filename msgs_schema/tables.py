@@ -56,6 +56,7 @@ _TYPES: dict[str, tuple[str, QoSProfile]] = {
     "cmd_vel": ("geometry_msgs/msg/Twist", SAMPLE_QOS),
     "trajectory": (_PATH, TRAJECTORY_QOS),
     "true_trajectory": (_PATH, TRAJECTORY_QOS),
+    "robot_description": (_STRING, LATCHED_QOS),
     MARKERS: ("visualization_msgs/msg/MarkerArray", VIEW_QOS),
     "desired_pose": (_POSE, VIEW_QOS),
     "desired_path": (_PATH, TRAJECTORY_QOS),

@@ -65,7 +65,7 @@ from formation_ilc.nodes.common import (
     spin_main,
     unmatched,
 )
-from formation_ilc.nodes.frames import Frame, Frames
+from formation_ilc.nodes.frames import Frame, Frames, describe_body
 from formation_ilc.nodes.params import declare, effective
 from formation_ilc.protocol.plant import RESEND_S, KinematicPlant, Sample
 
@@ -95,6 +95,10 @@ class SimNode(ConfiguredNode):
         """The plant core of run ``cfg`` (ValueError: the node refuses the run)."""
         return KinematicPlant(cfg)
 
+    def body_name(self) -> str:
+        """The robots' body (``config.urdf``): the safety filter's, else a Pioneer 3-DX."""
+        return self.cfg.safety.body if self.cfg.safety is not None else "p3dx"
+
     def report(self) -> dict[str, Any]:
         """The trial's diagnostics."""
         return self.plant.report()
@@ -123,6 +127,8 @@ class SimNode(ConfiguredNode):
         # sample's measured pose is robot_i/base_link in it (nodes.frames)
         self.frames = Frames(self, [Frame(ms.WORLD_FRAME, ms.odom_frame(r + 1), 0.0, 0.0, 0.0)
                                     for r in range(n)])
+        # each robot's body, latched, for viewers (config.urdf)
+        self.body_pubs = [describe_body(self, r + 1, self.body_name()) for r in range(n)]
         self.cmd_subs = [  # bytes: msgs_schema.wire
             self.create_subscription(Twist, ms.cmd_vel_topic(r + 1),
                                      lambda m, r=r: self._on_cmd(m, r), ms.SAMPLE_QOS, raw=True)

@@ -414,7 +414,8 @@ def _plant(lineup: Lineup, row: Plant) -> list[Member]:
     drive (the physics bases first, else each robot's driver before its bridge)."""
     robots = range(1, lineup.n + 1)
     if row.node is not None:
-        pub = [*(nm.pose_topic(i) for i in robots)]
+        pub = [*(nm.pose_topic(i) for i in robots),
+               *(nm.robot_description_topic(i) for i in robots)]
         if row.true_state:
             pub += [nm.true_trajectory_topic(i) for i in robots]
         if row.clock:
@@ -448,7 +449,7 @@ def _plant(lineup: Lineup, row: Plant) -> list[Member]:
         ns = lineup.driver_namespace(i)
         c, o, mo = f"{ns}/{cmd}", f"{ns}/{odom}", f"{ns}/{motors}"
         bridge_pub = [nm.pose_topic(i), nm.READY, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS, c, nm.TF,
-                      nm.TF_STATIC]
+                      nm.TF_STATIC, nm.robot_description_topic(i)]
         bridge_sub = [nm.cmd_vel_topic(i), nm.TRIAL_EVENTS, nm.CONFIG, nm.ESTOP, o]
         if truth:  # the simulated base's true pose in, the trial's true trajectory out
             bridge_pub.append(nm.true_trajectory_topic(i))

@@ -32,7 +32,8 @@ __all__ = ["NAMESPACE", "CLOCK", "LEADER_NODE", "SIM_NODE", "LINKS_NODE", "MONIT
            "CONFIG", "REFERENCE", "TRIAL_EVENTS", "READY", "DIAGNOSTICS", "ROS_DIAGNOSTICS",
            "LEADER", "HOSTS_RUN", "HOSTS_NAMESPACE", "STOP_SERVICE", "ESTOP", "service_dds_topics",
            "WORLD_FRAME", "TF", "TF_STATIC", "LEADER_FRAME_ID", "odom_frame", "base_frame",
-           "pose_topic", "cmd_vel_topic", "applied_topic", "shared_pose_topic",
+           "robot_description_topic", "pose_topic", "cmd_vel_topic", "applied_topic",
+           "shared_pose_topic",
            "link_topic",
            "whereabouts_topic",
            "clock_ping_topic", "clock_pong_topic", "trajectory_topic", "true_trajectory_topic",
@@ -204,6 +205,12 @@ def pose_topic(i: int) -> str:
     return f"{robot_name(i)}/pose"
 
 
+def robot_description_topic(i: int) -> str:
+    """Robot ``i``'s body as URDF (std_msgs/String, latched; its link ``robot_i/base_link``,
+    ``config.urdf``), from the plant that drives it: what viewers draw the robot from."""
+    return f"{robot_name(i)}/robot_description"
+
+
 def whereabouts_topic(i: int) -> str:
     """Where robot ``i``'s bridge has it between trials, while it drives back to its start
     pose and once it stands there (bridge -> the other bridges, for their returns' safety
@@ -288,7 +295,7 @@ def recorded_topics(n: int) -> list[str]:
     names = [CONFIG, REFERENCE, TRIAL_EVENTS, READY, DIAGNOSTICS, CLOCK, ESTOP, TF, TF_STATIC]
     for i in range(1, n + 1):
         names += [pose_topic(i), cmd_vel_topic(i), trajectory_topic(i),
-                  true_trajectory_topic(i)]
+                  true_trajectory_topic(i), robot_description_topic(i)]
     return names
 
 

@@ -14,6 +14,12 @@ The stack's frames make one tree (REP-105): ``map`` at its root, per robot
   time (as its poses);
 * the leader: ``map -> leader``, the reference r(t), with each reference sample.
 
+The plant that drives a robot also publishes its body, a URDF whose one link is
+``robot_i/base_link`` (``config.urdf``), on ``robot_i/robot_description`` (latched
+std_msgs/String), as robot_state_publisher does: the simulators every robot's (the
+safety filter's body, else a Pioneer 3-DX; the physics plant its model's), each bridge
+its own (its base preset's, else a Pioneer 3-DX).
+
 Messages go as CDR bytes (``protocol.wire.tf_bytes``), as the per-sample messages do. Where
 tf2_msgs is not installed (it is not on PyPI: ``scripts/build_tf2_msgs.py`` builds it) a
 node has no frames and says so once.
@@ -25,11 +31,13 @@ from collections.abc import Sequence
 from typing import Any
 
 from rclpy.node import Node
+from std_msgs.msg import String
 
 import msgs_schema as ms
+from formation_ilc.config.urdf import robot_description
 from formation_ilc.protocol.wire import Frame, tf_bytes
 
-__all__ = ["Frames", "Frame", "BRIDGE_TF_HZ"]
+__all__ = ["Frames", "Frame", "BRIDGE_TF_HZ", "describe_body"]
 
 #: [1/s] how often a bridge publishes its robot's odometry frame at most
 BRIDGE_TF_HZ = 20.0
@@ -58,3 +66,11 @@ class Frames:
         """``frames`` on ``/tf``, stamped ``stamp_ns``."""
         if self.tf is not None:
             self.tf.publish(tf_bytes(stamp_ns, frames))
+
+
+def describe_body(node: Node, i: int, base: str) -> Any:
+    """Publish robot ``i``'s URDF (``base``'s body, its link ``robot_i/base_link``) on
+    ``robot_i/robot_description``, latched; the publisher."""
+    pub = node.create_publisher(String, ms.robot_description_topic(i), ms.LATCHED_QOS)
+    pub.publish(String(data=robot_description(base, f"{ms.robot_name(i)}/")))
+    return pub

@@ -117,7 +117,7 @@ from formation_ilc.nodes.common import (
     robot_node_from_args,
     spin_main,
 )
-from formation_ilc.nodes.frames import BRIDGE_TF_HZ, Frame, Frames
+from formation_ilc.nodes.frames import BRIDGE_TF_HZ, Frame, Frames, describe_body
 from formation_ilc.nodes.params import ParameterError, check, declare, effective
 from formation_ilc.protocol.bridge import (
     Bridge,
@@ -167,6 +167,7 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
         declare(self, params.BRIDGE, robot_id=self.id)
         g = lambda name: self.get_parameter(name).value  # noqa: E731
         base = str(g("base")) or None
+        self.base_name = base
         preset = base_preset(base) if base else None
         driver = "base" if preset is not None else str(g("driver"))
         if driver not in ms.DRIVERS:
@@ -329,6 +330,8 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
         # the driver's odometry has it (nodes.frames)
         x0, y0, th0 = core.initial
         self.frames = Frames(self, [Frame(ms.WORLD_FRAME, ms.odom_frame(self.id), x0, y0, th0)])
+        # the robot's body, latched (config.urdf): its base preset's, else a Pioneer 3-DX
+        self.body_pub = describe_body(self, self.id, self.base_name or "p3dx")
         self._tf_due = 0.0
         # the robot's clock (the machine's; in an emulated run its robot's), and the
         # leader's as this bridge estimates it: samples are due on the team's time

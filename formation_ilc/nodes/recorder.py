@@ -75,8 +75,9 @@ _READER_DEPTH = 20000
 NICENESS = 5
 #: topics written by many nodes (not waited for before saying ready)
 _MANY_WRITERS = {ms.READY, ms.DIAGNOSTICS}
-#: topics recorded when written, never waited for: the e-stop, the frames
+#: topics recorded when written, never waited for: the e-stop, the frames, the bodies
 _UNWAITED = {ms.ESTOP, ms.TF, ms.TF_STATIC}
+_UNWAITED_KIND = "/robot_description"
 
 
 def _msg_class(type_name: str) -> Any:
@@ -372,7 +373,8 @@ class RecorderNode(Node):
         # in wall-clock trials no node publishes /clock: waiting for it would block the run
         absent = {ms.CLOCK} if self.cfg.mode == "wallclock" else set()
         single = [t for t in self.subs if t not in _MANY_WRITERS and t != ms.CONFIG
-                  and t not in self.optional and t not in absent and t not in _UNWAITED]
+                  and t not in self.optional and t not in absent and t not in _UNWAITED
+                  and not t.endswith(_UNWAITED_KIND)]
         if all(self.subs[t].get_publisher_count() >= 1 for t in single) and \
                 self.ready_pub.get_subscription_count() >= 1:
             self.said_ready = True

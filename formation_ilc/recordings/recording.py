@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 
 from formation_ilc.config.runconfig import RunConfig
 from formation_ilc.config.scenario import Scenario
+from formation_ilc.config.urdf import robot_description
 from formation_ilc.core import names as ms
 from formation_ilc.core.clock import Malformed, Rejected
 from formation_ilc.core.links import (
@@ -162,6 +163,10 @@ class SimRecorder:
         #: what the stack's recorder adds (``observe``); None: the formation's own topics
         self.observer: Any = None
         self._json(ms.CONFIG, conf, 0)
+        body = cfg.safety.body if cfg.safety is not None else "p3dx"
+        for r in range(n):  # each robot's body, as the simulator publishes it
+            self._write(ms.robot_description_topic(r + 1), cdr.encode_string(
+                robot_description(body, f"{ms.robot_name(r + 1)}/")), 0)
         if self.frames:  # the simulator's: robot_i/odom is map
             self._write(ms.TF_STATIC, wire.tf_bytes(0, [
                 wire.Frame(ms.WORLD_FRAME, ms.odom_frame(r + 1), 0.0, 0.0, 0.0)

@@ -319,6 +319,17 @@ def _take_frames(got: dict[str, dict], plant: str) -> None:
         assert sub == ({"/tf", "/tf_static"} if name in ("recorder", "liveview") else set()), name
         g["publish"] = [t for t in g["publish"] if t not in pub]
         g["subscribe"] = [t for t in g["subscribe"] if t not in sub]
+        # the bodies: each robot's URDF from the plant that drives it (the simulator all,
+        # bridge i its own), recorded and viewed
+        desc = {t for t in g["publish"] if t.endswith("/robot_description")}
+        want = ({t for t in desc} if name == "robot_sim" and len(desc) >= 3 else
+                {t for t in desc if t.split("/")[-2] == f"robot_{name[7:]}"}
+                if name.startswith("bridge_") and len(desc) == 1 else set())
+        assert desc == want, (name, desc)
+        g["publish"] = [t for t in g["publish"] if t not in desc]
+        rd = {t for t in g["subscribe"] if t.endswith("/robot_description")}
+        assert bool(rd) == (name in ("recorder", "liveview")), name
+        g["subscribe"] = [t for t in g["subscribe"] if t not in rd]
 
 
 def _clock_grants(sc, namespace: str, bridges: bool) -> dict[str, tuple[set[str], set[str]]]:

@@ -112,8 +112,9 @@ def test_launch_record_then_analyze_reproduces_the_launcher_exactly(ros_env, tmp
 def check_frames_and_bag(rec, n: int, samples: int) -> None:
     """The recording's frames (issue 54), decoded as tf2_msgs/msg/TFMessage by rosbags'
     own ROS 2 Jazzy types: one tree from map reaching every robot's base_link through its
-    odom, the leader's frame under map, a transform of every robot each sample; and the
-    recording's folder opens as a rosbag2 bag by its metadata.yaml."""
+    odom, the leader's frame under map, a transform of every robot each sample; each
+    robot's robot_description a URDF (as PyBullet's parser loads it) whose link is that
+    base_link; and the recording's folder opens as a rosbag2 bag by its metadata.yaml."""
     from rosbags.highlevel import AnyReader
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import Stores, get_typestore
@@ -139,6 +140,13 @@ def check_frames_and_bag(rec, n: int, samples: int) -> None:
         roots.add(frame)
         assert base_links[f"robot_{i}/base_link"] >= samples  # resent samples too
     assert roots == {"map"} and parents["leader"] == "map"
+    from ..config.test_urdf import load_urdf
+
+    urdfs = {m.topic: m.data for m in read_messages(rec) if m.topic.endswith("/robot_description")}
+    assert set(urdfs) == {f"/formation/robot_{i}/robot_description" for i in range(1, n + 1)}
+    for topic, data in urdfs.items():
+        text = jazzy.deserialize_cdr(data, "std_msgs/msg/String").data
+        assert load_urdf(text, rec.parent)[0] == f"{topic.split('/')[2]}/base_link"
     # the folder: rosbag2's metadata.yaml beside the MCAP, as rosbags reads a bag
     meta = yaml.safe_load((rec.parent / "metadata.yaml").read_text())
     assert meta["rosbag2_bagfile_information"]["relative_file_paths"] == [rec.name]
