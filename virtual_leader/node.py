@@ -75,6 +75,13 @@ the questions for its time on ``robot_i/clock/ping`` (a robot that sees the lead
 in wall-clock trials, ``bridge_i/clock/ping`` (every bridge); its clock is the team's
 reference (the ground station's machine clock, never emulated).
 
+The stop button: the leader serves ``stop`` (std_srvs/srv/Trigger, ``/formation/stop``).
+A call latches ``estop`` (std_msgs/Bool true), which every bridge and robot obeys at once
+(zero commands), answers success, starts no trial after it and ends the process with
+status 7 (``formation_ilc.system.exits.STOPPED``) naming the caller (the nodes with a
+client of the service). A true ``estop`` someone else latched ends the run the same way.
+Frames: ``map -> leader`` on ``/tf`` with each reference sample (``nodes.frames``).
+
 Every decision above is the pure core's (``formation_ilc.protocol.leader.Leader``, tested
 without ROS); this node declares the parameters, the publishers, subscriptions and timers,
 and makes one call into it per event.

@@ -81,6 +81,14 @@ commands, its motor service if it has one) and fails otherwise, naming what is m
 stops; the bridge keeps sampling its pose). ``formation-ilc launch --lifecycle`` drives
 the transitions itself.
 
+The e-stop: ``estop`` (std_msgs/Bool, latched), from whoever publishes it, with or without
+a leader: true sends the driver a zero command at once and holds every command at zero
+(the robot's, the return's, the repeats) until false releases it (``estops`` counts the
+latches). Frames (``nodes.frames``): ``map -> robot_I/odom`` (the initial pose) on
+``/tf_static``, ``robot_I/odom -> robot_I/base_link`` (the odometry) on ``/tf``; the body
+(its base preset's URDF, else a Pioneer 3-DX's) on ``robot_I/robot_description``. With
+``lifecycle:=true`` each transition is one INFO line of its log.
+
 Everything it decides is in ``formation_ilc.protocol.bridge.Bridge``; this node reads its
 parameters, talks to the driver (its motors included) and makes one call into the bridge
 per event.
