@@ -270,7 +270,9 @@ def test_outsiders_during_a_secure_run(ros_env, tmp_path, keystore):
         probes["robot_3"] = probe(identity(ros_env, keystore, "/formation/robot_3"), seconds,
                                   "robot_3", "listen:robot_3/pose:PoseStamped",
                                   "publish:robot_2/cmd_vel:Twist",
-                                  "publish:leader/trial_events:String")
+                                  "publish:leader/trial_events:String",
+                                  # the stop button is the ground station's alone
+                                  "call:stop:Trigger", "publish:estop:Bool")
         probes["foreign"] = probe(identity(ros_env, foreign, "/formation/robot_3"), seconds,
                                   "robot_3", "listen:robot_3/pose:PoseStamped",
                                   "listen:robot_1/shared_pose:PoseStamped")
@@ -288,7 +290,8 @@ def test_outsiders_during_a_secure_run(ros_env, tmp_path, keystore):
     assert all(o["received"] == 0 and o["matched"] == 0 for o in ops.values()), ops
     ops = got["robot_3"]["ops"]
     assert ops["listen:robot_3/pose:PoseStamped"]["received"] > 0, ops  # it is authenticated
-    for op in ("publish:robot_2/cmd_vel:Twist", "publish:leader/trial_events:String"):
+    for op in ("publish:robot_2/cmd_vel:Twist", "publish:leader/trial_events:String",
+               "call:stop:Trigger", "publish:estop:Bool"):
         assert not ops[op]["created"], ops  # refused at creation, by its own permissions
         assert "error" in ops[op]
     ops = got["foreign"]["ops"]
