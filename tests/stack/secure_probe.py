@@ -23,6 +23,7 @@ import rclpy
 from geometry_msgs.msg import PoseStamped, Twist
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
 from std_msgs.msg import Bool, String
 from std_srvs.srv import Trigger
 
@@ -55,7 +56,13 @@ def main() -> int:
     result: dict[str, Any] = {"ops": {}}
     try:
         try:
-            node = rclpy.create_node(name, namespace=ms.NAMESPACE, context=ctx)
+            # no services of its own (parameters, type descriptions): an identity's
+            # permissions grant them under its member's node name only, and an operator
+            # on the ground station is another node in the monitor's enclave
+            node = rclpy.create_node(name, namespace=ms.NAMESPACE, context=ctx,
+                                     start_parameter_services=False,
+                                     parameter_overrides=[Parameter(
+                                         "start_type_description_service", value=False)])
         except Exception as exc:  # noqa: BLE001 - a refused participant is a result
             print(json.dumps({"node_error": str(exc).splitlines()[0]}))
             return 0
