@@ -92,6 +92,8 @@ from __future__ import annotations
 import dataclasses
 import os
 import sys
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -132,6 +134,9 @@ from formation_ilc.system.exits import STOPPED
 #: [s] how long a stopped leader waits for every reader of the e-stop to acknowledge it
 #: before its process ends (the bridges hold zero on their own meanwhile and after)
 STOP_ACK_S = 1.0
+#: [s] how long it waits for the graph to name who stopped it (a caller's node can reach
+#: the graph after its call)
+NAME_WAIT_S = 2.0
 
 
 class LeaderNode(GuardedNode):
@@ -241,11 +246,9 @@ class LeaderNode(GuardedNode):
                  ) -> Trigger.Response:
         """``stop`` called: every robot commands zero at once (the e-stop, latched), and the
         run ends with status 7, naming who called."""
-        srv = self.resolve_service_name(ms.STOP_SERVICE)
-        callers = self._clients_of(srv)
-        who = (", ".join(callers) if callers else "a client the graph does not name yet")
         if self.stopped_by is None:
-            self._stop(f"{srv} called by {who}")
+            srv = self.resolve_service_name(ms.STOP_SERVICE)
+            self._stop(f"{srv} called by", lambda: self._clients_of(srv))
             response.message = (f"stopped: every robot commands zero; the run ends with "
                                 f"status {STOPPED}")
         else:
@@ -257,10 +260,10 @@ class LeaderNode(GuardedNode):
         if not msg.data or self.stopped_by is not None:
             return
         topic = self.resolve_topic_name(ms.ESTOP)
-        writers = sorted({f"{i.node_namespace.rstrip('/')}/{i.node_name}"
-                          for i in self.get_publishers_info_by_topic(topic)
-                          if i.node_name != self.get_name()})
-        self._stop(f"an e-stop on {topic} from {', '.join(writers) or 'a writer now gone'}")
+        self._stop(f"an e-stop on {topic} from", lambda: sorted({
+            f"{i.node_namespace.rstrip('/')}/{i.node_name}"
+            for i in self.get_publishers_info_by_topic(topic)
+            if i.node_name != self.get_name()}))
 
     def _clients_of(self, service: str) -> list[str]:
         """The nodes with a client of ``service`` (the graph's word: rclpy gives a service
@@ -275,25 +278,33 @@ class LeaderNode(GuardedNode):
                 out.append(f"{ns.rstrip('/')}/{name}")
         return sorted(out)
 
-    def _stop(self, who: str) -> None:
+    def _stop(self, how: str, who: Callable[[], list[str]]) -> None:
         """Latch the e-stop (every bridge sends its driver zero and holds it, every robot
         commands zero), start no trial, and end the process with ``STOPPED`` once the
-        e-stop's readers have it."""
-        self.stopped_by = who
+        e-stop's readers have it, naming ``who()`` stopped it (the graph's answer now, or
+        within ``NAME_WAIT_S``: a caller's node may reach this node's graph after its call)."""
         self.estop_pub.publish(Bool(data=True))
         self._gate.cancel()
         if hasattr(self, "_wall_timer"):
             self._wall_timer.cancel()
-        text = (f"stopped by {who}: every robot commands zero (e-stop latched on "
+        self._who, self._how = who, how
+        self._named = who()
+        self.stopped_by = f"{how} {', '.join(self._named) or '...'}"
+        text = (f"stop: every robot commands zero (e-stop latched on "
                 f"{self.resolve_topic_name(ms.ESTOP)}); the run ends with status {STOPPED}")
         self.get_logger().warning(text)
-        print(f"{NAME}: {text}", file=sys.stderr, flush=True)
         # the answer goes out before the process ends: the exit is a timer later
         self._stop_timer = self.create_timer(0.05, self._stop_exit)
 
     def _stop_exit(self) -> None:
         self._stop_timer.cancel()
         self.estop_pub.wait_for_all_acked(Duration(seconds=STOP_ACK_S))
+        end = time.monotonic() + NAME_WAIT_S
+        while not self._named and time.monotonic() < end:
+            time.sleep(0.05)  # the graph cache fills on DDS's threads, not this one
+            self._named = self._who()
+        self.stopped_by = (f"{self._how} "
+                           f"{', '.join(self._named) or 'a node the graph did not name'}")
         fail(self, f"stopped by {self.stopped_by}; every robot was commanded zero "
                    f"(status {STOPPED}, docs/real-robots.md, \"Stopping\")", STOPPED)
 
