@@ -61,7 +61,14 @@ from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.schedule import Ready, TrialEvent, sealed
 from formation_ilc.recordings.bagmeta import METADATA, write_bag_metadata
 from formation_ilc.recordings.mcap_io import CHUNK_BYTES, RosMcapWriter, type_hash
-from formation_ilc.recordings.recording import CHANNEL_META, META_NAME, qos_of, run_metadata
+from formation_ilc.recordings.recording import (
+    CHANNEL_META,
+    META_NAME,
+    qos_of,
+    recording_parts,
+    root_of,
+    run_metadata,
+)
 from formation_ilc.system.exits import is_disk_full
 
 #: types whose CDR starts with a header stamp (int32 sec, uint32 nanosec) right after the
@@ -388,7 +395,7 @@ class RecorderNode(Node):
             self.writer.close()
             self.get_logger().info(f"closed {self.output}: {self.writer.count} messages")
             # its folder opens as a rosbag2 bag (ros2 bag info, rosbags)
-            meta = write_bag_metadata(self.output)
+            meta = write_bag_metadata(recording_parts(root_of(self.output)))
             self.get_logger().info(f"wrote {meta}")
         except ValueError as exc:  # no summary to describe
             self.get_logger().error(f"no {METADATA} for {self.output}: {exc}")
