@@ -22,7 +22,8 @@ do for an interface package, without them:
 The result is cached outside the repository and the venv, keyed by the definition, this
 script and the generators' versions:
 ``${FORMATION_ILC_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/formation-ilc}/tf2-msgs/<key>/``.
-A new build takes about 6 s; a cached one is copied in. Then it checks the venv: a
+A new build takes 7 s on an idle 2-core machine (up to 30 s under load); a cached one is
+copied in (about 1 s). Then it checks the venv: a
 ``TFMessage`` round trip through rclpy's serialiser, and the type hash a publisher of it
 gives the graph against rosbags' Jazzy type of it (the hash a recording carries).
 
