@@ -28,6 +28,8 @@ diagnostics                diagnostic_msgs/             all -> monitor, recorder
                            DiagnosticArray              ROS tools (latched)
 robot_i/pose               geometry_msgs/PoseStamped    plant -> robot i
 robot_i/cmd_vel            geometry_msgs/Twist          robot i -> plant
+robot_i/robot_description  std_msgs/String (URDF,       plant (simulator, physics plant,
+                           latched)                     bridge i) -> viewers
 robot_i/shared_pose        geometry_msgs/PoseStamped    robot i -> out-neighbours (direct),
                                                         link emulator (emulated)
 robot_i/links/S            nav_msgs/Path (0 or 1 pose)  link emulator -> robot i (emulated)
@@ -41,12 +43,17 @@ robot_i/true_trajectory    nav_msgs/Path (trial end)    simulator, physics plant
                                                         of a physics base (optional) ->
                                                         monitor
 /clock                     rosgraph_msgs/Clock          plant, in simulated time -> all
+estop                      std_msgs/Bool (latched)      leader (a stop call), anyone ->
+                                                        bridges, robots, leader, recorder
 preview/poses              nav_msgs/Path (every         simulator, <= PREVIEW_HZ while
                            robot's pose of a sample)    read -> live view (not recorded)
 team/poses                 nav_msgs/Path (every         simulator, physics plant (every
                            robot's pose of a sample)    sample, with a safety filter) ->
                                                         robots' safety filters
 =========================  ===========================  ==================================
+
+Services: ``stop`` (std_srvs/Trigger), the leader's stop button: every robot commands zero
+(``estop`` latched true) and the run ends with status 7.
 
 Frames (REP-105). Every pose and path is in the world-fixed frame ``WORLD_FRAME`` ("map");
 the topic names whose pose it is. Diagnostics and ready messages name their node in JSON.
@@ -104,8 +111,10 @@ from formation_ilc.core.names import (
     CONFIG,
     DIAGNOSTICS,
     DRIVERS,
+    ESTOP,
     FAKE_DRIVER_NODE,
     LEADER,
+    LEADER_FRAME_ID,
     LEADER_NODE,
     LINKS_NODE,
     LIVEVIEW_NODE,
@@ -119,12 +128,16 @@ from formation_ilc.core.names import (
     REFERENCE,
     ROS_DIAGNOSTICS,
     SIM_NODE,
+    STOP_SERVICE,
     TEAM_POSES,
+    TF,
+    TF_STATIC,
     TRIAL_EVENTS,
     WORLD_FRAME,
     DriverSpec,
     absolute,
     applied_topic,
+    base_frame,
     bridge_name,
     clock_ping_topic,
     clock_pong_topic,
@@ -133,10 +146,13 @@ from formation_ilc.core.names import (
     desired_path_topic,
     desired_pose_topic,
     link_topic,
+    odom_frame,
     pose_topic,
     recorded_topics,
     relative,
+    robot_description_topic,
     robot_name,
+    service_dds_topics,
     shared_pose_topic,
     tracking_error_topic,
     trajectory_topic,
@@ -171,7 +187,8 @@ LEADER_FRAME = LEADER
 __all__ = [
     # names (formation_ilc.core.names)
     "NAMESPACE", "CONFIG", "REFERENCE", "TRIAL_EVENTS", "READY", "DIAGNOSTICS", "CLOCK",
-    "ROS_DIAGNOSTICS",
+    "ROS_DIAGNOSTICS", "ESTOP", "STOP_SERVICE", "service_dds_topics", "TF", "TF_STATIC",
+    "LEADER_FRAME_ID", "odom_frame", "base_frame", "robot_description_topic",
     "WORLD_FRAME", "LEADER", "LEADER_FRAME", "robot_name", "robot_index", "link_name",
     "pose_topic", "cmd_vel_topic", "applied_topic", "shared_pose_topic", "link_topic",
     "trajectory_topic",

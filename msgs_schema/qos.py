@@ -8,7 +8,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 __all__ = ["SAMPLE_QOS", "ROS_DIAGNOSTICS_QOS", "LATCHED_QOS",
            "LATCHED_READER_QOS", "TRAJECTORY_QOS",
            "TRAJECTORY_READER_QOS", "CLOCK_QOS", "ODOM_QOS", "DRIVER_CMD_QOS", "VIEW_QOS",
-           "PREVIEW_HZ", "PREVIEW_QOS"]
+           "PREVIEW_HZ", "PREVIEW_QOS", "TF_QOS", "TF_STATIC_QOS", "TF_STATIC_READER_QOS"]
 
 # Lockstep must not lose a sample on localhost: reliable, and deep enough for a burst.
 # The depth is also how far a passive reader (the recorder, niced, outside the lockstep)
@@ -73,3 +73,17 @@ PREVIEW_HZ = 30.0
 PREVIEW_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2,
                          reliability=ReliabilityPolicy.BEST_EFFORT,
                          durability=DurabilityPolicy.VOLATILE)
+
+# tf2's own profiles: /tf as tf2_ros' TransformBroadcaster offers it (reliable, volatile,
+# depth 100), /tf_static as its StaticTransformBroadcaster (reliable, transient local, depth
+# 1: each writer's one message holds all its static transforms)
+TF_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                    reliability=ReliabilityPolicy.RELIABLE,
+                    durability=DurabilityPolicy.VOLATILE)
+TF_STATIC_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                           reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# a reader of /tf_static keeps every writer's message (one writer per plant or bridge)
+TF_STATIC_READER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=256,
+                                  reliability=ReliabilityPolicy.RELIABLE,
+                                  durability=DurabilityPolicy.TRANSIENT_LOCAL)

@@ -11,22 +11,35 @@ from formation_ilc.core.names import (
     CLOCK,
     CONFIG,
     DIAGNOSTICS,
+    ESTOP,
     MARKERS,
     READY,
     REFERENCE,
+    TF,
+    TF_STATIC,
     TRIAL_EVENTS,
     recorded_topics,
     view_topics,
 )
 from msgs_schema.diagnostics import DIAGNOSTICS_TYPE
-from msgs_schema.qos import CLOCK_QOS, LATCHED_QOS, SAMPLE_QOS, TRAJECTORY_QOS, VIEW_QOS
+from msgs_schema.qos import (
+    CLOCK_QOS,
+    LATCHED_QOS,
+    SAMPLE_QOS,
+    TF_QOS,
+    TF_STATIC_QOS,
+    TRAJECTORY_QOS,
+    VIEW_QOS,
+)
 
-__all__ = ["topic_table", "view_topic_table", "recorder_table"]
+__all__ = ["topic_table", "view_topic_table", "recorder_table", "TF_TYPE", "tf_message"]
 
 _STRING = "std_msgs/msg/String"
 _POSE = "geometry_msgs/msg/PoseStamped"
 _PATH = "nav_msgs/msg/Path"
 _VECTOR = "geometry_msgs/msg/Vector3Stamped"
+#: tf2's message: not on PyPI, built into the venv by scripts/build_tf2_msgs.py
+TF_TYPE = "tf2_msgs/msg/TFMessage"
 
 #: type and offered QoS of each topic, robot i's by the part after ``robot_i/``
 _TYPES: dict[str, tuple[str, QoSProfile]] = {
@@ -36,10 +49,14 @@ _TYPES: dict[str, tuple[str, QoSProfile]] = {
     READY: (_STRING, LATCHED_QOS),
     DIAGNOSTICS: (DIAGNOSTICS_TYPE, LATCHED_QOS),
     CLOCK: ("rosgraph_msgs/msg/Clock", CLOCK_QOS),
+    ESTOP: ("std_msgs/msg/Bool", LATCHED_QOS),
+    TF: (TF_TYPE, TF_QOS),
+    TF_STATIC: (TF_TYPE, TF_STATIC_QOS),
     "pose": (_POSE, SAMPLE_QOS),
     "cmd_vel": ("geometry_msgs/msg/Twist", SAMPLE_QOS),
     "trajectory": (_PATH, TRAJECTORY_QOS),
     "true_trajectory": (_PATH, TRAJECTORY_QOS),
+    "robot_description": (_STRING, LATCHED_QOS),
     MARKERS: ("visualization_msgs/msg/MarkerArray", VIEW_QOS),
     "desired_pose": (_POSE, VIEW_QOS),
     "desired_path": (_PATH, TRAJECTORY_QOS),
@@ -68,3 +85,13 @@ def recorder_table(n: int) -> list[tuple[str, str, QoSProfile]]:
     """Every topic a recording of ``n`` robots holds: the recorded topics and the view
     topics the recorder's observer adds (``recordings.recording.SimRecorder``'s table)."""
     return topic_table(n) + view_topic_table(n)
+
+
+def tf_message() -> type | None:
+    """tf2_msgs/msg/TFMessage, or None where tf2_msgs is not installed (it is not on PyPI:
+    ``scripts/build_tf2_msgs.py`` builds it into the venv); a node then has no frames."""
+    try:
+        from tf2_msgs.msg import TFMessage  # type: ignore[import-not-found]
+    except ImportError:
+        return None
+    return TFMessage

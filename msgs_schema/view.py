@@ -64,11 +64,15 @@ def _point(xy: Sequence[float]) -> Point:
 
 def markers_msg(stamp_ns: int, desired: Sequence[Sequence[float]], outline: Sequence[int],
                 links: Sequence[tuple[int, int]],
-                positions: dict[int, tuple[float, float]]) -> MarkerArray:
+                positions: dict[int, tuple[float, float]],
+                footprint: tuple[float, float, float] | None = None) -> MarkerArray:
     """The 3D view's markers at one sample (robot index r is ``robot_{r+1}``):
     ``formation`` the desired positions (N, >=2) joined in ``outline`` order (closed);
     ``links`` the graph's links (sender, receiver) between measured ``positions``;
-    ``errors`` each measured position to its desired one; ``labels`` the robots' names."""
+    ``errors`` each measured position to its desired one; ``labels`` the robots' names.
+    With ``footprint`` (length, width, centre ahead of base_link [m]), per robot its
+    ``footprint`` (the body's outline) and ``heading`` (an arrow along x) in its own frame
+    ``robot_i/base_link``, locked to it (they move with /tf)."""
     out = MarkerArray()
     shape = _marker(stamp_ns, "formation", 0, Marker.LINE_STRIP, (0.6, 0.6, 0.6, 1.0), 0.03)
     shape.points = [_point(desired[r]) for r in (*outline, outline[0])]
@@ -84,6 +88,22 @@ def markers_msg(stamp_ns: int, desired: Sequence[Sequence[float]], outline: Sequ
         label.pose.position.z = 0.3
         label.text = robot_name(r + 1)
         out.markers.append(label)
+    if footprint is not None:
+        length, width, cx = footprint
+        hx, hy = length / 2.0, width / 2.0
+        corners = [(cx + hx, hy), (cx - hx, hy), (cx - hx, -hy), (cx + hx, -hy), (cx + hx, hy)]
+        for r in sorted(positions):
+            frame = f"{robot_name(r + 1)}/base_link"
+            fp = _marker(stamp_ns, "footprint", r + 1, Marker.LINE_STRIP,
+                         (0.2, 0.9, 0.3, 1.0), 0.02)
+            fp.header.frame_id, fp.frame_locked = frame, True
+            fp.points = [_point(c) for c in corners]
+            arrow = _marker(stamp_ns, "heading", r + 1, Marker.ARROW, (1.0, 0.8, 0.1, 1.0),
+                            0.03)
+            arrow.header.frame_id, arrow.frame_locked = frame, True
+            arrow.scale.y, arrow.scale.z = 0.08, 0.1  # head diameter and length
+            arrow.points = [_point((0.0, 0.0)), _point((cx + hx + 0.15, 0.0))]
+            out.markers += [fp, arrow]
     return out
 
 
@@ -136,7 +156,8 @@ class MarkersTemplate:
 
     _SEC, _NSEC = 2_000_000_011, 123_456_789
 
-    def __init__(self, n: int, outline: Sequence[int], links: Sequence[tuple[int, int]]):
+    def __init__(self, n: int, outline: Sequence[int], links: Sequence[tuple[int, int]],
+                 footprint: tuple[float, float, float] | None = None):
         from rclpy.serialization import serialize_message
 
         sentinel = lambda k: 1.0e9 + 7.0 * k + 0.3125  # noqa: E731 (exact in binary)
@@ -144,7 +165,7 @@ class MarkersTemplate:
         positions = {r: (sentinel(2 * (n + r)), sentinel(2 * (n + r) + 1)) for r in range(n)}
         stamp = self._SEC * 1_000_000_000 + self._NSEC
         self.template = bytes(serialize_message(
-            markers_msg(stamp, desired, outline, links, positions)))
+            markers_msg(stamp, desired, outline, links, positions, footprint)))
         self.n = n
 
         def find(packed: bytes) -> list[int]:
@@ -157,7 +178,8 @@ class MarkersTemplate:
         self.stamps = find(_STAMP.pack(self._SEC, self._NSEC))
         #: (offsets, source index): 0..2n-1 desired x/y of robot r, 2n.. measured x/y
         self.coords = [(find(_struct.pack("<d", sentinel(k))), k) for k in range(4 * n)]
-        if len(self.stamps) != 3 + n or any(not offs for offs, _ in self.coords):
+        stamps = 3 + n + (2 * n if footprint is not None else 0)
+        if len(self.stamps) != stamps or any(not offs for offs, _ in self.coords):
             raise RuntimeError("the markers template did not find every field")
 
     def cdr(self, stamp_ns: int, desired: NDArray[np.float64] | Sequence[Sequence[float]],

@@ -65,6 +65,7 @@ from formation_ilc.nodes.common import (
     spin_main,
     unmatched,
 )
+from formation_ilc.nodes.frames import Frame, Frames, describe_body
 from formation_ilc.nodes.params import declare, effective
 from formation_ilc.protocol.plant import RESEND_S, KinematicPlant, Sample
 
@@ -94,6 +95,10 @@ class SimNode(ConfiguredNode):
         """The plant core of run ``cfg`` (ValueError: the node refuses the run)."""
         return KinematicPlant(cfg)
 
+    def body_name(self) -> str:
+        """The robots' body (``config.urdf``): the safety filter's, else a Pioneer 3-DX."""
+        return self.cfg.safety.body if self.cfg.safety is not None else "p3dx"
+
     def report(self) -> dict[str, Any]:
         """The trial's diagnostics."""
         return self.plant.report()
@@ -118,6 +123,12 @@ class SimNode(ConfiguredNode):
         self.team_pub = (self.create_publisher(Path, ms.TEAM_POSES, ms.SAMPLE_QOS)
                          if cfg.safety is not None and cfg.safety.sensing == "team" else None)
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
+        # the frames: robot_i/odom is map (its poses are measurements in map), and each
+        # sample's measured pose is robot_i/base_link in it (nodes.frames)
+        self.frames = Frames(self, [Frame(ms.WORLD_FRAME, ms.odom_frame(r + 1), 0.0, 0.0, 0.0)
+                                    for r in range(n)])
+        # each robot's body, latched, for viewers (config.urdf)
+        self.body_pubs = [describe_body(self, r + 1, self.body_name()) for r in range(n)]
         self.cmd_subs = [  # bytes: msgs_schema.wire
             self.create_subscription(Twist, ms.cmd_vel_topic(r + 1),
                                      lambda m, r=r: self._on_cmd(m, r), ms.SAMPLE_QOS, raw=True)
@@ -225,6 +236,9 @@ class SimNode(ConfiguredNode):
                 for r in range(self.plant.n)]))
         for r in self.plant.send_order:
             self.pose_pubs[r].publish(ms.wire.pose_bytes(s.eta[r], s.stamp_ns, ms.WORLD_FRAME))
+        self.frames.publish(s.stamp_ns, [
+            Frame(ms.odom_frame(r + 1), ms.base_frame(r + 1), *s.eta[r])
+            for r in range(self.plant.n)])
         now = time.monotonic()
         if now >= self._preview_due:
             self._preview(s, now)

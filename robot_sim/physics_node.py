@@ -82,6 +82,9 @@ class PhysicsNode(ContactActing, SimNode):
         self.get_logger().info(plant.describe())
         return plant
 
+    def body_name(self) -> str:
+        return str(self.get_parameter("model").value)  # the PyBullet model's base
+
     def report(self) -> dict[str, Any]:
         d = super().report()
         if d.get("contacts"):

@@ -75,6 +75,13 @@ the questions for its time on ``robot_i/clock/ping`` (a robot that sees the lead
 in wall-clock trials, ``bridge_i/clock/ping`` (every bridge); its clock is the team's
 reference (the ground station's machine clock, never emulated).
 
+The stop button: the leader serves ``stop`` (std_srvs/srv/Trigger, ``/formation/stop``).
+A call latches ``estop`` (std_msgs/Bool true), which every bridge and robot obeys at once
+(zero commands), answers success, starts no trial after it and ends the process with
+status 7 (``formation_ilc.system.exits.STOPPED``) naming the caller (the nodes with a
+client of the service). A true ``estop`` someone else latched ends the run the same way.
+Frames: ``map -> leader`` on ``/tf`` with each reference sample (``nodes.frames``).
+
 Every decision above is the pure core's (``formation_ilc.protocol.leader.Leader``, tested
 without ROS); this node declares the parameters, the publishers, subscriptions and timers,
 and makes one call into it per event.
@@ -85,14 +92,18 @@ from __future__ import annotations
 import dataclasses
 import os
 import sys
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
-from std_msgs.msg import String
+from std_msgs.msg import Bool, String
+from std_srvs.srv import Trigger
 
 import msgs_schema as ms
 from formation_ilc.config import params
@@ -113,10 +124,19 @@ from formation_ilc.nodes.common import (
     spin_main,
     unmatched,
 )
+from formation_ilc.nodes.frames import Frame, Frames
 from formation_ilc.nodes.params import declare, effective
 from formation_ilc.protocol.leader import NAME, Leader
 from formation_ilc.protocol.plant import RESEND_S
 from formation_ilc.protocol.schedule import TrialEvent
+from formation_ilc.system.exits import STOPPED
+
+#: [s] how long a stopped leader waits for every reader of the e-stop to acknowledge it
+#: before its process ends (the bridges hold zero on their own meanwhile and after)
+STOP_ACK_S = 1.0
+#: [s] how long it waits for the graph to name who stopped it (a caller's node can reach
+#: the graph after its call)
+NAME_WAIT_S = 2.0
 
 
 class LeaderNode(GuardedNode):
@@ -163,6 +183,7 @@ class LeaderNode(GuardedNode):
         self.ref_pub = self.create_publisher(PoseStamped, ms.REFERENCE, ms.SAMPLE_QOS)
         self.event_pub = self.create_publisher(String, ms.TRIAL_EVENTS, ms.SAMPLE_QOS)
         self.diag_pub = Diagnostics(self)  # per-trial report and /diagnostics
+        self.frames = Frames(self)  # map -> leader, the reference (nodes.frames)
         # every ready and report from the node it names (protocol.writers)
         self.ready_sub = self.checked_readies(self._on_ready)
         # its own events come back here too; a start or abort it did not send is re-asserted
@@ -189,6 +210,12 @@ class LeaderNode(GuardedNode):
                 askers += [ms.bridge_name(i + 1) for i in range(sc.n)]
             self.clocks = ClockExchange(self, ms.LEADER, cfg, node_clock(cfg, None), (),
                                         askers, self.drops)
+        # the stop button: a call stops every robot and ends the run (status 7); an e-stop
+        # someone else latched ends it too
+        self.stopped_by: str | None = None
+        self.estop_pub = self.create_publisher(Bool, ms.ESTOP, ms.LATCHED_QOS)
+        self.create_service(Trigger, ms.STOP_SERVICE, self._on_stop)
+        self.create_subscription(Bool, ms.ESTOP, self._on_estop, ms.LATCHED_READER_QOS)
         self.config_pub.publish(ms.json_to_msg(cfg.to_json()))
         self._gate = self.create_timer(0.05, self.core.maybe_start)
         self.create_timer(5.0, self.core.report_wait)
@@ -213,6 +240,73 @@ class LeaderNode(GuardedNode):
     @property
     def expected(self) -> list[str]:
         return self.core.expected
+
+    # ------------------------------------------------------------------ the stop button
+    def _on_stop(self, request: Trigger.Request, response: Trigger.Response
+                 ) -> Trigger.Response:
+        """``stop`` called: every robot commands zero at once (the e-stop, latched), and the
+        run ends with status 7, naming who called."""
+        if self.stopped_by is None:
+            srv = self.resolve_service_name(ms.STOP_SERVICE)
+            self._stop(f"{srv} called by", lambda: self._clients_of(srv))
+            response.message = (f"stopped: every robot commands zero; the run ends with "
+                                f"status {STOPPED}")
+        else:
+            response.message = f"already stopped ({self.stopped_by})"
+        response.success = True
+        return response
+
+    def _on_estop(self, msg: Bool) -> None:
+        if not msg.data or self.stopped_by is not None:
+            return
+        topic = self.resolve_topic_name(ms.ESTOP)
+        self._stop(f"an e-stop on {topic} from", lambda: sorted({
+            f"{i.node_namespace.rstrip('/')}/{i.node_name}"
+            for i in self.get_publishers_info_by_topic(topic)
+            if i.node_name != self.get_name()}))
+
+    def _clients_of(self, service: str) -> list[str]:
+        """The nodes with a client of ``service`` (the graph's word: rclpy gives a service
+        callback no caller)."""
+        out = []
+        for name, ns in self.get_node_names_and_namespaces():
+            try:
+                clients = self.get_client_names_and_types_by_node(name, ns)
+            except Exception:  # noqa: BLE001 - a node gone between the two queries
+                continue
+            if any(c == service for c, _ in clients):
+                out.append(f"{ns.rstrip('/')}/{name}")
+        return sorted(out)
+
+    def _stop(self, how: str, who: Callable[[], list[str]]) -> None:
+        """Latch the e-stop (every bridge sends its driver zero and holds it, every robot
+        commands zero), start no trial, and end the process with ``STOPPED`` once the
+        e-stop's readers have it, naming ``who()`` stopped it (the graph's answer now, or
+        within ``NAME_WAIT_S``: a caller's node may reach this node's graph after its call)."""
+        self.estop_pub.publish(Bool(data=True))
+        self._gate.cancel()
+        if hasattr(self, "_wall_timer"):
+            self._wall_timer.cancel()
+        self._who, self._how = who, how
+        self._named = who()
+        self.stopped_by = f"{how} {', '.join(self._named) or '...'}"
+        text = (f"stop: every robot commands zero (e-stop latched on "
+                f"{self.resolve_topic_name(ms.ESTOP)}); the run ends with status {STOPPED}")
+        self.get_logger().warning(text)
+        # the answer goes out before the process ends: the exit is a timer later
+        self._stop_timer = self.create_timer(0.05, self._stop_exit)
+
+    def _stop_exit(self) -> None:
+        self._stop_timer.cancel()
+        self.estop_pub.wait_for_all_acked(Duration(seconds=STOP_ACK_S))
+        end = time.monotonic() + NAME_WAIT_S
+        while not self._named and time.monotonic() < end:
+            time.sleep(0.05)  # the graph cache fills on DDS's threads, not this one
+            self._named = self._who()
+        self.stopped_by = (f"{self._how} "
+                           f"{', '.join(self._named) or 'a node the graph did not name'}")
+        fail(self, f"stopped by {self.stopped_by}; every robot was commanded zero "
+                   f"(status {STOPPED}, docs/real-robots.md, \"Stopping\")", STOPPED)
 
     # ------------------------------------------------------------------ callbacks
     def _on_ready(self, msg: String) -> None:
@@ -265,6 +359,8 @@ class LeaderNode(GuardedNode):
 
     def publish_reference(self, t: int, stamp_ns: int) -> None:
         ref = self.cfg.scenario.reference[t]
+        self.frames.publish(stamp_ns, [Frame(ms.WORLD_FRAME, ms.LEADER_FRAME_ID,
+                                             float(ref[0]), float(ref[1]), float(ref[2]))])
         if self.cfg.mode == "wallclock":
             self.ref_pub.publish(ms.pose_to_msg(ref, stamp_ns, ms.WORLD_FRAME, self.ref_msg))
         else:  # bytes, as the per-sample messages are

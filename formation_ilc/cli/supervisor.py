@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import IO
 
 from formation_ilc.plan.specs import NodeSpec, RunPlan
-from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, NO_RESTART, STUCK
+from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, NO_RESTART, STOPPED, STUCK
 from formation_ilc.system.lifetime import GATE_ENV, early_argv
 
 __all__ = ["Stack", "Supervisor", "Failure", "exit_status", "metrics_rows", "resume_hint",
@@ -275,6 +275,10 @@ class Supervisor:
             file = (said.split(f"{DISK_FULL_TAG}: cannot write ", 1)[-1].split(" (")[0]
                     if said and DISK_FULL_TAG in said else None)
             print(f"error: {disk_full_line(name, file, out)}", file=sys.stderr)
+            return failure.status
+        if code == STOPPED and said is not None:  # the stop button: no error of the run
+            print(f"stopped: {said} (log: {log}); the finished trials are in metrics.csv",
+                  file=sys.stderr)
             return failure.status
         if (code == policy.refused or code in NO_RESTART) and said is not None:
             hint = (f"; {len(metrics_rows(out))} trials are in metrics.csv; after fixing the "

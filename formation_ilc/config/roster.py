@@ -76,6 +76,8 @@ class Member:
     dds_publish, dds_subscribe : services as DDS names (``rq/...Request``, ``rr/...Reply``).
     service_node : the node name its ROS housekeeping (services) runs under; ``*``: any
         node in its namespace (a driver whose node name is the driver's own).
+    serves, calls : the formation's services (relative names) it offers, and calls
+        (the leader offers ``stop``; only the ground station's monitor may call it).
     """
 
     name: str
@@ -92,6 +94,8 @@ class Member:
     dds_publish: tuple[str, ...] = ()
     dds_subscribe: tuple[str, ...] = ()
     service_node: str = ""
+    serves: tuple[str, ...] = ()
+    calls: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -281,14 +285,21 @@ class Roster:
             return tuple(sorted({nm.absolute(clock if t == nm.CLOCK else t, namespace)
                                  for t in topics}))
 
+        def dds(serves: Sequence[str], calls: Sequence[str]) -> tuple[list[str], list[str]]:
+            """A server reads requests and writes replies; a client the other way."""
+            rq = [nm.service_dds_topics(nm.absolute(x, namespace)) for x in serves]
+            cl = [nm.service_dds_topics(nm.absolute(x, namespace)) for x in calls]
+            return [r[1] for r in rq] + [c[0] for c in cl], [r[0] for r in rq] + [c[1] for c in cl]
+
         out = {}
         for m in self.members:
             path = enclave_path(namespace, m.enclave)
+            srv_pub, srv_sub = dds(m.serves, m.calls)
             out[path] = Grant(path, m.name if m.role != "driver" or m.robot is None
                               else m.enclave, m.node_namespace or namespace,
                               absolute(m.publish), absolute(m.subscribe),
-                              tuple(sorted(set(m.dds_publish))),
-                              tuple(sorted(set(m.dds_subscribe))),
+                              tuple(sorted({*m.dds_publish, *srv_pub})),
+                              tuple(sorted({*m.dds_subscribe, *srv_sub})),
                               m.service_node or m.name)
         return out
 
@@ -308,12 +319,15 @@ def roster(lineup: Lineup) -> Roster:
     protocol = (nm.READY, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS)
     members: list[Member] = []
     if lineup.monitor:
+        # the ground station: the one enclave that may press the stop button (call the
+        # leader's stop, latch the e-stop)
         members.append(Member(
-            nm.MONITOR_NODE, "monitor", None, ONCE, False, nm.MONITOR_NODE, (nm.READY,),
+            nm.MONITOR_NODE, "monitor", None, ONCE, False, nm.MONITOR_NODE,
+            (nm.READY, nm.ESTOP),
             (*(nm.trajectory_topic(i) for i in robots),
              *(nm.true_trajectory_topic(i) for i in robots), nm.DIAGNOSTICS,
              # readies: it answers a forged 'down' of itself by saying ready
-             nm.TRIAL_EVENTS, nm.READY)))
+             nm.TRIAL_EVENTS, nm.READY, nm.ESTOP), calls=(nm.STOP_SERVICE,)))
     if lineup.record:
         members.append(Member(
             nm.RECORDER_NODE, "recorder", "formation-ilc-recorder", ONCE, True,
@@ -337,11 +351,13 @@ def roster(lineup: Lineup) -> Roster:
     members.append(Member(
         nm.LEADER_NODE, "leader", "formation-ilc-virtual-leader", NEVER, False, nm.LEADER_NODE,
         (nm.CONFIG, nm.REFERENCE, nm.TRIAL_EVENTS, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS,
-         *leader_pub),
+         nm.ESTOP, nm.TF, *leader_pub),
         # its own events too: it re-asserts against a start or abort it did not send (a
         # buggy node's, or a lossy link's replay); the nodes' reports, for the endpoints
-        # a node still waits for at start-up (its watchdog names them)
-        (nm.READY, nm.CONFIG, nm.CLOCK, nm.TRIAL_EVENTS, nm.DIAGNOSTICS, *leader_sub)))
+        # a node still waits for at start-up (its watchdog names them); the e-stop (one
+        # the ground station latched ends the run too)
+        (nm.READY, nm.CONFIG, nm.CLOCK, nm.TRIAL_EVENTS, nm.DIAGNOSTICS, nm.ESTOP,
+         *leader_sub), serves=(nm.STOP_SERVICE,)))
     members += _plant(lineup, row)
     if lineup.links == "emulated":
         links_pub = [nm.link_topic(i, nm.robot_name(j)) for i in robots
@@ -366,7 +382,7 @@ def _robot(i: int, senders: list[int], hears_leader: bool, lineup: Lineup,
     the others' poses too (the plant's ``team/poses``, or each other robot's pose); with
     the clock exchanges its questions to the clocks it hears (``senders``, the leader) and
     its answers to the robots that hear it (``hearers``)."""
-    sub = [nm.pose_topic(i), nm.CONFIG, nm.TRIAL_EVENTS]
+    sub = [nm.pose_topic(i), nm.CONFIG, nm.TRIAL_EVENTS, nm.ESTOP]
     sub += [nm.link_topic(i, nm.robot_name(j)) for j in senders]
     sub += [nm.shared_pose_topic(j) for j in senders] + [nm.trajectory_topic(j)
                                                          for j in senders]
@@ -398,12 +414,13 @@ def _plant(lineup: Lineup, row: Plant) -> list[Member]:
     drive (the physics bases first, else each robot's driver before its bridge)."""
     robots = range(1, lineup.n + 1)
     if row.node is not None:
-        pub = [*(nm.pose_topic(i) for i in robots)]
+        pub = [*(nm.pose_topic(i) for i in robots),
+               *(nm.robot_description_topic(i) for i in robots)]
         if row.true_state:
             pub += [nm.true_trajectory_topic(i) for i in robots]
         if row.clock:
             pub.append(nm.CLOCK)
-        pub += [nm.READY, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS]
+        pub += [nm.READY, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS, nm.TF, nm.TF_STATIC]
         if row.true_state:
             pub.append(nm.PREVIEW)
         if lineup.sensing == "team":
@@ -431,8 +448,9 @@ def _plant(lineup: Lineup, row: Plant) -> list[Member]:
     for i in robots:
         ns = lineup.driver_namespace(i)
         c, o, mo = f"{ns}/{cmd}", f"{ns}/{odom}", f"{ns}/{motors}"
-        bridge_pub = [nm.pose_topic(i), nm.READY, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS, c]
-        bridge_sub = [nm.cmd_vel_topic(i), nm.TRIAL_EVENTS, nm.CONFIG, o]
+        bridge_pub = [nm.pose_topic(i), nm.READY, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS, c, nm.TF,
+                      nm.TF_STATIC, nm.robot_description_topic(i)]
+        bridge_sub = [nm.cmd_vel_topic(i), nm.TRIAL_EVENTS, nm.CONFIG, nm.ESTOP, o]
         if truth:  # the simulated base's true pose in, the trial's true trajectory out
             bridge_pub.append(nm.true_trajectory_topic(i))
             bridge_sub.append(f"{ns}/{nm.BASE_TRUTH}")

@@ -30,8 +30,10 @@ __all__ = ["NAMESPACE", "CLOCK", "LEADER_NODE", "SIM_NODE", "LINKS_NODE", "MONIT
            "namespace_remaps", "namespace_problem", "driver_ns_problem",
            # topics and frames
            "CONFIG", "REFERENCE", "TRIAL_EVENTS", "READY", "DIAGNOSTICS", "ROS_DIAGNOSTICS",
-           "LEADER", "HOSTS_RUN", "HOSTS_NAMESPACE",
-           "WORLD_FRAME", "pose_topic", "cmd_vel_topic", "applied_topic", "shared_pose_topic",
+           "LEADER", "HOSTS_RUN", "HOSTS_NAMESPACE", "STOP_SERVICE", "ESTOP", "service_dds_topics",
+           "WORLD_FRAME", "TF", "TF_STATIC", "LEADER_FRAME_ID", "odom_frame", "base_frame",
+           "robot_description_topic", "pose_topic", "cmd_vel_topic", "applied_topic",
+           "shared_pose_topic",
            "link_topic",
            "whereabouts_topic",
            "clock_ping_topic", "clock_pong_topic", "trajectory_topic", "true_trajectory_topic",
@@ -157,16 +159,56 @@ DIAGNOSTICS = "diagnostics"
 #: every node's statuses about once a second, ``node: task`` names, plain values; absolute,
 #: remappable with ``-r /diagnostics:=TOPIC``
 ROS_DIAGNOSTICS = "/diagnostics"
+#: the stop button: a std_srvs/srv/Trigger service of the leader (``/formation/stop``).
+#: A call stops every robot (the leader latches ``ESTOP``) and ends the run with status 7
+#: (``formation_ilc.system.exits.STOPPED``)
+STOP_SERVICE = "stop"
+#: the e-stop: std_msgs/Bool, latched. True: every bridge sends its driver zero and holds
+#: it, every robot commands zero, whoever published it and whether the leader lives;
+#: False releases the bridges (a run the leader ended stays ended)
+ESTOP = "estop"
+
+
+def service_dds_topics(service: str) -> tuple[str, str]:
+    """The DDS topics of an absolute service name: its requests' and its replies'
+    (``rq/formation/stopRequest``, ``rr/formation/stopReply``), as DDS-Security grants
+    name them."""
+    return f"rq{service}Request", f"rr{service}Reply"
+
+
 #: the leader as a sender: link names ``leader->robot_i``, the emulated link
 #: ``robot_i/links/leader``
 LEADER = "leader"
 #: REP-105 world-fixed frame of every pose and path
 WORLD_FRAME = "map"
+#: the frames, tf2's topics (tf2_msgs/msg/TFMessage; absolute, as tf2 has them): one tree
+#: with ``WORLD_FRAME`` at its root, per robot ``robot_i/odom`` under it and
+#: ``robot_i/base_link`` under that (REP-105), and the virtual leader's reference frame
+TF = "/tf"
+TF_STATIC = "/tf_static"
+#: the virtual leader's frame: the reference r(t), under ``WORLD_FRAME``
+LEADER_FRAME_ID = "leader"
+
+
+def odom_frame(i: int) -> str:
+    """Robot ``i``'s odometry frame (REP-105 ``odom``): ``robot_i/odom``."""
+    return f"{robot_name(i)}/odom"
+
+
+def base_frame(i: int) -> str:
+    """Robot ``i``'s body frame (REP-105 ``base_link``): ``robot_i/base_link``."""
+    return f"{robot_name(i)}/base_link"
 
 
 def pose_topic(i: int) -> str:
     """Measured pose of robot ``i`` (plant -> robot)."""
     return f"{robot_name(i)}/pose"
+
+
+def robot_description_topic(i: int) -> str:
+    """Robot ``i``'s body as URDF (std_msgs/String, latched; its link ``robot_i/base_link``,
+    ``config.urdf``), from the plant that drives it: what viewers draw the robot from."""
+    return f"{robot_name(i)}/robot_description"
 
 
 def whereabouts_topic(i: int) -> str:
@@ -250,10 +292,10 @@ def recorded_topics(n: int) -> list[str]:
     and the emulated links' per-tick messages (``link_topic``: shared poses and the
     reference, forwarded). The delays the links carried are in each robot's diagnostics.
     """
-    names = [CONFIG, REFERENCE, TRIAL_EVENTS, READY, DIAGNOSTICS, CLOCK]
+    names = [CONFIG, REFERENCE, TRIAL_EVENTS, READY, DIAGNOSTICS, CLOCK, ESTOP, TF, TF_STATIC]
     for i in range(1, n + 1):
         names += [pose_topic(i), cmd_vel_topic(i), trajectory_topic(i),
-                  true_trajectory_topic(i)]
+                  true_trajectory_topic(i), robot_description_topic(i)]
     return names
 
 

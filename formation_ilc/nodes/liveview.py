@@ -407,6 +407,8 @@ class LiveViewNode(Node):
             return
         n = self.cfg.scenario.n
         for topic, type_name, qos in ms.topic_table(n):
+            if type_name == ms.TF_TYPE and ms.tf_message() is None:
+                continue  # tf2_msgs not built (scripts/build_tf2_msgs.py): no frames
             self._forward(topic, type_name, qos)
         poses = [ms.pose_topic(i) for i in range(1, n + 1)]
         if self.sampled:  # every robot's pose channel, and all computed here, from one topic

@@ -34,6 +34,7 @@ from std_msgs.msg import String
 
 import msgs_schema as ms
 from formation_ilc.config.runconfig import RunConfig
+from formation_ilc.config.urdf import body_of
 from formation_ilc.core.clock import Rejected
 from formation_ilc.protocol.schedule import TrialEvent, is_repeat, sealed
 from formation_ilc.protocol.view import TrackingView, graph_links, marker_every, outline_order
@@ -98,7 +99,10 @@ class Observer:
         self._desired = [[serialize_message(ms.pose_to_msg(eta_d[r, s], 0, ms.WORLD_FRAME))
                           for s in range(eta_d.shape[1])] for r in range(sc.n)]
         self._error = serialize_message(ms.vector_msg(0, 0.0, 0.0))
-        self._markers = ms.MarkersTemplate(sc.n, self.outline, self.links)
+        # each robot's footprint and heading in its own frame (the body of config.urdf)
+        b = body_of(cfg.safety.body if cfg.safety is not None else "p3dx")
+        self._markers = ms.MarkersTemplate(sc.n, self.outline, self.links,
+                                           (b.length, b.width, b.body_x))
 
     def listened(self) -> set[str]:
         """The per-sample topics that some DDS reader takes (asked at most every

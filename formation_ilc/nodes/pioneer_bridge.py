@@ -81,6 +81,14 @@ commands, its motor service if it has one) and fails otherwise, naming what is m
 stops; the bridge keeps sampling its pose). ``formation-ilc launch --lifecycle`` drives
 the transitions itself.
 
+The e-stop: ``estop`` (std_msgs/Bool, latched), from whoever publishes it, with or without
+a leader: true sends the driver a zero command at once and holds every command at zero
+(the robot's, the return's, the repeats) until false releases it (``estops`` counts the
+latches). Frames (``nodes.frames``): ``map -> robot_I/odom`` (the initial pose) on
+``/tf_static``, ``robot_I/odom -> robot_I/base_link`` (the odometry) on ``/tf``; the body
+(its base preset's URDF, else a Pioneer 3-DX's) on ``robot_I/robot_description``. With
+``lifecycle:=true`` each transition is one INFO line of its log.
+
 Everything it decides is in ``formation_ilc.protocol.bridge.Bridge``; this node reads its
 parameters, talks to the driver (its motors included) and makes one call into the bridge
 per event.
@@ -101,7 +109,7 @@ from geometry_msgs.msg import PoseStamped, Twist, TwistStamped
 from nav_msgs.msg import Odometry, Path
 from rclpy.lifecycle import LifecycleNodeMixin, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
-from std_msgs.msg import String
+from std_msgs.msg import Bool, String
 
 import msgs_schema as ms
 from formation_ilc.config import params
@@ -117,6 +125,7 @@ from formation_ilc.nodes.common import (
     robot_node_from_args,
     spin_main,
 )
+from formation_ilc.nodes.frames import BRIDGE_TF_HZ, Frame, Frames, describe_body
 from formation_ilc.nodes.params import ParameterError, check, declare, effective
 from formation_ilc.protocol.bridge import (
     Bridge,
@@ -166,6 +175,7 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
         declare(self, params.BRIDGE, robot_id=self.id)
         g = lambda name: self.get_parameter(name).value  # noqa: E731
         base = str(g("base")) or None
+        self.base_name = base
         preset = base_preset(base) if base else None
         driver = "base" if preset is not None else str(g("driver"))
         if driver not in ms.DRIVERS:
@@ -228,25 +238,43 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
             missing.append(f"no service {motors_t}")
         return missing
 
+    def _transition(self, name: str, state: LifecycleState, to: str,
+                    result: TransitionCallbackReturn) -> TransitionCallbackReturn:
+        """Log a transition at INFO, one line, as nav2's lifecycle nodes do (a failed one
+        says what failed before)."""
+        if result == TransitionCallbackReturn.SUCCESS:
+            self.get_logger().info(f"{self.name}: lifecycle: {name}: {state.label} -> {to}")
+        else:
+            self.get_logger().info(f"{self.name}: lifecycle: {name} from {state.label} "
+                                   f"failed ({result.name.lower()})")
+        return result
+
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         missing = self.driver_missing()
         if missing:
             self.get_logger().error(f"{self.name}: configure failed, the driver is not there: "
                                     f"{'; '.join(missing)}")
-            return TransitionCallbackReturn.FAILURE
-        return super().on_configure(state)
+            return self._transition("configure", state, "inactive",
+                                    TransitionCallbackReturn.FAILURE)
+        return self._transition("configure", state, "inactive", super().on_configure(state))
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self.active = True
-        return super().on_activate(state)
+        return self._transition("activate", state, "active", super().on_activate(state))
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._halt()
-        return super().on_deactivate(state)
+        return self._transition("deactivate", state, "inactive", super().on_deactivate(state))
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        return self._transition("cleanup", state, "unconfigured", super().on_cleanup(state))
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._halt()
-        return super().on_shutdown(state)
+        return self._transition("shutdown", state, "finalized", super().on_shutdown(state))
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        return self._transition("error", state, "unconfigured", super().on_error(state))
 
     def _halt(self) -> None:
         """One zero command to the driver now, and no command after (until activated)."""
@@ -282,6 +310,8 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
         self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
         self.create_subscription(Twist, ms.cmd_vel_topic(self.id), self._on_cmd, ms.SAMPLE_QOS)
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
+        # the e-stop, obeyed from whoever latches it, with or without a leader
+        self.create_subscription(Bool, ms.ESTOP, self._on_estop, ms.LATCHED_READER_QOS)
         cmd_t, odom_t, motors_t = self.driver_topics
         self.drv_pub = self.create_publisher(TwistStamped if self.stamped else Twist, cmd_t,
                                              ms.DRIVER_CMD_QOS)
@@ -310,6 +340,13 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
             self.create_subscription(PoseStamped, self.located_topic, self._on_located,
                                      ms.ODOM_QOS)
         self._setup_motors(motors_t)
+        # the frames: robot_i/odom where the robot was placed, robot_i/base_link in it as
+        # the driver's odometry has it (nodes.frames)
+        x0, y0, th0 = core.initial
+        self.frames = Frames(self, [Frame(ms.WORLD_FRAME, ms.odom_frame(self.id), x0, y0, th0)])
+        # the robot's body, latched (config.urdf): its base preset's, else a Pioneer 3-DX
+        self.body_pub = describe_body(self, self.id, self.base_name or "p3dx")
+        self._tf_due = 0.0
         # the robot's clock (the machine's; in an emulated run its robot's), and the
         # leader's as this bridge estimates it: samples are due on the team's time
         self.wall = node_clock(cfg, self.id)
@@ -477,7 +514,12 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
         except Rejected as exc:
             self.drops.reject(exc, self.driver_topics[1])
             return
-        self.core.on_odom(pose, time.monotonic(), tilt)
+        now = time.monotonic()
+        self.core.on_odom(pose, now, tilt)
+        if now >= self._tf_due:
+            self._tf_due = now + 1.0 / BRIDGE_TF_HZ
+            self.frames.publish(self._team_ns()[0], [
+                Frame(ms.odom_frame(self.id), ms.base_frame(self.id), *pose)])
 
     def _on_whereabouts(self, msg: PoseStamped, robot: int) -> None:
         try:
@@ -516,6 +558,17 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
             self.drops.reject(exc, ms.cmd_vel_topic(self.id))
             return
         self._send(cmd, wall)
+
+    def _on_estop(self, msg: Bool) -> None:
+        was = self.core.estopped
+        cmd = self.core.estop(bool(msg.data), time.monotonic())
+        if cmd is not None:  # zero to the driver now, not at the next tick
+            self._send(cmd, self._wall_ns())
+        if bool(msg.data) != was:
+            topic = self.resolve_topic_name(ms.ESTOP)
+            self.get_logger().warning(
+                f"{self.name}: e-stop on {topic}: zero to {self.driver_topics[0]}, held until "
+                f"released" if msg.data else f"{self.name}: e-stop released on {topic}")
 
     def _on_event(self, msg: String) -> None:
         core = self.core

@@ -59,8 +59,16 @@ from formation_ilc.nodes.common import (
 from formation_ilc.nodes.observer import Observer
 from formation_ilc.nodes.params import declare
 from formation_ilc.protocol.schedule import Ready, TrialEvent, sealed
+from formation_ilc.recordings.bagmeta import METADATA, write_bag_metadata
 from formation_ilc.recordings.mcap_io import CHUNK_BYTES, RosMcapWriter, type_hash
-from formation_ilc.recordings.recording import CHANNEL_META, META_NAME, qos_of, run_metadata
+from formation_ilc.recordings.recording import (
+    CHANNEL_META,
+    META_NAME,
+    qos_of,
+    recording_parts,
+    root_of,
+    run_metadata,
+)
 from formation_ilc.system.exits import is_disk_full
 
 #: types whose CDR starts with a header stamp (int32 sec, uint32 nanosec) right after the
@@ -74,6 +82,9 @@ _READER_DEPTH = 20000
 NICENESS = 5
 #: topics written by many nodes (not waited for before saying ready)
 _MANY_WRITERS = {ms.READY, ms.DIAGNOSTICS}
+#: topics recorded when written, never waited for: the e-stop, the frames, the bodies
+_UNWAITED = {ms.ESTOP, ms.TF, ms.TF_STATIC}
+_UNWAITED_KIND = "/robot_description"
 
 
 def _msg_class(type_name: str) -> Any:
@@ -130,6 +141,11 @@ class RecorderNode(Node):
     def _subscribe(self, topic: str, type_name: str, qos: Any) -> None:
         if topic in self.subs:
             return
+        try:
+            cls = _msg_class(type_name)
+        except (ImportError, AttributeError):  # tf2_msgs not built: no frames to record
+            self.get_logger().warning(f"{topic} not recorded: {type_name} is not installed")
+            return
         self.types[topic] = type_name
         self.qos[topic] = qos
         if topic in _MANY_WRITERS:
@@ -140,7 +156,7 @@ class RecorderNode(Node):
             reader_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=_READER_DEPTH,
                                     reliability=qos.reliability, durability=qos.durability)
         self.subs[topic] = self.create_subscription(
-            _msg_class(type_name), topic, lambda data, t=topic: self._on(t, data), reader_qos,
+            cls, topic, lambda data, t=topic: self._on(t, data), reader_qos,
             raw=True)
 
     def _channel(self, topic: str, extra: dict[str, str] | None = None) -> str:
@@ -364,7 +380,8 @@ class RecorderNode(Node):
         # in wall-clock trials no node publishes /clock: waiting for it would block the run
         absent = {ms.CLOCK} if self.cfg.mode == "wallclock" else set()
         single = [t for t in self.subs if t not in _MANY_WRITERS and t != ms.CONFIG
-                  and t not in self.optional and t not in absent]
+                  and t not in self.optional and t not in absent and t not in _UNWAITED
+                  and not t.endswith(_UNWAITED_KIND)]
         if all(self.subs[t].get_publisher_count() >= 1 for t in single) and \
                 self.ready_pub.get_subscription_count() >= 1:
             self.said_ready = True
@@ -377,6 +394,11 @@ class RecorderNode(Node):
         try:
             self.writer.close()
             self.get_logger().info(f"closed {self.output}: {self.writer.count} messages")
+            # its folder opens as a rosbag2 bag (ros2 bag info, rosbags)
+            meta = write_bag_metadata(recording_parts(root_of(self.output)))
+            self.get_logger().info(f"wrote {meta}")
+        except ValueError as exc:  # no summary to describe
+            self.get_logger().error(f"no {METADATA} for {self.output}: {exc}")
         except OSError as exc:  # a full disk: what was flushed before reads back
             self.get_logger().error(f"could not close {self.output}: {exc.strerror}; the "
                                     f"chunks written before read back")

@@ -63,7 +63,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist, TwistStamped
 from nav_msgs.msg import Path
 from rclpy.node import Node
-from std_msgs.msg import String
+from std_msgs.msg import Bool, String
 
 import msgs_schema as ms
 from formation_ilc.config import params
@@ -93,6 +93,8 @@ from msgs_schema import wire
 
 #: realtime: how long [dT] a robot waits for its links after its pose
 LINK_WAIT = 0.75
+#: the command while the e-stop is latched
+ZERO = (0.0, 0.0)
 #: teams from this size read the plant's team/poses as arrays (``learner.on_team_poses``):
 #: per sample 64 us against 334 us one pose at a time at 50 robots, 59 against 165 at 24,
 #: but 52 against 41 at 6 (numpy's cost per call; measured 2026-11-28)
@@ -258,6 +260,9 @@ class RobotNode(ConfiguredNode):
         #: team/poses): their re-check sleeps inside a trial (``polls_idle``)
         self._idle_polls = self.poll_period() >= REFRESH_TRIAL
         self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
+        #: the e-stop is latched: every command is zero (the learner still runs its trial)
+        self.estopped = False
+        self.create_subscription(Bool, ms.ESTOP, self._on_estop, ms.LATCHED_READER_QOS)
         self._gate = self.create_timer(0.05, self._check_ready)
         self.get_logger().info(f"{self.name}: {len(lrn.neighbours)} in-links"
                                f"{' + leader' if lrn.sees_leader else ''} ({cfg.links}), "
@@ -487,8 +492,18 @@ class RobotNode(ConfiguredNode):
             self._deadline.cancel()
             self._armed = False
 
+    def _on_estop(self, msg: Bool) -> None:
+        if bool(msg.data) != self.estopped:
+            self.estopped = bool(msg.data)
+            self.get_logger().warning(f"{self.name}: e-stop: every command zero" if msg.data
+                                      else f"{self.name}: e-stop released")
+            if self.estopped:  # zero at once, not at the next sample
+                self.cmd_pub.publish(wire.twist_bytes(ZERO))
+
     def _command(self) -> None:
         u = self.learner.command()
+        if self.estopped:
+            u = ZERO
         self.cmd_pub.publish(wire.twist_bytes(u))
         if self.applied_pub is not None:
             self.applied_sent = wire.applied_bytes(u, self.learner.rt_ns, self._base_frame)

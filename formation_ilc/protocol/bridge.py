@@ -348,7 +348,7 @@ class Bridge:
         self.out_cmd: Command = (0.0, 0.0)
         self.last_out = 0.0
         self.counts = {"missed": 0, "clipped": 0, "clipped_accel": 0, "watchdog_zero": 0,
-                       "return_timeouts": 0, "stale_odometry": 0}
+                       "return_timeouts": 0, "stale_odometry": 0, "estops": 0}
         self.tilt_max = 0.0    # [rad] the largest tilt of the odometry taken
         self.shifts: dict[str, list[float]] = {}
         self.returns: dict[str, dict[str, Any]] = {}
@@ -535,6 +535,20 @@ class Bridge:
         self.counts["return_infeasible"] += int(bool(flags & INFEASIBLE))
         return float(out[0]), float(out[1])
 
+    #: the e-stop is latched: every command to the driver is zero (``estop``)
+    estopped = False
+
+    def estop(self, on: bool, now: float) -> Command | None:
+        """The e-stop latched (``on``) or released. Latched: the zero command to send now
+        (no limit holds it back), and zero for every command after, the robot's, the
+        return controller's and the repeats alike, until released (None: nothing to
+        send)."""
+        was, self.estopped = self.estopped, bool(on)
+        if on:
+            self.counts["estops"] += int(not was)
+            return self.stop(now)
+        return None
+
     def stop(self, now: float) -> Command:
         """The zero command, to send on the way out (no limit holds it back)."""
         self.out_cmd, self.last_out = (0.0, 0.0), now
@@ -544,7 +558,9 @@ class Bridge:
         """``cmd`` as it goes to the driver at ``now``, stamped ``now_wall_ns`` (None: the
         stamps are ``now``): through the acceleration limits, if any. In a trial, a command
         they held back is counted (``clipped_accel``); a return starts from the trial's
-        last speed and is not."""
+        last speed and is not. Zero while the e-stop is latched."""
+        if self.estopped:
+            return self.stop(now)
         if self.rate is not None:
             before = self.rate.clipped_accel
             stamp = now if now_wall_ns is None else now_wall_ns * 1e-9

@@ -42,7 +42,7 @@ __all__ = ["RawPose", "pose_bytes", "read_pose", "raw_pose_bytes", "pose_eta",
            "raw_pose", "pose_set_bytes", "read_pose_set", "read_pose_block",
            "read_time_reference",
            "check_nanosec", "heading_from_quaternion", "check_twist", "read_string",
-           "read_diagnostics", "json_object", "json_int"]
+           "read_diagnostics", "json_object", "json_int", "Frame", "tf_bytes"]
 
 _LE = b"\x00\x01\x00\x00"  # CDR_LE encapsulation, no options
 #: a PoseStamped in frame "map", little-endian XCDR1: sec, nanosec, frame length, frame,
@@ -359,6 +359,37 @@ def pose_set_bytes(stamp_ns: int, poses: Sequence[RawPose]) -> bytes:
     for p in poses:
         parts.append(_pose_body(p, at))
         at += len(parts[-1])
+    return b"".join(parts)
+
+
+class Frame(NamedTuple):
+    """A planar transform of tf2: ``child`` in ``parent`` at (x [m], y [m], theta [rad])."""
+
+    parent: str
+    child: str
+    x: float
+    y: float
+    theta: float
+
+
+def tf_bytes(stamp_ns: int, frames: Sequence[Frame]) -> bytes:
+    """The bytes of a tf2_msgs/msg/TFMessage of ``frames``, every transform stamped
+    ``stamp_ns``: translation (x, y, 0), rotation (0, 0, sin(theta/2), cos(theta/2))."""
+    sec, nsec = _stamp(stamp_ns)
+    parts = [_LE + struct.pack("<I", len(frames))]
+    at = 4
+    for f in frames:
+        parent = f.parent.encode() + b"\x00"
+        child = f.child.encode() + b"\x00"
+        head = b"\x00" * ((-at) % 4)
+        head += struct.pack("<iII", sec, nsec, len(parent)) + parent
+        head += b"\x00" * ((-(at + len(head))) % 4) + struct.pack("<I", len(child)) + child
+        head += b"\x00" * ((-(at + len(head))) % 8)
+        th = 0.5 * float(f.theta)
+        body = head + struct.pack("<7d", float(f.x), float(f.y), 0.0, 0.0, 0.0, math.sin(th),
+                                  math.cos(th))
+        parts.append(body)
+        at += len(body)
     return b"".join(parts)
 
 

@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 
 from formation_ilc.config.runconfig import RunConfig
 from formation_ilc.config.scenario import Scenario
+from formation_ilc.config.urdf import robot_description
 from formation_ilc.core import names as ms
 from formation_ilc.core.clock import Malformed, Rejected
 from formation_ilc.core.links import (
@@ -51,6 +52,7 @@ from formation_ilc.protocol.health import flatten, node_report, read_statuses, s
 from formation_ilc.protocol.schedule import DONE, END, START, TrialEvent
 from formation_ilc.protocol.trialrows import SlotRows
 from formation_ilc.recordings import cdr
+from formation_ilc.recordings.bagmeta import write_bag_metadata
 from formation_ilc.recordings.mcap_io import (
     INFINITE_NS,
     FileInfo,
@@ -137,6 +139,16 @@ class SimRecorder:
         # what the stack's recorder adds beside them (formation_ilc.nodes.observer)
         self.full = {t: ms.absolute(t) for t in ms.recorded_topics(n) + ms.view_topics(n)}
         types = {topic: (typ, qos) for topic, typ, qos in table}
+        # no e-stop in a batch run; the frames where tf2_msgs is installed (its definition
+        # is the channel's schema; scripts/build_tf2_msgs.py)
+        self.full.pop(ms.ESTOP)
+        try:
+            type_hash(types[ms.TF][0])
+            self.frames = True
+        except FileNotFoundError:
+            self.frames = False
+            self.full.pop(ms.TF)
+            self.full.pop(ms.TF_STATIC)
         # its trials are first_trial .. first_trial + trials - 1 (simulate --first-trial)
         conf = cfg.to_json() | {"recorded_by": "formation-ilc simulate",
                                 "first_trial": int(first_trial)}
@@ -151,6 +163,14 @@ class SimRecorder:
         #: what the stack's recorder adds (``observe``); None: the formation's own topics
         self.observer: Any = None
         self._json(ms.CONFIG, conf, 0)
+        body = cfg.safety.body if cfg.safety is not None else "p3dx"
+        for r in range(n):  # each robot's body, as the simulator publishes it
+            self._write(ms.robot_description_topic(r + 1), cdr.encode_string(
+                robot_description(body, f"{ms.robot_name(r + 1)}/")), 0)
+        if self.frames:  # the simulator's: robot_i/odom is map
+            self._write(ms.TF_STATIC, wire.tf_bytes(0, [
+                wire.Frame(ms.WORLD_FRAME, ms.odom_frame(r + 1), 0.0, 0.0, 0.0)
+                for r in range(n)]), 0)
         self.w.keep(META_NAME, meta)
         self.delays: list[dict[str, Counter[int]]] = [{} for _ in range(n)]
         self.names = [ms.robot_name(i + 1) for i in range(n)]
@@ -186,6 +206,12 @@ class SimRecorder:
                 ns = int(stamps[t])
                 self._write(ms.CLOCK, cdr.encode_clock(ns), ns)
                 self._write(ms.REFERENCE, cdr.encode_pose_stamped(ref[t], ns, world), ns)
+                if self.frames:  # as the leader's and the simulator's (nodes.frames)
+                    self._write(ms.TF, wire.tf_bytes(ns, [
+                        wire.Frame(world, ms.LEADER_FRAME_ID, *map(float, ref[t]))]), ns)
+                    self._write(ms.TF, wire.tf_bytes(ns, [
+                        wire.Frame(ms.odom_frame(r + 1), ms.base_frame(r + 1),
+                                   *map(float, eta[r, t])) for r in range(n)]), ns)
                 for r in range(n):
                     pose = cdr.encode_pose_stamped(eta[r, t], ns, world)
                     self._write(ms.pose_topic(r + 1), pose, ns)
@@ -224,6 +250,7 @@ class SimRecorder:
 
     def close(self) -> None:
         self.w.close()
+        write_bag_metadata(self.w.path)  # its folder opens as a rosbag2 bag
 
 
 # --------------------------------------------------------------------------- reading

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import errno
 
-__all__ = ["OK", "CRASHED", "REFUSED", "FAILED", "STUCK", "DISK_FULL", "CONTACT", "NO_RESTART",
+__all__ = ["OK", "CRASHED", "REFUSED", "FAILED", "STUCK", "DISK_FULL", "CONTACT", "STOPPED",
+           "NO_RESTART",
            "DISK_FULL_TAG", "is_disk_full"]
 
 OK = 0
@@ -26,8 +27,12 @@ DISK_FULL = 5
 #: a plant with bodies ended the run: robots touched (or one tipped) past what its
 #: ``--on-contact`` policy allows; the node named the pair
 CONTACT = 6
+#: someone pressed the stop button: a call to the leader's ``stop`` service (std_srvs/
+#: Trigger), or an e-stop on ``estop``; every robot was commanded zero, the leader names
+#: who stopped it
+STOPPED = 7
 #: statuses a supervisor does not restart
-NO_RESTART = frozenset({REFUSED, STUCK, DISK_FULL, CONTACT})
+NO_RESTART = frozenset({REFUSED, STUCK, DISK_FULL, CONTACT, STOPPED})
 #: what a node's last line says when the disk is full (a supervisor looks for it)
 DISK_FULL_TAG = "disk full"
 

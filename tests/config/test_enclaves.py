@@ -94,8 +94,23 @@ def test_recorder_and_monitor_publish_only_protocol_topics(grants):
     view = {f"{NS}/{t}" for t in view_topics(3)}
     assert set(grants[f"{NS}/recorder"].publish) == {f"{NS}/ready", f"{NS}/diagnostics",
                                                      ROS_DIAGNOSTICS, *view}
-    assert set(grants[f"{NS}/monitor"].publish) == {f"{NS}/ready"}
+    # the monitor is the ground station's: it may latch the e-stop
+    assert set(grants[f"{NS}/monitor"].publish) == {f"{NS}/ready", f"{NS}/estop"}
     assert f"{NS}/robot_3/cmd_vel" in grants[f"{NS}/recorder"].subscribe
+
+
+def test_only_the_ground_station_may_call_stop_and_only_the_leader_serves_it(grants):
+    rq, rr = f"rq{NS}/stopRequest", f"rr{NS}/stopReply"
+    for path, g in grants.items():
+        calls = rq in g.dds_publish and rr in g.dds_subscribe
+        serves = rq in g.dds_subscribe and rr in g.dds_publish
+        assert calls == path.endswith("/monitor"), path
+        assert serves == path.endswith("/virtual_leader"), path
+        # every robot and bridge obeys the e-stop; only the ground station and the
+        # leader latch it
+        if path.rsplit("/", 1)[-1].split("_")[0] in ("robot", "bridge") and path[-1].isdigit():
+            assert f"{NS}/estop" in g.subscribe, path
+        assert (f"{NS}/estop" in g.publish) == path.endswith(("/monitor", "/virtual_leader"))
 
 
 def test_link_emulator_serves_exactly_the_graph_links(grants):

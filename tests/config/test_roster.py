@@ -280,6 +280,8 @@ def test_every_enclave_keeps_its_grant(key):
     # have a filter to hear the others with; nobody else
     _take_own_and_peers(got, "applied", "robot_" if lineup.sensing is not None else None,
                         applied_topic, namespace, n)
+    _take_stop_button(got, namespace)
+    _take_frames(got, plant)
     assert got == _golden("grants")[key]
     team = absolute(TEAM_POSES, namespace)
     robots = {f"robot_{i}" for i in range(1, n + 1)}
@@ -287,6 +289,58 @@ def test_every_enclave_keeps_its_grant(key):
                  if f"robot_{j}" != r} for r in robots}
     assert added == {**({"robot_sim": ({team}, set())} if plant == "sim" else {}),
                      **{r: (set(), {team} | peers[r]) for r in robots}}
+
+
+def _take_stop_button(got: dict[str, dict], namespace: str) -> None:
+    """The stop button (issue 54), granted now, checked and taken out: the e-stop latched
+    by the leader and the ground station's monitor, obeyed by every robot and bridge, read
+    by the leader, the monitor, the recorder and the live view; the leader serves ``stop``
+    and the monitor alone calls it."""
+    estop = absolute("estop", namespace)
+    rq, rr = f"rq{namespace}/stopRequest", f"rr{namespace}/stopReply"
+    for path, g in got.items():
+        name = path.rsplit("/", 1)[1]
+        head, _, tail = name.rpartition("_")
+        writes = name in ("virtual_leader", "monitor")
+        reads = writes or name in ("recorder", "liveview") or (
+            head in ("robot", "bridge") and tail.isdigit())
+        assert (estop in g["publish"]) == writes, name
+        assert (estop in g["subscribe"]) == reads, name
+        g["publish"] = [t for t in g["publish"] if t != estop]
+        g["subscribe"] = [t for t in g["subscribe"] if t != estop]
+        pub, sub = {"virtual_leader": ([rr], [rq]), "monitor": ([rq], [rr])}.get(name, ([], []))
+        assert [t for t in g["dds_publish"] if t in (rq, rr)] == pub, name
+        assert [t for t in g["dds_subscribe"] if t in (rq, rr)] == sub, name
+        g["dds_publish"] = [t for t in g["dds_publish"] if t not in (rq, rr)]
+        g["dds_subscribe"] = [t for t in g["dds_subscribe"] if t not in (rq, rr)]
+
+
+def _take_frames(got: dict[str, dict], plant: str) -> None:
+    """The frames (issue 54), granted now, checked and taken out: /tf written by the leader
+    (its reference frame) and the plant's nodes (the simulator, each bridge), which write
+    /tf_static too; both read by the recorder and the live view; nobody else."""
+    plants = {"robot_sim"} if plant == "sim" else {n for p in got for n in [p.rsplit("/", 1)[1]]
+                                                   if n.startswith("bridge_")}
+    for path, g in got.items():
+        name = path.rsplit("/", 1)[1]
+        pub = {t for t in g["publish"] if t in ("/tf", "/tf_static")}
+        sub = {t for t in g["subscribe"] if t in ("/tf", "/tf_static")}
+        assert pub == ({"/tf", "/tf_static"} if name in plants else
+                       {"/tf"} if name == "virtual_leader" else set()), name
+        assert sub == ({"/tf", "/tf_static"} if name in ("recorder", "liveview") else set()), name
+        g["publish"] = [t for t in g["publish"] if t not in pub]
+        g["subscribe"] = [t for t in g["subscribe"] if t not in sub]
+        # the bodies: each robot's URDF from the plant that drives it (the simulator all,
+        # bridge i its own), recorded and viewed
+        desc = {t for t in g["publish"] if t.endswith("/robot_description")}
+        want = ({t for t in desc} if name == "robot_sim" and len(desc) >= 3 else
+                {t for t in desc if t.split("/")[-2] == f"robot_{name[7:]}"}
+                if name.startswith("bridge_") and len(desc) == 1 else set())
+        assert desc == want, (name, desc)
+        g["publish"] = [t for t in g["publish"] if t not in desc]
+        rd = {t for t in g["subscribe"] if t.endswith("/robot_description")}
+        assert bool(rd) == (name in ("recorder", "liveview")), name
+        g["subscribe"] = [t for t in g["subscribe"] if t not in rd]
 
 
 def _clock_grants(sc, namespace: str, bridges: bool) -> dict[str, tuple[set[str], set[str]]]:

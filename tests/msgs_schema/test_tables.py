@@ -15,9 +15,10 @@ def test_topics_are_relative_and_resolve_in_any_namespace():
     assert ms.shared_pose_topic(1) == "robot_1/shared_pose"
     assert ms.trajectory_topic(12) == "robot_12/trajectory"
     assert ms.link_topic(2, "leader") == "robot_2/links/leader"
-    # every name but /clock is relative, so one formation runs under any namespace
+    # every name but /clock and tf2's topics is relative, so one formation runs under any
+    # namespace (tf2's are absolute as tf2 has them: its frames say whose they are)
     for name, _, _ in ms.topic_table(4):
-        assert name.startswith("/") == (name == ms.CLOCK), name
+        assert name.startswith("/") == (name in (ms.CLOCK, ms.TF, ms.TF_STATIC)), name
     assert ms.absolute(ms.pose_topic(3)) == "/formation/robot_3/pose"
     assert ms.absolute(ms.CONFIG, "/team2") == "/team2/config"
     assert ms.absolute(ms.CLOCK, "/team2") == "/clock"

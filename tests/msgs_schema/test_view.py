@@ -55,17 +55,29 @@ def test_the_markers_template_writes_what_markers_msg_serializes(scenario):
     sc = load_scenario(scenario)
     eta_d = sc.desired.eta
     outline, links = outline_order(eta_d[:, 0]), graph_links(sc.graph.in_links()[0])
-    tpl = ms.MarkersTemplate(sc.n, outline, links)
+    footprint = (0.455, 0.381, -0.045)  # a Pioneer 3-DX's, about its axle
+    tpl = ms.MarkersTemplate(sc.n, outline, links, footprint)
     rng = np.random.default_rng(3)
     for _ in range(10):
         s = int(rng.integers(0, sc.samples + 1))
         stamp = int(rng.integers(0, 2**31 * 10**9))
         pos = {r: tuple(rng.normal(scale=3.0, size=2)) for r in range(sc.n)}
         ours = tpl.cdr(stamp, eta_d[:, s, :2], pos)
-        theirs = serialize_message(ms.markers_msg(stamp, eta_d[:, s, :2], outline, links, pos))
+        theirs = serialize_message(ms.markers_msg(stamp, eta_d[:, s, :2], outline, links, pos,
+                                                  footprint))
         assert len(ours) == len(theirs)  # (rclpy leaves padding bytes uninitialised)
         assert deserialize_message(ours, MarkerArray) == deserialize_message(theirs,
                                                                               MarkerArray)
+    # per robot its footprint and heading, in its own frame (they move with /tf)
+    got = deserialize_message(ours, MarkerArray).markers
+    for kind in ("footprint", "heading"):
+        mine = [m for m in got if m.ns == kind]
+        assert [m.header.frame_id for m in mine] == [f"robot_{r + 1}/base_link"
+                                                     for r in range(sc.n)]
+        assert all(m.frame_locked for m in mine)
+    fp = next(m for m in got if m.ns == "footprint")
+    xs, ys = [p.x for p in fp.points], [p.y for p in fp.points]
+    assert (max(xs) - min(xs), max(ys) - min(ys)) == pytest.approx((0.455, 0.381))
 
 
 def test_the_observer_publishes_a_starts_desired_paths_once():

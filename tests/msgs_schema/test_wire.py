@@ -364,3 +364,27 @@ def test_a_told_command_is_a_twist_stamped_both_ways():
         w.read_applied(serialize_message(bad))
     with pytest.raises(ms.MalformedMessage):
         w.read_applied(w.applied_bytes((0.1, 0.0), 5, "robot_1/base_link")[:30])  # cut short
+
+
+def test_a_tf_message_of_bytes_is_rclpys_tfmessage():
+    """``tf_bytes`` (issue 54) decodes, with the built tf2_msgs' type support, to the
+    TFMessage of the same transforms, whatever the frame names' lengths (alignment)."""
+    from tf2_msgs.msg import TFMessage
+
+    from formation_ilc.protocol.wire import Frame, tf_bytes
+
+    frames = [Frame("map", "robot_1/odom", 1.0, -2.0, 0.3),
+              Frame("robot_1/odom", "robot_12/base_link", -1.5, 2.5, -3.0),
+              Frame("map", "leader", 0.0, 0.0, math.pi / 2)]
+    for k in range(len(frames) + 1):
+        data = tf_bytes(1_234_567_891_011, frames[:k])
+        m = deserialize_message(data, TFMessage)
+        assert len(serialize_message(m)) == len(data)
+        assert len(m.transforms) == k
+        for tr, f in zip(m.transforms, frames[:k], strict=True):
+            assert (tr.header.stamp.sec, tr.header.stamp.nanosec) == (1234, 567_891_011)
+            assert (tr.header.frame_id, tr.child_frame_id) == (f.parent, f.child)
+            t, q = tr.transform.translation, tr.transform.rotation
+            assert (t.x, t.y, t.z) == (f.x, f.y, 0.0)
+            assert (q.x, q.y) == (0.0, 0.0)
+            assert 2 * math.atan2(q.z, q.w) == pytest.approx(f.theta)

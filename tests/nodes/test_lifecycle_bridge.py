@@ -2,7 +2,7 @@
 lifecycle services as a lab's lifecycle manager drives it: it starts unconfigured and
 sends its driver nothing; configure fails while the driver is missing and succeeds once it
 is there; activate lets commands through; deactivate sends one zero at once and nothing
-after (private rclpy Context)."""
+after; each transition is one line of its log at INFO (private rclpy Context)."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ rclpy = pytest.importorskip("rclpy")
 from geometry_msgs.msg import Twist  # noqa: E402
 from lifecycle_msgs.msg import State, Transition  # noqa: E402
 from lifecycle_msgs.srv import ChangeState, GetState  # noqa: E402
+from rcl_interfaces.msg import Log  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
@@ -43,6 +44,9 @@ def test_a_managed_bridge_moves_its_base_only_while_active(context):
     manager.create_subscription(Twist, "/pioneer_1/cmd_vel",
                                 lambda m: got.append((time.monotonic(), m.linear.x,
                                                       m.angular.z)), ms.DRIVER_CMD_QOS)
+    logs: list[Log] = []  # the bridge's lifecycle lines on /rosout
+    manager.create_subscription(Log, "/rosout", lambda m: logs.append(m) if (
+        "bridge_1" in m.name and "lifecycle:" in m.msg) else None, 100)
     change = manager.create_client(ChangeState, "/formation/bridge_1/change_state")
     get = manager.create_client(GetState, "/formation/bridge_1/get_state")
 
@@ -99,6 +103,14 @@ def test_a_managed_bridge_moves_its_base_only_while_active(context):
         assert state() == State.PRIMARY_STATE_FINALIZED
         n = len(got)
         assert quiet(0.5) <= 1 and got[-1][1:] == (0.0, 0.0) and len(got) >= n
+        # one INFO line a transition, as nav2's lifecycle nodes log them
+        said = ["configure from unconfigured failed (failure)",
+                "configure: unconfigured -> inactive", "activate: inactive -> active",
+                "deactivate: active -> inactive", "activate: inactive -> active",
+                "shutdown: active -> finalized"]
+        spin_until(ex, lambda: len(logs) >= len(said))
+        assert [m.msg.split("lifecycle: ", 1)[1] for m in logs] == said
+        assert {m.level for m in logs} == {Log.INFO}
     finally:
         ex.shutdown()
         for node in (bridge, manager, driver):

@@ -452,3 +452,22 @@ def test_a_located_bridge_takes_its_world_pose_from_outside_not_from_odometry():
     plain = wall_bridge()
     plain.on_located((1.0, 2.0, 0.3), 0.1)  # not located: an outside pose is unused
     assert plain.world() == odom_to_world(plain.initial, (0.0, 0.0, 0.0))
+
+
+def test_the_estop_holds_every_command_at_zero_until_released():
+    """The e-stop (issue 54): latched, the zero to send at once, then zero for the robot's
+    commands, the repeats and the return alike; released, the robot's commands go again."""
+    b = wall_bridge(cmd_timeout=1.0)
+    b.said_ready(0, b.shift())
+    t0 = 50 * SEC
+    b.on_event(start_event(0, 0, t0), 1.0, t0 - SEC)
+    b.tick(1.0, t0)
+    assert b.on_cmd((0.3, 0.1), 1.01) == (0.3, 0.1)
+    assert b.estop(True, 1.02) == (0.0, 0.0)  # sent at once, no limit holds it back
+    assert b.estop(True, 1.03) == (0.0, 0.0) and b.counts["estops"] == 1  # latched once
+    assert b.on_cmd((0.3, 0.1), 1.04) == (0.0, 0.0)
+    assert b.tick(1.2, t0 + b.clock.dt_ns // 2).cmd in (None, (0.0, 0.0))
+    assert b.tick(1.3, t0 + b.clock.dt_ns // 2).cmd == (0.0, 0.0)  # the repeat: zero
+    assert b.estop(False, 1.31) is None
+    assert b.on_cmd((0.3, 0.1), 1.32) == (0.3, 0.1)
+    assert b.report()["estops"] == 1

@@ -6,6 +6,7 @@ memory learned by the batch simulator."""
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 import pytest
@@ -14,7 +15,8 @@ from formation_ilc.cli import main as cli_main
 from formation_ilc.config.scenario import load_scenario
 from formation_ilc.core.metrics import read_metrics
 from formation_ilc.model.simulate import simulate
-from tests.stack.test_stack import launch
+from tests.procs import stop_group
+from tests.stack.test_stack import launch, start_launch
 
 pytestmark = [pytest.mark.ros, pytest.mark.multiprocess, pytest.mark.slow]
 
@@ -161,3 +163,96 @@ def test_a_memory_for_another_team_is_refused_before_anything_starts(ros_env, tm
     assert res.returncode == 2
     assert "memory.npz: learned for another run" in res.stdout
     assert "6 robots, this run 3" in res.stdout
+
+
+#: [s] from the stop's answer, every Twist on the graph is zero (issue 54)
+STOP_WITHIN_S = 0.3
+
+
+def test_stop_button_zeroes_every_command_and_ends_the_run(ros_env, tmp_path):
+    """A Pioneer rehearsal stopped mid-trial by a plain Trigger call to /formation/stop:
+    the call answers success; from 0.3 s after the answer every geometry_msgs/Twist on the
+    graph (the robots' commands and the bridges' commands to the drivers) is zero; the run
+    ends with status 7 and the console names the caller. The same run's /tf, taken by a
+    plain rclpy subscriber, reaches every robot's base_link from map."""
+    import rclpy
+    from geometry_msgs.msg import Twist
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import String
+    from std_srvs.srv import Trigger
+    from tf2_msgs.msg import TFMessage
+
+    import msgs_schema as ms
+
+    out = tmp_path / "run"
+    proc = start_launch(ros_env, out, *pioneer_args("--trials", "3", "--no-safety"))
+    ctx = Context()
+    rclpy.init(context=ctx)
+    node = rclpy.create_node("operator", context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    twists: list[tuple[str, float, float, float]] = []  # topic, when, v, omega
+    parents: dict[str, str] = {}
+    started: list[float] = []
+    every = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT)
+    topics = [f"/formation/robot_{i}/cmd_vel" for i in (1, 2, 3)] + [
+        f"/pioneer_{i}/cmd_vel" for i in (1, 2, 3)]
+    for topic in topics:
+        node.create_subscription(Twist, topic, lambda m, t=topic: twists.append(
+            (t, time.monotonic(), m.linear.x, m.angular.z)), every)
+    for topic, qos in (("/tf", every), ("/tf_static", ms.TF_STATIC_READER_QOS)):
+        node.create_subscription(TFMessage, topic, lambda m: parents.update(
+            {tr.child_frame_id: tr.header.frame_id for tr in m.transforms}), qos)
+    node.create_subscription(String, "/formation/leader/trial_events", lambda m: started.append(
+        time.monotonic()) if '"start"' in m.data else None, 10)
+    client = node.create_client(Trigger, "/formation/stop")
+    try:
+        deadline = time.monotonic() + 240
+        # mid-trial: trial 0 started, and the bridges drive the robots since a second
+        while time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.05)
+            assert proc.poll() is None, proc.communicate()[0]
+            if started and any(t.startswith("/pioneer") and when > started[0] + 1.0 and
+                               (v, w) != (0.0, 0.0) for t, when, v, w in twists):
+                break
+        else:
+            raise AssertionError("the trial did not start")
+        assert client.wait_for_service(timeout_sec=10)
+        asked = time.monotonic()
+        future = client.call_async(Trigger.Request())
+        while not future.done() and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.01)
+        answered = time.monotonic()
+        res = future.result()
+        # until the launcher has stopped every process
+        while proc.poll() is None and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.05)
+        stdout = proc.communicate(timeout=30)[0]
+    finally:
+        stop_group(proc)
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+    assert res is not None and res.success, res
+    print(f"answer after {1e3 * (answered - asked):.1f} ms: {res.message}")
+    late = [(t, when - answered, v, w) for t, when, v, w in twists
+            if when >= answered + STOP_WITHIN_S]
+    moving = [x for x in late if (x[2], x[3]) != (0.0, 0.0)]
+    assert not moving, moving[:10]
+    # the bridges went on commanding their drivers (zero) after the stop
+    assert {t for t, *_ in late if t.startswith("/pioneer")} == set(topics[3:]), late
+    for topic in topics[3:]:  # the first zero each driver got after the call
+        first = min((when for t, when, v, w in twists if t == topic and when >= asked
+                     and (v, w) == (0.0, 0.0)), default=None)
+        assert first is not None, topic
+        print(f"{topic}: zero {1e3 * (first - asked):.1f} ms after the call")
+    assert proc.returncode == 7, stdout
+    assert "stopped by /formation/stop called by /operator" in stdout, stdout
+    # the live stack's frames, as a plain subscriber has them: one tree from map
+    for i in (1, 2, 3):
+        frame, chain = f"robot_{i}/base_link", []
+        while frame in parents and len(chain) < 5:
+            chain.append(frame)
+            frame = parents[frame]
+        assert (frame, chain) == ("map", [f"robot_{i}/base_link", f"robot_{i}/odom"]), parents

@@ -17,6 +17,7 @@ from collections import Counter
 
 import numpy as np
 import pytest
+import yaml
 
 pytest.importorskip("mcap_ros2")  # the [mcap] extra; CI installs it
 
@@ -105,6 +106,54 @@ def test_launch_record_then_analyze_reproduces_the_launcher_exactly(ros_env, tmp
         assert conns[0].msgtype == "nav_msgs/msg/Path"
         paths = [ar.deserialize(raw, c.msgtype) for c, _, raw in ar.messages(connections=conns)]
     assert len(paths) == 4 and len(paths[0].poses) == 141
+    check_frames_and_bag(rec, n=3, samples=4 * 141)
+
+
+def check_frames_and_bag(rec, n: int, samples: int) -> None:
+    """The recording's frames (issue 54), decoded as tf2_msgs/msg/TFMessage by rosbags'
+    own ROS 2 Jazzy types: one tree from map reaching every robot's base_link through its
+    odom, the leader's frame under map, a transform of every robot each sample; each
+    robot's robot_description a URDF (as PyBullet's parser loads it) whose link is that
+    base_link; and the recording's folder opens as a rosbag2 bag by its metadata.yaml."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    jazzy = get_typestore(Stores.ROS2_JAZZY)
+    parents: dict[str, str] = {}
+    base_links: Counter[str] = Counter()
+    with AnyReader([rec], default_typestore=jazzy) as ar:
+        conns = [c for c in ar.connections if c.topic in ("/tf", "/tf_static")]
+        assert {c.topic for c in conns} == {"/tf", "/tf_static"}
+        assert {c.msgtype for c in conns} == {"tf2_msgs/msg/TFMessage"}
+        for c, _, raw in ar.messages(connections=conns):
+            for tr in jazzy.deserialize_cdr(raw, c.msgtype).transforms:
+                parents[tr.child_frame_id] = tr.header.frame_id
+                base_links[tr.child_frame_id] += tr.child_frame_id.endswith("/base_link")
+    roots = set()
+    for i in range(1, n + 1):
+        frame, chain = f"robot_{i}/base_link", []
+        while frame in parents:
+            chain.append(frame)
+            frame = parents[frame]
+        assert chain == [f"robot_{i}/base_link", f"robot_{i}/odom"], parents
+        roots.add(frame)
+        assert base_links[f"robot_{i}/base_link"] >= samples  # resent samples too
+    assert roots == {"map"} and parents["leader"] == "map"
+    from ..config.test_urdf import load_urdf
+
+    urdfs = {m.topic: m.data for m in read_messages(rec) if m.topic.endswith("/robot_description")}
+    assert set(urdfs) == {f"/formation/robot_{i}/robot_description" for i in range(1, n + 1)}
+    for topic, data in urdfs.items():
+        text = jazzy.deserialize_cdr(data, "std_msgs/msg/String").data
+        assert load_urdf(text, rec.parent)[0] == f"{topic.split('/')[2]}/base_link"
+    # the folder: rosbag2's metadata.yaml beside the MCAP, as rosbags reads a bag
+    meta = yaml.safe_load((rec.parent / "metadata.yaml").read_text())
+    assert meta["rosbag2_bagfile_information"]["relative_file_paths"] == [rec.name]
+    assert meta["rosbag2_bagfile_information"]["version"] == 9  # what Jazzy writes
+    with Reader(rec.parent) as bag:
+        assert bag.message_count == sum(1 for _ in read_messages(rec))
+        assert {c.topic for c in bag.connections} >= {"/tf", "/tf_static", "/clock"}
 
 
 @pytest.mark.ros
@@ -176,6 +225,7 @@ def test_simulate_record_analyses_to_the_simulators_metrics(tmp_path):
     assert by_topic["/formation/robot_2/cmd_vel"] == "geometry_msgs/msg/Twist"
     assert r.delays["robot_1->robot_2"]  # the drawn delays, as the robots would count them
     check_file(rec)  # rosbag2's record, as `ros2 bag info` / `play` decode it
+    check_frames_and_bag(rec, n=3, samples=3 * 141)  # the kept trials' frames: 0, 1 and 5
     # what the stack's recorder adds: per kept trial (0, 1 and 5 of 6) the desired paths and
     # per pose its desired pose and error, the markers; per trial each robot's largest errors
     assert by_topic["/formation/markers"] == "visualization_msgs/msg/MarkerArray"

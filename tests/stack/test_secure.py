@@ -248,9 +248,10 @@ def result(p: subprocess.Popen[str]) -> dict:
 
 @pytest.mark.slow
 def test_outsiders_during_a_secure_run(ros_env, tmp_path, keystore):
-    """Three outsiders try their luck while a secure formation learns; the run is stopped
-    once they are done (it is long enough to outlast them) and its finished trials must
-    equal the batch simulator's."""
+    """Three outsiders try their luck while a secure formation learns (robot 3's identity
+    may neither call the stop button nor latch the e-stop); then an operator with the
+    ground station's identity calls /formation/stop, which ends the run with status 7. Its
+    finished trials must equal the batch simulator's."""
     trials = 400
     foreign = make_keystore(tmp_path / "foreign")
     proc = start_launch(ros_env, tmp_path / "run", "paper-triangle3", "--trials", str(trials),
@@ -270,7 +271,9 @@ def test_outsiders_during_a_secure_run(ros_env, tmp_path, keystore):
         probes["robot_3"] = probe(identity(ros_env, keystore, "/formation/robot_3"), seconds,
                                   "robot_3", "listen:robot_3/pose:PoseStamped",
                                   "publish:robot_2/cmd_vel:Twist",
-                                  "publish:leader/trial_events:String")
+                                  "publish:leader/trial_events:String",
+                                  # the stop button is the ground station's alone
+                                  "call:stop:Trigger", "publish:estop:Bool")
         probes["foreign"] = probe(identity(ros_env, foreign, "/formation/robot_3"), seconds,
                                   "robot_3", "listen:robot_3/pose:PoseStamped",
                                   "listen:robot_1/shared_pose:PoseStamped")
@@ -278,6 +281,10 @@ def test_outsiders_during_a_secure_run(ros_env, tmp_path, keystore):
         # the probes ran while the formation did (else they would prove nothing)
         assert proc.poll() is None, proc.communicate()[0]
         done_while_probed = len(metrics.read_text().splitlines()) - 1
+        # the ground station's identity may press the stop button: the run ends, status 7
+        got["operator"] = result(probe(identity(ros_env, keystore, "/formation/monitor"),
+                                       seconds, "operator", "call:stop:Trigger"))
+        stdout = proc.communicate(timeout=120)[0]
     finally:
         for p in probes.values():
             stop_group(p)
@@ -288,11 +295,16 @@ def test_outsiders_during_a_secure_run(ros_env, tmp_path, keystore):
     assert all(o["received"] == 0 and o["matched"] == 0 for o in ops.values()), ops
     ops = got["robot_3"]["ops"]
     assert ops["listen:robot_3/pose:PoseStamped"]["received"] > 0, ops  # it is authenticated
-    for op in ("publish:robot_2/cmd_vel:Twist", "publish:leader/trial_events:String"):
+    for op in ("publish:robot_2/cmd_vel:Twist", "publish:leader/trial_events:String",
+               "call:stop:Trigger", "publish:estop:Bool"):
         assert not ops[op]["created"], ops  # refused at creation, by its own permissions
         assert "error" in ops[op]
     ops = got["foreign"]["ops"]
     assert all(o["received"] == 0 and o["matched"] == 0 for o in ops.values()), ops
+    ops = got["operator"]["ops"]
+    assert ops["call:stop:Trigger"]["created"] and ops["call:stop:Trigger"]["received"] >= 1
+    assert proc.returncode == 7, stdout
+    assert "stopped by /formation/stop called by /formation/operator" in stdout, stdout
     # the forged commands changed nothing: the trials equal the batch simulator's
     got_m = read_metrics(metrics)
     assert len(got_m) >= max(done_while_probed, 2)
