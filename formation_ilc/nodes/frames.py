@@ -11,7 +11,10 @@ The stack's frames make one tree (REP-105): ``map`` at its root, per robot
 * robot i's bridge: ``map -> robot_i/odom``, where the robot was placed (its
   ``initial_pose``), on ``/tf_static``, and ``robot_i/odom -> robot_i/base_link``, the
   driver's odometry, on ``/tf`` at most ``BRIDGE_TF_HZ`` a second, stamped with the team's
-  time (as its poses);
+  time (as its poses); a bridge given the robot's world pose (``pose_topic``: motion
+  capture, the physics bases' truth) publishes ``map -> robot_i/odom`` on ``/tf`` with the
+  odometry instead, where the two put the odometry's origin (it moves as the odometry
+  drifts, as a localiser's ``map -> odom`` does);
 * the leader: ``map -> leader``, the reference r(t), with each reference sample.
 
 The plant that drives a robot also publishes its body, a URDF whose one link is

@@ -85,7 +85,9 @@ The e-stop: ``estop`` (std_msgs/Bool, latched), from whoever publishes it, with 
 a leader: true sends the driver a zero command at once and holds every command at zero
 (the robot's, the return's, the repeats) until false releases it (``estops`` counts the
 latches). Frames (``nodes.frames``): ``map -> robot_I/odom`` (the initial pose) on
-``/tf_static``, ``robot_I/odom -> robot_I/base_link`` (the odometry) on ``/tf``; the body
+``/tf_static`` (with ``pose_topic``: on ``/tf``, where the world pose and the odometry put
+the odometry's origin, moving as it drifts), ``robot_I/odom -> robot_I/base_link`` (the
+odometry) on ``/tf``; the body
 (its base preset's URDF, else a Pioneer 3-DX's) on ``robot_I/robot_description``. With
 ``lifecycle:=true`` each transition is one INFO line of its log.
 
@@ -132,6 +134,7 @@ from formation_ilc.protocol.bridge import (
     CommandLimits,
     Returned,
     bridge_limits,
+    odom_origin,
     return_filter,
 )
 from formation_ilc.protocol.schedule import Ready
@@ -340,10 +343,12 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
             self.create_subscription(PoseStamped, self.located_topic, self._on_located,
                                      ms.ODOM_QOS)
         self._setup_motors(motors_t)
-        # the frames: robot_i/odom where the robot was placed, robot_i/base_link in it as
-        # the driver's odometry has it (nodes.frames)
+        # the frames: robot_i/odom where the robot was placed (located: where its world
+        # pose and its odometry put it, moving as the odometry drifts), robot_i/base_link
+        # in it as the driver's odometry has it (nodes.frames)
         x0, y0, th0 = core.initial
-        self.frames = Frames(self, [Frame(ms.WORLD_FRAME, ms.odom_frame(self.id), x0, y0, th0)])
+        self.frames = Frames(self, [] if core.located else [
+            Frame(ms.WORLD_FRAME, ms.odom_frame(self.id), x0, y0, th0)])
         # the robot's body, latched (config.urdf): its base preset's, else a Pioneer 3-DX
         self.body_pub = describe_body(self, self.id, self.base_name or "p3dx")
         self._tf_due = 0.0
@@ -518,8 +523,11 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
         self.core.on_odom(pose, now, tilt)
         if now >= self._tf_due:
             self._tf_due = now + 1.0 / BRIDGE_TF_HZ
-            self.frames.publish(self._team_ns()[0], [
-                Frame(ms.odom_frame(self.id), ms.base_frame(self.id), *pose)])
+            frames = [Frame(ms.odom_frame(self.id), ms.base_frame(self.id), *pose)]
+            if self.core.located and self.core.odom is not None:
+                frames.append(Frame(ms.WORLD_FRAME, ms.odom_frame(self.id),
+                                    *odom_origin(self.core.odom, pose)))
+            self.frames.publish(self._team_ns()[0], frames)
 
     def _on_whereabouts(self, msg: PoseStamped, robot: int) -> None:
         try:

@@ -53,7 +53,7 @@ from formation_ilc.model.simulate import Problem
 from formation_ilc.protocol.schedule import ABORT, Follower, TrialEvent
 from formation_ilc.protocol.wallclock import WallSchedule
 
-__all__ = ["CommandLimits", "Watchdog", "compose", "odom_to_world", "wrap",
+__all__ = ["CommandLimits", "Watchdog", "compose", "odom_to_world", "odom_origin", "wrap",
            "ReturnController", "ReturnStatus", "initial_shift", "PIONEER_V_MAX",
            "PIONEER_OMEGA_MAX", "Bridge", "BridgeTick", "Returned", "IDLE", "TRIAL", "RETURN",
            "bridge_limits", "WHEREABOUTS_PERIOD", "PEER_SILENCE", "return_filter"]
@@ -143,6 +143,15 @@ def odom_to_world(initial: Pose, odom: Pose) -> Pose:
     """The world pose of a robot whose odometry (starting at 0 where it was placed) reads
     ``odom``, placed at ``initial`` in the world frame."""
     return compose(initial, odom)
+
+
+def odom_origin(world: Pose, odom: Pose) -> Pose:
+    """Where the odometry's origin lies in the world frame when the robot is at ``world``
+    and its odometry reads ``odom``: the T with ``compose(T, odom) == world`` (the
+    ``map -> odom`` frame a located robot's pose and its odometry give, REP-105)."""
+    th = world[2] - odom[2]
+    c, s = math.cos(th), math.sin(th)
+    return (world[0] - (c * odom[0] - s * odom[1]), world[1] - (s * odom[0] + c * odom[1]), th)
 
 
 def initial_shift(achieved: Pose, desired: Pose) -> Pose:

@@ -471,3 +471,17 @@ def test_the_estop_holds_every_command_at_zero_until_released():
     assert b.estop(False, 1.31) is None
     assert b.on_cmd((0.3, 0.1), 1.32) == (0.3, 0.1)
     assert b.report()["estops"] == 1
+
+
+def test_the_odometry_origin_of_a_located_robot_composes_back_to_its_world_pose():
+    """map -> robot_i/odom of a located robot (REP-105): the frame in which its odometry
+    reads where its world pose has it."""
+    from formation_ilc.protocol.bridge import odom_origin
+
+    for world, odom in (((1.0, 2.0, 0.3), (0.5, -0.2, 1.1)),
+                        ((-3.0, 0.0, -2.9), (0.0, 0.0, 0.0)),
+                        ((0.0, 0.0, 0.0), (2.0, 1.0, -0.7))):
+        origin = odom_origin(world, odom)
+        back = compose(origin, odom)
+        assert abs(back[0] - world[0]) < 1e-12 and abs(back[1] - world[1]) < 1e-12
+        assert abs(wrap(back[2] - world[2])) < 1e-12
