@@ -36,10 +36,13 @@ def test_the_pure_names_are_msgs_schemas():
         f"robot_7/{t}" for t in ("pose", "cmd_vel", "shared_pose", "trajectory",
                                  "true_trajectory")]
     assert ms.link_topic(2, "leader") == "robot_2/links/leader"
+    # the e-stop, the frames and each robot's body are recorded too (issue 54)
     assert ms.recorded_topics(3) == [t for t, _, _ in ms.topic_table(3)] == [
         "config", "leader/reference", "leader/trial_events", "ready", "diagnostics",
-        "/clock"] + [f"robot_{i}/{t}" for i in range(1, 4)
-                     for t in ("pose", "cmd_vel", "trajectory", "true_trajectory")]
+        "/clock", "estop", "/tf", "/tf_static"] + [
+            f"robot_{i}/{t}" for i in range(1, 4)
+            for t in ("pose", "cmd_vel", "trajectory", "true_trajectory",
+                      "robot_description")]
     assert ms.view_topics(3) == [t for t, _, _ in ms.view_topic_table(3)]
 
 

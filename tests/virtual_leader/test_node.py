@@ -193,9 +193,13 @@ def test_wallclock_leader_agrees_the_start_and_publishes_the_reference_on_its_wa
             assert arrival >= due, s  # never before its sample's wall time
             late.append(arrival - due)
         # on the wall timer, sample by sample, not in a burst at the end: the typical sample
-        # is out within a fraction of dT (a bound on the median, not on every sample: a
-        # loaded machine delays single wake-ups by tens of ms, CI stop 34's neighbours)
-        assert sorted(late)[len(late) // 2] < clock.dt_ns // 2, [x / 1e6 for x in late]
+        # is out within two samples of its time (a burst at the end would make it about half
+        # the trial, 5 dT), and the arrivals spread over at least half the samples' span. A
+        # bound on the median, not on every sample, and not a fraction of dT: a loaded
+        # machine delays wake-ups by tens of ms (44 ms median at load 15, against dT 50 ms)
+        assert sorted(late)[len(late) // 2] < 2 * clock.dt_ns, [x / 1e6 for x in late]
+        span = clock.decode(refs[-1][1])[1] - clock.decode(refs[0][1])[1]
+        assert refs[-1][0] - refs[0][0] >= 0.5 * span * clock.dt_ns, [x / 1e6 for x in late]
         # the leader neither follows nor needs /clock in wall-clock trials
         assert leader.count_subscribers(ms.CLOCK) == 0
     finally:
