@@ -8,27 +8,35 @@ a traceback from deep inside a run. ``OneLineParser`` prints argparse's errors t
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from formation_ilc.plan.options import OptionError
 
 __all__ = ["OneLineParser", "int_range", "nonneg_int", "positive_int", "positive_float",
            "out_dir_arg", "output_file_arg", "make_out_dir", "OptionError", "MAX_TRIAL",
            "add_run_options", "special_path", "fs_type", "nonneg_float", "scenario_arg",
-           "paragraphs"]
+           "paragraphs", "arg_type"]
 
-#: trial indices are stored as float64 in metrics rows: exact up to 2^53
-MAX_TRIAL = 2 ** 53
-#: seeds go to ROS parameters (int64)
-MAX_SEED = 2 ** 63 - 1
+from formation_ilc.config.values import MAX_SEED, MAX_TRIAL, float_in, int_in
 
 
+def arg_type(parse: Callable[[str], Any]) -> Callable[[str], Any]:
+    """An argparse type of a parser of ``config.values`` (ValueError -> argparse's error,
+    so that the reason is printed, not argparse's "invalid value")."""
+
+    def typed(text: str) -> Any:
+        try:
+            return parse(text)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    typed.__name__ = getattr(parse, "__name__", "value")
+    return typed
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -40,70 +48,22 @@ class OneLineParser(argparse.ArgumentParser):
 
 def int_range(lo: int, hi: int | None = None) -> Callable[[str], int]:
     """An argparse type: an integer in [lo, hi]."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text, 10)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if value < lo or (hi is not None and value > hi):
-            bound = f">= {lo}" if hi is None or hi >= MAX_TRIAL else f"in {lo}..{hi}"
-            if hi is not None and value > hi:
-                bound = f"<= {hi}"
-            raise argparse.ArgumentTypeError(f"must be an integer {bound}, got {value}")
-        return value
-
-    parse.__name__ = "integer"
-    return parse
+    return arg_type(int_in(lo, hi))
 
 
 nonneg_int = int_range(0, MAX_SEED)
 positive_int = int_range(1, MAX_TRIAL)
-
-
-def positive_float(text: str) -> float:
-    """An argparse type: a finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
-    return value
-
-
-positive_float.__name__ = "number"
+#: an argparse type: a finite number > 0
+positive_float = arg_type(float_in(0.0, open_lo=True))
 
 
 def float_range(lo: float, hi: float, unit: str = "") -> Callable[[str], float]:
     """An argparse type: a finite number in [lo, hi] (``unit`` named in the error)."""
-
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-        if not (math.isfinite(value) and lo <= value <= hi):
-            raise argparse.ArgumentTypeError(
-                f"must be a number in {lo:g}..{hi:g}{' ' + unit if unit else ''}, got {text}")
-        return value
-
-    parse.__name__ = "number"
-    return parse
+    return arg_type(float_in(lo, hi, unit=unit))
 
 
-def nonneg_float(text: str) -> float:
-    """An argparse type: a finite number >= 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
-    return value
-
-
-nonneg_float.__name__ = "number"
+#: an argparse type: a finite number >= 0
+nonneg_float = arg_type(float_in(0.0))
 
 
 def _writable_ancestor(path: Path) -> str | None:

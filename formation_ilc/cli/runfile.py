@@ -23,7 +23,9 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from formation_ilc.cli.launchargs import cli_type
 from formation_ilc.cli.options import OptionError
+from formation_ilc.config.option_table import Option, option
 from formation_ilc.plan.options import (
     FIELD_KEYS,
     PATH_FIELDS,
@@ -119,33 +121,26 @@ def _hosts(path: Path, value: Any) -> dict[str, list[str]]:
     return {str(h): list(m) for h, m in value.items()}
 
 
-def _actions() -> dict[str, argparse.Action]:
-    from formation_ilc.cli.launchargs import launch_parser
-
-    return {a.dest: a for a in launch_parser()._actions}
-
-
-def _check(path: Path, key: str, field: str, negated: bool, value: Any,
-           actions: Mapping[str, argparse.Action]) -> Any:
-    """``value`` of run file key ``key`` as its field holds it, checked with the launch
-    option's own type and choices; OptionError naming the key and why."""
+def _check(path: Path, key: str, opt: Option, value: Any) -> Any:
+    """``value`` of run file key ``key`` as its field holds it, checked by its row of the
+    option table (as the command line checks the flag); OptionError naming the key and
+    why."""
 
     def bad(why: str) -> OptionError:
         return OptionError(f"{path}: {key}: {why}")
 
     if value is None:
         return None
-    action = actions.get(field)
-    if action is None:  # a stored run's own: the run's id, the clocks' origin, ...
-        want: type = int if field == "clock_origin_ns" else str
+    if opt.kind == "stored":  # a stored run's own: the run's id, the clocks' origin, ...
+        want: type = int if opt.stored_as is int else str
         if not isinstance(value, want) or isinstance(value, bool):
             raise bad(f"expected {'an integer' if want is int else 'a string'}, got {value!r}")
         return value
-    if action.nargs == 0 or isinstance(action, argparse.BooleanOptionalAction):
+    if opt.kind in ("bool", "switch"):
         if not isinstance(value, bool):
             raise bad(f"expected true or false, got {value!r}")
-        return (not value) if negated else value
-    if action.nargs == "+":
+        return (not value) if opt.negated else value
+    if opt.kind == "names":
         if not isinstance(value, list) or not value or not all(
                 isinstance(v, (str, int)) for v in value):
             raise bad(f"expected a list of names, got {value!r}")
@@ -154,12 +149,13 @@ def _check(path: Path, key: str, field: str, negated: bool, value: Any,
         raise bad(f"expected a single value, got {value!r}")
     text = str(value)
     try:
-        converted = action.type(text) if callable(action.type) else text
-    except (argparse.ArgumentTypeError, ValueError, TypeError) as exc:
-        raise bad(str(exc) if isinstance(exc, argparse.ArgumentTypeError)
-                  else f"invalid {getattr(action.type, '__name__', 'value')}: {text!r}") from None
-    if action.choices is not None and converted not in action.choices:
-        choices = [str(c) for c in action.choices]
+        converted = Path(text) if opt.kind == "path" else opt.value(text)
+        if opt.kind in ("folder", "file"):  # the command line's check that it can be written
+            converted = cli_type(opt)(text)
+    except (argparse.ArgumentTypeError, ValueError) as exc:
+        raise bad(str(exc)) from None
+    if opt.choices is not None and converted not in opt.choices:
+        choices = [str(c) for c in opt.choices]
         raise bad(f"invalid choice: {converted!r} (choose from {', '.join(choices)})"
                   f"{closest(text, choices)}")
     return converted
@@ -168,7 +164,6 @@ def _check(path: Path, key: str, field: str, negated: bool, value: Any,
 def _fields(path: Path, values: Mapping[str, Any], base: Path | None) -> dict[str, Any]:
     """Each run file value (by key path) as its field's, checked; relative paths taken
     from ``base`` (a run file's folder; None: as given)."""
-    actions = _actions()
     by_path = {k.path: k for k in RUN_KEYS}
     out: dict[str, Any] = {}
     for key, value in values.items():
@@ -184,7 +179,7 @@ def _fields(path: Path, values: Mapping[str, Any], base: Path | None) -> dict[st
         if k.field == "scenario" and isinstance(value, str) and base is not None:
             near = base / value
             value = str(near) if near.is_file() else value
-        out[k.field] = _check(path, key, k.field, k.negated, value, actions)
+        out[k.field] = _check(path, key, option(k.field), value)
     return out
 
 
@@ -359,7 +354,6 @@ def run_file_text(opts: LaunchOptions, *, folder: Path | None = None,
 
     from formation_ilc.store.runfile import relative
 
-    actions = _actions()
     values = opts.stored() if effective is None else dict(effective)
     lines = [f"# {line}" for line in title.splitlines()] if title else []
     for section, about in SECTIONS.items():
@@ -399,10 +393,7 @@ def run_file_text(opts: LaunchOptions, *, folder: Path | None = None,
                 lines += yaml.safe_dump({"scenario": yaml.safe_load(opts.scenario_text)},
                                         sort_keys=False, width=88).rstrip().splitlines()
                 continue
-            action = actions.get(k.field)
-            about_key = _help(action, k.negated) if action is not None else _STORED_HELP.get(
-                k.field, "")
-            for line in textwrap.wrap(about_key, 88 - len(indent) - 2):
+            for line in textwrap.wrap(_help(option(k.field)), 88 - len(indent) - 2):
                 lines.append(f"{indent}# {line}")
             text = yaml.safe_dump({k.path.rsplit(".", 1)[-1]: v}, default_flow_style=True,
                                   width=10_000).strip()
@@ -498,23 +489,15 @@ def stored_run_text(plan: Any, options: Mapping[str, Any], title: str) -> str:
     return run_file_text(opts, stored=plan.out.resolve(), title=title, effective=d)
 
 
-_STORED_HELP = {
-    "run_id": "the run's identity (empty: a new one at each launch; a stored run keeps its own)",
-    "clock_origin_ns": "the emulated clocks' origin [ns] (a resumed run's robots keep "
-                       "their clocks)",
-    "record_root": "the run's first recording file (a resumed launch records a part of "
-                   "its own)",
-}
-
-
-def _help(action: argparse.Action, negated: bool) -> str:
-    text = " ".join((action.help or "").split())
-    if action.choices is not None and "(" not in text[:1]:
-        text = f"{' | '.join(map(str, action.choices))}: {text}"
-    flag = action.option_strings[0] if action.option_strings else "SCENARIO"
-    if negated:
-        return f"false is {flag}: {text}"
-    return f"{flag}: {text}"
+def _help(opt: Option) -> str:
+    """A key's comment: its flag (or what false means), its choices, its help."""
+    text = opt.help_text()
+    if opt.choices is not None:
+        text = f"{' | '.join(map(str, opt.choices))}: {text}"
+    if opt.flag is None:
+        return text
+    flag = opt.flag if opt.flag.startswith("-") else "SCENARIO"
+    return f"false is {flag}: {text}" if opt.negated else f"{flag}: {text}"
 
 
 # --------------------------------------------------------------------------- the command
