@@ -393,7 +393,8 @@ def run_file_text(opts: LaunchOptions, *, folder: Path | None = None,
                 lines += yaml.safe_dump({"scenario": yaml.safe_load(opts.scenario_text)},
                                         sort_keys=False, width=88).rstrip().splitlines()
                 continue
-            for line in textwrap.wrap(_help(option(k.field)), 88 - len(indent) - 2):
+            for line in textwrap.wrap(_help(option(k.field)), 88 - len(indent) - 2,
+                                      break_on_hyphens=False):
                 lines.append(f"{indent}# {line}")
             text = yaml.safe_dump({k.path.rsplit(".", 1)[-1]: v}, default_flow_style=True,
                                   width=10_000).strip()

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from formation_ilc.config.option_table import default
 from formation_ilc.config.plants import Plant, plant
 from formation_ilc.config.roster import Roster, Team
 from formation_ilc.config.runconfig import (
@@ -59,7 +60,7 @@ class NoRun(Exception):
 
 
 #: a Pioneer driver's usual namespace pattern; a base's (``--plant base``) is /base_{i}
-PIONEER_NS = "/pioneer_{i}"
+PIONEER_NS: str = default("driver_ns")
 BASE_NS = "/base_{i}"
 
 
@@ -96,16 +97,16 @@ class BridgeOptions:
     lifecycle : the bridges are managed nodes, brought up by the launcher (``--lifecycle``).
     """
 
-    driver: str = "rosaria"
-    driver_ns: str = PIONEER_NS
-    cmd_type: str | None = None
-    return_timeout: float = 60.0
-    fake_drivers: bool = False
+    driver: str = default("driver")
+    driver_ns: str = default("driver_ns")
+    cmd_type: str | None = default("cmd_type")
+    return_timeout: float = default("return_timeout")
+    fake_drivers: bool = default("fake_drivers")
     base: str | None = None
     limits: tuple[tuple[str, float], ...] = ()
     params_file: Path | None = None
-    physics_bases: bool = False
-    lifecycle: bool = False
+    physics_bases: bool = default("physics_bases")
+    lifecycle: bool = default("lifecycle")
 
     @classmethod
     def of(cls, opts: LaunchOptions) -> BridgeOptions:
@@ -166,15 +167,15 @@ class PhysicsOptions:
     robot model ('p3dx', 'husky'), the measured pose's source ('truth', 'odometry'),
     whether robots collide, engine steps per second."""
 
-    model: str = "p3dx"
-    pose: str = "truth"
-    collide: bool = True
-    rate: float = 240.0
-    #: what the plant does when robots touch (``protocol.physics_plant.ON_CONTACT``), how
+    model: str = default("robot_model")
+    pose: str = default("pose")
+    collide: bool = not default("pass_through")
+    rate: float = default("physics_rate")
+    #: what the plant does when robots touch (``config.option_table.ON_CONTACT``), how
     #: often one trial runs again after one, and the tilt [deg] that counts as one
-    on_contact: str = "stop"
-    contact_retries: int = 2
-    tilt_limit: float = 10.0
+    on_contact: str = default("on_contact")
+    contact_retries: int = default("contact_retries")
+    tilt_limit: float = default("tilt_limit")
 
     @classmethod
     def of(cls, opts: LaunchOptions) -> PhysicsOptions:
@@ -191,7 +192,7 @@ class RestartPolicy:
     exited with ``refused`` (it refused its input) or another status a restart cannot help
     (``formation_ilc.system.exits.NO_RESTART``: the run is stuck, the disk is full)."""
 
-    max_restarts: int = 3
+    max_restarts: int = default("max_restarts")
     refused: int = NO_RESTART
 
     def allows(self, code: int, restarts: int) -> bool:
