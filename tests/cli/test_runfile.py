@@ -121,11 +121,11 @@ def test_a_run_file_for_the_robots_is_rehearsed_with_its_stand_ins_beside_them(t
 
 
 @pytest.mark.parametrize("edit, line", [
-    (lambda d: d["safety"].update(margn=0.2),
+    (lambda d: d.update(safety={**(d.get("safety") or {}), "margn": 0.2}),
      "safety.margn: unknown key (did you mean 'margin'?)"),
     (lambda d: d.update(trails=3), "trails: unknown key (did you mean 'trials'?)"),
     (lambda d: d.update(safty={}), "safty: unknown key (did you mean 'safety'?)"),
-    (lambda d: d["safety"].update(margin=-1),
+    (lambda d: d.update(safety={**(d.get("safety") or {}), "margin": -1}),
      "safety.margin: must be a finite number >= 0, got -1"),
     (lambda d: d["plant"].update(kind="simm"),
      "plant.kind: invalid choice: 'simm' (choose from sim, physics, external, pioneer, base)"
@@ -365,3 +365,19 @@ def test_a_keystore_where_none_can_be_made_is_refused_in_one_line(tmp_path, caps
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"error: {where}: cannot make the keystore "
                                                f"there: ")
+
+
+def test_a_run_file_changes_a_scenarios_gains_without_copying_it(tmp_path, capsys):
+    """``scenario: {from: NAME, ...}``: the named scenario with only the keys written here
+    changed (a mapping key by key); a bad name is refused naming ``scenario.from``."""
+    path = tmp_path / "run.yaml"
+    path.write_text("scenario: {from: paper-triangle3, law: {gain: 0.05}, trials: 4}\n")
+    plan = plan_of(options(str(path), "--out", str(tmp_path / "run")))
+    base = plan_of(options("paper-triangle3", "--out", str(tmp_path / "base")))
+    assert plan.scenario.law.gain == (0.05,) * 3 and base.scenario.law.gain == (0.08,) * 3
+    assert plan.scenario.law.gain_prime == base.scenario.law.gain_prime
+    assert plan.scenario.n == 3 and plan.scenario.dt == base.scenario.dt
+    path.write_text("scenario: {from: paper-triangel3}\n")
+    assert main(["launch", str(path), "--out", str(tmp_path / "bad")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {path}: scenario.from: ") and "paper-triangle3" in err, err

@@ -77,8 +77,9 @@ def test_run_file_keys_and_the_plants_that_use_an_option_are_the_tables():
 def test_a_written_run_files_comment_is_the_tables_help(tmp_path):
     from formation_ilc.cli.runfile import run_file_text
 
+    every = {o.field: "x" for o in OPTIONS}  # a value for every key, each plant's too
     text = " ".join(line.strip().lstrip("# ") for line in run_file_text(
-        LaunchOptions(scenario="paper-triangle3")).splitlines())
+        LaunchOptions(scenario="paper-triangle3"), effective=every).splitlines())
     for o in OPTIONS:
         if o.key is not None and o.kind != "stored":
             assert " ".join(o.help_text().split()) in text, o.field
