@@ -316,7 +316,38 @@ def plan_of(args: argparse.Namespace) -> Any:
         opts = launch_options(args)
     except OptionError as exc:
         raise NoRun(str(exc)) from None
-    return build_plan(opts)
+    try:
+        return build_plan(opts)
+    except NoRun as stop:
+        raise NoRun(_in_file_words(stop.message, args), stop.status) from None
+
+
+def _in_file_words(message: str, args: argparse.Namespace) -> str:
+    """``message`` with each flag of an option that a run file set (and the command line
+    did not) named as the file's key: ``run.yaml: plant.physics_rate: 5: ...`` for a
+    refusal that starts ``--physics-rate 5: ...``, ``lower safety.margin in run.yaml`` for
+    ``lower --safety-margin``."""
+    import re
+
+    given = vars(args)
+    scenario = given.get("scenario")
+    if given.get("resume") is not None or not is_run_file(scenario):
+        return message
+    path = Path(scenario)
+    try:
+        from_file = set(load_run_file(path)) - set(given)
+    except OptionError:
+        return message
+    for name in from_file:
+        opt = option(name)
+        if opt.key is None or not (opt.flag or "").startswith("--"):
+            continue
+        flag = re.escape(opt.flag or "")
+        head = re.match(rf"^(?:argument )?{flag}(?::| (?=\S))", message)
+        if head is not None:
+            message = f"{path}: {opt.key}: {message[head.end():].lstrip()}"
+        message = re.sub(rf"(?<![\w-]){flag}(?![\w-])", f"{opt.key} in {path}", message)
+    return message
 
 
 def _resumed(out: Path, given: dict[str, Any]) -> LaunchOptions:

@@ -381,3 +381,19 @@ def test_a_run_file_changes_a_scenarios_gains_without_copying_it(tmp_path, capsy
     assert main(["launch", str(path), "--out", str(tmp_path / "bad")]) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"error: {path}: scenario.from: ") and "paper-triangle3" in err, err
+
+
+def test_a_refusal_of_a_value_from_a_run_file_names_its_key(tmp_path, capsys):
+    """The planner's refusals name flags; for a value the run file set they name its key
+    (issue 53: ``argument --base`` for a file's plant.base)."""
+    path = tmp_path / "run.yaml"
+    path.write_text("scenario: paper-triangle3\nplant: {kind: physics, physics_rate: 3}\n")
+    assert main(["launch", str(path), "--out", str(tmp_path / "a")]) == 2
+    assert capsys.readouterr().err.startswith(f"error: {path}: plant.physics_rate: 3: ")
+    path.write_text("scenario: paper-triangle3\nsafety: {enabled: true, margin: 0.5}\n")
+    assert main(["launch", str(path), "--out", str(tmp_path / "b")]) == 2
+    assert f"lower safety.margin in {path}," in capsys.readouterr().err
+    # given on the command line, the flag is named
+    assert main(["launch", str(path), "--safety-margin", "0.6", "--out",
+                 str(tmp_path / "c")]) == 2
+    assert "lower --safety-margin," in capsys.readouterr().err
