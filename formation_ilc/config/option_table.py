@@ -170,13 +170,18 @@ class Option:
         text = " ".join(self.help.split())
         if self.uses is not None:
             text = f"with {self.uses[1].split(':')[0]}: {text}"
+        if self.unit in V.UNITS:  # an angle: also with its unit, in degrees or radians
+            other = [u for u in V.UNITS[self.unit] if u != self.unit][0]
+            text = f"{text} [{self.unit}; or with a unit, '1.2 {other}']"
+        elif self.unit:
+            text = f"{text} [{self.unit}]"
         if self.default_text:
             return f"{text} (default: {self.default_text})"
         if self.default is None or self.kind in ("bool", "stored", "hosts"):
             return text
         shown = " ".join(map(str, self.default)) if isinstance(self.default, tuple) else (
             f"{self.default:g}" if isinstance(self.default, float) else str(self.default))
-        return f"{text} (default {shown}{' ' + self.unit if self.unit else ''})"
+        return f"{text} (default {shown})"
 
 
 def _o(field: str, key: str | None, flag: str | None, kind: str, **kw: Any) -> Option:
@@ -244,15 +249,13 @@ OPTIONS: tuple[Option, ...] = (
        help="every bridge's speed limit"),
     _o("omega_max", "plant.omega_max", "--omega-max", "float", unit="deg/s",
        uses=_BRIDGES, metavar="DEG_S", default_text="the preset's or the bridge's",
-       help="every bridge's turn rate limit (a number in deg/s, or with its unit: "
-            "'1.7 rad/s')"),
+       help="every bridge's turn rate limit"),
     _o("a_max", "plant.a_max", "--a-max", "float", unit="m/s^2", uses=_BRIDGES,
        metavar="M_S2", default_text="the preset's or the bridge's",
        help="every bridge's acceleration limit"),
     _o("alpha_max", "plant.alpha_max", "--alpha-max", "float", unit="deg/s^2",
        uses=_BRIDGES, metavar="DEG_S2", default_text="the preset's or the bridge's",
-       help="every bridge's angular acceleration limit (a number in deg/s^2, or with its "
-            "unit: '3 rad/s^2')"),
+       help="every bridge's angular acceleration limit"),
     _o("params_file", "plant.params_file", "--params-file", "path", uses=_BRIDGES,
        metavar="FILE", help="a ROS 2 parameters file for the bridges (e.g. per-robot "
                             "limits under /formation/bridge_I)"),
@@ -319,8 +322,7 @@ OPTIONS: tuple[Option, ...] = (
        help="with --on-contact stop: how often one trial is run again after a contact"),
     _o("tilt_limit", "safety.tilt_limit", "--tilt-limit", "float", default=10.0,
        lo=TILT_RANGE[0], hi=TILT_RANGE[1], unit="deg", uses=_TILT, group="safety",
-       metavar="DEG", help="a robot tilted past this is treated as a contact (a number in "
-                           "deg, or with its unit: '0.17 rad')"),
+       metavar="DEG", help="a robot tilted past this is treated as a contact"),
     # ------------------------------------------------------------------ the bridges
     _o("driver", "plant.driver", "--driver", "str", default="rosaria",
        choices=("rosaria", "p2os2", "ros2aria"), uses=_PIONEER,
