@@ -51,6 +51,7 @@ from nav_msgs.msg import Odometry
 from std_msgs.msg import String
 
 import msgs_schema as ms
+from formation_ilc.config.option_table import default
 from formation_ilc.config.params import Param
 from formation_ilc.core.names import BASE_TRUTH, BASES_NODE
 from formation_ilc.model.physics import MODELS
@@ -76,7 +77,8 @@ NAME = BASES_NODE
 PARAMS: tuple[Param, ...] = (
     Param("robots", 3, "how many bases", lo=1, hi=1000),
     Param("poses", [0.0], "their start poses: x, y, theta of each base in turn", "m, rad"),
-    Param("model", "p3dx", "the robot model of every base", choices=tuple(MODELS)),
+    Param("model", default("robot_model"), "the robot model of every base",
+          choices=tuple(MODELS)),
     Param("rate", 250.0, "engine steps per second", "Hz", lo=1.0, hi=1e5),
     Param("tick", 0.02, "how often the world is stepped and odometry published", "s",
           lo=1e-4, hi=10.0),

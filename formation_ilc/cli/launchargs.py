@@ -10,11 +10,10 @@ its key of a run file (``formation_ilc.cli.runfile``); every default is the tabl
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 from typing import Any
 
-from formation_ilc.cli.options import arg_type, out_dir_arg, output_file_arg
-from formation_ilc.config.option_table import GROUPS, OPTIONS, Option
+from formation_ilc.cli.options import argument_of, cli_type
+from formation_ilc.config.option_table import GROUPS, OPTIONS
 
 __all__ = ["add_arguments", "launch_parser", "without_defaults", "argument_of", "cli_type"]
 
@@ -35,46 +34,6 @@ def launch_parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="formation-ilc launch", add_help=False)
     add_arguments(p)
     return without_defaults(p)
-
-
-def cli_type(opt: Option) -> Any:
-    """The argparse type of a row: its own parser (the choices left to argparse), and for a
-    folder or a file to write, the command line's check that it can be written."""
-    if opt.kind == "folder":
-        return out_dir_arg
-    if opt.kind == "file":
-        return output_file_arg
-    if opt.kind == "path":
-        return Path
-    if opt.kind in ("int", "port", "float"):
-        return arg_type(opt.value)
-    return None
-
-
-def argument_of(opt: Option) -> tuple[tuple[str, ...], dict[str, Any]]:
-    """The ``add_argument`` call of a row: its names and keywords."""
-    kw: dict[str, Any] = {"help": opt.help_text().replace("%", "%%")}
-    if opt.kind == "bool":
-        kw.update(action="store_true", default=bool(opt.default))
-    elif opt.kind == "switch":
-        kw.update(action=argparse.BooleanOptionalAction, default=opt.default)
-    else:
-        kw.update(default=list(opt.default) if isinstance(opt.default, tuple) else opt.default,
-                  metavar=opt.metavar)
-        if cli_type(opt) is not None:
-            kw["type"] = cli_type(opt)
-        if opt.choices is not None:
-            kw["choices"] = opt.choices
-            kw.pop("metavar")
-        if opt.kind == "names":
-            kw["nargs"] = "+"
-        elif opt.kind == "port":
-            kw.update(nargs="?", const=opt.const)
-        elif not (opt.flag or "").startswith("-"):
-            kw["nargs"] = "?"
-    if not (opt.flag or "").startswith("-"):
-        return (opt.field,), kw
-    return (opt.flag or "",), kw
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -23,8 +23,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from formation_ilc.cli.launchargs import cli_type
-from formation_ilc.cli.options import OptionError
+from formation_ilc.cli.options import OptionError, cli_type
 from formation_ilc.config.option_table import Option, option
 from formation_ilc.plan.options import (
     FIELD_KEYS,
@@ -331,7 +330,7 @@ def _in_file_words(message: str, args: argparse.Namespace) -> str:
 
     given = vars(args)
     scenario = given.get("scenario")
-    if given.get("resume") is not None or not is_run_file(scenario):
+    if given.get("resume") is not None or scenario is None or not is_run_file(scenario):
         return message
     path = Path(scenario)
     try:

@@ -13,11 +13,11 @@ from typing import Any
 
 import numpy as np
 
-from formation_ilc.cli.launchargs import argument_of
 from formation_ilc.cli.options import (
     MAX_TRIAL,
     OptionError,
     add_run_options,
+    argument_of,
     int_range,
     make_out_dir,
     nonneg_float,
