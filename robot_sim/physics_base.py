@@ -53,6 +53,7 @@ from std_msgs.msg import String
 import msgs_schema as ms
 from formation_ilc.config.option_table import default
 from formation_ilc.config.params import Param
+from formation_ilc.config.roster import DRIVER_NS
 from formation_ilc.core.names import BASE_TRUTH, BASES_NODE
 from formation_ilc.model.physics import MODELS
 from formation_ilc.nodes.common import (
@@ -83,7 +84,7 @@ PARAMS: tuple[Param, ...] = (
     Param("tick", 0.02, "how often the world is stepped and odometry published", "s",
           lo=1e-4, hi=10.0),
     Param("collide", True, "bases collide with each other"),
-    Param("ns_pattern", "/base_{i}", "namespace of base i's topics ({i}: 1-based)"),
+    Param("ns_pattern", DRIVER_NS["base"], "namespace of base i's topics ({i}: 1-based)"),
     Param("cmd_type", "twist", "the message type of cmd_vel",
           choices=("twist", "twist_stamped")),
     Param("odom_topic", "odom", "the odometry topic, relative to the base's namespace"),

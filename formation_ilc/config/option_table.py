@@ -24,13 +24,15 @@ from formation_ilc.config import values as V
 from formation_ilc.config.bases import BASES
 from formation_ilc.config.clocks import FALLBACKS
 from formation_ilc.config.plants import PLANT_TABLE, PLANTS
+from formation_ilc.config.roster import DRIVER_NS
 from formation_ilc.config.runconfig import MODES
 from formation_ilc.config.safety import BODIES, MOTION, TOLD_UP_TO, default_margin
 from formation_ilc.core.links import LINK_MODES
+from formation_ilc.core.names import NAMESPACE
 from formation_ilc.core.safety import DAMPING, LEARNING, Q_SIGMA
 
 __all__ = ["Option", "OPTIONS", "BY_FIELD", "SECTIONS", "GROUPS", "option", "default",
-           "KINDS", "PATH_KINDS", "ON_CONTACT", "TILT_RANGE"]
+           "KINDS", "PATH_KINDS", "ON_CONTACT", "TILT_RANGE", "LIVE_PORT"]
 
 #: how an option's value is written and read:
 #: int, float, str: one value (``choices`` and bounds checked by ``parse``);
@@ -45,6 +47,8 @@ PATH_KINDS = ("path", "folder", "file")
 #: what a physics plant does when robots touch: stop them and re-run the trial (at most
 #: ``contact_retries`` times), stop them and end the run, or report and go on
 ON_CONTACT = ("stop", "abort", "continue")
+#: the live view's port when ``--live`` names none (Foxglove's usual)
+LIVE_PORT = 8765
 #: the tilt limits a plant takes [deg]
 TILT_RANGE = (0.1, 180.0)
 
@@ -327,10 +331,10 @@ OPTIONS: tuple[Option, ...] = (
     _o("driver", "plant.driver", "--driver", "str", default="rosaria",
        choices=("rosaria", "p2os2", "ros2aria"), uses=_PIONEER,
        help="the robots' driver"),
-    _o("driver_ns", "plant.driver_ns", "--driver-ns", "str", default="/pioneer_{i}",
+    _o("driver_ns", "plant.driver_ns", "--driver-ns", "str", default=DRIVER_NS["pioneer"],
        uses=_BRIDGES, metavar="PATTERN",
        help="robot i's driver namespace, {i} replaced by the robot number (with --plant "
-            "base /base_{i} unless given)"),
+            f"base {DRIVER_NS['base']} unless given)"),
     _o("cmd_type", "plant.cmd_type", "--cmd-type", "str", choices=("twist", "twist_stamped"),
        uses=_BRIDGES, default_text="a --base preset's (docs/real-robots.md), Twist for a "
                                    "Pioneer driver",
@@ -355,7 +359,7 @@ OPTIONS: tuple[Option, ...] = (
        uses=_EXTERNAL, metavar="NAME", help="the node names the schedule waits for"),
     # ------------------------------------------------------------------ processes, ROS
     _o("namespace", "network.namespace", "--namespace", "str", group="processes",
-       metavar="NS", default_text="/formation",
+       metavar="NS", default_text=NAMESPACE,
        help="ROS namespace of the whole formation; two formations in different namespaces "
             "share a ROS domain without crosstalk (/clock is remapped into the namespace)"),
     _o("container", "processes.container", "--container", "int", default=0, lo=0, hi=1024,
@@ -398,11 +402,11 @@ OPTIONS: tuple[Option, ...] = (
        help="record every formation topic to this MCAP file (its own recorder process; "
             "the run starts once it listens); analyse it with `formation-ilc analyze "
             "RUN.mcap`"),
-    _o("live", "live.port", "--live", "port", lo=1, hi=65535, const=8765, group="",
+    _o("live", "live.port", "--live", "port", lo=1, hi=65535, const=LIVE_PORT, group="",
        metavar="PORT",
        help="serve the running formation to Foxglove over its WebSocket protocol on PORT "
-            "(8765 if not given), with the recording's topics and schemas (its own process; "
-            "a slow or absent viewer never holds the run back; docs/ros-tools.md)"),
+            f"({LIVE_PORT} if not given), with the recording's topics and schemas (its own "
+            "process; a slow or absent viewer never holds the run back; docs/ros-tools.md)"),
     _o("live_rate", "live.rate", "--live-rate", "float", unit="Hz", group="processes",
        metavar="HZ", default_text="30, what a screen shows",
        help="with --live: messages a second forwarded per per-sample topic (0: every "

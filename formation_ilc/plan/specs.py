@@ -17,7 +17,7 @@ from typing import Any
 
 from formation_ilc.config.option_table import default
 from formation_ilc.config.plants import Plant, plant
-from formation_ilc.config.roster import Roster, Team
+from formation_ilc.config.roster import DRIVER_NS, Roster, Team
 from formation_ilc.config.runconfig import (
     RunConfig,
     param_text,
@@ -61,7 +61,7 @@ class NoRun(Exception):
 
 #: a Pioneer driver's usual namespace pattern; a base's (``--plant base``) is /base_{i}
 PIONEER_NS: str = default("driver_ns")
-BASE_NS = "/base_{i}"
+BASE_NS = DRIVER_NS["base"]
 
 
 def _is_default(base: str | None, key: str, value: float) -> bool:
