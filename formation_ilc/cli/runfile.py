@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from formation_ilc.cli.options import OptionError, cli_type
-from formation_ilc.config.option_table import Option, option
+from formation_ilc.config.option_table import Option, option, robot_entries
 from formation_ilc.plan.options import (
     FIELD_KEYS,
     PATH_FIELDS,
@@ -140,6 +140,12 @@ def _check(path: Path, key: str, opt: Option, value: Any) -> Any:
         if not isinstance(value, bool):
             raise bad(f"expected true or false, got {value!r}")
         return (not value) if opt.negated else value
+    if opt.kind == "robots":
+        try:
+            return robot_entries(value)
+        except ValueError as exc:
+            why = str(exc)
+            raise OptionError(f"{path}: {key}{'.' if why[:1].isdigit() else ': '}{why}") from None
     if opt.kind == "names":
         if not isinstance(value, list) or not value or not all(
                 isinstance(v, (str, int)) for v in value):

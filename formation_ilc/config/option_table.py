@@ -32,16 +32,18 @@ from formation_ilc.core.names import NAMESPACE
 from formation_ilc.core.safety import DAMPING, LEARNING, Q_SIGMA
 
 __all__ = ["Option", "OPTIONS", "BY_FIELD", "SECTIONS", "GROUPS", "option", "default",
-           "KINDS", "PATH_KINDS", "ON_CONTACT", "TILT_RANGE", "LIVE_PORT"]
+           "KINDS", "PATH_KINDS", "ON_CONTACT", "TILT_RANGE", "LIVE_PORT", "RobotEntry",
+           "robot_entries"]
 
 #: how an option's value is written and read:
 #: int, float, str: one value (``choices`` and bounds checked by ``parse``);
 #: bool: a flag (false unless given); switch: --X / --no-X, or unset (None);
 #: path: a file or folder read; folder: a folder to write; file: a file to write;
 #: names: one or more names; port: a TCP port, or the flag alone for ``const``;
-#: stored: no flag: a stored run's own value (its id, ...); hosts: the run file's hosts:
+#: stored: no flag: a stored run's own value (its id, ...); hosts: the run file's hosts:;
+#: robots: the run file's robots: (RobotEntry, per robot)
 KINDS = ("int", "float", "str", "bool", "switch", "path", "folder", "file", "names", "port",
-         "stored", "hosts")
+         "stored", "hosts", "robots")
 PATH_KINDS = ("path", "folder", "file")
 
 #: what a physics plant does when robots touch: stop them and re-run the trial (at most
@@ -181,7 +183,7 @@ class Option:
             text = f"{text} [{self.unit}]"
         if self.default_text:
             return f"{text} (default: {self.default_text})"
-        if self.default is None or self.kind in ("bool", "stored", "hosts"):
+        if self.default in (None, ()) or self.kind in ("bool", "stored", "hosts"):
             return text
         shown = " ".join(map(str, self.default)) if isinstance(self.default, tuple) else (
             f"{self.default:g}" if isinstance(self.default, float) else str(self.default))
@@ -475,10 +477,73 @@ OPTIONS: tuple[Option, ...] = (
        help="the emulated clocks' origin (a resumed run's robots keep their clocks)"),
     _o("record_root", "recording.record_root", None, "stored", stored_as=Path,
        help="the run's first recording file (a resumed launch records a part of its own)"),
+    _o("robots", "robots", None, "robots", default=(), uses=_BRIDGES,
+       help="per robot I, what differs from the rest of the team: host (the machine that "
+            "runs robot I's node and bridge: with no hosts: mapping, every other member runs "
+            "on host 'ground'), driver_ns (robot I's driver namespace, instead of "
+            "plant.driver_ns's pattern), start: [x, y, theta] [m, m, rad] (where robot I is "
+            "placed: its bridge's initial pose, instead of the scenario's desired start). "
+            "E.g. robots: {2: {host: r2, driver_ns: /RosAria, start: [0.0, 1.0, 0.0]}}"),
     _o("host_members", None, None, "hosts", default=(),
        help="which machine runs which members: host name -> member (process) names; "
             "empty: all on this machine"),
 )
+
+@dataclass(frozen=True)
+class RobotEntry:
+    """A run file's ``robots: {I: {...}}`` entry: what robot I does not share with the
+    team (None: as the team)."""
+
+    robot: int
+    host: str | None = None
+    driver_ns: str | None = None
+    start: tuple[float, float, float] | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        """Its keys as a run file writes them (only those set)."""
+        d = {"host": self.host, "driver_ns": self.driver_ns,
+             "start": None if self.start is None else list(self.start)}
+        return {k: v for k, v in d.items() if v is not None}
+
+
+def robot_entries(value: Any) -> tuple[RobotEntry, ...]:
+    """``robots:`` (robot number -> {host, driver_ns, start}) as entries, by robot;
+    ValueError naming the robot and key (``2.start: ...``)."""
+    if isinstance(value, tuple) and all(isinstance(e, RobotEntry) for e in value):
+        return value
+    if not isinstance(value, dict):
+        raise ValueError(f"expected a mapping of robot numbers to {{host, driver_ns, start}}, "
+                         f"got {value!r}")
+    out = []
+    for key, entry in value.items():
+        try:
+            robot = int(key)
+        except (TypeError, ValueError):
+            raise ValueError(f"{key}: expected a robot number") from None
+        out.append(_robot_entry(robot, entry or {}))
+    return tuple(sorted(out, key=lambda e: e.robot))
+
+
+def _robot_entry(robot: int, entry: Any) -> RobotEntry:
+    if not isinstance(entry, dict):
+        raise ValueError(f"{robot}: expected a mapping of host, driver_ns, start")
+    for k in entry:
+        if k not in ("host", "driver_ns", "start"):
+            raise ValueError(f"{robot}.{k}: unknown key (robot keys: host, driver_ns, start)")
+    for k in ("host", "driver_ns"):
+        if entry.get(k) is not None and not (isinstance(entry[k], str) and entry[k].strip()):
+            raise ValueError(f"{robot}.{k}: expected a name, got {entry[k]!r}")
+    start = entry.get("start")
+    if start is not None:
+        if not (isinstance(start, list | tuple) and len(start) == 3):
+            raise ValueError(f"{robot}.start: expected [x, y, theta] [m, m, rad], got {start!r}")
+        try:
+            start = tuple(V.quantity(str(x), "rad") if i == 2 else V.float_in()(str(x))
+                          for i, x in enumerate(start))
+        except ValueError as exc:
+            raise ValueError(f"{robot}.start: {exc}") from None
+    return RobotEntry(robot, entry.get("host"), entry.get("driver_ns"), start)
+
 
 #: field -> its row
 BY_FIELD: dict[str, Option] = {o.field: o for o in OPTIONS}

@@ -84,6 +84,10 @@ def build_plan(options: LaunchOptions) -> RunPlan:
         # RunConfig owns its rules (e.g. wall-clock trials need direct links): a refusal
         # in one line, not a traceback
         raise NoRun(f"launch: {exc}") from None
+    for entry in opts.robots:
+        if not 1 <= entry.robot <= cfg.scenario.n:
+            raise NoRun(f"robots: {entry.robot}: no such robot (robots are "
+                        f"1..{cfg.scenario.n})")
     # 'auto' headings: arc on the plants that drive arcs and came with the option (physics,
     # base); chord for the kinematic simulator, and for the Pioneer bridges and external
     # plants as before them (their runs and learned memories keep their numbers)
@@ -158,9 +162,10 @@ def build_plan(options: LaunchOptions) -> RunPlan:
     # the processes follow from the rest of the plan
     plan = replace(plan, nodes=node_specs(plan, scenario_reference(opts.scenario)))
     plan = _with_peers(plan, secure=opts.secure is not None,
-                       one_host=not opts.host_members and opts.host is None,
+                       one_host=not (opts.host_members or _robot_hosts(opts))
+                       and opts.host is None,
                        dds_profile=opts.dds_profile)
-    plan = replace(plan, host_members=placed_members(plan, dict(opts.host_members)))
+    plan = replace(plan, host_members=placed_members(plan, _hosts(plan, opts)))
     return _secured(_on_host(plan, opts.host), opts.secure)
 
 
@@ -467,7 +472,34 @@ def _is_ground(opts: LaunchOptions) -> bool:
     """Whether this launcher runs the leader (``RunPlan.ground``, from the options): the
     run's folder is its own. A member host keeps its members' state in OUT/hosts/HOST and
     comes (back) into the ground station's run, whose folder holds its files."""
+    if not opts.host_members and _robot_hosts(opts):
+        return opts.host in (None, GROUND)
     return opts.host is None or LEADER_NODE in dict(opts.host_members).get(opts.host, ())
+
+
+#: the host of the members a run file's robots: does not place on a robot's host
+GROUND = "ground"
+
+
+def _robot_hosts(opts: LaunchOptions) -> dict[int, str]:
+    """The hosts a run file's ``robots:`` gives its robots: robot -> host."""
+    return {e.robot: e.host for e in opts.robots if e.host is not None}
+
+
+def _hosts(plan: RunPlan, opts: LaunchOptions) -> dict[str, list[str]]:
+    """Which host runs which members: the run file's ``hosts:``, else its robots' hosts
+    (robot I's node and bridge on its host, every other member on GROUND); NoRun for a
+    file that gives both."""
+    robots = _robot_hosts(opts)
+    if not robots:
+        return {h: list(m) for h, m in opts.host_members}
+    if opts.host_members:
+        raise NoRun("robots: a robot's host goes in hosts: when the run file has one (give "
+                    "the hosts either in hosts: or in robots:)")
+    hosts: dict[str, list[str]] = {GROUND: []}
+    for name, robot in hosted_members(plan):
+        hosts.setdefault(robots.get(robot, GROUND) if robot else GROUND, []).append(name)
+    return hosts
 
 
 def _out_folder(out: Path | None, sc: Scenario) -> Path:

@@ -16,7 +16,14 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-from formation_ilc.config.option_table import OPTIONS, SECTIONS, default, option
+from formation_ilc.config.option_table import (
+    OPTIONS,
+    SECTIONS,
+    RobotEntry,
+    default,
+    option,
+    robot_entries,
+)
 
 __all__ = ["OptionError", "LaunchOptions", "RunKey", "RUN_KEYS", "FIELD_KEYS", "SECTIONS",
            "closest", "option_fields", "PATH_FIELDS", "STORED_FIELDS", "PLANT_USES",
@@ -111,6 +118,9 @@ class LaunchOptions:
     clock_origin_ns: int | None = default("clock_origin_ns")
     #: the run's first recording file, when ``record`` is a resumed launch's part
     record_root: Path | None = default("record_root")
+    #: what robots do not share with the team: a run file's robots: (host, driver
+    #: namespace, start pose), by robot
+    robots: tuple[RobotEntry, ...] = default("robots")
     #: which machine runs which members: host name -> member (process) names; empty: all
     #: on this machine
     host_members: tuple[tuple[str, tuple[str, ...]], ...] = field(
@@ -130,6 +140,8 @@ class LaunchOptions:
                 v = str(v)
             elif f.name == "host_members":
                 v = {h: list(m) for h, m in v}
+            elif f.name == "robots":
+                v = {e.robot: e.as_dict() for e in v}
             elif isinstance(v, tuple):
                 v = list(v)
             out[f.name] = v
@@ -153,6 +165,8 @@ def _coerce(name: str, value: Any) -> Any:
         return Path(value)
     if name == "plant_nodes":
         return tuple(str(v) for v in value)
+    if name == "robots":
+        return robot_entries(value)
     if name == "host_members":
         items = value.items() if isinstance(value, Mapping) else value
         return tuple((str(h), tuple(str(m) for m in ms)) for h, ms in items)

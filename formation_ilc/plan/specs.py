@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from formation_ilc.config.option_table import default
+from formation_ilc.config.option_table import RobotEntry, default
 from formation_ilc.config.plants import Plant, plant
 from formation_ilc.config.roster import DRIVER_NS, Roster, Team
 from formation_ilc.config.runconfig import (
@@ -107,6 +107,9 @@ class BridgeOptions:
     params_file: Path | None = None
     physics_bases: bool = default("physics_bases")
     lifecycle: bool = default("lifecycle")
+    #: what single robots do not share with the team (a run file's robots:): their driver
+    #: namespace and start pose
+    robots: tuple[RobotEntry, ...] = default("robots")
 
     @classmethod
     def of(cls, opts: LaunchOptions) -> BridgeOptions:
@@ -132,7 +135,9 @@ class BridgeOptions:
                    float(opts.return_timeout),
                    bool(opts.fake_drivers), base, given,
                    None if pf is None else Path(pf).resolve(),
-                   bool(opts.physics_bases), bool(opts.lifecycle))
+                   bool(opts.physics_bases), bool(opts.lifecycle),
+                   robots=tuple(e for e in opts.robots
+                                if e.driver_ns is not None or e.start is not None))
 
     @property
     def sent_type(self) -> str:
@@ -147,7 +152,12 @@ class BridgeOptions:
         return "twist"
 
     def namespace(self, i: int) -> str:
-        return self.driver_ns.replace("{i}", str(i))
+        own = self._own(i)
+        pattern = own.driver_ns if own is not None and own.driver_ns else self.driver_ns
+        return pattern.replace("{i}", str(i))
+
+    def _own(self, i: int) -> RobotEntry | None:
+        return next((e for e in self.robots if e.robot == i), None)
 
     def params(self, i: int) -> tuple[tuple[str, Any], ...]:
         """Robot ``i``'s bridge parameters."""
@@ -158,7 +168,14 @@ class BridgeOptions:
             kind += (("cmd_type", self.cmd_type),)
         return ((("robot_id", i), ("driver_ns", self.namespace(i))) + kind
                 + (("return_timeout", self.return_timeout),) + self.limits
-                + ((("lifecycle", True),) if self.lifecycle else ()))
+                + ((("lifecycle", True),) if self.lifecycle else ())
+                + self._start(i))
+
+    def _start(self, i: int) -> tuple[tuple[str, Any], ...]:
+        own = self._own(i)
+        if own is None or own.start is None:
+            return ()  # the bridge takes the scenario's desired start
+        return (("initial_pose", [float(x) for x in own.start]),)
 
 
 @dataclass(frozen=True)

@@ -6,6 +6,7 @@ the resolved run file a launch keeps resumes the run, and so does a run.json of 
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -397,3 +398,33 @@ def test_a_refusal_of_a_value_from_a_run_file_names_its_key(tmp_path, capsys):
     assert main(["launch", str(path), "--safety-margin", "0.6", "--out",
                  str(tmp_path / "c")]) == 2
     assert "lower --safety-margin," in capsys.readouterr().err
+
+
+def test_a_run_files_robots_give_one_robot_its_host_driver_and_start(tmp_path, capsys):
+    """``robots: {I: {host, driver_ns, start}}``: what robot I does not share with the
+    team; its host places its node and bridge (the rest on 'ground'), its driver namespace
+    and start pose go to its bridge only. A robot the scenario has not, or a misspelt key,
+    is refused naming it."""
+    path = tmp_path / "run.yaml"
+    path.write_text("scenario: paper-triangle3\nplant: {kind: pioneer, allow_contact: true}\n"
+                    "robots: {2: {host: r2, driver_ns: /RosAria, start: [0.5, 1.0, 5 deg]}}\n")
+    plan = plan_of(options(str(path), "--out", str(tmp_path / "run")))
+    hosts = dict(plan.host_members)
+    assert sorted(hosts["r2"]) == ["bridge_2", "robot_2"]
+    assert {"virtual_leader", "monitor", "robot_1", "bridge_3"} <= set(hosts["ground"])
+    params = {s.name: dict(s.params) for s in plan.nodes}
+    assert params["bridge_2"]["driver_ns"] == "/RosAria"
+    assert params["bridge_2"]["initial_pose"] == pytest.approx([0.5, 1.0, math.radians(5)])
+    assert params["bridge_1"]["driver_ns"] == "/pioneer_1"
+    assert "initial_pose" not in params["bridge_1"]
+    # the written file keeps the section, and reads back the same
+    out = write_run_file(tmp_path, str(path), "--allow-contact", name="again.yaml")
+    again = plan_of(options(str(out), "--out", str(tmp_path / "again")))
+    assert dict(again.host_members)["r2"] == hosts["r2"]
+    for text, line in (("{7: {host: r7}}", "robots: 7: no such robot (robots are 1..3)"),
+                       ("{2: {hots: r2}}", f"{path}: robots.2.hots: unknown key"),
+                       ("{2: {start: [1, 2]}}", f"{path}: robots.2.start: expected [x, y, theta]")):
+        path.write_text("scenario: paper-triangle3\nplant: {kind: pioneer, allow_contact: "
+                        f"true}}\nrobots: {text}\n")
+        assert main(["launch", str(path), "--out", str(tmp_path / "bad")]) == 2
+        assert line in capsys.readouterr().err
