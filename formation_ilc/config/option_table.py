@@ -29,7 +29,8 @@ from formation_ilc.config.runconfig import MODES
 from formation_ilc.config.safety import BODIES, MOTION, TOLD_UP_TO, default_margin
 from formation_ilc.core.links import LINK_MODES
 from formation_ilc.core.names import NAMESPACE
-from formation_ilc.core.safety import DAMPING, LEARNING, Q_SIGMA
+from formation_ilc.core.safety import LEARNING
+from formation_ilc.core.through import DAMPING, Q_SIGMA
 
 __all__ = ["Option", "OPTIONS", "BY_FIELD", "SECTIONS", "GROUPS", "option", "default",
            "KINDS", "PATH_KINDS", "ON_CONTACT", "TILT_RANGE", "LIVE_PORT", "RobotEntry",
@@ -271,8 +272,10 @@ OPTIONS: tuple[Option, ...] = (
             "loop), or the Husky whose base tracks its commanded speed and turn rate "
             "(husky-imu: docs/physics.md)"),
     _o("pose", "plant.pose", "--pose", "str", default="truth", choices=("truth", "odometry"),
-       uses=_PHYSICS, help="the robots' measured pose: the engine's ground truth (a "
-                           "motion-capture stand-in) or wheel odometry"),
+       uses=_BODIES_SIM,
+       help="the robots' measured pose: the engine's ground truth (a motion-capture "
+            "stand-in; the bridges' pose_topic) or wheel odometry (refused under the safety "
+            "filter: it drifts)"),
     _o("pass_through", "plant.collide", "--pass-through", "bool", default=False,
        negated=True, uses=_BODIES_SIM,
        help="robots pass through each other instead of colliding (contacts are then not "

@@ -194,6 +194,11 @@ BRIDGE: tuple[Param, ...] = (
     Param("truth", False, "the base is simulated and publishes its true pose on 'truth' in "
           "the driver namespace (formation-ilc-physics-bases -p truth:=true): the bridge "
           "publishes each trial's true trajectory, for the metrics' true columns"),
+    Param("pose_topic", "", "the robot's world pose (geometry_msgs/PoseStamped in the world "
+          "frame, relative to the driver namespace unless absolute): motion capture or a "
+          "localiser, what the bridge samples, returns on and tells the others under the "
+          "safety filter; '': the driver's wheel odometry from where the robot was placed "
+          "(it drifts: docs/safety.md)"),
     Param("lifecycle", False, "a managed (lifecycle) node: it starts unconfigured; "
           "configure checks the driver's topics, activate enables the motors and lets "
           "commands through, deactivate and shutdown send zero and stop"),

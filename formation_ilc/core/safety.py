@@ -40,43 +40,8 @@ negative (the pair past braking apart as the filter counts it: outside the guara
 whether or not the filter changed the command. ``CHANGED`` masks the flags of a changed
 command.
 
-Learning through the filter (``LEARNING``): the memory must not wind up where the filter
-overrode the learned command. ``learn_base`` gives the memory the learning step starts
-from, ``freeze_flagged`` restores it where nothing may be learned (``after_learning``
-runs it and the Q-filter below after the step):
-
-* ``applied``: m + (u_applied - u_nominal) at every changed sample, so the memory learns
-  from the command the robot really drove (the anti-windup of ILC with input saturation);
-* ``freeze``: the old memory at every changed sample;
-* ``split``: ``applied`` where only a limit clipped the command (a saturation, the same
-  from trial to trial: anti-windup is right), ``freeze`` where a barrier moved it (another
-  robot was in the way: a state of this trial, not of the task);
-* ``ignore``: learns as if nothing had been changed (winds up; for comparison);
-* ``damped``: ``applied`` where only a limit clipped the command, m + DAMPING
-  (u_applied - u_nominal) where a barrier moved it: a sixth or so of ``applied``'s anti-
-  windup. ``applied`` carries every trim a barrier made into the next trial, where it
-  holds the memory near the filter's boundary (an error that stays); ``ignore`` carries
-  none and winds up where two robots hold each other off trial after trial; a share of
-  it does neither. A limit's clipping takes the full anti-windup: a memory learned as if
-  unclipped (or a share) winds up outside the limits, where the clipped commands jitter
-  on the acceleration bound trial after trial (docs/safety.md measured both on the
-  generated families).
-
-With ``damped``, a robot learns the stretch of a trial around the commands its filter
-changed through a Q-filter (``smooth_learning``): there the step its memory takes (the
-learned memory less the old one) is smoothed along the trial by a binomial kernel of
-standard deviation Q_SIGMA seconds, blended out within three deviations. The filter's trims
-switch on and off from sample to sample; the paper's law carries that roughness into the
-memory and, on the generated families, either unlearns it slowly or lets it grow into a
-heading oscillation (a period of about 2 s) that keeps the filter busy. Where the filter
-did not act, and in every trial it left alone, the law is the paper's unchanged.
-
-docs/safety.md has the measurements behind the default (``config.safety.default_learning``):
-``damped`` for two-wheel bodies, where it learned the paper's triangle and the generated
-families best; ``split`` for skid-steer bases (Husky, Jackal), whose acceleration limits
-let a barrier change a command by metres a second within a sample.
-
-Units: metres, seconds, radians. Robots' poses (x, y, theta) are their tracked points.
+Learning through the filter (``LEARNING``, what the memory learns where the filter changed
+the command) is ``core.through``'s.
 """
 
 from __future__ import annotations
@@ -88,21 +53,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from formation_ilc.core._jit import njit
+from formation_ilc.core.estimate import box_centre, box_error, box_start, box_step
 from formation_ilc.core.limits import Limits
 
 __all__ = ["SafetySpec", "LEARNING", "CHANGED_LIMITS", "CHANGED_BARRIER", "INFEASIBLE",
-           "CHANGED",
-           "filter_command", "filter_team", "motion", "learn_base", "DAMPING",
-           "freeze_flagged", "smooth_learning", "after_learning", "Q_SIGMA",
-           "learning_code", "PARAMS", "MAX_DISCS", "OTHER_FIELDS", "told"]
+           "CHANGED", "filter_command", "filter_team", "motion", "PARAMS", "MAX_DISCS",
+           "OTHER_FIELDS", "told", "team_boxes"]
 
 #: how the memory learns at samples the filter changed
 LEARNING = ("applied", "freeze", "ignore", "split", "damped")
-APPLIED, FREEZE, IGNORE, SPLIT, DAMPED = 0, 1, 2, 3, 4
-#: ``damped``: the share of a barrier's change the memory takes in (a limit's, in full)
-DAMPING = 0.05
-#: ``damped``: the Q-filter's standard deviation [s] (``smooth_learning``; 0: none)
-Q_SIGMA = 1.2
 
 #: flags of one filtered command (bitwise or)
 CHANGED_LIMITS = 1     # the learned command left the box of the base's limits
@@ -115,11 +74,15 @@ CHANGED = CHANGED_LIMITS | CHANGED_BARRIER
 #: the order of ``SafetySpec.params()``
 PARAMS = ("distance", "discs", "gamma", "radius", "v_max", "omega_max", "a_max",
           "alpha_max", "dt", "stale_speed", "weight", "speed_uncertainty", "brake_share",
-          "lag", "commands", "own_bound", "told_uncertainty")
+          "lag", "commands", "own_bound", "told_uncertainty", "pose_error", "noise",
+          "process", "heading_error")
 #: the columns of a robot heard (``filter_command``'s ``others``): pose (x, y, theta),
-#: motion (vx, vy, omega), and 1 where that motion is the command the robot told (``told``),
-#: 0 where it is estimated from its poses (``motion``)
-OTHER_FIELDS = 7
+#: motion (vx, vy, omega), 1 where that motion is the command the robot told (``told``),
+#: 0 where it is estimated from its poses (``motion``), and how far this robot's position
+#: and robot j's, as the filter has them, can be off together [m] (the pair's distance
+#: grows by it: ``pose_error`` for raw poses, two boxes' half-diagonals for estimates,
+#: ``core.estimate``)
+OTHER_FIELDS = 8
 #: at most this many discs cover a body
 MAX_DISCS = 3
 _TOL = 1e-12
@@ -133,12 +96,6 @@ _SPLIT = 0.9
 #: heading across the line to another closes in at less than its speed, and brakes that
 #: closing speed at less than its full deceleration
 BRAKE_SHARE = 0.5
-
-
-def learning_code(mode: str) -> int:
-    if mode not in LEARNING:
-        raise ValueError(f"safety learning must be one of {', '.join(LEARNING)}, got {mode!r}")
-    return LEARNING.index(mode)
 
 
 @dataclass(frozen=True)
@@ -168,6 +125,13 @@ class SafetySpec:
         batch simulator's ``filter_team`` takes every other robot's speed from it.
     told_uncertainty : [m/s] how wrong a told robot's velocity may be (its direction comes
         from its measured heading).
+    pose_error : [m] how far the difference of two robots' measured positions can be from
+        the true one: the distance grows by it where positions are the raw poses.
+    noise, process, heading_error : where robots tell their commands, each robot's
+        position is estimated (``core.estimate``): poses off by up to ``noise`` [m] per
+        axis, motion off the told command by up to ``process`` [m] per axis a sample, the
+        heading by up to ``heading_error`` [rad]; the distance then grows by the two
+        estimates' bounds instead of ``pose_error``.
     learning : how the memory learns where the filter changed the command (LEARNING).
     """
 
@@ -185,6 +149,10 @@ class SafetySpec:
     learning: str = "damped"
     commands: bool = False
     told_uncertainty: float = 0.0
+    pose_error: float = 0.0
+    noise: float = 0.0
+    process: float = 0.0
+    heading_error: float = 0.0
 
     def __post_init__(self) -> None:
         checks = (("discs", 1 <= len(self.discs) <= MAX_DISCS
@@ -199,12 +167,16 @@ class SafetySpec:
                    and math.isfinite(self.speed_uncertainty)),
                   ("told_uncertainty", self.told_uncertainty >= 0
                    and math.isfinite(self.told_uncertainty)),
+                  *((name, getattr(self, name) >= 0 and math.isfinite(getattr(self, name)))
+                    for name in ("pose_error", "noise", "process", "heading_error")),
                   ("window", isinstance(self.window, int) and self.window >= 0),
                   ("brake_share", 0 < self.brake_share <= 1))
         for name, ok in checks:
             if not ok:
                 raise ValueError(f"safety {name}: out of range, got {getattr(self, name)!r}")
-        learning_code(self.learning)
+        if self.learning not in LEARNING:
+            raise ValueError(f"safety learning must be one of {', '.join(LEARNING)}, got "
+                             f"{self.learning!r}")
 
     def params(self) -> NDArray[np.float64]:
         """The numbers the kernels take, in the order of PARAMS, then the disc offsets.
@@ -216,7 +188,8 @@ class SafetySpec:
                          lim.v_max, lim.omega_max, lim.a_max, lim.alpha_max, self.dt,
                          self.stale_speed, self.weight, self.speed_uncertainty, self.brake_share,
                          0.5 * max(self.window - 1, 0) * self.dt, float(self.commands),
-                         1.0, self.told_uncertainty, *self.discs])
+                         1.0, self.told_uncertainty, self.pose_error, self.noise, self.process,
+                         self.heading_error, *self.discs])
 
 
 @njit(cache=True)
@@ -443,7 +416,7 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
         # sig x age of there; or, if its speed limit (``stale``) says less, within that of
         # where it was
         ahead = age > 0.0 and not (0.0 < stale <= sig)
-        dj = dist + (sig if ahead or stale <= 0.0 else stale) * age
+        dj = dist + float(others[j, 7]) + (sig if ahead or stale <= 0.0 else stale) * age
         if ahead:
             ox += vxj * age
             oy += vyj * age
@@ -694,23 +667,29 @@ def told(th: float, v: float, w: float, out: NDArray[np.float64], at: int) -> No
 def filter_team(t: int, u: NDArray[np.float64], eta: NDArray[np.float64],
                 prev: NDArray[np.float64], age: float, params: NDArray[np.float64],
                 window: int, nominal: NDArray[np.float64], flags: NDArray[np.int64],
-                others: NDArray[np.float64], ages: NDArray[np.float64]) -> None:
+                others: NDArray[np.float64], ages: NDArray[np.float64],
+                boxes: NDArray[np.float64]) -> int:
     """Every robot's filter at sample t, as the batch simulator runs it: robot r hears
     every other robot's measured pose eta[j, t], ``age`` seconds old, and estimates its
     motion from eta[j, t - window] (``motion``; from sample 0 before that), or, where the
     robots tell each other their commands (params ``commands``), takes it from the
-    command robot j applied over the sample before (``told``).
+    command robot j applied over the sample before (``told``), and every position from
+    its box (``team_boxes``).
 
     u : shape (N, >= t+1, 2), the learned commands at column t on entry, the safe ones on
         return (the nominal ones are copied into ``nominal`` (N, >= t+1, 2) first).
     eta : shape (N, >= t+1, 3), measured poses. prev : shape (N, 2), the previous
         commands (updated to the safe ones). flags : shape (N, >= t+1), written at t.
-    others, ages : scratch of shape (N, OTHER_FIELDS) and (N,).
+    others, ages : scratch of shape (N, OTHER_FIELDS) and (N,). boxes : shape (N, 4),
+        each robot's box (``core.estimate``), moved on to sample t here (called once a
+        sample, t = 0, 1, ... of a trial). Returns how many poses missed their box.
     """
     n = u.shape[0]
     res = np.empty(2)
     dt = params[8]
     commands = params[14] > 0.0  # PARAMS: "commands"
+    pose_error = params[17]
+    missed = team_boxes(t, eta, prev, params, boxes) if commands else 0
     back = max(0, t - window) if window > 0 else t
     for r in range(n):
         nominal[r, t, 0] = u[r, t, 0]
@@ -720,129 +699,46 @@ def filter_team(t: int, u: NDArray[np.float64], eta: NDArray[np.float64],
         for j in range(n):
             if j == r:
                 continue
-            others[m, 0] = eta[j, t, 0]
-            others[m, 1] = eta[j, t, 1]
             others[m, 2] = eta[j, t, 2]
             if commands:
+                others[m, 0], others[m, 1] = box_centre(boxes, j)
+                others[m, 7] = box_error(boxes, j) + box_error(boxes, r)
                 told(eta[j, t, 2], prev[j, 0], prev[j, 1], others, m)
             else:
+                others[m, 0] = eta[j, t, 0]
+                others[m, 1] = eta[j, t, 1]
+                others[m, 7] = pose_error
                 motion(eta[j, t, 0], eta[j, t, 1], eta[j, t, 2], eta[j, back, 0],
                        eta[j, back, 1], eta[j, back, 2], (t - back) * dt, others, m)
             ages[m] = age
             m += 1
-        flags[r, t] = filter_command(nominal[r, t, 0], nominal[r, t, 1], eta[r, t, 0],
-                                     eta[r, t, 1], eta[r, t, 2], prev[r, 0], prev[r, 1],
-                                     others, ages, m, params, res)
+        if commands:
+            x, y = box_centre(boxes, r)
+        else:
+            x, y = eta[r, t, 0], eta[r, t, 1]
+        flags[r, t] = filter_command(nominal[r, t, 0], nominal[r, t, 1], x, y, eta[r, t, 2],
+                                     prev[r, 0], prev[r, 1], others, ages, m, params, res)
         u[r, t, 0] = res[0]
         u[r, t, 1] = res[1]
     for r in range(n):
         prev[r, 0] = u[r, t, 0]
         prev[r, 1] = u[r, t, 1]
+    return missed
 
 
 @njit(cache=True)
-def learn_base(mode: int, memory: NDArray[np.float64], nominal: NDArray[np.float64],
-               applied: NDArray[np.float64], flags: NDArray[np.int64],
-               out: NDArray[np.float64]) -> None:
-    """The memory the learning step starts from, written into ``out`` (R, T, 2).
-
-    memory, nominal, applied : shape (R, T, 2): the trial's memory, the learned commands
-    and the commands the filter let through; flags : shape (R, T). ``applied`` (APPLIED):
-    memory + (applied - nominal); ``damped``: the same where only a limit clipped the
-    command (the anti-windup of learning with input saturation), memory + DAMPING
-    (applied - nominal) where a barrier moved it; ``split``: the same where only a limit
-    clipped it, the memory itself where a barrier moved it; ``freeze`` and ``ignore``: the
-    memory itself (freeze and split then restore the old memory at changed samples after
-    the step, ``freeze_flagged``).
-    """
-    for r in range(memory.shape[0]):
-        for t in range(memory.shape[1]):
-            for c in range(2):
-                x = memory[r, t, c]
-                f = flags[r, t] & CHANGED
-                if f != 0 and (mode == APPLIED or (f == CHANGED_LIMITS
-                                                   and (mode == SPLIT or mode == DAMPED))):
-                    x += applied[r, t, c] - nominal[r, t, c]
-                elif f != 0 and mode == DAMPED:
-                    x += DAMPING * (applied[r, t, c] - nominal[r, t, c])
-                out[r, t, c] = x
-
-
-@njit(cache=True)
-def freeze_flagged(mode: int, memory: NDArray[np.float64], flags: NDArray[np.int64],
-                   learned: NDArray[np.float64]) -> None:
-    """``freeze``: the learned memory keeps the old one at every changed sample; ``split``:
-    at every sample where a barrier acted."""
-    if mode != FREEZE and mode != SPLIT:
-        return
-    for r in range(memory.shape[0]):
-        for t in range(memory.shape[1]):
-            f = flags[r, t]
-            if (mode == FREEZE and f & CHANGED) or (mode == SPLIT and f & CHANGED_BARRIER):
-                learned[r, t, 0] = memory[r, t, 0]
-                learned[r, t, 1] = memory[r, t, 1]
-
-
-@njit(cache=True)
-def smooth_learning(mode: int, dt: float, memory: NDArray[np.float64],
-                    flags: NDArray[np.int64], learned: NDArray[np.float64]) -> None:
-    """``damped``'s Q-filter, in place on ``learned`` (R, T, 2): around each command the
-    filter changed (a ``CHANGED`` flag in ``flags`` (R, T)), the robot's step
-    ``learned - memory`` is smoothed along the trial by a binomial kernel of standard
-    deviation Q_SIGMA [s] at sample time ``dt`` (its order the nearest even one to
-    4 (Q_SIGMA / dt)^2, cut at three standard deviations and weighed again at the trial's
-    ends). A sample takes the smoothed step by the kernel's weight (1 at its centre) from
-    the nearest changed command, and the paper's step beyond three deviations of every
-    one: where the filter did not act the law is the paper's. The weights are built by
-    multiplications and divisions only: the same bits compiled and interpreted.
-    """
-    if mode != DAMPED or Q_SIGMA <= 0.0:
-        return
-    s = Q_SIGMA / dt
-    mid = max(1, int(2.0 * s * s + 0.5))  # half the kernel's order
-    half = min(mid, int(3.0 * s) + 1)
-    w = np.empty(2 * half + 1)
-    w[half] = 1.0
-    for j in range(1, half + 1):  # C(2 mid, mid + j) / C(2 mid, mid)
-        w[half + j] = w[half + j - 1] * (mid - j + 1) / (mid + j)
-        w[half - j] = w[half + j]
-    n_t = memory.shape[1]
-    step = np.empty(n_t)
-    mix = np.empty(n_t)
-    for r in range(memory.shape[0]):
-        # how much of the smoothed step each sample takes: the kernel's own weight (1 at
-        # its centre) from the nearest changed command, 0 beyond three deviations
-        changed = False
-        for t in range(n_t):
-            mix[t] = 0.0
-        for f in range(n_t):
-            if flags[r, f] & CHANGED:
-                changed = True
-                for j in range(max(-half, -f), min(half, n_t - 1 - f) + 1):
-                    if w[half + j] > mix[f + j]:
-                        mix[f + j] = w[half + j]
-        if not changed:
-            continue
-        for c in range(2):
-            for t in range(n_t):
-                step[t] = learned[r, t, c] - memory[r, t, c]
-            for t in range(n_t):
-                if mix[t] == 0.0:
-                    continue  # the paper's step, bit for bit
-                acc = 0.0
-                total = 0.0
-                for j in range(max(-half, -t), min(half, n_t - 1 - t) + 1):
-                    acc += w[half + j] * step[t + j]
-                    total += w[half + j]
-                learned[r, t, c] = memory[r, t, c] + step[t] + mix[t] * (acc / total - step[t])
-
-
-@njit(cache=True)
-def after_learning(mode: int, dt: float, memory: NDArray[np.float64],
-                   flags: NDArray[np.int64], learned: NDArray[np.float64]) -> None:
-    """What a learning reading does to the learned memory ``learned`` (R, T, 2) after the
-    law's step from ``learn_base``: ``freeze_flagged``, then ``damped``'s Q-filter
-    (``smooth_learning``). The batch simulator, the robot node and the physics study each
-    call this once per trial."""
-    freeze_flagged(mode, memory, flags, learned)
-    smooth_learning(mode, dt, memory, flags, learned)
+def team_boxes(t: int, eta: NDArray[np.float64], prev: NDArray[np.float64],
+               params: NDArray[np.float64], boxes: NDArray[np.float64]) -> int:
+    """Every robot's box (``core.estimate``) moved on to sample t: from its pose alone at
+    t = 0, else by the command it applied over the sample before (``prev``, what it
+    told) from its heading then, cut by its pose of t. Returns how many poses missed
+    their box (each starts afresh)."""
+    noise, process, heading = params[18], params[19], params[20]
+    missed = 0
+    for r in range(eta.shape[0]):
+        if t == 0:
+            box_start(boxes, r, eta[r, 0, 0], eta[r, 0, 1], noise)
+        elif not box_step(boxes, r, eta[r, t - 1, 2], prev[r, 0], prev[r, 1], params[8],
+                          eta[r, t, 0], eta[r, t, 1], noise, process, heading):
+            missed += 1
+    return missed

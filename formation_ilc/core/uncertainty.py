@@ -119,6 +119,17 @@ class Uncertainty:
         apart = math.hypot(2 * ux, 2 * uy)
         return apart, apart + step
 
+    def estimate_bounds(self, dt: float) -> tuple[float, float]:
+        """What a position's box (``core.estimate``) is built on: how far one robot's
+        measured position is from its true one per axis, the harmonics every robot shares
+        left out (they move all alike) [m]; and how far per axis a sample of its motion
+        can be from the arc of the command it applied: its speed's disturbance over dT and
+        the shared harmonics' step (the box tracks them with the position) [m]."""
+        per_axis = max(abs(self.noise_uniform[0]), abs(self.noise_uniform[1]))
+        step = max(abs(h.amplitude * h.frequency) for h in self.noise_fixed[:2])
+        dv = abs(self.disturbance_fixed[0].amplitude) + abs(self.disturbance_uniform[0])
+        return per_axis, dv * dt + step
+
     def heading_bound(self) -> float:
         """How far one robot's measured heading can be from its true one [rad]: its
         uniform half-width and its fixed harmonic's amplitude."""

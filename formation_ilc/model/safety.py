@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from formation_ilc.config.safety import MARGIN, SafetySettings
 from formation_ilc.config.scenario import Scenario
+from formation_ilc.core.estimate import BOX
 from formation_ilc.core.limits import Limits, input_rates
 from formation_ilc.core.safety import CHANGED, OTHER_FIELDS, SafetySpec, filter_team
 from formation_ilc.core.uncertainty import Uncertainty
@@ -35,6 +36,10 @@ __all__ = ["MARGIN", "DISCS", "spec_for", "spec_of", "body_spec", "body_limits",
 
 #: discs that cover a body
 DISCS = 2
+#: [m] how far per axis a body's own motion over a sample may be from the arc of the
+#: command it applied (wheel and motor dynamics, within its limits), on top of the
+#: scenario's disturbance: the growth of a position's box each sample (``core.estimate``)
+BODY_PROCESS = 0.002
 #: [m] the farthest the filter looks when a base has no speed or acceleration limit
 MAX_RADIUS = 10.0
 
@@ -54,7 +59,8 @@ def spec_for(fp: Footprint, limits: Limits, dt: float, *, margin: float = MARGIN
              radius: float | None = None, discs: int = DISCS,
              speed_uncertainty: float = 0.0, pose_error: float = 0.0,
              pose_jitter: float = 0.0, commands: bool = False,
-             heading_error: float = 0.0) -> SafetySpec:
+             heading_error: float = 0.0, noise: float = 0.0,
+             process: float = 0.0) -> SafetySpec:
     """The filter for robots of footprint ``fp`` on a base with ``limits`` at sample time
     ``dt`` [s]: ``discs`` discs cover the body; two robots' discs keep 2 radii + ``margin``
     apart, + ``pose_error`` [m] (how far the difference of two robots' measured positions
@@ -68,13 +74,17 @@ def spec_for(fp: Footprint, limits: Limits, dt: float, *, margin: float = MARGIN
     worst error, a_max lag + jitter / (window dT), least); ``speed_uncertainty`` [m/s] is
     that jitter's part plus any given. With ``commands`` the robots tell each other the
     command they apply (``core.safety.told``): another robot's speed is known, and only its
-    direction comes from its measured heading, off by up to ``heading_error`` [rad]."""
+    direction comes from its measured heading, off by up to ``heading_error`` [rad], and
+    every robot's position is estimated from its poses and told commands
+    (``core.estimate``: poses off by up to ``noise`` [m] per axis, the motion off the told
+    command by up to ``process`` [m] per axis a sample), the distance widened by two
+    estimates' bounds (at most ``pose_error``) instead of ``pose_error``."""
     offsets, r = fp.discs(discs)
-    distance = 2.0 * r + margin + pose_error
+    distance = 2.0 * r + margin
     if stale_speed is None:
         stale_speed = 0.0 if math.isinf(limits.v_max) else limits.v_max
     if radius is None:
-        radius = sensing_radius(distance, limits, dt)
+        radius = sensing_radius(distance + pose_error, limits, dt)
     window = 1
     # a told command is the speed itself; only its direction comes from a pose, off by up
     # to ``heading_error``: the velocity by up to the speed limit x that angle's chord
@@ -87,7 +97,8 @@ def spec_for(fp: Footprint, limits: Limits, dt: float, *, margin: float = MARGIN
     return SafetySpec(offsets, distance, gamma=0.5, radius=radius, limits=limits, dt=dt,
                       stale_speed=stale_speed, weight=0.1, speed_uncertainty=speed_uncertainty,
                       window=window, brake_share=1.0, learning=learning, commands=commands,
-                      told_uncertainty=told)
+                      told_uncertainty=told, pose_error=pose_error, noise=noise,
+                      process=process, heading_error=heading_error)
 
 
 def body_limits(body: str) -> Limits:
@@ -106,9 +117,11 @@ def spec_of(settings: SafetySettings, dt: float,
     exact poses, ``Uncertainty.pose_bounds``)."""
     error, jitter = (0.0, 0.0) if noise is None else noise.pose_bounds()
     heading = 0.0 if noise is None else noise.heading_bound()
+    per_axis, process = (0.0, 0.0) if noise is None else noise.estimate_bounds(dt)
     return spec_for(footprint_of(settings.body), settings.limits, dt, margin=settings.margin,
                     learning=settings.learning, pose_error=error, pose_jitter=jitter,
-                    commands=settings.motion == "commands", heading_error=heading)
+                    commands=settings.motion == "commands", heading_error=heading,
+                    noise=per_axis, process=process + BODY_PROCESS)
 
 
 def body_spec(body: str, dt: float, noise: Uncertainty | None = None,
@@ -149,7 +162,7 @@ def desired_clearance(sc: Scenario, spec: SafetySpec) -> DesiredClearance:
     eta = sc.desired.eta
     n = eta.shape[0]
     if n < 2:
-        return DesiredClearance(math.inf, (1, 1), 0, spec.distance)
+        return DesiredClearance(math.inf, (1, 1), 0, spec.distance + spec.pose_error)
     off = np.asarray(spec.discs)
     c, s = np.cos(eta[..., 2]), np.sin(eta[..., 2])
     # disc centres (N, T+1, K, 2)
@@ -163,7 +176,7 @@ def desired_clearance(sc: Scenario, spec: SafetySpec) -> DesiredClearance:
             t = int(np.argmin(d))
             if d[t] < best[0]:
                 best = (float(d[t]), (i + 1, j + 1), t)
-    return DesiredClearance(best[0], best[1], best[2], spec.distance)
+    return DesiredClearance(best[0], best[1], best[2], spec.distance + spec.pose_error)
 
 
 @dataclass(frozen=True)
@@ -266,9 +279,10 @@ def desired_through_filter(sc: Scenario, spec: SafetySpec,
     flags = np.zeros((n, n_t), dtype=np.int64)
     prev = np.zeros((n, 2))
     params = spec.params()
-    others, ages = np.zeros((n, OTHER_FIELDS)), np.zeros(n)
+    others, ages, boxes = np.zeros((n, OTHER_FIELDS)), np.zeros(n), np.zeros((n, BOX))
     for t in range(n_t):
-        filter_team.jit(t, u, eta, prev, 0.0, params, spec.window, nominal, flags, others, ages)
+        filter_team.jit(t, u, eta, prev, 0.0, params, spec.window, nominal, flags, others, ages,
+                        boxes)
         # each sample is judged on the desired motion alone: the next starts from the
         # desired command, not the filtered one
         prev[:] = d.u[:, t]

@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from formation_ilc.config.scenario import Scenario
 from formation_ilc.core._jit import njit
+from formation_ilc.core.estimate import BOX
 from formation_ilc.core.guards import DivergedError, check_finite
 from formation_ilc.core.kinematics import PLANT_MODELS, arc_step, unicycle_step, wrap_angle
 from formation_ilc.core.law import (
@@ -29,15 +30,8 @@ from formation_ilc.core.law import (
 from formation_ilc.core.links import delivered_label
 from formation_ilc.core.metrics import METRIC_COLUMNS
 from formation_ilc.core.pcg import STATE_SIZE
-from formation_ilc.core.safety import (
-    CHANGED,
-    OTHER_FIELDS,
-    SafetySpec,
-    after_learning,
-    filter_team,
-    learn_base,
-    learning_code,
-)
+from formation_ilc.core.safety import CHANGED, OTHER_FIELDS, SafetySpec, filter_team
+from formation_ilc.core.through import after_learning, learn_base, learning_code
 from formation_ilc.core.uncertainty import (
     DelayArrays,
     PlantArrays,
@@ -54,11 +48,12 @@ __all__ = ["Problem", "TrialRecord", "SimResult", "simulate", "simulate_seeds", 
 #: the safety filter's arrays for the kernels (``safety_arrays``): its parameters
 #: (``SafetySpec.params()``, empty: no filter), (learning code, pose age [s], velocity
 #: window [samples]), and the scratch: nominal commands (N, T, 2), flags (N, T), previous
-#: commands (N, 2), the poses and motions and ages a robot hears (N, 6), (N,), the memory
-#: the learning step starts from (N, T, 2)
+#: commands (N, 2), the poses and motions and ages a robot hears (N, OTHER_FIELDS), (N,),
+#: the memory the learning step starts from (N, T, 2), and each robot's box of positions
+#: (N, 4; ``core.estimate``)
 SafetyArrays = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
                      NDArray[np.int64], NDArray[np.float64], NDArray[np.float64],
-                     NDArray[np.float64], NDArray[np.float64]]
+                     NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
 
 
 @dataclass(frozen=True)
@@ -155,7 +150,8 @@ def safety_arrays(pb: Problem) -> SafetyArrays:
         meta = np.array([learning_code(pb.safety.learning), pb.safety_age,
                          pb.safety.window])
     return (params, meta, np.zeros((n, n_t, 2)), np.zeros((n, n_t), dtype=np.int64),
-            np.zeros((n, 2)), np.zeros((n, OTHER_FIELDS)), np.zeros(n), np.zeros((n, n_t, 2)))
+            np.zeros((n, 2)), np.zeros((n, OTHER_FIELDS)), np.zeros(n), np.zeros((n, n_t, 2)),
+            np.zeros((n, BOX)))
 
 
 @njit(cache=True)
@@ -235,7 +231,7 @@ def _trial(law: int, memory_mode: int, heading: int, plant: int, dt: float,
                      lead_s, leader, gain_prime, trig, u)
         if safe:
             filter_team(t, u, eta, sf[4], sf[1][1], sf[0], int(sf[1][2]), sf[2], sf[3], sf[5],
-                        sf[6])
+                        sf[6], sf[8])
         # step_into's arithmetic, by index (views of xi, u, dist per sample cost ~5 %)
         for r in range(n):
             if plant == 0:

@@ -192,6 +192,9 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
                               _join(ns, self.spec.motors))
         #: a simulated base's true pose (``truth``), or None
         self.truth_topic = _join(ns, ms.BASE_TRUTH) if bool(g("truth")) else None
+        #: where the robot's world pose comes from: the driver's odometry (""), or a world
+        #: pose topic (motion capture, a localiser; ``truth`` for the physics bases)
+        self.located_topic = _join(ns, str(g("pose_topic"))) if str(g("pose_topic")) else None
         # the parameters read what the bridge drives with: a preset's driver, topics,
         # message type and limits
         used = {"v_max": lim.v_max, "omega_max": math.degrees(lim.omega_max)}
@@ -267,7 +270,7 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
             period=self.period,
             tol=(float(g("return_tol")), math.radians(float(g("return_tol_heading"))),
                  float(g("return_timeout"))), truth=self.truth_topic is not None,
-            safety=safety)
+            safety=safety, located=self.located_topic is not None)
         self.follower = core.follower
         self.cfg = cfg
         effective(self, {"scenario": cfg.scenario_param, "mode": cfg.mode,
@@ -303,6 +306,9 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
                                       owners=(ms.BASES_NODE,))
             self.true_pub = self.create_publisher(Path, ms.true_trajectory_topic(self.id),
                                                   ms.TRAJECTORY_QOS)
+        if self.located_topic is not None and self.located_topic != self.truth_topic:
+            self.create_subscription(PoseStamped, self.located_topic, self._on_located,
+                                     ms.ODOM_QOS)
         self._setup_motors(motors_t)
         # the robot's clock (the machine's; in an emulated run its robot's), and the
         # leader's as this bridge estimates it: samples are due on the team's time
@@ -488,7 +494,18 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
         except Rejected as exc:
             self.drops.reject(exc, str(self.truth_topic))
             return
-        self.core.on_truth((float(eta[0]), float(eta[1]), float(eta[2])))
+        pose = (float(eta[0]), float(eta[1]), float(eta[2]))
+        self.core.on_truth(pose)
+        if self.located_topic == self.truth_topic:  # the physics bases' motion capture
+            self.core.on_located(pose, time.monotonic())
+
+    def _on_located(self, msg: PoseStamped) -> None:
+        try:
+            eta, _ = ms.world_pose(msg)
+        except Rejected as exc:
+            self.drops.reject(exc, str(self.located_topic))
+            return
+        self.core.on_located((float(eta[0]), float(eta[1]), float(eta[2])), time.monotonic())
 
     def _on_cmd(self, msg: Twist) -> None:
         wall = self._wall_ns()

@@ -11,6 +11,7 @@ from typing import Any
 from formation_ilc.config.clocks import ClockSettings
 from formation_ilc.config.roster import Member
 from formation_ilc.core.names import (
+    BASE_TRUTH,
     BASES_NODE,
     namespace_remaps,
     robots_process_name,
@@ -97,7 +98,13 @@ def _launch(plan: RunPlan, m: Member, scenario: str, nsa: tuple[str, ...]) -> La
         assert bridge is not None and m.robot is not None
         # a params file goes with the ROS arguments, before the -p parameters (which win)
         pf = () if bridge.params_file is None else ("--params-file", str(bridge.params_file))
-        truth = (("truth", True),) if plan.roster.lineup.bases_truth else ()
+        truth: tuple[tuple[str, Any], ...] = ()
+        if plan.roster.lineup.bases_truth:
+            truth = (("truth", True),)
+            if phys is not None and phys.pose == "truth":
+                # the physics bases' ground truth is the rehearsal's motion capture: the
+                # bridge samples, returns and is avoided on it, not on drifting odometry
+                truth += (("pose_topic", BASE_TRUTH),)
         return (), nsa + pf, bridge.params(m.robot) + truth
     if m.robot is not None:  # robot i's fake driver, in the driver's namespace
         assert bridge is not None

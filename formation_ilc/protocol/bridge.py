@@ -44,6 +44,7 @@ from formation_ilc.core.safety import (
     CHANGED,
     INFEASIBLE,
     OTHER_FIELDS,
+    PARAMS,
     SafetySpec,
     filter_command,
     motion,
@@ -312,7 +313,7 @@ class Bridge:
                  cmd_timeout: float = 0.0,
                  period: float = 0.05, tol: tuple[float, float, float] = (
                      0.02, math.radians(2.0), 60.0), truth: bool = False,
-                 safety: SafetySpec | None = None):
+                 safety: SafetySpec | None = None, located: bool = False):
         if cfg.mode != "wallclock" or cfg.links != "direct":
             raise ValueError(f"{name}: a real robot runs wall-clock trials with direct "
                              f"links (mode wallclock, links direct), got mode {cfg.mode}, "
@@ -333,6 +334,10 @@ class Bridge:
         self.watchdog = Watchdog(cmd_timeout if cmd_timeout > 0 else 2.5 * dt)
         #: odometry older than this [s] is stale: counted in trials, a stop in returns
         self.odom_limit = max(0.5, 2.0 * dt)
+        #: the robot's pose: the driver's odometry (composed with ``initial``), or, where
+        #: the robot is ``located``, a world pose from outside (motion capture, a
+        #: localiser, the physics bases' ground truth: ``on_located``), with when it came
+        self.located = located
         self.odom: Pose | None = None
         self.odom_time = 0.0
         self.phase = IDLE
@@ -372,9 +377,9 @@ class Bridge:
         return self.follower.trial
 
     def world(self) -> Pose:
-        """The robot's world pose (after the first odometry)."""
+        """The robot's world pose (after the first odometry, or the first located pose)."""
         assert self.odom is not None
-        return odom_to_world(self.initial, self.odom)
+        return self.odom if self.located else odom_to_world(self.initial, self.odom)
 
     def shift(self) -> Pose:
         """The initial shift the robot would start a trial from now."""
@@ -384,9 +389,18 @@ class Bridge:
     def on_odom(self, pose: Pose, now: float, tilt: float = 0.0) -> None:
         """The driver's odometry pose (x [m], y [m], theta [rad]) at ``now``, its body
         tilted by ``tilt`` [rad] (a base's odometry read with its roll and pitch)."""
-        self.odom = pose
-        self.odom_time = now
         self.tilt_max = max(self.tilt_max, tilt)
+        if not self.located:
+            self.odom = pose
+            self.odom_time = now
+
+    def on_located(self, pose: Pose, now: float) -> None:
+        """The robot's world pose (x, y, theta) at ``now`` from outside the base: what the
+        bridge samples, returns on and tells the others where it is ``located`` (else
+        unused)."""
+        if self.located:
+            self.odom = pose
+            self.odom_time = now
 
     def on_peer(self, robot: int, pose: Pose, stamp_ns: int, now: float) -> None:
         """Robot ``robot``'s whereabouts, stamped ``stamp_ns`` on its bridge's clock, heard
@@ -512,6 +526,7 @@ class Bridge:
         for m, (at, pose, _, vel) in enumerate(heard):
             others[m, :3] = pose
             others[m, 3:6] = vel
+            others[m, 7] = params[PARAMS.index("pose_error")]  # raw poses: the fixed widening
             ages[m] = max(0.0, now - at)
         out = np.zeros(2)
         flags = filter_command(cmd[0], cmd[1], x, y, th, self.out_cmd[0], self.out_cmd[1],

@@ -308,17 +308,31 @@ def filter_warnings(changed: Sequence[float], totals: Mapping[str, Any],
         first = sum(changed[:w]) / w
         last = sum(changed[-w:]) / w
         if last > 0.5 * first and last > commands_per_trial / 200:
+            limits = sum(int(t.get("limits", 0) or 0) for t in totals.values()
+                         if isinstance(t, Mapping))
+            barrier = sum(int(t.get("barrier", 0) or 0) for t in totals.values()
+                          if isinstance(t, Mapping))
+            if limits > 4 * barrier:
+                cause = (f"mostly the bases' limits clipping the learned command ({limits} "
+                       f"changes of the run; a barrier moved {barrier}): a learned command "
+                       f"rougher than the base can follow, as the law learns the poses' "
+                       f"noise (docs/safety.md, \"Noise, and the limits\")")
+            else:
+                cause = ("the robots are held near its bounds and learn slowly; "
+                       "`formation-ilc check` says whether the desired motion itself fits "
+                       "(noisy poses, speeds, spacing: docs/safety.md)")
             out.append(f"warning: the safety filter kept acting: {last:.0f} commands a "
                        f"trial over the last {w} trials against {first:.0f} over the first "
-                       f"(of {commands_per_trial}): the robots are held near its bounds and "
-                       f"learn slowly; `formation-ilc check` says whether the desired motion "
-                       f"itself fits (noisy poses, speeds, spacing: docs/safety.md)")
+                       f"(of {commands_per_trial}): {cause}")
     why = {"infeasible": "outside its guarantee (a pair already past braking apart as it "
                          "counts)",
            "late": "acted on another robot's pose more than a sample old (a loaded machine "
                    "or a slow network holds robots apart)",
            "untold": "filtered against a robot whose told command was not in (its speed "
-                     "estimated from its poses)"}
+                     "estimated from its poses)",
+           "box_missed": "found a robot off the position its told commands allow (a pose "
+                         "outside its estimate's bounds: slip, a push, a pose source noisier "
+                         "than the run says)"}
     for key, text in why.items():
         by = {r: int(t.get(key, 0) or 0) for r, t in sorted(totals.items())
               if isinstance(t, Mapping)}

@@ -14,7 +14,7 @@ comes back. Everything that decides what the robot does lives here, with no ROS 
 * with a safety filter (``core.safety``), the other robots' poses it hears
   (``on_team_pose``), the filter between the law's command and the plant
   (``safety.filter_command``, the batch simulator's), and learning through it
-  (``safety.learn_base``): in lockstep it waits for every robot's pose of its sample, as
+  (``through.learn_base``): in lockstep it waits for every robot's pose of its sample, as
   the batch simulator filters with them.
 
 Event order for trial k: ``on_pose`` per sample (the robot's own measured pose, whose label
@@ -50,6 +50,7 @@ from numpy.typing import NDArray
 
 from formation_ilc.core.clock import Malformed, Rejected, SampleClock, TrialWindow
 from formation_ilc.core.delays import measure_delay_ns
+from formation_ilc.core.estimate import BOX, box_centre, box_error, box_start, box_step
 from formation_ilc.core.law import command, learn
 from formation_ilc.core.links import LEADER, Delivery, LinkInbox, link_name, robot_name
 from formation_ilc.core.safety import (
@@ -59,13 +60,11 @@ from formation_ilc.core.safety import (
     INFEASIBLE,
     OTHER_FIELDS,
     SafetySpec,
-    after_learning,
     filter_command,
-    learn_base,
-    learning_code,
     motion,
     told,
 )
+from formation_ilc.core.through import after_learning, learn_base, learning_code
 from formation_ilc.model.simulate import Problem
 from formation_ilc.store.robotstate import RobotState
 
@@ -189,12 +188,18 @@ class RobotLearner:
             self.others = np.zeros((n, OTHER_FIELDS))
             self.ages = np.zeros(n)
             self.out = np.zeros(2)
+            #: each robot's box of positions (``core.estimate``; its own in row ``index``)
+            #: where commands are told, the sample it is of (-1: none yet this trial), and
+            #: how many poses missed their box
+            self.boxes = np.zeros((n, BOX))
+            self.box_s = np.full(n, -1, dtype=np.int64)
+            self.box_missed = 0
             self._other_idx = np.array([j for j in range(n) if j != index], dtype=np.int64)
             #: the commands the filter changed in the last trial finished, and in all
             self.filtered: dict[str, int] = {}
             self.filtered_total = Counter({"changed": 0, "limits": 0, "barrier": 0,
                                            "infeasible": 0, "stale": 0, "late": 0,
-                                           "untold": 0})
+                                           "untold": 0, "box_missed": 0})
 
     # ------------------------------------------------------------------ own poses
     def expected_heading(self, sender: str, label_ns: int) -> float | None:
@@ -367,6 +372,7 @@ class RobotLearner:
             self.team_last[:] = -1
             self.told_have[:] = False
             self.told_have[self.i] = True
+            self.box_s[:] = -1
 
     def on_team_pose(self, j: int, label_ns: int, eta: NDArray[np.float64]) -> None:
         """Robot ``j``'s (0-based) pose labelled ``label_ns``, for the safety filter.
@@ -471,11 +477,17 @@ class RobotLearner:
         m = self._heard(t, sp.window) if self.team_k == self.k else 0
         prev = self.applied[0, t - 1] if t > 0 else (0.0, 0.0)
         own = self.eta[0, t]
+        x, y = float(own[0]), float(own[1])
+        if sp.commands:
+            x, y = self._own_box(t)
+            if m:  # the pair's positions off together: robot j's box and this robot's own
+                told_rows = self.others[:m, 6] > 0.0
+                self.others[:m, 7][told_rows] += box_error(self.boxes, self.i)
         if m >= NEAR_FROM:
-            m = self._near(m, float(own[0]), float(own[1]))
+            m = self._near(m, x, y)
         self.nominal[0, t] = self.u[0]
         self.flags[0, t] = filter_command(
-            float(self.u[0, 0]), float(self.u[0, 1]), float(own[0]), float(own[1]),
+            float(self.u[0, 0]), float(self.u[0, 1]), x, y,
             float(own[2]), float(prev[0]), float(prev[1]), self.others, self.ages, m,
             self.safety_params, self.out)
         if m:
@@ -522,6 +534,7 @@ class RobotLearner:
                 o[:m, 3:6] = np.where(span[:, None] > 0, d / span[:, None], 0.0)
                 o[:m, 6] = 0.0
             self.ages[:m] = (t - last) * dt
+            o[:m, 7] = self.safety_params[17]  # PARAMS "pose_error": raw poses
             if self.safety is not None and self.safety.commands:
                 for mm in range(m):
                     self._told(mm, int(idx[mm]), int(last[mm]))
@@ -539,6 +552,7 @@ class RobotLearner:
                 sb += 1
             e1, e0 = self.team_eta[j, sj], self.team_eta[j, sb]
             self.others[m, :3] = e1
+            self.others[m, 7] = self.safety_params[17]  # PARAMS "pose_error": raw poses
             motion(e1[0], e1[1], e1[2], e0[0], e0[1], e0[2], (sj - sb) * dt, self.others, m)
             if self.safety is not None and self.safety.commands:
                 self._told(m, int(j), sj)
@@ -549,13 +563,52 @@ class RobotLearner:
     def _told(self, m: int, j: int, s: int) -> None:
         """Row ``m`` of ``others`` (robot ``j``'s pose of sample ``s``): its motion from the
         command it told it applied over the sample before (``core.safety.told``, as the
-        batch simulator's ``filter_team``; at rest at a trial's start), where that is in;
-        else the estimate from its poses stays."""
+        batch simulator's ``filter_team``; at rest at a trial's start), and its position
+        from its box (``core.estimate``), where that is in; else the estimate from its
+        poses stays, and the raw pose."""
         if s == 0:
             told(float(self.others[m, 2]), 0.0, 0.0, self.others, m)
         elif self.told_have[j, s - 1]:
             told(float(self.others[m, 2]), float(self.told_u[j, s - 1, 0]),
                  float(self.told_u[j, s - 1, 1]), self.others, m)
+        else:
+            return
+        self._box_to(j, s, self.team_eta[j], self.told_u[j], self.team_have[j],
+                     self.told_have[j])
+        self.others[m, 0], self.others[m, 1] = box_centre(self.boxes, j)
+        self.others[m, 7] = box_error(self.boxes, j)
+
+    def _own_box(self, t: int) -> tuple[float, float]:
+        """This robot's own box moved on to sample t (its measured poses, the commands it
+        applied), as every other robot keeps it; its centre."""
+        if t == 0 or self.box_s[self.i] > t:
+            self.box_s[self.i] = -1
+        self._box_to(self.i, t, self.eta[0], self.applied[0], self.have, None)
+        return box_centre(self.boxes, self.i)
+
+    def _box_to(self, j: int, s: int, eta: NDArray[np.float64], cmd: NDArray[np.float64],
+                have: NDArray[np.bool_], cmd_have: NDArray[np.bool_] | None) -> None:
+        """Robot ``j``'s box moved on, sample by sample, to its pose of sample ``s``
+        (``eta`` its poses, ``cmd`` its commands over each sample, with which of them are
+        in): as the batch simulator's ``core.safety.team_boxes``. Where a pose or a
+        command of the way is missing, the box starts afresh from the pose of ``s``."""
+        sp = self.safety_params
+        noise, process, heading, dt = (float(sp[18]), float(sp[19]), float(sp[20]),
+                                       float(sp[8]))
+        k = int(self.box_s[j])
+        if k < 0 or k > s:
+            box_start(self.boxes, j, float(eta[s, 0]), float(eta[s, 1]), noise)
+            k = s
+        while k < s:
+            if not (have[k] and have[k + 1] and (cmd_have is None or cmd_have[k])):
+                box_start(self.boxes, j, float(eta[s, 0]), float(eta[s, 1]), noise)
+                break
+            if not box_step(self.boxes, j, float(eta[k, 2]), float(cmd[k, 0]),
+                            float(cmd[k, 1]), dt, float(eta[k + 1, 0]), float(eta[k + 1, 1]),
+                            noise, process, heading):
+                self.box_missed += 1
+            k += 1
+        self.box_s[j] = s
 
     def command(self) -> NDArray[np.float64]:
         """u(t) = (v [m/s], omega [rad/s]) of the current sample from what the links
@@ -616,7 +669,11 @@ class RobotLearner:
                       "stale": int(np.count_nonzero(old)),
                       "late": int(np.count_nonzero(later & acted)),
                       # samples filtered against a robot whose told command was not in
-                      "untold": int(np.count_nonzero(self.untold))}
+                      "untold": int(np.count_nonzero(self.untold)),
+                      # poses (this robot's and the others') that missed their box: a
+                      # robot that did not move as it told (``core.estimate``)
+                      "box_missed": self.box_missed}
+            self.box_missed = 0
             self.filtered = {"slot": self.k, **counts, "late_ms": int(round(
                 1000.0 * float(self.pose_age[later & acted].max(initial=0.0))))}
             self.filtered_total.update(counts)

@@ -22,17 +22,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from formation_ilc.config.scenario import Scenario
+from formation_ilc.core.estimate import BOX
 from formation_ilc.core.law import command, learn
 from formation_ilc.core.metrics import METRIC_COLUMNS
-from formation_ilc.core.safety import (
-    CHANGED,
-    OTHER_FIELDS,
-    SafetySpec,
-    after_learning,
-    filter_team,
-    learn_base,
-    learning_code,
-)
+from formation_ilc.core.safety import CHANGED, OTHER_FIELDS, SafetySpec, filter_team
+from formation_ilc.core.through import after_learning, learn_base, learning_code
 from formation_ilc.model.footprint import Clearance, trial_clearance
 from formation_ilc.model.physics import DEFAULT_RATE, POSE_SOURCES, PhysicsWorld, RobotModel
 from formation_ilc.model.simulate import Problem, trial_errors
@@ -48,7 +42,7 @@ class PhysicsResult:
     trial, the largest tilt of any robot [rad]. memory : after the last trial.
     seconds : wall time in the engine loop; samples : samples stepped.
     filtered : per trial, the commands the safety filter changed; limited : per trial,
-    the commands the robots' own limits changed (after the filter)."""
+    the commands the robots' own limits changed (after the filter); box_missed: below."""
 
     metrics: NDArray[np.float64]
     contacts: list[dict[str, float]] = field(default_factory=list)
@@ -60,6 +54,9 @@ class PhysicsResult:
     xi: dict[int, NDArray[np.float64]] = field(default_factory=dict)
     filtered: list[int] = field(default_factory=list)
     limited: list[int] = field(default_factory=list)
+    #: per trial, the poses that missed their box (``core.estimate``: a robot that did not
+    #: move as it told, by more than the filter's bounds)
+    box_missed: list[int] = field(default_factory=list)
 
     def column(self, name: str) -> NDArray[np.float64]:
         return self.metrics[:, METRIC_COLUMNS.index(name)]
@@ -102,7 +99,7 @@ def run_physics(sc: Scenario, model: RobotModel, trials: int, *,
         nominal = np.zeros((n, n_t, 2))
         flags = np.zeros((n, n_t), dtype=np.int64)
         prev = np.zeros((n, 2))
-        others, ages = np.zeros((n, OTHER_FIELDS)), np.zeros(n)
+        others, ages, boxes = np.zeros((n, OTHER_FIELDS)), np.zeros(n), np.zeros((n, BOX))
         base = np.zeros((n, n_t, 2))
     with PhysicsWorld(model, n, pb.dt, rate=rate, collide=collide) as world:
         for i in range(trials):
@@ -111,6 +108,7 @@ def run_physics(sc: Scenario, model: RobotModel, trials: int, *,
             world.place(pb.eta_d[:, 0] + shift)
             t0 = time.perf_counter()
             tilt = 0.0
+            missed = 0
             if safety is not None:
                 prev[:] = 0.0
             for t in range(n_t + 1):
@@ -126,8 +124,8 @@ def run_physics(sc: Scenario, model: RobotModel, trials: int, *,
                             pb.weight, pb.eta_d, lead_s, pb.leader, pb.gain_prime, pb.heading,
                             u[:, t])
                 if safety is not None:
-                    filter_team.jit(t, u, eta, prev, 0.0, params, safety.window, nominal,
-                                    flags, others, ages)
+                    missed += filter_team.jit(t, u, eta, prev, 0.0, params, safety.window,
+                                              nominal, flags, others, ages, boxes)
                 world.step(u[:, t])
                 tilt = max(tilt, float(world.tilt().max()))
             res.seconds += time.perf_counter() - t0
@@ -150,6 +148,7 @@ def run_physics(sc: Scenario, model: RobotModel, trials: int, *,
             res.metrics[i, 8] = len(contacts)
             res.filtered.append(int(res.metrics[i, 7]))
             res.limited.append(world.limited)
+            res.box_missed.append(missed)
             res.contacts.append(contacts)
             res.clearance.append(trial_clearance(k, xi, model.footprint))
             res.tilt.append(tilt)

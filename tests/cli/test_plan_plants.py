@@ -170,11 +170,16 @@ def test_base_bridges_refuse_a_scenario_beyond_the_preset_then_plan_it_stretched
     bases = dict(plan.nodes[1].params)
     assert bases["robots"] == 3 and len(bases["poses"]) == 9
     assert bases["ns_pattern"] == "/base_{i}" and bases["cmd_type"] == "twist_stamped"
-    # the physics bases tell each bridge their true pose: the metrics' true columns
+    # the physics bases tell each bridge their true pose: the metrics' true columns, and
+    # (--pose truth, the default) the pose the bridge samples and returns on, as motion
+    # capture would give it in a lab
     assert bases["truth"] is True and plan.true_state
     assert dict(plan.nodes[3].params) == {"robot_id": 2, "driver_ns": "/base_2",
                                           "base": "turtlebot4", "return_timeout": 60.0,
-                                          "a_max": 2.0, "truth": True}
+                                          "a_max": 2.0, "truth": True, "pose_topic": "truth"}
+    odometry = plan_of(tmp_path, *args, "--time-scale", scale, "--a-max", "2.0", "--pose",
+                       "odometry", "--no-safety")
+    assert "pose_topic" not in dict(odometry.nodes[3].params)
     assert plan.bridged
     # the physics bases follow the trials and report each (their contacts, issue 37)
     assert plan.reporters == ("bridge_1", "bridge_2", "bridge_3", "physics_bases")

@@ -383,12 +383,12 @@ def test_check_exits_with_its_verdict(tmp_path, capsys):
     assert main(["check", "paper-triangle3", "--trials", "8", "--base", "none"]) == CHECK_OK
     # on Pioneers the safety filter trims its own motion where robot 3 catches up with
     # robot 1 (0.3 m/s^2 of braking), tried with the scenario's own noise (the room the
-    # filter keeps for it, tried on it): 6, and what fits; half as fast fits
+    # filter keeps for it, tried on it): 6, and what fits; two thirds as fast fits
     assert main(["check", "paper-triangle3", "--trials", "8"]) == CHECK_LIMITS
     err = capsys.readouterr().err
     assert "changes the desired motion itself" in err and "robots 1 and 3" in err
     assert "poses as noisy as the scenario's" in err and "speeds told" in err
-    assert "what fits: --time-scale 2 (slower)" in err
+    assert "what fits: --time-scale 1.5 (slower)" in err
     assert main(["check", "paper-triangle3", "--trials", "8", "--time-scale", "2"]) == CHECK_OK
 
 

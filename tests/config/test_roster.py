@@ -67,6 +67,17 @@ def _with_bases_truth(plan: dict) -> dict:
     return {**plan, "true_state": True, "nodes": nodes}
 
 
+def _with_located_bridges(plan: dict) -> dict:
+    """The golden ``plan`` of physics bases since their ground truth is the rehearsal's
+    motion capture (issue 52, ``--pose truth``, the default): each bridge's ``pose_topic``
+    names the bases' true pose after ``truth``; nothing else changed."""
+    if not any(n["name"] == "physics_bases" for n in plan["nodes"]):
+        return plan
+    nodes = [{**n, "params": [*n["params"], ["pose_topic", "truth"]]}
+             if n["name"].startswith("bridge_") else n for n in plan["nodes"]]
+    return {**plan, "nodes": nodes}
+
+
 def _with_bases_following_trials(plan: dict) -> dict:
     """The golden ``plan`` of physics bases as planned since they follow the trials (issue
     37: their contacts are counted per trial and return, and a contact asks the leader to
@@ -361,8 +372,8 @@ def test_a_launch_plans_the_processes_it_planned(tmp_path, key):
                    "restart": [s.restart.max_restarts, s.restart.refused]}
                   for s in plan.nodes]})
     want = _with_motion(_with_bases_following_trials(_with_new_example(
-        _with_one_limits_table(_with_damped_learning(_with_bases_truth(
-            _golden("plans")[key]))))),
+        _with_one_limits_table(_with_damped_learning(_with_located_bridges(
+            _with_bases_truth(_golden("plans")[key])))))),
         default_motion(plan.scenario.n, bridged=plan.row.per_robot))
     assert got == want
     # the roster names the same processes, each started by its entry script

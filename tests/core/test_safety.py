@@ -19,16 +19,18 @@ from formation_ilc.core.limits import Limits
 from formation_ilc.core.safety import (
     CHANGED_BARRIER,
     CHANGED_LIMITS,
-    DAMPING,
     INFEASIBLE,
     OTHER_FIELDS,
     PARAMS,
-    Q_SIGMA,
     SafetySpec,
     filter_command,
+    motion,
+)
+from formation_ilc.core.through import (
+    DAMPING,
+    Q_SIGMA,
     freeze_flagged,
     learn_base,
-    motion,
     smooth_learning,
 )
 from formation_ilc.model.footprint import Footprint, footprint_of, trial_clearance
@@ -45,9 +47,13 @@ def spec(**kw) -> SafetySpec:
 
 def run(sp: SafetySpec, nominal, own, prev, others, ages=None, params=None):
     others = np.asarray(others, dtype=float)
-    if others.shape[-1] == 6:  # pose and motion; column 6: estimated from poses (0)
-        others = others.reshape(-1, 6)
-        others = np.hstack([others, np.zeros((len(others), OTHER_FIELDS - 6))])
+    width = others.shape[-1]
+    if width in (6, 7):  # pose and motion (column 6: estimated from poses (0) or told)
+        others = others.reshape(-1, width)
+        # column 7: the pair's positions as raw poses, off together by the spec's pose_error
+        pad = np.zeros((len(others), OTHER_FIELDS - width))
+        pad[:, -1] = sp.pose_error
+        others = np.hstack([others, pad])
     others = others.reshape(-1, OTHER_FIELDS)
     ages = np.zeros(len(others)) if ages is None else np.asarray(ages, dtype=float)
     out = np.zeros(2)
@@ -525,13 +531,13 @@ def test_filter_team_takes_a_told_command_as_the_other_robots_motion():
         prev = np.array([[0.4, 0.1], [0.3, -0.2]])
         others, ages = np.zeros((2, OTHER_FIELDS)), np.zeros(2)
         filter_team(2, u, eta, prev, 0.0, sp.params(), sp.window, np.zeros_like(u),
-                    np.zeros((2, 3), dtype=np.int64), others, ages)
+                    np.zeros((2, 3), dtype=np.int64), others, ages, np.zeros((2, 4)))
         # the scratch holds what the last robot (1) heard of robot 0
         if told:
-            np.testing.assert_allclose(others[0, 3:], [0.4 * math.cos(0.3),
-                                                       0.4 * math.sin(0.3), 0.1, 1.0])
+            np.testing.assert_allclose(others[0, 3:7], [0.4 * math.cos(0.3),
+                                                        0.4 * math.sin(0.3), 0.1, 1.0])
         else:
-            np.testing.assert_allclose(others[0, 3:], [0.5, 0.0, 0.0, 0.0])
+            np.testing.assert_allclose(others[0, 3:7], [0.5, 0.0, 0.0, 0.0])
 
 
 def test_a_told_speed_needs_less_room_than_one_estimated_from_noisy_poses():

@@ -436,3 +436,19 @@ def test_a_bridge_without_a_filter_says_no_whereabouts_and_takes_none():
     b.on_peer(2, (0.5, 0.0, 0.0), SEC, 0.0)
     assert b.peers == {} and b.tick(0.0, 0).whereabouts is None
     assert "return_filtered" not in b.counts
+
+
+def test_a_located_bridge_takes_its_world_pose_from_outside_not_from_odometry():
+    """With a world pose from outside (motion capture; the physics bases' ground truth),
+    the bridge's pose is that pose as it comes, and the driver's odometry, drifting, moves
+    nothing; without it, the odometry composed with where the robot was placed."""
+    cfg = make_config("paper-triangle3", links="direct", mode="wallclock", run_id="r")
+    located = Bridge(cfg, 1, name="bridge_1", period=0.05, located=True)
+    located.on_odom((0.5, 0.0, 0.0), 0.0, tilt=0.01)  # odometry alone locates nothing
+    assert located.odom is None and located.tilt_max == 0.01
+    located.on_located((1.0, 2.0, 0.3), 0.1)
+    located.on_odom((7.0, -3.0, 1.0), 0.2)
+    assert located.world() == (1.0, 2.0, 0.3) and located.odom_time == 0.1
+    plain = wall_bridge()
+    plain.on_located((1.0, 2.0, 0.3), 0.1)  # not located: an outside pose is unused
+    assert plain.world() == odom_to_world(plain.initial, (0.0, 0.0, 0.0))

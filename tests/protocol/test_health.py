@@ -100,3 +100,21 @@ def test_the_console_warns_of_a_filter_that_keeps_acting_and_why():
     assert len(lines) == 2
     assert "outside its guarantee" in lines[0] and "robot_1 1, robot_2 3" in lines[0]
     assert "told command" in lines[1] and "robot_1 7" in lines[1]
+
+
+def test_a_filter_that_keeps_clipping_to_the_limits_is_told_apart_from_barriers():
+    """Under noise the law learns a rougher command than the base can follow and the
+    limits keep clipping it: the warning says so, not that robots are held apart; poses
+    that missed their estimate's box are named by robot."""
+    from formation_ilc.protocol.health import filter_warnings
+
+    rising = [2, 9, 18, 30, 39, 50, 72, 92, 87, 101, 120, 117]
+    clipped = {"robot_1": {"limits": 400, "barrier": 3, "box_missed": 0},
+               "robot_2": {"limits": 380, "barrier": 0, "box_missed": 2}}
+    kept, missed = filter_warnings(rising, clipped, 980)
+    assert "kept acting" in kept and "limits clipping the learned command (780" in kept
+    assert "a barrier moved 3" in kept
+    assert "off the position its told commands allow" in missed and "robot_2 2" in missed
+    held = {"robot_1": {"limits": 40, "barrier": 300}}
+    (line,) = filter_warnings(rising, held, 980)
+    assert "held near its bounds" in line

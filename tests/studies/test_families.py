@@ -131,7 +131,7 @@ def test_a_noisy_member_learns_through_the_filter_as_well_as_without_it(kind, se
     """With the paper's noise the learned commands keep touching the base's limits; a
     memory that takes in only a share of a limit's clipping winds up outside the limits
     (following-13 ended at 1.51 m against 0.13 m without the filter, crossing-13 at 0.46
-    against 0.14 m). Learned in full there (``core.safety.learn_base``), each ends within 2x
+    against 0.14 m). Learned in full there (``core.through.learn_base``), each ends within 2x
     of the unfiltered run. Members beyond the documented study's seeds: not the ones the
     readings were chosen on."""
     sc = family_scenario(kind, seed, noise=True)
@@ -146,7 +146,7 @@ def test_a_member_the_filter_trimmed_learns_as_fast_as_without_it():
     not chosen on it: the filter's trims flicker from sample to sample, and the paper's
     law kept that flicker in the memory (swapping-19 ended trial 99 at 1.32 m against
     0.049 m without the filter, the filter still changing 233 commands a trial). Learned
-    through the Q-filter (``core.safety.smooth_learning``), it ends within 2x of the
+    through the Q-filter (``core.through.smooth_learning``), it ends within 2x of the
     unfiltered run at the same trial, and the filter's changes fall to under a fiftieth of
     the first trial's. (Of the four held-out members furthest beyond 2x before the
     Q-filter, swapping-12 and crossing-13 still end at 2.1x: docs/safety.md.)"""
