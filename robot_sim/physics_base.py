@@ -51,7 +51,9 @@ from nav_msgs.msg import Odometry
 from std_msgs.msg import String
 
 import msgs_schema as ms
+from formation_ilc.config.option_table import default
 from formation_ilc.config.params import Param
+from formation_ilc.config.roster import DRIVER_NS
 from formation_ilc.core.names import BASE_TRUTH, BASES_NODE
 from formation_ilc.model.physics import MODELS
 from formation_ilc.nodes.common import (
@@ -76,12 +78,13 @@ NAME = BASES_NODE
 PARAMS: tuple[Param, ...] = (
     Param("robots", 3, "how many bases", lo=1, hi=1000),
     Param("poses", [0.0], "their start poses: x, y, theta of each base in turn", "m, rad"),
-    Param("model", "p3dx", "the robot model of every base", choices=tuple(MODELS)),
+    Param("model", default("robot_model"), "the robot model of every base",
+          choices=tuple(MODELS)),
     Param("rate", 250.0, "engine steps per second", "Hz", lo=1.0, hi=1e5),
     Param("tick", 0.02, "how often the world is stepped and odometry published", "s",
           lo=1e-4, hi=10.0),
     Param("collide", True, "bases collide with each other"),
-    Param("ns_pattern", "/base_{i}", "namespace of base i's topics ({i}: 1-based)"),
+    Param("ns_pattern", DRIVER_NS["base"], "namespace of base i's topics ({i}: 1-based)"),
     Param("cmd_type", "twist", "the message type of cmd_vel",
           choices=("twist", "twist_stamped")),
     Param("odom_topic", "odom", "the odometry topic, relative to the base's namespace"),

@@ -70,19 +70,14 @@ def add_parser(sub: Any) -> None:
                         "physics plant; pioneer: one bridge and one driver enclave per "
                         "robot; base: one bridge per robot and a driver enclave per base "
                         "(with --physics-bases: one enclave for the physics bases instead)")
-    c.add_argument("--driver", choices=("rosaria", "p2os2", "ros2aria"), default="rosaria",
-                   help="with --plant pioneer: the robots' driver (default rosaria)")
-    c.add_argument("--driver-ns", default=None, metavar="PATTERN",
-                   help="with --plant pioneer or base: robot i's driver namespace (default "
-                        "/pioneer_{i}; with --plant base /base_{i})")
-    from formation_ilc.config.bases import BASES
+    from formation_ilc.cli.options import argument_of
+    from formation_ilc.config.option_table import option
 
-    c.add_argument("--base", choices=tuple(BASES), default="turtlebot4",
-                   help="with --plant base: the base's preset (its topics), as given to "
-                        "launch (default turtlebot4)")
-    c.add_argument("--physics-bases", action="store_true",
-                   help="with --plant base: the runs start physics robots behind the bases' "
-                        "interface (launch --physics-bases)")
+    for name in ("driver", "driver_ns", "base", "physics_bases"):  # as given to launch
+        flags, kw = argument_of(option(name))
+        if name == "driver_ns":  # none given: each plant's usual pattern
+            kw["default"] = None
+        c.add_argument(*flags, **kw)
 
 
 def run(args: argparse.Namespace) -> int:

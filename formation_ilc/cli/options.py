@@ -8,27 +8,36 @@ a traceback from deep inside a run. ``OneLineParser`` prints argparse's errors t
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from formation_ilc.plan.options import OptionError
 
 __all__ = ["OneLineParser", "int_range", "nonneg_int", "positive_int", "positive_float",
            "out_dir_arg", "output_file_arg", "make_out_dir", "OptionError", "MAX_TRIAL",
            "add_run_options", "special_path", "fs_type", "nonneg_float", "scenario_arg",
-           "paragraphs"]
+           "paragraphs", "arg_type", "argument_of", "cli_type"]
 
-#: trial indices are stored as float64 in metrics rows: exact up to 2^53
-MAX_TRIAL = 2 ** 53
-#: seeds go to ROS parameters (int64)
-MAX_SEED = 2 ** 63 - 1
+from formation_ilc.config.option_table import Option
+from formation_ilc.config.values import MAX_SEED, MAX_TRIAL, float_in, int_in
 
 
+def arg_type(parse: Callable[[str], Any]) -> Callable[[str], Any]:
+    """An argparse type of a parser of ``config.values`` (ValueError -> argparse's error,
+    so that the reason is printed, not argparse's "invalid value")."""
+
+    def typed(text: str) -> Any:
+        try:
+            return parse(text)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    typed.__name__ = getattr(parse, "__name__", "value")
+    return typed
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -40,70 +49,22 @@ class OneLineParser(argparse.ArgumentParser):
 
 def int_range(lo: int, hi: int | None = None) -> Callable[[str], int]:
     """An argparse type: an integer in [lo, hi]."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text, 10)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if value < lo or (hi is not None and value > hi):
-            bound = f">= {lo}" if hi is None or hi >= MAX_TRIAL else f"in {lo}..{hi}"
-            if hi is not None and value > hi:
-                bound = f"<= {hi}"
-            raise argparse.ArgumentTypeError(f"must be an integer {bound}, got {value}")
-        return value
-
-    parse.__name__ = "integer"
-    return parse
+    return arg_type(int_in(lo, hi))
 
 
 nonneg_int = int_range(0, MAX_SEED)
 positive_int = int_range(1, MAX_TRIAL)
-
-
-def positive_float(text: str) -> float:
-    """An argparse type: a finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
-    return value
-
-
-positive_float.__name__ = "number"
+#: an argparse type: a finite number > 0
+positive_float = arg_type(float_in(0.0, open_lo=True))
 
 
 def float_range(lo: float, hi: float, unit: str = "") -> Callable[[str], float]:
     """An argparse type: a finite number in [lo, hi] (``unit`` named in the error)."""
-
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-        if not (math.isfinite(value) and lo <= value <= hi):
-            raise argparse.ArgumentTypeError(
-                f"must be a number in {lo:g}..{hi:g}{' ' + unit if unit else ''}, got {text}")
-        return value
-
-    parse.__name__ = "number"
-    return parse
+    return arg_type(float_in(lo, hi, unit=unit))
 
 
-def nonneg_float(text: str) -> float:
-    """An argparse type: a finite number >= 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
-    return value
-
-
-nonneg_float.__name__ = "number"
+#: an argparse type: a finite number >= 0
+nonneg_float = arg_type(float_in(0.0))
 
 
 def _writable_ancestor(path: Path) -> str | None:
@@ -202,36 +163,63 @@ out_dir_arg.__name__ = "folder"
 output_file_arg.__name__ = "file"
 
 
+def cli_type(opt: Option) -> Any:
+    """The argparse type of a row: its own parser (the choices left to argparse), and for a
+    folder or a file to write, the command line's check that it can be written."""
+    if opt.kind == "folder":
+        return out_dir_arg
+    if opt.kind == "file":
+        return output_file_arg
+    if opt.kind == "path":
+        return Path
+    if opt.kind in ("int", "port", "float"):
+        return arg_type(opt.value)
+    return None
+
+
+def argument_of(opt: Option) -> tuple[tuple[str, ...], dict[str, Any]]:
+    """The ``add_argument`` call of a row: its names and keywords."""
+    kw: dict[str, Any] = {"help": opt.help_text().replace("%", "%%")}
+    if opt.kind == "bool":
+        kw.update(action="store_true", default=bool(opt.default))
+    elif opt.kind == "switch":
+        kw.update(action=argparse.BooleanOptionalAction, default=opt.default)
+    else:
+        kw.update(default=list(opt.default) if isinstance(opt.default, tuple) else opt.default,
+                  metavar=opt.metavar)
+        if cli_type(opt) is not None:
+            kw["type"] = cli_type(opt)
+        if opt.choices is not None:
+            kw["choices"] = opt.choices
+            kw.pop("metavar")
+        if opt.kind == "names":
+            kw["nargs"] = "+"
+        elif opt.kind == "port":
+            kw.update(nargs="?", const=opt.const)
+        elif not (opt.flag or "").startswith("-"):
+            kw["nargs"] = "?"
+    if not (opt.flag or "").startswith("-"):
+        return (opt.field,), kw
+    return (opt.flag or "",), kw
+
+
 def add_run_options(p: argparse.ArgumentParser, *, law: bool = True,
                     trials: int | None = None, shape: bool = False) -> None:
-    """The options of a run that ``simulate``, ``compare`` and ``launch`` share: --trials
-    (default ``trials``, else the scenario's), --law and --memory (with ``law``), --seed,
-    --no-noise, --no-delay; with ``shape`` the reference's --headings and --time-scale."""
-    p.add_argument("--trials", type=positive_int, metavar="K", default=trials,
-                   help="number of trials (default: "
-                        + ("the scenario's 'trials')" if trials is None else f"{trials})"))
-    if law:
-        p.add_argument("--law", type=int, choices=(9, 22, 23),
-                       help="9: predictive + delay-compensated current term (the paper's); "
-                            "22: predictive only; 23: current term ignores the delay")
-        p.add_argument("--memory", choices=("feedforward", "literal"),
-                       help="what the learning memory holds (paper-notes 12): feedforward "
-                            "(default; the current term is feedback on top) or literal "
-                            "(the applied input, current term included)")
-    p.add_argument("--seed", type=nonneg_int, help="random seed, >= 0 (default: the "
-                   "scenario's)")
-    p.add_argument("--no-noise", action="store_true",
-                   help="no initial shifts, disturbances or measurement noise")
-    p.add_argument("--no-delay", action="store_true", help="no communication delays")
-    if shape:
-        p.add_argument("--headings", choices=("auto", "chord", "arc"), default=None,
-                       help="desired headings (default: the scenario's; auto: chord for "
-                            "the Euler model and the kinematic simulator, arc for plants "
-                            "that drive arcs: docs/physics.md)")
-        p.add_argument("--time-scale", type=positive_float, default=None, metavar="S",
-                       help="stretch the reference in time by S >= 1 (S times slower: "
-                            "speeds / S, accelerations / S^2), so that a fast scenario fits "
-                            "the robots' limits")
+    """The options of a run that ``simulate``, ``compare`` and ``launch`` share, as the
+    option table declares them: --trials (default ``trials``, else the scenario's), --law
+    and --memory (with ``law``), --seed, --no-noise, --no-delay; with ``shape`` the
+    reference's --headings and --time-scale."""
+    from formation_ilc.config.option_table import option
+
+    names = ["trials", *(("law", "memory") if law else ()), "seed", "no_noise", "no_delay",
+             *(("headings", "time_scale") if shape else ())]
+    for name in names:
+        flags, kw = argument_of(option(name))
+        if name == "trials" and trials != kw["default"]:
+            kw.update(default=trials, help=kw["help"].replace(
+                f"(default {kw['default']})", "(default: the scenario's 'trials')"
+                if trials is None else f"(default {trials})"))
+        p.add_argument(*flags, **kw)
 
 
 def make_out_dir(path: Path, option: str = "--out") -> Path:

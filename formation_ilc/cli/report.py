@@ -11,8 +11,11 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import sys
+from collections import Counter
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -26,12 +29,13 @@ from formation_ilc.core.links import (
     write_delays,
 )
 from formation_ilc.core.names import BASES_NODE, MONITOR_NODE, SIM_NODE
+from formation_ilc.core.text import printable
 from formation_ilc.plan.specs import RunPlan
 from formation_ilc.protocol.health import filter_warnings
 from formation_ilc.protocol.writers import forged_line
 from formation_ilc.system.exits import DISK_FULL, is_disk_full
 
-__all__ = ["write_report", "summary_of", "print_report"]
+__all__ = ["write_report", "summary_of", "print_report", "log_warnings"]
 
 #: a bridge's diagnostics that go into summary.json
 BRIDGE_KEYS = ("initial_shifts", "returns", "return_timeouts", "missed", "clipped",
@@ -143,6 +147,8 @@ def write_report(plan: RunPlan, rows: Sequence[Sequence[float]],
             print(f"error: {disk_full_line('the launcher', exc.filename, out)}",
                   file=sys.stderr)
             status = DISK_FULL
+    for line in log_warnings(out / "logs"):  # what the nodes said besides their reports
+        print(line)
     if status:
         return status
     files = ["metrics.csv", "delays.csv", "diagnostics.json", "summary.json"]
@@ -165,6 +171,46 @@ def write_report(plan: RunPlan, rows: Sequence[Sequence[float]],
     if root is not None:
         print(f"recording: {root} (formation-ilc analyze {root})")
     return 0
+
+
+#: a ROS log line of a warning or an error: its level, its node (logger) and its text
+_LOGGED = re.compile(r"^\[(WARN|ERROR)\] \[[0-9.]+\] \[([^\]]+)\]: (.*)$")
+#: the part of a node's log read for warnings (its end: a long run's log is large)
+LOG_TAIL = 4 << 20
+
+
+def log_warnings(log_dir: Path, limit: int = 8) -> list[str]:
+    """The nodes' warnings summarised, for the end of a run: a heading, then one line per
+    process whose log (``log_dir/NAME.log``) holds ``[WARN]`` or ``[ERROR]`` lines: how
+    many, and the one said most often (numbers masked, so that one warning repeated with
+    other values counts as one), the processes with the most first, at most ``limit``.
+    Empty when no node warned."""
+    rows: list[tuple[int, str]] = []
+    for log in sorted(log_dir.glob("*.log")) if log_dir.is_dir() else ():
+        try:
+            with log.open("rb") as fh:
+                fh.seek(max(0, log.stat().st_size - LOG_TAIL))
+                text = fh.read().decode(errors="replace")
+        except OSError:
+            continue
+        said: Counter[tuple[str, str]] = Counter()
+        first: dict[tuple[str, str], str] = {}
+        for line in text.splitlines():
+            m = _LOGGED.match(line.strip())
+            if m is not None:
+                key = (m.group(1), re.sub(r"\d+(\.\d+)?", "N", m.group(3)))
+                said[key] += 1
+                first.setdefault(key, m.group(3))
+        if said:
+            (level, _), n = top = said.most_common(1)[0]
+            total = sum(said.values())
+            rows.append((total, f"  {log.stem}: {total} line(s); most often ({n}x, {level}): "
+                                f"{printable(first[top[0]], 160)}"))
+    if not rows:
+        return []
+    rows.sort(key=lambda r: -r[0])
+    more = f" (and {len(rows) - limit} more)" if len(rows) > limit else ""
+    return [f"node warnings{more}, in {log_dir}/NAME.log:", *(r for _, r in rows[:limit])]
 
 
 def contact_warning(predicted_clear: bool, m: np.ndarray) -> str | None:

@@ -23,7 +23,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from formation_ilc.cli.options import OptionError
+from formation_ilc.cli.options import OptionError, cli_type
+from formation_ilc.config.option_table import Option, option, robot_entries
 from formation_ilc.plan.options import (
     FIELD_KEYS,
     PATH_FIELDS,
@@ -31,6 +32,7 @@ from formation_ilc.plan.options import (
     SECTIONS,
     STORED_FIELDS,
     LaunchOptions,
+    RunKey,
     closest,
     option_fields,
 )
@@ -119,33 +121,32 @@ def _hosts(path: Path, value: Any) -> dict[str, list[str]]:
     return {str(h): list(m) for h, m in value.items()}
 
 
-def _actions() -> dict[str, argparse.Action]:
-    from formation_ilc.cli.launchargs import launch_parser
-
-    return {a.dest: a for a in launch_parser()._actions}
-
-
-def _check(path: Path, key: str, field: str, negated: bool, value: Any,
-           actions: Mapping[str, argparse.Action]) -> Any:
-    """``value`` of run file key ``key`` as its field holds it, checked with the launch
-    option's own type and choices; OptionError naming the key and why."""
+def _check(path: Path, key: str, opt: Option, value: Any) -> Any:
+    """``value`` of run file key ``key`` as its field holds it, checked by its row of the
+    option table (as the command line checks the flag); OptionError naming the key and
+    why."""
 
     def bad(why: str) -> OptionError:
         return OptionError(f"{path}: {key}: {why}")
 
     if value is None:
         return None
-    action = actions.get(field)
-    if action is None:  # a stored run's own: the run's id, the clocks' origin, ...
-        want: type = int if field == "clock_origin_ns" else str
+    if opt.kind == "stored":  # a stored run's own: the run's id, the clocks' origin, ...
+        want: type = int if opt.stored_as is int else str
         if not isinstance(value, want) or isinstance(value, bool):
             raise bad(f"expected {'an integer' if want is int else 'a string'}, got {value!r}")
         return value
-    if action.nargs == 0 or isinstance(action, argparse.BooleanOptionalAction):
+    if opt.kind in ("bool", "switch"):
         if not isinstance(value, bool):
             raise bad(f"expected true or false, got {value!r}")
-        return (not value) if negated else value
-    if action.nargs == "+":
+        return (not value) if opt.negated else value
+    if opt.kind == "robots":
+        try:
+            return robot_entries(value)
+        except ValueError as exc:
+            why = str(exc)
+            raise OptionError(f"{path}: {key}{'.' if why[:1].isdigit() else ': '}{why}") from None
+    if opt.kind == "names":
         if not isinstance(value, list) or not value or not all(
                 isinstance(v, (str, int)) for v in value):
             raise bad(f"expected a list of names, got {value!r}")
@@ -154,12 +155,13 @@ def _check(path: Path, key: str, field: str, negated: bool, value: Any,
         raise bad(f"expected a single value, got {value!r}")
     text = str(value)
     try:
-        converted = action.type(text) if callable(action.type) else text
-    except (argparse.ArgumentTypeError, ValueError, TypeError) as exc:
-        raise bad(str(exc) if isinstance(exc, argparse.ArgumentTypeError)
-                  else f"invalid {getattr(action.type, '__name__', 'value')}: {text!r}") from None
-    if action.choices is not None and converted not in action.choices:
-        choices = [str(c) for c in action.choices]
+        converted = Path(text) if opt.kind == "path" else opt.value(text)
+        if opt.kind in ("folder", "file"):  # the command line's check that it can be written
+            converted = cli_type(opt)(text)
+    except (argparse.ArgumentTypeError, ValueError) as exc:
+        raise bad(str(exc)) from None
+    if opt.choices is not None and converted not in opt.choices:
+        choices = [str(c) for c in opt.choices]
         raise bad(f"invalid choice: {converted!r} (choose from {', '.join(choices)})"
                   f"{closest(text, choices)}")
     return converted
@@ -168,7 +170,6 @@ def _check(path: Path, key: str, field: str, negated: bool, value: Any,
 def _fields(path: Path, values: Mapping[str, Any], base: Path | None) -> dict[str, Any]:
     """Each run file value (by key path) as its field's, checked; relative paths taken
     from ``base`` (a run file's folder; None: as given)."""
-    actions = _actions()
     by_path = {k.path: k for k in RUN_KEYS}
     out: dict[str, Any] = {}
     for key, value in values.items():
@@ -184,7 +185,7 @@ def _fields(path: Path, values: Mapping[str, Any], base: Path | None) -> dict[st
         if k.field == "scenario" and isinstance(value, str) and base is not None:
             near = base / value
             value = str(near) if near.is_file() else value
-        out[k.field] = _check(path, key, k.field, k.negated, value, actions)
+        out[k.field] = _check(path, key, option(k.field), value)
     return out
 
 
@@ -200,12 +201,43 @@ def load_run_file(path: Path) -> dict[str, Any]:
                           f"or a scenario written here (a mapping) is required")
     out = _fields(path, values, path.resolve().parent)
     if inline is not None:  # checked as a scenario file is, when the run is planned
+        if "from" in inline:
+            inline = _derived_scenario(path, inline)
         out["scenario_text"] = yaml.safe_dump(inline, sort_keys=False)
     for name in STORED_FIELDS:  # a stored run's own: a launch of its file is a new run
         out.pop(name, None)
     if hosts:
         out["host_members"] = hosts
     return out
+
+
+def _derived_scenario(path: Path, inline: dict[str, Any]) -> dict[str, Any]:
+    """``scenario: {from: NAME, ...}``: scenario NAME (a built-in, or a file beside the run
+    file) with the other keys written over its own, a mapping key by key (``law: {gains:
+    ...}`` changes the gains and keeps the rest of ``law``); OptionError naming
+    ``scenario.from``."""
+    import yaml
+
+    from formation_ilc.config.scenario import ScenarioError, load_scenario
+
+    over = dict(inline)
+    name = over.pop("from")
+    if not isinstance(name, str) or not name.strip():
+        raise OptionError(f"{path}: scenario.from: a built-in scenario's name or a scenario "
+                          f"file, got {name!r}")
+    near = path.resolve().parent / name
+    try:
+        base = yaml.safe_load(load_scenario(near if near.is_file() else name).text)
+    except ScenarioError as exc:
+        raise OptionError(f"{path}: scenario.from: {exc}") from None
+    return _merged(base, over)
+
+
+def _merged(base: Any, over: Any) -> Any:
+    """``over`` written over ``base``: mappings key by key, anything else replaced."""
+    if not (isinstance(base, dict) and isinstance(over, dict)):
+        return over
+    return {**base, **{k: _merged(base.get(k), v) for k, v in over.items()}}
 
 
 def load_stored_run(folder: Path) -> dict[str, Any] | None:
@@ -289,7 +321,38 @@ def plan_of(args: argparse.Namespace) -> Any:
         opts = launch_options(args)
     except OptionError as exc:
         raise NoRun(str(exc)) from None
-    return build_plan(opts)
+    try:
+        return build_plan(opts)
+    except NoRun as stop:
+        raise NoRun(_in_file_words(stop.message, args), stop.status) from None
+
+
+def _in_file_words(message: str, args: argparse.Namespace) -> str:
+    """``message`` with each flag of an option that a run file set (and the command line
+    did not) named as the file's key: ``run.yaml: plant.physics_rate: 5: ...`` for a
+    refusal that starts ``--physics-rate 5: ...``, ``lower safety.margin in run.yaml`` for
+    ``lower --safety-margin``."""
+    import re
+
+    given = vars(args)
+    scenario = given.get("scenario")
+    if given.get("resume") is not None or scenario is None or not is_run_file(scenario):
+        return message
+    path = Path(scenario)
+    try:
+        from_file = set(load_run_file(path)) - set(given)
+    except OptionError:
+        return message
+    for name in from_file:
+        opt = option(name)
+        if opt.key is None or not (opt.flag or "").startswith("--"):
+            continue
+        flag = re.escape(opt.flag or "")
+        head = re.match(rf"^(?:argument )?{flag}(?::| (?=\S))", message)
+        if head is not None:
+            message = f"{path}: {opt.key}: {message[head.end():].lstrip()}"
+        message = re.sub(rf"(?<![\w-]){flag}(?![\w-])", f"{opt.key} in {path}", message)
+    return message
 
 
 def _resumed(out: Path, given: dict[str, Any]) -> LaunchOptions:
@@ -346,76 +409,124 @@ def host_per_robot(members: list[tuple[str, int | None]]) -> dict[str, list[str]
 
 def run_file_text(opts: LaunchOptions, *, folder: Path | None = None,
                   stored: Path | None = None, title: str = "",
-                  effective: Mapping[str, Any] | None = None) -> str:
-    """``opts`` as a run file: every key in its section, with its value and what it means
-    (the launch option's help). Paths relative to ``folder`` when they lie inside it; with
-    ``stored`` (a run's folder, where the file goes), the run's outputs inside it as
-    ``@run/REL`` (a launch of the file elsewhere writes into its own folder), its own
-    folder as ``.`` and every other path relative to it. With ``effective`` (field ->
-    value, :func:`effective_values`) those values, and only the keys that have one."""
-    import os
-
-    import yaml
-
-    from formation_ilc.store.runfile import relative
-
-    actions = _actions()
+                  effective: Mapping[str, Any] | None = None,
+                  shown: Mapping[str, Any] | None = None) -> str:
+    """``opts`` as a run file: each key its plant uses, in its section, with its value and
+    what it means (its option's help, from the option table); a key left to the scenario,
+    the plant or the machine is written as a comment with the value the plan gives it
+    (``shown``, :func:`effective_values`), never as null. Paths relative to ``folder`` when
+    they lie inside it; with ``stored`` (a run's folder, where the file goes), the run's
+    outputs inside it as ``@run/REL`` (a launch of the file elsewhere writes into its own
+    folder), its own folder as ``.`` and every other path relative to it. With
+    ``effective`` (field -> value, :func:`effective_values`) those values, and only the
+    keys that have one."""
     values = opts.stored() if effective is None else dict(effective)
     lines = [f"# {line}" for line in title.splitlines()] if title else []
     for section, about in SECTIONS.items():
         keys = [k for k in RUN_KEYS if (k.path.split(".")[0] if "." in k.path else "") == section
-                and (effective is None or values.get(k.field) is not None
-                     or (k.field == "scenario" and opts.scenario_text is not None))]
+                and _written(k, opts, values, effective is None, shown)]
         if section and not keys:
             continue
         if section:
             lines += ["", f"# {about}", f"{section}:"]
         indent = "  " if section else ""
         for k in keys:
-            v = values.get(k.field)
-            if k.negated and v is not None:
-                v = not v
-            if isinstance(v, str) and k.field in PATH_FIELDS:
-                if stored is not None:
-                    p = Path(v)
-                    if k.field == "out" and p.resolve() == stored.resolve():
-                        v = "."
-                    elif k.field in ("record", "record_root"):
-                        v = relative(str(p.resolve()) if p.parts[:1] != ("@run",) else v,
-                                     stored.resolve())
-                    elif p.is_absolute():
-                        v = os.path.relpath(p, stored.resolve())
-                elif folder is not None:
-                    try:
-                        v = str(Path(v).resolve().relative_to(folder.resolve()))
-                    except ValueError:
-                        pass
-            if k.field == "scenario" and isinstance(v, str) and Path(v).is_file():
-                v = str(Path(v).resolve())
-                if stored is not None:
-                    v = os.path.relpath(v, stored.resolve())
-            if k.field == "scenario" and opts.scenario_text is not None:
-                lines.append(f"{indent}# SCENARIO: written here (a scenario file's keys)")
-                lines += yaml.safe_dump({"scenario": yaml.safe_load(opts.scenario_text)},
-                                        sort_keys=False, width=88).rstrip().splitlines()
-                continue
-            action = actions.get(k.field)
-            about_key = _help(action, k.negated) if action is not None else _STORED_HELP.get(
-                k.field, "")
-            for line in textwrap.wrap(about_key, 88 - len(indent) - 2):
-                lines.append(f"{indent}# {line}")
-            text = yaml.safe_dump({k.path.rsplit(".", 1)[-1]: v}, default_flow_style=True,
-                                  width=10_000).strip()
-            lines.append(f"{indent}{text[1:-1] if text.startswith('{') else text}")
+            lines += _key_lines(k, opts, values, indent, folder=folder, stored=stored,
+                                shown=shown)
     lines += ["", "# which machine runs which members (formation-ilc launch RUN.yaml --host "
                   "NAME on each);", "# none: every member on this machine"]
     if opts.host_members:
+        import yaml
+
         dumped = yaml.safe_dump({"hosts": {h: list(m) for h, m in opts.host_members}},
                                 default_flow_style=None, sort_keys=False, width=88)
         lines += dumped.rstrip().splitlines()
     else:
         lines.append("hosts: {}")
     return "\n".join(lines) + "\n"
+
+
+def _written(k: RunKey, opts: LaunchOptions, values: Mapping[str, Any], written: bool,
+             shown: Mapping[str, Any] | None) -> bool:
+    """Whether key ``k`` goes into the file: one its plant uses, with a value (or, in a
+    written file, one the plan shows)."""
+    if k.field == "scenario" and opts.scenario_text is not None:
+        return True
+    if values.get(k.field) is not None:
+        return not written or _plant_uses(k.field, opts)
+    if not written or shown is None or shown.get(k.field) is None:
+        return False
+    return option(k.field).kind != "stored" and _plant_uses(k.field, opts)
+
+
+def _plant_uses(name: str, opts: LaunchOptions) -> bool:
+    """Whether ``opts``' plant uses option ``name`` (a written file leaves out the others'
+    keys: a Pioneer's file has no plant.base, no physics keys)."""
+    from formation_ilc.config.plants import plant
+
+    try:
+        row = plant(opts.plant)
+    except ValueError:
+        return True
+    if name in ("fake_drivers", "physics_bases"):  # the bridges' stand-ins
+        return row.per_robot and (name == "fake_drivers" or row.driver == "base")
+    uses = option(name).uses
+    return uses is None or bool(uses[0](row, opts))
+
+
+def _key_lines(k: RunKey, opts: LaunchOptions, values: Mapping[str, Any], indent: str, *,
+               folder: Path | None, stored: Path | None,
+               shown: Mapping[str, Any] | None) -> list[str]:
+    """A key's lines: its comment, then ``name: value`` (or ``# name: value`` for a value
+    the plan chose, ``shown``)."""
+    import yaml
+
+    if k.field == "scenario" and opts.scenario_text is not None:
+        return [f"{indent}# SCENARIO: written here (a scenario file's keys)",
+                *yaml.safe_dump({"scenario": yaml.safe_load(opts.scenario_text)},
+                                sort_keys=False, width=88).rstrip().splitlines()]
+    v = values.get(k.field)
+    chosen = v is None  # left to the plan: shown as a comment
+    if chosen:
+        v = (shown or {}).get(k.field)
+    if k.negated and v is not None:
+        v = not v
+    v = _file_value(k.field, v, folder=folder, stored=stored)
+    lines = [f"{indent}# {line}" for line in textwrap.wrap(
+        _help(option(k.field)), 88 - len(indent) - 2, break_on_hyphens=False)]
+    text = yaml.safe_dump({k.path.rsplit(".", 1)[-1]: v}, default_flow_style=True,
+                          width=10_000).strip()
+    text = text[1:-1] if text.startswith("{") else text
+    return [*lines, f"{indent}# {text}" if chosen else f"{indent}{text}"]
+
+
+def _file_value(name: str, v: Any, *, folder: Path | None, stored: Path | None) -> Any:
+    """A path's value as the file writes it (relative to ``folder``, or to the run's
+    folder ``stored`` with its outputs as ``@run/REL``); any other value as it is."""
+    import os
+
+    from formation_ilc.store.runfile import relative
+
+    if isinstance(v, str) and name in PATH_FIELDS:
+        if stored is not None:
+            p = Path(v)
+            if name == "out" and p.resolve() == stored.resolve():
+                v = "."
+            elif name in ("record", "record_root"):
+                v = relative(str(p.resolve()) if p.parts[:1] != ("@run",) else v,
+                             stored.resolve())
+            elif p.is_absolute():
+                v = os.path.relpath(p, stored.resolve())
+        elif folder is not None:
+            try:
+                v = str(Path(v).resolve().relative_to(folder.resolve()))
+            except ValueError:
+                pass
+    if name == "scenario" and isinstance(v, str) and Path(v).is_file():
+        v = str(Path(v).resolve())
+        if stored is not None:
+            v = os.path.relpath(v, stored.resolve())
+    return v
 
 
 def effective_values(plan: Any, options: Mapping[str, Any]) -> dict[str, Any]:
@@ -498,23 +609,15 @@ def stored_run_text(plan: Any, options: Mapping[str, Any], title: str) -> str:
     return run_file_text(opts, stored=plan.out.resolve(), title=title, effective=d)
 
 
-_STORED_HELP = {
-    "run_id": "the run's identity (empty: a new one at each launch; a stored run keeps its own)",
-    "clock_origin_ns": "the emulated clocks' origin [ns] (a resumed run's robots keep "
-                       "their clocks)",
-    "record_root": "the run's first recording file (a resumed launch records a part of "
-                   "its own)",
-}
-
-
-def _help(action: argparse.Action, negated: bool) -> str:
-    text = " ".join((action.help or "").split())
-    if action.choices is not None and "(" not in text[:1]:
-        text = f"{' | '.join(map(str, action.choices))}: {text}"
-    flag = action.option_strings[0] if action.option_strings else "SCENARIO"
-    if negated:
-        return f"false is {flag}: {text}"
-    return f"{flag}: {text}"
+def _help(opt: Option) -> str:
+    """A key's comment: its flag (or what false means), its choices, its help."""
+    text = opt.help_text()
+    if opt.choices is not None:
+        text = f"{' | '.join(map(str, opt.choices))}: {text}"
+    if opt.flag is None:
+        return text
+    flag = opt.flag if opt.flag.startswith("-") else "SCENARIO"
+    return f"false is {flag}: {text}" if opt.negated else f"{flag}: {text}"
 
 
 # --------------------------------------------------------------------------- the command
@@ -557,6 +660,9 @@ def run(args: argparse.Namespace) -> int:
             plan = build_plan(opts.with_fields({"out": Path(tmp) / "run"}))
         except NoRun as stop:
             return stop.report()
+        # what the plan chose for the keys left open, shown as comments (a launch chooses
+        # its ROS domain afresh)
+        shown = {**effective_values(plan, opts.stored()), "domain_id": None, "run_id": None}
     if args.host_per_robot:
         opts = opts.with_fields({"host_members": host_per_robot(list(hosted_members(plan)))})
     if opts.scenario is not None and Path(opts.scenario).is_file():
@@ -564,7 +670,7 @@ def run(args: argparse.Namespace) -> int:
     path: Path = args.output
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(path, run_file_text(
-        opts, folder=path.parent,
+        opts, folder=path.parent, shown=shown,
         title=f"a formation-ilc run: formation-ilc launch {path.name} runs it "
               f"(formation-ilc launch --help says what each key's option does)"))
     hosts = f", hosts {', '.join(h for h, _ in opts.host_members)}" if opts.host_members else ""

@@ -17,6 +17,7 @@ from formation_ilc.cli.options import (
     MAX_TRIAL,
     OptionError,
     add_run_options,
+    argument_of,
     int_range,
     make_out_dir,
     nonneg_float,
@@ -24,6 +25,7 @@ from formation_ilc.cli.options import (
     output_file_arg,
     scenario_arg,
 )
+from formation_ilc.config.option_table import option
 from formation_ilc.config.scenario import Scenario, ScenarioError, load_scenario
 from formation_ilc.core._jit import cache_dir
 from formation_ilc.core.guards import DivergedError, format_bytes, memory_shortfall
@@ -87,21 +89,10 @@ def _add_simulate(sub: Any) -> None:
     p.add_argument("--body", choices=BODIES, default="p3dx",
                    help="with --safety: the robots' body, whose footprint and limits the "
                         "filter keeps (default p3dx)")
-    p.add_argument("--safety-margin", type=nonneg_float, default=None, metavar="M",
-                   help="with --safety: the least gap [m] between two robots' covering discs "
-                        "(default 0.1; 0.25 on skid steer)")
-    p.add_argument("--safety-learning",
-                   choices=("damped", "applied", "split", "freeze", "ignore"),
-                   default=None,
-                   help="with --safety: how the memory learns where the filter changed a "
-                        "command (docs/safety.md)")
-    p.add_argument("--safety-motion", choices=("poses", "commands"), default=None,
-                   help="with --safety: where a robot takes the other robots' speeds from: "
-                        "commands (every robot tells the others the command it applies; "
-                        "with noisy poses the filter needs far less room) or poses "
-                        "(estimated from two of their poses, widened by what the "
-                        "scenario's noise allows). Default: as a launch takes it, commands "
-                        "up to 12 robots, poses beyond (docs/safety.md)")
+    for name in ("safety_margin", "safety_learning", "safety_motion"):
+        # the launch's options of the filter, as the option table declares them
+        names, kw = argument_of(option(name))
+        p.add_argument(*names, **{**kw, "help": f"with --safety: {kw['help']}"})
     p.add_argument("--safety-age", type=nonneg_float, default=0.0, metavar="S",
                    help="with --safety: how old [s] the other robots' poses are when a robot "
                         "filters (default 0: lockstep, and the simulator in real time); "

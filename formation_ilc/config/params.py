@@ -13,6 +13,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from formation_ilc.config.bases import BASES
+from formation_ilc.config.option_table import default
 from formation_ilc.config.runconfig import MODES, PARAMS
 from formation_ilc.core.law import MEMORY_MODES
 
@@ -160,7 +161,7 @@ _LIMIT_USED = "the limit in force (the preset's or the Pioneer's when 0)"
 BRIDGE: tuple[Param, ...] = (
     Param("robot_id", 1, "1-based robot number; the node is named bridge_<id>", lo=1,
           hi=BIG),
-    Param("driver", "rosaria", "the robot's driver (a base preset sets 'base')",
+    Param("driver", default("driver"), "the robot's driver (a base preset sets 'base')",
           choices=("rosaria", "p2os2", "ros2aria", "base"), effective="'base' with a preset"),
     Param("base", "", "a differential-drive base's preset (topics, message type, limits); "
           "empty: a Pioneer driver", choices=("", *BASES)),
@@ -186,8 +187,8 @@ BRIDGE: tuple[Param, ...] = (
           lo=1e-6, hi=100.0),
     Param("return_tol_heading", 2.0, "between trials: heading tolerance of the return",
           "deg", lo=1e-6, hi=180.0),
-    Param("return_timeout", 60.0, "between trials: longest return before it is counted "
-          "as timed out", "s", lo=1e-3, hi=1e6),
+    Param("return_timeout", default("return_timeout"), "between trials: longest return "
+          "before it is counted as timed out", "s", lo=1e-3, hi=1e6),
     Param("initial_pose", [0.0], "x, y, theta [m, m, rad] where the robot is placed; "
           "[0.0]: the scenario's desired start"),
     Param("truth", False, "the base is simulated and publishes its true pose on 'truth' in "

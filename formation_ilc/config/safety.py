@@ -33,7 +33,7 @@ from formation_ilc.core.limits import Limits
 from formation_ilc.core.safety import LEARNING
 
 __all__ = ["SafetySettings", "SENSING", "MOTION", "TOLD_UP_TO", "default_motion", "BODIES",
-           "SKID_STEER", "default_learning", "default_margin"]
+           "SKID_STEER", "default_learning", "default_margin", "MARGIN", "SKID_MARGIN"]
 
 SENSING = ("team", "peers")
 #: where a robot takes another robot's speed from
@@ -51,6 +51,12 @@ def default_motion(n: int, bridged: bool = False) -> str:
     commands, and one that is late turns that sample's filter back to the estimate: two
     wall-clock runs of the same rehearsal then differed by 0.28 m in a trial)."""
     return "commands" if n <= TOLD_UP_TO and not bridged else "poses"
+#: [m] added to two disc radii: the least gap the filter keeps between two bodies'
+#: covering discs unless told (it covers the discs' excess over the rectangle, the arcs a
+#: robot drives within a sample and the poses' noise): on two wheels, and on skid steer
+#: (default_margin)
+MARGIN = 0.1
+SKID_MARGIN = 0.25
 #: bodies the filter knows (``model.footprint.BODIES``, kept here for the config layer)
 BODIES = ("p3dx", "husky", "husky-imu", "turtlebot3", "turtlebot4", "jackal")
 #: the skid-steer bodies among them
@@ -68,14 +74,14 @@ def default_margin(body: str) -> float:
     otherwise: 0.1 m on two wheels; 0.25 m on skid steer, whose wheels slip sideways in
     every turn, so that the body is where its command says only to within centimetres
     (docs/safety.md: a Husky team touched by 1.7 cm with 0.1 m, not with 0.25 m)."""
-    return 0.25 if body in SKID_STEER else 0.1
+    return SKID_MARGIN if body in SKID_STEER else MARGIN
 
 
 @dataclass(frozen=True)
 class SafetySettings:
     body: str = "p3dx"
     limits: Limits = Limits()
-    margin: float = 0.1
+    margin: float = MARGIN
     learning: str = "damped"
     sensing: str = "team"
     motion: str = "poses"

@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from formation_ilc.config.option_table import default
 from formation_ilc.core.kinematics import wrap_angle
 from formation_ilc.core.limits import Limits
 from formation_ilc.core.names import robot_name
@@ -50,8 +51,9 @@ __all__ = ["RobotModel", "MODELS", "PhysicsWorld", "robot_model", "DEFAULT_RATE"
 #: stand-in) or its wheel odometry (drifts)
 POSE_SOURCES = ("truth", "odometry")
 
-#: engine steps per second (PyBullet's default): 48 substeps per sample at dT = 0.2 s
-DEFAULT_RATE = 240.0
+#: engine steps per second (PyBullet's default, the option table's): 48 substeps per
+#: sample at dT = 0.2 s
+DEFAULT_RATE: float = default("physics_rate")
 #: [Hz] the engine rates a run may ask for (the physics plant's parameter range)
 RATE_RANGE = (1.0, 1e5)
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from formation_ilc.config.safety import SafetySettings
+from formation_ilc.config.safety import MARGIN, SafetySettings
 from formation_ilc.config.scenario import Scenario
 from formation_ilc.core.estimate import BOX
 from formation_ilc.core.limits import Limits, input_rates
@@ -34,10 +34,6 @@ __all__ = ["MARGIN", "DISCS", "spec_for", "spec_of", "body_spec", "body_limits",
            "DesiredThroughFilter", "desired_through_filter", "what_fits", "TOLERANCE",
            "MotionFit", "motion_fit"]
 
-#: [m] added to two disc radii: the least gap the filter keeps between two bodies'
-#: covering discs (it covers the discs' excess over the rectangle, the arcs a robot drives
-#: within a sample and the poses' noise)
-MARGIN = 0.1
 #: discs that cover a body
 DISCS = 2
 #: [m] how far per axis a body's own motion over a sample may be from the arc of the

@@ -59,6 +59,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from std_msgs.msg import String
 
 import msgs_schema as ms
+from formation_ilc.config.option_table import LIVE_PORT
 from formation_ilc.core.clock import Rejected
 from formation_ilc.core.names import LIVEVIEW_NODE
 from formation_ilc.nodes.common import DropCounter, RunConfig, node_parser, run_key, spin_main
@@ -68,7 +69,7 @@ from formation_ilc.protocol.view import run_parameters
 from formation_ilc.recordings.mcap_io import message_definition
 
 #: the default port of the live view (Foxglove's own default)
-DEFAULT_PORT = 8765
+DEFAULT_PORT = LIVE_PORT
 #: messages kept per viewer before the oldest are dropped (a slow viewer loses data)
 BACKLOG = 4096
 #: niceness: the view must not take CPU from the control loop

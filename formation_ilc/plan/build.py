@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from formation_ilc.config.clocks import ClockSettings
-from formation_ilc.config.plants import plant
+from formation_ilc.config.plants import Plant, plant
 from formation_ilc.config.roster import Lineup, roster
 from formation_ilc.config.runconfig import (
     WALL_MODES,
@@ -84,44 +84,23 @@ def build_plan(options: LaunchOptions) -> RunPlan:
         # RunConfig owns its rules (e.g. wall-clock trials need direct links): a refusal
         # in one line, not a traceback
         raise NoRun(f"launch: {exc}") from None
+    _check_robots(opts, cfg.scenario.n)
     # 'auto' headings: arc on the plants that drive arcs and came with the option (physics,
     # base); chord for the kinematic simulator, and for the Pioneer bridges and external
     # plants as before them (their runs and learned memories keep their numbers)
     row = plant(opts.plant)
     cfg = replace(cfg, scenario=cfg.scenario.for_plant(row.headings))
-    namespace = opts.namespace or NAMESPACE
-    if not namespace.startswith("/") or "//" in namespace:
-        raise NoRun(f"--namespace {namespace!r}: an absolute ROS namespace like /team2 is "
-                    f"required")
+    namespace = _namespace(opts)
     sc = cfg.scenario
-    if opts.init_memory is not None:
-        _check_memory(opts.init_memory, sc)
-    if sc.trials < 1:
-        raise NoRun("--trials must be at least 1")
-    # a formation too extreme for float64 is refused (ScenarioError) before anything is made
-    _ = sc.desired
+    _check_scenario(opts, sc)
     out = _out_folder(opts.out, sc)
     if opts.resume is None and _is_ground(opts) and (used := used_folder_line(out)):
         raise NoRun(used)  # one run, one folder
     resumed_at = _resumed_at(out, sc) if opts.resume is not None else None
     record = _in_run(opts.record, out)
     root = opts.record_root or record
-    domain = opts.domain_id if opts.domain_id is not None else caller_domain()
-    if domain is None and opts.host is not None:
-        # the hosts find each other on the graph: one domain, known to every machine
-        raise NoRun("network.domain_id: a run over several machines needs its ROS domain "
-                    "on every one: write it in the run file (formation-ilc run-file ... "
-                    "--domain-id N) or set ROS_DOMAIN_ID on each machine")
-    if domain is None:
-        domain = pick_domain()
-    bridge = BridgeOptions.of(opts) if row.per_robot else None
-    if bridge is not None:
-        why = driver_ns_problem(bridge.driver_ns)
-        if why is not None:  # before, the bridges started with an invalid namespace
-            raise NoRun(f"argument --driver-ns: {bridge.driver_ns!r}: {why}")
-    if opts.lifecycle and opts.secure is not None:  # (without bridges: PLANT_USES)
-        raise NoRun("argument --lifecycle: not with --secure (the enclaves' permissions "
-                    "grant no lifecycle services)")
+    domain = _domain(opts)
+    bridge = _bridge(opts, row)
     physics = (PhysicsOptions.of(opts) if row.physics
                or (bridge is not None and bridge.physics_bases) else None)
     safety = _safety(opts, row, sc, namespace, bridge, physics)
@@ -155,13 +134,71 @@ def build_plan(options: LaunchOptions) -> RunPlan:
         predicted_clear=any(n.startswith("the batch simulator predicts no contact")
                             for n in notes),
         key=secrets.token_bytes(KEY_BYTES))
-    # the processes follow from the rest of the plan
+    return _with_processes(plan, opts)
+
+
+def _with_processes(plan: RunPlan, opts: LaunchOptions) -> RunPlan:
+    """``plan`` with its processes, which follow from the rest of the plan, their peers,
+    hosts and enclaves."""
+    assert opts.scenario is not None
     plan = replace(plan, nodes=node_specs(plan, scenario_reference(opts.scenario)))
     plan = _with_peers(plan, secure=opts.secure is not None,
-                       one_host=not opts.host_members and opts.host is None,
+                       one_host=not (opts.host_members or _robot_hosts(opts))
+                       and opts.host is None,
                        dds_profile=opts.dds_profile)
-    plan = replace(plan, host_members=placed_members(plan, dict(opts.host_members)))
+    plan = replace(plan, host_members=placed_members(plan, _hosts(plan, opts)))
     return _secured(_on_host(plan, opts.host), opts.secure)
+
+
+def _check_scenario(opts: LaunchOptions, sc: Scenario) -> None:
+    """NoRun (ScenarioError) for a scenario the run cannot take: an initial memory of
+    another, no trial, a formation too extreme for float64, before anything is made."""
+    if opts.init_memory is not None:
+        _check_memory(opts.init_memory, sc)
+    if sc.trials < 1:
+        raise NoRun("--trials must be at least 1")
+    _ = sc.desired
+
+
+def _check_robots(opts: LaunchOptions, n: int) -> None:
+    """NoRun for a run file's ``robots:`` entry of a robot the scenario has not."""
+    for entry in opts.robots:
+        if not 1 <= entry.robot <= n:
+            raise NoRun(f"robots: {entry.robot}: no such robot (robots are 1..{n})")
+
+
+def _namespace(opts: LaunchOptions) -> str:
+    namespace = opts.namespace or NAMESPACE
+    if not namespace.startswith("/") or "//" in namespace:
+        raise NoRun(f"--namespace {namespace!r}: an absolute ROS namespace like /team2 is "
+                    f"required")
+    return namespace
+
+
+def _domain(opts: LaunchOptions) -> int:
+    """The run's ROS domain: the option's, the caller's, else a free-looking one; NoRun
+    for a host launcher that knows none."""
+    domain = opts.domain_id if opts.domain_id is not None else caller_domain()
+    if domain is None and opts.host is not None:
+        # the hosts find each other on the graph: one domain, known to every machine
+        raise NoRun("network.domain_id: a run over several machines needs its ROS domain "
+                    "on every one: write it in the run file (formation-ilc run-file ... "
+                    "--domain-id N) or set ROS_DOMAIN_ID on each machine")
+    return pick_domain() if domain is None else domain
+
+
+def _bridge(opts: LaunchOptions, row: Plant) -> BridgeOptions | None:
+    """The bridges' options of a plant of one bridge per robot (None for another); NoRun
+    for a driver namespace or a lifecycle they cannot take."""
+    bridge = BridgeOptions.of(opts) if row.per_robot else None
+    if bridge is not None:
+        why = driver_ns_problem(bridge.driver_ns)
+        if why is not None:  # before, the bridges started with an invalid namespace
+            raise NoRun(f"argument --driver-ns: {bridge.driver_ns!r}: {why}")
+    if opts.lifecycle and opts.secure is not None:  # (without bridges: PLANT_USES)
+        raise NoRun("argument --lifecycle: not with --secure (the enclaves' permissions "
+                    "grant no lifecycle services)")
+    return bridge
 
 
 #: where a host launcher keeps its logs and its members' state: OUT/hosts/NAME; the
@@ -467,7 +504,34 @@ def _is_ground(opts: LaunchOptions) -> bool:
     """Whether this launcher runs the leader (``RunPlan.ground``, from the options): the
     run's folder is its own. A member host keeps its members' state in OUT/hosts/HOST and
     comes (back) into the ground station's run, whose folder holds its files."""
+    if not opts.host_members and _robot_hosts(opts):
+        return opts.host in (None, GROUND)
     return opts.host is None or LEADER_NODE in dict(opts.host_members).get(opts.host, ())
+
+
+#: the host of the members a run file's robots: does not place on a robot's host
+GROUND = "ground"
+
+
+def _robot_hosts(opts: LaunchOptions) -> dict[int, str]:
+    """The hosts a run file's ``robots:`` gives its robots: robot -> host."""
+    return {e.robot: e.host for e in opts.robots if e.host is not None}
+
+
+def _hosts(plan: RunPlan, opts: LaunchOptions) -> dict[str, list[str]]:
+    """Which host runs which members: the run file's ``hosts:``, else its robots' hosts
+    (robot I's node and bridge on its host, every other member on GROUND); NoRun for a
+    file that gives both."""
+    robots = _robot_hosts(opts)
+    if not robots:
+        return {h: list(m) for h, m in opts.host_members}
+    if opts.host_members:
+        raise NoRun("robots: a robot's host goes in hosts: when the run file has one (give "
+                    "the hosts either in hosts: or in robots:)")
+    hosts: dict[str, list[str]] = {GROUND: []}
+    for name, robot in hosted_members(plan):
+        hosts.setdefault(robots.get(robot, GROUND) if robot else GROUND, []).append(name)
+    return hosts
 
 
 def _out_folder(out: Path | None, sc: Scenario) -> Path:

@@ -15,8 +15,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from formation_ilc.config.option_table import RobotEntry, default
 from formation_ilc.config.plants import Plant, plant
-from formation_ilc.config.roster import Roster, Team
+from formation_ilc.config.roster import DRIVER_NS, Roster, Team
 from formation_ilc.config.runconfig import (
     RunConfig,
     param_text,
@@ -59,8 +60,8 @@ class NoRun(Exception):
 
 
 #: a Pioneer driver's usual namespace pattern; a base's (``--plant base``) is /base_{i}
-PIONEER_NS = "/pioneer_{i}"
-BASE_NS = "/base_{i}"
+PIONEER_NS: str = default("driver_ns")
+BASE_NS = DRIVER_NS["base"]
 
 
 def _is_default(base: str | None, key: str, value: float) -> bool:
@@ -96,16 +97,19 @@ class BridgeOptions:
     lifecycle : the bridges are managed nodes, brought up by the launcher (``--lifecycle``).
     """
 
-    driver: str = "rosaria"
-    driver_ns: str = PIONEER_NS
-    cmd_type: str | None = None
-    return_timeout: float = 60.0
-    fake_drivers: bool = False
+    driver: str = default("driver")
+    driver_ns: str = default("driver_ns")
+    cmd_type: str | None = default("cmd_type")
+    return_timeout: float = default("return_timeout")
+    fake_drivers: bool = default("fake_drivers")
     base: str | None = None
     limits: tuple[tuple[str, float], ...] = ()
     params_file: Path | None = None
-    physics_bases: bool = False
-    lifecycle: bool = False
+    physics_bases: bool = default("physics_bases")
+    lifecycle: bool = default("lifecycle")
+    #: what single robots do not share with the team (a run file's robots:): their driver
+    #: namespace and start pose
+    robots: tuple[RobotEntry, ...] = default("robots")
 
     @classmethod
     def of(cls, opts: LaunchOptions) -> BridgeOptions:
@@ -131,7 +135,9 @@ class BridgeOptions:
                    float(opts.return_timeout),
                    bool(opts.fake_drivers), base, given,
                    None if pf is None else Path(pf).resolve(),
-                   bool(opts.physics_bases), bool(opts.lifecycle))
+                   bool(opts.physics_bases), bool(opts.lifecycle),
+                   robots=tuple(e for e in opts.robots
+                                if e.driver_ns is not None or e.start is not None))
 
     @property
     def sent_type(self) -> str:
@@ -146,7 +152,12 @@ class BridgeOptions:
         return "twist"
 
     def namespace(self, i: int) -> str:
-        return self.driver_ns.replace("{i}", str(i))
+        own = self._own(i)
+        pattern = own.driver_ns if own is not None and own.driver_ns else self.driver_ns
+        return pattern.replace("{i}", str(i))
+
+    def _own(self, i: int) -> RobotEntry | None:
+        return next((e for e in self.robots if e.robot == i), None)
 
     def params(self, i: int) -> tuple[tuple[str, Any], ...]:
         """Robot ``i``'s bridge parameters."""
@@ -157,7 +168,14 @@ class BridgeOptions:
             kind += (("cmd_type", self.cmd_type),)
         return ((("robot_id", i), ("driver_ns", self.namespace(i))) + kind
                 + (("return_timeout", self.return_timeout),) + self.limits
-                + ((("lifecycle", True),) if self.lifecycle else ()))
+                + ((("lifecycle", True),) if self.lifecycle else ())
+                + self._start(i))
+
+    def _start(self, i: int) -> tuple[tuple[str, Any], ...]:
+        own = self._own(i)
+        if own is None or own.start is None:
+            return ()  # the bridge takes the scenario's desired start
+        return (("initial_pose", [float(x) for x in own.start]),)
 
 
 @dataclass(frozen=True)
@@ -166,15 +184,15 @@ class PhysicsOptions:
     robot model ('p3dx', 'husky'), the measured pose's source ('truth', 'odometry'),
     whether robots collide, engine steps per second."""
 
-    model: str = "p3dx"
-    pose: str = "truth"
-    collide: bool = True
-    rate: float = 240.0
-    #: what the plant does when robots touch (``protocol.physics_plant.ON_CONTACT``), how
+    model: str = default("robot_model")
+    pose: str = default("pose")
+    collide: bool = not default("pass_through")
+    rate: float = default("physics_rate")
+    #: what the plant does when robots touch (``config.option_table.ON_CONTACT``), how
     #: often one trial runs again after one, and the tilt [deg] that counts as one
-    on_contact: str = "stop"
-    contact_retries: int = 2
-    tilt_limit: float = 10.0
+    on_contact: str = default("on_contact")
+    contact_retries: int = default("contact_retries")
+    tilt_limit: float = default("tilt_limit")
 
     @classmethod
     def of(cls, opts: LaunchOptions) -> PhysicsOptions:
@@ -191,7 +209,7 @@ class RestartPolicy:
     exited with ``refused`` (it refused its input) or another status a restart cannot help
     (``formation_ilc.system.exits.NO_RESTART``: the run is stuck, the disk is full)."""
 
-    max_restarts: int = 3
+    max_restarts: int = default("max_restarts")
     refused: int = NO_RESTART
 
     def allows(self, code: int, restarts: int) -> bool:

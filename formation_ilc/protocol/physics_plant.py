@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from formation_ilc.config.option_table import ON_CONTACT, TILT_RANGE, default, option
 from formation_ilc.config.params import Param
 from formation_ilc.config.runconfig import RunConfig
 from formation_ilc.core.names import robot_name
@@ -50,27 +51,23 @@ from formation_ilc.protocol.schedule import ABORT, TrialEvent
 
 __all__ = ["PhysicsPlant", "BaseRobots", "BaseOdometry", "physics_available", "ON_CONTACT",
            "ContactEvent", "ContactWatch", "PHASES", "BaseTrials", "contact_then",
-           "CONTACT_PARAMS", "TILT_RANGE"]
+           "CONTACT_PARAMS", "TILT_RANGE", "TILT_LIMIT"]
 
-#: what a physics plant does when robots touch: stop them and re-run the trial (at most
-#: ``retries`` times), stop them and end the run, or report and go on
-ON_CONTACT = ("stop", "abort", "continue")
-
-
-#: the tilt limits a plant takes [deg] (``tilt_limit``; the launcher checks
-#: ``--tilt-limit`` against the same range before any node starts)
-TILT_RANGE = (0.1, 180.0)
+#: the tilt limit [rad] a plant takes unless told (the option table's, in deg there)
+TILT_LIMIT = math.radians(default("tilt_limit"))
 
 #: what a plant with bodies does about contacts: the physics plant's and the physics bases'
 #: parameters
 CONTACT_PARAMS: tuple[Param, ...] = (
-    Param("on_contact", "stop", "when robots touch (or one tips past tilt_limit): stop them "
-          "and run the trial again (at most contact_retries times), stop them and end the "
-          "run, or report and go on", choices=ON_CONTACT),
-    Param("contact_retries", 2, "how often one trial runs again after a contact", lo=0,
-          hi=100),
-    Param("tilt_limit", 10.0, "a robot tilted past this counts as a contact", "deg",
-          lo=TILT_RANGE[0], hi=TILT_RANGE[1]),
+    Param("on_contact", default("on_contact"),
+          "when robots touch (or one tips past tilt_limit): stop them and run the trial "
+          "again (at most contact_retries times), stop them and end the run, or report "
+          "and go on", choices=ON_CONTACT),
+    Param("contact_retries", default("contact_retries"),
+          "how often one trial runs again after a contact", lo=option("contact_retries").lo,
+          hi=option("contact_retries").hi),
+    Param("tilt_limit", default("tilt_limit"), "a robot tilted past this counts as a "
+          "contact", option("tilt_limit").unit, lo=TILT_RANGE[0], hi=TILT_RANGE[1]),
 )
 
 #: where a contact happened: in a trial, or on the way back to the start poses (the bases'
@@ -127,8 +124,8 @@ class ContactWatch:
     ``give_up`` ends the run; ``abort`` ends it; ``continue`` goes on. A return is not run
     again: ``stop`` there ends the run as ``abort`` does. ValueError for a bad setting."""
 
-    def __init__(self, on_contact: str = "stop", retries: int = 2,
-                 tilt_limit: float = math.radians(10.0)):
+    def __init__(self, on_contact: str = default("on_contact"),
+                 retries: int = default("contact_retries"), tilt_limit: float = TILT_LIMIT):
         if on_contact not in ON_CONTACT:
             raise ValueError(f"parameter on_contact: one of {', '.join(ON_CONTACT)}, got "
                              f"{on_contact!r}")
@@ -219,8 +216,9 @@ class PhysicsPlant(KinematicPlant):
     """
 
     def __init__(self, cfg: RunConfig, model: str = "p3dx", *, pose: str = "truth",
-                 rate: float = DEFAULT_RATE, collide: bool = True, on_contact: str = "stop",
-                 retries: int = 2, tilt_limit: float = math.radians(10.0)):
+                 rate: float = DEFAULT_RATE, collide: bool = True,
+                 on_contact: str = default("on_contact"),
+                 retries: int = default("contact_retries"), tilt_limit: float = TILT_LIMIT):
         missing = physics_available()
         if missing is not None:
             raise ValueError(missing)

@@ -6,6 +6,7 @@ the resolved run file a launch keeps resumes the run, and so does a run.json of 
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -121,11 +122,11 @@ def test_a_run_file_for_the_robots_is_rehearsed_with_its_stand_ins_beside_them(t
 
 
 @pytest.mark.parametrize("edit, line", [
-    (lambda d: d["safety"].update(margn=0.2),
+    (lambda d: d.update(safety={**(d.get("safety") or {}), "margn": 0.2}),
      "safety.margn: unknown key (did you mean 'margin'?)"),
     (lambda d: d.update(trails=3), "trails: unknown key (did you mean 'trials'?)"),
     (lambda d: d.update(safty={}), "safty: unknown key (did you mean 'safety'?)"),
-    (lambda d: d["safety"].update(margin=-1),
+    (lambda d: d.update(safety={**(d.get("safety") or {}), "margin": -1}),
      "safety.margin: must be a finite number >= 0, got -1"),
     (lambda d: d["plant"].update(kind="simm"),
      "plant.kind: invalid choice: 'simm' (choose from sim, physics, external, pioneer, base)"
@@ -365,3 +366,65 @@ def test_a_keystore_where_none_can_be_made_is_refused_in_one_line(tmp_path, caps
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"error: {where}: cannot make the keystore "
                                                f"there: ")
+
+
+def test_a_run_file_changes_a_scenarios_gains_without_copying_it(tmp_path, capsys):
+    """``scenario: {from: NAME, ...}``: the named scenario with only the keys written here
+    changed (a mapping key by key); a bad name is refused naming ``scenario.from``."""
+    path = tmp_path / "run.yaml"
+    path.write_text("scenario: {from: paper-triangle3, law: {gain: 0.05}, trials: 4}\n")
+    plan = plan_of(options(str(path), "--out", str(tmp_path / "run")))
+    base = plan_of(options("paper-triangle3", "--out", str(tmp_path / "base")))
+    assert plan.scenario.law.gain == (0.05,) * 3 and base.scenario.law.gain == (0.08,) * 3
+    assert plan.scenario.law.gain_prime == base.scenario.law.gain_prime
+    assert plan.scenario.n == 3 and plan.scenario.dt == base.scenario.dt
+    path.write_text("scenario: {from: paper-triangel3}\n")
+    assert main(["launch", str(path), "--out", str(tmp_path / "bad")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {path}: scenario.from: ") and "paper-triangle3" in err, err
+
+
+def test_a_refusal_of_a_value_from_a_run_file_names_its_key(tmp_path, capsys):
+    """The planner's refusals name flags; for a value the run file set they name its key
+    (issue 53: ``argument --base`` for a file's plant.base)."""
+    path = tmp_path / "run.yaml"
+    path.write_text("scenario: paper-triangle3\nplant: {kind: physics, physics_rate: 3}\n")
+    assert main(["launch", str(path), "--out", str(tmp_path / "a")]) == 2
+    assert capsys.readouterr().err.startswith(f"error: {path}: plant.physics_rate: 3: ")
+    path.write_text("scenario: paper-triangle3\nsafety: {enabled: true, margin: 0.5}\n")
+    assert main(["launch", str(path), "--out", str(tmp_path / "b")]) == 2
+    assert f"lower safety.margin in {path}," in capsys.readouterr().err
+    # given on the command line, the flag is named
+    assert main(["launch", str(path), "--safety-margin", "0.6", "--out",
+                 str(tmp_path / "c")]) == 2
+    assert "lower --safety-margin," in capsys.readouterr().err
+
+
+def test_a_run_files_robots_give_one_robot_its_host_driver_and_start(tmp_path, capsys):
+    """``robots: {I: {host, driver_ns, start}}``: what robot I does not share with the
+    team; its host places its node and bridge (the rest on 'ground'), its driver namespace
+    and start pose go to its bridge only. A robot the scenario has not, or a misspelt key,
+    is refused naming it."""
+    path = tmp_path / "run.yaml"
+    path.write_text("scenario: paper-triangle3\nplant: {kind: pioneer, allow_contact: true}\n"
+                    "robots: {2: {host: r2, driver_ns: /RosAria, start: [0.5, 1.0, 5 deg]}}\n")
+    plan = plan_of(options(str(path), "--out", str(tmp_path / "run")))
+    hosts = dict(plan.host_members)
+    assert sorted(hosts["r2"]) == ["bridge_2", "robot_2"]
+    assert {"virtual_leader", "monitor", "robot_1", "bridge_3"} <= set(hosts["ground"])
+    params = {s.name: dict(s.params) for s in plan.nodes}
+    assert params["bridge_2"]["driver_ns"] == "/RosAria"
+    assert params["bridge_2"]["initial_pose"] == pytest.approx([0.5, 1.0, math.radians(5)])
+    assert params["bridge_1"]["driver_ns"] == "/pioneer_1"
+    assert "initial_pose" not in params["bridge_1"]
+    # the written file keeps the section, and reads back the same
+    out = write_run_file(tmp_path, str(path), "--allow-contact", name="again.yaml")
+    again = plan_of(options(str(out), "--out", str(tmp_path / "again")))
+    assert dict(again.host_members)["r2"] == hosts["r2"]
+    for text, line in (("{7: {host: r7}}", "robots: 7: no such robot (robots are 1..3)"),
+                       ("{2: {hots: r2}}", f"{path}: robots.2.hots: unknown key"),
+                       ("{2: {start: [1, 2]}}", f"{path}: robots.2.start: expected [x, y, theta]")):
+        path.write_text("scenario: paper-triangle3\nplant: {kind: pioneer, allow_contact: "
+                        f"true}}\nrobots: {text}\n")
+        assert main(["launch", str(path), "--out", str(tmp_path / "bad")]) == 2
+        assert line in capsys.readouterr().err
