@@ -45,7 +45,9 @@ def bag_metadata(mcap_paths: Sequence[str | Path]) -> dict[str, Any]:
     restarted recorder's parts after the first), their paths relative to the folder. A
     file without a summary (its recorder was killed) is left out: tools could not read
     it. ValueError when none has one."""
-    files, topics, order = [], {}, []
+    files: list = []
+    topics: dict[tuple[str, str], dict[str, Any]] = {}
+    order: list[tuple[str, str]] = []
     for path in map(Path, mcap_paths):
         summary = _summary(path)
         if summary is None:
