@@ -77,7 +77,11 @@ def test_recording_holds_desired_poses_errors_and_markers(ros_env, tmp_path):
         name = m.topic.removeprefix("/formation/")
         if name == ms.MARKERS:
             arr = deserialize_message(m.data, MarkerArray)
-            assert {k.ns for k in arr.markers} == {"formation", "links", "errors", "labels"}
+            # each robot's footprint and heading too, in its own frame (issue 54)
+            assert {k.ns for k in arr.markers} == {"formation", "links", "errors", "labels",
+                                                   "footprint", "heading"}
+            assert sorted(k.header.frame_id for k in arr.markers if k.ns == "footprint") == \
+                ["robot_1/base_link", "robot_2/base_link", "robot_3/base_link"]
             assert sorted(k.text for k in arr.markers if k.ns == "labels") == \
                 ["robot_1", "robot_2", "robot_3"]
             markers += 1
