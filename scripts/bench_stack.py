@@ -38,7 +38,8 @@ robots per process; ``--scale-hosts``: robots on network-namespace hosts;
 size: the time from the launch to the first trial's start (seen on the launcher's console),
 discovery (when the launcher's monitor had found every node, and every node was ready),
 the DDS participants, the resident memory (RSS) of every process at its peak, in all and
-per kind of node, against a bare rclpy node (one publisher, one subscription, on the same
+per kind of node, and its proportional memory (PSS: pages shared between processes counted
+as each one's share), against a bare rclpy node (one publisher, one subscription, on the same
 domain during the same run, so that it holds the same discovery data), the CPU of all the
 run's processes per sample inside trials, and the realtime misses; then one table.
 
@@ -338,6 +339,18 @@ def rss_mb(pid: int) -> float | None:
     return None
 
 
+def pss_mb(pid: int) -> float | None:
+    """Proportional memory [MB] of ``pid`` (Pss of /proc/PID/smaps_rollup: each page it
+    maps shared with others counted as its share), or None if it is gone."""
+    try:
+        for line in Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines():
+            if line.startswith("Pss:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        return None
+    return None
+
+
 def kind_of(pid: int) -> str | None:
     from procstat import cmdline
 
@@ -421,6 +434,7 @@ def scale_run(n: int, args: argparse.Namespace, tmp: Path, dom: int) -> dict:
     reader = threading.Thread(target=read, daemon=True)
     reader.start()
     peak: dict[int, tuple[str, float]] = {}
+    peak_pss: dict[int, float] = {}  # [MB] each process's largest PSS
     cpu_at: dict[str, dict[int, float]] = {}
     while proc.poll() is None and time.monotonic() - t0 < args.timeout:
         if bare is None and "started" in marks:
@@ -440,6 +454,9 @@ def scale_run(n: int, args: argparse.Namespace, tmp: Path, dom: int) -> dict:
             mb = rss_mb(pid)
             if kind is not None and mb is not None:
                 peak[pid] = (kind, max(mb, peak.get(pid, (kind, 0.0))[1]))
+                pss = pss_mb(pid)
+                if pss is not None:
+                    peak_pss[pid] = max(pss, peak_pss.get(pid, 0.0))
         for mark in ("first", "end"):  # the run's CPU when the trials start and end
             if mark in marks and mark not in cpu_at:
                 cpu_at[mark] = {p: c for p in descendants([proc.pid])
@@ -459,6 +476,9 @@ def scale_run(n: int, args: argparse.Namespace, tmp: Path, dom: int) -> dict:
     by_kind: dict[str, list[float]] = {}
     for kind, mb in peak.values():
         by_kind.setdefault(kind, []).append(mb)
+    pss_kind: dict[str, list[float]] = {}
+    for pid, mb in peak_pss.items():
+        pss_kind.setdefault(peak[pid][0], []).append(mb)
     samples = s["timing"].get("samples", 0)  # in every trial
     cpu = None
     cpu_kind: dict[str, list[float]] = {}  # ms per sample, per process of each kind
@@ -478,7 +498,9 @@ def scale_run(n: int, args: argparse.Namespace, tmp: Path, dom: int) -> dict:
             "discovery": "server" if any(ln.startswith("discovery: through")
                                          for ln in lines) else "localhost",
             "first": marks.get("first"), "found": startup.get("all_found_s"),
-            "ready": startup.get("all_ready_s"), "kinds": by_kind,
+            "ready": startup.get("all_ready_s"), "kinds": by_kind, "pss_kinds": pss_kind,
+            "pss_total_mb": sum(mb for p, mb in peak_pss.items()
+                                if peak[p][0] != "bare node"),
             "total_mb": sum(mb for k, mb in peak.values() if k != "bare node"),
             "cpu_ms": cpu, "samples": samples,
             "missed": s["timing"].get("missed_total", sum(s.get("missed", {}).values())),
@@ -532,16 +554,24 @@ def scale_curve(args: argparse.Namespace, tmp: Path, dom: int) -> None:
               + ", ".join(f"{k} {max(v):.1f} MB [{max(v) / bare:.2f}]"
                           for k, v in sorted(r["kinds"].items()) if k != "bare node"),
               flush=True)
+        # PSS: a page shared by the processes that map it counted as each one's share (the
+        # libraries every robot process loads are paid once between them, not once each)
+        print(f"  PSS in all {r['pss_total_mb']:.0f} MB; per kind, median and max: "
+              + ", ".join(f"{k} {float(np.median(v)):.1f} / {max(v):.1f} MB"
+                          for k, v in sorted(r["pss_kinds"].items())), flush=True)
     print(f"load after: {Path('/proc/loadavg').read_text().split()[:3]}", flush=True)
     print(f"\n| robots | participants | launch to trial 1 [s] | all found / ready [s] | "
-          f"RSS total [MB] | robot RSS / bare | CPU per sample [ms] | {args.scale_mode} "
-          f"misses |\n| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+          f"RSS total [MB] | robot RSS / bare | robot PSS, median [MB] | CPU per sample [ms] | "
+          f"{args.scale_mode} misses |\n| ---: | ---: | ---: | ---: | ---: | ---: | ---: | "
+          f"---: | ---: |")
     for r in rows:
         bare = max(r["kinds"].get("bare node", [float("nan")]))
         robot = max(r["kinds"].get("robot", [float("nan")]))
         print(f"| {r['robots']} | {r['participants']} | {_num(r['first'], 1)} | "
               f"{_num(r['found'], 1)} / {_num(r['ready'], 1)} | {r['total_mb']:.0f} | "
-              f"{robot / bare:.2f} | {_num(r['cpu_ms'], 2)} | {r['missed']} of "
+              f"{robot / bare:.2f} | "
+              f"{float(np.median(r['pss_kinds'].get('robot', [float('nan')]))):.1f} | "
+              f"{_num(r['cpu_ms'], 2)} | {r['missed']} of "
               f"{r['robot_samples']:.0f} |", flush=True)
 
 
