@@ -481,8 +481,9 @@ def test_secure_bases_with_physics_bases_equal_the_insecure_run(ros_env, tmp_pat
     """``launch --secure --plant base --physics-bases``: each bridge and the physics bases
     in their enclaves (the bases' cmd_vel and odometry granted from the roster). Wall-clock
     trials against physics in wall time are not repeatable to round-off: the secure run's
-    errors equal the insecure run's within BATCH_ATOL (what a bridge run of the Pioneer
-    bridges gets against the batch simulator), it learns as the insecure run does, and an
+    first trial equals the insecure run's within BATCH_ATOL (what a bridge run of the
+    Pioneer bridges gets against the batch simulator), each learned trial within 15 % of its
+    error (or BATCH_ATOL), it learns as the insecure run does, and an
     unsecured participant receives nothing. (The run is stopped once the probe is done:
     its report, written after the bridges' last return, is not waited for.) An insider
     holding robot 3's enclave tries to send every base's true pose 1 km away (forger.py
@@ -531,7 +532,14 @@ def test_secure_bases_with_physics_bases_equal_the_insecure_run(ros_env, tmp_pat
         insecure = read_metrics(tmp_path / "insecure" / "metrics.csv")
     k = min(len(secure), len(insecure))
     assert k >= 2 and insecure[k - 1, 1] < insecure[0, 1] and secure[k - 1, 1] < secure[0, 1]
-    np.testing.assert_allclose(secure[:k, 1:3], insecure[:k, 1:3], rtol=0, atol=BATCH_ATOL)
+    # trial 0 (nothing learned yet) within what two wall-clock bridge runs differ by; a
+    # learned trial carries the previous trial's timing into its memory: two such runs
+    # differed by 0.22 m on an error of 1.9 m (11 %) in trial 1 (2026-12-07, load 8), so a
+    # learned trial may differ by 15 % of its error, and never less than trial 0's bound
+    np.testing.assert_allclose(secure[0, 1:3], insecure[0, 1:3], rtol=0, atol=BATCH_ATOL)
+    bound = np.maximum(BATCH_ATOL, 0.15 * np.abs(insecure[1:k, 1:3]))
+    assert (np.abs(secure[1:k, 1:3] - insecure[1:k, 1:3]) <= bound).all(), (secure[:k, 1:3],
+                                                                            insecure[:k, 1:3])
 
 
 @pytest.mark.slow
