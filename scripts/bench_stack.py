@@ -328,27 +328,27 @@ KINDS = (("robot", b"formation_ilc.nodes.robot"), ("simulator", b"robot_sim.node
          ("bare node", b"--bare-node"))
 
 
-def rss_mb(pid: int) -> float | None:
-    """Resident memory [MB] of ``pid`` (VmRSS), or None if it is gone."""
+def _proc_kb_mb(path: str, key: str) -> float | None:
+    """The ``key:`` line of ``path`` (a /proc file giving kB) in MB, or None if the process
+    is gone."""
     try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
+        for line in Path(path).read_text().splitlines():
+            if line.startswith(key):
                 return int(line.split()[1]) / 1024.0
     except OSError:
         return None
     return None
+
+
+def rss_mb(pid: int) -> float | None:
+    """Resident memory [MB] of ``pid`` (VmRSS), or None if it is gone."""
+    return _proc_kb_mb(f"/proc/{pid}/status", "VmRSS:")
 
 
 def pss_mb(pid: int) -> float | None:
     """Proportional memory [MB] of ``pid`` (Pss of /proc/PID/smaps_rollup: each page it
     maps shared with others counted as its share), or None if it is gone."""
-    try:
-        for line in Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines():
-            if line.startswith("Pss:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        return None
-    return None
+    return _proc_kb_mb(f"/proc/{pid}/smaps_rollup", "Pss:")
 
 
 def kind_of(pid: int) -> str | None:

@@ -132,6 +132,7 @@ from formation_ilc.nodes.params import ParameterError, check, declare, effective
 from formation_ilc.protocol.bridge import (
     Bridge,
     CommandLimits,
+    Pose,
     Returned,
     bridge_limits,
     odom_origin,
@@ -538,24 +539,27 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
         self.core.on_peer(robot, (float(eta[0]), float(eta[1]), float(eta[2])), ns,
                           time.monotonic())
 
-    def _on_truth(self, msg: PoseStamped) -> None:
+    def _world_pose(self, msg: PoseStamped, topic: str | None) -> Pose | None:
+        """A world pose from ``topic``, or None (counted as dropped) if it is not one."""
         try:
             eta, _ = ms.world_pose(msg)
         except Rejected as exc:
-            self.drops.reject(exc, str(self.truth_topic))
+            self.drops.reject(exc, str(topic))
+            return None
+        return (float(eta[0]), float(eta[1]), float(eta[2]))
+
+    def _on_truth(self, msg: PoseStamped) -> None:
+        pose = self._world_pose(msg, self.truth_topic)
+        if pose is None:
             return
-        pose = (float(eta[0]), float(eta[1]), float(eta[2]))
         self.core.on_truth(pose)
         if self.located_topic == self.truth_topic:  # the physics bases' motion capture
             self.core.on_located(pose, time.monotonic())
 
     def _on_located(self, msg: PoseStamped) -> None:
-        try:
-            eta, _ = ms.world_pose(msg)
-        except Rejected as exc:
-            self.drops.reject(exc, str(self.located_topic))
-            return
-        self.core.on_located((float(eta[0]), float(eta[1]), float(eta[2])), time.monotonic())
+        pose = self._world_pose(msg, self.located_topic)
+        if pose is not None:
+            self.core.on_located(pose, time.monotonic())
 
     def _on_cmd(self, msg: Twist) -> None:
         wall = self._wall_ns()
