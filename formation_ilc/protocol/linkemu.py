@@ -105,6 +105,8 @@ class EmulatedLinks(Generic[P]):
         self.shared: list[list[P | None]] = [[None] * (n_t + 1) for _ in range(n)]
         self.ref: list[P | None] = [None] * (n_t + 1)
         self.count = np.zeros(n_t + 1, dtype=np.int64)
+        self.sent = np.zeros((n, n_t), dtype=bool)  # robot i's deliveries of tick t went out
+        self.unsent = 0  # realtime: (robot, tick) never sent, its /clock unheard (late)
 
     @property
     def k(self) -> int:
@@ -153,6 +155,7 @@ class EmulatedLinks(Generic[P]):
         self.shared = [[None] * (self.T + 1) for _ in range(self.n)]
         self.ref = [None] * (self.T + 1)
         self.count = np.zeros(self.T + 1, dtype=np.int64)
+        self.sent = np.zeros((self.n, self.T), dtype=bool)
         self.next_t = 0
         # realtime: /clock arms each tick; lockstep: tick 0 is open for every robot
         self.waiting = {} if self.realtime else dict.fromkeys(range(self.n), 0)
@@ -234,6 +237,7 @@ class EmulatedLinks(Generic[P]):
             return False
         tick = self.clock.stamp_ns(self.k, t)
         to = robot_name(i + 1)
+        self.sent[i, t] = True
         for m_idx, (sender, m, tau, due) in enumerate(needs):
             if tau >= LOST:
                 self.lost[link_name(sender, to)] += 1
@@ -291,8 +295,23 @@ class EmulatedLinks(Generic[P]):
         return out
 
     def _done(self, out: Emitted[P]) -> None:
+        if self.realtime:
+            self._count_unsent()
         self.reported = True
         out.done = True
+
+    def _count_unsent(self) -> None:
+        """Realtime: a tick whose ``/clock`` never reached the emulator (a starved process,
+        a lost message) sent nothing: its due deliveries are late, not lost from the count."""
+        for i, t in zip(*np.nonzero(~self.sent), strict=True):
+            self.unsent += 1
+            to = robot_name(int(i) + 1)
+            for sender, ell in self.links[i]:
+                tau = int(self.tau[i, ell, t] if ell >= 0 else self.tau0[i, t])
+                if tau >= LOST:
+                    self.lost[link_name(sender, to)] += 1
+                elif delivered_label(int(t), tau) >= 0:
+                    self.late[link_name(sender, to)] += 1
 
     def report(self) -> dict[str, Any]:
         """The trial's diagnostics: trial, slot, the delays injected per link (histogram),
@@ -302,6 +321,7 @@ class EmulatedLinks(Generic[P]):
                                           for link, h in self.injected.items()}}
         if self.realtime:
             d["late"] = dict(self.late)
+            d["ticks_unheard"] = self.unsent
         if self.cfg.scenario.uncertainty.link_loss > 0:
             d["lost"] = dict(self.lost)
         return d

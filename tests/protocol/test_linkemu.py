@@ -217,3 +217,31 @@ def test_realtime_reports_after_the_last_ticks_deliveries():
         out_d = links.deadline() if links.waiting else out
         assert (out.done or out_d.done) == (t == links.T - 1)
     assert links.reported and not links.on_clock(clk.stamp_ns(0, links.T)).ticks
+
+
+def test_realtime_a_tick_never_heard_is_counted_late_not_lost_from_the_count():
+    """A starved emulator that never hears tick 2's ``/clock`` sends nothing at it: by the
+    trial's report every due delivery of the model is either injected or late."""
+    links = emulator("realtime", seed=3)
+    start(links, 0, 0)
+    clk, sc, pb = links.clock, links.cfg.scenario, links.pb
+    tau, tau0 = sc.uncertainty.draw_delays(sc.seed, 0, pb.n, 1, links.T)
+    for t in range(links.T):
+        if t != 2:  # its poses come, its /clock does not
+            links.on_clock(clk.stamp_ns(0, t))
+        feed(links, 0, t)
+        links.deadline()
+    assert links.reported and links.unsent == pb.n
+    due = {"leader->robot_1": sum(delivered_label(t, int(tau0[0, t])) >= 0
+                                  for t in range(links.T))}
+    for i in (1, 2):
+        due[f"robot_1->robot_{i + 1}"] = sum(delivered_label(t, int(tau[i, 0, t])) >= 0
+                                             for t in range(links.T))
+    for name, n_due in due.items():
+        assert sum(links.injected[name].values()) + links.late[name] == n_due, name
+    # exactly tick 2's due deliveries are late: every pose came, nothing else was missing
+    late2 = {"leader->robot_1": int(delivered_label(2, int(tau0[0, 2])) >= 0),
+             **{f"robot_1->robot_{i + 1}": int(delivered_label(2, int(tau[i, 0, 2])) >= 0)
+                for i in (1, 2)}}
+    assert links.late == late2
+    assert links.report()["ticks_unheard"] == pb.n
