@@ -386,7 +386,8 @@ def _safety_spec(args: argparse.Namespace, sc: Any) -> Any:
     )
     from formation_ilc.model.safety import body_limits, desired_clearance, spec_of
 
-    args.safety_learning = args.safety_learning or default_learning(args.body)
+    args.safety_learning = (args.safety_learning
+                            or default_learning(args.body, sc.uncertainty.pose_noise))
     if args.safety_margin is None:
         args.safety_margin = default_margin(args.body)
     args.safety_motion = getattr(args, "safety_motion", None) or default_motion(sc.n)

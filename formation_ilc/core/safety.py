@@ -61,7 +61,7 @@ __all__ = ["SafetySpec", "LEARNING", "CHANGED_LIMITS", "CHANGED_BARRIER", "INFEA
            "OTHER_FIELDS", "told", "team_boxes"]
 
 #: how the memory learns at samples the filter changed
-LEARNING = ("applied", "freeze", "ignore", "split", "damped")
+LEARNING = ("applied", "freeze", "ignore", "split", "damped", "robust")
 
 #: flags of one filtered command (bitwise or)
 CHANGED_LIMITS = 1     # the learned command left the box of the base's limits

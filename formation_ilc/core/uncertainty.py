@@ -136,6 +136,12 @@ class Uncertainty:
         return abs(self.noise_uniform[2]) + abs(self.noise_fixed[2].amplitude)
 
     @property
+    def pose_noise(self) -> bool:
+        """The measured poses carry noise drawn anew every trial (``noise_uniform``): what
+        a learning law cannot learn, and takes into its memory unless it filters it."""
+        return any(self.noise_uniform)
+
+    @property
     def noisy(self) -> bool:
         return bool(
             any(self.initial_shift) or any(self.disturbance_uniform) or any(self.noise_uniform)

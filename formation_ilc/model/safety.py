@@ -129,10 +129,11 @@ def body_spec(body: str, dt: float, noise: Uncertainty | None = None,
     """The filter ``body`` robots run by default (``check --base BODY`` judges a team by
     it): the base's one limits table, its default margin and learning reading, at sample
     time ``dt``, for poses as noisy as ``noise`` (None: exact)."""
-    from formation_ilc.config.safety import default_margin
+    from formation_ilc.config.safety import default_learning, default_margin
 
+    noisy = noise is not None and noise.pose_noise
     return spec_of(SafetySettings(body, body_limits(body), default_margin(body),
-                                  motion=motion), dt, noise)
+                                  default_learning(body, noisy), motion=motion), dt, noise)
 
 
 @dataclass(frozen=True)

@@ -76,7 +76,7 @@ def _safety(opts: LaunchOptions, row: Plant, sc: Scenario, namespace: str,
         return SafetySettings(body, limits,
                               default_margin(body) if margin is None else float(margin),
                               opts.safety_learning
-                              or default_learning(body),
+                              or default_learning(body, sc.uncertainty.pose_noise),
                               "peers" if row.per_robot else "team",
                               opts.safety_motion
                               or default_motion(sc.n, bridged=row.per_robot))

@@ -109,8 +109,11 @@ def test_the_safety_filter_is_on_with_bodies_and_lets_the_cold_start_run(tmp_pat
                  "--safety-margin", "0.1", "--no-noise")
     assert on.config.safety is not None and on.config.safety.body == "jackal"
     assert sf.margin == 0.1 and on.config.safety.margin == 0.1
-    # how the memory learns through the filter: by body, as measured (docs/safety.md)
-    assert sf.learning == "damped" and on.config.safety.learning == "split"
+    # how the memory learns through the filter: by body and by the poses' noise, as
+    # measured (docs/safety.md): the paper's noisy triangle ``robust``, exact ``damped``
+    assert sf.learning == "robust" and on.config.safety.learning == "split"
+    exact = plan_of(tmp_path / "v", "paper-triangle3", "--plant", "physics", "--no-noise")
+    assert exact.config.safety is not None and exact.config.safety.learning == "damped"
     told = plan_of(tmp_path / "u", "paper-triangle3", "--safety", "--safety-learning",
                    "freeze")
     assert told.config.safety is not None and told.config.safety.learning == "freeze"

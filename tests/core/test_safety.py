@@ -20,6 +20,7 @@ from formation_ilc.core.safety import (
     CHANGED_BARRIER,
     CHANGED_LIMITS,
     INFEASIBLE,
+    LEARNING,
     OTHER_FIELDS,
     PARAMS,
     SafetySpec,
@@ -263,6 +264,48 @@ def test_learn_base_modes():
     flags = np.array([[0, CHANGED_BARRIER | CHANGED_LIMITS, 0]])
     learn_base(4, mem, nominal, applied, flags, out)
     np.testing.assert_allclose(out[0, 1], DAMPING * (0.25 - 1.0))
+
+
+def test_robust_smooths_every_step_the_filter_acted_or_not():
+    """``robust`` (noisy poses): ``damped``'s Q-filter on every sample of every robot's
+    step, in trials the filter left alone too: a slow step passes, the sample-to-sample
+    part (what noisy poses put into the paper's step) is taken out; from the memory it
+    starts from as ``damped`` does; compiled and interpreted alike."""
+    dt, n_t = 0.2, 150
+    rng = np.random.default_rng(5)
+    mem = rng.normal(size=(2, n_t, 2))
+    t = np.arange(n_t)
+    slow = 0.3 + 0.1 * np.sin(2 * np.pi * t * dt / 20.0)   # a 20 s swing: kept
+    noise = rng.uniform(-0.05, 0.05, size=(2, n_t))         # a pose's noise: taken out
+    step = np.zeros((2, n_t, 2))
+    step[:, :, 0] = slow[None, :] + noise
+    step[:, :, 1] = noise
+    flags = np.zeros((2, n_t), dtype=np.int64)  # the filter changed nothing
+    learned = mem + step
+    damped = learned.copy()
+    smooth_learning(4, dt, mem, flags, damped)
+    np.testing.assert_array_equal(damped, learned)  # damped: the paper's step, untouched
+    out = learned.copy()
+    smooth_learning(5, dt, mem, flags, out)
+    got = out - mem
+    inner = slice(20, n_t - 20)  # away from the trial's ends
+    # the swing within 3 cm (the kernel passes 93 % of a 20 s swing; what is left of the
+    # noise, a kernel of about 21 samples' worth averaging it, about 6 mm)
+    np.testing.assert_allclose(got[:, inner, 0], np.broadcast_to(slow[inner], (2, 110)),
+                               atol=0.03)
+    assert got[:, :, 1].std() < 0.35 * noise.std()
+    compiled = learned.copy()
+    smooth_learning.jit(5, dt, mem, flags, compiled)
+    np.testing.assert_array_equal(compiled, out)
+    # where the filter changed a command it starts from the memory as damped does
+    nominal = np.full((1, 3, 2), 1.0)
+    applied = np.full((1, 3, 2), 0.25)
+    f3 = np.array([[0, CHANGED_BARRIER, CHANGED_LIMITS]])
+    a, b = np.empty_like(nominal), np.empty_like(nominal)
+    learn_base(4, np.zeros_like(nominal), nominal, applied, f3, a)
+    learn_base(5, np.zeros_like(nominal), nominal, applied, f3, b)
+    np.testing.assert_array_equal(a, b)
+    assert LEARNING[5] == "robust"
 
 
 def test_damped_smooths_the_step_where_the_filter_changed_a_command():
