@@ -5,7 +5,7 @@
                                               [--first-seed 0] [--no-write]
     .venv/bin/python scripts/families_study.py --physics crossing-0 swapping-5 [--trials 40]
     .venv/bin/python scripts/families_study.py --table 3 --kinds orbit tusi ... \
-                                              [--motion both] [--at 10 30 60]
+                                              [--motion both] [--at 10 30 60] [--poses noisy]
 
 For each family of ``studies.families`` (``--kinds``; default crossing, following, swapping)
 and each seed, the member that fits a Pioneer 3-DX (``check --base p3dx`` passes) learns
@@ -94,7 +94,7 @@ def table_member(kind: str, seed: int, noise: bool, trials: int,
 
 
 def table(kinds: list[str], members: int, first: int, at: list[int],
-          motions: list[str]) -> list[dict]:
+          motions: list[str], noises: tuple[bool, ...] = (False, True)) -> list[dict]:
     """``--table``: ``members`` members of each kind, exact and noisy, through the filter
     with each of ``motions`` and without it; one line per member, then a markdown table
     per motion: the median error through the filter / without it at the trials ``at``
@@ -103,7 +103,7 @@ def table(kinds: list[str], members: int, first: int, at: list[int],
     trials = max(at) + 1
     rows = []
     for kind in kinds:
-        for noise in (False, True):
+        for noise in noises:
             for seed in range(first, first + members):
                 try:
                     r = table_member(kind, seed, noise, trials, motions)
@@ -198,6 +198,8 @@ def main() -> int:
     ap.add_argument("--at", type=int, nargs="+", default=[10, 30, 60],
                     help="--table's trials (0-based; default 10 30 60)")
     ap.add_argument("--json", type=Path, help="--table: write every member's curves here")
+    ap.add_argument("--poses", choices=("exact", "noisy", "both"), default="both",
+                    help="--table: members with exact poses, with the paper's noise, or both")
     ap.add_argument("--physics", nargs="+", metavar="KIND-SEED", type=member_name,
                     help="run these members on the physics plant instead (e.g. crossing-0; "
                          "--trials then defaults to 40)")
@@ -216,7 +218,8 @@ def main() -> int:
     if args.table:
         if min(args.at) < 0:
             ap.error("argument --at: trials are 0-based, at least 0")
-        rows = table(args.kinds, args.table, args.first_seed, sorted(args.at), motions)
+        noises = {"exact": (False,), "noisy": (True,), "both": (False, True)}[args.poses]
+        rows = table(args.kinds, args.table, args.first_seed, sorted(args.at), motions, noises)
         if args.json:
             args.json.write_text(json.dumps(rows))
         return 0
