@@ -27,6 +27,18 @@ def stop_group(proc: subprocess.Popen, first: int = signal.SIGINT, grace: float 
         proc.wait()
 
 
+def end_forger(proc: subprocess.Popen, grace: float = 60.0) -> str:
+    """What a second process (``tests/stack/forger.py``) said, once it ended. It ends by
+    itself when it sees the run's leader leave the graph; if it has not seen that within
+    ``grace`` s of the run's end (its reader's discovery late under load), it is told by
+    SIGINT, and says what it forged then."""
+    try:
+        return str(proc.communicate(timeout=grace)[0])
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGINT)
+        return str(proc.communicate(timeout=60)[0])
+
+
 def same_netns(pid: int | str) -> bool:
     """Whether process ``pid`` is in this process's network namespace: a domain id names a
     run only within one (other sessions may run the same id in namespaces of their own)."""

@@ -700,6 +700,11 @@ class _Session:
                     describe(self.plan, self.host, status)
                     self.host.described(3.0)
             self.diagnostics = self.host.close()
+            monitor = self.host.monitor
+            if monitor is not None and monitor.slots.late_counts:
+                # a count said after its row went out (the physics bases' contacts of the
+                # last trial): metrics.csv written again with it
+                _rewrite_metrics(self.plan.out / "metrics.csv", self.rows())
         return status
 
     def _deactivate(self) -> None:

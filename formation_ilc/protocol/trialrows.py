@@ -94,6 +94,8 @@ class SlotRows:
         #: slot -> robot (0-based) -> commands its filter changed; slot -> contacts
         self.filtered: dict[int, dict[int, int]] = {}
         self.contacts: dict[int, int] = {}
+        #: iterations whose row took a count after it was made (``note_contacts``)
+        self.late_counts: set[int] = set()
         self.true_state = true_state
         self.first = first
         self.strict = strict
@@ -311,9 +313,17 @@ class SlotRows:
             self.filtered.setdefault(slot, {})[robot] = int(changed)
 
     def note_contacts(self, slot: int, pairs: int) -> None:
-        """The plant says ``pairs`` pairs of robots touched in ``slot``."""
-        if slot not in self.iteration_of or self.iteration_of[slot] not in self.rows:
+        """The plant says ``pairs`` pairs of robots touched in ``slot``. A plant on the wall
+        clock (the physics bases) may say it after the slot's trajectories made its row
+        (the run's last trial): a row made without it (nan) takes it then, and its
+        iteration is in ``late_counts`` (its line in a streamed metrics.csv is to be
+        written again)."""
+        i = self.iteration_of.get(slot)
+        if i is None or i not in self.rows:
             self.contacts[slot] = int(pairs)
+        elif self.made.get(i) == slot and np.isnan(self.rows[i][_CONTACTS]):
+            self.rows[i][_CONTACTS] = float(pairs)
+            self.late_counts.add(i)
 
     def measured_only(self) -> list[Row]:
         """Rows of the slots whose measured trajectories are all in, with nan true columns:

@@ -266,6 +266,16 @@ def test_rows_count_what_the_filter_changed_and_the_contacts_noted_before_them()
     (d,) = feed(rows, 1, 1)
     assert np.isnan(d.row[METRIC_COLUMNS.index("filter_active")])
     assert np.isnan(d.row[METRIC_COLUMNS.index("contacts")])
+    assert rows.late_counts == set()
+    # a plant on the wall clock says the slot's contacts after its row was made (the
+    # physics bases, the last trial): the row takes them then, once, and says so
+    rows.note_contacts(1, 0)
+    assert rows.rows[1][METRIC_COLUMNS.index("contacts")] == 0
+    assert rows.late_counts == {1}
+    rows.note_contacts(1, 2)  # a count the row has is not changed again
+    assert rows.rows[1][METRIC_COLUMNS.index("contacts")] == 0
+    rows.note_contacts(0, 3)  # nor one it was made with
+    assert rows.rows[0][METRIC_COLUMNS.index("contacts")] == 1 and rows.late_counts == {1}
     # a run without a filter changed nothing
     plain = SlotRows(PB)
     plain.event(start(0, 0))

@@ -249,7 +249,11 @@ def main() -> int:
     over = False
     try:
         while todo and time.monotonic() < deadline:
-            ex.spin_once(timeout_sec=0.01)
+            try:
+                ex.spin_once(timeout_sec=0.01)
+            except KeyboardInterrupt:  # the test says the run is over (``end_forger``)
+                over = True
+                break
             if st["config_seen"] and not config_sub(topic(ms.CONFIG)):
                 over = True
                 break  # the leader is gone: the run is over

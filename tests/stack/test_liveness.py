@@ -24,7 +24,7 @@ from formation_ilc.config.scenario import load_scenario
 from formation_ilc.core.metrics import read_metrics
 from formation_ilc.model.simulate import simulate
 
-from ..procs import stop_group
+from ..procs import end_forger, stop_group
 
 pytestmark = [pytest.mark.ros, pytest.mark.multiprocess]
 
@@ -190,7 +190,7 @@ def test_forged_events_and_a_forged_down_move_nothing(ros_env, context, tmp_path
                                   "run": forger.run_id}
                 forger.publish(forger.ready, forged["down"])
         out, err = proc.communicate(timeout=60)
-        said = second.communicate(timeout=60)[0]
+        said = end_forger(second)
     finally:
         stop_group(proc)
         stop_group(second)
@@ -263,7 +263,7 @@ def test_a_flood_of_replayed_poses_is_refused_and_what_it_drowned_is_sent_again(
                               stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:
         out, err = proc.communicate(timeout=600)
-        said = second.communicate(timeout=60)[0]
+        said = end_forger(second)
     finally:
         stop_group(proc)
         stop_group(second)

@@ -26,7 +26,7 @@ from formation_ilc.model.simulate import simulate  # noqa: E402
 from formation_ilc.recordings.recording import load_recording  # noqa: E402
 from formation_ilc.studies.physics import run_physics  # noqa: E402
 
-from ..procs import stop_group  # noqa: E402
+from ..procs import end_forger, stop_group  # noqa: E402
 from .shared import RUNS
 from .test_stack import launch  # noqa: E402
 
@@ -109,7 +109,7 @@ def test_a_cold_start_on_bodies_learns_through_the_safety_filter(ros_env, tmp_pa
         res = launch(ros_env, tmp_path / "run", "paper-triangle3", "--plant", "physics",
                      "--trials", "3", "--no-noise", "--no-delay", "--record", str(rec),
                      timeout=600.0)
-        said = second.communicate(timeout=60)[0]
+        said = end_forger(second)
     finally:
         stop_group(second)
     assert res.returncode == 0, res.stdout

@@ -31,7 +31,7 @@ from formation_ilc.config.scenario import load_scenario
 from formation_ilc.core.metrics import read_metrics
 from formation_ilc.model.simulate import simulate
 
-from ..procs import stop_group
+from ..procs import end_forger, stop_group
 from .shared import RUNS
 from .test_stack import TOL, launch, start_launch
 
@@ -200,7 +200,7 @@ def test_secure_lockstep_equals_batch_simulator(ros_env, tmp_path, keystore):
     try:
         res = launch(ros_env, tmp_path, "paper-triangle3", "--trials", str(trials), "--seed",
                      "5", "--secure", str(keystore))
-        said = forger.communicate(timeout=60)[0]
+        said = end_forger(forger)
     finally:
         stop_group(forger)
     assert res.returncode == 0, res.stdout
@@ -511,7 +511,7 @@ def test_secure_bases_with_physics_bases_equal_the_insecure_run(ros_env, tmp_pat
     try:
         got, out, alive = _secure_run_probed(ros_env, tmp_path / "secure", ks,
                                              [*common, "--trials", "30"], first_rows=2)
-        said = forger.communicate(timeout=60)[0]
+        said = end_forger(forger)
     finally:
         stop_group(forger)
     assert alive, out
@@ -573,7 +573,7 @@ def test_secure_host_launchers_each_with_its_bundle(ros_env, tmp_path, secure_dd
         assert procs["ground"].wait(timeout=300) == 0, (tmp_path / "ground.log").read_text()
         for h in hosts[:3]:
             assert procs[h].wait(timeout=30) == 0, (tmp_path / f"{h}.log").read_text()
-        said = forger.communicate(timeout=60)[0]
+        said = end_forger(forger)
     finally:
         for p in [forger, *procs.values()]:
             stop_group(p)
