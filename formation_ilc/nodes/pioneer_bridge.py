@@ -608,7 +608,9 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
                 self.sample_lags.append((self.truth.true(wall) - ns) / 1e6)
             self.pose_pub.publish(ms.pose_to_msg(pose, ns, ms.WORLD_FRAME))
         if tick.whereabouts is not None and self.where_pub is not None:
-            self.where_pub.publish(ms.pose_to_msg(tick.whereabouts, wall, ms.WORLD_FRAME))
+            # stamped when the pose came, not at the tick (the others' speed estimates)
+            self.where_pub.publish(ms.pose_to_msg(
+                tick.whereabouts, wall - int(tick.whereabouts_age * 1e9), ms.WORLD_FRAME))
         if tick.returned is not None:
             self._returned(tick.returned)
         if tick.cmd is not None:

@@ -269,6 +269,10 @@ class BridgeTick:
     #: between trials, with a safety filter: the robot's world pose, for the other
     #: bridges' returns (every ``WHEREABOUTS_PERIOD``)
     whereabouts: Pose | None = None
+    #: [s] how long ago that pose came (the odometry's or the located pose's arrival):
+    #: it is stamped then, so that the others' speed estimates divide its motion by the
+    #: time it took, not by the ticks', which beat against the pose's own rate
+    whereabouts_age: float = 0.0
 
 
 #: how often a bridge says where its robot is between trials [s]
@@ -495,29 +499,29 @@ class Bridge:
             if st.done:
                 returned = self._returned(st.reached, now)
                 return BridgeTick(sample, returned, self.send((0.0, 0.0), now, now_wall_ns),
-                                  true_path, self._whereabouts(now))
+                                  true_path, *self._whereabouts(now))
             cmd = (st.v, st.omega) if stale else self._safe((st.v, st.omega), now)
             return BridgeTick(sample, None, self.send(cmd, now, now_wall_ns), true_path,
-                              self._whereabouts(now))
+                              *self._whereabouts(now))
         cmd = self.robot_cmd
         if self.watchdog.expired(now):
             if self.out_cmd != (0.0, 0.0) and self.phase == TRIAL:
                 self.counts["watchdog_zero"] += 1
             cmd = (0.0, 0.0)
-        where = self._whereabouts(now)
+        where, age = self._whereabouts(now)
         if cmd != self.out_cmd or now - self.last_out >= self.period:
             return BridgeTick(sample, None, self.send(cmd, now, now_wall_ns), true_path,
-                              where)
-        return BridgeTick(sample, true_path=true_path, whereabouts=where)
+                              where, age)
+        return BridgeTick(sample, true_path=true_path, whereabouts=where, whereabouts_age=age)
 
-    def _whereabouts(self, now: float) -> Pose | None:
+    def _whereabouts(self, now: float) -> tuple[Pose | None, float]:
         """The robot's world pose to say now (with a filter, between trials, every
-        WHEREABOUTS_PERIOD), or None."""
+        WHEREABOUTS_PERIOD), or None; and how long ago it came [s]."""
         if (self.safety is None or self.phase == TRIAL or self.odom is None
                 or now - self._said_at < WHEREABOUTS_PERIOD):
-            return None
+            return None, 0.0
         self._said_at = now
-        return self.world()
+        return self.world(), max(0.0, now - self.odom_time)
 
     def _safe(self, cmd: Command, now: float) -> Command:
         """The return controller's ``cmd`` through the safety filter (its ``dt``: the
