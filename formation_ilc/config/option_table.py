@@ -302,10 +302,12 @@ OPTIONS: tuple[Option, ...] = (
                     "steer, whose wheels slip: docs/safety.md",
        help="least gap between two robots' covering discs"),
     _o("safety_learning", "safety.learning", "--safety-learning", "str", choices=LEARNING,
-       group="safety", default_text="damped on two wheels, split on skid steer",
+       group="safety", default_text="damped on two wheels (robust with noisy poses), "
+                                    "split on skid steer",
        help="how the memory learns where the filter changed a command: damped (takes in a "
             f"share, {DAMPING:g}, of a barrier's change and all of a limit's, and smooths "
-            f"its step around the changes over {Q_SIGMA:g} s), applied (from the command "
+            f"its step around the changes over {Q_SIGMA:g} s), robust (damped, and its "
+            "whole step smoothed, every trial: noisy poses), applied (from the command "
             "the robot really drove), split (from it where a limit clipped the command, not "
             "at all where a barrier moved it), freeze (no learning at those samples), "
             "ignore (as if unchanged; winds up). docs/safety.md compares them"),
