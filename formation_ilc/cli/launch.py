@@ -382,6 +382,22 @@ def _rewrite_metrics(path: Path, kept: list[Any]) -> None:
             w.writerow(format_row(np.asarray(r, dtype=float)))
 
 
+def _late_counts(path: Path, rows: dict[int, Any], late: set[int]) -> None:
+    """metrics.csv with the counts its rows took after they were written (``late``: their
+    trials; ``rows``: the monitor's, by trial): each trial's row as the monitor has it now,
+    every other line as it was (a contact's own row, which ended the run in a return)."""
+    from formation_ilc.core.metrics import METRIC_COLUMNS, read_metrics
+
+    col = METRIC_COLUMNS.index("contacts")
+    kept = []
+    for r in read_metrics(path):
+        k = int(r[0])
+        if k in late and k in rows and np.isnan(r[col]) and np.isfinite(r[1]):
+            r = rows[k]
+        kept.append(r)
+    _rewrite_metrics(path, kept)
+
+
 class StartupProgress:
     """What the console shows while a run starts: from the processes' start to the
     leader's first ``start``, a line at least every ``every`` seconds (sooner when a count
@@ -704,7 +720,8 @@ class _Session:
             if monitor is not None and monitor.slots.late_counts:
                 # a count said after its row went out (the physics bases' contacts of the
                 # last trial): metrics.csv written again with it
-                _rewrite_metrics(self.plan.out / "metrics.csv", self.rows())
+                _late_counts(self.plan.out / "metrics.csv", monitor.rows,
+                             monitor.slots.late_counts)
         return status
 
     def _deactivate(self) -> None:
