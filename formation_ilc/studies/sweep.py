@@ -44,11 +44,10 @@ from typing import Any
 import numpy as np
 import yaml
 
-from formation_ilc.config.scenario import (
+from formation_ilc.config.scenario import builtin_scenarios, load_scenario
+from formation_ilc.config.yamlfields import (
+    Fields,
     ScenarioError,
-    _Fields,
-    builtin_scenarios,
-    load_scenario,
     parse_yaml,
     read_text_file,
     show,
@@ -117,14 +116,14 @@ class SweepSpec:
 MAX_POINTS = 1_000_000
 
 
-def _value_list(f: _Fields, key: str, v: Any) -> list[Any]:
+def _value_list(f: Fields, key: str, v: Any) -> list[Any]:
     if not isinstance(v, list) or not v:
         raise f.fail(key, f"expected a non-empty list of values, got {show(v)}")
     return v
 
 
-def _draw(f: _Fields, key: str, dist: Any, rng: np.random.Generator, count: int) -> list[Any]:
-    df = _Fields(dist, f"{f.path}.{key}", f.src)
+def _draw(f: Fields, key: str, dist: Any, rng: np.random.Generator, count: int) -> list[Any]:
+    df = Fields(dist, f"{f.path}.{key}", f.src)
     kinds = [k for k in ("uniform", "log_uniform", "choice") if k in dist]
     if len(kinds) != 1:
         raise df.fail(None, "give exactly one of uniform: [lo, hi], log_uniform: [lo, hi], "
@@ -152,7 +151,7 @@ def spec_from_text(text: str, source: str = "<spec>", base_dir: Path | None = No
                    ) -> SweepSpec:
     """Parse and validate a sweep spec; ScenarioError names the file, the field and why."""
     data = parse_yaml(text, source)
-    top = _Fields(data, "", source)
+    top = Fields(data, "", source)
     scen = top.string("scenario")
     path = Path(scen) if base_dir is None or Path(scen).is_absolute() else base_dir / scen
     if scen in builtin_scenarios() and not path.exists():
