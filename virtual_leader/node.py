@@ -203,13 +203,7 @@ class LeaderNode(GuardedNode):
                                                       ms.CLOCK_QOS, raw=True)
             self.create_timer(RESEND_S / 8, self.core.start_again)
         if cfg.clock_exchanges:
-            # the team's clock reference: robots that hear it and every bridge ask for its
-            # time (the ground station's machine clock, never emulated)
-            askers = [ms.robot_name(i + 1) for i in range(sc.n) if sc.graph.leader[i] > 0]
-            if cfg.mode == "wallclock":  # the bridges sample on the leader's clock
-                askers += [ms.bridge_name(i + 1) for i in range(sc.n)]
-            self.clocks = ClockExchange(self, ms.LEADER, cfg, node_clock(cfg, None), (),
-                                        askers, self.drops)
+            self._answer_clocks(cfg)
         # the stop button: a call stops every robot and ends the run (status 7); an e-stop
         # someone else latched ends it too
         self.stopped_by: str | None = None
@@ -225,6 +219,16 @@ class LeaderNode(GuardedNode):
         self.get_logger().info(f"{sc.name}: {sc.n} robots, {sc.trials} trials of "
                                f"{sc.samples} samples, {cfg.mode}, {cfg.links} links; "
                                f"waiting for {', '.join(expected)}")
+
+    def _answer_clocks(self, cfg: RunConfig) -> None:
+        """The team's clock reference: robots that hear it and every bridge ask for its
+        time (the ground station's machine clock, never emulated)."""
+        sc = cfg.scenario
+        askers = [ms.robot_name(i + 1) for i in range(sc.n) if sc.graph.leader[i] > 0]
+        if cfg.mode == "wallclock":  # the bridges sample on the leader's clock
+            askers += [ms.bridge_name(i + 1) for i in range(sc.n)]
+        self.clocks = ClockExchange(self, ms.LEADER, cfg, node_clock(cfg, None), (),
+                                    askers, self.drops)
 
     def _exit_when_done(self) -> None:
         """The run is over: end this process with status 0 (``exit_when_done``); the
