@@ -227,8 +227,8 @@ class LeaderNode(GuardedNode):
         askers = [ms.robot_name(i + 1) for i in range(sc.n) if sc.graph.leader[i] > 0]
         if cfg.mode == "wallclock":  # the bridges sample on the leader's clock
             askers += [ms.bridge_name(i + 1) for i in range(sc.n)]
-        self.clocks = ClockExchange(self, ms.LEADER, cfg, node_clock(cfg, None), (),
-                                    askers, self.drops)
+        self.clocks = ClockExchange(self, ms.LEADER, cfg, node_clock(cfg, None), peers=(),
+                                    askers=askers, drops=self.drops)
 
     def _exit_when_done(self) -> None:
         """The run is over: end this process with status 0 (``exit_when_done``); the

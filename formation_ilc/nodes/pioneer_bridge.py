@@ -346,8 +346,9 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
             # clock words on a writer of their own (the report's keeps one message)
             self.word_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS,
                                                   ms.LATCHED_QOS)
-            self.clocks = ClockExchange(self, self.name, cfg, self.wall, [ms.LEADER], (),
-                                        self.drops, on_report=self._clock_word)
+            self.clocks = ClockExchange(self, self.name, cfg, self.wall, peers=[ms.LEADER],
+                                        askers=(), drops=self.drops,
+                                        on_report=self._clock_word)
         self._tick = self.create_timer(TICK, self._on_tick)
         self._gate = self.create_timer(0.05, self._check_ready)
         self.get_logger().info(f"{self.name}: driver {self.driver} ({cmd_t}, {odom_t}, "

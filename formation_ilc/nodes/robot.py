@@ -287,8 +287,9 @@ class RobotNode(ConfiguredNode):
             # and its own for the robots that hear it (protocol.timesync)
             self.clocks = ClockExchange(
                 self, self.name, cfg, clock,
-                [*lrn.neighbours, *([LEADER] if lrn.sees_leader else [])], self.out_names,
-                self.drops, on_event=self._clock_event, on_report=self._clock_word)
+                peers=[*lrn.neighbours, *([LEADER] if lrn.sees_leader else [])],
+                askers=self.out_names, drops=self.drops, on_event=self._clock_event,
+                on_report=self._clock_word)
 
     def _check_ready(self) -> None:
         """Ready for trial 0 once every publisher has its readers and every per-sample
