@@ -408,28 +408,40 @@ def pair_constraints(k: Numbers, r: Reach, w: Wish, p: Chords, h: Heard, x: floa
     compiled call that passes an array pays for its reference count)."""
     barrier = False
     infeasible = False
-    for a in range(k.n_discs):
-        ell = k.off0 if a == 0 else (k.off1 if a == 1 else k.off2)
-        sx, sy = x + ell * cth - h.ox, y + ell * sth - h.oy
-        for b in range(k.n_discs):
-            ellj = k.off0 if b == 0 else (k.off1 if b == 1 else k.off2)
-            dx, dy = sx - ellj * h.cj, sy - ellj * h.sj
+    # what every pair reads, as locals (a node runs this uncompiled: a named tuple's
+    # field costs a lookup each time)
+    kw, c, g_off, ew_up, ew_dn = p.kw, p.c, p.g_off, p.ew_up, p.ew_dn
+    bx0, bx1, by0, by1, zx, zy = p.bx0, p.bx1, p.by0, p.by1, p.zx, p.zy
+    lines_p, lines_m, e_i, w_i = p.lines_p, p.lines_m, r.e_i, r.w_i
+    n_discs, gamma, off0, off1, off2 = k.n_discs, k.share, k.off0, k.off1, k.off2
+    ox, oy, dj, e_j, cj, sj = h.ox, h.oy, h.dj, h.e_j, h.cj, h.sj
+    for a in range(n_discs):
+        ell = off0 if a == 0 else (off1 if a == 1 else off2)
+        sx, sy = x + ell * cth - ox, y + ell * sth - oy
+        for b in range(n_discs):
+            ellj = off0 if b == 0 else (off1 if b == 1 else off2)
+            dx, dy = sx - ellj * cj, sy - ellj * sj
             dd = math.sqrt(dx * dx + dy * dy)
             if dd < 1e-9:  # coincident centres: no direction to keep
                 continue
-            if k.share * (1.0 - _SPLIT) * (dd - h.dj - r.e_i - h.e_j) >= r.w_i:
+            if gamma * (1.0 - _SPLIT) * (dd - dj - e_i - e_j) >= w_i:
                 continue  # this pair of discs is too far apart to matter
             h0, base, sp, sm, keeps, bad = _disc_pair(k, r, w, p, h, ell, ellj, dx / dd,
                                                       dy / dd, dd, cth, sth)
             infeasible = infeasible or bad
-            # X_i(u) <= room: a half-plane per line of the max that the box reaches
+            # X_i(u) <= room as h0 v + h1 (c w) <= lim: a half-plane per line of the max
+            # (slope sp or sm) that the box reaches
             for li in range(2):
-                if (li == 0 and not p.lines_p) or (li == 1 and not p.lines_m):
+                if (li == 0 and not lines_p) or (li == 1 and not lines_m):
                     continue
-                h1, lim, cuts = _half_plane(p, h0, base, sp if li == 0 else sm)
-                if not cuts:
+                slope = sp if li == 0 else sm
+                h1 = slope * kw / c
+                lim = base - slope * g_off - (slope * ew_up if slope >= 0.0 else -slope * ew_dn)
+                # the largest h0 v + h1 (c w) over the box, at one of its corners
+                if ((h0 * bx1 if h0 >= 0.0 else h0 * bx0)
+                        + (h1 * by1 if h1 >= 0.0 else h1 * by0)) <= lim:
                     continue  # holds over the whole box
-                if not keeps and h0 * p.zx + h1 * p.zy > lim + _TOL:
+                if not keeps and h0 * zx + h1 * zy > lim + _TOL:
                     barrier = True
                 ha0[m] = -h0
                 ha1[m] = -h1
@@ -450,14 +462,15 @@ def _disc_pair(k: Numbers, r: Reach, w: Wish, p: Chords, h: Heard, ell: float, e
     # robot i's closing displacement X_i(u) <= a0 F(v) + |a0| ev + max(sp G, sm G) +
     # max(|sp|, |sm|) ew: its disc moves along M(th, ell) = [[cos, -ell sin], [sin,
     # ell cos]], a0 = -n^T M e_v, a1c = -n^T M e_w = ell b
+    path_i, q_i, f_b, g_b = r.path_i, r.q_i, r.f_b, r.g_b
     a0 = -(dx * cth + dy * sth)
     bside = dx * sth - dy * cth
     a1c = ell * bside
-    sp = a1c + (r.path_i * bside if bside > 0.0 else 0.0) + r.q_i
-    sm = a1c + (r.path_i * bside if bside < 0.0 else 0.0) - r.q_i
+    sp = a1c + (path_i * bside if bside > 0.0 else 0.0) + q_i
+    sm = a1c + (path_i * bside if bside < 0.0 else 0.0) - q_i
     # braking now (vb, wb) closes in by b_i, as f and g give it (the chords of a command
     # may lie above: at a slack of 0 braking may be all that is left, and the robot brakes)
-    b_i = a0 * r.f_b + (sp * r.g_b if r.g_b >= 0.0 else sm * r.g_b)
+    b_i = a0 * f_b + (sp * g_b if g_b >= 0.0 else sm * g_b)
     # robot j's closing speed towards i: its tracked point's, taken ``sig`` faster than
     # it looks, over its braking time. The disc's swing is not a speed that lasts that
     # long: the turn stops within its own braking, and the swing it makes is at most
@@ -491,24 +504,11 @@ def _disc_pair(k: Numbers, r: Reach, w: Wish, p: Chords, h: Heard, ell: float, e
     keeps = False
     if w.judge:
         bend = w.path_n * bside
+        g_n, q_n = w.g_n, w.q_n
         x_n = a0 * w.f_n + (
-            (a1c + (bend if bside > 0.0 else 0.0) + w.q_n) * w.g_n if w.g_n >= 0.0
-            else (a1c + (bend if bside < 0.0 else 0.0) - w.q_n) * w.g_n)
+            (a1c + (bend if bside > 0.0 else 0.0) + q_n) * g_n if g_n >= 0.0
+            else (a1c + (bend if bside < 0.0 else 0.0) - q_n) * g_n)
         keeps = x_n <= room + _TOL
-    # X_i(u) <= room, as h0 v + (a line of the max) <= base (``_half_plane``)
+    # X_i(u) <= room, as h0 v + (a line of the max) <= base (``pair_constraints``)
     return (a0 * p.kv, room - a0 * p.v_off - (a0 * p.ev_up if a0 >= 0.0 else -a0 * p.ev_dn),
             sp, sm, keeps, infeasible)
-
-
-@njit(cache=True)
-def _half_plane(p: Chords, h0: float, base: float,
-                slope: float) -> tuple[float, float, bool]:
-    """A pair's X_i(u) <= room on one line of the max (``slope``: sp or sm) as
-    h0 v + h1 (c w) <= lim (``base``: the room less the v part's chord offset and error):
-    (h1, lim, whether it cuts the box; False: the box keeps it whole)."""
-    h1 = slope * p.kw / p.c
-    lim = base - slope * p.g_off - (slope * p.ew_up if slope >= 0.0 else -slope * p.ew_dn)
-    # the largest h0 v + h1 (c w) over the box, at one of its corners
-    top = ((h0 * p.bx1 if h0 >= 0.0 else h0 * p.bx0)
-           + (h1 * p.by1 if h1 >= 0.0 else h1 * p.by0))
-    return h1, lim, not (top <= lim)
