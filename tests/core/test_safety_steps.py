@@ -172,7 +172,8 @@ def test_the_nearest_command_is_the_grid_optimum_of_the_cut_box(seed, compiled):
     flags = fn(k, r, w, ha0, ha1, hb, m, 0, out)
     assert flags == 0
     vs, cws = np.meshgrid(np.linspace(p.bx0, p.bx1, 301), np.linspace(p.by0, p.by1, 301))
-    ok = np.all([a * vs + b * cws >= c - 1e-12 for a, b, c in zip(ha0, ha1, hb)], axis=0)
+    ok = np.all([a * vs + b * cws >= c - 1e-12
+                 for a, b, c in zip(ha0, ha1, hb, strict=True)], axis=0)
     d = (vs - w.zx) ** 2 + (cws - w.zy) ** 2
     best = d[ok].min()
     got = (out[0] - w.zx) ** 2 + (k.c * out[1] - w.zy) ** 2
