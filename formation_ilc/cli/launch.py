@@ -344,17 +344,16 @@ def _learned_before(rec: Any, missing: list[int], trials: int, resumed_at: int,
 
 def _save_run(out: Path, options: Any, plan: RunPlan) -> None:
     """DIR/run.yaml, the resolved run file (every key with the value the run went with,
-    the run's id; ``cli.runfile.stored_run_text``), and DIR/run.json, the same for the tools
-    that read it: paths into the run's folder relative to it (a copied folder resumes into
-    itself), others relative to it in run.yaml and absolute in run.json."""
+    the run's id; ``cli.runfile.stored_run_text``): the one stored description of the run,
+    which ``--resume`` and the tools read. Paths into the run's folder are relative to it
+    (a copied folder resumes into itself). (Launches before run files wrote run.json,
+    which ``--resume`` still reads.)"""
     from formation_ilc.cli.runfile import RUN_YAML, stored_run_text
     from formation_ilc.store.atomic import atomic_write_text
-    from formation_ilc.store.runfile import save_run
 
     d = dict(options)
     if isinstance(d.get("scenario"), str) and Path(d["scenario"]).is_file():
         d["scenario"] = str(Path(d["scenario"]).resolve())
-    save_run(out, d)
     atomic_write_text(out / RUN_YAML, stored_run_text(
         plan, d,
         title="what this run ran, every key with the value it went with: formation-ilc "
