@@ -108,7 +108,7 @@ from std_srvs.srv import Trigger
 import msgs_schema as ms
 from formation_ilc.config import params
 from formation_ilc.config.plants import default_plant
-from formation_ilc.config.roster import Lineup, roster
+from formation_ilc.config.roster import Lineup, leader_clock_askers, roster
 from formation_ilc.config.runconfig import PARAMS, RunConfig, clocks_param
 from formation_ilc.core.clock import Rejected
 from formation_ilc.nodes.clocks import ClockExchange, node_clock
@@ -203,13 +203,7 @@ class LeaderNode(GuardedNode):
                                                       ms.CLOCK_QOS, raw=True)
             self.create_timer(RESEND_S / 8, self.core.start_again)
         if cfg.clock_exchanges:
-            # the team's clock reference: robots that hear it and every bridge ask for its
-            # time (the ground station's machine clock, never emulated)
-            askers = [ms.robot_name(i + 1) for i in range(sc.n) if sc.graph.leader[i] > 0]
-            if cfg.mode == "wallclock":  # the bridges sample on the leader's clock
-                askers += [ms.bridge_name(i + 1) for i in range(sc.n)]
-            self.clocks = ClockExchange(self, ms.LEADER, cfg, node_clock(cfg, None), (),
-                                        askers, self.drops)
+            self._answer_clocks(cfg, expected)
         # the stop button: a call stops every robot and ends the run (status 7); an e-stop
         # someone else latched ends it too
         self.stopped_by: str | None = None
@@ -225,6 +219,16 @@ class LeaderNode(GuardedNode):
         self.get_logger().info(f"{sc.name}: {sc.n} robots, {sc.trials} trials of "
                                f"{sc.samples} samples, {cfg.mode}, {cfg.links} links; "
                                f"waiting for {', '.join(expected)}")
+
+    def _answer_clocks(self, cfg: RunConfig, expected: list[str]) -> None:
+        """The team's clock reference (the ground station's machine clock, never emulated):
+        answers the robots that hear it and the bridges of the team it waits for
+        (``expected``), as the roster grants (``config.roster.leader_clock_askers``)."""
+        bridges = [e for e in expected if e.startswith(ms.BRIDGE_PREFIX)
+                   and e[len(ms.BRIDGE_PREFIX):].isdigit()]
+        askers = leader_clock_askers(cfg.scenario.graph.leader, bridges)
+        self.clocks = ClockExchange(self, ms.LEADER, cfg, node_clock(cfg, None), peers=(),
+                                    askers=askers, drops=self.drops)
 
     def _exit_when_done(self) -> None:
         """The run is over: end this process with status 0 (``exit_when_done``); the

@@ -67,23 +67,28 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import math
 import os
 import signal
 import sys
 import time
-from collections.abc import Callable, Collection, Sequence
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from formation_ilc.cli.console import (
+    StartupProgress,
+    Watch,
+    legend_line,
+    live_line,
+    progress_line,
+)
 from formation_ilc.cli.launchargs import add_arguments, launch_parser, without_defaults
 from formation_ilc.cli.supervisor import (
     Stack,
     Supervisor,
     disk_full_line,
-    metrics_rows,
     node_env,
     resume_hint,
     trial_ranges,
@@ -93,7 +98,8 @@ from formation_ilc.protocol.watchdog import Bounds
 from formation_ilc.system.discovery import SERVER_ENV
 from formation_ilc.system.exits import DISK_FULL, STUCK, is_disk_full
 
-__all__ = ["add_arguments", "run", "execute", "Stack", "launch_parser", "without_defaults"]
+__all__ = ["add_arguments", "run", "execute", "Stack", "launch_parser", "without_defaults",
+           "StartupProgress", "Watch"]
 
 
 # --------------------------------------------------------------------------- running
@@ -338,17 +344,16 @@ def _learned_before(rec: Any, missing: list[int], trials: int, resumed_at: int,
 
 def _save_run(out: Path, options: Any, plan: RunPlan) -> None:
     """DIR/run.yaml, the resolved run file (every key with the value the run went with,
-    the run's id; ``cli.runfile.stored_run_text``), and DIR/run.json, the same for the tools
-    that read it: paths into the run's folder relative to it (a copied folder resumes into
-    itself), others relative to it in run.yaml and absolute in run.json."""
+    the run's id; ``cli.runfile.stored_run_text``): the one stored description of the run,
+    which ``--resume`` and the tools read. Paths into the run's folder are relative to it
+    (a copied folder resumes into itself). (Launches before run files wrote run.json,
+    which ``--resume`` still reads.)"""
     from formation_ilc.cli.runfile import RUN_YAML, stored_run_text
     from formation_ilc.store.atomic import atomic_write_text
-    from formation_ilc.store.runfile import save_run
 
     d = dict(options)
     if isinstance(d.get("scenario"), str) and Path(d["scenario"]).is_file():
         d["scenario"] = str(Path(d["scenario"]).resolve())
-    save_run(out, d)
     atomic_write_text(out / RUN_YAML, stored_run_text(
         plan, d,
         title="what this run ran, every key with the value it went with: formation-ilc "
@@ -396,135 +401,6 @@ def _late_counts(path: Path, rows: dict[int, Any], late: set[int]) -> None:
             r = rows[k]
         kept.append(r)
     _rewrite_metrics(path, kept)
-
-
-class StartupProgress:
-    """What the console shows while a run starts: from the processes' start to the
-    leader's first ``start``, a line at least every ``every`` seconds (sooner when a count
-    moved), with how many of the nodes the leader waits for are found in the ROS graph
-    and how many have said ready; after ``name_after`` seconds, also whom it still waits
-    for. Then one line that the first trial starts. The times it saw (``found_at``: every
-    node found, ``ready_at``: every node ready, ``started_at``: the first start; seconds
-    from ``t0``) go into summary.json."""
-
-    def __init__(self, expected: Sequence[str], t0: float, every: float = 1.0,
-                 name_after: float = 5.0):
-        self.expected = list(expected)
-        self.t0 = t0
-        self.every = every
-        self.name_after = name_after
-        self.last_line = -math.inf  # the first call prints
-        self.last_counts: tuple[int, int] = (-1, -1)
-        self.found_at: float | None = None
-        self.ready_at: float | None = None
-        self.started_at: float | None = None
-
-    @property
-    def active(self) -> bool:
-        return self.started_at is None
-
-    def update(self, now: float, found: Collection[str], ready: Collection[str],
-               started: bool) -> str | None:
-        """The line to print now, or None. ``found``: node names found in the graph;
-        ``ready``: nodes that have said ready; ``started``: the leader started a trial."""
-        if not self.active:
-            return None
-        t = now - self.t0
-        n = len(self.expected)
-        n_found = sum(1 for e in self.expected if e in found)
-        n_ready = sum(1 for e in self.expected if e in ready)
-        if n_found == n and self.found_at is None:
-            self.found_at = t
-        if n_ready == n and self.ready_at is None:
-            self.ready_at = t
-        if started:
-            self.started_at = t
-            return f"start-up done [{t:.1f} s]: {n} nodes ready, the first trial starts"
-        counts = (n_found, n_ready)
-        if counts == self.last_counts and now - self.last_line < self.every:
-            return None
-        if counts != self.last_counts and now - self.last_line < 0.25 * self.every:
-            return None  # several changes at once: one line
-        self.last_counts, self.last_line = counts, now
-        line = f"start-up [{t:.1f} s]: {n_found} of {n} nodes found, {n_ready} ready"
-        if n_ready == n:
-            line += "; waiting for the leader to start the first trial"
-        elif t >= self.name_after:
-            waiting = [e for e in self.expected if e not in ready]
-            line += f"; waiting for {', '.join(waiting[:6])}" + (
-                f" and {len(waiting) - 6} more" if len(waiting) > 6 else "")
-        return line
-
-    def summary(self) -> dict[str, float | None]:
-        return {"all_found_s": self.found_at, "all_ready_s": self.ready_at,
-                "first_start_s": self.started_at}
-
-
-class Watch:
-    """The launcher's side of liveness: it prints the leader's watchdog findings on the
-    console (they arrive in the leader's diagnostics), and, as a backstop for a leader
-    that cannot report (it never started, hung, or went silent), gives up when nothing at
-    all has moved (no trial event, row, or report) for the longest bound times
-    (RETRIES + 3): by then the leader's own watchdog has reported, retried and stopped
-    (``formation_ilc.protocol.watchdog``). Until the leader's events writer shows up, the
-    bound is twice the unscaled start-up bound (starting processes is as slow as the
-    machine, whatever the scale). Once the leader is done, a trial row still missing after
-    the ready bound will not come (a trajectory was lost on its way here): the run stops
-    naming it rather than wait for the backstop."""
-
-    def __init__(self, bounds: Any, out: Path, nodes: int, trials: int):
-        from formation_ilc.protocol.watchdog import RETRIES, STARTUP_PER_NODE_S, STARTUP_S
-
-        self.limit = max(bounds.startup, bounds.ready, bounds.sample) * (RETRIES + 3)
-        self.first = 2 * (STARTUP_S + STARTUP_PER_NODE_S * nodes)
-        self.after_done = bounds.ready
-        self.trials = trials
-        self.out = out
-        self.seen = 0
-        self.mark: tuple[int, int, int] = (-1, -1, -1)
-        self.since = time.monotonic()
-        self.leader = False
-        self.done_at: float | None = None
-        #: what a finding of the leader's comes from, said before it (a host that is not
-        #: there: ``cli.hostlaunch.HostWatch.cause``), or None
-        self.cause: Callable[[], str | None] | None = None
-
-    def tick(self, monitor: Any, now: float) -> str | None:
-        """Print a new finding of the leader's; why the run is given up, or None."""
-        from formation_ilc.core.names import LEADER_NODE
-
-        report = monitor.diagnostics.get(LEADER_NODE, {}).get("watchdog") or {}
-        count = report.get("count", 0)
-        if count > self.seen:
-            self.seen = count
-            text = "".join(c if c.isprintable() else "?" for c in str(report.get("what")))
-            first = self.cause() if self.cause is not None else None
-            if first:
-                print(f"error: {first}", flush=True)
-            print(f"{LEADER_NODE}: {text[:1000]}", flush=True)
-        if not self.leader and monitor.leader_present():
-            self.leader, self.since = True, now  # its own watchdog runs from here
-        if monitor.slots.done_at is not None:
-            self.done_at = now if self.done_at is None else self.done_at
-            missing = sorted(set(range(monitor.slots.first, self.trials)) - set(monitor.rows))
-            if missing and now - self.done_at > self.after_done:
-                return (f"the leader is done, but the metrics of {trial_ranges(missing)} "
-                        f"never came: a robot's trajectory was lost on its way to the "
-                        f"launcher; {len(metrics_rows(self.out))} trials are in "
-                        f"metrics.csv; the learning itself is complete (state/)")
-        mark = (len(monitor.events), len(monitor.rows), count)
-        if mark != self.mark:
-            self.mark, self.since = mark, now
-            return None
-        limit = self.limit if self.leader else self.first
-        if now - self.since <= limit:
-            return None
-        who = ("no word from the leader's watchdog" if self.leader
-               else "the leader has not started")
-        return (f"no progress for {limit:.0f} s and {who} (last events: "
-                f"{[e.get('event') for e in monitor.events[-3:]]}); "
-                f"{len(metrics_rows(self.out))} trials are in metrics.csv; to go on: "
-                f"{resume_hint(self.out)}")
 
 
 class _Refused(Exception):
@@ -737,18 +613,47 @@ class _Session:
     def _follow(self) -> int:
         """The monitor joins, the nodes start, and the run is followed until every trial
         and report is in (or the wait for them is over), or a node fails for good."""
-        from formation_ilc.protocol.schedule import START
-
+        self._start_nodes()
         plan, host = self.plan, self.host
-        monitor = host.monitor
+        # on a terminal a line a second; in a log a line when the counts move, else one in 10 s
+        self.progress = StartupProgress(
+            plan.team.expected, self.t_start, every=1.0 if sys.stdout.isatty() else 10.0)
+        self._graph_at, self._found = 0.0, set[str]()
+        self._final_deadline: float | None = None
+        bounds = Bounds.for_run(plan.scenario.dt, len(plan.team.expected), plan.config.mode,
+                                plan.config.timeout, plan.watchdog_scale,
+                                secure=plan.secure is not None)
+        watch = Watch(bounds, plan.out, len(plan.team.expected), plan.scenario.trials)
+        self._trial_progress = None
+        if plan.config.mode == "wallclock":  # a trial in real time: said while it runs
+            from formation_ilc.cli.trialprogress import TrialProgress
+
+            self._trial_progress = TrialProgress(plan.scenario.samples * plan.scenario.dt,
+                                                 plan.scenario.trials,
+                                                 every=5.0 if sys.stdout.isatty() else 10.0)
         hosts = self.hosts
+        if hosts is not None:  # a stuck run's first line: the host that is not there
+            watch.cause = lambda: hosts.cause(self._found, time.monotonic())
+        while True:
+            self.spinning = True
+            try:
+                host.spin_once(0.05)
+            finally:
+                self.spinning = False
+            self._say_progress()
+            status = self._verdict(watch)
+            if status is not None:
+                return status
+
+    def _start_nodes(self) -> None:
+        """The processes start gated (imports are most of their start) while the monitor
+        looks for another formation here; they join the domain only once there is none."""
+        plan, host, hosts = self.plan, self.host, self.hosts
         if hosts is not None:  # the other hosts stop what they run for an earlier run
             from formation_ilc.cli.hostlaunch import STARTING, describe, over_graph
 
             if over_graph(plan):
                 describe(plan, host, STARTING)
-        # the processes start (imports are most of their start) while the monitor looks for
-        # another formation here; they join the domain only once there is none
         self.supervisor.start(gated=True)
         print(f"started {len(plan.nodes)} processes; looking for another formation on "
               f"ROS_DOMAIN_ID={plan.domain} in {plan.namespace} ...", flush=True)
@@ -758,86 +663,78 @@ class _Session:
               f"nodes [{time.monotonic() - self.t_start:.1f} s]", flush=True)
         if hosts is not None:  # the other hosts' launchers start their members now
             describe(plan, host)
-        # on a terminal a line a second; in a log a line when the counts move, else one in 10 s
-        progress = self.progress = StartupProgress(
-            plan.team.expected, self.t_start, every=1.0 if sys.stdout.isatty() else 10.0)
-        graph_at, found = 0.0, set[str]()
-        final_deadline: float | None = None
-        bounds = Bounds.for_run(plan.scenario.dt, len(plan.team.expected), plan.config.mode,
-                                plan.config.timeout, plan.watchdog_scale,
-                                secure=plan.secure is not None)
-        watch = Watch(bounds, plan.out, len(plan.team.expected), plan.scenario.trials)
-        trial_progress = None
-        if plan.config.mode == "wallclock":  # a trial in real time: said while it runs
-            from formation_ilc.cli.trialprogress import TrialProgress
 
-            trial_progress = TrialProgress(plan.scenario.samples * plan.scenario.dt,
-                                           plan.scenario.trials,
-                                           every=5.0 if sys.stdout.isatty() else 10.0)
-        if hosts is not None:  # a stuck run's first line: the host that is not there
-            watch.cause = lambda: hosts.cause(found, time.monotonic())
-        while True:
-            self.spinning = True
-            try:
-                host.spin_once(0.05)
-            finally:
-                self.spinning = False
-            if host.transitions is not None and not host.transitions.active:
-                for line in host.transitions.step():
-                    print(line, flush=True)
-            if progress.active or hosts is not None:
-                now = time.monotonic()
-                if now - graph_at >= 0.5:  # a graph query: twice a second is enough
-                    graph_at = now
-                    found = {name for name, ns in monitor.get_node_names_and_namespaces()
-                             if ns == plan.namespace}
-                    for line in (hosts.update(now, found, monitor.readies)
-                                 if hosts is not None else ()):
-                        print(line, flush=True)
-            if progress.active:
-                ready = set(monitor.readies)
-                line = progress.update(now, found | ready, ready,
-                                       any(e.get("event") == START for e in monitor.events))
-                silent = hosts.silent(found | ready) if hosts is not None else []
-                if line and silent and not line.startswith("start-up done"):
-                    line += f"; not heard from host{'s' * (len(silent) > 1)} {', '.join(silent)}"
-                if line:
-                    print(line, flush=True)
-            if trial_progress is not None and not progress.active:
-                line = trial_progress.update(time.time_ns(), monitor.events, monitor.rows)
-                if line:
-                    print(line, flush=True)
-            if self.stop_signal is not None:
-                raise KeyboardInterrupt
-            if self.diverged is not None:
-                raise Diverged(self.diverged)
-            stuck = watch.tick(monitor, time.monotonic())
-            if stuck is not None:
-                first = watch.cause() if watch.cause is not None else None
-                if first:
-                    print(f"error: {first}", file=sys.stderr)
-                print(f"error: {stuck}", file=sys.stderr)
-                return STUCK
-            if len(monitor.rows) == plan.scenario.trials - self.done:
-                # the last diagnostics come right after the last trajectories (bridges
-                # drive their robots back after the last trial too)
-                if final_deadline is None:
-                    final_deadline = time.monotonic() + plan.final_wait
-                if (finished(plan, monitor.diagnostics, monitor.events)
-                        or time.monotonic() > final_deadline):
-                    return 0
-            failure = self.supervisor.watch()
-            if failure is not None:
-                first = watch.cause() if watch.cause is not None else None
-                if first:  # the cause first: a host that is not there
-                    print(f"error: {first}", file=sys.stderr, flush=True)
-                # a node that ends the run on purpose (a contact) has its last report
-                # acknowledged before it exits: take what is already here, which the exit
-                # overtook, so that summary.json and metrics.csv have it
-                drain = time.monotonic() + DRAIN_S
-                while time.monotonic() < drain:
-                    host.spin_once(0.05)
-                return self.supervisor.report(failure)
+    def _say_progress(self) -> None:
+        """The console's lines of the moment: bridges' transitions, the start-up (the nodes
+        found on the graph, asked twice a second, and ready), the other hosts, a trial in
+        real time."""
+        from formation_ilc.protocol.schedule import START
+
+        plan, host, hosts, progress = self.plan, self.host, self.hosts, self.progress
+        monitor = host.monitor
+        assert progress is not None
+        if host.transitions is not None and not host.transitions.active:
+            for line in host.transitions.step():
+                print(line, flush=True)
+        now = time.monotonic()
+        if (progress.active or hosts is not None) and now - self._graph_at >= 0.5:
+            self._graph_at = now
+            self._found = {name for name, ns in monitor.get_node_names_and_namespaces()
+                           if ns == plan.namespace}
+            for line in (hosts.update(now, self._found, monitor.readies)
+                         if hosts is not None else ()):
+                print(line, flush=True)
+        found = self._found
+        if progress.active:
+            ready = set(monitor.readies)
+            line = progress.update(now, found | ready, ready,
+                                   any(e.get("event") == START for e in monitor.events))
+            silent = hosts.silent(found | ready) if hosts is not None else []
+            if line and silent and not line.startswith("start-up done"):
+                line += f"; not heard from host{'s' * (len(silent) > 1)} {', '.join(silent)}"
+            if line:
+                print(line, flush=True)
+        if self._trial_progress is not None and not progress.active:
+            line = self._trial_progress.update(time.time_ns(), monitor.events, monitor.rows)
+            if line:
+                print(line, flush=True)
+
+    def _verdict(self, watch: Watch) -> int | None:
+        """The run's status once it is over (every trial and the last reports in, stuck, a
+        node failed for good), else None; a signal or a divergence raises."""
+        plan, host, monitor = self.plan, self.host, self.host.monitor
+        if self.stop_signal is not None:
+            raise KeyboardInterrupt
+        if self.diverged is not None:
+            raise Diverged(self.diverged)
+        stuck = watch.tick(monitor, time.monotonic())
+        if stuck is not None:
+            first = watch.cause() if watch.cause is not None else None
+            if first:
+                print(f"error: {first}", file=sys.stderr)
+            print(f"error: {stuck}", file=sys.stderr)
+            return STUCK
+        if len(monitor.rows) == plan.scenario.trials - self.done:
+            # the last diagnostics come right after the last trajectories (bridges
+            # drive their robots back after the last trial too)
+            if self._final_deadline is None:
+                self._final_deadline = time.monotonic() + plan.final_wait
+            if (finished(plan, monitor.diagnostics, monitor.events)
+                    or time.monotonic() > self._final_deadline):
+                return 0
+        failure = self.supervisor.watch()
+        if failure is None:
+            return None
+        first = watch.cause() if watch.cause is not None else None
+        if first:  # the cause first: a host that is not there
+            print(f"error: {first}", file=sys.stderr, flush=True)
+        # a node that ends the run on purpose (a contact) has its last report
+        # acknowledged before it exits: take what is already here, which the exit
+        # overtook, so that summary.json and metrics.csv have it
+        drain = time.monotonic() + DRAIN_S
+        while time.monotonic() < drain:
+            host.spin_once(0.05)
+        return self.supervisor.report(failure)
 
     def _refuse_foreign(self, wait: float) -> None:
         """_Refused, said why, when another formation runs on this domain and namespace
@@ -852,49 +749,3 @@ class _Session:
                   f"there (it would corrupt both); use --namespace or --domain-id",
                   file=sys.stderr)
             raise _Refused
-
-
-def live_line(host: str, port: int) -> str:
-    """Where the live view serves (``--live``): the address a viewer opens."""
-    if host in ("0.0.0.0", "::", ""):
-        import socket
-
-        return (f"live view: ws://{socket.gethostname()}:{port} (serving on every address "
-                f"of this machine; open it in Foxglove: docs/ros-tools.md)")
-    shown = f"[{host}]" if ":" in host else host
-    return f"live view: ws://{shown}:{port} (open it in Foxglove: docs/ros-tools.md)"
-
-
-def legend_line(plan: RunPlan) -> str:
-    """The line under the header that says how to read each trial's line."""
-    text = ("each trial: its number (from 0, as in metrics.csv, the table and the plots) and "
-            "its largest error over robots and time; ")
-    if plan.true_state:
-        return text + ("'measured': of the poses the robots are given (what they learn "
-                       "from, noise and delays included); 'true': of where the plant really "
-                       "has them")
-    return text + "of the poses the robots are given (what they learn from)"
-
-
-def progress_line(k: int, plan: RunPlan, row: np.ndarray) -> str:
-    """A trial's line on the console: its measured errors; where the plant knows the
-    ground truth (the simulator, the physics plant) the true errors beside them; what
-    the safety filter changed and the contacts, when the run has them."""
-    from formation_ilc.core.metrics import METRIC_COLUMNS
-
-    col = {c: row[i] for i, c in enumerate(METRIC_COLUMNS)}
-    line = f"trial {k} of 0..{plan.scenario.trials - 1}  max position "
-    if plan.true_state:
-        line += (f"{col['true_max_position_error']:.4g} m true, "
-                 f"{col['max_position_error']:.4g} m measured  max heading "
-                 f"{col['true_max_heading_error']:.4g} rad true, "
-                 f"{col['max_heading_error']:.4g} measured")
-    else:
-        line += (f"{col['max_position_error']:.4g} m  max heading "
-                 f"{col['max_heading_error']:.4g} rad")
-    if plan.config.safety is not None:
-        f = col["filter_active"]
-        line += "  filtered " + ("?" if np.isnan(f) else f"{int(f)}")
-    if plan.physics is not None and not np.isnan(col["contacts"]):
-        line += f"  contacts {int(col['contacts'])}"
-    return line

@@ -296,12 +296,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     keep = _keep_trials(args.keep, first, k)
     need = simulate_bytes(sc, k, keep=len(keep), store_metrics=False)
     _fits(sc, need, f"a run keeping {len(keep)} trials' trajectories")
-    init = None
-    if args.init_memory is not None:
-        try:
-            init = load_memory(args.init_memory, sc)
-        except MemoryFileError as exc:
-            raise ScenarioError(str(exc)) from None
+    init = _initial_memory(args, sc)
     out = _out_dir(args.out, sc, f"law{sc.law.kind}-{sc.law.memory}")
     if need >= 1 << 30:
         print(f"{sc.name}: {sc.n} robots x {sc.samples} samples, {k} trials: about "
@@ -316,17 +311,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         log.add(row)
         bar(trial, row)
 
-    recorder = None
-    if args.record is not None:
-        from formation_ilc.nodes.observer import sim_recorder
-
-        try:
-            args.record.parent.mkdir(parents=True, exist_ok=True)
-            recorder = sim_recorder(args.record, sc, set(keep), first)
-        except OSError as exc:
-            log.close()
-            raise OptionError(f"--record {args.record}: cannot write: "
-                              f"{exc.strerror or exc}") from None
+    recorder = _recorder(args, sc, keep, first, log)
     clear_rows: list[Any] = []
     safety = _safety_spec(args, sc)
     args.footprint = footprint = args.footprint or (args.body if safety is not None else None)
@@ -362,6 +347,32 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             recorder.close()
     return _simulate_outputs(args, sc, res, log, keeper, out, first,
                              time.perf_counter() - t0, clear_rows, curves)
+
+
+def _initial_memory(args: argparse.Namespace, sc: Any) -> Any:
+    """--init-memory's memory for ``sc`` (None: u_0 = 0); ScenarioError if it does not fit."""
+    if args.init_memory is None:
+        return None
+    try:
+        return load_memory(args.init_memory, sc)
+    except MemoryFileError as exc:
+        raise ScenarioError(str(exc)) from None
+
+
+def _recorder(args: argparse.Namespace, sc: Any, keep: Any, first: int, log: Any) -> Any:
+    """--record's recorder of the run (None without); OptionError, the log closed, when
+    the file cannot be written."""
+    if args.record is None:
+        return None
+    from formation_ilc.nodes.observer import sim_recorder
+
+    try:
+        args.record.parent.mkdir(parents=True, exist_ok=True)
+        return sim_recorder(args.record, sc, set(keep), first)
+    except OSError as exc:
+        log.close()
+        raise OptionError(f"--record {args.record}: cannot write: "
+                          f"{exc.strerror or exc}") from None
 
 
 def _with_curves(curves: Any, on_data: Any) -> Any:

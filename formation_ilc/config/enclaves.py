@@ -19,18 +19,7 @@ from dataclasses import dataclass
 from datetime import datetime
 from xml.sax.saxutils import escape
 
-from formation_ilc.core.names import (
-    BASES_NODE,
-    LEADER_NODE,
-    LINKS_NODE,
-    LIVEVIEW_NODE,
-    MONITOR_NODE,
-    PHYSICS_NODE,
-    RECORDER_NODE,
-    SIM_NODE,
-)
-
-__all__ = ["Grant", "ENCLAVE_NODES", "enclave_path", "enclave_prefix", "driver_enclave",
+__all__ = ["Grant", "enclave_path", "enclave_prefix", "driver_enclave",
            "dds_topic", "housekeeping", "permissions_xml", "governance_xml", "DOMAIN_MAX",
            "grant_topics", "permitted_topics", "lacking"]
 
@@ -57,22 +46,6 @@ class Grant:
     #: the node name its ROS housekeeping (services) runs under; ``*``: any node in
     #: ``node_namespace`` (a driver whose node name is the driver's own)
     service_node: str = ""
-
-
-#: enclave name -> what it is, for messages and docs
-ENCLAVE_NODES = {
-    LEADER_NODE: "the virtual leader",
-    SIM_NODE: "the kinematic simulator (plant)",
-    PHYSICS_NODE: "the physics plant",
-    BASES_NODE: "the physics robots behind the bases' interface (their drivers)",
-    LINKS_NODE: "the link emulator",
-    RECORDER_NODE: "the recorder",
-    LIVEVIEW_NODE: "the live view (Foxglove WebSocket on 127.0.0.1)",
-    MONITOR_NODE: "the launcher's monitor",
-    "robot_i": "robot i's controller",
-    "bridge_i": "robot i's bridge (plant), in front of a Pioneer driver or a base",
-    "driver_i": "robot i's driver (a Pioneer's, or a base's)",
-}
 
 
 #: robot i's driver runs in this enclave (its node name is the driver's own)

@@ -22,7 +22,7 @@ formation's namespace, or absolute (``/clock``, a driver's topics). This module 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -35,7 +35,7 @@ from formation_ilc.core import names as nm
 from formation_ilc.core.topology import Graph
 
 __all__ = ["TRIAL", "ONCE", "NEVER", "Member", "Lineup", "Roster", "Team", "roster",
-           "DRIVER_NS", "ENTRY_SCRIPTS"]
+           "DRIVER_NS", "ENTRY_SCRIPTS", "leader_clock_askers"]
 
 #: whether the leader waits for a member's ready: before each trial, once for the whole
 #: run (a passive reader: the monitor, the recorder), or never
@@ -343,9 +343,8 @@ def roster(lineup: Lineup) -> Roster:
     leader_pub: list[str] = []
     leader_sub: list[str] = []
     if lineup.clocks:
-        leader_sub += [nm.clock_ping_topic(nm.robot_name(i)) for i in robots if hears[i - 1]]
-        if row.per_robot:
-            leader_sub += [nm.clock_ping_topic(nm.bridge_name(i)) for i in robots]
+        bridges = [nm.bridge_name(i) for i in robots] if row.per_robot else []
+        leader_sub += [nm.clock_ping_topic(a) for a in leader_clock_askers(w, bridges)]
         if leader_sub:
             leader_pub.append(nm.clock_pong_topic(nm.LEADER))
     members.append(Member(
@@ -373,6 +372,14 @@ def roster(lineup: Lineup) -> Roster:
     for i in robots:
         members.append(_robot(i, senders[i - 1], hears[i - 1], lineup, hearers[i - 1]))
     return Roster(lineup, tuple(members))
+
+
+def leader_clock_askers(leader: Iterable[float], bridges: Sequence[str]) -> list[str]:
+    """Who asks the leader's clock, the team's clock reference (``protocol.timesync``):
+    each robot that hears the leader (``leader``: the graph's weights), and every bridge
+    (``bridges``), which samples on the leader's clock. The roster grants these questions
+    and the leader answers them (``virtual_leader.node``): one rule for both."""
+    return [*(nm.robot_name(i + 1) for i, wi in enumerate(leader) if wi > 0), *bridges]
 
 
 def _robot(i: int, senders: list[int], hears_leader: bool, lineup: Lineup,

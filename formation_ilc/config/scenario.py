@@ -9,10 +9,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import re
-import reprlib
-import stat
 import warnings
 from collections import Counter
 from collections.abc import Iterator
@@ -24,9 +20,20 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 
+from formation_ilc.config.yamlfields import (
+    MAX_FILE_BYTES,
+    MAX_YAML_DEPTH,
+    MAX_YAML_SIZE,
+    Fields,
+    ScenarioError,
+    one_line,
+    parse_yaml,
+    printable,
+    read_text_file,
+    show,
+)
 from formation_ilc.core import trajectory as tr
 from formation_ilc.core.delays import DelayModel
 from formation_ilc.core.guards import format_bytes, memory_shortfall
@@ -38,241 +45,10 @@ __all__ = ["ScenarioError", "Scenario", "LawSettings", "load_scenario", "builtin
            "scenario_from_text", "scenario_from_data", "read_text_file", "parse_yaml",
            "load_bytes", "show", "MAX_FILE_BYTES", "MAX_YAML_DEPTH", "MAX_YAML_SIZE"]
 
-#: a scenario (or sweep spec) file larger than this is refused before it is read: parsing
-#: YAML costs seconds per MiB. Long sampled references belong in a CSV file
-#: (reference.file), which is read at C speed.
-MAX_FILE_BYTES = 1 << 20
-#: deepest nesting of YAML collections (a scenario needs 5)
-MAX_YAML_DEPTH = 32
-#: most nodes plus characters a YAML document may expand to through its aliases (*name):
-#: a "billion laughs" expands a few hundred bytes to gigabytes, a scenario file to about
-#: its own size
-MAX_YAML_SIZE = 16 << 20
 #: where the built-in scenarios are
 SCENARIO_PACKAGE = "formation_ilc.config.scenarios"
 #: a scenario's name names the output folder: a file name, not a path
 _MAX_NAME = 100
-
-
-class ScenarioError(ValueError):
-    """A scenario file is invalid. The message reads ``file: field: reason``."""
-
-
-_repr = reprlib.Repr()
-_repr.maxstring = 60
-_repr.maxother = 60
-_repr.maxlist = _repr.maxtuple = _repr.maxdict = _repr.maxset = 6
-_repr.maxlevel = 3
-
-
-def show(value: Any) -> str:
-    """A value for an error message: its repr, cut short (a field may hold megabytes)."""
-    return _repr.repr(value)
-
-
-def read_text_file(path: Path, limit: int = MAX_FILE_BYTES, what: str = "a scenario") -> str:
-    """The text of a YAML file, read at most ``limit`` bytes; ScenarioError naming the file
-    if it cannot be read, is larger than ``limit``, or is not UTF-8 text."""
-    try:
-        # without blocking: a FIFO would wait for a writer forever
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC | os.O_NOCTTY)
-    except OSError as exc:
-        raise ScenarioError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    try:
-        mode = os.fstat(fd).st_mode
-        if not stat.S_ISREG(mode):
-            kind = ("a FIFO" if stat.S_ISFIFO(mode) else "a device"
-                    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a folder"
-                    if stat.S_ISDIR(mode) else "not a regular file")
-            raise ScenarioError(f"{path}: {kind}, not {what} file (a regular file is needed)")
-        os.set_blocking(fd, True)
-        with os.fdopen(fd, "rb") as fh:
-            fd = -1
-            data = fh.read(limit + 1)
-    except OSError as exc:
-        raise ScenarioError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    finally:
-        if fd >= 0:
-            os.close(fd)
-    if len(data) > limit:
-        raise ScenarioError(f"{path}: larger than {format_bytes(limit)}, the most {what} file "
-                            f"may be (a long sampled reference belongs in a CSV file: "
-                            f"reference.file)")
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ScenarioError(f"{path}: not a text file: byte 0x{data[exc.start]:02x} at offset "
-                            f"{exc.start} is not UTF-8 ({what} file is YAML text)") from None
-    if "\x00" in text:
-        raise ScenarioError(f"{path}: not a text file: it holds NUL bytes at offset "
-                            f"{text.index(chr(0))} ({what} file is YAML text)")
-    return text.removeprefix("\ufeff")
-
-
-class _Loader(yaml.CSafeLoader if getattr(yaml, "__with_libyaml__", False)  # type: ignore[misc]
-              else yaml.SafeLoader):
-    """The safe loader (libyaml's when installed), which also reads 1e300 and 5E-3 as
-    numbers, as YAML 1.2 does (YAML 1.1 wants a dot: 1.0e300)."""
-
-
-_Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
-    list("-+0123456789"))
-
-
-def _yaml_where(exc: yaml.YAMLError) -> str:
-    mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
-    return "" if mark is None else f"line {mark.line + 1}, column {mark.column + 1}: "
-
-
-def _printable(text: str, limit: int = 120) -> str:
-    """A field path for a message: control characters escaped, cut short."""
-    if not text.isprintable():
-        text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
-def _one_line(text: str, limit: int = 200) -> str:
-    text = " ".join(str(text).split())
-    return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
-def _measure(text: str, source: str) -> None:
-    """Refuse YAML nested deeper than MAX_YAML_DEPTH, with a recursive alias, or whose
-    aliases expand it beyond MAX_YAML_SIZE, from its events alone (nothing is built; the C
-    composer, which recurses on the C stack, only ever sees bounded nesting)."""
-    loader = _Loader(text)
-    sizes: dict[str, int] = {}
-    # one frame per open collection: [anchor, size, is_mapping, position, expect_key]
-    stack: list[list[Any]] = []
-
-    def where() -> str:
-        parts = ""
-        for fr in stack:
-            if fr[2]:
-                parts += ("." if parts else "") + str(fr[3])
-            else:
-                parts += f"[{fr[3]}]"
-        return _one_line(parts, 60) or "top level"
-
-    def add(size: int, key: str | None = None) -> None:
-        if not stack:
-            return
-        fr = stack[-1]
-        fr[1] += size
-        if fr[1] > MAX_YAML_SIZE:
-            raise ScenarioError(
-                f"{source}: {where()}: the aliases (*name) expand the document beyond "
-                f"{MAX_YAML_SIZE / 1e6:.3g} million nodes and characters (a 'billion "
-                f"laughs'?); refused")
-        if fr[2]:
-            if fr[4]:
-                fr[3] = key if key is not None else "?"
-            fr[4] = not fr[4]
-        else:
-            fr[3] += 1
-
-    try:
-        while loader.check_event():
-            ev = loader.get_event()
-            if isinstance(ev, yaml.ScalarEvent):
-                size = 1 + len(ev.value)
-                if ev.anchor is not None:
-                    sizes[ev.anchor] = size
-                add(size, _one_line(ev.value, 40))
-            elif isinstance(ev, yaml.AliasEvent):
-                if any(fr[0] == ev.anchor for fr in stack):
-                    raise ScenarioError(f"{source}: {where()}: alias *{ev.anchor} refers to a "
-                                        f"collection that contains it (recursive); refused")
-                add(sizes.get(ev.anchor, 1))
-            elif isinstance(ev, yaml.CollectionStartEvent):
-                if len(stack) >= MAX_YAML_DEPTH:
-                    mark = ev.start_mark
-                    raise ScenarioError(f"{source}: line {mark.line + 1}: {where()}: nested "
-                                        f"deeper than {MAX_YAML_DEPTH} levels; refused")
-                stack.append([ev.anchor, 1, isinstance(ev, yaml.MappingStartEvent),
-                              None if isinstance(ev, yaml.MappingStartEvent) else 0, True])
-            elif isinstance(ev, yaml.CollectionEndEvent):
-                anchor, size = stack.pop()[:2]
-                if anchor is not None:
-                    sizes[anchor] = size
-                add(size)
-    finally:
-        loader.dispose()
-
-
-_FLOW_MARKS = re.compile(r"""[\[\]{}'"#\n\\]""")
-
-
-def _deep_flow_end(text: str) -> int | None:
-    """Where flow nesting could first pass MAX_YAML_DEPTH: the end of the bracket that opens
-    level MAX_YAML_DEPTH + 1, counting ``[`` and ``{`` outside quotes and comments; None
-    where no such bracket exists.
-
-    The count is an upper bound (a bracket inside a plain scalar counts too), read from the
-    text before any parser sees it: libyaml's scanner reads a run of flow openers ahead of
-    its events and, from PyYAML 6.0.4 on, refuses 1000 of them with a message of its own,
-    before ``_measure`` sees the event that is one level too deep."""
-    depth = 0
-    quote = ""
-    comment = False
-    skip = -1  # the character after a backslash in a double-quoted scalar
-    for m in _FLOW_MARKS.finditer(text):
-        i, c = m.start(), m.group()
-        if i == skip:
-            continue
-        if comment:
-            comment = c != "\n"
-        elif quote:
-            if quote == '"' and c == "\\":
-                skip = i + 1
-            elif c == quote:
-                quote = ""
-        elif c == "#" and (i == 0 or text[i - 1] in " \t\n"):
-            comment = True
-        elif c in "'\"" and (i == 0 or text[i - 1] in " \t\n[{,:-?"):
-            quote = c  # a quote that starts a scalar (an apostrophe in a word does not)
-        elif c in "[{":
-            depth += 1
-            if depth > MAX_YAML_DEPTH:
-                return m.end()
-        elif c in "]}":
-            depth = max(depth - 1, 0)
-    return None
-
-
-def _measure_bounded(text: str, source: str) -> None:
-    """``_measure``, with the depth bound applied before libyaml's own: where the text could
-    nest deeper than MAX_YAML_DEPTH, the events of the text up to that bracket are measured
-    first (a prefix has the same events as the whole, up to where it ends), so the same
-    file gets the same message whatever libyaml is installed."""
-    end = _deep_flow_end(text)
-    if end is not None:
-        try:
-            _measure(text[:end], source)
-        except yaml.YAMLError:
-            pass  # the cut text ends early: the whole text is measured next
-    _measure(text, source)
-
-
-def parse_yaml(text: str, source: str) -> Any:
-    """The YAML document in ``text``, with its cost bounded before it is built (depth,
-    recursive aliases, alias expansion); one-line ScenarioError naming ``source`` (and the
-    line) otherwise."""
-    try:
-        _measure_bounded(text, source)
-        return yaml.load(text, Loader=_Loader)  # noqa: S506 - a safe loader
-    except yaml.YAMLError as exc:
-        problem = getattr(exc, "problem", None) or str(exc)
-        context = getattr(exc, "context", None)
-        why = _one_line(f"{problem} ({context})" if context else problem)
-        raise ScenarioError(f"{source}: not valid YAML: {_yaml_where(exc)}{why}") from None
-    except (ValueError, OverflowError, RecursionError) as exc:
-        if isinstance(exc, ScenarioError):
-            raise
-        # e.g. a date like 2024-13-45, an integer of 5000 digits
-        raise ScenarioError(f"{source}: not valid YAML: {_one_line(str(exc))}") from None
 
 
 def builtin_scenarios() -> list[str]:
@@ -395,110 +171,14 @@ class Scenario:
                        headings=self.headings if headings is None else headings)
 
 
-# --------------------------------------------------------------------------- validation
-
-_DEG = re.compile(r"^\s*([-+]?[0-9.eE+-]+)\s*deg\s*$")
-
-
-class _Fields:
-    """A mapping read once, field by field; unknown keys are an error."""
-
-    def __init__(self, data: Any, path: str, src: str):
-        if not isinstance(data, dict):
-            raise ScenarioError(f"{src}: {path or 'top level'}: expected a mapping, "
-                                f"got {show(data) if data is None else type(data).__name__}")
-        self.data = data
-        self.path = path
-        self.src = src
-        self.used: set[str] = set()
-
-    def fail(self, key: str | None, why: str) -> ScenarioError:
-        where = self.path if key is None else (f"{self.path}.{key}" if self.path else key)
-        return ScenarioError(f"{self.src}: {_printable(str(where))}: {why}")
-
-    def get(self, key: str, default: Any = ..., *, required: bool = False) -> Any:
-        self.used.add(key)
-        if key not in self.data:
-            if required or default is ...:
-                raise self.fail(key, "required field is missing")
-            return default
-        return self.data[key]
-
-    def sub(self, key: str, required: bool = True) -> _Fields:
-        val = self.get(key, required=required) if required else self.get(key, {})
-        return _Fields(val if val is not None else {}, f"{self.path}.{key}" if self.path else key,
-                       self.src)
-
-    def number(self, key: str, default: Any = ..., *, positive: bool = False,
-               nonneg: bool = False, angle: bool = False) -> float:
-        return self.as_number(self.get(key, default), key, positive=positive, nonneg=nonneg,
-                              angle=angle)
-
-    def as_number(self, v: Any, key: str, *, positive: bool = False, nonneg: bool = False,
-                  angle: bool = False) -> float:
-        if angle and isinstance(v, str) and (m := _DEG.match(v)):
-            try:
-                v = math.radians(float(m.group(1)))
-            except ValueError:
-                raise self.fail(key, f"cannot read {show(v)} as an angle") from None
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            hint = " (a number, or a string like '0.05 deg')" if angle else ""
-            raise self.fail(key, f"expected a number{hint}, got {show(v)}")
-        v = float(v)
-        if not math.isfinite(v):
-            raise self.fail(key, f"must be finite, got {v}")
-        if positive and v <= 0:
-            raise self.fail(key, f"must be > 0, got {v}")
-        if nonneg and v < 0:
-            raise self.fail(key, f"must be >= 0, got {v}")
-        return v
-
-    def integer(self, key: str, default: Any = ..., *, minimum: int | None = None) -> int:
-        v = self.get(key, default)
-        if isinstance(v, bool) or not isinstance(v, int):
-            raise self.fail(key, f"expected an integer, got {show(v)}")
-        if minimum is not None and v < minimum:
-            raise self.fail(key, f"must be >= {minimum}, got {v}")
-        return v
-
-    def string(self, key: str, default: Any = ..., *, choices: tuple[str, ...] | None = None
-               ) -> str:
-        v = self.get(key, default)
-        if not isinstance(v, str):
-            raise self.fail(key, f"expected a string, got {show(v)}")
-        if choices is not None and v not in choices:
-            raise self.fail(key, f"must be one of {', '.join(choices)}; got {show(v)}")
-        return v
-
-    def numbers(self, key: str, length: int, default: Any = ..., *, nonneg: bool = False,
-                angle_index: tuple[int, ...] = ()) -> tuple[float, ...]:
-        v = self.get(key, default)
-        if not isinstance(v, (list, tuple)) or len(v) != length:
-            raise self.fail(key, f"expected a list of {length} numbers, got {show(v)}")
-        return tuple(self.as_number(x, f"{key}[{i}]", nonneg=nonneg, angle=i in angle_index)
-                     for i, x in enumerate(v))
-
-    def robot(self, v: Any, key: str, n: int) -> int:
-        if isinstance(v, bool) or not isinstance(v, int):
-            raise self.fail(key, f"expected a robot number, got {show(v)}")
-        if not 1 <= v <= n:
-            raise self.fail(key, f"robot {v} does not exist (robots are 1..{n})")
-        return v
-
-    def finish(self) -> None:
-        extra = sorted(set(map(str, self.data)) - self.used)
-        if extra:
-            raise self.fail(extra[0], f"unknown field (known here: {', '.join(sorted(self.used))})")
-
-
-def _harmonics(f: _Fields, key: str, count: int, angle_index: tuple[int, ...]
+def _harmonics(f: Fields, key: str, count: int, angle_index: tuple[int, ...]
                ) -> tuple[Harmonic, ...]:
     items = f.get(key, [{}] * count)
     if not isinstance(items, list) or len(items) != count:
         raise f.fail(key, f"expected a list of {count} harmonics {{amplitude, frequency, phase}}")
     out = []
     for i, item in enumerate(items):
-        h = _Fields(item, f"{f.path}.{key}[{i}]", f.src)
+        h = Fields(item, f"{f.path}.{key}[{i}]", f.src)
         out.append(Harmonic(h.number("amplitude", 0.0, angle=i in angle_index),
                             h.number("frequency", 0.0), h.number("phase", 0.0, angle=True)))
         h.finish()
@@ -514,7 +194,7 @@ def _constant(value: float) -> Any:
 _REFERENCES: dict[str, NDArray] = {}
 
 
-def _reference(f: _Fields, n_samples: int, dt: float, base_dir: Path | None,
+def _reference(f: Fields, n_samples: int, dt: float, base_dir: Path | None,
                time_scale: float = 1.0) -> NDArray:
     """The reference on t = 0..T+1; with ``time_scale`` s, ``n_samples`` is the stretched
     count and sample t is where the unstretched reference is at t / s."""
@@ -534,7 +214,7 @@ def _reference(f: _Fields, n_samples: int, dt: float, base_dir: Path | None,
     return ref
 
 
-def _build_reference(f: _Fields, n_samples: int, dt: float, base_dir: Path | None,
+def _build_reference(f: Fields, n_samples: int, dt: float, base_dir: Path | None,
                      time_scale: float = 1.0) -> NDArray:
     kind = f.string("kind", choices=("lemniscate", "unicycle", "samples", "waypoints"))
     m = n_samples + 2  # t = 0..T+1
@@ -607,7 +287,7 @@ def _build_reference(f: _Fields, n_samples: int, dt: float, base_dir: Path | Non
     return ref
 
 
-def _read_points(f: _Fields, path: Path, rows: int) -> NDArray[np.float64]:
+def _read_points(f: Fields, path: Path, rows: int) -> NDArray[np.float64]:
     """The first ``rows`` points (x, y) of a CSV file, its size bounded before it is read."""
     limit = MAX_FILE_BYTES + 256 * rows
     try:
@@ -628,10 +308,10 @@ def _read_points(f: _Fields, path: Path, rows: int) -> NDArray[np.float64]:
     except (OSError, ValueError, IndexError, UnicodeDecodeError) as exc:
         if isinstance(exc, ScenarioError):
             raise
-        raise f.fail("file", f"cannot read {path}: {_one_line(str(exc))}") from None
+        raise f.fail("file", f"cannot read {path}: {one_line(str(exc))}") from None
 
 
-def _graph(f: _Fields, n: int) -> Graph:
+def _graph(f: Fields, n: int) -> Graph:
     leader_raw = f.get("leader", required=True)
     if not isinstance(leader_raw, dict) or not leader_raw:
         raise f.fail("leader", "expected a mapping {robot: weight} with at least one robot")
@@ -645,7 +325,7 @@ def _graph(f: _Fields, n: int) -> Graph:
     edges = []
     seen = set()
     for idx, e in enumerate(edges_raw):
-        ef = _Fields(e, f"{f.path}.edges[{idx}]", f.src)
+        ef = Fields(e, f"{f.path}.edges[{idx}]", f.src)
         src = ef.robot(ef.get("from", required=True), "from", n)
         dst = ef.robot(ef.get("to", required=True), "to", n)
         w = ef.number("weight", 1.0, positive=True)
@@ -660,7 +340,7 @@ def _graph(f: _Fields, n: int) -> Graph:
     return Graph.from_edges(n, edges, leader)
 
 
-def _per_robot(f: _Fields, key: str, n: int, default: float) -> tuple[float, ...]:
+def _per_robot(f: Fields, key: str, n: int, default: float) -> tuple[float, ...]:
     v = f.get(key, default)
     if isinstance(v, list):
         if len(v) != n:
@@ -701,7 +381,7 @@ def _section(source: str, name: str) -> Iterator[None]:
     except ScenarioError:
         raise
     except (ValueError, TypeError, ArithmeticError, LookupError) as exc:
-        raise ScenarioError(f"{source}: {name}: {_one_line(str(exc)) or type(exc).__name__}"
+        raise ScenarioError(f"{source}: {name}: {one_line(str(exc)) or type(exc).__name__}"
                             ) from None
 
 
@@ -712,7 +392,7 @@ def load_bytes(samples: int, robots: int) -> int:
     return 160 * (samples + 2) + 64 * robots * robots + 512 * robots
 
 
-def _name(f: _Fields) -> str:
+def _name(f: Fields) -> str:
     name = f.string("name")
     if not name.strip() or len(name) > _MAX_NAME:
         raise f.fail("name", f"must be 1 to {_MAX_NAME} characters, got {len(name)}")
@@ -724,7 +404,7 @@ def _name(f: _Fields) -> str:
 
 def _scenario(data: Any, text: str, source: str, base_dir: Path | None,
               time_scale: float | None = None) -> Scenario:
-    top = _Fields(data, "", source)
+    top = Fields(data, "", source)
     name = _name(top)
     description = top.string("description", "")
     dt = top.number("dt")
@@ -785,7 +465,7 @@ def ramp_seconds(t: NDArray[np.float64], ramp: float) -> NDArray[np.float64]:
     return np.where(t < ramp, ramp * (x ** 3 - 0.5 * x ** 4), t - 0.5 * ramp)
 
 
-def _ramped_reference(top: _Fields, n_samples: int, dt: float, base_dir: Path | None,
+def _ramped_reference(top: Fields, n_samples: int, dt: float, base_dir: Path | None,
                       scale: float, ramp: float) -> tuple[NDArray, NDArray]:
     """The reference on t = 0..T+1 read at the warped times (``ramp_seconds``), from the
     same reference built RAMP_FINE times finer; and the formation's warped seconds."""
@@ -806,7 +486,7 @@ def _ramped_reference(top: _Fields, n_samples: int, dt: float, base_dir: Path | 
 MAX_TIME_SCALE = 20.0
 
 
-def _desired_options(top: _Fields, time_scale: float | None) -> tuple[str, float, float]:
+def _desired_options(top: Fields, time_scale: float | None) -> tuple[str, float, float]:
     """``desired: {headings, time_scale, ramp}``; ``time_scale`` given (the command line's
     ``--time-scale``) replaces the file's."""
     df = top.sub("desired", required=False)
@@ -828,7 +508,7 @@ def _desired_options(top: _Fields, time_scale: float | None) -> tuple[str, float
     return headings, scale, ramp
 
 
-def _formation(ff: _Fields, n: int, source: str
+def _formation(ff: Fields, n: int, source: str
                ) -> tuple[str, NDArray[np.float64], list[tr.Sinusoid | tr.AxisScales]]:
     frame = ff.string("frame", choices=("world", "leader"))
     scales_raw = ff.get("scales", {})
@@ -836,7 +516,7 @@ def _formation(ff: _Fields, n: int, source: str
         raise ff.fail("scales", "expected a mapping name -> {mean, amplitude, period, phase}")
     scales: dict[str, tr.Sinusoid] = {}
     for key, val in scales_raw.items():
-        sf = _Fields(val, f"formation.scales.{key}", source)
+        sf = Fields(val, f"formation.scales.{key}", source)
         scales[str(key)] = tr.Sinusoid(sf.number("mean", 1.0), sf.number("amplitude", 0.0),
                                        sf.number("period", 0.0, nonneg=True),
                                        sf.number("phase", 0.0, angle=True))
@@ -848,7 +528,7 @@ def _formation(ff: _Fields, n: int, source: str
     robot_scales: list[tr.Sinusoid | tr.AxisScales] = [tr.Sinusoid()] * n
     for key, val in off_raw.items():
         r = ff.robot(key, f"offsets.{key}", n)
-        of = _Fields(val, f"formation.offsets.{key}", source)
+        of = Fields(val, f"formation.offsets.{key}", source)
         offsets[r - 1] = (of.number("x"), of.number("y"))
         sname = of.get("scale", None)
         if sname is not None:
@@ -861,7 +541,7 @@ def _formation(ff: _Fields, n: int, source: str
                 if not isinstance(name, str) or name not in scales:
                     where = "scale" if len(names) == 1 else f"scale[{k}]"
                     raise of.fail(where, f"no scale named {show(name)} in formation.scales "
-                                         f"(have: {_one_line(', '.join(scales), 80) or 'none'})")
+                                         f"(have: {one_line(', '.join(scales), 80) or 'none'})")
             robot_scales[r - 1] = (scales[names[0]] if len(names) == 1
                                    else tr.AxisScales(scales[names[0]], scales[names[1]]))
         of.finish()
@@ -873,7 +553,7 @@ def _formation(ff: _Fields, n: int, source: str
     return frame, offsets, robot_scales
 
 
-def _law(top: _Fields, n: int) -> LawSettings:
+def _law(top: Fields, n: int) -> LawSettings:
     lf = top.sub("law", required=False)
     law = LawSettings(
         kind=int(lf.integer("kind", 9)),
@@ -888,7 +568,7 @@ def _law(top: _Fields, n: int) -> LawSettings:
     return law
 
 
-def _uncertainty(top: _Fields) -> tuple[Any, ...]:
+def _uncertainty(top: Fields) -> tuple[Any, ...]:
     uf = top.sub("uncertainty", required=False)
     shift = uf.numbers("initial_shift", 3, [0, 0, 0], nonneg=True, angle_index=(2,))
     df = uf.sub("disturbance", required=False)
@@ -903,7 +583,7 @@ def _uncertainty(top: _Fields) -> tuple[Any, ...]:
     return shift, dist_fixed, dist_unif, noise_fixed, noise_unif
 
 
-def _delay(top: _Fields, n_samples: int) -> tuple[DelayModel, bool, float]:
+def _delay(top: Fields, n_samples: int) -> tuple[DelayModel, bool, float]:
     dlf = top.sub("delay", required=False)
     model = dlf.string("model", "none", choices=("none", "fixed", "uniform", "table", "paper"))
     try:
@@ -935,7 +615,7 @@ def _delay(top: _Fields, n_samples: int) -> tuple[DelayModel, bool, float]:
     except ValueError as exc:
         if isinstance(exc, ScenarioError):
             raise
-        raise dlf.fail(None, _one_line(str(exc))) from None
+        raise dlf.fail(None, one_line(str(exc))) from None
     loss = dlf.number("loss", 0.0, nonneg=True)
     if loss >= 1.0:
         raise dlf.fail("loss", f"a probability below 1 is required, got {loss}")
@@ -959,7 +639,7 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
     try:
         is_file_arg = p.suffix in (".yaml", ".yml") or p.exists()
     except (OSError, ValueError) as exc:  # e.g. a name too long for the file system
-        raise ScenarioError(f"{_printable(name, 80)}: cannot read: "
+        raise ScenarioError(f"{printable(name, 80)}: cannot read: "
                             f"{getattr(exc, 'strerror', None) or exc}") from None
     if is_file_arg:
         text = read_text_file(p)
@@ -967,5 +647,5 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
     if name in builtin_scenarios():
         text = resources.files(SCENARIO_PACKAGE).joinpath(name + ".yaml").read_text()
         return scenario_from_text(text, f"{name} (built-in)")
-    raise ScenarioError(f"{_printable(name, 80)}: no such scenario file, and not a built-in "
+    raise ScenarioError(f"{printable(name, 80)}: no such scenario file, and not a built-in "
                         f"scenario (built-in: {', '.join(builtin_scenarios())})")

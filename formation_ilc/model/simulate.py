@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -477,6 +478,26 @@ def simulate(
         if run_trials.jit(*args, memory, nxt, metrics, xi, eta, u, tau, tau0, sf):
             memory = nxt
         return SimResult(metrics=metrics, records=records, memory=memory)
+    memory = _one_by_one(pb, args, sf, memory, nxt, metrics, (xi, eta, u, tau, tau0),
+                         range(first_trial, first_trial + k_total), keep=keep, records=records,
+                         progress=progress, on_trial_data=on_trial_data, on_memory=on_memory,
+                         stop_on_divergence=stop_on_divergence, store_metrics=store_metrics)
+    return SimResult(metrics=metrics, records=records, memory=memory)
+
+
+def _one_by_one(pb: Problem, args: tuple[Any, ...], sf: Any, memory: NDArray[np.float64],
+                nxt: NDArray[np.float64], metrics: NDArray[np.float64],
+                bufs: tuple[NDArray[Any], ...], trials: range, *, keep: set[int],
+                records: dict[int, TrialRecord],
+                progress: Callable[[int, NDArray[np.float64]], None] | None,
+                on_trial_data: Callable[..., None] | None,
+                on_memory: Callable[[int, NDArray[np.float64]], None] | None,
+                stop_on_divergence: bool, store_metrics: bool) -> NDArray[np.float64]:
+    """``simulate``'s trials one compiled call each, with its hooks between them (``args``
+    and ``sf`` the compiled loop's, ``bufs`` its arrays xi, eta, u, tau, tau0); the memory
+    after the last. DivergedError (``stop_on_divergence``) with the result so far."""
+    xi, eta, u, tau, tau0 = bufs
+    n = pb.n
     rows = np.empty((1, len(METRIC_COLUMNS)))
     row = rows[0]
 
@@ -485,8 +506,7 @@ def simulate(
                                memory=memory.copy())
         return exc
 
-    for i in range(k_total):
-        k = first_trial + i
+    for i, k in enumerate(trials):
         # the same compiled code, one trial per call
         run_trials.jit(*args[:1], k, *args[2:], memory, nxt, rows, xi, eta, u, tau, tau0, sf)
         done = i if store_metrics else 0
@@ -514,7 +534,7 @@ def simulate(
         memory, nxt = nxt, memory
         if on_memory is not None:
             on_memory(k + 1, memory)
-    return SimResult(metrics=metrics, records=records, memory=memory)
+    return memory
 
 
 def simulate_seeds(scenario: Scenario, seeds: Iterable[int], trials: int) -> NDArray[np.float64]:

@@ -67,7 +67,7 @@ class ClockExchange:
         its clock block as a word on diagnostics).
     """
 
-    def __init__(self, node: Node, me: str, cfg: RunConfig, clock: NodeClock,
+    def __init__(self, node: Node, me: str, cfg: RunConfig, clock: NodeClock, *,
                  peers: Iterable[str], askers: Iterable[str], drops: Any,
                  on_event: Callable[[str, str], None] | None = None,
                  on_report: Callable[[], None] | None = None):

@@ -70,7 +70,7 @@ class MonitorNode(GuardedNode):
     (the roster's ``trajectory_writers``): a trajectory from any other writer is refused
     and counted as ``forged``; a topic not in it is taken from any writer."""
 
-    def __init__(self, cfg: RunConfig, on_trial: Callable[[int, np.ndarray], None],
+    def __init__(self, cfg: RunConfig, on_trial: Callable[[int, np.ndarray], None], *,
                  true_state: bool = True, first: int = 0,
                  on_contact: Callable[[str, dict[str, Any]], None] | None = None,
                  on_clock: Callable[[str, str, str], None] | None = None,

@@ -320,29 +320,7 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
         self.drv_pub = self.create_publisher(TwistStamped if self.stamped else Twist, cmd_t,
                                              ms.DRIVER_CMD_QOS)
         self.create_subscription(Odometry, odom_t, self._on_odom, ms.ODOM_QOS)
-        self.where_pub = None
-        if safety is not None:  # between trials: where each robot is, for the returns
-            self.where_pub = self.create_publisher(PoseStamped, ms.whereabouts_topic(self.id),
-                                                   ms.SAMPLE_QOS)
-            # each from its own bridge only (protocol.writers): a forged one, stamped
-            # ahead, would stand for that robot and hide where it really is
-            for j in range(1, cfg.scenario.n + 1):
-                if j != self.id:
-                    self.checked_subscription(PoseStamped, ms.whereabouts_topic(j),
-                                              lambda m, gid, j=j: self._on_whereabouts(m, j),
-                                              ms.SAMPLE_QOS, owners=(ms.bridge_name(j),))
-        self.true_pub = None
-        if self.truth_topic is not None:
-            # from the physics bases only (protocol.writers): forged true poses made the
-            # true error read 63.9 m
-            self.checked_subscription(PoseStamped, self.truth_topic,
-                                      lambda m, gid: self._on_truth(m), ms.ODOM_QOS,
-                                      owners=(ms.BASES_NODE,))
-            self.true_pub = self.create_publisher(Path, ms.true_trajectory_topic(self.id),
-                                                  ms.TRAJECTORY_QOS)
-        if self.located_topic is not None and self.located_topic != self.truth_topic:
-            self.create_subscription(PoseStamped, self.located_topic, self._on_located,
-                                     ms.ODOM_QOS)
+        self._wire_peers_and_truth(cfg, safety is not None)
         self._setup_motors(motors_t)
         # the frames: robot_i/odom where the robot was placed (located: where its world
         # pose and its odometry put it, moving as the odometry drifts), robot_i/base_link
@@ -368,14 +346,42 @@ class BridgeNode(LifecycleNodeMixin, ConfiguredNode):
             # clock words on a writer of their own (the report's keeps one message)
             self.word_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS,
                                                   ms.LATCHED_QOS)
-            self.clocks = ClockExchange(self, self.name, cfg, self.wall, [ms.LEADER], (),
-                                        self.drops, on_report=self._clock_word)
+            self.clocks = ClockExchange(self, self.name, cfg, self.wall, peers=[ms.LEADER],
+                                        askers=(), drops=self.drops,
+                                        on_report=self._clock_word)
         self._tick = self.create_timer(TICK, self._on_tick)
         self._gate = self.create_timer(0.05, self._check_ready)
         self.get_logger().info(f"{self.name}: driver {self.driver} ({cmd_t}, {odom_t}, "
                                f"motors {motors_t}), initial pose {core.initial}, limits "
                                f"{self.limits.v_max} m/s {math.degrees(self.limits.omega_max):.0f}"
                                f" deg/s")
+
+    def _wire_peers_and_truth(self, cfg: RunConfig, returns: bool) -> None:
+        """With the returns filtered (``returns``): where every other robot is, from its
+        own bridge; from a physics base: the robot's true pose; a located pose."""
+        self.where_pub = None
+        if returns:  # between trials: where each robot is, for the returns
+            self.where_pub = self.create_publisher(PoseStamped, ms.whereabouts_topic(self.id),
+                                                   ms.SAMPLE_QOS)
+            # each from its own bridge only (protocol.writers): a forged one, stamped
+            # ahead, would stand for that robot and hide where it really is
+            for j in range(1, cfg.scenario.n + 1):
+                if j != self.id:
+                    self.checked_subscription(PoseStamped, ms.whereabouts_topic(j),
+                                              lambda m, gid, j=j: self._on_whereabouts(m, j),
+                                              ms.SAMPLE_QOS, owners=(ms.bridge_name(j),))
+        self.true_pub = None
+        if self.truth_topic is not None:
+            # from the physics bases only (protocol.writers): forged true poses made the
+            # true error read 63.9 m
+            self.checked_subscription(PoseStamped, self.truth_topic,
+                                      lambda m, gid: self._on_truth(m), ms.ODOM_QOS,
+                                      owners=(ms.BASES_NODE,))
+            self.true_pub = self.create_publisher(Path, ms.true_trajectory_topic(self.id),
+                                                  ms.TRAJECTORY_QOS)
+        if self.located_topic is not None and self.located_topic != self.truth_topic:
+            self.create_subscription(PoseStamped, self.located_topic, self._on_located,
+                                     ms.ODOM_QOS)
 
     def _setup_motors(self, topic: str) -> None:
         kind = self.spec.motors_kind

@@ -71,7 +71,7 @@ from formation_ilc.core.clock import Rejected
 from formation_ilc.core.links import LEADER
 from formation_ilc.model.safety import spec_of
 from formation_ilc.model.simulate import Problem
-from formation_ilc.nodes.clocks import ClockExchange, node_clock
+from formation_ilc.nodes.clocks import ClockExchange, NodeClock, node_clock
 from formation_ilc.nodes.common import (
     ConfiguredNode,
     RunConfig,
@@ -140,6 +140,39 @@ class RobotNode(ConfiguredNode):
                          "delay": sc.uncertainty.delay.kind != "none", "links": cfg.links,
                          "mode": cfg.mode})
         self.realtime = cfg.wall
+        self.learner = lrn = self._make_learner(cfg, pb)
+        #: the robots that learn from this one's trajectory (its out-neighbours)
+        self.out_names = tuple(ms.robot_name(r + 1) for r in range(pb.n)
+                               if r != lrn.i and lrn.i in pb.src[r])
+        self.n_out = len(self.out_names)
+        self.late: Counter[str] = Counter({"links": 0})
+
+        self._wire_samples(cfg, lrn)
+        self._wire_team(cfg, pb, lrn)
+        clock = node_clock(cfg, self.id)
+        self._wire_trajectories(cfg, lrn, clock)
+        #: whether the deadline timer runs (realtime: from a pose whose links are not in)
+        self._armed = False
+        if self.realtime:
+            # the wait runs on the robot's own clock (an emulated one runs fast or slow)
+            self._deadline = self.create_timer(LINK_WAIT * cfg.scenario.dt * clock.scale,
+                                               self._on_deadline)
+            self._deadline.cancel()
+        #: the checked subscriptions carry trajectories only (no safety filter's
+        #: team/poses): their re-check sleeps inside a trial (``polls_idle``)
+        self._idle_polls = self.poll_period() >= REFRESH_TRIAL
+        self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
+        #: the e-stop is latched: every command is zero (the learner still runs its trial)
+        self.estopped = False
+        self.create_subscription(Bool, ms.ESTOP, self._on_estop, ms.LATCHED_READER_QOS)
+        self._gate = self.create_timer(0.05, self._check_ready)
+        self.get_logger().info(f"{self.name}: {len(lrn.neighbours)} in-links"
+                               f"{' + leader' if lrn.sees_leader else ''} ({cfg.links}), "
+                               f"{self.n_out} out-neighbours, {pb.samples} samples")
+
+    def _make_learner(self, cfg: RunConfig, pb: Problem) -> RobotLearner:
+        """The learner of this robot (its initial memory, its safety filter), restored from
+        its state file when there is one; and the follower of the leader's events."""
         memory = None
         path = str(self.get_parameter("init_memory").value)
         if path:
@@ -147,9 +180,9 @@ class RobotNode(ConfiguredNode):
             self.get_logger().info(f"{self.name}: initial memory from {path}")
         safety = (None if cfg.safety is None
                   else spec_of(cfg.safety, cfg.scenario.dt, cfg.scenario.uncertainty))
-        self.learner = lrn = RobotLearner(pb, self.id - 1, cfg.clock, realtime=self.realtime,
-                                          direct=cfg.links == "direct", memory=memory,
-                                          leader_in_step=cfg.leader_in_step, safety=safety)
+        lrn = RobotLearner(pb, self.id - 1, cfg.clock, realtime=self.realtime,
+                           direct=cfg.links == "direct", memory=memory,
+                           leader_in_step=cfg.leader_in_step, safety=safety)
         self.follower = Follower(cfg.run_id, clock=cfg.clock)
         sdir = str(self.get_parameter("state_dir").value)
         self.state_file = state_path(sdir, self.id) if sdir else None
@@ -162,12 +195,11 @@ class RobotNode(ConfiguredNode):
                 lrn.restore(st)
                 self.get_logger().info(f"{self.name}: continues from {self.state_file}: "
                                        f"{st.iterations} trials learned")
-        #: the robots that learn from this one's trajectory (its out-neighbours)
-        self.out_names = tuple(ms.robot_name(r + 1) for r in range(pb.n)
-                               if r != lrn.i and lrn.i in pb.src[r])
-        self.n_out = len(self.out_names)
-        self.late: Counter[str] = Counter({"links": 0})
+        return lrn
 
+    def _wire_samples(self, cfg: RunConfig, lrn: RobotLearner) -> None:
+        """The per-sample publishers (command, shared pose, trajectory, ready) and
+        subscriptions: its own pose, and each link (emulated ticks or direct poses)."""
         self.cmd_pub = self.create_publisher(Twist, ms.cmd_vel_topic(self.id), ms.SAMPLE_QOS)
         self.shared_pub = self.create_publisher(PoseStamped, ms.shared_pose_topic(self.id),
                                                 ms.SAMPLE_QOS)
@@ -193,6 +225,10 @@ class RobotNode(ConfiguredNode):
                 self.sample_subs.append(self.create_subscription(
                     PoseStamped, topic, lambda m, s=sender: self._on_link_pose(m, s),
                     ms.SAMPLE_QOS, raw=True))
+
+    def _wire_team(self, cfg: RunConfig, pb: Problem, lrn: RobotLearner) -> None:
+        """With a safety filter: the other robots' poses (the plant's team/poses, or each
+        robot's), and the commands the robots tell each other."""
         #: realtime with the plant's team/poses: taken before each command (below)
         self._team_sub: Any = None
         self._taking_team = False
@@ -226,6 +262,11 @@ class RobotNode(ConfiguredNode):
                 lambda m, gid, j=j: self._on_told(m, j), ms.SAMPLE_QOS, raw=True,
                 owners=(ms.robot_name(j + 1),)) for j in range(pb.n) if j != lrn.i]
             self.sample_subs += self._told_subs
+
+    def _wire_trajectories(self, cfg: RunConfig, lrn: RobotLearner,
+                           clock: NodeClock) -> None:
+        """The in-neighbours' trajectories, and the clock exchanges (on the robot's
+        ``clock``)."""
         for sender in lrn.neighbours:
             # raw: a trajectory longer than a trial is refused before it is deserialized;
             # from robot j's own writer only (protocol.writers): a trajectory another
@@ -236,7 +277,6 @@ class RobotNode(ConfiguredNode):
                 lambda m, gid, s=sender: self._on_trajectory(m, s),
                 ms.TRAJECTORY_READER_QOS, raw=True, owners=(sender,), poll=REFRESH_TRIAL)
         self.clocks: ClockExchange | None = None
-        clock = node_clock(cfg, self.id)
         if cfg.clock_exchanges:
             # its clock words go out on a writer of their own: the report's writer keeps
             # one message (latched), and a word sent just after a report would replace it
@@ -247,26 +287,9 @@ class RobotNode(ConfiguredNode):
             # and its own for the robots that hear it (protocol.timesync)
             self.clocks = ClockExchange(
                 self, self.name, cfg, clock,
-                [*lrn.neighbours, *([LEADER] if lrn.sees_leader else [])], self.out_names,
-                self.drops, on_event=self._clock_event, on_report=self._clock_word)
-        #: whether the deadline timer runs (realtime: from a pose whose links are not in)
-        self._armed = False
-        if self.realtime:
-            # the wait runs on the robot's own clock (an emulated one runs fast or slow)
-            self._deadline = self.create_timer(LINK_WAIT * cfg.scenario.dt * clock.scale,
-                                               self._on_deadline)
-            self._deadline.cancel()
-        #: the checked subscriptions carry trajectories only (no safety filter's
-        #: team/poses): their re-check sleeps inside a trial (``polls_idle``)
-        self._idle_polls = self.poll_period() >= REFRESH_TRIAL
-        self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
-        #: the e-stop is latched: every command is zero (the learner still runs its trial)
-        self.estopped = False
-        self.create_subscription(Bool, ms.ESTOP, self._on_estop, ms.LATCHED_READER_QOS)
-        self._gate = self.create_timer(0.05, self._check_ready)
-        self.get_logger().info(f"{self.name}: {len(lrn.neighbours)} in-links"
-                               f"{' + leader' if lrn.sees_leader else ''} ({cfg.links}), "
-                               f"{self.n_out} out-neighbours, {pb.samples} samples")
+                peers=[*lrn.neighbours, *([LEADER] if lrn.sees_leader else [])],
+                askers=self.out_names, drops=self.drops, on_event=self._clock_event,
+                on_report=self._clock_word)
 
     def _check_ready(self) -> None:
         """Ready for trial 0 once every publisher has its readers and every per-sample

@@ -106,7 +106,7 @@ class CheckedSubscription:
     for a node's subscriptions: ``GuardedNode.checked_subscription``)."""
 
     def __init__(self, node: Node, msg_type: Any, topic: str, qos: Any, table: WriterTable,
-                 handler: Callable[[Any, bytes], None], raw: bool = False,
+                 handler: Callable[[Any, bytes], None], *, raw: bool = False,
                  shared: bool = False, on_refused: Callable[[str], None] | None = None,
                  own_poll: bool = True, period: float = 0.0):
         rcl, rcutils = _libs()

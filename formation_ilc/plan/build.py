@@ -36,7 +36,7 @@ from formation_ilc.core.names import (
     fake_driver_name,
     robot_name,
 )
-from formation_ilc.plan.checks import _check_memory, _check_plant, _safety
+from formation_ilc.plan.checks import check_memory, check_plant, safety_settings
 from formation_ilc.plan.options import PATH_FIELDS, LaunchOptions, OptionError, unused_option
 from formation_ilc.plan.processes import node_specs
 from formation_ilc.plan.specs import (
@@ -103,9 +103,9 @@ def build_plan(options: LaunchOptions) -> RunPlan:
     bridge = _bridge(opts, row)
     physics = (PhysicsOptions.of(opts) if row.physics
                or (bridge is not None and bridge.physics_bases) else None)
-    safety = _safety(opts, row, sc, namespace, bridge, physics)
+    safety = safety_settings(opts, row, sc, namespace, bridge, physics)
     cfg = replace(cfg, safety=safety)
-    notes = _check_plant(opts, row, sc, namespace, bridge, physics, safety)
+    notes = check_plant(opts, row, sc, namespace, bridge, physics, safety)
     live = _live(opts)
     lineup = Lineup.of(sc.graph, plant=row.name, links=links, record=opts.record is not None,
                        live=live is not None, external=tuple(opts.plant_nodes),
@@ -154,7 +154,7 @@ def _check_scenario(opts: LaunchOptions, sc: Scenario) -> None:
     """NoRun (ScenarioError) for a scenario the run cannot take: an initial memory of
     another, no trial, a formation too extreme for float64, before anything is made."""
     if opts.init_memory is not None:
-        _check_memory(opts.init_memory, sc)
+        check_memory(opts.init_memory, sc)
     if sc.trials < 1:
         raise NoRun("--trials must be at least 1")
     _ = sc.desired

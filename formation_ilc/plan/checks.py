@@ -19,10 +19,12 @@ from formation_ilc.config.scenario import Scenario
 from formation_ilc.plan.options import LaunchOptions
 from formation_ilc.plan.specs import BridgeOptions, NoRun, PhysicsOptions
 
+__all__ = ["safety_settings", "check_plant", "check_memory"]
 
-def _safety(opts: LaunchOptions, row: Plant, sc: Scenario, namespace: str,
-            bridge: BridgeOptions | None, physics: PhysicsOptions | None
-            ) -> SafetySettings | None:
+
+def safety_settings(opts: LaunchOptions, row: Plant, sc: Scenario, namespace: str,
+                    bridge: BridgeOptions | None, physics: PhysicsOptions | None
+                    ) -> SafetySettings | None:
     """The run's safety filter (``--safety``; on by default with a plant whose robots have
     bodies: the plant table's ``bodies``): the body its robots have and the limits it
     keeps (the physics model's, the bridges' as they will read them, the base preset's),
@@ -99,9 +101,9 @@ def _params_file(bridge: BridgeOptions) -> Any:
     return params
 
 
-def _check_plant(opts: LaunchOptions, row: Plant, sc: Scenario, namespace: str,
-                 bridge: BridgeOptions | None, physics: PhysicsOptions | None,
-                 safety: SafetySettings | None = None) -> tuple[str, ...]:
+def check_plant(opts: LaunchOptions, row: Plant, sc: Scenario, namespace: str,
+                bridge: BridgeOptions | None, physics: PhysicsOptions | None,
+                safety: SafetySettings | None = None) -> tuple[str, ...]:
     """Refuse a run the plant cannot do, before anything starts: no PyBullet for a physics
     plant; desired speeds or accelerations beyond the bridges' or the physics robots'
     limits (with the ``--time-scale`` that fits); a formation tighter than the safety
@@ -271,7 +273,7 @@ def _contact_line(opts: LaunchOptions, sc: Scenario, bridge: BridgeOptions | Non
             f"{hit.line(sc.dt)} (footprint {fp.length} x {fp.width} m)"), ""
 
 
-def _check_memory(path: Path, sc: Scenario) -> None:
+def check_memory(path: Path, sc: Scenario) -> None:
     """Refuse an --init-memory file that is not a memory for this run."""
     from formation_ilc.store.memoryfile import MemoryFileError, load_memory
 

@@ -9,7 +9,7 @@ import json
 from typing import Any
 
 from formation_ilc.config.clocks import ClockSettings
-from formation_ilc.config.roster import Member
+from formation_ilc.config.roster import ENTRY_SCRIPTS, Member
 from formation_ilc.core.names import (
     BASE_TRUTH,
     BASES_NODE,
@@ -144,14 +144,9 @@ def _entry_modules() -> dict[str, str]:
 
 # --------------------------------------------------------------------------- ros2 launch
 
-#: the ``ros2 run formation_ilc`` executable of each node's entry script (``ros2_run/``)
-ROS2_RUN = {
-    "formation-ilc-virtual-leader": "virtual_leader", "formation-ilc-robot-sim": "robot_sim",
-    "formation-ilc-physics-sim": "physics_sim", "formation-ilc-link-emulator": "link_emulator",
-    "formation-ilc-robot": "robot", "formation-ilc-recorder": "recorder",
-    "formation-ilc-liveview": "liveview", "formation-ilc-bridge": "bridge",
-    "formation-ilc-fake-pioneer": "fake_pioneer", "formation-ilc-physics-bases": "physics_bases",
-}
+#: the ``ros2 run formation_ilc`` executable of each node's entry script (``ros2_run/``):
+#: the script's name without its prefix, dashes as underscores (one list: ENTRY_SCRIPTS)
+ROS2_RUN = {s: s.removeprefix("formation-ilc-").replace("-", "_") for s in ENTRY_SCRIPTS}
 
 
 def ros2_executable(module: str) -> str:

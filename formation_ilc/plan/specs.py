@@ -30,13 +30,11 @@ from formation_ilc.protocol.schedule import DONE
 from formation_ilc.system.exits import NO_RESTART as EXIT_NO_RESTART
 from formation_ilc.system.netns import LinkFaults
 
-__all__ = ["RUN_FILE", "NO_RESTART", "NoRun", "BridgeOptions", "PhysicsOptions",
+__all__ = ["NO_RESTART", "NoRun", "BridgeOptions", "PhysicsOptions",
            "RestartPolicy", "NodeSpec", "HostsPlan", "RunPlan", "finished", "PIONEER_NS",
            "BASE_NS"]
 
 
-#: the launch options a run is resumed with (DIR/run.json)
-RUN_FILE = "run.json"
 #: exit status of a node that refuses its configuration: restarting it cannot help
 NO_RESTART = 2
 
@@ -282,7 +280,7 @@ class RunPlan:
     nodes : the processes, in start order.
     out : the output folder (absolute; it exists).
     resumed_at : iterations already learned (``--resume``); None for a new run.
-    run_json : the options to write to ``out/run.json`` (None when resuming).
+    run_json : the options to keep in ``out/run.yaml`` (None when resuming).
     final_wait : [s] after the last trial, the longest wait for the last reports.
     init_memory : ``--init-memory`` as given (the robots get its absolute path).
     record : the recording this launch writes (absolute), or None; ``record_root``: the

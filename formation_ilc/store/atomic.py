@@ -1,8 +1,8 @@
 """Files that a crash leaves whole: the old version or the new one, never a part.
 
 Every file the stack relies on after a crash (a robot's state, the leader's schedule, a
-learned memory, a sweep's finished points and table, a run's run.json) is written here: into a
-temporary file beside it (``.<name>.<random>.tmp``, so globs for ``*.json`` or ``*.npz``
+learned memory, a sweep's finished points and table, a run's run.yaml) is written here:
+into a temporary file beside it (``.<name>.<random>.tmp``, so globs for ``*.json`` or ``*.npz``
 never see it), flushed to the disk, renamed over the target, and the folder flushed too so
 that the rename itself survives a power cut. A write that fails (a full disk) raises
 OSError naming the target file, and the old version stays.

@@ -1,12 +1,15 @@
-"""run.json: the options of a launched run, kept in its folder so that it can be resumed.
+"""run.json: the options of a run launched before run files, kept in its folder so that it
+can be resumed; and what a run leaves in its folder.
 
-``formation-ilc launch`` writes ``DIR/run.json`` (atomically) when a run starts; ``launch
---resume DIR`` reads it back. The folder may have been moved or copied since: a path that
-pointed into the run's folder (the recording, a scenario file kept beside it) is stored
-relative to the folder and resolved against the folder being resumed, never against the
-folder the run was first written to (:func:`reroot` also re-roots the absolute paths of
-run files written before). The file is read bounded (a regular file of at most
-``RUN_LIMIT`` bytes, ``formation_ilc.store.bounded``) and checked field by field.
+``formation-ilc launch`` wrote ``DIR/run.json`` (atomically) when a run started; a launch
+now keeps ``DIR/run.yaml`` only (``cli.runfile``), and ``launch --resume DIR`` reads a
+run.json where there is no run.yaml (``save_run`` writes one, as those launches did).
+The folder may have been moved or copied since: a path that pointed into the run's folder
+(the recording, a scenario file kept beside it) is stored relative to the folder and
+resolved against the folder being resumed, never against the folder the run was first
+written to (:func:`reroot` also re-roots the absolute paths of run files written before).
+The file is read bounded (a regular file of at most ``RUN_LIMIT`` bytes,
+``formation_ilc.store.bounded``) and checked field by field.
 """
 
 from __future__ import annotations
@@ -145,9 +148,9 @@ def load_config(path: Path) -> dict[str, Any] | None:
     return d
 
 
-#: what a run leaves in its folder: its options, the nodes' state (what --resume goes on
-#: from), its metrics rows, its configuration and summary
-RUN_STATE = (RUN_FILE, "state", "metrics.csv", CONFIG_FILE, "summary.json")
+#: what a run leaves in its folder: its options (run.yaml; run.json before run files), the
+#: nodes' state (what --resume goes on from), its metrics rows, its configuration and summary
+RUN_STATE = ("run.yaml", RUN_FILE, "state", "metrics.csv", CONFIG_FILE, "summary.json")
 
 
 def run_state_in(folder: Path) -> list[str]:

@@ -17,6 +17,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -94,6 +95,7 @@ def run_physics(sc: Scenario, model: RobotModel, trials: int, *,
     src = np.where(valid, pb.src, 0)
     res = PhysicsResult(metrics=np.empty((trials, len(METRIC_COLUMNS))))
     row = np.empty(6)
+    sf: tuple[Any, ...] = ()
     if safety is not None:
         params, mode = safety.params(), learning_code(safety.learning)
         nominal = np.zeros((n, n_t, 2))
@@ -101,33 +103,15 @@ def run_physics(sc: Scenario, model: RobotModel, trials: int, *,
         prev = np.zeros((n, 2))
         others, ages, boxes = np.zeros((n, OTHER_FIELDS)), np.zeros(n), np.zeros((n, BOX))
         base = np.zeros((n, n_t, 2))
+        sf = (params, nominal, flags, prev, others, ages, boxes)
     with PhysicsWorld(model, n, pb.dt, rate=rate, collide=collide) as world:
         for i in range(trials):
             k = first_trial + i
             shift, _, noise = sc.uncertainty.draw_plant(sc.seed, k, n, n_t)
             world.place(pb.eta_d[:, 0] + shift)
             t0 = time.perf_counter()
-            tilt = 0.0
-            missed = 0
-            if safety is not None:
-                prev[:] = 0.0
-            for t in range(n_t + 1):
-                xi[:, t] = world.truth()
-                measured = xi[:, t] if pose == "truth" else world.odom
-                eta[:, t] = measured + noise[:, t]
-                if t == n_t:
-                    break
-                nb_eta[:] = eta[src, t]
-                nb_s[:] = np.where(valid, t, -1)
-                lead_s[:] = t
-                command.jit(t, pb.law, mem[:, t], eta, pb.eta_d, nb_eta, nb_s, pb.src,
-                            pb.weight, pb.eta_d, lead_s, pb.leader, pb.gain_prime, pb.heading,
-                            u[:, t])
-                if safety is not None:
-                    missed += filter_team.jit(t, u, eta, prev, 0.0, params, safety.window,
-                                              nominal, flags, others, ages, boxes)
-                world.step(u[:, t])
-                tilt = max(tilt, float(world.tilt().max()))
+            tilt, missed = _drive_trial(world, pb, mem, noise, pose, (xi, eta, u),
+                                        (nb_eta, nb_s, lead_s, valid, src), safety, sf)
             res.seconds += time.perf_counter() - t0
             res.samples += n_t
             nb_full[:] = eta[src]
@@ -141,20 +125,64 @@ def run_physics(sc: Scenario, model: RobotModel, trials: int, *,
                 after_learning.jit(mode, pb.dt, mem, flags, nxt)
             mem, nxt = nxt, mem
             trial_errors.jit(eta, xi, pb.eta_d, pb.src, pb.weight, row)
-            contacts = world.contacts()
-            res.metrics[i, 0] = k
-            res.metrics[i, 1:7] = row
-            res.metrics[i, 7] = int(np.count_nonzero(flags & CHANGED)) if safety is not None else 0
-            res.metrics[i, 8] = len(contacts)
-            res.filtered.append(int(res.metrics[i, 7]))
-            res.limited.append(world.limited)
-            res.box_missed.append(missed)
-            res.contacts.append(contacts)
-            res.clearance.append(trial_clearance(k, xi, model.footprint))
-            res.tilt.append(tilt)
+            changed = int(np.count_nonzero(flags & CHANGED)) if safety is not None else 0
+            _note_trial(res, i, k, world, model, xi, row, changed, tilt, missed)
             if k in keep:
                 res.xi[k] = xi.copy()
             if progress is not None:
                 progress(k, res.metrics[i].copy())
     res.memory = mem
     return res
+
+
+def _drive_trial(world: PhysicsWorld, pb: Problem, mem: NDArray[np.float64],
+                 noise: NDArray[np.float64], pose: str, out: tuple[NDArray[np.float64], ...],
+                 links: tuple[NDArray[Any], ...], safety: SafetySpec | None,
+                 sf: tuple[Any, ...]) -> tuple[float, int]:
+    """One trial driven in ``world``: the true and measured poses and the commands into
+    ``out`` (xi, eta, u), the law's command through the filter (``sf``: its arrays) at each
+    sample; returns the largest tilt and how many poses missed their box."""
+    xi, eta, u = out
+    nb_eta, nb_s, lead_s, valid, src = links
+    n_t = pb.samples
+    if safety is not None:
+        params, nominal, flags, prev, others, ages, boxes = sf
+    tilt = 0.0
+    missed = 0
+    if safety is not None:
+        prev[:] = 0.0
+    for t in range(n_t + 1):
+        xi[:, t] = world.truth()
+        measured = xi[:, t] if pose == "truth" else world.odom
+        eta[:, t] = measured + noise[:, t]
+        if t == n_t:
+            break
+        nb_eta[:] = eta[src, t]
+        nb_s[:] = np.where(valid, t, -1)
+        lead_s[:] = t
+        command.jit(t, pb.law, mem[:, t], eta, pb.eta_d, nb_eta, nb_s, pb.src,
+                    pb.weight, pb.eta_d, lead_s, pb.leader, pb.gain_prime, pb.heading,
+                    u[:, t])
+        if safety is not None:
+            missed += filter_team.jit(t, u, eta, prev, 0.0, params, safety.window,
+                                      nominal, flags, others, ages, boxes)
+        world.step(u[:, t])
+        tilt = max(tilt, float(world.tilt().max()))
+    return tilt, missed
+
+
+def _note_trial(res: PhysicsResult, i: int, k: int, world: PhysicsWorld, model: RobotModel,
+                xi: NDArray[np.float64], row: NDArray[np.float64], changed: int, tilt: float,
+                missed: int) -> None:
+    """Trial ``k``'s (the i-th run) metrics row and what else it leaves in ``res``."""
+    contacts = world.contacts()
+    res.metrics[i, 0] = k
+    res.metrics[i, 1:7] = row
+    res.metrics[i, 7] = changed
+    res.metrics[i, 8] = len(contacts)
+    res.filtered.append(int(res.metrics[i, 7]))
+    res.limited.append(world.limited)
+    res.box_missed.append(missed)
+    res.contacts.append(contacts)
+    res.clearance.append(trial_clearance(k, xi, model.footprint))
+    res.tilt.append(tilt)

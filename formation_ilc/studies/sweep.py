@@ -44,11 +44,10 @@ from typing import Any
 import numpy as np
 import yaml
 
-from formation_ilc.config.scenario import (
+from formation_ilc.config.scenario import Scenario, builtin_scenarios, load_scenario
+from formation_ilc.config.yamlfields import (
+    Fields,
     ScenarioError,
-    _Fields,
-    builtin_scenarios,
-    load_scenario,
     parse_yaml,
     read_text_file,
     show,
@@ -117,14 +116,14 @@ class SweepSpec:
 MAX_POINTS = 1_000_000
 
 
-def _value_list(f: _Fields, key: str, v: Any) -> list[Any]:
+def _value_list(f: Fields, key: str, v: Any) -> list[Any]:
     if not isinstance(v, list) or not v:
         raise f.fail(key, f"expected a non-empty list of values, got {show(v)}")
     return v
 
 
-def _draw(f: _Fields, key: str, dist: Any, rng: np.random.Generator, count: int) -> list[Any]:
-    df = _Fields(dist, f"{f.path}.{key}", f.src)
+def _draw(f: Fields, key: str, dist: Any, rng: np.random.Generator, count: int) -> list[Any]:
+    df = Fields(dist, f"{f.path}.{key}", f.src)
     kinds = [k for k in ("uniform", "log_uniform", "choice") if k in dist]
     if len(kinds) != 1:
         raise df.fail(None, "give exactly one of uniform: [lo, hi], log_uniform: [lo, hi], "
@@ -152,7 +151,34 @@ def spec_from_text(text: str, source: str = "<spec>", base_dir: Path | None = No
                    ) -> SweepSpec:
     """Parse and validate a sweep spec; ScenarioError names the file, the field and why."""
     data = parse_yaml(text, source)
-    top = _Fields(data, "", source)
+    top = Fields(data, "", source)
+    sc, path = _spec_scenario(top, base_dir)
+    scenario_text = _self_contained(sc.text, sc.source, path.parent)
+    trials = top.integer("trials", sc.trials, minimum=1)
+    seeds = _seeds(top, sc.seed)
+    pos_level = top.number("position_level", 1.0, positive=True)
+    head_level = top.number("heading_level", 0.1, positive=True, angle=True)
+    floor_window = top.integer("floor_window", min(100, trials), minimum=1)
+    if floor_window > trials:
+        raise top.fail("floor_window", f"must be <= trials ({trials}), got {floor_window}")
+    check = top.get("check", True)
+    if not isinstance(check, bool):
+        raise top.fail("check", f"expected true or false, got {check!r}")
+    has_grid, has_random = "grid" in data, "random" in data
+    if has_grid == has_random:
+        raise ScenarioError(f"{source}: top level: give exactly one of 'grid' (every "
+                            f"combination) or 'random' (draws)")
+    fields, configs = _grid(top, len(seeds)) if has_grid else _random(top, len(seeds))
+    top.finish()
+    _check_points(scenario_text, configs, source, "grid" if has_grid else "random")
+    return SweepSpec(source=source, scenario_text=scenario_text, trials=trials, seeds=seeds,
+                     position_level=pos_level, heading_level=head_level,
+                     floor_window=floor_window, check=check, fields=tuple(fields),
+                     configs=tuple(configs))
+
+
+def _spec_scenario(top: Fields, base_dir: Path | None) -> tuple[Scenario, Path]:
+    """A sweep spec's scenario (a built-in, or a file beside the spec) and its path."""
     scen = top.string("scenario")
     path = Path(scen) if base_dir is None or Path(scen).is_absolute() else base_dir / scen
     if scen in builtin_scenarios() and not path.exists():
@@ -164,9 +190,12 @@ def spec_from_text(text: str, source: str = "<spec>", base_dir: Path | None = No
     else:
         raise top.fail("scenario", f"{scen!r} is neither a file nor a built-in scenario "
                                    f"({', '.join(builtin_scenarios())})")
-    scenario_text = _self_contained(sc.text, sc.source, path.parent)
-    trials = top.integer("trials", sc.trials, minimum=1)
-    seeds_raw = top.get("seeds", [sc.seed])
+    return sc, path
+
+
+def _seeds(top: Fields, default: int) -> tuple[int, ...]:
+    """A sweep spec's seeds: a list, or {first, count}."""
+    seeds_raw = top.get("seeds", [default])
     if isinstance(seeds_raw, dict):
         sf = top.sub("seeds")
         first = sf.integer("first", 1, minimum=0)
@@ -185,60 +214,61 @@ def spec_from_text(text: str, source: str = "<spec>", base_dir: Path | None = No
     else:
         raise top.fail("seeds", f"expected a list of seeds or {{first, count}}, got "
                                 f"{show(seeds_raw)}")
-    pos_level = top.number("position_level", 1.0, positive=True)
-    head_level = top.number("heading_level", 0.1, positive=True, angle=True)
-    floor_window = top.integer("floor_window", min(100, trials), minimum=1)
-    if floor_window > trials:
-        raise top.fail("floor_window", f"must be <= trials ({trials}), got {floor_window}")
-    check = top.get("check", True)
-    if not isinstance(check, bool):
-        raise top.fail("check", f"expected true or false, got {check!r}")
-    has_grid, has_random = "grid" in data, "random" in data
-    if has_grid == has_random:
-        raise ScenarioError(f"{source}: top level: give exactly one of 'grid' (every "
-                            f"combination) or 'random' (draws)")
+    return seeds
+
+
+def _grid(top: Fields, n_seeds: int) -> tuple[list[str], list[dict[str, Any]]]:
+    """The fields a grid varies and its points (every combination)."""
     fields: list[str] = []
     columns: list[list[Any]] = []
-    if has_grid:
-        gf = top.sub("grid")
-        for key in list(gf.data):
-            if key not in FIELDS:
-                raise gf.fail(str(key), f"not a field a sweep can vary (known: "
-                                        f"{', '.join(FIELDS)})")
-            fields.append(key)
-            columns.append(_value_list(gf, key, gf.get(key)))
-        gf.finish()
-        if not fields:
-            raise top.fail("grid", "vary at least one field")
-        size = math.prod(len(c) for c in columns) * len(seeds)
-        if size > MAX_POINTS:
-            raise top.fail("grid", f"{size} points (every combination x {len(seeds)} seeds) "
-                                   f"is more than the {MAX_POINTS} a sweep may have")
-        configs = [dict(zip(fields, combo, strict=True)) for combo in itertools.product(*columns)]
-    else:
-        rf = top.sub("random")
-        count = rf.integer("count", minimum=1)
-        if count * len(seeds) > MAX_POINTS:
-            raise rf.fail("count", f"{count} draws x {len(seeds)} seeds is more than the "
-                                   f"{MAX_POINTS} points a sweep may have")
-        rng = np.random.default_rng(rf.integer("seed", 0, minimum=0))
-        ff = rf.sub("fields")
-        draws = []
-        for key in list(ff.data):
-            if key not in FIELDS:
-                raise ff.fail(str(key), f"not a field a sweep can vary (known: "
-                                        f"{', '.join(FIELDS)})")
-            fields.append(key)
-            draws.append(_draw(ff, key, ff.get(key), rng, count))
-        ff.finish()
-        rf.finish()
-        if not fields:
-            raise rf.fail("fields", "draw at least one field")
-        configs = [dict(zip(fields, vals, strict=True)) for vals in zip(*draws, strict=True)]
-    top.finish()
-    # every configuration must be a valid scenario: say which point and which field is not
+    gf = top.sub("grid")
+    for key in list(gf.data):
+        if key not in FIELDS:
+            raise gf.fail(str(key), f"not a field a sweep can vary (known: "
+                                    f"{', '.join(FIELDS)})")
+        fields.append(key)
+        columns.append(_value_list(gf, key, gf.get(key)))
+    gf.finish()
+    if not fields:
+        raise top.fail("grid", "vary at least one field")
+    size = math.prod(len(c) for c in columns) * n_seeds
+    if size > MAX_POINTS:
+        raise top.fail("grid", f"{size} points (every combination x {n_seeds} seeds) "
+                               f"is more than the {MAX_POINTS} a sweep may have")
+    configs = [dict(zip(fields, combo, strict=True)) for combo in itertools.product(*columns)]
+    return fields, configs
+
+
+def _random(top: Fields, n_seeds: int) -> tuple[list[str], list[dict[str, Any]]]:
+    """The fields random draws vary and its points (the draws)."""
+    fields: list[str] = []
+    rf = top.sub("random")
+    count = rf.integer("count", minimum=1)
+    if count * n_seeds > MAX_POINTS:
+        raise rf.fail("count", f"{count} draws x {n_seeds} seeds is more than the "
+                               f"{MAX_POINTS} points a sweep may have")
+    rng = np.random.default_rng(rf.integer("seed", 0, minimum=0))
+    ff = rf.sub("fields")
+    draws = []
+    for key in list(ff.data):
+        if key not in FIELDS:
+            raise ff.fail(str(key), f"not a field a sweep can vary (known: "
+                                    f"{', '.join(FIELDS)})")
+        fields.append(key)
+        draws.append(_draw(ff, key, ff.get(key), rng, count))
+    ff.finish()
+    rf.finish()
+    if not fields:
+        raise rf.fail("fields", "draw at least one field")
+    configs = [dict(zip(fields, vals, strict=True)) for vals in zip(*draws, strict=True)]
+    return fields, configs
+
+
+def _check_points(scenario_text: str, configs: list[dict[str, Any]], source: str,
+                  where: str) -> None:
+    """Every configuration must be a valid scenario: ScenarioError says which point and
+    which field is not."""
     for ci, cfg in enumerate(configs):
-        where = "grid" if has_grid else "random"
         try:
             apply_fields(scenario_text, cfg, f"{source}: {where} point {ci} "
                                              f"({_describe(cfg)}) -> scenario")
@@ -247,10 +277,6 @@ def spec_from_text(text: str, source: str = "<spec>", base_dir: Path | None = No
         except ValueError as exc:
             raise ScenarioError(f"{source}: {where} point {ci} ({_describe(cfg)}): {exc}"
                                 ) from None
-    return SweepSpec(source=source, scenario_text=scenario_text, trials=trials, seeds=seeds,
-                     position_level=pos_level, heading_level=head_level,
-                     floor_window=floor_window, check=check, fields=tuple(fields),
-                     configs=tuple(configs))
 
 
 def _self_contained(text: str, source: str, base: Path) -> str:

@@ -17,6 +17,7 @@ from formation_ilc.cli.launch import _save_run
 from formation_ilc.cli.runfile import RUN_YAML, launch_options, plan_of
 from formation_ilc.plan.options import FIELD_KEYS, LaunchOptions, option_fields
 from formation_ilc.plan.specs import NoRun
+from formation_ilc.store.runfile import save_run
 
 
 def options(*argv: str):
@@ -169,7 +170,10 @@ def test_the_resolved_run_file_resumes_and_relaunches_the_run(tmp_path):
     same_run(first, again)
     assert again.config.run_id != first.config.run_id
     assert again.record == (tmp_path / "b" / "r.mcap").resolve()
+    # one stored description: run.yaml, no run.json beside it
+    assert not (first.out / "run.json").exists()
     # a run.json of a launch before run files resumes it as well
+    save_run(first.out, first.run_json)
     stored.unlink()
     legacy = plan_of(options("--resume", str(first.out)))
     assert legacy.config.to_json() == first.config.to_json()

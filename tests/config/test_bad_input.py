@@ -647,18 +647,18 @@ def test_deep_flow_nesting_gets_the_loaders_message_whatever_libyaml_allows(leve
 
 
 def test_brackets_in_quotes_comments_and_words_do_not_count_as_nesting():
-    from formation_ilc.config.scenario import _deep_flow_end
+    from formation_ilc.config.yamlfields import deep_flow_end
 
     many = "[" * 40
-    assert _deep_flow_end(f"description: '{many}'\n") is None
-    assert _deep_flow_end(f'description: "\\"{many}"\n') is None  # an escaped quote
-    assert _deep_flow_end(f"dt: 0.1  # {many}\n") is None
+    assert deep_flow_end(f"description: '{many}'\n") is None
+    assert deep_flow_end(f'description: "\\"{many}"\n') is None  # an escaped quote
+    assert deep_flow_end(f"dt: 0.1  # {many}\n") is None
     # an apostrophe inside a word starts no quoted scalar: the brackets after it count
-    assert _deep_flow_end(f"description: don't\nname: {many}\n") is not None
+    assert deep_flow_end(f"description: don't\nname: {many}\n") is not None
     # brackets inside a plain scalar do count (an upper bound), and the events then decide:
     # a plain scalar is accepted as what it is
     from formation_ilc.config.scenario import parse_yaml
 
     text = f"description: a{many}\n"
-    assert _deep_flow_end(text) is not None
+    assert deep_flow_end(text) is not None
     assert parse_yaml(text, "p.yaml") == {"description": f"a{many}"}

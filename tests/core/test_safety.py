@@ -455,7 +455,7 @@ def test_the_chords_errors_bound_the_carry_from_both_sides_and_no_more():
     guarantee) and are the function's own largest distances from the chord, not the
     symmetric (width^2 / 8a) of before (which held the paper's triangle off its own
     formation: 0.444 m at trial 49 on physics, 0.391 m with the exact errors)."""
-    from formation_ilc.core.safety import _carry, _chord_errors
+    from formation_ilc.core.barrier import _carry, _chord_errors
 
     rng = np.random.default_rng(11)
     for case in range(3000):

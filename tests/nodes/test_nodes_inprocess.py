@@ -117,8 +117,8 @@ def test_a_clock_exchange_says_a_warning_and_then_news_from_its_one_timer(contex
     node = rclpy.create_node("robot_9", namespace=ms.NAMESPACE, context=context)
     try:
         said: list[tuple[str, str]] = []
-        ex = ClockExchange(node, "robot_9", cfg, node_clock(cfg, None), ["robot_1"], [],
-                           drops=None, on_event=lambda lv, t: said.append((lv, t)))
+        ex = ClockExchange(node, "robot_9", cfg, node_clock(cfg, None), peers=["robot_1"],
+                           askers=[], drops=None, on_event=lambda lv, t: said.append((lv, t)))
         words = [("warn", "w1"), ("info", "i1"), ("warn", "w2"), ("info", "i2")]
         ex.sync.questions = lambda now: []  # type: ignore[method-assign]
         ex.sync.events = lambda now: [words.pop(0)] if words else []  # type: ignore[method-assign]

@@ -359,7 +359,7 @@ def test_a_team_message_with_anything_to_refuse_is_left_to_the_one_by_one_readin
 def test_robots_too_far_for_the_filter_are_dropped_before_it_without_a_change(monkeypatch):
     """A large team's robot drops the robots beyond the filter's radius before the filter
     runs (``_near``): the commands and flags are those of the filter given every robot."""
-    import formation_ilc.protocol.learner as learner_module
+    import formation_ilc.protocol.hearing as hearing_module
     from formation_ilc.config.generate import team_yaml
     from formation_ilc.config.scenario import scenario_from_text
     from formation_ilc.model.footprint import footprint_of
@@ -372,7 +372,7 @@ def test_robots_too_far_for_the_filter_are_dropped_before_it_without_a_change(mo
     clock = SampleClock.for_run(sc.dt, sc.samples)
     runs = []
     for near_from in (10**6, 2):
-        monkeypatch.setattr(learner_module, "NEAR_FROM", near_from)
+        monkeypatch.setattr(hearing_module, "NEAR_FROM", near_from)
         lrn = RobotLearner(pb, 9, clock, safety=sp)
         noise = np.random.default_rng(2).normal(scale=0.3, size=(pb.samples + 1, pb.n, 3))
         for t in range(pb.samples):
