@@ -22,7 +22,8 @@ from typing import IO
 
 from formation_ilc.plan.specs import NodeSpec, RunPlan
 from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, NO_RESTART, STOPPED, STUCK
-from formation_ilc.system.lifetime import GATE_ENV, early_argv
+from formation_ilc.system.heartbeat import BEAT_ENV, Board, Frozen
+from formation_ilc.system.lifetime import GATE_ENV, RUNNER, early_argv
 
 __all__ = ["Stack", "Supervisor", "Failure", "exit_status", "metrics_rows", "resume_hint",
            "disk_full_line", "trial_ranges"]
@@ -50,12 +51,17 @@ class Stack:
         self.restarts: dict[str, int] = {}
         #: the gate's pipe (read end, write end) while it is shut (``shut_gate``)
         self.gate: tuple[int, int] | None = None
+        #: every process's heartbeat (``system.heartbeat``): who froze
+        self.board = Board(log_dir / "heartbeats")
+        #: the processes killed as frozen, until they are seen dead (name: finding)
+        self.frozen: dict[str, Frozen] = {}
 
     def shut_gate(self) -> None:
         """Processes started from now on wait at the gate (``system.lifetime``) until
         ``open_gate``: their stdin is a pipe that stays open until then."""
         if self.gate is None:
             self.gate = os.pipe()
+            self.board.hold(True)
 
     def open_gate(self) -> None:
         """Let every process waiting at the gate go on (idempotent)."""
@@ -63,6 +69,7 @@ class Stack:
             for fd in self.gate:
                 os.close(fd)
             self.gate = None
+            self.board.hold(False)
 
     def start(self, name: str, argv: list[str], extra: dict[str, str] | None = None) -> None:
         """Start process ``name``: ``argv`` in the run's environment plus ``extra`` (kept
@@ -82,11 +89,31 @@ class Stack:
         env = {**self.env, **self.extra.get(name, {})}
         if self.gate is not None:
             env[GATE_ENV] = "stdin"
+        env[BEAT_ENV] = self.board.slot(name)
         # through the runner that sets the parent-death signal before the node's imports:
         # a launcher killed while its nodes start takes them with it
+        command = early_argv(argv)
         self.procs[name] = subprocess.Popen(
-            early_argv(argv), env=env, stdout=fh, stderr=subprocess.STDOUT,
+            command, env=env, stdout=fh, stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL if self.gate is None else self.gate[0])
+        # a node of ours beats from its first line (the runner's); another command is
+        # watched only once it beats
+        self.board.started(name, self.procs[name].pid, watch=RUNNER in command)
+
+    def kill_frozen(self) -> list[Frozen]:
+        """The processes that stopped beating (``system.heartbeat``), killed (SIGKILL): the
+        supervisor's watch then sees them dead and starts them again like a crashed
+        one."""
+        alive = {n: p.pid for n, p in self.procs.items()
+                 if p.returncode is None and n not in self.frozen}
+        found = self.board.frozen(alive)
+        for f in found:
+            try:
+                os.kill(f.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                continue
+            self.frozen[f.name] = f
+        return found
 
     def restart(self, name: str) -> str:
         """Start ``name`` again with the same command line (a recorder into a new file
@@ -148,6 +175,7 @@ class Stack:
         for fh in self.logs.values():
             fh.close()
         self.open_gate()  # after the signals: nothing stopped at the gate goes on
+        self.board.close()
 
 
 def bindable(host: str, port: int) -> bool:
@@ -238,8 +266,15 @@ class Supervisor:
 
     def watch(self) -> Failure | None:
         """Start again each process that died, within its policy; the first that may not
-        be started again, or None."""
+        be started again, or None. A process that stopped beating is named and killed
+        first (``Stack.kill_frozen``), then started again as one that died."""
+        for f in self.stack.kill_frozen():
+            print(f"{f.line()}: killing it", flush=True)
+            log = self.stack.logs[f.name]
+            log.write(f"\n--- {f.line()}: killed by the launcher ---\n".encode())
+            log.flush()
         for name, code in self.stack.dead():
+            froze = self.stack.frozen.pop(name, None)
             spec = self.specs[name]
             n = self.stack.restarts.get(name, 0)
             if not spec.restart.allows(code, n):
@@ -259,7 +294,9 @@ class Supervisor:
             note = self.stack.restart(name)
             what = ("" if spec.passive or spec.optional
                     else "; the trial it interrupted runs again")
-            print(f"{name} exited with {exit_status(code)}: starting it again "
+            how = (f"froze (pid {froze.pid})" if froze is not None
+                   else f"exited with {exit_status(code)}")
+            print(f"{name} {how}: starting it again "
                   f"({n + 1}/{spec.restart.max_restarts}){what}{note}", flush=True)
         return None
 

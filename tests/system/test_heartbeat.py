@@ -1,0 +1,152 @@
+"""Heartbeats (formation_ilc.system.heartbeat): a process that stops beating with its main
+thread idle is frozen after the bound, one whose main thread is busy only after the longer
+bound, one that beats never; the supervisor names a frozen process, kills it and starts
+it again like a crashed one."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+from formation_ilc.system.heartbeat import BEAT_ENV, Board, beat
+
+BEATER = ("from formation_ilc.system.heartbeat import beat\n"
+          "import time\n"
+          "beat('warming up')\n"
+          "while True:\n"
+          "    beat('looping')\n"
+          "    time.sleep(0.05)\n")
+#: beats once, then works without beating (a main thread that never returns)
+BUSY = ("from formation_ilc.system.heartbeat import beat\n"
+        "beat('computing')\n"
+        "while True:\n"
+        "    pass\n")
+
+
+def _child(board: Board, name: str, code: str) -> subprocess.Popen[bytes]:
+    env = {**os.environ, BEAT_ENV: board.slot(name)}
+    p = subprocess.Popen([sys.executable, "-c", code], env=env)
+    board.started(name, p.pid)
+    return p
+
+
+def _wait_beats(board: Board, name: str, n: int, timeout: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout
+    while board.beats(name) < n:
+        assert time.monotonic() < deadline, f"{name} never beat {n} times"
+        time.sleep(0.02)  # polling the board, bounded by the deadline
+
+
+def test_beat_without_a_slot_is_nothing(monkeypatch):
+    monkeypatch.delenv(BEAT_ENV, raising=False)
+    beat("anything")  # no supervisor: no error, nothing written
+
+
+def test_a_stopped_process_is_frozen_a_busy_one_later_a_beating_one_never(tmp_path):
+    board = Board(tmp_path / "heartbeats", freeze_s=1.5, every=0.1)
+    procs = {"stopped": _child(board, "stopped", BEATER),
+             "beating": _child(board, "beating", BEATER),
+             "busy": _child(board, "busy", BUSY)}
+    try:
+        for name in procs:
+            _wait_beats(board, name, 2 if name != "busy" else 1)
+        os.kill(procs["stopped"].pid, signal.SIGSTOP)
+        stopped_at = time.monotonic()
+        alive = {n: p.pid for n, p in procs.items()}
+        seen: dict[str, tuple[float, object]] = {}
+        deadline = time.monotonic() + 120
+        while "busy" not in seen:  # the longest bound (busy_s = 8 x 1.5 s) passes
+            assert time.monotonic() < deadline, seen
+            for f in board.frozen(alive):
+                seen.setdefault(f.name, (time.monotonic(), f))
+            time.sleep(0.05)  # the board looks every 0.1 s
+        assert "beating" not in seen
+        when, stopped = seen["stopped"]
+        assert 1.5 <= when - stopped_at < board.busy_s, when - stopped_at
+        assert stopped.pid == procs["stopped"].pid and stopped.idle  # type: ignore[attr-defined]
+        assert stopped.doing == "looping"  # type: ignore[attr-defined]
+        assert "stopped (pid " in stopped.line() and "last: looping" in stopped.line()  # type: ignore[attr-defined]
+        busy_when, busy = seen["busy"]
+        # its main thread works all along: not frozen before the longer bound
+        assert busy_when - stopped_at >= board.busy_s - 1.0
+        assert not busy.idle and busy.doing == "computing"  # type: ignore[attr-defined]
+    finally:
+        for p in procs.values():
+            p.kill()
+            p.wait(timeout=30)
+        board.close()
+
+
+def test_nothing_is_judged_while_the_gate_holds(tmp_path):
+    board = Board(tmp_path / "heartbeats", freeze_s=0.5, every=0.1)
+    p = _child(board, "waiting", "import time; time.sleep(60)")  # never beats
+    try:
+        board.hold(True)
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 1.5:
+            assert board.frozen({"waiting": p.pid}) == []
+            time.sleep(0.1)
+        board.hold(False)
+        deadline = time.monotonic() + 60
+        found: list = []
+        while not found:
+            assert time.monotonic() < deadline
+            found = board.frozen({"waiting": p.pid})
+            time.sleep(0.1)
+        assert found[0].name == "waiting" and found[0].doing == ""
+    finally:
+        p.kill()
+        p.wait(timeout=30)
+        board.close()
+
+
+def test_a_command_that_never_beats_is_watched_only_once_it_beats(tmp_path):
+    """A process not started through the node runner (a plain command) may never beat:
+    it is not taken for frozen for that."""
+    board = Board(tmp_path / "heartbeats", freeze_s=0.3, every=0.1)
+    env = {**os.environ, BEAT_ENV: board.slot("plain")}
+    p = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"], env=env)
+    board.started("plain", p.pid, watch=False)
+    try:
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 1.5:
+            assert board.frozen({"plain": p.pid}) == []
+            time.sleep(0.1)
+    finally:
+        p.kill()
+        p.wait(timeout=30)
+        board.close()
+
+
+def test_the_supervisor_names_kills_and_restarts_a_frozen_process(tmp_path, capsys):
+    from formation_ilc.cli.supervisor import Supervisor
+    from tests.cli.test_plan import _plan_running
+
+    plan, codes = _plan_running(tmp_path, BEATER, BEATER)
+    sup = Supervisor(plan, dict(os.environ),
+                     place=lambda s: [sys.executable, "-c", codes[s.name]])
+    sup.stack.board.freeze_s, sup.stack.board.every = 1.0, 0.1
+    sup.start()
+    try:
+        _wait_beats(sup.stack.board, "p1", 2)
+        first = sup.stack.procs["p1"].pid
+        os.kill(first, signal.SIGSTOP)
+        deadline = time.monotonic() + 120
+        while sup.restarts.get("p1", 0) < 1:
+            assert time.monotonic() < deadline
+            assert sup.watch() is None
+            time.sleep(0.05)
+        assert sup.stack.procs["p1"].pid != first
+        _wait_beats(sup.stack.board, "p1", 2)  # the new one beats in the same slot
+        assert sup.restarts == {"p1": 1}
+    finally:
+        sup.stop()
+    out = capsys.readouterr().out
+    assert f"p1 (pid {first}) froze: no heartbeat for " in out, out
+    assert "its main thread idle; last: looping: killing it" in out, out
+    assert f"p1 froze (pid {first}): starting it again (1/2)" in out, out
+    log = (plan.out / "logs" / "p1.log").read_text()
+    assert "killed by the launcher" in log and "--- restarted (1) ---" in log
