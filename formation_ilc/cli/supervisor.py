@@ -18,7 +18,7 @@ import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 from formation_ilc.plan.specs import NodeSpec, RunPlan
 from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, NO_RESTART, STOPPED, STUCK
@@ -44,7 +44,8 @@ class Stack:
     def __init__(self, env: dict[str, str], log_dir: Path):
         self.env = env
         self.log_dir = log_dir
-        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+        #: subprocess.Popen, or system.forkserver.ForkedProcess (the same calls)
+        self.procs: dict[str, Any] = {}
         self.logs: dict[str, IO[bytes]] = {}
         self.argv: dict[str, list[str]] = {}
         self.extra: dict[str, dict[str, str]] = {}
@@ -55,6 +56,8 @@ class Stack:
         self.board = Board(log_dir / "heartbeats")
         #: the processes killed as frozen, until they are seen dead (name: finding)
         self.frozen: dict[str, Frozen] = {}
+        #: the fork server (``start_forker``), or None: each process imports on its own
+        self.forker: Any = None
 
     def shut_gate(self) -> None:
         """Processes started from now on wait at the gate (``system.lifetime``) until
@@ -93,12 +96,42 @@ class Stack:
         # through the runner that sets the parent-death signal before the node's imports:
         # a launcher killed while its nodes start takes them with it
         command = early_argv(argv)
-        self.procs[name] = subprocess.Popen(
+        proc = self._fork(name, command, env, fh)
+        self.procs[name] = proc if proc is not None else subprocess.Popen(
             command, env=env, stdout=fh, stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL if self.gate is None else self.gate[0])
         # a node of ours beats from its first line (the runner's); another command is
         # watched only once it beats
         self.board.started(name, self.procs[name].pid, watch=RUNNER in command)
+
+    def start_forker(self, modules: list[str]) -> None:
+        """From now on, fork the node processes from a server that imported ``modules``
+        once (``system.forkserver``); without one (it cannot start) as before."""
+        from formation_ilc.system.forkserver import ForkRefused, ForkServer
+
+        try:
+            self.forker = ForkServer(self.env, modules, self.log_dir / "forkserver.log")
+        except (ForkRefused, OSError) as exc:
+            print(f"warning: no fork server ({exc}): each node process imports on its own",
+                  flush=True)
+
+    def _fork(self, name: str, command: list[str], env: dict[str, str],
+              fh: IO[bytes]) -> Any:
+        """Process ``name`` forked by the fork server, or None (no server, a command it
+        cannot fork, or a server that refuses: then none for the rest of the run)."""
+        from formation_ilc.system.forkserver import ForkRefused, forkable
+
+        if self.forker is None or not forkable(command):
+            return None
+        try:
+            return self.forker.spawn(command, env, fh.fileno(),
+                                     None if self.gate is None else self.gate[0])
+        except ForkRefused as exc:
+            print(f"warning: the fork server refused {name} ({exc}): each node process "
+                  f"imports on its own from now on", flush=True)
+            self.forker.close()
+            self.forker = None
+            return None
 
     def kill_frozen(self) -> list[Frozen]:
         """The processes that stopped beating (``system.heartbeat``), killed (SIGKILL): the
@@ -176,6 +209,9 @@ class Stack:
             fh.close()
         self.open_gate()  # after the signals: nothing stopped at the gate goes on
         self.board.close()
+        if self.forker is not None:
+            self.forker.close()
+            self.forker = None
 
 
 def bindable(host: str, port: int) -> bool:
@@ -258,6 +294,10 @@ class Supervisor:
         gate until ``open_gate``."""
         if gated:
             self.stack.shut_gate()
+        from formation_ilc.system.forkserver import wanted
+
+        if wanted(self.stack.env) and self.stack.forker is None:
+            self.stack.start_forker(sorted({s.module for s in self.plan.nodes}))
         for spec in self.plan.nodes:
             self.stack.start(spec.name, self.place(spec), dict(spec.env))
 
