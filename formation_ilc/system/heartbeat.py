@@ -13,11 +13,14 @@ thread. Nothing here needs ROS; the child's side is stdlib only (it runs before 
 node's imports).
 
 The supervisor (``Board.frozen``) calls a process frozen when its counter has not moved
-for ``freeze_s`` seconds and its main thread has used no CPU in that time either (a
-stopped process, one waiting on a lock), or when its counter has not moved for
-``busy_s`` (a main thread busy elsewhere, a loop that never returns to the executor).
-The CPU condition keeps a process that is only slow (importing on a loaded machine, where
-it may go many seconds between two beats) from being taken for frozen. While the
+for ``freeze_s`` seconds and the process did no work in that time either: its main thread
+used no CPU, and all its threads together less than ``WORK_SHARE`` of a core (a stopped
+process, a deadlocked one; a DDS thread's periodic announcement is a tick now and then);
+or when its counter has not moved for ``busy_s`` (a main thread busy elsewhere, a loop
+that never returns to the executor, a main thread that waits for ever on threads that
+work). The CPU conditions keep a process that is only slow (importing on a loaded
+machine, or its main thread waiting on a lock its DDS threads hold while they process the
+discovery of fifty participants) from being taken for frozen. While the
 launcher holds its processes at the gate nothing is judged (they wait on purpose).
 """
 
@@ -30,8 +33,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["BEAT_ENV", "FREEZE_ENV", "FREEZE_S", "BUSY_S", "SLOT", "Board", "Frozen",
-           "beat", "main_thread_cpu"]
+__all__ = ["BEAT_ENV", "FREEZE_ENV", "FREEZE_S", "BUSY_S", "SLOT", "WORK_SHARE", "Board",
+           "Frozen", "beat", "main_thread_cpu", "process_cpu"]
 
 #: environment variable of a supervised process: ``PATH:INDEX`` of its slot
 BEAT_ENV = "FORMATION_ILC_BEAT"
@@ -105,15 +108,32 @@ def beat(what: str | None = None) -> None:
 
 # ---- the supervisor's side ----------------------------------------------------------
 
-def main_thread_cpu(pid: int) -> int | None:
-    """CPU ticks (user + system) of process ``pid``'s main thread, or None when it is
-    gone. The main thread only: a node's DDS threads go on working while it is stuck."""
+def _ticks(path: str) -> int | None:
     try:
-        with open(f"/proc/{pid}/task/{pid}/stat", "rb") as fh:
+        with open(path, "rb") as fh:
             fields = fh.read().rsplit(b")", 1)[1].split()
     except (OSError, IndexError):
         return None
     return int(fields[11]) + int(fields[12])
+
+
+def main_thread_cpu(pid: int) -> int | None:
+    """CPU ticks (user + system) of process ``pid``'s main thread, or None when it is
+    gone. The main thread only: a node's DDS threads go on working while it is stuck."""
+    return _ticks(f"/proc/{pid}/task/{pid}/stat")
+
+
+def process_cpu(pid: int) -> int | None:
+    """CPU ticks (user + system) of all of process ``pid``'s threads, or None."""
+    return _ticks(f"/proc/{pid}/stat")
+
+
+#: a process whose threads together use more than this share of a core while its main
+#: thread waits is working (its main thread waits on a lock its DDS threads hold while they
+#: process discovery: measured at 50 robots on a loaded machine), not frozen; a stopped or
+#: deadlocked process uses none, or the few ticks of its DDS threads' periodic announcements
+WORK_SHARE = 0.02
+_HZ = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
 
 
 @dataclass
@@ -124,6 +144,8 @@ class _Watched:
     beat_at: float = 0.0  # when the counter last moved (or the watch began)
     quiet_at: float = 0.0  # when the counter or the main thread's CPU last moved
     cpu: int | None = None
+    all_cpu: int | None = None
+    looked: float = 0.0
     watch: bool = True
 
 
@@ -139,7 +161,7 @@ class Frozen:
     idle: bool
 
     def line(self) -> str:
-        why = ("its main thread idle" if self.idle else "its main thread busy elsewhere")
+        why = ("the process idle" if self.idle else "the process busy elsewhere")
         return (f"{self.name} (pid {self.pid}) froze: no heartbeat for {self.silent_s:.0f} s, "
                 f"{why}; last: {self.doing or 'nothing said'}")
 
@@ -199,7 +221,7 @@ class Board:
         now = time.monotonic() if now is None else now
         w = self.slots[name]
         w.watch = watch
-        w.pid, w.count, w.beat_at, w.quiet_at, w.cpu = pid, -1, now, now, None
+        w.pid, w.count, w.beat_at, w.quiet_at, w.cpu, w.all_cpu = pid, -1, now, now, None, None
 
     def hold(self, held: bool, now: float | None = None) -> None:
         """While held (the launcher's gate is shut) nothing is judged; on release every
@@ -209,7 +231,7 @@ class Board:
         if not held:
             for w in self.slots.values():
                 w.beat_at = w.quiet_at = now
-                w.cpu = None
+                w.cpu = w.all_cpu = None
 
     def doing(self, name: str) -> str:
         """What process ``name`` said it does, last."""
@@ -241,17 +263,18 @@ class Board:
             if not w.watch and count == 0:
                 continue
             if count != w.count:
-                w.count, w.beat_at, w.quiet_at, w.cpu = count, now, now, None
+                w.count, w.beat_at, w.quiet_at, w.cpu, w.all_cpu = count, now, now, None, None
                 continue
             if now - w.beat_at < self.every:
                 continue
-            cpu = main_thread_cpu(pid)
-            if cpu is None:  # gone: the supervisor's other watch sees it
+            cpu, all_cpu = main_thread_cpu(pid), process_cpu(pid)
+            if cpu is None or all_cpu is None:  # gone: the supervisor's other watch sees it
                 continue
-            if cpu != w.cpu:
-                if w.cpu is not None:
-                    w.quiet_at = now
-                w.cpu = cpu
+            if w.cpu is not None and w.all_cpu is not None and (
+                    cpu != w.cpu
+                    or all_cpu - w.all_cpu > max(1.0, WORK_SHARE * (now - w.looked) * _HZ)):
+                w.quiet_at = now
+            w.cpu, w.all_cpu, w.looked = cpu, all_cpu, now
             silent = now - w.beat_at
             if now - w.quiet_at >= self.freeze_s or silent >= self.busy_s:
                 out.append(Frozen(name, pid, self.doing(name), silent,

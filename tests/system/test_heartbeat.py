@@ -24,6 +24,17 @@ BUSY = ("from formation_ilc.system.heartbeat import beat\n"
         "beat('computing')\n"
         "while True:\n"
         "    pass\n")
+#: beats once, then its main thread waits on a thread that works (as a main thread waits
+#: on a lock a DDS thread holds while it processes discovery)
+WAITING = ("from formation_ilc.system.heartbeat import beat\n"
+           "import threading\n"
+           "beat('creating a publisher')\n"
+           "def work():\n"
+           "    while True:\n"
+           "        sum(range(10000))\n"
+           "t = threading.Thread(target=work)\n"
+           "t.start()\n"
+           "t.join()\n")
 
 
 def _child(board: Board, name: str, code: str) -> subprocess.Popen[bytes]:
@@ -49,16 +60,17 @@ def test_a_stopped_process_is_frozen_a_busy_one_later_a_beating_one_never(tmp_pa
     board = Board(tmp_path / "heartbeats", freeze_s=1.5, every=0.1)
     procs = {"stopped": _child(board, "stopped", BEATER),
              "beating": _child(board, "beating", BEATER),
-             "busy": _child(board, "busy", BUSY)}
+             "busy": _child(board, "busy", BUSY),
+             "waiting": _child(board, "waiting", WAITING)}
     try:
         for name in procs:
-            _wait_beats(board, name, 2 if name != "busy" else 1)
+            _wait_beats(board, name, 1 if name in ("busy", "waiting") else 2)
         os.kill(procs["stopped"].pid, signal.SIGSTOP)
         stopped_at = time.monotonic()
         alive = {n: p.pid for n, p in procs.items()}
         seen: dict[str, tuple[float, object]] = {}
         deadline = time.monotonic() + 120
-        while "busy" not in seen:  # the longest bound (busy_s = 8 x 1.5 s) passes
+        while not {"busy", "waiting"} <= set(seen):  # the longest bound (8 x 1.5 s)
             assert time.monotonic() < deadline, seen
             for f in board.frozen(alive):
                 seen.setdefault(f.name, (time.monotonic(), f))
@@ -73,6 +85,11 @@ def test_a_stopped_process_is_frozen_a_busy_one_later_a_beating_one_never(tmp_pa
         # its main thread works all along: not frozen before the longer bound
         assert busy_when - stopped_at >= board.busy_s - 1.0
         assert not busy.idle and busy.doing == "computing"  # type: ignore[attr-defined]
+        # its main thread waits, another of its threads works: not before it either
+        waiting_when, waiting = seen["waiting"]
+        assert waiting_when - stopped_at >= board.busy_s - 1.0
+        assert not waiting.idle  # type: ignore[attr-defined]
+        assert waiting.doing == "creating a publisher"  # type: ignore[attr-defined]
     finally:
         for p in procs.values():
             p.kill()
@@ -146,7 +163,7 @@ def test_the_supervisor_names_kills_and_restarts_a_frozen_process(tmp_path, caps
         sup.stop()
     out = capsys.readouterr().out
     assert f"p1 (pid {first}) froze: no heartbeat for " in out, out
-    assert "its main thread idle; last: looping: killing it" in out, out
+    assert "the process idle; last: looping: killing it" in out, out
     assert f"p1 froze (pid {first}): starting it again (1/2)" in out, out
     log = (plan.out / "logs" / "p1.log").read_text()
     assert "killed by the launcher" in log and "--- restarted (1) ---" in log
