@@ -313,6 +313,10 @@ class Supervisor:
             log = self.stack.logs[f.name]
             log.write(f"\n--- {f.line()}: killed by the launcher ---\n".encode())
             log.flush()
+        for name, silent, doing in self.stack.board.late:
+            print(f"{name} beats again after {silent:.0f} s without a heartbeat, working "
+                  f"meanwhile (now: {doing})", flush=True)
+        self.stack.board.late.clear()
         for name, code in self.stack.dead():
             froze = self.stack.frozen.pop(name, None)
             spec = self.specs[name]

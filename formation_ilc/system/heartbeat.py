@@ -176,6 +176,9 @@ class Board:
     every: float = 1.0
     slots: dict[str, _Watched] = field(default_factory=dict)
     held: bool = False
+    #: processes that beat again after a silence past the bound while they worked
+    #: (name, seconds, what they said they do now), for the supervisor to say
+    late: list[tuple[str, float, str]] = field(default_factory=list)
     _map: mmap.mmap | None = None
     _size: int = 0
     _looked: float = 0.0
@@ -263,6 +266,9 @@ class Board:
             if not w.watch and count == 0:
                 continue
             if count != w.count:
+                if w.count >= 0 and now - w.beat_at >= self.freeze_s:
+                    # silent past the bound, but the process worked: it came back
+                    self.late.append((name, now - w.beat_at, self.doing(name)))
                 w.count, w.beat_at, w.quiet_at, w.cpu, w.all_cpu = count, now, now, None, None
                 continue
             if now - w.beat_at < self.every:

@@ -165,5 +165,38 @@ def test_the_supervisor_names_kills_and_restarts_a_frozen_process(tmp_path, caps
     assert f"p1 (pid {first}) froze: no heartbeat for " in out, out
     assert "the process idle; last: looping: killing it" in out, out
     assert f"p1 froze (pid {first}): starting it again (1/2)" in out, out
+    assert "beats again" not in out, out
     log = (plan.out / "logs" / "p1.log").read_text()
     assert "killed by the launcher" in log and "--- restarted (1) ---" in log
+
+
+def test_a_process_that_worked_through_a_silence_is_said_late_not_frozen(tmp_path):
+    """Its main thread waits past the bound on a thread that works (as on a Fast DDS lock
+    while discovery runs), then beats again: it is not frozen, and the board says how long
+    it was silent."""
+    board = Board(tmp_path / "heartbeats", freeze_s=1.0, every=0.1)
+    code = ("from formation_ilc.system.heartbeat import beat\n"
+            "import threading, time\n"
+            "beat('first')\n"
+            "def work(end):\n"
+            "    while time.monotonic() < end:\n"
+            "        sum(range(10000))\n"
+            "t = threading.Thread(target=work, args=(time.monotonic() + 2.5,))\n"
+            "t.start()\n"
+            "t.join()\n"
+            "beat('back')\n"
+            "time.sleep(60)\n")
+    p = _child(board, "slow", code)
+    try:
+        _wait_beats(board, "slow", 1)
+        deadline = time.monotonic() + 60
+        while not board.late:
+            assert time.monotonic() < deadline
+            assert board.frozen({"slow": p.pid}) == []
+            time.sleep(0.05)
+        (name, silent, doing), = board.late
+        assert name == "slow" and silent >= 1.0 and doing == "back"
+    finally:
+        p.kill()
+        p.wait(timeout=30)
+        board.close()
