@@ -206,44 +206,6 @@ def fork_problem(allowed: int) -> str | None:
     return None
 
 
-class _Lttng:
-    """LTTng-UST's own fork handlers (what its ``liblttng-ust-fork.so`` calls around a
-    fork): before the fork its locks are taken, so that a listener thread cannot hold one
-    that the child then inherits locked; the child starts listener threads of its own."""
-
-    def __init__(self) -> None:
-        import ctypes
-
-        self.libs: list[Any] = []
-        try:
-            with open("/proc/self/maps") as fh:
-                paths = {ln.split()[-1] for ln in fh if "liblttng-ust-" in ln
-                         and "tracepoint" not in ln and ".so" in ln}
-        except OSError:
-            paths = set()
-        for path in sorted(paths):
-            try:
-                lib = ctypes.CDLL(path, mode=os.RTLD_NOLOAD | os.RTLD_LAZY)
-                for name in ("ust_before_fork", "ust_after_fork_parent", "ust_after_fork_child"):
-                    getattr(lib, name)
-            except (OSError, AttributeError):
-                continue
-            self.libs.append(lib)
-        self.masks = [ctypes.create_string_buffer(128) for _ in self.libs]
-
-    def before(self) -> None:
-        for lib, mask in zip(self.libs, self.masks, strict=True):
-            lib.ust_before_fork(mask)
-
-    def parent(self) -> None:
-        for lib, mask in zip(reversed(self.libs), reversed(self.masks), strict=True):
-            lib.ust_after_fork_parent(mask)
-
-    def child(self) -> None:
-        for lib, mask in zip(reversed(self.libs), reversed(self.masks), strict=True):
-            lib.ust_after_fork_child(mask)
-
-
 def _serve(sock: socket.socket, modules: list[str]) -> None:
     """Import ``modules``, then fork a child for each request until the launcher closes
     the socket. Returns in the server; in a child it never returns (SystemExit)."""
@@ -262,11 +224,10 @@ def _serve(sock: socket.socket, modules: list[str]) -> None:
             failed.append(f"{m}: {exc}")
     if failed:
         print(f"fork server: not preloaded: {'; '.join(failed)}", file=sys.stderr, flush=True)
-    lttng = _Lttng()
     gc.collect()
     gc.freeze()
-    print(f"fork server: {len(sys.modules)} modules imported, {allowed} threads; LTTng-UST "
-          f"fork handlers: {len(lttng.libs)}", flush=True)
+    print(f"fork server: {len(sys.modules)} modules imported, {allowed} threads",
+          flush=True)
     while True:
         try:
             msg, fds, _, _ = socket.recv_fds(sock, 1 << 20, 2)
@@ -285,9 +246,8 @@ def _serve(sock: socket.socket, modules: list[str]) -> None:
         r, w = os.pipe()
         sys.stdout.flush()
         sys.stderr.flush()
-        lttng.before()
         middle = os.fork()
-        if middle == 0:  # the intermediate process: LTTng's locks still taken
+        if middle == 0:  # the intermediate process
             os.close(r)
             try:
                 child = os.fork()
@@ -295,11 +255,9 @@ def _serve(sock: socket.socket, modules: list[str]) -> None:
                 os._exit(1)
             if child == 0:
                 os.close(w)
-                lttng.child()
                 _become(sock, request, fds, os.getppid())  # never returns
             os.write(w, str(child).encode())
             os._exit(0)
-        lttng.parent()
         os.close(w)
         got = b""
         while chunk := os.read(r, 64):
