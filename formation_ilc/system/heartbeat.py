@@ -13,7 +13,8 @@ thread. Nothing here needs ROS; the child's side is stdlib only (it runs before 
 node's imports).
 
 The supervisor (``Board.frozen``) calls a process frozen when its counter has not moved
-for ``freeze_s`` seconds and the process did no work in that time either: its main thread
+for ``freeze_s`` seconds (``STARTUP_FACTOR`` times that while it starts) and the process
+did no work in that time either: its main thread
 used no CPU, and all its threads together less than ``WORK_SHARE`` of a core (a stopped
 process, a deadlocked one; a DDS thread's periodic announcement is a tick now and then);
 or when its counter has not moved for ``busy_s`` (a main thread busy elsewhere, a loop
@@ -33,7 +34,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["BEAT_ENV", "FREEZE_ENV", "FREEZE_S", "BUSY_S", "SLOT", "WORK_SHARE", "Board",
+__all__ = ["BEAT_ENV", "FREEZE_ENV", "FREEZE_S", "BUSY_S", "SLOT", "STARTUP_FACTOR",
+           "WORK_SHARE", "Board",
            "Frozen", "beat", "main_thread_cpu", "process_cpu"]
 
 #: environment variable of a supervised process: ``PATH:INDEX`` of its slot
@@ -46,6 +48,14 @@ FREEZE_S = 15.0
 #: busy: frozen too (a loop that never returns to the executor)
 BUSY_FACTOR = 8.0
 BUSY_S = FREEZE_S * BUSY_FACTOR
+#: while a process starts (it has not said "spinning" yet) the idle bound is this many
+#: times the freeze bound: a node joining the domain waits, idle, on Fast DDS's locks
+#: between processes (shared-memory ports) that other starting processes hold; 50 robots
+#: forked at once waited so 27 to 38 s (2026-12-07, load 16 to 21 on 2 cores)
+STARTUP_FACTOR = 4.0
+#: what a process says while it starts (``beat``'s texts before its executor spins)
+STARTING = ("", "importing", "forked", "at the gate", "joining the domain",
+            "building its node")
 #: bytes of one slot: counter (8), pid (8), what it does (the rest, UTF-8, NUL-padded)
 SLOT = 64
 _HEAD = struct.Struct("<QQ")
@@ -282,9 +292,10 @@ class Board:
                 w.quiet_at = now
             w.cpu, w.all_cpu, w.looked = cpu, all_cpu, now
             silent = now - w.beat_at
-            if now - w.quiet_at >= self.freeze_s or silent >= self.busy_s:
-                out.append(Frozen(name, pid, self.doing(name), silent,
-                                  now - w.quiet_at >= self.freeze_s))
+            doing = self.doing(name)
+            bound = self.freeze_s * (STARTUP_FACTOR if doing in STARTING else 1.0)
+            if now - w.quiet_at >= bound or silent >= self.busy_s:
+                out.append(Frozen(name, pid, doing, silent, now - w.quiet_at >= bound))
         return out
 
     def close(self) -> None:

@@ -200,3 +200,30 @@ def test_a_process_that_worked_through_a_silence_is_said_late_not_frozen(tmp_pat
         p.kill()
         p.wait(timeout=30)
         board.close()
+
+
+def test_a_process_that_stops_while_it_starts_has_the_longer_bound(tmp_path):
+    """Stopped while it builds its node (where a starting node waits, idle, on Fast DDS's
+    locks between processes): frozen only after STARTUP_FACTOR times the bound."""
+    from formation_ilc.system.heartbeat import STARTUP_FACTOR
+
+    board = Board(tmp_path / "heartbeats", freeze_s=0.5, every=0.1)
+    p = _child(board, "starting", "from formation_ilc.system.heartbeat import beat\n"
+                                  "import time\n"
+                                  "beat('building its node')\n"
+                                  "time.sleep(60)\n")
+    try:
+        _wait_beats(board, "starting", 1)
+        t0 = time.monotonic()
+        deadline = t0 + 60
+        found: list = []
+        while not found:
+            assert time.monotonic() < deadline
+            found = board.frozen({"starting": p.pid})
+            time.sleep(0.05)
+        assert time.monotonic() - t0 >= STARTUP_FACTOR * 0.5 - 0.2
+        assert found[0].idle and found[0].doing == "building its node"
+    finally:
+        p.kill()
+        p.wait(timeout=30)
+        board.close()
