@@ -9,6 +9,7 @@ What the processes do, and when the run is over, is the launcher's business. No 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -24,6 +25,9 @@ from formation_ilc.plan.specs import NodeSpec, RunPlan
 from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, NO_RESTART, STOPPED, STUCK
 from formation_ilc.system.heartbeat import BEAT_ENV, Board, Frozen
 from formation_ilc.system.lifetime import GATE_ENV, RUNNER, early_argv
+
+#: [s] a frozen process, continued and terminated, has this long to end before SIGKILL
+FROZEN_GRACE = 3.0
 
 __all__ = ["Stack", "Supervisor", "Failure", "exit_status", "metrics_rows", "resume_hint",
            "disk_full_line", "trial_ranges"]
@@ -56,6 +60,8 @@ class Stack:
         self.board = Board(log_dir / "heartbeats")
         #: the processes killed as frozen, until they are seen dead (name: finding)
         self.frozen: dict[str, Frozen] = {}
+        #: when each process stopped as frozen gets SIGKILL if it still lives
+        self._kill_at: dict[str, float] = {}
         #: the fork server (``start_forker``), or None: each process imports on its own
         self.forker: Any = None
 
@@ -133,19 +139,33 @@ class Stack:
             self.forker = None
             return None
 
-    def kill_frozen(self) -> list[Frozen]:
-        """The processes that stopped beating (``system.heartbeat``), killed (SIGKILL): the
-        supervisor's watch then sees them dead and starts them again like a crashed
-        one."""
+    def kill_frozen(self, grace: float = FROZEN_GRACE) -> list[Frozen]:
+        """The processes that stopped beating (``system.heartbeat``), stopped: SIGCONT and
+        SIGTERM at once, SIGKILL ``grace`` seconds later if they still live. The
+        supervisor's watch then sees them dead and starts them again like a crashed one.
+
+        Why not SIGKILL at once: a process stopped by a signal (SIGSTOP, a debugger) may
+        be stopped holding a Fast DDS shared-memory port's lock, which nobody could take
+        again after a SIGKILL (every process that writes to that port then waits for
+        ever: the launcher was seen so); continued and terminated it ends cleanly (its
+        stop is bounded: ``system.lifetime``). A deadlocked one ends only by the SIGKILL."""
+        now = time.monotonic()
+        for name in self.frozen:
+            p = self.procs.get(name)
+            if p is not None and p.poll() is None and now >= self._kill_at.get(name, now):
+                with contextlib.suppress(ProcessLookupError):
+                    p.send_signal(signal.SIGKILL)
         alive = {n: p.pid for n, p in self.procs.items()
                  if p.returncode is None and n not in self.frozen}
         found = self.board.frozen(alive)
         for f in found:
             try:
-                os.kill(f.pid, signal.SIGKILL)
+                os.kill(f.pid, signal.SIGCONT)
+                os.kill(f.pid, signal.SIGTERM)
             except ProcessLookupError:
                 continue
             self.frozen[f.name] = f
+            self._kill_at[f.name] = now + grace
         return found
 
     def restart(self, name: str) -> str:
@@ -309,9 +329,9 @@ class Supervisor:
         be started again, or None. A process that stopped beating is named and killed
         first (``Stack.kill_frozen``), then started again as one that died."""
         for f in self.stack.kill_frozen():
-            print(f"{f.line()}: killing it", flush=True)
+            print(f"{f.line()}: stopping it", flush=True)
             log = self.stack.logs[f.name]
-            log.write(f"\n--- {f.line()}: killed by the launcher ---\n".encode())
+            log.write(f"\n--- {f.line()}: stopped by the launcher ---\n".encode())
             log.flush()
         for name, silent, doing in self.stack.board.late:
             print(f"{name} beats again after {silent:.0f} s without a heartbeat, working "
@@ -319,6 +339,7 @@ class Supervisor:
         self.stack.board.late.clear()
         for name, code in self.stack.dead():
             froze = self.stack.frozen.pop(name, None)
+            self.stack._kill_at.pop(name, None)
             spec = self.specs[name]
             n = self.stack.restarts.get(name, 0)
             if not spec.restart.allows(code, n):

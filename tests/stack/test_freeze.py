@@ -77,7 +77,7 @@ def test_robots_frozen_in_start_up_and_in_trial_1_are_named_and_restarted(ros_en
         os.kill(first, signal.SIGSTOP)
         stopped.append(first)
         m = lines.wait_for(rf"^robot_2 \(pid {first}\) froze: no heartbeat for \d+ s, "
-                           rf"the process idle; last: (.*): killing it$")
+                           rf"the process idle; last: (.*): stopping it$")
         print("start-up freeze named:", m.group(0))
         lines.wait_for(rf"^robot_2 froze \(pid {first}\): starting it again \(1/")
         assert not (tmp_path / "metrics.csv").exists() or \
@@ -89,7 +89,7 @@ def test_robots_frozen_in_start_up_and_in_trial_1_are_named_and_restarted(ros_en
         os.kill(second, signal.SIGSTOP)
         stopped.append(second)
         m = lines.wait_for(rf"^robot_3 \(pid {second}\) froze: no heartbeat for \d+ s, "
-                           rf"the process idle; last: (.*): killing it$")
+                           rf"the process idle; last: (.*): stopping it$")
         print("trial-1 freeze named:", m.group(0))
         assert m.group(1) == "spinning", m.group(0)  # it froze inside its executor's loop
         lines.wait_for(rf"^robot_3 froze \(pid {second}\): starting it again \(1/.*; the "

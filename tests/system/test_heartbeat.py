@@ -163,11 +163,11 @@ def test_the_supervisor_names_kills_and_restarts_a_frozen_process(tmp_path, caps
         sup.stop()
     out = capsys.readouterr().out
     assert f"p1 (pid {first}) froze: no heartbeat for " in out, out
-    assert "the process idle; last: looping: killing it" in out, out
+    assert "the process idle; last: looping: stopping it" in out, out
     assert f"p1 froze (pid {first}): starting it again (1/2)" in out, out
     assert "beats again" not in out, out
     log = (plan.out / "logs" / "p1.log").read_text()
-    assert "killed by the launcher" in log and "--- restarted (1) ---" in log
+    assert "stopped by the launcher" in log and "--- restarted (1) ---" in log
 
 
 def test_a_process_that_worked_through_a_silence_is_said_late_not_frozen(tmp_path):
@@ -227,3 +227,36 @@ def test_a_process_that_stops_while_it_starts_has_the_longer_bound(tmp_path):
         p.kill()
         p.wait(timeout=30)
         board.close()
+
+
+def test_a_frozen_process_that_ignores_sigterm_is_killed(tmp_path, capsys):
+    """A frozen process is continued and terminated first (one stopped by a signal then
+    ends cleanly, its Fast DDS locks freed); one that does not end (deadlocked: here it
+    ignores SIGTERM) gets SIGKILL after the grace, and is started again all the same."""
+    from formation_ilc.cli.supervisor import Supervisor
+    from tests.cli.test_plan import _plan_running
+
+    stuck = ("from formation_ilc.system.heartbeat import beat\n"
+             "import signal, threading\n"
+             "signal.signal(signal.SIGTERM, signal.SIG_IGN)\n"
+             "beat('waiting for ever')\n"
+             "threading.Event().wait()\n")
+    plan, codes = _plan_running(tmp_path, BEATER, stuck)
+    sup = Supervisor(plan, dict(os.environ),
+                     place=lambda s: [sys.executable, "-c", codes[s.name]])
+    sup.stack.board.freeze_s, sup.stack.board.every = 1.0, 0.1
+    sup.start()
+    try:
+        _wait_beats(sup.stack.board, "p1", 1)
+        first = sup.stack.procs["p1"]
+        deadline = time.monotonic() + 120
+        while sup.restarts.get("p1", 0) < 1:
+            assert time.monotonic() < deadline
+            assert sup.watch() is None
+            time.sleep(0.05)
+        assert first.returncode == -signal.SIGKILL
+    finally:
+        sup.stop()
+    out = capsys.readouterr().out
+    assert f"p1 (pid {first.pid}) froze: no heartbeat for " in out, out
+    assert "last: waiting for ever: stopping it" in out, out
