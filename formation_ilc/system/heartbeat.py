@@ -156,6 +156,7 @@ class _Watched:
     cpu: int | None = None
     all_cpu: int | None = None
     looked: float = 0.0
+    said: str = ""  # what it said at its last beat
     watch: bool = True
 
 
@@ -233,7 +234,7 @@ class Board:
         a node of this project's may never beat)."""
         now = time.monotonic() if now is None else now
         w = self.slots[name]
-        w.watch = watch
+        w.watch, w.said = watch, ""
         w.pid, w.count, w.beat_at, w.quiet_at, w.cpu, w.all_cpu = pid, -1, now, now, None, None
 
     def hold(self, held: bool, now: float | None = None) -> None:
@@ -260,6 +261,10 @@ class Board:
         assert self._map is not None
         return int(_HEAD.unpack_from(self._map, w.index * SLOT)[0])
 
+    def _bound(self, doing: str) -> float:
+        """The idle bound of a process that said ``doing`` last."""
+        return self.freeze_s * (STARTUP_FACTOR if doing in STARTING else 1.0)
+
     def frozen(self, alive: dict[str, int], now: float | None = None) -> list[Frozen]:
         """The processes of ``alive`` (name: pid) that froze; looks at most once every
         ``every`` seconds (an empty list in between)."""
@@ -276,9 +281,10 @@ class Board:
             if not w.watch and count == 0:
                 continue
             if count != w.count:
-                if w.count >= 0 and now - w.beat_at >= self.freeze_s:
-                    # silent past the bound, but the process worked: it came back
+                if w.count >= 0 and now - w.beat_at >= self._bound(w.said):
+                    # silent past its bound, but the process worked: it came back
                     self.late.append((name, now - w.beat_at, self.doing(name)))
+                w.said = self.doing(name)
                 w.count, w.beat_at, w.quiet_at, w.cpu, w.all_cpu = count, now, now, None, None
                 continue
             if now - w.beat_at < self.every:
@@ -293,7 +299,7 @@ class Board:
             w.cpu, w.all_cpu, w.looked = cpu, all_cpu, now
             silent = now - w.beat_at
             doing = self.doing(name)
-            bound = self.freeze_s * (STARTUP_FACTOR if doing in STARTING else 1.0)
+            bound = self._bound(doing)
             if now - w.quiet_at >= bound or silent >= self.busy_s:
                 out.append(Frozen(name, pid, doing, silent, now - w.quiet_at >= bound))
         return out

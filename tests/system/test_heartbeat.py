@@ -260,3 +260,28 @@ def test_a_frozen_process_that_ignores_sigterm_is_killed(tmp_path, capsys):
     out = capsys.readouterr().out
     assert f"p1 (pid {first.pid}) froze: no heartbeat for " in out, out
     assert "last: waiting for ever: stopping it" in out, out
+
+
+def test_a_start_up_silence_within_its_longer_bound_is_not_said(tmp_path):
+    """A node importing for longer than the bound (a loaded machine) is no news: only a
+    silence past the bound that applies to what it said is."""
+    board = Board(tmp_path / "heartbeats", freeze_s=0.5, every=0.1)
+    p = _child(board, "importer", "from formation_ilc.system.heartbeat import beat\n"
+                                  "import time\n"
+                                  "beat('importing')\n"
+                                  "time.sleep(1.2)\n"
+                                  "beat('spinning')\n"
+                                  "time.sleep(60)\n")
+    try:
+        deadline = time.monotonic() + 60
+        while board.doing("importer") != "spinning":
+            assert time.monotonic() < deadline
+            assert board.frozen({"importer": p.pid}) == []
+            time.sleep(0.05)
+        time.sleep(0.2)
+        board.frozen({"importer": p.pid})
+        assert board.late == []
+    finally:
+        p.kill()
+        p.wait(timeout=30)
+        board.close()
