@@ -774,6 +774,8 @@ class _Session:
                         print(line, flush=True)
             if progress.active:
                 ready = set(monitor.readies)
+                # a process that spins but that no node discovered: named, started again
+                self.supervisor.unseen(found | ready, max(30.0, bounds.startup / 2))
                 line = progress.update(now, found | ready, ready,
                                        any(e.get("event") == START for e in monitor.events))
                 silent = hosts.silent(found | ready) if hosts is not None else []

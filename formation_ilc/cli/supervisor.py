@@ -28,6 +28,8 @@ from formation_ilc.system.lifetime import GATE_ENV, RUNNER, early_argv
 
 #: [s] a frozen process, continued and terminated, has this long to end before SIGKILL
 FROZEN_GRACE = 3.0
+#: what ``Supervisor.unseen`` says a process it stops did
+UNSEEN = "spinning, not in the graph"
 
 __all__ = ["Stack", "Supervisor", "Failure", "exit_status", "metrics_rows", "resume_hint",
            "disk_full_line", "trial_ranges"]
@@ -158,15 +160,19 @@ class Stack:
         alive = {n: p.pid for n, p in self.procs.items()
                  if p.returncode is None and n not in self.frozen}
         found = self.board.frozen(alive)
-        for f in found:
-            try:
-                os.kill(f.pid, signal.SIGCONT)
-                os.kill(f.pid, signal.SIGTERM)
-            except ProcessLookupError:
-                continue
-            self.frozen[f.name] = f
-            self._kill_at[f.name] = now + grace
-        return found
+        return [f for f in found if self.stop_frozen(f.name, f, now, grace)]
+
+    def stop_frozen(self, name: str, f: Frozen, now: float,
+                    grace: float = FROZEN_GRACE) -> bool:
+        """Stop process ``name`` as frozen (``kill_frozen``); False if it is gone."""
+        try:
+            os.kill(f.pid, signal.SIGCONT)
+            os.kill(f.pid, signal.SIGTERM)
+        except ProcessLookupError:
+            return False
+        self.frozen[name] = f
+        self._kill_at[name] = now + grace
+        return True
 
     def restart(self, name: str) -> str:
         """Start ``name`` again with the same command line (a recorder into a new file
@@ -304,6 +310,8 @@ class Supervisor:
         self.specs = {s.name: s for s in plan.nodes}
         self.place = place or (lambda spec: spec.command)
         self.on_down = on_down
+        #: the processes that are a node the leader waits for (``unseen``)
+        self.team = set(plan.team.expected) & set(self.specs)
 
     @property
     def restarts(self) -> dict[str, int]:
@@ -359,11 +367,32 @@ class Supervisor:
             note = self.stack.restart(name)
             what = ("" if spec.passive or spec.optional
                     else "; the trial it interrupted runs again")
-            how = (f"froze (pid {froze.pid})" if froze is not None
-                   else f"exited with {exit_status(code)}")
+            how = (f"exited with {exit_status(code)}" if froze is None
+                   else f"was not in the graph (pid {froze.pid})" if froze.doing == UNSEEN
+                   else f"froze (pid {froze.pid})")
             print(f"{name} {how}: starting it again "
                   f"({n + 1}/{spec.restart.max_restarts}){what}{note}", flush=True)
         return None
+
+    def unseen(self, seen: set[str], bound: float, now: float | None = None) -> list[str]:
+        """Start-up: the processes of the team that have spun (their node built, their
+        executor running: ``system.heartbeat``) for ``bound`` seconds while the graph
+        does not show their node (not in ``seen``: a participant nobody discovered), named
+        and stopped; the next ``watch`` starts them again. Their names."""
+        now = time.monotonic() if now is None else now
+        out = []
+        for name, p in self.stack.procs.items():
+            if name not in self.team or name in seen or name in self.stack.frozen \
+                    or p.poll() is not None:
+                continue
+            since = self.stack.board.spinning_since(name, now)
+            if since is None or now - since < bound:
+                continue
+            print(f"{name} (pid {p.pid}) has spun {now - since:.0f} s and is not in the ROS "
+                  f"graph (no node of the team has discovered it): stopping it", flush=True)
+            self.stack.stop_frozen(name, Frozen(name, p.pid, UNSEEN, now - since, False), now)
+            out.append(name)
+        return out
 
     def report(self, failure: Failure) -> int:
         """Say which process failed and why: the one line the node said, when it stopped on

@@ -157,6 +157,7 @@ class _Watched:
     all_cpu: int | None = None
     looked: float = 0.0
     said: str = ""  # what it said at its last beat
+    spinning_at: float | None = None  # first seen spinning (``spinning_since``)
     watch: bool = True
 
 
@@ -234,7 +235,7 @@ class Board:
         a node of this project's may never beat)."""
         now = time.monotonic() if now is None else now
         w = self.slots[name]
-        w.watch, w.said = watch, ""
+        w.watch, w.said, w.spinning_at = watch, "", None
         w.pid, w.count, w.beat_at, w.quiet_at, w.cpu, w.all_cpu = pid, -1, now, now, None, None
 
     def hold(self, held: bool, now: float | None = None) -> None:
@@ -264,6 +265,19 @@ class Board:
     def _bound(self, doing: str) -> float:
         """The idle bound of a process that said ``doing`` last."""
         return self.freeze_s * (STARTUP_FACTOR if doing in STARTING else 1.0)
+
+    def spinning_since(self, name: str, now: float | None = None) -> float | None:
+        """Since when process ``name`` has said ``spinning`` (its node built, its executor
+        running), or None if it has not (or says something else now)."""
+        now = time.monotonic() if now is None else now
+        w = self.slots.get(name)
+        if w is None or self.doing(name) != "spinning":
+            if w is not None:
+                w.spinning_at = None
+            return None
+        if w.spinning_at is None:
+            w.spinning_at = now
+        return w.spinning_at
 
     def frozen(self, alive: dict[str, int], now: float | None = None) -> list[Frozen]:
         """The processes of ``alive`` (name: pid) that froze; looks at most once every

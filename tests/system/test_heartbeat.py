@@ -285,3 +285,38 @@ def test_a_start_up_silence_within_its_longer_bound_is_not_said(tmp_path):
         p.kill()
         p.wait(timeout=30)
         board.close()
+
+
+def test_a_team_process_that_spins_unseen_by_the_graph_is_started_again(tmp_path, capsys):
+    """Start-up: a node that spins (its executor runs, it beats) but that no node of the
+    team discovered is named and started again once it has spun for the bound; one the
+    graph shows is left alone."""
+    from formation_ilc.cli.supervisor import Supervisor
+    from tests.cli.test_plan import _plan_running
+
+    spinner = ("from formation_ilc.system.heartbeat import beat\n"
+               "import time\n"
+               "while True:\n"
+               "    beat('spinning')\n"
+               "    time.sleep(0.05)\n")
+    plan, codes = _plan_running(tmp_path, spinner, spinner)
+    sup = Supervisor(plan, dict(os.environ),
+                     place=lambda s: [sys.executable, "-c", codes[s.name]])
+    sup.team = {"p0", "p1"}
+    sup.start()
+    try:
+        _wait_beats(sup.stack.board, "p1", 2)
+        first = sup.stack.procs["p1"].pid
+        deadline = time.monotonic() + 120
+        while sup.restarts.get("p1", 0) < 1:
+            assert time.monotonic() < deadline
+            sup.unseen({"p0"}, bound=1.0)  # p0 is in the graph, p1 is not
+            assert sup.watch() is None
+            time.sleep(0.05)
+        assert sup.restarts == {"p1": 1}
+    finally:
+        sup.stop()
+    out = capsys.readouterr().out
+    assert f"p1 (pid {first}) has spun 1 s and is not in the ROS graph" in out, out
+    assert f"p1 was not in the graph (pid {first}): starting it again (1/2)" in out, out
+    assert "p0 (pid" not in out, out
