@@ -388,8 +388,12 @@ class Supervisor:
             since = self.stack.board.spinning_since(name, now)
             if since is None or now - since < bound:
                 continue
-            print(f"{name} (pid {p.pid}) has spun {now - since:.0f} s and is not in the ROS "
-                  f"graph (no node of the team has discovered it): stopping it", flush=True)
+            line = (f"{name} (pid {p.pid}) has spun {now - since:.0f} s and is not in the "
+                    f"ROS graph (no node of the team has discovered it): stopping it")
+            print(line, flush=True)
+            log = self.stack.logs[name]
+            log.write(f"\n--- {line} (the launcher) ---\n".encode())
+            log.flush()
             self.stack.stop_frozen(name, Frozen(name, p.pid, UNSEEN, now - since, False), now)
             out.append(name)
         return out

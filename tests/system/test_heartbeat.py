@@ -320,3 +320,4 @@ def test_a_team_process_that_spins_unseen_by_the_graph_is_started_again(tmp_path
     assert f"p1 (pid {first}) has spun 1 s and is not in the ROS graph" in out, out
     assert f"p1 was not in the graph (pid {first}): starting it again (1/2)" in out, out
     assert "p0 (pid" not in out, out
+    assert "is not in the ROS graph" in (plan.out / "logs" / "p1.log").read_text()
