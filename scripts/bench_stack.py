@@ -34,7 +34,8 @@ The scale curve (``--scale N ...``): for each team size, one launch of ``formati
 N`` (paper-hexagon6 for 6) in realtime at dT = 0.1 s (``--scale-mode lockstep`` for
 lockstep), ``--scale-trials`` trials, one process per robot (``--scale-container C``: C
 robots per process; ``--scale-hosts``: robots on network-namespace hosts;
-``--scale-safety``: every robot through the safety filter). It prints, per
+``--scale-safety``: every robot through the safety filter; ``--fork-server``: the node
+processes forked from one that imported them once). It prints, per
 size: the time from the launch to the first trial's start (seen on the launcher's console),
 discovery (when the launcher's monitor had found every node, and every node was ready),
 the DDS participants, the resident memory (RSS) of every process at its peak, in all and
@@ -322,7 +323,8 @@ def lockstep(n: int, args: argparse.Namespace, modes: list[str], tmp: Path, dom:
 # --------------------------------------------------------------------------- the curve
 
 #: what each process is, from its command line (first match)
-KINDS = (("robot", b"formation_ilc.nodes.robot"), ("simulator", b"robot_sim.node"),
+KINDS = (("fork server", b"formation_ilc.system.forkserver"),  # before the modules it names
+         ("robot", b"formation_ilc.nodes.robot"), ("simulator", b"robot_sim.node"),
          ("link emulator", b"robot_sim.link_emulator"), ("leader", b"virtual_leader.node"),
          ("recorder", b"formation_ilc.nodes.recorder"), ("launcher", b"formation_ilc.cli"),
          ("bare node", b"--bare-node"))
@@ -400,6 +402,9 @@ def scale_run(n: int, args: argparse.Namespace, tmp: Path, dom: int) -> dict:
     out = tmp / f"scale-{n}-{mode}"
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                ROS_DOMAIN_ID=str(dom), PYTHONUNBUFFERED="1")
+    from formation_ilc.system.forkserver import FORK_ENV
+
+    env[FORK_ENV] = "1" if args.fork_server else "0"
     argv = [sys.executable, "-m", "formation_ilc.cli", "launch", sc, "--trials",
             str(args.scale_trials), "--out", str(out), "--domain-id", str(dom), "--no-plots",
             "--mode", mode, "--links", args.links if args.links != "both" else "emulated",
@@ -494,7 +499,9 @@ def scale_run(n: int, args: argparse.Namespace, tmp: Path, dom: int) -> dict:
     start_cpu = sorted(cpu_at.get("first", {}).values())
     return {"start_cpu": sum(start_cpu), "start_cpu_median": float(np.median(start_cpu))
             if start_cpu else float("nan"),
-            "robots": n, "participants": len(peak) - 1,  # the bare node is no part
+            # the bare node is no part; the fork server has no participant
+            "robots": n, "participants": sum(k not in ("bare node", "fork server")
+                                             for k, _ in peak.values()),
             "discovery": "server" if any(ln.startswith("discovery: through")
                                          for ln in lines) else "localhost",
             "first": marks.get("first"), "found": startup.get("all_found_s"),
@@ -518,7 +525,8 @@ def _num(x: float | None, digits: int) -> str:
 
 def scale_curve(args: argparse.Namespace, tmp: Path, dom: int) -> None:
     print(f"load before: {Path('/proc/loadavg').read_text().split()[:3]}"
-          f"{'; safety filter on' if args.scale_safety else ''}", flush=True)
+          f"{'; safety filter on' if args.scale_safety else ''}"
+          f"{'; fork server' if args.fork_server else ''}", flush=True)
     rows = []
     for n in args.scale:
         r = scale_run(n, args, tmp, dom)
@@ -620,6 +628,9 @@ def main() -> int:
     ap.add_argument("--scale-safety", action="store_true",
                     help="the curve's robots through the safety filter (--safety: each "
                          "reads the whole team's poses every sample)")
+    ap.add_argument("--fork-server", action="store_true",
+                    help="the curve's launches fork their node processes from one server "
+                         "that imported them once (FORMATION_ILC_FORKSERVER=1)")
     ap.add_argument("--timeout", type=float, default=3600.0,
                     help="[s] the longest one launch of the curve may take")
     ap.add_argument("--bare-node", type=float, help=argparse.SUPPRESS)

@@ -624,6 +624,8 @@ class _Session:
                                 plan.config.timeout, plan.watchdog_scale,
                                 secure=plan.secure is not None)
         watch = Watch(bounds, plan.out, len(plan.team.expected), plan.scenario.trials)
+        # a process that spins but that no node discovered, after this long: restarted
+        self._unseen_after = max(30.0, bounds.startup / 2)
         self._trial_progress = None
         if plan.config.mode == "wallclock":  # a trial in real time: said while it runs
             from formation_ilc.cli.trialprogress import TrialProgress
@@ -687,6 +689,8 @@ class _Session:
         found = self._found
         if progress.active:
             ready = set(monitor.readies)
+            # a process that spins but that no node discovered: named, started again
+            self.supervisor.unseen(found | ready, self._unseen_after)
             line = progress.update(now, found | ready, ready,
                                    any(e.get("event") == START for e in monitor.events))
             silent = hosts.silent(found | ready) if hosts is not None else []

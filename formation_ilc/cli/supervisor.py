@@ -9,6 +9,7 @@ What the processes do, and when the run is over, is the launcher's business. No 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -18,11 +19,17 @@ import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 from formation_ilc.plan.specs import NodeSpec, RunPlan
 from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, NO_RESTART, STOPPED, STUCK
-from formation_ilc.system.lifetime import GATE_ENV, early_argv
+from formation_ilc.system.heartbeat import BEAT_ENV, Board, Frozen
+from formation_ilc.system.lifetime import GATE_ENV, RUNNER, early_argv
+
+#: [s] a frozen process, continued and terminated, has this long to end before SIGKILL
+FROZEN_GRACE = 3.0
+#: what ``Supervisor.unseen`` says a process it stops did
+UNSEEN = "spinning, not in the graph"
 
 __all__ = ["Stack", "Supervisor", "Failure", "exit_status", "metrics_rows", "resume_hint",
            "disk_full_line", "trial_ranges"]
@@ -43,19 +50,29 @@ class Stack:
     def __init__(self, env: dict[str, str], log_dir: Path):
         self.env = env
         self.log_dir = log_dir
-        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+        #: subprocess.Popen, or system.forkserver.ForkedProcess (the same calls)
+        self.procs: dict[str, Any] = {}
         self.logs: dict[str, IO[bytes]] = {}
         self.argv: dict[str, list[str]] = {}
         self.extra: dict[str, dict[str, str]] = {}
         self.restarts: dict[str, int] = {}
         #: the gate's pipe (read end, write end) while it is shut (``shut_gate``)
         self.gate: tuple[int, int] | None = None
+        #: every process's heartbeat (``system.heartbeat``): who froze
+        self.board = Board(log_dir / "heartbeats")
+        #: the processes killed as frozen, until they are seen dead (name: finding)
+        self.frozen: dict[str, Frozen] = {}
+        #: when each process stopped as frozen gets SIGKILL if it still lives
+        self._kill_at: dict[str, float] = {}
+        #: the fork server (``start_forker``), or None: each process imports on its own
+        self.forker: Any = None
 
     def shut_gate(self) -> None:
         """Processes started from now on wait at the gate (``system.lifetime``) until
         ``open_gate``: their stdin is a pipe that stays open until then."""
         if self.gate is None:
             self.gate = os.pipe()
+            self.board.hold(True)
 
     def open_gate(self) -> None:
         """Let every process waiting at the gate go on (idempotent)."""
@@ -63,6 +80,7 @@ class Stack:
             for fd in self.gate:
                 os.close(fd)
             self.gate = None
+            self.board.hold(False)
 
     def start(self, name: str, argv: list[str], extra: dict[str, str] | None = None) -> None:
         """Start process ``name``: ``argv`` in the run's environment plus ``extra`` (kept
@@ -82,11 +100,79 @@ class Stack:
         env = {**self.env, **self.extra.get(name, {})}
         if self.gate is not None:
             env[GATE_ENV] = "stdin"
+        env[BEAT_ENV] = self.board.slot(name)
         # through the runner that sets the parent-death signal before the node's imports:
         # a launcher killed while its nodes start takes them with it
-        self.procs[name] = subprocess.Popen(
-            early_argv(argv), env=env, stdout=fh, stderr=subprocess.STDOUT,
+        command = early_argv(argv)
+        proc = self._fork(name, command, env, fh)
+        self.procs[name] = proc if proc is not None else subprocess.Popen(
+            command, env=env, stdout=fh, stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL if self.gate is None else self.gate[0])
+        # a node of ours beats from its first line (the runner's); another command is
+        # watched only once it beats
+        self.board.started(name, self.procs[name].pid, watch=RUNNER in command)
+
+    def start_forker(self, modules: list[str]) -> None:
+        """From now on, fork the node processes from a server that imported ``modules``
+        once (``system.forkserver``); without one (it cannot start) as before."""
+        from formation_ilc.system.forkserver import ForkRefused, ForkServer
+
+        try:
+            self.forker = ForkServer(self.env, modules, self.log_dir / "forkserver.log")
+        except (ForkRefused, OSError) as exc:
+            print(f"warning: no fork server ({exc}): each node process imports on its own",
+                  flush=True)
+
+    def _fork(self, name: str, command: list[str], env: dict[str, str],
+              fh: IO[bytes]) -> Any:
+        """Process ``name`` forked by the fork server, or None (no server, a command it
+        cannot fork, or a server that refuses: then none for the rest of the run)."""
+        from formation_ilc.system.forkserver import ForkRefused, forkable
+
+        if self.forker is None or not forkable(command):
+            return None
+        try:
+            return self.forker.spawn(command, env, fh.fileno(),
+                                     None if self.gate is None else self.gate[0])
+        except ForkRefused as exc:
+            print(f"warning: the fork server refused {name} ({exc}): each node process "
+                  f"imports on its own from now on", flush=True)
+            self.forker.close()
+            self.forker = None
+            return None
+
+    def kill_frozen(self, grace: float = FROZEN_GRACE) -> list[Frozen]:
+        """The processes that stopped beating (``system.heartbeat``), stopped: SIGCONT and
+        SIGTERM at once, SIGKILL ``grace`` seconds later if they still live. The
+        supervisor's watch then sees them dead and starts them again like a crashed one.
+
+        Why not SIGKILL at once: a process stopped by a signal (SIGSTOP, a debugger) may
+        be stopped holding a Fast DDS shared-memory port's lock, which nobody could take
+        again after a SIGKILL (every process that writes to that port then waits for
+        ever: the launcher was seen so); continued and terminated it ends cleanly (its
+        stop is bounded: ``system.lifetime``). A deadlocked one ends only by the SIGKILL."""
+        now = time.monotonic()
+        for name in self.frozen:
+            p = self.procs.get(name)
+            if p is not None and p.poll() is None and now >= self._kill_at.get(name, now):
+                with contextlib.suppress(ProcessLookupError):
+                    p.send_signal(signal.SIGKILL)
+        alive = {n: p.pid for n, p in self.procs.items()
+                 if p.returncode is None and n not in self.frozen}
+        found = self.board.frozen(alive)
+        return [f for f in found if self.stop_frozen(f.name, f, now, grace)]
+
+    def stop_frozen(self, name: str, f: Frozen, now: float,
+                    grace: float = FROZEN_GRACE) -> bool:
+        """Stop process ``name`` as frozen (``kill_frozen``); False if it is gone."""
+        try:
+            os.kill(f.pid, signal.SIGCONT)
+            os.kill(f.pid, signal.SIGTERM)
+        except ProcessLookupError:
+            return False
+        self.frozen[name] = f
+        self._kill_at[name] = now + grace
+        return True
 
     def restart(self, name: str) -> str:
         """Start ``name`` again with the same command line (a recorder into a new file
@@ -148,6 +234,10 @@ class Stack:
         for fh in self.logs.values():
             fh.close()
         self.open_gate()  # after the signals: nothing stopped at the gate goes on
+        self.board.close()
+        if self.forker is not None:
+            self.forker.close()
+            self.forker = None
 
 
 def bindable(host: str, port: int) -> bool:
@@ -220,6 +310,8 @@ class Supervisor:
         self.specs = {s.name: s for s in plan.nodes}
         self.place = place or (lambda spec: spec.command)
         self.on_down = on_down
+        #: the processes that are a node the leader waits for (``unseen``)
+        self.team = set(plan.team.expected) & set(self.specs)
 
     @property
     def restarts(self) -> dict[str, int]:
@@ -230,6 +322,10 @@ class Supervisor:
         gate until ``open_gate``."""
         if gated:
             self.stack.shut_gate()
+        from formation_ilc.system.forkserver import wanted
+
+        if wanted(self.stack.env) and self.stack.forker is None:
+            self.stack.start_forker(sorted({s.module for s in self.plan.nodes}))
         for spec in self.plan.nodes:
             self.stack.start(spec.name, self.place(spec), dict(spec.env))
 
@@ -238,8 +334,20 @@ class Supervisor:
 
     def watch(self) -> Failure | None:
         """Start again each process that died, within its policy; the first that may not
-        be started again, or None."""
+        be started again, or None. A process that stopped beating is named and killed
+        first (``Stack.kill_frozen``), then started again as one that died."""
+        for f in self.stack.kill_frozen():
+            print(f"{f.line()}: stopping it", flush=True)
+            log = self.stack.logs[f.name]
+            log.write(f"\n--- {f.line()}: stopped by the launcher ---\n".encode())
+            log.flush()
+        for name, silent, doing in self.stack.board.late:
+            print(f"{name} beats again after {silent:.0f} s without a heartbeat, working "
+                  f"meanwhile (now: {doing})", flush=True)
+        self.stack.board.late.clear()
         for name, code in self.stack.dead():
+            froze = self.stack.frozen.pop(name, None)
+            self.stack._kill_at.pop(name, None)
             spec = self.specs[name]
             n = self.stack.restarts.get(name, 0)
             if not spec.restart.allows(code, n):
@@ -259,9 +367,36 @@ class Supervisor:
             note = self.stack.restart(name)
             what = ("" if spec.passive or spec.optional
                     else "; the trial it interrupted runs again")
-            print(f"{name} exited with {exit_status(code)}: starting it again "
+            how = (f"exited with {exit_status(code)}" if froze is None
+                   else f"was not in the graph (pid {froze.pid})" if froze.doing == UNSEEN
+                   else f"froze (pid {froze.pid})")
+            print(f"{name} {how}: starting it again "
                   f"({n + 1}/{spec.restart.max_restarts}){what}{note}", flush=True)
         return None
+
+    def unseen(self, seen: set[str], bound: float, now: float | None = None) -> list[str]:
+        """Start-up: the processes of the team that have spun (their node built, their
+        executor running: ``system.heartbeat``) for ``bound`` seconds while the graph
+        does not show their node (not in ``seen``: a participant nobody discovered), named
+        and stopped; the next ``watch`` starts them again. Their names."""
+        now = time.monotonic() if now is None else now
+        out = []
+        for name, p in self.stack.procs.items():
+            if name not in self.team or name in seen or name in self.stack.frozen \
+                    or p.poll() is not None:
+                continue
+            since = self.stack.board.spinning_since(name, now)
+            if since is None or now - since < bound:
+                continue
+            line = (f"{name} (pid {p.pid}) has spun {now - since:.0f} s and is not in the "
+                    f"ROS graph (no node of the team has discovered it): stopping it")
+            print(line, flush=True)
+            log = self.stack.logs[name]
+            log.write(f"\n--- {line} (the launcher) ---\n".encode())
+            log.flush()
+            self.stack.stop_frozen(name, Frozen(name, p.pid, UNSEEN, now - since, False), now)
+            out.append(name)
+        return out
 
     def report(self, failure: Failure) -> int:
         """Say which process failed and why: the one line the node said, when it stopped on

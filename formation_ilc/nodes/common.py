@@ -32,6 +32,7 @@ from formation_ilc.nodes.writers import REFRESH_HELD, CheckedSubscription
 from formation_ilc.protocol.schedule import Follower, Ready, TrialEvent, boot_id, parse_key
 from formation_ilc.protocol.writers import OK, WriterTable
 from formation_ilc.system.exits import DISK_FULL, DISK_FULL_TAG, is_disk_full
+from formation_ilc.system.heartbeat import beat
 from formation_ilc.system.lifetime import (
     ORPHAN_GRACE,
     PARENT_ENV,
@@ -648,10 +649,12 @@ def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
         return 2
     ns = parser.parse_args(own)
     die_with_parent()
+    beat("at the gate")  # the heartbeat (system.heartbeat): from this, the main, thread
     try:
         wait_at_gate()  # imports done; the launcher says when to join the domain
     except KeyboardInterrupt:  # stopped at the gate: the run was refused
         return 130
+    beat("joining the domain")
     # rclpy's own SIGINT handling raises KeyboardInterrupt inside whatever callback runs,
     # which aborts the process from C++; a flag for the spin loop is enough
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
@@ -670,6 +673,7 @@ def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
     ex: Any = None
     try:
         try:
+            beat("building its node")
             nodes = build(ns, argv)
         except (ValueError, ParameterException) as exc:
             # a parameter, a scenario or a state file no run can have: one line, status 2
@@ -680,8 +684,11 @@ def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
             ex.add_node(n)
         # EventsExecutor.spin() never returns to Python, so SIGINT would go unseen: spin in
         # slices, which costs one return to the interpreter every 0.25 s
+        beat("spinning")
         while rclpy.ok() and not Exit.stop.done():
             ex.spin_until_future_complete(Exit.stop, timeout_sec=SPIN_SLICE)
+            # out of the executor: this thread is not stuck in it (a freeze stops this)
+            beat(_doing(nodes))
             if parent_gone():  # its SIGTERM was missed: the launcher is gone all the same
                 break
     except (KeyboardInterrupt, ExternalShutdownException):
@@ -703,6 +710,16 @@ def spin_main(build: Callable[[argparse.Namespace, list[str]], list[Node]],
             n.destroy_node()
         rclpy.try_shutdown()
     return Exit.code
+
+
+def _doing(nodes: list[Node]) -> str | None:
+    """What the first node that says so does now (its ``doing`` attribute: a robot's
+    trial and sample), for the heartbeat; None: unchanged."""
+    for n in nodes:
+        doing = getattr(n, "doing", None)
+        if doing:
+            return str(doing() if callable(doing) else doing)
+    return None
 
 
 def _linger(ex: Any, nodes: list[Node]) -> None:

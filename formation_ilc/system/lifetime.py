@@ -122,6 +122,9 @@ def _run(argv: list[str]) -> None:
     first, then MODULE as ``__main__`` with ``sys.argv`` as ``python -m MODULE ARGS`` sets
     it."""
     die_with_parent()
+    from formation_ilc.system.heartbeat import beat
+
+    beat("importing")  # the supervisor's first sign of it (system.heartbeat)
     if len(argv) < 2 or argv[0] != "-m":
         print(f"usage: python -m {RUNNER} -m MODULE [ARGS...]", file=sys.stderr)
         raise SystemExit(2)
