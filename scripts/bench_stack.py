@@ -323,7 +323,7 @@ def lockstep(n: int, args: argparse.Namespace, modes: list[str], tmp: Path, dom:
 # --------------------------------------------------------------------------- the curve
 
 #: what each process is, from its command line (first match)
-KINDS = (("fork server", b"formation_ilc.system.forkserver"),  # before the modules it names
+KINDS = (("fork server", b"formation_ilc.nodes.forkserver"),  # before the modules it names
          ("robot", b"formation_ilc.nodes.robot"), ("simulator", b"robot_sim.node"),
          ("link emulator", b"robot_sim.link_emulator"), ("leader", b"virtual_leader.node"),
          ("recorder", b"formation_ilc.nodes.recorder"), ("launcher", b"formation_ilc.cli"),
@@ -402,7 +402,7 @@ def scale_run(n: int, args: argparse.Namespace, tmp: Path, dom: int) -> dict:
     out = tmp / f"scale-{n}-{mode}"
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                ROS_DOMAIN_ID=str(dom), PYTHONUNBUFFERED="1")
-    from formation_ilc.system.forkserver import FORK_ENV
+    from formation_ilc.nodes.forkserver import FORK_ENV
 
     env[FORK_ENV] = "1" if args.fork_server else "0"
     argv = [sys.executable, "-m", "formation_ilc.cli", "launch", sc, "--trials",

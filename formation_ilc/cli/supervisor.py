@@ -50,7 +50,7 @@ class Stack:
     def __init__(self, env: dict[str, str], log_dir: Path):
         self.env = env
         self.log_dir = log_dir
-        #: subprocess.Popen, or system.forkserver.ForkedProcess (the same calls)
+        #: subprocess.Popen, or nodes.forkserver.ForkedProcess (the same calls)
         self.procs: dict[str, Any] = {}
         self.logs: dict[str, IO[bytes]] = {}
         self.argv: dict[str, list[str]] = {}
@@ -114,8 +114,8 @@ class Stack:
 
     def start_forker(self, modules: list[str]) -> None:
         """From now on, fork the node processes from a server that imported ``modules``
-        once (``system.forkserver``); without one (it cannot start) as before."""
-        from formation_ilc.system.forkserver import ForkRefused, ForkServer
+        once (``nodes.forkserver``); without one (it cannot start) as before."""
+        from formation_ilc.nodes.forkserver import ForkRefused, ForkServer
 
         try:
             self.forker = ForkServer(self.env, modules, self.log_dir / "forkserver.log")
@@ -127,7 +127,7 @@ class Stack:
               fh: IO[bytes]) -> Any:
         """Process ``name`` forked by the fork server, or None (no server, a command it
         cannot fork, or a server that refuses: then none for the rest of the run)."""
-        from formation_ilc.system.forkserver import ForkRefused, forkable
+        from formation_ilc.nodes.forkserver import ForkRefused, forkable
 
         if self.forker is None or not forkable(command):
             return None
@@ -322,7 +322,7 @@ class Supervisor:
         gate until ``open_gate``."""
         if gated:
             self.stack.shut_gate()
-        from formation_ilc.system.forkserver import wanted
+        from formation_ilc.nodes.forkserver import wanted
 
         if wanted(self.stack.env) and self.stack.forker is None:
             self.stack.start_forker(sorted({s.module for s in self.plan.nodes}))

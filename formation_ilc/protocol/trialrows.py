@@ -317,11 +317,14 @@ class SlotRows:
         clock (the physics bases) may say it after the slot's trajectories made its row
         (the run's last trial): a row made without it (nan) takes it then, and its
         iteration is in ``late_counts`` (its line in a streamed metrics.csv is to be
-        written again)."""
+        written again). Only ``strict`` (the monitor, which takes contacts from the
+        run's body watchers alone: ``core.links.check_for_run``); a recording's analysis
+        knows no watchers, and a forged late report in it would be taken."""
         i = self.iteration_of.get(slot)
         if i is None or i not in self.rows:
             self.contacts[slot] = int(pairs)
-        elif self.made.get(i) == slot and np.isnan(self.rows[i][_CONTACTS]):
+        elif (self.strict and self.made.get(i) == slot
+              and np.isnan(self.rows[i][_CONTACTS])):
             self.rows[i][_CONTACTS] = float(pairs)
             self.late_counts.add(i)
 

@@ -276,6 +276,12 @@ def test_rows_count_what_the_filter_changed_and_the_contacts_noted_before_them()
     assert rows.rows[1][METRIC_COLUMNS.index("contacts")] == 0
     rows.note_contacts(0, 3)  # nor one it was made with
     assert rows.rows[0][METRIC_COLUMNS.index("contacts")] == 1 and rows.late_counts == {1}
+    # a recording's analysis (not strict: it knows no body watchers) takes none late
+    loose = SlotRows(PB, safety=True, strict=False)
+    loose.event(start(0, 0))
+    (d,) = feed(loose, 0, 0)
+    loose.note_contacts(0, 7)
+    assert np.isnan(loose.rows[0][METRIC_COLUMNS.index("contacts")]) and not loose.late_counts
     # a run without a filter changed nothing
     plain = SlotRows(PB)
     plain.event(start(0, 0))

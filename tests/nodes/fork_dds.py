@@ -1,4 +1,4 @@
-"""Imported by a fork server in tests/system/test_forkserver.py: joins the domain as it is
+"""Imported by a fork server in tests/nodes/test_forkserver.py: joins the domain as it is
 imported (what a server must never do before it forks), so that its participant's threads
 exist when the server is asked to fork."""
 

@@ -1,4 +1,4 @@
-"""A node entry point for tests/system/test_forkserver.py: says (one JSON line) its
+"""A node entry point for tests/nodes/test_forkserver.py: says (one JSON line) its
 parent, its threads before and after rclpy joins the domain, its argv and an environment
 variable, as a process forked by the fork server sees them."""
 

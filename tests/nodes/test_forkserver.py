@@ -1,4 +1,4 @@
-"""The fork server (formation_ilc.system.forkserver): a node process forked from it is
+"""The fork server (formation_ilc.nodes.forkserver): a node process forked from it is
 this launcher's child, runs its entry point with its own argv and environment, and joins
 the domain only after the fork; a server with a DDS thread (an rclpy context) refuses to
 fork: the guard of issue 56."""
@@ -11,12 +11,12 @@ import sys
 
 import pytest
 
-from formation_ilc.system.forkserver import ForkedProcess, ForkRefused, ForkServer, forkable
+from formation_ilc.nodes.forkserver import ForkedProcess, ForkRefused, ForkServer, forkable
 from formation_ilc.system.lifetime import PARENT_ENV, RUNNER, early_argv
 
 pytestmark = [pytest.mark.ros]
 
-PROBE = "tests.system.fork_probe"
+PROBE = "tests.nodes.fork_probe"
 
 
 def _env(ros_env: dict[str, str]) -> dict[str, str]:
@@ -55,7 +55,7 @@ def test_a_forked_node_is_ours_and_joins_the_domain_only_after_the_fork(ros_env,
 
 def test_a_server_with_a_dds_thread_refuses_to_fork(ros_env, tmp_path):
     env = _env(ros_env)
-    server = ForkServer(env, ["tests.system.fork_dds"], tmp_path / "server.log")
+    server = ForkServer(env, ["tests.nodes.fork_dds"], tmp_path / "server.log")
     try:
         command = early_argv([sys.executable, "-m", PROBE])
         with (tmp_path / "child.log").open("wb") as fh, pytest.raises(ForkRefused) as exc:
