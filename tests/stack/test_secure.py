@@ -533,11 +533,13 @@ def test_secure_bases_with_physics_bases_equal_the_insecure_run(ros_env, tmp_pat
     k = min(len(secure), len(insecure))
     assert k >= 2 and insecure[k - 1, 1] < insecure[0, 1] and secure[k - 1, 1] < secure[0, 1]
     # trial 0 (nothing learned yet) within what two wall-clock bridge runs differ by; a
-    # learned trial carries the previous trial's timing into its memory: two such runs
-    # differed by 0.22 m on an error of 1.9 m (11 %) in trial 1 (2026-12-07, load 8), so a
-    # learned trial may differ by 15 % of its error, and never less than trial 0's bound
+    # learned trial carries the previous trial's timing and the return's end (where each
+    # robot stopped, within the return's tolerance) into its memory: two such runs differed
+    # by 0.22 m on an error of 1.9 m (11 %) in trial 1 (2026-12-07, load 8) and by 0.35 m on
+    # 1.9 m (18 %) in a fresh-clone CI the same day, so a learned trial may differ by 25 %
+    # of its error, and never less than trial 0's bound; that both learn is asserted above
     np.testing.assert_allclose(secure[0, 1:3], insecure[0, 1:3], rtol=0, atol=BATCH_ATOL)
-    bound = np.maximum(BATCH_ATOL, 0.15 * np.abs(insecure[1:k, 1:3]))
+    bound = np.maximum(BATCH_ATOL, 0.25 * np.abs(insecure[1:k, 1:3]))
     assert (np.abs(secure[1:k, 1:3] - insecure[1:k, 1:3]) <= bound).all(), (secure[:k, 1:3],
                                                                             insecure[:k, 1:3])
 
