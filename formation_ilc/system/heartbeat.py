@@ -154,8 +154,8 @@ class _Watched:
     beat_at: float = 0.0  # when the counter last moved (or the watch began)
     quiet_at: float = 0.0  # when the counter or the main thread's CPU last moved
     cpu: int | None = None
-    all_cpu: int | None = None
-    looked: float = 0.0
+    all_cpu: int | None = None  # the process's CPU ticks when ``worked_at`` was set
+    worked_at: float = 0.0  # since when its work share is measured (``Board.frozen``)
     said: str = ""  # what it said at its last beat
     spinning_at: float | None = None  # first seen spinning (``spinning_since``)
     watch: bool = True
@@ -306,11 +306,17 @@ class Board:
             cpu, all_cpu = main_thread_cpu(pid), process_cpu(pid)
             if cpu is None or all_cpu is None:  # gone: the supervisor's other watch sees it
                 continue
-            if w.cpu is not None and w.all_cpu is not None and (
-                    cpu != w.cpu
-                    or all_cpu - w.all_cpu > max(1.0, WORK_SHARE * (now - w.looked) * _HZ)):
+            if w.cpu is None or w.all_cpu is None:
+                w.all_cpu, w.worked_at = all_cpu, now  # the measure starts
+            elif (cpu != w.cpu or all_cpu - w.all_cpu
+                  > max(1.0, WORK_SHARE * (now - w.worked_at) * _HZ)):
+                # its main thread ran, or its threads used more than WORK_SHARE of a core
+                # since it last worked: measured over that whole time, not between two
+                # looks (a thread that works on a loaded machine gets a few ticks a second,
+                # none in many a tenth of one: it was taken for idle, CI 2026-12-07)
                 w.quiet_at = now
-            w.cpu, w.all_cpu, w.looked = cpu, all_cpu, now
+                w.all_cpu, w.worked_at = all_cpu, now
+            w.cpu = cpu
             silent = now - w.beat_at
             doing = self.doing(name)
             bound = self._bound(doing)
