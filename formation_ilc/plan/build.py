@@ -126,7 +126,8 @@ def decide(options: LaunchOptions, machine: Machine) -> RunPlan:
                            fake_drivers=bridge.fake_drivers,
                            physics_bases=bridge.physics_bases)),
                        sensing=None if safety is None else safety.sensing,
-                       clocks=cfg.clock_exchanges)
+                       told=safety is not None and safety.motion == "commands",
+                       leader_in_step=cfg.leader_in_step, clocks=cfg.clock_exchanges)
     plan = RunPlan(
         config=cfg, roster=roster(lineup), nodes=(), out=out, namespace=namespace, domain=domain,
         discovery=opts.discovery, plant=opts.plant, container=opts.container,
