@@ -139,12 +139,12 @@ def _run_file_keystore(args: argparse.Namespace) -> int:
     members' enclaves and the launcher's), and with its ``hosts:`` one bundle per host in
     DIR/bundles/HOST: the CA's certificate, the governance and that host's enclaves only
     (the ground station's with the launcher's monitor), never the CA's private key."""
-    import tempfile
     from pathlib import Path
 
     from formation_ilc.cli.runfile import launch_options
     from formation_ilc.core.names import MONITOR_NODE
-    from formation_ilc.plan.build import build_plan
+    from formation_ilc.plan.build import decide, unmade_folder
+    from formation_ilc.plan.machine import Machine
     from formation_ilc.plan.specs import NoRun
     from formation_ilc.store.keystore import bundle
 
@@ -153,11 +153,12 @@ def _run_file_keystore(args: argparse.Namespace) -> int:
         raise OptionError("keystore create DIR RUN.yaml: the run file says the plant, the "
                           "driver and the namespace (give only --days)")
     opts = launch_options(argparse.Namespace(scenario=args.scenario))
-    with tempfile.TemporaryDirectory() as tmp:
-        try:
-            plan = build_plan(opts.with_fields({"out": Path(tmp) / "run", "secure": None}))
-        except NoRun as stop:
-            return stop.report()
+    machine = Machine.probe()
+    try:  # planned, not prepared: no folder made
+        plan = decide(opts.with_fields({"out": unmade_folder(machine), "secure": None}),
+                      machine)
+    except NoRun as stop:
+        return stop.report()
     grants = roster(plan.roster.lineup.for_keystore()).grants(plan.namespace)
     if not _created(args, grants, plan.scenario, plan.namespace):
         return 2

@@ -646,23 +646,22 @@ def add_parser(sub: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Write the run file ``args.output``: the options, planned as ``launch`` plans them
     (refused the same way), with the hosts asked for."""
-    import tempfile
-
-    from formation_ilc.plan.build import build_plan, hosted_members
+    from formation_ilc.plan.build import decide, hosted_members, unmade_folder
+    from formation_ilc.plan.machine import Machine
     from formation_ilc.plan.specs import NoRun
     from formation_ilc.store.atomic import atomic_write_text
 
     opts = launch_options(args)
     if opts.resume is not None:
         raise OptionError("run-file: --resume: a stored run's file is its folder's run.yaml")
-    with tempfile.TemporaryDirectory() as tmp:
-        try:
-            plan = build_plan(opts.with_fields({"out": Path(tmp) / "run"}))
-        except NoRun as stop:
-            return stop.report()
-        # what the plan chose for the keys left open, shown as comments (a launch chooses
-        # its ROS domain afresh)
-        shown = {**effective_values(plan, opts.stored()), "domain_id": None, "run_id": None}
+    machine = Machine.probe()
+    try:  # planned, not prepared: no folder made, nothing started
+        plan = decide(opts.with_fields({"out": unmade_folder(machine)}), machine)
+    except NoRun as stop:
+        return stop.report()
+    # what the plan chose for the keys left open, shown as comments (a launch chooses its
+    # ROS domain afresh)
+    shown = {**effective_values(plan, opts.stored()), "domain_id": None, "run_id": None}
     if args.host_per_robot:
         opts = opts.with_fields({"host_members": host_per_robot(list(hosted_members(plan)))})
     if opts.scenario is not None and Path(opts.scenario).is_file():

@@ -106,7 +106,10 @@ class Lineup:
         each robot reads; without them every robot is taken to read nothing but its own:
         enough for names and processes, not for permissions).
     plant : a row of ``config.plants``; ``external``: an external plant's node names.
-    links : 'emulated' (the link emulator runs) or 'direct'.
+    links : 'emulated' (the link emulator runs), 'direct', or 'any' (a keystore's: every
+        topic of both).
+    leader_in_step : the robots that see the leader take its link from their own sample
+        (``RunConfig.leader_in_step``: lockstep with direct links), not from its messages.
     record, live : a recorder, the live view; ``monitor``: the launcher's monitor (a leader
         started alone has none).
     driver, driver_ns, base : the bridges' drivers: the Pioneer driver's kind, robot i's
@@ -115,7 +118,9 @@ class Lineup:
     fake_drivers : a fake Pioneer driver per robot (the launcher starts them).
     physics_bases : physics robots behind the bases' interface (the launcher starts them).
     sensing : the robots' safety filter, and how it hears the others ('team': the plant's
-        ``team/poses``; 'peers': every other robot's pose), or None without a filter.
+        ``team/poses``; 'peers': every other robot's pose; 'any': a keystore's, both), or
+        None without a filter.
+    told : the robots tell each other their commands (``safety.motion: commands``).
     clocks : the clock exchanges of realtime and wall-clock runs (``protocol.timesync``):
         each robot asks the clocks it hears (its in-neighbours', the leader's if it sees
         it) and answers the robots that hear it; every bridge asks the leader's.
@@ -135,6 +140,8 @@ class Lineup:
     physics_bases: bool = False
     sensing: str | None = None
     clocks: bool = False
+    leader_in_step: bool = False
+    told: bool = False
     adjacency: NDArray[np.float64] | None = field(default=None, compare=False)
     leader: NDArray[np.float64] | None = field(default=None, compare=False)
 
@@ -150,8 +157,9 @@ class Lineup:
         may use: the link emulator, the recorder, the live view and the monitor too, and
         the safety filter's hearing and the clock exchanges (a keystore serves every
         run)."""
-        return replace(self, links="emulated", record=True, live=True, monitor=True,
-                       sensing=self.row.sensing, clocks=True)
+        return replace(self, links="any", record=True, live=True, monitor=True,
+                       sensing=None if self.row.sensing is None else "any", clocks=True,
+                       leader_in_step=False, told=self.row.sensing is not None)
 
     @property
     def row(self) -> Plant:
@@ -358,7 +366,7 @@ def roster(lineup: Lineup) -> Roster:
         (nm.READY, nm.CONFIG, nm.CLOCK, nm.TRIAL_EVENTS, nm.DIAGNOSTICS, nm.ESTOP,
          *leader_sub), serves=(nm.STOP_SERVICE,)))
     members += _plant(lineup, row)
-    if lineup.links == "emulated":
+    if lineup.links in ("emulated", "any"):
         links_pub = [nm.link_topic(i, nm.robot_name(j)) for i in robots
                      for j in senders[i - 1]]
         links_pub += [nm.link_topic(i, nm.LEADER) for i in robots if hears[i - 1]]
@@ -384,24 +392,31 @@ def leader_clock_askers(leader: Iterable[float], bridges: Sequence[str]) -> list
 
 def _robot(i: int, senders: list[int], hears_leader: bool, lineup: Lineup,
            hearers: list[int]) -> Member:
-    """Robot i (1-based): its own topics out; its pose, its links and its in-neighbours'
-    shared poses and trajectories in (emulated and direct links both); with a safety filter
-    the others' poses too (the plant's ``team/poses``, or each other robot's pose); with
-    the clock exchanges its questions to the clocks it hears (``senders``, the leader) and
-    its answers to the robots that hear it (``hearers``)."""
+    """Robot i (1-based), exactly what its node publishes and reads: its own topics
+    out; its pose, its in-neighbours' trajectories and its links in (the emulator's ticks,
+    or their shared poses and the leader's reference on direct links, the reference not
+    when the leader link is its own sample); with a safety filter the others' poses too
+    (the plant's ``team/poses``, or each other robot's pose) and, told, their commands;
+    with the clock exchanges its questions to the clocks it hears (``senders``, the
+    leader) and its answers to the robots that hear it (``hearers``)."""
+    others = [j for j in range(1, lineup.n + 1) if j != i]
     sub = [nm.pose_topic(i), nm.CONFIG, nm.TRIAL_EVENTS, nm.ESTOP]
-    sub += [nm.link_topic(i, nm.robot_name(j)) for j in senders]
-    sub += [nm.shared_pose_topic(j) for j in senders] + [nm.trajectory_topic(j)
-                                                         for j in senders]
-    if hears_leader:
-        sub += [nm.link_topic(i, nm.LEADER), nm.REFERENCE]
+    sub += [nm.trajectory_topic(j) for j in senders]
+    leader_link = hears_leader and not lineup.leader_in_step
+    if lineup.links in ("emulated", "any"):
+        sub += [nm.link_topic(i, nm.robot_name(j)) for j in senders]
+        sub += [nm.link_topic(i, nm.LEADER)] if leader_link else []
+    if lineup.links in ("direct", "any"):
+        sub += [nm.shared_pose_topic(j) for j in senders]
+        sub += [nm.REFERENCE] if leader_link else []
     pub = [nm.cmd_vel_topic(i), nm.shared_pose_topic(i), nm.trajectory_topic(i), nm.READY,
            nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS]
-    if lineup.sensing is not None:  # every robot's pose, and the plant's team/poses
-        sub += [nm.pose_topic(j) for j in range(1, lineup.n + 1) if j != i]
+    if lineup.sensing in ("team", "any"):  # the plant's team/poses
         sub.append(nm.TEAM_POSES)
-        # the commands the robots tell each other (``safety.motion: commands``)
-        sub += [nm.applied_topic(j) for j in range(1, lineup.n + 1) if j != i]
+    if lineup.sensing in ("peers", "any"):  # every other robot's pose
+        sub += [nm.pose_topic(j) for j in others]
+    if lineup.sensing is not None and lineup.told:  # ``safety.motion: commands``
+        sub += [nm.applied_topic(j) for j in others]
         pub.append(nm.applied_topic(i))
     if lineup.clocks:  # each node publishes on topics of its own name only
         me = nm.robot_name(i)
@@ -430,7 +445,7 @@ def _plant(lineup: Lineup, row: Plant) -> list[Member]:
         pub += [nm.READY, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS, nm.TF, nm.TF_STATIC]
         if row.true_state:
             pub.append(nm.PREVIEW)
-        if lineup.sensing == "team":
+        if lineup.sensing in ("team", "any"):
             pub.append(nm.TEAM_POSES)
         return [Member(row.node, "plant", row.entry, TRIAL, row.reports, row.node, tuple(pub),
                        (*(nm.cmd_vel_topic(i) for i in robots), nm.TRIAL_EVENTS, nm.CONFIG))]

@@ -289,9 +289,12 @@ def make_config(scenario: str, *, seed: int | None = None, noise: bool = True,
                 links: str = "emulated", run_id: str = "", headings: str | None = None,
                 time_scale: float | None = None, recorded: bool = False,
                 safety: SafetySettings | None = None,
-                clocks: ClockSettings | None = None) -> RunConfig:
-    """The run configuration of a scenario name or file with command-line overrides."""
-    sc = load_scenario(scenario).with_options(law=law, memory=memory, noise=noise,
+                clocks: ClockSettings | None = None, text: str | None = None) -> RunConfig:
+    """The run configuration of a scenario name or file with command-line overrides;
+    ``text``: the file's text, when it is not written yet (a run file's own scenario)."""
+    loaded = (load_scenario(scenario) if text is None else
+              scenario_from_text(text, scenario, Path(scenario).parent))
+    sc = loaded.with_options(law=law, memory=memory, noise=noise,
                                               delay=delay, seed=seed, trials=trials,
                                               headings=headings, time_scale=time_scale)
     return RunConfig(sc, mode, gap, monitored, timeout, links, run_id, recorded, safety,

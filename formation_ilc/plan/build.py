@@ -1,20 +1,23 @@
-"""The planner of a ``formation-ilc launch``: ``build_plan`` turns the run's options
-(``formation_ilc.plan.options.LaunchOptions``: from the command line, a run file, a stored
-run or a launch file's arguments) into its ``RunPlan`` (``formation_ilc.plan.specs``),
-refusing what cannot run (``NoRun``: one line and the exit status, before anything
-starts); with ``--resume DIR`` the run's state decides where it goes on. The pre-run checks
-of the plant, the limits and the safety filter are in ``formation_ilc.plan.checks``, the
-processes in ``formation_ilc.plan.processes``. Pure: no parser, no ROS."""
+"""The planner of a ``formation-ilc launch``: ``decide(options, machine)`` turns the run's
+options (``formation_ilc.plan.options.LaunchOptions``: from the command line, a run file, a
+stored run or a launch file's arguments) and the machine it runs on
+(``formation_ilc.plan.machine.Machine``, probed once) into its ``RunPlan``
+(``formation_ilc.plan.specs``), refusing what cannot run (``NoRun``: one line and the exit
+status, before anything starts); with ``--resume DIR`` the run's state decides where it goes
+on. ``decide`` is pure: it reads the files the options name and writes nothing, binds
+nothing, draws nothing (``run-file`` and ``keystore create`` call it and nothing else).
+``prepare(plan)`` then makes what the plan names: the run's folder, a run file's scenario in
+it, the live view's port checked free, the run's key. ``build_plan`` is the two for this
+machine, now. The pre-run checks of the plant, the limits and the safety filter are in
+``formation_ilc.plan.checks``, the processes in ``formation_ilc.plan.processes``. No parser,
+no ROS."""
 
 from __future__ import annotations
 
 import os
 import secrets
-import time
-import uuid
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
-from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +40,7 @@ from formation_ilc.core.names import (
     robot_name,
 )
 from formation_ilc.plan.checks import check_memory, check_plant, safety_settings
+from formation_ilc.plan.machine import Machine
 from formation_ilc.plan.options import PATH_FIELDS, LaunchOptions, OptionError, unused_option
 from formation_ilc.plan.processes import node_specs
 from formation_ilc.plan.specs import (
@@ -50,28 +54,36 @@ from formation_ilc.protocol.schedule import KEY_BYTES
 from formation_ilc.store.runfile import used_folder_line
 from formation_ilc.system.netns import LinkFaults
 
-__all__ = ["build_plan", "effective_options", "hosted_members", "placed_members", "HOSTS_DIR",
-           "with_ground",
-           "pick_domain", "caller_domain"]
+__all__ = ["build_plan", "decide", "prepare", "effective_options", "hosted_members",
+           "placed_members", "HOSTS_DIR", "with_ground", "caller_domain", "unmade_folder"]
 
 
 # --------------------------------------------------------------------------- building
 
 def build_plan(options: LaunchOptions) -> RunPlan:
-    """The plan of a launch's options; NoRun with the refusal's one line and exit status;
-    ScenarioError for a bad scenario."""
-    opts = effective_options(options)
+    """The plan of a launch's options on this machine, now, prepared (``decide`` then
+    ``prepare``); NoRun with the refusal's one line and exit status; ScenarioError for a
+    bad scenario."""
+    return prepare(decide(options, Machine.probe()))
+
+
+def decide(options: LaunchOptions, machine: Machine) -> RunPlan:
+    """The plan of a launch's options on ``machine``; NoRun with the refusal's one line and
+    exit status; ScenarioError for a bad scenario. Pure: reads the files the options name,
+    writes nothing (``prepare`` makes the folder, files, port and key)."""
+    opts = effective_options(options, machine)
+    text = None
     if opts.scenario_text is not None:
-        opts = _inline_scenario(opts)
+        opts, text = _inline_scenario(opts, machine)
     assert opts.scenario is not None and opts.run_id is not None
     unused = unused_option(opts, plant(opts.plant))
     if unused is not None:  # before, run and said nothing
         raise NoRun(unused)
     faults = _hosts_faults(opts)
     mode, links = _mode_and_links(opts, hosts=faults is not None)
-    clocks = _clocks(opts, mode)
+    clocks = _clocks(opts, mode, machine)
     try:
-        cfg = make_config(opts.scenario, seed=opts.seed, noise=not opts.no_noise,
+        cfg = make_config(opts.scenario, text=text, seed=opts.seed, noise=not opts.no_noise,
                           delay=not opts.no_delay, trials=opts.trials, law=opts.law,
                           memory=opts.memory, mode=mode, monitored=True,
                           timeout=opts.timeout, recorded=opts.record is not None,
@@ -93,20 +105,20 @@ def build_plan(options: LaunchOptions) -> RunPlan:
     namespace = _namespace(opts)
     sc = cfg.scenario
     _check_scenario(opts, sc)
-    out = _out_folder(opts.out, sc)
+    out = _out_folder(opts.out, sc, machine)
     if opts.resume is None and _is_ground(opts) and (used := used_folder_line(out)):
         raise NoRun(used)  # one run, one folder
     resumed_at = _resumed_at(out, sc) if opts.resume is not None else None
     record = _in_run(opts.record, out)
     root = opts.record_root or record
-    domain = _domain(opts)
+    domain = _domain(opts, machine)
     bridge = _bridge(opts, row)
     physics = (PhysicsOptions.of(opts) if row.physics
                or (bridge is not None and bridge.physics_bases) else None)
     safety = safety_settings(opts, row, sc, namespace, bridge, physics)
     cfg = replace(cfg, safety=safety)
     notes = check_plant(opts, row, sc, namespace, bridge, physics, safety)
-    live = _live(opts)
+    live = _live(opts, machine)
     lineup = Lineup.of(sc.graph, plant=row.name, links=links, record=opts.record is not None,
                        live=live is not None, external=tuple(opts.plant_nodes),
                        **({} if bridge is None else dict(
@@ -114,7 +126,8 @@ def build_plan(options: LaunchOptions) -> RunPlan:
                            fake_drivers=bridge.fake_drivers,
                            physics_bases=bridge.physics_bases)),
                        sensing=None if safety is None else safety.sensing,
-                       clocks=cfg.clock_exchanges)
+                       told=safety is not None and safety.motion == "commands",
+                       leader_in_step=cfg.leader_in_step, clocks=cfg.clock_exchanges)
     plan = RunPlan(
         config=cfg, roster=roster(lineup), nodes=(), out=out, namespace=namespace, domain=domain,
         discovery=opts.discovery, plant=opts.plant, container=opts.container,
@@ -133,21 +146,56 @@ def build_plan(options: LaunchOptions) -> RunPlan:
                                                     sc.seed),
         predicted_clear=any(n.startswith("the batch simulator predicts no contact")
                             for n in notes),
-        key=secrets.token_bytes(KEY_BYTES))
-    return _with_processes(plan, opts)
+        scenario_file=None if text is None else (opts.scenario, text))
+    return _with_processes(plan, opts, machine)
 
 
-def _with_processes(plan: RunPlan, opts: LaunchOptions) -> RunPlan:
+def unmade_folder(machine: Machine) -> Path:
+    """An output folder for a plan that is never prepared (``run-file``, ``keystore
+    create``): a name no run has used, made of ``machine``'s token (relative: nothing
+    is made, nothing read but that it is not there)."""
+    return Path(f".formation-ilc-unmade-{machine.token.hex()}")
+
+
+def prepare(plan: RunPlan) -> RunPlan:
+    """What ``plan`` names, made: its output folder (and a host's own under it), a run
+    file's scenario written there, its live view's port checked free; the plan with its
+    run key (new for each launch). NoRun, in one line, for what cannot be made."""
+    from formation_ilc.store.atomic import atomic_write_text
+
+    try:
+        plan.out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise NoRun(f"--out {plan.out}: cannot create the folder: {exc.strerror}") from None
+    if plan.scenario_file is not None:
+        atomic_write_text(Path(plan.scenario_file[0]), plan.scenario_file[1])
+    if plan.live is not None:
+        _port_free(*plan.live)
+    return replace(plan, key=secrets.token_bytes(KEY_BYTES))
+
+
+def _port_free(host: str, port: int) -> None:
+    """NoRun when ``--live PORT`` cannot be served on ``host``."""
+    import socket
+
+    try:
+        with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as s:
+            s.bind((host, port))
+    except OSError as exc:
+        raise NoRun(f"--live {port}: cannot serve on {host}:{port}: {exc.strerror}") from None
+
+
+def _with_processes(plan: RunPlan, opts: LaunchOptions, machine: Machine) -> RunPlan:
     """``plan`` with its processes, which follow from the rest of the plan, their peers,
     hosts and enclaves."""
     assert opts.scenario is not None
     plan = replace(plan, nodes=node_specs(plan, scenario_reference(opts.scenario)))
-    plan = _with_peers(plan, secure=opts.secure is not None,
+    plan = _with_peers(plan, machine.user_profile, secure=opts.secure is not None,
                        one_host=not (opts.host_members or _robot_hosts(opts))
                        and opts.host is None,
                        dds_profile=opts.dds_profile)
     plan = replace(plan, host_members=placed_members(plan, _hosts(plan, opts)))
-    return _secured(_on_host(plan, opts.host), opts.secure)
+    return _secured(_on_host(plan, opts.host), opts.secure, machine.user_profile)
 
 
 def _check_scenario(opts: LaunchOptions, sc: Scenario) -> None:
@@ -175,16 +223,17 @@ def _namespace(opts: LaunchOptions) -> str:
     return namespace
 
 
-def _domain(opts: LaunchOptions) -> int:
+def _domain(opts: LaunchOptions, machine: Machine) -> int:
     """The run's ROS domain: the option's, the caller's, else a free-looking one; NoRun
     for a host launcher that knows none."""
-    domain = opts.domain_id if opts.domain_id is not None else caller_domain()
+    domain = (opts.domain_id if opts.domain_id is not None
+              else caller_domain(machine.ros_domain_id))
     if domain is None and opts.host is not None:
         # the hosts find each other on the graph: one domain, known to every machine
         raise NoRun("network.domain_id: a run over several machines needs its ROS domain "
                     "on every one: write it in the run file (formation-ilc run-file ... "
                     "--domain-id N) or set ROS_DOMAIN_ID on each machine")
-    return pick_domain() if domain is None else domain
+    return machine.free_domain() if domain is None else domain
 
 
 def _bridge(opts: LaunchOptions, row: Plant) -> BridgeOptions | None:
@@ -223,9 +272,7 @@ def _on_host(plan: RunPlan, host: str | None) -> RunPlan:
         raise NoRun("argument --host: not with --hosts netns (that is one machine's hosts)")
     plan = replace(plan, host=host)
     if not plan.ground:
-        out = plan.out / HOSTS_DIR / host
-        out.mkdir(parents=True, exist_ok=True)
-        plan = replace(plan, out=out, record=None, run_json=None)
+        plan = replace(plan, out=plan.out / HOSTS_DIR / host, record=None, run_json=None)
     mine = set(plan.members_of(host))
     # the other hosts' processes' parameters name their own folder (no leader among them)
     nodes = plan.nodes if plan.ground else node_specs(plan, plan.config.scenario_param)
@@ -319,14 +366,8 @@ def _in_run(path: Path | None, out: Path) -> Path | None:
     return path.resolve()
 
 
-def _user_profile() -> Path | None:
-    """The caller's FASTRTPS_DEFAULT_PROFILES_FILE, or None."""
-    value = os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE")
-    return Path(value) if value else None
-
-
-def _with_peers(plan: RunPlan, secure: bool = False, one_host: bool = True,
-                dds_profile: str | None = None) -> RunPlan:
+def _with_peers(plan: RunPlan, user_profile: Path | None, secure: bool = False,
+                one_host: bool = True, dds_profile: str | None = None) -> RunPlan:
     """``plan`` with a discovery profile when its processes are more than localhost
     discovery reaches on its own (``system.discovery``), and through the launcher's
     discovery server from ``SERVER_FROM`` participants (or with ``--discovery server``) on
@@ -365,7 +406,7 @@ def _with_peers(plan: RunPlan, secure: bool = False, one_host: bool = True,
     if (plan.discovery == "server" and plan.hosts is not None and dds_profile is None
             and plan.hosts.faults.loss == 0.0):
         plan = replace(plan, hosts=replace(plan.hosts, profile="none"))
-    base = plan.hosts.profile_file if plan.hosts is not None else _user_profile()
+    base = plan.hosts.profile_file if plan.hosts is not None else user_profile
     try:
         if plan.discovery == "server":
             server_profile(base, plan.participants)
@@ -382,11 +423,12 @@ def _with_peers(plan: RunPlan, secure: bool = False, one_host: bool = True,
         for s in plan.nodes))
 
 
-def _secured(plan: RunPlan, keystore: Path | str | None) -> RunPlan:
+def _secured(plan: RunPlan, keystore: Path | str | None, user_profile: Path | None
+             ) -> RunPlan:
     """``plan`` with every process in its enclave of ``keystore`` (``--secure``), checked
     before anything starts: NoRun if the keystore or the loaded Fast DDS cannot run it."""
     from formation_ilc.config.plants import SECURE_PLANTS
-    from formation_ilc.plan.secure import prepare
+    from formation_ilc.plan.secure import prepare as secure_run
 
     if keystore is not None and not plan.row.secure:
         raise NoRun(f"--secure: the keystore's permissions cover the plants "
@@ -395,9 +437,9 @@ def _secured(plan: RunPlan, keystore: Path | str | None) -> RunPlan:
     # the handshake retries go into the profile the processes would load anyway: the
     # lossy-links one on netns hosts, else the user's own (with the discovery peers of a
     # large team, which are written next to it: checked here on the user's own)
-    base = plan.hosts.profile_file if plan.hosts is not None else _user_profile()
+    base = plan.hosts.profile_file if plan.hosts is not None else user_profile
     try:
-        sec = prepare(keystore, [_enclave(plan, s.name) for s in plan.nodes], plan.namespace,
+        sec = secure_run(keystore, [_enclave(plan, s.name) for s in plan.nodes], plan.namespace,
                       container=plan.container, profile=plan.out / "fastdds-secure.xml",
                       base_profile=base, launcher=plan.ground,
                       grants=plan.roster.grants(plan.namespace))
@@ -425,28 +467,27 @@ def _enclave(plan: RunPlan, process: str) -> str:
     return plan.roster.enclave_of(process)
 
 
-def _inline_scenario(opts: LaunchOptions) -> LaunchOptions:
-    """``opts`` with its inline scenario written to the run's folder (``scenario.yaml``,
-    what the nodes load) and named by it; ScenarioError for a bad one."""
+def _inline_scenario(opts: LaunchOptions, machine: Machine) -> tuple[LaunchOptions, str]:
+    """``opts`` naming its inline scenario by the file it goes to in the run's folder
+    (``scenario.yaml``, what the nodes load; ``prepare`` writes it), and the text;
+    ScenarioError for a bad one."""
     from formation_ilc.config.scenario import scenario_from_text
-    from formation_ilc.store.atomic import atomic_write_text
 
     text = opts.scenario_text or ""
-    out = _out_folder(opts.out, scenario_from_text(text, "<the run file's scenario>"))
-    atomic_write_text(out / "scenario.yaml", text)
-    return replace(opts, scenario=str(out / "scenario.yaml"), scenario_text=None, out=out)
+    out = _out_folder(opts.out, scenario_from_text(text, "<the run file's scenario>"), machine)
+    return replace(opts, scenario=str(out / "scenario.yaml"), scenario_text=None,
+                   out=out), text
 
 
-def effective_options(opts: LaunchOptions) -> LaunchOptions:
-    """The options a run goes with: a new run id when there is none; NoRun for what no
-    run can have."""
+def effective_options(opts: LaunchOptions, machine: Machine) -> LaunchOptions:
+    """The options a run goes with: a new run id when there is none (``machine``'s); NoRun
+    for what no run can have."""
     if opts.scenario is None and opts.scenario_text is None:
         raise NoRun("a SCENARIO is required (or --resume DIR)")
     if opts.max_restarts < 0:
         raise NoRun("--max-restarts must be >= 0")
     if opts.run_id is None:
-        # a letter first: an all-digit id would reach the leader as an integer parameter
-        return replace(opts, run_id="r" + uuid.uuid4().hex[:12])
+        return replace(opts, run_id=machine.run_id())
     return opts
 
 
@@ -534,13 +575,10 @@ def _hosts(plan: RunPlan, opts: LaunchOptions) -> dict[str, list[str]]:
     return hosts
 
 
-def _out_folder(out: Path | None, sc: Scenario) -> Path:
-    """The output folder (made; absolute): ``out`` or runs/SCENARIO-launch-TIME."""
-    out = out or Path("runs") / f"{sc.name}-launch-{datetime.now():%Y%m%d-%H%M%S}"
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise NoRun(f"--out {out}: cannot create the folder: {exc.strerror}") from None
+def _out_folder(out: Path | None, sc: Scenario, machine: Machine) -> Path:
+    """The output folder (absolute; ``prepare`` makes it): ``out`` or
+    runs/SCENARIO-launch-TIME."""
+    out = out or Path("runs") / f"{sc.name}-launch-{machine.now:%Y%m%d-%H%M%S}"
     return out.resolve()
 
 
@@ -589,7 +627,7 @@ def _run_json(opts: LaunchOptions, mode: str, links: str, out: Path,
     return d
 
 
-def _clocks(opts: LaunchOptions, mode: str) -> ClockSettings:
+def _clocks(opts: LaunchOptions, mode: str, machine: Machine) -> ClockSettings:
     """The run's clock settings (``--clock-offset-ms --clock-drift-ppm --no-clock-sync
     --clock-fallback``); NoRun for emulated clocks in lockstep, where no clock is read."""
     offset = float(opts.clock_offset_ms or 0.0)
@@ -605,31 +643,22 @@ def _clocks(opts: LaunchOptions, mode: str) -> ClockSettings:
                              fallback=opts.clock_fallback,
                              offset_ms=offset, drift_ppm=drift,
                              origin_ns=int(origin) if isinstance(origin, int) and (
-                                 offset or drift) else (time.time_ns() if offset or drift
+                                 offset or drift) else (machine.time_ns if offset or drift
                                                         else 0))
     except ValueError as exc:
         raise NoRun(f"argument --clock-offset-ms/--clock-drift-ppm: {exc}") from None
 
 
-def _live(opts: LaunchOptions) -> tuple[str, int] | None:
-    """``--live [PORT]`` on ``--live-host``: refused (NoRun) without foxglove-sdk or when
-    the port is taken."""
-    import importlib.util
-    import socket
-
+def _live(opts: LaunchOptions, machine: Machine) -> tuple[str, int] | None:
+    """``--live [PORT]`` on ``--live-host``: refused (NoRun) without foxglove-sdk
+    (``prepare`` checks the port is free)."""
     port = opts.live
     if port is None:
         return None
-    if importlib.util.find_spec("foxglove") is None:  # before anything starts, not 3 restarts
+    if not machine.has_foxglove:  # before anything starts, not 3 restarts
         raise NoRun("argument --live: needs foxglove-sdk, the 'live' extra: pip install -c "
                     "requirements.lock -e \".[live]\" (or pip install foxglove-sdk)")
-    host = opts.live_host or "127.0.0.1"
-    try:
-        with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as s:
-            s.bind((host, int(port)))
-    except OSError as exc:
-        raise NoRun(f"--live {port}: cannot serve on {host}:{port}: {exc.strerror}") from None
-    return host, int(port)
+    return opts.live_host or "127.0.0.1", int(port)
 
 
 def _live_rate(opts: LaunchOptions) -> float | None:
@@ -644,25 +673,12 @@ def _live_rate(opts: LaunchOptions) -> float | None:
     return float(rate)
 
 
-def caller_domain() -> int | None:
-    """The caller's ``ROS_DOMAIN_ID`` (the launcher honours it), None when it is not set;
-    NoRun when it is not a domain id."""
-    text = os.environ.get("ROS_DOMAIN_ID", "").strip()
+def caller_domain(text: str | None = None) -> int | None:
+    """The caller's ``ROS_DOMAIN_ID`` (``text``, else this process's; the launcher honours
+    it), None when it is not set; NoRun when it is not a domain id."""
+    text = (os.environ.get("ROS_DOMAIN_ID", "") if text is None else text).strip()
     if not text:
         return None
     if not text.isdigit() or int(text) > 232:
         raise NoRun(f"ROS_DOMAIN_ID={text[:20]!r}: a domain id 0..232 is required")
     return int(text)
-
-
-def pick_domain() -> int:
-    """A ROS_DOMAIN_ID in 30..100, distinct per launcher process. The shared-memory locks
-    of Fast DDS name the domain port, so ids whose port files are held (another run on
-    this machine) are avoided."""
-    base = os.getpid() % 71
-    for off in range(71):
-        d = 30 + (base + off) % 71
-        port = 7400 + 250 * d
-        if not any(Path("/dev/shm").glob(f"fastrtps_port{port}*")):
-            return d
-    return 30 + base

@@ -1,6 +1,6 @@
 """The options of a launched run: one frozen value, every default in one place.
 
-``LaunchOptions`` is what the planner (``formation_ilc.plan.build.build_plan``) reads. It is
+``LaunchOptions`` is what the planner (``formation_ilc.plan.build.decide``) reads. It is
 built from the command line (each option given overrides its field), from a run file (a
 YAML document whose keys ``RUN_KEYS`` maps to fields), from a stored run (the resolved
 ``run.yaml`` a launch writes into its output folder, or a ``run.json`` of launches before

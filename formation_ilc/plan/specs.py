@@ -278,7 +278,7 @@ class RunPlan:
     roster : every member of the run (``config.roster``): the team the leader waits for
         (``nodes_expected``), the processes, the enclaves, the plant's row.
     nodes : the processes, in start order.
-    out : the output folder (absolute; it exists).
+    out : the output folder (absolute; ``prepare`` makes it).
     resumed_at : iterations already learned (``--resume``); None for a new run.
     run_json : the options to keep in ``out/run.yaml`` (None when resuming).
     final_wait : [s] after the last trial, the longest wait for the last reports.
@@ -337,8 +337,12 @@ class RunPlan:
     #: the host this launcher runs (``--host``), or None: every member here
     host: str | None = None
     #: the run key the leader seals its events with (``protocol.schedule.seal``), given to
-    #: every process this launch starts; a new one for each launch, kept nowhere
+    #: every process this launch starts; a new one for each launch (``prepare``'s), kept
+    #: nowhere
     key: bytes | None = None
+    #: a run file's own scenario: (the file the nodes load, in the run's folder; its
+    #: text), which ``prepare`` writes; or None
+    scenario_file: tuple[str, str] | None = None
 
     @property
     def ground(self) -> bool:

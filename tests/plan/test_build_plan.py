@@ -1,6 +1,6 @@
 """The planner from a ``LaunchOptions`` value, with no parser (``plan.build.build_plan``):
-what runs, what is refused. (The planner still makes the run's folder and reads the
-machine; a pure ``decide`` with ``prepare`` doing the effects is issue 55's next step.)"""
+what runs, what is refused (``build_plan``: ``decide`` on this machine, then ``prepare``;
+test_decide.py has what each of the two does)."""
 
 from __future__ import annotations
 

@@ -112,6 +112,19 @@ def node_topics(node, ex, expected: set[tuple[str, str]], deadline: float
     return seen
 
 
+def _run_roster_grants(case: str, tmp_path: Path) -> dict:
+    """The grants of the roster of a GRANT_CASES run, as the planner decides it."""
+    from formation_ilc.plan.build import decide
+    from formation_ilc.plan.machine import Machine
+    from formation_ilc.plan.options import LaunchOptions
+
+    kw = ({"plant": "pioneer", "fake_drivers": True, "no_noise": True} if case == "pioneer"
+          else {"links": case, "record": tmp_path / "run.mcap"})
+    plan = decide(LaunchOptions(scenario="paper-triangle3", trials=100,
+                                out=tmp_path / "planned", **kw), Machine())
+    return plan.roster.grants(plan.namespace)
+
+
 @pytest.mark.parametrize("case", list(GRANT_CASES))
 def test_grants_cover_what_the_nodes_do(ros_env, tmp_path, case):
     """Every topic a node of a real (insecure) run publishes or reads is in its grant: a
@@ -176,6 +189,22 @@ def test_grants_cover_what_the_nodes_do(ros_env, tmp_path, case):
         g = grants[f"{f}/{enclave}"]
         assert pub - housekeeping <= set(g.publish), (name, sorted(pub - set(g.publish)))
         assert sub - housekeeping <= set(g.subscribe), (name, sorted(sub - set(g.subscribe)))
+    # and every robot does what its member of the run's own roster says, no more, no less
+    # (the keystore's grants above cover every run of the scenario: a superset)
+    run = _run_roster_grants(case, tmp_path)
+    differ = {}
+    for (name, _ns), (pub, sub) in seen.items():
+        if not name.startswith("robot_"):
+            continue
+        g = run[f"{f}/{name}"]
+        got = (pub - housekeeping, sub - housekeeping)
+        want = (set(g.publish), set(g.subscribe))
+        if got != want:
+            differ[name] = {"publishes, not in the roster": sorted(got[0] - want[0]),
+                            "in the roster, not published": sorted(want[0] - got[0]),
+                            "reads, not in the roster": sorted(got[1] - want[1]),
+                            "in the roster, not read": sorted(want[1] - got[1])}
+    assert not differ, json.dumps(differ, indent=1)
     # and the check has teeth: the robots do publish their commands, the plant reads them
     plant = ("bridge_2", f) if pioneer else ("robot_sim", f)
     assert f"{f}/robot_2/cmd_vel" in seen[("robot_2", f)][0]
