@@ -62,7 +62,7 @@ def pair_terms(k, r, w, h, x, y, th, discs):
                 r_j = s_j * h.tau_jlo
             else:
                 r_j = s_j * h.tau_jsoon
-            turn_j = abs(ellj) * h.turn_j + h.rot_j
+            turn_j = B.turn_closing(h, ellj, ux, uy, k.l_max)
             b_j = r_j + turn_j
             slack = dd - h.dj - b_i - b_j
             mine = B.share(k.share, a0, ux, uy, h.cj, h.sj)
