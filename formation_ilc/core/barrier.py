@@ -27,7 +27,7 @@ from formation_ilc.core._jit import njit
 
 __all__ = ["PARAMS", "Numbers", "Reach", "Wish", "Chords", "Heard", "numbers", "limits_box",
            "own_reach", "wish_reach", "chords", "heard_motion", "pair_constraints", "share",
-           "planes_room"]
+           "planes_room", "turn_closing"]
 
 #: the order of ``SafetySpec.params()`` (the disc offsets follow)
 PARAMS = ("distance", "discs", "gamma", "radius", "v_max", "omega_max", "a_max",
@@ -44,8 +44,8 @@ _SPLIT = 0.9
 
 
 class Numbers(NamedTuple):
-    """The spec's numbers the pairs read (``SafetySpec.params()``, as Python floats), and
-    the largest disc offset."""
+    """The spec's numbers the pairs read (``SafetySpec.params()``, as Python floats), the
+    largest disc offset, and how far a measured heading can be off (``heading``, rad)."""
 
     dist: float
     n_discs: int
@@ -63,6 +63,7 @@ class Numbers(NamedTuple):
     off1: float
     off2: float
     l_max: float
+    heading: float
 
 
 class Reach(NamedTuple):
@@ -137,7 +138,8 @@ class Chords(NamedTuple):
 
 class Heard(NamedTuple):
     """Another robot, as one sample's pairs need it: where it is taken to be (moved on by its
-    age), the distance its discs keep (D widened), its closing bounds, its heading."""
+    age), the distance its discs keep (D widened), its closing bounds, its heading, the path
+    it brakes along (``path_j``) and how far its heading can be off (``dev_j``, rad)."""
 
     near: bool
     ox: float
@@ -155,6 +157,8 @@ class Heard(NamedTuple):
     e_j: float
     cj: float
     sj: float
+    path_j: float
+    dev_j: float
 
 
 @njit(cache=True)
@@ -240,7 +244,7 @@ def numbers(params: NDArray[np.float64]) -> Numbers:
     return Numbers(float(params[0]), n_discs, float(params[2]), float(params[3]),
                    float(params[6]), float(params[7]), float(params[8]), float(params[9]),
                    float(params[10]), float(params[11]), float(params[13]), float(params[16]),
-                   off0, off1, off2, max(abs(off0), abs(off1), abs(off2)))
+                   off0, off1, off2, max(abs(off0), abs(off1), abs(off2)), float(params[20]))
 
 
 @njit(cache=True)
@@ -333,7 +337,7 @@ def heard_motion(ox: float, oy: float, oth: float, vxj: float, vyj: float, wj: f
     gg = gx * gx + gy * gy
     if gg > k.radius * k.radius:
         return Heard(False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
-                     0.0, 0.0)
+                     0.0, 0.0, 0.0, 0.0)
     a_max, dt, a_b = k.a_max, k.dt, r.a_b
     # robot j: its estimated speed, how wrong it may be, how far it closes in braking
     swj = abs(wj)
@@ -368,14 +372,37 @@ def heard_motion(ox: float, oy: float, oth: float, vxj: float, vyj: float, wj: f
     tau_jsoon = (_receded(v_dn - a_max * dt, dt, a_max, r.t_close) / v_dn
                  if v_dn > a_max * dt else 0.0)
     turn_j = _carry(swj + k.al_max * (lag_j + age), dt, r.al_b)
-    rot_j = (_carry(spj + sig, dt, a_b) + 0.5 * k.l_max * turn_j) * turn_j
+    path_j = _carry(spj + sig, dt, a_b)
+    rot_j = (path_j + 0.5 * k.l_max * turn_j) * turn_j
     e_j = v_up * tau_j + k.l_max * turn_j + rot_j
     # so far apart that no command of the box can meet a barrier
     gap0 = math.sqrt(gg) - 2.0 * k.l_max - dj
     near = not (k.share * (1.0 - _SPLIT) * (gap0 - r.e_i - e_j) >= r.w_i)
     oth += wj * age if ahead else 0.0
+    # its heading as taken here is off by the pose's error, and by what it turned since a
+    # pose ``age`` s old beyond what its motion says (``turn_closing``)
+    dev_j = k.heading + (swj + k.al_max * (lag_j + age)) * age
     return Heard(near, ox, oy, dj, vxj, vyj, sig, v_dn, tau_j, tau_jlo, tau_jsoon, turn_j,
-                 rot_j, e_j, math.cos(oth), math.sin(oth))
+                 rot_j, e_j, math.cos(oth), math.sin(oth), path_j, dev_j)
+
+
+@njit(cache=True)
+def turn_closing(h: Heard, ellj: float, dx: float, dy: float, l_max: float) -> float:
+    """How far [m] robot j's turn while it brakes (at most ``h.turn_j``) can bring its disc at
+    offset ``ellj`` closer to the other along the unit vector (dx, dy) (from j's disc to
+    the other's): its path (``h.path_j`` long) and the disc's offset swing by up to their
+    length x the turn in all, |l (h(phi) - h(0))| <= l phi; along (dx, dy) that is at most
+    l (phi |n . h_perp| + phi^2 / 2 |n . h|) <= l (phi |n . h_perp| + phi^2 / 2): the first
+    order only sideways to its heading (known to within ``h.dev_j``), where a robot that
+    drives along the line between the two moves little (the second order keeps the old
+    bound's l_max phi^2 / 2 besides). The lesser of the two bounds. (Robot 1 ahead of
+    robot 3 in paper-triangle3, turning at 0.2 rad/s, was counted 26-36 mm of closing for
+    a turn that moves it across the line to robot 3, not along it: 1-6 mm.)"""
+    whole = abs(ellj) * h.turn_j + h.rot_j
+    perp = min(1.0, abs(dx * h.sj - dy * h.cj) + h.dev_j)
+    arm = abs(ellj) + h.path_j
+    side = (arm * perp + 0.5 * (arm + l_max) * h.turn_j) * h.turn_j
+    return min(whole, side)
 
 
 @njit(cache=True)
@@ -489,7 +516,7 @@ def _disc_pair(k: Numbers, r: Reach, w: Wish, p: Chords, h: Heard, ell: float, e
         r_j = s_j * h.tau_jlo
     else:
         r_j = s_j * h.tau_jsoon
-    b_j = r_j + abs(ellj) * h.turn_j + h.rot_j
+    b_j = r_j + turn_closing(h, ellj, dx, dy, k.l_max)
     slack = dd - h.dj - b_i - b_j
     infeasible = slack < 0.0
     if infeasible:
