@@ -23,7 +23,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from formation_ilc.core._jit import njit
+from formation_ilc.core._jit import floats, njit
 
 __all__ = ["PARAMS", "Numbers", "Reach", "Wish", "Chords", "Heard", "numbers", "limits_box",
            "own_reach", "wish_reach", "chords", "heard_motion", "pair_constraints", "share",
@@ -245,14 +245,13 @@ def limits_box(v_prev: float, w_prev: float, v_max: float, w_max: float, a_max: 
 def numbers(params: NDArray[np.float64]) -> Numbers:
     """The numbers of ``SafetySpec.params()`` the pairs read, as Python floats (a node runs
     this uncompiled: numpy scalars cost 3x in arithmetic)."""
-    n_discs = int(params[1])
-    off0 = float(params[len(PARAMS)])
-    off1 = float(params[len(PARAMS) + 1]) if n_discs > 1 else 0.0
-    off2 = float(params[len(PARAMS) + 2]) if n_discs > 2 else 0.0
-    return Numbers(float(params[0]), n_discs, float(params[2]), float(params[3]),
-                   float(params[6]), float(params[7]), float(params[8]), float(params[9]),
-                   float(params[10]), float(params[11]), float(params[13]), float(params[16]),
-                   off0, off1, off2, max(abs(off0), abs(off1), abs(off2)))
+    q = floats(params)
+    n_discs = int(q[1])
+    off0 = q[len(PARAMS)]
+    off1 = q[len(PARAMS) + 1] if n_discs > 1 else 0.0
+    off2 = q[len(PARAMS) + 2] if n_discs > 2 else 0.0
+    return Numbers(q[0], n_discs, q[2], q[3], q[6], q[7], q[8], q[9], q[10], q[11], q[13],
+                   q[16], off0, off1, off2, max(abs(off0), abs(off1), abs(off2)))
 
 
 @njit(cache=True)
