@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from formation_ilc.core._jit import njit
+from formation_ilc.core._jit import floats, njit
 from formation_ilc.core.barrier import Numbers, Reach, Wish, _clip
 
 __all__ = ["nearest_to_wish"]
@@ -32,8 +32,9 @@ def nearest_to_wish(k: Numbers, r: Reach, w: Wish, ha0: NDArray[np.float64],
     the box keeps every barrier, the braking command (r.vb, r.wb), and ``flags`` gains
     CHANGED_BARRIER | INFEASIBLE. Returns the flags."""
     c = k.c
-    bx, by, ok = _nearest(w.zx, w.zy, r.v_lo, r.v_hi, c * r.w_lo, c * r.w_hi, ha0, ha1, hb,
-                          m)
+    # the planes read as Python numbers where this runs plain (``_jit.floats``)
+    bx, by, ok = _nearest(w.zx, w.zy, r.v_lo, r.v_hi, c * r.w_lo, c * r.w_hi,
+                          floats(ha0[:m]), floats(ha1[:m]), floats(hb[:m]), m)
     if not ok:  # nothing in the box keeps every barrier (a slack used up): brake
         out[0] = r.vb
         out[1] = r.wb
@@ -77,10 +78,10 @@ def _nearest(zx: float, zy: float, bx0: float, bx1: float, by0: float, by1: floa
              ha0: NDArray[np.float64], ha1: NDArray[np.float64], hb: NDArray[np.float64],
              m: int) -> tuple[float, float, bool]:
     """The nearest point to (zx, zy) of the box [bx0, bx1] x [by0, by1] cut by the first
-    m half-planes ha0 x + ha1 y >= hb, and whether there is one. Most often one barrier
-    binds: the nearest point of the box cut by that one half-plane is the answer when it
-    keeps every other (the feasible set lies inside that cut box); else the box is clipped
-    by every half-plane (exact)."""
+    m half-planes ha0 x + ha1 y >= hb (arrays, or their ``_jit.floats``), and whether there
+    is one. Most often one barrier binds: the nearest point of the box cut by that one
+    half-plane is the answer when it keeps every other (the feasible set lies inside that
+    cut box); else the box is clipped by every half-plane (exact)."""
     bx, by = _clip(zx, bx0, bx1), _clip(zy, by0, by1)
     if _keeps(bx, by, ha0, ha1, hb, m):
         return bx, by, True
@@ -89,8 +90,7 @@ def _nearest(zx: float, zy: float, bx0: float, bx1: float, by0: float, by1: floa
     box_x = np.array([bx0, bx1, bx1, bx0])
     box_y = np.array([by0, by0, by1, by1])
     for k in range(m):
-        # Python floats: interpreted (the nodes), arithmetic on numpy scalars costs 3x
-        a0, a1, b = float(ha0[k]), float(ha1[k]), float(hb[k])
+        a0, a1, b = ha0[k], ha1[k], hb[k]
         if a0 * zx + a1 * zy >= b - _TOL:
             continue  # z keeps this one: it cannot be the one that binds alone
         n = _clip_polygon(box_x, box_y, 4, a0, a1, b, qx4, qy4)
@@ -119,10 +119,10 @@ def _nearest(zx: float, zy: float, bx0: float, bx1: float, by0: float, by1: floa
 @njit(cache=True)
 def _keeps(x: float, y: float, ha0: NDArray[np.float64], ha1: NDArray[np.float64],
            hb: NDArray[np.float64], m: int) -> bool:
-    """Whether (x, y) keeps every half-plane ha0 x + ha1 y >= hb of the first m."""
-    x, y = float(x), float(y)
+    """Whether (x, y) keeps every half-plane ha0 x + ha1 y >= hb of the first m (arrays, or
+    their ``_jit.floats``)."""
     for k in range(m):
-        if float(ha0[k]) * x + float(ha1[k]) * y < float(hb[k]) - 1e-9:
+        if ha0[k] * x + ha1[k] * y < hb[k] - 1e-9:
             return False
     return True
 
