@@ -112,9 +112,10 @@ class Wish(NamedTuple):
 
 
 class Chords(NamedTuple):
-    """What every half-plane of a sample reads, in one tuple (``_add_planes`` unpacks it at
-    once): the chords of f and g over the box (slope, offset, errors above and below),
-    which lines of the max the box reaches, the box in scaled coordinates, the wish."""
+    """What every half-plane of a sample reads, in one tuple (``pair_constraints`` reads it
+    into locals once a robot): the chords of f and g over the box (slope, offset, errors
+    above and below), which lines of the max the box reaches, the box in scaled coordinates,
+    the wish."""
 
     kv: float
     v_off: float
