@@ -3,6 +3,8 @@
 
     .venv/bin/python scripts/bench_safety.py [--robots 6] [--repeat 3] [--physics-trials 1]
 
+(``--physics-trials 0`` leaves out section 2.)
+
 1. The filter of one robot with ``--robots - 1`` others in range (every other robot within
    its sensing radius, in a formation 1.5 m apart, as in a hexagon of P3-DX-size robots;
    half the samples with the barrier binding): microseconds per call of
@@ -145,22 +147,10 @@ def main() -> int:
           f"{'MET' if py <= TARGET_US else 'MISSED'} (ratio {py / TARGET_US:.2f})")
     print(f"   a robot's whole step, plain Python {step:8.1f} us   target {TARGET_US:.0f} us: "
           f"{'MET' if step <= TARGET_US else 'MISSED'} (ratio {step / TARGET_US:.2f})")
+    print(f"   (load average {os.getloadavg()[0]:.1f} after the plain-Python runs)")
 
-    print(f"\n2. the physics plant, 6 P3-DX-size robots through the filter "
-          f"({args.physics_trials} trial(s) of {HEXAGON.name}):")
-    from formation_ilc.config.scenario import load_scenario
-
-    sc = load_scenario(str(HEXAGON)).with_options(noise=False, delay=False)
-    spec = spec_for(m.footprint, m.limits, sc.dt)
-    cpu0, t0 = time.process_time(), time.perf_counter()
-    res = run_physics(sc, m, args.physics_trials, safety=spec)
-    cpu, wall = time.process_time() - cpu0, time.perf_counter() - t0
-    sim_s = res.samples * sc.dt
-    print(f"   {res.samples / res.seconds:.1f} samples/s in the loop, real time x "
-          f"{sim_s / res.seconds:.2f} (wall), x {sim_s / cpu:.2f} per CPU second "
-          f"({wall:.1f} s wall, {cpu:.1f} s CPU); faster than real time: "
-          f"{'MET' if sim_s / res.seconds > 1 else 'MISSED'}")
-
+    if args.physics_trials > 0:
+        physics(args.physics_trials, m)
     print("\n3. hearing the team, messages per sample (deliveries):")
     print(f"   {'robots':>6} {'team/poses':>11} {'peers':>7} {'bytes, team':>12}")
     for n in (6, 24, 50):
@@ -168,6 +158,23 @@ def main() -> int:
         print(f"   {n:6d} {n:11d} {n * (n - 1):7d} {n * n * 60:12d}")
     return 0
 
+
+def physics(trials: int, m) -> None:
+    """Section 2: ``trials`` trials of the hexagon on the physics plant, model ``m``."""
+    print(f"\n2. the physics plant, 6 P3-DX-size robots through the filter "
+          f"({trials} trial(s) of {HEXAGON.name}):")
+    from formation_ilc.config.scenario import load_scenario
+
+    sc = load_scenario(str(HEXAGON)).with_options(noise=False, delay=False)
+    spec = spec_for(m.footprint, m.limits, sc.dt)
+    cpu0, t0 = time.process_time(), time.perf_counter()
+    res = run_physics(sc, m, trials, safety=spec)
+    cpu, wall = time.process_time() - cpu0, time.perf_counter() - t0
+    sim_s = res.samples * sc.dt
+    print(f"   {res.samples / res.seconds:.1f} samples/s in the loop, real time x "
+          f"{sim_s / res.seconds:.2f} (wall), x {sim_s / cpu:.2f} per CPU second "
+          f"({wall:.1f} s wall, {cpu:.1f} s CPU); faster than real time: "
+          f"{'MET' if sim_s / res.seconds > 1 else 'MISSED'}")
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -12,7 +12,7 @@ the desired command (held a sample, then braked) split into its hold (a0 v dT), 
 braking and its turn, B_i (robot i braking now), B_j (robot j braking now: its straight
 part, then its turn's), the slack g - B_i - B_j, robot i's share of it, and the deficit
 X_n - (B_i + share x slack) (> 0: the barrier cuts the desired command). The terms are
-``core.barrier._disc_pair``'s, recomputed here in the open (keep the two alike).
+``core.barrier.pair_constraints``'s, recomputed here in the open (keep the two alike).
 """
 
 from __future__ import annotations

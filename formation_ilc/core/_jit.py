@@ -61,7 +61,7 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["njit", "Compiled", "numba_init", "kernels", "cache_dir", "source_hash",
-           "PRUNE_AGE_S"]
+           "PRUNE_AGE_S", "floats"]
 
 PACKAGE = Path(__file__).resolve().parents[1]  # the whole formation_ilc package
 #: seconds a cache directory of other sources is kept after its last use
@@ -226,12 +226,27 @@ def _register(fn: Any) -> None:
     infer_global(fn, types.Dispatcher(fn.jit.dispatcher))
 
 
+def floats(a: Any) -> Any:
+    """The numbers of the array ``a`` for a kernel to read: Python numbers (``a.tolist()``)
+    where the kernel runs as plain Python (a node), the array itself in compiled code (numba
+    compiles no ``tolist``, and reads an array's elements at no cost). Plain Python pays
+    about 0.2 us to read one element of an array and 3x for sums of numpy scalars; a row of
+    a list costs a tenth of that. Index it only (``floats(a)[j][0]``, ``len``): the two forms
+    agree on that, not on slices or writes."""
+    return a.tolist()
+
+
 def numba_init() -> None:
     """Register every kernel with numba, so that compiled code can call it by its plain
-    name. numba calls this before it compiles anything (the package's ``numba_extensions``
-    entry point), and so does the first use of any ``kernel.jit``; a kernel decorated later
-    is registered when it is decorated. Idempotent."""
+    name, and :func:`floats`' compiled form. numba calls this before it compiles anything
+    (the package's ``numba_extensions`` entry point), and so does the first use of any
+    ``kernel.jit``; a kernel decorated later is registered when it is decorated.
+    Idempotent."""
     global _numba_ready
+    if not _numba_ready:
+        from numba.extending import overload
+
+        overload(floats)(lambda a: lambda a: a)
     _numba_ready = True
     for fn in list(_KERNELS):
         _register(fn)

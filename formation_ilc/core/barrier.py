@@ -23,7 +23,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from formation_ilc.core._jit import njit
+from formation_ilc.core._jit import floats, njit
 
 __all__ = ["PARAMS", "Numbers", "Reach", "Wish", "Chords", "Heard", "numbers", "limits_box",
            "own_reach", "wish_reach", "chords", "heard_motion", "pair_constraints", "share",
@@ -113,9 +113,10 @@ class Wish(NamedTuple):
 
 
 class Chords(NamedTuple):
-    """What every half-plane of a sample reads, in one tuple (``_add_planes`` unpacks it at
-    once): the chords of f and g over the box (slope, offset, errors above and below),
-    which lines of the max the box reaches, the box in scaled coordinates, the wish."""
+    """What every half-plane of a sample reads, in one tuple (``pair_constraints`` reads it
+    into locals once a robot): the chords of f and g over the box (slope, offset, errors
+    above and below), which lines of the max the box reaches, the box in scaled coordinates,
+    the wish."""
 
     kv: float
     v_off: float
@@ -139,7 +140,19 @@ class Chords(NamedTuple):
 class Heard(NamedTuple):
     """Another robot, as one sample's pairs need it: where it is taken to be (moved on by its
     age), the distance its discs keep (D widened), its closing bounds, its heading, the path
-    it brakes along (``path_j``) and how far its heading can be off (``dev_j``, rad)."""
+    it brakes along (``path_j``) and how far its heading can be off (``dev_j``, rad).
+
+    Robot j's closing towards robot i (``pair_constraints``, per pair of discs): its
+    tracked point's closing speed s_j, taken ``sig`` faster than it looks, over its braking
+    time (``tau_j``). The disc's swing is not a speed that lasts that long: the turn stops
+    within its own braking, and the swing it makes is at most |ellj| turn_j. Counted as a
+    speed, a swing away from robot i was credited for the whole of a straight braking: two
+    Pioneers returning side by side closed 2.3 cm past D. Robot j recedes (s_j < 0) while
+    robot i may close in: the sum of their closings peaks at the end of both brakings only
+    if robot i's closing slows no faster than robot j's receding does (i's closing factor x
+    its deceleration at most j's: ``tau_jlo``); else it can peak while robot j still
+    recedes, and j is credited only up to t_close (``tau_jsoon``; a fuzz of pairs side by
+    side found 6 mm past D at dT 0.2 s with the whole credit)."""
 
     near: bool
     ox: float
@@ -237,14 +250,13 @@ def limits_box(v_prev: float, w_prev: float, v_max: float, w_max: float, a_max: 
 def numbers(params: NDArray[np.float64]) -> Numbers:
     """The numbers of ``SafetySpec.params()`` the pairs read, as Python floats (a node runs
     this uncompiled: numpy scalars cost 3x in arithmetic)."""
-    n_discs = int(params[1])
-    off0 = float(params[len(PARAMS)])
-    off1 = float(params[len(PARAMS) + 1]) if n_discs > 1 else 0.0
-    off2 = float(params[len(PARAMS) + 2]) if n_discs > 2 else 0.0
-    return Numbers(float(params[0]), n_discs, float(params[2]), float(params[3]),
-                   float(params[6]), float(params[7]), float(params[8]), float(params[9]),
-                   float(params[10]), float(params[11]), float(params[13]), float(params[16]),
-                   off0, off1, off2, max(abs(off0), abs(off1), abs(off2)), float(params[20]))
+    q = floats(params)
+    n_discs = int(q[1])
+    off0 = q[len(PARAMS)]
+    off1 = q[len(PARAMS) + 1] if n_discs > 1 else 0.0
+    off2 = q[len(PARAMS) + 2] if n_discs > 2 else 0.0
+    return Numbers(q[0], n_discs, q[2], q[3], q[6], q[7], q[8], q[9], q[10], q[11], q[13],
+                   q[16], off0, off1, off2, max(abs(off0), abs(off1), abs(off2)), q[20])
 
 
 @njit(cache=True)
@@ -366,7 +378,7 @@ def heard_motion(ox: float, oy: float, oth: float, vxj: float, vyj: float, wj: f
     tau_j = _carry(v_up - a_max * dt, dt, a_b) / v_up if v_up > a_max * dt else 0.0
     # a receding robot, credited for all it recedes by the end of its braking (tau_jlo)
     # or only for what it recedes by the time robot i can have closed in all it may
-    # (tau_jsoon, at t_close): see ``pair_constraints``
+    # (tau_jsoon, at t_close): see :class:`Heard`
     tau_jlo = (_carry(v_dn - a_max * dt, dt, a_max) / v_dn if v_dn > a_max * dt
                else 0.0)
     tau_jsoon = (_receded(v_dn - a_max * dt, dt, a_max, r.t_close) / v_dn
@@ -431,17 +443,21 @@ def pair_constraints(k: Numbers, r: Reach, w: Wish, p: Chords, h: Heard, x: floa
     invariant with robot ``h``, per pair of discs, added from row m on (only where the box
     does not keep one whole). Returns the new row count, whether one cuts the wish off (a
     barrier moves the command), and whether a pair's slack was already negative (outside
-    the guarantee). Arrays are written here only: the kernels it calls take none (a
-    compiled call that passes an array pays for its reference count)."""
+    the guarantee). A pair of discs: this robot's at offset ``ell``, robot j's at ``ellj``,
+    (dx, dy) the unit vector from j's to this one's, ``dd`` apart; robot i keeps X_i(u) <=
+    room = B_i + its share of the pair's slack (:func:`share`), h0 v + max(sp G, sm G) <=
+    base with the chords: a half-plane per line of the max (slope sp or sm) the box reaches."""
     barrier = False
     infeasible = False
     # what every pair reads, as locals (a node runs this uncompiled: a named tuple's
-    # field costs a lookup each time)
-    kw, c, g_off, ew_up, ew_dn = p.kw, p.c, p.g_off, p.ew_up, p.ew_dn
+    # field costs a lookup each time, and a call per pair of discs more than its sums)
+    kw, c, g_off, ew_up, ew_dn, kv, v_off = p.kw, p.c, p.g_off, p.ew_up, p.ew_dn, p.kv, p.v_off
     bx0, bx1, by0, by1, zx, zy = p.bx0, p.bx1, p.by0, p.by1, p.zx, p.zy
-    lines_p, lines_m, e_i, w_i = p.lines_p, p.lines_m, r.e_i, r.w_i
+    lines_p, lines_m, ev_up, ev_dn, e_i, w_i = p.lines_p, p.lines_m, p.ev_up, p.ev_dn, r.e_i, r.w_i
+    path_i, q_i, f_b, g_b, a_b, a_max = r.path_i, r.q_i, r.f_b, r.g_b, r.a_b, k.a_max
     n_discs, gamma, off0, off1, off2 = k.n_discs, k.share, k.off0, k.off1, k.off2
-    ox, oy, dj, e_j, cj, sj = h.ox, h.oy, h.dj, h.e_j, h.cj, h.sj
+    ox, oy, dj, e_j, cj, sj, sig = h.ox, h.oy, h.dj, h.e_j, h.cj, h.sj, h.sig
+    vxj, vyj, v_dn, tau_j, l_max = h.vxj, h.vyj, h.v_dn, h.tau_j, k.l_max
     for a in range(n_discs):
         ell = off0 if a == 0 else (off1 if a == 1 else off2)
         sx, sy = x + ell * cth - ox, y + ell * sth - oy
@@ -453,22 +469,47 @@ def pair_constraints(k: Numbers, r: Reach, w: Wish, p: Chords, h: Heard, x: floa
                 continue
             if gamma * (1.0 - _SPLIT) * (dd - dj - e_i - e_j) >= w_i:
                 continue  # this pair of discs is too far apart to matter
-            h0, base, sp, sm, keeps, bad = _disc_pair(k, r, w, p, h, ell, ellj, dx / dd,
-                                                      dy / dd, dd, cth, sth)
-            infeasible = infeasible or bad
-            # X_i(u) <= room as h0 v + h1 (c w) <= lim: a half-plane per line of the max
-            # (slope sp or sm) that the box reaches
+            dx, dy = dx / dd, dy / dd
+            # robot i's closing displacement X_i(u) <= a0 F(v) + |a0| ev + max(sp G, sm G)
+            # + max(|sp|, |sm|) ew: its disc moves along M(th, ell) = [[cos, -ell sin],
+            # [sin, ell cos]], a0 = -n^T M e_v, a1c = -n^T M e_w = ell b
+            a0 = -(dx * cth + dy * sth)
+            bside = dx * sth - dy * cth
+            a1c = ell * bside
+            sp = a1c + (path_i * bside if bside > 0.0 else 0.0) + q_i
+            sm = a1c + (path_i * bside if bside < 0.0 else 0.0) - q_i
+            # braking now (vb, wb) closes in by b_i, as f and g give it (the chords of a
+            # command may lie above: at a slack of 0 braking may be all that is left)
+            b_i = a0 * f_b + (sp * g_b if g_b >= 0.0 else sm * g_b)
+            # robot j's closing: its speed towards i over its braking time, its disc's
+            # swing (:class:`Heard` has why)
+            s_j = dx * vxj + dy * vyj + sig
+            if s_j >= 0.0:
+                r_j = s_j * tau_j
+            elif v_dn > 0.0 and a0 * a_b * v_dn <= -s_j * a_max:
+                r_j = s_j * h.tau_jlo
+            else:
+                r_j = s_j * h.tau_jsoon
+            b_j = r_j + turn_closing(h, ellj, dx, dy, l_max)
+            slack = dd - dj - b_i - b_j
+            if slack < 0.0:
+                infeasible = True
+                slack = 0.0
+            room = b_i + share(gamma, a0, dx, dy, cj, sj) * slack
+            # X_i(u) <= room, as h0 v + (a line of the max) <= base
+            h0 = a0 * kv
+            base = room - a0 * v_off - (a0 * ev_up if a0 >= 0.0 else -a0 * ev_dn)
+            top0 = h0 * bx1 if h0 >= 0.0 else h0 * bx0
             for li in range(2):
-                if (li == 0 and not lines_p) or (li == 1 and not lines_m):
+                if not (lines_p if li == 0 else lines_m):
                     continue
                 slope = sp if li == 0 else sm
                 h1 = slope * kw / c
                 lim = base - slope * g_off - (slope * ew_up if slope >= 0.0 else -slope * ew_dn)
                 # the largest h0 v + h1 (c w) over the box, at one of its corners
-                if ((h0 * bx1 if h0 >= 0.0 else h0 * bx0)
-                        + (h1 * by1 if h1 >= 0.0 else h1 * by0)) <= lim:
+                if top0 + (h1 * by1 if h1 >= 0.0 else h1 * by0) <= lim:
                     continue  # holds over the whole box
-                if not keeps and h0 * zx + h1 * zy > lim + _TOL:
+                if h0 * zx + h1 * zy > lim + _TOL and not _wish_keeps(w, a0, a1c, bside, room):
                     barrier = True
                 ha0[m] = -h0
                 ha1[m] = -h1
@@ -478,64 +519,18 @@ def pair_constraints(k: Numbers, r: Reach, w: Wish, p: Chords, h: Heard, x: floa
 
 
 @njit(cache=True)
-def _disc_pair(k: Numbers, r: Reach, w: Wish, p: Chords, h: Heard, ell: float, ellj: float,
-               dx: float, dy: float, dd: float, cth: float,
-               sth: float) -> tuple[float, float, float, float, bool, bool]:
-    """One pair of discs (this robot's at offset ``ell``, robot j's at ``ellj``, the unit
-    vector (dx, dy) from j's to this one's, ``dd`` apart). Robot i keeps X_i(u) <= room,
-    room = B_i + its share of the pair's slack; returns that as h0 v + max(sp G, sm G)
-    <= base with the chords (h0, base, sp, sm), whether the wish keeps its own bound, and
-    whether the pair's slack was negative."""
-    # robot i's closing displacement X_i(u) <= a0 F(v) + |a0| ev + max(sp G, sm G) +
-    # max(|sp|, |sm|) ew: its disc moves along M(th, ell) = [[cos, -ell sin], [sin,
-    # ell cos]], a0 = -n^T M e_v, a1c = -n^T M e_w = ell b
-    path_i, q_i, f_b, g_b = r.path_i, r.q_i, r.f_b, r.g_b
-    a0 = -(dx * cth + dy * sth)
-    bside = dx * sth - dy * cth
-    a1c = ell * bside
-    sp = a1c + (path_i * bside if bside > 0.0 else 0.0) + q_i
-    sm = a1c + (path_i * bside if bside < 0.0 else 0.0) - q_i
-    # braking now (vb, wb) closes in by b_i, as f and g give it (the chords of a command
-    # may lie above: at a slack of 0 braking may be all that is left, and the robot brakes)
-    b_i = a0 * f_b + (sp * g_b if g_b >= 0.0 else sm * g_b)
-    # robot j's closing speed towards i: its tracked point's, taken ``sig`` faster than
-    # it looks, over its braking time. The disc's swing is not a speed that lasts that
-    # long: the turn stops within its own braking, and the swing it makes is at most
-    # |ellj| turn_j (below). Counted as a speed, a swing away from robot i was credited
-    # for the whole of a straight braking: two Pioneers returning side by side closed
-    # 2.3 cm past D
-    s_j = dx * h.vxj + dy * h.vyj + h.sig
-    # Robot j recedes (s_j < 0) while robot i may close in: the sum of their closings
-    # peaks at the end of both brakings only if robot i's closing slows no faster than
-    # robot j's receding does (i's closing factor x its deceleration at most j's); else it
-    # can peak while robot j still recedes, and j is credited only up to t_close (a fuzz of
-    # pairs side by side found 6 mm past D at dT 0.2 s with the whole credit)
-    if s_j >= 0.0:
-        r_j = s_j * h.tau_j
-    elif h.v_dn > 0.0 and a0 * r.a_b * h.v_dn <= -s_j * k.a_max:
-        r_j = s_j * h.tau_jlo
-    else:
-        r_j = s_j * h.tau_jsoon
-    b_j = r_j + turn_closing(h, ellj, dx, dy, k.l_max)
-    slack = dd - h.dj - b_i - b_j
-    infeasible = slack < 0.0
-    if infeasible:
-        slack = 0.0
-    mine = share(k.share, a0, dx, dy, h.cj, h.sj)
-    # the learned command's own closing, bounded as above but with its own path and turn
-    # in place of the box's largest: the chords below, which make the feasible set a
-    # polygon, hold for every command of the box and lie above it. A learned command that
-    # keeps its own bound keeps the invariant, and passes (the paper's triangle on
-    # Pioneers: its desired motion kept it where the chords were off by 2-3 mm)
-    room = b_i + mine * slack
-    keeps = False
-    if w.judge:
-        bend = w.path_n * bside
-        g_n, q_n = w.g_n, w.q_n
-        x_n = a0 * w.f_n + (
-            (a1c + (bend if bside > 0.0 else 0.0) + q_n) * g_n if g_n >= 0.0
-            else (a1c + (bend if bside < 0.0 else 0.0) - q_n) * g_n)
-        keeps = x_n <= room + _TOL
-    # X_i(u) <= room, as h0 v + (a line of the max) <= base (``pair_constraints``)
-    return (a0 * p.kv, room - a0 * p.v_off - (a0 * p.ev_up if a0 >= 0.0 else -a0 * p.ev_dn),
-            sp, sm, keeps, infeasible)
+def _wish_keeps(w: Wish, a0: float, a1c: float, bside: float, room: float) -> bool:
+    """Whether the learned command keeps a pair of discs' X_i(u) <= room by its own bound
+    (``pair_constraints``): its closing bounded as the box's commands are, but with its own
+    path and turn in place of the box's largest. The chords, which make the feasible set a
+    polygon, hold for every command of the box and lie above it; a learned command that
+    keeps its own bound keeps the invariant, and passes (the paper's triangle on Pioneers:
+    its desired motion kept it where the chords were off by 2-3 mm)."""
+    if not w.judge:
+        return False
+    bend = w.path_n * bside
+    g_n, q_n = w.g_n, w.q_n
+    x_n = a0 * w.f_n + (
+        (a1c + (bend if bside > 0.0 else 0.0) + q_n) * g_n if g_n >= 0.0
+        else (a1c + (bend if bside < 0.0 else 0.0) - q_n) * g_n)
+    return x_n <= room + _TOL

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from formation_ilc.core._jit import njit
+from formation_ilc.core._jit import floats, njit
 from formation_ilc.core.barrier import Numbers, Reach, Wish, _clip
 
 __all__ = ["nearest_to_wish"]
@@ -32,8 +32,9 @@ def nearest_to_wish(k: Numbers, r: Reach, w: Wish, ha0: NDArray[np.float64],
     the box keeps every barrier, the braking command (r.vb, r.wb), and ``flags`` gains
     CHANGED_BARRIER | INFEASIBLE. Returns the flags."""
     c = k.c
-    bx, by, ok = _nearest(w.zx, w.zy, r.v_lo, r.v_hi, c * r.w_lo, c * r.w_hi, ha0, ha1, hb,
-                          m)
+    # the planes read as Python numbers where this runs plain (``_jit.floats``)
+    bx, by, ok = _nearest(w.zx, w.zy, r.v_lo, r.v_hi, c * r.w_lo, c * r.w_hi,
+                          floats(ha0[:m]), floats(ha1[:m]), floats(hb[:m]), m)
     if not ok:  # nothing in the box keeps every barrier (a slack used up): brake
         out[0] = r.vb
         out[1] = r.wb
@@ -50,12 +51,15 @@ def _clip_polygon(px: NDArray[np.float64], py: NDArray[np.float64], n: int, a0: 
     """The convex polygon (px, py)[:n] cut by the half-plane a0 x + a1 y >= b, into
     (qx, qy); returns its vertex count (0: empty)."""
     m = 0
-    # Python floats: interpreted (the nodes), arithmetic on numpy scalars costs 3x
+    # Python floats: interpreted (the nodes), arithmetic on numpy scalars costs 3x; each
+    # vertex read once (the edge from vertex k to k + 1 starts where the one before ended)
     a0, a1, b = float(a0), float(a1), float(b)
+    fx, fy = float(px[0]), float(py[0])
+    x1, y1 = fx, fy
+    s1 = a0 * x1 + a1 * y1 - b
     for k in range(n):
-        x0, y0 = float(px[k]), float(py[k])
-        x1, y1 = float(px[(k + 1) % n]), float(py[(k + 1) % n])
-        s0 = a0 * x0 + a1 * y0 - b
+        x0, y0, s0 = x1, y1, s1
+        x1, y1 = (float(px[k + 1]), float(py[k + 1])) if k + 1 < n else (fx, fy)
         s1 = a0 * x1 + a1 * y1 - b
         if s0 >= 0.0:
             qx[m] = x0
@@ -74,10 +78,10 @@ def _nearest(zx: float, zy: float, bx0: float, bx1: float, by0: float, by1: floa
              ha0: NDArray[np.float64], ha1: NDArray[np.float64], hb: NDArray[np.float64],
              m: int) -> tuple[float, float, bool]:
     """The nearest point to (zx, zy) of the box [bx0, bx1] x [by0, by1] cut by the first
-    m half-planes ha0 x + ha1 y >= hb, and whether there is one. Most often one barrier
-    binds: the nearest point of the box cut by that one half-plane is the answer when it
-    keeps every other (the feasible set lies inside that cut box); else the box is clipped
-    by every half-plane (exact)."""
+    m half-planes ha0 x + ha1 y >= hb (arrays, or their ``_jit.floats``), and whether there
+    is one. Most often one barrier binds: the nearest point of the box cut by that one
+    half-plane is the answer when it keeps every other (the feasible set lies inside that
+    cut box); else the box is clipped by every half-plane (exact)."""
     bx, by = _clip(zx, bx0, bx1), _clip(zy, by0, by1)
     if _keeps(bx, by, ha0, ha1, hb, m):
         return bx, by, True
@@ -86,9 +90,10 @@ def _nearest(zx: float, zy: float, bx0: float, bx1: float, by0: float, by1: floa
     box_x = np.array([bx0, bx1, bx1, bx0])
     box_y = np.array([by0, by0, by1, by1])
     for k in range(m):
-        if ha0[k] * zx + ha1[k] * zy >= hb[k] - _TOL:
+        a0, a1, b = ha0[k], ha1[k], hb[k]
+        if a0 * zx + a1 * zy >= b - _TOL:
             continue  # z keeps this one: it cannot be the one that binds alone
-        n = _clip_polygon(box_x, box_y, 4, ha0[k], ha1[k], hb[k], qx4, qy4)
+        n = _clip_polygon(box_x, box_y, 4, a0, a1, b, qx4, qy4)
         if n == 0:
             continue
         cx, cy = _nearest_on_polygon(qx4, qy4, n, zx, zy)
@@ -114,10 +119,10 @@ def _nearest(zx: float, zy: float, bx0: float, bx1: float, by0: float, by1: floa
 @njit(cache=True)
 def _keeps(x: float, y: float, ha0: NDArray[np.float64], ha1: NDArray[np.float64],
            hb: NDArray[np.float64], m: int) -> bool:
-    """Whether (x, y) keeps every half-plane ha0 x + ha1 y >= hb of the first m."""
-    x, y = float(x), float(y)
+    """Whether (x, y) keeps every half-plane ha0 x + ha1 y >= hb of the first m (arrays, or
+    their ``_jit.floats``)."""
     for k in range(m):
-        if float(ha0[k]) * x + float(ha1[k]) * y < float(hb[k]) - 1e-9:
+        if ha0[k] * x + ha1[k] * y < hb[k] - 1e-9:
             return False
     return True
 
@@ -129,9 +134,12 @@ def _nearest_on_polygon(px: NDArray[np.float64], py: NDArray[np.float64], n: int
     best = np.inf
     zx, zy = float(zx), float(zy)
     bx, by = zx, zy
-    for k in range(n):
-        x0, y0 = float(px[k]), float(py[k])
-        ex, ey = float(px[(k + 1) % n]) - x0, float(py[(k + 1) % n]) - y0
+    fx, fy = float(px[0]), float(py[0])
+    x1, y1 = fx, fy
+    for k in range(n):  # each vertex read once, as in ``_clip_polygon``
+        x0, y0 = x1, y1
+        x1, y1 = (float(px[k + 1]), float(py[k + 1])) if k + 1 < n else (fx, fy)
+        ex, ey = x1 - x0, y1 - y0
         ee = ex * ex + ey * ey
         f = 0.0 if ee <= 0.0 else _clip(((zx - x0) * ex + (zy - y0) * ey) / ee, 0.0, 1.0)
         cx, cy = x0 + f * ex, y0 + f * ey

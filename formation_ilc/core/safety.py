@@ -52,7 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from formation_ilc.core._jit import njit
+from formation_ilc.core._jit import floats, njit
 from formation_ilc.core.barrier import (
     PARAMS,
     chords,
@@ -239,12 +239,12 @@ def filter_command(v_n: float, w_n: float, x: float, y: float, th: float, v_prev
     barrier = False
     infeasible = False
     cth, sth = math.cos(float(th)), math.sin(float(th))
+    heard, heard_ages = floats(others[:count]), floats(ages[:count])
     for j in range(count):
         # robot j: its pose, motion (told or estimated), the pair's position error, age
-        h = heard_motion(float(others[j, 0]), float(others[j, 1]), float(others[j, 2]),
-                         float(others[j, 3]), float(others[j, 4]), float(others[j, 5]),
-                         float(others[j, 6]) > 0.0, float(others[j, 7]), float(ages[j]), x,
-                         y, k, r)
+        o = heard[j]
+        h = heard_motion(o[0], o[1], o[2], o[3], o[4], o[5], o[6] > 0.0, o[7], heard_ages[j],
+                         x, y, k, r)
         if h.near:
             m, bar, bad = pair_constraints(k, r, w, p, h, x, y, cth, sth, ha0, ha1, hb, m)
             barrier = barrier or bar

@@ -78,6 +78,7 @@ class TeamHearing:
         self.box_s = np.full(n, -1, dtype=np.int64)
         self.box_missed = 0
         self._other_idx = np.array([j for j in range(n) if j != index], dtype=np.int64)
+        self._other_list = [j for j in range(n) if j != index]
         #: the commands the filter changed in the last trial finished, and in all
         self.filtered: dict[str, int] = {}
         self.filtered_total = Counter({"changed": 0, "limits": 0, "barrier": 0,
@@ -197,9 +198,10 @@ class TeamHearing:
         sp = self.safety
         assert sp is not None
         m = self._heard(t, sp.window) if self.team_k == self.k else 0
-        prev = self.applied[0, t - 1] if t > 0 else (0.0, 0.0)
-        own = self.eta[0, t]
-        x, y = float(own[0]), float(own[1])
+        # Python numbers (``tolist``): each element read of an array costs ~0.2 us
+        v_prev, w_prev = self.applied[0, t - 1].tolist() if t > 0 else (0.0, 0.0)
+        x, y, th = self.eta[0, t].tolist()
+        v_n, w_n = self.u[0].tolist()
         if sp.commands:
             x, y = self._own_box(t)
             if m:  # the pair's positions off together: robot j's box and this robot's own
@@ -208,12 +210,10 @@ class TeamHearing:
         if m >= NEAR_FROM:
             m = self._near(m, x, y)
         self.nominal[0, t] = self.u[0]
-        self.flags[0, t] = filter_command(
-            float(self.u[0, 0]), float(self.u[0, 1]), x, y,
-            float(own[2]), float(prev[0]), float(prev[1]), self.others, self.ages, m,
-            self.safety_params, self.out)
+        self.flags[0, t] = filter_command(v_n, w_n, x, y, th, v_prev, w_prev, self.others,
+                                          self.ages, m, self.safety_params, self.out)
         if m:
-            self.pose_age[t] = float(self.ages[:m].max())
+            self.pose_age[t] = max(self.ages[:m].tolist())
             if sp.commands:
                 self.untold[t] = int(np.count_nonzero(self.others[:m, 6] == 0.0))
         self.u[0] = self.out
@@ -240,46 +240,62 @@ class TeamHearing:
         ``filter_team``); returns how many."""
         dt = self.pb.dt
         idx = self._other_idx
-        last = np.minimum(self.team_last[idx], t)
-        back = np.maximum(last - window, 0) if window > 0 else last
         have = self.team_have
-        if (last >= 0).all() and have[idx, last].all() and have[idx, back].all():
-            # every pose at hand (lockstep): all at once
-            e1, e0 = self.team_eta[idx, last], self.team_eta[idx, back]
-            m = len(idx)
-            o = self.others
-            o[:m, :3] = e1
-            span = (last - back) * dt
-            with np.errstate(invalid="ignore", divide="ignore"):
-                d = e1 - e0
-                d[:, 2] -= 2.0 * np.pi * np.floor((d[:, 2] + np.pi) / (2.0 * np.pi))
-                o[:m, 3:6] = np.where(span[:, None] > 0, d / span[:, None], 0.0)
-                o[:m, 6] = 0.0
-            self.ages[:m] = (t - last) * dt
-            o[:m, 7] = self.safety_params[17]  # PARAMS "pose_error": raw poses
-            if self.safety is not None and self.safety.commands:
-                for mm in range(m):
-                    self._told(mm, int(idx[mm]), int(last[mm]))
-            return m
+        if len(idx) >= NEAR_FROM:  # a large team: every pose at hand (lockstep) at once
+            last = np.minimum(self.team_last[idx], t)
+            back = np.maximum(last - window, 0) if window > 0 else last
+            if (last >= 0).all() and have[idx, last].all() and have[idx, back].all():
+                return self._heard_all(t, idx, last, back)
         m = 0
-        for j in idx:
+        pose_error = float(self.safety_params[17])  # PARAMS "pose_error": raw poses
+        commands = self.safety is not None and self.safety.commands
+        o = self.others
+        # robot by robot, as Python numbers (below NEAR_FROM robots numpy's cost per call
+        # is more than its loop saves)
+        for j, sj in zip(self._other_list, self.team_last[idx].tolist(), strict=True):
             row = have[j]
-            sj = int(self.team_last[j])
-            while sj > t or (sj >= 0 and not row[sj]):  # realtime: newest up to t
+            sj = min(sj, t)
+            while sj >= 0 and not row[sj]:  # realtime: newest up to t
                 sj -= 1
             if sj < 0:
                 continue  # never heard in this trial: nothing to keep away from
             sb = max(0, sj - window) if window > 0 else sj
             while sb < sj and not row[sb]:  # the nearest heard after it
                 sb += 1
-            e1, e0 = self.team_eta[j, sj], self.team_eta[j, sb]
-            self.others[m, :3] = e1
-            self.others[m, 7] = self.safety_params[17]  # PARAMS "pose_error": raw poses
-            motion(e1[0], e1[1], e1[2], e0[0], e0[1], e0[2], (sj - sb) * dt, self.others, m)
-            if self.safety is not None and self.safety.commands:
-                self._told(m, int(j), sj)
+            x1, y1, th1 = self.team_eta[j, sj].tolist()
+            x0, y0, th0 = self.team_eta[j, sb].tolist()
+            o[m, 0] = x1
+            o[m, 1] = y1
+            o[m, 2] = th1
+            o[m, 7] = pose_error
+            motion(x1, y1, th1, x0, y0, th0, (sj - sb) * dt, o, m)
+            if commands:
+                self._told(m, j, sj)
             self.ages[m] = (t - sj) * dt
             m += 1
+        return m
+
+    def _heard_all(self, t: int, idx: NDArray[np.int64], last: NDArray[np.int64],
+                   back: NDArray[np.int64]) -> int:
+        """``_heard`` of a large team with every pose at hand (lockstep), on arrays: the
+        newest pose of each robot in ``idx`` (sample ``last``) and its motion from the pose
+        of sample ``back``."""
+        dt = self.pb.dt
+        e1, e0 = self.team_eta[idx, last], self.team_eta[idx, back]
+        m = len(idx)
+        o = self.others
+        o[:m, :3] = e1
+        span = (last - back) * dt
+        with np.errstate(invalid="ignore", divide="ignore"):
+            d = e1 - e0
+            d[:, 2] -= 2.0 * np.pi * np.floor((d[:, 2] + np.pi) / (2.0 * np.pi))
+            o[:m, 3:6] = np.where(span[:, None] > 0, d / span[:, None], 0.0)
+            o[:m, 6] = 0.0
+        self.ages[:m] = (t - last) * dt
+        o[:m, 7] = self.safety_params[17]  # PARAMS "pose_error": raw poses
+        if self.safety is not None and self.safety.commands:
+            for mm in range(m):
+                self._told(mm, int(idx[mm]), int(last[mm]))
         return m
 
     def _told(self, m: int, j: int, s: int) -> None:
