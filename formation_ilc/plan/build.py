@@ -26,6 +26,7 @@ from formation_ilc.config.plants import Plant, plant
 from formation_ilc.config.roster import Lineup, roster
 from formation_ilc.config.runconfig import (
     WALL_MODES,
+    RunConfig,
     make_config,
     scenario_reference,
 )
@@ -119,15 +120,7 @@ def decide(options: LaunchOptions, machine: Machine) -> RunPlan:
     cfg = replace(cfg, safety=safety)
     notes = check_plant(opts, row, sc, namespace, bridge, physics, safety)
     live = _live(opts, machine)
-    lineup = Lineup.of(sc.graph, plant=row.name, links=links, record=opts.record is not None,
-                       live=live is not None, external=tuple(opts.plant_nodes),
-                       **({} if bridge is None else dict(
-                           driver=bridge.driver, driver_ns=bridge.driver_ns, base=bridge.base,
-                           fake_drivers=bridge.fake_drivers,
-                           physics_bases=bridge.physics_bases)),
-                       sensing=None if safety is None else safety.sensing,
-                       told=safety is not None and safety.motion == "commands",
-                       leader_in_step=cfg.leader_in_step, clocks=cfg.clock_exchanges)
+    lineup = _lineup(opts, cfg, row, bridge, live is not None)
     plan = RunPlan(
         config=cfg, roster=roster(lineup), nodes=(), out=out, namespace=namespace, domain=domain,
         discovery=opts.discovery, plant=opts.plant, container=opts.container,
@@ -155,6 +148,23 @@ def unmade_folder(machine: Machine) -> Path:
     create``): a name no run has used, made of ``machine``'s token (relative: nothing
     is made, nothing read but that it is not there)."""
     return Path(f".formation-ilc-unmade-{machine.token.hex()}")
+
+
+def _lineup(opts: LaunchOptions, cfg: RunConfig, row: Plant, bridge: BridgeOptions | None,
+            live: bool) -> Lineup:
+    """What the run's roster is built from: its plant and bridges, its links, its safety
+    filter's hearing, what it records and serves."""
+    safety = cfg.safety
+    return Lineup.of(cfg.scenario.graph, plant=row.name, links=cfg.links,
+                     record=opts.record is not None, live=live,
+                     external=tuple(opts.plant_nodes),
+                     **({} if bridge is None else dict(
+                         driver=bridge.driver, driver_ns=bridge.driver_ns, base=bridge.base,
+                         fake_drivers=bridge.fake_drivers,
+                         physics_bases=bridge.physics_bases)),
+                     sensing=None if safety is None else safety.sensing,
+                     told=safety is not None and safety.motion == "commands",
+                     leader_in_step=cfg.leader_in_step, clocks=cfg.clock_exchanges)
 
 
 def prepare(plan: RunPlan) -> RunPlan:
