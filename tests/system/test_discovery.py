@@ -240,11 +240,11 @@ def test_robots_on_hosts_of_their_own_go_through_the_server_in_the_hub(
                for s in big.nodes if s.host is not None) == SERVER_FROM - 3
     # refused where it cannot serve: a secure run stays on unicast to every host
     unplanned = replace(big, discovery="localhost", peers_profile=None, peers_base=None)
-    assert _with_peers(unplanned, secure=True).discovery == "localhost"
+    assert _with_peers(unplanned, None, secure=True).discovery == "localhost"
     with pytest.raises(NoRun, match="--discovery server: not with --secure"):
-        _with_peers(replace(unplanned, discovery="server"), secure=True)
+        _with_peers(replace(unplanned, discovery="server"), None, secure=True)
     with pytest.raises(NoRun, match="--discovery server: not with a run over several"):
-        _with_peers(replace(unplanned, discovery="server"), one_host=False)
+        _with_peers(replace(unplanned, discovery="server"), None, one_host=False)
 
 
 def held(pid: int, where: list[str]) -> list[str]:
