@@ -98,13 +98,11 @@ def executor(context):
 #: needs the cores a third stack would take. Tests in one lane run in file order, so runs
 #: shared through tests/stack/shared.py are made before they are read.
 CLOCK_FILES = ("test_pioneer.py", "test_realtime.py", "test_base_physics.py",
-               "test_diagnostics.py", "test_clocks.py",
-               # lockstep runs, in this lane to even the two: the lockstep lane was the
-               # suite's critical path, 1,582 s of its 1,624 s against the clock lane's
-               # 1,034 s (2026-12-07, loaded); with this file (234 s, it shares no run)
-               # and test_freeze.py (40 s) here the lanes took 1,268 s (clock) and 1,117 s
-               # and the suite 1,309 s: test_freeze.py went back
-               "test_faults.py")
+               "test_diagnostics.py", "test_clocks.py")
+# (Loaded by two other sessions, the lockstep lane was the critical path, 1,582 s of a
+# 1,624 s suite against the clock lane's 1,034 s, and test_faults.py here evened them:
+# 1,309 s. On a quiet machine the clock lane's waits do not shrink while the lockstep
+# runs do: a fresh-clone CI took 1,218 s with it here against 1,103 s before. 2026-12-07.)
 CLOCK_TESTS = ("test_a_run_waiting_for_a_node_that_never_comes_stops_naming_it",
                "test_secure_pioneer_bridges_and_fake_drivers",
                "test_secure_bases_with_physics_bases_equal_the_insecure_run",
@@ -136,6 +134,24 @@ LONG_FIRST = ("test_tune_hexagon_meets_issue_targets",  # 424
               "test_pool_table_equals_serial_table",  # 27
               "test_any_64_bytes_of_the_first_chunk_overwritten_keep_every_other_trial",
               "test_the_chords_errors_bound_the_carry_from_both_sides_and_no_more")
+
+
+def pytest_sessionstart(session):
+    """With test processes side by side (pytest-xdist), the batch simulator's kernels are
+    compiled once here before they start, not by every first test of each at once (a
+    cold cache, as in a fresh clone: 43 s alone, and the lanes' first tests, a tuning's
+    pool and the studies would each compile the same kernels on two cores); a warm cache
+    loads in a second."""
+    import subprocess
+    import sys
+
+    if hasattr(session.config, "workerinput") or not session.config.getoption(
+            "numprocesses", None) or os.environ.get("NUMBA_DISABLE_JIT") == "1":
+        return
+    code = ("from formation_ilc.config.scenario import load_scenario\n"
+            "from formation_ilc.model.simulate import simulate\n"
+            "simulate(load_scenario('paper-triangle3'), 1)\n")
+    subprocess.run([sys.executable, "-c", code], timeout=1800, check=False)
 
 
 def pytest_collection_modifyitems(session, config, items):
