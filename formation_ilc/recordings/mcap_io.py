@@ -1,29 +1,12 @@
 """MCAP files as ROS 2 tools write them (profile ``ros2``), without importing rclpy.
 
-The face of ``mcap_write`` (writing) and ``mcap_read`` (reading), and repair, which does
-both.
+The face of ``mcap_write`` (writing: ``message_definition``, ``type_hash``, ``qos_yaml``,
+``RosMcapWriter`` with its ``keep``, ``bag_metadata``; their docstrings say what each does) and
+``mcap_read`` (reading: ``read_messages`` and its ``ReadReport``, ``records``,
+``read_metadata``), and repair, which does both:
 
-* ``message_definition``: the full ``ros2msg`` text of a type with its dependencies, read
-  from the installed ``.msg`` files, concatenated as rosbag2 does; ``type_hash``: its RIHS01
-  hash (both with rosbags' .msg parser).
-* ``qos_yaml``: a channel's ``offered_qos_profiles`` metadata, as rosbag2 (Jazzy) writes it.
-* ``RosMcapWriter``: schemas, channels, messages as raw CDR bytes; in chunks of at most
-  ``CHUNK_BYTES`` flushed on a period, so that a killed writer loses at most the chunk in
-  progress and damage loses only the chunks it hits. Every schema and channel is written
-  twice: in its chunk and once more outside any chunk, so that losing the chunk that
-  defined a channel does not orphan the channel's later messages.
-* ``read_messages``: every message that reads back, also from a file cut short by a crash
-  or damaged in the middle: a record that does not parse, or a chunk whose CRC does not
-  match, is skipped and reading resumes at the next valid record (``ReadReport`` says what
-  was lost: byte ranges, chunks, messages, their log times).
 * ``repair``: rewrite a cut-short or damaged file with a complete summary and footer, and
   put back what it can rebuild (a lost message of the run configuration, from a copy).
-* ``keep``: a metadata record written again after the first chunk, every
-  ``REPEAT_BYTES`` of file after that, and at the end: what a reader cannot do without
-  (the run configuration) is in more than one place, so no single damaged chunk or record
-  loses it.
-* ``bag_metadata``: the ``rosbag2`` metadata record a closed file ends with, as rosbag2's
-  MCAP storage writes it (``ros2 bag info`` reads the distro, topics and counts from it).
 """
 
 from __future__ import annotations
