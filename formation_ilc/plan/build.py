@@ -14,7 +14,6 @@ no ROS."""
 
 from __future__ import annotations
 
-import os
 import secrets
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
@@ -683,10 +682,10 @@ def _live_rate(opts: LaunchOptions) -> float | None:
     return float(rate)
 
 
-def caller_domain(text: str | None = None) -> int | None:
-    """The caller's ``ROS_DOMAIN_ID`` (``text``, else this process's; the launcher honours
-    it), None when it is not set; NoRun when it is not a domain id."""
-    text = (os.environ.get("ROS_DOMAIN_ID", "") if text is None else text).strip()
+def caller_domain(text: str) -> int | None:
+    """The caller's ``ROS_DOMAIN_ID`` as set (``text``; the launcher honours it), None when
+    it is not set; NoRun when it is not a domain id."""
+    text = text.strip()
     if not text:
         return None
     if not text.isdigit() or int(text) > 232:

@@ -32,16 +32,11 @@ DOMAINS = range(30, 101)
 def _held_domains() -> frozenset[int]:
     """The domains of :data:`DOMAINS` whose Fast DDS shared-memory port files exist (another
     run on this machine): their locks name the domain's port, 7400 + 250 d."""
-    try:
-        names = os.listdir("/dev/shm")
-    except OSError:
-        return frozenset()
-    held = set()
-    for d in DOMAINS:
-        prefix = f"fastrtps_port{7400 + 250 * d}"
-        if any(name.startswith(prefix) for name in names):
-            held.add(d)
-    return frozenset(held)
+    from formation_ilc.system.shm import fastdds_files
+
+    names = [Path(f).name for f in fastdds_files()]
+    return frozenset(d for d in DOMAINS
+                     if any(n.startswith(f"fastrtps_port{7400 + 250 * d}") for n in names))
 
 
 @dataclass(frozen=True)
