@@ -14,8 +14,23 @@ from formation_ilc.system.shm import clean_leftovers, fastdds_files
 _counter = itertools.count()
 
 
+def _domains() -> range:
+    """The domain ids the tests use: 30-100, or ``FORMATION_ILC_TEST_DOMAINS=LO-HI`` (two
+    test runs side by side on one machine, each with a range of its own, never meet)."""
+    text = os.environ.get("FORMATION_ILC_TEST_DOMAINS", "30-100")
+    try:
+        lo, hi = (int(v) for v in text.split("-"))
+    except ValueError:
+        raise pytest.UsageError(f"FORMATION_ILC_TEST_DOMAINS={text!r}: expected LO-HI, "
+                                "e.g. 101-170 (ROS domain ids, 0-232)") from None
+    if not 0 <= lo < hi <= 232:
+        raise pytest.UsageError(f"FORMATION_ILC_TEST_DOMAINS={text!r}: LO < HI within "
+                                "0-232 (ROS domain ids)")
+    return range(lo, hi + 1)
+
+
 #: the free range of domain ids the tests use
-DOMAINS = range(30, 101)
+DOMAINS = _domains()
 
 
 def next_domain_id() -> int:
