@@ -20,7 +20,9 @@ and as two levers would count it (measurements, not filters: neither is built):
   told for the whole sample (no robot braking alone mid-sample: see docs/safety.md,
   "No more conservative than the robots").
 
-The other robot j is the one the binding pair names (robot 1 for paper-triangle3's robot 3).
+Each lever's deficit is the worst over every other robot's pairs of discs; the robot named
+(``vs``) is the one that binds as the filter counts now (robot 1 for paper-triangle3's
+robot 3).
 """
 
 from __future__ import annotations
@@ -122,8 +124,9 @@ def main() -> int:
             now = [deficits(k, params, spec.discs, boxes, eta, before, d.u, u, t, i, j, "now")
                    for j in js]
             j = js[int(np.argmax(now))]
-            row = [deficits(k, params, spec.discs, boxes, eta, before, d.u, u, t, i, j, m)
-                   for m in LEVERS]
+            # each lever judged on every other robot's pairs, not only the binding one's
+            row = [max(deficits(k, params, spec.discs, boxes, eta, before, d.u, u, t, i, o, m)
+                       for o in js) for m in LEVERS]
             for m, x in zip(LEVERS, row, strict=True):
                 left[m] += x > 0.0
             print(f"{i + 1:5d} {t * sc.dt:5.1f} {j + 1:3d}  "
