@@ -657,7 +657,10 @@ class _Session:
             if over_graph(plan):
                 describe(plan, host, STARTING)
         self.supervisor.start(gated=True)
-        print(f"started {len(plan.nodes)} processes; looking for another formation on "
+        forked = self.supervisor.stack.forked()
+        how = ("" if not forked else " (forked from one import)" if forked == len(plan.nodes)
+               else f" ({forked} forked from one import)")
+        print(f"started {len(plan.nodes)} processes{how}; looking for another formation on "
               f"ROS_DOMAIN_ID={plan.domain} in {plan.namespace} ...", flush=True)
         self._refuse_foreign(1.5)
         self.supervisor.open_gate()

@@ -112,6 +112,12 @@ class Stack:
         # watched only once it beats
         self.board.started(name, self.procs[name].pid, watch=RUNNER in command)
 
+    def forked(self) -> int:
+        """How many of the processes the fork server made."""
+        from formation_ilc.nodes.forkserver import ForkedProcess
+
+        return sum(isinstance(p, ForkedProcess) for p in self.procs.values())
+
     def start_forker(self, modules: list[str]) -> None:
         """From now on, fork the node processes from a server that imported ``modules``
         once (``nodes.forkserver``); without one (it cannot start) as before."""
@@ -324,7 +330,7 @@ class Supervisor:
             self.stack.shut_gate()
         from formation_ilc.nodes.forkserver import wanted
 
-        if wanted(self.stack.env) and self.stack.forker is None:
+        if wanted(self.stack.env, len(self.plan.nodes)) and self.stack.forker is None:
             self.stack.start_forker(sorted({s.module for s in self.plan.nodes}))
         for spec in self.plan.nodes:
             self.stack.start(spec.name, self.place(spec), dict(spec.env))

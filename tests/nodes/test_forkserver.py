@@ -11,7 +11,15 @@ import sys
 
 import pytest
 
-from formation_ilc.nodes.forkserver import ForkedProcess, ForkRefused, ForkServer, forkable
+from formation_ilc.nodes.forkserver import (
+    FORK_DEFAULT_MAX,
+    FORK_ENV,
+    ForkedProcess,
+    ForkRefused,
+    ForkServer,
+    forkable,
+    wanted,
+)
 from formation_ilc.system.lifetime import PARENT_ENV, RUNNER, early_argv
 
 pytestmark = [pytest.mark.ros]
@@ -65,3 +73,8 @@ def test_a_server_with_a_dds_thread_refuses_to_fork(ros_env, tmp_path):
     finally:
         server.close()
     assert not (tmp_path / "child.log").read_text()  # nothing ran
+
+
+def test_a_small_team_is_forked_by_default_and_the_environment_decides_when_set():
+    assert wanted({}, FORK_DEFAULT_MAX) and not wanted({}, FORK_DEFAULT_MAX + 1)
+    assert wanted({FORK_ENV: "1"}, 200) and not wanted({FORK_ENV: "0"}, 3)

@@ -351,11 +351,12 @@ def test_a_full_disk_stops_the_run_with_one_line_and_the_resume_command(ros_env,
                 break
             time.sleep(0.2)  # polling a file, bounded by the deadline
         assert inside is not None, proc.communicate(timeout=60)
-        with open(inside / "filler", "wb") as fh:  # every free byte
+        # every free byte, unbuffered: a buffered file's close would write its rest again
+        # and raise ENOSPC itself
+        with open(inside / "filler", "wb", buffering=0) as fh:
             try:
-                while True:
-                    fh.write(b"\0" * (1 << 16))
-                    fh.flush()
+                while fh.write(b"\0" * (1 << 16)):
+                    pass
             except OSError:
                 pass
         out, err = proc.communicate(timeout=600)
