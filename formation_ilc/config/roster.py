@@ -9,6 +9,8 @@ subscribes. Everything else reads it:
 * the leader's team (``Team``, ``nodes_expected``): the members it waits for;
 * the launcher's processes (``formation_ilc.plan.processes.node_specs``): the members with an
   entry script, in start order;
+* each robot node (``formation_ilc.nodes.robot``): its publishers and subscriptions are its
+  member's topics, its member built from the run configuration it runs (``Lineup.of_run``);
 * the keystore's permissions (``Roster.grants``, signed by ``formation_ilc.store.keystore``):
   each enclave may publish and subscribe exactly its members' topics (least privilege,
   derived from the graph: ``adjacency[i, j] > 0``, robot i receives from robot j;
