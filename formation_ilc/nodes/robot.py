@@ -240,19 +240,7 @@ class RobotNode(ConfiguredNode):
         #: the clocks this robot asks (peers) and the robots that ask its (askers)
         self._peers: list[str] = []
         self._askers: list[str] = []
-        made = {}
-        for topic in member.publish:
-            kind, node, _ = ms.topic_kind(topic)
-            if node not in ("", self.name) or kind not in _WRITES:
-                raise ValueError(f"{self.name}: its roster member publishes {topic}, which "
-                                 f"this node has no writer for")
-            if _WRITES[kind]:
-                k = ms.kind_of(kind)
-                made[kind] = self.create_publisher(k.type, topic, k.offered)
-        missing = [k for k in _OWN if k not in made]
-        if missing:
-            raise ValueError(f"{self.name}: its roster member publishes no "
-                             f"{', '.join(missing)}")
+        made = self._writers(member.publish)
         self.cmd_pub, self.shared_pub, self.traj_pub, self.ready_pub = (made[k] for k in _OWN)
         self.applied_pub: Any = made.get("applied")
         self._base_frame = f"{self.name}/base_link"
@@ -275,6 +263,24 @@ class RobotNode(ConfiguredNode):
             self.clocks = ClockExchange(
                 self, self.name, cfg, clock, peers=self._peers, askers=self._askers,
                 drops=self.drops, on_event=self._clock_event, on_report=self._clock_word)
+
+    def _writers(self, topics: tuple[str, ...]) -> dict[str, Any]:
+        """The writers of ``topics`` (its member's) that this node makes, by kind; a topic
+        of another node's name, or of a kind it does not write, is refused, named."""
+        made = {}
+        for topic in topics:
+            kind, node, _ = ms.topic_kind(topic)
+            if node not in ("", self.name) or kind not in _WRITES:
+                raise ValueError(f"{self.name}: its roster member publishes {topic}, which "
+                                 f"this node has no writer for")
+            if _WRITES[kind]:
+                k = ms.kind_of(kind)
+                made[kind] = self.create_publisher(k.type, topic, k.offered)
+        missing = [k for k in _OWN if k not in made]
+        if missing:
+            raise ValueError(f"{self.name}: its roster member publishes no "
+                             f"{', '.join(missing)}")
+        return made
 
     def _sender(self, topic: str, sender: str) -> str:
         """``sender``, a link of this robot's learner (ValueError naming ``topic`` when
