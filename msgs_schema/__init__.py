@@ -6,8 +6,9 @@ launcher's plan, the roster, the keystore's grants, the recordings) needs no ROS
 is in this package's modules, all re-exported: ``qos`` (the profiles), ``tables`` (each
 recorded and view topic with its type and QoS), ``convert`` (numpy <-> message converters,
 tested by round trip in tests/msgs_schema/), ``wire`` (the per-sample messages as bytes),
-``drivers`` (odometry and commands of a robot's driver), ``view`` (the view messages) and
-``diagnostics``. Standard messages only.
+``drivers`` (odometry and commands of a robot's driver), ``kinds`` (each kind of topic
+with its type and QoS, for a node that wires its roster member's topics), ``view`` (the
+view messages) and ``diagnostics``. Standard messages only.
 
 Names are relative: a node resolves them in its namespace (``NAMESPACE`` by default;
 ``--ros-args -r __ns:=/team2`` moves one node, ``formation-ilc launch --namespace /team2`` a
@@ -116,6 +117,7 @@ from formation_ilc.core.names import (
     LEADER,
     LEADER_FRAME_ID,
     LEADER_NODE,
+    LINKS,
     LINKS_NODE,
     LIVEVIEW_NODE,
     MARKERS,
@@ -127,6 +129,7 @@ from formation_ilc.core.names import (
     RECORDER_NODE,
     REFERENCE,
     ROS_DIAGNOSTICS,
+    SHARED_TOPICS,
     SIM_NODE,
     STOP_SERVICE,
     TEAM_POSES,
@@ -154,6 +157,7 @@ from formation_ilc.core.names import (
     robot_name,
     service_dds_topics,
     shared_pose_topic,
+    topic_kind,
     tracking_error_topic,
     trajectory_topic,
     trial_error_topic,
@@ -172,6 +176,8 @@ from msgs_schema.diagnostics import *  # noqa: F403
 from msgs_schema.diagnostics import __all__ as _diagnostics
 from msgs_schema.drivers import *  # noqa: F403
 from msgs_schema.drivers import __all__ as _drivers
+from msgs_schema.kinds import *  # noqa: F403
+from msgs_schema.kinds import __all__ as _kinds
 from msgs_schema.qos import *  # noqa: F403
 from msgs_schema.qos import __all__ as _qos
 from msgs_schema.tables import *  # noqa: F403
@@ -196,12 +202,13 @@ __all__ = [
     "recorded_topics",
     "MARKERS", "desired_pose_topic", "desired_path_topic", "tracking_error_topic",
     "trial_error_topic", "view_topics", "PREVIEW", "TEAM_POSES", "DriverSpec", "DRIVERS",
+    "SHARED_TOPICS", "LINKS", "topic_kind",
     "BRIDGE_PREFIX",
     "bridge_name", "LEADER_NODE", "SIM_NODE", "LINKS_NODE", "MONITOR_NODE", "RECORDER_NODE",
     "FAKE_DRIVER_NODE", "PHYSICS_NODE", "BASES_NODE", "BASE_TRUTH", "LIVEVIEW_NODE",
     # the protocol's events, the sample clock
     "START", "END", "ABORT", "DONE", "SampleClock",
     # this package's modules
-    "wire", *_qos, *_tables, *_convert, *_drivers, *_view, *_diagnostics, *_clocksync,
+    "wire", *_qos, *_tables, *_convert, *_drivers, *_kinds, *_view, *_diagnostics, *_clocksync,
     "clock_ping_topic", "clock_pong_topic",
 ]

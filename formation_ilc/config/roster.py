@@ -9,6 +9,8 @@ subscribes. Everything else reads it:
 * the leader's team (``Team``, ``nodes_expected``): the members it waits for;
 * the launcher's processes (``formation_ilc.plan.processes.node_specs``): the members with an
   entry script, in start order;
+* each robot node (``formation_ilc.nodes.robot``): its publishers and subscriptions are its
+  member's topics, its member built from the run configuration it runs (``Lineup.of_run``);
 * the keystore's permissions (``Roster.grants``, signed by ``formation_ilc.store.keystore``):
   each enclave may publish and subscribe exactly its members' topics (least privilege,
   derived from the graph: ``adjacency[i, j] > 0``, robot i receives from robot j;
@@ -24,7 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,6 +35,9 @@ from formation_ilc.config.enclaves import Grant, driver_enclave, enclave_path
 from formation_ilc.config.plants import Plant, plant
 from formation_ilc.core import names as nm
 from formation_ilc.core.topology import Graph
+
+if TYPE_CHECKING:
+    from formation_ilc.config.runconfig import RunConfig
 
 __all__ = ["TRIAL", "ONCE", "NEVER", "Member", "Lineup", "Roster", "Team", "roster",
            "DRIVER_NS", "ENTRY_SCRIPTS", "leader_clock_askers"]
@@ -152,6 +157,20 @@ class Lineup:
         return cls(n=a.shape[0], adjacency=a, leader=np.asarray(graph.leader, dtype=float),
                    **kw)
 
+    @classmethod
+    def of_run(cls, cfg: RunConfig, **kw: Any) -> Lineup:
+        """The lineup of run configuration ``cfg``: its graph, its links, the robots'
+        safety filter (how it hears the others, whether they tell their commands), the
+        leader link taken in step, the clock exchanges. A robot's member follows from these
+        alone: the planner builds the run's roster from them, and each robot node its own
+        member from the configuration it runs (``nodes.robot``). ``kw``: the rest (the
+        plant and its bridges, what else runs)."""
+        safety = cfg.safety
+        return cls.of(cfg.scenario.graph, links=cfg.links,
+                      sensing=None if safety is None else safety.sensing,
+                      told=safety is not None and safety.motion == "commands",
+                      leader_in_step=cfg.leader_in_step, clocks=cfg.clock_exchanges, **kw)
+
     def for_keystore(self) -> Lineup:
         """Every member a run of this formation and plant may start, with every topic it
         may use: the link emulator, the recorder, the live view and the monitor too, and
@@ -220,6 +239,14 @@ class Roster:
 
     def by_role(self, *roles: str) -> tuple[Member, ...]:
         return tuple(m for m in self.members if m.role in roles)
+
+    def member(self, name: str) -> Member:
+        """The member named ``name`` (ValueError naming the members when none is)."""
+        for m in self.members:
+            if m.name == name:
+                return m
+        raise ValueError(f"no member {name!r} in the roster "
+                         f"({', '.join(m.name for m in self.members)})")
 
     @property
     def team(self) -> Team:

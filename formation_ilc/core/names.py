@@ -40,6 +40,7 @@ __all__ = ["NAMESPACE", "CLOCK", "LEADER_NODE", "SIM_NODE", "LINKS_NODE", "MONIT
            "absolute", "relative", "clock_topic",
            "recorded_topics", "MARKERS", "desired_pose_topic", "desired_path_topic",
            "tracking_error_topic", "trial_error_topic", "view_topics", "PREVIEW", "TEAM_POSES",
+           "SHARED_TOPICS", "LINKS", "topic_kind",
            # drivers
            "DriverSpec", "DRIVERS"]
 
@@ -234,9 +235,13 @@ def shared_pose_topic(i: int) -> str:
     return f"{robot_name(i)}/shared_pose"
 
 
+#: the kind of an emulated link's topic (``topic_kind``)
+LINKS = "links"
+
+
 def link_topic(i: int, sender: str) -> str:
     """Emulated link ``sender -> robot_i``: one message per tick (0 or 1 pose)."""
-    return f"{robot_name(i)}/links/{sender}"
+    return f"{robot_name(i)}/{LINKS}/{sender}"
 
 
 def clock_ping_topic(node: str) -> str:
@@ -346,6 +351,29 @@ PREVIEW = "preview/poses"
 #: (the simulator, the physics plant) when the run has a filter with ``sensing: team``.
 #: Pose i is robot i + 1's, each stamped with the sample's label as on robot_i/pose
 TEAM_POSES = "team/poses"
+
+
+# --------------------------------------------------------------------------- kinds
+
+#: the topics of no node's name: each is its own kind (``topic_kind``)
+SHARED_TOPICS = frozenset({CONFIG, REFERENCE, TRIAL_EVENTS, READY, DIAGNOSTICS,
+                           ROS_DIAGNOSTICS, ESTOP, CLOCK, TF, TF_STATIC, MARKERS, PREVIEW,
+                           TEAM_POSES, HOSTS_RUN})
+
+def topic_kind(topic: str) -> tuple[str, str, str]:
+    """What the relative name ``topic`` is, as (kind, node, sender), the inverse of the
+    topic functions above. A topic of a node's own name is the part after that name, and
+    the node: ``robot_2/pose`` -> ('pose', 'robot_2', ''), ``leader/clock/pong`` ->
+    ('clock/pong', 'leader', ''); an emulated link is ``LINKS`` with its receiver and its
+    sender: ``robot_2/links/leader`` -> ('links', 'robot_2', 'leader'); a shared topic
+    (``SHARED_TOPICS``: ``config``, ``leader/reference``) or an absolute one (a driver's)
+    is its own kind, of no node: ('config', '', '')."""
+    if topic in SHARED_TOPICS or topic.startswith("/") or "/" not in topic:
+        return topic, "", ""
+    node, kind = topic.split("/", 1)
+    if kind.startswith(LINKS + "/"):
+        return LINKS, node, kind[len(LINKS) + 1:]
+    return kind, node, ""
 
 
 # --------------------------------------------------------------------------- drivers

@@ -49,6 +49,12 @@ neighbour's trajectory is taken from that robot's own writer only (``robot_j`` w
 ``robot_j/trajectory``; ``protocol.writers``), the plant's ``team/poses`` from the plant's:
 any other writer's is refused unread and counted as ``forged``, by topic and sender.
 
+Its topics are its member of the run's roster (``config.roster``: ``Lineup.of_run`` of the
+configuration it runs), the one list the launcher and the keystore's grants read too: each
+publisher and subscription is made by its topic's kind (``names.topic_kind``) with the
+schema's type and QoS (``msgs_schema.kinds``); a topic it has no handler for stops it,
+named (status 2).
+
 Container mode: ``formation-ilc-robot --robots 1 2 3`` runs three robot nodes (each with
 its own memory) in one process on one executor.
 """
@@ -57,16 +63,14 @@ from __future__ import annotations
 
 import sys
 from collections import Counter
-from typing import Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
-from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseStamped, Twist, TwistStamped
-from nav_msgs.msg import Path
 from rclpy.node import Node
-from std_msgs.msg import Bool, String
 
 import msgs_schema as ms
 from formation_ilc.config import params
+from formation_ilc.config.roster import Lineup, Member, roster
 from formation_ilc.core.clock import Rejected
 from formation_ilc.core.links import LEADER
 from formation_ilc.model.safety import spec_of
@@ -91,6 +95,11 @@ from formation_ilc.store.memoryfile import MemoryFileError, load_memory
 from formation_ilc.store.robotstate import load_state, save_state, state_path
 from msgs_schema import wire
 
+if TYPE_CHECKING:  # the types come from the schema (msgs_schema.kinds); these annotate
+    from geometry_msgs.msg import PoseStamped, TwistStamped
+    from nav_msgs.msg import Path
+    from std_msgs.msg import Bool, String
+
 #: realtime: how long [dT] a robot waits for its links after its pose
 LINK_WAIT = 0.75
 #: the command while the e-stop is latched
@@ -99,6 +108,15 @@ ZERO = (0.0, 0.0)
 #: per sample 64 us against 334 us one pose at a time at 50 robots, 59 against 165 at 24,
 #: but 52 against 41 at 6 (numpy's cost per call; measured 2026-11-28)
 TEAM_BLOCK_FROM = 8
+#: the kinds of topic a robot publishes (``names.topic_kind``): whether it makes the writer
+#: from its member here (True), or another part of it does (False: the node's diagnostics,
+#: made at its start; the clock exchange's questions and answers, made with the clocks it
+#: asks and the robots that ask its)
+_WRITES = {"cmd_vel": True, "shared_pose": True, "trajectory": True, ms.READY: True,
+           "applied": True, ms.DIAGNOSTICS: False, ms.ROS_DIAGNOSTICS: False,
+           "clock/ping": False, "clock/pong": False}
+#: the writers every robot has: its command, its shared pose, its trajectory, its ready
+_OWN = ("cmd_vel", "shared_pose", "trajectory", ms.READY)
 
 
 class RobotNode(ConfiguredNode):
@@ -146,11 +164,12 @@ class RobotNode(ConfiguredNode):
                                if r != lrn.i and lrn.i in pb.src[r])
         self.n_out = len(self.out_names)
         self.late: Counter[str] = Counter({"links": 0})
-
-        self._wire_samples(cfg, lrn)
-        self._wire_team(cfg, pb, lrn)
+        #: the e-stop is latched: every command is zero (the learner still runs its trial)
+        self.estopped = False
+        #: what this robot publishes and reads: its member of the run's roster
+        self.member = roster(Lineup.of_run(cfg)).member(self.name)
         clock = node_clock(cfg, self.id)
-        self._wire_trajectories(cfg, lrn, clock)
+        self._wire(self.member, cfg, clock)
         #: whether the deadline timer runs (realtime: from a pose whose links are not in)
         self._armed = False
         if self.realtime:
@@ -161,10 +180,6 @@ class RobotNode(ConfiguredNode):
         #: the checked subscriptions carry trajectories only (no safety filter's
         #: team/poses): their re-check sleeps inside a trial (``polls_idle``)
         self._idle_polls = self.poll_period() >= REFRESH_TRIAL
-        self.create_subscription(String, ms.TRIAL_EVENTS, self._on_event, ms.SAMPLE_QOS)
-        #: the e-stop is latched: every command is zero (the learner still runs its trial)
-        self.estopped = False
-        self.create_subscription(Bool, ms.ESTOP, self._on_estop, ms.LATCHED_READER_QOS)
         self._gate = self.create_timer(0.05, self._check_ready)
         self.get_logger().info(f"{self.name}: {len(lrn.neighbours)} in-links"
                                f"{' + leader' if lrn.sees_leader else ''} ({cfg.links}), "
@@ -197,99 +212,172 @@ class RobotNode(ConfiguredNode):
                                        f"{st.iterations} trials learned")
         return lrn
 
-    def _wire_samples(self, cfg: RunConfig, lrn: RobotLearner) -> None:
-        """The per-sample publishers (command, shared pose, trajectory, ready) and
-        subscriptions: its own pose, and each link (emulated ticks or direct poses)."""
-        self.cmd_pub = self.create_publisher(Twist, ms.cmd_vel_topic(self.id), ms.SAMPLE_QOS)
-        self.shared_pub = self.create_publisher(PoseStamped, ms.shared_pose_topic(self.id),
-                                                ms.SAMPLE_QOS)
+    # ------------------------------------------------------------------ wiring
+    def _wire(self, member: Member, cfg: RunConfig, clock: NodeClock) -> None:
+        """Every publisher and subscription of this robot's roster member (``member``),
+        each made by its kind (``names.topic_kind``) with the schema's type and QoS
+        (``msgs_schema.kinds``): one list says what a robot publishes and reads, for its
+        node, the launcher and the keystore's grants alike. A topic this node has no
+        writer or reader for is refused, named (the node stops: status 2).
+
+        Why the node builds its member itself rather than taking it from the launcher:
+        a robot's member follows from the run configuration alone (``Lineup.of_run``: the
+        graph, the links, the filter's hearing, told commands, the leader link in step,
+        the clock exchanges), and the node runs that very configuration (the leader's
+        latched one, or its own parameters' when started by hand). Topics passed as
+        parameters could disagree with the configuration the node learns by; built from
+        it, they cannot."""
         #: (slot, the shared poses sent in it, in order): what a repeat sends again
         self.shared_sent: tuple[int, list[bytes]] = (-1, [])
-        self.traj_pub = self.create_publisher(Path, ms.trajectory_topic(self.id),
-                                              ms.TRAJECTORY_QOS)
-        self.ready_pub = self.create_publisher(String, ms.READY, ms.LATCHED_QOS)
-        # the per-sample messages as bytes (msgs_schema.wire: no message objects)
-        self.sample_subs = [self.create_subscription(
-            PoseStamped, ms.pose_topic(self.id), self._on_pose, ms.SAMPLE_QOS, raw=True)]
-        for sender in lrn.slots:
-            if sender == LEADER and cfg.leader_in_step:
-                continue  # the leader link is the robot's own sample (RunConfig.leader_in_step)
-            if cfg.links == "emulated":
-                # a tick longer than one pose is refused before it is read
-                self.sample_subs.append(self.create_subscription(
-                    Path, ms.link_topic(self.id, sender),
-                    lambda m, s=sender: self._on_link_tick(m, s), ms.SAMPLE_QOS, raw=True))
-            else:
-                topic = (ms.REFERENCE if sender == LEADER
-                         else ms.shared_pose_topic(ms.robot_index(sender)))
-                self.sample_subs.append(self.create_subscription(
-                    PoseStamped, topic, lambda m, s=sender: self._on_link_pose(m, s),
-                    ms.SAMPLE_QOS, raw=True))
-
-    def _wire_team(self, cfg: RunConfig, pb: Problem, lrn: RobotLearner) -> None:
-        """With a safety filter: the other robots' poses (the plant's team/poses, or each
-        robot's), and the commands the robots tell each other."""
-        #: realtime with the plant's team/poses: taken before each command (below)
+        self.applied_sent = b""  # the last command told, sent again with a repeat
+        #: the per-sample subscriptions (each matched to its writer before ready)
+        self.sample_subs: list[Any] = []
+        #: realtime with the plant's team/poses: taken before each command (_take_team)
         self._team_sub: Any = None
         self._taking_team = False
-        if cfg.safety is not None:  # the other robots' poses, for the safety filter
-            if cfg.safety.sensing == "team":
-                # from the plant only (protocol.writers): forged poses 1 km away switched
-                # the filter off
-                team = self.checked_subscription(
-                    Path, ms.TEAM_POSES, lambda m, gid: self._on_team(m), ms.SAMPLE_QOS,
-                    raw=True, owners=plant_writers())
-                self.sample_subs.append(team)
-                if self.realtime:
-                    self._team_sub = team
-            else:
-                self.sample_subs += [self.create_subscription(
-                    PoseStamped, ms.pose_topic(j + 1), lambda m, j=j: self._on_peer(m, j),
-                    ms.SAMPLE_QOS, raw=True) for j in range(pb.n) if j != lrn.i]
-        #: told commands (``safety.motion: commands``): this robot's, out; the others', in
-        self.applied_pub: Any = None
-        self.applied_sent = b""  # the last command told, sent again with a repeat
+        #: told commands (``safety.motion: commands``): the others', in
         self._told_subs: list[Any] = []
-        if cfg.safety is not None and cfg.safety.motion == "commands":
-            self.applied_pub = self.create_publisher(TwistStamped, ms.applied_topic(self.id),
-                                                     ms.SAMPLE_QOS)
-            self._base_frame = f"{self.name}/base_link"
-            # from robot j's own writer only (protocol.writers): a command another writer
-            # tells in robot j's name would let the filter keep less room than j needs;
-            # taken before each realtime command, as the plant's team/poses
-            self._told_subs = [self.checked_subscription(
-                TwistStamped, ms.applied_topic(j + 1),
-                lambda m, gid, j=j: self._on_told(m, j), ms.SAMPLE_QOS, raw=True,
-                owners=(ms.robot_name(j + 1),)) for j in range(pb.n) if j != lrn.i]
-            self.sample_subs += self._told_subs
-
-    def _wire_trajectories(self, cfg: RunConfig, lrn: RobotLearner,
-                           clock: NodeClock) -> None:
-        """The in-neighbours' trajectories, and the clock exchanges (on the robot's
-        ``clock``)."""
-        for sender in lrn.neighbours:
-            # raw: a trajectory longer than a trial is refused before it is deserialized;
-            # from robot j's own writer only (protocol.writers): a trajectory another
-            # writer sends in robot j's topic is refused and counted as forged, never
-            # learned from
-            self.checked_subscription(
-                Path, ms.trajectory_topic(ms.robot_index(sender)),
-                lambda m, gid, s=sender: self._on_trajectory(m, s),
-                ms.TRAJECTORY_READER_QOS, raw=True, owners=(sender,), poll=REFRESH_TRIAL)
+        #: the clocks this robot asks (peers) and the robots that ask its (askers)
+        self._peers: list[str] = []
+        self._askers: list[str] = []
+        made = self._writers(member.publish)
+        self.cmd_pub, self.shared_pub, self.traj_pub, self.ready_pub = (made[k] for k in _OWN)
+        self.applied_pub: Any = made.get("applied")
+        self._base_frame = f"{self.name}/base_link"
+        for topic in member.subscribe:
+            kind, node, sender = ms.topic_kind(topic)
+            read = self._READS.get(kind)
+            if read is None:
+                raise ValueError(f"{self.name}: its roster member reads {topic}, which this "
+                                 f"node has no reader for")
+            read(self, topic, node, sender)
         self.clocks: ClockExchange | None = None
         if cfg.clock_exchanges:
             # its clock words go out on a writer of their own: the report's writer keeps
             # one message (latched), and a word sent just after a report would replace it
             # before a reader that was behind had taken it
-            self.word_pub = self.create_publisher(DiagnosticArray, ms.DIAGNOSTICS,
-                                                  ms.LATCHED_QOS)
-            # the clocks this robot hears (its in-neighbours', the leader's if it sees it),
-            # and its own for the robots that hear it (protocol.timesync)
+            k = ms.kind_of(ms.DIAGNOSTICS)
+            self.word_pub = self.create_publisher(k.type, ms.DIAGNOSTICS, k.offered)
+            # its questions (clock/ping) when it asks any clock, its answers (clock/pong)
+            # when any robot asks its (protocol.timesync)
             self.clocks = ClockExchange(
-                self, self.name, cfg, clock,
-                peers=[*lrn.neighbours, *([LEADER] if lrn.sees_leader else [])],
-                askers=self.out_names, drops=self.drops, on_event=self._clock_event,
-                on_report=self._clock_word)
+                self, self.name, cfg, clock, peers=self._peers, askers=self._askers,
+                drops=self.drops, on_event=self._clock_event, on_report=self._clock_word)
+
+    def _writers(self, topics: tuple[str, ...]) -> dict[str, Any]:
+        """The writers of ``topics`` (its member's) that this node makes, by kind; a topic
+        of another node's name, or of a kind it does not write, is refused, named."""
+        made = {}
+        for topic in topics:
+            kind, node, _ = ms.topic_kind(topic)
+            if node not in ("", self.name) or kind not in _WRITES:
+                raise ValueError(f"{self.name}: its roster member publishes {topic}, which "
+                                 f"this node has no writer for")
+            if _WRITES[kind]:
+                k = ms.kind_of(kind)
+                made[kind] = self.create_publisher(k.type, topic, k.offered)
+        missing = [k for k in _OWN if k not in made]
+        if missing:
+            raise ValueError(f"{self.name}: its roster member publishes no "
+                             f"{', '.join(missing)}")
+        return made
+
+    def _sender(self, topic: str, sender: str) -> str:
+        """``sender``, a link of this robot's learner (ValueError naming ``topic`` when
+        the scenario's graph has no such link: the roster and the learner disagree)."""
+        if sender not in self.learner.slots:
+            raise ValueError(f"{self.name}: its roster member reads {topic}, but the "
+                             f"scenario's graph has no link {sender} -> {self.name}")
+        return sender
+
+    def _sample(self, topic: str, kind: str, callback: Any) -> None:
+        """A per-sample subscription, as bytes (``msgs_schema.wire``: no message objects;
+        a tick longer than one pose is refused before it is read)."""
+        k = ms.kind_of(kind)
+        self.sample_subs.append(self.create_subscription(k.type, topic, callback, k.read,
+                                                         raw=True))
+
+    def _owned(self, topic: str, kind: str, handler: Any, owners: Any, **kw: Any) -> Any:
+        """A subscription, as bytes, whose every message comes from one of ``owners``
+        (``protocol.writers``: another writer's is refused unread and counted as forged)."""
+        k = ms.kind_of(kind)
+        return self.checked_subscription(k.type, topic, handler, k.read, raw=True,
+                                         owners=owners, **kw)
+
+    def _read_pose(self, topic: str, node: str, _: str) -> None:
+        """Its own pose (per sample), or with a safety filter robot j's (``sensing:
+        peers``)."""
+        if node == self.name:
+            self._sample(topic, "pose", self._on_pose)
+        else:
+            j = ms.robot_index(node) - 1
+            self._sample(topic, "pose", lambda m: self._on_peer(m, j))
+
+    def _read_link(self, topic: str, node: str, sender: str) -> None:
+        """A link: the emulator's ticks (``links/S``), or on direct links the sender's
+        shared pose or the leader's reference."""
+        if sender:  # only an emulated link's topic names a sender
+            s = self._sender(topic, sender)
+            self._sample(topic, ms.LINKS, lambda m: self._on_link_tick(m, s))
+        elif topic == ms.REFERENCE:
+            s = self._sender(topic, LEADER)
+            self._sample(topic, ms.REFERENCE, lambda m: self._on_link_pose(m, s))
+        else:
+            s = self._sender(topic, node)
+            self._sample(topic, "shared_pose", lambda m: self._on_link_pose(m, s))
+
+    def _read_team(self, topic: str, node: str, _: str) -> None:
+        """The plant's team/poses, for the safety filter: from the plant only
+        (protocol.writers): forged poses 1 km away switched the filter off."""
+        team = self._owned(topic, ms.TEAM_POSES, lambda m, gid: self._on_team(m),
+                             plant_writers())
+        self.sample_subs.append(team)
+        if self.realtime:
+            self._team_sub = team
+
+    def _read_told(self, topic: str, node: str, _: str) -> None:
+        """Robot j's told command, from robot j's own writer only (protocol.writers): a
+        command another writer tells in robot j's name would let the filter keep less room
+        than j needs; taken before each realtime command, as the plant's team/poses."""
+        j = ms.robot_index(node) - 1
+        sub = self._owned(topic, "applied", lambda m, gid: self._on_told(m, j), (node,))
+        self._told_subs.append(sub)
+        self.sample_subs.append(sub)
+
+    def _read_trajectory(self, topic: str, node: str, _: str) -> None:
+        """An in-neighbour's trajectory: bytes (one longer than a trial is refused before
+        it is deserialized), from that robot's own writer only (protocol.writers): one
+        another writer sends in its topic is refused and counted as forged, never learned
+        from."""
+        s = self._sender(topic, node)
+        self._owned(topic, "trajectory", lambda m, gid: self._on_trajectory(m, s), (s,),
+                      poll=REFRESH_TRIAL)
+
+    def _read_events(self, topic: str, node: str, _: str) -> None:
+        k = ms.kind_of(ms.TRIAL_EVENTS)
+        self.create_subscription(k.type, topic, self._on_event, k.read)
+
+    def _read_estop(self, topic: str, node: str, _: str) -> None:
+        k = ms.kind_of(ms.ESTOP)
+        self.create_subscription(k.type, topic, self._on_estop, k.read)
+
+    def _read_config(self, topic: str, node: str, _: str) -> None:
+        """The leader's latched configuration: read by ``ConfiguredNode.follow_config``
+        before the node is configured (none when it configured itself from its own
+        parameters: it has the configuration it runs)."""
+
+    def _read_clock(self, topic: str, node: str, _: str) -> None:
+        """A clock this robot asks (its answers, ``X/clock/pong``) or a robot that asks
+        its clock (its questions, ``X/clock/ping``): read by the clock exchange."""
+        (self._peers if topic.endswith("pong") else self._askers).append(node)
+
+    #: kind of topic (``names.topic_kind``) -> how this robot reads it
+    _READS: dict[str, Callable[[RobotNode, str, str, str], None]] = {
+        "pose": _read_pose, ms.LINKS: _read_link, "shared_pose": _read_link,
+        ms.REFERENCE: _read_link, ms.TEAM_POSES: _read_team, "applied": _read_told,
+        "trajectory": _read_trajectory, ms.TRIAL_EVENTS: _read_events,
+        ms.ESTOP: _read_estop, ms.CONFIG: _read_config, "clock/pong": _read_clock,
+        "clock/ping": _read_clock}
 
     def _check_ready(self) -> None:
         """Ready for trial 0 once every publisher has its readers and every per-sample

@@ -151,19 +151,15 @@ def unmade_folder(machine: Machine) -> Path:
 
 def _lineup(opts: LaunchOptions, cfg: RunConfig, row: Plant, bridge: BridgeOptions | None,
             live: bool) -> Lineup:
-    """What the run's roster is built from: its plant and bridges, its links, its safety
-    filter's hearing, what it records and serves."""
-    safety = cfg.safety
-    return Lineup.of(cfg.scenario.graph, plant=row.name, links=cfg.links,
-                     record=opts.record is not None, live=live,
-                     external=tuple(opts.plant_nodes),
-                     **({} if bridge is None else dict(
-                         driver=bridge.driver, driver_ns=bridge.driver_ns, base=bridge.base,
-                         fake_drivers=bridge.fake_drivers,
-                         physics_bases=bridge.physics_bases)),
-                     sensing=None if safety is None else safety.sensing,
-                     told=safety is not None and safety.motion == "commands",
-                     leader_in_step=cfg.leader_in_step, clocks=cfg.clock_exchanges)
+    """What the run's roster is built from: the configuration's part (``Lineup.of_run``:
+    the part each robot node builds its own member from), its plant and bridges, what it
+    records and serves."""
+    return Lineup.of_run(cfg, plant=row.name, record=opts.record is not None, live=live,
+                         external=tuple(opts.plant_nodes),
+                         **({} if bridge is None else dict(
+                             driver=bridge.driver, driver_ns=bridge.driver_ns,
+                             base=bridge.base, fake_drivers=bridge.fake_drivers,
+                             physics_bases=bridge.physics_bases)))
 
 
 def prepare(plan: RunPlan) -> RunPlan:

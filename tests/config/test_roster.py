@@ -504,3 +504,32 @@ def test_the_trajectory_writers_are_each_robot_and_its_plant():
     assert bases["robot_2/true_trajectory"] == ("bridge_2",)
     bridged = roster(Lineup(2, plant="pioneer", fake_drivers=True)).trajectory_writers()
     assert bridged == {"robot_1/trajectory": ("robot_1",), "robot_2/trajectory": ("robot_2",)}
+
+
+@pytest.mark.parametrize(("mode", "links", "safety"), [
+    ("lockstep", "emulated", None), ("lockstep", "direct", None),
+    ("realtime", "direct", "team"), ("realtime", "emulated", "peers")])
+def test_a_robot_s_member_follows_from_the_run_configuration_alone(mode, links, safety):
+    """Each robot node builds its member from the configuration it runs
+    (``Lineup.of_run``, nothing else): whatever else the run holds (the plant, its
+    bridges, a recorder, a live view), a robot's member is the one the planner's roster
+    gives it."""
+    from dataclasses import replace
+
+    from formation_ilc.config.runconfig import make_config
+    from formation_ilc.config.safety import SafetySettings
+
+    cfg = make_config("paper-hexagon6", mode=mode, links=links)
+    if safety is not None:
+        cfg = replace(cfg, safety=SafetySettings(sensing=safety, motion="commands"))
+    own = roster(Lineup.of_run(cfg))
+    for kw in ({"plant": "physics", "record": True, "live": True},
+               {"plant": "pioneer", "fake_drivers": True, "monitor": False}):
+        run = roster(Lineup.of_run(cfg, **kw))
+        assert run.by_role("robot") == own.by_role("robot")
+    robot_2 = own.member("robot_2")
+    assert robot_2.robot == 2
+    assert (applied_topic(2) in robot_2.publish) == (safety is not None)
+    assert (TEAM_POSES in robot_2.subscribe) == (safety == "team")
+    with pytest.raises(ValueError, match="no member 'robot_7'.*robot_6"):
+        own.member("robot_7")
