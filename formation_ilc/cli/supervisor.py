@@ -104,7 +104,12 @@ class Stack:
         # through the runner that sets the parent-death signal before the node's imports:
         # a launcher killed while its nodes start takes them with it
         command = early_argv(argv)
-        proc = self._fork(name, command, env, fh)
+        # a restart is an interpreter of its own, not forked: a recorder forked again
+        # mid-run (SIGKILLed at trial 3) was never discovered by one robot's participant
+        # and recorded none of its topics (1 suite run of 2, 2026-12-07; never in the
+        # runs that restarted interpreters), as a robot forked again mid-run never joined
+        # before (docs/distributed-stack.md, "the fork server")
+        proc = None if again else self._fork(name, command, env, fh)
         self.procs[name] = proc if proc is not None else subprocess.Popen(
             command, env=env, stdout=fh, stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL if self.gate is None else self.gate[0])

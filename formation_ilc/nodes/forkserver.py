@@ -13,7 +13,8 @@ environment and the child's log and stdin (file descriptors over a Unix socket);
 server forks an intermediate process, which forks the child and exits at once. The
 launcher is a child subreaper (``PR_SET_CHILD_SUBREAPER``), so the orphaned child becomes
 the launcher's own child: the supervisor waits for it, signals it and restarts it as it
-does a process it started itself (a restarted one is forked again), and the parent-death
+does a process it started itself (a restarted one starts as an interpreter of its own:
+``cli.supervisor.Stack.start``), and the parent-death
 signal the child sets (``system.lifetime``) is bound to the launcher. The child then runs
 exactly what ``python -m formation_ilc.system.lifetime -m MODULE ARGS`` runs, so the
 ``ros2 run``-style entry points are unchanged.

@@ -74,7 +74,8 @@ NODE = {"robot": "robot_2", "simulator": "robot_sim", "leader": "virtual_leader"
 
 
 #: the victims whose launcher starts each process as an interpreter of its own, not forked
-#: from one import (the default for a small team): both ways start, restart and stop
+#: from one import (the default for a small team): both ways start and stop (a restart is
+#: an interpreter of its own either way)
 SEPARATE = ("leader", "simulator")
 
 
