@@ -59,6 +59,8 @@ FORK_DEFAULT_MAX = 16
 _PR_SET_CHILD_SUBREAPER = 36
 #: [s] the longest a spawn waits for the server (its imports come first, once)
 SPAWN_WAIT = 300.0
+#: [s] the longest a forked child waits for its intermediate process to exit (at once)
+ADOPT_WAIT = 10.0
 #: the server's last argument: room for its children's command lines (``_retitle``)
 _PAD = "--pad=" + "." * 4090
 
@@ -261,13 +263,18 @@ def _serve(sock: socket.socket, modules: list[str]) -> None:
         middle = os.fork()
         if middle == 0:  # the intermediate process
             os.close(r)
+            # its own pid, taken before the fork: the child's os.getppid() may already be
+            # the launcher's (the intermediate gone first), and a child that waited for
+            # that to change waited its whole bound: 10 s at the start of one process in
+            # two launches of a small team (2026-12-07)
+            me = os.getpid()
             try:
                 child = os.fork()
             except OSError:
                 os._exit(1)
             if child == 0:
                 os.close(w)
-                _become(sock, request, fds, os.getppid())  # never returns
+                _become(sock, request, fds, me)  # never returns
             os.write(w, str(child).encode())
             os._exit(0)
         os.close(w)
@@ -285,12 +292,14 @@ def _serve(sock: socket.socket, modules: list[str]) -> None:
 
 def _become(sock: socket.socket, request: dict[str, Any], fds: list[int],
             middle: int) -> None:
-    """In the forked child: wait to be the launcher's, take the log and stdin, the
-    environment and the command line, and run the node as the lifetime runner does."""
+    """In the forked child: wait to be the launcher's (``middle``: the intermediate
+    process's pid, its parent until that exits), take the log and stdin, the environment
+    and the command line, and run the node as the lifetime runner does."""
     launcher = os.environ.get("FORMATION_ILC_PARENT")
-    deadline = time.monotonic() + 10
+    deadline = time.monotonic() + ADOPT_WAIT
     while os.getppid() == middle and time.monotonic() < deadline:
         time.sleep(0.001)  # the intermediate exits at once
+    late = os.getppid() == middle
     sock.close()
     out, stdin = fds[0], (fds[1] if len(fds) > 1 else os.open(os.devnull, os.O_RDONLY))
     os.dup2(stdin, 0)
@@ -304,6 +313,9 @@ def _become(sock: socket.socket, request: dict[str, Any], fds: list[int],
     os.environ.update(request["env"])
     signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if late:
+        print(f"forked by the fork server, but its intermediate process {middle} was still "
+              f"its parent after {ADOPT_WAIT:.0f} s", file=sys.stderr, flush=True)
     if launcher and str(os.getppid()) != launcher:
         print(f"forked by the fork server, but launcher {launcher} did not adopt it "
               f"(parent {os.getppid()})", file=sys.stderr, flush=True)

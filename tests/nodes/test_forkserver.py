@@ -61,6 +61,29 @@ def test_a_forked_node_is_ours_and_joins_the_domain_only_after_the_fork(ros_env,
     assert "modules imported" in (tmp_path / "server.log").read_text()
 
 
+def test_children_forked_in_a_row_go_on_as_soon_as_the_launcher_adopts_them(ros_env,
+                                                                             tmp_path):
+    """A child took its parent once forked for the intermediate process; when that had
+    already exited, the parent was the launcher, and the child waited out its whole bound
+    for it to change (10 s at the start of one process in two launches of a team)."""
+    env = _env(ros_env)
+    server = ForkServer(env, [PROBE], tmp_path / "server.log")
+    said = []
+    try:
+        command = early_argv([sys.executable, "-m", PROBE])
+        for i in range(12):
+            out = tmp_path / f"child{i}.log"
+            with out.open("wb") as fh:
+                child = server.spawn(command, env, fh.fileno(), None)
+            assert child.wait(timeout=120) == 7, out.read_text()
+            said.append(out.read_text())
+    finally:
+        server.close()
+    late = [text for text in said if "was still its parent" in text]
+    assert not late, late
+    assert all(json.loads(t.strip().splitlines()[-1])["ppid"] == os.getpid() for t in said)
+
+
 def test_a_server_with_a_dds_thread_refuses_to_fork(ros_env, tmp_path):
     env = _env(ros_env)
     server = ForkServer(env, ["tests.nodes.fork_dds"], tmp_path / "server.log")
