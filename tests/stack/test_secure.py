@@ -22,6 +22,7 @@ import shutil
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -440,17 +441,20 @@ def test_no_plaintext_leaves_a_process(ros_env, tmp_path, keystore, udp_only):
 
 
 def _secure_run_probed(env: dict[str, str], out: Path, ks: Path, args: list[str],
-                       first_rows: int = 1, seconds: float = 5.0) -> tuple[dict, str, bool]:
+                       first_rows: int = 1, seconds: float = 5.0,
+                       also: Callable[[], bool] = lambda: True) -> tuple[dict, str, bool]:
     """A secure launch of ``args`` (long enough to outlast the probe), an unsecured
-    participant listening to it once ``first_rows`` trials are in, then the launch
-    stopped (SIGINT: the finished trials stay in metrics.csv). (probe result, the
-    launcher's output, whether the run was still going when the probe was done)."""
+    participant listening to it once ``first_rows`` trials are in (and ``also`` holds),
+    then the launch stopped (SIGINT: the finished trials stay in metrics.csv). (probe
+    result, the launcher's output, whether the run was still going when the probe was
+    done)."""
     proc = start_launch(env, out, *args, "--secure", str(ks))
     metrics = out / "metrics.csv"
     p = None
     try:
         deadline = time.monotonic() + 600  # a hang guard: secure start-up is slow under load
-        while not (metrics.exists() and len(metrics.read_text().splitlines()) > first_rows):
+        while not (metrics.exists() and len(metrics.read_text().splitlines()) > first_rows
+                   and also()):
             assert proc.poll() is None, proc.communicate()[0]
             assert time.monotonic() < deadline, "the secure run did not get to its trials"
             time.sleep(0.05)
@@ -534,14 +538,25 @@ def test_secure_bases_with_physics_bases_equal_the_insecure_run(ros_env, tmp_pat
     assert refused.returncode == 2, refused.stdout
     scale = refused.stdout.rsplit("--time-scale ", 1)[1].split()[0]
     common += ["--time-scale", scale]
-    forger = subprocess.Popen(
-        [sys.executable, str(HERE / "forger.py"), "--truth", "0", "--timeout", "600"],
-        env=identity(ros_env, ks, "/formation/robot_3"), stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    said_file = tmp_path / "forger.out"
+
+    def tried_every_truth() -> bool:
+        # the run goes on until the insider has found all three truth topics (a secure
+        # graph lists a participant's writers one by one: a run stopped after its second
+        # trial once left the insider with two of three, 2026-12-07)
+        return said_file.read_text().count('/truth"') >= 3
+
+    with said_file.open("w") as fh:
+        forger = subprocess.Popen(
+            [sys.executable, str(HERE / "forger.py"), "--truth", "0", "--timeout", "600"],
+            env=identity(ros_env, ks, "/formation/robot_3"), stdout=fh,
+            stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:
         got, out, alive = _secure_run_probed(ros_env, tmp_path / "secure", ks,
-                                             [*common, "--trials", "30"], first_rows=2)
-        said = end_forger(forger)
+                                             [*common, "--trials", "30"], first_rows=2,
+                                             also=tried_every_truth)
+        end_forger(forger)
+        said = said_file.read_text()
     finally:
         stop_group(forger)
     assert alive, out
