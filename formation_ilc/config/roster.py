@@ -554,9 +554,9 @@ def _plant(lineup: Lineup, row: Plant) -> list[Member]:
         if lineup.clocks:  # it asks the leader's time
             bridge_pub.append(nm.clock_ping_topic(nm.bridge_name(i)))
             bridge_sub.append(nm.clock_pong_topic(nm.LEADER))
+        # (not a fake driver's truth report: only a test that starts one by hand asks for
+        # it, -p truth_period:=S; the launcher's do not, and a real driver has none)
         driver_pub, driver_sub = [o], [c]
-        if row.driver == "pioneer":
-            driver_pub.append(f"{ns}/{nm.FAKE_DRIVER_NODE}/truth")
         rq = rr = ""
         if kind == "p2os_motor_state":
             bridge_pub.append(mo)

@@ -18,9 +18,10 @@ every other robot's pose and the plant's ``team/poses`` (as main granted them fr
 asks or answers. Those permissions are added, and only those. And a run of physics bases
 has the true state (issue 33): the bases publish their true poses and each bridge the
 trial's true trajectory (``truth`` true in both nodes' parameters, ``_with_bases_truth``).
-And one permission is gone (issue 55: a member is exactly what its node does): the monitor
-reads true trajectories only where some node writes them, not behind the Pioneer's bridges
-(``_without_unwritten_truth``).
+And two permissions are gone (issue 55: a member is exactly what its node does): the
+monitor reads true trajectories only where some node writes them, not behind the Pioneer's
+bridges, and a Pioneer driver's enclave no longer writes the fake driver's truth report,
+which no launched driver makes (``_without_unwritten_truth``).
 """
 
 from __future__ import annotations
@@ -307,12 +308,14 @@ def test_every_enclave_keeps_its_grant(key):
 
 def _without_unwritten_truth(want: dict[str, dict], lineup: Lineup) -> dict[str, dict]:
     """The golden grants without the monitor's reads of the true trajectories where no
-    plant of ``lineup`` has a true state (the monitor makes no reader of them there)."""
-    if lineup.true_state:
-        return want
+    plant of ``lineup`` has a true state (the monitor makes no reader of them there), and
+    without the drivers' writers of the fake driver's truth report (a test's, by hand)."""
     out = {path: dict(g) for path, g in want.items()}
-    g = next(g for path, g in out.items() if path.endswith("/monitor"))
-    g["subscribe"] = [t for t in g["subscribe"] if not t.endswith("/true_trajectory")]
+    for path, g in out.items():
+        if path.endswith("/monitor") and not lineup.true_state:
+            g["subscribe"] = [t for t in g["subscribe"] if not t.endswith("/true_trajectory")]
+        if "/driver_" in path:
+            g["publish"] = [t for t in g["publish"] if not t.endswith("/fake_pioneer/truth")]
     return out
 
 
