@@ -15,7 +15,8 @@ default 0.01) and on the rotation (``odom_turn_scale``, default -0.01), a rotati
 (``odom_turn_bias`` [rad/s], default 0.002), and white noise on the published pose
 (``odom_noise`` [m], heading noise a tenth of it in rad, default 0.002), seeded by ``seed``.
 It reports its true pose and the odometry's error on ``fake_pioneer/truth`` (JSON, latched)
-when asked with ``truth_period`` > 0 (tests only).
+when asked with ``truth_period`` > 0 (tests only; no keystore grants it: a secure run
+refuses the writer).
 """
 
 from __future__ import annotations

@@ -11,6 +11,9 @@ subscribes. Everything else reads it:
   entry script, in start order;
 * each robot node (``formation_ilc.nodes.robot``): its publishers and subscriptions are its
   member's topics, its member built from the run configuration it runs (``Lineup.of_run``);
+  every other node makes exactly its member's topics too (``tests/stack/test_secure.py``
+  reads them from the live graph), so a member lists what its node uses in that lineup
+  (``/clock`` only where it is read, true trajectories only where a plant writes them);
 * the keystore's permissions (``Roster.grants``, signed by ``formation_ilc.store.keystore``):
   each enclave may publish and subscribe exactly its members' topics (least privilege,
   derived from the graph: ``adjacency[i, j] > 0``, robot i receives from robot j;
@@ -40,11 +43,16 @@ if TYPE_CHECKING:
     from formation_ilc.config.runconfig import RunConfig
 
 __all__ = ["TRIAL", "ONCE", "NEVER", "Member", "Lineup", "Roster", "Team", "roster",
-           "DRIVER_NS", "ENTRY_SCRIPTS", "leader_clock_askers"]
+           "DRIVER_NS", "ENTRY_SCRIPTS", "OPERATOR", "leader_clock_askers"]
 
 #: whether the leader waits for a member's ready: before each trial, once for the whole
 #: run (a passive reader: the monitor, the recorder), or never
 TRIAL, ONCE, NEVER = "trial", "once", "never"
+
+#: the ground station's operator: a client of its own (``ros2 service call``, a button)
+#: in the monitor's enclave that presses the stop button (docs/real-robots.md, "Stopping");
+#: no process of the launcher's
+OPERATOR = "operator"
 
 #: robot i's driver namespace by the bridges' driver kind (``{i}``: the robot's number)
 DRIVER_NS = {"pioneer": "/pioneer_{i}", "base": "/base_{i}"}
@@ -65,7 +73,8 @@ class Member:
     name : its node name; also the launcher's process and log name.
     role : 'robot', 'plant', 'support' (the link emulator, the physics bases behind the
         bridges), 'leader', 'recorder', 'liveview', 'monitor' (in the launcher's process),
-        'driver' (a robot's driver).
+        'operator' (the stop button's client, in the monitor's enclave), 'driver' (a
+        robot's driver).
     entry : the entry script the launcher starts it with; None: no process of the
         launcher's (the monitor runs inside it; an external plant or a real driver is
         started by someone else).
@@ -113,6 +122,9 @@ class Lineup:
     plant : a row of ``config.plants``; ``external``: an external plant's node names.
     links : 'emulated' (the link emulator runs), 'direct', or 'any' (a keystore's: every
         topic of both).
+    mode : the trials' mode ('lockstep', 'realtime', 'wallclock'; 'any': a keystore's),
+        or None: the plant's default (``run_mode``). It decides who reads ``/clock``: the
+        leader in simulated time (lockstep, realtime), the link emulator in realtime.
     leader_in_step : the robots that see the leader take its link from their own sample
         (``RunConfig.leader_in_step``: lockstep with direct links), not from its messages.
     record, live : a recorder, the live view; ``monitor``: the launcher's monitor (a leader
@@ -134,6 +146,7 @@ class Lineup:
     n: int
     plant: str = "sim"
     links: str = "emulated"
+    mode: str | None = None
     record: bool = False
     live: bool = False
     monitor: bool = True
@@ -166,23 +179,29 @@ class Lineup:
         member from the configuration it runs (``nodes.robot``). ``kw``: the rest (the
         plant and its bridges, what else runs)."""
         safety = cfg.safety
-        return cls.of(cfg.scenario.graph, links=cfg.links,
+        return cls.of(cfg.scenario.graph, links=cfg.links, mode=cfg.mode,
                       sensing=None if safety is None else safety.sensing,
                       told=safety is not None and safety.motion == "commands",
                       leader_in_step=cfg.leader_in_step, clocks=cfg.clock_exchanges, **kw)
 
     def for_keystore(self) -> Lineup:
         """Every member a run of this formation and plant may start, with every topic it
-        may use: the link emulator, the recorder, the live view and the monitor too, and
-        the safety filter's hearing and the clock exchanges (a keystore serves every
-        run)."""
-        return replace(self, links="any", record=True, live=True, monitor=True,
+        may use: the link emulator, the recorder, the live view and the monitor too, every
+        mode, and the safety filter's hearing and the clock exchanges (a keystore serves
+        every run)."""
+        return replace(self, links="any", mode="any", record=True, live=True, monitor=True,
                        sensing=None if self.row.sensing is None else "any", clocks=True,
                        leader_in_step=False, told=self.row.sensing is not None)
 
     @property
     def row(self) -> Plant:
         return plant(self.plant)
+
+    @property
+    def run_mode(self) -> str:
+        """The trials' mode: ``mode``, else the plant's default (as the planner's): wall
+        clock behind bridges, else lockstep."""
+        return self.mode or ("wallclock" if self.row.per_robot else "lockstep")
 
     @property
     def true_state(self) -> bool:
@@ -311,14 +330,22 @@ class Roster:
                 return m.enclave
         return process
 
-    def grants(self, namespace: str) -> dict[str, Grant]:
-        """Every enclave's grant, by enclave path (a member each; the topics absolute in
-        ``namespace``, ``/clock`` as the launcher remaps it there)."""
+    @staticmethod
+    def topics(member: Member, namespace: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        """(publish, subscribe) of ``member``: absolute in ``namespace``, sorted, ``/clock``
+        as the launcher remaps it there (what its node's graph shows)."""
         clock = nm.clock_topic(namespace)
 
         def absolute(topics: Sequence[str]) -> tuple[str, ...]:
             return tuple(sorted({nm.absolute(clock if t == nm.CLOCK else t, namespace)
                                  for t in topics}))
+
+        return absolute(member.publish), absolute(member.subscribe)
+
+    def grants(self, namespace: str) -> dict[str, Grant]:
+        """Every enclave's grant, by enclave path: its members' topics (``topics``) and
+        services (the monitor's enclave holds the operator's too), under the node name
+        and namespace of its first member."""
 
         def dds(serves: Sequence[str], calls: Sequence[str]) -> tuple[list[str], list[str]]:
             """A server reads requests and writes replies; a client the other way."""
@@ -326,16 +353,16 @@ class Roster:
             cl = [nm.service_dds_topics(nm.absolute(x, namespace)) for x in calls]
             return [r[1] for r in rq] + [c[0] for c in cl], [r[0] for r in rq] + [c[1] for c in cl]
 
-        out = {}
+        out: dict[str, Grant] = {}
         for m in self.members:
             path = enclave_path(namespace, m.enclave)
             srv_pub, srv_sub = dds(m.serves, m.calls)
-            out[path] = Grant(path, m.name if m.role != "driver" or m.robot is None
-                              else m.enclave, m.node_namespace or namespace,
-                              absolute(m.publish), absolute(m.subscribe),
-                              tuple(sorted({*m.dds_publish, *srv_pub})),
-                              tuple(sorted({*m.dds_subscribe, *srv_sub})),
-                              m.service_node or m.name)
+            pub, sub = self.topics(m, namespace)
+            g = Grant(path, m.name if m.role != "driver" or m.robot is None else m.enclave,
+                      m.node_namespace or namespace, pub, sub,
+                      tuple(sorted({*m.dds_publish, *srv_pub})),
+                      tuple(sorted({*m.dds_subscribe, *srv_sub})), m.service_node or m.name)
+            out[path] = g if path not in out else _joined(out[path], g)
         return out
 
 
@@ -352,17 +379,22 @@ def roster(lineup: Lineup) -> Roster:
     senders = [[int(j) + 1 for j in np.flatnonzero(a[i] > 0)] for i in range(n)]
     hears = [bool(w[i] > 0) for i in range(n)]
     protocol = (nm.READY, nm.DIAGNOSTICS, nm.ROS_DIAGNOSTICS)
+    mode = lineup.run_mode
     members: list[Member] = []
     if lineup.monitor:
-        # the ground station: the one enclave that may press the stop button (call the
-        # leader's stop, latch the e-stop)
+        # the launcher's monitor: the trajectories (the true ones where a plant has them)
+        # for metrics.csv, the reports, the leader's events; it says ready, and answers a
+        # forged 'down' of itself by saying ready again
+        true = [nm.true_trajectory_topic(i) for i in robots] if lineup.true_state else []
         members.append(Member(
-            nm.MONITOR_NODE, "monitor", None, ONCE, False, nm.MONITOR_NODE,
-            (nm.READY, nm.ESTOP),
-            (*(nm.trajectory_topic(i) for i in robots),
-             *(nm.true_trajectory_topic(i) for i in robots), nm.DIAGNOSTICS,
-             # readies: it answers a forged 'down' of itself by saying ready
-             nm.TRIAL_EVENTS, nm.READY, nm.ESTOP), calls=(nm.STOP_SERVICE,)))
+            nm.MONITOR_NODE, "monitor", None, ONCE, False, nm.MONITOR_NODE, (nm.READY,),
+            (*(nm.trajectory_topic(i) for i in robots), *true, nm.DIAGNOSTICS,
+             nm.TRIAL_EVENTS, nm.READY)))
+        # the ground station's enclave is the one that may press the stop button (call
+        # the leader's stop, latch the e-stop, see it latched): an operator's client of its
+        # own does, beside the monitor, which does neither (docs/real-robots.md)
+        members.append(Member(OPERATOR, "operator", None, NEVER, False, nm.MONITOR_NODE,
+                              (nm.ESTOP,), (nm.ESTOP,), calls=(nm.STOP_SERVICE,)))
     if lineup.record:
         members.append(Member(
             nm.RECORDER_NODE, "recorder", "formation-ilc-recorder", ONCE, True,
@@ -389,9 +421,10 @@ def roster(lineup: Lineup) -> Roster:
         # its own events too: it re-asserts against a start or abort it did not send (a
         # buggy node's, or a lossy link's replay); the nodes' reports, for the endpoints
         # a node still waits for at start-up (its watchdog names them); the e-stop (one
-        # the ground station latched ends the run too)
-        (nm.READY, nm.CONFIG, nm.CLOCK, nm.TRIAL_EVENTS, nm.DIAGNOSTICS, nm.ESTOP,
-         *leader_sub), serves=(nm.STOP_SERVICE,)))
+        # the ground station latched ends the run too); the plant's /clock in simulated
+        # time (wall-clock trials have none: it samples on its own timer)
+        (nm.READY, nm.CONFIG, *([nm.CLOCK] if mode != "wallclock" else []), nm.TRIAL_EVENTS,
+         nm.DIAGNOSTICS, nm.ESTOP, *leader_sub), serves=(nm.STOP_SERVICE,)))
     members += _plant(lineup, row)
     if lineup.links in ("emulated", "any"):
         links_pub = [nm.link_topic(i, nm.robot_name(j)) for i in robots
@@ -400,13 +433,25 @@ def roster(lineup: Lineup) -> Roster:
         members.append(Member(
             nm.LINKS_NODE, "support", "formation-ilc-link-emulator", TRIAL, True, nm.LINKS_NODE,
             (*links_pub, *protocol),
-            # every robot's shared pose, the leaves' too
+            # every robot's shared pose, the leaves' too; /clock ticks it in realtime (in
+            # lockstep the poses themselves do)
             (*(nm.shared_pose_topic(j) for j in robots), nm.REFERENCE, nm.TRIAL_EVENTS,
-             nm.CONFIG, nm.CLOCK)))
+             nm.CONFIG, *([nm.CLOCK] if mode in ("realtime", "any") else []))))
     hearers = [[i for i in robots if j in senders[i - 1]] for j in robots]
     for i in robots:
         members.append(_robot(i, senders[i - 1], hears[i - 1], lineup, hearers[i - 1]))
     return Roster(lineup, tuple(members))
+
+
+def _joined(a: Grant, b: Grant) -> Grant:
+    """Grant ``a`` with ``b``'s topics and services too (two members of one enclave)."""
+    def union(x: Sequence[str], y: Sequence[str]) -> tuple[str, ...]:
+        return tuple(sorted({*x, *y}))
+
+    return replace(a, publish=union(a.publish, b.publish),
+                   subscribe=union(a.subscribe, b.subscribe),
+                   dds_publish=union(a.dds_publish, b.dds_publish),
+                   dds_subscribe=union(a.dds_subscribe, b.dds_subscribe))
 
 
 def leader_clock_askers(leader: Iterable[float], bridges: Sequence[str]) -> list[str]:
@@ -509,9 +554,9 @@ def _plant(lineup: Lineup, row: Plant) -> list[Member]:
         if lineup.clocks:  # it asks the leader's time
             bridge_pub.append(nm.clock_ping_topic(nm.bridge_name(i)))
             bridge_sub.append(nm.clock_pong_topic(nm.LEADER))
+        # (not a fake driver's truth report: only a test that starts one by hand asks for
+        # it, -p truth_period:=S; the launcher's do not, and a real driver has none)
         driver_pub, driver_sub = [o], [c]
-        if row.driver == "pioneer":
-            driver_pub.append(f"{ns}/{nm.FAKE_DRIVER_NODE}/truth")
         rq = rr = ""
         if kind == "p2os_motor_state":
             bridge_pub.append(mo)

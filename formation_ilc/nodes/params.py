@@ -175,17 +175,35 @@ def probe_overrides(name: str, namespace: str, **kwargs: Any) -> Iterator[dict[s
     context's DDS participant with its last node, so a probe destroyed before the real
     node existed made each robot process announce a participant that lived 0.2 s; every
     other participant discovered it too, and in a secure run began an authentication
-    handshake with it that went on until its discovery lease ran out."""
+    handshake with it that went on until its discovery lease ran out. So a keeper holds
+    the participant instead (``KEEPER``: hidden, no remaps, no services): the probe itself
+    is gone before the real node is made. The real node may have the probe's name (the
+    fake driver's; a robot's under ``-r __node:=robot_I``), and rmw's graph files a node's
+    publishers and subscriptions under the first node of that name in the participant:
+    made beside the probe, they were dropped with it, and the graph showed the real node
+    with none."""
     # nor its type description service: a secure run's permissions grant a node's
     # services under the node's own name only, and Enforce refused the probe's
-    probe = Node(name, namespace=namespace, enable_rosout=False,
-                 start_parameter_services=False,
-                 parameter_overrides=[Parameter(_TYPE_DESCRIPTION, value=False)], **kwargs)
+    quiet: dict[str, Any] = dict(enable_rosout=False, start_parameter_services=False,
+                                 parameter_overrides=[Parameter(_TYPE_DESCRIPTION,
+                                                                value=False)])
+    probe = Node(name, namespace=namespace, **quiet, **kwargs)
     try:
-        yield {k: p.value for k, p in probe._parameter_overrides.items()
-               if k != _TYPE_DESCRIPTION}
+        found = {k: p.value for k, p in probe._parameter_overrides.items()
+                 if k != _TYPE_DESCRIPTION}
+        keeper = Node(KEEPER, namespace="/", use_global_arguments=False,
+                      context=kwargs.get("context"), **quiet)
     finally:
         probe.destroy_node()
+    try:
+        yield found
+    finally:
+        keeper.destroy_node()
+
+
+#: the node that holds a process's DDS participant while its real node is made
+#: (``probe_overrides``); hidden (a leading underscore) from ``ros2 node list``
+KEEPER = "_formation_ilc_keeper"
 
 
 #: rclpy's parameter that switches a node's type description service on (default true)

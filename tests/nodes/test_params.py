@@ -178,12 +178,15 @@ def test_the_recorder_refuses_sim_time_before_it_writes_anything(ros_env, tmp_pa
 
 
 def test_the_robot_node_is_made_while_its_probe_holds_the_participant(params_context):
-    """The probe that reads robot_id lives until the robot's node exists: rmw destroys a
-    context's DDS participant with its last node, and a robot process whose probe went
-    first announced two participants (in a secure run, two handshakes with everyone)."""
+    """The participant of the probe that reads robot_id is held (by a keeper node) until
+    the robot's node exists: rmw destroys a context's DDS participant with its last node, and a robot
+    process whose probe went first announced two participants (in a secure run, two
+    handshakes with everyone). The probe itself is gone by then (a node of its name would
+    take the real node's endpoints in the graph: test_a_node_named_as_its_probe_...)."""
     from rclpy.node import Node
 
     from formation_ilc.nodes.common import robot_node_from_args
+    from formation_ilc.nodes.params import KEEPER
 
     ctx = params_context("-p", "robot_id:=2")
     seen: list[list[tuple[str, str]]] = []
@@ -195,11 +198,35 @@ def test_the_robot_node_is_made_while_its_probe_holds_the_participant(params_con
 
     node = robot_node_from_args(Made, [], "formation-ilc-robot", context=ctx)
     try:
-        assert ("robot", "/formation") in seen[0]  # the probe, still there
+        assert (KEEPER, "/") in seen[0]  # the participant still held
+        assert ("robot", "/formation") not in seen[0]  # the probe gone first
         assert ("robot_2", "/formation") in seen[0]
         assert ("robot", "/formation") not in node.get_node_names_and_namespaces()
     finally:
         node.destroy_node()
+
+
+def test_a_node_named_as_its_probe_keeps_its_endpoints_in_the_graph(params_context):
+    """The fake driver's probe has the driver's own name: the graph files the driver's
+    publishers and subscriptions under it (made beside a probe of its name, they went
+    with the probe, and the graph showed the driver with none)."""
+    import msgs_schema as ms
+    from formation_ilc.nodes.params import probe_overrides
+    from robot_sim.fake_pioneer import FakePioneer
+
+    ctx = params_context("-r", "__ns:=/pioneer_1")
+    with probe_overrides(ms.FAKE_DRIVER_NODE, ms.DRIVERS["rosaria"].default_ns,
+                         context=ctx) as found:
+        fake = FakePioneer(found.get("driver", "rosaria"), context=ctx)
+    try:
+        key = (ms.FAKE_DRIVER_NODE, "/pioneer_1")
+        pubs = {t for t, _ in fake.get_publisher_names_and_types_by_node(*key)}
+        subs = {t for t, _ in fake.get_subscriber_names_and_types_by_node(*key)}
+        assert {"/pioneer_1/pose", "/rosout"} <= pubs, pubs
+        assert "/pioneer_1/cmd_vel" in subs, subs
+        assert sum(k == key for k in fake.get_node_names_and_namespaces()) == 1
+    finally:
+        fake.destroy_node()
 
 
 def test_the_fake_driver_starts_from_its_example_file(params_context):
