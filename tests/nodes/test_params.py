@@ -179,8 +179,8 @@ def test_the_recorder_refuses_sim_time_before_it_writes_anything(ros_env, tmp_pa
 
 def test_the_robot_node_is_made_while_its_probe_holds_the_participant(params_context):
     """The participant of the probe that reads robot_id is held (by a keeper node) until
-    the robot's node exists: rmw destroys a context's DDS participant with its last node, and a robot
-    process whose probe went first announced two participants (in a secure run, two
+    the robot's node exists: rmw destroys a context's DDS participant with its last node,
+    and a robot process whose probe went first announced two participants (in a secure run, two
     handshakes with everyone). The probe itself is gone by then (a node of its name would
     take the real node's endpoints in the graph: test_a_node_named_as_its_probe_...)."""
     from rclpy.node import Node
