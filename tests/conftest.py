@@ -108,31 +108,43 @@ def executor(context):
 #: watchdog's bounds): with the suite side by side (pytest-xdist) they run one after
 #: another in one test process, the ``clock`` lane, while the other stack tests (lockstep
 #: runs that take all the CPU they get) run one after another in another, the ``lockstep``
-#: lane (``pytest_xdist_make_scheduler``); in-process tests fill in beside both. Two lanes, not
-#: more: two lockstep runs at once on two cores only slow each other, and a realtime run
-#: needs the cores a third stack would take. Tests in one lane run in file order, so runs
-#: shared through tests/stack/shared.py are made before they are read.
+#: lane (``pytest_xdist_make_scheduler``); the tests that wait for a bound run in a third,
+#: the ``waits`` lane (WAIT_TESTS); in-process tests fill in beside them. One lockstep lane
+#: and one clock lane, not more: two lockstep runs at once on two cores only slow each
+#: other, and a realtime run needs the cores a third lockstep stack would take. Tests in
+#: one lane run in file order, so runs shared through tests/stack/shared.py are made before
+#: they are read.
 CLOCK_FILES = ("test_pioneer.py", "test_realtime.py", "test_base_physics.py",
                "test_diagnostics.py", "test_clocks.py")
 # (Loaded by two other sessions, the lockstep lane was the critical path, 1,582 s of a
 # 1,624 s suite against the clock lane's 1,034 s, and test_faults.py here evened them:
 # 1,309 s. On a quiet machine the clock lane's waits do not shrink while the lockstep
 # runs do: a fresh-clone CI took 1,218 s with it here against 1,103 s before. 2026-12-07.)
-CLOCK_TESTS = ("test_a_run_waiting_for_a_node_that_never_comes_stops_naming_it",
-               "test_secure_pioneer_bridges_and_fake_drivers",
+CLOCK_TESTS = ("test_secure_pioneer_bridges_and_fake_drivers",
                "test_secure_bases_with_physics_bases_equal_the_insecure_run",
-               "test_lossy_links_across_namespaces",
-               # a short lockstep run, most of its 22 s waiting for a host to come back
-               "test_four_host_launchers_run_the_team_and_a_killed_host_rejoins")
+               "test_lossy_links_across_namespaces")
+#: the stack tests that mostly wait for a bound to pass (a freeze's, a start-up's, a host
+#: that never comes or comes back), the ``waits`` lane: they take little CPU, so they run
+#: beside both other lanes. (A quiet full run, 2026-12-07, forked starts: the lockstep lane
+#: 911 s of a 931 s suite, the clock lane 845 s; these were 102 s of the one, 71 of the
+#: other.)
+WAIT_TESTS = ("test_robots_frozen_in_start_up_and_in_trial_1_are_named_and_restarted",
+              "test_a_host_that_never_starts_is_named_first_with_the_command_that_starts_it",
+              "test_a_start_up_that_cannot_complete_names_the_unmatched_endpoints",
+              "test_a_run_waiting_for_a_node_that_never_comes_stops_naming_it",
+              # a short lockstep run, most of its 22 s waiting for a host to come back
+              "test_four_host_launchers_run_the_team_and_a_killed_host_rejoins")
 
 
 def lane(nodeid: str) -> str | None:
-    """The lane of a test (``clock`` or ``lockstep``), or None: what is not a stack test
-    runs wherever a test process is free."""
+    """The lane of a test (``clock``, ``waits`` or ``lockstep``), or None: what is not a
+    stack test runs wherever a test process is free."""
     path, _, name = nodeid.partition("::")
     if not path.startswith("tests/stack/"):
         return None
     base = name.split("[", 1)[0]
+    if base in WAIT_TESTS:
+        return "waits"
     return "clock" if path.rsplit("/", 1)[1] in CLOCK_FILES or base in CLOCK_TESTS \
         else "lockstep"
 
@@ -182,8 +194,8 @@ def pytest_collection_modifyitems(session, config, items):
 
 
 def pytest_xdist_make_scheduler(config, log):
-    """pytest-xdist's scheduler with the two lanes as units of work: every test of a lane
-    goes to one test process, in file order; every other test is a unit of its own."""
+    """pytest-xdist's scheduler with the lanes as units of work: every test of a lane goes
+    to one test process, in file order; every other test is a unit of its own."""
     from xdist.scheduler import LoadScopeScheduling
 
     class Lanes(LoadScopeScheduling):
