@@ -20,19 +20,22 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-from dataclasses import replace
+from collections.abc import Iterator
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from formation_ilc.config.scenario import load_scenario  # noqa: E402
+from formation_ilc.config.scenario import Scenario, load_scenario  # noqa: E402
 from formation_ilc.core import barrier as B  # noqa: E402
 from formation_ilc.core.estimate import BOX, box_centre, box_error  # noqa: E402
 from formation_ilc.core.safety import (  # noqa: E402
     CHANGED,
     OTHER_FIELDS,
+    SafetySpec,
     filter_team,
     told,
 )
@@ -78,6 +81,63 @@ def pair_terms(k, r, w, h, x, y, th, discs):
     return rows
 
 
+@dataclass
+class Through:
+    """The desired motion through the filter at one sample: ``before`` the commands of the
+    sample before (told), ``boxes`` the position boxes, ``u`` what the filter left."""
+
+    sc: Scenario
+    spec: SafetySpec
+    k: Any
+    params: Any
+    eta: np.ndarray
+    before: np.ndarray
+    boxes: np.ndarray
+    u: np.ndarray
+
+
+def changed_commands(sc: Scenario, base: str, noisy: bool) -> Iterator[tuple[Through, int, int]]:
+    """(state, t, i) for every command of robot i at sample t that the filter changes
+    beyond ``TOLERANCE`` as ``check --base`` runs it (the desired poses with the
+    scenario's noise, its first trial's draw, when ``noisy``; speeds told)."""
+    spec = body_spec(base, sc.dt, sc.uncertainty if noisy else None, "commands")
+    d = sc.desired
+    eta = np.ascontiguousarray(d.eta)
+    if noisy:
+        eta = np.ascontiguousarray(
+            eta + sc.uncertainty.draw_plant(sc.seed, 0, eta.shape[0], d.u.shape[1])[2])
+    n, n_t = d.u.shape[0], d.u.shape[1]
+    u = np.array(d.u, dtype=float)
+    nominal, flags = np.empty_like(u), np.zeros((n, n_t), dtype=np.int64)
+    prev, params = np.zeros((n, 2)), spec.params()
+    others, ages, boxes = np.zeros((n, OTHER_FIELDS)), np.zeros(n), np.zeros((n, BOX))
+    state = Through(sc, spec, B.numbers(params), params, eta, prev, boxes, u)
+    for t in range(n_t):
+        state.before = prev.copy()
+        filter_team.jit(t, u, eta, prev, 0.0, params, spec.window, nominal, flags, others,
+                        ages, boxes)
+        diff = np.abs(u[:, t] - d.u[:, t])
+        for i in range(n):
+            if flags[i, t] & CHANGED and (diff[i, 0] > TOLERANCE[0]
+                                          or diff[i, 1] > TOLERANCE[1]):
+                yield state, t, i
+        prev[:] = d.u[:, t]
+
+
+def heard_pairs(st: Through, cmd: np.ndarray, t: int, a: int, b: int, xa: float, ya: float,
+                xb: float, yb: float, err: float) -> tuple[Any, list[dict]]:
+    """Robot a's command ``cmd[a, t]`` against robot b as the filter hears b (at xb, yb,
+    its last command told; ``err`` the two positions' error): b's heard motion and the
+    terms of every pair of their discs (``pair_terms``)."""
+    r = B.own_reach(float(st.before[a, 0]), float(st.before[a, 1]), st.k, st.params)
+    w = B.wish_reach(float(cmd[a, t, 0]), float(cmd[a, t, 1]), st.k, r, True)
+    row = np.zeros((1, OTHER_FIELDS))
+    told(st.eta[b, t, 2], st.before[b, 0], st.before[b, 1], row, 0)
+    h = B.heard_motion(xb, yb, st.eta[b, t, 2], row[0, 3], row[0, 4], row[0, 5], True, err,
+                       0.0, xa, ya, st.k, r)
+    return h, pair_terms(st.k, r, w, h, xa, ya, st.eta[a, t, 2], st.spec.discs)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("scenario", nargs="?", default="paper-triangle3")
@@ -89,59 +149,36 @@ def main() -> int:
     if a.offsets != 1.0:
         sc = replace(sc, offsets=sc.offsets * a.offsets)
     noisy = not a.exact and sc.uncertainty.noisy
-    spec = body_spec(a.base, sc.dt, sc.uncertainty if noisy else None, "commands")
-    d = sc.desired
-    eta = np.ascontiguousarray(d.eta)
-    if noisy:
-        eta = np.ascontiguousarray(
-            eta + sc.uncertainty.draw_plant(sc.seed, 0, eta.shape[0], d.u.shape[1])[2])
-    n, n_t = d.u.shape[0], d.u.shape[1]
-    u = np.array(d.u, dtype=float)
-    nominal, flags = np.empty_like(u), np.zeros((n, n_t), dtype=np.int64)
-    prev, params = np.zeros((n, 2)), spec.params()
-    k = B.numbers(params)
-    others, ages, boxes = np.zeros((n, OTHER_FIELDS)), np.zeros(n), np.zeros((n, BOX))
+    distance = body_spec(a.base, sc.dt, sc.uncertainty if noisy else None,
+                         "commands").distance
     print(f"{a.scenario} on {a.base}, {'exact poses' if not noisy else 'noisy poses'}: "
-          f"D = {spec.distance:.3f} m; per changed command, its binding pair of discs [m]")
+          f"D = {distance:.3f} m; per changed command, its binding pair of discs [m]")
     print("robot  t[s]  vs  apart   dd     room4noise  g     X_n = hold + brake + turn"
           "      B_i    B_j (straight, turn)    slack  share  deficit")
     changed = 0
-    for t in range(n_t):
-        before = prev.copy()
-        filter_team.jit(t, u, eta, prev, 0.0, params, spec.window, nominal, flags, others,
-                        ages, boxes)
-        diff = np.abs(u[:, t] - d.u[:, t])
-        for i in range(n):
-            if not (flags[i, t] & CHANGED and (diff[i, 0] > TOLERANCE[0]
-                                               or diff[i, 1] > TOLERANCE[1])):
+    for st, t, i in changed_commands(sc, a.base, noisy):
+        changed += 1
+        x, y = box_centre(st.boxes, i)
+        worst = None
+        for j in range(sc.n):
+            if j == i:
                 continue
-            changed += 1
-            r = B.own_reach(float(before[i, 0]), float(before[i, 1]), k, params)
-            w = B.wish_reach(float(d.u[i, t, 0]), float(d.u[i, t, 1]), k, r, True)
-            x, y = box_centre(boxes, i)
-            worst = None
-            for j in range(n):
-                if j == i:
-                    continue
-                ox, oy = box_centre(boxes, j)
-                err = box_error(boxes, j) + box_error(boxes, i)
-                row = np.zeros((1, OTHER_FIELDS))
-                told(eta[j, t, 2], before[j, 0], before[j, 1], row, 0)
-                h = B.heard_motion(ox, oy, eta[j, t, 2], row[0, 3], row[0, 4], row[0, 5],
-                                   True, err, 0.0, x, y, k, r)
-                if not h.near:
-                    continue
-                for p in pair_terms(k, r, w, h, x, y, eta[i, t, 2], spec.discs):
-                    p.update(j=j, err=err, apart=math.hypot(x - ox, y - oy))
-                    if worst is None or p["deficit"] > worst["deficit"]:
-                        worst = p
-            p = worst
-            print(f"{i + 1:5d} {t * sc.dt:5.1f} {p['j'] + 1:3d} {p['apart']:6.3f} "
-                  f"{p['dd']:6.3f} {p['err']:8.3f} {p['g']:8.3f}  {p['x_n']:6.3f} = "
-                  f"{p['hold']:5.3f} + {p['brake']:5.3f} + {p['turn']:5.3f} "
-                  f"{p['b_i']:6.3f} {p['b_j']:+6.3f} ({p['r_j']:+6.3f}, {p['turn_j']:5.3f}) "
-                  f"{p['slack']:6.3f} {p['share']:6.3f} {1000 * p['deficit']:+6.1f} mm")
-        prev[:] = d.u[:, t]
+            ox, oy = box_centre(st.boxes, j)
+            err = box_error(st.boxes, j) + box_error(st.boxes, i)
+            h, pairs = heard_pairs(st, sc.desired.u, t, i, j, x, y, ox, oy, err)
+            if not h.near:
+                continue
+            for pair in pairs:
+                pair.update(j=j, err=err, apart=math.hypot(x - ox, y - oy))
+                if worst is None or pair["deficit"] > worst["deficit"]:
+                    worst = pair
+        assert worst is not None, "a changed command has a robot near"
+        p = worst
+        print(f"{i + 1:5d} {t * sc.dt:5.1f} {p['j'] + 1:3d} {p['apart']:6.3f} "
+              f"{p['dd']:6.3f} {p['err']:8.3f} {p['g']:8.3f}  {p['x_n']:6.3f} = "
+              f"{p['hold']:5.3f} + {p['brake']:5.3f} + {p['turn']:5.3f} "
+              f"{p['b_i']:6.3f} {p['b_j']:+6.3f} ({p['r_j']:+6.3f}, {p['turn_j']:5.3f}) "
+              f"{p['slack']:6.3f} {p['share']:6.3f} {1000 * p['deficit']:+6.1f} mm")
     print(f"{changed} commands changed")
     return 0
 

@@ -37,20 +37,18 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from filter_binds import pair_terms  # noqa: E402
+from filter_binds import Through, changed_commands, heard_pairs  # noqa: E402
 
 from formation_ilc.config.scenario import load_scenario  # noqa: E402
-from formation_ilc.core import barrier as B  # noqa: E402
-from formation_ilc.core.estimate import BOX, box_centre, box_error  # noqa: E402
-from formation_ilc.core.safety import CHANGED, OTHER_FIELDS, filter_team, told  # noqa: E402
-from formation_ilc.model.safety import TOLERANCE, body_spec  # noqa: E402
+from formation_ilc.core.estimate import box_centre, box_error  # noqa: E402
 
 LEVERS = ("now", "support", "intent", "intent+support")
 
 
-def deficits(k, params, discs, boxes, eta, before, wish, applied, t, i, j, lever):
+def deficits(st: Through, wish, t, i, j, lever):
     """The worst deficit [m] over the pairs of discs of robots i and j under ``lever``:
-    robot i's ``wish`` against robot j, whose intention is what it ``applied``."""
+    robot i's ``wish`` against robot j, whose intention is what the filter left it."""
+    boxes = st.boxes
     support, intent = "support" in lever, "intent" in lever
     xi, yi = box_centre(boxes, i)
     xj, yj = box_centre(boxes, j)
@@ -63,19 +61,9 @@ def deficits(k, params, discs, boxes, eta, before, wish, applied, t, i, j, lever
         err = abs(nx) * (hw[0][0] + hw[1][0]) + abs(ny) * (hw[0][1] + hw[1][1])
     else:
         err = box_error(boxes, i) + box_error(boxes, j)
-
-    def side(a, b, xa, ya, xb, yb, cmd):
-        r = B.own_reach(float(before[a, 0]), float(before[a, 1]), k, params)
-        w = B.wish_reach(float(cmd[a, t, 0]), float(cmd[a, t, 1]), k, r, True)
-        row = np.zeros((1, OTHER_FIELDS))
-        told(eta[b, t, 2], before[b, 0], before[b, 1], row, 0)
-        h = B.heard_motion(xb, yb, eta[b, t, 2], row[0, 3], row[0, 4], row[0, 5], True, err,
-                           0.0, xa, ya, k, r)
-        return h, pair_terms(k, r, w, h, xa, ya, eta[a, t, 2], discs)
-
-    h, rows_i = side(i, j, xi, yi, xj, yj, wish)
-    _, rows_j = side(j, i, xj, yj, xi, yi, applied)
-    nd = len(discs)
+    h, rows_i = heard_pairs(st, wish, t, i, j, xi, yi, xj, yj, err)
+    _, rows_j = heard_pairs(st, st.u, t, j, i, xj, yj, xi, yi, err)
+    nd = len(st.spec.discs)
     worst = -math.inf
     for a in range(nd):
         for b in range(nd):
@@ -93,45 +81,21 @@ def main() -> int:
     ap.add_argument("--base", default="p3dx")
     a = ap.parse_args()
     sc = load_scenario(a.scenario).for_plant("arc")
-    noisy = sc.uncertainty.noisy
-    spec = body_spec(a.base, sc.dt, sc.uncertainty if noisy else None, "commands")
-    d = sc.desired
-    eta = np.ascontiguousarray(d.eta)
-    if noisy:
-        eta = np.ascontiguousarray(
-            eta + sc.uncertainty.draw_plant(sc.seed, 0, eta.shape[0], d.u.shape[1])[2])
-    n, n_t = d.u.shape[0], d.u.shape[1]
-    u = np.array(d.u, dtype=float)
-    nominal, flags = np.empty_like(u), np.zeros((n, n_t), dtype=np.int64)
-    prev, params = np.zeros((n, 2)), spec.params()
-    k = B.numbers(params)
-    others, ages, boxes = np.zeros((n, OTHER_FIELDS)), np.zeros(n), np.zeros((n, BOX))
+    wish = sc.desired.u
     print(f"{a.scenario} on {a.base}: the binding pair's deficit [mm] per changed command "
           f"(> 0: the barrier cuts the desired command)")
     print("robot  t[s]  vs  " + "  ".join(f"{m:>15s}" for m in LEVERS))
     left = dict.fromkeys(LEVERS, 0)
-    for t in range(n_t):
-        before = prev.copy()
-        filter_team.jit(t, u, eta, prev, 0.0, params, spec.window, nominal, flags, others,
-                        ages, boxes)
-        diff = np.abs(u[:, t] - d.u[:, t])
-        for i in range(n):
-            if not (flags[i, t] & CHANGED and (diff[i, 0] > TOLERANCE[0]
-                                               or diff[i, 1] > TOLERANCE[1])):
-                continue
-            # the robot whose pair binds hardest now
-            js = [j for j in range(n) if j != i]
-            now = [deficits(k, params, spec.discs, boxes, eta, before, d.u, u, t, i, j, "now")
-                   for j in js]
-            j = js[int(np.argmax(now))]
-            # each lever judged on every other robot's pairs, not only the binding one's
-            row = [max(deficits(k, params, spec.discs, boxes, eta, before, d.u, u, t, i, o, m)
-                       for o in js) for m in LEVERS]
-            for m, x in zip(LEVERS, row, strict=True):
-                left[m] += x > 0.0
-            print(f"{i + 1:5d} {t * sc.dt:5.1f} {j + 1:3d}  "
-                  + "  ".join(f"{1000 * x:+15.1f}" for x in row))
-        prev[:] = d.u[:, t]
+    for st, t, i in changed_commands(sc, a.base, sc.uncertainty.noisy):
+        # the robot whose pair binds hardest now
+        js = [j for j in range(sc.n) if j != i]
+        j = js[int(np.argmax([deficits(st, wish, t, i, j, "now") for j in js]))]
+        # each lever judged on every other robot's pairs, not only the binding one's
+        row = [max(deficits(st, wish, t, i, o, m) for o in js) for m in LEVERS]
+        for m, x in zip(LEVERS, row, strict=True):
+            left[m] += x > 0.0
+        print(f"{i + 1:5d} {t * sc.dt:5.1f} {j + 1:3d}  "
+              + "  ".join(f"{1000 * x:+15.1f}" for x in row))
     print("commands still cut: " + ", ".join(f"{m} {left[m]}" for m in LEVERS))
     return 0
 
