@@ -19,6 +19,7 @@ from formation_ilc.core.names import (
     TF_STATIC,
     TRIAL_EVENTS,
     recorded_topics,
+    topic_kind,
     view_topics,
 )
 from msgs_schema.diagnostics import DIAGNOSTICS_TYPE
@@ -41,7 +42,8 @@ _VECTOR = "geometry_msgs/msg/Vector3Stamped"
 #: tf2's message: not on PyPI, built into the venv by scripts/build_tf2_msgs.py
 TF_TYPE = "tf2_msgs/msg/TFMessage"
 
-#: type and offered QoS of each topic, robot i's by the part after ``robot_i/``
+#: type and offered QoS of each kind of topic (``names.topic_kind``: robot i's by the part
+#: after ``robot_i/``)
 _TYPES: dict[str, tuple[str, QoSProfile]] = {
     CONFIG: (_STRING, LATCHED_QOS),
     REFERENCE: (_POSE, SAMPLE_QOS),
@@ -66,8 +68,7 @@ _TYPES: dict[str, tuple[str, QoSProfile]] = {
 
 
 def _row(topic: str) -> tuple[str, str, QoSProfile]:
-    kind = topic if topic in _TYPES else topic.split("/", 1)[1]
-    return (topic, *_TYPES[kind])
+    return (topic, *_TYPES[topic_kind(topic)[0]])
 
 
 def topic_table(n: int) -> list[tuple[str, str, QoSProfile]]:

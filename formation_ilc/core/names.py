@@ -360,6 +360,7 @@ SHARED_TOPICS = frozenset({CONFIG, REFERENCE, TRIAL_EVENTS, READY, DIAGNOSTICS,
                            ROS_DIAGNOSTICS, ESTOP, CLOCK, TF, TF_STATIC, MARKERS, PREVIEW,
                            TEAM_POSES, HOSTS_RUN})
 
+
 def topic_kind(topic: str) -> tuple[str, str, str]:
     """What the relative name ``topic`` is, as (kind, node, sender), the inverse of the
     topic functions above. A topic of a node's own name is the part after that name, and
