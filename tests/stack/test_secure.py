@@ -553,8 +553,9 @@ def test_secure_bases_with_physics_bases_equal_the_insecure_run(ros_env, tmp_pat
     def tried_every_truth() -> bool:
         # the run goes on until the insider has found all three truth topics (a secure
         # graph lists a participant's writers one by one: a run stopped after its second
-        # trial once left the insider with two of three, 2026-12-07)
-        return said_file.read_text().count('/truth"') >= 3
+        # trial once left the insider with two of three, 2026-12-07); an insider that
+        # ended is not waited for (what it said is asserted below)
+        return forger.poll() is not None or said_file.read_text().count('/truth"') >= 3
 
     with said_file.open("w") as fh:
         forger = subprocess.Popen(
